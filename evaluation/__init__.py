@@ -1,0 +1,1 @@
+"""The paper's quantitative test: random samples, the trajectory cost and the reports."""

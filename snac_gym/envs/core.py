@@ -1,0 +1,352 @@
+"""The Gymnasium env that joins the PyBullet arm, the shared kinematics and a task."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+
+from snac_gym.cost import _weight, instantaneous_cost, quadratic_form
+from snac_gym.envs.robot import SimulatedArm
+from snac_gym.envs.sim import PyBulletSim
+from snac_gym.envs.tasks import TASKS, Task
+from snac_gym.kinematics import Kinematics
+from snac_gym.observation import ObservationLayout
+from snac_gym.references import Reference
+from snac_gym.sampling import SampleSpace, sample_seed_pose
+
+_ENV_DOC = """
+    ## Description
+    A {robot_desc} arm under joint-velocity control (``ẋ = J u``, eq. 3) simulated in PyBullet.
+    {task_desc}
+
+    ## Action Space
+    ``Box(-v_max, v_max, (m,), float64)``: the commanded joint velocities u = θ̇ in rad/s,
+    applied by PyBullet ``VELOCITY_CONTROL`` motors (each bounded by its URDF effort) and held
+    for one control period ``dt``. ``v_max`` are the URDF limits (UR10: 2.16, 2.16, 3.15, 3.2,
+    3.2, 3.2 rad/s). An action outside the box is **clipped** to it (``info["command"]`` holds
+    what was applied); an action with NaN/inf or of the wrong shape raises ``ValueError``.
+
+    ## Observation Space
+    ``Box(-inf, inf, (2m + 5n,), float64)``, m joints and task dimension n = 3 (UR10: 27 values).
+    Positions are in the robot's ``base`` frame (the frame the UR pendant shows).
+
+    | Index (UR10) | Observation                                    | Unit  |
+    |--------------|------------------------------------------------|-------|
+    | 0–5          | joint positions θ                              | rad   |
+    | 6–11         | joint velocities θ̇ (measured)                 | rad/s |
+    | 12–14        | end-effector (``tool0``) position x = f(θ)     | m     |
+    | 15–17        | desired position x_d(t)                        | m     |
+    | 18–20        | desired velocity ẋ_d(t)                        | m/s   |
+    | 21–23        | error e = x − x_d (eq. 4)                      | m     |
+    | 24–26        | reference centre: {centre_desc}                | m     |
+
+    ``env.unwrapped.obs_layout.unpack(obs)`` returns these as named fields.
+
+    ## Rewards
+    ``reward_type="dense"`` (default): ``−(eₖᵀQeₖ + uₖᵀRuₖ)``, the negative of the paper's
+    instantaneous cost (eq. 6) with eₖ the error at the start of the step and uₖ the applied
+    command, Q = I₃, R = I₆ by default; so ``−Σ reward·dt`` is the error and effort part of the
+    evaluator's trajectory cost. ``reward_type="sparse"``: 0 when ``is_success`` after the
+    step, −1 otherwise. ``info`` carries ``error`` (vector after the step), ``error_norm``,
+    ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇ with u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),
+    ``command``, ``t`` and ``is_success`` ({success_desc}).
+
+    ## Starting State
+    ``reset(seed=None, options=None)``: with no options, a random seed pose (end effector in the
+    sample cuboid, away from singularities and joint limits) and a {random_desc}, drawn from
+    ``self.np_random``. ``options`` pins them exactly, to replay any run:
+
+    | key        | value                                                                  |
+    |------------|------------------------------------------------------------------------|
+    | ``q0``     | start joint positions, rad (missing: random)                           |
+    | ``{key}`` | {key_desc} (missing when options are given: {paper_desc})               |
+
+    Unknown keys raise ``ValueError``; a point outside the reachable workspace raises a
+    ``ValueError`` naming it. Every reset restores the simulator state saved after loading
+    (velocities, motor targets and solver caches included), then poses the joints at rest.
+
+    ## Episode End
+    {end_desc} Truncation after ``max_steps`` control steps (default {default_steps}, i.e.
+    {default_seconds:g} s at 125 Hz).
+
+    ## Arguments
+    ``gym.make("snac_gym/{env_id}", **kwargs)``; unknown arguments raise ``TypeError``.
+
+    | argument               | default      | meaning                                            |
+    |------------------------|--------------|----------------------------------------------------|
+    | ``robot``              | ``"ur10"``   | ``ur3``, ``ur5`` or ``ur10`` from example-robot-data  |
+    | ``dt``                 | ``1/125``    | control period, s (``env.unwrapped.dt``)           |
+    | ``n_substeps``         | ``4``        | physics steps per control period                   |
+    | ``max_steps``          | {default_steps}       | episode length in control steps                    |
+    | ``reward_type``        | ``"dense"``  | ``"dense"`` or ``"sparse"``                        |
+    | ``Q``, ``R``           | identity     | cost weights (matrix or diagonal)                  |
+    | ``success_tolerance``  | {tol_default}    | success threshold on the error norm, m             |
+    | ``terminate_on_success`` | ``False``  | reach only: end the episode on success             |
+    | ``sample_space``       | UR10 cuboid  | a :class:`~snac_gym.sampling.SampleSpace`          |
+    | ``render_mode``        | ``None``     | ``"rgb_array"`` (headless) or ``"human"`` (GUI)     |
+    | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``                 |
+
+    ## Version History
+    * v0: initial version.
+"""
+
+
+class URTaskEnv(gym.Env):
+    """Base class of the snac-gym envs; see the registered subclasses for the documentation."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
+    task_class: type[Task] = Task
+    default_max_steps = 1000
+    default_success_tolerance = 1e-3
+
+    def __init__(
+        self,
+        robot: str = "ur10",
+        dt: float = 1.0 / 125.0,
+        n_substeps: int = 4,
+        max_steps: int | None = None,
+        reward_type: str = "dense",
+        Q: np.ndarray | None = None,
+        R: np.ndarray | None = None,
+        success_tolerance: float | None = None,
+        terminate_on_success: bool = False,
+        sample_space: SampleSpace | None = None,
+        render_mode: str | None = None,
+        render_width: int = 480,
+        render_height: int = 480,
+    ) -> None:
+        self._init_kwargs = dict(
+            robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
+            success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
+            sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
+        )
+        if reward_type not in ("dense", "sparse"):
+            raise ValueError(f"reward_type must be 'dense' or 'sparse', got {reward_type!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.max_steps = self.default_max_steps if max_steps is None else int(max_steps)
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps must be at least 1, got {max_steps}")
+        self.success_tolerance = self.default_success_tolerance if success_tolerance is None else float(success_tolerance)
+        if not self.success_tolerance > 0:
+            raise ValueError(f"success_tolerance must be positive, got {success_tolerance}")
+
+        self.task: Task = self.task_class()
+        self.task_name = self.task.name
+        self.kinematics = Kinematics(robot)
+        m, n = self.kinematics.n_joints, self.kinematics.task_dim
+        self.Q = _weight(Q, n, "Q")
+        self.R = _weight(R, m, "R")
+        self.reward_type = reward_type
+        self.terminate_on_success = bool(terminate_on_success)
+        self.sample_space = sample_space if sample_space is not None else SampleSpace.for_robot(self.kinematics)
+        self.render_mode = render_mode
+        self.render_width, self.render_height = int(render_width), int(render_height)
+
+        self.sim = PyBulletSim(dt, n_substeps, gui=render_mode == "human")
+        self.dt = self.sim.dt
+        self.arm = SimulatedArm(self.sim, self.kinematics)
+        self._initial_state = self.sim.save_state()
+        self._marker: int | None = None
+
+        self.velocity_limits = self.kinematics.velocity_limits.copy()
+        self.obs_layout = ObservationLayout(m, n)
+        self._error_slice = self.obs_layout.slices["e"]
+        self.action_space = gym.spaces.Box(-self.velocity_limits, self.velocity_limits, dtype=np.float64)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.obs_layout.size,), dtype=np.float64)
+
+        self.reference: Reference = self.task.paper()
+        self.steps = 0
+        self._last_command = np.zeros(m)
+        self._obs: np.ndarray | None = None
+
+    # -- episode -----------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """Simulated time since reset, s."""
+        return self.steps * self.dt
+
+    def _observe(self) -> np.ndarray:
+        q, qdot = self.arm.joint_state()
+        t = self.time
+        return self.obs_layout.pack(
+            q, qdot, self.kinematics.forward(q), self.reference.position(t), self.reference.velocity(t), self.reference.centre
+        )
+
+    def _parse_options(self, options: Mapping[str, Any] | None) -> tuple[np.ndarray, Reference]:
+        rng = self.np_random
+        key = self.task.option_key
+        if options is None:
+            options = {}
+            reference = self.task.sample(self.kinematics, rng, self.sample_space)
+        else:
+            if not isinstance(options, Mapping):
+                raise ValueError(f"options must be a dict, got {type(options).__name__}")
+            unknown = set(options) - {"q0", key}
+            if unknown:
+                raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: ['q0', '{key}']")
+            reference = self.task.parse(options[key], self.kinematics) if key in options else self.task.paper()
+        if options.get("q0") is None:
+            q0 = sample_seed_pose(self.kinematics, rng, self.sample_space)
+        else:
+            q0 = np.array(options["q0"], dtype=float)
+            k = self.kinematics
+            if q0.shape != (k.n_joints,) or not np.all(np.isfinite(q0)):
+                raise ValueError(f"options['q0'] must be {k.n_joints} finite joint angles, got {options['q0']!r}")
+            outside = np.flatnonzero((q0 < k.lower_limits) | (q0 > k.upper_limits))
+            if outside.size:
+                j = int(outside[0])
+                raise ValueError(
+                    f"options['q0'][{j}] = {q0[j]} rad is outside the joint limits [{k.lower_limits[j]}, {k.upper_limits[j]}]"
+                )
+        return q0, reference
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        q0, reference = self._parse_options(options)
+        self.sim.restore_state(self._initial_state)
+        self.arm.set_joint_positions(q0)
+        self.reference = reference
+        self.steps = 0
+        self._last_command = np.zeros(self.kinematics.n_joints)
+        self._obs = self._observe()
+        if self.render_mode == "human":
+            self.render()
+        error = self.obs_layout.unpack(self._obs).e
+        info = {"error": error.copy(), "error_norm": float(np.linalg.norm(error)), "t": 0.0,
+                "is_success": self._is_success(error), "reference": self.reference.to_dict(), "q0": q0.copy()}
+        return self._obs.copy(), info
+
+    def _is_success(self, error: np.ndarray) -> bool:
+        return bool(error @ error <= self.success_tolerance**2)
+
+    def _validate_action(self, action: Any) -> np.ndarray:
+        try:
+            u = np.array(action, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"action must be {self.kinematics.n_joints} joint velocities in rad/s, got {action!r}") from exc
+        if u.shape != self.action_space.shape:
+            raise ValueError(f"action must have shape {self.action_space.shape} (joint velocities, rad/s), got {u.shape}")
+        if not np.isfinite(u).all():
+            raise ValueError(f"action contains NaN or inf: {u.tolist()}")
+        return np.minimum(np.maximum(u, -self.velocity_limits), self.velocity_limits)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._obs is None:
+            raise RuntimeError("call reset() before step()")
+        u = self._validate_action(action)
+        error_before = self._obs[self._error_slice]
+        cost_error, cost_effort = instantaneous_cost(error_before, u, self.Q, self.R)  # eq. 6 integrand
+        cost_smoothness = float(quadratic_form((u - self._last_command) / self.dt, self.R))
+
+        self.arm.command_velocities(u)
+        self.sim.step()
+        self.steps += 1
+        self._last_command = u
+        self._obs = self._observe()
+
+        error = self._obs[self._error_slice]
+        success = self._is_success(error)
+        reward = -(cost_error + cost_effort) if self.reward_type == "dense" else (0.0 if success else -1.0)
+        terminated = self.terminate_on_success and success
+        truncated = self.steps >= self.max_steps
+        info = {
+            "error": error.copy(), "error_norm": math.sqrt(error @ error), "cost_error": cost_error,
+            "cost_effort": cost_effort, "cost_smoothness": cost_smoothness, "command": u.copy(), "t": self.time,
+            "is_success": success,
+        }
+        if self.render_mode == "human":
+            self.render()
+        return self._obs.copy(), float(reward), terminated, truncated, info
+
+    # -- rendering -----------------------------------------------------------------------------
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        if self._marker is None:
+            self._marker = self.sim.add_marker()
+        self.sim.move_marker(self._marker, self.kinematics.base_to_world(self.reference.position(self.time)))
+        if self.render_mode == "rgb_array":
+            return self.sim.render(self.render_width, self.render_height, target=np.array([0.0, 0.0, 0.5]))
+        return None
+
+    def close(self) -> None:
+        if getattr(self, "sim", None) is not None:
+            self.sim.close()
+
+    # -- pickling: rebuild the simulator from the arguments and put the episode back ----------
+    def __getstate__(self) -> dict[str, Any]:
+        state: dict[str, Any] = {"kwargs": self._init_kwargs, "np_random_state": None, "episode": None}
+        if self._np_random is not None:
+            state["np_random_state"] = self._np_random.bit_generator.state
+        if self._obs is not None:
+            q, qdot = self.arm.joint_state()
+            state["episode"] = (q, qdot, self.reference, self.steps, self._last_command.copy())
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(**state["kwargs"])  # type: ignore[misc]
+        if state["np_random_state"] is not None:
+            self._np_random = np.random.Generator(np.random.PCG64())
+            self._np_random.bit_generator.state = state["np_random_state"]
+        if state["episode"] is not None:
+            q, qdot, self.reference, self.steps, self._last_command = state["episode"]
+            self.sim.restore_state(self._initial_state)
+            self.arm.set_joint_positions(q, qdot)
+            self.arm.command_velocities(self._last_command)
+            self._obs = self._observe()
+
+
+def _document(cls: type[URTaskEnv], env_id: str, **text: Any) -> type[URTaskEnv]:
+    steps = cls.default_max_steps
+    cls.__doc__ = (cls.__doc__ or "") + _ENV_DOC.format(
+        env_id=env_id, default_steps=steps, default_seconds=steps / 125.0,
+        tol_default=f"``{cls.default_success_tolerance:g}``", **text
+    )
+    return cls
+
+
+class UR10ReachEnv(URTaskEnv):
+    """``snac_gym/UR10Reach-v0``: optimal regulation, reach a fixed target point (Section III)."""
+
+    task_class = TASKS["reach"]
+    default_max_steps = 1000
+    default_success_tolerance = 1e-3
+
+
+class UR10EllipseTrackEnv(URTaskEnv):
+    """``snac_gym/UR10EllipseTrack-v0``: optimal tracking of a point moving on an ellipse (Section IV)."""
+
+    task_class = TASKS["track"]
+    default_max_steps = 2500
+    default_success_tolerance = 5e-3
+
+
+_document(
+    UR10ReachEnv, "UR10Reach-v0", robot_desc="Universal Robots UR10",
+    task_desc="The end effector must reach a fixed target x_d and stay there (x_d constant, ẋ_d = 0).",
+    centre_desc="the target", success_desc="‖e‖ ≤ ``success_tolerance``, default 1 mm",
+    random_desc="random target in the cuboid", key="target", key_desc="target position, 3 numbers, m",
+    paper_desc="the paper's target [-0.658, 0.626, 0.407] m",
+    end_desc="Termination on success only with ``terminate_on_success=True``.",
+)
+_document(
+    UR10EllipseTrackEnv, "UR10EllipseTrack-v0", robot_desc="Universal Robots UR10",
+    task_desc=(
+        "The end effector must follow x_d(t) moving on an ellipse (centre, semi-axes, plane orientation,"
+        " angular speed, phase), with ẋ_d(t) known; see :class:`~snac_gym.references.Ellipse`."
+    ),
+    centre_desc="the ellipse centre (so x_d − x_c gives φ(0) = 0, eq. 29)",
+    success_desc="‖e‖ ≤ ``success_tolerance``, default 5 mm",
+    random_desc="random feasible ellipse (wholly reachable, checked with the kinematics)", key="ellipse",
+    key_desc="dict with ``centre``, ``semi_axes`` or ``radius``, ``orientation``, ``angular_speed``, ``phase`` "
+    "(see :class:`~snac_gym.references.Ellipse`)",
+    paper_desc="the paper's circle, radius 0.2 m around [-0.7, 0, 0.5] m in the horizontal plane, 0.075 rad/s",
+    end_desc="Tracking never terminates; it only truncates.",
+)

@@ -1,0 +1,127 @@
+"""A thin wrapper around one PyBullet physics client (the panda-gym split: sim / robot / task / env)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+from typing import Any, Iterator
+
+import numpy as np
+
+
+@contextlib.contextmanager
+def _quiet_output() -> Iterator[None]:
+    """Silence C-level stdout and stderr (PyBullet prints its build time on import and on connect)."""
+    streams = [sys.stdout, sys.stderr]
+    saved: list[tuple[int, int]] = []
+    try:
+        for stream in streams:
+            stream.flush()
+            fd = stream.fileno()
+            saved.append((fd, os.dup(fd)))
+    except (AttributeError, OSError, ValueError):  # captured or fake streams: nothing to silence
+        for _, copy in saved:
+            os.close(copy)
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        for fd, _ in saved:
+            os.dup2(devnull, fd)
+        yield
+    finally:
+        for fd, copy in saved:
+            os.dup2(copy, fd)
+            os.close(copy)
+        os.close(devnull)
+
+
+with _quiet_output():
+    import pybullet as _pybullet
+
+p: Any = _pybullet
+
+
+class PyBulletSim:
+    """One PyBullet client that advances by a control period split into physics substeps.
+
+    Args:
+        dt: Control period in seconds: one :meth:`step` advances the world by ``dt``.
+        n_substeps: Physics steps per control period (physics step ``dt / n_substeps``).
+        gui: Open the PyBullet GUI (needs a display) instead of the headless DIRECT client.
+        gravity: Gravity along −z, m/s².
+    """
+
+    def __init__(self, dt: float, n_substeps: int, gui: bool = False, gravity: float = 9.81) -> None:
+        if not dt > 0:
+            raise ValueError(f"dt must be positive, got {dt}")
+        if int(n_substeps) != n_substeps or n_substeps < 1:
+            raise ValueError(f"n_substeps must be a positive integer, got {n_substeps}")
+        self.dt = float(dt)
+        self.n_substeps = int(n_substeps)
+        if gui and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+            # PyBullet would call exit() on a failed GUI connection, killing the caller.
+            raise RuntimeError(
+                "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set; "
+                "use render_mode='rgb_array' to render headless"
+            )
+        with _quiet_output():
+            self.client = p.connect(p.GUI if gui else p.DIRECT)
+        if self.client < 0:
+            raise RuntimeError("could not connect to PyBullet" + (" GUI (is there a display?)" if gui else ""))
+        if gui:
+            p.configureDebugVisualizer(p.COV_ENABLE_GUI, 0, physicsClientId=self.client)
+        # One stepSimulation call advances dt in n_substeps fixed steps: one Python call per control step.
+        p.setPhysicsEngineParameter(
+            fixedTimeStep=self.dt, numSubSteps=self.n_substeps, deterministicOverlappingPairs=1,
+            # The arm touches nothing, so there are no friction cones to solve.
+            enableConeFriction=0, physicsClientId=self.client,
+        )
+        p.setGravity(0.0, 0.0, -gravity, physicsClientId=self.client)
+
+    def load_urdf_text(self, urdf_text: str, flags: int = 0) -> int:
+        """Load a URDF given as text (a temporary file is written and removed), base fixed."""
+        with tempfile.NamedTemporaryFile("w", suffix=".urdf", delete=False) as handle:
+            handle.write(urdf_text)
+            path = handle.name
+        try:
+            with _quiet_output():  # merging fixed links prints a trace to stdout
+                return p.loadURDF(path, useFixedBase=True, flags=flags, physicsClientId=self.client)
+        finally:
+            os.unlink(path)
+
+    def step(self) -> None:
+        p.stepSimulation(physicsClientId=self.client)
+
+    def save_state(self) -> int:
+        return p.saveState(physicsClientId=self.client)
+
+    def restore_state(self, state_id: int) -> None:
+        p.restoreState(stateId=state_id, physicsClientId=self.client)
+
+    def add_marker(self, radius: float = 0.015, rgba: tuple[float, ...] = (0.1, 0.8, 0.1, 0.8)) -> int:
+        """A visual-only sphere (no collision, no mass) to show the reference point."""
+        shape = p.createVisualShape(p.GEOM_SPHERE, radius=radius, rgbaColor=rgba, physicsClientId=self.client)
+        return p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, physicsClientId=self.client)
+
+    def move_marker(self, body: int, position: np.ndarray) -> None:
+        p.resetBasePositionAndOrientation(body, list(position), [0, 0, 0, 1], physicsClientId=self.client)
+
+    def render(self, width: int, height: int, target: np.ndarray, distance: float = 2.2) -> np.ndarray:
+        """An RGB image (``(height, width, 3)`` uint8) from a camera orbiting ``target``, headless-safe."""
+        view = p.computeViewMatrixFromYawPitchRoll(
+            cameraTargetPosition=list(target), distance=distance, yaw=45.0, pitch=-25.0, roll=0.0, upAxisIndex=2,
+            physicsClientId=self.client,
+        )
+        proj = p.computeProjectionMatrixFOV(fov=50.0, aspect=width / height, nearVal=0.05, farVal=10.0, physicsClientId=self.client)
+        _, _, rgba, _, _ = p.getCameraImage(
+            width, height, viewMatrix=view, projectionMatrix=proj, renderer=p.ER_TINY_RENDERER, physicsClientId=self.client
+        )
+        return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3].copy()
+
+    def close(self) -> None:
+        if self.client >= 0 and p.isConnected(self.client):
+            p.disconnect(self.client)
+        self.client = -1

@@ -1,0 +1,223 @@
+"""Position kinematics of a serial arm, loaded from a maintained URDF with Pinocchio.
+
+This is the project's single source of forward kinematics and Jacobians: the
+environments, every controller and the evaluator call an instance of
+:class:`Kinematics`; nothing else computes ``f(θ)`` or ``J(θ)``.
+
+Task coordinates are the position of an end-effector frame (``tool0`` for the UR
+arms) expressed in a base frame (``base`` for the UR arms, the frame the UR
+pendant shows, rotated π about z from the URDF's ``base_link``), so the paper's
+numbers (seed pose, target, circle centre) work unchanged.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+#: Robots of ``example-robot-data`` that work through the same code.
+ROBOT_URDFS: dict[str, str] = {
+    "ur3": "ur_description/urdf/ur3_robot.urdf",
+    "ur5": "ur_description/urdf/ur5_robot.urdf",
+    "ur10": "ur_description/urdf/ur10_robot.urdf",
+}
+
+_PACKAGE_PREFIX = "package://example-robot-data/robots/"
+
+
+@lru_cache(maxsize=1)
+def robots_directory() -> Path:
+    """Return the ``robots/`` folder that the ``example-robot-data`` wheel installs.
+
+    Raises:
+        RuntimeError: If the package is not installed.
+    """
+    try:
+        dist = importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError as exc:  # pragma: no cover - install error
+        raise RuntimeError(
+            "example-robot-data is not installed; `pip install example-robot-data` provides the UR URDFs"
+        ) from exc
+    path = Path(str(dist.locate_file("cmeel.prefix/share/example-robot-data/robots")))
+    if not path.is_dir():  # pragma: no cover - broken install
+        raise RuntimeError(f"example-robot-data is installed but {path} does not exist")
+    return path
+
+
+def robot_urdf_path(robot: str) -> Path:
+    """Path of the URDF shipped by ``example-robot-data`` for ``robot`` (``ur3``, ``ur5``, ``ur10``).
+
+    Raises:
+        ValueError: If ``robot`` is not one of :data:`ROBOT_URDFS`.
+    """
+    key = robot.lower()
+    if key not in ROBOT_URDFS:
+        raise ValueError(f"unknown robot {robot!r}; choose one of {sorted(ROBOT_URDFS)}")
+    return robots_directory() / ROBOT_URDFS[key]
+
+
+def resolved_urdf_text(urdf_path: str | Path) -> str:
+    """URDF text with ``package://example-robot-data/robots/`` mesh URIs made absolute.
+
+    PyBullet does not resolve ROS ``package://`` URIs, so the simulator loads this text
+    (written to a temporary file) instead of copying meshes into the repository.
+    """
+    text = Path(urdf_path).read_text()
+    return text.replace(_PACKAGE_PREFIX, str(robots_directory()) + "/")
+
+
+class Kinematics:
+    """Forward kinematics and position Jacobian of a serial arm, ``ẋ = J(θ) θ̇`` (eqs. 1–3).
+
+    Args:
+        robot: Name of a robot in :data:`ROBOT_URDFS` (default ``"ur10"``). Ignored when
+            ``urdf_path`` is given.
+        ee_frame: URDF frame whose origin is the controlled point (default ``"tool0"``).
+        base_frame: URDF frame in which positions, velocities and Jacobians are expressed
+            (default ``"base"``).
+        urdf_path: Optional path of another URDF with revolute joints only.
+
+    Attributes:
+        n_joints: Number of actuated joints ``m``.
+        task_dim: Dimension ``n`` of the task space (3: end-effector position).
+        joint_names: Names of the actuated joints, in configuration order.
+        velocity_limits: Joint speed limits from the URDF, rad/s, shape ``(m,)``.
+        lower_limits, upper_limits: Joint position limits from the URDF, rad, shape ``(m,)``.
+
+    The object keeps a Pinocchio ``Data`` workspace, so one instance must not be shared
+    between threads; processes each build their own (instances pickle by their arguments).
+    """
+
+    task_dim: int = 3
+
+    def __init__(
+        self,
+        robot: str = "ur10",
+        ee_frame: str = "tool0",
+        base_frame: str = "base",
+        urdf_path: str | Path | None = None,
+    ) -> None:
+        self.robot = robot
+        self.ee_frame = ee_frame
+        self.base_frame = base_frame
+        self.urdf_path = Path(urdf_path) if urdf_path is not None else robot_urdf_path(robot)
+        if not self.urdf_path.is_file():
+            raise ValueError(f"URDF file not found: {self.urdf_path}")
+        self.model = pin.buildModelFromUrdf(str(self.urdf_path))
+        if self.model.nq != self.model.nv:
+            raise ValueError(
+                f"{self.urdf_path.name}: only revolute/prismatic joints are supported (nq={self.model.nq}, nv={self.model.nv})"
+            )
+        self.data = self.model.createData()
+        self._ee_id = self._frame_id(ee_frame)
+        base_id = self._frame_id(base_frame)
+        if self.model.frames[base_id].parentJoint != 0:
+            raise ValueError(f"base frame {base_frame!r} must be fixed to the world, not carried by a joint")
+        pin.framesForwardKinematics(self.model, self.data, pin.neutral(self.model))
+        world_from_base = self.data.oMf[base_id]
+        # Rows of this matrix rotate world-frame vectors into the base frame.
+        self._base_from_world = np.ascontiguousarray(world_from_base.rotation.T)
+        self._base_origin = world_from_base.translation.copy()
+
+        self.n_joints: int = int(self.model.nq)
+        self.joint_names: tuple[str, ...] = tuple(self.model.names[1:])
+        self.velocity_limits = np.array(self.model.velocityLimit, dtype=float)
+        self.lower_limits = np.array(self.model.lowerPositionLimit, dtype=float)
+        self.upper_limits = np.array(self.model.upperPositionLimit, dtype=float)
+
+    def _frame_id(self, name: str) -> int:
+        if not self.model.existFrame(name):
+            names = [f.name for f in self.model.frames]
+            raise ValueError(f"frame {name!r} not in {self.urdf_path.name}; frames: {names}")
+        return int(self.model.getFrameId(name))
+
+    # -- pickling: rebuild from the arguments, the Pinocchio objects are not picklable
+    def __reduce__(self) -> tuple[Any, ...]:
+        urdf = None if self.urdf_path == robot_urdf_path(self.robot) else self.urdf_path
+        return (Kinematics, (self.robot, self.ee_frame, self.base_frame, urdf))
+
+    def __repr__(self) -> str:
+        return (
+            f"Kinematics(robot={self.robot!r}, ee_frame={self.ee_frame!r}, base_frame={self.base_frame!r}, "
+            f"n_joints={self.n_joints})"
+        )
+
+    def _check_q(self, q: np.ndarray) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.n_joints,):
+            raise ValueError(f"joint vector must have shape ({self.n_joints},), got {q.shape}")
+        return q
+
+    def forward(self, q: np.ndarray) -> np.ndarray:
+        """End-effector position ``x = f(θ)`` in the base frame, metres (eq. 1)."""
+        q = self._check_q(q)
+        pin.forwardKinematics(self.model, self.data, q)
+        world_pos = pin.updateFramePlacement(self.model, self.data, self._ee_id).translation
+        return self._base_from_world @ (world_pos - self._base_origin)
+
+    def base_to_world(self, x: np.ndarray) -> np.ndarray:
+        """Map a base-frame position to the URDF world frame (the simulator's frame)."""
+        return self._base_from_world.T @ np.asarray(x, dtype=float) + self._base_origin
+
+    def jacobian(self, q: np.ndarray) -> np.ndarray:
+        """Position Jacobian ``J = ∂f/∂θ`` in the base frame, shape ``(task_dim, n_joints)`` (eq. 2)."""
+        return self.forward_and_jacobian(q)[1]
+
+    def forward_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(f(θ), J(θ))`` from one kinematics pass; the form controllers call each step."""
+        q = self._check_q(q)
+        jac_world = pin.computeFrameJacobian(self.model, self.data, q, self._ee_id, pin.LOCAL_WORLD_ALIGNED)
+        world_pos = self.data.oMf[self._ee_id].translation
+        x = self._base_from_world @ (world_pos - self._base_origin)
+        return x, self._base_from_world @ jac_world[:3]
+
+    def forward_batch(self, qs: np.ndarray) -> np.ndarray:
+        """Positions for a batch of configurations, shape ``(B, n_joints) -> (B, task_dim)``."""
+        qs = np.asarray(qs, dtype=float)
+        return np.stack([self.forward(q) for q in qs]) if len(qs) else np.zeros((0, self.task_dim))
+
+    def singular_values(self, q: np.ndarray) -> np.ndarray:
+        """Singular values of ``J(θ)``, largest first."""
+        return np.linalg.svd(self.jacobian(q), compute_uv=False)
+
+    def inverse_position(
+        self,
+        target: np.ndarray,
+        q_init: np.ndarray,
+        tol: float = 1e-6,
+        max_iters: int = 200,
+        damping: float = 1e-2,
+    ) -> tuple[np.ndarray, bool]:
+        """Damped-least-squares position IK, used to check that points are reachable.
+
+        Args:
+            target: Desired end-effector position in the base frame, metres.
+            q_init: Starting configuration.
+            tol: Position tolerance, metres.
+            max_iters: Iteration cap.
+            damping: Levenberg-Marquardt damping λ in ``Jᵀ(JJᵀ + λ²I)⁻¹``.
+
+        Returns:
+            ``(q, converged)``: the last iterate (inside the joint limits) and whether
+            ``‖f(q) − target‖ ≤ tol``.
+        """
+        target = np.asarray(target, dtype=float)
+        q = np.clip(self._check_q(q_init).copy(), self.lower_limits, self.upper_limits)
+        eye = np.eye(self.task_dim)
+        for _ in range(max_iters):
+            x, jac = self.forward_and_jacobian(q)
+            err = target - x
+            if err @ err <= tol * tol:
+                return q, True
+            step = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * eye, err)
+            norm = np.linalg.norm(step)
+            if norm > 0.5:  # a trust region keeps the iteration from jumping across branches
+                step *= 0.5 / norm
+            q = np.clip(q + step, self.lower_limits, self.upper_limits)
+        err = target - self.forward(q)
+        return q, bool(err @ err <= tol * tol)

@@ -1,0 +1,14 @@
+"""Controllers and the interface they share."""
+
+from snac_gym.policies.base import BasePolicy, Policy, PolicyContext
+from snac_gym.policies.registry import ENTRY_POINT_GROUP, available_policies, make_policy, register_policy
+
+__all__ = [
+    "BasePolicy",
+    "ENTRY_POINT_GROUP",
+    "Policy",
+    "PolicyContext",
+    "available_policies",
+    "make_policy",
+    "register_policy",
+]

@@ -1,0 +1,78 @@
+"""Policies by name: ``make_policy("snac", env)``.
+
+Built-in policies are listed here as import paths so that importing snac-gym stays light
+(PPO pulls in torch only when asked for). Another package registers its own policy
+without touching this one through the entry-point group ``snac_gym.policies``::
+
+    [project.entry-points."snac_gym.policies"]
+    mypolicy = "mypackage.module:MyPolicy"
+
+A registered object is called as ``factory(env, **kwargs)`` and must return a
+:class:`~snac_gym.policies.base.Policy`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+from typing import Any, Callable
+
+ENTRY_POINT_GROUP = "snac_gym.policies"
+
+_BUILTIN: dict[str, str] = {
+    "snac": "snac_gym.policies.snac:SNACPolicy",
+    "dls": "baselines.dls:DLSPolicy",
+    "svf": "baselines.svf:SVFPolicy",
+    "rnn": "baselines.rnn:RNNPolicy",
+}
+_FACTORIES: dict[str, Callable[..., Any]] = {}
+
+
+def register_policy(name: str, factory: Callable[..., Any] | str, *, overwrite: bool = False) -> None:
+    """Register ``factory`` (a callable or an ``"module:attr"`` string) under ``name``."""
+    if not name or not name.replace("_", "").replace("-", "").isalnum():
+        raise ValueError(f"policy name must be alphanumeric (with - or _), got {name!r}")
+    if not overwrite and (name in _FACTORIES or name in _BUILTIN):
+        raise ValueError(f"a policy named {name!r} is already registered")
+    if isinstance(factory, str):
+        _FACTORIES.pop(name, None)
+        _BUILTIN[name] = factory
+    else:
+        _BUILTIN.pop(name, None)
+        _FACTORIES[name] = factory
+
+
+def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def available_policies() -> list[str]:
+    """Names accepted by :func:`make_policy`, built-ins and entry points together."""
+    return sorted(set(_BUILTIN) | set(_FACTORIES) | set(_entry_points()))
+
+
+def _resolve(name: str) -> Callable[..., Any]:
+    if name in _FACTORIES:
+        return _FACTORIES[name]
+    if name in _BUILTIN:
+        module, _, attr = _BUILTIN[name].partition(":")
+        return getattr(importlib.import_module(module), attr)
+    eps = _entry_points()
+    if name in eps:
+        return eps[name].load()
+    raise ValueError(f"unknown policy {name!r}; available: {', '.join(available_policies()) or 'none'}")
+
+
+def make_policy(name: str, env: Any, **kwargs: Any) -> Any:
+    """Build the policy registered as ``name`` for ``env``.
+
+    Args:
+        name: A name from :func:`available_policies`.
+        env: The env the policy will drive (a snac-gym env, wrapped or not, or a
+            :class:`~snac_gym.policies.base.PolicyContext`).
+        **kwargs: Passed to the policy's constructor (gains, seeds, ...).
+
+    Raises:
+        ValueError: If no policy is registered under ``name``.
+    """
+    return _resolve(name)(env, **kwargs)

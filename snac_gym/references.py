@@ -1,0 +1,178 @@
+"""Task-space references: a fixed target (regulation) and a point on an ellipse (tracking).
+
+Both give ``x_d(t)`` and ``ẋ_d(t)`` in the robot's base frame and a ``centre``: the
+target itself, or the ellipse centre. Tracking controllers that need ``φ(0) = 0``
+(Section IV, eq. 29) express ``x_d`` relative to this centre.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+#: The paper's seed pose θ0 (Section V), rad.
+PAPER_Q0 = (-0.51, -1.04, 1.48, -1.82, -1.45, -1.62)
+#: The paper's regulation target (Section V-B), m, base frame.
+PAPER_TARGET = (-0.658, 0.626, 0.407)
+#: The paper's tracking circle (Section V-C): centre (m), radius 0.2 m, 0.075 rad/s.
+PAPER_CIRCLE_CENTRE = (-0.7, 0.0, 0.5)
+PAPER_CIRCLE_RADIUS = 0.2
+PAPER_CIRCLE_SPEED = 0.075
+
+
+def _vector(value: Any, size: int, name: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from exc
+    if arr.shape != (size,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be {size} finite numbers, got {value!r}")
+    return arr
+
+
+def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Rotation matrix ``Rz(yaw) Ry(pitch) Rx(roll)`` (URDF convention)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+_ZERO3 = np.zeros(3)
+_ZERO3.setflags(write=False)
+
+
+@dataclass(frozen=True)
+class FixedTarget:
+    """Regulation reference: ``x_d(t) = target``, ``ẋ_d(t) = 0`` (Section III)."""
+
+    target: np.ndarray
+
+    def __post_init__(self) -> None:
+        target = _vector(self.target, 3, "target")
+        target.setflags(write=False)  # returned without copying by position(): keep it immutable
+        object.__setattr__(self, "target", target)
+
+    @property
+    def centre(self) -> np.ndarray:
+        return self.target
+
+    def position(self, t: float) -> np.ndarray:
+        return self.target
+
+    def velocity(self, t: float) -> np.ndarray:
+        return _ZERO3
+
+    def points(self, count: int = 1) -> np.ndarray:
+        """Points the reference visits (for reachability checks)."""
+        return self.target[None, :].copy()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"target": self.target.tolist()}
+
+
+@dataclass(frozen=True)
+class Ellipse:
+    """Tracking reference: a point moving on an ellipse at constant angular rate (Section IV).
+
+    ``x_d(t) = c + R (a cos(ωt + φ) ê₁ + b sin(ωt + φ) ê₂)`` and
+    ``ẋ_d(t) = R (−a ω sin(ωt + φ) ê₁ + b ω cos(ωt + φ) ê₂)``, with ``R`` the rotation of the
+    ellipse plane given as roll-pitch-yaw. With zero orientation the ellipse lies in the
+    horizontal plane z = c_z of the base frame, ``a`` along x and ``b`` along y.
+
+    Dictionary keys (``options={"ellipse": {...}}`` of the tracking env):
+
+    ============== ========= ===========================================================
+    key            unit      meaning
+    ============== ========= ===========================================================
+    centre         m         ``[x, y, z]`` centre in the base frame (required)
+    semi_axes      m         ``[a, b]``; or ``radius`` for a circle (one of them required)
+    orientation    rad       ``[roll, pitch, yaw]`` of the ellipse plane (default zeros)
+    angular_speed  rad/s     ω (default 0.075, the paper's)
+    phase          rad       φ, the angle at t = 0 (default 0)
+    ============== ========= ===========================================================
+    """
+
+    centre: np.ndarray
+    semi_axes: np.ndarray
+    orientation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_speed: float = PAPER_CIRCLE_SPEED
+    phase: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "centre", _vector(self.centre, 3, "centre"))
+        axes = _vector(self.semi_axes, 2, "semi_axes")
+        if np.any(axes <= 0):
+            raise ValueError(f"semi_axes must be positive, got {axes.tolist()}")
+        object.__setattr__(self, "semi_axes", axes)
+        object.__setattr__(self, "orientation", _vector(self.orientation, 3, "orientation"))
+        for name in ("angular_speed", "phase"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value}")
+            object.__setattr__(self, name, value)
+        rot = rotation_from_rpy(*self.orientation)
+        # Columns scaled by the semi-axes: x_d = c + axes_matrix @ [cos, sin].
+        object.__setattr__(self, "_axes_matrix", rot[:, :2] * axes)
+
+    @classmethod
+    def paper_circle(cls) -> "Ellipse":
+        """The paper's circle: radius 0.2 m around [-0.7, 0, 0.5] m at 0.075 rad/s."""
+        return cls(PAPER_CIRCLE_CENTRE, (PAPER_CIRCLE_RADIUS, PAPER_CIRCLE_RADIUS))
+
+    @classmethod
+    def from_dict(cls, spec: Mapping[str, Any]) -> "Ellipse":
+        """Build from the documented keys; unknown or missing keys raise ``ValueError``."""
+        if not isinstance(spec, Mapping):
+            raise ValueError(f"ellipse must be a mapping with keys centre, semi_axes|radius, ..., got {spec!r}")
+        allowed = {"centre", "semi_axes", "radius", "orientation", "angular_speed", "phase"}
+        unknown = set(spec) - allowed
+        if unknown:
+            raise ValueError(f"unknown ellipse keys {sorted(unknown)}; allowed: {sorted(allowed)}")
+        if "centre" not in spec:
+            raise ValueError("ellipse needs a 'centre'")
+        if ("semi_axes" in spec) == ("radius" in spec):
+            raise ValueError("ellipse needs exactly one of 'semi_axes' or 'radius'")
+        axes = spec["semi_axes"] if "semi_axes" in spec else (spec["radius"], spec["radius"])
+        return cls(
+            centre=spec["centre"],
+            semi_axes=axes,
+            orientation=spec.get("orientation", (0.0, 0.0, 0.0)),
+            angular_speed=spec.get("angular_speed", PAPER_CIRCLE_SPEED),
+            phase=spec.get("phase", 0.0),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "centre": self.centre.tolist(),
+            "semi_axes": self.semi_axes.tolist(),
+            "orientation": self.orientation.tolist(),
+            "angular_speed": self.angular_speed,
+            "phase": self.phase,
+        }
+
+    def position(self, t: float) -> np.ndarray:
+        angle = self.angular_speed * t + self.phase
+        return self.centre + self._axes_matrix @ np.array([math.cos(angle), math.sin(angle)])
+
+    def velocity(self, t: float) -> np.ndarray:
+        angle = self.angular_speed * t + self.phase
+        w = self.angular_speed
+        return self._axes_matrix @ np.array([-w * math.sin(angle), w * math.cos(angle)])
+
+    def points(self, count: int = 32) -> np.ndarray:
+        """``count`` points evenly spaced in angle around the whole ellipse, shape ``(count, 3)``."""
+        angles = self.phase + np.linspace(0.0, 2 * np.pi, count, endpoint=False)
+        return self.centre + np.stack([np.cos(angles), np.sin(angles)], axis=1) @ self._axes_matrix.T
+
+
+Reference = FixedTarget | Ellipse

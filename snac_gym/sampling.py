@@ -1,0 +1,168 @@
+"""Sample spaces of the two tasks: random seed poses, targets and feasible ellipses.
+
+Used by the envs' ``reset`` (random episodes) and by the evaluator (random sample sets),
+so both draw from the same documented space. Everything is drawn from a NumPy
+``Generator``: the same seed gives the same samples on any machine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from snac_gym.kinematics import Kinematics
+from snac_gym.references import PAPER_Q0, Ellipse, FixedTarget
+
+#: Default sample cuboid for the UR10, base frame, metres: a box in front of the arm
+#: (negative x, as in the paper's numbers) that holds the paper's start point, target
+#: and circle, with every corner reachable with margin (see tests/test_sampling.py).
+UR10_CUBOID_LOW = (-0.95, -0.40, 0.20)
+UR10_CUBOID_HIGH = (-0.40, 0.70, 0.65)
+_UR10_REACH = 1.211738  # |f(0)| of the UR10 in its base frame (outstretched arm), m
+
+
+@dataclass(frozen=True)
+class SampleSpace:
+    """Where random episodes come from.
+
+    Attributes:
+        low, high: Corners of the task-space cuboid (m, base frame) holding targets,
+            ellipses and the seed poses' end effector.
+        min_singular_value: Smallest singular value of J (m/rad) allowed at a seed pose
+            and along an ellipse, to stay away from singularities.
+        joint_margin: Distance (rad) kept from every joint limit.
+        semi_axis_range: Range of ellipse semi-axes, m.
+        speed_range: Range of |ω|, rad/s (sign drawn at random).
+        ellipse_points: How many points around an ellipse are checked for reachability.
+    """
+
+    low: tuple[float, float, float] = UR10_CUBOID_LOW
+    high: tuple[float, float, float] = UR10_CUBOID_HIGH
+    min_singular_value: float = 0.05
+    joint_margin: float = 0.2
+    semi_axis_range: tuple[float, float] = (0.05, 0.2)
+    speed_range: tuple[float, float] = (0.05, 0.3)
+    ellipse_points: int = 32
+
+    def __post_init__(self) -> None:
+        low, high = np.asarray(self.low, float), np.asarray(self.high, float)
+        if low.shape != (3,) or high.shape != (3,) or np.any(low >= high):
+            raise ValueError(f"sample cuboid needs low < high in 3-D, got low={self.low}, high={self.high}")
+
+    @classmethod
+    def for_robot(cls, kinematics: Kinematics, **overrides: object) -> "SampleSpace":
+        """The UR10 cuboid scaled by the robot's reach, so UR3 and UR5 get a fitting box."""
+        scale = float(np.linalg.norm(kinematics.forward(np.zeros(kinematics.n_joints)))) / _UR10_REACH
+        params: dict[str, object] = {
+            "low": tuple(float(v) * scale for v in UR10_CUBOID_LOW),
+            "high": tuple(float(v) * scale for v in UR10_CUBOID_HIGH),
+        }
+        params.update(overrides)
+        return cls(**params)  # type: ignore[arg-type]
+
+    def contains(self, point: np.ndarray, tol: float = 1e-9) -> bool:
+        point = np.asarray(point, float)
+        return bool(np.all(point >= np.asarray(self.low) - tol) and np.all(point <= np.asarray(self.high) + tol))
+
+
+def nominal_configuration(kinematics: Kinematics) -> np.ndarray:
+    """An elbow-up, wrist-down configuration to seed IK: the paper's θ0 for 6-joint UR arms."""
+    if kinematics.n_joints == len(PAPER_Q0):
+        return np.array(PAPER_Q0, dtype=float)
+    return np.clip(np.zeros(kinematics.n_joints), kinematics.lower_limits, kinematics.upper_limits)
+
+
+def _well_conditioned(kinematics: Kinematics, q: np.ndarray, space: SampleSpace) -> bool:
+    inside = np.all(q >= kinematics.lower_limits + space.joint_margin) and np.all(
+        q <= kinematics.upper_limits - space.joint_margin
+    )
+    return bool(inside) and kinematics.singular_values(q)[-1] >= space.min_singular_value
+
+
+def solve_reachable(
+    kinematics: Kinematics, point: np.ndarray, q_init: np.ndarray | None = None, tol: float = 1e-6
+) -> np.ndarray | None:
+    """A configuration reaching ``point`` (within ``tol``), or ``None`` if IK finds none.
+
+    Tries ``q_init`` (default: the nominal configuration) and then a few fixed variants,
+    so the answer is deterministic.
+    """
+    nominal = nominal_configuration(kinematics)
+    starts = [nominal if q_init is None else np.asarray(q_init, float)]
+    starts += [nominal + shift for shift in (0.5, -0.5)] + [np.zeros(kinematics.n_joints)]
+    for start in starts:
+        q, ok = kinematics.inverse_position(point, start, tol=tol)
+        if ok:
+            return q
+    return None
+
+
+def check_reachable(kinematics: Kinematics, points: np.ndarray, what: str) -> None:
+    """Raise ``ValueError`` naming the first of ``points`` that no joint configuration reaches."""
+    q_prev = None
+    for point in np.atleast_2d(points):
+        q_prev = solve_reachable(kinematics, point, q_prev)
+        if q_prev is None:
+            raise ValueError(
+                f"{what}: point {np.round(point, 4).tolist()} m is outside the reachable workspace of "
+                f"{kinematics.robot} (no joint configuration reaches it)"
+            )
+
+
+def sample_seed_pose(kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> np.ndarray:
+    """A random configuration whose end effector lies in the cuboid, away from singularities and limits.
+
+    A random point of the cuboid is reached by IK from the nominal configuration
+    perturbed by up to ±0.4 rad per joint, so poses vary while staying on the
+    elbow-up branch the paper's θ0 is on.
+    """
+    nominal = nominal_configuration(kinematics)
+    for _ in range(1000):
+        point = rng.uniform(space.low, space.high)
+        start = nominal + rng.uniform(-0.4, 0.4, size=kinematics.n_joints)
+        q, ok = kinematics.inverse_position(point, start, tol=1e-6)
+        if ok and _well_conditioned(kinematics, q, space):
+            return q
+    raise RuntimeError(f"no well-conditioned seed pose found in {space}; widen the cuboid or relax the margins")
+
+
+def sample_target(kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> FixedTarget:
+    """A random reachable, well-conditioned target in the cuboid."""
+    for _ in range(1000):
+        point = rng.uniform(space.low, space.high)
+        q = solve_reachable(kinematics, point)
+        if q is not None and _well_conditioned(kinematics, q, space):
+            return FixedTarget(point)
+    raise RuntimeError(f"no reachable target found in {space}")
+
+
+def ellipse_is_feasible(kinematics: Kinematics, ellipse: Ellipse, space: SampleSpace) -> bool:
+    """Whether every checked point of ``ellipse`` lies in the cuboid and is reached well-conditioned."""
+    points = ellipse.points(space.ellipse_points)
+    if not all(space.contains(p) for p in points):
+        return False
+    q = solve_reachable(kinematics, points[0])
+    if q is None or not _well_conditioned(kinematics, q, space):
+        return False
+    for point in points[1:]:
+        q, ok = kinematics.inverse_position(point, q, tol=1e-6)
+        if not ok or not _well_conditioned(kinematics, q, space):
+            return False
+    return True
+
+
+def sample_ellipse(kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> Ellipse:
+    """A random ellipse (centre, semi-axes, plane orientation, speed, phase) that is wholly feasible."""
+    for _ in range(2000):
+        speed = rng.uniform(*space.speed_range) * rng.choice((-1.0, 1.0))
+        ellipse = Ellipse(
+            centre=rng.uniform(space.low, space.high),
+            semi_axes=rng.uniform(*space.semi_axis_range, size=2),
+            orientation=rng.uniform(-np.pi, np.pi, size=3),
+            angular_speed=float(speed),
+            phase=float(rng.uniform(0.0, 2 * np.pi)),
+        )
+        if ellipse_is_feasible(kinematics, ellipse, space):
+            return ellipse
+    raise RuntimeError(f"no feasible ellipse found in {space}; widen the cuboid or shrink the semi-axes")
