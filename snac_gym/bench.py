@@ -17,7 +17,7 @@ def _pin_to_one_core() -> None:
             pass
 
 
-def _time_env(env: Any, steps: int, control_dt: float, seed: int = 0, repeats: int = 3) -> dict[str, float]:
+def _time_env(env: Any, steps: int, control_dt: float, seed: int = 0, repeats: int = 5) -> dict[str, float]:
     """Best of ``repeats`` timed runs (the least-disturbed one, as ``timeit`` reports)."""
     env.reset(seed=seed)
     env.action_space.seed(seed)

@@ -72,6 +72,10 @@ class FixedTarget:
     def velocity(self, t: float) -> np.ndarray:
         return _ZERO3
 
+    def position_and_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(x_d(t), ẋ_d(t))`` in one call (the env's per-step form)."""
+        return self.target, _ZERO3
+
     def points(self, count: int = 1) -> np.ndarray:
         """Points the reference visits (for reachability checks)."""
         return self.target[None, :].copy()
@@ -123,6 +127,8 @@ class Ellipse:
         rot = rotation_from_rpy(*self.orientation)
         # Columns scaled by the semi-axes: x_d = c + axes_matrix @ [cos, sin].
         object.__setattr__(self, "_axes_matrix", rot[:, :2] * axes)
+        object.__setattr__(self, "_major", np.ascontiguousarray(rot[:, 0] * axes[0]))
+        object.__setattr__(self, "_minor", np.ascontiguousarray(rot[:, 1] * axes[1]))
 
     @classmethod
     def paper_circle(cls) -> "Ellipse":
@@ -168,6 +174,13 @@ class Ellipse:
         angle = self.angular_speed * t + self.phase
         w = self.angular_speed
         return self._axes_matrix @ np.array([-w * math.sin(angle), w * math.cos(angle)])
+
+    def position_and_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(x_d(t), ẋ_d(t))`` in one call (the env's per-step form)."""
+        angle = self.angular_speed * t + self.phase
+        cos, sin = math.cos(angle), math.sin(angle)
+        w = self.angular_speed
+        return self.centre + cos * self._major + sin * self._minor, (w * cos) * self._minor - (w * sin) * self._major
 
     def points(self, count: int = 32) -> np.ndarray:
         """``count`` points evenly spaced in angle around the whole ellipse, shape ``(count, 3)``."""

@@ -8,7 +8,7 @@ from typing import Any, Mapping
 import gymnasium as gym
 import numpy as np
 
-from snac_gym.cost import _weight, instantaneous_cost, quadratic_form
+from snac_gym.cost import _weight, quadratic_form
 from snac_gym.envs.robot import SimulatedArm
 from snac_gym.envs.sim import PyBulletSim
 from snac_gym.envs.tasks import TASKS, Task
@@ -79,7 +79,7 @@ _ENV_DOC = """
     |------------------------|--------------|----------------------------------------------------|
     | ``robot``              | ``"ur10"``   | ``ur3``, ``ur5`` or ``ur10`` from example-robot-data  |
     | ``dt``                 | ``1/125``    | control period, s (``env.unwrapped.dt``)           |
-    | ``n_substeps``         | ``4``        | physics steps per control period                   |
+    | ``n_substeps``         | ``3``        | physics steps per control period (see README)      |
     | ``max_steps``          | {default_steps}       | episode length in control steps                    |
     | ``reward_type``        | ``"dense"``  | ``"dense"`` or ``"sparse"``                        |
     | ``Q``, ``R``           | identity     | cost weights (matrix or diagonal)                  |
@@ -106,7 +106,7 @@ class URTaskEnv(gym.Env):
         self,
         robot: str = "ur10",
         dt: float = 1.0 / 125.0,
-        n_substeps: int = 4,
+        n_substeps: int = 3,
         max_steps: int | None = None,
         reward_type: str = "dense",
         Q: np.ndarray | None = None,
@@ -171,10 +171,8 @@ class URTaskEnv(gym.Env):
 
     def _observe(self) -> np.ndarray:
         q, qdot = self.arm.joint_state()
-        t = self.time
-        return self.obs_layout.pack(
-            q, qdot, self.kinematics.forward(q), self.reference.position(t), self.reference.velocity(t), self.reference.centre
-        )
+        x_d, xdot_d = self.reference.position_and_velocity(self.time)
+        return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
 
     def _parse_options(self, options: Mapping[str, Any] | None) -> tuple[np.ndarray, Reference]:
         rng = self.np_random
@@ -241,7 +239,9 @@ class URTaskEnv(gym.Env):
             raise RuntimeError("call reset() before step()")
         u = self._validate_action(action)
         error_before = self._obs[self._error_slice]
-        cost_error, cost_effort = instantaneous_cost(error_before, u, self.Q, self.R)  # eq. 6 integrand
+        # eq. 6 integrand eᵀQe + uᵀRu, and the smoothness term u̇ᵀRu̇ of the trajectory cost
+        cost_error = float(quadratic_form(error_before, self.Q))
+        cost_effort = float(quadratic_form(u, self.R))
         cost_smoothness = float(quadratic_form((u - self._last_command) / self.dt, self.R))
 
         self.arm.command_velocities(u)

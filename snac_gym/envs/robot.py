@@ -44,6 +44,9 @@ class SimulatedArm:
         for link in range(-1, p.getNumJoints(self.body, physicsClientId=client)):
             # PyBullet's default link damping would make the motors fight a drag no real arm has.
             p.changeDynamics(self.body, link, linearDamping=0.0, angularDamping=0.0, physicsClientId=client)
+            # The world holds nothing else and self-collision is off (as on the UR controller, whose
+            # safety limits are joint and Cartesian, not geometric): skip the broadphase entirely.
+            p.setCollisionFilterGroupMask(self.body, link, 0, 0, physicsClientId=client)
 
     def set_joint_positions(self, q: np.ndarray, qdot: np.ndarray | None = None) -> None:
         """Teleport the joints to ``q`` (at rest unless ``qdot`` is given), after restoring the saved state."""

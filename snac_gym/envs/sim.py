@@ -75,9 +75,10 @@ class PyBulletSim:
             p.configureDebugVisualizer(p.COV_ENABLE_GUI, 0, physicsClientId=self.client)
         # One stepSimulation call advances dt in n_substeps fixed steps: one Python call per control step.
         p.setPhysicsEngineParameter(
-            fixedTimeStep=self.dt, numSubSteps=self.n_substeps, deterministicOverlappingPairs=1,
-            # The arm touches nothing, so there are no friction cones to solve.
-            enableConeFriction=0, physicsClientId=self.client,
+            fixedTimeStep=self.dt, numSubSteps=self.n_substeps,
+            # The arm touches nothing (see SimulatedArm), so there are no contact pairs to order and no
+            # friction cones to solve; both settings only cost time here.
+            deterministicOverlappingPairs=0, enableConeFriction=0, physicsClientId=self.client,
         )
         p.setGravity(0.0, 0.0, -gravity, physicsClientId=self.client)
 

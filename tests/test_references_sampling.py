@@ -1,0 +1,122 @@
+"""References, the observation layout and the sample space."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from snac_gym.observation import ObservationLayout
+from snac_gym.references import PAPER_Q0, Ellipse, FixedTarget
+from snac_gym.sampling import (
+    SampleSpace,
+    check_reachable,
+    ellipse_is_feasible,
+    sample_ellipse,
+    sample_seed_pose,
+    sample_target,
+    solve_reachable,
+)
+
+
+def test_ellipse_velocity_is_the_derivative_of_position(rng):
+    ellipse = Ellipse([-0.7, 0.1, 0.4], [0.2, 0.1], rng.uniform(-1, 1, 3), angular_speed=0.3, phase=0.7)
+    for t in rng.uniform(0, 20, 5):
+        h = 1e-6
+        finite = (ellipse.position(t + h) - ellipse.position(t - h)) / (2 * h)
+        np.testing.assert_allclose(ellipse.velocity(t), finite, atol=1e-8)
+        # every point lies on the ellipse: its local coordinates satisfy (u/a)² + (v/b)² = 1
+        from snac_gym.references import rotation_from_rpy
+
+        local = rotation_from_rpy(*ellipse.orientation).T @ (ellipse.position(t) - ellipse.centre)
+        assert (local[0] / 0.2) ** 2 + (local[1] / 0.1) ** 2 == pytest.approx(1.0)
+        assert abs(local[2]) < 1e-12
+
+
+def test_paper_circle_and_dict_round_trip():
+    circle = Ellipse.paper_circle()
+    np.testing.assert_allclose(circle.position(0.0), [-0.5, 0.0, 0.5])
+    assert np.linalg.norm(circle.velocity(3.0)) == pytest.approx(0.2 * 0.075)
+    again = Ellipse.from_dict(circle.to_dict())
+    np.testing.assert_array_equal(again.position(1.234), circle.position(1.234))
+    assert Ellipse.from_dict({"centre": [0, 0, 1], "radius": 0.1}).semi_axes.tolist() == [0.1, 0.1]
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ({"radius": 0.1}, "needs a 'centre'"),
+        ({"centre": [0, 0, 1]}, "exactly one of"),
+        ({"centre": [0, 0, 1], "radius": 0.1, "speed": 1}, "unknown ellipse keys"),
+        ({"centre": [0, 0], "radius": 0.1}, "centre must be 3"),
+        ({"centre": [0, 0, 1], "semi_axes": [0.1, -0.1]}, "semi_axes must be positive"),
+        ({"centre": [0, 0, 1], "radius": 0.1, "phase": float("nan")}, "phase must be finite"),
+    ],
+)
+def test_bad_ellipse_specs_name_the_problem(spec, message):
+    with pytest.raises(ValueError, match=message):
+        Ellipse.from_dict(spec)
+
+
+def test_fixed_target_is_immutable():
+    target = FixedTarget([1.0, 2.0, 3.0])
+    with pytest.raises(ValueError):
+        target.position(0.0)[0] = 5.0
+    np.testing.assert_array_equal(target.velocity(1.0), 0.0)
+
+
+def test_observation_layout_pack_unpack(rng):
+    layout = ObservationLayout(6, 3)
+    parts = [rng.normal(size=6), rng.normal(size=6)] + [rng.normal(size=3) for _ in range(4)]
+    obs = layout.pack(*parts)
+    fields = layout.unpack(obs)
+    assert obs.shape == (27,) and layout.size == 27
+    np.testing.assert_array_equal(fields.q, parts[0])
+    np.testing.assert_array_equal(fields.e, parts[2] - parts[3])
+    np.testing.assert_array_equal(fields.x_c, parts[5])
+    with pytest.raises(ValueError, match=r"shape \(27,\)"):
+        layout.unpack(np.zeros(26))
+    assert ObservationLayout(7, 3).size == 29  # nothing assumes six joints
+
+
+def test_default_cuboid_corners_are_reachable(ur10):
+    space = SampleSpace()
+    for corner in itertools.product(*zip(space.low, space.high)):
+        assert solve_reachable(ur10, np.array(corner)) is not None, corner
+
+
+def test_samplers_are_seeded_and_stay_in_the_space(ur10):
+    space = SampleSpace()
+    draws = []
+    for _ in range(2):
+        rng = np.random.default_rng(7)
+        draws.append((sample_seed_pose(ur10, rng, space), sample_target(ur10, rng, space).target, sample_ellipse(ur10, rng, space)))
+    np.testing.assert_array_equal(draws[0][0], draws[1][0])
+    np.testing.assert_array_equal(draws[0][1], draws[1][1])
+    assert draws[0][2].to_dict() == draws[1][2].to_dict()
+    q, target, ellipse = draws[0]
+    assert space.contains(ur10.forward(q)) and space.contains(target)
+    assert ur10.singular_values(q)[-1] >= space.min_singular_value
+    assert np.all(q > ur10.lower_limits + space.joint_margin) and np.all(q < ur10.upper_limits - space.joint_margin)
+    assert ellipse_is_feasible(ur10, ellipse, space)
+    assert all(space.contains(pt) for pt in ellipse.points(64))
+
+
+def test_unreachable_point_error_names_it(ur10):
+    with pytest.raises(ValueError, match=r"\[2.0, 0.0, 0.5\].*outside the reachable workspace"):
+        check_reachable(ur10, np.array([[2.0, 0.0, 0.5]]), "options['target']")
+    check_reachable(ur10, np.array([ur10.forward(np.array(PAPER_Q0))]), "seed")
+
+
+def test_sample_space_rejects_inverted_cuboid():
+    with pytest.raises(ValueError, match="low < high"):
+        SampleSpace(low=(0, 0, 0), high=(1, -1, 1))
+
+
+def test_position_and_velocity_agrees_with_separate_calls(rng):
+    ellipse = Ellipse([-0.6, 0.2, 0.4], [0.15, 0.05], rng.uniform(-2, 2, 3), angular_speed=-0.2, phase=1.1)
+    for t in (0.0, 1.7, 33.3):
+        pos, vel = ellipse.position_and_velocity(t)
+        np.testing.assert_allclose(pos, ellipse.position(t), atol=1e-15)
+        np.testing.assert_allclose(vel, ellipse.velocity(t), atol=1e-15)
+    target = FixedTarget([0.1, 0.2, 0.3])
+    assert target.position_and_velocity(2.0)[0] is target.target
