@@ -74,7 +74,7 @@ def format_env_bench(results: dict[str, dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-def run_substep_study(substeps: tuple[int, ...] = (1, 2, 4, 8), steps: int = 1000, seed: int = 0) -> list[dict[str, float]]:
+def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 1000, seed: int = 0) -> list[dict[str, float]]:
     """How far PyBullet's joint motion departs from the ideal ``θₖ₊₁ = θₖ + uₖ Δt`` per substep count.
 
     Drives the reach env from seeded random poses with a smooth random velocity profile
