@@ -94,6 +94,67 @@ _ENV_DOC = """
 """
 
 
+def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
+    """The joint-velocity command an env applies: checked, then clipped to ``±velocity_limits``.
+
+    Shared by the simulated and the real-robot envs so both treat bad input alike.
+
+    Raises:
+        ValueError: If ``action`` is not numeric, has the wrong shape, or holds NaN/inf.
+    """
+    try:
+        u = np.array(action, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"action must be {len(velocity_limits)} joint velocities in rad/s, got {action!r}") from exc
+    if u.shape != velocity_limits.shape:
+        raise ValueError(f"action must have shape {velocity_limits.shape} (joint velocities, rad/s), got {u.shape}")
+    if not np.isfinite(u).all():
+        raise ValueError(f"action contains NaN or inf: {u.tolist()}")
+    return np.minimum(np.maximum(u, -velocity_limits), velocity_limits)
+
+
+def resolve_reference(
+    task: Task,
+    kinematics: Kinematics,
+    rng: np.random.Generator,
+    space: SampleSpace,
+    options: Mapping[str, Any] | None,
+) -> Reference:
+    """The episode's reference from ``reset`` options (shared by the simulated and real envs).
+
+    No options: a random reference from ``space``. Options without the task's key: the paper's
+    reference. Otherwise the given one, checked to be reachable.
+
+    Raises:
+        ValueError: On unknown keys, a malformed or an unreachable reference.
+    """
+    if options is None:
+        return task.sample(kinematics, rng, space)
+    if not isinstance(options, Mapping):
+        raise ValueError(f"options must be a dict, got {type(options).__name__}")
+    unknown = set(options) - {"q0", task.option_key}
+    if unknown:
+        raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: ['q0', '{task.option_key}']")
+    if task.option_key in options:
+        return task.parse(options[task.option_key], kinematics)
+    return task.paper()
+
+
+def validate_q0(kinematics: Kinematics, value: Any) -> np.ndarray:
+    """``options["q0"]`` as an array, checked against the joint count and limits."""
+    q0 = np.array(value, dtype=float)
+    if q0.shape != (kinematics.n_joints,) or not np.all(np.isfinite(q0)):
+        raise ValueError(f"options['q0'] must be {kinematics.n_joints} finite joint angles, got {value!r}")
+    outside = np.flatnonzero((q0 < kinematics.lower_limits) | (q0 > kinematics.upper_limits))
+    if outside.size:
+        j = int(outside[0])
+        raise ValueError(
+            f"options['q0'][{j}] = {q0[j]} rad is outside the joint limits "
+            f"[{kinematics.lower_limits[j]}, {kinematics.upper_limits[j]}]"
+        )
+    return q0
+
+
 class URTaskEnv(gym.Env):
     """Base class of the snac-gym envs; see the registered subclasses for the documentation."""
 
@@ -175,32 +236,11 @@ class URTaskEnv(gym.Env):
         return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
 
     def _parse_options(self, options: Mapping[str, Any] | None) -> tuple[np.ndarray, Reference]:
-        rng = self.np_random
-        key = self.task.option_key
-        if options is None:
-            options = {}
-            reference = self.task.sample(self.kinematics, rng, self.sample_space)
-        else:
-            if not isinstance(options, Mapping):
-                raise ValueError(f"options must be a dict, got {type(options).__name__}")
-            unknown = set(options) - {"q0", key}
-            if unknown:
-                raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: ['q0', '{key}']")
-            reference = self.task.parse(options[key], self.kinematics) if key in options else self.task.paper()
-        if options.get("q0") is None:
-            q0 = sample_seed_pose(self.kinematics, rng, self.sample_space)
-        else:
-            q0 = np.array(options["q0"], dtype=float)
-            k = self.kinematics
-            if q0.shape != (k.n_joints,) or not np.all(np.isfinite(q0)):
-                raise ValueError(f"options['q0'] must be {k.n_joints} finite joint angles, got {options['q0']!r}")
-            outside = np.flatnonzero((q0 < k.lower_limits) | (q0 > k.upper_limits))
-            if outside.size:
-                j = int(outside[0])
-                raise ValueError(
-                    f"options['q0'][{j}] = {q0[j]} rad is outside the joint limits [{k.lower_limits[j]}, {k.upper_limits[j]}]"
-                )
-        return q0, reference
+        reference = resolve_reference(self.task, self.kinematics, self.np_random, self.sample_space, options)
+        q0 = None if options is None else options.get("q0")
+        if q0 is None:
+            return sample_seed_pose(self.kinematics, self.np_random, self.sample_space), reference
+        return validate_q0(self.kinematics, q0), reference
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -223,21 +263,10 @@ class URTaskEnv(gym.Env):
     def _is_success(self, error: np.ndarray) -> bool:
         return bool(error @ error <= self.success_tolerance**2)
 
-    def _validate_action(self, action: Any) -> np.ndarray:
-        try:
-            u = np.array(action, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"action must be {self.kinematics.n_joints} joint velocities in rad/s, got {action!r}") from exc
-        if u.shape != self.action_space.shape:
-            raise ValueError(f"action must have shape {self.action_space.shape} (joint velocities, rad/s), got {u.shape}")
-        if not np.isfinite(u).all():
-            raise ValueError(f"action contains NaN or inf: {u.tolist()}")
-        return np.minimum(np.maximum(u, -self.velocity_limits), self.velocity_limits)
-
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._obs is None:
             raise RuntimeError("call reset() before step()")
-        u = self._validate_action(action)
+        u = validate_action(action, self.velocity_limits)
         error_before = self._obs[self._error_slice]
         # eq. 6 integrand eᵀQe + uᵀRu, and the smoothness term u̇ᵀRu̇ of the trajectory cost
         cost_error = float(quadratic_form(error_before, self.Q))

@@ -2,43 +2,17 @@
 
 from __future__ import annotations
 
-import contextlib
 import os
 import sys
 import tempfile
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
-
-@contextlib.contextmanager
-def _quiet_output() -> Iterator[None]:
-    """Silence C-level stdout and stderr (PyBullet prints its build time on import and on connect)."""
-    streams = [sys.stdout, sys.stderr]
-    saved: list[tuple[int, int]] = []
-    try:
-        for stream in streams:
-            stream.flush()
-            fd = stream.fileno()
-            saved.append((fd, os.dup(fd)))
-    except (AttributeError, OSError, ValueError):  # captured or fake streams: nothing to silence
-        for _, copy in saved:
-            os.close(copy)
-        yield
-        return
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        for fd, _ in saved:
-            os.dup2(devnull, fd)
-        yield
-    finally:
-        for fd, copy in saved:
-            os.dup2(copy, fd)
-            os.close(copy)
-        os.close(devnull)
+from snac_gym._quiet import quiet_output
 
 
-with _quiet_output():
+with quiet_output():
     import pybullet as _pybullet
 
 p: Any = _pybullet
@@ -67,7 +41,7 @@ class PyBulletSim:
                 "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set; "
                 "use render_mode='rgb_array' to render headless"
             )
-        with _quiet_output():
+        with quiet_output():
             self.client = p.connect(p.GUI if gui else p.DIRECT)
         if self.client < 0:
             raise RuntimeError("could not connect to PyBullet" + (" GUI (is there a display?)" if gui else ""))
@@ -88,7 +62,7 @@ class PyBulletSim:
             handle.write(urdf_text)
             path = handle.name
         try:
-            with _quiet_output():  # merging fixed links prints a trace to stdout
+            with quiet_output():  # merging fixed links prints a trace to stdout
                 return p.loadURDF(path, useFixedBase=True, flags=flags, physicsClientId=self.client)
         finally:
             os.unlink(path)

@@ -1,0 +1,336 @@
+"""Arm backends for the real-robot env: a small protocol, the ur_rtde backend, a wall-clock simulated
+backend for rehearsal, and a dry-run wrapper that reads state but sends nothing.
+
+A backend owns the connection and the timing of one control period: the env calls
+``start_period`` and ``command`` when it sends u, then ``end_period`` (which blocks until the
+period is over), then ``read_state``. ``stop`` must be safe to call at any time, any number of
+times.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from snac_gym._quiet import quiet_output
+from snac_gym.kinematics import Kinematics
+
+#: Safety states a backend reports (``info["safety_state"]`` of the real env).
+NORMAL = "normal"
+PROTECTIVE_STOP = "protective_stop"
+EMERGENCY_STOP = "emergency_stop"
+#: Control rates of the UR controller generations: CB-series 125 Hz, e-Series 500 Hz.
+SERIES_FREQUENCY = {"cb": 125.0, "e": 500.0}
+
+
+class ConnectionFailure(ConnectionError):
+    """The arm could not be reached, refused the connection, or dropped it mid-episode."""
+
+
+@runtime_checkable
+class ArmBackend(Protocol):
+    """What the real-robot env needs from an arm."""
+
+    kinematics: Kinematics
+    dt: float
+
+    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Measured joint positions (rad) and velocities (rad/s)."""
+
+    def start_period(self) -> float:
+        """Mark the start of a control period; returns its start time (backend clock, s)."""
+
+    def command(self, velocities: np.ndarray) -> None:
+        """Send joint-velocity command u (rad/s) for this period (and kick the watchdog)."""
+
+    def end_period(self, period_start: float) -> None:
+        """Block until the period that began at ``period_start`` is over."""
+
+    def stop(self) -> None:
+        """Decelerate the arm to rest now; safe to call repeatedly."""
+
+    def move_to(self, q: np.ndarray) -> None:
+        """Bring the arm to ``q`` at rest before an episode (slow joint move on hardware)."""
+
+    def safety_state(self) -> str:
+        """One of :data:`NORMAL`, :data:`PROTECTIVE_STOP`, :data:`EMERGENCY_STOP`."""
+
+    def close(self) -> None:
+        """Stop the arm and release the connection."""
+
+
+def probe_port(host: str, port: int, timeout: float) -> None:
+    """Fail fast with one clear line when ``host:port`` does not accept TCP connections.
+
+    ur_rtde's own connect blocks for the OS's TCP timeout on an unreachable host and prints to
+    the terminal; a plain socket with a timeout answers within ``timeout`` seconds.
+
+    Raises:
+        ConnectionFailure: Refused, unreachable, unknown host or timed out.
+    """
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return
+    except socket.timeout as exc:
+        raise ConnectionFailure(f"no answer from {host}:{port} within {timeout:g} s (is the arm on and the IP right?)") from exc
+    except ConnectionRefusedError as exc:
+        raise ConnectionFailure(f"connection to {host}:{port} refused (is the UR controller running at {host}?)") from exc
+    except OSError as exc:
+        raise ConnectionFailure(f"cannot reach {host}:{port}: {exc.strerror or exc}") from exc
+
+
+class URRTDEBackend:
+    """A real UR arm through ur_rtde: ``speedJ`` streamed at the control rate.
+
+    Each period: ``initPeriod`` → ``speedJ(u, acceleration, dt)`` → ``kickWatchdog`` →
+    ``waitPeriod``. The controller-side watchdog (``setWatchdog``) stops the arm by itself if the
+    host stops kicking it for ``watchdog_periods`` periods.
+
+    Args:
+        host: IP address of the UR controller.
+        kinematics: Model of the arm (UR10 by default).
+        frequency: Control rate, Hz: 125 for CB-series, 500 for e-Series (see ``series``).
+        series: ``"cb"`` or ``"e"``; sets ``frequency`` when that is not given.
+        acceleration: Joint acceleration bound passed to ``speedJ``, rad/s².
+        control: Open the control interface (``False`` for a dry run: state only, nothing sent).
+        connect_timeout: Seconds to wait for the controller before giving up.
+        watchdog_periods: Missed periods after which the controller's watchdog stops the arm.
+        move_speed: Joint speed of ``move_to`` (``moveJ``), rad/s.
+
+    Raises:
+        ConnectionFailure: If the controller cannot be reached (within ``connect_timeout``).
+    """
+
+    RTDE_PORT = 30004
+
+    def __init__(
+        self,
+        host: str,
+        kinematics: Kinematics | None = None,
+        frequency: float | None = None,
+        series: str = "cb",
+        acceleration: float = 1.0,
+        control: bool = True,
+        connect_timeout: float = 3.0,
+        watchdog_periods: int = 5,
+        move_speed: float = 0.3,
+    ) -> None:
+        if series not in SERIES_FREQUENCY:
+            raise ValueError(f"series must be one of {sorted(SERIES_FREQUENCY)}, got {series!r}")
+        self.kinematics = kinematics if kinematics is not None else Kinematics("ur10")
+        self.frequency = float(frequency) if frequency is not None else SERIES_FREQUENCY[series]
+        self.dt = 1.0 / self.frequency
+        self.acceleration = float(acceleration)
+        self.move_speed = float(move_speed)
+        self.host = host
+        self._control = None
+        self._receive = None
+        probe_port(host, self.RTDE_PORT, connect_timeout)
+        try:
+            import rtde_control
+            import rtde_receive
+        except ImportError as exc:  # pragma: no cover - depends on the install
+            raise ConnectionFailure("ur_rtde is not installed: pip install 'snac-gym[real]'") from exc
+        try:
+            with quiet_output():
+                self._receive = rtde_receive.RTDEReceiveInterface(host, self.frequency)
+                if control:
+                    self._control = rtde_control.RTDEControlInterface(host, self.frequency)
+        except RuntimeError as exc:
+            self.close()
+            raise ConnectionFailure(f"ur_rtde could not connect to {host}: {str(exc).splitlines()[0]}") from exc
+        if self._control is not None:
+            self._control.setWatchdog(self.frequency / watchdog_periods)
+
+    def _require_connection(self) -> None:
+        if self._receive is None or not self._receive.isConnected():
+            raise ConnectionFailure(f"connection to the arm at {self.host} was lost")
+
+    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
+        self._require_connection()
+        return np.array(self._receive.getActualQ()), np.array(self._receive.getActualQd())
+
+    def start_period(self) -> float:
+        if self._control is None:
+            return time.perf_counter()
+        return self._control.initPeriod()
+
+    def command(self, velocities: np.ndarray) -> None:
+        if self._control is None:
+            raise RuntimeError("this backend was opened without the control interface (dry run)")
+        if not self._control.speedJ(list(map(float, velocities)), self.acceleration, self.dt):
+            raise ConnectionFailure(f"the arm at {self.host} rejected speedJ (connection lost or program stopped)")
+        self._control.kickWatchdog()
+
+    def end_period(self, period_start: float) -> None:
+        if self._control is None:
+            remaining = period_start + self.dt - time.perf_counter()
+            if remaining > 0:
+                time.sleep(remaining)
+            return
+        self._control.waitPeriod(period_start)
+
+    def stop(self) -> None:
+        if self._control is not None:
+            try:
+                self._control.speedStop(2.0)
+            except RuntimeError:  # already disconnected: the controller's watchdog stops the arm
+                pass
+
+    def move_to(self, q: np.ndarray) -> None:
+        if self._control is None:
+            raise RuntimeError("cannot move the arm in a dry run")
+        if not self._control.moveJ(list(map(float, q)), self.move_speed, 0.5):
+            raise ConnectionFailure(f"moveJ to the start pose failed on {self.host}")
+
+    def safety_state(self) -> str:
+        self._require_connection()
+        if self._receive.isEmergencyStopped():
+            return EMERGENCY_STOP
+        if self._receive.isProtectiveStopped():
+            return PROTECTIVE_STOP
+        return NORMAL
+
+    def close(self) -> None:
+        self.stop()
+        if self._control is not None:
+            try:
+                self._control.stopScript()
+                self._control.disconnect()
+            except RuntimeError:
+                pass
+            self._control = None
+        if self._receive is not None:
+            try:
+                self._receive.disconnect()
+            except RuntimeError:
+                pass
+            self._receive = None
+
+
+class SimulatedBackend:
+    """The PyBullet UR arm behind the backend protocol, run in wall-clock time.
+
+    ``end_period`` steps the physics by one period and then sleeps until the period's end, so a
+    whole real-robot loop (policy, safety layer, timing, deadlines) is rehearsed without hardware.
+    ``realtime=False`` skips the sleep (tests). ``inject_fault`` makes the next reads report a
+    protective or emergency stop, as the controller would.
+
+    Args:
+        kinematics: Model of the arm (UR10 by default).
+        frequency: Control rate, Hz.
+        n_substeps: Physics steps per period.
+        realtime: Sleep to hold the wall-clock period.
+    """
+
+    def __init__(
+        self, kinematics: Kinematics | None = None, frequency: float = 125.0, n_substeps: int = 3, realtime: bool = True
+    ) -> None:
+        from snac_gym.envs.robot import SimulatedArm
+        from snac_gym.envs.sim import PyBulletSim
+
+        self.kinematics = kinematics if kinematics is not None else Kinematics("ur10")
+        self.frequency = float(frequency)
+        self.dt = 1.0 / self.frequency
+        self.realtime = realtime
+        self.sim = PyBulletSim(self.dt, n_substeps)
+        self.arm = SimulatedArm(self.sim, self.kinematics)
+        self._initial_state = self.sim.save_state()
+        self._fault = NORMAL
+        self.commands_sent = 0
+        self.stop_calls = 0
+        self.stopped = False
+
+    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.arm.joint_state()
+
+    def start_period(self) -> float:
+        return time.perf_counter()
+
+    def command(self, velocities: np.ndarray) -> None:
+        if self._fault != NORMAL:
+            return  # a stopped controller ignores commands, as the real one does
+        self.arm.command_velocities(np.asarray(velocities, dtype=float))
+        self.commands_sent += 1
+        self.stopped = False
+
+    def end_period(self, period_start: float) -> None:
+        self.sim.step()
+        if self.realtime:
+            remaining = period_start + self.dt - time.perf_counter()
+            if remaining > 0:
+                time.sleep(remaining)
+
+    def stop(self) -> None:
+        self.stop_calls += 1
+        self.stopped = True
+        if self.sim.client >= 0:
+            self.arm.command_velocities(np.zeros(self.kinematics.n_joints))
+
+    def move_to(self, q: np.ndarray) -> None:
+        self.sim.restore_state(self._initial_state)
+        self.arm.set_joint_positions(np.asarray(q, dtype=float))
+        self._fault = NORMAL
+
+    def safety_state(self) -> str:
+        return self._fault
+
+    def inject_fault(self, state: str) -> None:
+        """Make the controller report ``state`` (``protective_stop`` or ``emergency_stop``) from now on."""
+        if state not in (PROTECTIVE_STOP, EMERGENCY_STOP, NORMAL):
+            raise ValueError(f"unknown safety state {state!r}")
+        self._fault = state
+        if state != NORMAL:
+            self.arm.command_velocities(np.zeros(self.kinematics.n_joints))
+
+    def close(self) -> None:
+        if self.sim.client >= 0:
+            self.stop()
+            self.sim.close()
+
+
+class DryRunBackend:
+    """Wraps a backend: reads its state and keeps its timing, but sends nothing.
+
+    Every command that would have been sent is kept in :attr:`sent` (and printed through
+    ``echo`` when given), so a dry run shows exactly what a real run would stream.
+    """
+
+    def __init__(self, inner: ArmBackend, echo: object = None) -> None:
+        self.inner = inner
+        self.kinematics = inner.kinematics
+        self.dt = inner.dt
+        self.sent: list[np.ndarray] = []
+        self._echo = echo
+
+    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.inner.read_state()
+
+    def start_period(self) -> float:
+        return time.perf_counter()
+
+    def command(self, velocities: np.ndarray) -> None:
+        self.sent.append(np.array(velocities, dtype=float))
+        if callable(self._echo):
+            self._echo(f"would send speedJ {np.array2string(np.asarray(velocities), precision=4, separator=', ')}")
+
+    def end_period(self, period_start: float) -> None:
+        remaining = period_start + self.dt - time.perf_counter()
+        if remaining > 0:
+            time.sleep(remaining)
+
+    def stop(self) -> None:
+        pass  # nothing was sent, so nothing moves
+
+    def move_to(self, q: np.ndarray) -> None:
+        if callable(self._echo):
+            self._echo(f"would moveJ to {np.round(np.asarray(q), 4).tolist()}")
+
+    def safety_state(self) -> str:
+        return self.inner.safety_state()
+
+    def close(self) -> None:
+        self.inner.close()

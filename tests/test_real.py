@@ -1,0 +1,200 @@
+"""The real-robot env on the simulated backend: the whole loop and every safety rule."""
+
+import time
+
+import numpy as np
+import pytest
+
+from snac_gym.policies.base import BasePolicy
+from snac_gym.real import (
+    EMERGENCY_STOP,
+    PROTECTIVE_STOP,
+    ConnectionFailure,
+    DryRunBackend,
+    RealUREnv,
+    SafetyLimits,
+    SimulatedBackend,
+    URRTDEBackend,
+)
+from snac_gym.references import PAPER_Q0, PAPER_TARGET
+
+
+class ResolvedRate(BasePolicy):
+    """u = J⁺(ẋ_d − k e): enough to drive the loop in these tests."""
+
+    def act(self, obs):
+        fields = self.layout.unpack(obs)
+        jac = self.kinematics.jacobian(fields.q)
+        return np.linalg.pinv(jac) @ (fields.xdot_d - 2.0 * fields.e)
+
+
+def _env(task="reach", realtime=False, **safety):
+    backend = SimulatedBackend(realtime=realtime)
+    return RealUREnv(task, backend, safety=SafetyLimits(**safety) if safety else None), backend
+
+
+def test_whole_loop_reaches_the_paper_target_inside_the_safety_envelope():
+    env, backend = _env(speed_scale=0.5)
+    policy = ResolvedRate(env)
+    obs, _ = env.reset(options={"q0": PAPER_Q0, "target": PAPER_TARGET})
+    previous = np.zeros(6)
+    for _ in range(env.max_steps):
+        obs, _, terminated, truncated, info = env.step(policy.act(obs))
+        assert not terminated, info["safety"]
+        assert np.all(np.abs(info["command"]) <= 0.5 * env.velocity_limits + 1e-12)
+        assert np.all(np.abs(info["command"] - previous) <= env.safety_limits.max_joint_acceleration * env.dt + 1e-12)
+        previous = info["command"]
+        if truncated:
+            break
+    assert info["error_norm"] < 1e-3
+    assert backend.commands_sent == env.max_steps
+    env.close()
+    assert backend.stop_calls >= 1
+
+
+def test_same_spaces_as_the_simulated_env():
+    import gymnasium as gym
+
+    env, _ = _env()
+    sim = gym.make("snac_gym/UR10Reach-v0")
+    assert env.observation_space == sim.observation_space and env.action_space == sim.action_space
+    assert env.obs_layout == sim.unwrapped.obs_layout
+
+
+def _assert_stopped(env, backend, info, terminated, match):
+    assert terminated and match in info["safety"]
+    assert backend.stopped and backend.stop_calls >= 1
+    sent = backend.commands_sent
+    with pytest.raises(RuntimeError, match="stopped"):
+        env.step(np.zeros(6))
+    assert backend.commands_sent == sent  # nothing after a stop
+
+
+def test_leaving_the_task_box_stops_the_arm():
+    x0 = SimulatedBackend(realtime=False).kinematics.forward(np.array(PAPER_Q0))
+    env, backend = _env(box_low=tuple(x0 - 0.01), box_high=tuple(x0 + 0.01), speed_scale=1.0, max_joint_acceleration=50.0)
+    env.reset(options={"q0": PAPER_Q0})
+    for _ in range(200):
+        _, _, terminated, _, info = env.step(np.array([0.5, 0, 0, 0, 0, 0]))
+        if terminated:
+            break
+    _assert_stopped(env, backend, info, terminated, "task box")
+
+
+def test_joint_limit_margin_stops_the_arm():
+    q0 = np.array(PAPER_Q0)
+    q0[2] = np.pi - 0.2  # elbow 0.2 rad from its URDF limit
+    env, backend = _env(box_low=(-2, -2, -2), box_high=(2, 2, 2), max_joint_acceleration=50.0, speed_scale=1.0)
+    env.reset(options={"q0": q0})
+    for _ in range(100):
+        _, _, terminated, _, info = env.step(np.array([0, 0, 1.0, 0, 0, 0]))
+        if terminated:
+            break
+    _assert_stopped(env, backend, info, terminated, "elbow_joint")
+
+
+@pytest.mark.parametrize("fault", [PROTECTIVE_STOP, EMERGENCY_STOP])
+def test_controller_stops_end_the_episode(fault):
+    env, backend = _env()
+    env.reset(options={"q0": PAPER_Q0})
+    env.step(np.full(6, 0.01))
+    backend.inject_fault(fault)
+    _, _, terminated, _, info = env.step(np.full(6, 0.01))
+    assert info["safety_state"] == fault
+    _assert_stopped(env, backend, info, terminated, fault)
+    with pytest.raises(RuntimeError, match=fault):
+        env.reset()  # cleared on the pendant first
+
+
+def test_missed_deadlines_stop_the_arm():
+    env, backend = _env(max_missed_deadlines=3)
+    env.reset(options={"q0": PAPER_Q0})
+    env.step(np.zeros(6))
+    for k in range(3):
+        time.sleep(2.5 * env.dt)  # a policy that takes 2.5 periods
+        _, _, terminated, _, info = env.step(np.zeros(6))
+        assert terminated == (k == 2)
+    _assert_stopped(env, backend, info, terminated, "missed its 8.0 ms deadline 3 periods running")
+
+
+def test_one_late_period_is_tolerated():
+    env, _ = _env(max_missed_deadlines=3)
+    env.reset(options={"q0": PAPER_Q0})
+    env.step(np.zeros(6))
+    time.sleep(2.5 * env.dt)
+    env.step(np.zeros(6))
+    _, _, terminated, _, _ = env.step(np.zeros(6))
+    assert not terminated
+
+
+@pytest.mark.parametrize("error", [KeyboardInterrupt, ConnectionFailure, ZeroDivisionError])
+def test_any_exception_in_the_loop_stops_the_arm(monkeypatch, error):
+    env, backend = _env()
+    env.reset(options={"q0": PAPER_Q0})
+    env.step(np.full(6, 0.05))
+
+    def fail(_start):
+        raise error("boom")
+
+    monkeypatch.setattr(backend, "end_period", fail)
+    with pytest.raises(error):
+        env.step(np.full(6, 0.05))
+    assert backend.stopped and env.stop_reason == f"{error.__name__} during step"
+
+
+def test_close_stops_the_arm():
+    env, backend = _env()
+    env.reset(options={"q0": PAPER_Q0})
+    env.step(np.full(6, 0.05))
+    env.close()
+    assert backend.stop_calls >= 1 and backend.sim.client == -1
+
+
+def test_bad_actions_are_rejected_before_anything_is_sent():
+    env, backend = _env()
+    env.reset(options={"q0": PAPER_Q0})
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.array([np.nan, 0, 0, 0, 0, 0]))
+    assert backend.commands_sent == 0 and env.stop_reason is None
+
+
+def test_dry_run_sends_nothing_and_records_what_it_would_send():
+    inner = SimulatedBackend(realtime=False)
+    inner.move_to(np.array(PAPER_Q0))  # where the (real) arm happens to be
+    lines = []
+    backend = DryRunBackend(inner, echo=lines.append)
+    env = RealUREnv("reach", backend)
+    obs, _ = env.reset(options={"q0": PAPER_Q0})
+    policy = ResolvedRate(env)
+    for _ in range(3):
+        obs, *_ = env.step(policy.act(obs))
+    assert inner.commands_sent == 0 and len(backend.sent) == 3
+    assert lines[0].startswith("would moveJ") and lines[1].startswith("would send speedJ")
+    np.testing.assert_allclose(obs[:6], PAPER_Q0)  # the arm did not move
+
+
+def test_loop_period_and_jitter_are_measured_at_125_hz():
+    env, _ = _env(realtime=True)
+    env.reset(options={"q0": PAPER_Q0})
+    for _ in range(63):  # half a second
+        env.step(np.zeros(6))
+    timing = env.timing()
+    assert len(env.periods) == 62
+    # waitPeriod never returns early: each period lasts at least dt (jitter figures: README)
+    assert timing["period_ms_p50"] >= 8.0 * 0.999
+    assert set(timing) >= {"period_ms_mean", "period_ms_std", "period_ms_p99", "jitter_ms_max", "late_periods"}
+
+
+def test_rtde_backend_fails_fast_on_a_closed_loopback_port():
+    start = time.monotonic()
+    with pytest.raises(ConnectionFailure, match="127.0.0.1:30004 refused") as excinfo:
+        URRTDEBackend("127.0.0.1", connect_timeout=2.0)
+    assert time.monotonic() - start < 5.0
+    assert "\n" not in str(excinfo.value)
+
+
+def test_safety_limits_validate_their_arguments():
+    with pytest.raises(ValueError, match="speed_scale"):
+        SafetyLimits(speed_scale=1.5)
+    with pytest.raises(ValueError, match="task box"):
+        SafetyLimits(box_low=(0, 0, 0), box_high=(0, 1, 1))
