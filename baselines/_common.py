@@ -1,0 +1,135 @@
+"""What the three baseline controllers share: reading the observation, the task-space
+feedback term, staying inside the joint-velocity limits, and the resolved-rate skeleton.
+
+Every baseline commands the joint velocities ``u`` of ``ẋ = J u`` (eq. 3 of the paper) from
+the *reference velocity*
+
+    v = ẋ_d + K (x_d − x) = ẋ_d − K e,        e = x − x_d (the observation's error field),
+
+i.e. the task-space velocity that makes ``ė = −K e`` when ``J u = v`` holds exactly. For
+regulation ``ẋ_d = 0`` (the reach env's observation carries zeros there), so one formula
+serves both tasks. The controllers differ in how they map ``v`` to ``u``.
+
+The Jacobian comes from the env's shared :class:`~snac_gym.kinematics.Kinematics`; the
+baselines have no kinematics of their own.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from snac_gym.policies.base import BasePolicy
+
+
+def positive_float(name: str, value: Any) -> float:
+    """``value`` as a finite float > 0.
+
+    Raises:
+        ValueError: If it is not one.
+    """
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a positive number, got {value!r}") from exc
+    if not (np.isfinite(number) and number > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return number
+
+
+def clip_to_box(command: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """Projection ``P_Ω`` onto the box ``Ω = {u : −limits ≤ u ≤ limits}``, component-wise.
+
+    ``minimum(maximum(·))`` instead of ``np.clip``: the same result at half the overhead
+    on 6-vectors, and this runs at every control step.
+    """
+    return np.minimum(np.maximum(command, -limits), limits)
+
+
+def scale_into_box(command: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray, float]:
+    """Scale ``command`` uniformly so that ``|uᵢ| ≤ limitsᵢ`` for every joint.
+
+    Unlike component-wise clipping, uniform scaling keeps the direction of ``u`` and hence
+    of the end-effector velocity ``J u``: a saturated resolved-rate step still moves the end
+    effector straight towards the reference, only slower.
+
+    Returns:
+        ``(u, scale)``: the command inside the box (``command`` itself when it was inside)
+        and the factor ``scale ≥ 1`` it was divided by (1 when inside).
+    """
+    scale = float(np.max(np.abs(command) / limits))
+    if scale > 1.0:
+        command /= scale
+        # u/scale can land one rounding step outside the bound it was scaled onto.
+        return clip_to_box(command, limits), scale
+    return command, 1.0
+
+
+class ObservationReader:
+    """Precomputed slices of the fields the baselines read (q, e, ẋ_d), so ``act`` indexes
+    the flat observation directly instead of building named views at every step."""
+
+    def __init__(self, policy: BasePolicy) -> None:
+        slices = policy.layout.slices
+        self.size = policy.layout.size
+        self.q = slices["q"]
+        self.e = slices["e"]
+        self.xdot_d = slices["xdot_d"]
+
+    def read(self, obs: np.ndarray) -> np.ndarray:
+        """``obs`` as a float array of the layout's size.
+
+        Raises:
+            ValueError: If ``obs`` does not have the layout's shape.
+        """
+        obs = np.asarray(obs, dtype=float)
+        if obs.shape != (self.size,):
+            raise ValueError(f"observation must have shape ({self.size},), got {obs.shape}")
+        return obs
+
+
+def reference_velocity(obs: np.ndarray, reader: ObservationReader, gain: float, feedforward: bool = True) -> np.ndarray:
+    """``v = ẋ_d + K (x_d − x) = ẋ_d − K e`` from an observation (``ẋ_d`` dropped without ``feedforward``)."""
+    feedback = obs[reader.e] * -gain
+    if feedforward:
+        feedback += obs[reader.xdot_d]
+    return feedback
+
+
+class ResolvedRatePolicy(BasePolicy):
+    """Closed-loop inverse kinematics ``u = sat(G(J) (ẋ_d + K (x_d − x)))``.
+
+    Subclasses give the generalised inverse ``G(J)`` through :meth:`resolve`; this class reads
+    the observation, builds the reference velocity, calls the shared kinematics for ``J`` and
+    scales the result into the velocity limits (:func:`scale_into_box`).
+
+    Args:
+        env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive.
+        gain: Task-space feedback gain ``K`` (1/s); the effort knob: the command at the start
+            of a regulation episode is about ``K‖e₀‖`` in task space.
+
+    Attributes:
+        effort_parameter: Name of the constructor argument that scales the control effort
+            (``"gain"``), for the evaluator's effort matching.
+    """
+
+    effort_parameter = "gain"
+
+    def __init__(self, env: Any, gain: float) -> None:
+        super().__init__(env)
+        self.gain = positive_float("gain", gain)
+        self._reader = ObservationReader(self)
+
+    def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
+        """Joint velocities ``G(J) v`` before saturation (a new array)."""
+        raise NotImplementedError
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Joint-velocity command (rad/s) for ``obs``, inside the velocity limits."""
+        obs = self._reader.read(obs)
+        task_velocity = reference_velocity(obs, self._reader, self.gain)
+        jacobian = self.kinematics.jacobian(obs[self._reader.q])
+        command, scale = scale_into_box(self.resolve(jacobian, task_velocity), self.velocity_limits)
+        self.internals = {"saturation_scale": scale}
+        return command
