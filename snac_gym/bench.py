@@ -110,3 +110,93 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
                      "max_joint_velocity_error_rad_s": max_vel, "steps_per_s": steps / elapsed})
         env.close()
     return rows
+
+
+def run_act_bench(
+    names: tuple[str, ...] | list[str] = ("snac",),
+    tasks: tuple[str, ...] = ("reach", "track"),
+    calls: int = 5000,
+    seed: int = 0,
+    policy_kwargs: dict[str, dict[str, Any]] | None = None,
+    clock: str = "wall",
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Latency of one ``act`` call, per policy and task, on one core (a benchmark, never a test).
+
+    Each policy drives the task's env in closed loop from the paper's θ0 and reference
+    (episodes restart as they end) and every ``act`` call is timed alone with
+    ``time.perf_counter_ns``, so the states are the ones a real run visits.
+
+    Args:
+        names: Registered policy names (see :func:`~snac_gym.policies.available_policies`).
+        tasks: ``"reach"`` and/or ``"track"``.
+        calls: Timed ``act`` calls per policy and task (after 200 untimed warm-up calls).
+        seed: Seed of the env and policy resets.
+        policy_kwargs: Optional constructor arguments per policy name.
+        clock: ``"wall"`` (``perf_counter_ns``, what a control loop sees) or ``"cpu"``
+            (``thread_time_ns``: leaves out time the thread spent descheduled, for a
+            machine shared with other work; its own overhead is ~0.5 µs per call).
+
+    Returns:
+        ``{name: {task: {"median_us", "p99_us", "mean_us", "calls"}}}``. A policy that fails
+        to import or build is reported as ``{"error": message}`` instead of a task dict.
+    """
+    import gymnasium as gym
+
+    import snac_gym  # noqa: F401  (registers the envs)
+    from snac_gym.policies import make_policy
+    from snac_gym.references import PAPER_Q0
+
+    env_ids = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}
+    if clock not in ("wall", "cpu"):
+        raise ValueError(f"clock must be 'wall' or 'cpu', got {clock!r}")
+    _pin_to_one_core()
+    results: dict[str, dict[str, Any]] = {}
+    for name in names:
+        results[name] = {}
+        for task in tasks:
+            env = gym.make(env_ids[task])
+            try:
+                policy = make_policy(name, env, **(policy_kwargs or {}).get(name, {}))
+            except Exception as exc:  # noqa: BLE001 - report any policy that does not build
+                env.close()
+                results[name] = {"error": f"{type(exc).__name__}: {exc}"}
+                break
+            options = {"q0": list(PAPER_Q0)}
+            obs, _ = env.reset(seed=seed, options=options)
+            policy.reset(seed=seed)
+            timings = np.empty(calls, dtype=np.int64)
+            now = time.perf_counter_ns if clock == "wall" else time.thread_time_ns
+            for k in range(-200, calls):
+                start = now()
+                action = policy.act(obs)
+                elapsed = now() - start
+                if k >= 0:
+                    timings[k] = elapsed
+                obs, _, terminated, truncated, _ = env.step(action)
+                if terminated or truncated:
+                    obs, _ = env.reset(seed=seed, options=options)
+                    policy.reset(seed=seed)
+            env.close()
+            micro = timings / 1e3
+            results[name][task] = {
+                "median_us": float(np.median(micro)),
+                "p99_us": float(np.percentile(micro, 99)),
+                "mean_us": float(micro.mean()),
+                "calls": int(calls),
+            }
+    return results
+
+
+def format_act_bench(results: dict[str, dict[str, Any]]) -> str:
+    """Table of :func:`run_act_bench` results."""
+    lines = [f"{'policy':12s} {'task':6s} {'median µs':>10s} {'p99 µs':>9s} {'mean µs':>9s} {'calls':>7s}"]
+    for name, per_task in results.items():
+        if "error" in per_task:
+            lines.append(f"{name:12s} skipped: {per_task['error']}")
+            continue
+        for task, row in per_task.items():
+            lines.append(
+                f"{name:12s} {task:6s} {row['median_us']:10.1f} {row['p99_us']:9.1f} {row['mean_us']:9.1f}"
+                f" {row['calls']:7d}"
+            )
+    return "\n".join(lines)

@@ -5,6 +5,9 @@ Each subcommand parses its options and calls a function that can be used from Py
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Optional
+
 import typer
 
 app = typer.Typer(
@@ -36,8 +39,10 @@ def bench(
     steps: int = typer.Option(5000, min=100, help="Env steps per measurement."),
     panda: bool = typer.Option(True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."),
     substeps: bool = typer.Option(False, "--substeps", help="Also run the physics-substep accuracy study."),
+    act: bool = typer.Option(False, "--act", help="Also time one act() call of every available policy that imports."),
+    act_calls: int = typer.Option(5000, "--act-calls", min=100, help="Timed act() calls per policy and task."),
 ) -> None:
-    """Env steps per second and real-time factor of both ids on one core."""
+    """Env steps per second and real-time factor of both ids on one core (and, with --act, act latency)."""
     from snac_gym.bench import format_env_bench, run_env_bench, run_substep_study
 
     typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
@@ -49,6 +54,132 @@ def bench(
                 f"{row['max_joint_position_error_rad']:.2e} rad, max |θ̇ − u| = "
                 f"{row['max_joint_velocity_error_rad_s']:.2e} rad/s, {row['steps_per_s']:.0f} steps/s"
             )
+    if act:
+        from snac_gym.bench import format_act_bench, run_act_bench
+        from snac_gym.policies import available_policies
+
+        typer.echo("\nact latency on one core, closed loop from the paper's θ0 (goal: median ≤ 20 µs, p99 ≤ 100 µs)")
+        typer.echo(format_act_bench(run_act_bench(names=available_policies(), calls=act_calls)))
+
+
+@app.command()
+def demo(
+    task: str = typer.Option("reach", "--task", help="reach (fixed target) or track (the paper's circle)."),
+    controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
+    out: Path = typer.Option(Path("demo_out"), "--out", help="Folder for the PNG panels, the log and summary.json."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control steps (default: 1000 reach, 2500 track)."),
+    duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."),
+    csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
+    plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),
+) -> None:
+    """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
+    from snac_gym.demo import DEMO_ENVS, run_demo
+
+    if task not in DEMO_ENVS:
+        raise typer.BadParameter(f"must be one of {sorted(DEMO_ENVS)}", param_hint="--task")
+    if steps is not None and duration is not None:
+        raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
+    try:
+        result = run_demo(task=task, controller=controller, out_dir=out, seed=seed, steps=steps, duration=duration,
+                          csv=csv, plots=plots)
+    except ValueError as exc:  # unknown controller and other bad input: a clean message, not a traceback
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+    typer.echo(result.summary())
+
+
+@app.command()
+def evaluate(
+    out: Path = typer.Option(Path("evaluation_out"), "--out", help="Output folder (results, summary, plots, parts)."),
+    task: str = typer.Option("both", "--task", help="reach, track or both."),
+    controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one)."),
+    samples: int = typer.Option(1000, "--samples", min=1, help="Random samples per task (the paper: 1000)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
+    horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=8, track=20."),
+    backend: str = typer.Option("kinematic", "--backend", help="kinematic (exact θ += uΔt, fast) or pybullet (the Gymnasium env)."),
+    match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
+    effort_reference: str = typer.Option("snac", "--effort-reference", help="Controller whose effort the others are matched to."),
+    effort_target: Optional[float] = typer.Option(None, "--effort-target", help="Explicit effort target (fraction of the velocity limits); then every controller is matched."),
+    effort_tolerance: float = typer.Option(0.02, "--effort-tolerance", help="Relative tolerance of the effort match."),
+    calibration_samples: Optional[int] = typer.Option(None, "--calibration-samples", min=1, help="Samples the knob search runs on (default: all)."),
+    samples_file: Optional[Path] = typer.Option(None, "--samples-file", help="Read the samples from this CSV (docs/evaluation.md)."),
+    export_samples: Optional[Path] = typer.Option(None, "--export-samples", help="Also write the sample set to this CSV."),
+    export_only: bool = typer.Option(False, "--export-only", help="Only write --export-samples, run nothing."),
+    save_trajectories: bool = typer.Option(False, "--save-trajectories", help="Write every rollout's per-step log under OUT/trajectories."),
+    workers: int = typer.Option(1, "--workers", min=1, help="Local worker processes."),
+    ray: Optional[str] = typer.Option(None, "--ray", help="Run on Ray: 'local' (a new instance here) or a cluster address ('auto', 'ray://host:10001')."),
+    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run in OUT."),
+    chunk_size: int = typer.Option(50, "--chunk-size", min=1, help="Samples per job."),
+    cuboid: Optional[str] = typer.Option(None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."),
+    robot: str = typer.Option("ur10", "--robot", help="ur3, ur5 or ur10."),
+    param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
+    batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+) -> None:
+    """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
+    import time
+
+    from evaluation.options import parse_controllers, parse_cuboid, parse_horizons, parse_params, parse_tasks
+    from evaluation.runner import EvaluationConfig, export_sample_set, run_evaluation
+    from snac_gym.kinematics import Kinematics
+    from snac_gym.sampling import SampleSpace
+
+    try:
+        corners = parse_cuboid(cuboid)
+        space = None
+        if corners is not None:
+            space = SampleSpace.for_robot(Kinematics(robot), low=corners[0], high=corners[1])
+        config = EvaluationConfig(
+            out=out, tasks=parse_tasks(task), controllers=parse_controllers(controllers), samples=samples, seed=seed,
+            horizons=parse_horizons(horizon), backend=backend, match_effort=match_effort,
+            effort_reference=effort_reference, effort_target=effort_target, effort_tolerance=effort_tolerance,
+            calibration_samples=calibration_samples, samples_file=samples_file, export_samples=export_samples,
+            save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume, chunk_size=chunk_size,
+            robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, use_batch=batch,
+        )
+        if export_only:
+            typer.echo(f"samples written to {export_sample_set(config)}")
+            return
+        start = time.perf_counter()
+        run_evaluation(config)
+    except (ValueError, RuntimeError) as exc:  # bad options, samples file, controller, output folder: a clean message
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+    summary = (out / "summary.md").read_text()
+    typer.echo(summary.split("\n## ")[0].rstrip())
+    typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; results, summary and plots in {out}/")
+
+
+@app.command("train-ppo")
+def train_ppo_command(
+    task: str = typer.Option(..., "--task", help="reach or track."),
+    timesteps: Optional[int] = typer.Option(None, "--timesteps", min=1, help="Total env steps (default: the config's)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Seed of PPO and the training envs (default: the config's)."),
+    out: Path = typer.Option(..., "--out", help="Output folder: checkpoint/, best/, logs, evaluations.csv, curves."),
+    config: Optional[Path] = typer.Option(None, "--config", help="Hyperparameter file (default: snac_gym/ppo/configs/TASK.json)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
+    n_envs: Optional[int] = typer.Option(None, "--n-envs", min=1, help="Parallel training envs (default: the config's)."),
+    vec_env: Optional[str] = typer.Option(None, "--vec-env", help="dummy (one process) or subproc (one process per env)."),
+) -> None:
+    """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""
+    if task not in ("reach", "track"):
+        raise typer.BadParameter("must be reach or track", param_hint="--task")
+    try:
+        from snac_gym.ppo.train import train_ppo
+
+        result = train_ppo(task=task, out=out, timesteps=timesteps, seed=seed, config_path=config, resume=resume,
+                           n_envs=n_envs, vec_env=vec_env, log=typer.echo)
+    except (ValueError, ImportError) as exc:  # bad config or folder, missing [rl] extra: a clean message
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+    best = result.best
+    typer.echo(f"{result.status}: {result.timesteps} timesteps, wall time {result.wall_time_s / 60:.1f} min")
+    if best is not None:
+        typer.echo(f"best policy ({int(best['timesteps'])} timesteps, success {100 * best['success_rate']:.1f}%): "
+                   f"{result.best_policy}")
+    if result.status == "interrupted":
+        raise typer.Exit(code=130)
 
 
 def main() -> None:

@@ -1,0 +1,185 @@
+"""Figure panels of a trajectory log (the paper's Figure 3, plus the critic weights).
+
+Every function takes a log from :func:`snac_gym.rollout.rollout` and returns a
+:class:`matplotlib.figure.Figure` drawn on the Agg canvas: no pyplot, no display, no global
+state, so plots are safe in tests, CI and worker processes. :func:`save_figure` writes PNGs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from snac_gym.cost import cost_rates
+from snac_gym.references import Ellipse, FixedTarget
+from snac_gym.rollout import log_array
+
+_COLOURS = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9"]
+
+
+def _figure(width: float = 6.4, height: float = 4.8) -> Figure:
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _reference_points(log: pd.DataFrame, count: int = 256) -> np.ndarray | None:
+    """Points of the whole reference (target, or the full ellipse) from the log's metadata."""
+    spec = log.attrs.get("reference")
+    if not spec:
+        return None
+    if "target" in spec:
+        return FixedTarget(spec["target"]).points()
+    return Ellipse.from_dict(spec).points(count)
+
+
+def plot_path(log: pd.DataFrame, ax: Any = None) -> Figure:
+    """End-effector path against the reference in 3-D (Figure 3 a/e)."""
+    fig = ax.figure if ax is not None else _figure()
+    ax = ax if ax is not None else fig.add_subplot(projection="3d")
+    x, x_d = log_array(log, "x"), log_array(log, "x_d")
+    points = _reference_points(log)
+    if points is not None and len(points) > 1:
+        closed = np.vstack([points, points[:1]])
+        ax.plot(*closed.T, color="0.6", lw=1.0, ls=":", label="reference (whole)")
+    ax.plot(*x_d.T, color="C1", lw=1.5, ls="--", label="desired $x_d(t)$")
+    ax.plot(*x.T, color="C0", lw=1.8, label="end effector $x(t)$")
+    ax.scatter(*x[0], color="C0", marker="o", s=25, label="start")
+    if np.allclose(x_d, x_d[:1]):
+        ax.scatter(*x_d[0], color="C3", marker="*", s=120, label="target")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    ax.set_title("End-effector path")
+    ax.legend(loc="upper left", fontsize="small")
+    return fig
+
+
+def plot_error(log: pd.DataFrame, axes: Any = None, tolerance: float | None = None) -> Figure:
+    """Error components vs time, and its norm on a log scale (Figure 3 b/f)."""
+    fig = axes[0].figure if axes is not None else _figure(6.4, 5.6)
+    top, bottom = axes if axes is not None else fig.subplots(2, 1, sharex=True)
+    t, e = log["t"].to_numpy(), log_array(log, "e")
+    for i in range(e.shape[1]):
+        top.plot(t, e[:, i], color=_COLOURS[i % 10], label=f"$e_{i}$")
+    top.set_ylabel("error (m)")
+    top.set_title("Task-space error $e = x - x_d$")
+    top.legend(fontsize="small")
+    top.grid(alpha=0.3)
+    norm = np.linalg.norm(e, axis=1)
+    bottom.semilogy(t, np.maximum(norm, 1e-9), color="k", label=r"$\|e\|$")
+    if tolerance is not None:
+        bottom.axhline(tolerance, color="C3", ls="--", lw=1.0, label=f"{tolerance * 1e3:g} mm")
+    bottom.set_xlabel("time (s)")
+    bottom.set_ylabel(r"$\|e\|$ (m)")
+    bottom.legend(fontsize="small")
+    bottom.grid(alpha=0.3, which="both")
+    return fig
+
+
+def plot_joint_velocities(log: pd.DataFrame, ax: Any = None) -> Figure:
+    """Joint-velocity commands vs time with their limits (Figure 3 c/g)."""
+    fig = ax.figure if ax is not None else _figure()
+    ax = ax if ax is not None else fig.add_subplot()
+    t, u = log["t"].to_numpy(), log_array(log, "u")
+    limits = log.attrs.get("velocity_limits")
+    for j in range(u.shape[1]):
+        colour = _COLOURS[j % 10]
+        ax.plot(t, u[:, j], color=colour, label=f"$u_{j}$")
+        if limits is not None:
+            ax.axhline(limits[j], color=colour, ls="--", lw=0.8, alpha=0.6)
+            ax.axhline(-limits[j], color=colour, ls="--", lw=0.8, alpha=0.6)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("joint velocity (rad/s)")
+    ax.set_title("Joint velocities (dashed: limits)")
+    ax.legend(ncol=3, fontsize="small")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def plot_cost(log: pd.DataFrame, axes: Any = None, Q: np.ndarray | None = None, R: np.ndarray | None = None) -> Figure:
+    """Cost vs time (Figure 3 d/h): the instantaneous cost and the running trajectory cost.
+
+    Top: ``eₖᵀQeₖ + uₖᵀRuₖ`` (integrand of eq. 6). Bottom: the running sums of the three terms
+    of the evaluator's trajectory cost ``V = Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt`` (u₋₁ = 0), both
+    from :mod:`snac_gym.cost`.
+    """
+    fig = axes[0].figure if axes is not None else _figure(6.4, 5.6)
+    top, bottom = axes if axes is not None else fig.subplots(2, 1, sharex=True)
+    t = log["t"].to_numpy()
+    dt = float(log.attrs.get("dt", t[1] - t[0] if len(t) > 1 else 1.0))
+    rates = cost_rates(log_array(log, "e"), log_array(log, "u"), dt, Q, R)
+    top.semilogy(t, np.maximum(rates.error + rates.effort, 1e-12), color="k")
+    top.set_ylabel(r"$e^TQe + u^TRu$")
+    top.set_title("Instantaneous cost (eq. 6 integrand)")
+    top.grid(alpha=0.3, which="both")
+    for name, values, colour in (
+        ("error", rates.error, "C0"),
+        ("effort", rates.effort, "C1"),
+        ("smoothness", rates.smoothness, "C2"),
+    ):
+        bottom.plot(t, np.cumsum(values) * dt, color=colour, label=name)
+    total = np.cumsum(rates.error + rates.effort + rates.smoothness) * dt
+    bottom.plot(t, total, color="k", lw=2.0, label=f"total V = {total[-1]:.4g}" if len(total) else "total")
+    bottom.set_yscale("symlog", linthresh=1e-2)
+    bottom.set_xlabel("time (s)")
+    bottom.set_ylabel("running cost")
+    bottom.legend(fontsize="small")
+    bottom.grid(alpha=0.3, which="both")
+    return fig
+
+
+def weight_labels(count: int, task: str | None, task_dim: int) -> list[str]:
+    """Names of the quadratic-basis terms behind ``w_0..w_{count-1}`` (e for reach, ξ = [e; x_d] for track)."""
+    names = [f"e{i}" for i in range(task_dim)]
+    if task == "track":
+        names += [f"xd{i}" for i in range(task_dim)]
+    pairs = [(i, j) for i in range(len(names)) for j in range(i, len(names))]
+    if len(pairs) != count:
+        return [f"w{k}" for k in range(count)]
+    return [f"{names[i]}²" if i == j else f"{names[i]}·{names[j]}" for i, j in pairs]
+
+
+def plot_critic_weights(log: pd.DataFrame, ax: Any = None) -> Figure:
+    """Critic weights Ŵ vs time (one line per basis term)."""
+    fig = ax.figure if ax is not None else _figure(7.2, 4.8)
+    ax = ax if ax is not None else fig.add_subplot()
+    t, w = log["t"].to_numpy(), log_array(log, "w")
+    labels = weight_labels(w.shape[1], log.attrs.get("task"), int(log.attrs.get("task_dim", 3)))
+    styles = ["-", "--", ":", "-."]
+    for k in range(w.shape[1]):
+        ax.plot(t, w[:, k], color=_COLOURS[k % 10], ls=styles[(k // 10) % 4], lw=1.2, label=labels[k])
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("weight")
+    ax.set_title(r"Critic weights $\hat W$")
+    ax.legend(ncol=3 if w.shape[1] > 8 else 2, fontsize="x-small")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def plot_figure3(log: pd.DataFrame, tolerance: float | None = None) -> Figure:
+    """The four panels of the paper's Figure 3 for one run, side by side."""
+    fig = _figure(13.0, 9.0)
+    grid = fig.add_gridspec(2, 2)
+    plot_path(log, ax=fig.add_subplot(grid[0, 0], projection="3d"))
+    sub = grid[0, 1].subgridspec(2, 1)
+    top = fig.add_subplot(sub[0])
+    plot_error(log, axes=(top, fig.add_subplot(sub[1], sharex=top)), tolerance=tolerance)
+    plot_joint_velocities(log, ax=fig.add_subplot(grid[1, 0]))
+    sub = grid[1, 1].subgridspec(2, 1)
+    top = fig.add_subplot(sub[0])
+    plot_cost(log, axes=(top, fig.add_subplot(sub[1], sharex=top)))
+    return fig
+
+
+def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
+    """Write ``fig`` as PNG to ``path`` (folders created) and return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    return path

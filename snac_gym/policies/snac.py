@@ -1,0 +1,419 @@
+"""The single network adaptive critic (SNAC) kinematic controller of the paper (Sections III and IV).
+
+One critic ``V̂(s) = Ŵᵀσ(s)`` over a quadratic basis of the critic state ``s`` gives the
+command and is tuned online by a Lyapunov-based law; there is no actor network.
+
+Regulation (``task="reach"``, Section III), critic state ``s = e = x − x_d``::
+
+    û  = −½ R⁻¹ Jᵀ ∇σᵀ Ŵ                     (eq. 15)
+    Ŵ̇ = α ∇σ J R⁻¹ Jᵀ ∇J_s(e),  J_s = ½eᵀe   (eq. 19)
+
+Tracking (``task="track"``, Section IV), critic state ``s = ξ = [e; x_d − x_c]`` (eq. 31):
+``x_d`` is taken **relative to the ellipse centre** ``x_c`` (the observation's ``x_c``
+field) so that the reference dynamics ``ẋ_d = φ(x_d)`` satisfy ``φ(0) = 0`` (eq. 29);
+``G(ξ) = [J; 0]``::
+
+    û  = −½ R⁻¹ Gᵀ ∇φᵀ Ŵ                     (eq. 36)
+    Ŵ̇ = α ∇φ G R⁻¹ Gᵀ ∇J_s(ξ),  J_s = ½ξᵀξ   (eq. 38)
+
+Learning rate (Section V): ``α = α_i tanh(n − k) + α_f``; regulation ``n = 50, α_i = 100,
+α_f = 150``, tracking ``n = 10, α_i = 20, α_f = 70``.
+
+The paper leaves open how the continuous weight law is discretised at the control period
+and what "k = time instance" counts. Both are constructor arguments
+(``weight_update``, ``learning_rate_unit``, ``freeze_when_saturated``, ``schedule_clock``)
+whose defaults were chosen by measurement on the paper's two demos (docs/snac.md has the
+commands and the numbers). In short: read as a rate per second, the paper's α learns too
+slowly at 125 Hz (reach needs 9.7–14.1 s to get within 1 mm; tracking never settles under
+5 mm, 6.7–9.0 mm after a full revolution); read as a gain per control step it learns fast
+enough but winds up while the command is clipped (reach ends in a limit cycle with 84 % of
+the steps clipped). Per-step α with the update skipped on clipped steps (the usual
+anti-windup of adaptive laws under actuator limits, an addition to the paper) meets both
+demos' criteria, with the update form (Euler, command from Ŵₖ) and k counting steps.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from snac_gym.policies.base import BasePolicy
+
+#: The paper's learning-rate schedules (Section V): task -> (α_initial, α_final, n).
+PAPER_SCHEDULES: dict[str, tuple[float, float, float]] = {
+    "reach": (100.0, 150.0, 50.0),
+    "track": (20.0, 70.0, 10.0),
+}
+#: Discretisations of the weight law over one control period, see :class:`SNACPolicy`.
+WEIGHT_UPDATES = ("euler", "euler_updated", "zoh")
+#: How the paper's α is read: a rate per second, or a gain per control step.
+LEARNING_RATE_UNITS = ("per_step", "per_second")
+#: What "k = time instance" of the schedule counts.
+SCHEDULE_CLOCKS = ("steps", "seconds")
+
+
+class QuadraticBasis:
+    """All degree-2 monomials of a ``dim``-vector: ``σ(s) = [s_i s_j for i ≤ j]``.
+
+    The order is the paper's: ``s₁², s₁s₂, …, s₁s_d, s₂², s₂s₃, …, s_d²`` (6 terms for
+    ``d = 3``, 21 for ``d = 6``); ``size = d(d + 1)/2``. The gradient ``∇σ`` (``size × d``,
+    row k = ∂σ_k/∂s) is linear in s with a fixed sparse structure, so it is computed as one
+    product ``vec(∇σ(s)) = T s`` with the constant selection matrix ``T`` built here.
+
+    Args:
+        dim: Dimension of ``s``.
+    """
+
+    def __init__(self, dim: int) -> None:
+        if dim < 1:
+            raise ValueError(f"basis dimension must be positive, got {dim}")
+        self.dim = int(dim)
+        pairs = [(i, j) for i in range(dim) for j in range(i, dim)]
+        self.size = len(pairs)
+        #: ``first[k], second[k]``: the indices (i ≤ j) of term k.
+        self.first = np.array([i for i, _ in pairs], dtype=np.intp)
+        self.second = np.array([j for _, j in pairs], dtype=np.intp)
+        # Term k = s_i s_j: ∂/∂s_i = s_j and ∂/∂s_j = s_i (i ≠ j), or ∂/∂s_i = 2 s_i (i = j).
+        selection = np.zeros((self.size * dim, dim))
+        for k, (i, j) in enumerate(pairs):
+            selection[k * dim + i, j] += 1.0
+            selection[k * dim + j, i] += 1.0
+        #: The constant ``(size·dim, dim)`` matrix T with ``vec(∇σ(s)) = T s``.
+        self.selection = selection
+
+    def labels(self, names: list[str] | None = None) -> list[str]:
+        """Readable names of the terms, e.g. ``["s0^2", "s0*s1", ...]``."""
+        names = names or [f"s{i}" for i in range(self.dim)]
+        return [f"{names[i]}^2" if i == j else f"{names[i]}*{names[j]}" for i, j in zip(self.first, self.second)]
+
+    def __call__(self, s: np.ndarray) -> np.ndarray:
+        """``σ(s)``, shape ``(size,)``."""
+        s = np.asarray(s, dtype=float)
+        return s[self.first] * s[self.second]
+
+    def gradient(self, s: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``∇σ(s) = ∂σ/∂s``, shape ``(size, dim)``.
+
+        Args:
+            s: The point, shape ``(dim,)``, float64.
+            out: Optional C-contiguous float64 ``(size, dim)`` array to write into.
+        """
+        if out is None:
+            out = np.empty((self.size, self.dim))
+        np.dot(self.selection, s, out=out.reshape(-1))
+        return out
+
+
+class SNACPolicy(BasePolicy):
+    """SNAC kinematic control: regulation (eqs. 15, 19) or tracking (eqs. 36, 38) by the env's task.
+
+    The critic state is ``e`` for ``reach`` and ``ξ = [e; x_d − x_c]`` for ``track``: x_d is
+    expressed relative to the ellipse centre x_c (the observation's ``x_c`` field), so the
+    reference dynamics satisfy φ(0) = 0 as eq. 29 assumes.
+
+    Args:
+        env: The env to drive (or a :class:`~snac_gym.policies.base.PolicyContext`).
+        Q: Error weight of the cost, ``(n, n)`` or its diagonal (default identity, the
+            paper's). The paper's laws (eqs. 15, 19, 36, 38) do not use it (the weight law
+            descends J_s, not the cost); it is kept as :attr:`Q`, the error weight of the
+            cost the critic approximates, for callers that evaluate that cost.
+        R: Effort weight ``(m, m)`` or its diagonal, symmetric positive definite (default
+            identity, the paper's). Enters the command and the weight law as R⁻¹.
+        learning_rate_initial: α_i of the schedule (default: the paper's for the task).
+        learning_rate_final: α_f of the schedule (default: the paper's for the task).
+        schedule_shift: n of the schedule (default: the paper's for the task).
+        schedule_clock: What k counts in ``tanh(n − k)``: ``"steps"`` (default: control
+            steps since reset, the sample index of the discrete law) or ``"seconds"``
+            (``k·Δt``).
+        weight_update: Discretisation of the weight law over one control period:
+
+            * ``"euler"`` (default): ``uₖ`` from ``Ŵₖ``, then one explicit Euler step
+              ``Ŵₖ₊₁ = Ŵₖ + h αₖ ∇σ(sₖ) Jₖ R⁻¹ Jₖᵀ eₖ`` (h per ``learning_rate_unit``); the
+              command only uses weights learnt up to step k−1.
+            * ``"euler_updated"``: the same step first, ``uₖ`` from ``Ŵₖ₊₁``.
+            * ``"zoh"``: ``uₖ`` from ``Ŵₖ``, then the weight law integrated exactly over the
+              period along ``s(τ) = sₖ + τṡ`` predicted with the held (clipped) command,
+              J frozen at Jₖ and ẋ_d held (ė = Jₖuₖ − ẋ_d, eq. 30).
+        learning_rate_unit: ``"per_step"`` (default): α is the gain of one update,
+            ``Ŵₖ₊₁ = Ŵₖ + αₖ ∇σ J R⁻¹ Jᵀ eₖ`` (h = 1); ``"per_second"``: α is the rate of the
+            continuous law, h = Δt.
+        freeze_when_saturated: Anti-windup (default ``True``): skip the weight update on a
+            step whose command had to be clipped to the velocity limits. The paper's
+            analysis assumes no saturation; without it the weights keep growing while the
+            arm cannot follow.
+        initial_weights: Initial critic weights Ŵ₀, length ``basis.size``. ``None`` (the
+            paper's "initialised randomly") draws them uniformly from
+            ``initial_weight_range`` with the reset seed.
+        initial_weight_range: ``(low, high)`` of the random initial weights (default
+            ``(0, 1)``, MATLAB's ``rand``).
+        command_scale: The effort knob (:attr:`effort_parameter`): a positive scalar c
+            multiplying the command of eq. 15/36 before clipping, ``u = clip(c·û)``.
+            Default 1, the paper's law. The weight law is unchanged; peak ‖u‖ and effort
+            were non-decreasing in c on every demo and random episode measured
+            (docs/snac.md), flat only where all joints saturate.
+        seed: Seed of the initial-weight generator used by ``reset(seed=None)``.
+
+    Commands are clipped element-wise to ``±velocity_limits`` (the env's action bounds).
+
+    Attributes:
+        basis: The :class:`QuadraticBasis` of the critic state (dimension n for reach, 2n
+            for track).
+        critic_weights: The current weights (replaced by a new array at each update, so a
+            reference taken earlier keeps its values).
+        internals: Evaluated on access, describing the last ``act`` (valid until the next):
+            ``critic_weights`` (Ŵ after this step's update; after ``reset``, Ŵ₀),
+            ``critic_value`` (V̂ = Ŵᵀσ(sₖ) with the weights that gave the command),
+            ``lyapunov`` (J_s(sₖ) = ½sₖᵀsₖ), ``learning_rate`` (the schedule's αₖ),
+            ``saturated`` (whether the command was clipped) and ``step`` (k).
+    """
+
+    #: The constructor argument that scales the control effort monotonically (evaluator's
+    #: equal-effort matching).
+    effort_parameter = "command_scale"
+
+    def __init__(
+        self,
+        env: Any,
+        *,
+        Q: np.ndarray | None = None,
+        R: np.ndarray | None = None,
+        learning_rate_initial: float | None = None,
+        learning_rate_final: float | None = None,
+        schedule_shift: float | None = None,
+        schedule_clock: str = "steps",
+        weight_update: str = "euler",
+        learning_rate_unit: str = "per_step",
+        freeze_when_saturated: bool = True,
+        initial_weights: np.ndarray | None = None,
+        initial_weight_range: tuple[float, float] = (0.0, 1.0),
+        command_scale: float = 1.0,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(env)
+        n, m = self.kinematics.task_dim, self.kinematics.n_joints
+        self.task_dim, self.n_joints = n, m
+        self.Q = self._matrix(Q, n, "Q")
+        self.R = self._matrix(R, m, "R")
+        if not np.allclose(self.R, self.R.T) or np.linalg.eigvalsh(self.R).min() <= 0:
+            raise ValueError("R must be symmetric positive definite")
+        self.R_inverse = np.linalg.inv(self.R)
+        diagonal = np.allclose(self.R_inverse, np.diag(np.diag(self.R_inverse)))
+        self._R_inverse_diagonal = np.diag(self.R_inverse).copy() if diagonal else None
+        self._R_is_identity = diagonal and np.array_equal(self._R_inverse_diagonal, np.ones(m))
+
+        for name, value, allowed in (
+            ("schedule_clock", schedule_clock, SCHEDULE_CLOCKS),
+            ("weight_update", weight_update, WEIGHT_UPDATES),
+            ("learning_rate_unit", learning_rate_unit, LEARNING_RATE_UNITS),
+        ):
+            if value not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
+        alpha_i, alpha_f, shift = PAPER_SCHEDULES[self.task]
+        self.learning_rate_initial = float(alpha_i if learning_rate_initial is None else learning_rate_initial)
+        self.learning_rate_final = float(alpha_f if learning_rate_final is None else learning_rate_final)
+        self.schedule_shift = float(shift if schedule_shift is None else schedule_shift)
+        self.schedule_clock = schedule_clock
+        self.weight_update = weight_update
+        self.learning_rate_unit = learning_rate_unit
+        self.freeze_when_saturated = bool(freeze_when_saturated)
+        self.command_scale = float(command_scale)
+        if not (math.isfinite(self.command_scale) and self.command_scale > 0):
+            raise ValueError(f"command_scale must be positive, got {command_scale}")
+
+        state_dim = n if self.task == "reach" else 2 * n  # e (Section III) or ξ = [e; x_d − x_c] (eq. 31)
+        self.basis = QuadraticBasis(state_dim)
+        low, high = map(float, initial_weight_range)
+        if not low <= high:
+            raise ValueError(f"initial_weight_range must be (low, high) with low <= high, got {initial_weight_range}")
+        self.initial_weight_range = (low, high)
+        if initial_weights is not None:
+            initial_weights = np.array(initial_weights, dtype=float)
+            if initial_weights.shape != (self.basis.size,) or not np.isfinite(initial_weights).all():
+                raise ValueError(
+                    f"initial_weights must be {self.basis.size} finite numbers, got shape {initial_weights.shape}"
+                )
+        self.initial_weights = initial_weights
+        self._rng = np.random.default_rng(seed)
+
+        # Hot-path workspace: act allocates only its command and the new weights.
+        s = self.layout.slices
+        self._q_slice, self._e_slice = s["q"], s["e"]
+        self._xd_slice, self._xdotd_slice, self._xc_slice = s["x_d"], s["xdot_d"], s["x_c"]
+        self._state = np.zeros(state_dim)
+        self._gradient = np.zeros((self.basis.size, state_dim))  # ∇σ(s)
+        self._make_views()
+        self._pair = np.zeros((2, n))  # rows: −½c ∇_e V̂ and h αₖ e, multiplied by J together
+        self._upper = self.velocity_limits.copy()
+        self._lower = -self.velocity_limits
+        self._upper_list = self._upper.tolist()
+        self._half_scale = -0.5 * self.command_scale
+        self.critic_weights = np.zeros(self.basis.size)
+        self._k = 0
+        self._ready = False
+        self._last: tuple[Any, ...] | None = None
+        self._internals: dict[str, Any] = {}
+
+    def _make_views(self) -> None:
+        self._gradient_flat = self._gradient.reshape(-1)  # a view: vec(∇σ) = T s is written here
+        self._gradient_e = self._gradient[:, : self.task_dim]  # G = [J; 0] keeps the error columns (eqs. 36, 38)
+
+    # -- pickling: views into the workspace would come back as independent copies ----------------
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        del state["_gradient_flat"], state["_gradient_e"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._make_views()
+
+    @staticmethod
+    def _matrix(value: np.ndarray | None, dim: int, name: str) -> np.ndarray:
+        if value is None:
+            return np.eye(dim)
+        matrix = np.asarray(value, dtype=float)
+        if matrix.ndim == 1:
+            matrix = np.diag(matrix)
+        if matrix.shape != (dim, dim):
+            raise ValueError(f"{name} must be ({dim}, {dim}) or a length-{dim} diagonal, got shape {matrix.shape}")
+        return matrix
+
+    # -- internals, evaluated on access ---------------------------------------------------------
+    @property
+    def internals(self) -> dict[str, Any]:  # type: ignore[override]
+        """See the class docstring; computed from the last ``act`` when first read."""
+        if self._last is not None:
+            weights_used, new_weights, alpha, saturated, k = self._last
+            state = self._state
+            self._internals = {
+                "critic_weights": new_weights,
+                "critic_value": 0.5 * float(state @ (weights_used @ self._gradient)),  # V̂ = Ŵᵀσ(s) = ½sᵀ∇σᵀŴ
+                "lyapunov": 0.5 * float(state @ state),  # J_s(s) = ½sᵀs
+                "learning_rate": alpha,
+                "saturated": saturated,
+                "step": k,
+            }
+            self._last = None
+        return self._internals
+
+    @internals.setter
+    def internals(self, value: dict[str, Any]) -> None:
+        self._internals = dict(value)
+        self._last = None
+
+    # -- episode ------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode: step counter to 0, critic weights to Ŵ₀ (random from ``seed`` unless given)."""
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        if self.initial_weights is not None:
+            self.critic_weights = self.initial_weights.copy()
+        else:
+            self.critic_weights = self._rng.uniform(*self.initial_weight_range, size=self.basis.size)
+        self._k = 0
+        self._ready = True
+        self.internals = {"critic_weights": self.critic_weights}
+
+    def learning_rate(self, k: int) -> float:
+        """``α = α_i tanh(n − k) + α_f`` (Section V); k in steps or seconds per ``schedule_clock``."""
+        clock = k if self.schedule_clock == "steps" else k * self.dt
+        return self.learning_rate_initial * math.tanh(self.schedule_shift - clock) + self.learning_rate_final
+
+    # -- the laws -----------------------------------------------------------------------------
+    def _products(self, weights: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
+        """Rows ``c·û`` (eq. 15 / eq. 36, unclipped) and ``h αₖ R⁻¹ Jᵀ e`` from one product.
+
+        ``self._pair`` row 1 must hold ``h αₖ e``; row 0 is set here to ``−½c ∇_eV̂``.
+        """
+        n = self.task_dim
+        value_gradient = np.dot(weights, self._gradient)  # ∇σᵀŴ (np.dot: less overhead than @ on tiny arrays)
+        np.multiply(value_gradient[:n], self._half_scale, out=self._pair[0])  # Gᵀ keeps the error part
+        rows = np.dot(self._pair, jacobian)  # (Jᵀ·)ᵀ for both rows
+        if not self._R_is_identity:
+            rows = rows * self._R_inverse_diagonal if self._R_inverse_diagonal is not None else rows @ self.R_inverse
+        return rows  # rows[0] = −½c R⁻¹Jᵀ∇σᵀŴ = c·û,  rows[1] = h αₖ R⁻¹Jᵀe
+
+    def _euler_increment(self, jacobian: np.ndarray, scaled_r_inverse_jt_error: np.ndarray) -> np.ndarray:
+        """One Euler step ``h αₖ ∇σ J R⁻¹ Jᵀ e`` of the weight law (eq. 19; eq. 38 with G = [J; 0], ∇J_s = s).
+
+        ``scaled_r_inverse_jt_error`` is ``h αₖ R⁻¹Jᵀe`` (row 1 of :meth:`_products`).
+        """
+        return np.dot(self._gradient_e, np.dot(jacobian, scaled_r_inverse_jt_error))
+
+    def _is_saturated(self, command: np.ndarray) -> bool:
+        return any(abs(value) > limit for value, limit in zip(command.tolist(), self._upper_list))
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Joint-velocity command for ``obs`` (clipped to the limits); advances the critic one period.
+
+        Raises:
+            RuntimeError: If called before :meth:`reset`.
+        """
+        if not self._ready:
+            raise RuntimeError("call reset() before act()")
+        n = self.task_dim
+        error = obs[self._e_slice]
+        state = self._state
+        state[:n] = error
+        if self.task == "track":  # ξ = [e; x_d − x_c] (eq. 31), x_d about the centre so φ(0) = 0 (eq. 29)
+            np.subtract(obs[self._xd_slice], obs[self._xc_slice], out=state[n:])
+        jacobian = self.kinematics.jacobian(obs[self._q_slice])  # x is not needed: the observation carries e
+        np.dot(self.basis.selection, state, out=self._gradient_flat)  # ∇σ(s), as QuadraticBasis.gradient
+        alpha = self.learning_rate(self._k)
+        step_gain = alpha if self.learning_rate_unit == "per_step" else alpha * self.dt  # h·α
+        np.multiply(error, step_gain, out=self._pair[1])  # ∇J_s(s) = s; G R⁻¹ Gᵀ keeps e
+        weights = new_weights = self.critic_weights
+
+        rows = self._products(weights, jacobian)
+        command = rows[0]
+        if self.weight_update == "euler_updated":  # command from Ŵₖ₊₁
+            trial = weights + self._euler_increment(jacobian, rows[1])
+            trial_command = self._products(trial, jacobian)[0]
+            saturated = self._is_saturated(trial_command)
+            if not (saturated and self.freeze_when_saturated):
+                weights = new_weights = trial
+                command = trial_command
+            else:  # the trial is discarded: report the command actually sent
+                saturated = self._is_saturated(command)
+        else:
+            saturated = self._is_saturated(command)
+            if saturated and self.freeze_when_saturated:
+                pass  # anti-windup: no learning on a clipped step
+            elif self.weight_update == "euler":
+                new_weights = weights + self._euler_increment(jacobian, rows[1])
+            else:
+                np.minimum(command, self._upper, out=command)
+                np.maximum(command, self._lower, out=command)
+                new_weights = weights + self._zoh_increment(obs, jacobian, command, step_gain)
+        np.minimum(command, self._upper, out=command)
+        np.maximum(command, self._lower, out=command)
+
+        self._last = (weights, new_weights, alpha, saturated, self._k)
+        self.critic_weights = new_weights
+        self._k += 1
+        return command
+
+    def _zoh_increment(
+        self, obs: np.ndarray, jacobian: np.ndarray, command: np.ndarray, step_gain: float
+    ) -> np.ndarray:
+        """``step_gain/Δt · ∫₀^Δt ∇σ(s(τ)) J R⁻¹ Jᵀ e(τ) dτ`` along ``s(τ) = s + τṡ`` (eq. 19 / eq. 38).
+
+        The path is predicted with the held (clipped) command, J frozen and ẋ_d held
+        (ė = J u − ẋ_d, eq. 30). ∇σ is linear in s and J R⁻¹ Jᵀ e linear in e, so the
+        integrand ``(∇σ(s) + τ∇σ(ṡ)) (v + τ v̇)`` is quadratic in τ: closed form.
+        """
+        n, dt = self.task_dim, self.dt
+        xdot_d = obs[self._xdotd_slice]
+        rate = np.zeros_like(self._state)
+        rate[:n] = jacobian @ command - xdot_d  # ė = J u − ẋ_d (eq. 30; ẋ_d = 0 for reach)
+        if self.task == "track":
+            rate[n:] = xdot_d
+        gradient_rate_e = self.basis.gradient(rate)[:, :n]
+        jr = jacobian @ self.R_inverse
+        v = jr @ (jacobian.T @ self._state[:n])
+        v_rate = jr @ (jacobian.T @ rate[:n])
+        g0, g1 = self._gradient_e, gradient_rate_e
+        integral = dt * (g0 @ v) + 0.5 * dt**2 * (g0 @ v_rate + g1 @ v) + dt**3 / 3.0 * (g1 @ v_rate)
+        return (step_gain / dt) * integral

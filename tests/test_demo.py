@@ -1,0 +1,184 @@
+"""The paper's demonstrations, the rollout log and the act benchmark (issue 3 acceptance)."""
+
+import hashlib
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from snac_gym.bench import format_act_bench, run_act_bench
+from snac_gym.cli import app
+from snac_gym.demo import demo_metrics, demo_options, run_demo
+from snac_gym.policies import register_policy, registry
+from snac_gym.policies.base import BasePolicy
+from snac_gym.policies.snac import SNACPolicy
+from snac_gym.references import PAPER_Q0, PAPER_TARGET
+from snac_gym.rollout import log_array, log_columns, read_log, rollout, write_log
+
+PANELS = ("path", "error", "joint_velocities", "cost", "figure3", "critic_weights")
+
+
+def _expected_columns(n_joints, task_dim, n_weights):
+    cols = ["t"] + [f"q_{i}" for i in range(n_joints)] + [f"u_{i}" for i in range(n_joints)]
+    for prefix in ("x", "x_d", "xdot_d", "e"):
+        cols += [f"{prefix}_{i}" for i in range(task_dim)]
+    return cols + [f"w_{i}" for i in range(n_weights)]
+
+
+def test_reach_demo_meets_the_acceptance_at_its_default_horizon(tmp_path):
+    result = run_demo("reach", "snac", tmp_path, seed=0)
+    m, log = result.metrics, result.log
+    assert m.steps == len(log) == 1000  # the env's 8 s episode
+    assert m.final_error <= 1e-3
+    assert m.time_to_1mm is not None and m.time_to_1mm < 8.0
+    assert m.max_speed_ratio <= 1.0
+    assert np.all(np.abs(log_array(log, "u")) <= np.asarray(log.attrs["velocity_limits"]))
+    assert list(log.columns) == _expected_columns(6, 3, 6)
+    np.testing.assert_allclose(log_array(log, "x_d")[0], PAPER_TARGET)
+    np.testing.assert_allclose(log_array(log, "q")[0], PAPER_Q0, atol=1e-12)
+    for panel in PANELS:
+        png = tmp_path / f"reach_snac_{panel}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    stored = read_log(tmp_path / "reach_snac_log.parquet")
+    pd.testing.assert_frame_equal(stored, log, check_exact=True)
+    assert stored.attrs["final_e"] == log.attrs["final_e"]
+    assert (tmp_path / "reach_snac_summary.json").exists()
+
+
+def test_track_demo_settles_under_5_mm_and_stays(tmp_path):
+    result = run_demo("track", "snac", tmp_path, seed=0, plots=False)
+    m, log = result.metrics, result.log
+    assert m.steps == len(log) == 2500  # the env's 20 s episode
+    assert m.settling_time is not None and m.settling_time <= 10.0  # transient over well inside the run
+    assert m.max_error_after_settling < 5e-3
+    norms = np.linalg.norm(log_array(log, "e"), axis=1)
+    assert norms[log["t"].to_numpy() >= 10.0].max() < 5e-3
+    assert m.max_speed_ratio <= 1.0
+    assert list(log.columns) == _expected_columns(6, 3, 21)
+    # x_d moves on the paper's circle: radius 0.2 m about the centre, in the z = 0.5 m plane.
+    x_d = log_array(log, "x_d")
+    np.testing.assert_allclose(np.linalg.norm(x_d - [-0.7, 0.0, 0.5], axis=1), 0.2, atol=1e-12)
+    assert not list(tmp_path.glob("*.png"))
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_same_seed_reproduces_the_log_bit_for_bit(tmp_path, task):
+    logs = [run_demo(task, "snac", tmp_path / str(i), seed=5, steps=250, plots=False).log for i in range(2)]
+    assert logs[0].to_numpy().tobytes() == logs[1].to_numpy().tobytes()
+    assert logs[0].attrs == logs[1].attrs
+    files = [tmp_path / str(i) / f"{task}_snac_log.parquet" for i in range(2)]
+    digests = [hashlib.sha256(path.read_bytes()).hexdigest() for path in files]
+    assert digests[0] == digests[1]
+    other = run_demo(task, "snac", None, seed=6, steps=250).log
+    assert not np.array_equal(log_array(other, "w")[0], log_array(logs[0], "w")[0])  # the seed draws Ŵ₀
+
+
+def test_rollout_rows_hold_the_state_at_the_start_of_each_step():
+    env = gym.make("snac_gym/UR10Reach-v0")
+    policy = SNACPolicy(env)
+    log = rollout(env, policy, options=demo_options("reach"), seed=1, steps=40)
+    assert len(log) == 40 and log.attrs["task"] == "reach" and log.attrs["truncated"] is False
+    dt = env.unwrapped.dt
+    np.testing.assert_allclose(log["t"].to_numpy(), np.arange(40) * dt)
+    q, u = log_array(log, "q"), log_array(log, "u")
+    e, x, x_d = log_array(log, "e"), log_array(log, "x"), log_array(log, "x_d")
+    np.testing.assert_allclose(e, x - x_d, atol=1e-15)
+    kin = env.unwrapped.kinematics
+    np.testing.assert_allclose(x[7], kin.forward(q[7]), atol=1e-12)
+    # Replaying the logged commands from the same reset gives row k+1 after applying u_k (bit for bit).
+    obs, _ = env.reset(seed=1, options=demo_options("reach"))
+    for k in range(40):
+        np.testing.assert_array_equal(obs[:6], q[k])
+        obs, *_ = env.step(u[k])
+    np.testing.assert_array_equal(obs[:6], log.attrs["final_q"])
+    # w row k: the weights before step k's update (row 0 = Ŵ₀ of the reset seed).
+    fresh = SNACPolicy(env)
+    fresh.reset(seed=1)
+    np.testing.assert_array_equal(log_array(log, "w")[0], fresh.critic_weights)
+    env.close()
+
+
+class _HoldStill(BasePolicy):
+    """A policy with no internals: commands zero."""
+
+    def act(self, obs):
+        return np.zeros(self.kinematics.n_joints)
+
+
+@pytest.fixture
+def isolated_registry(monkeypatch):
+    """Registrations made in a test vanish after it."""
+    monkeypatch.setattr(registry, "_BUILTIN", dict(registry._BUILTIN))
+    monkeypatch.setattr(registry, "_FACTORIES", dict(registry._FACTORIES))
+
+
+def test_any_registered_policy_runs_the_demo(tmp_path, isolated_registry):
+    register_policy("hold-still-demo-test", _HoldStill, overwrite=True)
+    result = run_demo("track", "hold-still-demo-test", tmp_path, steps=30, csv=True)
+    log = result.log
+    assert list(log.columns) == _expected_columns(6, 3, 0)  # no critic, no w columns
+    assert not (tmp_path / "track_hold-still-demo-test_critic_weights.png").exists()
+    assert (tmp_path / "track_hold-still-demo-test_figure3.png").exists()
+    csv = pd.read_csv(tmp_path / "track_hold-still-demo-test_log.csv")
+    np.testing.assert_array_equal(csv.to_numpy(), log.to_numpy())  # %.17g round-trips float64
+    assert result.metrics.final_error == pytest.approx(np.linalg.norm(log.attrs["final_e"]))
+
+
+def test_log_columns_follow_the_robot():
+    assert log_columns(7, 2, 3) == _expected_columns(7, 2, 3)
+    assert len(log_columns(6, 3)) == 1 + 2 * 6 + 4 * 3
+
+
+def test_metrics_on_a_hand_made_log():
+    dt = 0.5
+    errors = np.array([[3e-3, 0, 0], [2e-3, 0, 0], [4e-3, 0, 0], [0.5e-3, 0, 0]])
+    log = pd.DataFrame({"t": np.arange(4) * dt, **{f"e_{i}": errors[:, i] for i in range(3)},
+                        **{f"u_{j}": [2.0, 0.0, 0.0, 0.0] if j == 0 else [0.0] * 4 for j in range(2)}})
+    log.attrs = {"dt": dt, "final_e": [0.2e-3, 0, 0], "final_t": 2.0, "velocity_limits": [2.0, 1.0]}
+    m = demo_metrics(log, tolerance=1e-3)
+    assert m.final_error == pytest.approx(0.2e-3)
+    assert m.time_to_1mm == pytest.approx(1.5)
+    assert m.settling_time == pytest.approx(1.5) and m.max_error_after_settling == pytest.approx(0.5e-3)
+    assert m.descent_fraction == pytest.approx(3 / 4)  # only step 1 → 2 grows ‖e‖
+    assert m.clipped_steps == 1 and m.max_speed_ratio == pytest.approx(1.0)
+
+
+def test_write_log_round_trips(tmp_path):
+    env = gym.make("snac_gym/UR10EllipseTrack-v0")
+    log = rollout(env, SNACPolicy(env), options=demo_options("track"), seed=2, steps=20)
+    env.close()
+    written = write_log(log, tmp_path / "run", csv=True)
+    assert [p.suffix for p in written] == [".parquet", ".csv", ".json"]
+    back = read_log(written[0])
+    pd.testing.assert_frame_equal(back, log, check_exact=True)
+    assert back.attrs["reference"] == log.attrs["reference"]
+
+
+def test_cli_demo_prints_the_figures(tmp_path):
+    args = ["demo", "--task", "reach", "--steps", "200", "--out", str(tmp_path), "--seed", "0", "--no-plots"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    for phrase in ("final error", "time to first reach 1 mm", "eᵀė ≤ 0"):
+        assert phrase in result.output
+    assert (tmp_path / "reach_snac_log.parquet").exists()
+    bad = CliRunner().invoke(app, ["demo", "--task", "orbit", "--out", str(tmp_path)])
+    assert bad.exit_code != 0
+    unknown = CliRunner().invoke(app, ["demo", "--controller", "no-such-policy", "--out", str(tmp_path)])
+    assert unknown.exit_code == 2 and "unknown policy" in unknown.output
+
+
+def test_act_bench_reports_every_task_and_skips_what_does_not_build(isolated_registry):
+    register_policy("broken-bench-test", "no_such_module_for_bench:Policy", overwrite=True)
+    results = run_act_bench(names=("snac", "broken-bench-test"), calls=100)
+    for task in ("reach", "track"):
+        row = results["snac"][task]
+        assert 0 < row["median_us"] <= row["p99_us"] and row["calls"] == 100
+    assert "error" in results["broken-bench-test"]
+    text = format_act_bench(results)
+    assert "snac" in text and "skipped" in text
+    cpu = run_act_bench(names=("snac",), tasks=("track",), calls=100, clock="cpu")
+    assert cpu["snac"]["track"]["median_us"] > 0
+    with pytest.raises(ValueError, match="clock"):
+        run_act_bench(calls=100, clock="sundial")
