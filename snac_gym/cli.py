@@ -90,6 +90,46 @@ def demo(
 
 
 @app.command()
+def real(
+    host: Optional[str] = typer.Option(None, "--host", help="IP of the UR controller (rtde backend)."),
+    task: str = typer.Option("reach", "--task", help="reach or track: the demo's start pose and reference."),
+    controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
+    out: Path = typer.Option(Path("real_out"), "--out", help="Folder for the log, the panels and the loop timing."),
+    backend: str = typer.Option("rtde", "--backend", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."),
+    series: str = typer.Option("cb", "--series", help="cb (CB-series, 125 Hz) or e (e-Series, 500 Hz)."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Connect and read state, send nothing; print what would be sent."),
+    speed_scale: float = typer.Option(0.25, "--speed-scale", min=0.01, max=1.0, help="Fraction of the velocity limits allowed."),
+    max_acceleration: float = typer.Option(2.0, "--max-acceleration", min=0.01, help="Bound on joint acceleration, rad/s²."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the policy reset."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control periods (default: 15 s reach, 30 s track)."),
+    csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
+) -> None:
+    """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --backend sim."""
+    from snac_gym.demo import DEMO_ENVS
+    from snac_gym.real import ConnectionFailure, SafetyLimits
+    from snac_gym.real.run import run_real_episode
+
+    if task not in DEMO_ENVS:
+        raise typer.BadParameter(f"must be one of {sorted(DEMO_ENVS)}", param_hint="--task")
+    try:
+        result = run_real_episode(
+            task=task, controller=controller, out_dir=out, backend=backend, host=host, series=series, dry_run=dry_run,
+            seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration),
+            csv=csv, echo=typer.echo if dry_run else None,
+        )
+    except ConnectionFailure as exc:  # one line, no traceback: the arm was stopped on the way out
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=1) from exc
+    except (ValueError, RuntimeError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+    except KeyboardInterrupt:
+        typer.echo("interrupted: the arm was stopped", err=True)
+        raise typer.Exit(code=130) from None
+    typer.echo(result.summary())
+
+
+@app.command()
 def evaluate(
     out: Path = typer.Option(Path("evaluation_out"), "--out", help="Output folder (results, summary, plots, parts)."),
     task: str = typer.Option("both", "--task", help="reach, track or both."),

@@ -177,6 +177,26 @@ def plot_figure3(log: pd.DataFrame, tolerance: float | None = None) -> Figure:
     return fig
 
 
+def plot_loop_timing(periods_ms: np.ndarray, dt: float) -> Figure:
+    """Control-loop period per step and its histogram (real-robot runs), with the nominal period."""
+    fig = _figure(10.0, 3.6)
+    left, right = fig.subplots(1, 2)
+    periods_ms = np.asarray(periods_ms, dtype=float)
+    nominal = dt * 1e3
+    left.plot(periods_ms, lw=0.6, color="C0")
+    left.axhline(nominal, color="k", ls="--", lw=0.8, label=f"period {nominal:.1f} ms")
+    left.set_xlabel("step")
+    left.set_ylabel("period (ms)")
+    left.legend(fontsize="small")
+    left.grid(alpha=0.3)
+    right.hist(periods_ms - nominal, bins=60, color="C0")
+    right.set_xlabel("jitter: period − nominal (ms)")
+    right.set_ylabel("steps")
+    right.set_yscale("log")
+    right.grid(alpha=0.3)
+    return fig
+
+
 def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
     """Write ``fig`` as PNG to ``path`` (folders created) and return the path."""
     path = Path(path)

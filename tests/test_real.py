@@ -159,8 +159,7 @@ def test_bad_actions_are_rejected_before_anything_is_sent():
 
 
 def test_dry_run_sends_nothing_and_records_what_it_would_send():
-    inner = SimulatedBackend(realtime=False)
-    inner.move_to(np.array(PAPER_Q0))  # where the (real) arm happens to be
+    inner = SimulatedBackend(realtime=False)  # parked at θ0, where the (real) arm happens to be
     lines = []
     backend = DryRunBackend(inner, echo=lines.append)
     env = RealUREnv("reach", backend)
@@ -174,7 +173,7 @@ def test_dry_run_sends_nothing_and_records_what_it_would_send():
 
 
 def test_loop_period_and_jitter_are_measured_at_125_hz():
-    env, _ = _env(realtime=True)
+    env, _ = _env(realtime=True, max_missed_deadlines=10**6)  # a loaded CI machine may be late
     env.reset(options={"q0": PAPER_Q0})
     for _ in range(63):  # half a second
         env.step(np.zeros(6))
@@ -198,3 +197,51 @@ def test_safety_limits_validate_their_arguments():
         SafetyLimits(speed_scale=1.5)
     with pytest.raises(ValueError, match="task box"):
         SafetyLimits(box_low=(0, 0, 0), box_high=(0, 1, 1))
+
+
+def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
+    from snac_gym.demo import run_demo
+    from snac_gym.real.run import run_real_episode
+
+    # a loaded CI machine may be late now and then: the deadline rule has its own tests above
+    result = run_real_episode(
+        task="reach", controller="dls", out_dir=tmp_path / "real", backend="sim", steps=60,
+        safety=SafetyLimits(max_missed_deadlines=10**6),
+    )
+    demo = run_demo(task="reach", controller="dls", out_dir=tmp_path / "demo", steps=60)
+    real_log, demo_log = result.demo.log, demo.log
+    assert list(real_log.columns) == list(demo_log.columns) and len(real_log) == 60
+    real_files = {p.name for p in (tmp_path / "real").iterdir()}
+    demo_files = {p.name for p in (tmp_path / "demo").iterdir()}
+    assert demo_files <= real_files
+    assert {"reach_dls_timing.csv", "reach_dls_timing.png", "reach_dls_real.json"} <= real_files
+    assert result.timing["period_ms_p50"] >= 8.0 * 0.999 and result.stop_reason is None
+    np.testing.assert_allclose(real_log.loc[0, [f"q_{j}" for j in range(6)]], PAPER_Q0, atol=1e-12)
+
+
+def test_real_command_with_nothing_listening_fails_in_one_line():
+    import subprocess
+    import sys
+
+    start = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-m", "snac_gym.cli", "real", "--host", "127.0.0.1", "--out", "unused"],
+        capture_output=True, text=True, timeout=30,
+    )
+    assert time.monotonic() - start < 10.0
+    assert done.returncode == 1
+    assert done.stdout == "" and done.stderr.strip().count("\n") == 0
+    assert "127.0.0.1:30004 refused" in done.stderr
+
+
+def test_dry_run_command_on_the_simulated_backend_prints_what_it_would_send(tmp_path):
+    from typer.testing import CliRunner
+
+    from snac_gym.cli import app
+
+    outcome = CliRunner().invoke(
+        app, ["real", "--backend", "sim", "--dry-run", "--steps", "5", "--controller", "dls", "--out", str(tmp_path)]
+    )
+    assert outcome.exit_code == 0, outcome.output
+    assert outcome.output.count("would send speedJ") == 5
+    assert "dry run: 5 commands computed, none sent" in outcome.output

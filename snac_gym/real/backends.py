@@ -17,6 +17,7 @@ import numpy as np
 
 from snac_gym._quiet import quiet_output
 from snac_gym.kinematics import Kinematics
+from snac_gym.sampling import nominal_configuration
 
 #: Safety states a backend reports (``info["safety_state"]`` of the real env).
 NORMAL = "normal"
@@ -224,10 +225,17 @@ class SimulatedBackend:
         frequency: Control rate, Hz.
         n_substeps: Physics steps per period.
         realtime: Sleep to hold the wall-clock period.
+        home: Where the simulated arm is parked when the backend starts (default: the
+            nominal elbow-up pose, the paper's θ0 for a 6-joint UR arm), as a real arm would be.
     """
 
     def __init__(
-        self, kinematics: Kinematics | None = None, frequency: float = 125.0, n_substeps: int = 3, realtime: bool = True
+        self,
+        kinematics: Kinematics | None = None,
+        frequency: float = 125.0,
+        n_substeps: int = 3,
+        realtime: bool = True,
+        home: np.ndarray | None = None,
     ) -> None:
         from snac_gym.envs.robot import SimulatedArm
         from snac_gym.envs.sim import PyBulletSim
@@ -239,6 +247,7 @@ class SimulatedBackend:
         self.sim = PyBulletSim(self.dt, n_substeps)
         self.arm = SimulatedArm(self.sim, self.kinematics)
         self._initial_state = self.sim.save_state()
+        self.arm.set_joint_positions(nominal_configuration(self.kinematics) if home is None else np.asarray(home, float))
         self._fault = NORMAL
         self.commands_sent = 0
         self.stop_calls = 0

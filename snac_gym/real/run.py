@@ -1,0 +1,147 @@
+"""One episode on a real UR arm (or its rehearsal): what ``snac-gym real`` does, importable."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+
+from snac_gym.kinematics import Kinematics
+from snac_gym.real.backends import SERIES_FREQUENCY, DryRunBackend, SimulatedBackend, URRTDEBackend
+from snac_gym.real.env import RealUREnv
+from snac_gym.real.safety import SafetyLimits
+
+#: Episode length of a real run when none is given: longer than the simulated demo's, since
+#: the conservative speed scale slows the arm down.
+DEFAULT_SECONDS = {"reach": 15.0, "track": 30.0}
+
+
+@dataclass
+class RealRunResult:
+    """What :func:`run_real_episode` produced: the demo figures plus loop timing and stop reason."""
+
+    demo: Any
+    timing: dict[str, float]
+    stop_reason: str | None
+    sent_commands: int | None = None
+    files: list[Path] = field(default_factory=list)
+
+    def summary(self) -> str:
+        lines = [self.demo.summary()]
+        if self.timing:
+            t = self.timing
+            lines.append(
+                f"  loop period                 mean {t['period_ms_mean']:.3f} ms, p99 {t['period_ms_p99']:.3f} ms, "
+                f"max jitter {t['jitter_ms_max']:.3f} ms, {t['late_periods']} late"
+            )
+        if self.sent_commands is not None:
+            lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
+        lines.append(f"  stopped by safety layer: {self.stop_reason}" if self.stop_reason else "  no safety stop")
+        return "\n".join(lines)
+
+
+def make_backend(
+    backend: str, host: str | None, series: str, dry_run: bool, robot: str = "ur10", echo: Callable[[str], None] | None = None
+) -> Any:
+    """Build the ``rtde`` or ``sim`` backend (wrapped for a dry run).
+
+    Raises:
+        ValueError: On an unknown backend or a missing host.
+        ConnectionFailure: If the arm cannot be reached.
+    """
+    if series not in SERIES_FREQUENCY:
+        raise ValueError(f"series must be one of {sorted(SERIES_FREQUENCY)}, got {series!r}")
+    kinematics = Kinematics(robot)
+    if backend == "sim":
+        inner: Any = SimulatedBackend(kinematics, frequency=SERIES_FREQUENCY[series], realtime=True)
+    elif backend == "rtde":
+        if not host:
+            raise ValueError("the rtde backend needs --host IP (or use --backend sim to rehearse)")
+        inner = URRTDEBackend(host, kinematics, series=series, control=not dry_run)
+    else:
+        raise ValueError(f"backend must be 'rtde' or 'sim', got {backend!r}")
+    return DryRunBackend(inner, echo=echo) if dry_run else inner
+
+
+def run_real_episode(
+    task: str = "reach",
+    controller: str = "snac",
+    out_dir: str | Path | None = "real_out",
+    backend: str = "rtde",
+    host: str | None = None,
+    series: str = "cb",
+    dry_run: bool = False,
+    seed: int = 0,
+    steps: int | None = None,
+    safety: SafetyLimits | None = None,
+    policy_kwargs: dict[str, Any] | None = None,
+    csv: bool = False,
+    plots: bool = True,
+    echo: Callable[[str], None] | None = None,
+) -> RealRunResult:
+    """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
+
+    The arm first moves to θ0 (``moveJ``), then the controller streams joint velocities through
+    the safety layer. The arm is stopped whatever happens (``finally: env.close()``).
+
+    Args:
+        task: ``"reach"`` or ``"track"``.
+        controller: Registered policy name.
+        out_dir: Folder for the log, figures, timing and summary (``None``: write nothing).
+        backend: ``"rtde"`` (a real arm at ``host``) or ``"sim"`` (PyBullet in wall-clock time).
+        host: IP of the UR controller (``rtde`` only).
+        series: ``"cb"`` (125 Hz) or ``"e"`` (500 Hz).
+        dry_run: Connect and read state, send nothing; ``echo`` gets each command it would send.
+        seed: Seed of the policy (and env) reset.
+        steps: Control periods (default :data:`DEFAULT_SECONDS` of the task).
+        safety: Safety limits (default conservative :class:`SafetyLimits`).
+        policy_kwargs: Constructor arguments of the policy.
+        csv, plots: As for ``snac-gym demo``.
+        echo: Where dry-run lines go (e.g. ``print``).
+    """
+    from snac_gym.demo import DEMO_TOLERANCES, demo_options, write_demo_outputs
+    from snac_gym.policies import make_policy
+    from snac_gym.rollout import rollout
+
+    arm = make_backend(backend, host, series, dry_run, echo=echo)
+    env = RealUREnv(task, arm, safety=safety)
+    if steps is None:
+        steps = int(round(DEFAULT_SECONDS[task] / env.dt))
+    env.max_steps = steps
+    try:
+        policy = make_policy(controller, env, **(policy_kwargs or {}))
+        log = rollout(env, policy, options=demo_options(task), seed=seed, steps=steps)
+    finally:
+        env.close()
+    log.attrs["controller"] = controller
+    log.attrs["backend"] = backend + (" (dry run)" if dry_run else "")
+    log.attrs["stop_reason"] = env.stop_reason
+    demo = write_demo_outputs(
+        log, task, controller, seed, DEMO_TOLERANCES[task], out_dir, csv=csv, plots=plots, policy_kwargs=policy_kwargs
+    )
+    result = RealRunResult(
+        demo=demo, timing=env.timing(), stop_reason=env.stop_reason,
+        sent_commands=len(arm.sent) if isinstance(arm, DryRunBackend) else None,
+    )
+    if out_dir is not None:
+        result.files = list(demo.files) + _write_timing(env, Path(out_dir), f"{task}_{controller}_", result, plots)
+    return result
+
+
+def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult, plots: bool) -> list[Path]:
+    periods = pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3})
+    timing_csv = out / f"{prefix}timing.csv"
+    periods.to_csv(timing_csv, index_label="step")
+    summary = out / f"{prefix}real.json"
+    summary.write_text(json.dumps({"timing": result.timing, "stop_reason": result.stop_reason,
+                                   "dt_ms": env.dt * 1e3, "sent_commands": result.sent_commands}, indent=2))
+    files = [timing_csv, summary]
+    if plots and len(periods):
+        from snac_gym.plots import plot_loop_timing, save_figure
+
+        files.append(save_figure(plot_loop_timing(periods["period_ms"].to_numpy(), env.dt), out / f"{prefix}timing.png"))
+    return files
