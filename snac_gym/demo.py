@@ -224,11 +224,60 @@ def run_demo(
     finally:
         env.close()
     log.attrs["controller"] = controller
-    tolerance = DEMO_TOLERANCES[task]
+    return write_demo_outputs(
+        log, task, controller, seed, DEMO_TOLERANCES[task], out_dir, csv=csv, plots=plots, policy_kwargs=policy_kwargs
+    )
+
+
+def write_demo_outputs(
+    log: pd.DataFrame,
+    task: str,
+    controller: str,
+    seed: int,
+    tolerance: float,
+    out_dir: str | Path | None,
+    csv: bool = False,
+    plots: bool = True,
+    policy_kwargs: dict[str, Any] | None = None,
+) -> DemoResult:
+    """Metrics, Figure 3 panels, log and ``summary.json`` of one run (demo or real robot).
+
+    Args:
+        log: A trajectory log from :func:`~snac_gym.rollout.rollout`.
+        task, controller, seed: What was run.
+        tolerance: Settling threshold of the metrics, m.
+        out_dir: Folder to write into (``None``: compute the metrics only).
+        csv, plots, policy_kwargs: As for :func:`run_demo`.
+    """
     metrics = demo_metrics(log, tolerance)
     result = DemoResult(task=task, controller=controller, seed=seed, metrics=metrics, log=log)
     if out_dir is None:
         return result
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    prefix = f"{task}_{controller}_"
+    if plots:
+        from snac_gym import plots as panels
+
+        figures = {
+            "path": panels.plot_path(log),
+            "error": panels.plot_error(log, tolerance=tolerance),
+            "joint_velocities": panels.plot_joint_velocities(log),
+            "cost": panels.plot_cost(log),
+            "figure3": panels.plot_figure3(log, tolerance=tolerance),
+        }
+        if "w_0" in log.columns:
+            figures["critic_weights"] = panels.plot_critic_weights(log)
+        for name, figure in figures.items():
+            result.files.append(panels.save_figure(figure, out / f"{prefix}{name}.png"))
+    result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)
+    summary_path = out / f"{prefix}summary.json"
+    summary = {"task": task, "controller": controller, "seed": seed, "policy_kwargs": policy_kwargs or {},
+               **{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(metrics).items()}}
+    summary_path.write_text(json.dumps(summary, indent=2))
+    result.files.append(summary_path)
+    return result
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
