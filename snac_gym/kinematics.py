@@ -119,12 +119,24 @@ class Kinematics:
         if self.model.frames[base_id].parentJoint != 0:
             raise ValueError(f"base frame {base_frame!r} must be fixed to the world, not carried by a joint")
         pin.framesForwardKinematics(self.model, self.data, pin.neutral(self.model))
-        world_from_base = self.data.oMf[base_id]
+        world_from_base = self.data.oMf[base_id].copy()
         # Rows of this matrix rotate world-frame vectors into the base frame.
         self._base_from_world = np.ascontiguousarray(world_from_base.rotation.T)
         self._base_origin = world_from_base.translation.copy()
+        # Re-root the model at the base frame (everything hanging from the universe is re-expressed
+        # in it), so Pinocchio's world-aligned results are base-frame results with no per-call
+        # rotation: the control step calls these 125-500 times a second.
+        base_from_world = world_from_base.inverse()
+        for joint in range(1, self.model.njoints):
+            if self.model.parents[joint] == 0:
+                self.model.jointPlacements[joint] = base_from_world * self.model.jointPlacements[joint]
+        for frame in self.model.frames:
+            if frame.parentJoint == 0:
+                frame.placement = base_from_world * frame.placement
+        self.data = self.model.createData()
 
         self.n_joints: int = int(self.model.nq)
+        self._q_shape = (self.n_joints,)
         self.joint_names: tuple[str, ...] = tuple(self.model.names[1:])
         self.velocity_limits = np.array(self.model.velocityLimit, dtype=float)
         self.lower_limits = np.array(self.model.lowerPositionLimit, dtype=float)
@@ -149,7 +161,7 @@ class Kinematics:
 
     def _check_q(self, q: np.ndarray) -> np.ndarray:
         q = np.asarray(q, dtype=float)
-        if q.shape != (self.n_joints,):
+        if q.shape != self._q_shape:
             raise ValueError(f"joint vector must have shape ({self.n_joints},), got {q.shape}")
         return q
 
@@ -157,8 +169,7 @@ class Kinematics:
         """End-effector position ``x = f(θ)`` in the base frame, metres (eq. 1)."""
         q = self._check_q(q)
         pin.forwardKinematics(self.model, self.data, q)
-        world_pos = pin.updateFramePlacement(self.model, self.data, self._ee_id).translation
-        return self._base_from_world @ (world_pos - self._base_origin)
+        return pin.updateFramePlacement(self.model, self.data, self._ee_id).translation.copy()
 
     def base_to_world(self, x: np.ndarray) -> np.ndarray:
         """Map a base-frame position to the URDF world frame (the simulator's frame)."""
@@ -166,15 +177,14 @@ class Kinematics:
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """Position Jacobian ``J = ∂f/∂θ`` in the base frame, shape ``(task_dim, n_joints)`` (eq. 2)."""
-        return self.forward_and_jacobian(q)[1]
+        q = self._check_q(q)
+        return pin.computeFrameJacobian(self.model, self.data, q, self._ee_id, pin.LOCAL_WORLD_ALIGNED)[:3]
 
     def forward_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(f(θ), J(θ))`` from one kinematics pass; the form controllers call each step."""
         q = self._check_q(q)
-        jac_world = pin.computeFrameJacobian(self.model, self.data, q, self._ee_id, pin.LOCAL_WORLD_ALIGNED)
-        world_pos = self.data.oMf[self._ee_id].translation
-        x = self._base_from_world @ (world_pos - self._base_origin)
-        return x, self._base_from_world @ jac_world[:3]
+        jac = pin.computeFrameJacobian(self.model, self.data, q, self._ee_id, pin.LOCAL_WORLD_ALIGNED)[:3]
+        return self.data.oMf[self._ee_id].translation.copy(), jac
 
     def forward_batch(self, qs: np.ndarray) -> np.ndarray:
         """Positions for a batch of configurations, shape ``(B, n_joints) -> (B, task_dim)``."""
