@@ -178,7 +178,7 @@ def test_loop_period_and_jitter_are_measured_at_125_hz():
     for _ in range(63):  # half a second
         env.step(np.zeros(6))
     timing = env.timing()
-    assert len(env.periods) == 62
+    assert len(env.periods) == 63  # one per step: from one period start to the next
     # waitPeriod never returns early: each period lasts at least dt (jitter figures: README)
     assert timing["period_ms_p50"] >= 8.0 * 0.999
     assert set(timing) >= {"period_ms_mean", "period_ms_std", "period_ms_p99", "jitter_ms_max", "late_periods"}

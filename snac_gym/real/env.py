@@ -89,7 +89,8 @@ class RealUREnv(gym.Env):
         self.periods: list[float] = []
         self._obs: np.ndarray | None = None
         self._last_command = np.zeros(self.kinematics.n_joints)
-        self._last_send: float | None = None
+        self._period_start: Any = None
+        self._period_wall = 0.0
         self.stop_reason: str | None = None
 
     @property
@@ -100,6 +101,12 @@ class RealUREnv(gym.Env):
         q, qdot = self.backend.read_state()
         x_d, xdot_d = self.reference.position_and_velocity(self.time)
         return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
+
+    def _begin_period(self) -> None:
+        # A period starts once the state is read, as in ur_rtde's initPeriod/waitPeriod loop, so the
+        # policy's computation falls inside the period it is computed for.
+        self._period_start = self.backend.start_period()
+        self._period_wall = time.perf_counter()
 
     def _halt(self, reason: str) -> None:
         self.stop_reason = reason
@@ -124,10 +131,10 @@ class RealUREnv(gym.Env):
         self.steps = 0
         self.periods = []
         self._last_command = np.zeros(self.kinematics.n_joints)
-        self._last_send = None
         self.stop_reason = None
         self.safety.reset()
         self._obs = self._observe()
+        self._begin_period()
         fields = self.obs_layout.unpack(self._obs)
         violation = self.safety.violation(fields.q, fields.x)
         if violation is not None:
@@ -155,22 +162,19 @@ class RealUREnv(gym.Env):
         cost_effort = float(quadratic_form(command, self.R))
         cost_smoothness = float(quadratic_form((command - self._last_command) / self.dt, self.R))
 
-        now = time.perf_counter()
-        late = None
-        if self._last_send is not None:
-            self.periods.append(now - self._last_send)
-            late = self.safety.record_period(self.periods[-1])
-        self._last_send = now
+        self.backend.command(command)
+        self.backend.end_period(self._period_start)
+        previous_start = self._period_wall
+        self._begin_period()
+        self.steps += 1
+        self._last_command = command
+        # Past its end, waitPeriod returns at once: a period longer than dt means the command came late.
+        self.periods.append(self._period_wall - previous_start)
+        late = self.safety.record_period(self.periods[-1])
+        self._obs = self._observe()
         if late is not None:
             self._halt(late)
             return self._finish(cost_error, cost_effort, cost_smoothness, command, safety=late)
-
-        period_start = self.backend.start_period()
-        self.backend.command(command)
-        self.backend.end_period(period_start)
-        self.steps += 1
-        self._last_command = command
-        self._obs = self._observe()
 
         fields = self.obs_layout.unpack(self._obs)
         reason = self.safety.violation(fields.q, fields.x)
