@@ -273,31 +273,6 @@ def write_demo_outputs(
             result.files.append(panels.save_figure(figure, out / f"{prefix}{name}.png"))
     result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)
     summary_path = out / f"{prefix}summary.json"
-    summary = {"task": task, "controller": controller, "seed": seed, "policy_kwargs": policy_kwargs or {},
-               **{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(metrics).items()}}
-    summary_path.write_text(json.dumps(summary, indent=2))
-    result.files.append(summary_path)
-    return result
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    prefix = f"{task}_{controller}_"
-    if plots:
-        from snac_gym import plots as panels
-
-        figures = {
-            "path": panels.plot_path(log),
-            "error": panels.plot_error(log, tolerance=tolerance),
-            "joint_velocities": panels.plot_joint_velocities(log),
-            "cost": panels.plot_cost(log),
-            "figure3": panels.plot_figure3(log, tolerance=tolerance),
-        }
-        if "w_0" in log.columns:
-            figures["critic_weights"] = panels.plot_critic_weights(log)
-        for name, figure in figures.items():
-            result.files.append(panels.save_figure(figure, out / f"{prefix}{name}.png"))
-    result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)
-    summary_path = out / f"{prefix}summary.json"
     finite = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(metrics).items()}
     summary = {"task": task, "controller": controller, "seed": seed, "policy_kwargs": policy_kwargs or {}, **finite}
     summary_path.write_text(json.dumps(summary, indent=2))
