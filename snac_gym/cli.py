@@ -68,7 +68,7 @@ def demo(
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
     out: Path = typer.Option(Path("demo_out"), "--out", help="Folder for the PNG panels, the log and summary.json."),
     seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control steps (default: 1000 reach, 2500 track)."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control steps (default: 1500 reach = 12 s, 2500 track = 20 s)."),
     duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),

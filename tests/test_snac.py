@@ -119,7 +119,8 @@ def test_basis_gradient_matches_finite_differences_and_loops(dim, rng):
 @pytest.mark.parametrize("task", ["reach", "track"])
 @pytest.mark.parametrize("r_kind", ["identity", "diagonal", "full"])
 @pytest.mark.parametrize("unit", ["per_step", "per_second"])
-def test_command_and_weight_update_match_hand_expansion(ur10, rng, task, r_kind, unit):
+@pytest.mark.parametrize("clock", ["steps", "seconds"])
+def test_command_and_weight_update_match_hand_expansion(ur10, rng, task, r_kind, unit, clock):
     m = ur10.n_joints
     R = {"identity": None, "diagonal": rng.uniform(0.5, 2.0, m), "full": _random_spd(rng, m)}[r_kind]
     R_matrix = np.eye(m) if R is None else (np.diag(R) if np.ndim(R) == 1 else R)
@@ -128,7 +129,8 @@ def test_command_and_weight_update_match_hand_expansion(ur10, rng, task, r_kind,
     n = ur10.task_dim
     size = QuadraticBasis(n if task == "reach" else 2 * n).size
     weights0 = rng.normal(size=size)
-    policy = SNACPolicy(ctx, R=R, initial_weights=weights0, learning_rate_unit=unit, weight_update="euler")
+    policy = SNACPolicy(ctx, R=R, initial_weights=weights0, learning_rate_unit=unit, weight_update="euler",
+                        schedule_clock=clock)
     policy.reset(seed=0)
     weights = weights0.copy()
     alpha_i, alpha_f, shift = PAPER_SCHEDULES[task]
@@ -139,7 +141,7 @@ def test_command_and_weight_update_match_hand_expansion(ur10, rng, task, r_kind,
         command, direction = _laws_loops(list(s), list(weights), jac.tolist(), r_inverse, n)
         u = policy.act(obs)
         np.testing.assert_allclose(u, command, rtol=1e-10, atol=1e-12)  # eq. 15 / eq. 36
-        alpha = alpha_i * math.tanh(shift - k) + alpha_f
+        alpha = alpha_i * math.tanh(shift - (k if clock == "steps" else k * DT)) + alpha_f
         gain = alpha if unit == "per_step" else alpha * DT
         weights = weights + gain * direction  # eq. 19 / eq. 38, one Euler step
         np.testing.assert_allclose(policy.internals["critic_weights"], weights, rtol=1e-10, atol=1e-12)
@@ -152,27 +154,31 @@ def test_euler_updated_commands_with_the_new_weights(ur10, rng, task):
     ctx = _context(ur10, task)
     n = ur10.task_dim
     weights0 = rng.normal(size=QuadraticBasis(n if task == "reach" else 2 * n).size)
-    policy = SNACPolicy(ctx, initial_weights=weights0, weight_update="euler_updated")
+    policy = SNACPolicy(ctx, initial_weights=weights0, weight_update="euler_updated")  # α per second (default)
     policy.reset()
     obs = _random_observation(ur10, ctx.layout, rng)
     s = _critic_state(ctx.layout, obs, task)
     jac = ur10.jacobian(obs[:6]).tolist()
     _, direction = _laws_loops(list(s), list(weights0), jac, np.eye(6).tolist(), n)
     alpha = PAPER_SCHEDULES[task][0] * math.tanh(PAPER_SCHEDULES[task][2]) + PAPER_SCHEDULES[task][1]
-    updated = weights0 + alpha * direction
+    updated = weights0 + alpha * DT * direction
     command, _ = _laws_loops(list(s), list(updated), jac, np.eye(6).tolist(), n)
     np.testing.assert_allclose(policy.act(obs), command, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(policy.internals["critic_weights"], updated, rtol=1e-12)
 
 
 @pytest.mark.parametrize("task", ["reach", "track"])
-def test_zoh_update_is_the_integral_along_the_held_command(ur10, rng, task):
-    """Ŵₖ₊₁ − Ŵₖ = α/Δt ∫₀^Δt ∇σ(s(τ)) G R⁻¹ Gᵀ s(τ) dτ with s(τ) = s + τ[Ju − ẋ_d; ẋ_d], by quadrature."""
+@pytest.mark.parametrize("unit", ["per_step", "per_second"])
+def test_zoh_update_is_the_integral_along_the_held_command(ur10, rng, task, unit):
+    """Ŵₖ₊₁ − Ŵₖ = h/Δt · α ∫₀^Δt ∇σ(s(τ)) G R⁻¹ Gᵀ s(τ) dτ with s(τ) = s + τ[Ju − ẋ_d; ẋ_d], by quadrature.
+
+    h = 1 per step (α is the gain of one update), h = Δt per second (α is the continuous rate).
+    """
     ctx = _context(ur10, task)
     n = ur10.task_dim
     weights0 = rng.normal(size=QuadraticBasis(n if task == "reach" else 2 * n).size)
     R = rng.uniform(0.5, 2.0, 6)
-    policy = SNACPolicy(ctx, R=R, initial_weights=weights0, weight_update="zoh")
+    policy = SNACPolicy(ctx, R=R, initial_weights=weights0, weight_update="zoh", learning_rate_unit=unit)
     policy.reset()
     obs = _random_observation(ur10, ctx.layout, rng)
     f = ctx.layout.unpack(obs)
@@ -188,14 +194,18 @@ def test_zoh_update_is_the_integral_along_the_held_command(ur10, rng, task):
 
     integral, _ = quad_vec(integrand, 0.0, DT, epsabs=1e-14)
     alpha = PAPER_SCHEDULES[task][0] * math.tanh(PAPER_SCHEDULES[task][2]) + PAPER_SCHEDULES[task][1]
-    np.testing.assert_allclose(policy.internals["critic_weights"], weights0 + alpha / DT * integral, rtol=1e-9)
+    h = 1.0 if unit == "per_step" else DT
+    np.testing.assert_allclose(policy.internals["critic_weights"], weights0 + h * alpha / DT * integral, rtol=1e-9)
 
 
 def test_seconds_clock_reads_k_as_time(ur10):
     policy = SNACPolicy(_context(ur10, "track"), schedule_clock="seconds")
     for k in (0, 7, 1250, 5000):
         assert policy.learning_rate(k) == pytest.approx(20.0 * math.tanh(10.0 - k * DT) + 70.0)
-    steps = SNACPolicy(_context(ur10, "reach"))
+    default = SNACPolicy(_context(ur10, "reach"))  # seconds is the default clock
+    assert default.schedule_clock == "seconds"
+    assert default.learning_rate(1250) == pytest.approx(100 * math.tanh(50 - 10.0) + 150)
+    steps = SNACPolicy(_context(ur10, "reach"), schedule_clock="steps")
     assert steps.learning_rate(0) == pytest.approx(100 * math.tanh(50) + 150)
     assert steps.learning_rate(100) == pytest.approx(100 * math.tanh(-50) + 150)
 
@@ -245,8 +255,9 @@ def test_general_dimensions_nothing_hard_coded(rng):
         u = policy.act(obs)
         assert u.shape == (4,)
         np.testing.assert_allclose(u, command, rtol=1e-10)
-        alpha = policy.learning_rate(0)
-        np.testing.assert_allclose(policy.internals["critic_weights"], w0 + alpha * direction, rtol=1e-10)
+        alpha = 100 * math.tanh(50) + 150 if task == "reach" else 20 * math.tanh(10) + 70
+        assert policy.learning_rate(0) == pytest.approx(alpha)
+        np.testing.assert_allclose(policy.internals["critic_weights"], w0 + alpha * DT * direction, rtol=1e-10)
 
 
 # -- limits, anti-windup, randomness, errors ---------------------------------------------------
@@ -283,7 +294,7 @@ def test_command_scale_multiplies_the_unclipped_command(ur10, rng):
 
 def test_random_initial_weights_follow_the_seed(ur10):
     ctx = _context(ur10, "track")
-    policy = SNACPolicy(ctx)
+    policy = SNACPolicy(ctx, initial_weights="uniform")
     policy.reset(seed=3)
     first = policy.critic_weights.copy()
     assert first.shape == (21,) and np.all((first >= 0) & (first < 1))
@@ -292,12 +303,51 @@ def test_random_initial_weights_follow_the_seed(ur10):
     np.testing.assert_array_equal(policy.internals["critic_weights"], first)
     policy.reset(seed=4)
     assert not np.array_equal(policy.critic_weights, first)
-    ranged = SNACPolicy(ctx, initial_weight_range=(-2.0, -1.0))
+    ranged = SNACPolicy(ctx, initial_weights="uniform", initial_weight_range=(-2.0, -1.0))
     ranged.reset(seed=3)
     assert np.all((ranged.critic_weights >= -2) & (ranged.critic_weights < -1))
     given = SNACPolicy(ctx, initial_weights=np.arange(21.0))
     given.reset(seed=9)
     np.testing.assert_array_equal(given.critic_weights, np.arange(21.0))
+    legacy = SNACPolicy(ctx, initial_weights=None)  # the earlier spelling of "uniform"
+    legacy.reset(seed=3)
+    np.testing.assert_array_equal(legacy.critic_weights, first)
+
+
+@pytest.mark.parametrize(("task", "dim", "default_scale"), [("reach", 3, 2.0), ("track", 6, 20.0)])
+def test_identity_initial_weights_are_c_on_the_squared_terms(ur10, rng, task, dim, default_scale):
+    """Default Ŵ₀: c on s_i², 0 on s_i s_j (i ≠ j), so V̂₀(s) = c‖s‖²; the seed does not enter."""
+    ctx = _context(ur10, task)
+    for scale, expected_scale in ((None, default_scale), (7.5, 7.5)):
+        policy = SNACPolicy(ctx, initial_weight_scale=scale)
+        assert policy.initial_weight_kind == "identity" and policy.initial_weight_scale == expected_scale
+        expected = [expected_scale if i == j else 0.0 for i, j in _terms(dim)]
+        for seed in (0, 1):
+            policy.reset(seed=seed)
+            np.testing.assert_array_equal(policy.critic_weights, expected)
+        obs = _random_observation(ur10, ctx.layout, rng)
+        s = _critic_state(ctx.layout, obs, task)
+        policy.act(obs)
+        assert policy.internals["critic_value"] == pytest.approx(expected_scale * float(s @ s), rel=1e-12)
+    explicit = SNACPolicy(ctx, initial_weights="identity", initial_weight_scale=3.0)
+    explicit.reset()
+    assert explicit.critic_weights.sum() == pytest.approx(3.0 * dim)
+
+
+def test_defaults_are_the_continuous_law_without_anti_windup(ur10):
+    """The defaults read the paper literally where it is explicit (docs/snac.md has the measurement)."""
+    for task in ("reach", "track"):
+        policy = SNACPolicy(_context(ur10, task))
+        assert policy.learning_rate_unit == "per_second"
+        assert policy.freeze_when_saturated is False
+        assert policy.weight_update == "euler"
+        assert policy.schedule_clock == "seconds"
+        assert policy.initial_weight_kind == "identity"
+        alpha_i, alpha_f, shift = PAPER_SCHEDULES[task]
+        schedule = (policy.learning_rate_initial, policy.learning_rate_final, policy.schedule_shift)
+        assert schedule == (alpha_i, alpha_f, shift)
+        np.testing.assert_array_equal(policy.Q, np.eye(3))
+        np.testing.assert_array_equal(policy.R, np.eye(6))
 
 
 def test_reset_restarts_the_schedule_and_earlier_weights_are_kept(ur10, rng):
@@ -329,6 +379,8 @@ def test_bad_arguments_and_act_before_reset(ur10):
         {"R": np.eye(3)},
         {"initial_weights": np.zeros(5)},
         {"initial_weight_range": (1.0, 0.0)},
+        {"initial_weights": "gaussian"},
+        {"initial_weight_scale": float("nan")},
     ):
         with pytest.raises(ValueError):
             SNACPolicy(ctx, **kwargs)

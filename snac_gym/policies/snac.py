@@ -19,17 +19,22 @@ field) so that the reference dynamics ``ẋ_d = φ(x_d)`` satisfy ``φ(0) = 0`` 
 Learning rate (Section V): ``α = α_i tanh(n − k) + α_f``; regulation ``n = 50, α_i = 100,
 α_f = 150``, tracking ``n = 10, α_i = 20, α_f = 70``.
 
-The paper leaves open how the continuous weight law is discretised at the control period
-and what "k = time instance" counts. Both are constructor arguments
-(``weight_update``, ``learning_rate_unit``, ``freeze_when_saturated``, ``schedule_clock``)
-whose defaults were chosen by measurement on the paper's two demos (docs/snac.md has the
-commands and the numbers). In short: read as a rate per second, the paper's α learns too
-slowly at 125 Hz (reach needs 9.7–14.1 s to get within 1 mm; tracking never settles under
-5 mm, 6.7–9.0 mm after a full revolution); read as a gain per control step it learns fast
-enough but winds up while the command is clipped (reach ends in a limit cycle with 84 % of
-the steps clipped). Per-step α with the update skipped on clipped steps (the usual
-anti-windup of adaptive laws under actuator limits, an addition to the paper) meets both
-demos' criteria, with the update form (Euler, command from Ŵₖ) and k counting steps.
+The paper leaves open how the continuous weight law is discretised at the control period,
+what "k = time instance" counts, and how the critic is "initialized randomly" (distribution
+and scale). All are constructor arguments (``learning_rate_unit``, ``freeze_when_saturated``,
+``weight_update``, ``schedule_clock``, ``initial_weights``, ``initial_weight_scale``) whose
+defaults were chosen by measurement on the paper's two demos and on 50 random episodes per
+task (docs/snac.md has the commands and the numbers). The defaults keep the paper's law and
+schedule: α is the rate of the continuous law (one Euler step of Δt·α per period), k is the
+time in seconds, no anti-windup. The choice that departs from the paper's "initialized
+randomly" is the initial critic: Ŵ₀ = c on the squared terms and 0 on the cross terms
+(V̂₀ = c‖s‖², positive definite), c = 2 (reach) and 20 (track). Under the per-second law the
+weights grow by only a few units, so Ŵ₀ sets the loop gain: with U(0, 1) weights the reach
+is still 1.9 mm off after 12 s (worst of 5 seeds) and tracking stays 13–17 mm off. With the
+defaults the paper's reach demo is within 1 mm from 6.6 s (V ≈ 97) and the tracking error
+settles under 5 mm at 1.7 s (V ≈ 1406). The earlier default (α per step, learning frozen on
+clipped steps, U(0, 1) weights) stays available through the arguments; it converges faster
+but jumps to the velocity limits (V ≈ 4175 reach, ≈ 1822 track).
 """
 
 from __future__ import annotations
@@ -52,6 +57,10 @@ WEIGHT_UPDATES = ("euler", "euler_updated", "zoh")
 LEARNING_RATE_UNITS = ("per_step", "per_second")
 #: What "k = time instance" of the schedule counts.
 SCHEDULE_CLOCKS = ("steps", "seconds")
+#: How the initial critic weights are drawn (the paper: "initialized randomly").
+INITIAL_WEIGHTS = ("identity", "uniform")
+#: Default c of ``initial_weights="identity"`` (Ŵ₀ = c on the squared terms), by task.
+INITIAL_WEIGHT_SCALES: dict[str, float] = {"reach": 2.0, "track": 20.0}
 
 
 class QuadraticBasis:
@@ -124,9 +133,8 @@ class SNACPolicy(BasePolicy):
         learning_rate_initial: α_i of the schedule (default: the paper's for the task).
         learning_rate_final: α_f of the schedule (default: the paper's for the task).
         schedule_shift: n of the schedule (default: the paper's for the task).
-        schedule_clock: What k counts in ``tanh(n − k)``: ``"steps"`` (default: control
-            steps since reset, the sample index of the discrete law) or ``"seconds"``
-            (``k·Δt``).
+        schedule_clock: What k counts in ``tanh(n − k)``: ``"seconds"`` (default: ``k·Δt``,
+            the time of the continuous law) or ``"steps"`` (control steps since reset).
         weight_update: Discretisation of the weight law over one control period:
 
             * ``"euler"`` (default): ``uₖ`` from ``Ŵₖ``, then one explicit Euler step
@@ -136,18 +144,22 @@ class SNACPolicy(BasePolicy):
             * ``"zoh"``: ``uₖ`` from ``Ŵₖ``, then the weight law integrated exactly over the
               period along ``s(τ) = sₖ + τṡ`` predicted with the held (clipped) command,
               J frozen at Jₖ and ẋ_d held (ė = Jₖuₖ − ẋ_d, eq. 30).
-        learning_rate_unit: ``"per_step"`` (default): α is the gain of one update,
-            ``Ŵₖ₊₁ = Ŵₖ + αₖ ∇σ J R⁻¹ Jᵀ eₖ`` (h = 1); ``"per_second"``: α is the rate of the
-            continuous law, h = Δt.
-        freeze_when_saturated: Anti-windup (default ``True``): skip the weight update on a
-            step whose command had to be clipped to the velocity limits. The paper's
-            analysis assumes no saturation; without it the weights keep growing while the
-            arm cannot follow.
-        initial_weights: Initial critic weights Ŵ₀, length ``basis.size``. ``None`` (the
-            paper's "initialised randomly") draws them uniformly from
-            ``initial_weight_range`` with the reset seed.
-        initial_weight_range: ``(low, high)`` of the random initial weights (default
-            ``(0, 1)``, MATLAB's ``rand``).
+        learning_rate_unit: ``"per_second"`` (default): α is the rate of the continuous law,
+            h = Δt; ``"per_step"``: α is the gain of one update,
+            ``Ŵₖ₊₁ = Ŵₖ + αₖ ∇σ J R⁻¹ Jᵀ eₖ`` (h = 1, i.e. 1/Δt times the continuous rate).
+        freeze_when_saturated: Anti-windup, not in the paper (default ``False``): skip the
+            weight update on a step whose command had to be clipped to the velocity limits.
+            Needed by ``"per_step"`` (without it that reading winds up and ends in a limit
+            cycle on the reach demo).
+        initial_weights: Initial critic weights Ŵ₀: ``"identity"`` (default): c =
+            ``initial_weight_scale`` on the squared terms s_i², 0 on the cross terms, so
+            V̂₀ = c‖s‖² (the reset seed is not used); ``"uniform"``: every weight drawn from
+            U(``initial_weight_range``) with the reset seed (the earlier default, MATLAB's
+            ``rand`` with the default range; ``None`` means the same); or an array of length
+            ``basis.size``.
+        initial_weight_scale: c of ``"identity"`` (default :data:`INITIAL_WEIGHT_SCALES`:
+            2 for reach, 20 for tracking).
+        initial_weight_range: ``(low, high)`` of ``"uniform"`` (default ``(0, 1)``).
         command_scale: The effort knob (:attr:`effort_parameter`): a positive scalar c
             multiplying the command of eq. 15/36 before clipping, ``u = clip(c·û)``.
             Default 1, the paper's law. The weight law is unchanged; peak ‖u‖ and effort
@@ -182,11 +194,12 @@ class SNACPolicy(BasePolicy):
         learning_rate_initial: float | None = None,
         learning_rate_final: float | None = None,
         schedule_shift: float | None = None,
-        schedule_clock: str = "steps",
+        schedule_clock: str = "seconds",
         weight_update: str = "euler",
-        learning_rate_unit: str = "per_step",
-        freeze_when_saturated: bool = True,
-        initial_weights: np.ndarray | None = None,
+        learning_rate_unit: str = "per_second",
+        freeze_when_saturated: bool = False,
+        initial_weights: np.ndarray | str = "identity",
+        initial_weight_scale: float | None = None,
         initial_weight_range: tuple[float, float] = (0.0, 1.0),
         command_scale: float = 1.0,
         seed: int | None = None,
@@ -228,13 +241,28 @@ class SNACPolicy(BasePolicy):
         if not low <= high:
             raise ValueError(f"initial_weight_range must be (low, high) with low <= high, got {initial_weight_range}")
         self.initial_weight_range = (low, high)
-        if initial_weights is not None:
-            initial_weights = np.array(initial_weights, dtype=float)
-            if initial_weights.shape != (self.basis.size,) or not np.isfinite(initial_weights).all():
+        scale = INITIAL_WEIGHT_SCALES[self.task] if initial_weight_scale is None else float(initial_weight_scale)
+        if not math.isfinite(scale):
+            raise ValueError(f"initial_weight_scale must be finite, got {initial_weight_scale}")
+        self.initial_weight_scale = scale
+        if initial_weights is None:  # the earlier spelling of "uniform"
+            initial_weights = "uniform"
+        if isinstance(initial_weights, str):
+            if initial_weights not in INITIAL_WEIGHTS:
                 raise ValueError(
-                    f"initial_weights must be {self.basis.size} finite numbers, got shape {initial_weights.shape}"
+                    f"initial_weights must be one of {INITIAL_WEIGHTS} or an array, got {initial_weights!r}"
                 )
-        self.initial_weights = initial_weights
+            #: ``"identity"``, ``"uniform"`` or ``"given"`` (an array was passed).
+            self.initial_weight_kind = initial_weights
+            self.initial_weights = (
+                np.where(self.basis.first == self.basis.second, scale, 0.0) if initial_weights == "identity" else None
+            )
+        else:
+            weights = np.array(initial_weights, dtype=float)
+            if weights.shape != (self.basis.size,) or not np.isfinite(weights).all():
+                raise ValueError(f"initial_weights must be {self.basis.size} finite numbers, got shape {weights.shape}")
+            self.initial_weight_kind = "given"
+            self.initial_weights = weights
         self._rng = np.random.default_rng(seed)
 
         # Hot-path workspace: act allocates only its command and the new weights.
@@ -305,7 +333,7 @@ class SNACPolicy(BasePolicy):
 
     # -- episode ------------------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
-        """Start an episode: step counter to 0, critic weights to Ŵ₀ (random from ``seed`` unless given)."""
+        """Start an episode: step counter to 0, critic weights to Ŵ₀ (drawn from ``seed`` for ``"uniform"``)."""
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         if self.initial_weights is not None:
