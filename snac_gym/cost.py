@@ -15,8 +15,14 @@ from dataclasses import dataclass
 import numpy as np
 
 
-def _weight(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray | None:
-    """Validate a weighting matrix; ``None`` means identity (handled without a matmul)."""
+def weight_matrix(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray | None:
+    """Validate a weighting matrix (a ``(dim, dim)`` array or a length-``dim`` diagonal).
+
+    ``None`` means identity and is returned as ``None``, so callers skip the matmul.
+
+    Raises:
+        ValueError: On a wrong shape, naming the matrix.
+    """
     if matrix is None:
         return None
     matrix = np.asarray(matrix, dtype=float)
@@ -43,8 +49,8 @@ def instantaneous_cost(
     """The two terms ``(eᵀQe, uᵀRu)`` of the integrand of eq. 6 (``None`` = identity)."""
     error = np.asarray(error, dtype=float)
     command = np.asarray(command, dtype=float)
-    Qm = _weight(Q, error.shape[-1], "Q")
-    Rm = _weight(R, command.shape[-1], "R")
+    Qm = weight_matrix(Q, error.shape[-1], "Q")
+    Rm = weight_matrix(R, command.shape[-1], "R")
     return float(quadratic_form(error, Qm)), float(quadratic_form(command, Rm))
 
 
@@ -93,8 +99,8 @@ def cost_rates(
         )
     if not dt > 0:
         raise ValueError(f"dt must be positive, got {dt}")
-    Qm = _weight(Q, errors.shape[-1], "Q")
-    Rm = _weight(R, commands.shape[-1], "R")
+    Qm = weight_matrix(Q, errors.shape[-1], "Q")
+    Rm = weight_matrix(R, commands.shape[-1], "R")
     previous = np.zeros_like(commands[..., :1, :])
     if initial_command is not None:
         previous = previous + np.asarray(initial_command, dtype=float)[..., None, :]

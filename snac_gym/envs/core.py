@@ -8,7 +8,7 @@ from typing import Any, Mapping
 import gymnasium as gym
 import numpy as np
 
-from snac_gym.cost import _weight, quadratic_form
+from snac_gym.cost import quadratic_form, weight_matrix
 from snac_gym.envs.robot import SimulatedArm
 from snac_gym.envs.sim import PyBulletSim
 from snac_gym.envs.tasks import TASKS, Task
@@ -199,8 +199,8 @@ class URTaskEnv(gym.Env):
         self.task_name = self.task.name
         self.kinematics = Kinematics(robot)
         m, n = self.kinematics.n_joints, self.kinematics.task_dim
-        self.Q = _weight(Q, n, "Q")
-        self.R = _weight(R, m, "R")
+        self.Q = weight_matrix(Q, n, "Q")
+        self.R = weight_matrix(R, m, "R")
         self.reward_type = reward_type
         self.terminate_on_success = bool(terminate_on_success)
         self.sample_space = sample_space if sample_space is not None else SampleSpace.for_robot(self.kinematics)

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.cost import weight_matrix
 from snac_gym.policies.base import BasePolicy
 
 #: The paper's learning-rate schedules (Section V): task -> (α_initial, α_final, n).
@@ -207,8 +208,9 @@ class SNACPolicy(BasePolicy):
         super().__init__(env)
         n, m = self.kinematics.task_dim, self.kinematics.n_joints
         self.task_dim, self.n_joints = n, m
-        self.Q = self._matrix(Q, n, "Q")
-        self.R = self._matrix(R, m, "R")
+        Q_matrix, R_matrix = weight_matrix(Q, n, "Q"), weight_matrix(R, m, "R")
+        self.Q = np.eye(n) if Q_matrix is None else Q_matrix
+        self.R = np.eye(m) if R_matrix is None else R_matrix
         if not np.allclose(self.R, self.R.T) or np.linalg.eigvalsh(self.R).min() <= 0:
             raise ValueError("R must be symmetric positive definite")
         self.R_inverse = np.linalg.inv(self.R)
@@ -296,17 +298,6 @@ class SNACPolicy(BasePolicy):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self._make_views()
-
-    @staticmethod
-    def _matrix(value: np.ndarray | None, dim: int, name: str) -> np.ndarray:
-        if value is None:
-            return np.eye(dim)
-        matrix = np.asarray(value, dtype=float)
-        if matrix.ndim == 1:
-            matrix = np.diag(matrix)
-        if matrix.shape != (dim, dim):
-            raise ValueError(f"{name} must be ({dim}, {dim}) or a length-{dim} diagonal, got shape {matrix.shape}")
-        return matrix
 
     # -- internals, evaluated on access ---------------------------------------------------------
     @property
