@@ -131,7 +131,7 @@ def real(
 
 @app.command()
 def evaluate(
-    out: Path = typer.Option(Path("evaluation_out"), "--out", help="Output folder (results, summary, plots, parts)."),
+    out: Path = typer.Option(Path("runs/evaluation"), "--out", help="Output folder (results, summary, plots, parts)."),
     task: str = typer.Option("both", "--task", help="reach, track or both."),
     controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one)."),
     samples: int = typer.Option(1000, "--samples", min=1, help="Random samples per task (the paper: 1000)."),
@@ -142,7 +142,7 @@ def evaluate(
     effort_reference: str = typer.Option("snac", "--effort-reference", help="Controller whose effort the others are matched to."),
     effort_target: Optional[float] = typer.Option(None, "--effort-target", help="Explicit effort target (fraction of the velocity limits); then every controller is matched."),
     effort_tolerance: float = typer.Option(0.02, "--effort-tolerance", help="Relative tolerance of the effort match."),
-    calibration_samples: Optional[int] = typer.Option(None, "--calibration-samples", min=1, help="Samples the knob search runs on (default: all)."),
+    calibration_samples: Optional[int] = typer.Option(None, "--calibration-samples", min=1, help="Samples the knob search runs on (default: all, fewer for controllers whose effort peaks late)."),
     samples_file: Optional[Path] = typer.Option(None, "--samples-file", help="Read the samples from this CSV (docs/evaluation.md)."),
     export_samples: Optional[Path] = typer.Option(None, "--export-samples", help="Also write the sample set to this CSV."),
     export_only: bool = typer.Option(False, "--export-only", help="Only write --export-samples, run nothing."),

@@ -1,0 +1,194 @@
+"""Equal control effort: the effort statistic and the search for the knob value that matches it.
+
+**What "maximum control effort" means here.** Commands are clipped at the velocity limits
+ū (UR10: 2.16, 2.16, 3.15, 3.2, 3.2, 3.2 rad/s), so the literal maximum of |u| over a large
+sample set is a joint limit for every controller with any reasonable gain (docs/evaluation.md
+has the measurements: the maximum of ‖u‖∞ over 200 regulation samples is 3.15 rad/s for DLS
+and SVF at 1x, 2x and 4x their default gain). The maximum of ‖u‖₂ is no better: controllers
+that scale a command uniformly into the limits (DLS, SVF) cannot exceed about 4.5 rad/s,
+those that clip element-wise (SNAC, RNN) reach 6.3 rad/s, so ‖u‖₂ compares clipping rules,
+not effort. The statistic matched is therefore
+
+    effort = median over the samples of each rollout's peak of max_j |uₖⱼ| / ūⱼ,
+
+the peak fraction of the velocity limits that a typical rollout uses: it is the "max |u|"
+of a rollout measured against the limits, has the same ceiling (1: at a limit) for every
+clipping rule, and its median grows smoothly and strictly with every knob until more than
+half of the rollouts reach a limit.
+
+**Search.** Each policy class names a scalar constructor argument that scales its effort
+monotonically (``effort_parameter``). :func:`match_effort` looks for the smallest knob value
+whose effort reaches the target (within the tolerance): it brackets the target (multiplying
+the knob by target/effort, 3 % past it, at most 16x per step and at least 1.5x after the
+first step), then bisects the bracket in log space, splitting at the log-log interpolation
+clamped to the middle 80 % of the bracket, or at the geometric midpoint after two splits that
+moved the same end (a safeguarded bisection: the bracket shrinks at every step). When
+bracketing finds the effort flat (a relative change below the tolerance over two knob steps
+of at least 1.5x) below the target, the target is out of reach: the search stops and returns
+the smallest knob whose effort is within the tolerance of the best reached, marked unmatched.
+Flat above the target (the effort does not fall with the knob), it returns the smallest knob
+tried, matched only if that effort is within the tolerance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Name of the matched statistic, as printed in the reports.
+EFFORT_STATISTIC = "median over samples of each rollout's peak max_j |u_j|/ū_j (fraction of the velocity limits)"
+#: Results column holding each rollout's peak (see :mod:`evaluation.metrics`), and its step.
+EFFORT_COLUMN = "peak_limit_fraction"
+PEAK_STEP_COLUMN = "peak_step"
+#: Most knob evaluations of one search.
+MAX_EVALUATIONS = 40
+#: Largest factor the knob moves by in one bracketing step.
+MAX_BRACKET_STEP = 16.0
+#: Knob steps at least this large that change the effort by less than the tolerance count as flat.
+FLAT_STEP = 1.5
+
+
+def effort_statistic(peaks: np.ndarray) -> float:
+    """The matched statistic from the per-rollout peaks (:data:`EFFORT_COLUMN`): their median."""
+    peaks = np.asarray(peaks, dtype=float)
+    if peaks.size == 0:
+        raise ValueError("no rollouts to measure the effort of")
+    return float(np.median(peaks))
+
+
+@dataclass
+class EffortMatch:
+    """Outcome of :func:`match_effort`.
+
+    Attributes:
+        value: The knob value found (the best evaluated one if not matched).
+        effort: The effort measured at ``value``.
+        target: The effort aimed at.
+        matched: Whether ``|effort/target − 1| ≤ tolerance``.
+        evaluations: Every ``(knob value, effort)`` measured, in order.
+        reason: Why the search stopped without a match (empty if matched).
+    """
+
+    value: float
+    effort: float
+    target: float
+    matched: bool
+    evaluations: list[tuple[float, float]] = field(default_factory=list)
+    reason: str = ""
+
+
+def _flat(evaluations: list[tuple[float, float]], target: float, tolerance: float, upward: bool) -> EffortMatch:
+    """End of a search whose bracketing found the effort flat.
+
+    Upward (the effort stays below the target): the smallest knob whose effort is within
+    ``tolerance`` of the highest reached, unmatched. Downward (the effort does not fall as the
+    knob does): the smallest knob tried, matched if its effort is within ``tolerance`` of the target.
+    """
+    extreme = max(e for _, e in evaluations) if upward else min(e for _, e in evaluations)
+    value, effort = min((v, e) for v, e in evaluations if abs(e / extreme - 1.0) <= tolerance)
+    if upward:
+        reason = f"the effort saturates at about {extreme:.4g} (target {target:.4g}): out of reach"
+        return EffortMatch(value, effort, target, False, evaluations, reason)
+    matched = _within(effort, target, tolerance)
+    reason = (
+        "" if matched else f"the effort does not fall below about {extreme:.4g} (target {target:.4g}): out of reach"
+    )
+    return EffortMatch(value, effort, target, matched, evaluations, reason)
+
+
+def match_effort(
+    measure: Callable[[float], float],
+    target: float,
+    start: float,
+    tolerance: float,
+    knob_tolerance: float = 1e-3,
+    max_evaluations: int = MAX_EVALUATIONS,
+) -> EffortMatch:
+    """The smallest positive knob value whose effort reaches ``target`` within ``tolerance``.
+
+    "Reaches" means ``effort ≥ target·(1 − tolerance)``. The search keeps a bracket
+    ``low < high`` (effort below / reaching that threshold) and stops when both ends are
+    close to the target (``effort(low) ≥ target·(1 − 2·tolerance)`` and
+    ``effort(high) ≤ target·(1 + tolerance)``: ``high`` is returned), or when the bracket is
+    narrower than ``knob_tolerance`` (relative). Where the effort is strictly increasing, the
+    result lies within ``tolerance`` of the target; where it is flat at the target (a target
+    at the ceiling 1, "at a limit"), it is the left edge of the flat part: the least
+    aggressive setting that reaches the target, so the result is unique.
+
+    Args:
+        measure: Effort at a knob value (non-decreasing in it). May raise ``ValueError`` for
+            a value the policy rejects; the search then stops, unmatched.
+        target: The effort to match (> 0).
+        start: First knob value tried (> 0), e.g. the policy's default.
+        tolerance: Relative tolerance on the effort.
+        knob_tolerance: Relative width of the bracket at which the search stops.
+        max_evaluations: Most calls of ``measure``.
+    """
+    if not target > 0 or not start > 0 or not tolerance > 0:
+        raise ValueError(f"target, start and tolerance must be positive, got {target}, {start}, {tolerance}")
+    threshold = target * (1.0 - tolerance)
+    evaluations: list[tuple[float, float]] = []
+    low: tuple[float, float] | None = None
+    high: tuple[float, float] | None = None
+
+    def evaluate(value: float) -> float:
+        nonlocal low, high
+        effort = float(measure(value))
+        evaluations.append((value, effort))
+        if effort >= threshold:
+            if high is None or value < high[0]:
+                high = (value, effort)
+        elif low is None or value > low[0]:
+            low = (value, effort)
+        return effort
+
+    def failed(reason: str) -> EffortMatch:
+        value, effort = min(evaluations, key=lambda ve: abs(ve[1] / target - 1.0))
+        return EffortMatch(value, effort, target, False, evaluations, reason)
+
+    evaluate(start)
+    flat_steps = 0
+    # Bracket: scale the knob by target/effort (effort is roughly proportional to it), 3 % past the target.
+    while low is None or high is None:
+        if len(evaluations) >= max_evaluations:
+            return failed(f"no bracket after {len(evaluations)} evaluations")
+        upward = high is None
+        value, effort = low if upward else high  # type: ignore[misc]
+        step = target / effort if effort > 0 else MAX_BRACKET_STEP
+        step = min(max(step * (1.03 if upward else 1 / 1.03), 1 / MAX_BRACKET_STEP), MAX_BRACKET_STEP)
+        if len(evaluations) > 1:  # the proportional guess did not bracket: step at least FLAT_STEP
+            step = max(step, FLAT_STEP) if upward else min(step, 1 / FLAT_STEP)
+        try:
+            new_effort = evaluate(value * step)
+        except ValueError as exc:
+            return failed(f"the policy rejects {value * step:.6g}: {exc}")
+        large = max(step, 1 / step) >= FLAT_STEP
+        flat_steps = flat_steps + 1 if large and abs(new_effort / effort - 1.0) < tolerance else 0
+        if flat_steps >= 2:
+            return _flat(evaluations, target, tolerance, upward)
+    # Safeguarded bisection in log space.
+    moved: list[bool] = []  # whether each split moved the high end
+    while True:
+        assert low is not None and high is not None
+        if low[1] >= target * (1.0 - 2 * tolerance) and high[1] <= target * (1.0 + tolerance):
+            return EffortMatch(high[0], high[1], target, True, evaluations)
+        if high[0] / low[0] <= 1.0 + knob_tolerance:
+            if _within(high[1], target, tolerance):
+                return EffortMatch(high[0], high[1], target, True, evaluations)
+            return failed(f"the effort jumps from {low[1]:.4g} to {high[1]:.4g} across the target {target:.4g}")
+        if len(evaluations) >= max_evaluations:
+            return failed(f"no match within {max_evaluations} evaluations")
+        a, b = math.log(low[0]), math.log(high[0])
+        split = 0.5 * (a + b)
+        one_sided = len(moved) >= 2 and moved[-1] == moved[-2]  # interpolation is creeping: bisect
+        if low[1] > 0 and high[1] > low[1] and not one_sided:
+            fa, fb = math.log(low[1] / target), math.log(high[1] / target)
+            split = min(max(a - fa * (b - a) / (fb - fa), a + 0.1 * (b - a)), b - 0.1 * (b - a))
+        moved.append(evaluate(math.exp(split)) >= threshold)
+
+
+def _within(effort: float, target: float, tolerance: float) -> bool:
+    return abs(effort / target - 1.0) <= tolerance

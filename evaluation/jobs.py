@@ -1,0 +1,123 @@
+"""The unit of work: one controller with one knob setting on a chunk of samples.
+
+A :class:`RolloutJob` is plain data (picklable for worker processes and Ray); :func:`run_job`
+rolls it out on its backend and returns one metrics row per sample, plus the per-step logs
+when asked. It is the only code that runs in the workers.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from evaluation.backends import simulate_kinematic, simulate_pybullet
+from evaluation.metrics import rollout_metrics
+from evaluation.samples import EvaluationSample
+from snac_gym.kinematics import Kinematics
+from snac_gym.observation import ObservationLayout
+from snac_gym.policies.base import PolicyContext
+from snac_gym.policies.registry import make_policy
+
+
+@dataclass(frozen=True)
+class RolloutJob:
+    """One controller, one set of constructor arguments, a chunk of samples of one task.
+
+    Attributes:
+        task: ``"reach"`` or ``"track"``.
+        controller: Registered policy name.
+        kwargs: Constructor arguments (the effort knob included).
+        samples: The chunk's samples.
+        seeds: Each sample's policy (and env) reset seed.
+        steps: Control steps per rollout.
+        dt: Control period, s.
+        robot: Robot name.
+        backend: ``"kinematic"`` or ``"pybullet"``.
+        keep_logs: Return the per-step logs.
+        use_batch: Let the kinematic backend use a policy's batch protocol.
+    """
+
+    task: str
+    controller: str
+    kwargs: dict[str, Any]
+    samples: tuple[EvaluationSample, ...]
+    seeds: tuple[int, ...]
+    steps: int
+    dt: float
+    robot: str = "ur10"
+    backend: str = "kinematic"
+    keep_logs: bool = False
+    use_batch: bool = True
+
+
+@dataclass
+class JobResult:
+    """What a job returns: metrics rows (column ``sample`` identifies them) and optional logs."""
+
+    metrics: pd.DataFrame
+    logs: list[pd.DataFrame] | None = field(default=None)
+
+
+@functools.lru_cache(maxsize=4)
+def _kinematics(robot: str) -> Kinematics:
+    """One :class:`Kinematics` per robot and process (its Pinocchio workspace is reused)."""
+    return Kinematics(robot)
+
+
+def policy_context(robot: str, dt: float, task: str) -> PolicyContext:
+    """The context a policy is built from in the kinematic backend (the env's limits and layout)."""
+    kinematics = _kinematics(robot)
+    return PolicyContext(
+        kinematics,
+        float(dt),
+        kinematics.velocity_limits.copy(),
+        ObservationLayout(kinematics.n_joints, kinematics.task_dim),
+        task,
+    )
+
+
+def run_job(job: RolloutJob) -> JobResult:
+    """Roll out ``job`` and measure every rollout (see :mod:`evaluation.metrics`)."""
+    attrs = {"task": job.task, "policy": job.controller, "policy_kwargs": dict(job.kwargs)}
+    if job.backend == "kinematic":
+        context = policy_context(job.robot, job.dt, job.task)
+        make = functools.partial(make_policy, job.controller, context, **job.kwargs)
+        rollouts = simulate_kinematic(context, make, job.samples, job.steps, job.seeds, job.use_batch, job.controller)
+        limits = context.velocity_limits
+        logs = None
+        if job.keep_logs:
+            logs = [
+                rollouts.log(
+                    i,
+                    {
+                        **attrs,
+                        "sample": s.index,
+                        "seed": seed,
+                        "options": s.reset_options(),
+                        "reference": s.reference.to_dict(),
+                        "velocity_limits": limits.tolist(),
+                        "backend": job.backend,
+                    },
+                )
+                for i, (s, seed) in enumerate(zip(job.samples, job.seeds, strict=True))
+            ]
+    elif job.backend == "pybullet":
+        make_for_env = functools.partial(make_policy, job.controller, **job.kwargs)  # called with the env
+        rollouts, raw_logs = simulate_pybullet(
+            job.robot, job.task, job.dt, make_for_env, job.samples, job.steps, job.seeds
+        )
+        limits = np.asarray(raw_logs[0].attrs["velocity_limits"], dtype=float)
+        logs = None
+        if job.keep_logs:
+            logs = raw_logs
+            for log, sample in zip(logs, job.samples, strict=True):
+                log.attrs.update({**attrs, "sample": sample.index, "backend": job.backend})
+    else:
+        raise ValueError(f"unknown backend {job.backend!r}")
+    metrics = rollout_metrics(rollouts, job.task, limits)
+    metrics.insert(0, "sample", [s.index for s in job.samples])
+    return JobResult(metrics, logs)

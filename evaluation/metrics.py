@@ -1,0 +1,124 @@
+"""Per-rollout figures: the paper's trajectory cost and what else a reader needs to judge a run.
+
+The cost is :func:`snac_gym.cost.trajectory_cost` (the one function the env reward and the
+plots use): ``V = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt`` over the K steps, Q = I₃, R = I₆,
+u̇ₖ = (uₖ − uₖ₋₁)/Δt with u₋₁ = 0.
+
+Other columns (one value per rollout):
+
+=====================  ======  ==============================================================
+column                 unit    meaning
+=====================  ======  ==============================================================
+cost                   –       V, the sum of the three terms below
+cost_error             –       Σ eₖᵀQeₖ Δt
+cost_effort            –       Σ uₖᵀRuₖ Δt
+cost_smoothness        –       Σ u̇ₖᵀRu̇ₖ Δt
+cost_smoothness_start  –       its first term u₀ᵀRu₀/Δt: the jump from rest (u₋₁ = 0) to the
+                               first command
+final_error            m       ‖e_K‖ after the last step
+time_to_1mm            s       first tₖ (k = 0..K) with ‖eₖ‖ ≤ 1 mm; NaN if never
+settle_time            s       first tₖ from which ‖eⱼ‖ stays within the success tolerance (1
+                               mm reach, 5 mm track) up to and including e_K; NaN if ‖e_K‖ is
+                               outside it
+max_abs_u              rad/s   max over steps and joints of |uₖⱼ| (peak ‖u‖∞)
+max_norm_u             rad/s   max over steps of ‖uₖ‖₂
+peak_limit_fraction    –       max over steps and joints of |uₖⱼ|/ūⱼ (ū: velocity limits; 1 =
+                               at a limit)
+peak_step              –       the step k where peak_limit_fraction occurs (first one)
+max_abs_udot           rad/s²  max over steps and joints of |u̇ₖⱼ| (u₋₁ = 0 included)
+steps_at_limit         –       steps with some |uₖⱼ| at its velocity limit
+mean_error_2nd_half    m       mean ‖eₖ‖ over k = ⌊K/2⌋..K−1
+success                –       reach: final_error ≤ 1 mm; track: mean_error_2nd_half ≤ 5 mm
+=====================  ======  ==============================================================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from evaluation.rollouts import Rollouts
+from snac_gym.cost import cost_rates, trajectory_cost
+
+#: Success thresholds (m): final error for reach, mean error over the second half for track.
+REACH_TOLERANCE = 1e-3
+TRACK_TOLERANCE = 5e-3
+#: Threshold of ``time_to_1mm``, m.
+ARRIVAL_TOLERANCE = 1e-3
+#: A command counts as at its limit within this relative distance.
+LIMIT_RELATIVE_TOLERANCE = 1e-9
+
+METRIC_COLUMNS = (
+    "cost",
+    "cost_error",
+    "cost_effort",
+    "cost_smoothness",
+    "cost_smoothness_start",
+    "final_error",
+    "time_to_1mm",
+    "settle_time",
+    "max_abs_u",
+    "max_norm_u",
+    "peak_limit_fraction",
+    "peak_step",
+    "max_abs_udot",
+    "steps_at_limit",
+    "mean_error_2nd_half",
+    "success",
+)
+
+
+def peak_limit_fractions(commands: np.ndarray, velocity_limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each rollout's peak of ``max_j |uₖⱼ|/ūⱼ`` over its steps, and the first step where it occurs.
+
+    Args:
+        commands: ``(B, K, m)`` commands.
+        velocity_limits: ``(m,)`` limits ū.
+    """
+    fractions = (np.abs(commands) / np.asarray(velocity_limits, dtype=float)).max(axis=-1)  # (B, K)
+    steps = np.argmax(fractions, axis=1)
+    return fractions[np.arange(len(fractions)), steps], steps
+
+
+def rollout_metrics(rollouts: Rollouts, task: str, velocity_limits: np.ndarray) -> pd.DataFrame:
+    """One row of :data:`METRIC_COLUMNS` per rollout of ``rollouts`` (Q = I₃, R = I₆)."""
+    dt = rollouts.dt
+    commands, errors = rollouts.commands, rollouts.errors
+    terms = trajectory_cost(errors, commands, dt)
+    start_jump = cost_rates(errors[:, :1], commands[:, :1], dt).smoothness[:, 0] * dt
+    error_norms = np.linalg.norm(errors, axis=-1)  # (B, K)
+    final_error = np.linalg.norm(rollouts.final_errors, axis=-1)
+    all_norms = np.concatenate([error_norms, final_error[:, None]], axis=1)  # k = 0..K
+    arrived = all_norms <= ARRIVAL_TOLERANCE
+    first = np.argmax(arrived, axis=1)
+    time_to_1mm = np.where(arrived.any(axis=1), first * dt, np.nan)
+    outside = all_norms > (REACH_TOLERANCE if task == "reach" else TRACK_TOLERANCE)
+    last_outside = all_norms.shape[1] - 1 - np.argmax(outside[:, ::-1], axis=1)
+    settle_time = np.where(outside.any(axis=1), (last_outside + 1) * dt, 0.0)
+    settle_time[outside[:, -1]] = np.nan
+    rates = np.diff(commands, axis=1, prepend=np.zeros_like(commands[:, :1])) / dt
+    limits = np.asarray(velocity_limits, dtype=float)
+    peak_fraction, peak_step = peak_limit_fractions(commands, limits)
+    at_limit = (np.abs(commands) >= limits * (1.0 - LIMIT_RELATIVE_TOLERANCE)).any(axis=-1)
+    second_half = error_norms[:, rollouts.steps // 2 :].mean(axis=1)
+    success = final_error <= REACH_TOLERANCE if task == "reach" else second_half <= TRACK_TOLERANCE
+    return pd.DataFrame(
+        {
+            "cost": terms.total,
+            "cost_error": terms.error,
+            "cost_effort": terms.effort,
+            "cost_smoothness": terms.smoothness,
+            "cost_smoothness_start": start_jump,
+            "final_error": final_error,
+            "time_to_1mm": time_to_1mm,
+            "settle_time": settle_time,
+            "max_abs_u": np.abs(commands).max(axis=(1, 2)),
+            "max_norm_u": np.linalg.norm(commands, axis=-1).max(axis=1),
+            "peak_limit_fraction": peak_fraction,
+            "peak_step": peak_step.astype(np.int64),
+            "max_abs_udot": np.abs(rates).max(axis=(1, 2)),
+            "steps_at_limit": at_limit.sum(axis=1).astype(np.int64),
+            "mean_error_2nd_half": second_half,
+            "success": success,
+        }
+    )

@@ -1,0 +1,277 @@
+"""Summaries of a results table: Table I's layout beside the paper's values, and box plots.
+
+``summary.csv`` has one row per controller and, per task (prefix ``reach_`` / ``track_``):
+``cost`` (V/N, the mean over samples), ``cost_std``, ``cost_ci95_low``/``_high`` (Student-t
+95 % interval of the mean), ``n``, the mean of each cost term, ``paper`` (Table I),
+``ratio_to_snac`` and ``paper_ratio_to_snac``, ``success_rate``, ``final_error_median``,
+``time_to_1mm_median``, ``settled_fraction``, ``settle_time_median`` and ``settle_time_p95``
+(order statistics; inf when too few rollouts settled within the horizon), the effort
+statistic matched (``effort``), its knob (``effort_parameter``, ``effort_value``,
+``effort_role``) and the literal maxima over the set (``max_abs_u``, ``max_norm_u``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from evaluation.paper import TASK_LABELS, controller_label, paper_value
+
+_TERMS = ("cost_error", "cost_effort", "cost_smoothness", "cost_smoothness_start")
+
+
+def mean_confidence_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float, float]:
+    """``(mean, std, low, high)``: the sample mean, its standard deviation (ddof 1) and the t interval."""
+    values = np.asarray(values, dtype=float)
+    mean = float(values.mean())
+    if values.size < 2:
+        return mean, math.nan, math.nan, math.nan
+    std = float(values.std(ddof=1))
+    half = float(stats.t.ppf(0.5 + level / 2, values.size - 1)) * std / math.sqrt(values.size)
+    return mean, std, mean - half, mean + half
+
+
+def summarise(
+    results: pd.DataFrame, efforts: Sequence[Any], tasks: Sequence[str], controllers: Sequence[str]
+) -> pd.DataFrame:
+    """The summary table (see the module docstring) from the results and the effort records."""
+    effort_by_key = {(e.task, e.controller): e for e in efforts}
+    rows = []
+    for controller in controllers:
+        row: dict[str, Any] = {"controller": controller, "label": controller_label(controller)}
+        for task in tasks:
+            part = results[(results["task"] == task) & (results["controller"] == controller)]
+            if part.empty:
+                continue
+            mean, std, low, high = mean_confidence_interval(part["cost"].to_numpy())
+            p = f"{task}_"
+            row.update(
+                {
+                    p + "cost": mean,
+                    p + "cost_std": std,
+                    p + "cost_ci95_low": low,
+                    p + "cost_ci95_high": high,
+                    p + "n": len(part),
+                }
+            )
+            for term in _TERMS:
+                row[p + term] = float(part[term].mean())
+            row[p + "paper"] = paper_value(controller, task)
+            row[p + "success_rate"] = float(part["success"].mean())
+            row[p + "final_error_median"] = float(part["final_error"].median())
+            row[p + "time_to_1mm_median"] = float(part["time_to_1mm"].median())
+            settle = part["settle_time"].fillna(np.inf).to_numpy()  # NaN: not settled within the horizon
+            row[p + "settled_fraction"] = float(np.isfinite(settle).mean())
+            row[p + "settle_time_median"] = float(np.quantile(settle, 0.5, method="inverted_cdf"))
+            row[p + "settle_time_p95"] = float(np.quantile(settle, 0.95, method="inverted_cdf"))
+            row[p + "max_abs_u"] = float(part["max_abs_u"].max())
+            row[p + "max_norm_u"] = float(part["max_norm_u"].max())
+            record = effort_by_key.get((task, controller))
+            if record is not None:
+                row.update(
+                    {
+                        p + "effort": record.effort,
+                        p + "effort_target": record.target,
+                        p + "effort_role": record.role,
+                        p + "effort_parameter": record.knob,
+                        p + "effort_value": record.knob_value,
+                        p + "effort_passes": record.passes,
+                        p + "effort_note": record.note,
+                    }
+                )
+        rows.append(row)
+    summary = pd.DataFrame(rows)
+    for task in tasks:
+        p = f"{task}_"
+        if p + "cost" not in summary:
+            continue
+        snac = summary.loc[summary["controller"] == "snac", p + "cost"]
+        summary[p + "ratio_to_snac"] = summary[p + "cost"] / float(snac.iloc[0]) if len(snac) else math.nan
+        paper_snac = paper_value("snac", task)
+        summary[p + "paper_ratio_to_snac"] = [
+            (v / paper_snac) if v is not None and paper_snac else math.nan for v in summary[p + "paper"]
+        ]
+    return summary
+
+
+def _number(value: Any, digits: int = 2) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "—"
+    return f"{value:.{digits}f}"
+
+
+def _general_number(value: Any) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "—"
+    return f"{value:.4g}"
+
+
+def summary_markdown(
+    summary: pd.DataFrame,
+    config: Any,
+    efforts: Sequence[Any],
+    skipped: dict[str, str],
+    effort_statistic: str,
+    timings: dict[str, float] | None = None,
+    executor: str = "",
+) -> str:
+    """``summary.md``: Table I's layout, the details behind it, the effort matching and the plot."""
+    tasks = [t for t in config.tasks if f"{t}_cost" in summary]
+    n_text = ", ".join(f"{int(summary[f'{t}_n'].max())} {TASK_LABELS[t].lower()} samples" for t in tasks)
+    horizons = ", ".join(f"{t} {config.steps(t)} steps ({config.steps(t) * config.dt:g} s)" for t in tasks)
+    lines = [
+        "# Trajectory cost V/N (Table I of the paper)",
+        "",
+        f"Backend `{config.backend}`, {n_text}, seed {config.seed}, Δt = {config.dt:g} s, horizons: {horizons}. "
+        f"V = Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt with Q = I, R = I, u₋₁ = 0; V/N is the mean over samples, "
+        "± its standard deviation, with the 95 % confidence interval of the mean. "
+        + (
+            "Equal effort: " + effort_statistic + " matched (table below)."
+            if config.match_effort
+            else "No effort matching (each controller at its own settings)."
+        ),
+        "",
+    ]
+    header = "| Controller |" + "".join(
+        f" {TASK_LABELS[t]} V/N (ours) | 95 % CI | paper | ratio to SNAC (ours / paper) |" for t in tasks
+    )
+    lines += [header, "|---|" + "---|---|---|---|" * len(tasks)]
+    for _, row in summary.iterrows():
+        cells = [row["label"]]
+        for t in tasks:
+            p = f"{t}_"
+            cells += [
+                f"{_number(row[p + 'cost'])} ± {_number(row[p + 'cost_std'])}",
+                f"[{_number(row[p + 'cost_ci95_low'])}, {_number(row[p + 'cost_ci95_high'])}]",
+                _number(row[p + "paper"]),
+                f"{_number(row[p + 'ratio_to_snac'])} / {_number(row[p + 'paper_ratio_to_snac'])}",
+            ]
+        lines.append("| " + " | ".join(cells) + " |")
+    for t in tasks:
+        p = f"{t}_"
+        lines += [
+            "",
+            f"## {TASK_LABELS[t]} ({t}): cost terms and outcomes",
+            "",
+            (
+                "| Controller | error term | effort term | smoothness term | of which first-step jump | success "
+                "| median final error (mm) | median time to 1 mm (s) | settled | settle time median / p95 (s) "
+                "| max ‖u‖∞ | max ‖u‖₂ |"
+            ),
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for _, row in summary.iterrows():
+            lines.append(
+                "| "
+                + " | ".join(
+                    [
+                        row["label"],
+                        _general_number(row[p + "cost_error"]),
+                        _general_number(row[p + "cost_effort"]),
+                        _general_number(row[p + "cost_smoothness"]),
+                        _general_number(row[p + "cost_smoothness_start"]),
+                        f"{row[p + 'success_rate']:.1%}",
+                        _number(row[p + "final_error_median"] * 1e3, 3),
+                        _number(row[p + "time_to_1mm_median"]),
+                        f"{row[p + 'settled_fraction']:.1%}",
+                        f"{_number(row[p + 'settle_time_median'])} / {_number(row[p + 'settle_time_p95'])}",
+                        _number(row[p + "max_abs_u"], 3),
+                        _number(row[p + "max_norm_u"], 3),
+                    ]
+                )
+                + " |"
+            )
+    lines += [
+        "",
+        "## Control effort",
+        "",
+        f"Statistic: {effort_statistic}; tolerance {config.effort_tolerance:.0%} of the target."
+        if config.match_effort
+        else f"Statistic (not matched): {effort_statistic}.",
+        "",
+        "| Task | Controller | role | knob | value | effort | target | passes | note |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for e in efforts:
+        lines.append(
+            f"| {e.task} | {controller_label(e.controller)} | {e.role} | {e.knob or '—'} | "
+            f"{_general_number(e.knob_value)} | {_number(e.effort, 4)} | {_number(e.target, 4)} | "
+            f"{e.passes} | {e.note} |"
+        )
+    unmatched = [e for e in efforts if e.role == "unmatched"]
+    if unmatched:
+        lines += [
+            "",
+            "**Warning:** effort not matched for " + ", ".join(f"{e.controller} ({e.task})" for e in unmatched) + ".",
+        ]
+    if skipped:
+        lines += ["", "Registered controllers left out:", ""] + [
+            f"- `{name}`: {reason}" for name, reason in skipped.items()
+        ]
+    if timings:
+        phases = ", ".join(f"{name} {seconds:.1f} s" for name, seconds in timings.items() if name != "total")
+        lines += [
+            "",
+            (
+                f"Wall time {timings.get('total', math.nan):.1f} s on {executor} ({phases}); "
+                "a resumed run counts only its own time."
+            ),
+        ]
+    lines += ["", "![Per-sample trajectory cost](cost_boxplot.png)", ""]
+    return "\n".join(lines)
+
+
+def plot_cost_boxes(results: pd.DataFrame, tasks: Sequence[str], controllers: Sequence[str], path: Path) -> Path:
+    """Box plots of the per-sample cost, one panel per task, log scale."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 4), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        data, labels = [], []
+        for controller in controllers:
+            costs = results.loc[(results["task"] == task) & (results["controller"] == controller), "cost"].to_numpy()
+            if costs.size:
+                data.append(costs)
+                labels.append(controller_label(controller))
+        ax.boxplot(data, showmeans=True)
+        ax.set_xticks(range(1, len(labels) + 1), labels, rotation=15)
+        if all(np.all(d > 0) for d in data):
+            ax.set_yscale("log")
+        ax.set_title(f"{TASK_LABELS[task]} ({task}), ▲ mean")
+        ax.set_ylabel("trajectory cost V per sample")
+        ax.grid(True, axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_reports(
+    root: Path,
+    results: pd.DataFrame,
+    efforts: Sequence[Any],
+    config: Any,
+    skipped: dict[str, str],
+    effort_statistic: str,
+    timings: dict[str, float] | None = None,
+    executor: str = "",
+) -> pd.DataFrame:
+    """Write ``summary.csv``, ``summary.md`` and ``cost_boxplot.png`` into ``root``."""
+    controllers = list(dict.fromkeys(results["controller"]))
+    tasks = [t for t in config.tasks if (results["task"] == t).any()]
+    summary = summarise(results, efforts, tasks, controllers)
+    summary.to_csv(root / "summary.csv", index=False, float_format="%.10g")
+    (root / "summary.md").write_text(
+        summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor)
+    )
+    plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png")
+    return summary

@@ -1,0 +1,113 @@
+"""A batch of rollouts as arrays, and its conversion to the demo's per-step log.
+
+Both backends return a :class:`Rollouts`: row ``k`` of every per-step array is the state at
+the start of control step ``k`` and the command ``uₖ`` held over that step (the convention of
+:mod:`snac_gym.rollout` and of the trajectory cost); ``final_*`` is the state after the
+last step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from snac_gym.rollout import log_array, log_columns
+
+
+@dataclass
+class Rollouts:
+    """B rollouts of K control steps each.
+
+    Attributes:
+        dt: Control period, s.
+        times: ``(K,)`` time at the start of each step, s.
+        q: ``(B, K, m)`` joint positions θₖ, rad.
+        commands: ``(B, K, m)`` commands uₖ applied over step k (after clipping), rad/s.
+        x: ``(B, K, n)`` end-effector positions f(θₖ), m.
+        x_d: ``(B, K, n)`` desired positions x_d(tₖ), m.
+        xdot_d: ``(B, K, n)`` desired velocities ẋ_d(tₖ), m/s.
+        errors: ``(B, K, n)`` errors eₖ = xₖ − x_d(tₖ), m.
+        final_q: ``(B, m)`` θ_K after the last step.
+        final_x: ``(B, n)`` f(θ_K).
+        final_errors: ``(B, n)`` e_K.
+    """
+
+    dt: float
+    times: np.ndarray
+    q: np.ndarray
+    commands: np.ndarray
+    x: np.ndarray
+    x_d: np.ndarray
+    xdot_d: np.ndarray
+    errors: np.ndarray
+    final_q: np.ndarray
+    final_x: np.ndarray
+    final_errors: np.ndarray
+
+    @property
+    def count(self) -> int:
+        """Number of rollouts B."""
+        return int(self.commands.shape[0])
+
+    @property
+    def steps(self) -> int:
+        """Number of control steps K."""
+        return int(self.commands.shape[1])
+
+    def log(self, i: int, attrs: dict[str, Any] | None = None) -> pd.DataFrame:
+        """Rollout ``i`` as the demo's per-step log (columns of :func:`snac_gym.rollout.log_columns`).
+
+        ``attrs`` is merged into the log's metadata after ``dt``, ``final_t``, ``final_q``,
+        ``final_x`` and ``final_e``.
+        """
+        m, n = self.q.shape[-1], self.x.shape[-1]
+        blocks = [
+            self.times[:, None],
+            self.q[i],
+            self.commands[i],
+            self.x[i],
+            self.x_d[i],
+            self.xdot_d[i],
+            self.errors[i],
+        ]
+        log = pd.DataFrame(np.hstack(blocks), columns=log_columns(m, n))
+        log.attrs = {
+            "dt": self.dt,
+            "n_joints": m,
+            "task_dim": n,
+            "final_t": float(self.steps * self.dt),
+            "final_q": self.final_q[i].tolist(),
+            "final_x": self.final_x[i].tolist(),
+            "final_e": self.final_errors[i].tolist(),
+            **(attrs or {}),
+        }
+        return log
+
+
+def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
+    """Stack per-step logs of equal length (e.g. from :func:`snac_gym.rollout.rollout`) into :class:`Rollouts`."""
+    if not logs:
+        raise ValueError("no logs to stack")
+    lengths = {len(log) for log in logs}
+    if len(lengths) != 1:
+        raise ValueError(f"logs must have the same number of steps, got lengths {sorted(lengths)}")
+
+    def stack(prefix: str) -> np.ndarray:
+        return np.stack([log_array(log, prefix) for log in logs])
+
+    return Rollouts(
+        dt=float(logs[0].attrs["dt"]),
+        times=logs[0]["t"].to_numpy(),
+        q=stack("q"),
+        commands=stack("u"),
+        x=stack("x"),
+        x_d=stack("x_d"),
+        xdot_d=stack("xdot_d"),
+        errors=stack("e"),
+        final_q=np.array([log.attrs["final_q"] for log in logs], dtype=float),
+        final_x=np.array([log.attrs["final_x"] for log in logs], dtype=float),
+        final_errors=np.array([log.attrs["final_e"] for log in logs], dtype=float),
+    )

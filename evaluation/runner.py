@@ -1,0 +1,743 @@
+"""The evaluation from options to reports: ``run_evaluation(EvaluationConfig(...))``.
+
+Steps (each documented in docs/evaluation.md):
+
+1. **Samples**: read ``samples_file`` or draw ``samples`` per task from ``seed``
+   (:mod:`evaluation.samples`), spread over the workers in chunks; written to
+   ``DIR/samples.csv`` (and ``export_samples``).
+2. **Controllers**: ``controllers`` or every registered policy that can be built from a
+   :class:`~snac_gym.policies.base.PolicyContext` (and, with effort matching, declares an
+   ``effort_parameter``); those left out are listed in the summary.
+3. **Passes**: a *pass* rolls one controller with one knob value over every sample of a task,
+   in jobs of ``chunk_size`` samples (:mod:`evaluation.jobs`) run by the executor
+   (:mod:`evaluation.executors`); each finished job is stored at once (:mod:`evaluation.store`).
+4. **Equal effort** (``match_effort``): the reference controller (``effort_reference``,
+   default ``snac``, at its own settings) is run first; its effort statistic
+   (:mod:`evaluation.calibration`) is the target, unless ``effort_target`` is given (then
+   every controller is matched to it). Every other controller's knob is searched on the
+   screening samples, then a full pass checks the statistic over the whole set; if it misses
+   the tolerance, the screening target is corrected by the observed ratio and the search
+   repeats (at most ``MAX_MATCH_ROUNDS`` passes).
+5. **Reports**: ``results.csv``/``.parquet`` (one row per task, controller and sample),
+   ``summary.csv``/``.md`` and box plots (:mod:`evaluation.report`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from evaluation.backends import BACKENDS
+from evaluation.calibration import (
+    EFFORT_COLUMN,
+    EFFORT_STATISTIC,
+    PEAK_STEP_COLUMN,
+    EffortMatch,
+    effort_statistic,
+    match_effort,
+)
+from evaluation.executors import make_executor
+from evaluation.jobs import JobResult, RolloutJob, policy_context, run_job
+from evaluation.paper import PAPER_TABLE_I
+from evaluation.samples import (
+    TASKS,
+    EvaluationSample,
+    generate_samples,
+    policy_seed,
+    read_samples_csv,
+    write_samples_csv,
+)
+from evaluation.store import RunStore, settings_key
+from snac_gym.kinematics import Kinematics
+from snac_gym.policies.registry import available_policies, make_policy
+from snac_gym.sampling import SampleSpace
+
+#: Default horizon per task, s: at least every controller's 95th-percentile settling time,
+#: measured at equal effort on 100 samples (docs/evaluation.md); the envs' default episodes.
+DEFAULT_HORIZONS: dict[str, float] = {"reach": 8.0, "track": 20.0}
+#: Samples per job.
+DEFAULT_CHUNK_SIZE = 50
+#: Most full passes spent matching one controller's effort.
+MAX_MATCH_ROUNDS = 3
+#: Samples whose full-horizon rollouts locate the effort peak in time before a search.
+PEAK_PROBE_SAMPLES = 20
+#: A knob search evaluation runs on at most this fraction of a full pass's sample-steps...
+SCREENING_BUDGET = 0.1
+#: ...but on at least this many samples (unless the set is smaller).
+MIN_SCREENING_SAMPLES = 100
+#: Samples drawn per sample-generation job.
+GENERATION_CHUNK = 25
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """Options of one evaluation (the ``snac-gym evaluate`` options, by the same names).
+
+    Attributes:
+        out: Output directory.
+        tasks: Tasks to evaluate, from ``("reach", "track")``.
+        controllers: Registered policy names; ``None``: every registered policy that qualifies.
+        samples: Random samples per task (ignored with ``samples_file``, whose rows are all used).
+        seed: Seed of the sample set and of every policy reset.
+        horizons: Rollout length per task, s (missing tasks take :data:`DEFAULT_HORIZONS`).
+        backend: ``"kinematic"`` or ``"pybullet"``.
+        match_effort: Calibrate every controller's effort knob to equal effort.
+        effort_reference: Controller whose effort (at its own settings) is the target.
+        effort_target: Explicit target of the effort statistic, rad/s (then every controller is matched).
+        effort_tolerance: Relative tolerance of the match over the whole sample set.
+        calibration_samples: Samples (the first ones of each task) the knob search runs on;
+            ``None``: all of them when the search's rollouts are short, fewer when they are
+            long (see ``SCREENING_BUDGET``).
+        samples_file: CSV of samples to use instead of random ones.
+        export_samples: Also write the sample set to this CSV.
+        save_trajectories: Write every rollout's per-step log under ``out/trajectories``.
+        workers: Local worker processes.
+        ray_address: Run on Ray instead (``"local"`` or a cluster address).
+        resume: Continue an interrupted run in ``out``.
+        chunk_size: Samples per job (results do not depend on it or on the workers).
+        dt: Control period, s.
+        robot: Robot name.
+        space: Sample space (default: the UR10 cuboid scaled to the robot).
+        controller_kwargs: Constructor arguments per controller name.
+        progress: Show a progress bar.
+        use_batch: Let policies that offer the batch protocol run in lockstep batches.
+    """
+
+    out: Path
+    tasks: tuple[str, ...] = TASKS
+    controllers: tuple[str, ...] | None = None
+    samples: int = 1000
+    seed: int = 0
+    horizons: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_HORIZONS))
+    backend: str = "kinematic"
+    match_effort: bool = True
+    effort_reference: str = "snac"
+    effort_target: float | None = None
+    effort_tolerance: float = 0.02
+    calibration_samples: int | None = None
+    samples_file: Path | None = None
+    export_samples: Path | None = None
+    save_trajectories: bool = False
+    workers: int = 1
+    ray_address: str | None = None
+    resume: bool = False
+    chunk_size: int = DEFAULT_CHUNK_SIZE
+    dt: float = 1.0 / 125.0
+    robot: str = "ur10"
+    space: SampleSpace | None = None
+    controller_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    progress: bool = True
+    use_batch: bool = True
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad option."""
+        if not self.tasks or any(t not in TASKS for t in self.tasks) or len(set(self.tasks)) != len(self.tasks):
+            raise ValueError(f"tasks must be distinct names from {TASKS}, got {self.tasks}")
+        if self.controllers is not None and (
+            not self.controllers or len(set(self.controllers)) != len(self.controllers)
+        ):
+            raise ValueError(f"controllers must be distinct names, got {self.controllers}")
+        if self.samples < 1:
+            raise ValueError(f"samples must be at least 1, got {self.samples}")
+        unknown = set(self.horizons) - set(TASKS)
+        if unknown:
+            raise ValueError(f"horizons for unknown task(s) {sorted(unknown)}; tasks are {TASKS}")
+        for task in self.tasks:
+            if not self.horizon(task) >= self.dt:
+                raise ValueError(
+                    f"the {task} horizon must be at least one control period ({self.dt} s), got {self.horizon(task)}"
+                )
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.effort_target is not None and not self.effort_target > 0:
+            raise ValueError(f"effort_target must be positive, got {self.effort_target}")
+        if not 0 < self.effort_tolerance < 1:
+            raise ValueError(f"effort_tolerance must be in (0, 1), got {self.effort_tolerance}")
+        if self.calibration_samples is not None and self.calibration_samples < 1:
+            raise ValueError(f"calibration_samples must be at least 1, got {self.calibration_samples}")
+        if self.workers < 1:
+            raise ValueError(f"workers must be at least 1, got {self.workers}")
+        if self.chunk_size < 1:
+            raise ValueError(f"chunk_size must be at least 1, got {self.chunk_size}")
+        if not self.dt > 0:
+            raise ValueError(f"dt must be positive, got {self.dt}")
+
+    def horizon(self, task: str) -> float:
+        """Rollout length of ``task``, s."""
+        return float(self.horizons.get(task, DEFAULT_HORIZONS[task]))
+
+    def steps(self, task: str) -> int:
+        """Control steps K of ``task``'s rollouts: the horizon in periods, rounded."""
+        return max(1, round(self.horizon(task) / self.dt))
+
+    def manifest(self, space: SampleSpace) -> dict[str, Any]:
+        """The options that determine the results (``run.json``; compared by ``--resume``)."""
+        samples_hash = None
+        if self.samples_file is not None:
+            samples_hash = hashlib.sha1(Path(self.samples_file).read_bytes()).hexdigest()
+        return {
+            "tasks": list(self.tasks),
+            "controllers": None if self.controllers is None else list(self.controllers),
+            "samples": None if self.samples_file is not None else self.samples,
+            "samples_file_sha1": samples_hash,
+            "seed": self.seed,
+            "steps": {task: self.steps(task) for task in self.tasks},
+            "backend": self.backend,
+            "match_effort": self.match_effort,
+            "effort_reference": self.effort_reference,
+            "effort_target": self.effort_target,
+            "effort_tolerance": self.effort_tolerance,
+            "calibration_samples": self.calibration_samples,
+            "save_trajectories": self.save_trajectories,
+            "chunk_size": self.chunk_size,
+            "dt": self.dt,
+            "robot": self.robot,
+            "space": dataclasses.asdict(space),
+            "controller_kwargs": {k: dict(v) for k, v in self.controller_kwargs.items()},
+            "use_batch": self.use_batch,
+        }
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """A controller as evaluated: name, constructor arguments and effort knob.
+
+    Attributes:
+        name: Registered name.
+        kwargs: Constructor arguments given by the user.
+        knob: The class's ``effort_parameter`` (``None`` if it declares none).
+        knob_value: The knob's value with ``kwargs`` (the policy's attribute or constructor default).
+    """
+
+    name: str
+    kwargs: dict[str, Any]
+    knob: str | None
+    knob_value: float | None
+
+
+@dataclass
+class EffortRecord:
+    """How one controller's effort was set on one task (a row of the summary's effort table)."""
+
+    task: str
+    controller: str
+    role: str  # "reference", "matched", "unmatched" or "fixed"
+    knob: str | None
+    knob_value: float | None
+    effort: float
+    target: float | None
+    passes: int = 1
+    note: str = ""
+
+
+def _knob_value(policy: Any, knob: str) -> float | None:
+    value = getattr(policy, knob, None)
+    try:
+        return None if value is None else float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def default_controller_order(names: Sequence[str]) -> list[str]:
+    """Table I's rows first, in the paper's order (RNN, SVF, SNAC), then the other names sorted."""
+    paper = [name for name in PAPER_TABLE_I if name in names]
+    return paper + sorted(name for name in names if name not in PAPER_TABLE_I)
+
+
+def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec], dict[str, str]]:
+    """The controllers to evaluate, and the registered ones left out with the reason.
+
+    Raises:
+        ValueError: If an explicitly named controller is unknown, cannot be built, or (with
+            effort matching) declares no scalar ``effort_parameter``.
+    """
+    explicit = config.controllers is not None
+    names = list(config.controllers) if explicit else default_controller_order(available_policies())
+    known = set(available_policies())
+    specs: list[ControllerSpec] = []
+    skipped: dict[str, str] = {}
+    for name in names:
+        if name not in known:
+            raise ValueError(f"unknown controller {name!r}; registered: {', '.join(sorted(known))}")
+        kwargs = dict(config.controller_kwargs.get(name, {}))
+        try:
+            policies = [
+                make_policy(name, policy_context(config.robot, config.dt, task), **kwargs) for task in config.tasks
+            ]
+        except Exception as exc:
+            reason = f"cannot be built from a PolicyContext with arguments {kwargs}: {type(exc).__name__}: {exc}"
+            if explicit:
+                raise ValueError(f"controller {name!r} {reason}") from exc
+            skipped[name] = reason
+            continue
+        knob = getattr(type(policies[0]), "effort_parameter", None)
+        value = _knob_value(policies[0], knob) if knob else None
+        if config.match_effort and (knob is None or value is None):
+            reason = (
+                "declares no effort_parameter (needed for --match-effort)"
+                if knob is None
+                else f"its effort_parameter {knob!r} is not a scalar attribute of the policy"
+            )
+            if explicit:
+                raise ValueError(f"controller {name!r} {reason}; run it with --no-match-effort")
+            skipped[name] = reason
+            continue
+        specs.append(ControllerSpec(name, kwargs, knob, value))
+    if not specs:
+        raise ValueError(f"no controller to evaluate (left out: {skipped})")
+    return specs, skipped
+
+
+def _generate_chunk(args: tuple[str, SampleSpace, int, str, list[int]]) -> list[EvaluationSample]:
+    robot, space, seed, task, indices = args
+    return generate_samples(Kinematics(robot), space, seed, task, indices)
+
+
+def load_samples(
+    config: EvaluationConfig, kinematics: Kinematics, space: SampleSpace, executor: Any
+) -> dict[str, list[EvaluationSample]]:
+    """The sample set of every task of ``config`` (from the file, or drawn in parallel chunks)."""
+    if config.samples_file is not None:
+        from_file = read_samples_csv(config.samples_file, kinematics, space)
+        for task in config.tasks:
+            if not from_file[task]:
+                raise ValueError(f"{config.samples_file} has no {task!r} rows; choose --task accordingly")
+        return {task: from_file[task] for task in config.tasks}
+    chunks = [
+        (config.robot, space, config.seed, task, list(range(start, min(start + GENERATION_CHUNK, config.samples))))
+        for task in config.tasks
+        for start in range(0, config.samples, GENERATION_CHUNK)
+    ]
+    drawn: dict[int, list[EvaluationSample]] = dict(executor.run(_generate_chunk, chunks))
+    samples: dict[str, list[EvaluationSample]] = {task: [] for task in config.tasks}
+    for index in range(len(chunks)):
+        samples[chunks[index][3]].extend(drawn[index])
+    return samples
+
+
+class _Progress:
+    """A tqdm bar over rollouts (disabled off a terminal or with ``progress=False``)."""
+
+    def __init__(self, total: int, enabled: bool) -> None:
+        from tqdm.auto import tqdm
+
+        self._bar = tqdm(total=total, unit="rollout", disable=None if enabled else True, dynamic_ncols=True)
+
+    def add_total(self, count: int) -> None:
+        self._bar.total += count
+        self._bar.refresh()
+
+    def update(self, count: int) -> None:
+        self._bar.update(count)
+
+    def status(self, text: str) -> None:
+        self._bar.set_postfix_str(text, refresh=True)
+
+    def close(self) -> None:
+        self._bar.close()
+
+
+class _Evaluation:
+    """The passes and searches of one run (state shared by :func:`run_evaluation`'s steps)."""
+
+    def __init__(
+        self,
+        config: EvaluationConfig,
+        store: RunStore,
+        executor: Any,
+        samples: dict[str, list[EvaluationSample]],
+        progress: _Progress,
+    ) -> None:
+        self.config, self.store, self.executor, self.samples, self.progress = config, store, executor, samples, progress
+        #: Screening samples of each (task, controller)'s first knob search.
+        self.screening_counts: dict[tuple[str, str], int] = {}
+        #: Wall time spent per phase, s ("passes", "knob searches").
+        self.timings: dict[str, float] = {"passes": 0.0, "knob searches": 0.0}
+
+    def _jobs(
+        self,
+        task: str,
+        controller: str,
+        kwargs: dict[str, Any],
+        samples: Sequence[EvaluationSample],
+        steps: int,
+        keep_logs: bool,
+    ) -> list[RolloutJob]:
+        size = self.config.chunk_size
+        return [
+            RolloutJob(
+                task=task,
+                controller=controller,
+                kwargs=dict(kwargs),
+                samples=tuple(samples[i : i + size]),
+                seeds=tuple(policy_seed(self.config.seed, task, s.index) for s in samples[i : i + size]),
+                steps=steps,
+                dt=self.config.dt,
+                robot=self.config.robot,
+                backend=self.config.backend,
+                keep_logs=keep_logs,
+                use_batch=self.config.use_batch,
+            )
+            for i in range(0, len(samples), size)
+        ]
+
+    def run_passes(self, passes: Sequence[tuple[str, ControllerSpec, dict[str, Any]]]) -> list[pd.DataFrame]:
+        """Full passes (every sample, full horizon); finished jobs are stored as they arrive."""
+        started = time.perf_counter()
+        config = self.config
+        todo: list[tuple[RolloutJob, Path, ControllerSpec]] = []
+        paths: list[list[Path]] = []
+        for task, spec, kwargs in passes:
+            steps = config.steps(task)
+            key = settings_key(kwargs, steps, config.backend)
+            jobs = self._jobs(task, spec.name, kwargs, self.samples[task], steps, config.save_trajectories)
+            pass_paths = []
+            for chunk, job in enumerate(jobs):
+                path = self.store.part_path(task, spec.name, key, chunk)
+                pass_paths.append(path)
+                if self.store.has_part(path):
+                    self.progress.update(len(job.samples))
+                else:
+                    todo.append((job, path, spec))
+            paths.append(pass_paths)
+        for index, result in self.executor.run(run_job, [job for job, _, _ in todo]):
+            job, path, spec = todo[index]
+            self._store_job(job, spec, result, path)
+            self.progress.update(len(job.samples))
+        self.timings["passes"] += time.perf_counter() - started
+        return [pd.concat([self.store.read_part(p) for p in pass_paths], ignore_index=True) for pass_paths in paths]
+
+    def _store_job(self, job: RolloutJob, spec: ControllerSpec, result: JobResult, path: Path) -> None:
+        if result.logs is not None:
+            for log, sample in zip(result.logs, job.samples, strict=True):
+                self.store.write_trajectory(log, job.task, job.controller, sample.index)
+        rows = result.metrics
+        knob_value = job.kwargs.get(spec.knob, spec.knob_value) if spec.knob else None
+        rows.insert(0, "task", job.task)
+        rows.insert(1, "controller", job.controller)
+        rows.insert(3, "seed", np.array(job.seeds, dtype=np.int64))
+        rows["effort_parameter"] = spec.knob or ""
+        rows["effort_value"] = np.nan if knob_value is None else float(knob_value)
+        rows["backend"] = job.backend
+        rows["horizon"] = job.steps * job.dt
+        self.store.write_part(path, rows)
+
+    def measure(
+        self, task: str, spec: ControllerSpec, kwargs: dict[str, Any], samples: Sequence[EvaluationSample], steps: int
+    ) -> pd.DataFrame:
+        """Metrics of short or partial rollouts for the knob search (not stored as results)."""
+        started = time.perf_counter()
+        jobs = self._jobs(task, spec.name, kwargs, samples, steps, keep_logs=False)
+        parts = dict(self.executor.run(run_job, jobs))
+        self.timings["knob searches"] += time.perf_counter() - started
+        return pd.concat([parts[i].metrics for i in range(len(jobs))], ignore_index=True)
+
+    def _screening_count(self, task: str, spec: ControllerSpec, search_steps: int, round_number: int) -> int:
+        """How many of the first samples a search runs on (later rounds keep the first round's count).
+
+        ``calibration_samples`` if given; otherwise every sample when the search's rollouts are
+        short, fewer when they are long, so that one evaluation costs about
+        :data:`SCREENING_BUDGET` of a full pass (never fewer than :data:`MIN_SCREENING_SAMPLES`).
+        """
+        if round_number > 1:
+            key = (task, spec.name)
+            if key not in self.screening_counts:  # resumed after the first round
+                self.screening_counts[key] = int(
+                    self.store.calibration[f"{task}/{spec.name}/search1"]["screening_samples"]
+                )
+            return self.screening_counts[key]
+        count = len(self.samples[task])
+        if self.config.calibration_samples:
+            return min(count, self.config.calibration_samples)
+        budget = math.ceil(SCREENING_BUDGET * count * self.config.steps(task) / search_steps)
+        return min(count, max(MIN_SCREENING_SAMPLES, budget))
+
+    def search_knob(
+        self, task: str, spec: ControllerSpec, target: float, start: float, round_number: int
+    ) -> EffortMatch:
+        """Search ``spec``'s knob so that the screening samples' effort statistic hits ``target``.
+
+        The search's rollouts stop after the steps where the effort peaks: a probe of
+        :data:`PEAK_PROBE_SAMPLES` full rollouts at ``start`` locates the latest peak, the
+        search runs twice that (plus 25 steps), and doubles it whenever some rollout peaks in
+        its last quarter. When a longer horizon calls for fewer screening samples (first round
+        only), the search starts again with them. (The full pass that follows checks the result
+        at full length.)
+        """
+        config = self.config
+        record_key = f"{task}/{spec.name}/search{round_number}"
+        stored = self.store.calibration.get(record_key)
+        if stored and stored.get("target") == target and stored.get("start") == start:
+            self.screening_counts[(task, spec.name)] = int(stored["screening_samples"])
+            return EffortMatch(
+                stored["value"],
+                stored["effort"],
+                target,
+                stored["matched"],
+                [tuple(e) for e in stored["evaluations"]],
+                stored["reason"],
+            )
+        samples = self.samples[task]
+        full_steps = config.steps(task)
+        self.progress.status(f"matching effort: {spec.name} on {task}")
+        probe = self.measure(task, spec, {**spec.kwargs, spec.knob: start}, samples[:PEAK_PROBE_SAMPLES], full_steps)
+        horizon = min(full_steps, 2 * int(probe[PEAK_STEP_COLUMN].max()) + 25)
+        while True:
+            count = self._screening_count(task, spec, horizon, round_number)
+            search = _KnobSearch(self, task, spec, samples[:count], horizon, full_steps, round_number)
+            try:
+                match = match_effort(search.effort_at, target, start, config.effort_tolerance / 4)
+                break
+            except _FewerSamplesNeeded:
+                horizon = search.horizon
+        self.screening_counts[(task, spec.name)] = count
+        self.store.save_calibration(
+            record_key,
+            {
+                "target": target,
+                "start": start,
+                "value": match.value,
+                "effort": match.effort,
+                "matched": match.matched,
+                "evaluations": match.evaluations,
+                "reason": match.reason,
+                "screening_samples": count,
+                "search_steps": search.horizon,
+            },
+        )
+        self.progress.status("")
+        return match
+
+
+class _FewerSamplesNeeded(Exception):
+    """A knob search's rollouts grew so long that it should start again on fewer samples."""
+
+
+class _KnobSearch:
+    """The effort of one knob value on the screening samples, over rollouts cut after the peak."""
+
+    def __init__(
+        self,
+        evaluation: _Evaluation,
+        task: str,
+        spec: ControllerSpec,
+        screening: Sequence[EvaluationSample],
+        horizon: int,
+        full_steps: int,
+        round_number: int,
+    ) -> None:
+        self.evaluation, self.task, self.spec, self.screening = evaluation, task, spec, screening
+        self.horizon, self.full_steps, self.round_number = horizon, full_steps, round_number
+
+    def effort_at(self, value: float) -> float:
+        """The effort statistic at knob ``value`` (lengthening the rollouts while peaks come late)."""
+        evaluation, spec = self.evaluation, self.spec
+        while True:
+            rows = evaluation.measure(self.task, spec, {**spec.kwargs, spec.knob: value}, self.screening, self.horizon)
+            late = rows[PEAK_STEP_COLUMN] >= self.horizon - max(10, self.horizon // 4)
+            if self.horizon >= self.full_steps or not late.any():
+                return effort_statistic(rows[EFFORT_COLUMN].to_numpy())
+            self.horizon = min(self.full_steps, 2 * self.horizon)
+            if evaluation._screening_count(self.task, spec, self.horizon, self.round_number) < len(self.screening):
+                raise _FewerSamplesNeeded
+
+
+def _within(effort: float, target: float, tolerance: float) -> bool:
+    return abs(effort / target - 1.0) <= tolerance
+
+
+def _effort(rows: pd.DataFrame) -> float:
+    return effort_statistic(rows[EFFORT_COLUMN].to_numpy())
+
+
+def _match_controllers(
+    evaluation: _Evaluation, specs: list[ControllerSpec], results: dict[tuple[str, str], pd.DataFrame]
+) -> dict[tuple[str, str], EffortRecord]:
+    """Step 4 of the module docstring; fills ``results`` with the final pass of every (task, controller)."""
+    config = evaluation.config
+    names = [s.name for s in specs]
+    records: dict[tuple[str, str], EffortRecord] = {}
+    reference = None
+    if config.effort_target is None:
+        reference = config.effort_reference if config.effort_reference in names else names[0]
+    targets: dict[str, float] = {}
+    if reference is not None:
+        ref_spec = specs[names.index(reference)]
+        note = (
+            ""
+            if reference == config.effort_reference
+            else f"{config.effort_reference!r} is not evaluated; {reference!r} is the reference"
+        )
+        passes = evaluation.run_passes([(task, ref_spec, ref_spec.kwargs) for task in config.tasks])
+        for task, rows in zip(config.tasks, passes, strict=True):
+            results[(task, reference)] = rows
+            targets[task] = _effort(rows)
+            records[(task, reference)] = EffortRecord(
+                task, reference, "reference", ref_spec.knob, ref_spec.knob_value, targets[task], targets[task], 1, note
+            )
+    else:
+        targets = {task: float(config.effort_target) for task in config.tasks}
+
+    pending = [(task, spec) for task in config.tasks for spec in specs if spec.name != reference]
+    search_target = {(task, spec.name): targets[task] for task, spec in pending}
+    start = {(task, spec.name): float(spec.knob_value) for task, spec in pending}
+    passes_used = {key: 0 for key in search_target}
+    for round_number in range(1, MAX_MATCH_ROUNDS + 1):
+        if not pending:
+            break
+        if round_number > 1:
+            evaluation.progress.add_total(sum(len(evaluation.samples[task]) for task, _ in pending))
+        matches = {
+            (task, spec.name): evaluation.search_knob(
+                task, spec, search_target[(task, spec.name)], start[(task, spec.name)], round_number
+            )
+            for task, spec in pending
+        }
+        runs = evaluation.run_passes(
+            [(task, spec, {**spec.kwargs, spec.knob: matches[(task, spec.name)].value}) for task, spec in pending]
+        )
+        next_pending = []
+        for (task, spec), rows in zip(pending, runs, strict=True):
+            key = (task, spec.name)
+            match = matches[key]
+            passes_used[key] += 1
+            results[key] = rows
+            effort = _effort(rows)
+            matched = _within(effort, targets[task], config.effort_tolerance)
+            note = ""
+            if not matched:
+                if not match.matched:
+                    note = f"knob search failed: {match.reason}"
+                elif round_number < MAX_MATCH_ROUNDS:
+                    # The screening samples mis-predict the whole set by effort/match.effort: aim off by as much.
+                    search_target[key] = search_target[key] * match.effort / effort
+                    start[key] = match.value
+                    next_pending.append((task, spec))
+                else:
+                    note = f"not within {config.effort_tolerance:.0%} after {MAX_MATCH_ROUNDS} passes"
+            records[key] = EffortRecord(
+                task,
+                spec.name,
+                "matched" if matched else "unmatched",
+                spec.knob,
+                match.value,
+                effort,
+                targets[task],
+                passes_used[key],
+                note,
+            )
+        pending = next_pending
+    return records
+
+
+def export_sample_set(config: EvaluationConfig) -> Path:
+    """Only draw (or read and check) the sample set of ``config`` and write it to ``config.export_samples``."""
+    if config.export_samples is None:
+        raise ValueError("export_samples (--export-samples FILE) is needed to export the samples")
+    config.validate()
+    kinematics = Kinematics(config.robot)
+    space = config.space if config.space is not None else SampleSpace.for_robot(kinematics)
+    executor = make_executor(config.workers, config.ray_address)
+    try:
+        samples = load_samples(config, kinematics, space, executor)
+    finally:
+        executor.close()
+    return write_samples_csv(
+        [s for task in config.tasks for s in samples[task]], config.export_samples, kinematics.n_joints
+    )
+
+
+def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
+    """Run the evaluation described by ``config`` and write its outputs to ``config.out``.
+
+    Returns:
+        The results table (one row per task, controller and sample), as written to
+        ``results.parquet``.
+
+    Raises:
+        ValueError: On a bad option, controller or samples file (the message says which).
+        evaluation.store.RunDirectoryError: If ``out`` holds another run (see ``resume``).
+    """
+    from evaluation.report import write_reports
+
+    started = time.perf_counter()
+    config.validate()
+    kinematics = Kinematics(config.robot)
+    space = config.space if config.space is not None else SampleSpace.for_robot(kinematics)
+    specs, skipped = resolve_controllers(config)
+    store = RunStore(config.out, config.manifest(space), resume=config.resume)
+    executor = make_executor(config.workers, config.ray_address)
+    try:
+        samples_started = time.perf_counter()
+        samples = load_samples(config, kinematics, space, executor)
+        timings = {"samples": time.perf_counter() - samples_started}
+        all_samples = [s for task in config.tasks for s in samples[task]]
+        write_samples_csv(all_samples, store.root / "samples.csv", kinematics.n_joints)
+        if config.export_samples is not None:
+            write_samples_csv(all_samples, config.export_samples, kinematics.n_joints)
+        progress = _Progress(len(specs) * len(all_samples), config.progress)
+        evaluation = _Evaluation(config, store, executor, samples, progress)
+        results: dict[tuple[str, str], pd.DataFrame] = {}
+        try:
+            if config.match_effort:
+                records = _match_controllers(evaluation, specs, results)
+            else:
+                passes = [(task, spec, spec.kwargs) for task in config.tasks for spec in specs]
+                records = {}
+                for (task, spec, _), rows in zip(passes, evaluation.run_passes(passes), strict=True):
+                    results[(task, spec.name)] = rows
+                    records[(task, spec.name)] = EffortRecord(
+                        task, spec.name, "fixed", spec.knob, spec.knob_value, _effort(rows), None
+                    )
+        finally:
+            progress.close()
+            timings.update(evaluation.timings)
+    finally:
+        executor.close()
+    order = [(task, spec.name) for task in config.tasks for spec in specs]
+    table = pd.concat([results[key] for key in order], ignore_index=True)
+    table = table.sort_values(
+        ["task", "controller", "sample"], key=_sort_key(config, specs), kind="stable"
+    ).reset_index(drop=True)
+    table.to_csv(store.root / "results.csv", index=False, float_format="%.17g")
+    table.to_parquet(store.root / "results.parquet", index=False)
+    timings["total"] = time.perf_counter() - started  # up to the reports
+    store.write_text("timings.json", json.dumps({k: round(v, 3) for k, v in timings.items()}, indent=2))
+    write_reports(
+        store.root,
+        table,
+        [records[key] for key in order],
+        config,
+        skipped,
+        EFFORT_STATISTIC,
+        timings,
+        getattr(executor, "description", "serial"),
+    )
+    return table
+
+
+def _sort_key(config: EvaluationConfig, specs: list[ControllerSpec]) -> Any:
+    task_rank = {t: i for i, t in enumerate(config.tasks)}
+    controller_rank = {s.name: i for i, s in enumerate(specs)}
+
+    def key(column: pd.Series) -> pd.Series:
+        if column.name == "task":
+            return column.map(task_rank)
+        if column.name == "controller":
+            return column.map(controller_rank)
+        return column
+
+    return key
+
+
+__all__ = ["DEFAULT_HORIZONS", "EvaluationConfig", "export_sample_set", "resolve_controllers", "run_evaluation"]

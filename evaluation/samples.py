@@ -1,0 +1,297 @@
+"""The evaluation's sample sets: random regulation and tracking samples, and their CSV form.
+
+A *sample* is what one rollout starts from: a seed joint pose θ₀ and a reference (a fixed
+target for ``reach``, a feasible ellipse for ``track``). Random samples come from the same
+functions the envs' random resets use (:mod:`snac_gym.sampling`). Sample ``i`` of task ``T``
+is drawn from its own generator, ``SeedSequence(seed, spawn_key=(task code, i))``, so it
+does not depend on how many samples are drawn, in which order, or by which worker.
+
+CSV format (one row per sample; see docs/evaluation.md)::
+
+    task,sample,q0_0,...,q0_{m-1},target_0,target_1,target_2,
+    centre_0,centre_1,centre_2,semi_axis_0,semi_axis_1,
+    orientation_0,orientation_1,orientation_2,angular_speed,phase
+
+* ``task``: ``reach`` or ``track``.
+* ``sample``: a non-negative integer id, unique per task (optional column: rows are then
+  numbered 0, 1, … per task in file order).
+* ``q0_j``: seed joint angles, rad (all m required, inside the joint limits).
+* ``reach`` rows: ``target_0..2`` (m, base frame) required; the ellipse columns empty.
+* ``track`` rows: ``centre_0..2`` (m) and ``semi_axis_0..1`` (m, > 0) required;
+  ``orientation_0..2`` (roll, pitch, yaw of the ellipse plane, rad; default 0),
+  ``angular_speed`` (rad/s; default 0.075, the paper's) and ``phase`` (rad; default 0);
+  the target columns empty.
+
+Every reference point (the target, or ``ellipse_points`` points around the ellipse) must be
+reachable; a row that is not gives a :class:`SampleFileError` naming its row and column.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from snac_gym.kinematics import Kinematics
+from snac_gym.references import PAPER_CIRCLE_SPEED, Ellipse, FixedTarget
+from snac_gym.sampling import SampleSpace, check_reachable, sample_ellipse, sample_seed_pose, sample_target
+
+TASKS = ("reach", "track")
+#: Task code in the seed sequences' spawn keys (fixed forever: changing it changes every sample set).
+TASK_CODES = {"reach": 0, "track": 1}
+_POLICY_SEED_KEY = 1  # third spawn-key entry of a sample's policy seed
+
+TARGET_COLUMNS = [f"target_{i}" for i in range(3)]
+ELLIPSE_COLUMNS = (
+    [f"centre_{i}" for i in range(3)]
+    + ["semi_axis_0", "semi_axis_1"]
+    + [f"orientation_{i}" for i in range(3)]
+    + ["angular_speed", "phase"]
+)
+_OPTIONAL_ELLIPSE_DEFAULTS = {
+    "orientation_0": 0.0,
+    "orientation_1": 0.0,
+    "orientation_2": 0.0,
+    "angular_speed": PAPER_CIRCLE_SPEED,
+    "phase": 0.0,
+}
+
+
+class SampleFileError(ValueError):
+    """A samples CSV that cannot be used; the message names the file, row and column."""
+
+
+@dataclass(frozen=True)
+class EvaluationSample:
+    """One sample: where a rollout starts and what it must reach or follow.
+
+    Attributes:
+        task: ``"reach"`` or ``"track"``.
+        index: Sample id, unique within the task.
+        q0: Seed joint pose θ₀, rad.
+        reference: A :class:`FixedTarget` (reach) or an :class:`Ellipse` (track).
+    """
+
+    task: str
+    index: int
+    q0: np.ndarray
+    reference: FixedTarget | Ellipse
+
+    def reset_options(self) -> dict[str, Any]:
+        """The env ``reset`` options that pin this sample (``q0`` and ``target`` or ``ellipse``)."""
+        key = "target" if self.task == "reach" else "ellipse"
+        value = self.reference.target.tolist() if self.task == "reach" else self.reference.to_dict()
+        return {"q0": self.q0.tolist(), key: value}
+
+
+def column_names(n_joints: int) -> list[str]:
+    """The CSV header for a robot with ``n_joints`` joints."""
+    return ["task", "sample"] + [f"q0_{j}" for j in range(n_joints)] + TARGET_COLUMNS + ELLIPSE_COLUMNS
+
+
+def _sample_generator(seed: int, task: str, index: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(TASK_CODES[task], index)))
+
+
+def policy_seed(seed: int, task: str, index: int) -> int:
+    """The seed a policy is reset with for sample ``index`` of ``task`` (independent of N and workers)."""
+    sequence = np.random.SeedSequence(seed, spawn_key=(TASK_CODES[task], index, _POLICY_SEED_KEY))
+    return int(sequence.generate_state(1)[0])
+
+
+def generate_sample(kinematics: Kinematics, space: SampleSpace, seed: int, task: str, index: int) -> EvaluationSample:
+    """Sample ``index`` of ``task`` for ``seed``: the reference first, then the seed pose (as the envs do)."""
+    if task not in TASK_CODES:
+        raise ValueError(f"task must be one of {TASKS}, got {task!r}")
+    rng = _sample_generator(seed, task, index)
+    reference = sample_target(kinematics, rng, space) if task == "reach" else sample_ellipse(kinematics, rng, space)
+    q0 = sample_seed_pose(kinematics, rng, space)
+    return EvaluationSample(task, index, q0, reference)
+
+
+def generate_samples(
+    kinematics: Kinematics, space: SampleSpace, seed: int, task: str, indices: Iterable[int]
+) -> list[EvaluationSample]:
+    """Samples ``indices`` of ``task`` (each from its own generator; see the module docstring)."""
+    return [generate_sample(kinematics, space, seed, task, int(i)) for i in indices]
+
+
+# -- CSV ---------------------------------------------------------------------------------------
+
+
+def _format(value: float) -> str:
+    return repr(float(value))  # shortest string that reads back to the same float
+
+
+def sample_row(sample: EvaluationSample, n_joints: int) -> dict[str, str]:
+    """The CSV cells of one sample."""
+    row = {name: "" for name in column_names(n_joints)}
+    row["task"] = sample.task
+    row["sample"] = str(sample.index)
+    for j, angle in enumerate(sample.q0):
+        row[f"q0_{j}"] = _format(angle)
+    if sample.task == "reach":
+        for name, value in zip(TARGET_COLUMNS, sample.reference.target, strict=True):
+            row[name] = _format(value)
+    else:
+        ellipse = sample.reference
+        values = [*ellipse.centre, *ellipse.semi_axes, *ellipse.orientation, ellipse.angular_speed, ellipse.phase]
+        for name, value in zip(ELLIPSE_COLUMNS, values, strict=True):
+            row[name] = _format(value)
+    return row
+
+
+def write_samples_csv(samples: Sequence[EvaluationSample], path: str | Path, n_joints: int) -> Path:
+    """Write ``samples`` in the documented CSV format (floats round-trip exactly)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=column_names(n_joints))
+        writer.writeheader()
+        for sample in samples:
+            writer.writerow(sample_row(sample, n_joints))
+    return path
+
+
+class _RowReader:
+    """Typed access to one CSV row, with errors that name the file, row and column."""
+
+    def __init__(self, path: Path, row_number: int, row: dict[str, str]) -> None:
+        self.path, self.row_number, self.row = path, row_number, row
+
+    def error(self, column: str, message: str) -> SampleFileError:
+        return SampleFileError(
+            f"{self.path}: row {self.row_number} (line {self.row_number + 1}), column {column!r}: {message}"
+        )
+
+    def text(self, column: str) -> str:
+        return (self.row.get(column) or "").strip()
+
+    def number(self, column: str, default: float | None = None) -> float:
+        text = self.text(column)
+        if not text:
+            if default is not None:
+                return default
+            raise self.error(column, "a number is required here")
+        try:
+            value = float(text)
+        except ValueError:
+            raise self.error(column, f"{text!r} is not a number") from None
+        if not math.isfinite(value):
+            raise self.error(column, f"{text!r} is not a finite number")
+        return value
+
+    def numbers(self, columns: Sequence[str]) -> np.ndarray:
+        return np.array([self.number(c) for c in columns])
+
+    def require_empty(self, columns: Sequence[str], task: str) -> None:
+        for column in columns:
+            if self.text(column):
+                raise self.error(column, f"must be empty on a {task!r} row (it belongs to the other task)")
+
+
+def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, index: int) -> EvaluationSample:
+    task = reader.text("task")
+    if task not in TASKS:
+        raise reader.error("task", f"{task!r} is not one of {list(TASKS)}")
+    m = kinematics.n_joints
+    q0 = reader.numbers([f"q0_{j}" for j in range(m)])
+    for j in range(m):
+        if not kinematics.lower_limits[j] <= q0[j] <= kinematics.upper_limits[j]:
+            raise reader.error(
+                f"q0_{j}",
+                f"{q0[j]} rad is outside the joint limits [{kinematics.lower_limits[j]}, {kinematics.upper_limits[j]}]",
+            )
+    if task == "reach":
+        reader.require_empty(ELLIPSE_COLUMNS, task)
+        reference: FixedTarget | Ellipse = FixedTarget(reader.numbers(TARGET_COLUMNS))
+        unreachable_columns = "target_0..target_2"
+    else:
+        reader.require_empty(TARGET_COLUMNS, task)
+        semi_axes = reader.numbers(["semi_axis_0", "semi_axis_1"])
+        for i, value in enumerate(semi_axes):
+            if value <= 0:
+                raise reader.error(f"semi_axis_{i}", f"{value} m must be positive")
+        optional = {name: reader.number(name, default) for name, default in _OPTIONAL_ELLIPSE_DEFAULTS.items()}
+        reference = Ellipse(
+            centre=reader.numbers([f"centre_{i}" for i in range(3)]),
+            semi_axes=semi_axes,
+            orientation=[optional[f"orientation_{i}"] for i in range(3)],
+            angular_speed=optional["angular_speed"],
+            phase=optional["phase"],
+        )
+        unreachable_columns = "centre_0..phase"
+    try:
+        check_reachable(kinematics, reference.points(space.ellipse_points), f"{task} reference")
+    except ValueError as exc:
+        raise reader.error(unreachable_columns, f"unreachable: {exc}") from None
+    return EvaluationSample(task, index, q0, reference)
+
+
+def read_samples_csv(
+    path: str | Path, kinematics: Kinematics, space: SampleSpace | None = None
+) -> dict[str, list[EvaluationSample]]:
+    """Read a samples CSV (format in the module docstring), checking every row.
+
+    Returns:
+        The samples per task, in file order (tasks without rows map to an empty list).
+
+    Raises:
+        SampleFileError: On a missing file or column, a malformed, out-of-limits or
+            unreachable row, or a repeated sample id; the message names the row and column.
+    """
+    path = Path(path)
+    space = space if space is not None else SampleSpace.for_robot(kinematics)
+    if not path.is_file():
+        raise SampleFileError(f"{path}: no such samples file")
+    with path.open(newline="", encoding="utf-8-sig") as handle:  # -sig: a spreadsheet's byte-order mark
+        reader = csv.DictReader(handle)
+        header = [name.strip() for name in (reader.fieldnames or [])]
+        reader.fieldnames = header
+        required = ["task"] + [f"q0_{j}" for j in range(kinematics.n_joints)]
+        missing = [name for name in required if name not in header]
+        if missing:
+            raise SampleFileError(
+                f"{path}: header lacks the column(s) {missing}; expected columns {column_names(kinematics.n_joints)}"
+            )
+        known = set(column_names(kinematics.n_joints))
+        unknown = [name for name in header if name not in known]
+        if unknown:
+            raise SampleFileError(
+                f"{path}: unknown column(s) {unknown}; expected columns {column_names(kinematics.n_joints)}"
+            )
+        samples: dict[str, list[EvaluationSample]] = {task: [] for task in TASKS}
+        seen: dict[str, set[int]] = {task: set() for task in TASKS}
+        for row_number, row in enumerate(reader, start=1):
+            if None in row:
+                raise SampleFileError(
+                    f"{path}: row {row_number} (line {row_number + 1}) has more cells than the header"
+                )
+            row_reader = _RowReader(path, row_number, row)
+            task = row_reader.text("task")
+            if "sample" in header:
+                index = _sample_id(row_reader)
+            else:
+                index = len(samples.get(task, []))
+            sample = _parse_row(row_reader, kinematics, space, index)
+            if index in seen[task]:
+                raise row_reader.error("sample", f"sample id {index} appears twice for task {task!r}")
+            seen[task].add(index)
+            samples[task].append(sample)
+    return samples
+
+
+def _sample_id(reader: _RowReader) -> int:
+    text = reader.text("sample")
+    try:
+        index = int(text)
+    except ValueError:
+        raise reader.error("sample", f"{text!r} is not a non-negative integer") from None
+    if index < 0:
+        raise reader.error("sample", f"{index} is negative")
+    return index

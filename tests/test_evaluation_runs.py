@@ -1,0 +1,271 @@
+"""Whole evaluations: the outputs, equal effort, trajectories that recompute every number,
+determinism across workers and Ray, resuming an interrupted run, and the CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+import evaluation.runner as runner_module
+from evaluation import EvaluationConfig, run_evaluation
+from evaluation.paper import PAPER_TABLE_I
+from evaluation.store import RunDirectoryError
+from snac_gym import register_policy
+from snac_gym.cli import app
+from snac_gym.cost import trajectory_cost
+from snac_gym.rollout import log_array, read_log
+
+SMALL = {"samples": 6, "horizons": {"reach": 0.3, "track": 0.4}, "chunk_size": 2, "progress": False}
+
+
+def _config(out: Path, **changes) -> EvaluationConfig:
+    return EvaluationConfig(out=out, **{**SMALL, **changes})
+
+
+@pytest.fixture(scope="module")
+def table_run(tmp_path_factory):
+    """Every built-in controller, both tasks, equal effort against SNAC, trajectories saved."""
+    out = tmp_path_factory.mktemp("table")
+    config = _config(out, controllers=("snac", "rnn", "svf", "dls"), save_trajectories=True)
+    return config, run_evaluation(config)
+
+
+def test_results_have_one_row_per_task_controller_and_sample(table_run):
+    config, results = table_run
+    for name in ("results.csv", "results.parquet", "summary.csv", "summary.md", "cost_boxplot.png", "samples.csv"):
+        assert (config.out / name).is_file(), name
+    required = {
+        "task",
+        "controller",
+        "sample",
+        "cost",
+        "cost_error",
+        "cost_effort",
+        "cost_smoothness",
+        "final_error",
+        "max_abs_u",
+        "success",
+        "time_to_1mm",
+        "max_abs_udot",
+        "steps_at_limit",
+        "effort_value",
+    }
+    assert required <= set(results.columns)
+    assert len(results) == 2 * 4 * 6 and not results.duplicated(["task", "controller", "sample"]).any()
+    np.testing.assert_allclose(
+        results["cost"], results[["cost_error", "cost_effort", "cost_smoothness"]].sum(axis=1), rtol=1e-12
+    )
+    from_csv = pd.read_csv(config.out / "results.csv")
+    np.testing.assert_array_equal(from_csv["cost"].to_numpy(), results["cost"].to_numpy())  # 17 digits: exact
+
+
+def test_summary_has_table_one_layout_with_paper_values_and_ratios(table_run):
+    config, results = table_run
+    summary = pd.read_csv(config.out / "summary.csv").set_index("controller")
+    assert list(summary.index) == ["snac", "rnn", "svf", "dls"]
+    for task in ("reach", "track"):
+        ours = results[results["task"] == task].groupby("controller")["cost"]
+        np.testing.assert_allclose(summary[f"{task}_cost"], ours.mean()[summary.index], rtol=1e-9)
+        np.testing.assert_allclose(summary[f"{task}_cost_std"], ours.std()[summary.index], rtol=1e-9)
+        assert (summary[f"{task}_cost_ci95_low"] < summary[f"{task}_cost"]).all()
+        assert summary.loc["rnn", f"{task}_paper"] == PAPER_TABLE_I["rnn"][task]
+        assert np.isnan(summary.loc["dls", f"{task}_paper"])
+        assert summary.loc["snac", f"{task}_ratio_to_snac"] == 1.0
+        assert summary.loc["svf", f"{task}_paper_ratio_to_snac"] == pytest.approx(
+            PAPER_TABLE_I["svf"][task] / PAPER_TABLE_I["snac"][task]
+        )
+    text = (config.out / "summary.md").read_text()
+    assert "| Proposed (SNAC) |" in text and "49.74" in text and "cost_boxplot.png" in text
+
+
+def test_equal_effort_against_the_reference_or_a_visible_warning(table_run):
+    config, results = table_run
+    summary = pd.read_csv(config.out / "summary.csv").set_index("controller")
+    text = (config.out / "summary.md").read_text()
+    for task in ("reach", "track"):
+        target = summary.loc["snac", f"{task}_effort"]
+        assert summary.loc["snac", f"{task}_effort_role"] == "reference"
+        for controller in ("rnn", "svf", "dls"):
+            effort = results[(results["task"] == task) & (results["controller"] == controller)][
+                "peak_limit_fraction"
+            ].median()
+            assert effort == pytest.approx(summary.loc[controller, f"{task}_effort"])
+            if summary.loc[controller, f"{task}_effort_role"] == "matched":
+                assert abs(effort / target - 1) <= config.effort_tolerance
+            else:
+                assert f"{controller} ({task})" in text and "Warning" in text
+
+
+def test_saved_trajectories_recompute_every_reported_number(table_run):
+    config, results = table_run
+    for _, row in results.iterrows():
+        log = read_log(
+            config.out / "trajectories" / row["task"] / row["controller"] / f"sample_{row['sample']:05d}.parquet"
+        )
+        dt = log.attrs["dt"]
+        assert list(log.columns[:1]) == ["t"] and len(log) == round(row["horizon"] / dt)
+        errors, commands = log_array(log, "e"), log_array(log, "u")
+        terms = trajectory_cost(errors, commands, dt)
+        assert float(terms.total) == pytest.approx(row["cost"], rel=1e-12)
+        assert float(terms.smoothness) == pytest.approx(row["cost_smoothness"], rel=1e-12)
+        assert np.linalg.norm(log.attrs["final_e"]) == pytest.approx(row["final_error"], rel=1e-12)
+        assert np.abs(commands).max() == row["max_abs_u"]
+        np.testing.assert_allclose(errors, log_array(log, "x") - log_array(log, "x_d"), atol=1e-15)
+
+
+def test_explicit_target_matches_every_controller_and_workers_do_not_change_results(tmp_path):
+    register_policy(
+        "evaltest-dls", "baselines.dls:DLSPolicy", overwrite=True
+    )  # a run-time registration reaches forked workers
+    common = {"controllers": ("evaltest-dls", "rnn"), "tasks": ("reach",), "effort_target": 0.4}
+    serial = run_evaluation(_config(tmp_path / "serial", **common))
+    parallel = run_evaluation(_config(tmp_path / "parallel", workers=2, **common))
+    pd.testing.assert_frame_equal(serial, parallel)
+    efforts = serial.groupby("controller")["peak_limit_fraction"].median()
+    assert ((efforts / 0.4 - 1).abs() <= 0.02).all(), efforts
+    assert serial.groupby("controller")["effort_value"].nunique().eq(1).all()
+
+
+def test_an_interrupted_run_resumes_without_losing_or_repeating_samples(tmp_path, monkeypatch):
+    config = _config(tmp_path / "run", controllers=("dls", "svf"), effort_reference="dls")
+    reference = run_evaluation(dataclasses.replace(config, out=tmp_path / "reference"))
+    real_run_job = runner_module.run_job
+    calls = {"n": 0}
+
+    def interrupted(job):
+        calls["n"] += 1
+        if calls["n"] == 9:  # after the reference passes (6 jobs), inside svf's knob search
+            raise KeyboardInterrupt
+        return real_run_job(job)
+
+    monkeypatch.setattr(runner_module, "run_job", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_evaluation(config)
+    parts = {p: p.stat().st_mtime_ns for p in (config.out / "parts").glob("*.parquet")}
+    assert len(parts) == 6 and not (config.out / "results.csv").exists()
+
+    with pytest.raises(RunDirectoryError, match="pass --resume"):
+        run_evaluation(config)
+    with pytest.raises(RunDirectoryError, match="seed: stored 0, now 1"):
+        run_evaluation(dataclasses.replace(config, resume=True, seed=1))
+
+    monkeypatch.setattr(runner_module, "run_job", real_run_job)
+    resumed = run_evaluation(dataclasses.replace(config, resume=True))
+    assert {p: p.stat().st_mtime_ns for p in parts} == parts  # completed jobs were not run again
+    pd.testing.assert_frame_equal(resumed, reference)
+    assert not resumed.duplicated(["task", "controller", "sample"]).any() and len(resumed) == 2 * 2 * 6
+
+
+def test_pybullet_backend_runs_through_the_env(tmp_path):
+    config = _config(
+        tmp_path / "pb", controllers=("dls",), samples=2, backend="pybullet", save_trajectories=True, match_effort=False
+    )
+    results = run_evaluation(config)
+    assert len(results) == 4 and set(results["backend"]) == {"pybullet"}
+    log = read_log(config.out / "trajectories" / "track" / "dls" / "sample_00001.parquet")
+    assert float(trajectory_cost(log_array(log, "e"), log_array(log, "u"), log.attrs["dt"]).total) == pytest.approx(
+        results.loc[(results["task"] == "track") & (results["sample"] == 1), "cost"].item(), rel=1e-12
+    )
+
+
+def test_knob_searches_with_long_rollouts_run_on_fewer_samples(tmp_path):
+    config = _config(tmp_path, samples=1000, horizons={"reach": 8.0})
+    evaluation = runner_module._Evaluation(config, None, None, {"reach": list(range(1000))}, None)
+    spec = runner_module.ControllerSpec("dls", {}, "gain", 2.0)
+    assert evaluation._screening_count("reach", spec, 40, 1) == 1000  # short rollouts: every sample
+    assert evaluation._screening_count("reach", spec, 476, 1) == 211  # 10 % of a full pass's sample-steps
+    assert evaluation._screening_count("reach", spec, 1000, 1) == 100  # never fewer than 100
+    pinned = runner_module._Evaluation(
+        dataclasses.replace(config, calibration_samples=30), None, None, {"reach": list(range(1000))}, None
+    )
+    assert pinned._screening_count("reach", spec, 1000, 1) == 30
+
+
+def test_resume_needs_a_run(tmp_path):
+    with pytest.raises(RunDirectoryError, match="holds no run"):
+        run_evaluation(_config(tmp_path / "empty", controllers=("dls",), resume=True))
+
+
+def test_ray_runs_the_same_work(tmp_path):
+    pytest.importorskip("ray")
+    common = {"controllers": ("dls",), "tasks": ("track",), "samples": 4, "match_effort": False}
+    serial = run_evaluation(_config(tmp_path / "serial", **common))
+    on_ray = run_evaluation(_config(tmp_path / "ray", ray_address="local", workers=2, **common))
+    pd.testing.assert_frame_equal(serial, on_ray)
+
+
+def test_cli_exports_reads_samples_and_reports(tmp_path):
+    cli = CliRunner()
+    samples = tmp_path / "samples.csv"
+    exported = cli.invoke(
+        app,
+        [
+            "evaluate",
+            "--task",
+            "reach",
+            "--samples",
+            "3",
+            "--seed",
+            "5",
+            "--export-samples",
+            str(samples),
+            "--export-only",
+        ],
+    )
+    assert exported.exit_code == 0, exported.output
+    assert len(pd.read_csv(samples)) == 3
+    result = cli.invoke(
+        app,
+        [
+            "evaluate",
+            "--out",
+            str(tmp_path / "out"),
+            "--task",
+            "reach",
+            "--samples-file",
+            str(samples),
+            "--controllers",
+            "dls,svf",
+            "--horizon",
+            "reach=0.2",
+            "--no-match-effort",
+            "--no-progress",
+            "--param",
+            "svf.nu=5",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "Trajectory cost V/N" in result.output and "wall time" in result.output
+    results = pd.read_csv(tmp_path / "out" / "results.csv")
+    assert sorted(results["sample"].unique()) == [0, 1, 2] and set(results["horizon"]) == {0.2}
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--horizon", "walk=3"], "unknown task 'walk'"),
+        (["--controllers", "nope"], "unknown controller 'nope'"),
+        (["--task", "wave"], "--task must be reach, track or both"),
+        (["--param", "svf"], "use CONTROLLER.KEY=VALUE"),
+    ],
+)
+def test_cli_rejects_bad_options_with_a_message(tmp_path, arguments, message):
+    result = CliRunner().invoke(app, ["evaluate", "--out", str(tmp_path / "x"), "--samples", "2", *arguments])
+    assert result.exit_code == 2 and message in result.output
+
+
+def test_cli_names_the_bad_row_of_a_samples_file(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text(
+        "task,q0_0,q0_1,q0_2,q0_3,q0_4,q0_5,target_0,target_1,target_2\n"
+        "reach,-0.51,-1.04,1.48,-1.82,-1.45,-1.62,-0.658,oops,0.407\n"
+    )
+    result = CliRunner().invoke(
+        app, ["evaluate", "--out", str(tmp_path / "x"), "--task", "reach", "--samples-file", str(bad)]
+    )
+    assert result.exit_code == 2 and "row 1 (line 2), column 'target_1': 'oops' is not a number" in result.output

@@ -1,0 +1,399 @@
+"""The evaluator's parts: sample sets and their CSV form, the batched references, the kinematic
+and PyBullet backends, the optional batch protocol, the per-rollout metrics and the knob search."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from evaluation.backends import RolloutError, simulate_kinematic, simulate_pybullet
+from evaluation.calibration import effort_statistic, match_effort
+from evaluation.drivers import LockstepPolicies, supports_batch
+from evaluation.metrics import rollout_metrics
+from evaluation.reference_batch import reference_trajectories
+from evaluation.rollouts import Rollouts
+from evaluation.samples import (
+    EvaluationSample,
+    SampleFileError,
+    column_names,
+    generate_samples,
+    policy_seed,
+    read_samples_csv,
+    write_samples_csv,
+)
+from snac_gym.cost import trajectory_cost
+from snac_gym.observation import ObservationLayout
+from snac_gym.policies.base import BasePolicy, PolicyContext
+from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse, FixedTarget
+from snac_gym.sampling import SampleSpace, ellipse_is_feasible
+
+DT = 1.0 / 125.0
+
+
+class PseudoInversePolicy(BasePolicy):
+    """Resolved-rate test controller ``u = J⁺(ẋ_d − gain·e)``, clipped; records what it observes."""
+
+    effort_parameter = "gain"
+
+    def __init__(self, env, gain: float = 2.0) -> None:
+        super().__init__(env)
+        self.gain = float(gain)
+        self.seen: list[np.ndarray] = []
+
+    def reset(self, seed=None) -> None:
+        self.seen = []
+        self.internals = {}
+
+    def act(self, obs):
+        self.seen.append(np.array(obs))
+        fields = self.layout.unpack(obs)
+        jacobian = self.kinematics.jacobian(fields.q)
+        command = np.linalg.pinv(jacobian) @ (fields.xdot_d - self.gain * fields.e)
+        return np.clip(command, -self.velocity_limits, self.velocity_limits)
+
+
+class BatchPseudoInversePolicy(PseudoInversePolicy):
+    """The same controller offering the optional batch protocol."""
+
+    def reset_batch(self, seeds) -> None:
+        self.batch_seeds = list(seeds)
+
+    def act_batch(self, obs_batch):
+        s = self.layout.slices
+        jacobians = np.stack([self.kinematics.jacobian(q) for q in obs_batch[:, s["q"]]])
+        velocity = obs_batch[:, s["xdot_d"]] - self.gain * obs_batch[:, s["e"]]
+        commands = np.einsum("bij,bj->bi", np.linalg.pinv(jacobians), velocity)
+        return np.clip(commands, -self.velocity_limits, self.velocity_limits)
+
+
+class NaNPolicy(PseudoInversePolicy):
+    """Returns NaN from its fourth step (k = 3) on."""
+
+    def act(self, obs):
+        command = super().act(obs)
+        return np.full(6, np.nan) if len(self.seen) > 3 else command
+
+
+@pytest.fixture(scope="module")
+def space(ur10):
+    return SampleSpace.for_robot(ur10)
+
+
+@pytest.fixture(scope="module")
+def context_of(ur10):
+    layout = ObservationLayout(ur10.n_joints, ur10.task_dim)
+    return lambda task: PolicyContext(ur10, DT, ur10.velocity_limits.copy(), layout, task)
+
+
+@pytest.fixture(scope="module")
+def track_samples(ur10, space):
+    return generate_samples(ur10, space, 3, "track", range(3))
+
+
+@pytest.fixture(scope="module")
+def reach_samples(ur10, space):
+    return generate_samples(ur10, space, 3, "reach", range(4))
+
+
+# -- samples ----------------------------------------------------------------------------------
+
+
+def test_sample_i_depends_only_on_seed_task_and_index(ur10, space, reach_samples):
+    again = generate_samples(ur10, space, 3, "reach", [2, 0])
+    assert np.array_equal(again[0].q0, reach_samples[2].q0)
+    assert np.array_equal(again[1].reference.target, reach_samples[0].reference.target)
+    other_seed = generate_samples(ur10, space, 4, "reach", [0])[0]
+    assert not np.array_equal(other_seed.reference.target, reach_samples[0].reference.target)
+    assert policy_seed(3, "reach", 1) == policy_seed(3, "reach", 1) != policy_seed(3, "track", 1)
+
+
+def test_random_samples_lie_in_the_documented_space(ur10, space, reach_samples, track_samples):
+    for sample in reach_samples + track_samples:
+        assert space.contains(ur10.forward(sample.q0))
+        assert np.all(sample.q0 >= ur10.lower_limits + space.joint_margin)
+        assert np.all(sample.q0 <= ur10.upper_limits - space.joint_margin)
+        assert ur10.singular_values(sample.q0)[-1] >= space.min_singular_value
+    assert all(space.contains(s.reference.target) for s in reach_samples)
+    assert all(ellipse_is_feasible(ur10, s.reference, space) for s in track_samples)
+
+
+def test_csv_round_trip_is_exact(tmp_path, ur10, reach_samples, track_samples):
+    path = write_samples_csv(reach_samples + track_samples, tmp_path / "s.csv", ur10.n_joints)
+    read = read_samples_csv(path, ur10)
+    assert [s.index for s in read["reach"]] == [0, 1, 2, 3] and len(read["track"]) == 3
+    for a, b in zip(reach_samples + track_samples, read["reach"] + read["track"], strict=True):
+        assert np.array_equal(a.q0, b.q0)
+        assert a.reference.to_dict() == b.reference.to_dict()
+
+
+def _write(path: Path, header: list[str], rows: list[dict[str, str]]) -> Path:
+    lines = [",".join(header)] + [",".join(row.get(c, "") for c in header) for row in rows]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _q0_cells(q0=PAPER_Q0) -> dict[str, str]:
+    return {f"q0_{j}": str(v) for j, v in enumerate(q0)}
+
+
+def test_hand_written_csv_with_defaults(tmp_path, ur10):
+    header = (
+        ["task"]
+        + [f"q0_{j}" for j in range(6)]
+        + ["target_0", "target_1", "target_2", "centre_0", "centre_1", "centre_2", "semi_axis_0", "semi_axis_1"]
+    )
+    reach = {"task": "reach", **_q0_cells(), **{f"target_{i}": str(v) for i, v in enumerate(PAPER_TARGET)}}
+    track = {
+        "task": "track",
+        **_q0_cells(),
+        "centre_0": "-0.7",
+        "centre_1": "0",
+        "centre_2": "0.5",
+        "semi_axis_0": "0.2",
+        "semi_axis_1": "0.1",
+    }
+    samples = read_samples_csv(_write(tmp_path / "hand.csv", header, [reach, track, dict(reach)]), ur10)
+    assert [s.index for s in samples["reach"]] == [0, 1]
+    ellipse = samples["track"][0].reference
+    assert ellipse.angular_speed == pytest.approx(0.075) and ellipse.phase == 0.0
+    assert np.array_equal(ellipse.orientation, np.zeros(3))
+    assert samples["track"][0].reset_options()["ellipse"]["semi_axes"] == [0.2, 0.1]
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"target_1": "abc"}, "row 2 (line 3), column 'target_1': 'abc' is not a number"),
+        ({"target_0": "3.0"}, "row 2 (line 3), column 'target_0..target_2': unreachable"),
+        ({"q0_2": "9"}, "row 2 (line 3), column 'q0_2': 9.0 rad is outside the joint limits"),
+        ({"task": "wave"}, "row 2 (line 3), column 'task': 'wave' is not one of"),
+        ({"sample": "0"}, "row 2 (line 3), column 'sample': sample id 0 appears twice"),
+        ({"q0_5": ""}, "row 2 (line 3), column 'q0_5': a number is required"),
+        ({"centre_0": "1"}, "row 2 (line 3), column 'centre_0': must be empty on a 'reach' row"),
+    ],
+)
+def test_bad_rows_name_row_and_column(tmp_path, ur10, change, message):
+    good = {
+        "task": "reach",
+        "sample": "0",
+        **_q0_cells(),
+        **{f"target_{i}": str(v) for i, v in enumerate(PAPER_TARGET)},
+    }
+    bad = {**good, "sample": "1", **change}
+    path = _write(tmp_path / "bad.csv", column_names(6), [good, bad])
+    with pytest.raises(SampleFileError, match=message.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")):
+        read_samples_csv(path, ur10)
+
+
+def test_unreachable_ellipse_and_missing_columns_are_named(tmp_path, ur10):
+    track = {
+        "task": "track",
+        "sample": "0",
+        **_q0_cells(),
+        "centre_0": "-0.7",
+        "centre_1": "0",
+        "centre_2": "0.5",
+        "semi_axis_0": "0.9",
+        "semi_axis_1": "0.9",
+    }
+    with pytest.raises(SampleFileError, match=r"row 1 \(line 2\), column 'centre_0\.\.phase': unreachable"):
+        read_samples_csv(_write(tmp_path / "e.csv", column_names(6), [track]), ur10)
+    with pytest.raises(SampleFileError, match=r"lacks the column\(s\) \['q0_5'\]"):
+        read_samples_csv(_write(tmp_path / "m.csv", ["task"] + [f"q0_{j}" for j in range(5)], []), ur10)
+    with pytest.raises(SampleFileError, match="no such samples file"):
+        read_samples_csv(tmp_path / "missing.csv", ur10)
+
+
+# -- references and backends --------------------------------------------------------------------
+
+
+def test_batched_references_equal_the_reference_methods(track_samples):
+    references = [s.reference for s in track_samples] + [FixedTarget(PAPER_TARGET)]
+    times = np.arange(40) * 0.37
+    positions, velocities, centres = reference_trajectories(references, times)
+    for i, reference in enumerate(references):
+        assert np.array_equal(centres[i], reference.centre)
+        for k, t in enumerate(times):
+            x_d, xdot_d = reference.position_and_velocity(t)
+            np.testing.assert_allclose(positions[i, k], x_d, rtol=0, atol=1e-14)
+            np.testing.assert_allclose(velocities[i, k], xdot_d, rtol=0, atol=1e-15)
+
+
+def test_kinematic_backend_integrates_exactly_and_observes_like_the_env(ur10, context_of, track_samples):
+    context = context_of("track")
+    policies = []
+
+    def make():
+        policies.append(PseudoInversePolicy(context, gain=3.0))
+        return policies[-1]
+
+    steps = 30
+    out = simulate_kinematic(context, make, track_samples, steps, [1, 2, 3], use_batch=True)
+    assert out.q.shape == (3, steps, 6) and out.final_errors.shape == (3, 3)
+    layout = context.layout
+    for i, sample in enumerate(track_samples):
+        q, held = sample.q0.copy(), np.zeros(6)
+        for k in range(steps):
+            x_d, xdot_d = sample.reference.position_and_velocity(k * DT)
+            expected = layout.pack(q, held, ur10.forward(q), x_d, xdot_d, sample.reference.centre)
+            np.testing.assert_allclose(policies[i].seen[k], expected, rtol=0, atol=1e-13)
+            assert np.array_equal(out.q[i, k], q)
+            held = out.commands[i, k]
+            assert np.all(np.abs(held) <= ur10.velocity_limits)
+            q = q + held * DT
+        assert np.array_equal(out.final_q[i], q)
+        np.testing.assert_allclose(
+            out.final_errors[i], ur10.forward(q) - sample.reference.position(steps * DT), atol=1e-13
+        )
+
+
+def test_batch_protocol_gives_the_per_sample_results(context_of, reach_samples):
+    context = context_of("reach")
+    assert supports_batch(BatchPseudoInversePolicy) and not supports_batch(PseudoInversePolicy)
+    make = functools.partial(BatchPseudoInversePolicy, context, gain=2.5)
+    driven = LockstepPolicies(make, [5, 6, 7, 8])
+    assert driven.batched and driven._batch_policy.batch_seeds == [5, 6, 7, 8]
+    batched = simulate_kinematic(context, make, reach_samples, 60, [5, 6, 7, 8], use_batch=True)
+    looped = simulate_kinematic(context, make, reach_samples, 60, [5, 6, 7, 8], use_batch=False)
+    np.testing.assert_allclose(batched.commands, looped.commands, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(batched.final_errors, looped.final_errors, rtol=0, atol=1e-12)
+
+
+def test_commands_beyond_the_limits_are_clipped_like_the_env(ur10, context_of, reach_samples):
+    context = context_of("reach")
+
+    class Overdrive(PseudoInversePolicy):
+        def act(self, obs):
+            return 10.0 * self.velocity_limits * np.array([1, -1, 1, -1, 1, -1])
+
+    out = simulate_kinematic(context, lambda: Overdrive(context), reach_samples[:1], 3, [0])
+    limits = ur10.velocity_limits * np.array([1, -1, 1, -1, 1, -1])
+    assert np.array_equal(out.commands[0], np.tile(limits, (3, 1)))
+    assert np.array_equal(out.final_q[0], reach_samples[0].q0 + limits * DT + limits * DT + limits * DT)
+
+
+def test_a_non_finite_command_names_controller_sample_and_step(context_of, reach_samples):
+    context = context_of("reach")
+    with pytest.raises(RolloutError, match=r"nan-test: non-finite command at step 3 of reach sample 0"):
+        simulate_kinematic(context, lambda: NaNPolicy(context), reach_samples[:1], 10, [0], label="nan-test")
+
+
+def test_pybullet_backend_follows_the_kinematic_model(context_of, reach_samples):
+    context = context_of("reach")
+    samples, steps = reach_samples[:2], 60
+    physics, logs = simulate_pybullet(
+        "ur10", "reach", DT, lambda env: PseudoInversePolicy(env, gain=2.0), samples, steps, [0, 1]
+    )
+    exact = simulate_kinematic(context, lambda: PseudoInversePolicy(context, gain=2.0), samples, steps, [0, 1])
+    assert len(logs) == 2 and len(logs[0]) == steps
+    np.testing.assert_allclose(
+        physics.commands[:, 0], exact.commands[:, 0], atol=1e-12
+    )  # same start, same first command
+    np.testing.assert_allclose(physics.q, exact.q, atol=5e-3)  # motors lag the exact integration by milliradians
+    cost_physics = trajectory_cost(physics.errors, physics.commands, DT).total
+    cost_exact = trajectory_cost(exact.errors, exact.commands, DT).total
+    np.testing.assert_allclose(cost_physics, cost_exact, rtol=0.05)
+
+
+# -- metrics ------------------------------------------------------------------------------------
+
+
+def test_metrics_of_a_hand_made_rollout():
+    limits = np.array([2.0, 2.0, 3.0, 3.0, 3.0, 3.0])
+    steps = 4
+    errors = np.array([[[0.01, 0, 0], [0.002, 0, 0], [0.0009, 0, 0], [0.0005, 0, 0]]])
+    commands = np.zeros((1, steps, 6))
+    commands[0, :, 0] = [2.0, 1.0, -0.5, 0.0]
+    commands[0, 1, 2] = -3.0
+    rollouts = Rollouts(
+        DT,
+        np.arange(steps) * DT,
+        np.zeros((1, steps, 6)),
+        commands,
+        errors,
+        errors * 0,
+        errors * 0,
+        errors,
+        np.zeros((1, 6)),
+        np.zeros((1, 3)),
+        np.array([[0.0002, 0, 0]]),
+    )
+    row = rollout_metrics(rollouts, "reach", limits).iloc[0]
+    terms = trajectory_cost(errors, commands, DT)
+    assert row["cost"] == pytest.approx(float(terms.total[0]))
+    assert row["cost_smoothness_start"] == pytest.approx(2.0**2 / DT)
+    assert row["time_to_1mm"] == pytest.approx(2 * DT)
+    assert row["settle_time"] == pytest.approx(2 * DT)  # within 1 mm from e_2 on, e_K included
+    assert row["final_error"] == pytest.approx(0.0002) and bool(row["success"])
+    assert row["max_abs_u"] == 3.0 and row["max_norm_u"] == pytest.approx(np.hypot(1.0, 3.0))
+    assert row["peak_limit_fraction"] == 1.0 and row["peak_step"] == 0
+    assert row["steps_at_limit"] == 2
+    assert row["max_abs_udot"] == pytest.approx(3.0 / DT)
+    assert row["mean_error_2nd_half"] == pytest.approx(0.0007)
+    track = rollout_metrics(rollouts, "track", limits).iloc[0]
+    assert bool(track["success"]) and track["settle_time"] == pytest.approx(1 * DT)  # within 5 mm from e_1 on
+    far = Rollouts(
+        DT,
+        rollouts.times,
+        rollouts.q,
+        commands,
+        errors * 10,
+        errors,
+        errors,
+        errors * 10,
+        rollouts.final_q,
+        rollouts.final_x,
+        rollouts.final_errors * 100,
+    )
+    far_row = rollout_metrics(far, "reach", limits).iloc[0]
+    assert np.isnan(far_row["time_to_1mm"]) and np.isnan(far_row["settle_time"]) and not far_row["success"]
+
+
+# -- knob search ---------------------------------------------------------------------------------
+
+
+def test_match_effort_on_a_proportional_effort():
+    result = match_effort(lambda c: 0.3 * c**1.1, target=1.7, start=2.0, tolerance=0.005)
+    assert result.matched and abs(result.effort / 1.7 - 1) <= 0.005
+    assert len(result.evaluations) <= 8
+
+
+def test_match_effort_at_the_ceiling_returns_the_least_aggressive_knob():
+    result = match_effort(lambda c: min(1.0, 0.25 * c), target=1.0, start=2.0, tolerance=0.005)
+    assert result.matched and 3.98 <= result.value <= 4.0 + 1e-9
+
+
+def test_match_effort_reports_a_target_out_of_reach():
+    result = match_effort(lambda c: min(0.8, 0.25 * c), target=1.0, start=2.0, tolerance=0.005)
+    assert not result.matched and "saturates at about 0.8" in result.reason
+    assert result.value == pytest.approx(2.0 * (1.0 / 0.5) * 1.03)  # the smallest knob on the plateau
+
+    floor = match_effort(lambda c: max(0.9, min(1.0, c)), target=0.5, start=2.0, tolerance=0.005)
+    assert not floor.matched and "does not fall below about 0.9" in floor.reason
+    at_target = match_effort(lambda c: 1.0, target=1.0, start=2.0, tolerance=0.005)
+    assert at_target.matched and at_target.value < 2.0  # flat at the target: the smallest knob tried
+
+    def picky(c):
+        if c > 3:
+            raise ValueError("gain * dt must be below 2")
+        return 0.1 * c
+
+    rejected = match_effort(picky, target=1.0, start=2.0, tolerance=0.005)
+    assert not rejected.matched and "rejects" in rejected.reason
+
+
+def test_effort_statistic_is_the_median_of_the_peaks():
+    assert effort_statistic(np.array([0.1, 1.0, 0.3])) == 0.3
+    with pytest.raises(ValueError):
+        effort_statistic(np.array([]))
+
+
+def test_samples_carry_reset_options_for_the_envs(reach_samples, track_samples):
+    reach = reach_samples[0].reset_options()
+    assert set(reach) == {"q0", "target"} and reach["target"] == reach_samples[0].reference.target.tolist()
+    track = track_samples[0].reset_options()
+    assert Ellipse.from_dict(track["ellipse"]).to_dict() == track_samples[0].reference.to_dict()
+    assert isinstance(reach_samples[0], EvaluationSample)
