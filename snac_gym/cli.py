@@ -136,7 +136,7 @@ def evaluate(
     controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one)."),
     samples: int = typer.Option(1000, "--samples", min=1, help="Random samples per task (the paper: 1000)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
-    horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=8, track=20."),
+    horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."),
     backend: str = typer.Option("kinematic", "--backend", help="kinematic (exact θ += uΔt, fast) or pybullet (the Gymnasium env)."),
     match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
     effort_reference: str = typer.Option("snac", "--effort-reference", help="Controller whose effort the others are matched to."),
