@@ -15,7 +15,14 @@ PAPER_TABLE_I: dict[str, dict[str, float]] = {
 }
 
 #: Row labels: the paper's for its controllers; DLS and PPO are not in the paper.
-PAPER_LABELS: dict[str, str] = {"rnn": "RNN", "svf": "SVF", "snac": "Proposed (SNAC)", "dls": "DLS", "ppo": "PPO"}
+PAPER_LABELS: dict[str, str] = {
+    "rnn": "RNN",
+    "svf": "SVF",
+    "snac": "Proposed (SNAC)",
+    "dls": "DLS",
+    "ppo": "PPO",
+    "optimal": "Optimal (open-loop reference, whole reference known)",
+}
 
 #: Column labels of Table I for each task.
 TASK_LABELS: dict[str, str] = {"reach": "Regulation", "track": "Tracking"}

@@ -8,6 +8,13 @@
 (order statistics; inf when too few rollouts settled within the horizon), the effort
 statistic matched (``effort``), its knob (``effort_parameter``, ``effort_value``,
 ``effort_role``) and the literal maxima over the set (``max_abs_u``, ``max_norm_u``).
+
+With the ``optimal`` reference (docs/optimal.md): ``ratio_to_optimal_mean`` (V/N's per-sample
+counterpart: the mean over samples of cost / optimum), ``ratio_to_optimal_median``,
+``ratio_of_means_to_optimal`` (V/N over the optimum's V/N) and ``below_optimal`` (samples where
+the row beat the optimum: the solver did not converge there); on the optimal row,
+``optimal_converged_fraction``, ``optimal_gradient_max``, ``optimal_gap_estimate_max``, ``optimal_bounded``,
+``optimal_iterations_median`` and ``optimal_solve_time_mean`` (s per sample).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from evaluation.optimal import FTOL, GTOL, OPTIMAL
 from evaluation.paper import TASK_LABELS, controller_label, paper_value
 
 _TERMS = ("cost_error", "cost_effort", "cost_smoothness", "cost_smoothness_start")
@@ -72,6 +80,17 @@ def summarise(
             row[p + "settle_time_p95"] = float(np.quantile(settle, 0.95, method="inverted_cdf"))
             row[p + "max_abs_u"] = float(part["max_abs_u"].max())
             row[p + "max_norm_u"] = float(part["max_norm_u"].max())
+            if "ratio_to_optimal" in part:
+                row[p + "ratio_to_optimal_mean"] = float(part["ratio_to_optimal"].mean())
+                row[p + "ratio_to_optimal_median"] = float(part["ratio_to_optimal"].median())
+                row[p + "below_optimal"] = int(part["below_optimal"].sum())
+            if controller == OPTIMAL and "optimal_converged" in part:
+                row[p + "optimal_converged_fraction"] = float(part["optimal_converged"].astype(bool).mean())
+                row[p + "optimal_gradient_max"] = float(part["optimal_gradient"].max())
+                row[p + "optimal_gap_estimate_max"] = float(part["optimal_gap_estimate"].max())
+                row[p + "optimal_bounded"] = int(part["optimal_bounded"].astype(bool).sum())
+                row[p + "optimal_iterations_median"] = float(part["optimal_iterations"].median())
+                row[p + "optimal_solve_time_mean"] = float(part["optimal_solve_time"].mean())
             record = effort_by_key.get((task, controller))
             if record is not None:
                 row.update(
@@ -97,7 +116,71 @@ def summarise(
         summary[p + "paper_ratio_to_snac"] = [
             (v / paper_snac) if v is not None and paper_snac else math.nan for v in summary[p + "paper"]
         ]
+        optimum = summary.loc[summary["controller"] == OPTIMAL, p + "cost"]
+        if len(optimum):
+            summary[p + "ratio_of_means_to_optimal"] = summary[p + "cost"] / float(optimum.iloc[0])
     return summary
+
+
+def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
+    """The summary's optimality-gap section (empty without the ``optimal`` reference)."""
+    if OPTIMAL not in set(summary["controller"]):
+        return []
+    lines = [
+        "",
+        "## Optimality gap",
+        "",
+        f"`{OPTIMAL}`: per sample, the numerical optimum of the same cost over the same horizon, Δt and "
+        "velocity limits, **an open-loop reference computed with knowledge of the whole reference** (not a "
+        f"controller; no effort knob). L-BFGS in Cholesky-preconditioned commands from rest, stopped at "
+        f"max |∂V/∂z| ≤ {GTOL:g} or a relative decrease ≤ {FTOL:g} (docs/optimal.md). Ratio = a controller's "
+        "cost / the optimum on the same sample.",
+        "",
+        "| Task | Controller | V/N | mean ratio | median ratio | V/N ratio | samples below the optimum |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    violations = []
+    for t in tasks:
+        p = f"{t}_"
+        if p + "ratio_to_optimal_mean" not in summary:
+            continue
+        for _, row in summary.iterrows():
+            below = int(row[p + "below_optimal"]) if not pd.isna(row[p + "below_optimal"]) else 0
+            if below:
+                violations.append((t, row["controller"], below))
+            lines.append(
+                f"| {t} | {row['label']} | {_general_number(row[p + 'cost'])} | "
+                f"{_general_number(row[p + 'ratio_to_optimal_mean'])} | "
+                f"{_general_number(row[p + 'ratio_to_optimal_median'])} | "
+                f"{_general_number(row[p + 'ratio_of_means_to_optimal'])} | {below} |"
+            )
+    lines.append("")
+    optimal_row = summary[summary["controller"] == OPTIMAL].iloc[0]
+    for t in tasks:
+        p = f"{t}_"
+        if p + "optimal_converged_fraction" in summary:
+            lines.append(
+                f"Solver, {t}: converged on {optimal_row[p + 'optimal_converged_fraction']:.1%} of the samples, "
+                f"largest final gradient {optimal_row[p + 'optimal_gradient_max']:.3g} "
+                f"(estimated V − V* ≤ {optimal_row[p + 'optimal_gap_estimate_max']:.2g}), "
+                f"median {optimal_row[p + 'optimal_iterations_median']:.0f} iterations, "
+                f"{int(optimal_row[p + 'optimal_bounded'])} samples needed the bounded polish, "
+                f"{optimal_row[p + 'optimal_solve_time_mean']:.3f} s per sample (one worker)."
+            )
+            lines.append("")
+    if violations:
+        below = results[results["below_optimal"].astype(bool)]
+        listed = ", ".join(f"{r.task} #{r.sample} ({r.controller})" for r in below.head(20).itertuples())
+        lines += [
+            "**Warning: the optimum is not a lower bound everywhere.** The solver did not converge to the "
+            "optimum on these samples (a controller's cost is below it): "
+            + ", ".join(f"{c} on {n} {t} sample(s)" for t, c, n in violations)
+            + f". First ones: {listed}.",
+            "",
+        ]
+    else:
+        lines += ["No controller's cost is below the optimum on any sample.", ""]
+    return lines
 
 
 def _number(value: Any, digits: int = 2) -> str:
@@ -120,6 +203,7 @@ def summary_markdown(
     effort_statistic: str,
     timings: dict[str, float] | None = None,
     executor: str = "",
+    results: pd.DataFrame | None = None,
 ) -> str:
     """``summary.md``: Table I's layout, the details behind it, the effort matching and the plot."""
     tasks = [t for t in config.tasks if f"{t}_cost" in summary]
@@ -187,6 +271,8 @@ def summary_markdown(
                 )
                 + " |"
             )
+    if results is not None:
+        lines += optimality_markdown(summary, results, tasks)
     lines += [
         "",
         "## Control effort",
@@ -271,7 +357,7 @@ def write_reports(
     summary = summarise(results, efforts, tasks, controllers)
     summary.to_csv(root / "summary.csv", index=False, float_format="%.10g")
     (root / "summary.md").write_text(
-        summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor)
+        summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results)
     )
     plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png")
     return summary

@@ -18,7 +18,10 @@ Steps (each documented in docs/evaluation.md):
    screening samples, then a full pass checks the statistic over the whole set; if it misses
    the tolerance, the screening target is corrected by the observed ratio and the search
    repeats (at most ``MAX_MATCH_ROUNDS`` passes).
-5. **Reports**: ``results.csv``/``.parquet`` (one row per task, controller and sample),
+5. **Optimal reference** (``optimal`` among ``controllers``): every sample's numerical optimum of
+   the same cost (:mod:`evaluation.optimal`, docs/optimal.md), an open-loop row with no effort
+   knob; every row gains ``ratio_to_optimal`` and ``below_optimal``.
+6. **Reports**: ``results.csv``/``.parquet`` (one row per task, controller and sample),
    ``summary.csv``/``.md`` and box plots (:mod:`evaluation.report`).
 """
 
@@ -48,6 +51,7 @@ from evaluation.calibration import (
 )
 from evaluation.executors import make_executor
 from evaluation.jobs import JobResult, RolloutJob, policy_context, run_job
+from evaluation.optimal import OPTIMAL, OptimalJob, add_optimality, run_optimal_job
 from evaluation.paper import PAPER_TABLE_I
 from evaluation.samples import (
     TASKS,
@@ -159,6 +163,10 @@ class EvaluationConfig:
                 )
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.wants_optimal and self.backend != "kinematic":
+            raise ValueError(
+                f"the {OPTIMAL!r} reference is the optimum of the kinematic model; use --backend kinematic"
+            )
         if self.effort_target is not None and not self.effort_target > 0:
             raise ValueError(f"effort_target must be positive, got {self.effort_target}")
         if not 0 < self.effort_tolerance < 1:
@@ -171,6 +179,11 @@ class EvaluationConfig:
             raise ValueError(f"chunk_size must be at least 1, got {self.chunk_size}")
         if not self.dt > 0:
             raise ValueError(f"dt must be positive, got {self.dt}")
+
+    @property
+    def wants_optimal(self) -> bool:
+        """Whether the ``optimal`` reference is among the controllers (never by default)."""
+        return self.controllers is not None and OPTIMAL in self.controllers
 
     def horizon(self, task: str) -> float:
         """Rollout length of ``task``, s."""
@@ -263,6 +276,9 @@ def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec],
     """
     explicit = config.controllers is not None
     names = list(config.controllers) if explicit else default_controller_order(available_policies())
+    names = [name for name in names if name != OPTIMAL]  # the reference row, not a policy (run_optimal)
+    if explicit and not names:
+        return [], {}
     known = set(available_policies())
     specs: list[ControllerSpec] = []
     skipped: dict[str, str] = {}
@@ -293,7 +309,7 @@ def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec],
             skipped[name] = reason
             continue
         specs.append(ControllerSpec(name, kwargs, knob, value))
-    if not specs:
+    if not specs and not config.wants_optimal:
         raise ValueError(f"no controller to evaluate (left out: {skipped})")
     return specs, skipped
 
@@ -416,6 +432,56 @@ class _Evaluation:
             self.progress.update(len(job.samples))
         self.timings["passes"] += time.perf_counter() - started
         return [pd.concat([self.store.read_part(p) for p in pass_paths], ignore_index=True) for pass_paths in paths]
+
+    def run_optimal(self) -> list[pd.DataFrame]:
+        """The ``optimal`` rows of every task (jobs of ``chunk_size`` samples, stored as they arrive)."""
+        started = time.perf_counter()
+        config = self.config
+        todo: list[tuple[OptimalJob, Path]] = []
+        paths: list[list[Path]] = []
+        size = config.chunk_size
+        self.progress.status("optimal reference")
+        for task in config.tasks:
+            steps = config.steps(task)
+            key = settings_key({}, steps, config.backend)
+            samples = self.samples[task]
+            task_paths = []
+            for chunk, i in enumerate(range(0, len(samples), size)):
+                part = tuple(samples[i : i + size])
+                job = OptimalJob(
+                    task=task,
+                    samples=part,
+                    seeds=tuple(policy_seed(config.seed, task, s.index) for s in part),
+                    steps=steps,
+                    dt=config.dt,
+                    robot=config.robot,
+                    keep_logs=config.save_trajectories,
+                )
+                path = self.store.part_path(task, OPTIMAL, key, chunk)
+                task_paths.append(path)
+                if self.store.has_part(path):
+                    self.progress.update(len(part))
+                else:
+                    todo.append((job, path))
+            paths.append(task_paths)
+        for index, result in self.executor.run(run_optimal_job, [job for job, _ in todo]):
+            job, path = todo[index]
+            if result.logs is not None:
+                for log, sample in zip(result.logs, job.samples, strict=True):
+                    self.store.write_trajectory(log, job.task, OPTIMAL, sample.index)
+            rows = result.metrics
+            rows.insert(0, "task", job.task)
+            rows.insert(1, "controller", OPTIMAL)
+            rows.insert(3, "seed", np.array(job.seeds, dtype=np.int64))
+            rows["effort_parameter"] = ""
+            rows["effort_value"] = np.nan
+            rows["backend"] = config.backend
+            rows["horizon"] = job.steps * job.dt
+            self.store.write_part(path, rows)
+            self.progress.update(len(job.samples))
+        self.timings["optimal"] = self.timings.get("optimal", 0.0) + time.perf_counter() - started
+        self.progress.status("")
+        return [pd.concat([self.store.read_part(p) for p in task_paths], ignore_index=True) for task_paths in paths]
 
     def _store_job(self, job: RolloutJob, spec: ControllerSpec, result: JobResult, path: Path) -> None:
         if result.logs is not None:
@@ -685,11 +751,13 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         write_samples_csv(all_samples, store.root / "samples.csv", kinematics.n_joints)
         if config.export_samples is not None:
             write_samples_csv(all_samples, config.export_samples, kinematics.n_joints)
-        progress = _Progress(len(specs) * len(all_samples), config.progress)
+        progress = _Progress((len(specs) + config.wants_optimal) * len(all_samples), config.progress)
         evaluation = _Evaluation(config, store, executor, samples, progress)
         results: dict[tuple[str, str], pd.DataFrame] = {}
         try:
-            if config.match_effort:
+            if not specs:
+                records = {}
+            elif config.match_effort:
                 records = _match_controllers(evaluation, specs, results)
             else:
                 passes = [(task, spec, spec.kwargs) for task in config.tasks for spec in specs]
@@ -699,16 +767,21 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
                     records[(task, spec.name)] = EffortRecord(
                         task, spec.name, "fixed", spec.knob, spec.knob_value, _effort(rows), None
                     )
+            if config.wants_optimal:
+                for task, rows in zip(config.tasks, evaluation.run_optimal(), strict=True):
+                    results[(task, OPTIMAL)] = rows
         finally:
             progress.close()
             timings.update(evaluation.timings)
     finally:
         executor.close()
-    order = [(task, spec.name) for task in config.tasks for spec in specs]
+    names = ([OPTIMAL] if config.wants_optimal else []) + [spec.name for spec in specs]
+    order = [(task, name) for task in config.tasks for name in names]
     table = pd.concat([results[key] for key in order], ignore_index=True)
     table = table.sort_values(
-        ["task", "controller", "sample"], key=_sort_key(config, specs), kind="stable"
+        ["task", "controller", "sample"], key=_sort_key(config, names), kind="stable"
     ).reset_index(drop=True)
+    table = add_optimality(table)
     table.to_csv(store.root / "results.csv", index=False, float_format="%.17g")
     table.to_parquet(store.root / "results.parquet", index=False)
     timings["total"] = time.perf_counter() - started  # up to the reports
@@ -716,7 +789,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     write_reports(
         store.root,
         table,
-        [records[key] for key in order],
+        [records[key] for key in order if key in records],
         config,
         skipped,
         EFFORT_STATISTIC,
@@ -726,9 +799,9 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     return table
 
 
-def _sort_key(config: EvaluationConfig, specs: list[ControllerSpec]) -> Any:
+def _sort_key(config: EvaluationConfig, names: list[str]) -> Any:
     task_rank = {t: i for i, t in enumerate(config.tasks)}
-    controller_rank = {s.name: i for i, s in enumerate(specs)}
+    controller_rank = {name: i for i, name in enumerate(names)}
 
     def key(column: pd.Series) -> pd.Series:
         if column.name == "task":

@@ -133,7 +133,7 @@ def real(
 def evaluate(
     out: Path = typer.Option(Path("runs/evaluation"), "--out", help="Output folder (results, summary, plots, parts)."),
     task: str = typer.Option("both", "--task", help="reach, track or both."),
-    controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one)."),
+    controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md)."),
     samples: int = typer.Option(1000, "--samples", min=1, help="Random samples per task (the paper: 1000)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
     horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."),

@@ -1,0 +1,393 @@
+"""The ``optimal`` reference: each sample's numerical optimum of the evaluator's trajectory cost.
+
+For one sample (seed pose θ₀, reference x_d known over the whole horizon) it solves
+
+    min_U  V(U) = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt,   k = 0..K−1,  Q = I₃, R = I₆
+    s.t.   θₖ₊₁ = θₖ + uₖΔt,  |uₖⱼ| ≤ ūⱼ,  u₋₁ = 0,  u̇ₖ = (uₖ − uₖ₋₁)/Δt,  eₖ = f(θₖ) − x_d(tₖ)
+
+over the evaluator's horizon, Δt and discretisation (docs/optimal.md). It is an *open-loop*
+reference computed with knowledge of the whole reference, not a controller.
+
+**Method** (a direct single-shooting method). θ is linear in U, so V and its exact gradient
+cost one pass of K ``forward_and_jacobian`` calls (Pinocchio's analytic Jacobian)::
+
+    ∂V/∂uₖ = 2Δt uₖ + (2/Δt)((uₖ − uₖ₋₁) − (uₖ₊₁ − uₖ)) + Δt Σ_{j>k} 2Δt Jⱼᵀ eⱼ
+
+(the last smoothness difference only for k < K−1; e₀ does not depend on U). The quadratic
+effort + smoothness part has the fixed Hessian ``H₀ = 2Δt I + (2/Δt) DᵀD`` (D: first differences
+with u₋₁ = 0), whose condition number grows like K²; the solver works in ``z = Lᵀu`` with
+``H₀ = LLᵀ`` (banded Cholesky, O(K) per product), where that part is ``‖z‖²``, and runs
+SciPy's L-BFGS from U = 0 (the robot at rest; no controller is used as a start, so the
+optimum does not depend on which controllers are evaluated). If the unconstrained optimum
+breaks a velocity limit, it is polished by bounded L-BFGS-B in u from the clipped solution
+(column ``optimal_bounded``).
+
+**Tolerance.** Stop when the largest component of the gradient in z is ≤ :data:`GTOL` or
+V decreases relatively by ≤ :data:`FTOL` per iteration (at most :data:`MAX_ITERATIONS`
+iterations). ``optimal_gradient`` records the final max-norm gradient in z.
+
+The reported cost of the solution is *not* the solver's value: the command sequence is rolled
+out by :func:`evaluation.backends.simulate_kinematic` (an open-loop replay policy) and measured by
+:func:`evaluation.metrics.rollout_metrics`, the path every controller takes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import functools
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pinocchio as pin
+from scipy.linalg import cholesky_banded, solve_banded
+from scipy.optimize import minimize
+
+from evaluation.backends import simulate_kinematic
+from evaluation.metrics import rollout_metrics
+from evaluation.reference_batch import reference_trajectories
+from evaluation.samples import EvaluationSample
+from snac_gym.kinematics import Kinematics
+
+#: Name of the reference row in the results (selectable with ``--controllers optimal,...``).
+OPTIMAL = "optimal"
+#: Row label in the reports.
+OPTIMAL_LABEL = "Optimal (open-loop reference, whole reference known)"
+#: Stop when max |∂V/∂z| ≤ GTOL (z = Lᵀu, the preconditioned variables; V has the units of the cost).
+GTOL = 1e-6
+#: ...or when (V_k − V_{k+1}) / max(|V_k|, |V_{k+1}|, 1) ≤ FTOL.
+FTOL = 1e-13
+#: Iteration cap of each L-BFGS run.
+MAX_ITERATIONS = 5000
+#: L-BFGS memory (pairs kept).
+MEMORY = 20
+#: Extra columns of the optimal rows.
+SOLVER_COLUMNS = (
+    "optimal_iterations",
+    "optimal_evaluations",
+    "optimal_gradient",
+    "optimal_gap_estimate",
+    "optimal_converged",
+    "optimal_bounded",
+    "optimal_solver_cost",
+    "optimal_solve_time",
+)
+
+
+def trajectory_cost_and_gradient(
+    commands: np.ndarray, q0: np.ndarray, x_d: np.ndarray, kinematics: Kinematics, dt: float
+) -> tuple[float, np.ndarray]:
+    """V(U) and its exact gradient ∂V/∂U (Q = I, R = I, u₋₁ = 0).
+
+    Args:
+        commands: ``(K, m)`` commands U.
+        q0: ``(m,)`` seed pose θ₀.
+        x_d: ``(K, n)`` desired positions x_d(tₖ), k = 0..K−1.
+        kinematics: The shared kinematic model.
+        dt: Control period Δt, s.
+    """
+    steps, m = commands.shape
+    q = np.empty((steps, m))
+    q[0] = q0
+    if steps > 1:
+        q[1:] = q0 + dt * np.cumsum(commands[:-1], axis=0)
+    n = x_d.shape[1]
+    positions = np.empty((steps, n))
+    jacobians = np.empty((steps, n, m))
+    # Kinematics.forward_and_jacobian's Pinocchio calls, inlined: this loop is the solver's hot spot.
+    model, data, frame = kinematics.model, kinematics.data, kinematics._ee_id
+    jacobian, placement, frame_kind = pin.computeFrameJacobian, data.oMf, pin.LOCAL_WORLD_ALIGNED
+    for k in range(steps):
+        jacobians[k] = jacobian(model, data, q[k], frame, frame_kind)[:n]
+        positions[k] = placement[frame].translation
+    errors = positions - x_d
+    g = (2.0 * dt) * np.einsum("kij,ki->kj", jacobians, errors)  # g_j = 2Δt Jⱼᵀ eⱼ
+    rates = np.diff(commands, axis=0, prepend=np.zeros((1, m)))  # uₖ − uₖ₋₁
+    value = dt * (np.einsum("ij,ij->", errors, errors) + np.einsum("ij,ij->", commands, commands))
+    value += np.einsum("ij,ij->", rates, rates) / dt
+    grad = 2.0 * dt * commands + (2.0 / dt) * rates
+    grad[:-1] -= (2.0 / dt) * rates[1:]
+    tail = np.zeros((steps, m))  # Σ_{j>k} g_j
+    if steps > 1:
+        tail[:-1] = np.cumsum(g[:0:-1], axis=0)[::-1]
+    grad += dt * tail
+    return float(value), grad
+
+
+_BLAS_THREAD_SYMBOLS = (
+    ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
+    ("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
+    ("openblas_get_num_threads", "openblas_set_num_threads"),
+    ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
+)
+
+
+@contextlib.contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Run the block with every loaded OpenBLAS on one thread (best effort; restored after).
+
+    L-BFGS-B's BLAS calls on ~10⁴ variables are far too small to gain from threads: with
+    OpenBLAS's default thread count on a busy 2-core machine a solve ran 5-10x slower
+    (measured, docs/optimal.md). Worker processes already run in parallel.
+    """
+    restore = []
+    try:
+        paths = {line.split()[-1] for line in open("/proc/self/maps") if "openblas" in line.lower()}
+    except OSError:
+        paths = set()
+    for path in sorted(paths):
+        try:
+            library = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for get_name, set_name in _BLAS_THREAD_SYMBOLS:
+            getter, setter = getattr(library, get_name, None), getattr(library, set_name, None)
+            if getter is not None and setter is not None:
+                restore.append((setter, int(getter())))
+                setter(1)
+                break
+    try:
+        yield
+    finally:
+        for setter, count in restore:
+            setter(count)
+
+
+@functools.lru_cache(maxsize=8)
+def _preconditioner(steps: int, dt: float) -> np.ndarray:
+    """Banded lower Cholesky factor L of H₀ = 2Δt I + (2/Δt) DᵀD (``cholesky_banded`` lower form)."""
+    diagonal = np.full(steps, 2.0 * dt + 4.0 / dt)
+    diagonal[-1] = 2.0 * dt + 2.0 / dt
+    band = np.zeros((2, steps))
+    band[0] = diagonal
+    band[1, :-1] = -2.0 / dt
+    return cholesky_banded(band, lower=True)
+
+
+def _upper_band(lower: np.ndarray) -> np.ndarray:
+    """Lᵀ in ``solve_banded((0, 1), ...)`` form."""
+    band = np.zeros_like(lower)
+    band[0, 1:] = lower[1, :-1]
+    band[1] = lower[0]
+    return band
+
+
+@dataclass
+class OptimalSolution:
+    """One sample's solution.
+
+    Attributes:
+        commands: ``(K, m)`` optimal commands.
+        cost: V at the solution (the solver's own evaluation).
+        iterations: L-BFGS iterations (both runs, if the bounded polish ran).
+        evaluations: Cost+gradient evaluations.
+        gradient: Final max |∂V/∂z| (unconstrained) or projected max |∂V/∂u| (bounded polish).
+        gap_estimate: ½‖∂V/∂z‖₂² at the solution: the decrease left to a quadratic model whose
+            Hessian in z is I (the effort + smoothness part; the Gauss-Newton error part only adds
+            to it), an estimate of V − V* near a local optimum (NaN after the bounded polish).
+        converged: The stopping test (GTOL or FTOL) was met, not the iteration cap.
+        bounded: The bounded polish ran (the unconstrained optimum broke a velocity limit).
+        seconds: Wall time of the solve.
+    """
+
+    commands: np.ndarray
+    cost: float
+    iterations: int
+    evaluations: int
+    gradient: float
+    gap_estimate: float
+    converged: bool
+    bounded: bool
+    seconds: float
+
+
+def solve_sample(
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Kinematics,
+    dt: float,
+    velocity_limits: np.ndarray,
+    initial: np.ndarray | None = None,
+    gtol: float = GTOL,
+    ftol: float = FTOL,
+    max_iterations: int = MAX_ITERATIONS,
+) -> OptimalSolution:
+    """The optimal command sequence of one sample (see the module docstring).
+
+    Args:
+        q0: ``(m,)`` seed pose.
+        x_d: ``(K, n)`` desired positions at the start of each step.
+        kinematics: The shared kinematic model.
+        dt: Control period, s.
+        velocity_limits: ``(m,)`` limits ū.
+        initial: ``(K, m)`` start (default zeros: at rest).
+    """
+    started = time.perf_counter()
+    steps, m = x_d.shape[0], kinematics.n_joints
+    limits = np.asarray(velocity_limits, dtype=float)
+    lower = _preconditioner(steps, float(dt))
+    upper = _upper_band(lower)
+    start = np.zeros((steps, m)) if initial is None else np.clip(np.asarray(initial, dtype=float), -limits, limits)
+
+    def in_z(z: np.ndarray) -> tuple[float, np.ndarray]:
+        u = solve_banded((0, 1), upper, z.reshape(steps, m))  # u = L⁻ᵀ z
+        value, grad = trajectory_cost_and_gradient(u, q0, x_d, kinematics, dt)
+        return value, solve_banded((1, 0), lower, grad).ravel()  # ∂V/∂z = L⁻¹ ∂V/∂u
+
+    z0 = (upper[1][:, None] * start)
+    z0[:-1] += upper[0, 1:, None] * start[1:]  # z = Lᵀu
+    options = {"maxiter": max_iterations, "maxfun": 4 * max_iterations, "gtol": gtol, "ftol": ftol, "maxcor": MEMORY}
+    result = minimize(in_z, z0.ravel(), jac=True, method="L-BFGS-B", options=options)
+    commands = solve_banded((0, 1), upper, result.x.reshape(steps, m))
+    iterations, evaluations = int(result.nit), int(result.nfev)
+    gradient = float(np.abs(result.jac).max())
+    gap_estimate = 0.5 * float(result.jac @ result.jac)
+    converged = result.status == 0
+    value = float(result.fun)
+    bounded = bool((np.abs(commands) > limits).any())
+    if bounded:
+
+        def in_u(u: np.ndarray) -> tuple[float, np.ndarray]:
+            value, grad = trajectory_cost_and_gradient(u.reshape(steps, m), q0, x_d, kinematics, dt)
+            return value, grad.ravel()
+
+        bounds = np.repeat(np.stack([-limits, limits], axis=1)[None], steps, axis=0).reshape(-1, 2)
+        clipped = np.clip(commands, -limits, limits)
+        polish = minimize(in_u, clipped.ravel(), jac=True, method="L-BFGS-B", bounds=bounds, options=options)
+        commands = polish.x.reshape(steps, m)
+        iterations += int(polish.nit)
+        evaluations += int(polish.nfev)
+        projected = np.clip(polish.x - polish.jac, bounds[:, 0], bounds[:, 1]) - polish.x
+        gradient = float(np.abs(projected).max())
+        gap_estimate = float("nan")
+        converged = polish.status == 0
+        value = float(polish.fun)
+    return OptimalSolution(
+        commands,
+        value,
+        iterations,
+        evaluations,
+        gradient,
+        gap_estimate,
+        converged,
+        bounded,
+        time.perf_counter() - started,
+    )
+
+
+class ReplayPolicy:
+    """An open-loop "policy" that replays precomputed command sequences (batch protocol).
+
+    Used only to roll the optimal commands out through :func:`simulate_kinematic`, so that the
+    optimum is measured exactly like every controller.
+    """
+
+    def __init__(self, commands: np.ndarray) -> None:
+        self._commands = np.asarray(commands, dtype=float)  # (B, K, m)
+        self._step = 0
+
+    def reset_batch(self, seeds: Sequence[int]) -> None:
+        self._step = 0
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        commands = self._commands[:, self._step]
+        self._step += 1
+        return commands.copy()
+
+
+@dataclass(frozen=True)
+class OptimalJob:
+    """The optimum of a chunk of samples of one task (picklable, like a :class:`RolloutJob`)."""
+
+    task: str
+    samples: tuple[EvaluationSample, ...]
+    seeds: tuple[int, ...]
+    steps: int
+    dt: float
+    robot: str = "ur10"
+    keep_logs: bool = False
+
+
+def run_optimal_job(job: OptimalJob) -> Any:
+    """Solve every sample of ``job``, roll the solutions out and measure them like a controller's.
+
+    Returns a :class:`evaluation.jobs.JobResult` whose metrics carry :data:`SOLVER_COLUMNS` too.
+    """
+    from evaluation.jobs import JobResult, policy_context
+
+    context = policy_context(job.robot, job.dt, job.task)
+    kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
+    times = np.arange(job.steps) * job.dt
+    x_d, _, _ = reference_trajectories([s.reference for s in job.samples], times)
+    with single_threaded_blas():
+        solutions = [
+            solve_sample(np.asarray(s.q0, dtype=float), x_d[i], kinematics, job.dt, limits)
+            for i, s in enumerate(job.samples)
+        ]
+    commands = np.stack([s.commands for s in solutions])
+    rollouts = simulate_kinematic(
+        context, lambda: ReplayPolicy(commands), job.samples, job.steps, job.seeds, True, OPTIMAL
+    )
+    metrics = rollout_metrics(rollouts, job.task, limits)
+    metrics.insert(0, "sample", [s.index for s in job.samples])
+    metrics["optimal_iterations"] = np.array([s.iterations for s in solutions], dtype=np.int64)
+    metrics["optimal_evaluations"] = np.array([s.evaluations for s in solutions], dtype=np.int64)
+    metrics["optimal_gradient"] = [s.gradient for s in solutions]
+    metrics["optimal_gap_estimate"] = [s.gap_estimate for s in solutions]
+    metrics["optimal_converged"] = [s.converged for s in solutions]
+    metrics["optimal_bounded"] = [s.bounded for s in solutions]
+    metrics["optimal_solver_cost"] = [s.cost for s in solutions]
+    metrics["optimal_solve_time"] = [s.seconds for s in solutions]
+    logs = None
+    if job.keep_logs:
+        logs = [
+            rollouts.log(
+                i,
+                {
+                    "task": job.task,
+                    "policy": OPTIMAL,
+                    "policy_kwargs": {},
+                    "sample": s.index,
+                    "seed": seed,
+                    "options": s.reset_options(),
+                    "reference": s.reference.to_dict(),
+                    "velocity_limits": limits.tolist(),
+                    "backend": "kinematic",
+                },
+            )
+            for i, (s, seed) in enumerate(zip(job.samples, job.seeds, strict=True))
+        ]
+    return JobResult(metrics, logs)
+
+
+def add_optimality(results: pd.DataFrame) -> pd.DataFrame:
+    """Add ``ratio_to_optimal`` (cost / the optimal row's cost of the same task and sample) and
+    ``below_optimal`` (the row's cost is below the optimum: the solver did not converge there)."""
+    if OPTIMAL not in set(results["controller"]):
+        return results
+    optimum = results[results["controller"] == OPTIMAL].set_index(["task", "sample"])["cost"]
+    keys = pd.MultiIndex.from_frame(results[["task", "sample"]])
+    reference = optimum.reindex(keys).to_numpy()
+    results = results.copy()
+    results["ratio_to_optimal"] = results["cost"].to_numpy() / reference
+    results["below_optimal"] = results["cost"].to_numpy() < reference
+    return results
+
+
+__all__ = [
+    "FTOL",
+    "GTOL",
+    "OPTIMAL",
+    "OPTIMAL_LABEL",
+    "OptimalJob",
+    "OptimalSolution",
+    "ReplayPolicy",
+    "add_optimality",
+    "run_optimal_job",
+    "solve_sample",
+    "trajectory_cost_and_gradient",
+]

@@ -1,0 +1,142 @@
+"""The ``optimal`` reference: exact gradient, convergence, a lower bound on every controller, reports."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from evaluation import EvaluationConfig, run_evaluation
+from evaluation.optimal import OPTIMAL, solve_sample, trajectory_cost_and_gradient
+from evaluation.reference_batch import reference_trajectories
+from evaluation.samples import generate_samples
+from snac_gym.cost import trajectory_cost
+from snac_gym.kinematics import Kinematics
+from snac_gym.rollout import log_array, read_log
+from snac_gym.sampling import SampleSpace
+
+DT = 1.0 / 125.0
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    return Kinematics("ur10")
+
+
+@pytest.fixture(scope="module")
+def track_sample(ur10):
+    return generate_samples(ur10, SampleSpace.for_robot(ur10), 0, "track", [0])[0]
+
+
+def test_cost_and_gradient_match_the_shared_cost_and_finite_differences(ur10, track_sample):
+    steps = 20
+    x_d = reference_trajectories([track_sample.reference], np.arange(steps) * DT)[0][0]
+    commands = np.random.default_rng(0).normal(scale=0.3, size=(steps, ur10.n_joints))
+    value, grad = trajectory_cost_and_gradient(commands, track_sample.q0, x_d, ur10, DT)
+    q = track_sample.q0 + DT * np.vstack([np.zeros(ur10.n_joints), np.cumsum(commands[:-1], axis=0)])
+    errors = np.array([ur10.forward(qk) for qk in q]) - x_d
+    assert value == pytest.approx(float(trajectory_cost(errors, commands, DT).total), rel=1e-12)
+    numeric = np.zeros_like(commands)
+    for index in np.ndindex(commands.shape):
+        step = np.zeros_like(commands)
+        step[index] = 1e-6
+        plus = trajectory_cost_and_gradient(commands + step, track_sample.q0, x_d, ur10, DT)[0]
+        minus = trajectory_cost_and_gradient(commands - step, track_sample.q0, x_d, ur10, DT)[0]
+        numeric[index] = (plus - minus) / 2e-6
+    np.testing.assert_allclose(grad, numeric, rtol=0, atol=1e-6 * np.abs(grad).max())
+
+
+def test_solver_converges_to_the_same_optimum_with_a_tighter_tolerance(ur10, track_sample):
+    steps = 150
+    x_d = reference_trajectories([track_sample.reference], np.arange(steps) * DT)[0][0]
+    default = solve_sample(track_sample.q0, x_d, ur10, DT, ur10.velocity_limits)
+    tight = solve_sample(track_sample.q0, x_d, ur10, DT, ur10.velocity_limits, gtol=1e-11, ftol=1e-16)
+    assert default.converged and not default.bounded
+    assert default.cost == pytest.approx(tight.cost, rel=1e-9)
+    assert default.gap_estimate < 1e-9
+    assert default.commands[0] @ default.commands[0] < 1e-2  # the optimum ramps up from rest (u₋₁ = 0)
+
+
+def test_a_velocity_limit_below_the_unconstrained_optimum_is_respected(ur10, track_sample):
+    steps = 100
+    x_d = reference_trajectories([track_sample.reference], np.arange(steps) * DT)[0][0]
+    free = solve_sample(track_sample.q0, x_d, ur10, DT, ur10.velocity_limits)
+    limits = 0.5 * np.abs(free.commands).max(axis=0) + 1e-3
+    bounded = solve_sample(track_sample.q0, x_d, ur10, DT, limits)
+    assert bounded.bounded and bounded.converged
+    assert (np.abs(bounded.commands) <= limits + 1e-12).all()
+    assert bounded.cost >= free.cost
+
+
+@pytest.fixture(scope="module")
+def optimal_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("optimal")
+    config = EvaluationConfig(
+        out=out,
+        tasks=("reach", "track"),
+        controllers=(OPTIMAL, "snac", "rnn", "svf", "dls"),
+        samples=3,
+        horizons={"reach": 1.5, "track": 1.0},
+        chunk_size=2,
+        save_trajectories=True,
+        progress=False,
+    )
+    return config, run_evaluation(config)
+
+
+def test_no_controller_beats_the_optimum_on_any_sample(optimal_run):
+    _, results = optimal_run
+    assert set(results["controller"]) == {OPTIMAL, "snac", "rnn", "svf", "dls"}
+    optimum = results[results["controller"] == OPTIMAL].set_index(["task", "sample"])["cost"]
+    for row in results.itertuples():
+        assert row.cost >= optimum[(row.task, row.sample)], (row.task, row.controller, row.sample)
+        assert row.ratio_to_optimal == pytest.approx(row.cost / optimum[(row.task, row.sample)])
+    assert not results["below_optimal"].any()
+    rows = results[results["controller"] == OPTIMAL]
+    assert rows["optimal_converged"].all() and (rows["ratio_to_optimal"] == 1.0).all()
+
+
+def test_optimal_rows_are_measured_like_every_controller(optimal_run):
+    config, results = optimal_run
+    for row in results[results["controller"] == OPTIMAL].itertuples():
+        log = read_log(config.out / "trajectories" / row.task / OPTIMAL / f"sample_{row.sample:05d}.parquet")
+        terms = trajectory_cost(log_array(log, "e"), log_array(log, "u"), log.attrs["dt"])
+        assert float(terms.total) == pytest.approx(row.cost, rel=1e-12)
+        assert row.cost == pytest.approx(row.optimal_solver_cost, rel=1e-9)  # the solver's own V agrees
+
+
+def test_summary_reports_the_optimal_row_and_mean_ratios(optimal_run):
+    config, results = optimal_run
+    summary = pd.read_csv(config.out / "summary.csv").set_index("controller")
+    assert OPTIMAL in summary.index and "effort" not in str(summary.loc[OPTIMAL].get("reach_effort_role", ""))
+    for task in config.tasks:
+        part = results[results["task"] == task].groupby("controller")["ratio_to_optimal"].mean()
+        np.testing.assert_allclose(summary[f"{task}_ratio_to_optimal_mean"], part[summary.index], rtol=1e-9)
+        assert (summary[f"{task}_below_optimal"] == 0).all()
+    text = (config.out / "summary.md").read_text()
+    assert "## Optimality gap" in text and "open-loop reference" in text
+    assert "No controller's cost is below the optimum on any sample." in text
+
+
+def test_a_controller_below_the_optimum_is_reported(optimal_run):
+    from evaluation.report import optimality_markdown, summarise
+
+    config, results = optimal_run
+    tampered = results.copy()
+    index = tampered.index[(tampered["controller"] == "snac") & (tampered["task"] == "reach")][0]
+    tampered.loc[index, "below_optimal"] = True
+    summary = summarise(tampered, [], config.tasks, list(dict.fromkeys(tampered["controller"])))
+    text = "\n".join(optimality_markdown(summary, tampered, config.tasks))
+    assert "**Warning: the optimum is not a lower bound everywhere.**" in text and "snac on 1 reach" in text
+
+
+def test_optimal_alone_and_not_with_pybullet(tmp_path: Path):
+    results = run_evaluation(
+        EvaluationConfig(out=tmp_path / "alone", tasks=("reach",), controllers=(OPTIMAL,), samples=1,
+                         horizons={"reach": 0.2}, progress=False)
+    )
+    assert list(results["controller"]) == [OPTIMAL]
+    with pytest.raises(ValueError, match="kinematic"):
+        EvaluationConfig(out=tmp_path / "pb", controllers=(OPTIMAL,), backend="pybullet").validate()
