@@ -1,0 +1,137 @@
+"""The training view of a snac-gym env: features in, normalised actions out, a shaped reward.
+
+Each episode runs at an effort level ``action_scale`` drawn log-uniformly from the feature
+spec's ``action_scale_range`` (with the env's seeded ``np_random``); the network sees it as a
+feature and the command is scaled by it (:mod:`snac_gym.ppo.features`).
+
+:class:`PPOTrainingWrapper` wraps ``snac_gym/UR10Reach-v0`` or ``snac_gym/UR10EllipseTrack-v0``
+so that PPO sees exactly what :class:`~snac_gym.ppo.policy.PPOPolicy` will feed its network at
+run time (:func:`~snac_gym.ppo.features.observation_features`) and acts in the normalised box
+[−1, 1]ᵐ (:func:`~snac_gym.ppo.features.action_to_command`).
+
+Training reward (``reward.type = "shaped"``, with d = ‖e‖ after the step and ``a`` the
+normalised action)::
+
+    r = −distance_weight · d + precision_bonus · exp(−(d / precision_scale)²)
+        − action_penalty · ‖a‖² − smoothness_penalty · ‖a − a_prev‖²
+
+(a_prev the previous normalised action, 0 after reset: the arm starts at rest). The distance
+term pulls the end effector towards x_d from afar, the Gaussian bonus rewards settling within
+``precision_scale`` (millimetres), which a term linear in d barely distinguishes, the action
+penalty keeps the arm still once there, and the smoothness penalty stops the bang-bang
+chatter around the target that the other terms alone lead to (and that the trajectory
+cost's u̇ᵀRu̇ term punishes). With
+``reward.type = "env"`` the env's own reward −(eᵀQe + uᵀRu) is used instead. The env's reward
+is always kept in ``info["env_reward"]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from snac_gym.ppo.features import FeatureSpec, action_to_command, feature_size, observation_features
+
+REWARD_TYPES = ("shaped", "env")
+
+
+@dataclass(frozen=True)
+class RewardSpec:
+    """Weights of the training reward (see the module docstring).
+
+    Attributes:
+        type: ``"shaped"`` or ``"env"``.
+        distance_weight: Weight of d, 1/m.
+        precision_bonus: Height of the Gaussian bonus.
+        precision_scale: Width of the bonus, m.
+        action_penalty: Weight of ‖a‖².
+        smoothness_penalty: Weight of ‖a − a_prev‖².
+    """
+
+    type: str = "shaped"
+    distance_weight: float = 10.0
+    precision_bonus: float = 1.0
+    precision_scale: float = 0.01
+    action_penalty: float = 0.01
+    smoothness_penalty: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.type not in REWARD_TYPES:
+            raise ValueError(f"reward type must be one of {REWARD_TYPES}, got {self.type!r}")
+        if not self.precision_scale > 0:
+            raise ValueError(f"reward precision_scale must be positive, got {self.precision_scale}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-JSON form."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "RewardSpec":
+        """Inverse of :meth:`to_dict`.
+
+        Raises:
+            ValueError: On unknown keys or bad values.
+        """
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"reward spec: unknown keys {sorted(unknown)}")
+        return cls(**data)
+
+    def shaped(self, error_norm: float, action: np.ndarray, previous_action: np.ndarray) -> float:
+        """The shaped reward for error norm ``error_norm`` (m) after a step taken with ``action``."""
+        bonus = self.precision_bonus * math.exp(-((error_norm / self.precision_scale) ** 2))
+        change = action - previous_action
+        return (
+            -self.distance_weight * error_norm + bonus
+            - self.action_penalty * float(action @ action) - self.smoothness_penalty * float(change @ change)
+        )
+
+
+class PPOTrainingWrapper(gym.Wrapper):
+    """A snac-gym env as PPO trains on it (features, normalised actions, shaped reward).
+
+    Args:
+        env: A snac-gym env (``gym.make`` of a ``snac_gym/...`` id).
+        features: The feature and action scales.
+        reward: The training reward.
+    """
+
+    def __init__(self, env: gym.Env, features: FeatureSpec, reward: RewardSpec) -> None:
+        super().__init__(env)
+        base = env.unwrapped
+        self.layout = base.obs_layout
+        self.velocity_limits = np.asarray(base.velocity_limits, dtype=np.float64)
+        self.features = features
+        self.reward_spec = reward
+        m = self.layout.n_joints
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(feature_size(self.layout),), dtype=np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
+        self._previous_action = np.zeros(m)
+        self.action_scale = 1.0
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._previous_action = np.zeros(self.layout.n_joints)
+        low, high = self.features.action_scale_range
+        self.action_scale = float(np.exp(self.np_random.uniform(np.log(low), np.log(high)))) if high > low else low
+        info["action_scale"] = self.action_scale
+        return observation_features(obs, self.layout, self.features, self.action_scale), info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        command = action_to_command(action, self.velocity_limits, self.features, self.action_scale)
+        obs, env_reward, terminated, truncated, info = self.env.step(command)
+        info["env_reward"] = env_reward
+        if self.reward_spec.type == "shaped":
+            reward = self.reward_spec.shaped(info["error_norm"], action, self._previous_action)
+        else:
+            reward = float(env_reward)
+        self._previous_action = action
+        observation = observation_features(obs, self.layout, self.features, self.action_scale)
+        return observation, reward, terminated, truncated, info

@@ -1,0 +1,104 @@
+"""``make_policy("ppo", env)``: a PPO policy trained with ``snac-gym train-ppo``, run exactly.
+
+The policy reads a policy file (:mod:`snac_gym.ppo.policy_file`): by default the one shipped
+for the env's task (``snac_gym/ppo/models/<task>.npz``), so it works right after install,
+without torch, stable-baselines3 or any training. The observation normalisation is the one
+frozen at export; ``act`` returns the deterministic (mean) action, computed from the
+observation alone (:func:`~snac_gym.ppo.features.observation_features`).
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from snac_gym.policies.base import BasePolicy
+from snac_gym.ppo.policy_file import PolicyFile, PolicyFileError
+
+#: Package whose ``models/`` folder holds the shipped policy files.
+PACKAGE = "snac_gym.ppo"
+
+
+def shipped_model_path(task: str) -> Path:
+    """Path of the policy file shipped for ``task`` (``reach`` or ``track``)."""
+    return Path(str(resources.files(PACKAGE).joinpath("models", f"{task}.npz")))
+
+
+class PPOPolicy(BasePolicy):
+    """Deterministic PPO actor on the features of the observation.
+
+    ``u = action_scale · action_fraction · clip(π(normalise(features(obs, action_scale))), −1, 1) ⊙ ū``,
+    with π the actor's mean, the normalisation frozen from training and ū the velocity limits
+    (the result clipped to ±ū). The network sees ``ln(action_scale)``: it was trained over a
+    range of scales (``model.features.action_scale_range``, 0.5–4 for the shipped files), so
+    the knob raises the effort without destabilising the loop near the target.
+
+    Args:
+        env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive.
+        model_path: A policy file written by ``snac-gym train-ppo`` (``best/policy.npz`` of
+            its output); default: the file shipped for the env's task.
+        action_scale: The effort knob (:attr:`effort_parameter`): scales the command and is
+            an input of the network; 1 is the default. Values outside the trained range
+            extrapolate.
+
+    Raises:
+        MissingPolicyFileError: If the file does not exist.
+        PolicyFileError: If it is corrupt, or was trained for another task, robot or
+            observation layout.
+        ValueError: If ``action_scale`` is not a positive finite number.
+
+    Attributes:
+        effort_parameter: ``"action_scale"``, for the evaluator's equal-effort matching.
+        model: The loaded :class:`~snac_gym.ppo.policy_file.PolicyFile`.
+    """
+
+    effort_parameter = "action_scale"
+
+    def __init__(self, env: Any, model_path: str | Path | None = None, action_scale: float = 1.0) -> None:
+        super().__init__(env)
+        try:
+            scale = float(action_scale)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"action_scale must be a positive number, got {action_scale!r}") from exc
+        if not (np.isfinite(scale) and scale > 0):
+            raise ValueError(f"action_scale must be a positive finite number, got {action_scale!r}")
+        self.action_scale = scale
+        self.model_path = Path(model_path) if model_path is not None else shipped_model_path(self.task)
+        self.model = PolicyFile.load(self.model_path)
+        self.model.check_compatible(
+            self.task, self.layout, self.kinematics.robot, source=f"PPO policy file {self.model_path}"
+        )
+        self._obs_size = self.layout.size
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode (the policy is deterministic and stateless; ``seed`` is unused)."""
+        self.internals = {}
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Joint-velocity command (rad/s, shape ``(m,)``) for one observation.
+
+        Raises:
+            ValueError: If ``obs`` does not have the layout's shape.
+        """
+        obs = np.asarray(obs, dtype=np.float64)
+        if obs.shape != (self._obs_size,):
+            raise ValueError(f"observation must have shape ({self._obs_size},), got {obs.shape}")
+        return self.model.command(obs, self.layout, self.velocity_limits, self.action_scale)
+
+    # -- the evaluator's optional batch protocol (evaluation.drivers) ------------------------
+    def reset_batch(self, seeds: Sequence[int]) -> None:
+        """Start B episodes (stateless: nothing to do beyond :meth:`reset`)."""
+        self.reset()
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        """Commands ``(B, m)`` for observations ``(B, d)``; row i equals ``act(obs_batch[i])``."""
+        obs_batch = np.asarray(obs_batch, dtype=np.float64)
+        if obs_batch.ndim != 2 or obs_batch.shape[1] != self._obs_size:
+            raise ValueError(f"observations must have shape (B, {self._obs_size}), got {obs_batch.shape}")
+        return self.model.command(obs_batch, self.layout, self.velocity_limits, self.action_scale)
+
+
+__all__ = ["PPOPolicy", "PolicyFileError", "shipped_model_path"]

@@ -1,0 +1,376 @@
+"""The PPO baseline: a tiny training run through the CLI that saves, reloads and acts identically,
+Ctrl-C and --resume, every load error of the ``ppo`` policy, and the shipped policies."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import zipfile
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from snac_gym.cli import app
+from snac_gym.kinematics import Kinematics
+from snac_gym.observation import ObservationLayout
+from snac_gym.policies import make_policy
+from snac_gym.policies.base import PolicyContext
+from snac_gym.ppo import MissingPolicyFileError, PolicyFile, PolicyFileError, PPOPolicy, shipped_model_path
+from snac_gym.ppo.config import default_config_path, load_config, resolve_config
+from snac_gym.ppo.features import FeatureSpec, feature_size, observation_features
+from snac_gym.references import PAPER_Q0
+
+ENV_OF_TASK = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}
+
+
+def _tiny_config(tmp_path, task="reach", timesteps=64):
+    """The task's shipped config shrunk to a run of a few seconds."""
+    config = load_config(default_config_path(task))
+    config.update(timesteps=timesteps)
+    config["vec_env"].update(n_envs=2, kind="dummy")
+    config["ppo"].update(n_steps=16, batch_size=32, n_epochs=1, net_arch={"pi": [8, 8], "vf": [8, 8]})
+    config["evaluation"].update(every_timesteps=32, episodes=1, horizons_s=[0.024, 0.04])
+    path = tmp_path / f"tiny_{task}.json"
+    path.write_text(json.dumps(config))
+    return path
+
+
+def _observations(task, count=40, seed=5):
+    """Observations of a short random-action episode of the task's env."""
+    env = gym.make(ENV_OF_TASK[task], max_steps=count)
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    out = [obs]
+    for _ in range(count - 1):
+        obs, *_ = env.step(rng.uniform(-0.3, 0.3, 6))
+        out.append(obs)
+    env.close()
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def reach_env():
+    env = gym.make(ENV_OF_TASK["reach"])
+    yield env
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def trained_run(tmp_path_factory):
+    """One tiny reach training run made by the CLI command."""
+    tmp_path = tmp_path_factory.mktemp("ppo")
+    config = _tiny_config(tmp_path)
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["train-ppo", "--task", "reach", "--timesteps", "64", "--seed", "3",
+                                      "--out", str(out), "--config", str(config)])
+    assert result.exit_code == 0, result.output
+    return out, config, result.output
+
+
+# -- training: save, reload, act identically ------------------------------------------------------
+def test_tiny_training_saves_everything_needed_to_reload(trained_run):
+    out, _, output = trained_run
+    assert "finished" in output and "best policy" in output
+    for folder in ("checkpoint", "best"):
+        for name in ("model.zip", "vecnormalize.pkl", "policy.npz"):
+            assert (out / folder / name).is_file(), f"{folder}/{name} missing"
+    config = json.loads((out / "config.json").read_text())
+    assert config["seed"] == 3 and config["timesteps"] == 64 and config["versions"]["snac_gym"]
+    state = json.loads((out / "state.json").read_text())
+    assert state["status"] == "finished" and state["timesteps"] >= 64 and state["wall_time_s"] > 0
+    evaluations = (out / "evaluations.csv").read_text().splitlines()
+    header = "timesteps,wall_time_s,success_rate,success_rate_0.024s,success_rate_0.04s,mean_cost"
+    assert evaluations[0].startswith(header)
+    assert len(evaluations) >= 3
+    assert (out / "logs" / "segment_0" / "progress.csv").stat().st_size > 0
+    assert (out / "training_curves.png").stat().st_size > 1000
+    metadata = PolicyFile.load(out / "best" / "policy.npz").metadata
+    assert metadata["task"] == "reach" and metadata["seed"] == 3 and metadata["versions"]["snac_gym"]
+    assert metadata["evaluation"]["timesteps"] == state["best"]["timesteps"]
+
+
+def test_reloaded_policy_acts_exactly_as_the_trained_model(trained_run, reach_env):
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from snac_gym.ppo.train import make_training_env
+
+    out, _, _ = trained_run
+    model = PPO.load(out / "checkpoint" / "model.zip", device="cpu")
+    config = json.loads((out / "config.json").read_text())
+    venv = DummyVecEnv([lambda: make_training_env(config)])
+    stats = VecNormalize.load(str(out / "checkpoint" / "vecnormalize.pkl"), venv)
+    stats.training = False
+    policy = make_policy("ppo", reach_env, model_path=out / "checkpoint" / "policy.npz")
+    assert isinstance(policy, PPOPolicy)
+    np.testing.assert_array_equal(policy.model.obs_mean, stats.obs_rms.mean)
+    np.testing.assert_array_equal(policy.model.obs_var, stats.obs_rms.var)
+    observations = _observations("reach")
+    features = observation_features(observations, policy.layout, policy.model.features)
+    actions, _ = model.predict(stats.normalize_obs(features), deterministic=True)
+    expected = np.clip(actions, -1, 1) * policy.velocity_limits * policy.model.features.action_fraction
+    commands = np.array([policy.act(obs) for obs in observations])
+    np.testing.assert_allclose(commands, expected, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(policy.act_batch(observations), commands, rtol=0, atol=1e-9)
+    # the statistics are frozen: acting changes nothing, and a second load acts bit for bit alike
+    again = PPOPolicy(reach_env, model_path=out / "checkpoint" / "policy.npz")
+    np.testing.assert_array_equal(np.array([again.act(obs) for obs in observations]), commands)
+    np.testing.assert_array_equal(policy.model.obs_mean, stats.obs_rms.mean)
+
+
+def test_training_into_an_existing_run_or_resuming_nothing_is_refused(trained_run, tmp_path):
+    out, config, _ = trained_run
+    runner = CliRunner()
+    again = runner.invoke(app, ["train-ppo", "--task", "reach", "--out", str(out), "--config", str(config)])
+    assert again.exit_code == 2 and "already holds a training run" in again.output
+    empty = runner.invoke(app, ["train-ppo", "--task", "reach", "--out", str(tmp_path / "none"), "--resume"])
+    assert empty.exit_code == 2 and "no checkpoint" in empty.output
+    other = runner.invoke(app, ["train-ppo", "--task", "track", "--out", str(out), "--resume"])
+    assert other.exit_code == 2 and "trains task 'reach'" in other.output
+
+
+def test_ctrl_c_leaves_a_usable_checkpoint_and_resume_continues(tmp_path, monkeypatch, reach_env):
+    import snac_gym.ppo.train as train_module
+
+    original = train_module.make_training_env
+    counter = {"steps": 0}
+
+    class PressCtrlC(gym.Wrapper):
+        """Sends SIGINT to this process at the 40th training step, as Ctrl-C in a terminal does."""
+
+        def step(self, action):
+            counter["steps"] += 1
+            if counter["steps"] == 40:
+                signal.raise_signal(signal.SIGINT)
+            return self.env.step(action)
+
+    monkeypatch.setattr(train_module, "make_training_env", lambda config: PressCtrlC(original(config)))
+    out = tmp_path / "run"
+    result = train_module.train_ppo(
+        "reach", out, timesteps=96, seed=1, config_path=_tiny_config(tmp_path), log=lambda s: None
+    )
+    assert result.status == "interrupted" and result.timesteps < 96
+    assert json.loads((out / "state.json").read_text())["status"] == "interrupted"
+    policy = PPOPolicy(reach_env, model_path=result.checkpoint_policy)
+    assert np.all(np.isfinite(policy.act(_observations("reach", count=1)[0])))
+
+    monkeypatch.setattr(train_module, "make_training_env", original)
+    resumed = train_module.train_ppo("reach", out, timesteps=96, resume=True, log=lambda s: None)
+    assert resumed.status == "finished" and resumed.timesteps >= 96
+    state = json.loads((out / "state.json").read_text())
+    assert [s["start_timesteps"] for s in state["segments"]] == [0, result.timesteps]
+    assert (out / "logs" / f"segment_{result.timesteps}" / "progress.csv").is_file()
+    assert train_module.train_ppo("reach", out, timesteps=96, resume=True, log=lambda s: None).status == "already-done"
+
+
+# -- load errors ------------------------------------------------------------------------------
+@pytest.fixture
+def shipped_reach_file():
+    return PolicyFile.load(shipped_model_path("reach"))
+
+
+def test_missing_file_fails_clearly(reach_env, tmp_path):
+    missing = tmp_path / "nope.npz"
+    with pytest.raises(MissingPolicyFileError, match="does not exist.*train-ppo") as info:
+        make_policy("ppo", reach_env, model_path=missing)
+    assert isinstance(info.value, FileNotFoundError) and isinstance(info.value, ValueError)
+    assert str(missing) in str(info.value)
+
+
+def test_corrupt_files_fail_clearly(reach_env, tmp_path):
+    good = shipped_model_path("reach").read_bytes()
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(good[: len(good) // 2])
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"this is not a policy file" * 10)
+    no_metadata = tmp_path / "plain.npz"
+    np.savez(no_metadata, weights=np.zeros(3))
+    for path, message in ((truncated, "corrupt"), (garbage, "corrupt"), (no_metadata, "no metadata")):
+        with pytest.raises(PolicyFileError, match=message):
+            PPOPolicy(reach_env, model_path=path)
+
+
+def test_altered_weights_fail_the_checksum(reach_env, tmp_path, shipped_reach_file):
+    with zipfile.ZipFile(shipped_model_path("reach")) as source:
+        entries = {name: source.read(name) for name in source.namelist()}
+    bias = np.array(shipped_reach_file.action_layer[1])
+    bias[0] += 1e-3
+    import io
+
+    buffer = io.BytesIO()
+    np.save(buffer, bias)
+    entries["action_bias.npy"] = buffer.getvalue()
+    tampered = tmp_path / "tampered.npz"
+    with zipfile.ZipFile(tampered, "w") as target:
+        for name, data in entries.items():
+            target.writestr(name, data)
+    with pytest.raises(PolicyFileError, match="checksum"):
+        PPOPolicy(reach_env, model_path=tampered)
+
+
+def test_a_policy_of_another_task_robot_or_layout_is_refused(reach_env, tmp_path, shipped_reach_file):
+    track_env = gym.make(ENV_OF_TASK["track"])
+    with pytest.raises(PolicyFileError, match="trained for task 'reach' but the env's task is 'track'"):
+        make_policy("ppo", track_env, model_path=shipped_model_path("reach"))
+    track_env.close()
+
+    base = PolicyContext.from_env(reach_env)
+    ur5 = Kinematics("ur5")
+    ur5_context = PolicyContext(ur5, base.dt, ur5.velocity_limits, base.layout, "reach")
+    with pytest.raises(PolicyFileError, match="robot 'ur10'"):
+        PPOPolicy(ur5_context, model_path=shipped_model_path("reach"))
+
+    # a well-formed file for a 7-joint observation layout
+    layout7 = ObservationLayout(7, 3)
+    rng = np.random.default_rng(0)
+    width = feature_size(layout7)
+    seven = PolicyFile(
+        hidden=((rng.normal(size=(4, width)).astype(np.float32), np.zeros(4, np.float32)),),
+        action_layer=(rng.normal(size=(7, 4)).astype(np.float32), np.zeros(7, np.float32)),
+        activation="tanh", obs_mean=np.zeros(width), obs_var=np.ones(width), obs_epsilon=1e-8, obs_clip=10.0,
+        features=FeatureSpec(),
+        metadata={**shipped_reach_file.metadata, "layout": {"n_joints": 7, "task_dim": 3, "size": layout7.size}},
+    )
+    path = seven.save(tmp_path / "seven.npz")
+    with pytest.raises(PolicyFileError, match="observation layout"):
+        PPOPolicy(reach_env, model_path=path)
+
+
+def test_bad_action_scale_and_observation_are_refused(reach_env):
+    for bad in (0, -1, float("nan"), "x"):
+        with pytest.raises(ValueError, match="action_scale"):
+            PPOPolicy(reach_env, action_scale=bad)
+    with pytest.raises(ValueError, match="shape"):
+        PPOPolicy(reach_env).act(np.zeros(5))
+
+
+# -- the shipped policies --------------------------------------------------------------------------
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_shipped_policies_load_by_default_and_are_small(task):
+    path = shipped_model_path(task)
+    assert path.is_file() and path.stat().st_size < 1_000_000
+    env = gym.make(ENV_OF_TASK[task])
+    policy = make_policy("ppo", env)
+    assert policy.model_path == path and policy.model.task == task
+    assert policy.model.metadata["versions"]["snac_gym"] and policy.model.metadata["timesteps"] > 0
+    env.close()
+
+
+def test_policy_acts_on_the_observation_alone_deterministically(reach_env):
+    policy = make_policy("ppo", reach_env)
+    observations = _observations("reach", count=10)
+    first = np.array([policy.act(obs) for obs in observations])
+    policy.reset(seed=99)
+    np.testing.assert_array_equal(np.array([policy.act(obs) for obs in observations]), first)
+    # the joint-velocity field differs between backends (measured vs last command): it is not read
+    changed = observations.copy()
+    changed[:, policy.layout.slices["qdot"]] = np.random.default_rng(0).normal(size=(10, 6))
+    np.testing.assert_array_equal(np.array([policy.act(obs) for obs in changed]), first)
+    # a PolicyContext (the evaluator's and the real robot's way) builds the same policy
+    from_context = PPOPolicy(PolicyContext.from_env(reach_env))
+    np.testing.assert_array_equal(np.array([from_context.act(obs) for obs in observations]), first)
+    assert np.all(np.abs(first) <= policy.velocity_limits)
+
+
+def test_action_scale_scales_the_command_and_is_seen_by_the_network(reach_env):
+    assert PPOPolicy.effort_parameter == "action_scale"
+    observations = _observations("reach", count=10)
+    for scale in (0.5, 2.0):
+        policy = PPOPolicy(reach_env, action_scale=scale)
+        model = policy.model
+        features = observation_features(observations, policy.layout, model.features, action_scale=scale)
+        assert np.all(features[:, -1] == np.float32(np.log(scale)))
+        action = np.clip(model.network_action(model.normalise(features)), -1, 1)
+        expected = scale * model.features.action_fraction * action * policy.velocity_limits
+        np.testing.assert_allclose(policy.act_batch(observations), expected, rtol=0, atol=1e-12)
+    huge = PPOPolicy(reach_env, action_scale=100.0).act_batch(observations)
+    assert np.all(np.abs(huge) <= reach_env.unwrapped.velocity_limits)
+
+
+def _kinematic_peak_effort(task, action_scale, count=8, steps=150):
+    """Median over ``count`` evaluator samples of each rollout's peak max_j |u_j|/ū_j (θ += uΔt)."""
+    from evaluation.reference_batch import reference_trajectories
+    from evaluation.samples import generate_samples
+    from snac_gym.sampling import SampleSpace
+
+    kinematics = Kinematics("ur10")
+    layout = ObservationLayout(6, 3)
+    limits = kinematics.velocity_limits
+    policy = PPOPolicy(PolicyContext(kinematics, 0.008, limits, layout, task), action_scale=action_scale)
+    samples = generate_samples(kinematics, SampleSpace.for_robot(kinematics), 0, task, range(count))
+    x_d, xdot_d, centres = reference_trajectories([s.reference for s in samples], np.arange(steps) * 0.008)
+    q = np.array([s.q0 for s in samples])
+    peaks = np.zeros(count)
+    for k in range(steps):
+        x = kinematics.forward_batch(q)
+        obs = np.array(
+            [layout.pack(q[i], np.zeros(6), x[i], x_d[i, k], xdot_d[i, k], centres[i]) for i in range(count)]
+        )
+        u = policy.act_batch(obs)
+        peaks = np.maximum(peaks, (np.abs(u) / limits).max(axis=1))
+        q = q + u * 0.008
+    return float(np.median(peaks))
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_effort_grows_with_action_scale(task):
+    """The evaluator's equal-effort search needs an effort that grows with the knob."""
+    efforts = [_kinematic_peak_effort(task, scale) for scale in (0.5, 1.0, 2.0)]
+    assert efforts[0] < efforts[1] < efforts[2], efforts
+
+
+def test_shipped_reach_policy_reaches_within_a_centimetre(reach_env):
+    """Closed loop in the PyBullet env, the evaluator's 4 s horizon, five random episodes."""
+    policy = make_policy("ppo", reach_env)
+    final_errors = []
+    for seed in range(5):
+        obs, _ = reach_env.reset(seed=seed)
+        policy.reset(seed=seed)
+        for _ in range(500):
+            obs, _, _, _, info = reach_env.step(policy.act(obs))
+        final_errors.append(info["error_norm"])
+    assert sum(error <= 0.01 for error in final_errors) >= 4, final_errors
+
+
+def test_inference_needs_neither_torch_nor_stable_baselines3():
+    code = (
+        "import sys, gymnasium as gym, snac_gym; from snac_gym.policies import make_policy;"
+        "env = gym.make('snac_gym/UR10Reach-v0'); obs, _ = env.reset(seed=0);"
+        "make_policy('ppo', env).act(obs);"
+        "assert 'torch' not in sys.modules and 'stable_baselines3' not in sys.modules, 'imported torch'"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+# -- config ---------------------------------------------------------------------------------------
+def test_configs_are_versioned_and_checked(tmp_path):
+    for task in ("reach", "track"):
+        config = resolve_config(task, timesteps=10, seed=7, n_envs=1)
+        assert config["task"] == task and config["timesteps"] == 10 and config["seed"] == 7
+        assert config["config_version"] == 1 and config["vec_env"]["n_envs"] == 1
+    with pytest.raises(ValueError, match="for task 'reach', not 'track'"):
+        resolve_config("track", default_config_path("reach"))
+    config = load_config(default_config_path("reach"))
+    for change, message in (({"config_version": 2}, "config_version"), ({"colour": 1}, "unknown keys"),
+                            ({"ppo": {**config["ppo"], "lr": 1}}, "unknown ppo keys")):
+        path = tmp_path / "bad.json"
+        path.write_text(json.dumps({**config, **change}))
+        with pytest.raises(ValueError, match=message):
+            load_config(path)
+    # a policy file's feature spec of another version is refused
+    with pytest.raises(ValueError, match="version 1"):
+        FeatureSpec.from_dict({**FeatureSpec().to_dict(), "version": 1})
+
+
+def test_paper_pose_episode_through_registry(reach_env):
+    """``make_policy('ppo')`` from the paper's θ0 gives finite commands inside the limits."""
+    policy = make_policy("ppo", reach_env)
+    obs, _ = reach_env.reset(seed=0, options={"q0": list(PAPER_Q0)})
+    for _ in range(20):
+        u = policy.act(obs)
+        assert u.shape == (6,) and np.all(np.isfinite(u))
+        obs, *_ = reach_env.step(u)
