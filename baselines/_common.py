@@ -16,6 +16,7 @@ baselines have no kinematics of their own.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -66,6 +67,32 @@ def scale_into_box(command: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray,
     return command, 1.0
 
 
+def scale_rows_into_box(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """:func:`scale_into_box` applied to each row of ``commands`` ``(B, m)``, vectorised (a new array)."""
+    scales = np.max(np.abs(commands) / limits, axis=-1)
+    over = scales > 1.0
+    if not over.any():
+        return commands
+    commands = commands.copy()
+    commands[over] = clip_to_box(commands[over] / scales[over, None], limits)
+    return commands
+
+
+def transpose(matrices: np.ndarray) -> np.ndarray:
+    """``Aᵀ`` of one matrix (or vector), or of each matrix of a stack (the last two axes swapped).
+
+    The shared math of ``act`` and ``act_batch`` is written once for one sample and for B
+    samples with vectors as columns: J ``(n, m)``, v ``(n,)`` or J ``(B, n, m)``, v ``(B, n, 1)``,
+    so that plain ``@`` and ``np.linalg.solve`` serve both and ``act`` keeps its numbers and speed.
+    """
+    return matrices.T if matrices.ndim <= 2 else np.swapaxes(matrices, -1, -2)  # .T: 4× cheaper on one
+
+
+def stacked_jacobians(kinematics: Any, joint_rows: np.ndarray) -> np.ndarray:
+    """``J(θᵢ)`` of each row of ``joint_rows`` ``(B, m)`` from the shared kinematics, shape ``(B, n, m)``."""
+    return np.stack([kinematics.jacobian(q) for q in joint_rows])
+
+
 class ObservationReader:
     """Precomputed slices of the fields the baselines read (q, e, ẋ_d), so ``act`` indexes
     the flat observation directly instead of building named views at every step."""
@@ -74,8 +101,9 @@ class ObservationReader:
         slices = policy.layout.slices
         self.size = policy.layout.size
         self.q = slices["q"]
-        self.e = slices["e"]
-        self.xdot_d = slices["xdot_d"]
+        # e and ẋ_d index the last axis: one observation or a (B, size) batch alike.
+        self.e = (Ellipsis, slices["e"])
+        self.xdot_d = (Ellipsis, slices["xdot_d"])
 
     def read(self, obs: np.ndarray) -> np.ndarray:
         """``obs`` as a float array of the layout's size.
@@ -88,9 +116,23 @@ class ObservationReader:
             raise ValueError(f"observation must have shape ({self.size},), got {obs.shape}")
         return obs
 
+    def read_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        """``obs_batch`` as a float ``(B, size)`` array.
+
+        Raises:
+            ValueError: If it does not have that shape.
+        """
+        obs_batch = np.asarray(obs_batch, dtype=float)
+        if obs_batch.ndim != 2 or obs_batch.shape[1] != self.size:
+            raise ValueError(f"observations must have shape (B, {self.size}), got {obs_batch.shape}")
+        return obs_batch
+
 
 def reference_velocity(obs: np.ndarray, reader: ObservationReader, gain: float, feedforward: bool = True) -> np.ndarray:
-    """``v = ẋ_d + K (x_d − x) = ẋ_d − K e`` from an observation (``ẋ_d`` dropped without ``feedforward``)."""
+    """``v = ẋ_d + K (x_d − x) = ẋ_d − K e`` from an observation (``ẋ_d`` dropped without ``feedforward``).
+
+    ``obs`` is one observation or a ``(B, size)`` batch (then one row of ``v`` per row).
+    """
     feedback = obs[reader.e] * -gain
     if feedforward:
         feedback += obs[reader.xdot_d]
@@ -103,6 +145,11 @@ class ResolvedRatePolicy(BasePolicy):
     Subclasses give the generalised inverse ``G(J)`` through :meth:`resolve`; this class reads
     the observation, builds the reference velocity, calls the shared kinematics for ``J`` and
     scales the result into the velocity limits (:func:`scale_into_box`).
+
+    The evaluator's optional batch protocol (``reset_batch`` / ``act_batch``, see
+    ``evaluation/drivers.py``) runs B episodes at once: the controllers are memoryless, so row i
+    of ``act_batch`` is ``act`` of row i; subclasses vectorise :meth:`resolve_batch` (the default
+    calls :meth:`resolve` per row).
 
     Args:
         env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive.
@@ -124,6 +171,26 @@ class ResolvedRatePolicy(BasePolicy):
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
         """Joint velocities ``G(J) v`` before saturation (a new array)."""
         raise NotImplementedError
+
+    #: Whether :meth:`resolve` also takes stacks with vectors as columns (see :func:`transpose`).
+    resolves_stacks = False
+
+    def resolve_batch(self, jacobians: np.ndarray, task_velocities: np.ndarray) -> np.ndarray:
+        """:meth:`resolve` of each row: ``(B, n, m)``, ``(B, n)`` -> ``(B, m)``."""
+        if self.resolves_stacks:
+            return self.resolve(jacobians, task_velocities[..., None])[..., 0]
+        return np.array([self.resolve(j, v) for j, v in zip(jacobians, task_velocities, strict=True)])
+
+    def reset_batch(self, seeds: Sequence[int]) -> None:
+        """Start ``len(seeds)`` episodes (nothing to set: the controller has no state)."""
+        self.internals = {}
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        """Commands ``(B, m)`` for observations ``(B, size)``: row i is :meth:`act` of row i."""
+        obs_batch = self._reader.read_batch(obs_batch)
+        task_velocities = reference_velocity(obs_batch, self._reader, self.gain)
+        jacobians = stacked_jacobians(self.kinematics, obs_batch[:, self._reader.q])
+        return scale_rows_into_box(self.resolve_batch(jacobians, task_velocities), self.velocity_limits)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity limits."""

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ResolvedRatePolicy, positive_float
+from baselines._common import ResolvedRatePolicy, positive_float, transpose
 
 
 class DLSPolicy(ResolvedRatePolicy):
@@ -45,4 +45,8 @@ class DLSPolicy(ResolvedRatePolicy):
         self._damping_matrix = self.damping**2 * np.eye(self.kinematics.task_dim)
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
-        return jacobian.T @ np.linalg.solve(jacobian @ jacobian.T + self._damping_matrix, task_velocity)
+        """``Jᵀ (J Jᵀ + λ² I)⁻¹ v`` for one ``(J, v)`` or stacks ``(B, n, m)``, ``(B, n, 1)``."""
+        jacobian_t = transpose(jacobian)
+        return jacobian_t @ np.linalg.solve(jacobian @ jacobian_t + self._damping_matrix, task_velocity)
+
+    resolves_stacks = True

@@ -7,12 +7,19 @@ Reference:
 
 from __future__ import annotations
 
-import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from baselines._common import ObservationReader, clip_to_box, positive_float, reference_velocity
+from baselines._common import (
+    ObservationReader,
+    clip_to_box,
+    positive_float,
+    reference_velocity,
+    stacked_jacobians,
+    transpose,
+)
 from snac_gym.policies.base import BasePolicy
 
 #: Integration schemes of the network dynamics (see :class:`RNNPolicy`).
@@ -91,6 +98,10 @@ class RNNPolicy(BasePolicy):
         velocity_compensation: Add the feed-forward ẋ_d to the network input (default
             ``True``; no effect in regulation, where ẋ_d = 0).
 
+    **Batch protocol** (``evaluation/drivers.py``): ``reset_batch(seeds)`` starts B networks at
+    rest and ``act_batch`` advances them together, the dual state a ``(B, n)`` array; the update
+    is the same code as ``act``'s, row by row.
+
     Attributes:
         effort_parameter: ``"gain"``.
         internals: After each ``act``: ``dual_state`` (λ) and ``active_bounds`` (joints at
@@ -123,6 +134,8 @@ class RNNPolicy(BasePolicy):
         self._reader = ObservationReader(self)
         self._implicit_diagonal = (self.epsilon / self.dt) * np.eye(self.kinematics.task_dim)
         self._dual = np.zeros(self.kinematics.task_dim)
+        self._batch_dual: np.ndarray | None = None  # λ of the batch protocol's B networks, (B, n, 1)
+        self._column_limits = self.velocity_limits[:, None]
 
     @property
     def dual_state(self) -> np.ndarray:
@@ -134,27 +147,42 @@ class RNNPolicy(BasePolicy):
         self._dual = np.zeros(self.kinematics.task_dim)
         self.internals = {}
 
+    def reset_batch(self, seeds: Sequence[int]) -> None:
+        """Start ``len(seeds)`` episodes, each network at rest (λ = 0); the seeds are unused."""
+        self._batch_dual = np.zeros((len(seeds), self.kinematics.task_dim, 1))  # λ of each network, a column
+        self.internals = {}
+
     def network_update(self, jacobian: np.ndarray, network_input: np.ndarray) -> np.ndarray:
         """Advance λ over one control period with J and r = ẋ_d + k(x_d − x) frozen.
 
         Returns:
             The output ``u = P_Ω(Jᵀλ)`` at the updated λ.
         """
-        limits = self.velocity_limits
-        dual = self._dual
+        return self._advance(self._dual, jacobian, network_input, self.velocity_limits)
+
+    def _advance(
+        self, dual: np.ndarray, jacobian: np.ndarray, network_input: np.ndarray, limits: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`network_update` on ``dual`` (updated in place) for one network: λ, r ``(n,)``,
+        J ``(n, m)``, limits ``(m,)``; or for B at once, vectors as columns: λ, r ``(B, n, 1)``,
+        J ``(B, n, m)``, limits ``(m, 1)`` (see :func:`baselines._common.transpose`)."""
+        jacobian_t = transpose(jacobian)
         if self.integrator == "semi-implicit":
-            joint_drive = jacobian.T @ dual
+            joint_drive = jacobian_t @ dual
             free = np.abs(joint_drive) < limits  # D: joints whose output is not clipped
             residual = network_input - jacobian @ clip_to_box(joint_drive, limits)
-            system = (jacobian * free) @ jacobian.T + self._implicit_diagonal
+            system = (jacobian * transpose(free)) @ jacobian_t + self._implicit_diagonal
             dual += np.linalg.solve(system, residual)
         else:
-            frobenius_sq = float(np.einsum("ij,ij->", jacobian, jacobian))
-            substeps = max(1, math.ceil(self.dt * frobenius_sq / (self.epsilon * EULER_STEP_BOUND)))
+            frobenius_sq = np.einsum("...ij,...ij->...", jacobian, jacobian)
+            substeps = np.maximum(1.0, np.ceil(self.dt * frobenius_sq / (self.epsilon * EULER_STEP_BOUND)))
             rate = self.dt / (substeps * self.epsilon)
-            for _ in range(substeps):
-                dual += rate * (network_input - jacobian @ clip_to_box(jacobian.T @ dual, limits))
-        return clip_to_box(jacobian.T @ dual, limits)
+            if dual.ndim > 1:
+                substeps, rate = substeps[:, None, None], rate[:, None, None]
+            for step in range(int(np.max(substeps))):
+                increment = rate * (network_input - jacobian @ clip_to_box(jacobian_t @ dual, limits))
+                dual += np.where(substeps > step, increment, 0.0)  # each network its own count of sub-steps
+        return clip_to_box(jacobian_t @ dual, limits)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``; advances the network by one period."""
@@ -164,3 +192,17 @@ class RNNPolicy(BasePolicy):
         command = self.network_update(jacobian, network_input)
         self.internals = {"dual_state": self._dual.copy(), "active_bounds": np.abs(command) >= self.velocity_limits}
         return command
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        """Commands ``(B, m)`` for observations ``(B, size)``; advances the B networks by one period.
+
+        Raises:
+            RuntimeError: If called before :meth:`reset_batch`.
+        """
+        if self._batch_dual is None:
+            raise RuntimeError("call reset_batch() before act_batch()")
+        obs_batch = self._reader.read_batch(obs_batch)
+        network_input = reference_velocity(obs_batch, self._reader, self.gain, feedforward=self.velocity_compensation)
+        jacobians = stacked_jacobians(self.kinematics, obs_batch[:, self._reader.q])
+        commands = self._advance(self._batch_dual, jacobians, network_input[..., None], self._column_limits)
+        return commands[..., 0]

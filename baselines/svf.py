@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ResolvedRatePolicy, positive_float
+from baselines._common import ResolvedRatePolicy, positive_float, transpose
 
 
 def filtered_singular_values(singular_values: np.ndarray, nu: float, sigma0: float) -> np.ndarray:
@@ -67,6 +67,12 @@ class SVFPolicy(ResolvedRatePolicy):
         return (vt.T / filtered_singular_values(sigma, self.nu, self.sigma0)) @ u_mat.T
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
+        """``Ĵ⁺ v`` for one ``(J, v)`` or stacks ``(B, n, m)``, ``(B, n, 1)``."""
         u_mat, sigma, vt = np.linalg.svd(jacobian, full_matrices=False)
+        filtered = filtered_singular_values(sigma, self.nu, self.sigma0)
+        if task_velocity.ndim > 1:
+            filtered = filtered[..., None]  # a column per sample
         # Ĵ⁺ v without forming Ĵ⁺: V (Uᵀv / h(σ)).
-        return vt.T @ ((u_mat.T @ task_velocity) / filtered_singular_values(sigma, self.nu, self.sigma0))
+        return transpose(vt) @ ((transpose(u_mat) @ task_velocity) / filtered)
+
+    resolves_stacks = True

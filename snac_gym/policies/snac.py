@@ -40,6 +40,7 @@ but jumps to the velocity limits (V ≈ 4175 reach, ≈ 1822 track).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -62,6 +63,16 @@ SCHEDULE_CLOCKS = ("steps", "seconds")
 INITIAL_WEIGHTS = ("identity", "uniform")
 #: Default c of ``initial_weights="identity"`` (Ŵ₀ = c on the squared terms), by task.
 INITIAL_WEIGHT_SCALES: dict[str, float] = {"reach": 2.0, "track": 20.0}
+
+
+def _matvec(matrices: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """``A @ x`` for one matrix and vector; row by row for stacks ``(B, r, c)``, ``(B, c)``."""
+    return matrices @ vectors if vectors.ndim == 1 else (matrices @ vectors[..., None])[..., 0]
+
+
+def _transpose(matrices: np.ndarray) -> np.ndarray:
+    """``Aᵀ`` of one matrix, or of each matrix of a stack."""
+    return matrices.T if matrices.ndim == 2 else np.swapaxes(matrices, -1, -2)
 
 
 class QuadraticBasis:
@@ -104,12 +115,16 @@ class QuadraticBasis:
         return s[self.first] * s[self.second]
 
     def gradient(self, s: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """``∇σ(s) = ∂σ/∂s``, shape ``(size, dim)``.
+        """``∇σ(s) = ∂σ/∂s``, shape ``(size, dim)``; for a stack of points ``(B, dim)``, ``(B, size, dim)``.
+
+        Every entry is one ``s_j`` or ``2 s_i``, so the result is exact whatever the shape.
 
         Args:
-            s: The point, shape ``(dim,)``, float64.
-            out: Optional C-contiguous float64 ``(size, dim)`` array to write into.
+            s: The point, shape ``(dim,)`` (or ``(B, dim)``), float64.
+            out: Optional C-contiguous float64 ``(size, dim)`` array to write into (one point only).
         """
+        if s.ndim == 2:
+            return (s @ self.selection.T).reshape(len(s), self.size, self.dim)
         if out is None:
             out = np.empty((self.size, self.dim))
         np.dot(self.selection, s, out=out.reshape(-1))
@@ -180,6 +195,10 @@ class SNACPolicy(BasePolicy):
             ``critic_value`` (V̂ = Ŵᵀσ(sₖ) with the weights that gave the command),
             ``lyapunov`` (J_s(sₖ) = ½sₖᵀsₖ), ``learning_rate`` (the schedule's αₖ),
             ``saturated`` (whether the command was clipped) and ``step`` (k).
+        batch_critic_weights: ``(B, size)``, row i the weights of episode i of the batch
+            protocol (``reset_batch`` / ``act_batch``, see ``evaluation/drivers.py``): B
+            episodes stepped in lockstep with the same laws and options as ``act``, vectorised
+            over the rows; ``None`` before ``reset_batch``. ``internals`` describe ``act`` only.
     """
 
     #: The constructor argument that scales the control effort monotonically (evaluator's
@@ -265,7 +284,10 @@ class SNACPolicy(BasePolicy):
                 raise ValueError(f"initial_weights must be {self.basis.size} finite numbers, got shape {weights.shape}")
             self.initial_weight_kind = "given"
             self.initial_weights = weights
+        self._seed = seed
         self._rng = np.random.default_rng(seed)
+        self.batch_critic_weights: np.ndarray | None = None
+        self._batch_k = 0
 
         # Hot-path workspace: act allocates only its command and the new weights.
         s = self.layout.slices
@@ -327,18 +349,35 @@ class SNACPolicy(BasePolicy):
         """Start an episode: step counter to 0, critic weights to Ŵ₀ (drawn from ``seed`` for ``"uniform"``)."""
         if seed is not None:
             self._rng = np.random.default_rng(seed)
-        if self.initial_weights is not None:
-            self.critic_weights = self.initial_weights.copy()
-        else:
-            self.critic_weights = self._rng.uniform(*self.initial_weight_range, size=self.basis.size)
+        self.critic_weights = self._initial_weights(self._rng)
         self._k = 0
         self._ready = True
         self.internals = {"critic_weights": self.critic_weights}
+
+    def _initial_weights(self, rng: np.random.Generator) -> np.ndarray:
+        """Ŵ₀ (a new array), drawn from ``rng`` for ``"uniform"``."""
+        if self.initial_weights is not None:
+            return self.initial_weights.copy()
+        return rng.uniform(*self.initial_weight_range, size=self.basis.size)
+
+    def reset_batch(self, seeds: Sequence[int | None]) -> None:
+        """Start ``len(seeds)`` episodes for :meth:`act_batch`; episode i as ``reset(seed=seeds[i])``
+        of a fresh policy (``None``: the constructor's ``seed``)."""
+        rngs = [np.random.default_rng(self._seed if seed is None else seed) for seed in seeds]
+        weights = [self._initial_weights(rng) for rng in rngs]
+        self.batch_critic_weights = np.array(weights, dtype=float).reshape(len(weights), self.basis.size)
+        self._batch_k = 0
 
     def learning_rate(self, k: int) -> float:
         """``α = α_i tanh(n − k) + α_f`` (Section V); k in steps or seconds per ``schedule_clock``."""
         clock = k if self.schedule_clock == "steps" else k * self.dt
         return self.learning_rate_initial * math.tanh(self.schedule_shift - clock) + self.learning_rate_final
+
+    def _apply_r_inverse(self, rows: np.ndarray) -> np.ndarray:
+        """``R⁻¹ r`` for each row r (the last axis); R⁻¹ symmetric, so ``r R⁻¹`` is the same."""
+        if self._R_is_identity:
+            return rows
+        return rows * self._R_inverse_diagonal if self._R_inverse_diagonal is not None else rows @ self.R_inverse
 
     # -- the laws -----------------------------------------------------------------------------
     def _products(self, weights: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
@@ -351,7 +390,7 @@ class SNACPolicy(BasePolicy):
         np.multiply(value_gradient[:n], self._half_scale, out=self._pair[0])  # Gᵀ keeps the error part
         rows = np.dot(self._pair, jacobian)  # (Jᵀ·)ᵀ for both rows
         if not self._R_is_identity:
-            rows = rows * self._R_inverse_diagonal if self._R_inverse_diagonal is not None else rows @ self.R_inverse
+            rows = self._apply_r_inverse(rows)
         return rows  # rows[0] = −½c R⁻¹Jᵀ∇σᵀŴ = c·û,  rows[1] = h αₖ R⁻¹Jᵀe
 
     def _euler_increment(self, jacobian: np.ndarray, scaled_r_inverse_jt_error: np.ndarray) -> np.ndarray:
@@ -405,7 +444,7 @@ class SNACPolicy(BasePolicy):
             else:
                 np.minimum(command, self._upper, out=command)
                 np.maximum(command, self._lower, out=command)
-                new_weights = weights + self._zoh_increment(obs, jacobian, command, step_gain)
+                new_weights = weights + self._zoh_increment(obs, jacobian, command, step_gain, state, self._gradient_e)
         np.minimum(command, self._upper, out=command)
         np.maximum(command, self._lower, out=command)
 
@@ -415,24 +454,92 @@ class SNACPolicy(BasePolicy):
         return command
 
     def _zoh_increment(
-        self, obs: np.ndarray, jacobian: np.ndarray, command: np.ndarray, step_gain: float
+        self,
+        obs: np.ndarray,
+        jacobian: np.ndarray,
+        command: np.ndarray,
+        step_gain: float,
+        state: np.ndarray,
+        gradient_e: np.ndarray,
     ) -> np.ndarray:
         """``step_gain/Δt · ∫₀^Δt ∇σ(s(τ)) J R⁻¹ Jᵀ e(τ) dτ`` along ``s(τ) = s + τṡ`` (eq. 19 / eq. 38).
 
         The path is predicted with the held (clipped) command, J frozen and ẋ_d held
         (ė = J u − ẋ_d, eq. 30). ∇σ is linear in s and J R⁻¹ Jᵀ e linear in e, so the
         integrand ``(∇σ(s) + τ∇σ(ṡ)) (v + τ v̇)`` is quadratic in τ: closed form.
+
+        One step: ``state`` s ``(d,)``, ``gradient_e`` the error columns of ∇σ(s) ``(size, n)``;
+        or B rows at once: every argument with a leading batch axis.
         """
         n, dt = self.task_dim, self.dt
-        xdot_d = obs[self._xdotd_slice]
-        rate = np.zeros_like(self._state)
-        rate[:n] = jacobian @ command - xdot_d  # ė = J u − ẋ_d (eq. 30; ẋ_d = 0 for reach)
+        xdot_d = obs[..., self._xdotd_slice]
+        rate = np.zeros_like(state)
+        rate[..., :n] = _matvec(jacobian, command) - xdot_d  # ė = J u − ẋ_d (eq. 30; ẋ_d = 0 for reach)
         if self.task == "track":
-            rate[n:] = xdot_d
-        gradient_rate_e = self.basis.gradient(rate)[:, :n]
+            rate[..., n:] = xdot_d
+        gradient_rate_e = self.basis.gradient(rate)[..., :n]
         jr = jacobian @ self.R_inverse
-        v = jr @ (jacobian.T @ self._state[:n])
-        v_rate = jr @ (jacobian.T @ rate[:n])
-        g0, g1 = self._gradient_e, gradient_rate_e
-        integral = dt * (g0 @ v) + 0.5 * dt**2 * (g0 @ v_rate + g1 @ v) + dt**3 / 3.0 * (g1 @ v_rate)
+        jacobian_t = _transpose(jacobian)
+        v = _matvec(jr, _matvec(jacobian_t, state[..., :n]))
+        v_rate = _matvec(jr, _matvec(jacobian_t, rate[..., :n]))
+        g0, g1 = gradient_e, gradient_rate_e
+        integral = (
+            dt * _matvec(g0, v)
+            + 0.5 * dt**2 * (_matvec(g0, v_rate) + _matvec(g1, v))
+            + dt**3 / 3.0 * _matvec(g1, v_rate)
+        )
         return (step_gain / dt) * integral
+
+    # -- the batch protocol: B episodes in lockstep, the same laws row by row ---------------------
+    def _batch_command(self, weights: np.ndarray, gradient_e: np.ndarray, jacobians: np.ndarray) -> np.ndarray:
+        """Rows ``c·û = −½c R⁻¹Jᵀ∇_eV̂`` (eq. 15 / eq. 36, unclipped) for weights ``(B, size)``."""
+        value_gradient_e = np.einsum("bk,bkn->bn", weights, gradient_e)  # Gᵀ∇σᵀŴ: the error part
+        return self._apply_r_inverse(_matvec(_transpose(jacobians), value_gradient_e * self._half_scale))
+
+    def _batch_saturated(self, commands: np.ndarray) -> np.ndarray:
+        """Which rows have a component beyond the velocity limits, ``(B,)`` bool."""
+        return (np.abs(commands) > self._upper).any(axis=1)
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        """Commands ``(B, m)`` for observations ``(B, size)``, row i as :meth:`act` of episode i.
+
+        Every option (weight update, learning-rate unit, anti-windup, R) is applied row by row
+        as in :meth:`act`; the critic weights of the B episodes are :attr:`batch_critic_weights`.
+
+        Raises:
+            RuntimeError: If called before :meth:`reset_batch`.
+        """
+        weights = self.batch_critic_weights
+        if weights is None:
+            raise RuntimeError("call reset_batch() before act_batch()")
+        obs = np.asarray(obs_batch, dtype=float)
+        n = self.task_dim
+        error = obs[:, self._e_slice]
+        state = error
+        if self.task == "track":  # ξ = [e; x_d − x_c] (eq. 31)
+            state = np.concatenate((error, obs[:, self._xd_slice] - obs[:, self._xc_slice]), axis=1)
+        jacobians = np.stack([self.kinematics.jacobian(q) for q in obs[:, self._q_slice]])
+        gradient_e = self.basis.gradient(state)[:, :, :n]
+        alpha = self.learning_rate(self._batch_k)
+        step_gain = alpha if self.learning_rate_unit == "per_step" else alpha * self.dt  # h·α, as in act
+        learning = self._apply_r_inverse(_matvec(_transpose(jacobians), error * step_gain))  # h αₖ R⁻¹Jᵀe
+        command = self._batch_command(weights, gradient_e, jacobians)
+        frozen = np.zeros(len(obs), dtype=bool)  # rows that keep their weights (anti-windup)
+        if self.weight_update == "euler_updated":  # command from Ŵₖ₊₁ unless that one is clipped and frozen
+            trial = weights + _matvec(gradient_e, _matvec(jacobians, learning))
+            trial_command = self._batch_command(trial, gradient_e, jacobians)
+            if self.freeze_when_saturated:
+                frozen = self._batch_saturated(trial_command)
+            command = np.where(frozen[:, None], command, trial_command)
+            new_weights = trial
+        else:
+            if self.freeze_when_saturated:
+                frozen = self._batch_saturated(command)
+            if self.weight_update == "euler":
+                new_weights = weights + _matvec(gradient_e, _matvec(jacobians, learning))
+            else:
+                command = np.maximum(np.minimum(command, self._upper), self._lower)
+                new_weights = weights + self._zoh_increment(obs, jacobians, command, step_gain, state, gradient_e)
+        self.batch_critic_weights = np.where(frozen[:, None], weights, new_weights)
+        self._batch_k += 1
+        return np.maximum(np.minimum(command, self._upper), self._lower)
