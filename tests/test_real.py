@@ -245,3 +245,27 @@ def test_dry_run_command_on_the_simulated_backend_prints_what_it_would_send(tmp_
     assert outcome.exit_code == 0, outcome.output
     assert outcome.output.count("would send speedJ") == 5
     assert "dry run: 5 commands computed, none sent" in outcome.output
+
+
+def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monkeypatch, tmp_path):
+    from typer.testing import CliRunner
+
+    import snac_gym.real.run as real_run
+    from snac_gym.cli import app
+
+    backend = SimulatedBackend(realtime=False)
+    reads = {"count": 0}
+    original = backend.read_state
+
+    def flaky_read():
+        reads["count"] += 1
+        if reads["count"] > 20:
+            raise ConnectionFailure("connection to the arm at 10.0.0.2 was lost")
+        return original()
+
+    monkeypatch.setattr(backend, "read_state", flaky_read)
+    monkeypatch.setattr(real_run, "make_backend", lambda *args, **kwargs: backend)
+    outcome = CliRunner().invoke(app, ["real", "--host", "10.0.0.2", "--controller", "dls", "--out", str(tmp_path)])
+    assert outcome.exit_code == 1
+    assert outcome.output.strip() == "error: connection to the arm at 10.0.0.2 was lost"
+    assert backend.stopped and backend.stop_calls >= 1
