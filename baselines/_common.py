@@ -21,22 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.policies.base import BasePolicy
-
-
-def positive_float(name: str, value: Any) -> float:
-    """``value`` as a finite float > 0.
-
-    Raises:
-        ValueError: If it is not one.
-    """
-    try:
-        number = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a positive number, got {value!r}") from exc
-    if not (np.isfinite(number) and number > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return number
+from snac_gym.policies.base import BasePolicy, positive_float
 
 
 def clip_to_box(command: np.ndarray, limits: np.ndarray) -> np.ndarray:

@@ -19,6 +19,21 @@ from snac_gym.observation import ObservationLayout
 TASKS = ("reach", "track")
 
 
+def positive_float(name: str, value: Any) -> float:
+    """``value`` as a finite float > 0.
+
+    Raises:
+        ValueError: If it is not one.
+    """
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a positive number, got {value!r}") from exc
+    if not (np.isfinite(number) and number > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return number
+
+
 @runtime_checkable
 class Policy(Protocol):
     """What the envs, the evaluator and the real-robot loop need from a controller.

@@ -15,7 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from snac_gym.policies.base import BasePolicy
+from snac_gym.policies.base import BasePolicy, positive_float
 from snac_gym.ppo.policy_file import PolicyFile, PolicyFileError
 
 #: Package whose ``models/`` folder holds the shipped policy files.
@@ -59,13 +59,7 @@ class PPOPolicy(BasePolicy):
 
     def __init__(self, env: Any, model_path: str | Path | None = None, action_scale: float = 1.0) -> None:
         super().__init__(env)
-        try:
-            scale = float(action_scale)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"action_scale must be a positive number, got {action_scale!r}") from exc
-        if not (np.isfinite(scale) and scale > 0):
-            raise ValueError(f"action_scale must be a positive finite number, got {action_scale!r}")
-        self.action_scale = scale
+        self.action_scale = positive_float("action_scale", action_scale)
         self.model_path = Path(model_path) if model_path is not None else shipped_model_path(self.task)
         self.model = PolicyFile.load(self.model_path)
         self.model.check_compatible(
