@@ -133,7 +133,16 @@ def test_training_into_an_existing_run_or_resuming_nothing_is_refused(trained_ru
     assert other.exit_code == 2 and "trains task 'reach'" in other.output
 
 
-def test_ctrl_c_leaves_a_usable_checkpoint_and_resume_continues(tmp_path, monkeypatch, reach_env):
+@pytest.fixture
+def terminal_sigint():
+    """SIGINT raising KeyboardInterrupt, as in a terminal (a shell starts background jobs, and so
+    possibly CI, with SIGINT ignored)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_leaves_a_usable_checkpoint_and_resume_continues(tmp_path, monkeypatch, reach_env, terminal_sigint):
     import snac_gym.ppo.train as train_module
 
     original = train_module.make_training_env
