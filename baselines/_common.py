@@ -73,11 +73,6 @@ def transpose(matrices: np.ndarray) -> np.ndarray:
     return matrices.T if matrices.ndim <= 2 else np.swapaxes(matrices, -1, -2)  # .T: 4× cheaper on one
 
 
-def stacked_jacobians(kinematics: Any, joint_rows: np.ndarray) -> np.ndarray:
-    """``J(θᵢ)`` of each row of ``joint_rows`` ``(B, m)`` from the shared kinematics, shape ``(B, n, m)``."""
-    return np.stack([kinematics.jacobian(q) for q in joint_rows])
-
-
 class ObservationReader:
     """Precomputed slices of the fields the baselines read (q, e, ẋ_d), so ``act`` indexes
     the flat observation directly instead of building named views at every step."""
@@ -174,7 +169,7 @@ class ResolvedRatePolicy(BasePolicy):
         """Commands ``(B, m)`` for observations ``(B, size)``: row i is :meth:`act` of row i."""
         obs_batch = self._reader.read_batch(obs_batch)
         task_velocities = reference_velocity(obs_batch, self._reader, self.gain)
-        jacobians = stacked_jacobians(self.kinematics, obs_batch[:, self._reader.q])
+        jacobians = self.kinematics.jacobian_batch(obs_batch[:, self._reader.q])
         return scale_rows_into_box(self.resolve_batch(jacobians, task_velocities), self.velocity_limits)
 
     def act(self, obs: np.ndarray) -> np.ndarray:

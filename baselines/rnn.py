@@ -17,7 +17,6 @@ from baselines._common import (
     clip_to_box,
     positive_float,
     reference_velocity,
-    stacked_jacobians,
     transpose,
 )
 from snac_gym.policies.base import BasePolicy
@@ -203,6 +202,6 @@ class RNNPolicy(BasePolicy):
             raise RuntimeError("call reset_batch() before act_batch()")
         obs_batch = self._reader.read_batch(obs_batch)
         network_input = reference_velocity(obs_batch, self._reader, self.gain, feedforward=self.velocity_compensation)
-        jacobians = stacked_jacobians(self.kinematics, obs_batch[:, self._reader.q])
+        jacobians = self.kinematics.jacobian_batch(obs_batch[:, self._reader.q])
         commands = self._advance(self._batch_dual, jacobians, network_input[..., None], self._column_limits)
         return commands[..., 0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -80,6 +81,26 @@ def policy_context(robot: str, dt: float, task: str) -> PolicyContext:
     )
 
 
+def kinematic_logs(rollouts: Any, samples: Sequence[Any], seeds: Sequence[int], attrs: dict[str, Any],
+                   limits: np.ndarray) -> list[Any]:
+    """The per-step logs of kinematic-backend rollouts, with the demo's columns and metadata."""
+    return [
+        rollouts.log(
+            i,
+            {
+                **attrs,
+                "sample": s.index,
+                "seed": seed,
+                "options": s.reset_options(),
+                "reference": s.reference.to_dict(),
+                "velocity_limits": limits.tolist(),
+                "backend": "kinematic",
+            },
+        )
+        for i, (s, seed) in enumerate(zip(samples, seeds, strict=True))
+    ]
+
+
 def run_job(job: RolloutJob) -> JobResult:
     """Roll out ``job`` and measure every rollout (see :mod:`evaluation.metrics`)."""
     attrs = {"task": job.task, "policy": job.controller, "policy_kwargs": dict(job.kwargs)}
@@ -88,23 +109,7 @@ def run_job(job: RolloutJob) -> JobResult:
         make = functools.partial(make_policy, job.controller, context, **job.kwargs)
         rollouts = simulate_kinematic(context, make, job.samples, job.steps, job.seeds, job.use_batch, job.controller)
         limits = context.velocity_limits
-        logs = None
-        if job.keep_logs:
-            logs = [
-                rollouts.log(
-                    i,
-                    {
-                        **attrs,
-                        "sample": s.index,
-                        "seed": seed,
-                        "options": s.reset_options(),
-                        "reference": s.reference.to_dict(),
-                        "velocity_limits": limits.tolist(),
-                        "backend": job.backend,
-                    },
-                )
-                for i, (s, seed) in enumerate(zip(job.samples, job.seeds, strict=True))
-            ]
+        logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
     elif job.backend == "pybullet":
         make_for_env = functools.partial(make_policy, job.controller, **job.kwargs)  # called with the env
         rollouts, raw_logs = simulate_pybullet(

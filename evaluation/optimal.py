@@ -43,7 +43,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import pinocchio as pin
 from scipy.linalg import cholesky_banded, solve_banded
 from scipy.optimize import minimize
 
@@ -95,15 +94,7 @@ def trajectory_cost_and_gradient(
     q[0] = q0
     if steps > 1:
         q[1:] = q0 + dt * np.cumsum(commands[:-1], axis=0)
-    n = x_d.shape[1]
-    positions = np.empty((steps, n))
-    jacobians = np.empty((steps, n, m))
-    # Kinematics.forward_and_jacobian's Pinocchio calls, inlined: this loop is the solver's hot spot.
-    model, data, frame = kinematics.model, kinematics.data, kinematics._ee_id
-    jacobian, placement, frame_kind = pin.computeFrameJacobian, data.oMf, pin.LOCAL_WORLD_ALIGNED
-    for k in range(steps):
-        jacobians[k] = jacobian(model, data, q[k], frame, frame_kind)[:n]
-        positions[k] = placement[frame].translation
+    positions, jacobians = kinematics.forward_and_jacobian_batch(q)
     errors = positions - x_d
     g = (2.0 * dt) * np.einsum("kij,ki->kj", jacobians, errors)  # g_j = 2Δt Jⱼᵀ eⱼ
     rates = np.diff(commands, axis=0, prepend=np.zeros((1, m)))  # uₖ − uₖ₋₁
@@ -317,7 +308,7 @@ def run_optimal_job(job: OptimalJob) -> Any:
 
     Returns a :class:`evaluation.jobs.JobResult` whose metrics carry :data:`SOLVER_COLUMNS` too.
     """
-    from evaluation.jobs import JobResult, policy_context
+    from evaluation.jobs import JobResult, kinematic_logs, policy_context
 
     context = policy_context(job.robot, job.dt, job.task)
     kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
@@ -342,25 +333,8 @@ def run_optimal_job(job: OptimalJob) -> Any:
     metrics["optimal_bounded"] = [s.bounded for s in solutions]
     metrics["optimal_solver_cost"] = [s.cost for s in solutions]
     metrics["optimal_solve_time"] = [s.seconds for s in solutions]
-    logs = None
-    if job.keep_logs:
-        logs = [
-            rollouts.log(
-                i,
-                {
-                    "task": job.task,
-                    "policy": OPTIMAL,
-                    "policy_kwargs": {},
-                    "sample": s.index,
-                    "seed": seed,
-                    "options": s.reset_options(),
-                    "reference": s.reference.to_dict(),
-                    "velocity_limits": limits.tolist(),
-                    "backend": "kinematic",
-                },
-            )
-            for i, (s, seed) in enumerate(zip(job.samples, job.seeds, strict=True))
-        ]
+    attrs = {"task": job.task, "policy": OPTIMAL, "policy_kwargs": {}}
+    logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
     return JobResult(metrics, logs)
 
 

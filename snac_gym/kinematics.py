@@ -142,6 +142,14 @@ class Kinematics:
         self.lower_limits = np.array(self.model.lowerPositionLimit, dtype=float)
         self.upper_limits = np.array(self.model.upperPositionLimit, dtype=float)
 
+    def ee_mount(self) -> tuple[str, np.ndarray]:
+        """The joint that carries the end-effector frame and the frame's offset in that joint's frame, m.
+
+        The simulator merges the massless ``tool0`` into its parent link; this is how it finds the point again.
+        """
+        frame = self.model.frames[self._ee_id]
+        return str(self.model.names[frame.parentJoint]), frame.placement.translation.copy()
+
     def _frame_id(self, name: str) -> int:
         if not self.model.existFrame(name):
             names = [f.name for f in self.model.frames]
@@ -189,7 +197,34 @@ class Kinematics:
     def forward_batch(self, qs: np.ndarray) -> np.ndarray:
         """Positions for a batch of configurations, shape ``(B, n_joints) -> (B, task_dim)``."""
         qs = np.asarray(qs, dtype=float)
-        return np.stack([self.forward(q) for q in qs]) if len(qs) else np.zeros((0, self.task_dim))
+        positions = np.empty((len(qs), self.task_dim))
+        model, data, frame = self.model, self.data, self._ee_id
+        for k, q in enumerate(qs):  # the per-call checks of forward() skipped: one shape check for all
+            pin.forwardKinematics(model, data, q)
+            positions[k] = pin.updateFramePlacement(model, data, frame).translation
+        return positions
+
+    def jacobian_batch(self, qs: np.ndarray) -> np.ndarray:
+        """``J(θᵢ)`` for a batch, shape ``(B, n_joints) -> (B, task_dim, n_joints)`` (the batch policies' form)."""
+        return self.forward_and_jacobian_batch(qs)[1]
+
+    def forward_and_jacobian_batch(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(f(θᵢ), J(θᵢ))`` for a batch, shapes ``(B, task_dim)`` and ``(B, task_dim, n_joints)``.
+
+        The evaluator and the optimal-control solver call this over whole trajectories, so the
+        per-call argument checks of :meth:`forward_and_jacobian` are done once for the batch.
+        """
+        qs = np.asarray(qs, dtype=float)
+        if qs.ndim != 2 or qs.shape[1] != self.n_joints:
+            raise ValueError(f"configurations must have shape (B, {self.n_joints}), got {qs.shape}")
+        n = self.task_dim
+        positions = np.empty((len(qs), n))
+        jacobians = np.empty((len(qs), n, self.n_joints))
+        model, data, frame, placements = self.model, self.data, self._ee_id, self.data.oMf
+        for k, q in enumerate(qs):
+            jacobians[k] = pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED)[:n]
+            positions[k] = placements[frame].translation
+        return positions, jacobians
 
     def singular_values(self, q: np.ndarray) -> np.ndarray:
         """Singular values of ``J(θ)``, largest first."""

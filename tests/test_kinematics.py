@@ -74,6 +74,14 @@ def test_forward_and_jacobian_agree_with_separate_calls(ur10, rng):
     np.testing.assert_array_equal(x, ur10.forward(q))
     np.testing.assert_array_equal(jac, ur10.jacobian(q))
     np.testing.assert_allclose(ur10.forward_batch(np.stack([q, q])), np.stack([x, x]))
+    qs = _random_configurations(ur10, np.random.default_rng(3), 4)
+    positions, jacobians = ur10.forward_and_jacobian_batch(qs)
+    for q_i, x_i, jac_i in zip(qs, positions, jacobians):
+        np.testing.assert_array_equal(x_i, ur10.forward(q_i))
+        np.testing.assert_array_equal(jac_i, ur10.jacobian(q_i))
+    np.testing.assert_array_equal(ur10.jacobian_batch(qs), jacobians)
+    with pytest.raises(ValueError, match=r"shape \(B, 6\)"):
+        ur10.forward_and_jacobian_batch(np.zeros((2, 5)))
 
 
 def test_inverse_position_reaches_a_forward_point(ur10, rng):

@@ -37,9 +37,8 @@ class SimulatedArm:
             raise ValueError(f"joints {missing} of the kinematics are not in the simulated URDF")
         self.joint_indices = [by_name[name] for name in kinematics.joint_names]
         # tool0 is merged into its parent link: keep that link and the fixed offset from the URDF.
-        parent_link = kinematics.model.names[kinematics.model.frames[kinematics._ee_id].parentJoint]
-        self.ee_link = by_name[parent_link]
-        self.ee_offset = kinematics.model.frames[kinematics._ee_id].placement.translation.copy()
+        parent_joint, self.ee_offset = kinematics.ee_mount()
+        self.ee_link = by_name[parent_joint]
         self.max_forces = [p.getJointInfo(self.body, i, physicsClientId=client)[10] for i in self.joint_indices]
         for link in range(-1, p.getNumJoints(self.body, physicsClientId=client)):
             # PyBullet's default link damping would make the motors fight a drag no real arm has.

@@ -518,7 +518,7 @@ class SNACPolicy(BasePolicy):
         state = error
         if self.task == "track":  # ξ = [e; x_d − x_c] (eq. 31)
             state = np.concatenate((error, obs[:, self._xd_slice] - obs[:, self._xc_slice]), axis=1)
-        jacobians = np.stack([self.kinematics.jacobian(q) for q in obs[:, self._q_slice]])
+        jacobians = self.kinematics.jacobian_batch(obs[:, self._q_slice])
         gradient_e = self.basis.gradient(state)[:, :, :n]
         alpha = self.learning_rate(self._batch_k)
         step_gain = alpha if self.learning_rate_unit == "per_step" else alpha * self.dt  # h·α, as in act
