@@ -2,13 +2,7 @@
 
 The kinematic backend steps hundreds of samples in lockstep; calling
 ``reference.position_and_velocity(t)`` per sample and step would cost more than the rest of
-the step. This evaluates the same formulas of :mod:`snac_gym.references` on arrays
-(tests/test_evaluation_backends.py checks it against the per-call methods):
-
-* :class:`~snac_gym.references.FixedTarget`: ``x_d = target``, ``ẋ_d = 0``;
-* :class:`~snac_gym.references.Ellipse`: ``x_d = c + cos(ωt + φ) a R ê₁ + sin(ωt + φ) b R ê₂``,
-  ``ẋ_d = ω (cos(ωt + φ) b R ê₂ − sin(ωt + φ) a R ê₁)``, R from the plane's roll-pitch-yaw
-  (:func:`~snac_gym.references.rotation_from_rpy`).
+the step. This stacks each reference's vectorised ``trajectory(times)``.
 """
 
 from __future__ import annotations
@@ -17,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from snac_gym.references import Ellipse, FixedTarget, rotation_from_rpy
+from snac_gym.references import Ellipse, FixedTarget
 
 
 def reference_trajectories(
@@ -35,20 +29,11 @@ def reference_trajectories(
     times = np.asarray(times, dtype=float)
     count, steps = len(references), len(times)
     positions = np.empty((count, steps, 3))
-    velocities = np.zeros((count, steps, 3))
+    velocities = np.empty((count, steps, 3))
     centres = np.empty((count, 3))
     for i, reference in enumerate(references):
-        centres[i] = reference.centre
-        if isinstance(reference, FixedTarget):
-            positions[i] = reference.target
-            continue
-        if not isinstance(reference, Ellipse):
+        if not isinstance(reference, (FixedTarget, Ellipse)):
             raise TypeError(f"reference {i} is a {type(reference).__name__}, not a FixedTarget or Ellipse")
-        rotation = rotation_from_rpy(*reference.orientation)
-        major = rotation[:, 0] * reference.semi_axes[0]
-        minor = rotation[:, 1] * reference.semi_axes[1]
-        angles = reference.angular_speed * times + reference.phase
-        cos, sin = np.cos(angles)[:, None], np.sin(angles)[:, None]
-        positions[i] = reference.centre + cos * major + sin * minor
-        velocities[i] = reference.angular_speed * (cos * minor - sin * major)
+        centres[i] = reference.centre
+        positions[i], velocities[i] = reference.trajectory(times)
     return positions, velocities, centres

@@ -76,6 +76,11 @@ class FixedTarget:
         """``(x_d(t), ẋ_d(t))`` in one call (the env's per-step form)."""
         return self.target, _ZERO3
 
+    def trajectory(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``x_d`` and ``ẋ_d`` at every time of ``times`` ``(K,)``, each of shape ``(K, 3)``."""
+        count = len(np.asarray(times))
+        return np.tile(self.target, (count, 1)), np.zeros((count, 3))
+
     def points(self, count: int = 1) -> np.ndarray:
         """Points the reference visits (for reachability checks)."""
         return self.target[None, :].copy()
@@ -126,7 +131,7 @@ class Ellipse:
             object.__setattr__(self, name, value)
         rot = rotation_from_rpy(*self.orientation)
         # Columns scaled by the semi-axes: x_d = c + axes_matrix @ [cos, sin].
-        object.__setattr__(self, "_axes_matrix", rot[:, :2] * axes)
+        object.__setattr__(self, "_axes_matrix", rot[:, :2] * axes)  # x_d = c + axes_matrix @ [cos, sin]
         object.__setattr__(self, "_major", np.ascontiguousarray(rot[:, 0] * axes[0]))
         object.__setattr__(self, "_minor", np.ascontiguousarray(rot[:, 1] * axes[1]))
 
@@ -167,18 +172,22 @@ class Ellipse:
         }
 
     def position(self, t: float) -> np.ndarray:
-        angle = self.angular_speed * t + self.phase
-        return self.centre + self._axes_matrix @ np.array([math.cos(angle), math.sin(angle)])
+        return self.position_and_velocity(t)[0]
 
     def velocity(self, t: float) -> np.ndarray:
-        angle = self.angular_speed * t + self.phase
-        w = self.angular_speed
-        return self._axes_matrix @ np.array([-w * math.sin(angle), w * math.cos(angle)])
+        return self.position_and_velocity(t)[1]
 
     def position_and_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(x_d(t), ẋ_d(t))`` in one call (the env's per-step form)."""
+        """``(x_d(t), ẋ_d(t))`` in one call (the env's per-step form: scalar math, no arrays of angles)."""
         angle = self.angular_speed * t + self.phase
         cos, sin = math.cos(angle), math.sin(angle)
+        w = self.angular_speed
+        return self.centre + cos * self._major + sin * self._minor, (w * cos) * self._minor - (w * sin) * self._major
+
+    def trajectory(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``x_d`` and ``ẋ_d`` at every time of ``times`` ``(K,)``, each of shape ``(K, 3)`` (the evaluator's form)."""
+        angles = self.angular_speed * np.asarray(times, dtype=float) + self.phase
+        cos, sin = np.cos(angles)[:, None], np.sin(angles)[:, None]
         w = self.angular_speed
         return self.centre + cos * self._major + sin * self._minor, (w * cos) * self._minor - (w * sin) * self._major
 

@@ -120,3 +120,15 @@ def test_position_and_velocity_agrees_with_separate_calls(rng):
         np.testing.assert_allclose(vel, ellipse.velocity(t), atol=1e-15)
     target = FixedTarget([0.1, 0.2, 0.3])
     assert target.position_and_velocity(2.0)[0] is target.target
+
+
+def test_trajectory_agrees_with_per_time_calls(rng):
+    ellipse = Ellipse([-0.6, 0.2, 0.4], [0.15, 0.05], rng.uniform(-2, 2, 3), angular_speed=0.3, phase=0.4)
+    times = np.array([0.0, 0.5, 7.25])
+    positions, velocities = ellipse.trajectory(times)
+    for t, pos, vel in zip(times, positions, velocities):
+        np.testing.assert_allclose(pos, ellipse.position(t), atol=1e-15)
+        np.testing.assert_allclose(vel, ellipse.velocity(t), atol=1e-15)
+    positions, velocities = FixedTarget([0.1, 0.2, 0.3]).trajectory(times)
+    np.testing.assert_array_equal(positions, np.tile([0.1, 0.2, 0.3], (3, 1)))
+    np.testing.assert_array_equal(velocities, 0.0)
