@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from evaluation.rollouts import Rollouts
-from snac_gym.cost import cost_rates, trajectory_cost
+from snac_gym.cost import command_differences, cost_rates, trajectory_cost
 
 #: Success thresholds (m): final error for reach, mean error over the second half for track.
 REACH_TOLERANCE = 1e-3
@@ -96,7 +96,7 @@ def rollout_metrics(rollouts: Rollouts, task: str, velocity_limits: np.ndarray) 
     last_outside = all_norms.shape[1] - 1 - np.argmax(outside[:, ::-1], axis=1)
     settle_time = np.where(outside.any(axis=1), (last_outside + 1) * dt, 0.0)
     settle_time[outside[:, -1]] = np.nan
-    rates = np.diff(commands, axis=1, prepend=np.zeros_like(commands[:, :1])) / dt
+    rates = command_differences(commands) / dt
     limits = np.asarray(velocity_limits, dtype=float)
     peak_fraction, peak_step = peak_limit_fractions(commands, limits)
     at_limit = (np.abs(commands) >= limits * (1.0 - LIMIT_RELATIVE_TOLERANCE)).any(axis=-1)

@@ -27,12 +27,16 @@ Steps (each documented in docs/evaluation.md):
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import hashlib
 import json
 import math
+import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -69,8 +73,11 @@ from snac_gym.sampling import SampleSpace
 #: Default horizon per task, s: at least every controller's 95th-percentile settling time,
 #: measured at equal effort on 100 samples (docs/evaluation.md): SNAC's reach p95 is 11.7 s.
 DEFAULT_HORIZONS: dict[str, float] = {"reach": 12.0, "track": 20.0}
-#: Samples per job.
-DEFAULT_CHUNK_SIZE = 50
+#: Samples per job of a full pass. The kinematic backend steps a job's samples in lockstep and
+#: its per-sample cost falls with the batch up to a few hundred samples (docs/evaluation.md).
+DEFAULT_CHUNK_SIZE = 500
+#: Samples per job of the optimal reference (solved one by one: larger jobs gain nothing).
+OPTIMAL_CHUNK_SIZE = 50
 #: Most full passes spent matching one controller's effort.
 MAX_MATCH_ROUNDS = 3
 #: Samples whose full-horizon rollouts locate the effort peak in time before a search.
@@ -79,6 +86,9 @@ PEAK_PROBE_SAMPLES = 20
 SCREENING_BUDGET = 0.1
 #: ...but on at least this many samples (unless the set is smaller).
 MIN_SCREENING_SAMPLES = 100
+#: Executor priority of knob-search jobs over full passes (lower runs first): every later step of
+#: a controller's effort match waits on its search, while a full pass holds nothing up.
+SEARCH_PRIORITY, PASS_PRIORITY = 0, 1
 #: Samples drawn per sample-generation job.
 GENERATION_CHUNK = 25
 
@@ -108,7 +118,7 @@ class EvaluationConfig:
         workers: Local worker processes.
         ray_address: Run on Ray instead (``"local"`` or a cluster address).
         resume: Continue an interrupted run in ``out``.
-        chunk_size: Samples per job (results do not depend on it or on the workers).
+        chunk_size: Samples per job of a full pass (results do not depend on it or on the workers).
         dt: Control period, s.
         robot: Robot name.
         space: Sample space (default: the UR10 cuboid scaled to the robot).
@@ -377,8 +387,66 @@ class _Evaluation:
         self.config, self.store, self.executor, self.samples, self.progress = config, store, executor, samples, progress
         #: Screening samples of each (task, controller)'s first knob search.
         self.screening_counts: dict[tuple[str, str], int] = {}
-        #: Wall time spent per phase, s ("passes", "knob searches").
-        self.timings: dict[str, float] = {"passes": 0.0, "knob searches": 0.0}
+        #: Wall time spent per phase, s.
+        self.timings: dict[str, float] = {}
+        #: Cut each knob-search evaluation into at least one job per worker (set while fewer
+        #: searches than workers run at once, so that none is left idle).
+        self.spread_searches = True
+        #: Set when one concurrent effort match failed or was interrupted: the others stop.
+        self.cancelled = threading.Event()
+        self._active_searches = 0
+        self._searches_lock = threading.Lock()
+
+    @contextlib.contextmanager
+    def _searching(self) -> Iterator[None]:
+        """While any knob search runs, keep a worker free of full passes (where the executor can).
+
+        A search is a chain of short evaluations that each wait for the last; behind a full-pass
+        job they would wait seconds each, and the last search to finish holds up the end of the run.
+        """
+        reserve = getattr(self.executor, "reserve", None)
+        with self._searches_lock:
+            self._active_searches += 1
+            if reserve is not None:
+                reserve(self._active_searches)
+        try:
+            yield
+        finally:
+            with self._searches_lock:
+                self._active_searches -= 1
+                if reserve is not None:
+                    reserve(self._active_searches)
+
+    def _check_cancelled(self) -> None:
+        if self.cancelled.is_set():
+            raise _Cancelled("stopped because another effort match failed or the run was interrupted")
+
+    def concurrently(self, functions: Sequence[Callable[[], Any]]) -> list[Any]:
+        """Call ``functions`` at the same time (threads that feed the shared executor), in order for a serial one.
+
+        Each function is a pipeline of dependent steps (a knob search, then its full pass, ...)
+        whose jobs are pure, so running them concurrently changes only when jobs run, never
+        what they return. If one raises, or the wait is interrupted, the others are cancelled
+        at their next step and the first exception is raised.
+        """
+        if len(functions) <= 1 or not getattr(self.executor, "concurrent", False):
+            return [function() for function in functions]
+        pool = ThreadPoolExecutor(max_workers=len(functions), thread_name_prefix="effort-match")
+        futures = [pool.submit(function) for function in functions]
+        try:
+            wait(futures, return_when=FIRST_EXCEPTION)
+            if any(future.done() and future.exception() is not None for future in futures):
+                self.cancelled.set()
+                wait(futures)
+                errors = [future.exception() for future in futures if future.exception() is not None]
+                # The failure itself, not the cancellations it caused in the other pipelines.
+                raise next((e for e in errors if not isinstance(e, _Cancelled)), errors[0])
+            return [future.result() for future in futures]
+        except BaseException:
+            self.cancelled.set()
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
     def _jobs(
         self,
@@ -388,8 +456,17 @@ class _Evaluation:
         samples: Sequence[EvaluationSample],
         steps: int,
         keep_logs: bool,
+        spread: bool = False,
     ) -> list[RolloutJob]:
+        """Jobs of at most ``chunk_size`` samples (full passes: their parts are stored by chunk index).
+
+        ``spread``: cut ``samples`` into equal jobs, at least one per worker, so that a knob
+        search's smaller screening set keeps every worker busy (its results are not stored by chunk).
+        """
         size = self.config.chunk_size
+        if spread and self.spread_searches and samples:
+            jobs = max(math.ceil(len(samples) / size), min(self.config.workers, len(samples)))
+            size = math.ceil(len(samples) / jobs)
         return [
             RolloutJob(
                 task=task,
@@ -409,7 +486,7 @@ class _Evaluation:
 
     def run_passes(self, passes: Sequence[tuple[str, ControllerSpec, dict[str, Any]]]) -> list[pd.DataFrame]:
         """Full passes (every sample, full horizon); finished jobs are stored as they arrive."""
-        started = time.perf_counter()
+        self._check_cancelled()
         config = self.config
         todo: list[tuple[RolloutJob, Path, ControllerSpec]] = []
         paths: list[list[Path]] = []
@@ -426,20 +503,19 @@ class _Evaluation:
                 else:
                     todo.append((job, path, spec))
             paths.append(pass_paths)
-        for index, result in self.executor.run(run_job, [job for job, _, _ in todo]):
+        for index, result in self.executor.run(run_job, [job for job, _, _ in todo], priority=PASS_PRIORITY):
             job, path, spec = todo[index]
             self._store_job(job, spec, result, path)
             self.progress.update(len(job.samples))
-        self.timings["passes"] += time.perf_counter() - started
         return [pd.concat([self.store.read_part(p) for p in pass_paths], ignore_index=True) for pass_paths in paths]
 
     def run_optimal(self) -> list[pd.DataFrame]:
-        """The ``optimal`` rows of every task (jobs of ``chunk_size`` samples, stored as they arrive)."""
+        """The ``optimal`` rows of every task (jobs of :data:`OPTIMAL_CHUNK_SIZE` samples at most, stored as they arrive)."""
         started = time.perf_counter()
         config = self.config
         todo: list[tuple[OptimalJob, Path]] = []
         paths: list[list[Path]] = []
-        size = config.chunk_size
+        size = min(config.chunk_size, OPTIMAL_CHUNK_SIZE)
         self.progress.status("optimal reference")
         for task in config.tasks:
             steps = config.steps(task)
@@ -502,10 +578,9 @@ class _Evaluation:
         self, task: str, spec: ControllerSpec, kwargs: dict[str, Any], samples: Sequence[EvaluationSample], steps: int
     ) -> pd.DataFrame:
         """Metrics of short or partial rollouts for the knob search (not stored as results)."""
-        started = time.perf_counter()
-        jobs = self._jobs(task, spec.name, kwargs, samples, steps, keep_logs=False)
-        parts = dict(self.executor.run(run_job, jobs))
-        self.timings["knob searches"] += time.perf_counter() - started
+        self._check_cancelled()
+        jobs = self._jobs(task, spec.name, kwargs, samples, steps, keep_logs=False, spread=True)
+        parts = dict(self.executor.run(run_job, jobs, priority=SEARCH_PRIORITY))
         return pd.concat([parts[i].metrics for i in range(len(jobs))], ignore_index=True)
 
     def _screening_count(self, task: str, spec: ControllerSpec, search_steps: int, round_number: int) -> int:
@@ -529,6 +604,13 @@ class _Evaluation:
         return min(count, max(MIN_SCREENING_SAMPLES, budget))
 
     def search_knob(
+        self, task: str, spec: ControllerSpec, target: float, start: float, round_number: int
+    ) -> EffortMatch:
+        """:meth:`_search_knob`, keeping a worker free for it (see :meth:`_searching`)."""
+        with self._searching():
+            return self._search_knob(task, spec, target, start, round_number)
+
+    def _search_knob(
         self, task: str, spec: ControllerSpec, target: float, start: float, round_number: int
     ) -> EffortMatch:
         """Search ``spec``'s knob so that the screening samples' effort statistic hits ``target``.
@@ -555,7 +637,7 @@ class _Evaluation:
             )
         samples = self.samples[task]
         full_steps = config.steps(task)
-        self.progress.status(f"matching effort: {spec.name} on {task}")
+        started = time.perf_counter()
         probe = self.measure(task, spec, {**spec.kwargs, spec.knob: start}, samples[:PEAK_PROBE_SAMPLES], full_steps)
         horizon = min(full_steps, 2 * int(probe[PEAK_STEP_COLUMN].max()) + 25)
         while True:
@@ -579,10 +661,14 @@ class _Evaluation:
                 "reason": match.reason,
                 "screening_samples": count,
                 "search_steps": search.horizon,
+                "seconds": round(time.perf_counter() - started, 3),
             },
         )
-        self.progress.status("")
         return match
+
+
+class _Cancelled(RuntimeError):
+    """An effort match stopped because another one failed or the run was interrupted."""
 
 
 class _FewerSamplesNeeded(Exception):
@@ -629,7 +715,12 @@ def _effort(rows: pd.DataFrame) -> float:
 def _match_controllers(
     evaluation: _Evaluation, specs: list[ControllerSpec], results: dict[tuple[str, str], pd.DataFrame]
 ) -> dict[tuple[str, str], EffortRecord]:
-    """Step 4 of the module docstring; fills ``results`` with the final pass of every (task, controller)."""
+    """Step 4 of the module docstring; fills ``results`` with the final pass of every (task, controller).
+
+    After the reference passes, every other (task, controller) is matched on its own
+    (:func:`_match_one`), all at the same time: the workers run one controller's full pass
+    while another's knob search is still going.
+    """
     config = evaluation.config
     names = [s.name for s in specs]
     records: dict[tuple[str, str], EffortRecord] = {}
@@ -644,7 +735,10 @@ def _match_controllers(
             if reference == config.effort_reference
             else f"{config.effort_reference!r} is not evaluated; {reference!r} is the reference"
         )
+        started = time.perf_counter()
+        evaluation.progress.status(f"reference: {reference}")
         passes = evaluation.run_passes([(task, ref_spec, ref_spec.kwargs) for task in config.tasks])
+        evaluation.timings["reference passes"] = time.perf_counter() - started
         for task, rows in zip(config.tasks, passes, strict=True):
             results[(task, reference)] = rows
             targets[task] = _effort(rows)
@@ -655,55 +749,53 @@ def _match_controllers(
         targets = {task: float(config.effort_target) for task in config.tasks}
 
     pending = [(task, spec) for task in config.tasks for spec in specs if spec.name != reference]
-    search_target = {(task, spec.name): targets[task] for task, spec in pending}
-    start = {(task, spec.name): float(spec.knob_value) for task, spec in pending}
-    passes_used = {key: 0 for key in search_target}
-    for round_number in range(1, MAX_MATCH_ROUNDS + 1):
-        if not pending:
-            break
-        if round_number > 1:
-            evaluation.progress.add_total(sum(len(evaluation.samples[task]) for task, _ in pending))
-        matches = {
-            (task, spec.name): evaluation.search_knob(
-                task, spec, search_target[(task, spec.name)], start[(task, spec.name)], round_number
-            )
-            for task, spec in pending
-        }
-        runs = evaluation.run_passes(
-            [(task, spec, {**spec.kwargs, spec.knob: matches[(task, spec.name)].value}) for task, spec in pending]
-        )
-        next_pending = []
-        for (task, spec), rows in zip(pending, runs, strict=True):
-            key = (task, spec.name)
-            match = matches[key]
-            passes_used[key] += 1
-            results[key] = rows
-            effort = _effort(rows)
-            matched = _within(effort, targets[task], config.effort_tolerance)
-            note = ""
-            if not matched:
-                if not match.matched:
-                    note = f"knob search failed: {match.reason}"
-                elif round_number < MAX_MATCH_ROUNDS:
-                    # The screening samples mis-predict the whole set by effort/match.effort: aim off by as much.
-                    search_target[key] = search_target[key] * match.effort / effort
-                    start[key] = match.value
-                    next_pending.append((task, spec))
-                else:
-                    note = f"not within {config.effort_tolerance:.0%} after {MAX_MATCH_ROUNDS} passes"
-            records[key] = EffortRecord(
-                task,
-                spec.name,
-                "matched" if matched else "unmatched",
-                spec.knob,
-                match.value,
-                effort,
-                targets[task],
-                passes_used[key],
-                note,
-            )
-        pending = next_pending
+    evaluation.spread_searches = len(pending) < max(1, config.workers)
+    evaluation.progress.status(f"matching effort: {', '.join(dict.fromkeys(s.name for _, s in pending))}")
+    started = time.perf_counter()
+    outcomes = evaluation.concurrently(
+        [functools.partial(_match_one, evaluation, task, spec, targets[task]) for task, spec in pending]
+    )
+    evaluation.timings["effort matching"] = time.perf_counter() - started
+    evaluation.progress.status("")
+    for (task, spec), (rows, record) in zip(pending, outcomes, strict=True):
+        results[(task, spec.name)] = rows
+        records[(task, spec.name)] = record
     return records
+
+
+def _match_one(evaluation: _Evaluation, task: str, spec: ControllerSpec, target: float) -> tuple[pd.DataFrame, EffortRecord]:
+    """Search one controller's knob for ``target`` on one task, then check it with a full pass.
+
+    If the full pass misses the target by more than the tolerance although the search
+    matched on the screening samples, the screening target is corrected by the observed
+    ratio and the search repeats from the value found (at most ``MAX_MATCH_ROUNDS`` passes).
+
+    Returns:
+        The last full pass's rows and the record of how the effort was set.
+    """
+    config = evaluation.config
+    search_target, start = target, float(spec.knob_value)
+    for round_number in range(1, MAX_MATCH_ROUNDS + 1):
+        if round_number > 1:
+            evaluation.progress.add_total(len(evaluation.samples[task]))
+        match = evaluation.search_knob(task, spec, search_target, start, round_number)
+        rows = evaluation.run_passes([(task, spec, {**spec.kwargs, spec.knob: match.value})])[0]
+        effort = _effort(rows)
+        matched = _within(effort, target, config.effort_tolerance)
+        note = ""
+        if not matched:
+            if not match.matched:
+                note = f"knob search failed: {match.reason}"
+            elif round_number < MAX_MATCH_ROUNDS:
+                # The screening samples mis-predict the whole set by effort/match.effort: aim off by as much.
+                search_target = search_target * match.effort / effort
+                start = match.value
+                continue
+            else:
+                note = f"not within {config.effort_tolerance:.0%} after {MAX_MATCH_ROUNDS} passes"
+        role = "matched" if matched else "unmatched"
+        return rows, EffortRecord(task, spec.name, role, spec.knob, match.value, effort, target, round_number, note)
+    raise AssertionError("unreachable: the last round returns")
 
 
 def export_sample_set(config: EvaluationConfig) -> Path:
@@ -762,7 +854,10 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             else:
                 passes = [(task, spec, spec.kwargs) for task in config.tasks for spec in specs]
                 records = {}
-                for (task, spec, _), rows in zip(passes, evaluation.run_passes(passes), strict=True):
+                passes_started = time.perf_counter()
+                rows_of_passes = evaluation.run_passes(passes)
+                evaluation.timings["passes"] = time.perf_counter() - passes_started
+                for (task, spec, _), rows in zip(passes, rows_of_passes, strict=True):
                     results[(task, spec.name)] = rows
                     records[(task, spec.name)] = EffortRecord(
                         task, spec.name, "fixed", spec.knob, spec.knob_value, _effort(rows), None
@@ -770,6 +865,9 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             if config.wants_optimal:
                 for task, rows in zip(config.tasks, evaluation.run_optimal(), strict=True):
                     results[(task, OPTIMAL)] = rows
+        except BaseException:
+            evaluation.cancelled.set()
+            raise
         finally:
             progress.close()
             timings.update(evaluation.timings)

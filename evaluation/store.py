@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +76,7 @@ class RunStore:
         if not manifest_path.exists():
             self._write_text(manifest_path, json.dumps(json.loads(_stable_json(manifest)), indent=2, sort_keys=True))
         self._calibration_path = self.root / "calibration.json"
+        self._calibration_lock = threading.Lock()
         self.calibration: dict[str, Any] = (
             json.loads(self._calibration_path.read_text()) if self._calibration_path.exists() else {}
         )
@@ -117,8 +119,9 @@ class RunStore:
     # -- calibration record ---------------------------------------------------------------------
     def save_calibration(self, key: str, record: Any) -> None:
         """Store one calibration step's record under ``key`` (kept across --resume)."""
-        self.calibration[key] = json.loads(_stable_json(record))
-        self._write_text(self._calibration_path, json.dumps(self.calibration, indent=2, sort_keys=True))
+        with self._calibration_lock:  # concurrent effort matches save their records
+            self.calibration[key] = json.loads(_stable_json(record))
+            self._write_text(self._calibration_path, json.dumps(self.calibration, indent=2, sort_keys=True))
 
     def write_text(self, name: str, text: str) -> Path:
         path = self.root / name

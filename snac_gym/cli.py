@@ -150,7 +150,7 @@ def evaluate(
     workers: int = typer.Option(1, "--workers", min=1, help="Local worker processes."),
     ray: Optional[str] = typer.Option(None, "--ray", help="Run on Ray: 'local' (a new instance here) or a cluster address ('auto', 'ray://host:10001')."),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run in OUT."),
-    chunk_size: int = typer.Option(50, "--chunk-size", min=1, help="Samples per job."),
+    chunk_size: Optional[int] = typer.Option(None, "--chunk-size", min=1, help="Samples per job of a full pass (default 500; results do not depend on it)."),
     cuboid: Optional[str] = typer.Option(None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."),
     robot: str = typer.Option("ur10", "--robot", help="ur3, ur5 or ur10."),
     param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
@@ -175,8 +175,9 @@ def evaluate(
             horizons=parse_horizons(horizon), backend=backend, match_effort=match_effort,
             effort_reference=effort_reference, effort_target=effort_target, effort_tolerance=effort_tolerance,
             calibration_samples=calibration_samples, samples_file=samples_file, export_samples=export_samples,
-            save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume, chunk_size=chunk_size,
+            save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
             robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, use_batch=batch,
+            **({} if chunk_size is None else {"chunk_size": chunk_size}),
         )
         if export_only:
             typer.echo(f"samples written to {export_sample_set(config)}")

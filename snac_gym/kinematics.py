@@ -141,6 +141,8 @@ class Kinematics:
         self.velocity_limits = np.array(self.model.velocityLimit, dtype=float)
         self.lower_limits = np.array(self.model.lowerPositionLimit, dtype=float)
         self.upper_limits = np.array(self.model.upperPositionLimit, dtype=float)
+        self._chain = BatchChain.from_model(self.model, self._ee_id)
+        self._last_batch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def ee_mount(self) -> tuple[str, np.ndarray]:
         """The joint that carries the end-effector frame and the frame's offset in that joint's frame, m.
@@ -194,15 +196,18 @@ class Kinematics:
         jac = pin.computeFrameJacobian(self.model, self.data, q, self._ee_id, pin.LOCAL_WORLD_ALIGNED)[:3]
         return self.data.oMf[self._ee_id].translation.copy(), jac
 
-    def forward_batch(self, qs: np.ndarray) -> np.ndarray:
-        """Positions for a batch of configurations, shape ``(B, n_joints) -> (B, task_dim)``."""
+    def _check_batch(self, qs: np.ndarray) -> np.ndarray:
         qs = np.asarray(qs, dtype=float)
-        positions = np.empty((len(qs), self.task_dim))
-        model, data, frame = self.model, self.data, self._ee_id
-        for k, q in enumerate(qs):  # the per-call checks of forward() skipped: one shape check for all
-            pin.forwardKinematics(model, data, q)
-            positions[k] = pin.updateFramePlacement(model, data, frame).translation
-        return positions
+        if qs.ndim != 2 or qs.shape[1] != self.n_joints:
+            raise ValueError(f"configurations must have shape (B, {self.n_joints}), got {qs.shape}")
+        return qs
+
+    def forward_batch(self, qs: np.ndarray) -> np.ndarray:
+        """Positions for a batch of configurations, shape ``(B, n_joints) -> (B, task_dim)``.
+
+        Same evaluation and caching as :meth:`forward_and_jacobian_batch`.
+        """
+        return self.forward_and_jacobian_batch(qs)[0]
 
     def jacobian_batch(self, qs: np.ndarray) -> np.ndarray:
         """``J(θᵢ)`` for a batch, shape ``(B, n_joints) -> (B, task_dim, n_joints)`` (the batch policies' form)."""
@@ -211,19 +216,32 @@ class Kinematics:
     def forward_and_jacobian_batch(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(f(θᵢ), J(θᵢ))`` for a batch, shapes ``(B, task_dim)`` and ``(B, task_dim, n_joints)``.
 
-        The evaluator and the optimal-control solver call this over whole trajectories, so the
-        per-call argument checks of :meth:`forward_and_jacobian` are done once for the batch.
+        The evaluator, the batch policies and the optimal-control solver call this over many
+        samples or whole trajectories. Batches are evaluated by :class:`BatchChain` (vectorised
+        over the batch, 0.6 µs per configuration for 500 of them against 1.6 µs through
+        Pinocchio per configuration) when the model allows it, by a loop over Pinocchio
+        otherwise; either way a row does not depend on the rest of the batch. The last batch
+        is remembered, because in each control step of the evaluator the backend asks for
+        ``f(θ)`` of all samples and the policies then for ``J(θ)`` of the same configurations;
+        the arrays returned are therefore read-only.
         """
-        qs = np.asarray(qs, dtype=float)
-        if qs.ndim != 2 or qs.shape[1] != self.n_joints:
-            raise ValueError(f"configurations must have shape (B, {self.n_joints}), got {qs.shape}")
-        n = self.task_dim
-        positions = np.empty((len(qs), n))
-        jacobians = np.empty((len(qs), n, self.n_joints))
-        model, data, frame, placements = self.model, self.data, self._ee_id, self.data.oMf
-        for k, q in enumerate(qs):
-            jacobians[k] = pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED)[:n]
-            positions[k] = placements[frame].translation
+        qs = self._check_batch(qs)
+        last = self._last_batch
+        if last is not None and last[0].shape == qs.shape and np.array_equal(last[0], qs):
+            return last[1], last[2]
+        if self._chain is not None:
+            positions, jacobians = self._chain.forward_and_jacobian(qs)
+        else:
+            n = self.task_dim
+            positions = np.empty((len(qs), n))
+            jacobians = np.empty((len(qs), n, self.n_joints))
+            model, data, frame, placements = self.model, self.data, self._ee_id, self.data.oMf
+            for k, q in enumerate(qs):
+                jacobians[k] = pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED)[:n]
+                positions[k] = placements[frame].translation
+        positions.setflags(write=False)
+        jacobians.setflags(write=False)
+        self._last_batch = (qs.copy(), positions, jacobians)
         return positions, jacobians
 
     def singular_values(self, q: np.ndarray) -> np.ndarray:
@@ -266,3 +284,143 @@ class Kinematics:
             q = np.clip(q + step, self.lower_limits, self.upper_limits)
         err = target - self.forward(q)
         return q, bool(err @ err <= tol * tol)
+
+
+#: Unit axis of Pinocchio's axis-aligned revolute (R*) and prismatic (P*) joint models.
+_ALIGNED_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
+
+
+class BatchChain:
+    """A Pinocchio model's kinematic tree evaluated over a batch of configurations at once.
+
+    Pinocchio has no batched call from Python, and one ``computeFrameJacobian`` costs about
+    1.6 µs of which most is the call itself, while the evaluator needs ``f`` and ``J`` for
+    thousands of configurations per control step. This evaluates the same product of joint
+    placements and joint motions, ``oMᵢ = oM_parent(i) · M_i · exp(S_i θᵢ)``, as array
+    arithmetic over the batch, reading every placement and axis from the Pinocchio model
+    (nothing about the UR arms is written here). Rotations of the batch are stacked as a
+    ``(3B, 3)`` array so that each product with a constant matrix is one BLAS call. The
+    position Jacobian column of a revolute joint is ``zᵢ × (x − pᵢ)`` and of a prismatic joint
+    ``zᵢ`` (eq. 2); joints that do not carry the end effector have zero columns. Results match
+    Pinocchio to rounding (tests/test_kinematics.py, 1e-12).
+
+    Build one with :meth:`from_model`, which returns ``None`` for a model with other joint types.
+    """
+
+    def __init__(
+        self,
+        parents: list[int],
+        placements: list[tuple[np.ndarray, np.ndarray]],
+        axes: list[np.ndarray],
+        revolute: list[bool],
+        q_index: list[int],
+        ee_joint: int,
+        ee_offset: np.ndarray,
+        n_joints: int,
+    ) -> None:
+        self._parents, self._placements, self._axes = parents, placements, axes
+        self._revolute, self._q_index = revolute, q_index
+        self._ee_joint, self._ee_offset, self._n_joints = ee_joint, ee_offset, n_joints
+        # A coordinate axis (the R*/P* joint models) turns two columns; any other goes through Rodrigues.
+        self._aligned = [int(np.argmax(a)) if np.count_nonzero(a) == 1 and a.max() == 1.0 else None for a in axes]
+        self._identity = [bool(np.array_equal(rotation, np.eye(3))) for rotation, _ in placements]
+        self._skew = [_skew(a) for a in axes]
+        self._skew_squared = [k @ k for k in self._skew]
+        support, joint = [], ee_joint
+        while joint > 0:
+            support.append(joint)
+            joint = parents[joint - 1]
+        self._support = sorted(support)
+
+    @classmethod
+    def from_model(cls, model: Any, ee_frame_id: int) -> BatchChain | None:
+        """The chain of ``model`` up to frame ``ee_frame_id``, or ``None`` if a joint is not a 1-DoF revolute/prismatic."""
+        parents, placements, axes, revolute, q_index = [], [], [], [], []
+        for joint in range(1, model.njoints):
+            joint_model = model.joints[joint]
+            kind = joint_model.shortname().removeprefix("JointModel")
+            if kind in ("RX", "RY", "RZ", "PX", "PY", "PZ"):
+                axis = np.array(_ALIGNED_AXES[kind[1]], dtype=float)
+            elif kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
+                axis = np.array(joint_model.extract().axis, dtype=float).reshape(3)
+            else:
+                return None
+            parents.append(int(model.parents[joint]))
+            placement = model.jointPlacements[joint]
+            placements.append((placement.rotation.copy(), placement.translation.copy()))
+            axes.append(axis)
+            revolute.append(kind[0] == "R")
+            q_index.append(int(joint_model.idx_q))
+        frame = model.frames[ee_frame_id]
+        if frame.parentJoint == 0:
+            return None
+        offset = frame.placement.translation.copy()
+        return cls(parents, placements, axes, revolute, q_index, int(frame.parentJoint), offset, int(model.nq))
+
+    def _tree(self, qs: np.ndarray, joints: list[int]) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], dict[int, np.ndarray]]:
+        """Stacked rotations ``(3B, 3)``, origins ``(B, 3)`` and axes ``(B, 3)`` of ``joints`` (ascending)."""
+        count = len(qs)
+        rotations: dict[int, np.ndarray] = {}
+        origins: dict[int, np.ndarray] = {}
+        axes: dict[int, np.ndarray] = {}
+        # cos θ and sin θ of every joint, each repeated for the three rows of a sample's rotation.
+        cosines = np.repeat(np.cos(qs), 3, axis=0)
+        sines = np.repeat(np.sin(qs), 3, axis=0)
+        for joint in joints:
+            i = joint - 1
+            parent = self._parents[i]
+            rotation, translation = self._placements[i]
+            if parent == 0:
+                frame = np.tile(rotation, (count, 1))
+                origin = np.broadcast_to(translation, (count, 3))
+            else:
+                frame = rotations[parent] if self._identity[i] else rotations[parent] @ rotation
+                origin = origins[parent] + (rotations[parent] @ translation).reshape(count, 3)
+            column = self._q_index[i]
+            aligned = self._aligned[i]
+            axis = (frame[:, aligned] if aligned is not None else frame @ self._axes[i]).reshape(count, 3)
+            if not self._revolute[i]:
+                rotations[joint] = frame
+                origin = origin + axis * qs[:, column, None]
+            elif aligned is not None:
+                # frame · R_k(θ) for the coordinate axis k: two columns turn, the third stays.
+                first, second = (aligned + 1) % 3, (aligned + 2) % 3
+                cos, sin = cosines[:, column], sines[:, column]
+                turned = np.empty_like(frame)
+                turned[:, first] = cos * frame[:, first] + sin * frame[:, second]
+                turned[:, second] = cos * frame[:, second] - sin * frame[:, first]
+                turned[:, aligned] = frame[:, aligned]
+                rotations[joint] = turned
+            else:
+                # Rodrigues: R(a, θ) = I + sin θ K + (1 − cos θ) K², K = [a]×.
+                sin, one_minus_cos = sines[:, column, None], 1.0 - cosines[:, column, None]
+                rotations[joint] = frame + (frame @ self._skew[i]) * sin + (frame @ self._skew_squared[i]) * one_minus_cos
+            origins[joint], axes[joint] = origin, axis
+        return rotations, origins, axes
+
+    def forward(self, qs: np.ndarray) -> np.ndarray:
+        """``f(θᵢ)`` for ``(B, m)`` configurations, shape ``(B, 3)``."""
+        rotations, origins, _ = self._tree(qs, self._support)
+        return origins[self._ee_joint] + (rotations[self._ee_joint] @ self._ee_offset).reshape(len(qs), 3)
+
+    def forward_and_jacobian(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(f(θᵢ), J(θᵢ))``, shapes ``(B, 3)`` and ``(B, 3, m)``."""
+        count = len(qs)
+        rotations, origins, axes = self._tree(qs, self._support)
+        x = origins[self._ee_joint] + (rotations[self._ee_joint] @ self._ee_offset).reshape(count, 3)
+        jacobians = np.zeros((count, 3, self._n_joints))
+        for joint in self._support:
+            column, axis = self._q_index[joint - 1], axes[joint]
+            if not self._revolute[joint - 1]:
+                jacobians[:, :, column] = axis
+                continue
+            lever = x - origins[joint]
+            jacobians[:, 0, column] = axis[:, 1] * lever[:, 2] - axis[:, 2] * lever[:, 1]
+            jacobians[:, 1, column] = axis[:, 2] * lever[:, 0] - axis[:, 0] * lever[:, 2]
+            jacobians[:, 2, column] = axis[:, 0] * lever[:, 1] - axis[:, 1] * lever[:, 0]
+        return x, jacobians
+
+
+def _skew(axis: np.ndarray) -> np.ndarray:
+    """``[a]×``, the matrix of ``v ↦ a × v``."""
+    return np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])

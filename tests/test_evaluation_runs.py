@@ -125,7 +125,7 @@ def test_explicit_target_matches_every_controller_and_workers_do_not_change_resu
     common = {"controllers": ("evaltest-dls", "rnn"), "tasks": ("reach",), "effort_target": 0.4}
     serial = run_evaluation(_config(tmp_path / "serial", **common))
     parallel = run_evaluation(_config(tmp_path / "parallel", workers=2, **common))
-    pd.testing.assert_frame_equal(serial, parallel)
+    pd.testing.assert_frame_equal(serial, parallel, check_exact=True)  # bit for bit, matches run concurrently
     efforts = serial.groupby("controller")["peak_limit_fraction"].median()
     assert ((efforts / 0.4 - 1).abs() <= 0.02).all(), efforts
     assert serial.groupby("controller")["effort_value"].nunique().eq(1).all()
@@ -157,7 +157,7 @@ def test_an_interrupted_run_resumes_without_losing_or_repeating_samples(tmp_path
     monkeypatch.setattr(runner_module, "run_job", real_run_job)
     resumed = run_evaluation(dataclasses.replace(config, resume=True))
     assert {p: p.stat().st_mtime_ns for p in parts} == parts  # completed jobs were not run again
-    pd.testing.assert_frame_equal(resumed, reference)
+    pd.testing.assert_frame_equal(resumed, reference, check_exact=True)
     assert not resumed.duplicated(["task", "controller", "sample"]).any() and len(resumed) == 2 * 2 * 6
 
 
@@ -196,7 +196,7 @@ def test_ray_runs_the_same_work(tmp_path):
     common = {"controllers": ("dls",), "tasks": ("track",), "samples": 4, "match_effort": False}
     serial = run_evaluation(_config(tmp_path / "serial", **common))
     on_ray = run_evaluation(_config(tmp_path / "ray", ray_address="local", workers=2, **common))
-    pd.testing.assert_frame_equal(serial, on_ray)
+    pd.testing.assert_frame_equal(serial, on_ray, check_exact=True)
 
 
 def test_cli_exports_reads_samples_and_reports(tmp_path):

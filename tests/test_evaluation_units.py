@@ -397,3 +397,105 @@ def test_samples_carry_reset_options_for_the_envs(reach_samples, track_samples):
     track = track_samples[0].reset_options()
     assert Ellipse.from_dict(track["ellipse"]).to_dict() == track_samples[0].reference.to_dict()
     assert isinstance(reach_samples[0], EvaluationSample)
+
+
+def _timed_job(item: tuple[str, float]) -> tuple[str, float, float]:
+    """A job for the executor tests: its label and when it started and ended (wall clock)."""
+    import time
+
+    label, seconds = item
+    started = time.time()
+    time.sleep(seconds)
+    return label, started, time.time()
+
+
+def test_process_executor_runs_urgent_jobs_first_and_keeps_a_reserved_worker_free():
+    import threading
+
+    from evaluation.executors import ProcessExecutor
+
+    executor = ProcessExecutor(2)
+    try:
+        executor.reserve(1)  # while a knob search runs: full passes get one worker only
+        passes: dict[int, tuple] = {}
+
+        def run_passes():
+            passes.update(executor.run(_timed_job, [(f"pass{i}", 0.15) for i in range(4)], priority=1))
+
+        thread = threading.Thread(target=run_passes)
+        thread.start()
+        urgent = dict(executor.run(_timed_job, [("search", 0.05)], priority=0))
+        thread.join()
+        executor.reserve(0)
+        free = dict(executor.run(_timed_job, [(f"free{i}", 0.15) for i in range(2)], priority=1))
+    finally:
+        executor.close()
+    intervals = sorted((start, end) for _, start, end in passes.values())
+    assert len(intervals) == 4
+    # one pass at a time while a worker is reserved...
+    assert all(later[0] >= earlier[1] for earlier, later in zip(intervals, intervals[1:]))
+    # ...so the search, submitted after all four, did not wait for the queued ones
+    assert urgent[0][1] < intervals[-1][0]
+    # without the reservation both workers take passes
+    (_, a0, a1), (_, b0, b1) = free.values()
+    assert max(a0, b0) < min(a1, b1)
+
+
+def test_process_executor_passes_job_errors_through():
+    from evaluation.executors import ProcessExecutor
+
+    executor = ProcessExecutor(2)
+    try:
+        with pytest.raises(ValueError, match="not enough values to unpack"):
+            list(executor.run(_timed_job, [("ok", 0.0), ("bad",)]))
+    finally:
+        executor.close()
+
+
+def test_concurrent_effort_matches_raise_the_failure_not_the_cancellations(tmp_path):
+    import threading
+    import time
+
+    import evaluation.runner as runner_module
+
+    class Concurrent:
+        concurrent = True
+
+    config = runner_module.EvaluationConfig(out=tmp_path, workers=2, progress=False)
+    evaluation = runner_module._Evaluation(config, None, Concurrent(), {}, None)
+    started = threading.Event()
+
+    def waits_for_cancellation():
+        started.set()
+        while True:  # a pipeline between two steps
+            evaluation._check_cancelled()
+            time.sleep(0.01)
+
+    def fails():
+        started.wait()
+        time.sleep(0.05)
+        raise RuntimeError("policy exploded")
+
+    with pytest.raises(RuntimeError, match="policy exploded"):
+        evaluation.concurrently([waits_for_cancellation, fails])
+    assert evaluation.cancelled.is_set()
+    serial = runner_module._Evaluation(config, None, object(), {}, None)
+    assert serial.concurrently([lambda: 1, lambda: 2]) == [1, 2]
+
+
+def test_knob_search_evaluations_are_spread_over_the_workers(tmp_path):
+    from types import SimpleNamespace
+
+    import evaluation.runner as runner_module
+
+    config = runner_module.EvaluationConfig(out=tmp_path, workers=3, progress=False)  # chunk_size 500
+    evaluation = runner_module._Evaluation(config, None, None, {}, None)
+    samples = [SimpleNamespace(index=i) for i in range(100)]
+
+    def sizes(**kwargs):
+        return [len(job.samples) for job in evaluation._jobs("reach", "dls", {}, samples, 10, False, **kwargs)]
+
+    assert sizes() == [100]  # a full pass: chunks of chunk_size
+    assert sizes(spread=True) == [34, 34, 32]  # a search: one job per worker
+    evaluation.spread_searches = False  # as many searches as workers run at once: keep jobs whole
+    assert sizes(spread=True) == [100]

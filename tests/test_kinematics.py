@@ -76,12 +76,86 @@ def test_forward_and_jacobian_agree_with_separate_calls(ur10, rng):
     np.testing.assert_allclose(ur10.forward_batch(np.stack([q, q])), np.stack([x, x]))
     qs = _random_configurations(ur10, np.random.default_rng(3), 4)
     positions, jacobians = ur10.forward_and_jacobian_batch(qs)
-    for q_i, x_i, jac_i in zip(qs, positions, jacobians):
-        np.testing.assert_array_equal(x_i, ur10.forward(q_i))
-        np.testing.assert_array_equal(jac_i, ur10.jacobian(q_i))
+    for q_i, x_i, jac_i in zip(qs, positions, jacobians):  # the batch is vectorised: same to rounding
+        np.testing.assert_allclose(x_i, ur10.forward(q_i), rtol=0, atol=1e-15)
+        np.testing.assert_allclose(jac_i, ur10.jacobian(q_i), rtol=0, atol=1e-15)
     np.testing.assert_array_equal(ur10.jacobian_batch(qs), jacobians)
     with pytest.raises(ValueError, match=r"shape \(B, 6\)"):
         ur10.forward_and_jacobian_batch(np.zeros((2, 5)))
+
+
+@pytest.mark.parametrize("robot", ["ur3", "ur5", "ur10"])
+def test_batch_chain_matches_pinocchio_over_the_whole_joint_range(robot):
+    kinematics = Kinematics(robot)
+    assert kinematics._chain is not None  # the UR arms take the vectorised path
+    qs = np.random.default_rng(7).uniform(-2 * np.pi, 2 * np.pi, (200, 6))
+    positions, jacobians = kinematics.forward_and_jacobian_batch(qs)
+    for q, x, jac in zip(qs, positions, jacobians):
+        np.testing.assert_allclose(x, kinematics.forward(q), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(jac, kinematics.jacobian(q), rtol=0, atol=1e-12)
+
+
+def test_a_batch_row_does_not_depend_on_the_rest_of_the_batch(ur10):
+    """The evaluator's results must not depend on how samples are cut into jobs: rows are bit-identical."""
+    qs = np.random.default_rng(11).uniform(-3, 3, (600, 6))
+    whole_x, whole_jac = (a.copy() for a in ur10.forward_and_jacobian_batch(qs))
+    for start, size in [(0, 1), (5, 7), (100, 64), (37, 500)]:
+        x, jac = ur10.forward_and_jacobian_batch(qs[start : start + size])
+        np.testing.assert_array_equal(x, whole_x[start : start + size])
+        np.testing.assert_array_equal(jac, whole_jac[start : start + size])
+
+
+def test_the_last_batch_is_reused_only_for_equal_configurations_and_is_read_only(ur10):
+    qs = np.random.default_rng(12).uniform(-3, 3, (5, 6))
+    x, jac = ur10.forward_and_jacobian_batch(qs)
+    assert ur10.jacobian_batch(qs.copy()) is jac and ur10.forward_batch(qs) is x
+    with pytest.raises(ValueError, match="read-only"):
+        jac[0, 0, 0] = 1.0
+    moved = qs.copy()
+    moved[3, 2] += 1e-9
+    x_moved = ur10.forward_batch(moved)
+    assert x_moved is not x
+    np.testing.assert_array_equal(x_moved[:3], x[:3])
+    assert not np.array_equal(x_moved[3], x[3])
+    qs[0, 0] += 0.5  # changing the caller's array in place must not return the stale result
+    np.testing.assert_allclose(ur10.forward_batch(qs)[0], ur10.forward(qs[0]), atol=1e-15)
+
+
+_GENERAL_URDF = """<robot name="general">
+  <link name="base"/><link name="a"/><link name="b"/><link name="c"/><link name="d"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="a"/>
+    <origin xyz="0.1 0 0.2" rpy="0.3 -0.2 0.1"/><axis xyz="0 0.6 0.8"/>
+    <limit lower="-3" upper="3" velocity="2" effort="1"/></joint>
+  <joint name="j2" type="prismatic"><parent link="a"/><child link="b"/>
+    <origin xyz="0 0.3 0" rpy="0 0.5 0"/><axis xyz="1 0 0"/>
+    <limit lower="-1" upper="1" velocity="1" effort="1"/></joint>
+  <joint name="j3" type="revolute"><parent link="b"/><child link="c"/>
+    <origin xyz="0 0 0.25" rpy="0 0 0"/><axis xyz="0 0 -1"/>
+    <limit lower="-3" upper="3" velocity="2" effort="1"/></joint>
+  <joint name="j4" type="revolute"><parent link="c"/><child link="d"/>
+    <origin xyz="0.2 0 0" rpy="1.0 0 0"/><axis xyz="0 1 0"/>
+    <limit lower="-3" upper="3" velocity="2" effort="1"/></joint>
+  <link name="tip"/>
+  <joint name="tip_fixed" type="fixed"><parent link="d"/><child link="tip"/><origin xyz="0.05 0.1 0.02"/></joint>
+</robot>
+"""
+
+
+def test_batch_chain_handles_unaligned_negative_and_prismatic_axes(tmp_path):
+    urdf = tmp_path / "general.urdf"
+    urdf.write_text(_GENERAL_URDF)
+    kinematics = Kinematics(urdf_path=urdf, ee_frame="tip", base_frame="base")
+    assert kinematics._chain is not None
+    qs = np.random.default_rng(5).uniform(-1, 1, (50, 4))
+    positions, jacobians = kinematics.forward_and_jacobian_batch(qs)
+    for q, x, jac in zip(qs, positions, jacobians):
+        np.testing.assert_allclose(x, kinematics.forward(q), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(jac, kinematics.jacobian(q), rtol=0, atol=1e-12)
+    kinematics._chain = None  # the per-configuration Pinocchio loop gives the same
+    kinematics._last_batch = None
+    looped_x, looped_jac = kinematics.forward_and_jacobian_batch(qs)
+    np.testing.assert_allclose(looped_x, positions, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(looped_jac, jacobians, rtol=0, atol=1e-12)
 
 
 def test_inverse_position_reaches_a_forward_point(ur10, rng):
