@@ -107,7 +107,9 @@ def run_job(job: RolloutJob) -> JobResult:
     if job.backend == "kinematic":
         context = policy_context(job.robot, job.dt, job.task)
         make = functools.partial(make_policy, job.controller, context, **job.kwargs)
-        rollouts = simulate_kinematic(context, make, job.samples, job.steps, job.seeds, job.use_batch, job.controller)
+        rollouts = simulate_kinematic(
+            context, make, job.samples, job.steps, job.seeds, job.use_batch, job.controller, keep_states=job.keep_logs
+        )
         limits = context.velocity_limits
         logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
     elif job.backend == "pybullet":

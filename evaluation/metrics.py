@@ -21,6 +21,7 @@ settle_time            s       first tₖ from which ‖eⱼ‖ stays within the
                                mm reach, 5 mm track) up to and including e_K; NaN if ‖e_K‖ is
                                outside it
 max_abs_u              rad/s   max over steps and joints of |uₖⱼ| (peak ‖u‖∞)
+max_abs_u_step         –       the step k where max_abs_u occurs (first one)
 max_norm_u             rad/s   max over steps of ‖uₖ‖₂
 peak_limit_fraction    –       max over steps and joints of |uₖⱼ|/ūⱼ (ū: velocity limits; 1 =
                                at a limit)
@@ -58,6 +59,7 @@ METRIC_COLUMNS = (
     "time_to_1mm",
     "settle_time",
     "max_abs_u",
+    "max_abs_u_step",
     "max_norm_u",
     "peak_limit_fraction",
     "peak_step",
@@ -99,6 +101,8 @@ def rollout_metrics(rollouts: Rollouts, task: str, velocity_limits: np.ndarray) 
     rates = command_differences(commands) / dt
     limits = np.asarray(velocity_limits, dtype=float)
     peak_fraction, peak_step = peak_limit_fractions(commands, limits)
+    peak_abs = np.abs(commands).max(axis=-1)  # (B, K): ‖uₖ‖∞
+    peak_abs_step = np.argmax(peak_abs, axis=1)
     at_limit = (np.abs(commands) >= limits * (1.0 - LIMIT_RELATIVE_TOLERANCE)).any(axis=-1)
     second_half = error_norms[:, rollouts.steps // 2 :].mean(axis=1)
     success = final_error <= REACH_TOLERANCE if task == "reach" else second_half <= TRACK_TOLERANCE
@@ -112,7 +116,8 @@ def rollout_metrics(rollouts: Rollouts, task: str, velocity_limits: np.ndarray) 
             "final_error": final_error,
             "time_to_1mm": time_to_1mm,
             "settle_time": settle_time,
-            "max_abs_u": np.abs(commands).max(axis=(1, 2)),
+            "max_abs_u": peak_abs[np.arange(len(peak_abs)), peak_abs_step],
+            "max_abs_u_step": peak_abs_step.astype(np.int64),
             "max_norm_u": np.linalg.norm(commands, axis=-1).max(axis=1),
             "peak_limit_fraction": peak_fraction,
             "peak_step": peak_step.astype(np.int64),

@@ -7,7 +7,8 @@
 ``time_to_1mm_median``, ``settled_fraction``, ``settle_time_median`` and ``settle_time_p95``
 (order statistics; inf when too few rollouts settled within the horizon), the effort
 statistic matched (``effort``), its knob (``effort_parameter``, ``effort_value``,
-``effort_role``) and the literal maxima over the set (``max_abs_u``, ``max_norm_u``).
+``effort_role``), both effort statistics whichever was matched (``max_abs_u``, the maximum |u|
+over the set, and ``median_peak_limit_fraction``) and ``max_norm_u``.
 
 With the ``optimal`` reference (docs/optimal.md): ``ratio_to_optimal_mean`` (V/N's per-sample
 counterpart: the mean over samples of cost / optimum), ``ratio_to_optimal_median``,
@@ -79,6 +80,7 @@ def summarise(
             row[p + "settle_time_median"] = float(np.quantile(settle, 0.5, method="inverted_cdf"))
             row[p + "settle_time_p95"] = float(np.quantile(settle, 0.95, method="inverted_cdf"))
             row[p + "max_abs_u"] = float(part["max_abs_u"].max())
+            row[p + "median_peak_limit_fraction"] = float(part["peak_limit_fraction"].median())
             row[p + "max_norm_u"] = float(part["max_norm_u"].max())
             if "ratio_to_optimal" in part:
                 row[p + "ratio_to_optimal_mean"] = float(part["ratio_to_optimal"].mean())
@@ -281,14 +283,26 @@ def summary_markdown(
         if config.match_effort
         else f"Statistic (not matched): {effort_statistic}.",
         "",
-        "| Task | Controller | role | knob | value | effort | target | passes | note |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "Both statistics of every controller's rollouts, whichever was matched: the maximum |u| over the "
+        "sample set (rad/s) and the median over samples of each rollout's peak |u_j|/ū_j.",
+        "",
+        "| Task | Controller | role | knob | value | effort | target | max \\|u\\| over the set (rad/s) "
+        "| median peak \\|u\\|/ū | passes | note |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    by_controller = summary.set_index("controller")
     for e in efforts:
+        p = f"{e.task}_"
+        literal_max = by_controller.at[e.controller, p + "max_abs_u"] if e.controller in by_controller.index else math.nan
+        median_peak = (
+            by_controller.at[e.controller, p + "median_peak_limit_fraction"]
+            if e.controller in by_controller.index
+            else math.nan
+        )
         lines.append(
             f"| {e.task} | {controller_label(e.controller)} | {e.role} | {e.knob or '—'} | "
             f"{_general_number(e.knob_value)} | {_number(e.effort, 4)} | {_number(e.target, 4)} | "
-            f"{e.passes} | {e.note} |"
+            f"{_number(literal_max, 4)} | {_number(median_peak, 4)} | {e.passes} | {e.note} |"
         )
     unmatched = [e for e in efforts if e.role == "unmatched"]
     if unmatched:

@@ -24,9 +24,10 @@ class Rollouts:
     Attributes:
         dt: Control period, s.
         times: ``(K,)`` time at the start of each step, s.
-        q: ``(B, K, m)`` joint positions θₖ, rad.
+        q: ``(B, K, m)`` joint positions θₖ, rad (``None`` if not kept: see
+            :func:`~evaluation.backends.simulate_kinematic`).
         commands: ``(B, K, m)`` commands uₖ applied over step k (after clipping), rad/s.
-        x: ``(B, K, n)`` end-effector positions f(θₖ), m.
+        x: ``(B, K, n)`` end-effector positions f(θₖ), m (``None`` if not kept).
         x_d: ``(B, K, n)`` desired positions x_d(tₖ), m.
         xdot_d: ``(B, K, n)`` desired velocities ẋ_d(tₖ), m/s.
         errors: ``(B, K, n)`` errors eₖ = xₖ − x_d(tₖ), m.
@@ -37,9 +38,9 @@ class Rollouts:
 
     dt: float
     times: np.ndarray
-    q: np.ndarray
+    q: np.ndarray | None
     commands: np.ndarray
-    x: np.ndarray
+    x: np.ndarray | None
     x_d: np.ndarray
     xdot_d: np.ndarray
     errors: np.ndarray
@@ -63,6 +64,8 @@ class Rollouts:
         ``attrs`` is merged into the log's metadata after ``dt``, ``final_t``, ``final_q``,
         ``final_x`` and ``final_e``.
         """
+        if self.q is None or self.x is None:
+            raise ValueError("these rollouts were run without their states (keep_states=False): no per-step log")
         m, n = self.q.shape[-1], self.x.shape[-1]
         blocks = [
             self.times[:, None],

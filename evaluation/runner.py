@@ -46,11 +46,10 @@ import pandas as pd
 
 from evaluation.backends import BACKENDS
 from evaluation.calibration import (
-    EFFORT_COLUMN,
-    EFFORT_STATISTIC,
-    PEAK_STEP_COLUMN,
+    DEFAULT_EFFORT_STATISTIC,
     EffortMatch,
-    effort_statistic,
+    EffortStatistic,
+    effort_statistic_named,
     match_effort,
 )
 from evaluation.executors import make_executor
@@ -82,8 +81,11 @@ OPTIMAL_CHUNK_SIZE = 50
 MAX_MATCH_ROUNDS = 3
 #: Samples whose full-horizon rollouts locate the effort peak in time before a search.
 PEAK_PROBE_SAMPLES = 20
-#: A knob search evaluation runs on at most this fraction of a full pass's sample-steps...
-SCREENING_BUDGET = 0.1
+#: A knob search evaluation runs on at most this fraction of a full pass's sample-steps, per
+#: statistic... For ``max``, screening fewer than all samples usually costs a refinement (one more
+#: full pass, see :func:`_match_one`), which screening all of them in each of a search's ~6
+#: evaluations costs less than when its rollouts are shorter than 1/6 of a pass.
+SCREENING_BUDGET = {"median-peak": 0.1, "max": 1 / 6}
 #: ...but on at least this many samples (unless the set is smaller).
 MIN_SCREENING_SAMPLES = 100
 #: Executor priority of knob-search jobs over full passes (lower runs first): every later step of
@@ -107,7 +109,10 @@ class EvaluationConfig:
         backend: ``"kinematic"`` or ``"pybullet"``.
         match_effort: Calibrate every controller's effort knob to equal effort.
         effort_reference: Controller whose effort (at its own settings) is the target.
-        effort_target: Explicit target of the effort statistic, rad/s (then every controller is matched).
+        effort_statistic: What "equal control effort" equalises: ``"max"`` (the maximum |u| over
+            the sample set, rad/s) or ``"median-peak"`` (:mod:`evaluation.calibration`).
+        effort_target: Explicit target of the effort statistic, in its unit (then every
+            controller is matched).
         effort_tolerance: Relative tolerance of the match over the whole sample set.
         calibration_samples: Samples (the first ones of each task) the knob search runs on;
             ``None``: all of them when the search's rollouts are short, fewer when they are
@@ -136,6 +141,7 @@ class EvaluationConfig:
     backend: str = "kinematic"
     match_effort: bool = True
     effort_reference: str = "snac"
+    effort_statistic: str = DEFAULT_EFFORT_STATISTIC
     effort_target: float | None = None
     effort_tolerance: float = 0.02
     calibration_samples: int | None = None
@@ -177,6 +183,7 @@ class EvaluationConfig:
             raise ValueError(
                 f"the {OPTIMAL!r} reference is the optimum of the kinematic model; use --backend kinematic"
             )
+        effort_statistic_named(self.effort_statistic)
         if self.effort_target is not None and not self.effort_target > 0:
             raise ValueError(f"effort_target must be positive, got {self.effort_target}")
         if not 0 < self.effort_tolerance < 1:
@@ -194,6 +201,11 @@ class EvaluationConfig:
     def wants_optimal(self) -> bool:
         """Whether the ``optimal`` reference is among the controllers (never by default)."""
         return self.controllers is not None and OPTIMAL in self.controllers
+
+    @property
+    def statistic(self) -> EffortStatistic:
+        """The effort statistic named by ``effort_statistic``."""
+        return effort_statistic_named(self.effort_statistic)
 
     def horizon(self, task: str) -> float:
         """Rollout length of ``task``, s."""
@@ -218,6 +230,7 @@ class EvaluationConfig:
             "backend": self.backend,
             "match_effort": self.match_effort,
             "effort_reference": self.effort_reference,
+            "effort_statistic": self.effort_statistic,
             "effort_target": self.effort_target,
             "effort_tolerance": self.effort_tolerance,
             "calibration_samples": self.calibration_samples,
@@ -587,7 +600,7 @@ class _Evaluation:
         """How many of the first samples a search runs on (later rounds keep the first round's count).
 
         ``calibration_samples`` if given; otherwise every sample when the search's rollouts are
-        short, fewer when they are long, so that one evaluation costs about
+        short, fewer when they are long, so that one evaluation costs about the statistic's
         :data:`SCREENING_BUDGET` of a full pass (never fewer than :data:`MIN_SCREENING_SAMPLES`).
         """
         if round_number > 1:
@@ -600,33 +613,61 @@ class _Evaluation:
         count = len(self.samples[task])
         if self.config.calibration_samples:
             return min(count, self.config.calibration_samples)
-        budget = math.ceil(SCREENING_BUDGET * count * self.config.steps(task) / search_steps)
+        fraction = SCREENING_BUDGET[self.config.effort_statistic]
+        budget = math.ceil(fraction * count * self.config.steps(task) / search_steps)
         return min(count, max(MIN_SCREENING_SAMPLES, budget))
 
     def search_knob(
-        self, task: str, spec: ControllerSpec, target: float, start: float, round_number: int
+        self,
+        task: str,
+        spec: ControllerSpec,
+        target: float,
+        start: float,
+        round_number: int,
+        subset: Sequence[EvaluationSample] | None = None,
+        horizon: int | None = None,
     ) -> EffortMatch:
         """:meth:`_search_knob`, keeping a worker free for it (see :meth:`_searching`)."""
         with self._searching():
-            return self._search_knob(task, spec, target, start, round_number)
+            return self._search_knob(task, spec, target, start, round_number, subset, horizon)
 
     def _search_knob(
-        self, task: str, spec: ControllerSpec, target: float, start: float, round_number: int
+        self,
+        task: str,
+        spec: ControllerSpec,
+        target: float,
+        start: float,
+        round_number: int,
+        subset: Sequence[EvaluationSample] | None,
+        horizon: int | None,
     ) -> EffortMatch:
         """Search ``spec``'s knob so that the screening samples' effort statistic hits ``target``.
 
-        The search's rollouts stop after the steps where the effort peaks: a probe of
-        :data:`PEAK_PROBE_SAMPLES` full rollouts at ``start`` locates the latest peak, the
-        search runs twice that (plus 25 steps), and doubles it whenever some rollout peaks in
-        its last quarter. When a longer horizon calls for fewer screening samples (first round
-        only), the search starts again with them. (The full pass that follows checks the result
-        at full length.)
+        The screening samples are the first ones of the set (:meth:`_screening_count`), or
+        ``subset`` when given (the critical samples of a ``max`` refinement, with the
+        ``horizon`` that covers their peaks). The search's rollouts stop after the steps where
+        the effort peaks: a probe of :data:`PEAK_PROBE_SAMPLES` full rollouts at ``start``
+        locates the peak, and the search runs twice that step plus 25. For ``median-peak``
+        that is the latest peak of the probe, and the horizon doubles whenever some rollout
+        peaks in its last quarter (when that calls for fewer screening samples, first round
+        only, the search starts again with them). For ``max`` it is the step of the probe's
+        highest peak, without doubling: the maximum over a set is almost always the first
+        transient of its most demanding sample, and :func:`_match_one` checks the critical
+        samples over the full horizon afterwards. (The full pass that follows checks the
+        result at full length.)
         """
         config = self.config
         record_key = f"{task}/{spec.name}/search{round_number}"
         stored = self.store.calibration.get(record_key)
-        if stored and stored.get("target") == target and stored.get("start") == start:
-            self.screening_counts[(task, spec.name)] = int(stored["screening_samples"])
+        subset_ids = None if subset is None else [int(s.index) for s in subset]
+        if (
+            stored
+            and stored.get("target") == target
+            and stored.get("start") == start
+            and stored.get("sample_ids") == subset_ids
+        ):
+            if subset is None:
+                self.screening_counts[(task, spec.name)] = int(stored["screening_samples"])
             return EffortMatch(
                 stored["value"],
                 stored["effort"],
@@ -635,23 +676,34 @@ class _Evaluation:
                 [tuple(e) for e in stored["evaluations"]],
                 stored["reason"],
             )
-        samples = self.samples[task]
+        samples = self.samples[task] if subset is None else list(subset)
         full_steps = config.steps(task)
         started = time.perf_counter()
-        probe = self.measure(task, spec, {**spec.kwargs, spec.knob: start}, samples[:PEAK_PROBE_SAMPLES], full_steps)
-        horizon = min(full_steps, 2 * int(probe[PEAK_STEP_COLUMN].max()) + 25)
+        statistic = config.statistic
+        if horizon is None:
+            kwargs = {**spec.kwargs, spec.knob: start}
+            probe = self.measure(task, spec, kwargs, samples[:PEAK_PROBE_SAMPLES], full_steps)
+            if statistic.grows_horizon:
+                peak_step = int(probe[statistic.step_column].max())
+            else:
+                peak_step = int(probe[statistic.step_column].iloc[int(np.argmax(probe[statistic.column].to_numpy()))])
+            horizon = min(full_steps, 2 * peak_step + 25)
         while True:
-            count = self._screening_count(task, spec, horizon, round_number)
-            search = _KnobSearch(self, task, spec, samples[:count], horizon, full_steps, round_number)
+            count = len(samples) if subset is not None else self._screening_count(task, spec, horizon, round_number)
+            search = _KnobSearch(
+                self, task, spec, samples[:count], horizon, full_steps, round_number, fixed=subset is not None
+            )
             try:
                 match = match_effort(search.effort_at, target, start, config.effort_tolerance / 4)
                 break
             except _FewerSamplesNeeded:
                 horizon = search.horizon
-        self.screening_counts[(task, spec.name)] = count
+        if subset is None:
+            self.screening_counts[(task, spec.name)] = count
         self.store.save_calibration(
             record_key,
             {
+                "sample_ids": subset_ids,
                 "target": target,
                 "start": start,
                 "value": match.value,
@@ -687,29 +739,30 @@ class _KnobSearch:
         horizon: int,
         full_steps: int,
         round_number: int,
+        fixed: bool = False,
     ) -> None:
         self.evaluation, self.task, self.spec, self.screening = evaluation, task, spec, screening
         self.horizon, self.full_steps, self.round_number = horizon, full_steps, round_number
+        self.fixed = fixed  # screen exactly these samples, however long the rollouts get
 
     def effort_at(self, value: float) -> float:
         """The effort statistic at knob ``value`` (lengthening the rollouts while peaks come late)."""
         evaluation, spec = self.evaluation, self.spec
         while True:
             rows = evaluation.measure(self.task, spec, {**spec.kwargs, spec.knob: value}, self.screening, self.horizon)
-            late = rows[PEAK_STEP_COLUMN] >= self.horizon - max(10, self.horizon // 4)
-            if self.horizon >= self.full_steps or not late.any():
-                return effort_statistic(rows[EFFORT_COLUMN].to_numpy())
+            statistic = evaluation.config.statistic
+            late = rows[statistic.step_column] >= self.horizon - max(10, self.horizon // 4)
+            if self.horizon >= self.full_steps or not late.any() or not statistic.grows_horizon:
+                return statistic.of(rows)
             self.horizon = min(self.full_steps, 2 * self.horizon)
+            if self.fixed:
+                continue
             if evaluation._screening_count(self.task, spec, self.horizon, self.round_number) < len(self.screening):
                 raise _FewerSamplesNeeded
 
 
 def _within(effort: float, target: float, tolerance: float) -> bool:
     return abs(effort / target - 1.0) <= tolerance
-
-
-def _effort(rows: pd.DataFrame) -> float:
-    return effort_statistic(rows[EFFORT_COLUMN].to_numpy())
 
 
 def _match_controllers(
@@ -741,7 +794,7 @@ def _match_controllers(
         evaluation.timings["reference passes"] = time.perf_counter() - started
         for task, rows in zip(config.tasks, passes, strict=True):
             results[(task, reference)] = rows
-            targets[task] = _effort(rows)
+            targets[task] = config.statistic.of(rows)
             records[(task, reference)] = EffortRecord(
                 task, reference, "reference", ref_spec.knob, ref_spec.knob_value, targets[task], targets[task], 1, note
             )
@@ -766,33 +819,67 @@ def _match_controllers(
 def _match_one(evaluation: _Evaluation, task: str, spec: ControllerSpec, target: float) -> tuple[pd.DataFrame, EffortRecord]:
     """Search one controller's knob for ``target`` on one task, then check it with a full pass.
 
-    If the full pass misses the target by more than the tolerance although the search
-    matched on the screening samples, the screening target is corrected by the observed
-    ratio and the search repeats from the value found (at most ``MAX_MATCH_ROUNDS`` passes).
+    The search runs on screening samples (:meth:`_Evaluation.search_knob`); what follows the
+    full pass depends on the statistic:
+
+    * ``max``: the maximum over the set can come from a sample the search did not screen, and
+      at a ceiling (a velocity limit) the full pass cannot tell a knob that is more aggressive
+      than needed. If each rollout's peak grows with the knob, only the *critical* samples,
+      those whose peak reached the search's threshold in the full pass, can reach it at a
+      smaller knob; so when some critical sample was not screened, or peaked after the
+      search's cut, the search is refined on the critical samples alone (over rollouts that
+      cover their peaks), from the value found down, which gives the smallest knob for the
+      whole set, and a full pass at it ends the match.
+    * ``median-peak``: if the full pass misses the target by more than the tolerance although
+      the search matched on the screening samples, the screening target is corrected by the
+      observed ratio and the search repeats from the value found.
+
+    At most ``MAX_MATCH_ROUNDS`` full passes are run.
 
     Returns:
         The last full pass's rows and the record of how the effort was set.
     """
     config = evaluation.config
+    statistic = config.statistic
+    samples = evaluation.samples[task]
     search_target, start = target, float(spec.knob_value)
+    subset: list[EvaluationSample] | None = None
+    horizon: int | None = None
     for round_number in range(1, MAX_MATCH_ROUNDS + 1):
         if round_number > 1:
-            evaluation.progress.add_total(len(evaluation.samples[task]))
-        match = evaluation.search_knob(task, spec, search_target, start, round_number)
+            evaluation.progress.add_total(len(samples))
+        match = evaluation.search_knob(task, spec, search_target, start, round_number, subset, horizon)
         rows = evaluation.run_passes([(task, spec, {**spec.kwargs, spec.knob: match.value})])[0]
-        effort = _effort(rows)
+        effort = statistic.of(rows)
         matched = _within(effort, target, config.effort_tolerance)
+        last_round = round_number == MAX_MATCH_ROUNDS
+        if statistic.name == "max" and match.matched and not last_round:
+            threshold = search_target * (1.0 - config.effort_tolerance / 4)
+            critical_rows = rows[rows[statistic.column] >= threshold]
+            critical = set(critical_rows["sample"].astype(int))
+            screened = (
+                {s.index for s in subset}
+                if subset is not None
+                else {s.index for s in samples[: evaluation.screening_counts[(task, spec.name)]]}
+            )
+            searched_steps = evaluation.store.calibration[f"{task}/{spec.name}/search{round_number}"]["search_steps"]
+            latest_peak = int(critical_rows[statistic.step_column].max()) if len(critical_rows) else 0
+            if not critical <= screened or latest_peak >= searched_steps:
+                subset = [s for s in samples if s.index in critical]
+                horizon = min(config.steps(task), 2 * latest_peak + 25)
+                start = match.value
+                continue
         note = ""
         if not matched:
             if not match.matched:
                 note = f"knob search failed: {match.reason}"
-            elif round_number < MAX_MATCH_ROUNDS:
+            elif statistic.name != "max" and not last_round:
                 # The screening samples mis-predict the whole set by effort/match.effort: aim off by as much.
                 search_target = search_target * match.effort / effort
                 start = match.value
                 continue
             else:
-                note = f"not within {config.effort_tolerance:.0%} after {MAX_MATCH_ROUNDS} passes"
+                note = f"not within {config.effort_tolerance:.0%} after {round_number} passes"
         role = "matched" if matched else "unmatched"
         return rows, EffortRecord(task, spec.name, role, spec.knob, match.value, effort, target, round_number, note)
     raise AssertionError("unreachable: the last round returns")
@@ -860,7 +947,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
                 for (task, spec, _), rows in zip(passes, rows_of_passes, strict=True):
                     results[(task, spec.name)] = rows
                     records[(task, spec.name)] = EffortRecord(
-                        task, spec.name, "fixed", spec.knob, spec.knob_value, _effort(rows), None
+                        task, spec.name, "fixed", spec.knob, spec.knob_value, config.statistic.of(rows), None
                     )
             if config.wants_optimal:
                 for task, rows in zip(config.tasks, evaluation.run_optimal(), strict=True):
@@ -890,7 +977,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         [records[key] for key in order if key in records],
         config,
         skipped,
-        EFFORT_STATISTIC,
+        config.statistic.description,
         timings,
         getattr(executor, "description", "serial"),
     )

@@ -140,7 +140,8 @@ def evaluate(
     backend: str = typer.Option("kinematic", "--backend", help="kinematic (exact θ += uΔt, fast) or pybullet (the Gymnasium env)."),
     match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
     effort_reference: str = typer.Option("snac", "--effort-reference", help="Controller whose effort the others are matched to."),
-    effort_target: Optional[float] = typer.Option(None, "--effort-target", help="Explicit effort target (fraction of the velocity limits); then every controller is matched."),
+    effort_statistic: str = typer.Option("max", "--effort-statistic", help="What equal effort equalises: max (the maximum |u| over the sample set, rad/s) or median-peak (the median rollout's peak |u|/limit)."),
+    effort_target: Optional[float] = typer.Option(None, "--effort-target", help="Explicit effort target in the statistic's unit (rad/s for max, a fraction for median-peak); then every controller is matched."),
     effort_tolerance: float = typer.Option(0.02, "--effort-tolerance", help="Relative tolerance of the effort match."),
     calibration_samples: Optional[int] = typer.Option(None, "--calibration-samples", min=1, help="Samples the knob search runs on (default: all, fewer for controllers whose effort peaks late)."),
     samples_file: Optional[Path] = typer.Option(None, "--samples-file", help="Read the samples from this CSV (docs/evaluation.md)."),
@@ -173,7 +174,7 @@ def evaluate(
         config = EvaluationConfig(
             out=out, tasks=parse_tasks(task), controllers=parse_controllers(controllers), samples=samples, seed=seed,
             horizons=parse_horizons(horizon), backend=backend, match_effort=match_effort,
-            effort_reference=effort_reference, effort_target=effort_target, effort_tolerance=effort_tolerance,
+            effort_reference=effort_reference, effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
             calibration_samples=calibration_samples, samples_file=samples_file, export_samples=export_samples,
             save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
             robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, use_batch=batch,

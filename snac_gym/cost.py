@@ -81,7 +81,7 @@ def command_differences(commands: np.ndarray, initial_command: np.ndarray | None
     """
     commands = np.asarray(commands, dtype=float)
     differences = np.empty_like(commands)
-    differences[..., 1:, :] = commands[..., 1:, :] - commands[..., :-1, :]
+    np.subtract(commands[..., 1:, :], commands[..., :-1, :], out=differences[..., 1:, :])
     differences[..., 0, :] = commands[..., 0, :]
     if initial_command is not None:
         differences[..., 0, :] -= np.asarray(initial_command, dtype=float)

@@ -4,6 +4,7 @@ determinism across workers and Ray, resuming an interrupted run, and the CLI."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -91,14 +92,23 @@ def test_equal_effort_against_the_reference_or_a_visible_warning(table_run):
         target = summary.loc["snac", f"{task}_effort"]
         assert summary.loc["snac", f"{task}_effort_role"] == "reference"
         for controller in ("rnn", "svf", "dls"):
-            effort = results[(results["task"] == task) & (results["controller"] == controller)][
-                "peak_limit_fraction"
-            ].median()
+            rows = results[(results["task"] == task) & (results["controller"] == controller)]
+            effort = rows["max_abs_u"].max()  # the default statistic: the maximum |u| over the set
             assert effort == pytest.approx(summary.loc[controller, f"{task}_effort"])
+            assert effort == np.abs(
+                np.stack([log_array(read_log(_trajectory(config, row)), "u") for _, row in rows.iterrows()])
+            ).max()
+            assert summary.loc[controller, f"{task}_median_peak_limit_fraction"] == pytest.approx(
+                rows["peak_limit_fraction"].median()
+            )
             if summary.loc[controller, f"{task}_effort_role"] == "matched":
                 assert abs(effort / target - 1) <= config.effort_tolerance
             else:
                 assert f"{controller} ({task})" in text and "Warning" in text
+
+
+def _trajectory(config: EvaluationConfig, row: pd.Series) -> Path:
+    return config.out / "trajectories" / row["task"] / row["controller"] / f"sample_{row['sample']:05d}.parquet"
 
 
 def test_saved_trajectories_recompute_every_reported_number(table_run):
@@ -122,7 +132,12 @@ def test_explicit_target_matches_every_controller_and_workers_do_not_change_resu
     register_policy(
         "evaltest-dls", "baselines.dls:DLSPolicy", overwrite=True
     )  # a run-time registration reaches forked workers
-    common = {"controllers": ("evaltest-dls", "rnn"), "tasks": ("reach",), "effort_target": 0.4}
+    common = {
+        "controllers": ("evaltest-dls", "rnn"),
+        "tasks": ("reach",),
+        "effort_statistic": "median-peak",
+        "effort_target": 0.4,
+    }
     serial = run_evaluation(_config(tmp_path / "serial", **common))
     parallel = run_evaluation(_config(tmp_path / "parallel", workers=2, **common))
     pd.testing.assert_frame_equal(serial, parallel, check_exact=True)  # bit for bit, matches run concurrently
@@ -174,12 +189,17 @@ def test_pybullet_backend_runs_through_the_env(tmp_path):
 
 
 def test_knob_searches_with_long_rollouts_run_on_fewer_samples(tmp_path):
-    config = _config(tmp_path, samples=1000, horizons={"reach": 8.0})
+    config = _config(tmp_path, samples=1000, horizons={"reach": 8.0}, effort_statistic="median-peak")
     evaluation = runner_module._Evaluation(config, None, None, {"reach": list(range(1000))}, None)
     spec = runner_module.ControllerSpec("dls", {}, "gain", 2.0)
     assert evaluation._screening_count("reach", spec, 40, 1) == 1000  # short rollouts: every sample
     assert evaluation._screening_count("reach", spec, 476, 1) == 211  # 10 % of a full pass's sample-steps
     assert evaluation._screening_count("reach", spec, 1000, 1) == 100  # never fewer than 100
+    for_max = runner_module._Evaluation(
+        dataclasses.replace(config, effort_statistic="max"), None, None, {"reach": list(range(1000))}, None
+    )
+    assert for_max._screening_count("reach", spec, 166, 1) == 1000  # up to 1/6 of a pass: every sample
+    assert for_max._screening_count("reach", spec, 476, 1) == 351
     pinned = runner_module._Evaluation(
         dataclasses.replace(config, calibration_samples=30), None, None, {"reach": list(range(1000))}, None
     )
@@ -269,3 +289,21 @@ def test_cli_names_the_bad_row_of_a_samples_file(tmp_path):
         app, ["evaluate", "--out", str(tmp_path / "x"), "--task", "reach", "--samples-file", str(bad)]
     )
     assert result.exit_code == 2 and "row 1 (line 2), column 'target_1': 'oops' is not a number" in result.output
+
+
+def test_max_statistic_refines_on_the_critical_samples_the_screening_missed(tmp_path):
+    """With 2 screening samples the search overshoots (the set's maximum comes from other samples);
+    the refinement on the samples at the threshold recovers the knob that screening all gives."""
+    common = {"controllers": ("snac", "dls"), "tasks": ("reach",), "effort_statistic": "max"}
+    screened_all = run_evaluation(_config(tmp_path / "all", calibration_samples=6, **common))
+    refined = run_evaluation(_config(tmp_path / "two", calibration_samples=2, **common))
+    calibration = json.loads((tmp_path / "two" / "calibration.json").read_text())
+    first, second = calibration["reach/dls/search1"], calibration["reach/dls/search2"]
+    assert first["screening_samples"] == 2 and first["sample_ids"] is None
+    critical = refined[(refined["controller"] == "dls")]
+    assert set(second["sample_ids"]) - {0, 1}  # critical samples outside the screening set
+    knob = critical["effort_value"].iloc[0]
+    assert knob == second["value"] < first["value"]
+    assert knob == pytest.approx(screened_all.loc[screened_all["controller"] == "dls", "effort_value"].iloc[0], rel=0.02)
+    summary = pd.read_csv(tmp_path / "two" / "summary.csv").set_index("controller")
+    assert summary.loc["dls", "reach_effort_passes"] == 2 and summary.loc["dls", "reach_effort_role"] == "matched"

@@ -499,3 +499,55 @@ def test_knob_search_evaluations_are_spread_over_the_workers(tmp_path):
     assert sizes(spread=True) == [34, 34, 32]  # a search: one job per worker
     evaluation.spread_searches = False  # as many searches as workers run at once: keep jobs whole
     assert sizes(spread=True) == [100]
+
+
+def test_effort_statistics_reduce_their_columns_and_bad_names_are_refused(tmp_path):
+    import pandas as pd
+
+    from evaluation.calibration import EFFORT_STATISTICS, effort_statistic_named
+    from evaluation.runner import EvaluationConfig
+
+    rows = pd.DataFrame({"max_abs_u": [1.0, 3.15, 2.0], "peak_limit_fraction": [0.2, 1.0, 0.5]})
+    assert EFFORT_STATISTICS["max"].of(rows) == 3.15  # the maximum |u| over the set, rad/s
+    assert EFFORT_STATISTICS["median-peak"].of(rows) == 0.5
+    with pytest.raises(ValueError, match="no rollouts"):
+        EFFORT_STATISTICS["max"].of(rows.iloc[:0])
+    message = "--effort-statistic must be one of max, median-peak, got 'mean'"
+    with pytest.raises(ValueError, match=message):
+        effort_statistic_named("mean")
+    with pytest.raises(ValueError, match=message):
+        EvaluationConfig(out=tmp_path, effort_statistic="mean").validate()
+
+
+def _crossing(measure, level: float) -> float:
+    """The smallest knob whose effort reaches ``level`` (to 1e-12)."""
+    low, high = 1e-3, 1e3
+    for _ in range(200):
+        middle = (low * high) ** 0.5
+        low, high = (middle, high) if measure(middle) < level else (low, middle)
+    return high
+
+
+def test_match_effort_needs_few_evaluations_on_saturating_statistics():
+    """The median and the maximum of clipped per-rollout peaks, targets inside and at the ceiling."""
+    counts = []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        gains = np.exp(rng.normal(np.log(0.26), 0.5, 100))
+        power = rng.uniform(0.7, 1.1)
+
+        def median(k, gains=gains, power=power):
+            return float(np.median(np.minimum(1.0, gains * k**power)))
+
+        def maximum(k, gains=gains, power=power):
+            return float(np.max(np.minimum(3.15, 3 * gains * k**power)))
+
+        for measure, target, start in [(median, 1.0, 1.0), (median, median(2.0), 1.0), (maximum, 3.15, 5.0), (maximum, 3.15, 0.3)]:
+            result = match_effort(measure, target=target, start=start, tolerance=0.005)
+            assert result.matched and target * (1 - 0.005) <= result.effort <= target * (1 + 0.005)
+            # Between the smallest knobs reaching the lower and the upper edge of the band (by plain
+            # bisection), up to the final bracket's width (2 %): the least aggressive knob, also at a ceiling.
+            assert _crossing(measure, target * (1 - 0.005)) <= result.value
+            assert result.value <= 1.02 * _crossing(measure, min(target * (1 + 0.005), measure(1e3)))
+            counts.append(len(result.evaluations))
+    assert max(counts) <= 12, counts
