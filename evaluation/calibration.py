@@ -133,14 +133,6 @@ def effort_statistic_named(name: str) -> EffortStatistic:
     return EFFORT_STATISTICS[name]
 
 
-def effort_statistic(peaks: np.ndarray) -> float:
-    """The ``median-peak`` statistic from the per-rollout peaks (:data:`EFFORT_COLUMN`): their median."""
-    peaks = np.asarray(peaks, dtype=float)
-    if peaks.size == 0:
-        raise ValueError("no rollouts to measure the effort of")
-    return float(np.median(peaks))
-
-
 @dataclass
 class EffortMatch:
     """Outcome of :func:`match_effort`.

@@ -272,6 +272,7 @@ def test_cli_exports_reads_samples_and_reports(tmp_path):
         (["--controllers", "nope"], "unknown controller 'nope'"),
         (["--task", "wave"], "--task must be reach, track or both"),
         (["--param", "svf"], "use CONTROLLER.KEY=VALUE"),
+        (["--effort-statistic", "mean"], "--effort-statistic must be one of max, median-peak, got 'mean'"),
     ],
 )
 def test_cli_rejects_bad_options_with_a_message(tmp_path, arguments, message):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from evaluation.backends import RolloutError, simulate_kinematic, simulate_pybullet
-from evaluation.calibration import effort_statistic, match_effort
+from evaluation.calibration import match_effort
 from evaluation.drivers import LockstepPolicies, supports_batch
 from evaluation.metrics import rollout_metrics
 from evaluation.reference_batch import reference_trajectories
@@ -383,12 +383,6 @@ def test_match_effort_reports_a_target_out_of_reach():
 
     rejected = match_effort(picky, target=1.0, start=2.0, tolerance=0.005)
     assert not rejected.matched and "rejects" in rejected.reason
-
-
-def test_effort_statistic_is_the_median_of_the_peaks():
-    assert effort_statistic(np.array([0.1, 1.0, 0.3])) == 0.3
-    with pytest.raises(ValueError):
-        effort_statistic(np.array([]))
 
 
 def test_samples_carry_reset_options_for_the_envs(reach_samples, track_samples):
