@@ -78,9 +78,16 @@ class EffortStatistic:
             cuts its rollouts after it).
         reduce: Reduction over the samples (``np.max``, ``np.median``).
         unit: Unit of the statistic (and of ``--effort-target``).
-        grows_horizon: Whether a knob search lengthens its cut rollouts while some rollout
-            peaks near the cut (``median-peak``: any rollout can move the median); ``max``
-            checks its few critical samples over the full horizon instead.
+        is_maximum: A maximum over the set, decided by its few *critical* samples (``max``):
+            a knob search cuts its rollouts after the highest peak of its probe and the match
+            then checks the critical samples over the full horizon (refining on them if
+            needed). Otherwise (``median-peak``: any rollout can move the median) the search
+            lengthens its cut rollouts while some rollout peaks near the cut, and the match
+            corrects its target when the full pass misses.
+        screening_budget: Largest fraction of a full pass's sample-steps one search evaluation
+            screens. For a maximum, screening fewer than all samples usually costs a refinement
+            (one more full pass), which screening all of them in each of a search's ~6
+            evaluations costs less than when its rollouts are shorter than 1/6 of a pass.
     """
 
     name: str
@@ -89,7 +96,8 @@ class EffortStatistic:
     step_column: str
     reduce: Callable[[np.ndarray], Any]
     unit: str
-    grows_horizon: bool = True
+    is_maximum: bool
+    screening_budget: float
 
     def of(self, rows: pd.DataFrame) -> float:
         """The statistic over the rollouts of ``rows`` (a results table)."""
@@ -107,7 +115,8 @@ EFFORT_STATISTICS: dict[str, EffortStatistic] = {
         "max_abs_u_step",
         np.max,
         "rad/s",
-        grows_horizon=False,
+        is_maximum=True,
+        screening_budget=1 / 6,
     ),
     "median-peak": EffortStatistic(
         "median-peak",
@@ -116,6 +125,8 @@ EFFORT_STATISTICS: dict[str, EffortStatistic] = {
         PEAK_STEP_COLUMN,
         np.median,
         "fraction of the velocity limits",
+        is_maximum=False,
+        screening_budget=0.1,
     ),
 }
 #: The statistic matched unless ``--effort-statistic`` says otherwise: the issue's literal rule.

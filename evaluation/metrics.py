@@ -101,9 +101,10 @@ def rollout_metrics(rollouts: Rollouts, task: str, velocity_limits: np.ndarray) 
     rates = command_differences(commands) / dt
     limits = np.asarray(velocity_limits, dtype=float)
     peak_fraction, peak_step = peak_limit_fractions(commands, limits)
-    peak_abs = np.abs(commands).max(axis=-1)  # (B, K): ‖uₖ‖∞
+    magnitudes = np.abs(commands)
+    peak_abs = magnitudes.max(axis=-1)  # (B, K): ‖uₖ‖∞
     peak_abs_step = np.argmax(peak_abs, axis=1)
-    at_limit = (np.abs(commands) >= limits * (1.0 - LIMIT_RELATIVE_TOLERANCE)).any(axis=-1)
+    at_limit = (magnitudes >= limits * (1.0 - LIMIT_RELATIVE_TOLERANCE)).any(axis=-1)
     second_half = error_norms[:, rollouts.steps // 2 :].mean(axis=1)
     success = final_error <= REACH_TOLERANCE if task == "reach" else second_half <= TRACK_TOLERANCE
     return pd.DataFrame(

@@ -292,13 +292,9 @@ def summary_markdown(
     ]
     by_controller = summary.set_index("controller")
     for e in efforts:
-        p = f"{e.task}_"
-        literal_max = by_controller.at[e.controller, p + "max_abs_u"] if e.controller in by_controller.index else math.nan
-        median_peak = (
-            by_controller.at[e.controller, p + "median_peak_limit_fraction"]
-            if e.controller in by_controller.index
-            else math.nan
-        )
+        row = by_controller.loc[e.controller] if e.controller in by_controller.index else {}
+        literal_max = row.get(f"{e.task}_max_abs_u", math.nan)
+        median_peak = row.get(f"{e.task}_median_peak_limit_fraction", math.nan)
         lines.append(
             f"| {e.task} | {controller_label(e.controller)} | {e.role} | {e.knob or '—'} | "
             f"{_general_number(e.knob_value)} | {_number(e.effort, 4)} | {_number(e.target, 4)} | "

@@ -81,12 +81,7 @@ OPTIMAL_CHUNK_SIZE = 50
 MAX_MATCH_ROUNDS = 3
 #: Samples whose full-horizon rollouts locate the effort peak in time before a search.
 PEAK_PROBE_SAMPLES = 20
-#: A knob search evaluation runs on at most this fraction of a full pass's sample-steps, per
-#: statistic... For ``max``, screening fewer than all samples usually costs a refinement (one more
-#: full pass, see :func:`_match_one`), which screening all of them in each of a search's ~6
-#: evaluations costs less than when its rollouts are shorter than 1/6 of a pass.
-SCREENING_BUDGET = {"median-peak": 0.1, "max": 1 / 6}
-#: ...but on at least this many samples (unless the set is smaller).
+#: A knob search screens at least this many samples (unless the set is smaller).
 MIN_SCREENING_SAMPLES = 100
 #: Executor priority of knob-search jobs over full passes (lower runs first): every later step of
 #: a controller's effort match waits on its search, while a full pass holds nothing up.
@@ -116,7 +111,7 @@ class EvaluationConfig:
         effort_tolerance: Relative tolerance of the match over the whole sample set.
         calibration_samples: Samples (the first ones of each task) the knob search runs on;
             ``None``: all of them when the search's rollouts are short, fewer when they are
-            long (see ``SCREENING_BUDGET``).
+            long (see the statistic's ``screening_budget``).
         samples_file: CSV of samples to use instead of random ones.
         export_samples: Also write the sample set to this CSV.
         save_trajectories: Write every rollout's per-step log under ``out/trajectories``.
@@ -411,7 +406,7 @@ class _Evaluation:
         self._searches_lock = threading.Lock()
 
     @contextlib.contextmanager
-    def _searching(self) -> Iterator[None]:
+    def searching(self) -> Iterator[None]:
         """While any knob search runs, keep a worker free of full passes (where the executor can).
 
         A search is a chain of short evaluations that each wait for the last; behind a full-pass
@@ -601,7 +596,7 @@ class _Evaluation:
 
         ``calibration_samples`` if given; otherwise every sample when the search's rollouts are
         short, fewer when they are long, so that one evaluation costs about the statistic's
-        :data:`SCREENING_BUDGET` of a full pass (never fewer than :data:`MIN_SCREENING_SAMPLES`).
+        ``screening_budget`` of a full pass (never fewer than :data:`MIN_SCREENING_SAMPLES`).
         """
         if round_number > 1:
             key = (task, spec.name)
@@ -613,7 +608,7 @@ class _Evaluation:
         count = len(self.samples[task])
         if self.config.calibration_samples:
             return min(count, self.config.calibration_samples)
-        fraction = SCREENING_BUDGET[self.config.effort_statistic]
+        fraction = self.config.statistic.screening_budget
         budget = math.ceil(fraction * count * self.config.steps(task) / search_steps)
         return min(count, max(MIN_SCREENING_SAMPLES, budget))
 
@@ -626,20 +621,6 @@ class _Evaluation:
         round_number: int,
         subset: Sequence[EvaluationSample] | None = None,
         horizon: int | None = None,
-    ) -> EffortMatch:
-        """:meth:`_search_knob`, keeping a worker free for it (see :meth:`_searching`)."""
-        with self._searching():
-            return self._search_knob(task, spec, target, start, round_number, subset, horizon)
-
-    def _search_knob(
-        self,
-        task: str,
-        spec: ControllerSpec,
-        target: float,
-        start: float,
-        round_number: int,
-        subset: Sequence[EvaluationSample] | None,
-        horizon: int | None,
     ) -> EffortMatch:
         """Search ``spec``'s knob so that the screening samples' effort statistic hits ``target``.
 
@@ -683,16 +664,14 @@ class _Evaluation:
         if horizon is None:
             kwargs = {**spec.kwargs, spec.knob: start}
             probe = self.measure(task, spec, kwargs, samples[:PEAK_PROBE_SAMPLES], full_steps)
-            if statistic.grows_horizon:
-                peak_step = int(probe[statistic.step_column].max())
-            else:
+            if statistic.is_maximum:
                 peak_step = int(probe[statistic.step_column].iloc[int(np.argmax(probe[statistic.column].to_numpy()))])
+            else:
+                peak_step = int(probe[statistic.step_column].max())
             horizon = min(full_steps, 2 * peak_step + 25)
         while True:
             count = len(samples) if subset is not None else self._screening_count(task, spec, horizon, round_number)
-            search = _KnobSearch(
-                self, task, spec, samples[:count], horizon, full_steps, round_number, fixed=subset is not None
-            )
+            search = _KnobSearch(self, task, spec, samples[:count], horizon, full_steps, round_number)
             try:
                 match = match_effort(search.effort_at, target, start, config.effort_tolerance / 4)
                 break
@@ -739,24 +718,20 @@ class _KnobSearch:
         horizon: int,
         full_steps: int,
         round_number: int,
-        fixed: bool = False,
     ) -> None:
         self.evaluation, self.task, self.spec, self.screening = evaluation, task, spec, screening
         self.horizon, self.full_steps, self.round_number = horizon, full_steps, round_number
-        self.fixed = fixed  # screen exactly these samples, however long the rollouts get
 
     def effort_at(self, value: float) -> float:
-        """The effort statistic at knob ``value`` (lengthening the rollouts while peaks come late)."""
+        """The effort statistic at knob ``value`` (for a median, lengthening the rollouts while peaks come late)."""
         evaluation, spec = self.evaluation, self.spec
+        statistic = evaluation.config.statistic
         while True:
             rows = evaluation.measure(self.task, spec, {**spec.kwargs, spec.knob: value}, self.screening, self.horizon)
-            statistic = evaluation.config.statistic
             late = rows[statistic.step_column] >= self.horizon - max(10, self.horizon // 4)
-            if self.horizon >= self.full_steps or not late.any() or not statistic.grows_horizon:
+            if statistic.is_maximum or self.horizon >= self.full_steps or not late.any():
                 return statistic.of(rows)
             self.horizon = min(self.full_steps, 2 * self.horizon)
-            if self.fixed:
-                continue
             if evaluation._screening_count(self.task, spec, self.horizon, self.round_number) < len(self.screening):
                 raise _FewerSamplesNeeded
 
@@ -848,23 +823,24 @@ def _match_one(evaluation: _Evaluation, task: str, spec: ControllerSpec, target:
     for round_number in range(1, MAX_MATCH_ROUNDS + 1):
         if round_number > 1:
             evaluation.progress.add_total(len(samples))
-        match = evaluation.search_knob(task, spec, search_target, start, round_number, subset, horizon)
+        with evaluation.searching():
+            match = evaluation.search_knob(task, spec, search_target, start, round_number, subset, horizon)
         rows = evaluation.run_passes([(task, spec, {**spec.kwargs, spec.knob: match.value})])[0]
         effort = statistic.of(rows)
         matched = _within(effort, target, config.effort_tolerance)
         last_round = round_number == MAX_MATCH_ROUNDS
-        if statistic.name == "max" and match.matched and not last_round:
+        if statistic.is_maximum and match.matched and not last_round:
             threshold = search_target * (1.0 - config.effort_tolerance / 4)
             critical_rows = rows[rows[statistic.column] >= threshold]
             critical = set(critical_rows["sample"].astype(int))
+            searched = evaluation.store.calibration[f"{task}/{spec.name}/search{round_number}"]
             screened = (
-                {s.index for s in subset}
-                if subset is not None
-                else {s.index for s in samples[: evaluation.screening_counts[(task, spec.name)]]}
+                set(searched["sample_ids"])
+                if searched["sample_ids"] is not None
+                else {s.index for s in samples[: searched["screening_samples"]]}
             )
-            searched_steps = evaluation.store.calibration[f"{task}/{spec.name}/search{round_number}"]["search_steps"]
             latest_peak = int(critical_rows[statistic.step_column].max()) if len(critical_rows) else 0
-            if not critical <= screened or latest_peak >= searched_steps:
+            if not critical <= screened or latest_peak >= searched["search_steps"]:
                 subset = [s for s in samples if s.index in critical]
                 horizon = min(config.steps(task), 2 * latest_peak + 25)
                 start = match.value
@@ -873,7 +849,7 @@ def _match_one(evaluation: _Evaluation, task: str, spec: ControllerSpec, target:
         if not matched:
             if not match.matched:
                 note = f"knob search failed: {match.reason}"
-            elif statistic.name != "max" and not last_round:
+            elif not statistic.is_maximum and not last_round:
                 # The screening samples mis-predict the whole set by effort/match.effort: aim off by as much.
                 search_target = search_target * match.effort / effort
                 start = match.value
@@ -952,9 +928,6 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             if config.wants_optimal:
                 for task, rows in zip(config.tasks, evaluation.run_optimal(), strict=True):
                     results[(task, OPTIMAL)] = rows
-        except BaseException:
-            evaluation.cancelled.set()
-            raise
         finally:
             progress.close()
             timings.update(evaluation.timings)

@@ -218,7 +218,7 @@ class Kinematics:
 
         The evaluator, the batch policies and the optimal-control solver call this over many
         samples or whole trajectories. Batches are evaluated by :class:`BatchChain` (vectorised
-        over the batch, 0.6 µs per configuration for 500 of them against 1.6 µs through
+        over the batch, 0.43 µs per configuration for 500 of them against 1.6 µs through
         Pinocchio per configuration) when the model allows it, by a loop over Pinocchio
         otherwise; either way a row does not depend on the rest of the batch. The last batch
         is remembered, because in each control step of the evaluator the backend asks for
@@ -357,8 +357,8 @@ class BatchChain:
         offset = frame.placement.translation.copy()
         return cls(parents, placements, axes, revolute, q_index, int(frame.parentJoint), offset, int(model.nq))
 
-    def _tree(self, qs: np.ndarray, joints: list[int]) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], dict[int, np.ndarray]]:
-        """Stacked rotations ``(3B, 3)``, origins ``(B, 3)`` and axes ``(B, 3)`` of ``joints`` (ascending)."""
+    def _tree(self, qs: np.ndarray) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], dict[int, np.ndarray]]:
+        """Stacked rotations ``(3B, 3)``, origins ``(B, 3)`` and axes ``(B, 3)`` of the joints carrying the end effector."""
         count = len(qs)
         rotations: dict[int, np.ndarray] = {}
         origins: dict[int, np.ndarray] = {}
@@ -366,7 +366,7 @@ class BatchChain:
         # cos θ and sin θ of every joint, each repeated for the three rows of a sample's rotation.
         cosines = np.repeat(np.cos(qs), 3, axis=0)
         sines = np.repeat(np.sin(qs), 3, axis=0)
-        for joint in joints:
+        for joint in self._support:  # ascending: a parent comes before its children
             i = joint - 1
             parent = self._parents[i]
             rotation, translation = self._placements[i]
@@ -398,15 +398,10 @@ class BatchChain:
             origins[joint], axes[joint] = origin, axis
         return rotations, origins, axes
 
-    def forward(self, qs: np.ndarray) -> np.ndarray:
-        """``f(θᵢ)`` for ``(B, m)`` configurations, shape ``(B, 3)``."""
-        rotations, origins, _ = self._tree(qs, self._support)
-        return origins[self._ee_joint] + (rotations[self._ee_joint] @ self._ee_offset).reshape(len(qs), 3)
-
     def forward_and_jacobian(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(f(θᵢ), J(θᵢ))``, shapes ``(B, 3)`` and ``(B, 3, m)``."""
         count = len(qs)
-        rotations, origins, axes = self._tree(qs, self._support)
+        rotations, origins, axes = self._tree(qs)
         x = origins[self._ee_joint] + (rotations[self._ee_joint] @ self._ee_offset).reshape(count, 3)
         jacobians = np.zeros((count, 3, self._n_joints))
         for joint in self._support:
