@@ -98,8 +98,8 @@ def real(
     backend: str = typer.Option("rtde", "--backend", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."),
     series: str = typer.Option("cb", "--series", help="cb (CB-series, 125 Hz) or e (e-Series, 500 Hz)."),
     dry_run: bool = typer.Option(False, "--dry-run", help="Connect and read state, send nothing; print what would be sent."),
-    speed_scale: float = typer.Option(0.25, "--speed-scale", min=0.01, max=1.0, help="Fraction of the velocity limits allowed."),
-    max_acceleration: float = typer.Option(2.0, "--max-acceleration", min=0.01, help="Bound on joint acceleration, rad/s²."),
+    speed_scale: float = typer.Option(0.25, "--speed-scale", help="Fraction of the velocity limits allowed, in (0, 1]."),
+    max_acceleration: float = typer.Option(2.0, "--max-acceleration", help="Bound on joint acceleration, rad/s², in (0, 40]."),
     seed: int = typer.Option(0, "--seed", help="Seed of the policy reset."),
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control periods (default: 15 s reach, 30 s track)."),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
@@ -123,9 +123,10 @@ def real(
     except (ValueError, RuntimeError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from exc
-    except KeyboardInterrupt:
-        typer.echo("interrupted: the arm was stopped", err=True)
-        raise typer.Exit(code=130) from None
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: the arm was stopped and the log so far written
+        signal_name = getattr(exc, "signal_name", "SIGINT")
+        typer.echo(f"interrupted by {signal_name}: the arm was stopped; the log so far is in {out}/", err=True)
+        raise typer.Exit(code=128 + getattr(exc, "signum", 2)) from None
     typer.echo(result.summary())
 
 

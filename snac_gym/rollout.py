@@ -102,65 +102,102 @@ def rollout(
 
     Returns:
         The trajectory log (see the module docstring for columns and ``attrs``).
+
+    Raises:
+        BaseException: Whatever the env or the policy raises mid-episode (Ctrl-C included)
+            propagates unchanged, carrying the rows logged so far as its attribute
+            ``rollout_log`` (``attrs["interrupted"]`` names the exception), so that a caller can
+            save them (:func:`partial_log`).
     """
     base = getattr(env, "unwrapped", env)
     layout = base.obs_layout
-    m, n, dt = layout.n_joints, layout.task_dim, float(base.dt)
-    limits = np.asarray(getattr(base, "velocity_limits", np.full(m, np.inf)), dtype=float)
+    limits = np.asarray(getattr(base, "velocity_limits", np.full(layout.n_joints, np.inf)), dtype=float)
     horizon = int(steps) if steps is not None else int(getattr(base, "max_steps", 0))
     if horizon < 1:
         raise ValueError("steps must be given (and positive) for an env without max_steps")
 
     obs, _ = env.reset(seed=seed, options=None if options is None else dict(options))
     policy.reset(seed=seed)
-    s = layout.slices
-    times = np.empty(horizon)
-    observations = np.empty((horizon, layout.size))
-    commands = np.empty((horizon, m))
-    weights: list[np.ndarray] = []
-    record_weights = "critic_weights" in getattr(policy, "internals", {})
+    record = _Record(base, layout, horizon, "critic_weights" in getattr(policy, "internals", {}))
     terminated = truncated = False
-    count = 0
-    while count < horizon:
-        times[count] = getattr(base, "time", count * dt)
-        observations[count] = obs
-        if record_weights:
-            weights.append(np.array(policy.internals["critic_weights"], dtype=float))
-        action = policy.act(obs)
-        obs, _, terminated, truncated, info = env.step(action)
-        applied = info.get("command") if isinstance(info, Mapping) else None
-        commands[count] = applied if applied is not None else np.clip(action, -limits, limits)
-        count += 1
-        if terminated or truncated:
-            break
+    try:
+        while record.count < horizon:
+            record.state(obs, policy)
+            action = policy.act(obs)
+            obs, _, terminated, truncated, info = env.step(action)
+            applied = info.get("command") if isinstance(info, Mapping) else None
+            record.command(applied if applied is not None else np.clip(action, -limits, limits))
+            if terminated or truncated:
+                break
+    except BaseException as exc:
+        exc.rollout_log = record.log(policy, obs, options, seed, limits, terminated, truncated)  # type: ignore[attr-defined]
+        exc.rollout_log.attrs["interrupted"] = type(exc).__name__
+        raise
+    return record.log(policy, obs, options, seed, limits, terminated, truncated)
 
-    obs_rows = observations[:count]
-    blocks = [times[:count, None], obs_rows[:, s["q"]], commands[:count]]
-    blocks += [obs_rows[:, s[name]] for name in ("x", "x_d", "xdot_d", "e")]
-    if record_weights:
-        blocks.append(np.stack(weights))
-    n_weights = len(weights[0]) if record_weights else 0
-    log = pd.DataFrame(np.hstack(blocks), columns=log_columns(m, n, n_weights))
-    last = layout.unpack(obs)
-    reference = getattr(base, "reference", None)
-    log.attrs = {
-        "dt": dt,
-        "task": getattr(base, "task_name", None),
-        "n_joints": m,
-        "task_dim": n,
-        "seed": seed,
-        "options": _jsonable(options) if options is not None else None,
-        "reference": _jsonable(reference.to_dict()) if reference is not None else None,
-        "velocity_limits": limits.tolist(),
-        "policy": type(policy).__name__,
-        "final_t": float(getattr(base, "time", count * dt)),
-        "final_q": last.q.tolist(),
-        "final_x": last.x.tolist(),
-        "final_e": last.e.tolist(),
-        "terminated": bool(terminated),
-        "truncated": bool(truncated),
-    }
-    return log
+
+def partial_log(exc: BaseException) -> pd.DataFrame | None:
+    """The rows :func:`rollout` logged before ``exc`` interrupted it (``None`` if it did not come from one)."""
+    return getattr(exc, "rollout_log", None)
+
+
+class _Record:
+    """The rows of one rollout as they come; a row counts once its command was applied."""
+
+    def __init__(self, base: Any, layout: Any, horizon: int, with_weights: bool) -> None:
+        self.base, self.layout = base, layout
+        self.times = np.empty(horizon)
+        self.observations = np.empty((horizon, layout.size))
+        self.commands = np.empty((horizon, layout.n_joints))
+        self.weights: list[np.ndarray] | None = [] if with_weights else None
+        self.count = 0
+
+    def state(self, obs: np.ndarray, policy: Any) -> None:
+        self.times[self.count] = getattr(self.base, "time", self.count * float(self.base.dt))
+        self.observations[self.count] = obs
+        if self.weights is not None:
+            del self.weights[self.count:]  # a row whose command never came
+            self.weights.append(np.array(policy.internals["critic_weights"], dtype=float))
+
+    def command(self, applied: np.ndarray) -> None:
+        self.commands[self.count] = applied
+        self.count += 1
+
+    def log(
+        self, policy: Any, obs: np.ndarray, options: Mapping[str, Any] | None, seed: int | None, limits: np.ndarray,
+        terminated: bool, truncated: bool,
+    ) -> pd.DataFrame:
+        layout, base, count, s = self.layout, self.base, self.count, self.layout.slices
+        m, n, dt = layout.n_joints, layout.task_dim, float(base.dt)
+        obs_rows = self.observations[:count]
+        blocks = [self.times[:count, None], obs_rows[:, s["q"]], self.commands[:count]]
+        blocks += [obs_rows[:, s[name]] for name in ("x", "x_d", "xdot_d", "e")]
+        weights = None if self.weights is None else self.weights[:count]
+        n_weights = 0
+        if weights:
+            n_weights = len(weights[0])
+            blocks.append(np.stack(weights))
+        log = pd.DataFrame(np.hstack(blocks), columns=log_columns(m, n, n_weights))
+        last = layout.unpack(obs)
+        reference = getattr(base, "reference", None)
+        log.attrs = {
+            "dt": dt,
+            "task": getattr(base, "task_name", None),
+            "n_joints": m,
+            "task_dim": n,
+            "seed": seed,
+            "options": _jsonable(options) if options is not None else None,
+            "reference": _jsonable(reference.to_dict()) if reference is not None else None,
+            "velocity_limits": limits.tolist(),
+            "policy": type(policy).__name__,
+            "final_t": float(getattr(base, "time", count * dt)),
+            "final_q": last.q.tolist(),
+            "final_x": last.x.tolist(),
+            "final_e": last.e.tolist(),
+            "terminated": bool(terminated),
+            "truncated": bool(truncated),
+        }
+        return log
 
 
 def write_log(log: pd.DataFrame, path: str | Path, csv: bool = False) -> list[Path]:

@@ -3,8 +3,8 @@ backend for rehearsal, and a dry-run wrapper that reads state but sends nothing.
 
 A backend owns the connection and the timing of one control period: the env calls
 ``start_period`` and ``command`` when it sends u, then ``end_period`` (which blocks until the
-period is over), then ``read_state``. ``stop`` must be safe to call at any time, any number of
-times.
+period is over), then ``read_state`` and ``state_timestamp``. ``stop`` must be safe to call at any
+time, any number of times, and returns once the arm is at rest (or cannot be reached).
 """
 
 from __future__ import annotations
@@ -63,8 +63,11 @@ class ArmBackend(Protocol):
     def end_period(self, period_start: float) -> None:
         """Block until the period that began at ``period_start`` is over."""
 
+    def state_timestamp(self) -> float:
+        """The controller's time stamp (s) of the state last read: a stale state repeats it."""
+
     def stop(self) -> None:
-        """Decelerate the arm to rest now; safe to call repeatedly."""
+        """Decelerate the arm and return once it is at rest; safe to call repeatedly."""
 
     def move_to(self, q: np.ndarray) -> None:
         """Bring the arm to ``q`` at rest before an episode (slow joint move on hardware)."""
@@ -113,6 +116,8 @@ class URRTDEBackend:
         connect_timeout: Seconds to wait for the controller before giving up.
         watchdog_periods: Missed periods after which the controller's watchdog stops the arm.
         move_speed: Joint speed of ``move_to`` (``moveJ``), rad/s.
+        stop_deceleration: Joint deceleration of ``speedStop``, rad/s².
+        rest_timeout: Longest wait (s) for the arm to come to rest after ``speedStop``.
 
     Raises:
         ConnectionFailure: If the controller cannot be reached (within ``connect_timeout``).
@@ -131,6 +136,8 @@ class URRTDEBackend:
         connect_timeout: float = 3.0,
         watchdog_periods: int = 5,
         move_speed: float = 0.3,
+        stop_deceleration: float = 2.0,
+        rest_timeout: float = 3.0,
     ) -> None:
         if series not in SERIES_FREQUENCY:
             raise ValueError(f"series must be one of {sorted(SERIES_FREQUENCY)}, got {series!r}")
@@ -139,6 +146,8 @@ class URRTDEBackend:
         self.dt = 1.0 / self.frequency
         self.acceleration = float(acceleration)
         self.move_speed = float(move_speed)
+        self.stop_deceleration = float(stop_deceleration)
+        self.rest_timeout = float(rest_timeout)
         self.host = host
         self._control = None
         self._receive = None
@@ -185,12 +194,27 @@ class URRTDEBackend:
             return
         self._control.waitPeriod(period_start)
 
+    def state_timestamp(self) -> float:
+        self._require_connection()
+        return float(self._receive.getTimestamp())
+
     def stop(self) -> None:
-        if self._control is not None:
+        if self._control is None:
+            return
+        try:
+            self._control.speedStop(self.stop_deceleration)
+        except RuntimeError:  # already disconnected: the controller's watchdog stops the arm
+            return
+        # speedStop returns before the arm has decelerated: wait for rest so that the next
+        # episode's acceleration bound, which starts from u = 0, holds.
+        deadline = time.perf_counter() + self.rest_timeout
+        while time.perf_counter() < deadline:
             try:
-                self._control.speedStop(2.0)
-            except RuntimeError:  # already disconnected: the controller's watchdog stops the arm
-                pass
+                if self._receive is None or max(map(abs, self._receive.getActualQd())) < 1e-3:
+                    return
+            except RuntimeError:
+                return
+            time.sleep(self.dt)
 
     def move_to(self, q: np.ndarray) -> None:
         if self._control is None:
@@ -260,6 +284,7 @@ class SimulatedBackend:
         self._initial_state = self.sim.save_state()
         self.arm.set_joint_positions(nominal_configuration(self.kinematics) if home is None else np.asarray(home, float))
         self._fault = NORMAL
+        self._periods = 0
         self.commands_sent = 0
         self.stop_calls = 0
         self.stopped = False
@@ -279,19 +304,30 @@ class SimulatedBackend:
 
     def end_period(self, period_start: float) -> None:
         self.sim.step()
+        self._periods += 1
         if self.realtime:
             wait_until(period_start + self.dt)
 
+    def state_timestamp(self) -> float:
+        return self._periods * self.dt
+
     def stop(self) -> None:
+        """Command zero velocity and run the physics until the arm is at rest, as ``speedStop`` does."""
         self.stop_calls += 1
         self.stopped = True
-        if self.sim.client >= 0:
-            self.arm.command_velocities(np.zeros(self.kinematics.n_joints))
+        if self.sim.client < 0:
+            return
+        self.arm.command_velocities(np.zeros(self.kinematics.n_joints))
+        for _ in range(int(self.frequency)):  # at most 1 s of simulated deceleration
+            if np.max(np.abs(self.arm.joint_state()[1])) < 1e-3:
+                return
+            self.end_period(time.perf_counter())
 
     def move_to(self, q: np.ndarray) -> None:
         self.sim.restore_state(self._initial_state)
         self.arm.set_joint_positions(np.asarray(q, dtype=float))
         self._fault = NORMAL
+        self.stopped = True
 
     def safety_state(self) -> str:
         return self._fault
@@ -328,7 +364,7 @@ class DryRunBackend:
         return self.inner.read_state()
 
     def start_period(self) -> float:
-        return time.perf_counter()
+        return self.inner.start_period()
 
     def command(self, velocities: np.ndarray) -> None:
         self.sent.append(np.array(velocities, dtype=float))
@@ -336,7 +372,7 @@ class DryRunBackend:
             self._echo(f"would send speedJ {np.array2string(np.asarray(velocities), precision=4, separator=', ')}")
 
     def end_period(self, period_start: float) -> None:
-        wait_until(period_start + self.dt)
+        self.inner.end_period(period_start)  # no command was sent: the arm holds still meanwhile
 
     def stop(self) -> None:
         pass  # nothing was sent, so nothing moves
@@ -344,6 +380,9 @@ class DryRunBackend:
     def move_to(self, q: np.ndarray) -> None:
         if callable(self._echo):
             self._echo(f"would moveJ to {np.round(np.asarray(q), 4).tolist()}")
+
+    def state_timestamp(self) -> float:
+        return self.inner.state_timestamp()
 
     def safety_state(self) -> str:
         return self.inner.safety_state()

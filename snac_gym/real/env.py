@@ -26,15 +26,23 @@ class RealUREnv(gym.Env):
     Every step: the action is checked and clipped like the simulated env's, then shaped by the
     safety layer (speed scale, acceleration bound), sent, and the loop waits for the period's
     end before reading the state. The arm is stopped (``backend.stop()``, i.e. ``speedStop`` on
-    ur_rtde) and the episode terminates when a stopping rule of
-    :class:`~snac_gym.real.safety.SafetyLimits` fires or the controller reports a protective or
-    emergency stop (``info["safety"]`` says why, ``info["safety_state"]`` what the controller
-    reports); it is also stopped on ``close()`` and on any exception inside ``step`` (Ctrl-C
-    included) before the exception propagates. After a stop no command is sent until the next
-    ``reset``.
+    ur_rtde, which returns once the arm is at rest) on every way out of an episode:
 
-    ``reset(options={"q0": ...})`` moves the arm to q0 first (a slow ``moveJ`` on hardware);
-    without ``q0`` the episode starts where the arm is. The reference comes from the options
+    * a stopping rule of :class:`~snac_gym.real.safety.SafetyLimits` fires (non-finite or stale
+      state, task box, joint margin, late loop) or the controller reports a protective or
+      emergency stop: the episode terminates, ``info["safety"]`` says why and
+      ``info["safety_state"]`` what the controller reports;
+    * any exception inside ``step`` (a bad action, Ctrl-C, a lost connection, a bug), before it
+      propagates; the reason is kept in :attr:`stop_reason`;
+    * the episode is truncated (``max_steps``);
+    * ``reset`` (the previous episode may have left the arm moving) and ``close``.
+
+    After an episode ends no command is sent until the next ``reset``.
+
+    ``reset(options={"q0": ...})`` checks q0 against the joint margins and the task box, then
+    moves the arm there (a slow ``moveJ`` on hardware); without ``q0`` the episode starts where
+    the arm is. Either way the arm is stopped and must be at rest before the episode starts, so
+    the acceleration bound, which starts from u = 0, holds. The reference comes from the options
     exactly as in the simulated env (``target`` / ``ellipse``; paper's reference when options
     are given without one; random from ``sample_space`` without options).
 
@@ -49,6 +57,11 @@ class RealUREnv(gym.Env):
 
     Attributes:
         periods: Measured durations (s) between consecutive commands in this episode.
+        stop_reason: Why the arm was stopped mid-episode (a safety rule or an exception), or
+            ``None``.
+
+    Raises:
+        ValueError: On an unknown task or a non-positive ``max_steps`` / ``success_tolerance``.
     """
 
     metadata = {"render_modes": []}
@@ -75,9 +88,13 @@ class RealUREnv(gym.Env):
         self.safety = SafetyLayer(self.kinematics, self.safety_limits, self.dt)
         default_seconds = 8.0 if task == "reach" else 20.0
         self.max_steps = int(max_steps) if max_steps is not None else int(round(default_seconds / self.dt))
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps must be a positive number of control periods, got {max_steps!r}")
         self.success_tolerance = (
             float(success_tolerance) if success_tolerance is not None else (1e-3 if task == "reach" else 5e-3)
         )
+        if not (math.isfinite(self.success_tolerance) and self.success_tolerance > 0):
+            raise ValueError(f"success_tolerance must be a positive finite distance (m), got {success_tolerance!r}")
         self.Q, self.R = Q, R
         self.sample_space = sample_space if sample_space is not None else SampleSpace.for_robot(self.kinematics)
         self.velocity_limits = self.kinematics.velocity_limits.copy()
@@ -91,16 +108,12 @@ class RealUREnv(gym.Env):
         self._last_command = np.zeros(self.kinematics.n_joints)
         self._period_start: Any = None
         self._period_wall = 0.0
+        self._episode_over = True
         self.stop_reason: str | None = None
 
     @property
     def time(self) -> float:
         return self.steps * self.dt
-
-    def _observe(self) -> np.ndarray:
-        q, qdot = self.backend.read_state()
-        x_d, xdot_d = self.reference.position_and_velocity(self.time)
-        return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
 
     def _begin_period(self) -> None:
         # A period starts once the state is read, as in ur_rtde's initPeriod/waitPeriod loop, so the
@@ -110,22 +123,41 @@ class RealUREnv(gym.Env):
 
     def _halt(self, reason: str) -> None:
         self.stop_reason = reason
+        self._end_episode()
+
+    def _end_episode(self) -> None:
+        self._episode_over = True
         self.backend.stop()
+
+    def _check_at_rest(self) -> None:
+        _, qdot = self.backend.read_state()
+        speed = float(np.max(np.abs(qdot)))
+        if not speed < self.safety_limits.rest_speed:  # NaN-safe: a non-finite speed is not rest
+            raise RuntimeError(
+                f"the arm is still moving ({speed:.4f} rad/s, rest below {self.safety_limits.rest_speed} rad/s) "
+                "after a stop: not starting an episode"
+            )
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
-        state = self.backend.safety_state()
-        if state != NORMAL:
-            raise RuntimeError(f"the controller reports {state}: clear it on the pendant before starting an episode")
-        reference = resolve_reference(self.task, self.kinematics, self.np_random, self.sample_space, options)
-        q0 = None if options is None or options.get("q0") is None else validate_q0(self.kinematics, options["q0"])
+        self._episode_over = True  # nothing is sent until this reset has succeeded
         try:
+            self.backend.stop()  # the previous episode may have left the arm moving
+            state = self.backend.safety_state()
+            if state != NORMAL:
+                raise RuntimeError(f"the controller reports {state}: clear it on the pendant before starting an episode")
+            reference = resolve_reference(self.task, self.kinematics, self.np_random, self.sample_space, options)
+            q0 = None if options is None or options.get("q0") is None else validate_q0(self.kinematics, options["q0"])
             if q0 is not None:
+                violation = self.safety.pose_violation(q0, self.kinematics.forward(q0))
+                if violation is not None:  # checked before the arm moves there
+                    raise ValueError(f"options['q0'] is outside the safety limits: {violation}")
                 self.backend.move_to(q0)
+            self._check_at_rest()
         except BaseException:
-            self._halt("exception while moving to the start pose")
+            self.backend.stop()
             raise
         self.reference = reference
         self.steps = 0
@@ -133,26 +165,33 @@ class RealUREnv(gym.Env):
         self._last_command = np.zeros(self.kinematics.n_joints)
         self.stop_reason = None
         self.safety.reset()
-        self._obs = self._observe()
-        self._begin_period()
-        fields = self.obs_layout.unpack(self._obs)
-        violation = self.safety.violation(fields.q, fields.x)
+        q, qdot = self.backend.read_state()
+        violation = self.safety.violation(q, qdot, self.kinematics.forward(q), self.backend.state_timestamp())
         if violation is not None:
             self._halt(violation)
             raise RuntimeError(f"the arm starts outside the safety limits: {violation}")
+        self._obs = self._pack(q, qdot)
+        self._begin_period()
+        self._episode_over = False
+        fields = self.obs_layout.unpack(self._obs)
         return self._obs.copy(), {"error": fields.e.copy(), "reference": reference.to_dict(), "safety_state": state}
+
+    def _pack(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+        x_d, xdot_d = self.reference.position_and_velocity(self.time)
+        return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._obs is None:
             raise RuntimeError("call reset() before step()")
         if self.stop_reason is not None:
             raise RuntimeError(f"the arm was stopped ({self.stop_reason}); call reset() before sending commands")
-        u = validate_action(action, self.velocity_limits)
+        if self._episode_over:
+            raise RuntimeError("the episode is over and the arm was stopped; call reset() before sending commands")
         try:
-            return self._step(u)
-        except BaseException as exc:  # Ctrl-C, lost connection, a bug: stop first, then report
-            if self.stop_reason is None:
-                self._halt(f"{type(exc).__name__} during step")
+            return self._step(validate_action(action, self.velocity_limits))
+        except BaseException as exc:  # a bad action, Ctrl-C, a lost connection, a bug: stop first, then report
+            if not self._episode_over:
+                self._halt(f"{type(exc).__name__} during step: {str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": "))
             raise
 
     def _step(self, u: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -170,16 +209,13 @@ class RealUREnv(gym.Env):
         self._last_command = command
         # Past its end, waitPeriod returns at once: a period longer than dt means the command came late.
         self.periods.append(self._period_wall - previous_start)
-        late = self.safety.record_period(self.periods[-1])
-        self._obs = self._observe()
-        if late is not None:
-            self._halt(late)
-            return self._finish(cost_error, cost_effort, cost_smoothness, command, safety=late)
-
-        fields = self.obs_layout.unpack(self._obs)
-        reason = self.safety.violation(fields.q, fields.x)
+        # The first period also holds the policy's start-up, while the arm is still at rest.
+        late = self.safety.record_period(self.periods[-1]) if self.steps > 1 else None
+        q, qdot = self.backend.read_state()
+        self._obs = self._pack(q, qdot)
+        reason = late or self.safety.violation(q, qdot, self._obs[self.obs_layout.slices["x"]], self.backend.state_timestamp())
         state = self.backend.safety_state()
-        if state != NORMAL:
+        if reason is None and state != NORMAL:
             reason = f"controller reports {state}"
         if reason is not None:
             self._halt(reason)
@@ -198,6 +234,8 @@ class RealUREnv(gym.Env):
         }
         terminated = safety is not None
         truncated = not terminated and self.steps >= self.max_steps
+        if truncated:
+            self._end_episode()
         return self._obs.copy(), -(cost_error + cost_effort), terminated, truncated, info
 
     def timing(self) -> dict[str, float]:
@@ -216,4 +254,7 @@ class RealUREnv(gym.Env):
         }
 
     def close(self) -> None:
+        if not self._episode_over and self.stop_reason is None:
+            self.stop_reason = "closed mid-episode"
+        self._episode_over = True
         self.backend.close()

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import json
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -18,6 +22,44 @@ from snac_gym.real.safety import SafetyLimits
 #: Episode length of a real run when none is given: longer than the simulated demo's, since
 #: the conservative speed scale slows the arm down.
 DEFAULT_SECONDS = {"reach": 15.0, "track": 30.0}
+#: Signals that end a real run through the same stop path as Ctrl-C. SIGKILL cannot be caught:
+#: then the controller's watchdog (:class:`~snac_gym.real.backends.URRTDEBackend`) stops the arm.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class TerminationSignal(KeyboardInterrupt):
+    """A stop signal (SIGINT, SIGTERM, SIGHUP) received during a real run.
+
+    A ``KeyboardInterrupt``, so that everything that stops the arm and saves the log on Ctrl-C
+    does the same for the others.
+    """
+
+    def __init__(self, signum: int) -> None:
+        self.signum = int(signum)
+        self.signal_name = signal.Signals(signum).name
+        super().__init__(self.signal_name)
+
+
+@contextmanager
+def stop_signals_raise() -> Iterator[None]:
+    """Within the block, every signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal`.
+
+    SIGINT is included because a run started from a background shell inherits it ignored.
+    Handlers can only be set from the main thread; elsewhere the block runs unchanged.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def raise_termination(signum: int, _frame: Any) -> None:
+        raise TerminationSignal(signum)
+
+    previous = {signum: signal.signal(signum, raise_termination) for signum in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 @dataclass
@@ -86,7 +128,11 @@ def run_real_episode(
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
     The arm first moves to θ0 (``moveJ``), then the controller streams joint velocities through
-    the safety layer. The arm is stopped whatever happens (``finally: env.close()``).
+    the safety layer. The arm is stopped whatever happens (``finally: env.close()``). SIGINT,
+    SIGTERM and SIGHUP raise :class:`TerminationSignal` (a ``KeyboardInterrupt``) in the loop: the
+    arm is stopped, and the rows logged so far, the loop timing and the reason are written to
+    ``out_dir`` (``*_log.parquet``, ``*_timing.csv``, ``*_real.json``) before it propagates; any
+    other exception mid-episode saves them the same way.
 
     Args:
         task: ``"reach"`` or ``"track"``.
@@ -105,18 +151,27 @@ def run_real_episode(
     """
     from snac_gym.demo import DEMO_TOLERANCES, demo_options, write_demo_outputs
     from snac_gym.policies import make_policy
-    from snac_gym.rollout import rollout
+    from snac_gym.rollout import partial_log, rollout
 
     arm = make_backend(backend, host, series, dry_run, echo=echo)
-    env = RealUREnv(task, arm, safety=safety)
-    if steps is None:
-        steps = int(round(DEFAULT_SECONDS[task] / env.dt))
-    env.max_steps = steps
     try:
-        policy = make_policy(controller, env, **(policy_kwargs or {}))
-        log = rollout(env, policy, options=demo_options(task), seed=seed, steps=steps)
-    finally:
-        env.close()
+        default_steps = round(DEFAULT_SECONDS.get(task, 1.0) / arm.dt)
+        env = RealUREnv(task, arm, safety=safety, max_steps=steps if steps is not None else default_steps)
+    except BaseException:
+        arm.close()
+        raise
+    try:
+        with stop_signals_raise():
+            try:
+                policy = make_policy(controller, env, **(policy_kwargs or {}))
+                log = rollout(env, policy, options=demo_options(task), seed=seed, steps=env.max_steps)
+            finally:
+                env.close()
+    except BaseException as exc:
+        partial = partial_log(exc)
+        if partial is not None and out_dir is not None:
+            _write_interrupted(env, partial, Path(out_dir), f"{task}_{controller}_", exc)
+        raise
     log.attrs["controller"] = controller
     log.attrs["backend"] = backend + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
@@ -130,6 +185,20 @@ def run_real_episode(
     if out_dir is not None:
         result.files = list(demo.files) + _write_timing(env, Path(out_dir), f"{task}_{controller}_", result, plots)
     return result
+
+
+def _write_interrupted(env: RealUREnv, log: pd.DataFrame, out: Path, prefix: str, exc: BaseException) -> None:
+    """Save what an interrupted run logged: the trajectory so far, the loop timing and why it ended."""
+    from snac_gym.rollout import write_log
+
+    out.mkdir(parents=True, exist_ok=True)
+    log.attrs["stop_reason"] = env.stop_reason
+    write_log(log, out / f"{prefix}log.parquet")
+    pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3}).to_csv(out / f"{prefix}timing.csv", index_label="step")
+    (out / f"{prefix}real.json").write_text(json.dumps({
+        "interrupted": type(exc).__name__, "signal": getattr(exc, "signal_name", None), "stop_reason": env.stop_reason,
+        "steps_logged": len(log), "timing": env.timing(), "dt_ms": env.dt * 1e3,
+    }, indent=2))
 
 
 def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult, plots: bool) -> list[Path]:

@@ -4,14 +4,24 @@ Two kinds of rule:
 
 * **Shaping** (every command): clip to ``speed_scale`` × the URDF velocity limits, then bound the
   change from the previous command by ``max_joint_acceleration`` × dt.
-* **Stopping** (the arm is stopped and the episode ends): the end effector leaves the task box,
-  a joint comes within ``joint_limit_margin`` of its limit, the loop misses its deadline for
-  ``max_missed_deadlines`` periods running, or the controller reports a protective or
-  emergency stop.
+* **Stopping** (the arm is stopped and the episode ends):
+
+  - the controller's joint state is not finite, or stale (its timestamp did not advance for
+    ``max_stale_periods`` periods running);
+  - the end effector leaves the task box, or a joint comes within ``joint_limit_margin`` of its
+    limit;
+  - the loop is late too often (``max_missed_deadlines`` late periods within the last
+    ``deadline_window``), or once by a lot (a period longer than ``max_period``);
+  - the controller reports a protective or emergency stop (checked by the env).
+
+Every limit is checked when :class:`SafetyLimits` is built: a NaN or infinite limit would switch
+its rule off without a word (comparisons with NaN are false), so it is refused instead.
 """
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,19 +32,41 @@ from snac_gym.sampling import UR10_CUBOID_HIGH, UR10_CUBOID_LOW
 _BOX_MARGIN = 0.15  # m around the sample cuboid: room for overshoot, not for the table
 
 
+def _finite_in(name: str, value: float, low: float, high: float, low_open: bool = False) -> None:
+    """Refuse a non-finite ``value`` or one outside ``[low, high]`` (``(low, high]`` with ``low_open``)."""
+    below = value <= low if low_open else value < low
+    if not math.isfinite(value) or below or value > high:
+        bracket = "(" if low_open else "["
+        raise ValueError(f"{name} must be a finite number in {bracket}{low:g}, {high:g}], got {value!r}")
+
+
+def _whole_in(name: str, value: int, low: int, high: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
+        raise ValueError(f"{name} must be a whole number in [{low}, {high}], got {value!r}")
+
+
 @dataclass(frozen=True)
 class SafetyLimits:
     """Conservative defaults for a first run next to a real arm.
 
     Attributes:
         speed_scale: Fraction of the URDF joint-velocity limits the command may use (0.25: the
-            UR10 base joints at most 0.54 rad/s).
-        max_joint_acceleration: Bound on |u_k − u_{k−1}| / dt, rad/s².
-        box_low, box_high: Task-space box (m, base frame) the end effector must stay in;
-            default: the sample cuboid grown by 0.15 m.
-        joint_limit_margin: Distance (rad) from the URDF joint limits that stops the arm.
-        max_missed_deadlines: Consecutive late periods that stop the arm.
-        deadline_slack: A period counts as late when it lasts over (1 + slack) × dt.
+            UR10 base joints at most 0.54 rad/s), in (0, 1].
+        max_joint_acceleration: Bound on |u_k − u_{k−1}| / dt, rad/s², in (0, 40] (the UR
+            controllers' own joint acceleration limit is 40 rad/s²).
+        box_low, box_high: Task-space box (m, base frame) the end effector must stay in; finite,
+            low < high; default: the sample cuboid grown by 0.15 m.
+        joint_limit_margin: Distance (rad) from the URDF joint limits that stops the arm, in
+            [0, π/2].
+        max_missed_deadlines: Late periods within the last ``deadline_window`` that stop the arm.
+        deadline_window: Periods over which late ones are counted (1: only consecutive ones).
+        deadline_slack: A period counts as late when it lasts over (1 + slack) × dt; in [0, 10].
+        max_period: A single period longer than this (s) stops the arm at once, however rare: a
+            stall of the host. Default 40 ms, five periods at 125 Hz (the controller watchdog's
+            own default in :class:`~snac_gym.real.backends.URRTDEBackend`).
+        max_stale_periods: Periods running in which the controller's state timestamp may fail to
+            advance before the state counts as stale.
+        rest_speed: Joint speed (rad/s) under which the arm counts as at rest after a stop.
     """
 
     speed_scale: float = 0.25
@@ -43,21 +75,33 @@ class SafetyLimits:
     box_high: tuple[float, float, float] = tuple(v + _BOX_MARGIN for v in UR10_CUBOID_HIGH)  # type: ignore[assignment]
     joint_limit_margin: float = 0.1
     max_missed_deadlines: int = 3
+    deadline_window: int = 25
     deadline_slack: float = 0.5
+    max_period: float = 0.04
+    max_stale_periods: int = 3
+    rest_speed: float = 0.01
 
     def __post_init__(self) -> None:
-        if not 0 < self.speed_scale <= 1:
-            raise ValueError(f"speed_scale must be in (0, 1], got {self.speed_scale}")
-        if not self.max_joint_acceleration > 0:
-            raise ValueError(f"max_joint_acceleration must be positive, got {self.max_joint_acceleration}")
-        if np.any(np.asarray(self.box_low) >= np.asarray(self.box_high)):
+        _finite_in("speed_scale", self.speed_scale, 0.0, 1.0, low_open=True)
+        _finite_in("max_joint_acceleration", self.max_joint_acceleration, 0.0, 40.0, low_open=True)
+        _finite_in("joint_limit_margin", self.joint_limit_margin, 0.0, math.pi / 2)
+        _finite_in("deadline_slack", self.deadline_slack, 0.0, 10.0)
+        _finite_in("max_period", self.max_period, 0.0, 10.0, low_open=True)
+        _finite_in("rest_speed", self.rest_speed, 0.0, 1.0, low_open=True)
+        _whole_in("deadline_window", self.deadline_window, 1, 100_000)
+        _whole_in("max_missed_deadlines", self.max_missed_deadlines, 1, self.deadline_window)
+        _whole_in("max_stale_periods", self.max_stale_periods, 1, 1000)
+        low, high = np.asarray(self.box_low, dtype=float), np.asarray(self.box_high, dtype=float)
+        if low.shape != (3,) or high.shape != (3,):
+            raise ValueError(f"task box corners must be 3 numbers each (m), got {self.box_low} and {self.box_high}")
+        if not (np.isfinite(low).all() and np.isfinite(high).all()):
+            raise ValueError(f"task box corners must be finite (m), got {self.box_low} and {self.box_high}")
+        if np.any(low >= high):
             raise ValueError(f"task box needs low < high, got {self.box_low} and {self.box_high}")
-        if self.max_missed_deadlines < 1:
-            raise ValueError(f"max_missed_deadlines must be at least 1, got {self.max_missed_deadlines}")
 
 
 class SafetyLayer:
-    """Applies :class:`SafetyLimits` for one arm and keeps the deadline count.
+    """Applies :class:`SafetyLimits` for one arm and keeps the deadline and staleness counts.
 
     Args:
         kinematics: The shared kinematics (limits, and x for the box check).
@@ -73,21 +117,27 @@ class SafetyLayer:
         self.step_bound = limits.max_joint_acceleration * dt
         self._box_low = np.asarray(limits.box_low, dtype=float)
         self._box_high = np.asarray(limits.box_high, dtype=float)
-        self._late_periods = 0
+        self._joint_low = kinematics.lower_limits + limits.joint_limit_margin
+        self._joint_high = kinematics.upper_limits - limits.joint_limit_margin
+        self._late_flags: deque[bool] = deque(maxlen=limits.deadline_window)
+        self._last_timestamp = -math.inf
+        self._stale_reads = 0
 
     def reset(self) -> None:
-        self._late_periods = 0
+        self._late_flags.clear()
+        self._last_timestamp = -math.inf
+        self._stale_reads = 0
 
     def shape(self, command: np.ndarray, previous: np.ndarray) -> np.ndarray:
         """The command actually sent: speed-clipped, then rate-limited from ``previous``."""
         clipped = np.clip(command, -self.speed_bound, self.speed_bound)
         return np.clip(clipped, previous - self.step_bound, previous + self.step_bound)
 
-    def violation(self, q: np.ndarray, x: np.ndarray) -> str | None:
-        """The first stopping rule the state breaks, as a short message, or ``None``."""
-        low = self.kinematics.lower_limits + self.limits.joint_limit_margin
-        high = self.kinematics.upper_limits - self.limits.joint_limit_margin
-        outside = np.flatnonzero((q < low) | (q > high))
+    def pose_violation(self, q: np.ndarray, x: np.ndarray) -> str | None:
+        """The first position rule (finite, joint margin, task box) ``q``/``x`` break, or ``None``."""
+        if not (np.isfinite(q).all() and np.isfinite(x).all()):
+            return f"non-finite joint state from the controller: q = {np.asarray(q).tolist()}"
+        outside = np.flatnonzero((q < self._joint_low) | (q > self._joint_high))
         if outside.size:
             j = int(outside[0])
             return (
@@ -98,12 +148,38 @@ class SafetyLayer:
             return f"end effector {np.round(x, 3).tolist()} m left the task box {self.limits.box_low}–{self.limits.box_high}"
         return None
 
-    def record_period(self, duration: float) -> str | None:
-        """Count late periods; a message once ``max_missed_deadlines`` come in a row."""
-        if duration > (1.0 + self.limits.deadline_slack) * self.dt:
-            self._late_periods += 1
+    def violation(self, q: np.ndarray, qdot: np.ndarray, x: np.ndarray, timestamp: float) -> str | None:
+        """The first stopping rule the measured state breaks, as a short message, or ``None``.
+
+        Args:
+            q, qdot: Measured joint positions (rad) and velocities (rad/s).
+            x: End-effector position f(q), m.
+            timestamp: The controller's time stamp of this state, s.
+        """
+        if not np.isfinite(qdot).all():
+            return f"non-finite joint velocities from the controller: qdot = {np.asarray(qdot).tolist()}"
+        if not math.isfinite(timestamp):
+            return f"non-finite state timestamp from the controller: {timestamp!r}"
+        if timestamp > self._last_timestamp:
+            self._last_timestamp, self._stale_reads = timestamp, 0
         else:
-            self._late_periods = 0
-        if self._late_periods >= self.limits.max_missed_deadlines:
-            return f"control loop missed its {self.dt * 1e3:.1f} ms deadline {self._late_periods} periods running"
+            self._stale_reads += 1
+            if self._stale_reads >= self.limits.max_stale_periods:
+                return (
+                    f"stale joint state: the controller's timestamp stayed at {timestamp:.6f} s "
+                    f"for {self._stale_reads} periods running"
+                )
+        return self.pose_violation(q, x)
+
+    def record_period(self, duration: float) -> str | None:
+        """Count late periods; a message once one is over ``max_period`` or too many are late in the window."""
+        if duration > self.limits.max_period:
+            return f"control loop stalled: one period took {duration * 1e3:.1f} ms (limit {self.limits.max_period * 1e3:.1f} ms)"
+        self._late_flags.append(duration > (1.0 + self.limits.deadline_slack) * self.dt)
+        late = sum(self._late_flags)
+        if late >= self.limits.max_missed_deadlines:
+            return (
+                f"control loop missed its {self.dt * 1e3:.1f} ms deadline in {late} of the last "
+                f"{len(self._late_flags)} periods"
+            )
         return None

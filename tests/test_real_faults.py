@@ -1,0 +1,284 @@
+"""The real-robot env under faults: every way out of an episode stops the arm (issue 18).
+
+The faults are injected by :class:`FaultyBackend`, a wrapper around the simulated backend that
+corrupts the state, freezes its timestamp, delays periods or keeps the arm moving, while
+counting what reached the arm.
+"""
+
+import json
+import os
+import signal
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from snac_gym.policies import register_policy
+from snac_gym.policies.base import BasePolicy
+from snac_gym.real import RealUREnv, SafetyLimits, SimulatedBackend
+from snac_gym.references import PAPER_Q0
+
+
+class FaultyBackend:
+    """A :class:`SimulatedBackend` whose state and timing can be broken on purpose.
+
+    Attributes:
+        corrupt_state: ``None``, ``"nan_q"`` or ``"inf_qdot"``: what :meth:`read_state` returns.
+        freeze_timestamp: Repeat the last state timestamp from now on.
+        delays: Extra seconds added to the next periods (consumed one per period).
+        keep_moving: The arm ignores ``stop`` (the controller failed to decelerate it).
+    """
+
+    def __init__(self) -> None:
+        self.inner = SimulatedBackend(realtime=False)
+        self.kinematics, self.dt = self.inner.kinematics, self.inner.dt
+        self.corrupt_state: str | None = None
+        self.freeze_timestamp = False
+        self.delays: list[float] = []
+        self.keep_moving = False
+        self.moves = 0
+        self._frozen: float | None = None
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def read_state(self):
+        q, qdot = self.inner.read_state()
+        if self.corrupt_state == "nan_q":
+            q[1] = np.nan
+        elif self.corrupt_state == "inf_qdot":
+            qdot[4] = np.inf
+        elif self.keep_moving:
+            qdot[0] = 0.2
+        return q, qdot
+
+    def state_timestamp(self):
+        if self.freeze_timestamp:
+            self._frozen = self.inner.state_timestamp() if self._frozen is None else self._frozen
+            return self._frozen
+        return self.inner.state_timestamp()
+
+    def end_period(self, period_start):
+        self.inner.end_period(period_start)
+        if self.delays:
+            time.sleep(self.delays.pop(0))
+
+    def move_to(self, q):
+        self.moves += 1
+        self.inner.move_to(q)
+
+    def stop(self):
+        self.inner.stop()
+
+
+def _env(**safety):
+    backend = FaultyBackend()
+    env = RealUREnv("reach", backend, safety=SafetyLimits(speed_scale=1.0, max_joint_acceleration=40.0, **safety))
+    env.reset(options={"q0": PAPER_Q0})
+    return env, backend
+
+
+def _drive(env, steps, u=0.1):
+    for _ in range(steps):
+        _, _, terminated, truncated, info = env.step(np.full(6, u))
+        if terminated or truncated:
+            break
+    return terminated, truncated, info
+
+
+def _assert_stopped_at_rest(env, backend, match=None):
+    assert backend.inner.stopped and backend.inner.stop_calls >= 1
+    assert np.max(np.abs(backend.inner.read_state()[1])) < 1e-3
+    if match is not None:
+        assert match in env.stop_reason
+    sent = backend.inner.commands_sent
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step(np.zeros(6))
+    assert backend.inner.commands_sent == sent
+
+
+@pytest.mark.parametrize(("fault", "match"), [("nan_q", "non-finite joint state"), ("inf_qdot", "non-finite joint velocities")])
+def test_non_finite_state_from_the_controller_stops_the_arm(fault, match):
+    env, backend = _env()
+    _drive(env, 20)
+    backend.corrupt_state = fault
+    terminated, _, info = _drive(env, 1)
+    assert terminated and match in info["safety"]
+    _assert_stopped_at_rest(env, backend, match)
+
+
+def test_stale_state_stops_the_arm():
+    env, backend = _env(max_stale_periods=3)
+    _drive(env, 20)
+    backend.freeze_timestamp = True
+    steps = 0
+    while True:
+        steps += 1
+        terminated, _, info = _drive(env, 1)
+        if terminated:
+            break
+    assert steps == 4 and "stale joint state" in info["safety"]  # the first frozen read is still new
+    _assert_stopped_at_rest(env, backend, "stale")
+
+
+def test_truncation_stops_the_arm_and_brings_it_to_rest():
+    env, backend = _env()
+    env.max_steps = 30
+    terminated, truncated, _ = _drive(env, 100)
+    assert truncated and not terminated and env.stop_reason is None
+    _assert_stopped_at_rest(env, backend)
+
+
+def test_reset_without_q0_stops_a_moving_arm_before_the_next_episode():
+    env, backend = _env()
+    _drive(env, 40, u=0.3)
+    assert np.max(np.abs(backend.inner.read_state()[1])) > 0.2  # moving when the episode is abandoned
+    env.reset()
+    assert np.max(np.abs(backend.inner.read_state()[1])) < 1e-3
+    # the acceleration bound starts from rest again, and the arm really is at rest
+    _, _, _, _, info = env.step(np.full(6, 3.0))
+    np.testing.assert_allclose(np.abs(info["command"]), env.safety.step_bound)
+
+
+def test_reset_refuses_an_unsafe_start_pose_before_moving_there():
+    env, backend = _env()
+    moves = backend.moves
+    q0 = np.array(PAPER_Q0)
+    q0[2] = np.pi - 0.05  # elbow within the 0.1 rad margin of its limit
+    with pytest.raises(ValueError, match=r"options\['q0'\] is outside the safety limits: joint 2 \(elbow_joint\)"):
+        env.reset(options={"q0": q0})
+    assert backend.moves == moves
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step(np.zeros(6))
+
+
+def test_an_arm_that_does_not_come_to_rest_is_not_started():
+    env, backend = _env()
+    backend.keep_moving = True
+    with pytest.raises(RuntimeError, match="still moving"):
+        env.reset(options={"q0": PAPER_Q0})
+
+
+def test_late_periods_that_are_not_consecutive_stop_the_arm():
+    env, backend = _env(max_missed_deadlines=3, deadline_window=25)
+    _drive(env, 5)
+    backend.delays = [2.5 * env.dt, 2.5 * env.dt, 0.0] * 10  # two late periods of every three
+    steps = 0
+    while True:
+        steps += 1
+        terminated, _, info = _drive(env, 1)
+        if terminated:
+            break
+    assert steps == 4 and "deadline in 3 of the last" in info["safety"]
+    _assert_stopped_at_rest(env, backend)
+
+
+def test_a_single_stall_stops_the_arm():
+    env, backend = _env(max_period=0.04)
+    _drive(env, 5)
+    backend.delays = [0.1]
+    terminated, _, info = _drive(env, 1)
+    assert terminated and "stalled: one period took" in info["safety"]
+    _assert_stopped_at_rest(env, backend)
+
+
+class SendsSignal(BasePolicy):
+    """Holds a small velocity and sends ``signum`` to its own process at step ``at``."""
+
+    def __init__(self, env, signum: int = signal.SIGTERM, at: int = 30) -> None:
+        super().__init__(env)
+        self.signum, self.at, self.count = signum, at, 0
+
+    def act(self, obs):
+        self.count += 1
+        if self.count == self.at:
+            os.kill(os.getpid(), self.signum)
+        return np.full(6, 0.05)
+
+
+@pytest.fixture
+def signalling_run(monkeypatch):
+    import snac_gym.real.run as real_run
+
+    backend = SimulatedBackend(realtime=False)
+    speeds_after_stop = []
+    stop = backend.stop
+
+    def stop_and_record():
+        stop()
+        if backend.sim.client >= 0:
+            speeds_after_stop.append(np.max(np.abs(backend.read_state()[1])))
+
+    monkeypatch.setattr(backend, "stop", stop_and_record)
+    monkeypatch.setattr(real_run, "make_backend", lambda *args, **kwargs: backend)
+    register_policy("sends-signal", SendsSignal, overwrite=True)
+    return backend, speeds_after_stop
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_run, tmp_path, signum):
+    from snac_gym.real.run import TerminationSignal, run_real_episode
+
+    previous = signal.getsignal(signum)
+    with pytest.raises(TerminationSignal) as excinfo:
+        run_real_episode(controller="sends-signal", out_dir=tmp_path, backend="sim", steps=200,
+                         policy_kwargs={"signum": signum}, safety=SafetyLimits(max_period=10.0))
+    assert excinfo.value.signum == signum
+    assert signal.getsignal(signum) is previous  # the handlers are put back
+    backend, speeds_after_stop = signalling_run
+    assert backend.stopped and speeds_after_stop and max(speeds_after_stop) < 1e-3
+    log = pd.read_parquet(tmp_path / "reach_sends-signal_log.parquet")
+    assert len(log) == 29  # step 30's command was never sent
+    assert log.attrs["interrupted"] == "TerminationSignal"
+    summary = json.loads((tmp_path / "reach_sends-signal_real.json").read_text())
+    assert summary["signal"] == signal.Signals(signum).name and summary["steps_logged"] == 29
+    assert summary["stop_reason"] == "closed mid-episode"  # the signal came during the policy's act
+    assert len(pd.read_csv(tmp_path / "reach_sends-signal_timing.csv")) == 29
+
+
+def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path):
+    from typer.testing import CliRunner
+
+    from snac_gym.cli import app
+
+    outcome = CliRunner().invoke(app, ["real", "--backend", "sim", "--controller", "sends-signal", "--out", str(tmp_path)])
+    assert outcome.exit_code == 128 + signal.SIGTERM
+    assert outcome.output.strip() == f"interrupted by SIGTERM: the arm was stopped; the log so far is in {tmp_path}/"
+    assert signalling_run[0].stopped
+
+
+@pytest.mark.parametrize(
+    ("limits", "match"),
+    [
+        ({"max_joint_acceleration": np.inf}, "max_joint_acceleration must be a finite number in \\(0, 40\\]"),
+        ({"max_joint_acceleration": -1.0}, "max_joint_acceleration"),
+        ({"speed_scale": np.nan}, "speed_scale"),
+        ({"box_low": (np.nan, -1.0, -1.0)}, "task box corners must be finite"),
+        ({"box_high": (1.0, 1.0, np.inf)}, "task box corners must be finite"),
+        ({"box_low": (0.0, 0.0)}, "3 numbers each"),
+        ({"joint_limit_margin": -0.1}, "joint_limit_margin"),
+        ({"joint_limit_margin": np.nan}, "joint_limit_margin"),
+        ({"deadline_slack": np.nan}, "deadline_slack"),
+        ({"max_period": np.inf}, "max_period"),
+        ({"max_missed_deadlines": 0}, "max_missed_deadlines"),
+        ({"max_missed_deadlines": 30, "deadline_window": 25}, "max_missed_deadlines must be a whole number in \\[1, 25\\]"),
+        ({"max_stale_periods": 2.5}, "max_stale_periods"),
+        ({"rest_speed": 0.0}, "rest_speed"),
+    ],
+)
+def test_meaningless_safety_limits_are_refused(limits, match):
+    with pytest.raises(ValueError, match=match):
+        SafetyLimits(**limits)
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "100"])
+def test_the_real_command_refuses_a_meaningless_acceleration_in_one_line(tmp_path, value):
+    from typer.testing import CliRunner
+
+    from snac_gym.cli import app
+
+    outcome = CliRunner().invoke(app, ["real", "--backend", "sim", "--max-acceleration", value, "--out", str(tmp_path)])
+    assert outcome.exit_code == 2
+    assert "max_joint_acceleration must be a finite number" in outcome.output
+    assert "Traceback" not in outcome.output and not any(tmp_path.iterdir())
