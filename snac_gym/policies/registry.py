@@ -24,6 +24,7 @@ _BUILTIN: dict[str, str] = {
     "dls": "baselines.dls:DLSPolicy",
     "svf": "baselines.svf:SVFPolicy",
     "rnn": "baselines.rnn:RNNPolicy",
+    "lqr": "baselines.lqr:LQRPolicy",
     "ppo": "snac_gym.ppo.policy:PPOPolicy",
 }
 _FACTORIES: dict[str, Callable[..., Any]] = {}
