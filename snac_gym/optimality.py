@@ -214,13 +214,16 @@ def hjb_residual(
     Returns:
         r, a float array of shape ``()`` or ``(B,)``.
     """
-    value_gradient = np.asarray(value_gradient, dtype=float)
     error = np.asarray(error, dtype=float)
+    if error.ndim == 1:  # as a stack of one: quadratic_form's 1-D shortcut rounds differently from its stack path
+        return hjb_residual(
+            np.asarray(value_gradient)[None], np.asarray(jacobian)[None], np.asarray(command)[None], error[None], Q, R
+        )[0]
     command = np.asarray(command, dtype=float)
     velocity = (np.asarray(jacobian, dtype=float) @ command[..., None])[..., 0]  # ė = J u
     error_cost = quadratic_form(error, weight_matrix(Q, error.shape[-1], "Q"))
     effort_cost = quadratic_form(command, weight_matrix(R, command.shape[-1], "R"))
-    return np.einsum("...i,...i->...", value_gradient, velocity) + error_cost + effort_cost
+    return np.einsum("...i,...i->...", np.asarray(value_gradient, dtype=float), velocity) + error_cost + effort_cost
 
 
 def relative_hjb_residual(
@@ -238,7 +241,8 @@ def relative_hjb_residual(
     """
     error = np.asarray(error, dtype=float)
     residual = hjb_residual(value_gradient, jacobian, command, error, Q, R)
-    return residual / quadratic_form(error, weight_matrix(Q, error.shape[-1], "Q"))
+    stack = error.reshape(-1, error.shape[-1])  # the stack path of quadratic_form for one e too, as above
+    return residual / quadratic_form(stack, weight_matrix(Q, error.shape[-1], "Q")).reshape(error.shape[:-1])
 
 
 def critic_error(P_hat: np.ndarray, P_star: np.ndarray) -> np.ndarray:

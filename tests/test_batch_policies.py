@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from baselines.dls import DLSPolicy
+from baselines.lqr import LQRPolicy
 from baselines.rnn import RNNPolicy
 from baselines.svf import SVFPolicy
 from evaluation import EvaluationConfig, run_evaluation
@@ -48,6 +49,8 @@ CONTROLLERS = {
     "rnn-loud": (RNNPolicy, {"gain": 100.0}),
     "rnn-euler": (RNNPolicy, {"integrator": "euler", "epsilon": 2e-3, "gain": 50.0}),
     "rnn-uncompensated": (RNNPolicy, {"velocity_compensation": False}),
+    "lqr": (LQRPolicy, {}),
+    "lqr-loud": (LQRPolicy, {"q_scale": 400.0, "R": "full", "Q": [1.0, 2.0, 0.5]}),
 }
 
 
