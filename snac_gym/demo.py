@@ -24,7 +24,7 @@ import pandas as pd
 
 from snac_gym.cost import trajectory_cost
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
-from snac_gym.rollout import log_array, rollout, write_log
+from snac_gym.rollout import add_critic_diagnostics, log_array, rollout, write_log
 
 #: Gymnasium id of each demo task.
 DEMO_ENVS = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}
@@ -73,6 +73,9 @@ class DemoMetrics:
         cost_error, cost_effort, cost_smoothness, cost_total: The trajectory cost
             ``V = Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt`` (Q = I, R = I) and its terms.
         steps: Control steps run.
+        hjb_ratio_median: Median of the critic's HJB residual r / eᵀQe over the run (critic
+            policies only, else ``None``; 0 for the optimal value function).
+        critic_error_final: ‖P̂ − P*(J)‖_F / ‖P*‖_F at the last step (regulation critics only).
     """
 
     final_error: float
@@ -90,6 +93,8 @@ class DemoMetrics:
     cost_smoothness: float
     cost_total: float
     steps: int
+    hjb_ratio_median: float | None = None
+    critic_error_final: float | None = None
 
 
 def demo_metrics(log: pd.DataFrame, tolerance: float) -> DemoMetrics:
@@ -132,6 +137,8 @@ def demo_metrics(log: pd.DataFrame, tolerance: float) -> DemoMetrics:
         cost_smoothness=float(cost.smoothness),
         cost_total=float(cost.total),
         steps=len(log),
+        hjb_ratio_median=float(np.nanmedian(log["hjb_ratio"])) if "hjb_ratio" in log.columns else None,
+        critic_error_final=float(log["critic_error"].iloc[-1]) if "critic_error" in log.columns else None,
     )
 
 
@@ -175,6 +182,10 @@ class DemoResult:
             (f"  trajectory cost V           {m.cost_total:.4f} (error {m.cost_error:.4f},"
              f" effort {m.cost_effort:.4f}, smoothness {m.cost_smoothness:.4f})"),
         ]
+        if m.hjb_ratio_median is not None:
+            lines.append(f"  HJB residual r/eᵀQe         median {m.hjb_ratio_median:.4f} (0 for the optimal critic)")
+        if m.critic_error_final is not None:
+            lines.append(f"  critic error ‖P̂−P*‖/‖P*‖    {m.critic_error_final:.4f} at the end")
         if self.files:
             lines.append(f"  wrote {len(self.files)} files to {self.files[0].parent}")
         return "\n".join(lines)
@@ -231,7 +242,7 @@ def run_demo(
         env = gym.make(DEMO_ENVS[task], max_steps=steps)
     try:
         policy = make_policy(controller, env, **(policy_kwargs or {}))
-        log = rollout(env, policy, options=options, seed=seed, steps=steps)
+        log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)
     finally:
         env.close()
     log.attrs["controller"] = controller
@@ -280,6 +291,8 @@ def write_demo_outputs(
         }
         if "w_0" in log.columns:
             figures["critic_weights"] = panels.plot_critic_weights(log)
+        if "hjb_ratio" in log.columns:
+            figures["optimality"] = panels.plot_optimality(log)
         for name, figure in figures.items():
             result.files.append(panels.save_figure(figure, out / f"{prefix}{name}.png"))
     result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)

@@ -162,6 +162,33 @@ def plot_critic_weights(log: pd.DataFrame, ax: Any = None) -> Figure:
     return fig
 
 
+def plot_optimality(log: pd.DataFrame) -> Figure:
+    """How far the critic is from optimal over the run: HJB residual r/eᵀQe, and ‖P̂ − P*‖/‖P*‖ (regulation).
+
+    Both are 0 for the optimal value function (log columns of
+    :func:`~snac_gym.rollout.add_critic_diagnostics`).
+    """
+    with_error = "critic_error" in log.columns
+    fig = _figure(7.2, 5.6 if with_error else 3.2)
+    axes = fig.subplots(2 if with_error else 1, 1, sharex=True, squeeze=False)[:, 0]
+    t = log["t"].to_numpy()
+    axes[0].plot(t, log["hjb_ratio"].to_numpy(), color="C0", lw=1.2)
+    axes[0].axhline(0.0, color="k", lw=0.8, ls="--", label="optimal critic: 0")
+    axes[0].set_yscale("symlog", linthresh=1.0)
+    axes[0].set_ylabel(r"$r\,/\,e^TQe$")
+    axes[0].set_title(r"HJB residual $r = \nabla\hat V^T\dot\xi + e^TQe + \hat u^TR\hat u$, relative to $e^TQe$")
+    axes[0].legend(fontsize="small")
+    axes[0].grid(alpha=0.3)
+    if with_error:
+        axes[1].plot(t, log["critic_error"].to_numpy(), color="C3", lw=1.2)
+        axes[1].set_yscale("log")
+        axes[1].set_ylabel(r"$\|\hat P - P^*(J)\|_F / \|P^*\|_F$")
+        axes[1].set_title(r"Critic error against the frozen-Jacobian optimum $P^*(J)$")
+        axes[1].grid(alpha=0.3, which="both")
+    axes[-1].set_xlabel("time (s)")
+    return fig
+
+
 def plot_figure3(log: pd.DataFrame, tolerance: float | None = None) -> Figure:
     """The four panels of the paper's Figure 3 for one run, side by side."""
     fig = _figure(13.0, 9.0)

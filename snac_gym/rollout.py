@@ -21,6 +21,10 @@ column              unit     meaning
 ``e_0..e_{n-1}``    m        error eₖ = xₖ − x_d(tₖ)
 ``w_0..w_{l-1}``    –        critic weights at the start of step k (before step k's update);
                              only for policies whose ``internals`` hold ``critic_weights``
+``hjb_residual``    m²       HJB residual r of the critic at step k (demo and real logs of
+                             critic policies, :func:`add_critic_diagnostics`)
+``hjb_ratio``       –        r / eₖᵀQeₖ
+``critic_error``    –        ‖P̂ − P*(Jₖ)‖_F / ‖P*‖_F (regulation)
 ==================  =======  ============================================================
 
 ``DataFrame.attrs`` (kept by the Parquet file) holds ``dt``, ``task``, ``n_joints``,
@@ -198,6 +202,30 @@ class _Record:
             "truncated": bool(truncated),
         }
         return log
+
+
+def add_critic_diagnostics(log: pd.DataFrame, policy: Any) -> pd.DataFrame:
+    """Append the optimality diagnostics of a critic-based policy to its log, row by row.
+
+    For a policy with ``critic_diagnostics`` (SNAC and its variants) and a log with critic
+    weights, adds ``hjb_residual`` (r = ∇V̂ᵀξ̇ + eᵀQe + ûᵀRû), ``hjb_ratio`` (r / eᵀQe) and, for
+    regulation, ``critic_error`` (‖P̂ − P*(J)‖_F / ‖P*‖_F), each from the weights that gave the
+    row's command. Other logs are returned unchanged.
+    """
+    diagnose = getattr(policy, "critic_diagnostics", None)
+    if diagnose is None or "w_0" not in log.columns or not len(log):
+        return log
+    reference = log.attrs.get("reference") or {}
+    centre = reference.get("centre", reference.get("target"))
+    task_dim = int(log.attrs["task_dim"])
+    out = diagnose(
+        log_array(log, "q"), log_array(log, "e"), log_array(log, "x_d"), log_array(log, "xdot_d"),
+        np.zeros(task_dim) if centre is None else np.asarray(centre, dtype=float), log_array(log, "w"),
+    )
+    attrs = log.attrs
+    log = log.assign(**out)
+    log.attrs = attrs
+    return log
 
 
 def write_log(log: pd.DataFrame, path: str | Path, csv: bool = False) -> list[Path]:

@@ -27,7 +27,8 @@ from snac_gym.policies.snac import SNACPolicy
 from snac_gym.references import PAPER_Q0, PAPER_TARGET
 from snac_gym.rollout import log_array, log_columns, read_log, rollout, write_log
 
-PANELS = ("path", "error", "joint_velocities", "cost", "figure3", "critic_weights")
+PANELS = ("path", "error", "joint_velocities", "cost", "figure3", "critic_weights", "optimality")
+DIAGNOSTICS = {"reach": ["hjb_residual", "hjb_ratio", "critic_error"], "track": ["hjb_residual", "hjb_ratio"]}
 
 
 def _expected_columns(n_joints, task_dim, n_weights):
@@ -42,14 +43,15 @@ def test_reach_demo_meets_the_acceptance_at_its_default_horizon(tmp_path):
     m, log = result.metrics, result.log
     assert m.steps == len(log) == 1500  # the demo's 12 s horizon (DEMO_HORIZONS)
     assert m.final_error <= 1e-3
-    assert m.time_to_1mm is not None and m.time_to_1mm < 8.0  # 6.56 s measured
-    assert m.settling_time is not None and m.settling_time < 8.0
+    # The paper's SNAC (random Ŵ₀ from seed 0): 1 mm first reached at 10.02 s, V = 43.6 measured.
+    assert m.time_to_1mm is not None and m.time_to_1mm < 11.0
+    assert m.settling_time is not None and m.settling_time < 11.0
     assert m.max_speed_ratio < 1.0 and m.clipped_steps == 0  # the per-second law never reaches a limit here
-    # The point of the defaults: a smooth reach (V ≈ 97 measured; the per-step reading: ≈ 4200).
-    assert m.cost_total < 150.0
+    assert m.cost_total < 60.0
+    assert m.critic_error_final > 1.0  # the paper's law does not learn P* (2.52 measured)
     assert m.cost_total == pytest.approx(m.cost_error + m.cost_effort + m.cost_smoothness)
     assert np.all(np.abs(log_array(log, "u")) <= np.asarray(log.attrs["velocity_limits"]))
-    assert list(log.columns) == _expected_columns(6, 3, 6)
+    assert list(log.columns) == _expected_columns(6, 3, 6) + DIAGNOSTICS["reach"]
     np.testing.assert_allclose(log_array(log, "x_d")[0], PAPER_TARGET)
     np.testing.assert_allclose(log_array(log, "q")[0], PAPER_Q0, atol=1e-12)
     for panel in PANELS:
@@ -65,13 +67,14 @@ def test_track_demo_settles_under_5_mm_and_stays(tmp_path):
     result = run_demo("track", "snac", tmp_path, seed=0, plots=False)
     m, log = result.metrics, result.log
     assert m.steps == len(log) == 2500  # the env's 20 s episode
-    assert m.settling_time is not None and m.settling_time <= 10.0  # transient over well inside the run
+    # The paper's SNAC (random Ŵ₀ from seed 0, ξ = [e; x_d]): under 5 mm from 12.28 s, V = 52.0 measured.
+    assert m.settling_time is not None and m.settling_time <= 14.0
     assert m.max_error_after_settling < 5e-3
     norms = np.linalg.norm(log_array(log, "e"), axis=1)
-    assert norms[log["t"].to_numpy() >= 10.0].max() < 5e-3
+    assert norms[log["t"].to_numpy() >= 14.0].max() < 5e-3
     assert m.max_speed_ratio <= 1.0
-    assert m.cost_total < 1600.0  # ≈ 1406 measured (the per-step reading: ≈ 1800)
-    assert list(log.columns) == _expected_columns(6, 3, 21)
+    assert m.cost_total < 80.0
+    assert list(log.columns) == _expected_columns(6, 3, 21) + DIAGNOSTICS["track"]
     # x_d moves on the paper's circle: radius 0.2 m about the centre, in the z = 0.5 m plane.
     x_d = log_array(log, "x_d")
     np.testing.assert_allclose(np.linalg.norm(x_d - [-0.7, 0.0, 0.5], axis=1), 0.2, atol=1e-12)
@@ -90,9 +93,10 @@ def test_same_seed_reproduces_the_log_bit_for_bit(tmp_path, task):
     assert digests[0] == digests[1]
     other = run_demo(task, "snac", None, seed=6, steps=250, policy_kwargs=random).log
     assert not np.array_equal(log_array(other, "w")[0], log_array(logs[0], "w")[0])
-    # The default Ŵ₀ (c on the squared terms) does not depend on the seed: the demo is then seed-free.
-    defaults = [run_demo(task, "snac", None, seed=seed, steps=50).log for seed in (5, 6)]
-    assert defaults[0].to_numpy().tobytes() == defaults[1].to_numpy().tobytes()
+    # Ŵ₀ = c on the squared terms does not depend on the seed: the demo is then seed-free.
+    identity = {"initial_weights": "identity"}
+    fixed = [run_demo(task, "snac", None, seed=seed, steps=50, policy_kwargs=identity).log for seed in (5, 6)]
+    assert fixed[0].to_numpy().tobytes() == fixed[1].to_numpy().tobytes()
 
 
 def test_rollout_rows_hold_the_state_at_the_start_of_each_step():

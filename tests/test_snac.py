@@ -70,9 +70,12 @@ def _random_observation(kinematics, layout, rng):
     return layout.pack(q, rng.normal(size=kinematics.n_joints), x, x_d, xdot_d, x_c)
 
 
-def _critic_state(layout, obs, task):
+def _critic_state(layout, obs, task, tracking_state="paper"):
+    """e (reach); ξ = [e; x_d] (eq. 31) or, centred, [e; x_d − x_c] (track)."""
     f = layout.unpack(obs)
-    return f.e.copy() if task == "reach" else np.concatenate([f.e, f.x_d - f.x_c])
+    if task == "reach":
+        return f.e.copy()
+    return np.concatenate([f.e, f.x_d - (f.x_c if tracking_state == "centred" else 0.0)])
 
 
 def _random_spd(rng, m):
@@ -120,7 +123,8 @@ def test_basis_gradient_matches_finite_differences_and_loops(dim, rng):
 @pytest.mark.parametrize("r_kind", ["identity", "diagonal", "full"])
 @pytest.mark.parametrize("unit", ["per_step", "per_second"])
 @pytest.mark.parametrize("clock", ["steps", "seconds"])
-def test_command_and_weight_update_match_hand_expansion(ur10, rng, task, r_kind, unit, clock):
+@pytest.mark.parametrize("tracking_state", ["paper", "centred"])
+def test_command_and_weight_update_match_hand_expansion(ur10, rng, task, r_kind, unit, clock, tracking_state):
     m = ur10.n_joints
     R = {"identity": None, "diagonal": rng.uniform(0.5, 2.0, m), "full": _random_spd(rng, m)}[r_kind]
     R_matrix = np.eye(m) if R is None else (np.diag(R) if np.ndim(R) == 1 else R)
@@ -130,13 +134,13 @@ def test_command_and_weight_update_match_hand_expansion(ur10, rng, task, r_kind,
     size = QuadraticBasis(n if task == "reach" else 2 * n).size
     weights0 = rng.normal(size=size)
     policy = SNACPolicy(ctx, R=R, initial_weights=weights0, learning_rate_unit=unit, weight_update="euler",
-                        schedule_clock=clock)
+                        schedule_clock=clock, tracking_state=tracking_state)
     policy.reset(seed=0)
     weights = weights0.copy()
     alpha_i, alpha_f, shift = PAPER_SCHEDULES[task]
     for k in range(4):  # successive steps: the schedule advances and the weights accumulate
         obs = _random_observation(ur10, ctx.layout, rng)
-        s = _critic_state(ctx.layout, obs, task)
+        s = _critic_state(ctx.layout, obs, task, tracking_state)
         jac = ur10.jacobian(obs[ctx.layout.slices["q"]])
         command, direction = _laws_loops(list(s), list(weights), jac.tolist(), r_inverse, n)
         u = policy.act(obs)
@@ -316,10 +320,10 @@ def test_random_initial_weights_follow_the_seed(ur10):
 
 @pytest.mark.parametrize(("task", "dim", "default_scale"), [("reach", 3, 2.0), ("track", 6, 20.0)])
 def test_identity_initial_weights_are_c_on_the_squared_terms(ur10, rng, task, dim, default_scale):
-    """Default Ŵ₀: c on s_i², 0 on s_i s_j (i ≠ j), so V̂₀(s) = c‖s‖²; the seed does not enter."""
+    """Identity Ŵ₀: c on s_i², 0 on s_i s_j (i ≠ j), so V̂₀(s) = c‖s‖²; the seed does not enter."""
     ctx = _context(ur10, task)
     for scale, expected_scale in ((None, default_scale), (7.5, 7.5)):
-        policy = SNACPolicy(ctx, initial_weight_scale=scale)
+        policy = SNACPolicy(ctx, initial_weights="identity", initial_weight_scale=scale)
         assert policy.initial_weight_kind == "identity" and policy.initial_weight_scale == expected_scale
         expected = [expected_scale if i == j else 0.0 for i, j in _terms(dim)]
         for seed in (0, 1):
@@ -334,15 +338,17 @@ def test_identity_initial_weights_are_c_on_the_squared_terms(ur10, rng, task, di
     assert explicit.critic_weights.sum() == pytest.approx(3.0 * dim)
 
 
-def test_defaults_are_the_continuous_law_without_anti_windup(ur10):
-    """The defaults read the paper literally where it is explicit (docs/snac.md has the measurement)."""
+def test_defaults_are_the_papers_reading(ur10):
+    """The defaults read the paper literally where it is explicit: random Ŵ₀ ~ U(0, 1), ξ = [e; x_d],
+    the continuous law without anti-windup, the paper's schedule, Q = I, R = I."""
     for task in ("reach", "track"):
         policy = SNACPolicy(_context(ur10, task))
         assert policy.learning_rate_unit == "per_second"
         assert policy.freeze_when_saturated is False
         assert policy.weight_update == "euler"
         assert policy.schedule_clock == "seconds"
-        assert policy.initial_weight_kind == "identity"
+        assert policy.initial_weight_kind == "uniform" and policy.initial_weight_range == (0.0, 1.0)
+        assert policy.tracking_state == "paper"
         alpha_i, alpha_f, shift = PAPER_SCHEDULES[task]
         schedule = (policy.learning_rate_initial, policy.learning_rate_final, policy.schedule_shift)
         assert schedule == (alpha_i, alpha_f, shift)
@@ -399,3 +405,66 @@ def test_a_copied_policy_continues_identically(ur10, rng, copier):
     for obs in observations[3:]:
         np.testing.assert_array_equal(twin.act(obs), policy.act(obs))
         np.testing.assert_array_equal(twin.internals["critic_weights"], policy.internals["critic_weights"])
+
+
+# -- optimality diagnostics (issue 12) ----------------------------------------------------------
+@pytest.mark.parametrize("task", ["reach", "track"])
+@pytest.mark.parametrize("tracking_state", ["paper", "centred"])
+def test_hjb_residual_of_the_critic_matches_a_hand_expansion(ur10, rng, task, tracking_state):
+    """r = ∇_ξV̂ᵀ(F + Gû) + eᵀQe + ûᵀRû with F = [−ẋ_d; ẋ_d], G = [J; 0] (eqs. 7, 31), by loops."""
+    ctx = _context(ur10, task)
+    n = ur10.task_dim
+    Q, R = _random_spd(rng, n), _random_spd(rng, 6)
+    policy = SNACPolicy(ctx, Q=Q, R=R, tracking_state=tracking_state)
+    size = policy.basis.size
+    rows = [_random_observation(ur10, ctx.layout, rng) for _ in range(4)]
+    weights = rng.normal(size=(4, size))
+    fields = [ctx.layout.unpack(obs) for obs in rows]
+    x_c = fields[0].x_c
+    expected = []
+    for f, w in zip(fields, weights):
+        obs = ctx.layout.pack(f.q, f.qdot, f.x, f.x_d, f.xdot_d if task == "track" else np.zeros(n), x_c)
+        g = ctx.layout.unpack(obs)
+        s = _critic_state(ctx.layout, obs, task, tracking_state)
+        jac = ur10.jacobian(g.q)
+        command, _ = _laws_loops(list(s), list(w), jac.tolist(), np.linalg.inv(R).tolist(), n)
+        grad = np.array(_basis_gradient_loops(list(s))).T @ w  # ∇_s V̂
+        rate = np.concatenate([jac @ command - g.xdot_d, g.xdot_d])[: len(s)]
+        expected.append(grad @ rate + g.e @ Q @ g.e + command @ R @ command)
+    xdot_d = np.array([f.xdot_d if task == "track" else np.zeros(n) for f in fields])
+    out = policy.critic_diagnostics(
+        np.array([f.q for f in fields]), np.array([f.e for f in fields]), np.array([f.x_d for f in fields]), xdot_d,
+        x_c, weights,
+    )
+    np.testing.assert_allclose(out["hjb_residual"], expected, rtol=1e-9)
+    np.testing.assert_allclose(out["hjb_ratio"], np.array(expected) / [f.e @ Q @ f.e for f in fields], rtol=1e-9)
+    assert ("critic_error" in out) == (task == "reach")
+
+
+def test_the_optimal_critic_has_zero_residual_and_zero_critic_error(ur10, rng):
+    from scipy.linalg import solve_continuous_are
+
+    from snac_gym.optimality import matrix_to_quadratic_weights
+
+    ctx = _context(ur10, "reach")
+    Q, R = _random_spd(rng, 3), _random_spd(rng, 6)
+    policy = SNACPolicy(ctx, Q=Q, R=R)
+    q = rng.uniform(-np.pi, np.pi, size=(5, 6))
+    optimum = [solve_continuous_are(np.zeros((3, 3)), ur10.jacobian(row), Q, R) for row in q]
+    weights = np.array([matrix_to_quadratic_weights(P) for P in optimum])
+    e = rng.normal(scale=0.1, size=(5, 3))
+    out = policy.critic_diagnostics(q, e, np.zeros((5, 3)), np.zeros((5, 3)), np.zeros(3), weights)
+    np.testing.assert_allclose(out["hjb_ratio"], 0.0, atol=1e-7)
+    np.testing.assert_allclose(out["critic_error"], 0.0, atol=1e-7)
+    doubled = policy.critic_diagnostics(q, e, np.zeros((5, 3)), np.zeros((5, 3)), np.zeros(3), 2 * weights)
+    np.testing.assert_allclose(doubled["critic_error"], 1.0, rtol=1e-9)  # ‖2P* − P*‖/‖P*‖
+    np.testing.assert_allclose(doubled["hjb_ratio"], -3.0, rtol=1e-6)  # eᵀ(Q − 4P*GP*)e / eᵀQe = −3
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_the_papers_snac_trajectory_does_not_depend_on_q(task):
+    """Eqs. 15/19 and 36/38 contain no Q: any Q gives the same commands and weights, bit for bit."""
+    from snac_gym.demo import run_demo
+
+    logs = [run_demo(task, "snac", None, seed=3, steps=150, policy_kwargs={"Q": Q}).log for Q in (None, [100.0, 0.01, 7.0])]
+    assert logs[0].equals(logs[1])

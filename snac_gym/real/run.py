@@ -151,7 +151,7 @@ def run_real_episode(
     """
     from snac_gym.demo import DEMO_TOLERANCES, demo_options, write_demo_outputs
     from snac_gym.policies import make_policy
-    from snac_gym.rollout import partial_log, rollout
+    from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
 
     arm = make_backend(backend, host, series, dry_run, echo=echo)
     try:
@@ -164,7 +164,9 @@ def run_real_episode(
         with stop_signals_raise():
             try:
                 policy = make_policy(controller, env, **(policy_kwargs or {}))
-                log = rollout(env, policy, options=demo_options(task), seed=seed, steps=env.max_steps)
+                log = add_critic_diagnostics(
+                    rollout(env, policy, options=demo_options(task), seed=seed, steps=env.max_steps), policy
+                )
             finally:
                 env.close()
     except BaseException as exc:
