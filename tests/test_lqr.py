@@ -230,7 +230,7 @@ def test_wrong_observation_shape_raises(reach_env):
         policy.act_batch(np.zeros((2, 5)))
 
 
-def test_a_tiny_evaluation_matches_its_effort_to_snac(tmp_path):
+def test_a_tiny_evaluation_calibrates_the_q_scale_knob(tmp_path):
     config = EvaluationConfig(
         out=tmp_path, samples=3, horizons={"reach": 0.3, "track": 0.3}, progress=False, controllers=("snac", "lqr")
     )
