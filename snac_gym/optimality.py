@@ -122,17 +122,25 @@ class FrozenJacobianLQR:
         values = np.where(singular, np.inf, values)
         return self.R_inverse @ weighted_t @ vectors, values, np.swapaxes(vectors, -1, -2) @ self.Q_half, singular
 
-    def solution(self, jacobian: np.ndarray) -> np.ndarray:
+    def solution(self, jacobian: np.ndarray, at_singular: str = "raise") -> np.ndarray:
         """``P*(J)``, the SPD solution of ``0 = Q − P J R⁻¹ Jᵀ P`` (closed form), ``(…, n, n)``.
 
+        Args:
+            jacobian: One J or a stack.
+            at_singular: ``"raise"`` or ``"nan"`` (the rows of a stack whose J lost rank are NaN;
+                for diagnostics of logged trajectories).
+
         Raises:
-            ValueError: If some J has lost rank (``J R⁻¹ Jᵀ`` singular): the ARE then has no
-                stabilising solution, the cost of an error along the lost direction is infinite.
+            ValueError: If some J has lost rank (``J R⁻¹ Jᵀ`` singular) and ``at_singular`` is
+                ``"raise"``: the ARE then has no stabilising solution, the cost of an error along
+                the lost direction is infinite.
         """
         _, values, right, singular = self.factors(jacobian)
-        if singular.any():
+        lost = singular.any(axis=-1)
+        if lost.any() and at_singular != "nan":
             raise ValueError("J R⁻¹ Jᵀ is singular (J has lost rank): the Riccati equation has no stabilising solution")
-        return np.swapaxes(right, -1, -2) @ (values[..., :, None] ** -0.5 * right)  # Cᵀ diag(λ^{-1/2}) C
+        solution = np.swapaxes(right, -1, -2) @ (values[..., :, None] ** -0.5 * right)  # Cᵀ diag(λ^{-1/2}) C
+        return np.where(lost[..., None, None], np.nan, solution)
 
     def gain(self, jacobian: np.ndarray) -> np.ndarray:
         """``K* = R⁻¹ Jᵀ P*(J)``, ``(…, m, n)``; bounded at a singularity (see :meth:`factors`)."""

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import SymmetricalLogLocator
 
 from snac_gym.cost import cost_rates
 from snac_gym.references import Ellipse, FixedTarget
@@ -174,7 +175,9 @@ def plot_optimality(log: pd.DataFrame) -> Figure:
     t = log["t"].to_numpy()
     axes[0].plot(t, log["hjb_ratio"].to_numpy(), color="C0", lw=1.2)
     axes[0].axhline(0.0, color="k", lw=0.8, ls="--", label="optimal critic: 0")
-    axes[0].set_yscale("symlog", linthresh=1.0)
+    # r/eᵀQe spans decades on both sides of 0 (large during the first steps, tiny once learnt).
+    axes[0].set_yscale("symlog", linthresh=1e-3)
+    axes[0].yaxis.set_major_locator(SymmetricalLogLocator(base=10, linthresh=1e-3))
     axes[0].set_ylabel(r"$r\,/\,e^TQe$")
     axes[0].set_title(r"HJB residual $r = \nabla\hat V^T\dot\xi + e^TQe + \hat u^TR\hat u$, relative to $e^TQe$")
     axes[0].legend(fontsize="small")

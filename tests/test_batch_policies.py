@@ -19,6 +19,7 @@ from evaluation.jobs import policy_context
 from evaluation.reference_batch import reference_trajectories
 from evaluation.samples import generate_samples
 from snac_gym.policies.snac import SNACPolicy
+from snac_gym.policies.snac_hjb import SNACHJBPolicy
 from snac_gym.sampling import SampleSpace
 
 DT = 1.0 / 125.0
@@ -50,6 +51,8 @@ CONTROLLERS = {
     "rnn-euler": (RNNPolicy, {"integrator": "euler", "epsilon": 2e-3, "gain": 50.0}),
     "rnn-uncompensated": (RNNPolicy, {"velocity_compensation": False}),
     "lqr": (LQRPolicy, {}),
+    "snac-hjb": (SNACHJBPolicy, {}),
+    "snac-hjb-loud": (SNACHJBPolicy, {"q_scale": 400.0, "R": "full", "learning_rate": 120.0}),
     "lqr-loud": (LQRPolicy, {"q_scale": 400.0, "R": "full", "Q": [1.0, 2.0, 0.5]}),
 }
 

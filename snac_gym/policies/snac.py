@@ -427,7 +427,7 @@ class SNACPolicy(BasePolicy):
         with np.errstate(divide="ignore", invalid="ignore"):
             out = {"hjb_residual": residual, "hjb_ratio": residual / error_cost}
         if self.task == "reach":
-            optimum = FrozenJacobianLQR(self.Q, self.R, n, self.n_joints).solution(jacobians)
+            optimum = FrozenJacobianLQR(self.Q, self.R, n, self.n_joints).solution(jacobians, at_singular="nan")
             out["critic_error"] = critic_error(quadratic_weights_to_matrix(weights, n), optimum)
         return out
 

@@ -1,0 +1,287 @@
+"""SNAC with a critic that converges: the paper's structure, tuned by the HJB residual (issue 12).
+
+The paper's weight law (eq. 19 / 38) descends the Lyapunov function J_s = ½‖s‖², not the HJB
+equation: it contains no Q and its critic does not approach the optimal value function
+(docs/snac.md). This controller keeps the paper's structure, one critic ``V̂ = Ŵᵀσ(e)`` over the
+quadratic basis, the command from ``∇V̂`` (eq. 15), eq. 19 as a stabilising term, and tunes Ŵ
+by the HJB residual instead.
+
+**Critic and command.** ``V̂(e) = Ŵᵀσ(e) = eᵀP̂e`` (:func:`~snac_gym.optimality.quadratic_weights_to_matrix`)::
+
+    u_fb = −½ R⁻¹ Jᵀ ∇V̂(e) = −R⁻¹ Jᵀ P̂ e                  (eq. 15)
+    u    = clip(J⁺_R ẋ_d + u_fb)
+
+For regulation ẋ_d = 0. For tracking the feed-forward ``J⁺_R ẋ_d = R⁻¹Jᵀ(JR⁻¹Jᵀ)⁻¹ẋ_d`` turns
+``ė = J u − ẋ_d`` into ``ė = J u_fb``, the regulation problem, whose cost
+``∫ eᵀQe + u_fbᵀRu_fb`` is finite. The paper's augmented, undiscounted tracking cost is
+infinite for any controller that follows the ellipse (u ≠ 0 forever; docs/baselines.md, LQR),
+so a critic cannot converge to it; the discounted alternative (Modares & Lewis 2014) would
+leave a steady error that grows with the discount. The feed-forward form keeps a zero steady
+error and a well-posed critic; its price is that ``u`` is not the minimiser of the full
+instantaneous cost (the paper's remark on Kiumarsi et al. 2015).
+
+**HJB residual** at an error ``d`` with the critic's own command ``û(d) = −R⁻¹JᵀP̂d`` (eq. 9)::
+
+    δ(d) = ∇V̂(d)ᵀ J û(d) + dᵀQd + û(d)ᵀRû(d) = ω(d)ᵀŴ + dᵀQd + û(d)ᵀRû(d),
+    ω(d) = ∇σ(d) J û(d)
+
+δ = 0 at every d exactly when P̂ solves the frozen-Jacobian ARE (P̂ = P*(J)). Since û minimises
+the Hamiltonian, ∂δ/∂Ŵ = ω (envelope theorem).
+
+**Weight law** (Vamvoudakis & Lewis 2010; Dierks & Jagannathan 2010) on the residuals at a set
+of errors D: the current error direction e/‖e‖ plus the n(n+1)/2 fixed unit directions
+``{eᵢ} ∪ {(eᵢ + eⱼ)/√2}``, at which the known model ė = J u lets the residual be evaluated
+without moving there (Bellman-error extrapolation, Kamalapurkar, Walters & Dixon, Automatica
+2016). This gives the persistent excitation that a straight reach cannot: along one path only
+the residual in one direction is observed. The normalised gradient is preconditioned by its
+Gram matrix, the least-squares gain of the same references::
+
+    Ŵ̇ = −α Γ Σ_{d∈D} ω(d) δ(d) / ρ(d),   Γ = (Σ ω ωᵀ/ρ + εI)⁻¹,   ρ = 1 + ωᵀω
+         + α_s 1[eᵀJu_fb > 0] ∇σ(e) J R⁻¹ Jᵀ e          (eq. 19, only while V̇ of J_s is not negative)
+
+integrated by one Euler step per control period. With Γ the step is a damped Newton step on the
+ARE (Kleinman's iteration), so the critic follows P*(J) as θ moves.
+
+**Projection.** The HJB residual vanishes at every solution of ``P̂GP̂ = Q``, ``−P*`` included,
+whose command drives the error away; Kleinman's iteration converges to the stabilising P*
+from any stabilising start and keeps every iterate positive definite. So after each step Ŵ
+is projected (the standard projection of adaptive control) onto the convex set
+``{P̂ ⪰ λ_floor I}``: eigenvalues of P̂ below ``min_eigenvalue`` are raised to it. Without it
+the paper's random Ŵ₀, indefinite on most seeds, converged to a non-stabilising solution in
+the reach demo (docs/snac.md).
+
+**Initial weights.** Ŵ₀ ~ U(0, 1) from the reset seed, as the paper's "initialized randomly",
+then projected.
+
+Args of :class:`SNACHJBPolicy` are documented there; docs/snac.md has the measurements.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from snac_gym.optimality import (
+    FrozenJacobianLQR,
+    critic_error,
+    matrix_to_quadratic_weights,
+    quadratic_weights_to_matrix,
+)
+from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.policies.snac import QuadraticBasis
+
+
+def _excitation_directions(dim: int) -> np.ndarray:
+    """The n(n+1)/2 unit directions {eᵢ} ∪ {(eᵢ + eⱼ)/√2, i < j}: their dᵀPd fix a symmetric P."""
+    eye = np.eye(dim)
+    pairs = [(eye[i] + eye[j]) / math.sqrt(2.0) for i in range(dim) for j in range(i + 1, dim)]
+    return np.vstack([eye, *pairs]) if pairs else eye
+
+
+class SNACHJBPolicy(BasePolicy):
+    """SNAC whose critic is tuned by the HJB residual (module docstring), for reach and track.
+
+    Args:
+        env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive.
+        Q: Error weight, ``(n, n)`` SPD or a length-n diagonal (default identity, the paper's).
+        R: Effort weight, ``(m, m)`` SPD or a length-m diagonal (default identity, the paper's).
+        q_scale: The effort knob (:attr:`effort_parameter`): the critic learns the optimum of
+            ``q_scale·Q``, so the converged gain grows as √q_scale. Default 1: the paper's cost.
+        learning_rate: α of the residual law, 1/s (one Euler step of α·Δt per period; ≤ 1/Δt).
+        stabilising_rate: α_s of the eq. 19 term, 1/s.
+        regularisation: ε of Γ, relative to the trace of the Gram matrix.
+        min_eigenvalue: λ_floor of the projection of P̂ (cost per m² of error).
+        initial_weight_range: ``(low, high)`` of the uniform Ŵ₀ (default ``(0, 1)``).
+        seed: Seed of Ŵ₀ used by ``reset(seed=None)``.
+
+    Raises:
+        ValueError: On a bad Q or R, or a non-positive or too large rate.
+
+    Attributes:
+        basis: The :class:`~snac_gym.policies.snac.QuadraticBasis` of e.
+        critic_weights: The current Ŵ.
+        internals: After ``act``: ``critic_weights`` (Ŵ after the update), ``critic_value``
+            (V̂(e) with the weights that gave the command), ``hjb_residual`` (δ(e)).
+    """
+
+    effort_parameter = "q_scale"
+
+    def __init__(
+        self,
+        env: Any,
+        *,
+        Q: Any = None,
+        R: Any = None,
+        q_scale: float = 1.0,
+        learning_rate: float = 50.0,
+        stabilising_rate: float = 100.0,
+        regularisation: float = 1e-9,
+        min_eigenvalue: float = 0.1,
+        initial_weight_range: tuple[float, float] = (0.0, 1.0),
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(env)
+        n, m = self.kinematics.task_dim, self.kinematics.n_joints
+        self.task_dim, self.n_joints = n, m
+        self.q_scale = positive_float("q_scale", q_scale)
+        unscaled = FrozenJacobianLQR(Q, R, n, m)  # validates Q and R
+        self.Q, self.R = self.q_scale * unscaled.Q, unscaled.R
+        self.lqr = FrozenJacobianLQR(self.Q, self.R, n, m)
+        self.R_inverse = self.lqr.R_inverse
+        self.learning_rate = positive_float("learning_rate", learning_rate)
+        if self.learning_rate * self.dt > 1.0:
+            raise ValueError(
+                f"learning_rate must be at most 1/dt = {1.0 / self.dt:g} 1/s (one full Newton step per period), "
+                f"got {learning_rate}"
+            )
+        self.stabilising_rate = positive_float("stabilising_rate", stabilising_rate)
+        self.regularisation = positive_float("regularisation", regularisation)
+        self.min_eigenvalue = positive_float("min_eigenvalue", min_eigenvalue)
+        low, high = map(float, initial_weight_range)
+        if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+            raise ValueError(f"initial_weight_range must be finite (low, high) with low <= high, got {initial_weight_range}")
+        self.initial_weight_range = (low, high)
+        self.basis = QuadraticBasis(n)
+        self.directions = _excitation_directions(n)
+        self._direction_gradients = self.basis.gradient(self.directions)  # ∇σ(d), (N, size, n)
+        self._direction_costs = np.einsum("di,ij,dj->d", self.directions, self.Q, self.directions)  # dᵀQd
+        slices = self.layout.slices
+        self._q, self._e, self._xdot_d = slices["q"], slices["e"], slices["xdot_d"]
+        self._seed = seed
+        self._rng = np.random.default_rng(seed)
+        self.critic_weights = np.zeros(self.basis.size)
+        self.batch_critic_weights: np.ndarray | None = None
+        self._ready = False
+
+    # -- episodes -------------------------------------------------------------------------------
+    def _initial_weights(self, rng: np.random.Generator) -> np.ndarray:
+        return self._project(rng.uniform(*self.initial_weight_range, size=(1, self.basis.size)))[0]
+
+    def _project(self, weights: np.ndarray) -> np.ndarray:
+        """Rows ``(B, size)`` projected onto {P̂ ⪰ λ_floor I} (Frobenius: eigenvalues raised to the floor)."""
+        values, vectors = np.linalg.eigh(quadratic_weights_to_matrix(weights, self.task_dim))
+        low = values[:, 0] < self.min_eigenvalue
+        if not low.any():
+            return weights
+        raised = (vectors[low] * np.maximum(values[low], self.min_eigenvalue)[:, None, :]) @ np.swapaxes(vectors[low], -1, -2)
+        weights = weights.copy()
+        weights[low] = matrix_to_quadratic_weights(raised)
+        return weights
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode: Ŵ₀ ~ U(``initial_weight_range``) drawn from ``seed``."""
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        self.critic_weights = self._initial_weights(self._rng)
+        self._ready = True
+        self.internals = {"critic_weights": self.critic_weights}
+
+    def reset_batch(self, seeds: Sequence[int | None]) -> None:
+        """Start ``len(seeds)`` episodes; episode i as ``reset(seed=seeds[i])`` of a fresh policy."""
+        rngs = [np.random.default_rng(self._seed if seed is None else seed) for seed in seeds]
+        self.batch_critic_weights = np.array([self._initial_weights(rng) for rng in rngs]).reshape(len(seeds), -1)
+        self.internals = {}
+
+    # -- the laws, on stacks of B episodes ---------------------------------------------------------
+    def _step(self, obs: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Commands ``(B, m)``, the updated weights ``(B, size)`` and δ(e) ``(B,)`` for ``(B, size)`` rows."""
+        errors, velocities = obs[:, self._e], obs[:, self._xdot_d]
+        jacobians = self.kinematics.jacobian_batch(obs[:, self._q])
+        P = quadratic_weights_to_matrix(weights, self.task_dim)  # V̂ = eᵀP̂e
+        r_inverse_jt = self.R_inverse @ np.swapaxes(jacobians, -1, -2)  # R⁻¹Jᵀ, (B, m, n)
+        feedback = -(r_inverse_jt @ (P @ errors[..., None]))[..., 0]  # eq. 15: −½R⁻¹Jᵀ∇V̂, ∇V̂ = 2P̂e
+        command = feedback
+        if self.task == "track":  # J⁺_R ẋ_d: ė = J u_fb, the regulation problem
+            command = feedback + (self.lqr.weighted_pseudoinverse(jacobians) @ velocities[..., None])[..., 0]
+        command = np.minimum(np.maximum(command, -self.velocity_limits), self.velocity_limits)
+
+        # Residuals at the fixed directions and at the current error direction.
+        norms = np.linalg.norm(errors, axis=1, keepdims=True)
+        current = np.divide(errors, norms, out=np.zeros_like(errors), where=norms > 0)
+        directions = np.concatenate(
+            (np.broadcast_to(self.directions, (len(obs), *self.directions.shape)), current[:, None, :]), axis=1
+        )  # (B, N+1, n)
+        gradients = np.concatenate(
+            (np.broadcast_to(self._direction_gradients, (len(obs), *self._direction_gradients.shape)),
+             self.basis.gradient(current)[:, None]), axis=1,
+        )  # ∇σ(d), (B, N+1, size, n)
+        gram_matrix = jacobians @ r_inverse_jt  # G = J R⁻¹ Jᵀ
+        closed_loop = -np.einsum("bij,bjk,bdk->bdi", gram_matrix, P, directions)  # J û(d) = −G P̂ d
+        omega = np.einsum("bdkn,bdn->bdk", gradients, closed_loop)  # ω(d) = ∇σ(d) J û(d)
+        # û(d)ᵀRû(d) = dᵀP̂GP̂d = −(P̂d)ᵀ(J û(d))
+        effort = -np.einsum("bij,bdj,bdi->bd", P, directions, closed_loop)
+        error_cost = np.einsum("bdi,ij,bdj->bd", directions, self.Q, directions)
+        residual = np.einsum("bdk,bk->bd", omega, weights) + error_cost + effort  # δ(d)
+        rho = 1.0 + np.einsum("bdk,bdk->bd", omega, omega)
+        gram = np.einsum("bdk,bdl,bd->bkl", omega, omega, 1.0 / rho)
+        gram += (self.regularisation * np.trace(gram, axis1=1, axis2=2))[:, None, None] * np.eye(self.basis.size)
+        gradient = np.einsum("bdk,bd->bk", omega, residual / rho)
+        increment = -self.learning_rate * self.dt * np.linalg.solve(gram, gradient[..., None])[..., 0]
+        # eq. 19 as a stabilising term, while the feedback does not decrease J_s = ½eᵀe.
+        error_rate = (jacobians @ feedback[..., None])[..., 0]
+        unstable = np.einsum("bi,bi->b", errors, error_rate) > 0
+        if unstable.any():
+            descent = np.einsum("bkn,bn->bk", self.basis.gradient(errors), (gram_matrix @ errors[..., None])[..., 0])
+            increment += (self.stabilising_rate * self.dt) * unstable[:, None] * descent
+        return command, self._project(weights + increment), residual[:, -1] * norms[:, 0] ** 2
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        """Commands ``(B, m)`` for ``(B, size)`` observations, row i as :meth:`act` of episode i.
+
+        Raises:
+            RuntimeError: If called before :meth:`reset_batch`.
+        """
+        if self.batch_critic_weights is None:
+            raise RuntimeError("call reset_batch() before act_batch()")
+        command, self.batch_critic_weights, _ = self._step(np.asarray(obs_batch, dtype=float), self.batch_critic_weights)
+        return command
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Joint-velocity command (rad/s) for ``obs``; advances the critic one period.
+
+        Raises:
+            RuntimeError: If called before :meth:`reset`.
+        """
+        if not self._ready:
+            raise RuntimeError("call reset() before act()")
+        obs = np.asarray(obs, dtype=float)
+        if obs.shape != (self.layout.size,):
+            raise ValueError(f"observation must have shape ({self.layout.size},), got {obs.shape}")
+        used = self.critic_weights
+        command, weights, residual = self._step(obs[None], used[None])
+        self.critic_weights = weights[0]
+        error = obs[self._e]
+        self.internals = {
+            "critic_weights": self.critic_weights,
+            "critic_value": float(self.basis(error) @ used),
+            "hjb_residual": float(residual[0]),
+        }
+        return command[0]
+
+    # -- diagnostics ------------------------------------------------------------------------------
+    def critic_diagnostics(
+        self, q: np.ndarray, e: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, x_c: np.ndarray, weights: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """HJB residual δ(e) = eᵀ(Q − P̂GP̂)e, δ/eᵀQe and ‖P̂ − P*(J)‖/‖P*‖ at K logged rows.
+
+        The critic is of the feedback problem ė = J u_fb for both tasks, so the same three hold
+        for tracking (``x_d``, ``xdot_d`` and ``x_c`` are not needed; they keep the signature of
+        :meth:`snac_gym.policies.snac.SNACPolicy.critic_diagnostics`).
+        """
+        e = np.asarray(e, dtype=float)
+        jacobians = self.kinematics.jacobian_batch(np.asarray(q, dtype=float))
+        P = quadratic_weights_to_matrix(np.asarray(weights, dtype=float), self.task_dim)
+        gram_matrix = jacobians @ self.R_inverse @ np.swapaxes(jacobians, -1, -2)
+        error_cost = np.einsum("ki,ij,kj->k", e, self.Q, e)
+        p_e = (P @ e[..., None])[..., 0]
+        residual = error_cost - np.einsum("ki,kij,kj->k", p_e, gram_matrix, p_e)  # eᵀQe − (P̂e)ᵀG(P̂e)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = residual / error_cost
+        return {
+            "hjb_residual": residual,
+            "hjb_ratio": ratio,
+            "critic_error": critic_error(P, self.lqr.solution(jacobians, at_singular="nan")),
+        }

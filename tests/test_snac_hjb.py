@@ -1,0 +1,112 @@
+"""snac-hjb (issue 12): the critic law against an independent Kleinman step (scipy's Lyapunov
+solver), convergence to the ARE's P*, the projection, and the reach demo's critic error."""
+
+import numpy as np
+import pytest
+from scipy.linalg import solve_continuous_are, solve_continuous_lyapunov
+
+from snac_gym.observation import ObservationLayout
+from snac_gym.optimality import matrix_to_quadratic_weights, quadratic_weights_to_matrix
+from snac_gym.policies import available_policies, make_policy
+from snac_gym.policies.base import PolicyContext
+from snac_gym.policies.snac_hjb import SNACHJBPolicy
+
+DT = 1.0 / 125.0
+
+
+def _context(kinematics, task="reach"):
+    layout = ObservationLayout(kinematics.n_joints, kinematics.task_dim)
+    return PolicyContext(kinematics, DT, np.full(kinematics.n_joints, 1e9), layout, task)
+
+
+def _spd(rng, size):
+    a = rng.normal(size=(size, size))
+    return a @ a.T + size * np.eye(size)
+
+
+def _obs(context, q, e, xdot_d=np.zeros(3)):
+    x = context.kinematics.forward(q)
+    return context.layout.pack(q, np.zeros(len(q)), x, x - e, xdot_d, x - e)
+
+
+def test_registered_with_an_effort_knob():
+    assert "snac-hjb" in available_policies()
+    assert SNACHJBPolicy.effort_parameter == "q_scale"
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_command_is_eq_15_from_the_critic_plus_the_feed_forward(ur10, rng, task):
+    context = _context(ur10, task)
+    R = _spd(rng, 6)
+    policy = SNACHJBPolicy(context, R=R, q_scale=2.0)
+    policy.reset(seed=4)
+    q, e, xdot_d = rng.uniform(-2, 2, 6), rng.normal(scale=0.1, size=3), rng.normal(scale=0.05, size=3)
+    P = quadratic_weights_to_matrix(policy.critic_weights, 3)
+    jac = ur10.jacobian(q)
+    r_inv = np.linalg.inv(R)
+    expected = -r_inv @ jac.T @ P @ e  # −½R⁻¹Jᵀ∇V̂ with ∇V̂ = 2P̂e
+    if task == "track":
+        expected += r_inv @ jac.T @ np.linalg.solve(jac @ r_inv @ jac.T, xdot_d)  # J⁺_R ẋ_d
+    np.testing.assert_allclose(policy.act(_obs(context, q, e, xdot_d)), expected, rtol=1e-9, atol=1e-12)
+
+
+def test_one_full_step_is_kleinmans_newton_step(ur10, rng):
+    """α·Δt = 1 at e = 0 (only the fixed directions): P̂⁺ solves P⁺A + AᵀP⁺ + Q + P̂GP̂ = 0, A = −GP̂."""
+    context = _context(ur10)
+    Q = _spd(rng, 3)
+    policy = SNACHJBPolicy(context, Q=Q, learning_rate=1.0 / DT, regularisation=1e-14)
+    policy.reset(seed=1)
+    P = quadratic_weights_to_matrix(policy.critic_weights, 3)
+    q = rng.uniform(-2, 2, 6)
+    jac = ur10.jacobian(q)
+    G = jac @ jac.T
+    A = -G @ P
+    expected = solve_continuous_lyapunov(A.T, -(Q + P @ G @ P))
+    policy.act(_obs(context, q, np.zeros(3)))
+    np.testing.assert_allclose(quadratic_weights_to_matrix(policy.critic_weights, 3), expected, rtol=1e-6)
+
+
+def test_the_critic_converges_to_the_are_solution_at_a_fixed_pose(ur10, rng):
+    context = _context(ur10)
+    Q, R = _spd(rng, 3), _spd(rng, 6)
+    policy = SNACHJBPolicy(context, Q=Q, R=R, learning_rate=60.0)
+    policy.reset(seed=8)
+    q = rng.uniform(-2, 2, 6)
+    for _ in range(200):
+        policy.act(_obs(context, q, np.zeros(3)))
+    expected = solve_continuous_are(np.zeros((3, 3)), ur10.jacobian(q), Q, R)
+    np.testing.assert_allclose(quadratic_weights_to_matrix(policy.critic_weights, 3), expected, rtol=1e-8)
+    out = policy.critic_diagnostics(q[None], rng.normal(size=(1, 3)), None, None, None, policy.critic_weights[None])
+    assert out["critic_error"][0] < 1e-8 and abs(out["hjb_ratio"][0]) < 1e-8
+
+
+def test_weights_are_projected_onto_positive_definite_critics(ur10):
+    context = _context(ur10)
+    policy = SNACHJBPolicy(context, initial_weight_range=(-1.0, 1.0), min_eigenvalue=0.2)
+    for seed in range(20):
+        policy.reset(seed=seed)
+        assert np.linalg.eigvalsh(quadratic_weights_to_matrix(policy.critic_weights, 3)).min() >= 0.2 - 1e-12
+    # a critic already above the floor is left exactly as it is
+    weights = matrix_to_quadratic_weights(np.diag([1.0, 2.0, 3.0]))
+    np.testing.assert_array_equal(policy._project(weights[None])[0], weights)
+
+
+def test_reach_demo_critic_error_is_under_5_percent_at_the_end():
+    from snac_gym.demo import run_demo
+
+    result = run_demo("reach", "snac-hjb", None, seed=0)
+    assert result.metrics.critic_error_final <= 0.05  # 1.3e-6 measured
+    assert result.metrics.final_error <= 1e-3
+    assert result.metrics.descent_fraction_above_tolerance == 1.0
+
+
+def test_bad_arguments_are_refused(ur10):
+    context = _context(ur10)
+    with pytest.raises(ValueError, match="learning_rate must be at most"):
+        SNACHJBPolicy(context, learning_rate=1000.0)
+    with pytest.raises(ValueError, match="q_scale"):
+        SNACHJBPolicy(context, q_scale=-1.0)
+    with pytest.raises(ValueError, match="initial_weight_range"):
+        SNACHJBPolicy(context, initial_weight_range=(1.0, 0.0))
+    with pytest.raises(RuntimeError, match="reset"):
+        make_policy("snac-hjb", context).act(np.zeros(context.layout.size))
