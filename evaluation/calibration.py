@@ -88,6 +88,8 @@ class EffortStatistic:
             screens. For a maximum, screening fewer than all samples usually costs a refinement
             (one more full pass), which screening all of them in each of a search's ~6
             evaluations costs less than when its rollouts are shorter than 1/6 of a pass.
+        relative_to_limits: Measured in fractions of the velocity limits (at most 1), else in
+            rad/s (at most the largest limit).
     """
 
     name: str
@@ -98,6 +100,11 @@ class EffortStatistic:
     unit: str
     is_maximum: bool
     screening_budget: float
+    relative_to_limits: bool = False
+
+    def largest(self, velocity_limits: np.ndarray) -> float:
+        """The largest value the statistic can take: commands are clipped at the velocity limits ū."""
+        return 1.0 if self.relative_to_limits else float(np.max(velocity_limits))
 
     def of(self, rows: pd.DataFrame) -> float:
         """The statistic over the rollouts of ``rows`` (a results table)."""
@@ -127,6 +134,7 @@ EFFORT_STATISTICS: dict[str, EffortStatistic] = {
         "fraction of the velocity limits",
         is_maximum=False,
         screening_budget=0.1,
+        relative_to_limits=True,
     ),
 }
 #: The statistic matched unless ``--effort-statistic`` says otherwise: the issue's literal rule.

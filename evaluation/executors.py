@@ -21,8 +21,12 @@ import functools
 import heapq
 import itertools
 import multiprocessing
+import os
+import signal
+import socket
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
@@ -42,20 +46,80 @@ class SerialExecutor:
         for index, item in enumerate(items):
             yield index, function(item)
 
+    def terminate(self) -> None:
+        """Nothing runs outside the caller's thread."""
+
     def close(self) -> None:
         """Nothing to release."""
 
 
-def _single_threaded_blas() -> None:
-    """Worker initialiser: one BLAS thread per process.
+def available_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the platform has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+#: ``--workers`` is at most this many per available CPU: beyond the cores, more processes only
+#: add memory and start-up time (each holds a Pinocchio model and the policies).
+MAX_WORKERS_PER_CPU = 2
+
+
+def max_workers() -> int:
+    """The largest ``--workers`` accepted on this machine."""
+    return MAX_WORKERS_PER_CPU * available_cpus()
+
+
+#: Linux ``prctl`` option that sends a signal to a process when its parent dies.
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Make this worker exit when the process that started it dies, however it dies (even SIGKILL).
+
+    Orphaned workers would otherwise run on, holding the parent's stdout open, so that a reader
+    of its pipe waits for ever. Linux: the kernel's parent-death signal; elsewhere a thread that
+    watches the parent's pid.
+    """
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), "prctl")
+    except (OSError, AttributeError):  # pragma: no cover - not Linux
+        def watch() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(0.5)
+            os._exit(1)
+
+        threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+        os._exit(1)
+
+
+def _init_worker(parent_pid: int) -> None:
+    """Worker initialiser: die with the parent, leave Ctrl-C to it, one BLAS thread per process.
+
+    SIGINT reaches every process of the terminal's foreground group; the parent stops the run
+    and ends the workers, so a worker ignores it rather than printing its own traceback.
 
     The workers already use every core; BLAS threads on top of them (OpenBLAS starts one per
     core in each process) contend for the cores and made the full passes of Table I 1.5x
     slower (42.7 s against 28.4 s, docs/evaluation.md).
     """
+    _die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(1, user_api="blas")
+
+
+def _noop(item: Any) -> Any:
+    return item
 
 
 class ProcessExecutor:
@@ -79,8 +143,25 @@ class ProcessExecutor:
         self.description = f"{workers} local processes"
         method = "fork" if sys.platform.startswith("linux") else None
         self._pool = ProcessPoolExecutor(
-            max_workers=workers, mp_context=multiprocessing.get_context(method), initializer=_single_threaded_blas
+            max_workers=workers,
+            mp_context=multiprocessing.get_context(method),
+            initializer=_init_worker,
+            initargs=(os.getpid(),),
         )
+        # Start every worker now, from this thread: the parent-death signal follows the thread
+        # that forked a worker, and this one (the caller's) outlives the run, unlike the
+        # effort-match threads that submit jobs later.
+        # SIGINT is blocked while forking: a Ctrl-C before a worker's initialiser ignores it would
+        # otherwise print that worker's traceback (the initialiser unblocks it).
+        blocked = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+        if blocked:
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            started = self._pool.submit(_noop, None)
+        finally:
+            if blocked:
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        started.result()
         self._lock = threading.Lock()
         self._queue: list[tuple[int, int, Callable[[Any], Any], Any, Future]] = []
         self._arrivals = itertools.count()
@@ -145,12 +226,66 @@ class ProcessExecutor:
             for future in futures:
                 future.cancel()  # the ones still queued; running jobs finish in their worker
 
+    def terminate(self) -> None:
+        """Stop now (an interrupted run): drop the queue and end the workers without waiting for their jobs."""
+        with self._lock:
+            for *_, outer in self._queue:
+                outer.cancel()
+            self._queue.clear()
+        # The pool has no public way to stop running jobs; its worker table is stable across
+        # CPython 3.8-3.13, and without it close() still ends the workers after their jobs.
+        for process in list((getattr(self._pool, "_processes", None) or {}).values()):
+            if process.is_alive():
+                process.terminate()
+
     def close(self) -> None:
         with self._lock:
             for *_, outer in self._queue:
                 outer.cancel()
             self._queue.clear()
         self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+#: Seconds ``--ray ADDRESS`` waits for a TCP connection to the cluster before giving up (Ray's
+#: own client retries for minutes on an address that does not answer).
+RAY_CONNECT_TIMEOUT_S = 10.0
+
+
+def _ray_endpoint(address: str) -> tuple[str, int] | None:
+    """``(host, port)`` of a cluster address, ``None`` for ``auto`` (found by Ray on this machine)."""
+    if address == "auto":
+        return None
+    default_port = 10001 if address.startswith("ray://") else 6379
+    rest = address.removeprefix("ray://")
+    host, colon, port = rest.rpartition(":")
+    if not colon:
+        host, port = rest, str(default_port)
+    host = host.strip("[]")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--ray {address!r}: use 'local', 'auto', HOST:PORT or ray://HOST:PORT")
+    return host, int(port)
+
+
+def check_ray_reachable(address: str, timeout: float | None = None) -> None:
+    """Fail within ``timeout`` s (default :data:`RAY_CONNECT_TIMEOUT_S`) if the cluster at ``address`` does not answer.
+
+    Raises:
+        RuntimeError: If no TCP connection to it can be made in time.
+        ValueError: If ``address`` is malformed.
+    """
+    endpoint = _ray_endpoint(address)
+    if endpoint is None:
+        return
+    timeout = RAY_CONNECT_TIMEOUT_S if timeout is None else timeout
+    try:
+        with socket.create_connection(endpoint, timeout=timeout):
+            pass
+    except OSError as exc:
+        reason = "timed out" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+        raise RuntimeError(
+            f"--ray {address}: cannot reach the Ray cluster at {endpoint[0]}:{endpoint[1]} "
+            f"within {timeout:g} s ({reason})"
+        ) from None
 
 
 class RayExecutor:
@@ -161,7 +296,8 @@ class RayExecutor:
         workers: CPUs of a ``"local"`` instance (ignored when joining a cluster).
 
     Raises:
-        RuntimeError: If Ray is not installed.
+        RuntimeError: If Ray is not installed, or the cluster does not answer within
+            :data:`RAY_CONNECT_TIMEOUT_S`.
     """
 
     concurrent = True
@@ -177,7 +313,11 @@ class RayExecutor:
             if address == "local":
                 ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
             else:
-                ray.init(address=address, log_to_driver=False)
+                check_ray_reachable(address)
+                try:
+                    ray.init(address=address, log_to_driver=False)
+                except ConnectionError as exc:
+                    raise RuntimeError(f"--ray {address}: {exc}".splitlines()[0]) from None
         self.description = f"Ray ({address})"
         self._remotes: dict[Callable[[Any], Any], Any] = {}
         self._lock = threading.Lock()
@@ -200,6 +340,9 @@ class RayExecutor:
         finally:
             for ref in refs:
                 ray.cancel(ref)
+
+    def terminate(self) -> None:
+        """Running tasks are cancelled by :meth:`run`'s clean-up; :meth:`close` stops a local instance."""
 
     def close(self) -> None:
         if self._started_here:

@@ -6,10 +6,19 @@ Each parser raises ``ValueError`` with a message naming the option and what was 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from evaluation.samples import TASKS
+
+
+def parse_out(text: str) -> Path:
+    """The output folder; an empty or blank ``--out`` (which would be the current folder) is refused."""
+    if not text.strip():
+        raise ValueError("--out must name a folder, got an empty string")
+    return Path(text)
 
 
 def parse_tasks(text: str) -> tuple[str, ...]:
@@ -43,8 +52,8 @@ def parse_horizons(values: Sequence[str]) -> dict[str, float]:
             value = float(seconds)
         except ValueError:
             raise ValueError(f"--horizon {text!r}: {seconds!r} is not a number of seconds") from None
-        if not value > 0:
-            raise ValueError(f"--horizon {text!r}: the horizon must be positive")
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"--horizon {text!r}: the horizon must be a positive finite number of seconds")
         for name in tasks:
             horizons[name] = value
     return horizons

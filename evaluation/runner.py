@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import functools
 import hashlib
 import json
@@ -52,13 +53,14 @@ from evaluation.calibration import (
     effort_statistic_named,
     match_effort,
 )
-from evaluation.executors import make_executor
+from evaluation.executors import MAX_WORKERS_PER_CPU, make_executor, max_workers
 from evaluation.jobs import JobResult, RolloutJob, policy_context, run_job
 from evaluation.optimal import OPTIMAL, OptimalJob, add_optimality, run_optimal_job
 from evaluation.paper import PAPER_TABLE_I
 from evaluation.samples import (
     TASKS,
     EvaluationSample,
+    SampleFileError,
     generate_samples,
     policy_seed,
     read_samples_csv,
@@ -88,6 +90,9 @@ MIN_SCREENING_SAMPLES = 100
 SEARCH_PRIORITY, PASS_PRIORITY = 0, 1
 #: Samples drawn per sample-generation job.
 GENERATION_CHUNK = 25
+#: Longest horizon accepted, s: 50x the default tracking horizon. Rollouts keep per-step arrays,
+#: so an unbounded horizon (1e7 s asked for 9.3 GiB) fails late instead of being refused.
+MAX_HORIZON_S = 1000.0
 
 
 @dataclass(frozen=True)
@@ -167,10 +172,13 @@ class EvaluationConfig:
         unknown = set(self.horizons) - set(TASKS)
         if unknown:
             raise ValueError(f"horizons for unknown task(s) {sorted(unknown)}; tasks are {TASKS}")
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"dt must be a positive finite number of seconds, got {self.dt}")
         for task in self.tasks:
-            if not self.horizon(task) >= self.dt:
+            if not self.dt <= self.horizon(task) <= MAX_HORIZON_S:
                 raise ValueError(
-                    f"the {task} horizon must be at least one control period ({self.dt} s), got {self.horizon(task)}"
+                    f"the {task} horizon must be between one control period ({self.dt} s) and "
+                    f"{MAX_HORIZON_S:g} s, got {self.horizon(task)}"
                 )
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
@@ -179,18 +187,36 @@ class EvaluationConfig:
                 f"the {OPTIMAL!r} reference is the optimum of the kinematic model; use --backend kinematic"
             )
         effort_statistic_named(self.effort_statistic)
-        if self.effort_target is not None and not self.effort_target > 0:
-            raise ValueError(f"effort_target must be positive, got {self.effort_target}")
+        if self.effort_target is not None and not (math.isfinite(self.effort_target) and self.effort_target > 0):
+            raise ValueError(f"effort_target must be a positive finite number, got {self.effort_target}")
         if not 0 < self.effort_tolerance < 1:
             raise ValueError(f"effort_tolerance must be in (0, 1), got {self.effort_tolerance}")
         if self.calibration_samples is not None and self.calibration_samples < 1:
             raise ValueError(f"calibration_samples must be at least 1, got {self.calibration_samples}")
-        if self.workers < 1:
-            raise ValueError(f"workers must be at least 1, got {self.workers}")
+        local = self.ray_address in (None, "local")  # a cluster's size is its own
+        if self.workers < 1 or (local and self.workers > max_workers()):
+            raise ValueError(
+                f"workers must be between 1 and {max_workers()} ({MAX_WORKERS_PER_CPU} per available CPU), "
+                f"got {self.workers}"
+            )
         if self.chunk_size < 1:
             raise ValueError(f"chunk_size must be at least 1, got {self.chunk_size}")
-        if not self.dt > 0:
-            raise ValueError(f"dt must be positive, got {self.dt}")
+        if not str(self.out).strip():
+            raise ValueError("out (--out) must name a folder, got an empty path")
+
+    def validate_for(self, kinematics: Kinematics) -> None:
+        """The checks that need the robot: an effort target the clipped commands can reach.
+
+        Raises:
+            ValueError: Naming the option and its bound.
+        """
+        if self.effort_target is not None:
+            largest = self.statistic.largest(kinematics.velocity_limits)
+            if self.effort_target > largest:
+                raise ValueError(
+                    f"effort_target {self.effort_target:g} {self.statistic.unit} is out of reach: commands are "
+                    f"clipped at the velocity limits, so the {self.effort_statistic} statistic is at most {largest:g}"
+                )
 
     @property
     def wants_optimal(self) -> bool:
@@ -210,12 +236,24 @@ class EvaluationConfig:
         """Control steps K of ``task``'s rollouts: the horizon in periods, rounded."""
         return max(1, round(self.horizon(task) / self.dt))
 
-    def manifest(self, space: SampleSpace) -> dict[str, Any]:
-        """The options that determine the results (``run.json``; compared by ``--resume``)."""
+    def manifest(self, space: SampleSpace, specs: Sequence[ControllerSpec] = ()) -> dict[str, Any]:
+        """Every input that shapes the results (``run.json``; compared by ``--resume``).
+
+        The options, a hash of the samples file, and per controller its effort knob's default and
+        a hash of every file it reads (:attr:`ControllerSpec.inputs`): a resume after any of them
+        changed is refused rather than mixing old and new results.
+
+        Raises:
+            SampleFileError: If ``samples_file`` cannot be read.
+        """
         samples_hash = None
         if self.samples_file is not None:
-            samples_hash = hashlib.sha1(Path(self.samples_file).read_bytes()).hexdigest()
+            samples_hash = file_sha1(Path(self.samples_file), "samples file")
         return {
+            "controller_inputs": {
+                spec.name: {"knob": spec.knob, "knob_value": spec.knob_value, "files": dict(spec.inputs)}
+                for spec in specs
+            },
             "tasks": list(self.tasks),
             "controllers": None if self.controllers is None else list(self.controllers),
             "samples": None if self.samples_file is not None else self.samples,
@@ -248,12 +286,14 @@ class ControllerSpec:
         kwargs: Constructor arguments given by the user.
         knob: The class's ``effort_parameter`` (``None`` if it declares none).
         knob_value: The knob's value with ``kwargs`` (the policy's attribute or constructor default).
+        inputs: SHA-1 of every file the controller reads, by file name (:func:`controller_input_hashes`).
     """
 
     name: str
     kwargs: dict[str, Any]
     knob: str | None
     knob_value: float | None
+    inputs: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -279,6 +319,42 @@ def _knob_value(policy: Any, knob: str) -> float | None:
         return None
 
 
+def file_sha1(path: Path, what: str) -> str:
+    """SHA-1 of a file's bytes.
+
+    Raises:
+        SampleFileError: If it cannot be read (one line naming ``what`` and the file).
+    """
+    digest = hashlib.sha1()
+    try:
+        with Path(path).open("rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    except OSError as exc:
+        raise SampleFileError(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+    return digest.hexdigest()
+
+
+def controller_input_hashes(policies: Sequence[Any], kwargs: Mapping[str, Any]) -> dict[str, str]:
+    """SHA-1 of every file a controller reads: those its policies list in ``input_files`` (a PPO
+    model, shipped or not) and every constructor argument that names an existing file.
+
+    Keys are file names (the folder is left out, so that a moved install resumes), with the path
+    appended where two files share a name.
+    """
+    files: list[Path] = []
+    for policy in policies:
+        files.extend(Path(f) for f in (getattr(policy, "input_files", None) or ()))
+    for value in kwargs.values():
+        if isinstance(value, (str, Path)) and str(value) and Path(value).is_file():
+            files.append(Path(value))
+    hashes: dict[str, str] = {}
+    for path in dict.fromkeys(p.resolve() for p in files):
+        key = path.name if path.name not in hashes else str(path)
+        hashes[key] = file_sha1(path, "controller input file")
+    return hashes
+
+
 def default_controller_order(names: Sequence[str]) -> list[str]:
     """Table I's rows first, in the paper's order (RNN, SVF, SNAC), then the other names sorted."""
     paper = [name for name in PAPER_TABLE_I if name in names]
@@ -288,16 +364,28 @@ def default_controller_order(names: Sequence[str]) -> list[str]:
 def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec], dict[str, str]]:
     """The controllers to evaluate, and the registered ones left out with the reason.
 
+    A controller given arguments (``controller_kwargs``, ``--param``) counts as named: it is
+    never left out silently.
+
     Raises:
         ValueError: If an explicitly named controller is unknown, cannot be built, or (with
-            effort matching) declares no scalar ``effort_parameter``.
+            effort matching) declares no scalar ``effort_parameter``; or if arguments are given
+            for a controller that is not registered or not evaluated.
     """
     explicit = config.controllers is not None
     names = list(config.controllers) if explicit else default_controller_order(available_policies())
     names = [name for name in names if name != OPTIMAL]  # the reference row, not a policy (run_optimal)
+    known = set(available_policies())
+    for name, given in config.controller_kwargs.items():
+        option = "--param " + ", ".join(f"{name}.{key}" for key in given)
+        if name not in known:
+            close = difflib.get_close_matches(name, sorted(known), n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else f"; registered: {', '.join(sorted(known))}"
+            raise ValueError(f"{option}: no controller is registered as {name!r}{hint}")
+        if name not in names:
+            raise ValueError(f"{option}: {name!r} is not among the evaluated controllers ({', '.join(names) or 'none'})")
     if explicit and not names:
         return [], {}
-    known = set(available_policies())
     specs: list[ControllerSpec] = []
     skipped: dict[str, str] = {}
     for name in names:
@@ -310,7 +398,7 @@ def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec],
             ]
         except Exception as exc:
             reason = f"cannot be built from a PolicyContext with arguments {kwargs}: {type(exc).__name__}: {exc}"
-            if explicit:
+            if explicit or name in config.controller_kwargs:
                 raise ValueError(f"controller {name!r} {reason}") from exc
             skipped[name] = reason
             continue
@@ -322,11 +410,11 @@ def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec],
                 if knob is None
                 else f"its effort_parameter {knob!r} is not a scalar attribute of the policy"
             )
-            if explicit:
+            if explicit or name in config.controller_kwargs:
                 raise ValueError(f"controller {name!r} {reason}; run it with --no-match-effort")
             skipped[name] = reason
             continue
-        specs.append(ControllerSpec(name, kwargs, knob, value))
+        specs.append(ControllerSpec(name, kwargs, knob, value, controller_input_hashes(policies, kwargs)))
     if not specs and not config.wants_optimal:
         raise ValueError(f"no controller to evaluate (left out: {skipped})")
     return specs, skipped
@@ -450,8 +538,12 @@ class _Evaluation:
                 # The failure itself, not the cancellations it caused in the other pipelines.
                 raise next((e for e in errors if not isinstance(e, _Cancelled)), errors[0])
             return [future.result() for future in futures]
-        except BaseException:
+        except BaseException as exc:
             self.cancelled.set()
+            if not isinstance(exc, Exception):
+                # Ctrl-C: end the workers now, so that the other pipelines' waits end with them
+                # instead of after their running jobs.
+                self.executor.terminate()
             raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
@@ -506,7 +598,7 @@ class _Evaluation:
             for chunk, job in enumerate(jobs):
                 path = self.store.part_path(task, spec.name, key, chunk)
                 pass_paths.append(path)
-                if self.store.has_part(path):
+                if self.store.has_part(path, [s.index for s in job.samples]):
                     self.progress.update(len(job.samples))
                 else:
                     todo.append((job, path, spec))
@@ -543,7 +635,7 @@ class _Evaluation:
                 )
                 path = self.store.part_path(task, OPTIMAL, key, chunk)
                 task_paths.append(path)
-                if self.store.has_part(path):
+                if self.store.has_part(path, [s.index for s in part]):
                     self.progress.update(len(part))
                 else:
                     todo.append((job, path))
@@ -871,6 +963,9 @@ def export_sample_set(config: EvaluationConfig) -> Path:
     executor = make_executor(config.workers, config.ray_address)
     try:
         samples = load_samples(config, kinematics, space, executor)
+    except BaseException:
+        executor.terminate()  # interrupted or failed: do not wait for the jobs still running
+        raise
     finally:
         executor.close()
     return write_samples_csv(
@@ -889,18 +984,33 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         ValueError: On a bad option, controller or samples file (the message says which).
         evaluation.store.RunDirectoryError: If ``out`` holds another run (see ``resume``).
     """
-    from evaluation.report import write_reports
-
     started = time.perf_counter()
     config.validate()
     kinematics = Kinematics(config.robot)
+    config.validate_for(kinematics)
     space = config.space if config.space is not None else SampleSpace.for_robot(kinematics)
     specs, skipped = resolve_controllers(config)
-    store = RunStore(config.out, config.manifest(space), resume=config.resume)
+    with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
+        return _run_in_store(config, kinematics, space, specs, skipped, store, started)
+
+
+def _run_in_store(
+    config: EvaluationConfig,
+    kinematics: Kinematics,
+    space: SampleSpace,
+    specs: list[ControllerSpec],
+    skipped: dict[str, str],
+    store: RunStore,
+    started: float,
+) -> pd.DataFrame:
+    """:func:`run_evaluation` once its output folder is locked."""
+    from evaluation.report import write_reports
+
     executor = make_executor(config.workers, config.ray_address)
     try:
         samples_started = time.perf_counter()
         samples = load_samples(config, kinematics, space, executor)
+        store.begin()  # run.json only now: a run refused for its samples leaves no run behind
         timings = {"samples": time.perf_counter() - samples_started}
         all_samples = [s for task in config.tasks for s in samples[task]]
         write_samples_csv(all_samples, store.root / "samples.csv", kinematics.n_joints)
@@ -931,6 +1041,9 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         finally:
             progress.close()
             timings.update(evaluation.timings)
+    except BaseException:
+        executor.terminate()  # interrupted or failed: do not wait for the jobs still running
+        raise
     finally:
         executor.close()
     names = ([OPTIMAL] if config.wants_optimal else []) + [spec.name for spec in specs]

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.references import PAPER_CIRCLE_SPEED, Ellipse, FixedTarget
+from snac_gym.references import MIN_SEMI_AXIS, PAPER_CIRCLE_SPEED, Ellipse, FixedTarget
 from snac_gym.sampling import SampleSpace, check_reachable, sample_ellipse, sample_seed_pose, sample_target
 
 TASKS = ("reach", "track")
@@ -60,6 +60,12 @@ _OPTIONAL_ELLIPSE_DEFAULTS = {
     "angular_speed": PAPER_CIRCLE_SPEED,
     "phase": 0.0,
 }
+
+
+#: Largest sample id: ids are int64 columns of the results (and seed the policy resets).
+MAX_SAMPLE_ID = np.iinfo(np.int64).max
+#: Longest cell accepted, characters: a number needs a few dozen; a longer cell is not a sample.
+MAX_CELL_CHARS = 1000
 
 
 class SampleFileError(ValueError):
@@ -161,13 +167,11 @@ def write_samples_csv(samples: Sequence[EvaluationSample], path: str | Path, n_j
 class _RowReader:
     """Typed access to one CSV row, with errors that name the file, row and column."""
 
-    def __init__(self, path: Path, row_number: int, row: dict[str, str]) -> None:
-        self.path, self.row_number, self.row = path, row_number, row
+    def __init__(self, path: Path, row_number: int, line: int, row: dict[str, str]) -> None:
+        self.path, self.row_number, self.line, self.row = path, row_number, line, row
 
     def error(self, column: str, message: str) -> SampleFileError:
-        return SampleFileError(
-            f"{self.path}: row {self.row_number} (line {self.row_number + 1}), column {column!r}: {message}"
-        )
+        return SampleFileError(f"{self.path}: row {self.row_number} (line {self.line}), column {column!r}: {message}")
 
     def text(self, column: str) -> str:
         return (self.row.get(column) or "").strip()
@@ -215,17 +219,22 @@ def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, i
         reader.require_empty(TARGET_COLUMNS, task)
         semi_axes = reader.numbers(["semi_axis_0", "semi_axis_1"])
         for i, value in enumerate(semi_axes):
-            if value <= 0:
-                raise reader.error(f"semi_axis_{i}", f"{value} m must be positive")
+            if value < MIN_SEMI_AXIS:
+                raise reader.error(f"semi_axis_{i}", f"{value} m must be positive, at least {MIN_SEMI_AXIS:g} m")
         optional = {name: reader.number(name, default) for name, default in _OPTIONAL_ELLIPSE_DEFAULTS.items()}
-        reference = Ellipse(
-            centre=reader.numbers([f"centre_{i}" for i in range(3)]),
-            semi_axes=semi_axes,
-            orientation=[optional[f"orientation_{i}"] for i in range(3)],
-            angular_speed=optional["angular_speed"],
-            phase=optional["phase"],
-        )
         unreachable_columns = "centre_0..phase"
+        try:
+            reference = Ellipse(
+                centre=reader.numbers([f"centre_{i}" for i in range(3)]),
+                semi_axes=semi_axes,
+                orientation=[optional[f"orientation_{i}"] for i in range(3)],
+                angular_speed=optional["angular_speed"],
+                phase=optional["phase"],
+            )
+        except SampleFileError:
+            raise
+        except ValueError as exc:  # a meaningless ellipse (its speed): the constructor states the bound
+            raise reader.error(unreachable_columns, str(exc)) from None
     try:
         check_reachable(kinematics, reference.points(space.ellipse_points), f"{task} reference")
     except ValueError as exc:
@@ -242,47 +251,68 @@ def read_samples_csv(
         The samples per task, in file order (tasks without rows map to an empty list).
 
     Raises:
-        SampleFileError: On a missing file or column, a malformed, out-of-limits or
-            unreachable row, or a repeated sample id; the message names the row and column.
+        SampleFileError: On a missing, unreadable or non-UTF-8 file, a missing column, a
+            malformed, oversized, out-of-limits or unreachable row, or a repeated sample id;
+            the message names the file, the row, its line and the column.
     """
     path = Path(path)
     space = space if space is not None else SampleSpace.for_robot(kinematics)
     if not path.is_file():
         raise SampleFileError(f"{path}: no such samples file")
-    with path.open(newline="", encoding="utf-8-sig") as handle:  # -sig: a spreadsheet's byte-order mark
-        reader = csv.DictReader(handle)
-        header = [name.strip() for name in (reader.fieldnames or [])]
-        reader.fieldnames = header
-        required = ["task"] + [f"q0_{j}" for j in range(kinematics.n_joints)]
-        missing = [name for name in required if name not in header]
-        if missing:
-            raise SampleFileError(
-                f"{path}: header lacks the column(s) {missing}; expected columns {column_names(kinematics.n_joints)}"
-            )
-        known = set(column_names(kinematics.n_joints))
-        unknown = [name for name in header if name not in known]
-        if unknown:
-            raise SampleFileError(
-                f"{path}: unknown column(s) {unknown}; expected columns {column_names(kinematics.n_joints)}"
-            )
-        samples: dict[str, list[EvaluationSample]] = {task: [] for task in TASKS}
-        seen: dict[str, set[int]] = {task: set() for task in TASKS}
-        for row_number, row in enumerate(reader, start=1):
-            if None in row:
-                raise SampleFileError(
-                    f"{path}: row {row_number} (line {row_number + 1}) has more cells than the header"
-                )
-            row_reader = _RowReader(path, row_number, row)
-            task = row_reader.text("task")
-            if "sample" in header:
-                index = _sample_id(row_reader)
-            else:
-                index = len(samples.get(task, []))
-            sample = _parse_row(row_reader, kinematics, space, index)
-            if index in seen[task]:
-                raise row_reader.error("sample", f"sample id {index} appears twice for task {task!r}")
-            seen[task].add(index)
-            samples[task].append(sample)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as handle:  # -sig: a spreadsheet's byte-order mark
+            reader = csv.DictReader(handle)
+            try:
+                return _read_rows(path, reader, kinematics, space)
+            except csv.Error as exc:  # e.g. a cell beyond the csv module's field size limit
+                raise SampleFileError(f"{path}: line {reader.line_num + 1}: not readable as CSV ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise SampleFileError(
+            f"{path}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset {exc.start}); save it as UTF-8 CSV"
+        ) from None
+    except OSError as exc:
+        raise SampleFileError(f"{path}: cannot read the samples file: {exc.strerror or exc}") from None
+
+
+def _read_rows(
+    path: Path, reader: csv.DictReader, kinematics: Kinematics, space: SampleSpace
+) -> dict[str, list[EvaluationSample]]:
+    header = [name.strip() for name in (reader.fieldnames or [])]
+    reader.fieldnames = header
+    required = ["task"] + [f"q0_{j}" for j in range(kinematics.n_joints)]
+    missing = [name for name in required if name not in header]
+    if missing:
+        raise SampleFileError(
+            f"{path}: header lacks the column(s) {missing}; expected columns {column_names(kinematics.n_joints)}"
+        )
+    known = set(column_names(kinematics.n_joints))
+    unknown = [name for name in header if name not in known]
+    if unknown:
+        raise SampleFileError(
+            f"{path}: unknown column(s) {unknown}; expected columns {column_names(kinematics.n_joints)}"
+        )
+    samples: dict[str, list[EvaluationSample]] = {task: [] for task in TASKS}
+    seen: dict[str, set[int]] = {task: set() for task in TASKS}
+    for row_number, row in enumerate(reader, start=1):
+        # The reader skips blank lines, so the row count is not the line: ask the reader (the
+        # last line of the record, which is also where a quoted cell spanning lines ends).
+        line = reader.line_num
+        if None in row:
+            raise SampleFileError(f"{path}: row {row_number} (line {line}) has more cells than the header")
+        row_reader = _RowReader(path, row_number, line, row)
+        too_long = [column for column, cell in row.items() if cell is not None and len(cell) > MAX_CELL_CHARS]
+        if too_long:
+            raise row_reader.error(too_long[0], f"a cell of {len(row[too_long[0]])} characters (at most {MAX_CELL_CHARS})")
+        task = row_reader.text("task")
+        if "sample" in header:
+            index = _sample_id(row_reader)
+        else:
+            index = len(samples.get(task, []))
+        sample = _parse_row(row_reader, kinematics, space, index)
+        if index in seen[task]:
+            raise row_reader.error("sample", f"sample id {index} appears twice for task {task!r}")
+        seen[task].add(index)
+        samples[task].append(sample)
     return samples
 
 
@@ -292,6 +322,6 @@ def _sample_id(reader: _RowReader) -> int:
         index = int(text)
     except ValueError:
         raise reader.error("sample", f"{text!r} is not a non-negative integer") from None
-    if index < 0:
-        raise reader.error("sample", f"{index} is negative")
+    if not 0 <= index <= MAX_SAMPLE_ID:
+        raise reader.error("sample", f"{index} is outside [0, {MAX_SAMPLE_ID}] (ids are stored as 64-bit integers)")
     return index

@@ -2,7 +2,9 @@
 
 Layout of ``--out DIR``::
 
-    run.json              the options that determine the results (checked by --resume)
+    .lock                 held while a run uses the folder (a second run on it is refused)
+    run.json              the inputs that determine the results (checked by --resume): options,
+                          hashes of the samples file and of the controllers' model files
     samples.csv           the sample set, in the documented CSV format
     calibration.json      effort matching: every knob value tried and its effort
     parts/                one Parquet file per completed job (written atomically)
@@ -10,8 +12,10 @@ Layout of ``--out DIR``::
     results.csv, results.parquet, summary.csv, summary.md, cost_boxplot.png
 
 A job's part file is written only after its trajectories, by renaming a finished temporary
-file, so a part on disk means the job is complete. A resumed run skips every job whose part
-exists and recomputes the others: no completed sample is lost or counted twice.
+file, so a part on disk means the job is complete. Each part carries the run's id (a hash of
+``run.json``) and its sample ids in its Parquet metadata. A resumed run skips every job whose
+part exists and recomputes the others, and refuses a part of another run or of other samples:
+no completed sample is lost, counted twice or mixed in from elsewhere.
 """
 
 from __future__ import annotations
@@ -20,16 +24,28 @@ import hashlib
 import json
 import os
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX
+    fcntl = None  # type: ignore[assignment]
 
 from snac_gym.rollout import write_log
 
 
 class RunDirectoryError(RuntimeError):
-    """The output directory holds another run, or --resume finds nothing to resume."""
+    """The output directory cannot be used: it holds another run, is in use, or does not belong to this run."""
+
+
+#: Parquet schema-metadata keys of a part file: the run it belongs to and the sample ids it holds.
+_PART_RUN_KEY, _PART_SAMPLES_KEY = b"snac_gym.run", b"snac_gym.samples"
 
 
 def _stable_json(value: Any) -> str:
@@ -41,49 +57,158 @@ def settings_key(kwargs: dict[str, Any], steps: int, backend: str) -> str:
     return hashlib.sha1(_stable_json({"kwargs": kwargs, "steps": steps, "backend": backend}).encode()).hexdigest()[:12]
 
 
+def run_id(manifest: dict[str, Any]) -> str:
+    """The identity of a run: a hash of its manifest (every input that shapes the results)."""
+    return hashlib.sha256(_stable_json(manifest).encode()).hexdigest()[:16]
+
+
+def _tmp_path(path: Path) -> Path:
+    # Unique per process and thread: two writers never share a temporary file.
+    return path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+
+
+def _usable_folder(root: Path) -> None:
+    """Refuse an ``--out`` that is a file or cannot be written, with one line saying which."""
+    if not str(root).strip():
+        raise RunDirectoryError("the output folder (--out) is empty; name a folder")
+    if root.exists() and not root.is_dir():
+        raise RunDirectoryError(f"the output folder {root} is a file, not a folder; choose another --out")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RunDirectoryError(f"cannot create the output folder {root}: {exc.strerror or exc}") from None
+    if not os.access(root, os.W_OK | os.X_OK):
+        raise RunDirectoryError(f"the output folder {root} is not writable; choose another --out")
+
+
+class _FolderLock:
+    """An exclusive lock on ``root/.lock`` held while a run uses the folder (POSIX ``flock``).
+
+    The kernel drops the lock with the last descriptor of the file, so a killed run never leaves
+    a stale lock behind.
+    """
+
+    def __init__(self, root: Path) -> None:
+        self.path = root / ".lock"
+        try:
+            self._fd: int | None = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise RunDirectoryError(f"cannot write to the output folder {root}: {exc.strerror or exc}") from None
+        if fcntl is None:  # pragma: no cover - not POSIX: no lock, as before
+            return
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.read(self._fd, 64).decode(errors="replace").strip() or "another process"
+            os.close(self._fd)
+            self._fd = None
+            raise RunDirectoryError(
+                f"{root} is in use by another run (pid {holder}); wait for it to end or choose another --out"
+            ) from None
+        os.ftruncate(self._fd, 0)
+        os.write(self._fd, str(os.getpid()).encode())
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
 class RunStore:
     """Reads and writes one evaluation's output directory.
 
+    The folder is locked from construction to :meth:`close` (a second run on it is refused),
+    and every part file carries the run's id and its sample ids, so a resume never mixes in
+    parts of another run.
+
     Args:
         root: The ``--out`` directory.
-        manifest: The options that determine the results (written to ``run.json``).
+        manifest: The inputs that determine the results (written to ``run.json`` by :meth:`begin`).
         resume: Continue the run in ``root``; otherwise ``root`` must not hold a run yet.
 
     Raises:
-        RunDirectoryError: If ``root`` holds a run and ``resume`` is false, if ``resume`` is
-            true and ``root`` holds none, or if the stored options differ from ``manifest``.
+        RunDirectoryError: If ``root`` is a file, cannot be written or is in use by another run;
+            if it holds a run and ``resume`` is false, if ``resume`` is true and it holds none,
+            if its ``run.json`` is unreadable, or if the stored inputs differ from ``manifest``.
     """
 
     def __init__(self, root: str | Path, manifest: dict[str, Any], resume: bool) -> None:
         self.root = Path(root)
         self.parts = self.root / "parts"
         self.trajectories = self.root / "trajectories"
+        self.manifest = json.loads(_stable_json(manifest))
+        self.run_id = run_id(self.manifest)
+        _usable_folder(self.root)
+        self._lock = _FolderLock(self.root)
+        try:
+            self._check_manifest(resume)
+            self._calibration_path = self.root / "calibration.json"
+            self._calibration_lock = threading.Lock()
+            self.calibration: dict[str, Any] = self._read_calibration()
+        except BaseException:
+            self._lock.release()
+            raise
+
+    def _check_manifest(self, resume: bool) -> None:
         manifest_path = self.root / "run.json"
         if manifest_path.exists():
             if not resume:
                 raise RunDirectoryError(
                     f"{self.root} already holds a run; pass --resume to continue it or choose another --out"
                 )
-            stored = json.loads(manifest_path.read_text())
-            normalised = json.loads(_stable_json(manifest))
+            try:
+                stored = json.loads(manifest_path.read_text())
+            except (ValueError, OSError) as exc:
+                stored = f"{type(exc).__name__}: {exc}"
+            if not isinstance(stored, dict):
+                problem = stored if isinstance(stored, str) else "not a JSON object"
+                raise RunDirectoryError(
+                    f"--resume: {manifest_path} is unreadable ({problem}); "
+                    "it cannot be resumed, start it again in another --out"
+                )
+            normalised = self.manifest
             differing = sorted(k for k in set(stored) | set(normalised) if stored.get(k) != normalised.get(k))
             if differing:
                 details = "; ".join(f"{k}: stored {stored.get(k)!r}, now {normalised.get(k)!r}" for k in differing)
-                raise RunDirectoryError(f"--resume: the options differ from the run in {self.root}: {details}")
+                raise RunDirectoryError(f"--resume: the inputs differ from the run in {self.root}: {details}")
         elif resume:
             raise RunDirectoryError(f"--resume: {self.root} holds no run to resume (no run.json)")
+
+    def _read_calibration(self) -> dict[str, Any]:
+        if not self._calibration_path.exists():
+            return {}
+        try:
+            record = json.loads(self._calibration_path.read_text())
+        except (ValueError, OSError) as exc:
+            raise RunDirectoryError(f"--resume: {self._calibration_path} is unreadable: {exc}") from None
+        if not isinstance(record, dict) or record.get("run") != self.run_id:
+            raise RunDirectoryError(
+                f"--resume: {self._calibration_path} does not belong to the run in {self.root} "
+                f"(run id {record.get('run') if isinstance(record, dict) else None!r}, expected {self.run_id!r}); "
+                "remove it to search the knobs again"
+            )
+        return {k: v for k, v in record.items() if k != "run"}
+
+    def begin(self) -> None:
+        """Write ``run.json`` (once the sample set is known, so that a run that fails before has none)."""
         self.parts.mkdir(parents=True, exist_ok=True)
+        manifest_path = self.root / "run.json"
         if not manifest_path.exists():
-            self._write_text(manifest_path, json.dumps(json.loads(_stable_json(manifest)), indent=2, sort_keys=True))
-        self._calibration_path = self.root / "calibration.json"
-        self._calibration_lock = threading.Lock()
-        self.calibration: dict[str, Any] = (
-            json.loads(self._calibration_path.read_text()) if self._calibration_path.exists() else {}
-        )
+            self._write_text(manifest_path, json.dumps(self.manifest, indent=2, sort_keys=True))
+
+    def close(self) -> None:
+        """Release the folder lock."""
+        self._lock.release()
+
+    def __enter__(self) -> RunStore:  # noqa: PYI034 - Self needs Python 3.11
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     @staticmethod
     def _write_text(path: Path, text: str) -> None:
-        tmp = path.with_name(path.name + ".tmp")
+        tmp = _tmp_path(path)
         tmp.write_text(text)
         os.replace(tmp, path)
 
@@ -92,13 +217,37 @@ class RunStore:
         """Where the part of chunk ``chunk`` of a pass is stored."""
         return self.parts / f"{task}__{controller}__{key}__{chunk:05d}.parquet"
 
-    def has_part(self, path: Path) -> bool:
-        return path.is_file()
+    def has_part(self, path: Path, sample_ids: Sequence[int]) -> bool:
+        """Whether the part at ``path`` is done; a part of another run or of other samples is refused.
+
+        Raises:
+            RunDirectoryError: If the file exists but was not written by this run for ``sample_ids``.
+        """
+        if not path.is_file():
+            return False
+        try:
+            metadata = pq.read_schema(path).metadata or {}
+        except (OSError, ValueError, pa.ArrowException) as exc:
+            raise RunDirectoryError(f"--resume: the part file {path} is unreadable ({exc}); remove it") from None
+        stored_run = metadata.get(_PART_RUN_KEY, b"").decode(errors="replace")
+        stored_ids = metadata.get(_PART_SAMPLES_KEY, b"").decode(errors="replace")
+        expected_ids = json.dumps([int(i) for i in sample_ids])
+        if stored_run != self.run_id or stored_ids != expected_ids:
+            what = "another run" if stored_run != self.run_id else "other samples"
+            raise RunDirectoryError(
+                f"--resume: the part file {path} belongs to {what} (run {stored_run or 'unknown'!r}, "
+                f"this run {self.run_id!r}); remove it to recompute that job"
+            )
+        return True
 
     def write_part(self, path: Path, rows: pd.DataFrame) -> None:
-        """Store a completed job's rows (atomically: a part on disk is complete)."""
-        tmp = path.with_name(path.name + ".tmp")
-        rows.to_parquet(tmp, index=False)
+        """Store a completed job's rows, stamped with the run id and sample ids (atomically: a part on disk is complete)."""
+        table = pa.Table.from_pandas(rows, preserve_index=False)
+        stamp = {_PART_RUN_KEY: self.run_id.encode(), _PART_SAMPLES_KEY: json.dumps(
+            [int(i) for i in rows["sample"]]).encode()}
+        table = table.replace_schema_metadata({**(table.schema.metadata or {}), **stamp})
+        tmp = _tmp_path(path)
+        pq.write_table(table, tmp)
         os.replace(tmp, path)
 
     def read_part(self, path: Path) -> pd.DataFrame:
@@ -121,7 +270,8 @@ class RunStore:
         """Store one calibration step's record under ``key`` (kept across --resume)."""
         with self._calibration_lock:  # concurrent effort matches save their records
             self.calibration[key] = json.loads(_stable_json(record))
-            self._write_text(self._calibration_path, json.dumps(self.calibration, indent=2, sort_keys=True))
+            stamped = {"run": self.run_id, **self.calibration}
+            self._write_text(self._calibration_path, json.dumps(stamped, indent=2, sort_keys=True))
 
     def write_text(self, name: str, text: str) -> Path:
         path = self.root / name

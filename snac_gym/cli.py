@@ -5,6 +5,10 @@ Each subcommand parses its options and calls a function that can be used from Py
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Optional
 
@@ -130,9 +134,27 @@ def real(
     typer.echo(result.summary())
 
 
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Turn SIGTERM into KeyboardInterrupt while the block runs, so that it ends the run as Ctrl-C
+    does (workers stopped, one line) instead of killing this process mid-write."""
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    if threading.current_thread() is not threading.main_thread():  # signals reach only the main thread
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 @app.command()
 def evaluate(
-    out: Path = typer.Option(Path("runs/evaluation"), "--out", help="Output folder (results, summary, plots, parts)."),
+    out: str = typer.Option("runs/evaluation", "--out", help="Output folder (results, summary, plots, parts)."),
     task: str = typer.Option("both", "--task", help="reach, track or both."),
     controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md)."),
     samples: int = typer.Option(1000, "--samples", min=1, help="Random samples per task (the paper: 1000)."),
@@ -162,18 +184,26 @@ def evaluate(
     """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
     import time
 
-    from evaluation.options import parse_controllers, parse_cuboid, parse_horizons, parse_params, parse_tasks
+    from evaluation.options import (
+        parse_controllers,
+        parse_cuboid,
+        parse_horizons,
+        parse_out,
+        parse_params,
+        parse_tasks,
+    )
     from evaluation.runner import EvaluationConfig, export_sample_set, run_evaluation
     from snac_gym.kinematics import Kinematics
     from snac_gym.sampling import SampleSpace
 
     try:
+        out_dir = parse_out(out)
         corners = parse_cuboid(cuboid)
         space = None
         if corners is not None:
             space = SampleSpace.for_robot(Kinematics(robot), low=corners[0], high=corners[1])
         config = EvaluationConfig(
-            out=out, tasks=parse_tasks(task), controllers=parse_controllers(controllers), samples=samples, seed=seed,
+            out=out_dir, tasks=parse_tasks(task), controllers=parse_controllers(controllers), samples=samples, seed=seed,
             horizons=parse_horizons(horizon), backend=backend, match_effort=match_effort,
             effort_reference=effort_reference, effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
             calibration_samples=calibration_samples, samples_file=samples_file, export_samples=export_samples,
@@ -185,13 +215,21 @@ def evaluate(
             typer.echo(f"samples written to {export_sample_set(config)}")
             return
         start = time.perf_counter()
-        run_evaluation(config)
-    except (ValueError, RuntimeError) as exc:  # bad options, samples file, controller, output folder: a clean message
+        with _sigterm_as_interrupt():
+            run_evaluation(config)
+    except (ValueError, RuntimeError, OSError) as exc:  # bad options, samples file, controller, output folder: a clean message
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(code=2) from exc
-    summary = (out / "summary.md").read_text()
+        raise typer.Exit(code=2) from None
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the workers are stopped, finished jobs are kept
+        signal_name = str(exc) or "SIGINT"
+        typer.echo(f"interrupted by {signal_name}: finished jobs are kept in {out_dir}/; continue with --resume", err=True)
+        raise typer.Exit(code=128 + int(signal.Signals[signal_name])) from None
+    summary = (out_dir / "summary.md").read_text()
     typer.echo(summary.split("\n## ")[0].rstrip())
-    typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; results, summary and plots in {out}/")
+    for line in summary.splitlines():  # an unmatched effort makes the comparison unequal: say so on stderr too
+        if line.startswith("**Warning:**"):
+            typer.echo("warning: " + line.removeprefix("**Warning:**").strip(), err=True)
+    typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; results, summary and plots in {out_dir}/")
 
 
 @app.command("train-ppo")

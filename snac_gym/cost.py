@@ -20,16 +20,34 @@ def weight_matrix(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray 
 
     ``None`` means identity and is returned as ``None``, so callers skip the matmul.
 
+    A weight must be finite, symmetric and positive semidefinite: otherwise the cost is NaN or
+    can be negative, and no controller can minimise it.
+
     Raises:
-        ValueError: On a wrong shape, naming the matrix.
+        ValueError: On a wrong shape, a non-finite entry, asymmetry or a negative eigenvalue,
+            naming the matrix.
     """
     if matrix is None:
         return None
-    matrix = np.asarray(matrix, dtype=float)
+    try:
+        matrix = np.asarray(matrix, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a ({dim}, {dim}) matrix or a length-{dim} diagonal of numbers: {exc}") from None
     if matrix.ndim == 1:
         matrix = np.diag(matrix)
     if matrix.shape != (dim, dim):
         raise ValueError(f"{name} must be ({dim}, {dim}) or a length-{dim} diagonal, got shape {matrix.shape}")
+    if not np.all(np.isfinite(matrix)):
+        raise ValueError(f"{name} must be finite, got {matrix.tolist()}")
+    scale = float(np.abs(matrix).max())
+    if not np.allclose(matrix, matrix.T, rtol=1e-12, atol=1e-12 * scale):
+        raise ValueError(f"{name} must be symmetric, got {matrix.tolist()}")
+    smallest = float(np.linalg.eigvalsh(0.5 * (matrix + matrix.T))[0])
+    if smallest < -1e-12 * scale:
+        raise ValueError(
+            f"{name} must be positive definite or semidefinite (every eigenvalue >= 0); "
+            f"its smallest eigenvalue is {smallest:.3g}"
+        )
     return matrix
 
 
@@ -111,8 +129,8 @@ def cost_rates(
         raise ValueError(
             f"errors (..., K, n) and commands (..., K, m) must share leading axes, got {errors.shape} and {commands.shape}"
         )
-    if not dt > 0:
-        raise ValueError(f"dt must be positive, got {dt}")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be positive and finite, got {dt}")
     Qm = weight_matrix(Q, errors.shape[-1], "Q")
     Rm = weight_matrix(R, commands.shape[-1], "R")
     command_rates = command_differences(commands, initial_command) / dt

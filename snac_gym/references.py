@@ -21,6 +21,15 @@ PAPER_TARGET = (-0.658, 0.626, 0.407)
 PAPER_CIRCLE_CENTRE = (-0.7, 0.0, 0.5)
 PAPER_CIRCLE_RADIUS = 0.2
 PAPER_CIRCLE_SPEED = 0.075
+#: Smallest semi-axis of an ellipse, m: below it the ellipse is a point within any success
+#: tolerance, and tiny axes (1e-300 m) make a degenerate, meaningless reference.
+MIN_SEMI_AXIS = 1e-3
+#: Slowest angular speed |ω| of an ellipse, rad/s (a lap in 1.7 h): ω = 0 is a fixed point, a
+#: regulation task posing as tracking.
+MIN_ANGULAR_SPEED = 1e-3
+#: Fastest reference point speed |ω|·max(a, b), m/s: about a UR arm's top tool speed. Faster
+#: references (ω = 1e6 rad/s gave ẋ_d ≈ 1e5 m/s) cannot be followed by any joint-velocity command.
+MAX_REFERENCE_SPEED = 3.0
 
 
 def _vector(value: Any, size: int, name: str) -> np.ndarray:
@@ -104,9 +113,9 @@ class Ellipse:
     key            unit      meaning
     ============== ========= ===========================================================
     centre         m         ``[x, y, z]`` centre in the base frame (required)
-    semi_axes      m         ``[a, b]``; or ``radius`` for a circle (one of them required)
+    semi_axes      m         ``[a, b]``, each ≥ 1 mm; or ``radius`` for a circle (one required)
     orientation    rad       ``[roll, pitch, yaw]`` of the ellipse plane (default zeros)
-    angular_speed  rad/s     ω (default 0.075, the paper's)
+    angular_speed  rad/s     ω, 0.001 ≤ |ω|, |ω|·max(a, b) ≤ 3 m/s (default 0.075, the paper's)
     phase          rad       φ, the angle at t = 0 (default 0)
     ============== ========= ===========================================================
     """
@@ -120,15 +129,29 @@ class Ellipse:
     def __post_init__(self) -> None:
         object.__setattr__(self, "centre", _vector(self.centre, 3, "centre"))
         axes = _vector(self.semi_axes, 2, "semi_axes")
-        if np.any(axes <= 0):
-            raise ValueError(f"semi_axes must be positive, got {axes.tolist()}")
+        if np.any(axes < MIN_SEMI_AXIS):
+            raise ValueError(f"semi_axes must be positive, at least {MIN_SEMI_AXIS:g} m, got {axes.tolist()}")
         object.__setattr__(self, "semi_axes", axes)
         object.__setattr__(self, "orientation", _vector(self.orientation, 3, "orientation"))
         for name in ("angular_speed", "phase"):
-            value = float(getattr(self, name))
+            try:
+                value = float(getattr(self, name))
+            except (TypeError, ValueError):
+                raise ValueError(f"{name} must be a number, got {getattr(self, name)!r}") from None
             if not math.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value}")
             object.__setattr__(self, name, value)
+        speed = abs(self.angular_speed)
+        if speed < MIN_ANGULAR_SPEED:
+            raise ValueError(
+                f"angular_speed must be at least {MIN_ANGULAR_SPEED:g} rad/s in magnitude (0 is a fixed point), "
+                f"got {self.angular_speed}"
+            )
+        if speed * float(axes.max()) > MAX_REFERENCE_SPEED:
+            raise ValueError(
+                f"the ellipse moves at |ω|·max(a, b) = {speed * float(axes.max()):.3g} m/s; at most "
+                f"{MAX_REFERENCE_SPEED:g} m/s can be followed (lower angular_speed or semi_axes)"
+            )
         rot = rotation_from_rpy(*self.orientation)
         # Columns scaled by the semi-axes: x_d = c + axes_matrix @ [cos, sin].
         object.__setattr__(self, "_axes_matrix", rot[:, :2] * axes)  # x_d = c + axes_matrix @ [cos, sin]

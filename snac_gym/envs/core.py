@@ -10,7 +10,7 @@ import numpy as np
 
 from snac_gym.cost import quadratic_form, weight_matrix
 from snac_gym.envs.robot import SimulatedArm
-from snac_gym.envs.sim import PyBulletSim
+from snac_gym.envs.sim import PyBulletSim, check_image_size
 from snac_gym.envs.tasks import TASKS, Task
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
@@ -78,7 +78,7 @@ _ENV_DOC = """
     | argument               | default      | meaning                                            |
     |------------------------|--------------|----------------------------------------------------|
     | ``robot``              | ``"ur10"``   | ``ur3``, ``ur5`` or ``ur10`` from example-robot-data  |
-    | ``dt``                 | ``1/125``    | control period, s (``env.unwrapped.dt``)           |
+    | ``dt``                 | ``1/125``    | control period, s (``env.unwrapped.dt``), in (0, 1] |
     | ``n_substeps``         | ``3``        | physics steps per control period (see README)      |
     | ``max_steps``          | {default_steps}       | episode length in control steps                    |
     | ``reward_type``        | ``"dense"``  | ``"dense"`` or ``"sparse"``                        |
@@ -87,7 +87,7 @@ _ENV_DOC = """
     | ``terminate_on_success`` | ``False``  | reach only: end the episode on success             |
     | ``sample_space``       | UR10 cuboid  | a :class:`~snac_gym.sampling.SampleSpace`          |
     | ``render_mode``        | ``None``     | ``"rgb_array"`` (headless) or ``"human"`` (GUI)     |
-    | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``                 |
+    | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels  |
 
     ## Version History
     * v0: initial version.
@@ -205,7 +205,7 @@ class URTaskEnv(gym.Env):
         self.terminate_on_success = bool(terminate_on_success)
         self.sample_space = sample_space if sample_space is not None else SampleSpace.for_robot(self.kinematics)
         self.render_mode = render_mode
-        self.render_width, self.render_height = int(render_width), int(render_height)
+        self.render_width, self.render_height = check_image_size(render_width, render_height)
 
         self.sim = PyBulletSim(dt, n_substeps, gui=render_mode == "human")
         self.dt = self.sim.dt

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import tempfile
@@ -17,6 +18,32 @@ with quiet_output():
 
 p: Any = _pybullet
 
+#: Largest rendered image side, pixels (TinyRenderer allocates width x height buffers in C++).
+MAX_IMAGE_SIDE = 8192
+
+
+def check_image_size(width: Any, height: Any) -> tuple[int, int]:
+    """``(width, height)`` as ints, each in [1, :data:`MAX_IMAGE_SIDE`].
+
+    A negative size aborts the interpreter inside PyBullet (``std::bad_alloc``) and zero divides
+    by zero or gives an empty image, so they are refused before they reach it.
+
+    Raises:
+        ValueError: Naming the bad side and the bound.
+    """
+    sides = []
+    for name, value in (("render_width", width), ("render_height", height)):
+        whole = isinstance(value, (int, np.integer)) or (isinstance(value, float) and value.is_integer())
+        if isinstance(value, bool) or not whole or not 1 <= value <= MAX_IMAGE_SIDE:
+            raise ValueError(f"{name} must be a whole number of pixels in [1, {MAX_IMAGE_SIDE}], got {value!r}")
+        sides.append(int(value))
+    return sides[0], sides[1]
+
+
+#: Longest control period accepted, s: a velocity command held for longer is no longer the
+#: paper's velocity-level control (its UR10 runs at 8 ms).
+MAX_DT = 1.0
+
 
 class PyBulletSim:
     """One PyBullet client that advances by a control period split into physics substeps.
@@ -29,8 +56,8 @@ class PyBulletSim:
     """
 
     def __init__(self, dt: float, n_substeps: int, gui: bool = False, gravity: float = 9.81) -> None:
-        if not dt > 0:
-            raise ValueError(f"dt must be positive, got {dt}")
+        if not (math.isfinite(dt) and 0 < dt <= MAX_DT):
+            raise ValueError(f"dt must be positive, finite and at most {MAX_DT:g} s, got {dt}")
         if int(n_substeps) != n_substeps or n_substeps < 1:
             raise ValueError(f"n_substeps must be a positive integer, got {n_substeps}")
         self.dt = float(dt)
@@ -85,7 +112,12 @@ class PyBulletSim:
         p.resetBasePositionAndOrientation(body, list(position), [0, 0, 0, 1], physicsClientId=self.client)
 
     def render(self, width: int, height: int, target: np.ndarray, distance: float = 2.2) -> np.ndarray:
-        """An RGB image (``(height, width, 3)`` uint8) from a camera orbiting ``target``, headless-safe."""
+        """An RGB image (``(height, width, 3)`` uint8) from a camera orbiting ``target``, headless-safe.
+
+        Raises:
+            ValueError: If ``width`` or ``height`` is not in [1, :data:`MAX_IMAGE_SIDE`] (:func:`check_image_size`).
+        """
+        width, height = check_image_size(width, height)
         view = p.computeViewMatrixFromYawPitchRoll(
             cameraTargetPosition=list(target), distance=distance, yaw=45.0, pitch=-25.0, roll=0.0, upAxisIndex=2,
             physicsClientId=self.client,

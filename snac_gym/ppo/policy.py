@@ -46,8 +46,8 @@ class PPOPolicy(BasePolicy):
 
     Raises:
         MissingPolicyFileError: If the file does not exist.
-        PolicyFileError: If it is corrupt, or was trained for another task, robot or
-            observation layout.
+        PolicyFileError: If it is corrupt, was trained for another task, robot or
+            observation layout, or its model card ``<stem>.json`` (if any) describes another file.
         ValueError: If ``action_scale`` is not a positive finite number.
 
     Attributes:
@@ -65,7 +65,13 @@ class PPOPolicy(BasePolicy):
         self.model.check_compatible(
             self.task, self.layout, self.kinematics.robot, source=f"PPO policy file {self.model_path}"
         )
+        self.model.check_card(self.model_path)
         self._obs_size = self.layout.size
+
+    @property
+    def input_files(self) -> tuple[Path, ...]:
+        """Files whose content decides the commands (hashed by the evaluator's ``run.json``)."""
+        return (self.model_path,)
 
     def reset(self, seed: int | None = None) -> None:
         """Start an episode (the policy is deterministic and stateless; ``seed`` is unused)."""

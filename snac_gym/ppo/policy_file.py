@@ -242,6 +242,41 @@ class PolicyFile:
         policy.validate(str(path))
         return policy
 
+    def check_card(self, path: str | Path) -> None:
+        """Check the model card ``<stem>.json`` beside the policy file at ``path``, if there is one.
+
+        The card (shipped beside ``models/<task>.npz``) says how the file was made; a card that
+        describes another file would mislead a reader of results, so its ``file``, ``bytes``,
+        ``sha256`` and ``task`` must match the policy file.
+
+        Raises:
+            PolicyFileError: If the card is unreadable or does not describe this file.
+        """
+        path = Path(path)
+        card_path = path.with_suffix(".json")
+        if not card_path.is_file():
+            return
+        try:
+            card = json.loads(card_path.read_text())
+        except (OSError, ValueError) as exc:
+            card = f"{type(exc).__name__}: {exc}"
+        if not isinstance(card, dict):
+            problem = card if isinstance(card, str) else "not a JSON object"
+            raise PolicyFileError(f"PPO model card {card_path} is unreadable ({problem}); fix or remove it")
+        data = path.read_bytes()
+        actual = {
+            "file": path.name,
+            "bytes": len(data),
+            "sha256": hashlib.sha256(data).hexdigest(),
+            "task": self.task,
+        }
+        wrong = [f"{key} {card.get(key)!r}, the file's {value!r}" for key, value in actual.items() if card.get(key) != value]
+        if wrong:
+            raise PolicyFileError(
+                f"PPO model card {card_path} does not describe {path.name}: {'; '.join(wrong)}; "
+                "fix or remove the card"
+            )
+
     def validate(self, source: str = "policy file") -> None:
         """Check the shapes chain from the features to the action.
 
