@@ -26,6 +26,9 @@ from snac_gym.cost import trajectory_cost
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
 from snac_gym.rollout import add_critic_diagnostics, log_array, rollout, write_log
 
+#: Longest demo accepted, s (50x the tracking demo): the log is held in memory, so an unbounded
+#: horizon fails late (or exhausts memory) instead of being refused.
+MAX_DEMO_DURATION_S = 1000.0
 #: Gymnasium id of each demo task.
 DEMO_ENVS = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}
 #: Thresholds the demos report against: 1 mm (reach) and 5 mm (track) on ‖e‖.
@@ -229,14 +232,20 @@ def run_demo(
     options = demo_options(task)
     if steps is not None and duration is not None:
         raise ValueError("give steps or duration, not both")
+    if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DEMO_DURATION_S):
+        raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
     env = gym.make(DEMO_ENVS[task])
     dt = env.unwrapped.dt
     if duration is not None:
         steps = round(duration / dt)
     if steps is None:
         steps = demo_steps(task, dt)
-    if steps < 1:
-        raise ValueError(f"the demo needs at least one step, got {steps}")
+    max_steps = round(MAX_DEMO_DURATION_S / dt)
+    if not 1 <= steps <= max_steps:
+        env.close()
+        raise ValueError(
+            f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}"
+        )
     if steps > env.unwrapped.max_steps:
         env.close()
         env = gym.make(DEMO_ENVS[task], max_steps=steps)
