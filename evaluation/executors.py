@@ -20,6 +20,7 @@ from __future__ import annotations
 import functools
 import heapq
 import itertools
+import math
 import multiprocessing
 import os
 import signal
@@ -71,6 +72,8 @@ def max_workers() -> int:
     return MAX_WORKERS_PER_CPU * available_cpus()
 
 
+#: Signals that end a run: the parent handles them, a worker only dies of SIGTERM.
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 #: Linux ``prctl`` option that sends a signal to a process when its parent dies.
 _PR_SET_PDEATHSIG = 1
 
@@ -111,8 +114,11 @@ def _init_worker(parent_pid: int) -> None:
     """
     _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # A forked worker inherits the parent's handlers; the CLI's turns SIGTERM into
+    # KeyboardInterrupt, which in a worker would print a traceback when the parent ends it.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(1, user_api="blas")
@@ -141,6 +147,12 @@ class ProcessExecutor:
             raise ValueError(f"workers must be at least 1, got {workers}")
         self.workers = workers
         self.description = f"{workers} local processes"
+        self._lock = threading.Lock()
+        self._queue: list[tuple[int, int, Callable[[Any], Any], Any, Future]] = []
+        self._arrivals = itertools.count()
+        self._running = 0
+        self._running_low = 0  # running jobs of priority above 0
+        self._reserved = 0
         method = "fork" if sys.platform.startswith("linux") else None
         self._pool = ProcessPoolExecutor(
             max_workers=workers,
@@ -151,23 +163,22 @@ class ProcessExecutor:
         # Start every worker now, from this thread: the parent-death signal follows the thread
         # that forked a worker, and this one (the caller's) outlives the run, unlike the
         # effort-match threads that submit jobs later.
-        # SIGINT is blocked while forking: a Ctrl-C before a worker's initialiser ignores it would
-        # otherwise print that worker's traceback (the initialiser unblocks it).
+        # SIGINT and SIGTERM are blocked while forking: one arriving before a worker's initialiser
+        # set its handlers would print that worker's traceback (the initialiser unblocks them).
         blocked = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
         if blocked:
-            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
         try:
-            started = self._pool.submit(_noop, None)
-        finally:
-            if blocked:
-                signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-        started.result()
-        self._lock = threading.Lock()
-        self._queue: list[tuple[int, int, Callable[[Any], Any], Any, Future]] = []
-        self._arrivals = itertools.count()
-        self._running = 0
-        self._running_low = 0  # running jobs of priority above 0
-        self._reserved = 0
+            try:
+                started = self._pool.submit(_noop, None)
+            finally:
+                if blocked:
+                    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
+            started.result()
+        except BaseException:  # interrupted while starting: no caller holds this executor to close it
+            self.terminate()
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            raise
 
     def reserve(self, slots: int) -> None:
         """Keep ``slots`` workers (at most ``workers − 1``) free of jobs of priority above 0 until changed."""
@@ -314,10 +325,15 @@ class RayExecutor:
                 ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
             else:
                 check_ray_reachable(address)
+                # Something answers (a proxy accepts any connection): bound Ray's own retries
+                # (one per second) by the same timeout, unless the user set them.
+                os.environ.setdefault("RAY_gcs_server_port_wait_time_s", str(math.ceil(RAY_CONNECT_TIMEOUT_S)))
                 try:
                     ray.init(address=address, log_to_driver=False)
-                except ConnectionError as exc:
-                    raise RuntimeError(f"--ray {address}: {exc}".splitlines()[0]) from None
+                except (ConnectionError, TimeoutError) as exc:
+                    raise RuntimeError(
+                        f"--ray {address}: no Ray cluster answered within {RAY_CONNECT_TIMEOUT_S:g} s ({exc})".splitlines()[0]
+                    ) from None
         self.description = f"Ray ({address})"
         self._remotes: dict[Callable[[Any], Any], Any] = {}
         self._lock = threading.Lock()
