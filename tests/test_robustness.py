@@ -120,6 +120,16 @@ def test_a_folder_in_use_by_a_run_is_refused_until_it_ends(tmp_path):
         pass
 
 
+def test_a_calibration_record_of_another_run_is_refused(tmp_path):
+    with RunStore(tmp_path / "other", {"seed": 1}, resume=False) as other:
+        other.save_calibration("reach/dls/search1", {"value": 2.0})
+    with RunStore(tmp_path / "run", {"seed": 0}, resume=False) as store:
+        store.begin()
+    shutil.copyfile(tmp_path / "other" / "calibration.json", tmp_path / "run" / "calibration.json")
+    with pytest.raises(RunDirectoryError, match="calibration.json does not belong to the run"):
+        RunStore(tmp_path / "run", {"seed": 0}, resume=True)
+
+
 def test_missing_samples_file_and_corrupt_run_json_are_one_line_errors(tmp_path):
     _one_line_error(
         _cli("evaluate", "--out", str(tmp_path / "a"), "--samples-file", str(tmp_path / "nope.csv")),
