@@ -24,12 +24,14 @@ import numpy as np
 
 from evaluation.drivers import LockstepPolicies
 from evaluation.reference_batch import reference_trajectories
-from evaluation.rollouts import Rollouts, rollouts_from_logs
+from evaluation.rollouts import Rollouts, rollouts_from_logs, summarise_critic_diagnostics
 from evaluation.samples import EvaluationSample
 from snac_gym.policies.base import PolicyContext
 
 BACKENDS = ("kinematic", "pybullet")
 #: Env id of each task (the pybullet backend).
+#: Steps between two samples of the critic diagnostics in :func:`simulate_kinematic` (0.2 s at 125 Hz).
+DIAGNOSTIC_STRIDE = 25
 ENV_ID_OF_TASK = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}
 
 
@@ -93,6 +95,11 @@ def simulate_kinematic(
     x_log = np.empty((steps, count, n)) if keep_states else None
     slices = layout.slices
     policies = LockstepPolicies(make_policy, seeds, use_batch=use_batch)
+    critic = policies.critic
+    # Critic diagnostics every DIAGNOSTIC_STRIDE steps and at the last one: the per-rollout median
+    # and final value need no more, and a full pass stays within a few % of its time.
+    diagnostic_steps = set(range(0, steps, DIAGNOSTIC_STRIDE)) | {steps - 1} if critic is not None else set()
+    diagnostic_rows: list[dict[str, np.ndarray]] = []
     for k in range(steps):
         x = kinematics.forward_batch(q)
         obs = np.empty((count, layout.size))  # fresh each step: a policy may keep a view of its input
@@ -104,6 +111,8 @@ def simulate_kinematic(
         np.subtract(x, x_d[:, k], out=e_log[k])
         obs[:, slices["e"]] = e_log[k]
         obs[:, slices["x_c"]] = centres
+        if k in diagnostic_steps:
+            diagnostic_rows.append(critic(q, e_log[k], x_d[:, k], xdot_d[:, k], centres, policies.critic_weights()))
         commands = policies.act(obs)
         _check_commands(commands, (count, m), label, samples, k)
         held = np.minimum(np.maximum(commands, -limits), limits)
@@ -125,6 +134,10 @@ def simulate_kinematic(
         final_q=q,
         final_x=final_x,
         final_errors=final_x - x_d[:, steps],
+        critic_diagnostics=summarise_critic_diagnostics(
+            np.stack([row["hjb_ratio"] for row in diagnostic_rows], axis=1),
+            np.stack([row["critic_error"] for row in diagnostic_rows], axis=1) if "critic_error" in diagnostic_rows[0] else None,
+        ) if diagnostic_rows else None,
     )
 
 
@@ -164,13 +177,13 @@ def simulate_pybullet(
     Returns:
         The stacked rollouts and the per-step logs of :func:`snac_gym.rollout.rollout`.
     """
-    from snac_gym.rollout import rollout
+    from snac_gym.rollout import add_critic_diagnostics, rollout
 
     env = _env(robot, task, float(dt), int(steps))
     logs = []
     for sample, seed in zip(samples, seeds, strict=True):
         policy = make_policy(env)
-        log = rollout(env, policy, options=sample.reset_options(), seed=int(seed), steps=steps)
+        log = add_critic_diagnostics(rollout(env, policy, options=sample.reset_options(), seed=int(seed), steps=steps), policy)
         if len(log) != steps:
             raise RolloutError(f"{task} sample {sample.index}: the env ended after {len(log)} of {steps} steps")
         logs.append(log)

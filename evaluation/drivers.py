@@ -57,6 +57,17 @@ class LockstepPolicies:
         """The class of the policies being driven."""
         return type(self._batch_policy if self.batched else self._policies[0])
 
+    @property
+    def critic(self) -> Any:
+        """The ``critic_diagnostics`` method of a critic-based controller, else ``None``."""
+        return getattr(self._batch_policy if self.batched else self._policies[0], "critic_diagnostics", None)
+
+    def critic_weights(self) -> np.ndarray:
+        """``(B, l)``: each episode's critic weights now (those its next command uses)."""
+        if self.batched:
+            return np.array(self._batch_policy.batch_critic_weights, dtype=float)
+        return np.array([policy.critic_weights for policy in self._policies], dtype=float)
+
     def act(self, observations: np.ndarray) -> np.ndarray:
         """Commands ``(B, m)`` for observations ``(B, d)`` (row i to episode i)."""
         if self.batched:

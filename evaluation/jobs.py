@@ -18,6 +18,7 @@ import pandas as pd
 from evaluation.backends import simulate_kinematic, simulate_pybullet
 from evaluation.metrics import rollout_metrics
 from evaluation.samples import EvaluationSample
+from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import PolicyContext
@@ -40,6 +41,7 @@ class RolloutJob:
         backend: ``"kinematic"`` or ``"pybullet"``.
         keep_logs: Return the per-step logs.
         use_batch: Let the kinematic backend use a policy's batch protocol.
+        convention: The cost the rollouts are scored by.
     """
 
     task: str
@@ -53,6 +55,7 @@ class RolloutJob:
     backend: str = "kinematic"
     keep_logs: bool = False
     use_batch: bool = True
+    convention: CostConvention = field(default_factory=CostConvention)
 
 
 @dataclass
@@ -125,6 +128,6 @@ def run_job(job: RolloutJob) -> JobResult:
                 log.attrs.update({**attrs, "sample": sample.index, "backend": job.backend})
     else:
         raise ValueError(f"unknown backend {job.backend!r}")
-    metrics = rollout_metrics(rollouts, job.task, limits)
+    metrics = rollout_metrics(rollouts, job.task, limits, job.convention)
     metrics.insert(0, "sample", [s.index for s in job.samples])
     return JobResult(metrics, logs)

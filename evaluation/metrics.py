@@ -1,7 +1,9 @@
-"""Per-rollout figures: the paper's trajectory cost and what else a reader needs to judge a run.
+"""Per-rollout figures: the trajectory cost and what else a reader needs to judge a run.
 
 The cost is :func:`snac_gym.cost.trajectory_cost` (the one function the env reward and the
-plots use): ``V = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt`` over the K steps, Q = I₃, R = I₆,
+plots use) under a :class:`snac_gym.cost.CostConvention` (``--cost``, ``--udot-start``,
+``--q-scale``); by default the paper's Table I cost
+``V = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt`` over the K steps, Q = I₃, R = I₆,
 u̇ₖ = (uₖ − uₖ₋₁)/Δt with u₋₁ = 0.
 
 Other columns (one value per rollout):
@@ -9,12 +11,15 @@ Other columns (one value per rollout):
 =====================  ======  ==============================================================
 column                 unit    meaning
 =====================  ======  ==============================================================
-cost                   –       V, the sum of the three terms below
-cost_error             –       Σ eₖᵀQeₖ Δt
+cost                   –       V under the run's convention
+cost_error             –       Σ eₖᵀQeₖ Δt (Q = q_scale·I)
 cost_effort            –       Σ uₖᵀRuₖ Δt
-cost_smoothness        –       Σ u̇ₖᵀRu̇ₖ Δt
-cost_smoothness_start  –       its first term u₀ᵀRu₀/Δt: the jump from rest (u₋₁ = 0) to the
-                               first command
+cost_smoothness        –       Σ u̇ₖᵀRu̇ₖ Δt, u₋₁ per ``udot_start`` (counted in ``cost`` only
+                               for ``--cost table1``)
+cost_smoothness_start  –       the jump from rest u₀ᵀRu₀/Δt (the first term with u₋₁ = 0)
+cost_table1            –       error + effort + smoothness with u₋₁ = 0, whatever the convention
+cost_table1_first      –       the same with u₋₁ = u₀ (no jump from rest)
+cost_hjb               –       error + effort: the cost of eqs. 6 and 32
 final_error            m       ‖e_K‖ after the last step
 time_to_1mm            s       first tₖ (k = 0..K) with ‖eₖ‖ ≤ 1 mm; NaN if never
 settle_time            s       first tₖ from which ‖eⱼ‖ stays within the success tolerance (1
@@ -29,7 +34,13 @@ peak_step              –       the step k where peak_limit_fraction occurs (fi
 max_abs_udot           rad/s²  max over steps and joints of |u̇ₖⱼ| (u₋₁ = 0 included)
 steps_at_limit         –       steps with some |uₖⱼ| at its velocity limit
 mean_error_2nd_half    m       mean ‖eₖ‖ over k = ⌊K/2⌋..K−1
+median_error_2nd_half  m       median ‖eₖ‖ over the same steps
 success                –       reach: final_error ≤ 1 mm; track: mean_error_2nd_half ≤ 5 mm
+hjb_ratio_median       –       critic-based controllers: median over the sampled steps of the
+                               critic's HJB residual r/eᵀQe (:mod:`snac_gym.optimality`; 0 for
+                               the optimal critic); NaN for the others
+critic_error_final     –       regulation critics: ‖P̂ − P*(J)‖_F/‖P*‖_F at the last step; NaN
+                               otherwise
 =====================  ======  ==============================================================
 """
 
@@ -39,7 +50,7 @@ import numpy as np
 import pandas as pd
 
 from evaluation.rollouts import Rollouts
-from snac_gym.cost import command_differences, cost_rates, trajectory_cost
+from snac_gym.cost import CostConvention, CostTerms, command_differences, cost_rates, trajectory_cost
 
 #: Success thresholds (m): final error for reach, mean error over the second half for track.
 REACH_TOLERANCE = 1e-3
@@ -55,6 +66,9 @@ METRIC_COLUMNS = (
     "cost_effort",
     "cost_smoothness",
     "cost_smoothness_start",
+    "cost_table1",
+    "cost_table1_first",
+    "cost_hjb",
     "final_error",
     "time_to_1mm",
     "settle_time",
@@ -66,7 +80,10 @@ METRIC_COLUMNS = (
     "max_abs_udot",
     "steps_at_limit",
     "mean_error_2nd_half",
+    "median_error_2nd_half",
     "success",
+    "hjb_ratio_median",
+    "critic_error_final",
 )
 
 
@@ -82,12 +99,18 @@ def peak_limit_fractions(commands: np.ndarray, velocity_limits: np.ndarray) -> t
     return fractions[np.arange(len(fractions)), steps], steps
 
 
-def rollout_metrics(rollouts: Rollouts, task: str, velocity_limits: np.ndarray) -> pd.DataFrame:
-    """One row of :data:`METRIC_COLUMNS` per rollout of ``rollouts`` (Q = I₃, R = I₆)."""
+def rollout_metrics(
+    rollouts: Rollouts, task: str, velocity_limits: np.ndarray, convention: CostConvention | None = None
+) -> pd.DataFrame:
+    """One row of :data:`METRIC_COLUMNS` per rollout of ``rollouts``, the cost under ``convention``
+    (default: the paper's Table I cost, Q = I₃, R = I₆, u₋₁ = 0)."""
+    convention = convention if convention is not None else CostConvention()
     dt = rollouts.dt
     commands, errors = rollouts.commands, rollouts.errors
-    terms = trajectory_cost(errors, commands, dt)
+    at_rest = trajectory_cost(errors, commands, dt, Q=convention.error_weight(errors.shape[-1]))  # u₋₁ = 0
     start_jump = cost_rates(errors[:, :1], commands[:, :1], dt).smoothness[:, 0] * dt
+    smoothness = at_rest.smoothness if convention.udot_start == "rest" else at_rest.smoothness - start_jump
+    terms = CostTerms(at_rest.error, at_rest.effort, smoothness)
     error_norms = np.linalg.norm(errors, axis=-1)  # (B, K)
     final_error = np.linalg.norm(rollouts.final_errors, axis=-1)
     all_norms = np.concatenate([error_norms, final_error[:, None]], axis=1)  # k = 0..K
@@ -105,15 +128,21 @@ def rollout_metrics(rollouts: Rollouts, task: str, velocity_limits: np.ndarray) 
     peak_abs = magnitudes.max(axis=-1)  # (B, K): ‖uₖ‖∞
     peak_abs_step = np.argmax(peak_abs, axis=1)
     at_limit = (magnitudes >= limits * (1.0 - LIMIT_RELATIVE_TOLERANCE)).any(axis=-1)
-    second_half = error_norms[:, rollouts.steps // 2 :].mean(axis=1)
+    second_half_norms = error_norms[:, rollouts.steps // 2 :]
+    second_half = second_half_norms.mean(axis=1)
+    diagnostics = rollouts.critic_diagnostics or {}
+    nan = np.full(len(commands), np.nan)
     success = final_error <= REACH_TOLERANCE if task == "reach" else second_half <= TRACK_TOLERANCE
     return pd.DataFrame(
         {
-            "cost": terms.total,
+            "cost": convention.total(terms),
             "cost_error": terms.error,
             "cost_effort": terms.effort,
             "cost_smoothness": terms.smoothness,
             "cost_smoothness_start": start_jump,
+            "cost_table1": at_rest.total,
+            "cost_table1_first": at_rest.total - start_jump,
+            "cost_hjb": at_rest.error + at_rest.effort,
             "final_error": final_error,
             "time_to_1mm": time_to_1mm,
             "settle_time": settle_time,
@@ -125,6 +154,9 @@ def rollout_metrics(rollouts: Rollouts, task: str, velocity_limits: np.ndarray) 
             "max_abs_udot": np.abs(rates).max(axis=(1, 2)),
             "steps_at_limit": at_limit.sum(axis=1).astype(np.int64),
             "mean_error_2nd_half": second_half,
+            "median_error_2nd_half": np.median(second_half_norms, axis=1),
             "success": success,
+            "hjb_ratio_median": diagnostics.get("hjb_ratio_median", nan),
+            "critic_error_final": diagnostics.get("critic_error_final", nan),
         }
     )

@@ -5,7 +5,9 @@ For one sample (seed pose θ₀, reference x_d known over the whole horizon) it 
     min_U  V(U) = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt,   k = 0..K−1,  Q = I₃, R = I₆
     s.t.   θₖ₊₁ = θₖ + uₖΔt,  |uₖⱼ| ≤ ūⱼ,  u₋₁ = 0,  u̇ₖ = (uₖ − uₖ₋₁)/Δt,  eₖ = f(θₖ) − x_d(tₖ)
 
-over the evaluator's horizon, Δt and discretisation (docs/optimal.md). It is an *open-loop*
+over the evaluator's horizon, Δt and discretisation (docs/optimal.md), for the run's cost
+convention (:class:`snac_gym.cost.CostConvention`: without the u̇ term for ``--cost hjb``, u₋₁ = u₀
+for ``--udot-start first``, Q = q·I for ``--q-scale``). It is an *open-loop*
 reference computed with knowledge of the whole reference, not a controller.
 
 **Method** (a direct single-shooting method). θ is linear in U, so V and its exact gradient
@@ -38,7 +40,7 @@ import ctypes
 import functools
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -50,6 +52,7 @@ from evaluation.backends import simulate_kinematic
 from evaluation.metrics import rollout_metrics
 from evaluation.reference_batch import reference_trajectories
 from evaluation.samples import EvaluationSample
+from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 
 #: Name of the reference row in the results (selectable with ``--controllers optimal,...``).
@@ -78,9 +81,20 @@ SOLVER_COLUMNS = (
 
 
 def trajectory_cost_and_gradient(
-    commands: np.ndarray, q0: np.ndarray, x_d: np.ndarray, kinematics: Kinematics, dt: float
+    commands: np.ndarray,
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Kinematics,
+    dt: float,
+    convention: CostConvention | None = None,
 ) -> tuple[float, np.ndarray]:
-    """V(U) and its exact gradient ∂V/∂U (Q = I, R = I, u₋₁ = 0).
+    """V(U) and its exact gradient ∂V/∂U under ``convention`` (default: Q = I, R = I, u₋₁ = 0).
+
+    With Q = qI and the u̇ term weighted by w (1 for ``table1``, 0 for ``hjb``)::
+
+        ∂V/∂uₖ = 2Δt uₖ + (2w/Δt)((uₖ − uₖ₋₁) − (uₖ₊₁ − uₖ)) + Δt Σ_{j>k} 2Δt q Jⱼᵀ eⱼ
+
+    (u₋₁ = u₀ for ``udot_start="first"``: the first difference is 0).
 
     Args:
         commands: ``(K, m)`` commands U.
@@ -88,7 +102,10 @@ def trajectory_cost_and_gradient(
         x_d: ``(K, n)`` desired positions x_d(tₖ), k = 0..K−1.
         kinematics: The shared kinematic model.
         dt: Control period Δt, s.
+        convention: The cost (:class:`snac_gym.cost.CostConvention`).
     """
+    convention = convention if convention is not None else CostConvention()
+    weight, q_scale = convention.smoothness_weight, convention.q_scale
     steps, m = commands.shape
     q = np.empty((steps, m))
     q[0] = q0
@@ -96,12 +113,14 @@ def trajectory_cost_and_gradient(
         q[1:] = q0 + dt * np.cumsum(commands[:-1], axis=0)
     positions, jacobians = kinematics.forward_and_jacobian_batch(q)
     errors = positions - x_d
-    g = (2.0 * dt) * np.einsum("kij,ki->kj", jacobians, errors)  # g_j = 2Δt Jⱼᵀ eⱼ
+    g = (2.0 * dt * q_scale) * np.einsum("kij,ki->kj", jacobians, errors)  # g_j = 2Δt q Jⱼᵀ eⱼ
     rates = np.diff(commands, axis=0, prepend=np.zeros((1, m)))  # uₖ − uₖ₋₁
-    value = dt * (np.einsum("ij,ij->", errors, errors) + np.einsum("ij,ij->", commands, commands))
-    value += np.einsum("ij,ij->", rates, rates) / dt
-    grad = 2.0 * dt * commands + (2.0 / dt) * rates
-    grad[:-1] -= (2.0 / dt) * rates[1:]
+    if convention.udot_start == "first":
+        rates[0] = 0.0  # u₋₁ = u₀
+    value = dt * (q_scale * np.einsum("ij,ij->", errors, errors) + np.einsum("ij,ij->", commands, commands))
+    value += weight * np.einsum("ij,ij->", rates, rates) / dt
+    grad = 2.0 * dt * commands + (2.0 * weight / dt) * rates
+    grad[:-1] -= (2.0 * weight / dt) * rates[1:]
     tail = np.zeros((steps, m))  # Σ_{j>k} g_j
     if steps > 1:
         tail[:-1] = np.cumsum(g[:0:-1], axis=0)[::-1]
@@ -149,13 +168,18 @@ def single_threaded_blas() -> Iterator[None]:
 
 
 @functools.lru_cache(maxsize=8)
-def _preconditioner(steps: int, dt: float) -> np.ndarray:
-    """Banded lower Cholesky factor L of H₀ = 2Δt I + (2/Δt) DᵀD (``cholesky_banded`` lower form)."""
-    diagonal = np.full(steps, 2.0 * dt + 4.0 / dt)
-    diagonal[-1] = 2.0 * dt + 2.0 / dt
+def _preconditioner(steps: int, dt: float, weight: float = 1.0, udot_start: str = "rest") -> np.ndarray:
+    """Banded lower Cholesky factor L of H₀ = 2Δt I + (2w/Δt) DᵀD (``cholesky_banded`` lower form).
+
+    D: first differences, with the row u₀ − u₋₁ = u₀ for ``udot_start="rest"`` only; w: the u̇ weight.
+    """
+    diagonal = np.full(steps, 2.0 * dt + 4.0 * weight / dt)
+    diagonal[-1] = 2.0 * dt + 2.0 * weight / dt
+    if udot_start == "first":
+        diagonal[0] -= 2.0 * weight / dt
     band = np.zeros((2, steps))
     band[0] = diagonal
-    band[1, :-1] = -2.0 / dt
+    band[1, :-1] = -2.0 * weight / dt
     return cholesky_banded(band, lower=True)
 
 
@@ -206,6 +230,7 @@ def solve_sample(
     gtol: float = GTOL,
     ftol: float = FTOL,
     max_iterations: int = MAX_ITERATIONS,
+    convention: CostConvention | None = None,
 ) -> OptimalSolution:
     """The optimal command sequence of one sample (see the module docstring).
 
@@ -216,17 +241,19 @@ def solve_sample(
         dt: Control period, s.
         velocity_limits: ``(m,)`` limits ū.
         initial: ``(K, m)`` start (default zeros: at rest).
+        convention: The cost solved for (default: Table I's, Q = I, u₋₁ = 0).
     """
     started = time.perf_counter()
+    convention = convention if convention is not None else CostConvention()
     steps, m = x_d.shape[0], kinematics.n_joints
     limits = np.asarray(velocity_limits, dtype=float)
-    lower = _preconditioner(steps, float(dt))
+    lower = _preconditioner(steps, float(dt), convention.smoothness_weight, convention.udot_start)
     upper = _upper_band(lower)
     start = np.zeros((steps, m)) if initial is None else np.clip(np.asarray(initial, dtype=float), -limits, limits)
 
     def in_z(z: np.ndarray) -> tuple[float, np.ndarray]:
         u = solve_banded((0, 1), upper, z.reshape(steps, m))  # u = L⁻ᵀ z
-        value, grad = trajectory_cost_and_gradient(u, q0, x_d, kinematics, dt)
+        value, grad = trajectory_cost_and_gradient(u, q0, x_d, kinematics, dt, convention)
         return value, solve_banded((1, 0), lower, grad).ravel()  # ∂V/∂z = L⁻¹ ∂V/∂u
 
     z0 = (upper[1][:, None] * start)
@@ -243,7 +270,7 @@ def solve_sample(
     if bounded:
 
         def in_u(u: np.ndarray) -> tuple[float, np.ndarray]:
-            value, grad = trajectory_cost_and_gradient(u.reshape(steps, m), q0, x_d, kinematics, dt)
+            value, grad = trajectory_cost_and_gradient(u.reshape(steps, m), q0, x_d, kinematics, dt, convention)
             return value, grad.ravel()
 
         bounds = np.repeat(np.stack([-limits, limits], axis=1)[None], steps, axis=0).reshape(-1, 2)
@@ -301,6 +328,7 @@ class OptimalJob:
     dt: float
     robot: str = "ur10"
     keep_logs: bool = False
+    convention: CostConvention = field(default_factory=CostConvention)
 
 
 def run_optimal_job(job: OptimalJob) -> Any:
@@ -316,14 +344,14 @@ def run_optimal_job(job: OptimalJob) -> Any:
     x_d, _, _ = reference_trajectories([s.reference for s in job.samples], times)
     with single_threaded_blas():
         solutions = [
-            solve_sample(np.asarray(s.q0, dtype=float), x_d[i], kinematics, job.dt, limits)
+            solve_sample(np.asarray(s.q0, dtype=float), x_d[i], kinematics, job.dt, limits, convention=job.convention)
             for i, s in enumerate(job.samples)
         ]
     commands = np.stack([s.commands for s in solutions])
     rollouts = simulate_kinematic(
         context, lambda: ReplayPolicy(commands), job.samples, job.steps, job.seeds, True, OPTIMAL
     )
-    metrics = rollout_metrics(rollouts, job.task, limits)
+    metrics = rollout_metrics(rollouts, job.task, limits, job.convention)
     metrics.insert(0, "sample", [s.index for s in job.samples])
     metrics["optimal_iterations"] = np.array([s.iterations for s in solutions], dtype=np.int64)
     metrics["optimal_evaluations"] = np.array([s.evaluations for s in solutions], dtype=np.int64)

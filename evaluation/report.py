@@ -29,10 +29,13 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from evaluation.metrics import REACH_TOLERANCE, TRACK_TOLERANCE
 from evaluation.optimal import FTOL, GTOL, OPTIMAL
 from evaluation.paper import TASK_LABELS, controller_label, paper_value
 
 _TERMS = ("cost_error", "cost_effort", "cost_smoothness", "cost_smoothness_start")
+#: V under the other conventions, whatever the run's (metrics columns).
+_CONVENTIONS = ("cost_table1", "cost_table1_first", "cost_hjb")
 
 
 def mean_confidence_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float, float]:
@@ -47,9 +50,18 @@ def mean_confidence_interval(values: np.ndarray, level: float = 0.95) -> tuple[f
 
 
 def summarise(
-    results: pd.DataFrame, efforts: Sequence[Any], tasks: Sequence[str], controllers: Sequence[str]
+    results: pd.DataFrame,
+    efforts: Sequence[Any],
+    tasks: Sequence[str],
+    controllers: Sequence[str],
+    success_threshold: float = 0.95,
 ) -> pd.DataFrame:
-    """The summary table (see the module docstring) from the results and the effort records."""
+    """The summary table (see the module docstring) from the results and the effort records.
+
+    Only controllers whose success rate on a task reaches ``success_threshold`` are ranked there
+    (``rank``, ``ratio_to_best``, ``ratio_to_snac``); the others have ``qualified`` False and NaN
+    in those columns, so that a controller that fails the task is never shown as the cheapest.
+    """
     effort_by_key = {(e.task, e.controller): e for e in efforts}
     rows = []
     for controller in controllers:
@@ -69,8 +81,13 @@ def summarise(
                     p + "n": len(part),
                 }
             )
-            for term in _TERMS:
-                row[p + term] = float(part[term].mean())
+            for term in _TERMS + _CONVENTIONS:
+                if term in part:
+                    row[p + term] = float(part[term].mean())
+            row[p + "median_error_2nd_half_median"] = float(part["median_error_2nd_half"].median())
+            for diagnostic in ("hjb_ratio_median", "critic_error_final"):
+                values = part[diagnostic] if diagnostic in part else pd.Series(dtype=float)
+                row[p + diagnostic] = float(values.median()) if values.notna().any() else math.nan
             row[p + "paper"] = paper_value(controller, task)
             row[p + "success_rate"] = float(part["success"].mean())
             row[p + "final_error_median"] = float(part["final_error"].median())
@@ -112,8 +129,13 @@ def summarise(
         p = f"{task}_"
         if p + "cost" not in summary:
             continue
-        snac = summary.loc[summary["controller"] == "snac", p + "cost"]
-        summary[p + "ratio_to_snac"] = summary[p + "cost"] / float(snac.iloc[0]) if len(snac) else math.nan
+        ranked = summary[p + "success_rate"].notna() & (summary["controller"] != OPTIMAL)
+        summary[p + "qualified"] = ranked & (summary[p + "success_rate"] >= success_threshold)
+        qualified_cost = summary[p + "cost"].where(summary[p + "qualified"])
+        summary[p + "rank"] = qualified_cost.rank(method="min")
+        summary[p + "ratio_to_best"] = qualified_cost / qualified_cost.min() if qualified_cost.notna().any() else math.nan
+        snac = qualified_cost[summary["controller"] == "snac"]
+        summary[p + "ratio_to_snac"] = qualified_cost / float(snac.iloc[0]) if len(snac) and snac.notna().all() else math.nan
         paper_snac = paper_value("snac", task)
         summary[p + "paper_ratio_to_snac"] = [
             (v / paper_snac) if v is not None and paper_snac else math.nan for v in summary[p + "paper"]
@@ -211,11 +233,13 @@ def summary_markdown(
     tasks = [t for t in config.tasks if f"{t}_cost" in summary]
     n_text = ", ".join(f"{int(summary[f'{t}_n'].max())} {TASK_LABELS[t].lower()} samples" for t in tasks)
     horizons = ", ".join(f"{t} {config.steps(t)} steps ({config.steps(t) * config.dt:g} s)" for t in tasks)
+    convention = config.convention
+    threshold = getattr(config, "success_threshold", 0.95)
     lines = [
         "# Trajectory cost V/N (Table I of the paper)",
         "",
         f"Backend `{config.backend}`, {n_text}, seed {config.seed}, Δt = {config.dt:g} s, horizons: {horizons}. "
-        f"V = Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt with Q = I, R = I, u₋₁ = 0; V/N is the mean over samples, "
+        f"{convention.describe()}; V/N is the mean over samples, "
         "± its standard deviation, with the 95 % confidence interval of the mean. "
         + (
             "Equal effort: " + effort_statistic + " matched (table below)."
@@ -223,22 +247,77 @@ def summary_markdown(
             else "No effort matching (each controller at its own settings)."
         ),
         "",
+        f"Success: reach ends within {REACH_TOLERANCE * 1e3:g} mm, track's mean error over the second half is "
+        f"within {TRACK_TOLERANCE * 1e3:g} mm. Only controllers with a success rate of at least {threshold:.0%} on a "
+        "task are ranked there (rank, ratio to the best, ratio to SNAC); the others are marked **fails** and are "
+        "never ranked, whatever their cost. Accuracy: median final error (reach) or median over samples of the "
+        "median error over the second half (track).",
+        "",
     ]
     header = "| Controller |" + "".join(
-        f" {TASK_LABELS[t]} V/N (ours) | 95 % CI | paper | ratio to SNAC (ours / paper) |" for t in tasks
+        f" {TASK_LABELS[t]} V/N (ours) | 95 % CI | paper | success | accuracy (mm) | rank (ratio to best) "
+        "| ratio to SNAC (ours / paper) |"
+        for t in tasks
     )
-    lines += [header, "|---|" + "---|---|---|---|" * len(tasks)]
+    lines += [header, "|---|" + "---|---|---|---|---|---|---|" * len(tasks)]
     for _, row in summary.iterrows():
         cells = [row["label"]]
         for t in tasks:
             p = f"{t}_"
+            accuracy = row[p + ("final_error_median" if t == "reach" else "median_error_2nd_half_median")] * 1e3
+            if row["controller"] == OPTIMAL:
+                standing = "reference"
+            elif bool(row.get(p + "qualified", False)):
+                standing = f"{int(row[p + 'rank'])} ({_number(row[p + 'ratio_to_best'])})"
+            else:
+                standing = "**fails**"
             cells += [
                 f"{_number(row[p + 'cost'])} ± {_number(row[p + 'cost_std'])}",
                 f"[{_number(row[p + 'cost_ci95_low'])}, {_number(row[p + 'cost_ci95_high'])}]",
                 _number(row[p + "paper"]),
+                f"{row[p + 'success_rate']:.1%}",
+                _number(accuracy, 3),
+                standing,
                 f"{_number(row[p + 'ratio_to_snac'])} / {_number(row[p + 'paper_ratio_to_snac'])}",
             ]
         lines.append("| " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "## V/N under each cost convention",
+        "",
+        "The same rollouts scored three ways: Table I's cost with the jump from rest (u₋₁ = 0), without it "
+        "(u₋₁ = u₀), and the cost the controllers are derived for, Σ (eᵀQe + uᵀRu) Δt (no u̇ term). "
+        f"Q = {'I' if convention.q_scale == 1.0 else f'{convention.q_scale:g}·I'}, R = I.",
+        "",
+        "| Controller |" + "".join(f" {TASK_LABELS[t]}: u₋₁ = 0 | u₋₁ = u₀ | HJB cost |" for t in tasks),
+        "|---|" + "---|---|---|" * len(tasks),
+    ]
+    for _, row in summary.iterrows():
+        cells = [row["label"]]
+        for t in tasks:
+            p = f"{t}_"
+            cells += [_general_number(row.get(p + c, math.nan)) for c in _CONVENTIONS]
+        lines.append("| " + " | ".join(cells) + " |")
+    critics = [
+        (t, row) for t in tasks for _, row in summary.iterrows() if not pd.isna(row.get(f"{t}_hjb_ratio_median", math.nan))
+    ]
+    if critics:
+        lines += [
+            "",
+            "## How far the critics are from optimal",
+            "",
+            "Per rollout, the median over the run of the critic's HJB residual r/eᵀQe (0 for the optimal value "
+            "function; sampled every 0.2 s) and, for regulation, ‖P̂ − P*(J)‖/‖P*‖ at the last step (P*: the "
+            "frozen-Jacobian optimum); the medians over samples (docs/snac.md).",
+            "",
+            "| Task | Controller | median r/eᵀQe | median final critic error |",
+            "|---|---|---|---|",
+        ]
+        for t, row in critics:
+            lines.append(
+                f"| {t} | {row['label']} | {_general_number(row[f'{t}_hjb_ratio_median'])} | "
+                f"{_general_number(row.get(f'{t}_critic_error_final', math.nan))} |"
+            )
     for t in tasks:
         p = f"{t}_"
         lines += [
@@ -364,7 +443,7 @@ def write_reports(
     """Write ``summary.csv``, ``summary.md`` and ``cost_boxplot.png`` into ``root``."""
     controllers = list(dict.fromkeys(results["controller"]))
     tasks = [t for t in config.tasks if (results["task"] == t).any()]
-    summary = summarise(results, efforts, tasks, controllers)
+    summary = summarise(results, efforts, tasks, controllers, getattr(config, "success_threshold", 0.95))
     summary.to_csv(root / "summary.csv", index=False, float_format="%.10g")
     (root / "summary.md").write_text(
         summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results)

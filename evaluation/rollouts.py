@@ -34,6 +34,8 @@ class Rollouts:
         final_q: ``(B, m)`` θ_K after the last step.
         final_x: ``(B, n)`` f(θ_K).
         final_errors: ``(B, n)`` e_K.
+        critic_diagnostics: For critic-based controllers, ``hjb_ratio_median`` and
+            ``critic_error_final`` ``(B,)`` (:func:`summarise_critic_diagnostics`); ``None`` otherwise.
     """
 
     dt: float
@@ -47,6 +49,7 @@ class Rollouts:
     final_q: np.ndarray
     final_x: np.ndarray
     final_errors: np.ndarray
+    critic_diagnostics: dict[str, np.ndarray] | None = None
 
     @property
     def count(self) -> int:
@@ -101,6 +104,12 @@ def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
     def stack(prefix: str) -> np.ndarray:
         return np.stack([log_array(log, prefix) for log in logs])
 
+    diagnostics = None
+    if all("hjb_ratio" in log.columns for log in logs):
+        diagnostics = summarise_critic_diagnostics(
+            np.stack([log["hjb_ratio"].to_numpy() for log in logs]),
+            np.stack([log["critic_error"].to_numpy() for log in logs]) if "critic_error" in logs[0] else None,
+        )
     return Rollouts(
         dt=float(logs[0].attrs["dt"]),
         times=logs[0]["t"].to_numpy(),
@@ -113,4 +122,20 @@ def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
         final_q=np.array([log.attrs["final_q"] for log in logs], dtype=float),
         final_x=np.array([log.attrs["final_x"] for log in logs], dtype=float),
         final_errors=np.array([log.attrs["final_e"] for log in logs], dtype=float),
+        critic_diagnostics=diagnostics,
     )
+
+
+def summarise_critic_diagnostics(hjb_ratio: np.ndarray, critic_error: np.ndarray | None) -> dict[str, np.ndarray]:
+    """Per rollout: the median of r/eᵀQe over the (sampled) steps and the last critic error.
+
+    Args:
+        hjb_ratio: ``(B, S)`` the critic's HJB residual ratio at S steps.
+        critic_error: ``(B, S)`` its critic error at the same steps (regulation), or ``None``.
+    """
+    with np.errstate(all="ignore"):
+        median = np.nanmedian(np.where(np.isfinite(hjb_ratio), hjb_ratio, np.nan), axis=1) if hjb_ratio.size else None
+    out = {"hjb_ratio_median": median}
+    if critic_error is not None:
+        out["critic_error_final"] = critic_error[:, -1]
+    return out

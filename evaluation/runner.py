@@ -32,6 +32,7 @@ import dataclasses
 import difflib
 import functools
 import hashlib
+import inspect
 import json
 import math
 import threading
@@ -67,8 +68,9 @@ from evaluation.samples import (
     write_samples_csv,
 )
 from evaluation.store import RunStore, settings_key
+from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
-from snac_gym.policies.registry import available_policies, make_policy
+from snac_gym.policies.registry import available_policies, make_policy, policy_factory
 from snac_gym.sampling import SampleSpace
 
 #: Default horizon per task, s: at least every controller's 95th-percentile settling time,
@@ -130,6 +132,12 @@ class EvaluationConfig:
         controller_kwargs: Constructor arguments per controller name.
         progress: Show a progress bar.
         use_batch: Let policies that offer the batch protocol run in lockstep batches.
+        cost: The trajectory cost of the comparison (:data:`snac_gym.cost.COSTS`): ``"table1"``
+            (with the u̇ term) or ``"hjb"`` (``Σ (eᵀQe + uᵀRu) Δt``); ``optimal`` solves for it.
+        udot_start: u₋₁ of the u̇ term: ``"rest"`` (0) or ``"first"`` (u₀).
+        q_scale: Q = q_scale·I in the cost; controllers whose constructor takes ``Q`` (``snac``,
+            ``lqr``, ``snac-hjb``) get the same Q unless ``controller_kwargs`` sets it.
+        success_threshold: Success rate a controller must reach to be ranked in the summary.
     """
 
     out: Path
@@ -158,6 +166,15 @@ class EvaluationConfig:
     controller_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     progress: bool = True
     use_batch: bool = True
+    cost: str = "table1"
+    udot_start: str = "rest"
+    q_scale: float = 1.0
+    success_threshold: float = 0.95
+
+    @property
+    def convention(self) -> CostConvention:
+        """The :class:`~snac_gym.cost.CostConvention` of ``cost``, ``udot_start`` and ``q_scale``."""
+        return CostConvention(self.cost, self.udot_start, self.q_scale)
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad option."""
@@ -201,6 +218,9 @@ class EvaluationConfig:
             )
         if self.chunk_size < 1:
             raise ValueError(f"chunk_size must be at least 1, got {self.chunk_size}")
+        self.convention  # noqa: B018  (validates cost, udot_start and q_scale)
+        if not 0.0 <= self.success_threshold <= 1.0:
+            raise ValueError(f"success_threshold must be in [0, 1], got {self.success_threshold}")
         if not str(self.out).strip():
             raise ValueError("out (--out) must name a folder, got an empty path")
 
@@ -274,6 +294,9 @@ class EvaluationConfig:
             "space": dataclasses.asdict(space),
             "controller_kwargs": {k: dict(v) for k, v in self.controller_kwargs.items()},
             "use_batch": self.use_batch,
+            "cost": self.cost,
+            "udot_start": self.udot_start,
+            "q_scale": self.q_scale,
         }
 
 
@@ -355,6 +378,14 @@ def controller_input_hashes(policies: Sequence[Any], kwargs: Mapping[str, Any]) 
     return hashes
 
 
+def _takes_argument(name: str, argument: str) -> bool:
+    """Whether the controller registered as ``name`` has a constructor argument ``argument``."""
+    try:
+        return argument in inspect.signature(policy_factory(name)).parameters
+    except (TypeError, ValueError):
+        return False
+
+
 def default_controller_order(names: Sequence[str]) -> list[str]:
     """Table I's rows first, in the paper's order (RNN, SVF, SNAC), then the other names sorted."""
     paper = [name for name in PAPER_TABLE_I if name in names]
@@ -392,6 +423,8 @@ def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec],
         if name not in known:
             raise ValueError(f"unknown controller {name!r}; registered: {', '.join(sorted(known))}")
         kwargs = dict(config.controller_kwargs.get(name, {}))
+        if config.q_scale != 1.0 and "Q" not in kwargs and _takes_argument(name, "Q"):
+            kwargs["Q"] = [config.q_scale] * Kinematics(config.robot).task_dim  # the cost's Q, as a diagonal
         try:
             policies = [
                 make_policy(name, policy_context(config.robot, config.dt, task), **kwargs) for task in config.tasks
@@ -580,6 +613,7 @@ class _Evaluation:
                 backend=self.config.backend,
                 keep_logs=keep_logs,
                 use_batch=self.config.use_batch,
+                convention=self.config.convention,
             )
             for i in range(0, len(samples), size)
         ]
@@ -632,6 +666,7 @@ class _Evaluation:
                     dt=config.dt,
                     robot=config.robot,
                     keep_logs=config.save_trajectories,
+                    convention=config.convention,
                 )
                 path = self.store.part_path(task, OPTIMAL, key, chunk)
                 task_paths.append(path)

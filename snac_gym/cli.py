@@ -180,6 +180,10 @@ def evaluate(
     param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
     batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    cost: str = typer.Option("table1", "--cost", help="table1 (Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt, the paper's Table I) or hjb (Σ (eᵀQe + uᵀRu) Δt, the cost of eqs. 6/32); `optimal` solves for it."),
+    udot_start: str = typer.Option("rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."),
+    q_scale: float = typer.Option(1.0, "--q-scale", help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q."),
+    success_threshold: float = typer.Option(0.95, "--success-threshold", help="Success rate a controller needs to be ranked in the summary."),
 ) -> None:
     """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
     import time
@@ -209,6 +213,7 @@ def evaluate(
             calibration_samples=calibration_samples, samples_file=samples_file, export_samples=export_samples,
             save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
             robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, use_batch=batch,
+            cost=cost, udot_start=udot_start, q_scale=q_scale, success_threshold=success_threshold,
             **({} if chunk_size is None else {"chunk_size": chunk_size}),
         )
         if export_only:

@@ -159,3 +159,58 @@ def trajectory_cost(
         effort=rates.effort.sum(axis=-1) * dt,
         smoothness=rates.smoothness.sum(axis=-1) * dt,
     )
+
+
+#: Trajectory costs a comparison can use (``snac-gym evaluate --cost``).
+COSTS = ("table1", "hjb")
+#: What u₋₁ is in the smoothness term (``--udot-start``): ``rest`` u₋₁ = 0, ``first`` u₋₁ = u₀.
+UDOT_STARTS = ("rest", "first")
+
+
+@dataclass(frozen=True)
+class CostConvention:
+    """Which trajectory cost a comparison is scored by (issue 12).
+
+    * ``cost="table1"``: the paper's Section V cost ``Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt``;
+    * ``cost="hjb"``: the cost the controllers are derived for (eqs. 6, 32),
+      ``Σ (eᵀQe + uᵀRu) Δt``, without the u̇ term;
+    * ``udot_start``: ``"rest"`` (u₋₁ = 0: the jump from rest to the first command counts, the
+      project's reading of Table I) or ``"first"`` (u₋₁ = u₀: it does not);
+    * ``q_scale``: Q = q_scale·I, to price the error in other units (q_scale = 10⁶ prices it
+      in mm²); R = I.
+
+    Attributes:
+        cost, udot_start, q_scale: As above.
+    """
+
+    cost: str = "table1"
+    udot_start: str = "rest"
+    q_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.cost not in COSTS:
+            raise ValueError(f"cost must be one of {COSTS}, got {self.cost!r}")
+        if self.udot_start not in UDOT_STARTS:
+            raise ValueError(f"udot_start must be one of {UDOT_STARTS}, got {self.udot_start!r}")
+        if not (np.isfinite(self.q_scale) and self.q_scale > 0):
+            raise ValueError(f"q_scale must be a positive finite number, got {self.q_scale!r}")
+
+    @property
+    def smoothness_weight(self) -> float:
+        """1 when the u̇ term counts, 0 for the HJB cost."""
+        return 1.0 if self.cost == "table1" else 0.0
+
+    def error_weight(self, task_dim: int) -> np.ndarray | None:
+        """Q (``None``: identity, the paper's)."""
+        return None if self.q_scale == 1.0 else self.q_scale * np.eye(task_dim)
+
+    def total(self, terms: CostTerms) -> np.ndarray:
+        """V under this convention from its terms."""
+        return terms.error + terms.effort + self.smoothness_weight * terms.smoothness
+
+    def describe(self) -> str:
+        """One line for reports, e.g. ``V = Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt with Q = I, R = I, u₋₁ = 0``."""
+        integrand = "eᵀQe + uᵀRu" + (" + u̇ᵀRu̇" if self.cost == "table1" else "")
+        weight = "I" if self.q_scale == 1.0 else f"{self.q_scale:g}·I"
+        start = "" if self.cost == "hjb" else (", u₋₁ = 0" if self.udot_start == "rest" else ", u₋₁ = u₀")
+        return f"V = Σ ({integrand}) Δt with Q = {weight}, R = I{start}"

@@ -76,7 +76,13 @@ def test_summary_has_table_one_layout_with_paper_values_and_ratios(table_run):
         assert (summary[f"{task}_cost_ci95_low"] < summary[f"{task}_cost"]).all()
         assert summary.loc["rnn", f"{task}_paper"] == PAPER_TABLE_I["rnn"][task]
         assert np.isnan(summary.loc["dls", f"{task}_paper"])
-        assert summary.loc["snac", f"{task}_ratio_to_snac"] == 1.0
+        qualified = summary[f"{task}_success_rate"] >= config.success_threshold
+        assert (summary[f"{task}_qualified"] == qualified).all()
+        assert summary[f"{task}_rank"].notna().tolist() == qualified.tolist()  # only qualified ones are ranked
+        if qualified["snac"]:
+            assert summary.loc["snac", f"{task}_ratio_to_snac"] == 1.0
+        else:
+            assert summary[f"{task}_ratio_to_snac"].isna().all()
         assert summary.loc["svf", f"{task}_paper_ratio_to_snac"] == pytest.approx(
             PAPER_TABLE_I["svf"][task] / PAPER_TABLE_I["snac"][task]
         )

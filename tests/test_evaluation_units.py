@@ -7,6 +7,7 @@ import functools
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from evaluation.backends import RolloutError, simulate_kinematic, simulate_pybullet
@@ -350,6 +351,55 @@ def test_metrics_of_a_hand_made_rollout():
     )
     far_row = rollout_metrics(far, "reach", limits).iloc[0]
     assert np.isnan(far_row["time_to_1mm"]) and np.isnan(far_row["settle_time"]) and not far_row["success"]
+
+
+@pytest.mark.parametrize(("cost", "udot_start", "q_scale"), [("table1", "rest", 1.0), ("table1", "first", 1e6), ("hjb", "rest", 100.0)])
+def test_cost_conventions_score_the_same_rollout_by_hand(cost, udot_start, q_scale):
+    """cost, cost_table1, cost_table1_first and cost_hjb against sums written out step by step."""
+    from snac_gym.cost import CostConvention
+
+    rng = np.random.default_rng(3)
+    errors, commands = rng.normal(scale=0.05, size=(2, 5, 3)), rng.normal(size=(2, 5, 6))
+    rollouts = Rollouts(DT, np.arange(5) * DT, None, commands, None, errors * 0, errors * 0, errors,
+                        np.zeros((2, 6)), np.zeros((2, 3)), np.zeros((2, 3)))
+    rows = rollout_metrics(rollouts, "reach", np.full(6, 10.0), CostConvention(cost, udot_start, q_scale))
+    for b in range(2):
+        error = sum(q_scale * errors[b, k] @ errors[b, k] * DT for k in range(5))
+        effort = sum(commands[b, k] @ commands[b, k] * DT for k in range(5))
+        jumps = [commands[b, 0]] + [commands[b, k] - commands[b, k - 1] for k in range(1, 5)]
+        smooth_rest = sum(j @ j / DT for j in jumps)
+        smooth_first = smooth_rest - jumps[0] @ jumps[0] / DT
+        row = rows.iloc[b]
+        assert row["cost_table1"] == pytest.approx(error + effort + smooth_rest, rel=1e-12)
+        assert row["cost_table1_first"] == pytest.approx(error + effort + smooth_first, rel=1e-12)
+        assert row["cost_hjb"] == pytest.approx(error + effort, rel=1e-12)
+        expected = {"table1": smooth_rest if udot_start == "rest" else smooth_first, "hjb": 0.0}[cost]
+        assert row["cost"] == pytest.approx(error + effort + expected, rel=1e-12)
+    with pytest.raises(ValueError, match="cost must be one of"):
+        CostConvention("total")
+    with pytest.raises(ValueError, match="q_scale must be a positive finite number"):
+        CostConvention(q_scale=float("nan"))
+
+
+def test_a_controller_that_fails_the_task_is_never_ranked_cheapest():
+    from evaluation.report import summarise
+
+    rows = []
+    for controller, cost, success in (("cheap_but_fails", 1.0, False), ("snac", 5.0, True), ("dls", 3.0, True)):
+        for sample in range(4):
+            rows.append({
+                "task": "reach", "controller": controller, "sample": sample, "cost": cost, "success": success,
+                "final_error": 0.1 if not success else 1e-4, "time_to_1mm": np.nan, "settle_time": np.nan,
+                "max_abs_u": 1.0, "peak_limit_fraction": 0.5, "max_norm_u": 1.0, "median_error_2nd_half": 0.1,
+                **{term: cost / 3 for term in ("cost_error", "cost_effort", "cost_smoothness")},
+                "cost_smoothness_start": 0.0,
+            })
+    summary = summarise(pd.DataFrame(rows), [], ["reach"], ["cheap_but_fails", "snac", "dls"], 0.95).set_index("controller")
+    assert not summary.loc["cheap_but_fails", "reach_qualified"]
+    assert np.isnan(summary.loc["cheap_but_fails", "reach_rank"]) and np.isnan(summary.loc["cheap_but_fails", "reach_ratio_to_best"])
+    assert summary.loc["dls", "reach_rank"] == 1 and summary.loc["snac", "reach_rank"] == 2
+    assert summary.loc["snac", "reach_ratio_to_best"] == pytest.approx(5 / 3)
+    assert summary.loc["dls", "reach_ratio_to_snac"] == pytest.approx(3 / 5)
 
 
 # -- knob search ---------------------------------------------------------------------------------

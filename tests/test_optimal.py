@@ -12,7 +12,7 @@ from evaluation import EvaluationConfig, run_evaluation
 from evaluation.optimal import OPTIMAL, solve_sample, trajectory_cost_and_gradient
 from evaluation.reference_batch import reference_trajectories
 from evaluation.samples import generate_samples
-from snac_gym.cost import trajectory_cost
+from snac_gym.cost import CostConvention, trajectory_cost
 from snac_gym.kinematics import Kinematics
 from snac_gym.rollout import log_array, read_log
 from snac_gym.sampling import SampleSpace
@@ -30,22 +30,45 @@ def track_sample(ur10):
     return generate_samples(ur10, SampleSpace.for_robot(ur10), 0, "track", [0])[0]
 
 
-def test_cost_and_gradient_match_the_shared_cost_and_finite_differences(ur10, track_sample):
+@pytest.mark.parametrize(
+    "convention", [CostConvention(), CostConvention("table1", "first", 50.0), CostConvention("hjb", q_scale=1e4)]
+)
+def test_cost_and_gradient_match_the_shared_cost_and_finite_differences(ur10, track_sample, convention):
     steps = 20
     x_d = reference_trajectories([track_sample.reference], np.arange(steps) * DT)[0][0]
     commands = np.random.default_rng(0).normal(scale=0.3, size=(steps, ur10.n_joints))
-    value, grad = trajectory_cost_and_gradient(commands, track_sample.q0, x_d, ur10, DT)
+    value, grad = trajectory_cost_and_gradient(commands, track_sample.q0, x_d, ur10, DT, convention)
     q = track_sample.q0 + DT * np.vstack([np.zeros(ur10.n_joints), np.cumsum(commands[:-1], axis=0)])
     errors = np.array([ur10.forward(qk) for qk in q]) - x_d
-    assert value == pytest.approx(float(trajectory_cost(errors, commands, DT).total), rel=1e-12)
+    initial = commands[0] if convention.udot_start == "first" else None
+    terms = trajectory_cost(errors, commands, DT, Q=convention.error_weight(3), initial_command=initial)
+    assert value == pytest.approx(float(convention.total(terms)), rel=1e-12)
     numeric = np.zeros_like(commands)
     for index in np.ndindex(commands.shape):
         step = np.zeros_like(commands)
         step[index] = 1e-6
-        plus = trajectory_cost_and_gradient(commands + step, track_sample.q0, x_d, ur10, DT)[0]
-        minus = trajectory_cost_and_gradient(commands - step, track_sample.q0, x_d, ur10, DT)[0]
+        plus = trajectory_cost_and_gradient(commands + step, track_sample.q0, x_d, ur10, DT, convention)[0]
+        minus = trajectory_cost_and_gradient(commands - step, track_sample.q0, x_d, ur10, DT, convention)[0]
         numeric[index] = (plus - minus) / 2e-6
     np.testing.assert_allclose(grad, numeric, rtol=0, atol=1e-6 * np.abs(grad).max())
+
+
+def test_the_hjb_optimum_is_below_the_frozen_jacobian_lqr(ur10, track_sample):
+    """Without the u̇ term the optimum is close to, and never above, the LQR law's open-loop cost."""
+    from evaluation.backends import simulate_kinematic
+    from evaluation.jobs import policy_context
+    from evaluation.metrics import rollout_metrics
+    from snac_gym.policies import make_policy
+
+    convention = CostConvention("hjb")  # Q = I: far from the velocity limits
+    sample = generate_samples(ur10, SampleSpace.for_robot(ur10), 0, "reach", [1])[0]
+    steps = 1500  # the evaluator's 12 s: the finite horizon's end hardly matters (at 2 s lqr costs 5 % more)
+    x_d = reference_trajectories([sample.reference], np.arange(steps) * DT)[0][0]
+    solution = solve_sample(sample.q0, x_d, ur10, DT, ur10.velocity_limits, convention=convention)
+    context = policy_context("ur10", DT, "reach")
+    lqr = simulate_kinematic(context, lambda: make_policy("lqr", context, q_scale=1.0), [sample], steps, [0])
+    lqr_cost = float(rollout_metrics(lqr, "reach", ur10.velocity_limits, convention)["cost"].iloc[0])
+    assert solution.converged and not solution.bounded and solution.cost <= lqr_cost <= 1.05 * solution.cost
 
 
 def test_solver_converges_to_the_same_optimum_with_a_tighter_tolerance(ur10, track_sample):

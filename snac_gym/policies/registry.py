@@ -54,6 +54,15 @@ def available_policies() -> list[str]:
     return sorted(set(_BUILTIN) | set(_FACTORIES) | set(_entry_points()))
 
 
+def policy_factory(name: str) -> Callable[..., Any]:
+    """The class (or factory) registered as ``name``, without building a policy.
+
+    Raises:
+        ValueError: If no policy is registered under ``name``.
+    """
+    return _resolve(name)
+
+
 def _resolve(name: str) -> Callable[..., Any]:
     if name in _FACTORIES:
         return _FACTORIES[name]
