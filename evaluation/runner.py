@@ -954,7 +954,9 @@ def _match_one(evaluation: _Evaluation, task: str, spec: ControllerSpec, target:
             match = evaluation.search_knob(task, spec, search_target, start, round_number, subset, horizon)
         rows = evaluation.run_passes([(task, spec, {**spec.kwargs, spec.knob: match.value})])[0]
         effort = statistic.of(rows)
-        matched = _within(effort, target, config.effort_tolerance)
+        # A failed search is never "matched", even when the full pass happens to land within the
+        # tolerance: the knob it reports is then not one that was searched for.
+        matched = match.matched and _within(effort, target, config.effort_tolerance)
         last_round = round_number == MAX_MATCH_ROUNDS
         if statistic.is_maximum and match.matched and not last_round:
             threshold = search_target * (1.0 - config.effort_tolerance / 4)
@@ -975,7 +977,7 @@ def _match_one(evaluation: _Evaluation, task: str, spec: ControllerSpec, target:
         note = ""
         if not matched:
             if not match.matched:
-                note = f"knob search failed: {match.reason}"
+                note = f"knob search failed: {match.reason}; the full pass reached {effort:.4g} (target {target:.4g})"
             elif not statistic.is_maximum and not last_round:
                 # The screening samples mis-predict the whole set by effort/match.effort: aim off by as much.
                 search_target = search_target * match.effort / effort

@@ -314,3 +314,44 @@ def test_max_statistic_refines_on_the_critical_samples_the_screening_missed(tmp_
     assert knob == pytest.approx(screened_all.loc[screened_all["controller"] == "dls", "effort_value"].iloc[0], rel=0.02)
     summary = pd.read_csv(tmp_path / "two" / "summary.csv").set_index("controller")
     assert summary.loc["dls", "reach_effort_passes"] == 2 and summary.loc["dls", "reach_effort_role"] == "matched"
+
+
+class _CappedElbow:
+    """Drives the elbow at gain·c rad/s, c = 3.0 on two chosen episodes and 3.14 on the others: its
+    effort (max |u|) saturates, lower on the screening samples than on the whole set."""
+
+    effort_parameter = "gain"
+    low_seeds: frozenset[int] = frozenset()
+
+    def __init__(self, env, gain: float = 0.5) -> None:
+        from snac_gym.policies.base import PolicyContext
+
+        self.context = PolicyContext.from_env(env)
+        self.gain = float(gain)
+        self.caps = np.array([3.14])
+
+    def reset_batch(self, seeds):
+        self.caps = np.array([3.0 if seed in self.low_seeds else 3.14 for seed in seeds])
+
+    def act_batch(self, obs_batch):
+        commands = np.zeros((len(obs_batch), 6))
+        commands[:, 2] = np.minimum(self.gain, 1.0) * self.caps
+        return commands
+
+
+def test_a_failed_knob_search_is_labelled_unmatched_even_when_the_full_pass_lands_near(tmp_path):
+    from evaluation.samples import policy_seed
+
+    _CappedElbow.low_seeds = frozenset(policy_seed(0, "reach", i) for i in (0, 1))
+    register_policy("evaltest-capped", _CappedElbow, overwrite=True)
+    config = _config(tmp_path, controllers=("evaltest-capped",), tasks=("reach",), samples=4, calibration_samples=2,
+                     effort_target=3.19)
+    results = run_evaluation(config)
+    summary = pd.read_csv(tmp_path / "summary.csv").set_index("controller")
+    assert results["max_abs_u"].max() == pytest.approx(3.14)  # within 2 % of 3.19 over the whole set...
+    assert summary.loc["evaltest-capped", "reach_effort_role"] == "unmatched"  # ...but the search failed
+    note = summary.loc["evaltest-capped", "reach_effort_note"]
+    assert "knob search failed" in note and "reached 3.14 (target 3.19)" in note
+    # the least aggressive knob tried that reaches the controller's own ceiling (gain 1 reaches it)
+    assert 1.0 <= summary.loc["evaltest-capped", "reach_effort_value"] <= 1.1
+    assert "unmatched" in (tmp_path / "summary.md").read_text()
