@@ -184,6 +184,9 @@ def evaluate(
     udot_start: str = typer.Option("rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."),
     q_scale: float = typer.Option(1.0, "--q-scale", help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q."),
     success_threshold: float = typer.Option(0.95, "--success-threshold", help="Success rate a controller needs to be ranked in the summary."),
+    sweep: bool = typer.Option(False, "--sweep/--no-sweep", help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against success, error and peak effort; docs/evaluation.md)."),
+    sweep_points: int = typer.Option(7, "--sweep-points", help="Knob values per controller and task in the sweep (2 to 25), plus the equal-effort point."),
+    sweep_span: float = typer.Option(4.0, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically."),
 ) -> None:
     """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
     import time
@@ -221,7 +224,12 @@ def evaluate(
             return
         start = time.perf_counter()
         with _sigterm_as_interrupt():
-            run_evaluation(config)
+            if sweep:
+                from evaluation.sweep import run_sweep
+
+                run_sweep(config, points=sweep_points, span=sweep_span)
+            else:
+                run_evaluation(config)
     except (ValueError, RuntimeError, OSError) as exc:  # bad options, samples file, controller, output folder: a clean message
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
@@ -234,6 +242,8 @@ def evaluate(
     for line in summary.splitlines():  # an unmatched effort makes the comparison unequal: say so on stderr too
         if line.startswith("**Warning:**"):
             typer.echo("warning: " + line.removeprefix("**Warning:**").strip(), err=True)
+    if sweep:
+        typer.echo(f"\ntrade-off sweep: {out_dir / 'sweep.csv'} and {out_dir / 'tradeoff.png'}")
     typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; results, summary and plots in {out_dir}/")
 
 
