@@ -38,7 +38,7 @@ def test_registered_with_an_effort_knob():
 def test_command_is_eq_15_from_the_critic_plus_the_feed_forward(ur10, rng, task):
     context = _context(ur10, task)
     R = _spd(rng, 6)
-    policy = SNACHJBPolicy(context, R=R, q_scale=2.0)
+    policy = SNACHJBPolicy(context, R=R, q_scale=2.0, warm_start_iterations=0)
     policy.reset(seed=4)
     q, e, xdot_d = rng.uniform(-2, 2, 6), rng.normal(scale=0.1, size=3), rng.normal(scale=0.05, size=3)
     P = quadratic_weights_to_matrix(policy.critic_weights, 3)
@@ -54,7 +54,7 @@ def test_one_full_step_is_kleinmans_newton_step(ur10, rng):
     """α·Δt = 1 at e = 0 (only the fixed directions): P̂⁺ solves P⁺A + AᵀP⁺ + Q + P̂GP̂ = 0, A = −GP̂."""
     context = _context(ur10)
     Q = _spd(rng, 3)
-    policy = SNACHJBPolicy(context, Q=Q, learning_rate=1.0 / DT, regularisation=1e-14)
+    policy = SNACHJBPolicy(context, Q=Q, learning_rate=1.0 / DT, regularisation=1e-14, warm_start_iterations=0)
     policy.reset(seed=1)
     P = quadratic_weights_to_matrix(policy.critic_weights, 3)
     q = rng.uniform(-2, 2, 6)
@@ -69,7 +69,7 @@ def test_one_full_step_is_kleinmans_newton_step(ur10, rng):
 def test_the_critic_converges_to_the_are_solution_at_a_fixed_pose(ur10, rng):
     context = _context(ur10)
     Q, R = _spd(rng, 3), _spd(rng, 6)
-    policy = SNACHJBPolicy(context, Q=Q, R=R, learning_rate=60.0)
+    policy = SNACHJBPolicy(context, Q=Q, R=R, learning_rate=60.0, warm_start_iterations=0)
     policy.reset(seed=8)
     q = rng.uniform(-2, 2, 6)
     for _ in range(200):
@@ -78,6 +78,26 @@ def test_the_critic_converges_to_the_are_solution_at_a_fixed_pose(ur10, rng):
     np.testing.assert_allclose(quadratic_weights_to_matrix(policy.critic_weights, 3), expected, rtol=1e-8)
     out = policy.critic_diagnostics(q[None], rng.normal(size=(1, 3)), None, None, None, policy.critic_weights[None])
     assert out["critic_error"][0] < 1e-8 and abs(out["hjb_ratio"][0]) < 1e-8
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_the_warm_start_converges_before_the_first_command(ur10, rng, task):
+    """With warm_start_iterations, the first command is already the LQR's: u = J⁺_R ẋ_d − R⁻¹JᵀP*e."""
+    context = _context(ur10, task)
+    Q, R = _spd(rng, 3), _spd(rng, 6)
+    policy = SNACHJBPolicy(context, Q=Q, R=R, q_scale=30.0)
+    policy.reset(seed=2)
+    q, e, xdot_d = rng.uniform(-2, 2, 6), rng.normal(scale=0.1, size=3), rng.normal(scale=0.05, size=3)
+    jac = ur10.jacobian(q)
+    P = solve_continuous_are(np.zeros((3, 3)), jac, 30.0 * Q, R)
+    r_inv = np.linalg.inv(R)
+    expected = -r_inv @ jac.T @ P @ e
+    if task == "track":
+        expected += r_inv @ jac.T @ np.linalg.solve(jac @ r_inv @ jac.T, xdot_d)
+    np.testing.assert_allclose(policy.act(_obs(context, q, e, xdot_d)), expected, rtol=1e-8)
+    # the same episode in the batch protocol
+    policy.reset_batch([2])
+    np.testing.assert_allclose(policy.act_batch(_obs(context, q, e, xdot_d)[None])[0], expected, rtol=1e-8)
 
 
 def test_weights_are_projected_onto_positive_definite_critics(ur10):
@@ -106,6 +126,8 @@ def test_bad_arguments_are_refused(ur10):
         SNACHJBPolicy(context, learning_rate=1000.0)
     with pytest.raises(ValueError, match="q_scale"):
         SNACHJBPolicy(context, q_scale=-1.0)
+    with pytest.raises(ValueError, match="warm_start_iterations"):
+        SNACHJBPolicy(context, warm_start_iterations=-1)
     with pytest.raises(ValueError, match="initial_weight_range"):
         SNACHJBPolicy(context, initial_weight_range=(1.0, 0.0))
     with pytest.raises(RuntimeError, match="reset"):

@@ -50,8 +50,12 @@ is projected (the standard projection of adaptive control) onto the convex set
 the paper's random Ŵ₀, indefinite on most seeds, converged to a non-stabilising solution in
 the reach demo (docs/snac.md).
 
-**Initial weights.** Ŵ₀ ~ U(0, 1) from the reset seed, as the paper's "initialized randomly",
-then projected.
+**Initial weights and warm start.** Ŵ₀ ~ U(0, 1) from the reset seed, as the paper's
+"initialized randomly", then projected. Before the first command the same law runs
+``warm_start_iterations`` full steps (α·Δt = 1, Kleinman's iteration) at the start pose on the
+extrapolated errors alone: the model ė = J u is known, so the critic can converge to P*(J₀)
+before the arm moves instead of paying for a poor Ŵ₀ with error while it learns. With 0
+iterations the critic starts from Ŵ₀ (docs/snac.md measures both).
 
 Args of :class:`SNACHJBPolicy` are documented there; docs/snac.md has the measurements.
 """
@@ -94,6 +98,8 @@ class SNACHJBPolicy(BasePolicy):
         stabilising_rate: α_s of the eq. 19 term, 1/s.
         regularisation: ε of Γ, relative to the trace of the Gram matrix.
         min_eigenvalue: λ_floor of the projection of P̂ (cost per m² of error).
+        warm_start_iterations: Full Kleinman steps of the residual law at the start pose, before
+            the first command (0: the critic learns only while the arm moves).
         initial_weight_range: ``(low, high)`` of the uniform Ŵ₀ (default ``(0, 1)``).
         seed: Seed of Ŵ₀ used by ``reset(seed=None)``.
 
@@ -120,6 +126,7 @@ class SNACHJBPolicy(BasePolicy):
         stabilising_rate: float = 100.0,
         regularisation: float = 1e-9,
         min_eigenvalue: float = 0.1,
+        warm_start_iterations: int = 30,
         initial_weight_range: tuple[float, float] = (0.0, 1.0),
         seed: int | None = None,
     ) -> None:
@@ -140,6 +147,11 @@ class SNACHJBPolicy(BasePolicy):
         self.stabilising_rate = positive_float("stabilising_rate", stabilising_rate)
         self.regularisation = positive_float("regularisation", regularisation)
         self.min_eigenvalue = positive_float("min_eigenvalue", min_eigenvalue)
+        if isinstance(warm_start_iterations, bool) or not isinstance(warm_start_iterations, (int, np.integer)) or not (
+            0 <= warm_start_iterations <= 1000
+        ):
+            raise ValueError(f"warm_start_iterations must be a whole number in [0, 1000], got {warm_start_iterations!r}")
+        self.warm_start_iterations = int(warm_start_iterations)
         low, high = map(float, initial_weight_range)
         if not (math.isfinite(low) and math.isfinite(high) and low <= high):
             raise ValueError(f"initial_weight_range must be finite (low, high) with low <= high, got {initial_weight_range}")
@@ -154,6 +166,7 @@ class SNACHJBPolicy(BasePolicy):
         self._rng = np.random.default_rng(seed)
         self.critic_weights = np.zeros(self.basis.size)
         self.batch_critic_weights: np.ndarray | None = None
+        self._k = self._batch_k = 0
         self._ready = False
 
     # -- episodes -------------------------------------------------------------------------------
@@ -176,6 +189,7 @@ class SNACHJBPolicy(BasePolicy):
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         self.critic_weights = self._initial_weights(self._rng)
+        self._k = 0
         self._ready = True
         self.internals = {"critic_weights": self.critic_weights}
 
@@ -183,50 +197,69 @@ class SNACHJBPolicy(BasePolicy):
         """Start ``len(seeds)`` episodes; episode i as ``reset(seed=seeds[i])`` of a fresh policy."""
         rngs = [np.random.default_rng(self._seed if seed is None else seed) for seed in seeds]
         self.batch_critic_weights = np.array([self._initial_weights(rng) for rng in rngs]).reshape(len(seeds), -1)
+        self._batch_k = 0
         self.internals = {}
 
     # -- the laws, on stacks of B episodes ---------------------------------------------------------
-    def _step(self, obs: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Commands ``(B, m)``, the updated weights ``(B, size)`` and δ(e) ``(B,)`` for ``(B, size)`` rows."""
-        errors, velocities = obs[:, self._e], obs[:, self._xdot_d]
-        jacobians = self.kinematics.jacobian_batch(obs[:, self._q])
-        P = quadratic_weights_to_matrix(weights, self.task_dim)  # V̂ = eᵀP̂e
-        r_inverse_jt = self.R_inverse @ np.swapaxes(jacobians, -1, -2)  # R⁻¹Jᵀ, (B, m, n)
-        feedback = -(r_inverse_jt @ (P @ errors[..., None]))[..., 0]  # eq. 15: −½R⁻¹Jᵀ∇V̂, ∇V̂ = 2P̂e
-        command = feedback
-        if self.task == "track":  # J⁺_R ẋ_d: ė = J u_fb, the regulation problem
-            command = feedback + (self.lqr.weighted_pseudoinverse(jacobians) @ velocities[..., None])[..., 0]
-        command = np.minimum(np.maximum(command, -self.velocity_limits), self.velocity_limits)
+    def _residual_step(
+        self, weights: np.ndarray, gram_matrix: np.ndarray, current: np.ndarray, step: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One damped Newton step ``−step·Γ Σ ω δ/ρ`` of the residual law, and δ at the current direction.
 
-        # Residuals at the fixed directions and at the current error direction.
-        norms = np.linalg.norm(errors, axis=1, keepdims=True)
-        current = np.divide(errors, norms, out=np.zeros_like(errors), where=norms > 0)
+        Args:
+            weights: Ŵ, ``(B, size)``.
+            gram_matrix: G = J R⁻¹ Jᵀ, ``(B, n, n)``.
+            current: The current error direction e/‖e‖ (0 at e = 0), ``(B, n)``.
+            step: α·Δt (1: a full Kleinman step).
+        """
+        count = len(weights)
+        P = quadratic_weights_to_matrix(weights, self.task_dim)
         directions = np.concatenate(
-            (np.broadcast_to(self.directions, (len(obs), *self.directions.shape)), current[:, None, :]), axis=1
+            (np.broadcast_to(self.directions, (count, *self.directions.shape)), current[:, None, :]), axis=1
         )  # (B, N+1, n)
         gradients = np.concatenate(
-            (np.broadcast_to(self._direction_gradients, (len(obs), *self._direction_gradients.shape)),
+            (np.broadcast_to(self._direction_gradients, (count, *self._direction_gradients.shape)),
              self.basis.gradient(current)[:, None]), axis=1,
         )  # ∇σ(d), (B, N+1, size, n)
-        gram_matrix = jacobians @ r_inverse_jt  # G = J R⁻¹ Jᵀ
         closed_loop = -np.einsum("bij,bjk,bdk->bdi", gram_matrix, P, directions)  # J û(d) = −G P̂ d
         omega = np.einsum("bdkn,bdn->bdk", gradients, closed_loop)  # ω(d) = ∇σ(d) J û(d)
-        # û(d)ᵀRû(d) = dᵀP̂GP̂d = −(P̂d)ᵀ(J û(d))
-        effort = -np.einsum("bij,bdj,bdi->bd", P, directions, closed_loop)
+        effort = -np.einsum("bij,bdj,bdi->bd", P, directions, closed_loop)  # û(d)ᵀRû(d) = dᵀP̂GP̂d
         error_cost = np.einsum("bdi,ij,bdj->bd", directions, self.Q, directions)
         residual = np.einsum("bdk,bk->bd", omega, weights) + error_cost + effort  # δ(d)
         rho = 1.0 + np.einsum("bdk,bdk->bd", omega, omega)
         gram = np.einsum("bdk,bdl,bd->bkl", omega, omega, 1.0 / rho)
         gram += (self.regularisation * np.trace(gram, axis1=1, axis2=2))[:, None, None] * np.eye(self.basis.size)
         gradient = np.einsum("bdk,bd->bk", omega, residual / rho)
-        increment = -self.learning_rate * self.dt * np.linalg.solve(gram, gradient[..., None])[..., 0]
+        return -step * np.linalg.solve(gram, gradient[..., None])[..., 0], residual[:, -1]
+
+    def _step(
+        self, obs: np.ndarray, weights: np.ndarray, first: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Commands ``(B, m)``, the weights that gave them and the updated ones ``(B, size)``, and δ(e) ``(B,)``."""
+        errors, velocities = obs[:, self._e], obs[:, self._xdot_d]
+        jacobians = self.kinematics.jacobian_batch(obs[:, self._q])
+        r_inverse_jt = self.R_inverse @ np.swapaxes(jacobians, -1, -2)  # R⁻¹Jᵀ, (B, m, n)
+        gram_matrix = jacobians @ r_inverse_jt  # G = J R⁻¹ Jᵀ
+        norms = np.linalg.norm(errors, axis=1, keepdims=True)
+        current = np.divide(errors, norms, out=np.zeros_like(errors), where=norms > 0)
+        if first:  # the law run to convergence at the start pose before the first command moves the arm
+            for _ in range(self.warm_start_iterations):
+                weights = self._project(weights + self._residual_step(weights, gram_matrix, current, 1.0)[0])
+        P = quadratic_weights_to_matrix(weights, self.task_dim)  # V̂ = eᵀP̂e
+        feedback = -(r_inverse_jt @ (P @ errors[..., None]))[..., 0]  # eq. 15: −½R⁻¹Jᵀ∇V̂, ∇V̂ = 2P̂e
+        command = feedback
+        if self.task == "track":  # J⁺_R ẋ_d: ė = J u_fb, the regulation problem
+            command = feedback + (self.lqr.weighted_pseudoinverse(jacobians) @ velocities[..., None])[..., 0]
+        command = np.minimum(np.maximum(command, -self.velocity_limits), self.velocity_limits)
+
+        increment, residual = self._residual_step(weights, gram_matrix, current, self.learning_rate * self.dt)
         # eq. 19 as a stabilising term, while the feedback does not decrease J_s = ½eᵀe.
         error_rate = (jacobians @ feedback[..., None])[..., 0]
         unstable = np.einsum("bi,bi->b", errors, error_rate) > 0
         if unstable.any():
             descent = np.einsum("bkn,bn->bk", self.basis.gradient(errors), (gram_matrix @ errors[..., None])[..., 0])
             increment += (self.stabilising_rate * self.dt) * unstable[:, None] * descent
-        return command, self._project(weights + increment), residual[:, -1] * norms[:, 0] ** 2
+        return command, weights, self._project(weights + increment), residual * norms[:, 0] ** 2
 
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
         """Commands ``(B, m)`` for ``(B, size)`` observations, row i as :meth:`act` of episode i.
@@ -236,7 +269,10 @@ class SNACHJBPolicy(BasePolicy):
         """
         if self.batch_critic_weights is None:
             raise RuntimeError("call reset_batch() before act_batch()")
-        command, self.batch_critic_weights, _ = self._step(np.asarray(obs_batch, dtype=float), self.batch_critic_weights)
+        command, _, self.batch_critic_weights, _ = self._step(
+            np.asarray(obs_batch, dtype=float), self.batch_critic_weights, first=self._batch_k == 0
+        )
+        self._batch_k += 1
         return command
 
     def act(self, obs: np.ndarray) -> np.ndarray:
@@ -250,9 +286,10 @@ class SNACHJBPolicy(BasePolicy):
         obs = np.asarray(obs, dtype=float)
         if obs.shape != (self.layout.size,):
             raise ValueError(f"observation must have shape ({self.layout.size},), got {obs.shape}")
-        used = self.critic_weights
-        command, weights, residual = self._step(obs[None], used[None])
+        command, used, weights, residual = self._step(obs[None], self.critic_weights[None], first=self._k == 0)
+        used = used[0]
         self.critic_weights = weights[0]
+        self._k += 1
         error = obs[self._e]
         self.internals = {
             "critic_weights": self.critic_weights,
