@@ -262,6 +262,8 @@ def plot_tradeoff(
     tasks = [t for t in config.tasks if (sweep["task"] == t).any()]
     names = list(dict.fromkeys(sweep["controller"]))
     colors = {name: f"C{i % 10}" for i, name in enumerate(names)}
+    # Controllers with near-equal curves (SVF and DLS in regulation) would hide one another.
+    styles = {name: ("-", "--", "-.", ":")[i % 4] for i, name in enumerate(names)}
     fig = Figure(figsize=(15, 4.4 * len(tasks) + 0.8))
     FigureCanvasAgg(fig)
     axes = fig.subplots(len(tasks), 3, squeeze=False)
@@ -282,7 +284,7 @@ def plot_tradeoff(
                 if line.empty:
                     continue
                 x, y = line[column].to_numpy(float), line["cost"].to_numpy(float)
-                ax.plot(x, y, "-", color=colors[name], alpha=0.6, lw=1.4, zorder=2)
+                ax.plot(x, y, styles[name], color=colors[name], alpha=0.7, lw=1.6, zorder=2)
                 for xi, yi, qualified, main, equal in zip(
                     x, y, line["qualified"], line["main_run"], line["equal_effort"], strict=True
                 ):
@@ -305,7 +307,7 @@ def plot_tradeoff(
             ax.set_ylabel(f"V/N ({config.cost} cost)")
             ax.grid(True, which="both", alpha=0.25)
         row_axes[0].set_title(f"{TASK_LABELS.get(task, task)} ({task})", loc="left", fontweight="bold")
-    handles = [Line2D([], [], color=colors[n], marker="o", label=controller_label(n)) for n in names]
+    handles = [Line2D([], [], color=colors[n], ls=styles[n], marker="o", label=controller_label(n)) for n in names]
     handles += [
         Line2D([], [], ls="", marker="*", ms=13, color="0.3", label="equal-effort point (main run)"),
         Line2D([], [], ls="", marker="D", ms=7, mfc="white", color="0.3", label="main run, effort unmatched"),
