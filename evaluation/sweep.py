@@ -222,7 +222,9 @@ def run_sweep(
             names = [spec.name for spec in specs]
 
             def one_point(task: str, spec: ControllerSpec, value: float, exponent: float, role: str) -> None:
-                kwargs = {**spec.kwargs, spec.knob: value}
+                # At the default, the arguments the main run used (no explicit knob): the same
+                # part files, so a reference or --no-match-effort pass is read back, not rerun.
+                kwargs = dict(spec.kwargs) if value == float(spec.knob_value) else {**spec.kwargs, spec.knob: value}
                 (table,) = evaluation.run_passes([(task, spec, kwargs)])
                 row = point_row(task, spec, value, exponent, table, role, config.success_threshold)
                 with lock:  # each point is on disk as soon as it is done
