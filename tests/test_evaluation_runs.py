@@ -355,3 +355,18 @@ def test_a_failed_knob_search_is_labelled_unmatched_even_when_the_full_pass_land
     # the least aggressive knob tried that reaches the controller's own ceiling (gain 1 reaches it)
     assert 1.0 <= summary.loc["evaltest-capped", "reach_effort_value"] <= 1.1
     assert "unmatched" in (tmp_path / "summary.md").read_text()
+
+
+def test_hjb_cost_runs_give_the_same_numbers_with_one_or_two_workers(tmp_path):
+    """The issue-12 controllers, the HJB cost, Q = 4I and the optimum: bit-identical with 1 or 2 workers."""
+    common = {"controllers": ("snac", "snac-hjb", "lqr", "optimal"), "match_effort": False, "cost": "hjb",
+              "q_scale": 4.0, "horizons": {"reach": 0.5, "track": 0.5}}
+    serial = run_evaluation(_config(tmp_path / "serial", **common))
+    parallel = run_evaluation(_config(tmp_path / "parallel", workers=2, **common))
+    timing = ["optimal_solve_time"]
+    pd.testing.assert_frame_equal(serial.drop(columns=timing), parallel.drop(columns=timing), check_exact=True)
+    np.testing.assert_allclose(serial["cost"], serial["cost_hjb"], rtol=0)  # the HJB cost has no u̇ term
+    critics = serial[serial["controller"].isin(["snac", "snac-hjb"])]
+    assert critics["hjb_ratio_median"].notna().all()
+    assert serial.loc[serial["controller"] == "lqr", "hjb_ratio_median"].isna().all()
+    assert critics.loc[critics["task"] == "reach", "critic_error_final"].notna().all()
