@@ -402,23 +402,30 @@ def summary_markdown(
     return "\n".join(lines)
 
 
-def plot_cost_boxes(results: pd.DataFrame, tasks: Sequence[str], controllers: Sequence[str], path: Path) -> Path:
-    """Box plots of the per-sample cost, one panel per task, log scale."""
+def plot_cost_boxes(
+    results: pd.DataFrame, tasks: Sequence[str], controllers: Sequence[str], path: Path, success_threshold: float = 0.95
+) -> Path:
+    """Box plots of the per-sample cost, one panel per task, log scale; controllers that fail the
+    task (success below ``success_threshold``) are drawn hatched and labelled so."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 4), squeeze=False)
-    for ax, task in zip(axes[0], tasks, strict=True):
-        data, labels = [], []
+    fig, axes = plt.subplots(len(tasks), 1, figsize=(1.5 + 0.9 * len(controllers), 3.6 * len(tasks)), squeeze=False)
+    for ax, task in zip(axes[:, 0], tasks, strict=True):
+        data, labels, failing = [], [], []
         for controller in controllers:
-            costs = results.loc[(results["task"] == task) & (results["controller"] == controller), "cost"].to_numpy()
-            if costs.size:
-                data.append(costs)
-                labels.append(controller_label(controller))
-        ax.boxplot(data, showmeans=True)
-        ax.set_xticks(range(1, len(labels) + 1), labels, rotation=15)
+            part = results.loc[(results["task"] == task) & (results["controller"] == controller)]
+            if len(part):
+                data.append(part["cost"].to_numpy())
+                fails = controller != OPTIMAL and part["success"].mean() < success_threshold
+                failing.append(fails)
+                labels.append(("optimum" if controller == OPTIMAL else controller) + ("\n(fails)" if fails else ""))
+        boxes = ax.boxplot(data, showmeans=True, patch_artist=True)
+        for box, fails in zip(boxes["boxes"], failing, strict=True):
+            box.set(facecolor="white", hatch="///" if fails else None, edgecolor="0.5" if fails else "black")
+        ax.set_xticks(range(1, len(labels) + 1), labels)
         if all(np.all(d > 0) for d in data):
             ax.set_yscale("log")
         ax.set_title(f"{TASK_LABELS[task]} ({task}), ▲ mean")
@@ -448,5 +455,5 @@ def write_reports(
     (root / "summary.md").write_text(
         summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results)
     )
-    plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png")
+    plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", getattr(config, "success_threshold", 0.95))
     return summary
