@@ -132,3 +132,22 @@ def test_bad_arguments_are_refused(ur10):
         SNACHJBPolicy(context, initial_weight_range=(1.0, 0.0))
     with pytest.raises(RuntimeError, match="reset"):
         make_policy("snac-hjb", context).act(np.zeros(context.layout.size))
+
+
+def test_diagnostics_residual_is_the_are_residual_of_the_critic(ur10, rng):
+    """For V̂ = eᵀP̂e and its own command, eq. 9's residual is eᵀ(Q − P̂GP̂)e, G = JR⁻¹Jᵀ (by hand)."""
+    context = _context(ur10)
+    Q, R = _spd(rng, 3), _spd(rng, 6)
+    policy = SNACHJBPolicy(context, Q=Q, R=R)
+    q, e = rng.uniform(-2, 2, (4, 6)), rng.normal(scale=0.1, size=(4, 3))
+    weights = rng.uniform(0.5, 2.0, (4, 6))
+    out = policy.critic_diagnostics(q, e, None, None, None, weights)
+    for k in range(4):
+        P = quadratic_weights_to_matrix(weights[k], 3)
+        jac = ur10.jacobian(q[k])
+        G = jac @ np.linalg.inv(R) @ jac.T
+        expected = e[k] @ (Q - P @ G @ P) @ e[k]
+        assert out["hjb_residual"][k] == pytest.approx(expected, rel=1e-9)
+        assert out["hjb_ratio"][k] == pytest.approx(expected / (e[k] @ Q @ e[k]), rel=1e-9)
+        star = solve_continuous_are(np.zeros((3, 3)), jac, Q, R)
+        assert out["critic_error"][k] == pytest.approx(np.linalg.norm(P - star) / np.linalg.norm(star), rel=1e-7)

@@ -71,6 +71,7 @@ import numpy as np
 from snac_gym.optimality import (
     FrozenJacobianLQR,
     critic_error,
+    hjb_residual,
     matrix_to_quadratic_weights,
     quadratic_weights_to_matrix,
 )
@@ -302,7 +303,8 @@ class SNACHJBPolicy(BasePolicy):
     def critic_diagnostics(
         self, q: np.ndarray, e: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, x_c: np.ndarray, weights: np.ndarray
     ) -> dict[str, np.ndarray]:
-        """HJB residual δ(e) = eᵀ(Q − P̂GP̂)e, δ/eᵀQe and ‖P̂ − P*(J)‖/‖P*‖ at K logged rows.
+        """HJB residual δ(e) (eq. 9, :func:`~snac_gym.optimality.hjb_residual` with û = −R⁻¹JᵀP̂e, the
+        feedback the critic commands), δ/eᵀQe and ‖P̂ − P*(J)‖/‖P*‖ at K logged rows.
 
         The critic is of the feedback problem ė = J u_fb for both tasks, so the same three hold
         for tracking (``x_d``, ``xdot_d`` and ``x_c`` are not needed; they keep the signature of
@@ -311,12 +313,11 @@ class SNACHJBPolicy(BasePolicy):
         e = np.asarray(e, dtype=float)
         jacobians = self.kinematics.jacobian_batch(np.asarray(q, dtype=float))
         P = quadratic_weights_to_matrix(np.asarray(weights, dtype=float), self.task_dim)
-        gram_matrix = jacobians @ self.R_inverse @ np.swapaxes(jacobians, -1, -2)
-        error_cost = np.einsum("ki,ij,kj->k", e, self.Q, e)
         p_e = (P @ e[..., None])[..., 0]
-        residual = error_cost - np.einsum("ki,kij,kj->k", p_e, gram_matrix, p_e)  # eᵀQe − (P̂e)ᵀG(P̂e)
+        command = -(self.R_inverse @ np.swapaxes(jacobians, -1, -2) @ p_e[..., None])[..., 0]
+        residual = hjb_residual(2.0 * p_e, jacobians, command, e, self.Q, self.R)
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = residual / error_cost
+            ratio = residual / np.einsum("ki,ij,kj->k", e, self.Q, e)
         return {
             "hjb_residual": residual,
             "hjb_ratio": ratio,
