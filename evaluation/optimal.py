@@ -45,7 +45,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import scipy.sparse as sp
 from scipy.linalg import cholesky_banded, solve_banded
+from scipy.linalg.lapack import dpbtrf, dpbtrs
 from scipy.optimize import minimize
 
 from evaluation.backends import simulate_kinematic
@@ -67,6 +69,12 @@ FTOL = 1e-13
 MAX_ITERATIONS = 5000
 #: L-BFGS memory (pairs kept).
 MEMORY = 20
+#: Unconstrained solvers of :func:`solve_sample` (the first is the default).
+METHODS = ("gauss-newton", "lbfgs")
+#: Sufficient-decrease constant of the Gauss-Newton line search (Armijo).
+ARMIJO = 1e-4
+#: Smallest step fraction the Gauss-Newton line search tries before giving up.
+MIN_STEP = 1e-10
 #: Extra columns of the optimal rows.
 SOLVER_COLUMNS = (
     "optimal_iterations",
@@ -78,6 +86,15 @@ SOLVER_COLUMNS = (
     "optimal_solver_cost",
     "optimal_solve_time",
 )
+
+
+def _angles(commands: np.ndarray, q0: np.ndarray, dt: float) -> np.ndarray:
+    """θ₀..θ_{K−1} of θₖ₊₁ = θₖ + uₖΔt (one place, so that repeated calls give bit-identical angles)."""
+    q = np.empty(commands.shape)
+    q[0] = q0
+    if len(commands) > 1:
+        q[1:] = q0 + dt * np.cumsum(commands[:-1], axis=0)
+    return q
 
 
 def trajectory_cost_and_gradient(
@@ -107,11 +124,7 @@ def trajectory_cost_and_gradient(
     convention = convention if convention is not None else CostConvention()
     weight, q_scale = convention.smoothness_weight, convention.q_scale
     steps, m = commands.shape
-    q = np.empty((steps, m))
-    q[0] = q0
-    if steps > 1:
-        q[1:] = q0 + dt * np.cumsum(commands[:-1], axis=0)
-    positions, jacobians = kinematics.forward_and_jacobian_batch(q)
+    positions, jacobians = kinematics.forward_and_jacobian_batch(_angles(commands, q0, dt))
     errors = positions - x_d
     g = (2.0 * dt * q_scale) * np.einsum("kij,ki->kj", jacobians, errors)  # g_j = 2Δt q Jⱼᵀ eⱼ
     rates = np.diff(commands, axis=0, prepend=np.zeros((1, m)))  # uₖ − uₖ₋₁
@@ -168,8 +181,8 @@ def single_threaded_blas() -> Iterator[None]:
 
 
 @functools.lru_cache(maxsize=8)
-def _preconditioner(steps: int, dt: float, weight: float = 1.0, udot_start: str = "rest") -> np.ndarray:
-    """Banded lower Cholesky factor L of H₀ = 2Δt I + (2w/Δt) DᵀD (``cholesky_banded`` lower form).
+def _effort_hessian_band(steps: int, dt: float, weight: float = 1.0, udot_start: str = "rest") -> np.ndarray:
+    """Lower band ``(2, K)`` of H₀ = 2Δt I + (2w/Δt) DᵀD, the fixed Hessian of V's effort + smoothness part in u.
 
     D: first differences, with the row u₀ − u₋₁ = u₀ for ``udot_start="rest"`` only; w: the u̇ weight.
     """
@@ -180,7 +193,44 @@ def _preconditioner(steps: int, dt: float, weight: float = 1.0, udot_start: str 
     band = np.zeros((2, steps))
     band[0] = diagonal
     band[1, :-1] = -2.0 * weight / dt
-    return cholesky_banded(band, lower=True)
+    band.setflags(write=False)
+    return band
+
+
+@functools.lru_cache(maxsize=8)
+def _preconditioner(steps: int, dt: float, weight: float = 1.0, udot_start: str = "rest") -> np.ndarray:
+    """Banded lower Cholesky factor L of H₀ (:func:`_effort_hessian_band`; ``cholesky_banded`` lower form)."""
+    return cholesky_banded(_effort_hessian_band(steps, dt, weight, udot_start), lower=True)
+
+
+@functools.lru_cache(maxsize=8)
+def _theta_effort_band(steps: int, dt: float, weight: float = 1.0, udot_start: str = "rest") -> np.ndarray:
+    """Lower band of A = MᵀH₀M, the effort + smoothness Hessian in the variables θ₁..θ_K (one joint).
+
+    u = Mθ + c with uₖ = (θₖ₊₁ − θₖ)/Δt (θ₀ fixed, in c), so A has bandwidth 2 (1 without the u̇ term:
+    the rows beyond the last non-zero diagonal are dropped, which narrows the Gauss-Newton system).
+    """
+    h0 = _effort_hessian_band(steps, dt, weight, udot_start)
+    hessian = sp.diags([h0[1, :-1], h0[0], h0[1, :-1]], [-1, 0, 1], shape=(steps, steps), format="csr")
+    difference = sp.diags([np.full(steps, 1.0 / dt), np.full(steps - 1, -1.0 / dt)], [0, -1], shape=(steps, steps))
+    product = (difference.T @ hessian @ difference).todia()
+    band = np.zeros((3, steps))
+    for offset in range(min(3, steps)):
+        band[offset, : steps - offset] = product.diagonal(-offset)
+    width = 1 + max((d for d in range(3) if np.any(band[d])), default=0)
+    band = band[:width]
+    band.setflags(write=False)
+    return band
+
+
+@functools.lru_cache(maxsize=8)
+def _jacobian_scatter(steps: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the lower triangles of the blocks JₖᵀJₖ (k = 1..K−1) go in the ``(rows, K·m)`` lower
+    band of the θ-system: (index pairs a ≥ b, flat target indices) for one vectorised ``+=``."""
+    rows, cols = np.tril_indices(m)
+    block = np.arange(steps - 1)[:, None]
+    target = (rows - cols)[None] * (steps * m) + block * m + cols[None]  # band[a − b, k·m + b] ← (JᵀJ)ₐᵦ
+    return rows, cols, target.ravel()
 
 
 def _upper_band(lower: np.ndarray) -> np.ndarray:
@@ -198,7 +248,7 @@ class OptimalSolution:
     Attributes:
         commands: ``(K, m)`` optimal commands.
         cost: V at the solution (the solver's own evaluation).
-        iterations: L-BFGS iterations (both runs, if the bounded polish ran).
+        iterations: Gauss-Newton (or L-BFGS) iterations, plus the bounded polish's L-BFGS-B ones if it ran.
         evaluations: Cost+gradient evaluations.
         gradient: Final max |∂V/∂z| (unconstrained) or projected max |∂V/∂u| (bounded polish).
         gap_estimate: ½‖∂V/∂z‖₂² at the solution: the decrease left to a quadratic model whose
@@ -220,6 +270,112 @@ class OptimalSolution:
     seconds: float
 
 
+def _gauss_newton(
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Kinematics,
+    dt: float,
+    start: np.ndarray,
+    gtol: float,
+    ftol: float,
+    max_iterations: int,
+    convention: CostConvention,
+) -> tuple[np.ndarray, float, np.ndarray, int, int, bool]:
+    """Unconstrained Gauss-Newton in θ₁..θ_K with a backtracking (Armijo) line search on the exact V.
+
+    Each iteration solves the block-banded system (A ⊗ I_m + blockdiag(2Δt q JₖᵀJₖ)) δθ = −Mᵀ ∂V/∂u
+    (:func:`_theta_effort_band`, :func:`_jacobian_scatter`) by LAPACK's banded Cholesky, O(K·m·b²),
+    and steps u ← u + α M δθ. The matrix is positive definite (A is), so δθ is a descent direction.
+    The Jacobians are those of the last accepted cost evaluation (:meth:`Kinematics.forward_and_jacobian_batch`
+    remembers its last batch), so an iteration costs one FK+Jacobian pass when the full step is taken.
+
+    Returns:
+        (commands, V, ∂V/∂z flattened, iterations, cost evaluations, converged) with the stopping
+        test of the L-BFGS method: max |∂V/∂z| ≤ ``gtol``, or a relative decrease ≤ ``ftol``.
+    """
+    steps, m = start.shape
+    weight, q_scale = convention.smoothness_weight, convention.q_scale
+    lower = _preconditioner(steps, dt, weight, convention.udot_start)
+    effort = _theta_effort_band(steps, dt, weight, convention.udot_start)
+    width = effort.shape[0]
+    rows, cols, target = _jacobian_scatter(steps, m)
+    base = np.zeros((m * (width - 1) + 1, steps * m))
+    for offset in range(width):
+        base[offset * m] = np.repeat(effort[offset], m)  # A ⊗ I_m couples each joint with itself only
+
+    def evaluate(commands: np.ndarray) -> tuple[float, np.ndarray]:
+        return trajectory_cost_and_gradient(commands, q0, x_d, kinematics, dt, convention)
+
+    commands = start.copy()
+    value, grad = evaluate(commands)
+    iterations, evaluations, converged = 0, 1, False
+    while iterations < max_iterations:
+        if np.abs(solve_banded((1, 0), lower, grad)).max() <= gtol:
+            converged = True
+            break
+        _, jacobians = kinematics.forward_and_jacobian_batch(_angles(commands, q0, dt))
+        band = base.copy()
+        pairs = (jacobians[1:, :, rows] * jacobians[1:, :, cols]).sum(axis=1)  # (JₖᵀJₖ)ₐᵦ, a ≥ b
+        band.reshape(-1)[target] += (2.0 * dt * q_scale) * pairs.reshape(-1)
+        factor, info = dpbtrf(band, lower=1)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")
+        grad_theta = np.empty_like(grad)  # Mᵀ ∂V/∂u
+        grad_theta[:-1] = (grad[:-1] - grad[1:]) / dt
+        grad_theta[-1] = grad[-1] / dt
+        step_theta = dpbtrs(factor, -grad_theta.reshape(-1), lower=1)[0].reshape(steps, m)
+        step = np.diff(step_theta, axis=0, prepend=np.zeros((1, m))) / dt  # M δθ
+        slope, alpha = float(np.vdot(grad, step)), 1.0
+        while True:
+            trial_value, trial_grad = evaluate(commands + alpha * step)
+            evaluations += 1
+            if trial_value <= value + ARMIJO * alpha * slope:
+                break
+            alpha *= 0.5
+            if alpha < MIN_STEP:  # no decrease along a descent direction: rounding dominates
+                break
+        if alpha < MIN_STEP:
+            break
+        iterations += 1
+        decrease = (value - trial_value) / max(abs(value), abs(trial_value), 1.0)
+        commands, value, grad = commands + alpha * step, trial_value, trial_grad
+        if decrease <= ftol:
+            converged = True
+            break
+    grad_z = solve_banded((1, 0), lower, grad).ravel()
+    converged = converged or float(np.abs(grad_z).max()) <= gtol
+    return commands, value, grad_z, iterations, evaluations, converged
+
+
+def _lbfgs(
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Kinematics,
+    dt: float,
+    start: np.ndarray,
+    gtol: float,
+    ftol: float,
+    max_iterations: int,
+    convention: CostConvention,
+) -> tuple[np.ndarray, float, np.ndarray, int, int, bool]:
+    """Unconstrained L-BFGS in z = Lᵀu (the first method; same returns as :func:`_gauss_newton`)."""
+    steps, m = start.shape
+    lower = _preconditioner(steps, dt, convention.smoothness_weight, convention.udot_start)
+    upper = _upper_band(lower)
+
+    def in_z(z: np.ndarray) -> tuple[float, np.ndarray]:
+        u = solve_banded((0, 1), upper, z.reshape(steps, m))  # u = L⁻ᵀ z
+        value, grad = trajectory_cost_and_gradient(u, q0, x_d, kinematics, dt, convention)
+        return value, solve_banded((1, 0), lower, grad).ravel()  # ∂V/∂z = L⁻¹ ∂V/∂u
+
+    z0 = upper[1][:, None] * start
+    z0[:-1] += upper[0, 1:, None] * start[1:]  # z = Lᵀu
+    options = {"maxiter": max_iterations, "maxfun": 4 * max_iterations, "gtol": gtol, "ftol": ftol, "maxcor": MEMORY}
+    result = minimize(in_z, z0.ravel(), jac=True, method="L-BFGS-B", options=options)
+    commands = solve_banded((0, 1), upper, result.x.reshape(steps, m))
+    return commands, float(result.fun), result.jac, int(result.nit), int(result.nfev), result.status == 0
+
+
 def solve_sample(
     q0: np.ndarray,
     x_d: np.ndarray,
@@ -231,6 +387,7 @@ def solve_sample(
     ftol: float = FTOL,
     max_iterations: int = MAX_ITERATIONS,
     convention: CostConvention | None = None,
+    method: str = "gauss-newton",
 ) -> OptimalSolution:
     """The optimal command sequence of one sample (see the module docstring).
 
@@ -241,31 +398,24 @@ def solve_sample(
         dt: Control period, s.
         velocity_limits: ``(m,)`` limits ū.
         initial: ``(K, m)`` start (default zeros: at rest).
+        gtol, ftol, max_iterations: The stopping test (:data:`GTOL`, :data:`FTOL`) and the cap.
         convention: The cost solved for (default: Table I's, Q = I, u₋₁ = 0).
+        method: The unconstrained solve, one of :data:`METHODS`: ``"gauss-newton"`` (default) or
+            ``"lbfgs"`` (the first method, kept for comparison).
     """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     started = time.perf_counter()
     convention = convention if convention is not None else CostConvention()
     steps, m = x_d.shape[0], kinematics.n_joints
     limits = np.asarray(velocity_limits, dtype=float)
-    lower = _preconditioner(steps, float(dt), convention.smoothness_weight, convention.udot_start)
-    upper = _upper_band(lower)
     start = np.zeros((steps, m)) if initial is None else np.clip(np.asarray(initial, dtype=float), -limits, limits)
-
-    def in_z(z: np.ndarray) -> tuple[float, np.ndarray]:
-        u = solve_banded((0, 1), upper, z.reshape(steps, m))  # u = L⁻ᵀ z
-        value, grad = trajectory_cost_and_gradient(u, q0, x_d, kinematics, dt, convention)
-        return value, solve_banded((1, 0), lower, grad).ravel()  # ∂V/∂z = L⁻¹ ∂V/∂u
-
-    z0 = (upper[1][:, None] * start)
-    z0[:-1] += upper[0, 1:, None] * start[1:]  # z = Lᵀu
-    options = {"maxiter": max_iterations, "maxfun": 4 * max_iterations, "gtol": gtol, "ftol": ftol, "maxcor": MEMORY}
-    result = minimize(in_z, z0.ravel(), jac=True, method="L-BFGS-B", options=options)
-    commands = solve_banded((0, 1), upper, result.x.reshape(steps, m))
-    iterations, evaluations = int(result.nit), int(result.nfev)
-    gradient = float(np.abs(result.jac).max())
-    gap_estimate = 0.5 * float(result.jac @ result.jac)
-    converged = result.status == 0
-    value = float(result.fun)
+    unconstrained = _gauss_newton if method == "gauss-newton" else _lbfgs
+    commands, value, grad_z, iterations, evaluations, converged = unconstrained(
+        q0, x_d, kinematics, float(dt), start, gtol, ftol, max_iterations, convention
+    )
+    gradient = float(np.abs(grad_z).max())
+    gap_estimate = 0.5 * float(grad_z @ grad_z)
     bounded = bool((np.abs(commands) > limits).any())
     if bounded:
 
@@ -275,6 +425,7 @@ def solve_sample(
 
         bounds = np.repeat(np.stack([-limits, limits], axis=1)[None], steps, axis=0).reshape(-1, 2)
         clipped = np.clip(commands, -limits, limits)
+        options = {"maxiter": max_iterations, "maxfun": 4 * max_iterations, "gtol": gtol, "ftol": ftol, "maxcor": MEMORY}
         polish = minimize(in_u, clipped.ravel(), jac=True, method="L-BFGS-B", bounds=bounds, options=options)
         commands = polish.x.reshape(steps, m)
         iterations += int(polish.nit)
@@ -383,6 +534,7 @@ def add_optimality(results: pd.DataFrame) -> pd.DataFrame:
 __all__ = [
     "FTOL",
     "GTOL",
+    "METHODS",
     "OPTIMAL",
     "OPTIMAL_LABEL",
     "OptimalJob",
