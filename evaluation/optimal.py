@@ -315,7 +315,8 @@ def _gauss_newton(
             break
         _, jacobians = kinematics.forward_and_jacobian_batch(_angles(commands, q0, dt))
         band = base.copy()
-        pairs = (jacobians[1:, :, rows] * jacobians[1:, :, cols]).sum(axis=1)  # (JₖᵀJₖ)ₐᵦ, a ≥ b
+        tail = jacobians[1:]
+        pairs = sum(tail[:, i, rows] * tail[:, i, cols] for i in range(tail.shape[1]))  # (JₖᵀJₖ)ₐᵦ, a ≥ b
         band.reshape(-1)[target] += (2.0 * dt * q_scale) * pairs.reshape(-1)
         factor, info = dpbtrf(band, lower=1)
         if info != 0:
