@@ -163,3 +163,42 @@ def test_optimal_alone_and_not_with_pybullet(tmp_path: Path):
     assert list(results["controller"]) == [OPTIMAL]
     with pytest.raises(ValueError, match="kinematic"):
         EvaluationConfig(out=tmp_path / "pb", controllers=(OPTIMAL,), backend="pybullet").validate()
+
+
+CONVENTIONS = [CostConvention(), CostConvention("table1", "first"), CostConvention("hjb", q_scale=4.0)]
+
+
+@pytest.mark.parametrize("convention", CONVENTIONS, ids=["table1-rest", "table1-first", "hjb-q4"])
+@pytest.mark.parametrize(("task", "steps"), [("reach", 1500), ("track", 2500)])
+def test_gauss_newton_finds_the_lbfgs_optimum(ur10, convention, task, steps):
+    """The default Gauss-Newton solve and the first method (L-BFGS in z) agree on the evaluator's horizons."""
+    samples = generate_samples(ur10, SampleSpace.for_robot(ur10), 0, task, [0, 2])
+    x_d = reference_trajectories([s.reference for s in samples], np.arange(steps) * DT)[0]
+    for sample, target in zip(samples, x_d, strict=True):
+        lbfgs = solve_sample(sample.q0, target, ur10, DT, ur10.velocity_limits, convention=convention, method="lbfgs")
+        newton = solve_sample(sample.q0, target, ur10, DT, ur10.velocity_limits, convention=convention)
+        assert lbfgs.converged and newton.converged and not newton.bounded
+        assert newton.cost == pytest.approx(lbfgs.cost, rel=1e-8)
+        assert newton.gradient <= 1e-6 and newton.gap_estimate < 1e-9
+        assert newton.iterations < lbfgs.iterations
+        value, _ = trajectory_cost_and_gradient(newton.commands, sample.q0, target, ur10, DT, convention)
+        assert value == newton.cost  # the reported V is the exact cost of the returned commands
+
+
+def test_both_methods_agree_when_the_bounded_polish_runs(ur10, track_sample):
+    steps = 100
+    x_d = reference_trajectories([track_sample.reference], np.arange(steps) * DT)[0][0]
+    free = solve_sample(track_sample.q0, x_d, ur10, DT, ur10.velocity_limits)
+    limits = 0.5 * np.abs(free.commands).max(axis=0) + 1e-3
+    newton = solve_sample(track_sample.q0, x_d, ur10, DT, limits)
+    lbfgs = solve_sample(track_sample.q0, x_d, ur10, DT, limits, method="lbfgs")
+    assert newton.bounded and lbfgs.bounded and newton.converged and lbfgs.converged
+    assert (np.abs(newton.commands) <= limits + 1e-12).all()
+    assert newton.cost == pytest.approx(lbfgs.cost, rel=1e-8)
+    assert np.isnan(newton.gap_estimate)  # the polish (L-BFGS-B in u, shared by both methods) has no z-gap
+
+
+def test_an_unknown_method_is_refused(ur10, track_sample):
+    x_d = reference_trajectories([track_sample.reference], np.arange(5) * DT)[0][0]
+    with pytest.raises(ValueError, match="method"):
+        solve_sample(track_sample.q0, x_d, ur10, DT, ur10.velocity_limits, method="newton")
