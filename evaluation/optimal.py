@@ -10,23 +10,22 @@ convention (:class:`snac_gym.cost.CostConvention`: without the u̇ term for ``--
 for ``--udot-start first``, Q = q·I for ``--q-scale``). It is an *open-loop*
 reference computed with knowledge of the whole reference, not a controller.
 
-**Method** (a direct single-shooting method). θ is linear in U, so V and its exact gradient
-cost one pass of K ``forward_and_jacobian`` calls (Pinocchio's analytic Jacobian)::
+**Method** (direct single shooting in U, Gauss-Newton steps in θ). θ is linear in U, so V and its
+exact gradient cost one batched FK+Jacobian pass (:func:`trajectory_cost_and_gradient`, where the
+gradient's equation lives). The quadratic effort + smoothness part has the fixed Hessian
+``H₀ = 2Δt I + (2w/Δt) DᵀD`` in u (:func:`_effort_hessian_band`). In the variables θ₁..θ_K the
+error term depends on θₖ alone and u = Mθ + c (first differences), so the Gauss-Newton matrix
+``MᵀH₀M ⊗ I + blockdiag(2Δt q JₖᵀJₖ)`` is block-banded (bandwidth 12 scalars, 6 without the u̇
+term) and each step is one banded Cholesky solve (:func:`_gauss_newton`), followed by a
+backtracking line search on the exact V. Start: U = 0 (the robot at rest; no controller is used as
+a start, so the optimum does not depend on which controllers are evaluated). The first method,
+L-BFGS in ``z = Lᵀu`` with ``H₀ = LLᵀ`` (:func:`_lbfgs`), stays available as ``method="lbfgs"``.
+If the unconstrained optimum breaks a velocity limit, it is polished by bounded L-BFGS-B in u from
+the clipped solution (column ``optimal_bounded``), whichever method ran first.
 
-    ∂V/∂uₖ = 2Δt uₖ + (2/Δt)((uₖ − uₖ₋₁) − (uₖ₊₁ − uₖ)) + Δt Σ_{j>k} 2Δt Jⱼᵀ eⱼ
-
-(the last smoothness difference only for k < K−1; e₀ does not depend on U). The quadratic
-effort + smoothness part has the fixed Hessian ``H₀ = 2Δt I + (2/Δt) DᵀD`` (D: first differences
-with u₋₁ = 0), whose condition number grows like K²; the solver works in ``z = Lᵀu`` with
-``H₀ = LLᵀ`` (banded Cholesky, O(K) per product), where that part is ``‖z‖²``, and runs
-SciPy's L-BFGS from U = 0 (the robot at rest; no controller is used as a start, so the
-optimum does not depend on which controllers are evaluated). If the unconstrained optimum
-breaks a velocity limit, it is polished by bounded L-BFGS-B in u from the clipped solution
-(column ``optimal_bounded``).
-
-**Tolerance.** Stop when the largest component of the gradient in z is ≤ :data:`GTOL` or
-V decreases relatively by ≤ :data:`FTOL` per iteration (at most :data:`MAX_ITERATIONS`
-iterations). ``optimal_gradient`` records the final max-norm gradient in z.
+**Tolerance** (both methods). Stop when the largest component of the gradient in z = Lᵀu is
+≤ :data:`GTOL` or V decreases relatively by ≤ :data:`FTOL` per iteration (at most
+:data:`MAX_ITERATIONS` iterations). ``optimal_gradient`` records the final max-norm gradient in z.
 
 The reported cost of the solution is *not* the solver's value: the command sequence is rolled
 out by :func:`evaluation.backends.simulate_kinematic` (an open-loop replay policy) and measured by
