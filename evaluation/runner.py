@@ -480,7 +480,7 @@ def load_samples(
     return samples
 
 
-class _Progress:
+class Progress:
     """A tqdm bar over rollouts (disabled off a terminal or with ``progress=False``)."""
 
     def __init__(self, total: int, enabled: bool) -> None:
@@ -502,7 +502,7 @@ class _Progress:
         self._bar.close()
 
 
-class _Evaluation:
+class EvaluationRun:
     """The passes and searches of one run (state shared by :func:`run_evaluation`'s steps)."""
 
     def __init__(
@@ -511,7 +511,7 @@ class _Evaluation:
         store: RunStore,
         executor: Any,
         samples: dict[str, list[EvaluationSample]],
-        progress: _Progress,
+        progress: Progress,
     ) -> None:
         self.config, self.store, self.executor, self.samples, self.progress = config, store, executor, samples, progress
         #: Screening samples of each (task, controller)'s first knob search.
@@ -838,7 +838,7 @@ class _KnobSearch:
 
     def __init__(
         self,
-        evaluation: _Evaluation,
+        evaluation: EvaluationRun,
         task: str,
         spec: ControllerSpec,
         screening: Sequence[EvaluationSample],
@@ -868,7 +868,7 @@ def _within(effort: float, target: float, tolerance: float) -> bool:
 
 
 def _match_controllers(
-    evaluation: _Evaluation, specs: list[ControllerSpec], results: dict[tuple[str, str], pd.DataFrame]
+    evaluation: EvaluationRun, specs: list[ControllerSpec], results: dict[tuple[str, str], pd.DataFrame]
 ) -> dict[tuple[str, str], EffortRecord]:
     """Step 4 of the module docstring; fills ``results`` with the final pass of every (task, controller).
 
@@ -918,10 +918,10 @@ def _match_controllers(
     return records
 
 
-def _match_one(evaluation: _Evaluation, task: str, spec: ControllerSpec, target: float) -> tuple[pd.DataFrame, EffortRecord]:
+def _match_one(evaluation: EvaluationRun, task: str, spec: ControllerSpec, target: float) -> tuple[pd.DataFrame, EffortRecord]:
     """Search one controller's knob for ``target`` on one task, then check it with a full pass.
 
-    The search runs on screening samples (:meth:`_Evaluation.search_knob`); what follows the
+    The search runs on screening samples (:meth:`EvaluationRun.search_knob`); what follows the
     full pass depends on the statistic:
 
     * ``max``: the maximum over the set can come from a sample the search did not screen, and
@@ -1053,8 +1053,8 @@ def _run_in_store(
         write_samples_csv(all_samples, store.root / "samples.csv", kinematics.n_joints)
         if config.export_samples is not None:
             write_samples_csv(all_samples, config.export_samples, kinematics.n_joints)
-        progress = _Progress((len(specs) + config.wants_optimal) * len(all_samples), config.progress)
-        evaluation = _Evaluation(config, store, executor, samples, progress)
+        progress = Progress((len(specs) + config.wants_optimal) * len(all_samples), config.progress)
+        evaluation = EvaluationRun(config, store, executor, samples, progress)
         results: dict[tuple[str, str], pd.DataFrame] = {}
         try:
             if not specs:

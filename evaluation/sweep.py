@@ -41,8 +41,8 @@ from evaluation.paper import TASK_LABELS, controller_label
 from evaluation.runner import (
     ControllerSpec,
     EvaluationConfig,
-    _Evaluation,
-    _Progress,
+    EvaluationRun,
+    Progress,
     load_samples,
     resolve_controllers,
     run_evaluation,
@@ -215,8 +215,8 @@ def run_sweep(
         executor = make_executor(config.workers, config.ray_address)
         try:
             samples = load_samples(config, kinematics, space, executor)
-            progress = _Progress(len(passes) * sum(len(samples[t]) for t in config.tasks), config.progress)
-            evaluation = _Evaluation(config, store, executor, samples, progress)
+            progress = Progress(len(passes) * sum(len(samples[t]) for t in config.tasks), config.progress)
+            evaluation = EvaluationRun(config, store, executor, samples, progress)
             rows: list[dict[str, Any]] = []
             lock = threading.Lock()
             names = [spec.name for spec in specs]

@@ -196,17 +196,17 @@ def test_pybullet_backend_runs_through_the_env(tmp_path):
 
 def test_knob_searches_with_long_rollouts_run_on_fewer_samples(tmp_path):
     config = _config(tmp_path, samples=1000, horizons={"reach": 8.0}, effort_statistic="median-peak")
-    evaluation = runner_module._Evaluation(config, None, None, {"reach": list(range(1000))}, None)
+    evaluation = runner_module.EvaluationRun(config, None, None, {"reach": list(range(1000))}, None)
     spec = runner_module.ControllerSpec("dls", {}, "gain", 2.0)
     assert evaluation._screening_count("reach", spec, 40, 1) == 1000  # short rollouts: every sample
     assert evaluation._screening_count("reach", spec, 476, 1) == 211  # 10 % of a full pass's sample-steps
     assert evaluation._screening_count("reach", spec, 1000, 1) == 100  # never fewer than 100
-    for_max = runner_module._Evaluation(
+    for_max = runner_module.EvaluationRun(
         dataclasses.replace(config, effort_statistic="max"), None, None, {"reach": list(range(1000))}, None
     )
     assert for_max._screening_count("reach", spec, 166, 1) == 1000  # up to 1/6 of a pass: every sample
     assert for_max._screening_count("reach", spec, 476, 1) == 351
-    pinned = runner_module._Evaluation(
+    pinned = runner_module.EvaluationRun(
         dataclasses.replace(config, calibration_samples=30), None, None, {"reach": list(range(1000))}, None
     )
     assert pinned._screening_count("reach", spec, 1000, 1) == 30

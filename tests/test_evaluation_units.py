@@ -506,7 +506,7 @@ def test_concurrent_effort_matches_raise_the_failure_not_the_cancellations(tmp_p
         concurrent = True
 
     config = runner_module.EvaluationConfig(out=tmp_path, workers=2, progress=False)
-    evaluation = runner_module._Evaluation(config, None, Concurrent(), {}, None)
+    evaluation = runner_module.EvaluationRun(config, None, Concurrent(), {}, None)
     started = threading.Event()
 
     def waits_for_cancellation():
@@ -523,7 +523,7 @@ def test_concurrent_effort_matches_raise_the_failure_not_the_cancellations(tmp_p
     with pytest.raises(RuntimeError, match="policy exploded"):
         evaluation.concurrently([waits_for_cancellation, fails])
     assert evaluation.cancelled.is_set()
-    serial = runner_module._Evaluation(config, None, object(), {}, None)
+    serial = runner_module.EvaluationRun(config, None, object(), {}, None)
     assert serial.concurrently([lambda: 1, lambda: 2]) == [1, 2]
 
 
@@ -533,7 +533,7 @@ def test_knob_search_evaluations_are_spread_over_the_workers(tmp_path):
     import evaluation.runner as runner_module
 
     config = runner_module.EvaluationConfig(out=tmp_path, workers=3, progress=False)  # chunk_size 500
-    evaluation = runner_module._Evaluation(config, None, None, {}, None)
+    evaluation = runner_module.EvaluationRun(config, None, None, {}, None)
     samples = [SimpleNamespace(index=i) for i in range(100)]
 
     def sizes(**kwargs):
