@@ -135,6 +135,7 @@ def simulate_kinematic(
         final_x=final_x,
         final_errors=final_x - x_d[:, steps],
         critic_diagnostics=summarise_critic_diagnostics(
+            np.stack([row["hjb_residual"] for row in diagnostic_rows], axis=1),
             np.stack([row["hjb_ratio"] for row in diagnostic_rows], axis=1),
             np.stack([row["critic_error"] for row in diagnostic_rows], axis=1) if "critic_error" in diagnostic_rows[0] else None,
         ) if diagnostic_rows else None,

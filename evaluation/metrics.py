@@ -36,6 +36,8 @@ steps_at_limit         –       steps with some |uₖⱼ| at its velocity limit
 mean_error_2nd_half    m       mean ‖eₖ‖ over k = ⌊K/2⌋..K−1
 median_error_2nd_half  m       median ‖eₖ‖ over the same steps
 success                –       reach: final_error ≤ 1 mm; track: mean_error_2nd_half ≤ 5 mm
+hjb_residual_median    –       critic-based controllers: median over the sampled steps of the
+                               critic's HJB residual r = ∇V̂ᵀξ̇ + eᵀQe + ûᵀRû; NaN for the others
 hjb_ratio_median       –       critic-based controllers: median over the sampled steps of the
                                critic's HJB residual r/eᵀQe (:mod:`snac_gym.optimality`; 0 for
                                the optimal critic); NaN for the others
@@ -82,6 +84,7 @@ METRIC_COLUMNS = (
     "mean_error_2nd_half",
     "median_error_2nd_half",
     "success",
+    "hjb_residual_median",
     "hjb_ratio_median",
     "critic_error_final",
 )
@@ -156,6 +159,7 @@ def rollout_metrics(
             "mean_error_2nd_half": second_half,
             "median_error_2nd_half": np.median(second_half_norms, axis=1),
             "success": success,
+            "hjb_residual_median": diagnostics.get("hjb_residual_median", nan),
             "hjb_ratio_median": diagnostics.get("hjb_ratio_median", nan),
             "critic_error_final": diagnostics.get("critic_error_final", nan),
         }

@@ -8,6 +8,7 @@ last step.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -107,6 +108,7 @@ def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
     diagnostics = None
     if all("hjb_ratio" in log.columns for log in logs):
         diagnostics = summarise_critic_diagnostics(
+            np.stack([log["hjb_residual"].to_numpy() for log in logs]),
             np.stack([log["hjb_ratio"].to_numpy() for log in logs]),
             np.stack([log["critic_error"].to_numpy() for log in logs]) if "critic_error" in logs[0] else None,
         )
@@ -126,16 +128,23 @@ def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
     )
 
 
-def summarise_critic_diagnostics(hjb_ratio: np.ndarray, critic_error: np.ndarray | None) -> dict[str, np.ndarray]:
-    """Per rollout: the median of r/eᵀQe over the (sampled) steps and the last critic error.
+def summarise_critic_diagnostics(
+    hjb_residual: np.ndarray, hjb_ratio: np.ndarray, critic_error: np.ndarray | None
+) -> dict[str, np.ndarray]:
+    """Per rollout: the medians of r and r/eᵀQe over the (sampled) steps and the last critic error.
 
     Args:
-        hjb_ratio: ``(B, S)`` the critic's HJB residual ratio at S steps.
+        hjb_residual: ``(B, S)`` the critic's HJB residual r at S steps.
+        hjb_ratio: ``(B, S)`` r/eᵀQe at the same steps (NaN where e = 0).
         critic_error: ``(B, S)`` its critic error at the same steps (regulation), or ``None``.
     """
-    with np.errstate(all="ignore"):
-        median = np.nanmedian(np.where(np.isfinite(hjb_ratio), hjb_ratio, np.nan), axis=1) if hjb_ratio.size else None
-    out = {"hjb_ratio_median": median}
+
+    def median(values: np.ndarray) -> np.ndarray:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN row (e = 0 throughout) stays NaN
+            return np.nanmedian(np.where(np.isfinite(values), values, np.nan), axis=1)
+
+    out = {"hjb_residual_median": median(hjb_residual), "hjb_ratio_median": median(hjb_ratio)}
     if critic_error is not None:
         out["critic_error_final"] = critic_error[:, -1]
     return out
