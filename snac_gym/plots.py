@@ -108,7 +108,17 @@ def plot_cost(log: pd.DataFrame, axes: Any = None, Q: np.ndarray | None = None, 
 
     Top: ``eₖᵀQeₖ + uₖᵀRuₖ`` (integrand of eq. 6). Bottom: the running sums of the three terms
     of the evaluator's trajectory cost ``V = Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt`` (u₋₁ = 0), both
-    from :mod:`snac_gym.cost`.
+    from :mod:`snac_gym.cost`. The total is a thin dashed line over the terms, so that a term that
+    makes up nearly all of it stays visible under it.
+
+    Args:
+        log: A demo log (columns ``t``, ``e_*``, ``u_*``; ``attrs["dt"]`` the control period).
+        axes: Two axes (top, bottom) to draw into; a new figure when ``None``.
+        Q: Error weight (default identity).
+        R: Effort weight (default identity).
+
+    Returns:
+        The figure drawn into.
     """
     fig = axes[0].figure if axes is not None else _figure(6.4, 5.6)
     top, bottom = axes if axes is not None else fig.subplots(2, 1, sharex=True)
@@ -124,9 +134,12 @@ def plot_cost(log: pd.DataFrame, axes: Any = None, Q: np.ndarray | None = None, 
         ("effort", rates.effort, "C1"),
         ("smoothness", rates.smoothness, "C2"),
     ):
-        bottom.plot(t, np.cumsum(values) * dt, color=colour, label=name)
+        bottom.plot(t, np.cumsum(values) * dt, color=colour, lw=2.5, label=name, zorder=2)
+    # The total is drawn thin and dashed on top of the terms: where one term dominates (the
+    # smoothness term's jump from rest, often) its wide line still shows between the dashes.
     total = np.cumsum(rates.error + rates.effort + rates.smoothness) * dt
-    bottom.plot(t, total, color="k", lw=2.0, label=f"total V = {total[-1]:.4g}" if len(total) else "total")
+    bottom.plot(t, total, color="k", lw=1.2, ls=(0, (4, 3)), zorder=3,
+                label=f"total V = {total[-1]:.4g}" if len(total) else "total")
     bottom.set_yscale("symlog", linthresh=1e-2)
     bottom.set_xlabel("time (s)")
     bottom.set_ylabel("running cost")

@@ -246,3 +246,50 @@ def test_studies_report_every_option_and_the_success_criteria():
     np.testing.assert_allclose(random.cost_total, random.cost_error + random.cost_effort + random.cost_smoothness)
     summary = summarise_random_study(random)
     assert list(summary.horizon_s) == [0.1, 0.2, 0.2]
+
+
+def _colour_pixels(fig, ax, colour, tolerance=40):
+    """Pixels of ``colour`` (within ``tolerance`` per channel) inside ``ax`` after drawing ``fig``."""
+    from matplotlib.colors import to_rgb
+
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].astype(int)
+    box = ax.get_window_extent()
+    height = image.shape[0]
+    region = image[int(height - box.y1) : int(height - box.y0), int(box.x0) : int(box.x1)]
+    target = np.array(to_rgb(colour)) * 255
+    return int(np.all(np.abs(region - target) <= tolerance, axis=-1).sum())
+
+
+def test_cost_panel_shows_a_dominant_term_under_the_total():
+    """The running smoothness term, nearly all of V (a jump from rest), stays visible under the total."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from snac_gym.plots import plot_cost
+
+    dt, steps = 0.008, 500
+    t = np.arange(steps) * dt
+    columns = {"t": t}
+    for i in range(3):
+        columns[f"e_{i}"] = 1e-3 * np.exp(-t)
+    for i in range(6):
+        columns[f"u_{i}"] = np.where(t < 0.5, 0.5, 0.0) if i == 0 else np.zeros(steps)
+    log = pd.DataFrame(columns)
+    log.attrs["dt"] = dt
+    fig = plot_cost(log)
+    try:
+        top, bottom = fig.axes[:2]
+        lines = {line.get_label().split(" ")[0]: line for line in bottom.get_lines()}
+        smooth, total = lines["smoothness"].get_ydata(), lines["total"].get_ydata()
+        assert smooth[-1] / total[-1] > 0.99  # the case of the issue: the term is nearly all of the total
+        assert lines["total"].get_zorder() > lines["smoothness"].get_zorder()
+        assert lines["total"].get_linestyle() != "-"
+        assert lines["total"].get_linewidth() < lines["smoothness"].get_linewidth()
+        # Both are seen in the drawn image: the smoothness colour and the total's black.
+        assert _colour_pixels(fig, bottom, "C2") > 200
+        assert _colour_pixels(fig, bottom, "k", tolerance=60) > 200
+    finally:
+        plt.close(fig)
