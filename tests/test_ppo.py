@@ -383,3 +383,48 @@ def test_paper_pose_episode_through_registry(reach_env):
         u = policy.act(obs)
         assert u.shape == (6,) and np.all(np.isfinite(u))
         obs, *_ = reach_env.step(u)
+
+
+# -- training curves -------------------------------------------------------------------------------
+def _synthetic_run(folder, total=600_064, every=50_000):
+    """A run folder as train_ppo leaves it (config, evaluations.csv, one SB3 progress.csv), made up."""
+    config = load_config(default_config_path("reach"))
+    config.update(timesteps=total, seed=0)
+    (folder / "logs" / "segment_0").mkdir(parents=True)
+    (folder / "config.json").write_text(json.dumps(config))
+    steps = list(range(every, total, every)) + [total]
+    rows = ["timesteps,wall_time_s,success_rate,success_rate_4s,success_rate_8s,mean_cost,mean_final_error_m,"
+            "median_final_error_m,mean_error_2nd_half_m,median_error_2nd_half_m,is_best"]
+    for i, step in enumerate(steps):
+        rate = min(1.0, i / 4)
+        rows.append(f"{step},{i * 50.0},{rate},{rate},{rate},{30 + 20 * i},0.01,0.01,0.01,0.01,{int(i == 3)}")
+    (folder / "evaluations.csv").write_text("\n".join(rows) + "\n")
+    progress = ["time/total_timesteps,rollout/ep_rew_mean"]
+    progress += [f"{step},{-8000 + step / 75}" for step in range(2048, total, 2048)]
+    (folder / "logs" / "segment_0" / "progress.csv").write_text("\n".join(progress) + "\n")
+
+
+@pytest.mark.parametrize("total", [600_064, 2_400_000, 96])
+def test_training_curve_tick_labels_do_not_overlap(tmp_path, total):
+    """The x tick labels (timesteps) of every panel stand apart once drawn (at 600k they touched: 100000200000...)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from snac_gym.ppo.train import plot_training_curves, training_curves_figure
+
+    _synthetic_run(tmp_path, total=total, every=max(1, total // 12))
+    fig = training_curves_figure(tmp_path)
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        for axis in fig.axes:
+            labels = [label for label in axis.get_xticklabels() if label.get_visible() and label.get_text()]
+            assert len(labels) >= 2
+            boxes = sorted((label.get_window_extent(renderer) for label in labels), key=lambda box: box.x0)
+            for left, right in zip(boxes, boxes[1:]):  # apart by half a line at least, not just not touching
+                assert right.x0 - left.x1 >= 0.5 * left.height, [label.get_text() for label in labels]
+    finally:
+        plt.close(fig)
+    assert plot_training_curves(tmp_path).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -532,10 +532,45 @@ def plot_training_curves(out: str | Path, path: str | Path | None = None, title:
         out: A run folder of :func:`train_ppo`.
         path: Where to write (default ``OUT/training_curves.png``).
         title: Figure title (default: task and seed from ``OUT/config.json``).
+
+    Returns:
+        The path written.
     """
     import matplotlib
 
     matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    fig = training_curves_figure(out, title)
+    target = Path(path) if path is not None else out / "training_curves.png"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(target, dpi=110)
+    plt.close(fig)
+    return target
+
+
+def _timesteps_axis(axis: Any) -> None:
+    """Label the x axis of ``axis`` in engineering notation (``200k``, ``1.2M``) with at most 5 ticks.
+
+    Plain integers (``100000``, ``200000``, ...) on a third of a 13-inch figure run into each other.
+    """
+    from matplotlib.ticker import EngFormatter, MaxNLocator
+
+    axis.xaxis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 2, 2.5, 5, 10]))
+    axis.xaxis.set_major_formatter(EngFormatter(sep=""))
+
+
+def training_curves_figure(out: str | Path, title: str | None = None) -> Any:
+    """The figure of :func:`plot_training_curves` (three panels against timesteps), not saved.
+
+    Args:
+        out: A run folder of :func:`train_ppo` (``config.json``, ``evaluations.csv``, ``logs/``).
+        title: Figure title (default: task and seed from ``OUT/config.json``).
+
+    Returns:
+        The matplotlib figure; the caller closes it.
+    """
     import matplotlib.pyplot as plt
 
     out = Path(out)
@@ -571,6 +606,7 @@ def plot_training_curves(out: str | Path, path: str | Path | None = None, title:
     axes[2].set(xlabel="timesteps", ylabel="mean episode return", title="training reward (shaped)")
     for axis in axes:
         axis.grid(alpha=0.3)
+        _timesteps_axis(axis)
     if title is None:
         title = f"PPO, task {config['task']}, seed {config['seed']}"
         if (out / "state.json").exists():
@@ -578,8 +614,4 @@ def plot_training_curves(out: str | Path, path: str | Path | None = None, title:
             title += f": {state['timesteps']} timesteps, {state['wall_time_s'] / 60:.1f} min wall time"
     fig.suptitle(title)
     fig.tight_layout()
-    target = Path(path) if path is not None else out / "training_curves.png"
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(target, dpi=110)
-    plt.close(fig)
-    return target
+    return fig
