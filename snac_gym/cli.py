@@ -179,7 +179,7 @@ def evaluate(
     robot: str = typer.Option("ur10", "--robot", help="ur3, ur5 or ur10."),
     param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
     batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show a progress bar."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress on stderr: a bar on a terminal, else a line every 10 % or 10 s."),
     cost: str = typer.Option("table1", "--cost", help="table1 (Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt, the paper's Table I) or hjb (Σ (eᵀQe + uᵀRu) Δt, the cost of eqs. 6/32); `optimal` solves for it."),
     udot_start: str = typer.Option("rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."),
     q_scale: float = typer.Option(1.0, "--q-scale", help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q."),
@@ -257,15 +257,18 @@ def train_ppo_command(
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
     n_envs: Optional[int] = typer.Option(None, "--n-envs", min=1, help="Parallel training envs (default: the config's)."),
     vec_env: Optional[str] = typer.Option(None, "--vec-env", help="dummy (one process) or subproc (one process per env)."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress lines on stderr (timesteps, time, success) where stderr is not a terminal."),
 ) -> None:
     """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""
     if task not in ("reach", "track"):
         raise typer.BadParameter("must be reach or track", param_hint="--task")
     try:
+        from snac_gym.progress import wants_lines
         from snac_gym.ppo.train import train_ppo
 
+        lines = (lambda text: typer.echo(text, err=True)) if progress and wants_lines() else None
         result = train_ppo(task=task, out=out, timesteps=timesteps, seed=seed, config_path=config, resume=resume,
-                           n_envs=n_envs, vec_env=vec_env, log=typer.echo)
+                           n_envs=n_envs, vec_env=vec_env, log=typer.echo, progress=lines)
     except (ValueError, ImportError) as exc:  # bad config or folder, missing [rl] extra: a clean message
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from exc

@@ -327,24 +327,34 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
-def _make_callback(run: _Run, venv: Any, log: Callable[[str], None]) -> Any:
+def _make_callback(run: _Run, venv: Any, log: Callable[[str], None], progress: Callable[[str], None] | None) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
+
+    from snac_gym.progress import ProgressLines
 
     every = int(run.config["evaluation"]["every_timesteps"])
     total = int(run.config["timesteps"])
+    task = run.config["task"]
 
     class EvaluateAndCheckpoint(BaseCallback):
-        """Every ``every`` timesteps: checkpoint, evaluate the frozen policy, keep the best."""
+        """Every ``every`` timesteps: checkpoint, evaluate the frozen policy, keep the best.
+
+        With ``progress``, also a line of timesteps done, time and the last success rate every
+        10 % of the timesteps or 10 s, whichever comes first.
+        """
 
         def __init__(self) -> None:
             super().__init__()
             self.next_evaluation = 0
             self.last_evaluated = -1
+            self.lines = ProgressLines(f"train-ppo: {task}", total, progress, unit="timesteps") if progress else None
 
         def _on_training_start(self) -> None:
             self.next_evaluation = (self.model.num_timesteps // every + 1) * every
 
         def _on_step(self) -> bool:
+            if self.lines is not None:
+                self.lines.update(done=self.model.num_timesteps)
             if self.model.num_timesteps >= self.next_evaluation:
                 self.evaluate()
                 behind = self.model.num_timesteps - self.next_evaluation + 1
@@ -370,6 +380,8 @@ def _make_callback(run: _Run, venv: Any, log: Callable[[str], None]) -> Any:
                 self.logger.record(f"eval/{key}", value)
             self.logger.dump(timesteps)
             self.last_evaluated = timesteps
+            if self.lines is not None:
+                self.lines.detail = f"success {100 * scores['success_rate']:.1f} % at {timesteps} timesteps"
             log(
                 f"[{run.config['task']}] {timesteps}/{total} steps, {row['wall_time_s'] / 60:.1f} min: success "
                 f"{100 * scores['success_rate']:.1f}%, mean cost {scores['mean_cost']:.4g}, median final error "
@@ -403,6 +415,7 @@ def train_ppo(
     n_envs: int | None = None,
     vec_env: str | None = None,
     log: Callable[[str], None] = print,
+    progress: Callable[[str], None] | None = None,
 ) -> TrainingResult:
     """Train (or continue training) the PPO baseline for ``task``; see the module docstring.
 
@@ -415,7 +428,9 @@ def train_ppo(
         resume: Continue the run in ``out`` from its checkpoint, up to ``timesteps`` in total.
         n_envs: Number of parallel training envs (default: the config's).
         vec_env: ``"dummy"`` (one process) or ``"subproc"`` (one process per env).
-        log: Where progress lines go.
+        log: Where the lines of the run go (start, each evaluation, interruption).
+        progress: Where periodic progress lines go (timesteps done, time, last success rate;
+            every 10 % of the timesteps or 10 s, whichever first), or ``None`` for none.
 
     Raises:
         ValueError: On a bad config, an ``out`` that already holds a run (without ``resume``),
@@ -475,7 +490,7 @@ def train_ppo(
     run.write_state(start_timesteps, "running")
     log(f"training PPO on {config['task']} for {config['timesteps']} timesteps ({config['vec_env']['n_envs']} "
         f"{config['vec_env'].get('kind', 'dummy')} envs, seed {config['seed']}) into {out}")
-    callback = _make_callback(run, venv, log)
+    callback = _make_callback(run, venv, log, progress)
     status = "finished"
     try:
         model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False, progress_bar=False)

@@ -1,0 +1,121 @@
+"""Long runs say where they are: plain progress lines on stderr where it is not a terminal (issue 14).
+
+The CLI runs in a subprocess with stdout and stderr on pipes, as under a log file or CI.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from evaluation.runner import Progress
+from snac_gym.progress import ProgressLines, wants_lines
+
+EVALUATE_LINE = re.compile(r"^evaluate: \d+/\d+ rollouts \(\d+ %\), \d+\.\d s")
+TRAIN_LINE = re.compile(r"^train-ppo: reach \d+/64 timesteps \(\d+ %\), \d+\.\d s")
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_lines_come_every_tenth_or_every_interval_and_at_the_end():
+    clock, written = _Clock(), []
+    lines = ProgressLines("evaluate", 1000, written.append, every_fraction=0.1, every_s=10.0, clock=clock)
+    for i in range(99):  # 99 rollouts in 9.9 s: neither 10 % nor 10 s
+        clock.now = 0.1 * (i + 1)
+        assert not lines.update(1)
+    clock.now = 9.95
+    assert lines.update(1, detail="reference: snac")  # 10 % done
+    assert written == ["evaluate: 100/1000 rollouts (10 %), 9.9 s, reference: snac"]
+    clock.now = 19.0  # 9 s later, one rollout more: not due yet
+    assert not lines.update(1)
+    clock.now = 20.0  # 10 s after the last line, one more: due by time
+    assert lines.update(1)
+    assert written[-1] == "evaluate: 102/1000 rollouts (10 %), 20.0 s, reference: snac"
+    clock.now = 21.0
+    assert not lines.update(0)  # nothing new done: no line, however long it was
+    lines.detail = ""
+    assert lines.update(898)  # the end
+    assert written[-1] == "evaluate: 1000/1000 rollouts (100 %), 21.0 s"
+    lines.add_total(10)
+    assert not lines.update(1) and lines.update(9)  # a grown total: the new end, once
+    assert len(written) == 4
+
+
+def test_a_fast_run_writes_at_most_one_line_per_tenth():
+    written: list[str] = []
+    lines = ProgressLines("evaluate", 10_000, written.append)
+    for _ in range(10_000):
+        lines.update(1)
+    assert 10 <= len(written) <= 11 and written[-1].startswith("evaluate: 10000/10000 rollouts (100 %)")
+
+
+def test_progress_writes_lines_only_where_asked():
+    written: list[str] = []
+    progress = Progress(8, enabled=True, lines=True, write=written.append)
+    progress.status("reference: dls")
+    progress.update(4)
+    progress.close()
+    assert written and written[0].startswith("evaluate: 4/8 rollouts (50 %)") and written[0].endswith("reference: dls")
+    silent: list[str] = []
+    for enabled, lines in ((False, True), (True, False)):
+        progress = Progress(8, enabled=enabled, lines=lines, write=silent.append)
+        progress.update(8)
+        progress.close()
+    assert silent == []
+
+
+def test_lines_are_wanted_off_a_terminal(tmp_path):
+    with open(tmp_path / "log", "w") as handle:
+        assert wants_lines(handle)
+
+
+def _cli(arguments: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "snac_gym.cli", *arguments], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, cwd=cwd, timeout=300,
+    )
+
+
+@pytest.mark.parametrize("progress", [True, False])
+def test_evaluate_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progress):
+    arguments = ["evaluate", "--out", str(tmp_path / "run"), "--samples", "4", "--horizon", "0.3",
+                 "--controllers", "dls,lqr", "--effort-reference", "dls"]
+    result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "Trajectory cost V/N" in result.stdout
+    assert "rollouts" not in result.stdout  # the summary on stdout stays clean
+    lines = [line for line in result.stderr.splitlines() if EVALUATE_LINE.match(line)]
+    if progress:
+        assert lines and lines[-1].startswith("evaluate: 16/16 rollouts (100 %)"), result.stderr
+        assert len(lines) <= 11  # at most one per tenth (the run is far shorter than 10 s a line)
+    else:
+        assert lines == [] and "evaluate:" not in result.stderr
+
+
+@pytest.mark.parametrize("progress", [True, False])
+def test_train_ppo_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progress):
+    pytest.importorskip("stable_baselines3")
+    from test_ppo import _tiny_config
+
+    arguments = ["train-ppo", "--task", "reach", "--timesteps", "64", "--seed", "3", "--out", str(tmp_path / "run"),
+                 "--config", str(_tiny_config(tmp_path))]
+    result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "finished: " in result.stdout and "train-ppo:" not in result.stdout
+    lines = [line for line in result.stderr.splitlines() if TRAIN_LINE.match(line)]
+    if progress:
+        assert lines, result.stderr
+        assert lines[-1].startswith("train-ppo: reach 64/64 timesteps (100 %)")
+        assert any("success " in line for line in lines), lines  # after the first evaluation (32 timesteps)
+    else:
+        assert lines == [] and "train-ppo:" not in result.stderr
