@@ -39,10 +39,13 @@ def test_rgb_array_render_is_headless(env_id):
     env.close()
 
 
-def test_human_render_without_display_is_a_clear_error(monkeypatch):
+def test_human_render_without_display_warns_on_the_first_frame(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
-    with pytest.raises(RuntimeError, match="needs a display"):
-        gym.make(ENV_IDS[0], render_mode="human")
+    env = gym.make(ENV_IDS[0], render_mode="human")  # the constructor works headless (check_env builds it)
+    with pytest.warns(UserWarning, match="needs a display"):
+        env.reset(seed=0)
+    assert env.render() is None
+    env.close()
 
 
 def _rollout(env_id, seed, actions, **kwargs):
@@ -221,7 +224,11 @@ def test_constructor_rejects_unknown_and_invalid_arguments():
     with pytest.raises(TypeError, match="frequency"):
         gym.make("snac_gym/UR10Reach-v0", frequency=125)
     with pytest.raises(ValueError, match="reward_type"):
-        gym.make("snac_gym/UR10Reach-v0", reward_type="shaped")
+        gym.make("snac_gym/UR10Reach-v0", reward_type="bogus")
+    with pytest.raises(ValueError, match="action_type"):
+        gym.make("snac_gym/UR10Reach-v0", action_type="torque")
+    with pytest.raises(ValueError, match="observation_dtype"):
+        gym.make("snac_gym/UR10Reach-v0", observation_dtype=np.int32)
     with pytest.raises(ValueError, match="n_substeps"):
         gym.make("snac_gym/UR10Reach-v0", n_substeps=0)
     with pytest.raises(ValueError, match="unknown robot"):
@@ -250,3 +257,124 @@ def test_env_docstrings_document_every_section():
         cls = gym.make(env_id).unwrapped.__class__
         for section in ("## Observation Space", "## Action Space", "## Episode End", "## Arguments", "## Version History"):
             assert section in cls.__doc__, (doc, section)
+
+
+# -- issue 14: conventions and the learner options ------------------------------------------------
+
+LEARNER = dict(action_type="normalized", observation_dtype=np.float32, reward_type="shaped")
+
+
+@pytest.mark.parametrize("kwargs", [{}, LEARNER], ids=["defaults", "learner"])
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_check_env_with_defaults_headless(env_id, kwargs, monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)  # the checker also builds render_mode="human"
+    env = gym.make(env_id, **kwargs)
+    check_env(env.unwrapped)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_episode_length_comes_from_the_registration(env_id):
+    default = gym.spec(env_id).max_episode_steps
+    env = gym.make(env_id)
+    assert default == env.unwrapped.default_max_steps  # 1000 (8 s) reach, 2500 (20 s) track
+    assert env.spec.max_episode_steps == default and env.unwrapped.max_steps == default
+    for kwargs in ({"max_episode_steps": 4}, {"max_steps": 4}):
+        env = gym.make(env_id, **kwargs)
+        assert env.spec.max_episode_steps == 4 and env.unwrapped.max_steps == 4
+        env.reset(seed=0)
+        flags = [env.step(np.zeros(6))[3] for _ in range(4)]
+        assert flags == [False, False, False, True]
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_episodes_longer_than_the_registered_one(env_id):
+    default = gym.spec(env_id).max_episode_steps
+    for kwargs in ({"max_episode_steps": default + 2}, {"max_steps": default + 2}):
+        env = gym.make(env_id, **kwargs)
+        assert env.spec.max_episode_steps == default + 2
+        env.reset(seed=0)
+        truncated = [env.step(np.zeros(6))[3] for _ in range(default + 2)]
+        assert not any(truncated[:-1]) and truncated[-1]
+        env.close()
+
+
+@pytest.mark.parametrize("kwargs", [{}, LEARNER], ids=["defaults", "learner"])
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_observation_bounds_are_finite_where_physics_gives_them(env_id, kwargs):
+    env = gym.make(env_id, max_steps=150, **kwargs)
+    space, layout = env.observation_space, env.unwrapped.obs_layout
+    finite = np.isfinite(space.low) & np.isfinite(space.high)
+    assert not finite[layout.slices["qdot"]].any() and finite.sum() == layout.size - 6
+    env.action_space.seed(0)
+    for seed in range(4):
+        obs, _ = env.reset(seed=seed)
+        assert space.contains(obs)
+        for _ in range(150):  # full-speed random actions, joints driven into their limits
+            obs, *_ = env.step(env.action_space.sample())
+            assert space.contains(obs), obs
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_float32_observations_are_the_float64_ones_rounded(env_id):
+    env = gym.make(env_id)
+    actions = _actions(env, 30)
+    obs64, rewards64, _ = _rollout(env_id, 4, actions)
+    obs32, rewards32, _ = _rollout(env_id, 4, actions, observation_dtype=np.float32)
+    assert obs32.dtype == np.float32 and gym.make(env_id, observation_dtype="float32").observation_space.dtype == np.float32
+    np.testing.assert_array_equal(obs32, obs64.astype(np.float32))
+    np.testing.assert_array_equal(rewards32, rewards64)
+
+
+def test_normalized_actions_scale_to_the_velocity_limits():
+    env = gym.make("snac_gym/UR10Reach-v0", action_type="normalized")
+    limits = env.unwrapped.velocity_limits
+    assert env.action_space.dtype == np.float32
+    np.testing.assert_array_equal(env.action_space.low, -1.0)
+    np.testing.assert_array_equal(env.action_space.high, 1.0)
+    env.reset(seed=0)
+    env.action_space.seed(1)
+    for _ in range(5):
+        a = env.action_space.sample()
+        *_, info = env.step(a)
+        np.testing.assert_allclose(info["command"], a.astype(np.float64) * limits, rtol=1e-15)
+    *_, info = env.step(np.full(6, 3.0))  # clipped to [-1, 1]
+    np.testing.assert_array_equal(info["command"], limits)
+    # the same command as rad/s gives the same rollout
+    actions = _actions(env, 20)
+    normalized = _rollout("snac_gym/UR10Reach-v0", 2, actions, action_type="normalized")
+    velocity = _rollout("snac_gym/UR10Reach-v0", 2, [a.astype(np.float64) * limits for a in actions])
+    np.testing.assert_array_equal(normalized[0], velocity[0])
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.array([np.nan, 0, 0, 0, 0, 0], dtype=np.float32))
+
+
+@pytest.mark.parametrize("action_type", ["velocity", "normalized"])
+def test_shaped_reward_is_the_documented_formula(action_type):
+    from snac_gym.ppo.envs import RewardSpec
+
+    env = gym.make("snac_gym/UR10EllipseTrack-v0", reward_type="shaped", action_type=action_type)
+    limits = env.unwrapped.velocity_limits
+    env.reset(seed=3)
+    for action in _actions(env, 25, scale=1.5):
+        _, reward, _, _, info = env.step(action)
+        d = np.linalg.norm(info["error"])
+        a = info["command"] / limits
+        expected = -10.0 * d + np.exp(-((d / 0.01) ** 2)) - 0.01 * np.sum(a**2)
+        assert reward == pytest.approx(expected, rel=1e-12, abs=1e-12)
+        # the reward PPO trains on (its default weights, no smoothness term)
+        assert reward == pytest.approx(RewardSpec().shaped(info["error_norm"], a, np.zeros(6)), rel=1e-12, abs=1e-12)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_sb3_checker_has_no_warnings_for_the_learner_configuration(env_id):
+    import warnings
+
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make(env_id, **LEARNER)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sb3_check_env(env.unwrapped)
+    env.close()

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
+import sys
+from types import MappingProxyType
 from typing import Any, Mapping
 
 import gymnasium as gym
@@ -14,7 +17,7 @@ from snac_gym.envs.sim import PyBulletSim, check_image_size
 from snac_gym.envs.tasks import TASKS, Task
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
-from snac_gym.references import Reference
+from snac_gym.references import MAX_REFERENCE_SPEED, Reference
 from snac_gym.sampling import SampleSpace, sample_seed_pose
 
 _ENV_DOC = """
@@ -23,15 +26,24 @@ _ENV_DOC = """
     {task_desc}
 
     ## Action Space
-    ``Box(-v_max, v_max, (m,), float64)``: the commanded joint velocities u = θ̇ in rad/s,
-    applied by PyBullet ``VELOCITY_CONTROL`` motors (each bounded by its URDF effort) and held
-    for one control period ``dt``. ``v_max`` are the URDF limits (UR10: 2.16, 2.16, 3.15, 3.2,
-    3.2, 3.2 rad/s). An action outside the box is **clipped** to it (``info["command"]`` holds
-    what was applied); an action with NaN/inf or of the wrong shape raises ``ValueError``.
+    ``action_type="velocity"`` (default): ``Box(-v_max, v_max, (m,), float64)``, the commanded
+    joint velocities u = θ̇ in rad/s, applied by PyBullet ``VELOCITY_CONTROL`` motors (each bounded
+    by its URDF effort) and held for one control period ``dt``. ``v_max`` are the URDF limits
+    (UR10: 2.16, 2.16, 3.15, 3.2, 3.2, 3.2 rad/s). ``action_type="normalized"`` (for learners):
+    ``Box(-1, 1, (m,), float32)``, the command is u = a·v_max per joint. An action outside the
+    box is **clipped** to it (``info["command"]`` holds the applied u in rad/s); an action with
+    NaN/inf or of the wrong shape raises ``ValueError``.
 
     ## Observation Space
-    ``Box(-inf, inf, (2m + 5n,), float64)``, m joints and task dimension n = 3 (UR10: 27 values).
-    Positions are in the robot's ``base`` frame (the frame the UR pendant shows).
+    ``Box(low, high, (2m + 5n,), observation_dtype)``, m joints and task dimension n = 3 (UR10: 27
+    values), float64 by default, float32 with ``observation_dtype=np.float32`` (the float64 values
+    rounded). Positions are in the robot's ``base`` frame (the frame the UR pendant shows).
+    Bounds (``env.unwrapped.observation_bounds()``): θ within the URDF joint limits widened by
+    :data:`JOINT_LIMIT_MARGIN` (the simulator's joint-limit constraint is soft); positions within
+    ±ρ per axis, ρ the sum of the arm's link offsets (UR10: 1.88 m, a bound on its reach); ẋ_d
+    within ±3 m/s (the fastest reference :class:`~snac_gym.references.Ellipse` accepts); e
+    within ±2ρ. θ̇ stays unbounded: the joint-limit constraint can push the measured velocity
+    well past the motor limits (2.5× measured), so physics gives no bound there.
 
     | Index (UR10) | Observation                                    | Unit  |
     |--------------|------------------------------------------------|-------|
@@ -50,7 +62,15 @@ _ENV_DOC = """
     instantaneous cost (eq. 6) with eₖ the error at the start of the step and uₖ the applied
     command, Q = I₃, R = I₆ by default; so ``−Σ reward·dt`` is the error and effort part of the
     evaluator's trajectory cost. ``reward_type="sparse"``: 0 when ``is_success`` after the
-    step, −1 otherwise. ``info`` carries ``error`` (vector after the step), ``error_norm``,
+    step, −1 otherwise. ``reward_type="shaped"`` (for learners; the reward PPO trains on, see
+    :mod:`snac_gym.ppo.envs`), with d = ‖e‖ after the step and a = u / v_max the applied command
+    normalised to [−1, 1]::
+
+        r = −10·d + exp(−(d / 0.01)²) − 0.01·‖a‖²
+
+    (:data:`SHAPED_REWARD` holds the weights): the distance term pulls from afar, the Gaussian
+    bonus rewards settling to within about a centimetre, the action penalty keeps the arm still
+    once there. ``info`` carries ``error`` (vector after the step), ``error_norm``,
     ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇ with u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),
     ``command``, ``t`` and ``is_success`` ({success_desc}).
 
@@ -69,8 +89,11 @@ _ENV_DOC = """
     (velocities, motor targets and solver caches included), then poses the joints at rest.
 
     ## Episode End
-    {end_desc} Truncation after ``max_steps`` control steps (default {default_steps}, i.e.
-    {default_seconds:g} s at 125 Hz).
+    {end_desc} Truncation by the registration's ``TimeLimit`` wrapper after
+    ``max_episode_steps`` control steps (default {default_steps}, i.e. {default_seconds:g} s at
+    125 Hz): ``gym.make(id, max_episode_steps=N)`` sets it and ``env.spec.max_episode_steps``
+    shows it. The older argument ``max_steps=N`` does the same (and wins over
+    ``max_episode_steps``); an env built with it also truncates itself at N, without wrappers.
 
     ## Arguments
     ``gym.make("snac_gym/{env_id}", **kwargs)``; unknown arguments raise ``TypeError``.
@@ -80,18 +103,81 @@ _ENV_DOC = """
     | ``robot``              | ``"ur10"``   | ``ur3``, ``ur5`` or ``ur10`` from example-robot-data  |
     | ``dt``                 | ``1/125``    | control period, s (``env.unwrapped.dt``), in (0, 1] |
     | ``n_substeps``         | ``3``        | physics steps per control period (see README)      |
-    | ``max_steps``          | {default_steps}       | episode length in control steps                    |
-    | ``reward_type``        | ``"dense"``  | ``"dense"`` or ``"sparse"``                        |
+    | ``max_steps``          | ``None``     | episode length in control steps (else the          |
+    |                        |              | registration's ``max_episode_steps``, {default_steps})     |
+    | ``action_type``        | ``"velocity"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
+    | ``observation_dtype``  | ``np.float64`` | ``np.float64`` or ``np.float32``                 |
+    | ``reward_type``        | ``"dense"``  | ``"dense"``, ``"sparse"`` or ``"shaped"``          |
     | ``Q``, ``R``           | identity     | cost weights (matrix or diagonal)                  |
     | ``success_tolerance``  | {tol_default}    | success threshold on the error norm, m             |
     | ``terminate_on_success`` | ``False``  | reach only: end the episode on success             |
     | ``sample_space``       | UR10 cuboid  | a :class:`~snac_gym.sampling.SampleSpace`          |
-    | ``render_mode``        | ``None``     | ``"rgb_array"`` (headless) or ``"human"`` (GUI)     |
+    | ``render_mode``        | ``None``     | ``"rgb_array"`` (headless) or ``"human"`` (GUI;    |
+    |                        |              | without a display it warns on the first frame and  |
+    |                        |              | shows nothing)                                     |
     | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels  |
 
     ## Version History
     * v0: initial version.
+    * v0 (issue 14, same numbers by default): the episode limit moved to the registration's
+      ``TimeLimit`` (``max_episode_steps``; ``max_steps`` kept); finite observation bounds;
+      ``observation_dtype``, ``action_type="normalized"`` and ``reward_type="shaped"`` added;
+      ``render_mode="human"`` without a display no longer fails in the constructor.
 """
+
+#: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
+ACTION_TYPES = ("velocity", "normalized")
+#: Reward types (see the env docstrings, "Rewards").
+REWARD_TYPES = ("dense", "sparse", "shaped")
+#: Weights of ``reward_type="shaped"``: r = −distance_weight·d + precision_bonus·exp(−(d/precision_scale)²)
+#: − action_penalty·‖a‖², the defaults of :class:`snac_gym.ppo.envs.RewardSpec`.
+SHAPED_REWARD: Mapping[str, float] = MappingProxyType(
+    {"distance_weight": 10.0, "precision_bonus": 1.0, "precision_scale": 0.01, "action_penalty": 0.01}
+)
+#: How far past its URDF limit the observation bounds allow a joint, rad (the simulator's joint
+#: limits are soft constraints: a joint driven into one at full speed overshoots it by ~0.01 rad).
+JOINT_LIMIT_MARGIN = 0.1
+#: Observation dtypes.
+OBSERVATION_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))
+
+
+def shaped_reward(error_norm: float, action: np.ndarray) -> float:
+    """The ``reward_type="shaped"`` reward (:data:`SHAPED_REWARD`).
+
+    Args:
+        error_norm: d = ‖e‖ after the step, m.
+        action: The applied command normalised to [−1, 1] (u / v_max).
+
+    Returns:
+        −distance_weight·d + precision_bonus·exp(−(d / precision_scale)²) − action_penalty·‖a‖².
+    """
+    w = SHAPED_REWARD
+    bonus = w["precision_bonus"] * math.exp(-((error_norm / w["precision_scale"]) ** 2))
+    return -w["distance_weight"] * error_norm + bonus - w["action_penalty"] * float(action @ action)
+
+
+def apply_episode_length(env: gym.Env) -> gym.Env:
+    """Registered ``additional_wrappers`` hook: make ``max_steps`` and ``max_episode_steps`` agree.
+
+    ``gym.make`` calls it on the env it has just wrapped in its ``TimeLimit``. An env built with
+    ``max_steps=N`` gets its ``TimeLimit`` replaced by one of N steps (so N may exceed the
+    registered length); otherwise ``env.unwrapped.max_steps`` is set to the ``TimeLimit``'s length.
+
+    Args:
+        env: The env ``gym.make`` built (a ``TimeLimit`` unless ``max_episode_steps=-1``).
+
+    Returns:
+        The env with a ``TimeLimit`` of the requested length (or ``env`` itself).
+    """
+    base = env.unwrapped
+    requested = getattr(base, "requested_max_steps", None)
+    if requested is not None:
+        inner = env.env if isinstance(env, gym.wrappers.TimeLimit) else env
+        return gym.wrappers.TimeLimit(inner, requested)
+    if isinstance(env, gym.wrappers.TimeLimit) and env.spec is not None and env.spec.max_episode_steps is not None:
+        base.max_steps = int(env.spec.max_episode_steps)
+    return env
+
 
 
 def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
@@ -178,16 +264,31 @@ class URTaskEnv(gym.Env):
         render_mode: str | None = None,
         render_width: int = 480,
         render_height: int = 480,
+        action_type: str = "velocity",
+        observation_dtype: Any = np.float64,
     ) -> None:
         self._init_kwargs = dict(
             robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
             success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
             sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
+            action_type=action_type, observation_dtype=observation_dtype,
         )
-        if reward_type not in ("dense", "sparse"):
-            raise ValueError(f"reward_type must be 'dense' or 'sparse', got {reward_type!r}")
+        if reward_type not in REWARD_TYPES:
+            raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
+        if action_type not in ACTION_TYPES:
+            raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
+        try:
+            obs_dtype = np.dtype(observation_dtype)
+        except TypeError:
+            obs_dtype = None
+        if obs_dtype not in OBSERVATION_DTYPES:
+            raise ValueError(f"observation_dtype must be np.float64 or np.float32, got {observation_dtype!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        #: The ``max_steps`` argument: when given, the env truncates itself after it (``None``: the
+        #: ``TimeLimit`` of the registration does, see :func:`apply_episode_length`).
+        self.requested_max_steps = None if max_steps is None else int(max_steps)
+        #: Episode length in control steps (the default horizon of :func:`snac_gym.rollout.rollout`).
         self.max_steps = self.default_max_steps if max_steps is None else int(max_steps)
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
@@ -207,22 +308,49 @@ class URTaskEnv(gym.Env):
         self.render_mode = render_mode
         self.render_width, self.render_height = check_image_size(render_width, render_height)
 
-        self.sim = PyBulletSim(dt, n_substeps, gui=render_mode == "human")
+        self.action_type = action_type
+        self.observation_dtype = obs_dtype
+        # "human" without a display falls back to the headless client and warns on the first frame
+        # (the constructor must work headless: Gymnasium's checker builds every declared mode).
+        self._headless_human = render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
+        self.sim = PyBulletSim(dt, n_substeps, gui=render_mode == "human" and not self._headless_human)
         self.dt = self.sim.dt
         self.arm = SimulatedArm(self.sim, self.kinematics)
         self._initial_state = self.sim.save_state()
         self._marker: int | None = None
+        self._warned_headless = False
 
         self.velocity_limits = self.kinematics.velocity_limits.copy()
         self.obs_layout = ObservationLayout(m, n)
         self._error_slice = self.obs_layout.slices["e"]
-        self.action_space = gym.spaces.Box(-self.velocity_limits, self.velocity_limits, dtype=np.float64)
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.obs_layout.size,), dtype=np.float64)
+        if action_type == "normalized":
+            self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
+        else:
+            self.action_space = gym.spaces.Box(-self.velocity_limits, self.velocity_limits, dtype=np.float64)
+        low, high = self.observation_bounds()
+        self.observation_space = gym.spaces.Box(low.astype(obs_dtype), high.astype(obs_dtype), dtype=obs_dtype)
 
         self.reference: Reference = self.task.paper()
         self.steps = 0
         self._last_command = np.zeros(m)
         self._obs: np.ndarray | None = None
+
+    def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Float64 ``(low, high)`` of the observation (see "Observation Space")."""
+        k = self.kinematics
+        reach = sum(float(np.linalg.norm(k.model.jointPlacements[j].translation)) for j in range(1, k.model.njoints))
+        reach += float(np.linalg.norm(k.ee_mount()[1]))
+        n = k.task_dim
+        box = np.full(n, reach)
+        speed = np.full(n, MAX_REFERENCE_SPEED)
+        inf = np.full(k.n_joints, np.inf)
+        high = np.empty(self.obs_layout.size)
+        for name, value in (("q", k.upper_limits + JOINT_LIMIT_MARGIN), ("qdot", inf), ("x", box), ("x_d", box),
+                            ("xdot_d", speed), ("e", 2 * box), ("x_c", box)):
+            high[self.obs_layout.slices[name]] = value
+        low = -high
+        low[self.obs_layout.slices["q"]] = k.lower_limits - JOINT_LIMIT_MARGIN
+        return low, high
 
     # -- episode -----------------------------------------------------------------------------
     @property
@@ -258,7 +386,11 @@ class URTaskEnv(gym.Env):
         error = self.obs_layout.unpack(self._obs).e
         info = {"error": error.copy(), "error_norm": float(np.linalg.norm(error)), "t": 0.0,
                 "is_success": self._is_success(error), "reference": self.reference.to_dict(), "q0": q0.copy()}
-        return self._obs.copy(), info
+        return self._output(self._obs), info
+
+    def _output(self, obs: np.ndarray) -> np.ndarray:
+        """A copy of ``obs`` in the observation dtype."""
+        return obs.astype(self.observation_dtype)  # astype copies, also for float64
 
     def _is_success(self, error: np.ndarray) -> bool:
         return bool(error @ error <= self.success_tolerance**2)
@@ -266,7 +398,11 @@ class URTaskEnv(gym.Env):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._obs is None:
             raise RuntimeError("call reset() before step()")
-        u = validate_action(action, self.velocity_limits)
+        if self.action_type == "normalized":
+            normalized = validate_action(action, np.ones_like(self.velocity_limits))
+            u = normalized * self.velocity_limits
+        else:
+            u = validate_action(action, self.velocity_limits)
         error_before = self._obs[self._error_slice]
         # eq. 6 integrand eᵀQe + uᵀRu, and the smoothness term u̇ᵀRu̇ of the trajectory cost
         cost_error = float(quadratic_form(error_before, self.Q))
@@ -281,22 +417,36 @@ class URTaskEnv(gym.Env):
 
         error = self._obs[self._error_slice]
         success = self._is_success(error)
-        reward = -(cost_error + cost_effort) if self.reward_type == "dense" else (0.0 if success else -1.0)
+        error_norm = math.sqrt(error @ error)
+        if self.reward_type == "dense":
+            reward = -(cost_error + cost_effort)
+        elif self.reward_type == "shaped":
+            reward = shaped_reward(error_norm, u / self.velocity_limits)
+        else:
+            reward = 0.0 if success else -1.0
         terminated = self.terminate_on_success and success
-        truncated = self.steps >= self.max_steps
+        truncated = self.requested_max_steps is not None and self.steps >= self.requested_max_steps
         info = {
-            "error": error.copy(), "error_norm": math.sqrt(error @ error), "cost_error": cost_error,
+            "error": error.copy(), "error_norm": error_norm, "cost_error": cost_error,
             "cost_effort": cost_effort, "cost_smoothness": cost_smoothness, "command": u.copy(), "t": self.time,
             "is_success": success,
         }
         if self.render_mode == "human":
             self.render()
-        return self._obs.copy(), float(reward), terminated, truncated, info
+        return self._output(self._obs), float(reward), terminated, truncated, info
 
     # -- rendering -----------------------------------------------------------------------------
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        if self._headless_human:
+            if not self._warned_headless:
+                gym.logger.warn(
+                    "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set: "
+                    "nothing is shown; use render_mode='rgb_array' to render headless"
+                )
+                self._warned_headless = True
             return None
         if self._marker is None:
             self._marker = self.sim.add_marker()
