@@ -503,7 +503,7 @@ class Progress:
         enabled: bool,
         lines: bool | None = None,
         write: Callable[[str], None] | None = None,
-        label: str = "evaluate",
+        label: str = "evaluate:",
     ) -> None:
         import sys
 

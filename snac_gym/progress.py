@@ -43,10 +43,10 @@ def format_elapsed(seconds: float) -> str:
 
 
 class ProgressLines:
-    """Rate-limited progress lines ``<label>: <done>/<total> <unit> (<pct> %), <elapsed>[, <detail>]``.
+    """Rate-limited progress lines ``<label> <done>/<total> <unit> (<pct> %), <elapsed>[, <detail>]``.
 
     Args:
-        label: What runs (``"evaluate"``, ``"train-ppo: reach"``).
+        label: What runs, the start of each line (``"evaluate:"``, ``"train-ppo: reach"``).
         total: Units of work in all (may grow, see :meth:`add_total`).
         write: Writes one line (no newline given).
         unit: Name of the unit of work (``"rollouts"``, ``"timesteps"``).
@@ -111,5 +111,5 @@ class ProgressLines:
         """The line for the current state."""
         now = self._clock() if now is None else now
         share = f" ({100 * self.done / self.total:.0f} %)" if self.total > 0 else ""
-        text = f"{self.label}: {self.done}/{self.total} {self.unit}{share}, {format_elapsed(now - self._start)}"
+        text = f"{self.label} {self.done}/{self.total} {self.unit}{share}, {format_elapsed(now - self._start)}"
         return f"{text}, {self.detail}" if self.detail else text

@@ -29,7 +29,7 @@ class _Clock:
 
 def test_lines_come_every_tenth_or_every_interval_and_at_the_end():
     clock, written = _Clock(), []
-    lines = ProgressLines("evaluate", 1000, written.append, every_fraction=0.1, every_s=10.0, clock=clock)
+    lines = ProgressLines("evaluate:", 1000, written.append, every_fraction=0.1, every_s=10.0, clock=clock)
     for i in range(99):  # 99 rollouts in 9.9 s: neither 10 % nor 10 s
         clock.now = 0.1 * (i + 1)
         assert not lines.update(1)
@@ -53,7 +53,7 @@ def test_lines_come_every_tenth_or_every_interval_and_at_the_end():
 
 def test_a_fast_run_writes_at_most_one_line_per_tenth():
     written: list[str] = []
-    lines = ProgressLines("evaluate", 10_000, written.append)
+    lines = ProgressLines("evaluate:", 10_000, written.append)
     for _ in range(10_000):
         lines.update(1)
     assert 10 <= len(written) <= 11 and written[-1].startswith("evaluate: 10000/10000 rollouts (100 %)")
