@@ -261,7 +261,7 @@ def test_env_docstrings_document_every_section():
 
 # -- issue 14: conventions and the learner options ------------------------------------------------
 
-LEARNER = dict(action_type="normalized", observation_dtype=np.float32, reward_type="shaped")
+LEARNER = dict(action_type="normalized", observation_dtype=np.float32, reward_type="shaped", finite_observation_bounds=True)
 
 
 @pytest.mark.parametrize("kwargs", [{}, LEARNER], ids=["defaults", "learner"])
@@ -302,7 +302,7 @@ def test_episodes_longer_than_the_registered_one(env_id):
 @pytest.mark.parametrize("kwargs", [{}, LEARNER], ids=["defaults", "learner"])
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_observation_bounds_are_finite_where_physics_gives_them(env_id, kwargs):
-    env = gym.make(env_id, max_steps=150, **kwargs)
+    env = gym.make(env_id, max_steps=150, **{"finite_observation_bounds": True, **kwargs})
     space, layout = env.observation_space, env.unwrapped.obs_layout
     finite = np.isfinite(space.low) & np.isfinite(space.high)
     assert not finite[layout.slices["qdot"]].any() and finite.sum() == layout.size - 6
@@ -314,6 +314,7 @@ def test_observation_bounds_are_finite_where_physics_gives_them(env_id, kwargs):
             obs, *_ = env.step(env.action_space.sample())
             assert space.contains(obs), obs
     env.close()
+    assert np.isinf(gym.make(env_id).observation_space.high).all()  # default: ±inf, as the real-robot env
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)

@@ -38,7 +38,8 @@ _ENV_DOC = """
     ``Box(low, high, (2m + 5n,), observation_dtype)``, m joints and task dimension n = 3 (UR10: 27
     values), float64 by default, float32 with ``observation_dtype=np.float32`` (the float64 values
     rounded). Positions are in the robot's ``base`` frame (the frame the UR pendant shows).
-    Bounds (``env.unwrapped.observation_bounds()``): θ within the URDF joint limits widened by
+    Bounds: ±inf by default (the space of the real-robot env); with
+    ``finite_observation_bounds=True`` (``env.unwrapped.observation_bounds()``): θ within the URDF joint limits widened by
     :data:`JOINT_LIMIT_MARGIN` (the simulator's joint-limit constraint is soft); positions within
     ±ρ per axis, ρ the sum of the arm's link offsets (UR10: 1.88 m, a bound on its reach); ẋ_d
     within ±3 m/s (the fastest reference :class:`~snac_gym.references.Ellipse` accepts); e
@@ -107,6 +108,7 @@ _ENV_DOC = """
     |                        |              | registration's ``max_episode_steps``, {default_steps})     |
     | ``action_type``        | ``"velocity"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
     | ``observation_dtype``  | ``np.float64`` | ``np.float64`` or ``np.float32``                 |
+    | ``finite_observation_bounds`` | ``False`` | physical observation bounds instead of ±inf |
     | ``reward_type``        | ``"dense"``  | ``"dense"``, ``"sparse"`` or ``"shaped"``          |
     | ``Q``, ``R``           | identity     | cost weights (matrix or diagonal)                  |
     | ``success_tolerance``  | {tol_default}    | success threshold on the error norm, m             |
@@ -120,7 +122,7 @@ _ENV_DOC = """
     ## Version History
     * v0: initial version.
     * v0 (issue 14, same numbers by default): the episode limit moved to the registration's
-      ``TimeLimit`` (``max_episode_steps``; ``max_steps`` kept); finite observation bounds;
+      ``TimeLimit`` (``max_episode_steps``; ``max_steps`` kept); ``finite_observation_bounds``;
       ``observation_dtype``, ``action_type="normalized"`` and ``reward_type="shaped"`` added;
       ``render_mode="human"`` without a display no longer fails in the constructor.
 """
@@ -266,12 +268,14 @@ class URTaskEnv(gym.Env):
         render_height: int = 480,
         action_type: str = "velocity",
         observation_dtype: Any = np.float64,
+        finite_observation_bounds: bool = False,
     ) -> None:
         self._init_kwargs = dict(
             robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
             success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
             sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
             action_type=action_type, observation_dtype=observation_dtype,
+            finite_observation_bounds=finite_observation_bounds,
         )
         if reward_type not in REWARD_TYPES:
             raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
@@ -328,6 +332,8 @@ class URTaskEnv(gym.Env):
         else:
             self.action_space = gym.spaces.Box(-self.velocity_limits, self.velocity_limits, dtype=np.float64)
         low, high = self.observation_bounds()
+        if not finite_observation_bounds:  # the default: ±inf, the real-robot env's space
+            low, high = np.full_like(low, -np.inf), np.full_like(high, np.inf)
         self.observation_space = gym.spaces.Box(low.astype(obs_dtype), high.astype(obs_dtype), dtype=obs_dtype)
 
         self.reference: Reference = self.task.paper()
