@@ -143,19 +143,27 @@ JOINT_LIMIT_MARGIN = 0.1
 OBSERVATION_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))
 
 
-def shaped_reward(error_norm: float, action: np.ndarray) -> float:
-    """The ``reward_type="shaped"`` reward (:data:`SHAPED_REWARD`).
+def shaped_reward(
+    error_norm: float,
+    action: np.ndarray,
+    distance_weight: float = SHAPED_REWARD["distance_weight"],
+    precision_bonus: float = SHAPED_REWARD["precision_bonus"],
+    precision_scale: float = SHAPED_REWARD["precision_scale"],
+    action_penalty: float = SHAPED_REWARD["action_penalty"],
+) -> float:
+    """The ``reward_type="shaped"`` reward; the PPO training wrapper uses the same function.
 
     Args:
         error_norm: d = ‖e‖ after the step, m.
         action: The applied command normalised to [−1, 1] (u / v_max).
+        distance_weight, precision_bonus, precision_scale, action_penalty: The weights
+            (default :data:`SHAPED_REWARD`).
 
     Returns:
         −distance_weight·d + precision_bonus·exp(−(d / precision_scale)²) − action_penalty·‖a‖².
     """
-    w = SHAPED_REWARD
-    bonus = w["precision_bonus"] * math.exp(-((error_norm / w["precision_scale"]) ** 2))
-    return -w["distance_weight"] * error_norm + bonus - w["action_penalty"] * float(action @ action)
+    bonus = precision_bonus * math.exp(-((error_norm / precision_scale) ** 2))
+    return -distance_weight * error_norm + bonus - action_penalty * float(action @ action)
 
 
 def apply_episode_length(env: gym.Env) -> gym.Env:

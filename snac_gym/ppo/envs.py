@@ -27,13 +27,13 @@ is always kept in ``info["env_reward"]``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from snac_gym.envs.core import shaped_reward
 from snac_gym.ppo.features import FeatureSpec, action_to_command, feature_size, observation_features
 
 REWARD_TYPES = ("shaped", "env")
@@ -83,12 +83,11 @@ class RewardSpec:
 
     def shaped(self, error_norm: float, action: np.ndarray, previous_action: np.ndarray) -> float:
         """The shaped reward for error norm ``error_norm`` (m) after a step taken with ``action``."""
-        bonus = self.precision_bonus * math.exp(-((error_norm / self.precision_scale) ** 2))
         change = action - previous_action
-        return (
-            -self.distance_weight * error_norm + bonus
-            - self.action_penalty * float(action @ action) - self.smoothness_penalty * float(change @ change)
+        base = shaped_reward(
+            error_norm, action, self.distance_weight, self.precision_bonus, self.precision_scale, self.action_penalty
         )
+        return base - self.smoothness_penalty * float(change @ change)
 
 
 class PPOTrainingWrapper(gym.Wrapper):
