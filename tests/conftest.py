@@ -1,3 +1,4 @@
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -13,3 +14,19 @@ def ur10() -> Kinematics:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope="module")
+def reach_env():
+    """The default reach env, shared by a test module (each test resets it)."""
+    env = gym.make("snac_gym/UR10Reach-v0")
+    yield env
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def track_env():
+    """The default tracking env, shared by a test module (each test resets it)."""
+    env = gym.make("snac_gym/UR10EllipseTrack-v0")
+    yield env
+    env.close()

@@ -5,7 +5,6 @@ import inspect
 import math
 import pickle
 
-import gymnasium as gym
 import numpy as np
 import pytest
 from scipy.optimize import minimize
@@ -22,20 +21,6 @@ CONTROLLERS = {"dls": DLSPolicy, "svf": SVFPolicy, "rnn": RNNPolicy}
 #: Outstretched-upwards UR10 (shoulder lift and wrist 1 at −π/2): sweeping the elbow (joint 3)
 #: through 0 passes a configuration where the position Jacobian loses rank.
 UPRIGHT = np.array([0.0, -np.pi / 2, 0.0, -np.pi / 2, 0.0, 0.0])
-
-
-@pytest.fixture(scope="module")
-def reach_env():
-    env = gym.make("snac_gym/UR10Reach-v0")
-    yield env
-    env.close()
-
-
-@pytest.fixture(scope="module")
-def track_env():
-    env = gym.make("snac_gym/UR10EllipseTrack-v0")
-    yield env
-    env.close()
 
 
 def _observation(env, q, x_d, xdot_d=(0.0, 0.0, 0.0)):

@@ -5,7 +5,6 @@ the batch protocol, its parameters and a tiny evaluation."""
 import inspect
 import math
 
-import gymnasium as gym
 import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are
@@ -19,20 +18,6 @@ from snac_gym.policies.base import BasePolicy, Policy, PolicyContext
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
 
 UPRIGHT = np.array([0.0, -np.pi / 2, 0.0, -np.pi / 2, 0.0, 0.0])
-
-
-@pytest.fixture(scope="module")
-def reach_env():
-    env = gym.make("snac_gym/UR10Reach-v0")
-    yield env
-    env.close()
-
-
-@pytest.fixture(scope="module")
-def track_env():
-    env = gym.make("snac_gym/UR10EllipseTrack-v0")
-    yield env
-    env.close()
 
 
 def _spd(rng, size):

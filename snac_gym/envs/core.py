@@ -335,6 +335,7 @@ class URTaskEnv(gym.Env):
         self.velocity_limits = self.kinematics.velocity_limits.copy()
         self.obs_layout = ObservationLayout(m, n)
         self._error_slice = self.obs_layout.slices["e"]
+        self._unit_limits = np.ones(m)  # the bounds of a normalized action, checked every step
         if action_type == "normalized":
             self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
         else:
@@ -413,8 +414,7 @@ class URTaskEnv(gym.Env):
         if self._obs is None:
             raise RuntimeError("call reset() before step()")
         if self.action_type == "normalized":
-            normalized = validate_action(action, np.ones_like(self.velocity_limits))
-            u = normalized * self.velocity_limits
+            u = validate_action(action, self._unit_limits) * self.velocity_limits
         else:
             u = validate_action(action, self.velocity_limits)
         error_before = self._obs[self._error_slice]
