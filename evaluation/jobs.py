@@ -8,21 +8,24 @@ when asked. It is the only code that runs in the workers.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from evaluation.backends import simulate_kinematic, simulate_pybullet
-from evaluation.metrics import rollout_metrics
 from evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics
+from snac_gym.kinematics import shared_kinematics
+from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.registry import make_policy
+from snac_gym.rollout import simulate_kinematic, simulate_pybullet
+
+#: How a job's samples are rolled out: the exact kinematic model in lockstep, or the PyBullet env.
+BACKENDS = ("kinematic", "pybullet")
 
 
 @dataclass(frozen=True)
@@ -30,7 +33,7 @@ class RolloutJob:
     """One controller, one set of constructor arguments, a chunk of samples of one task.
 
     Attributes:
-        task: ``"reach"`` or ``"track"``.
+        task: The task's name.
         controller: Registered policy name.
         kwargs: Constructor arguments (the effort knob included).
         samples: The chunk's samples.
@@ -66,15 +69,9 @@ class JobResult:
     logs: list[pd.DataFrame] | None = field(default=None)
 
 
-@functools.lru_cache(maxsize=4)
-def _kinematics(robot: str) -> Kinematics:
-    """One :class:`Kinematics` per robot and process (its Pinocchio workspace is reused)."""
-    return Kinematics(robot)
-
-
 def policy_context(robot: str, dt: float, task: str) -> PolicyContext:
     """The context a policy is built from in the kinematic backend (the env's limits and layout)."""
-    kinematics = _kinematics(robot)
+    kinematics = shared_kinematics(robot)
     return PolicyContext(
         kinematics,
         float(dt),

@@ -31,35 +31,18 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.references import MIN_SEMI_AXIS, PAPER_CIRCLE_SPEED, Ellipse, FixedTarget
-from snac_gym.sampling import SampleSpace, check_reachable, sample_ellipse, sample_seed_pose, sample_target
+from snac_gym.sampling import SampleSpace, check_reachable, sample_seed_pose
+from snac_gym.tasks import TASKS as TASK_REGISTRY
+from snac_gym.tasks import Sample, get_task
 
-TASKS = ("reach", "track")
-#: Task code in the seed sequences' spawn keys (fixed forever: changing it changes every sample set).
-TASK_CODES = {"reach": 0, "track": 1}
+#: Names of the registered tasks (kept for the evaluator's option checks).
+TASKS = tuple(TASK_REGISTRY)
 _POLICY_SEED_KEY = 1  # third spawn-key entry of a sample's policy seed
-
-TARGET_COLUMNS = [f"target_{i}" for i in range(3)]
-ELLIPSE_COLUMNS = (
-    [f"centre_{i}" for i in range(3)]
-    + ["semi_axis_0", "semi_axis_1"]
-    + [f"orientation_{i}" for i in range(3)]
-    + ["angular_speed", "phase"]
-)
-_OPTIONAL_ELLIPSE_DEFAULTS = {
-    "orientation_0": 0.0,
-    "orientation_1": 0.0,
-    "orientation_2": 0.0,
-    "angular_speed": PAPER_CIRCLE_SPEED,
-    "phase": 0.0,
-}
 
 
 #: Largest sample id: ids are int64 columns of the results (and seed the policy resets).
@@ -72,52 +55,33 @@ class SampleFileError(ValueError):
     """A samples CSV that cannot be used; the message names the file, row and column."""
 
 
-@dataclass(frozen=True)
-class EvaluationSample:
-    """One sample: where a rollout starts and what it must reach or follow.
-
-    Attributes:
-        task: ``"reach"`` or ``"track"``.
-        index: Sample id, unique within the task.
-        q0: Seed joint pose θ₀, rad.
-        reference: A :class:`FixedTarget` (reach) or an :class:`Ellipse` (track).
-    """
-
-    task: str
-    index: int
-    q0: np.ndarray
-    reference: FixedTarget | Ellipse
-
-    def reset_options(self) -> dict[str, Any]:
-        """The env ``reset`` options that pin this sample (``q0`` and ``target`` or ``ellipse``)."""
-        key = "target" if self.task == "reach" else "ellipse"
-        value = self.reference.target.tolist() if self.task == "reach" else self.reference.to_dict()
-        return {"q0": self.q0.tolist(), key: value}
+#: One sample of a set (the rollout engine's :class:`snac_gym.tasks.Sample`).
+EvaluationSample = Sample
 
 
 def column_names(n_joints: int) -> list[str]:
-    """The CSV header for a robot with ``n_joints`` joints."""
-    return ["task", "sample"] + [f"q0_{j}" for j in range(n_joints)] + TARGET_COLUMNS + ELLIPSE_COLUMNS
+    """The CSV header for a robot with ``n_joints`` joints: every registered task's columns, in order."""
+    references = [column for task in TASK_REGISTRY.values() for column in task.csv_columns]
+    return ["task", "sample"] + [f"q0_{j}" for j in range(n_joints)] + references
 
 
 def _sample_generator(seed: int, task: str, index: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(TASK_CODES[task], index)))
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(get_task(task).code, index)))
 
 
 def policy_seed(seed: int, task: str, index: int) -> int:
     """The seed a policy is reset with for sample ``index`` of ``task`` (independent of N and workers)."""
-    sequence = np.random.SeedSequence(seed, spawn_key=(TASK_CODES[task], index, _POLICY_SEED_KEY))
+    sequence = np.random.SeedSequence(seed, spawn_key=(get_task(task).code, index, _POLICY_SEED_KEY))
     return int(sequence.generate_state(1)[0])
 
 
 def generate_sample(kinematics: Kinematics, space: SampleSpace, seed: int, task: str, index: int) -> EvaluationSample:
     """Sample ``index`` of ``task`` for ``seed``: the reference first, then the seed pose (as the envs do)."""
-    if task not in TASK_CODES:
-        raise ValueError(f"task must be one of {TASKS}, got {task!r}")
+    spec = get_task(task)
     rng = _sample_generator(seed, task, index)
-    reference = sample_target(kinematics, rng, space) if task == "reach" else sample_ellipse(kinematics, rng, space)
+    reference = spec.sample(kinematics, rng, space)
     q0 = sample_seed_pose(kinematics, rng, space)
-    return EvaluationSample(task, index, q0, reference)
+    return EvaluationSample(spec.name, index, q0, reference)
 
 
 def generate_samples(
@@ -141,14 +105,8 @@ def sample_row(sample: EvaluationSample, n_joints: int) -> dict[str, str]:
     row["sample"] = str(sample.index)
     for j, angle in enumerate(sample.q0):
         row[f"q0_{j}"] = _format(angle)
-    if sample.task == "reach":
-        for name, value in zip(TARGET_COLUMNS, sample.reference.target, strict=True):
-            row[name] = _format(value)
-    else:
-        ellipse = sample.reference
-        values = [*ellipse.centre, *ellipse.semi_axes, *ellipse.orientation, ellipse.angular_speed, ellipse.phase]
-        for name, value in zip(ELLIPSE_COLUMNS, values, strict=True):
-            row[name] = _format(value)
+    for name, value in get_task(sample.task).csv_cells(sample.reference).items():
+        row[name] = _format(value)
     return row
 
 
@@ -200,9 +158,10 @@ class _RowReader:
 
 
 def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, index: int) -> EvaluationSample:
-    task = reader.text("task")
-    if task not in TASKS:
-        raise reader.error("task", f"{task!r} is not one of {list(TASKS)}")
+    name = reader.text("task")
+    if name not in TASK_REGISTRY:
+        raise reader.error("task", f"{name!r} is not one of {list(TASK_REGISTRY)}")
+    task = TASK_REGISTRY[name]
     m = kinematics.n_joints
     q0 = reader.numbers([f"q0_{j}" for j in range(m)])
     for j in range(m):
@@ -211,35 +170,15 @@ def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, i
                 f"q0_{j}",
                 f"{q0[j]} rad is outside the joint limits [{kinematics.lower_limits[j]}, {kinematics.upper_limits[j]}]",
             )
-    if task == "reach":
-        reader.require_empty(ELLIPSE_COLUMNS, task)
-        reference: FixedTarget | Ellipse = FixedTarget(reader.numbers(TARGET_COLUMNS))
-        unreachable_columns = "target_0..target_2"
-    else:
-        reader.require_empty(TARGET_COLUMNS, task)
-        semi_axes = reader.numbers(["semi_axis_0", "semi_axis_1"])
-        for i, value in enumerate(semi_axes):
-            if value < MIN_SEMI_AXIS:
-                raise reader.error(f"semi_axis_{i}", f"{value} m must be positive, at least {MIN_SEMI_AXIS:g} m")
-        optional = {name: reader.number(name, default) for name, default in _OPTIONAL_ELLIPSE_DEFAULTS.items()}
-        unreachable_columns = "centre_0..phase"
-        try:
-            reference = Ellipse(
-                centre=reader.numbers([f"centre_{i}" for i in range(3)]),
-                semi_axes=semi_axes,
-                orientation=[optional[f"orientation_{i}"] for i in range(3)],
-                angular_speed=optional["angular_speed"],
-                phase=optional["phase"],
-            )
-        except SampleFileError:
-            raise
-        except ValueError as exc:  # a meaningless ellipse (its speed): the constructor states the bound
-            raise reader.error(unreachable_columns, str(exc)) from None
+    for other in TASK_REGISTRY.values():
+        if other is not task:
+            reader.require_empty(other.csv_columns, name)
+    reference = task.read_csv_reference(reader)
     try:
-        check_reachable(kinematics, reference.points(space.ellipse_points), f"{task} reference")
+        check_reachable(kinematics, reference.points(space.ellipse_points), f"{name} reference")
     except ValueError as exc:
-        raise reader.error(unreachable_columns, f"unreachable: {exc}") from None
-    return EvaluationSample(task, index, q0, reference)
+        raise reader.error(task.csv_reference_span(), f"unreachable: {exc}") from None
+    return EvaluationSample(name, index, q0, reference)
 
 
 def read_samples_csv(
@@ -291,8 +230,8 @@ def _read_rows(
         raise SampleFileError(
             f"{path}: unknown column(s) {unknown}; expected columns {column_names(kinematics.n_joints)}"
         )
-    samples: dict[str, list[EvaluationSample]] = {task: [] for task in TASKS}
-    seen: dict[str, set[int]] = {task: set() for task in TASKS}
+    samples: dict[str, list[EvaluationSample]] = {task: [] for task in TASK_REGISTRY}
+    seen: dict[str, set[int]] = {task: set() for task in TASK_REGISTRY}
     for row_number, row in enumerate(reader, start=1):
         # The reader skips blank lines, so the row count is not the line: ask the reader (the
         # last line of the record, which is also where a quoted cell spanning lines ends).

@@ -38,6 +38,14 @@ def root(
     """SNAC kinematic control of UR arms: demos, the paper's evaluation, benchmarks."""
 
 
+def _check_task(task: str) -> None:
+    """Refuse a ``--task`` that names no registered task."""
+    from snac_gym.tasks import task_names
+
+    if task not in task_names():
+        raise typer.BadParameter(f"must be one of {sorted(task_names())}", param_hint="--task")
+
+
 @app.command()
 def bench(
     steps: int = typer.Option(5000, min=100, help="Env steps per measurement."),
@@ -78,10 +86,9 @@ def demo(
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
-    from snac_gym.demo import DEMO_ENVS, run_demo
+    from snac_gym.demo import run_demo
 
-    if task not in DEMO_ENVS:
-        raise typer.BadParameter(f"must be one of {sorted(DEMO_ENVS)}", param_hint="--task")
+    _check_task(task)
     if steps is not None and duration is not None:
         raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
     try:
@@ -109,12 +116,10 @@ def real(
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --backend sim."""
-    from snac_gym.demo import DEMO_ENVS
     from snac_gym.real import ConnectionFailure, SafetyLimits
     from snac_gym.real.run import run_real_episode
 
-    if task not in DEMO_ENVS:
-        raise typer.BadParameter(f"must be one of {sorted(DEMO_ENVS)}", param_hint="--task")
+    _check_task(task)
     try:
         result = run_real_episode(
             task=task, controller=controller, out_dir=out, backend=backend, host=host, series=series, dry_run=dry_run,
@@ -260,8 +265,7 @@ def train_ppo_command(
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress lines on stderr (timesteps, time, success) where stderr is not a terminal."),
 ) -> None:
     """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""
-    if task not in ("reach", "track"):
-        raise typer.BadParameter("must be reach or track", param_hint="--task")
+    _check_task(task)
     try:
         from snac_gym.progress import wants_lines
         from snac_gym.ppo.train import train_ppo

@@ -20,12 +20,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-#: Robots of ``example-robot-data`` that work through the same code.
-ROBOT_URDFS: dict[str, str] = {
-    "ur3": "ur_description/urdf/ur3_robot.urdf",
-    "ur5": "ur_description/urdf/ur5_robot.urdf",
-    "ur10": "ur_description/urdf/ur10_robot.urdf",
-}
+from snac_gym.robots import ROBOTS, get_robot
 
 _PACKAGE_PREFIX = "package://example-robot-data/robots/"
 
@@ -50,15 +45,12 @@ def robots_directory() -> Path:
 
 
 def robot_urdf_path(robot: str) -> Path:
-    """Path of the URDF shipped by ``example-robot-data`` for ``robot`` (``ur3``, ``ur5``, ``ur10``).
+    """Path of the URDF shipped by ``example-robot-data`` for a registered ``robot`` (:mod:`snac_gym.robots`).
 
     Raises:
-        ValueError: If ``robot`` is not one of :data:`ROBOT_URDFS`.
+        ValueError: If ``robot`` is not registered.
     """
-    key = robot.lower()
-    if key not in ROBOT_URDFS:
-        raise ValueError(f"unknown robot {robot!r}; choose one of {sorted(ROBOT_URDFS)}")
-    return robots_directory() / ROBOT_URDFS[key]
+    return robots_directory() / get_robot(robot).urdf
 
 
 def resolved_urdf_text(urdf_path: str | Path) -> str:
@@ -75,11 +67,12 @@ class Kinematics:
     """Forward kinematics and position Jacobian of a serial arm, ``ẋ = J(θ) θ̇`` (eqs. 1–3).
 
     Args:
-        robot: Name of a robot in :data:`ROBOT_URDFS` (default ``"ur10"``). Ignored when
-            ``urdf_path`` is given.
-        ee_frame: URDF frame whose origin is the controlled point (default ``"tool0"``).
+        robot: Name of a registered robot (:mod:`snac_gym.robots`; default ``"ur10"``). With
+            ``urdf_path`` it only names the arm and supplies the default frames.
+        ee_frame: URDF frame whose origin is the controlled point (default: the robot's,
+            ``"tool0"`` for the UR arms).
         base_frame: URDF frame in which positions, velocities and Jacobians are expressed
-            (default ``"base"``).
+            (default: the robot's, ``"base"`` for the UR arms).
         urdf_path: Optional path of another URDF with revolute joints only.
 
     Attributes:
@@ -98,10 +91,13 @@ class Kinematics:
     def __init__(
         self,
         robot: str = "ur10",
-        ee_frame: str = "tool0",
-        base_frame: str = "base",
+        ee_frame: str | None = None,
+        base_frame: str | None = None,
         urdf_path: str | Path | None = None,
     ) -> None:
+        spec = get_robot(robot) if urdf_path is None or robot.lower() in ROBOTS else None
+        ee_frame = ee_frame if ee_frame is not None else (spec.ee_frame if spec else "tool0")
+        base_frame = base_frame if base_frame is not None else (spec.base_frame if spec else "base")
         self.robot = robot
         self.ee_frame = ee_frame
         self.base_frame = base_frame
@@ -419,3 +415,12 @@ class BatchChain:
 def _skew(axis: np.ndarray) -> np.ndarray:
     """``[a]×``, the matrix of ``v ↦ a × v``."""
     return np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+
+
+@lru_cache(maxsize=8)
+def shared_kinematics(robot: str) -> Kinematics:
+    """One :class:`Kinematics` per registered robot and process, for code that only reads it.
+
+    The instance keeps a Pinocchio workspace: do not share it between threads (build your own).
+    """
+    return Kinematics(robot)

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.references import PAPER_Q0, Ellipse, FixedTarget
+from snac_gym.references import Ellipse, FixedTarget
+from snac_gym.robots import ROBOTS
 
 #: Default sample cuboid for the UR10, base frame, metres: a box in front of the arm
 #: (negative x, as in the paper's numbers) that holds the paper's start point, target
@@ -52,12 +53,16 @@ class SampleSpace:
 
     @classmethod
     def for_robot(cls, kinematics: Kinematics, **overrides: object) -> "SampleSpace":
-        """The UR10 cuboid scaled by the robot's reach, so UR3 and UR5 get a fitting box."""
-        scale = float(np.linalg.norm(kinematics.forward(np.zeros(kinematics.n_joints)))) / _UR10_REACH
-        params: dict[str, object] = {
-            "low": tuple(float(v) * scale for v in UR10_CUBOID_LOW),
-            "high": tuple(float(v) * scale for v in UR10_CUBOID_HIGH),
-        }
+        """The robot's registered cuboid, else the UR10 cuboid scaled by its reach (UR3 and UR5 get a fitting box)."""
+        robot = ROBOTS.get(kinematics.robot.lower())
+        if robot is not None and robot.cuboid_low is not None:
+            params: dict[str, object] = {"low": robot.cuboid_low, "high": robot.cuboid_high}
+        else:
+            scale = float(np.linalg.norm(kinematics.forward(np.zeros(kinematics.n_joints)))) / _UR10_REACH
+            params = {
+                "low": tuple(float(v) * scale for v in UR10_CUBOID_LOW),
+                "high": tuple(float(v) * scale for v in UR10_CUBOID_HIGH),
+            }
         params.update(overrides)
         return cls(**params)  # type: ignore[arg-type]
 
@@ -67,9 +72,11 @@ class SampleSpace:
 
 
 def nominal_configuration(kinematics: Kinematics) -> np.ndarray:
-    """An elbow-up, wrist-down configuration to seed IK: the paper's θ0 for 6-joint UR arms."""
-    if kinematics.n_joints == len(PAPER_Q0):
-        return np.array(PAPER_Q0, dtype=float)
+    """An elbow-up, wrist-down configuration to seed IK: the robot's registered ``nominal_q``
+    (the paper's θ0 for the UR arms), else the zero pose clipped to the joint limits."""
+    robot = ROBOTS.get(kinematics.robot.lower())
+    if robot is not None and robot.nominal_q is not None and len(robot.nominal_q) == kinematics.n_joints:
+        return np.array(robot.nominal_q, dtype=float)
     return np.clip(np.zeros(kinematics.n_joints), kinematics.lower_limits, kinematics.upper_limits)
 
 

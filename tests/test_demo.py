@@ -10,22 +10,15 @@ from typer.testing import CliRunner
 
 from snac_gym.bench import format_act_bench, run_act_bench
 from snac_gym.cli import app
-from snac_gym.demo import (
-    DEMO_HORIZONS,
-    demo_metrics,
-    demo_options,
-    discretisation_study,
-    kinematic_rollout,
-    random_episode_study,
-    run_demo,
-    summarise_random_study,
-    summarise_study,
-)
+from snac_gym.demo import demo_options, run_demo
+from snac_gym.metrics import demo_metrics
 from snac_gym.policies import register_policy, registry
 from snac_gym.policies.base import BasePolicy
 from snac_gym.policies.snac import SNACPolicy
 from snac_gym.references import PAPER_Q0, PAPER_TARGET
 from snac_gym.rollout import log_array, log_columns, read_log, rollout, write_log
+from snac_gym.studies import discretisation_study, random_episode_study, summarise_random_study, summarise_study
+from snac_gym.tasks import TASKS
 
 PANELS = ("path", "error", "joint_velocities", "cost", "figure3", "critic_weights", "optimality")
 DIAGNOSTICS = {"reach": ["hjb_residual", "hjb_ratio", "critic_error"], "track": ["hjb_residual", "hjb_ratio"]}
@@ -41,7 +34,7 @@ def _expected_columns(n_joints, task_dim, n_weights):
 def test_reach_demo_meets_the_acceptance_at_its_default_horizon(tmp_path):
     result = run_demo("reach", "snac", tmp_path, seed=0)
     m, log = result.metrics, result.log
-    assert m.steps == len(log) == 1500  # the demo's 12 s horizon (DEMO_HORIZONS)
+    assert m.steps == len(log) == 1500  # the reach task's 12 s horizon
     assert m.final_error <= 1e-3
     # The paper's SNAC (random Ŵ₀ from seed 0): 1 mm first reached at 10.02 s, V = 43.6 measured.
     assert m.time_to_1mm is not None and m.time_to_1mm < 11.0
@@ -208,26 +201,8 @@ def test_act_bench_reports_every_task_and_skips_what_does_not_build(isolated_reg
         run_act_bench(calls=100, clock="sundial")
 
 
-def test_kinematic_rollout_integrates_the_held_commands_exactly():
-    """θₖ₊₁ = θₖ + clip(uₖ)Δt with the env's kinematics, on the reference the env's reset drew."""
-    env = gym.make("snac_gym/UR10EllipseTrack-v0")
-    base = env.unwrapped
-    command = np.array([0.1, -0.2, 5.0, 0.0, 0.3, -9.0])  # joints 2 and 5 exceed their limits
-    policy = _HoldStill(env)
-    policy.act = lambda obs: command
-    errors, commands = kinematic_rollout(env, policy, seed=3, steps=25)
-    _, info = env.reset(seed=3)
-    held = np.clip(command, -base.velocity_limits, base.velocity_limits)
-    np.testing.assert_array_equal(commands, np.tile(held, (25, 1)))
-    dt, reference = base.dt, base.reference
-    for k in (0, 10, 25):
-        q = np.asarray(info["q0"]) + k * held * dt
-        np.testing.assert_allclose(errors[k], base.kinematics.forward(q) - reference.position(k * dt), atol=1e-12)
-    env.close()
-
-
 def test_studies_report_every_option_and_the_success_criteria():
-    assert DEMO_HORIZONS == {"reach": 12.0, "track": 20.0}
+    assert {name: task.horizon_s for name, task in TASKS.items()} == {"reach": 12.0, "track": 20.0}
     runs = discretisation_study(tasks=("reach",), seeds=(0, 1), weight_updates=("euler",),
                                 learning_rate_units=("per_second",), freeze_options=(False,),
                                 schedule_clocks=("seconds",), steps={"reach": 30},

@@ -8,32 +8,33 @@ from snac_gym.envs.core import (
     UR10ReachEnv,
     URTaskEnv,
     shaped_reward,
+    task_env_class,
 )
+from snac_gym.tasks import TASKS
 
-#: Registered ids and their classes (registered in one loop by :func:`register_envs`).
-ENV_IDS = {
-    "snac_gym/UR10Reach-v0": "snac_gym.envs.core:UR10ReachEnv",
-    "snac_gym/UR10EllipseTrack-v0": "snac_gym.envs.core:UR10EllipseTrackEnv",
-}
+#: Registered ids and their entry points, one per registered task (filled by :func:`register_envs`).
+ENV_IDS: dict[str, str] = {}
 
 
 def register_envs() -> None:
-    """Register every id of :data:`ENV_IDS` with Gymnasium (idempotent).
+    """Register the env of every task of :data:`snac_gym.tasks.TASKS` with Gymnasium (idempotent).
 
-    Each id's episode length is its class's ``default_max_steps``, registered as
+    Each id's episode length is its task's ``episode_steps``, registered as
     ``max_episode_steps`` (the ``TimeLimit`` wrapper ``gym.make`` adds); the registered
     :func:`~snac_gym.envs.core.apply_episode_length` hook lets the ``max_steps`` argument set it.
+    A task registered later gets its id from the next call.
     """
     import gymnasium as gym
     from gymnasium.envs.registration import WrapperSpec
 
-    classes = {"snac_gym.envs.core:UR10ReachEnv": UR10ReachEnv, "snac_gym.envs.core:UR10EllipseTrackEnv": UR10EllipseTrackEnv}
     hook = WrapperSpec(name="EpisodeLength", entry_point="snac_gym.envs.core:apply_episode_length", kwargs={})
-    for env_id, entry_point in ENV_IDS.items():
-        if env_id not in gym.registry:
+    for task in TASKS.values():
+        env_class = task_env_class(task)
+        ENV_IDS[task.env_id] = f"{env_class.__module__}:{env_class.__qualname__}"
+        if task.env_id not in gym.registry:
             gym.register(
-                id=env_id, entry_point=entry_point, disable_env_checker=False,
-                max_episode_steps=classes[entry_point].default_max_steps, additional_wrappers=(hook,),
+                id=task.env_id, entry_point=ENV_IDS[task.env_id], disable_env_checker=False,
+                max_episode_steps=env_class.default_max_steps, additional_wrappers=(hook,),
             )
 
 
@@ -47,4 +48,5 @@ __all__ = [
     "URTaskEnv",
     "register_envs",
     "shaped_reward",
+    "task_env_class",
 ]

@@ -5,8 +5,9 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -14,11 +15,11 @@ import numpy as np
 from snac_gym.cost import quadratic_form, weight_matrix
 from snac_gym.envs.robot import SimulatedArm
 from snac_gym.envs.sim import PyBulletSim, check_image_size
-from snac_gym.envs.tasks import TASKS, Task
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
 from snac_gym.sampling import SampleSpace, sample_seed_pose
+from snac_gym.tasks import TASKS, Task
 
 _ENV_DOC = """
     ## Description
@@ -251,11 +252,35 @@ def validate_q0(kinematics: Kinematics, value: Any) -> np.ndarray:
     return q0
 
 
+def _check_choices(
+    reward_type: str, action_type: str, observation_dtype: Any, render_mode: str | None, metadata: Mapping[str, Any]
+) -> np.dtype:
+    """Check the env's enumerated arguments; returns the observation dtype.
+
+    Raises:
+        ValueError: Naming the argument and its allowed values.
+    """
+    if reward_type not in REWARD_TYPES:
+        raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
+    if action_type not in ACTION_TYPES:
+        raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
+    try:
+        obs_dtype = np.dtype(observation_dtype)
+    except TypeError:
+        obs_dtype = None
+    if obs_dtype not in OBSERVATION_DTYPES:
+        raise ValueError(f"observation_dtype must be np.float64 or np.float32, got {observation_dtype!r}")
+    if render_mode is not None and render_mode not in metadata["render_modes"]:
+        raise ValueError(f"render_mode must be one of {metadata['render_modes']} or None, got {render_mode!r}")
+    return obs_dtype
+
+
 class URTaskEnv(gym.Env):
-    """Base class of the snac-gym envs; see the registered subclasses for the documentation."""
+    """Base class of the snac-gym envs: one per task (:func:`task_env_class`); see their documentation."""
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
-    task_class: type[Task] = Task
+    #: The task this env class runs (set by :func:`task_env_class`).
+    task_spec: Task
     default_max_steps = 1000
     default_success_tolerance = 1e-3
 
@@ -285,18 +310,7 @@ class URTaskEnv(gym.Env):
             action_type=action_type, observation_dtype=observation_dtype,
             finite_observation_bounds=finite_observation_bounds,
         )
-        if reward_type not in REWARD_TYPES:
-            raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
-        if action_type not in ACTION_TYPES:
-            raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
-        try:
-            obs_dtype = np.dtype(observation_dtype)
-        except TypeError:
-            obs_dtype = None
-        if obs_dtype not in OBSERVATION_DTYPES:
-            raise ValueError(f"observation_dtype must be np.float64 or np.float32, got {observation_dtype!r}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
         #: The ``max_steps`` argument: when given, the env truncates itself after it (``None``: the
         #: ``TimeLimit`` of the registration does, see :func:`apply_episode_length`).
         self.requested_max_steps = None if max_steps is None else int(max_steps)
@@ -308,7 +322,7 @@ class URTaskEnv(gym.Env):
         if not self.success_tolerance > 0:
             raise ValueError(f"success_tolerance must be positive, got {success_tolerance}")
 
-        self.task: Task = self.task_class()
+        self.task: Task = self.task_spec
         self.task_name = self.task.name
         self.kinematics = Kinematics(robot)
         m, n = self.kinematics.n_joints, self.kinematics.task_dim
@@ -496,50 +510,38 @@ class URTaskEnv(gym.Env):
             self._obs = self._observe()
 
 
-def _document(cls: type[URTaskEnv], env_id: str, **text: Any) -> type[URTaskEnv]:
+def _document(cls: type[URTaskEnv], task: Task) -> None:
     steps = cls.default_max_steps
     cls.__doc__ = (cls.__doc__ or "") + _ENV_DOC.format(
-        env_id=env_id, default_steps=steps, default_seconds=steps / 125.0,
-        tol_default=f"``{cls.default_success_tolerance:g}``", **text
+        env_id=task.env_id.split("/", 1)[-1], robot_desc="Universal Robots UR10", default_steps=steps, default_seconds=steps / 125.0,
+        tol_default=f"``{cls.default_success_tolerance:g}``", key=task.option_key, **task.env_doc
     )
+
+
+def task_env_class(task: Task) -> type[URTaskEnv]:
+    """The env class of ``task`` (made once, then reused), named ``task.env_class_name``.
+
+    The class lives in this module, so that it pickles and ``task.env_id``'s entry point
+    ``snac_gym.envs.core:<env_class_name>`` finds it.
+    """
+    existing = globals().get(task.env_class_name)
+    if isinstance(existing, type) and issubclass(existing, URTaskEnv) and existing.task_spec is task:
+        return existing
+    if existing is not None:
+        raise ValueError(f"task {task.name!r}: env class name {task.env_class_name!r} is already taken")
+    attributes = {
+        "__doc__": f"``{task.env_id}``: {task.env_doc['summary']}",
+        "__module__": __name__,
+        "__qualname__": task.env_class_name,
+        "task_spec": task,
+        "default_max_steps": task.episode_steps,
+        "default_success_tolerance": task.success_tolerance,
+    }
+    cls = type(task.env_class_name, (URTaskEnv,), attributes)
+    _document(cls, task)
+    globals()[task.env_class_name] = cls
     return cls
 
 
-class UR10ReachEnv(URTaskEnv):
-    """``snac_gym/UR10Reach-v0``: optimal regulation, reach a fixed target point (Section III)."""
-
-    task_class = TASKS["reach"]
-    default_max_steps = 1000
-    default_success_tolerance = 1e-3
-
-
-class UR10EllipseTrackEnv(URTaskEnv):
-    """``snac_gym/UR10EllipseTrack-v0``: optimal tracking of a point moving on an ellipse (Section IV)."""
-
-    task_class = TASKS["track"]
-    default_max_steps = 2500
-    default_success_tolerance = 5e-3
-
-
-_document(
-    UR10ReachEnv, "UR10Reach-v0", robot_desc="Universal Robots UR10",
-    task_desc="The end effector must reach a fixed target x_d and stay there (x_d constant, ẋ_d = 0).",
-    centre_desc="the target", success_desc="‖e‖ ≤ ``success_tolerance``, default 1 mm",
-    random_desc="random target in the cuboid", key="target", key_desc="target position, 3 numbers, m",
-    paper_desc="the paper's target [-0.658, 0.626, 0.407] m",
-    end_desc="Termination on success only with ``terminate_on_success=True``.",
-)
-_document(
-    UR10EllipseTrackEnv, "UR10EllipseTrack-v0", robot_desc="Universal Robots UR10",
-    task_desc=(
-        "The end effector must follow x_d(t) moving on an ellipse (centre, semi-axes, plane orientation,"
-        " angular speed, phase), with ẋ_d(t) known; see :class:`~snac_gym.references.Ellipse`."
-    ),
-    centre_desc="the ellipse centre (so x_d − x_c gives φ(0) = 0, eq. 29)",
-    success_desc="‖e‖ ≤ ``success_tolerance``, default 5 mm",
-    random_desc="random feasible ellipse (wholly reachable, checked with the kinematics)", key="ellipse",
-    key_desc="dict with ``centre``, ``semi_axes`` or ``radius``, ``orientation``, ``angular_speed``, ``phase`` "
-    "(see :class:`~snac_gym.references.Ellipse`)",
-    paper_desc="the paper's circle, radius 0.2 m around [-0.7, 0, 0.5] m in the horizontal plane, 0.075 rad/s",
-    end_desc="Tracking never terminates; it only truncates.",
-)
+UR10ReachEnv = task_env_class(TASKS["reach"])
+UR10EllipseTrackEnv = task_env_class(TASKS["track"])

@@ -246,7 +246,9 @@ class SNACPolicy(BasePolicy):
         ):
             if value not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {value!r}")
-        alpha_i, alpha_f, shift = PAPER_SCHEDULES[self.task]
+        # The paper tuned one experiment per problem; another task takes the values of its kind.
+        self.paper_task = self.task if self.task in PAPER_SCHEDULES else ("track" if self.tracking else "reach")
+        alpha_i, alpha_f, shift = PAPER_SCHEDULES[self.paper_task]
         self.learning_rate_initial = float(alpha_i if learning_rate_initial is None else learning_rate_initial)
         self.learning_rate_final = float(alpha_f if learning_rate_final is None else learning_rate_final)
         self.schedule_shift = float(shift if schedule_shift is None else schedule_shift)
@@ -259,13 +261,13 @@ class SNACPolicy(BasePolicy):
         if not (math.isfinite(self.command_scale) and self.command_scale > 0):
             raise ValueError(f"command_scale must be positive, got {command_scale}")
 
-        state_dim = n if self.task == "reach" else 2 * n  # e (Section III) or ξ (eq. 31)
+        state_dim = 2 * n if self.tracking else n  # e (Section III) or ξ (eq. 31)
         self.basis = QuadraticBasis(state_dim)
         low, high = map(float, initial_weight_range)
         if not low <= high:
             raise ValueError(f"initial_weight_range must be (low, high) with low <= high, got {initial_weight_range}")
         self.initial_weight_range = (low, high)
-        scale = INITIAL_WEIGHT_SCALES[self.task] if initial_weight_scale is None else float(initial_weight_scale)
+        scale = INITIAL_WEIGHT_SCALES[self.paper_task] if initial_weight_scale is None else float(initial_weight_scale)
         if not math.isfinite(scale):
             raise ValueError(f"initial_weight_scale must be finite, got {initial_weight_scale}")
         self.initial_weight_scale = scale
@@ -412,7 +414,7 @@ class SNACPolicy(BasePolicy):
         n = self.task_dim
         e, xdot_d = np.asarray(e, dtype=float), np.asarray(xdot_d, dtype=float)
         state = e
-        if self.task == "track":
+        if self.tracking:
             reference = np.asarray(x_d, dtype=float) - (np.asarray(x_c, dtype=float) if self.tracking_state == "centred" else 0.0)
             state = np.concatenate((e, reference), axis=1)
         value_gradient = np.einsum("kc,kcd->kd", np.asarray(weights, dtype=float), self.basis.gradient(state))
@@ -420,13 +422,13 @@ class SNACPolicy(BasePolicy):
         gradient_e = value_gradient[:, :n]
         command = -0.5 * self._apply_r_inverse(_matvec(_transpose(jacobians), gradient_e))  # eq. 15 / 36
         residual = hjb_residual(gradient_e, jacobians, command, e, self.Q, self.R)  # the ė = Jû part
-        if self.task == "track":  # −∇_eV̂ᵀẋ_d in ė, and the reference part of ξ moves at ẋ_d
+        if self.tracking:  # −∇_eV̂ᵀẋ_d in ė, and the reference part of ξ moves at ẋ_d
             residual = residual - np.einsum("kd,kd->k", gradient_e, xdot_d)
             residual = residual + np.einsum("kd,kd->k", value_gradient[:, n:], xdot_d)
         error_cost = np.einsum("kd,de,ke->k", e, self.Q, e)
         with np.errstate(divide="ignore", invalid="ignore"):
             out = {"hjb_residual": residual, "hjb_ratio": residual / error_cost}
-        if self.task == "reach":
+        if not self.tracking:
             optimum = FrozenJacobianLQR(self.Q, self.R, n, self.n_joints).solution(jacobians, at_singular="nan")
             out["critic_error"] = critic_error(quadratic_weights_to_matrix(weights, n), optimum)
         return out
@@ -467,7 +469,7 @@ class SNACPolicy(BasePolicy):
         error = obs[self._e_slice]
         state = self._state
         state[:n] = error
-        if self.task == "track":  # ξ = [e; x_d] (eq. 31), or x_d about the centre so that φ(0) = 0 (eq. 29)
+        if self.tracking:  # ξ = [e; x_d] (eq. 31), or x_d about the centre so that φ(0) = 0 (eq. 29)
             if self.tracking_state == "paper":
                 state[n:] = obs[self._xd_slice]
             else:
@@ -530,7 +532,7 @@ class SNACPolicy(BasePolicy):
         xdot_d = obs[..., self._xdotd_slice]
         rate = np.zeros_like(state)
         rate[..., :n] = _matvec(jacobian, command) - xdot_d  # ė = J u − ẋ_d (eq. 30; ẋ_d = 0 for reach)
-        if self.task == "track":
+        if self.tracking:
             rate[..., n:] = xdot_d
         gradient_rate_e = self.basis.gradient(rate)[..., :n]
         jr = jacobian @ self.R_inverse
@@ -571,7 +573,7 @@ class SNACPolicy(BasePolicy):
         n = self.task_dim
         error = obs[:, self._e_slice]
         state = error
-        if self.task == "track":  # ξ = [e; x_d] (eq. 31) or [e; x_d − x_c], as in act
+        if self.tracking:  # ξ = [e; x_d] (eq. 31) or [e; x_d − x_c], as in act
             reference = obs[:, self._xd_slice]
             if self.tracking_state == "centred":
                 reference = reference - obs[:, self._xc_slice]

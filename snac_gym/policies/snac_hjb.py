@@ -249,7 +249,7 @@ class SNACHJBPolicy(BasePolicy):
         P = quadratic_weights_to_matrix(weights, self.task_dim)  # V̂ = eᵀP̂e
         feedback = -(r_inverse_jt @ (P @ errors[..., None]))[..., 0]  # eq. 15: −½R⁻¹Jᵀ∇V̂, ∇V̂ = 2P̂e
         command = feedback
-        if self.task == "track":  # J⁺_R ẋ_d: ė = J u_fb, the regulation problem
+        if self.tracking:  # J⁺_R ẋ_d: ė = J u_fb, the regulation problem
             command = feedback + (self.lqr.weighted_pseudoinverse(jacobians) @ velocities[..., None])[..., 0]
         command = np.minimum(np.maximum(command, -self.velocity_limits), self.velocity_limits)
 

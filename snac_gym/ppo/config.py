@@ -29,7 +29,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from snac_gym.policies.base import TASKS
+from snac_gym.tasks import task_names
 
 CONFIG_VERSION = 1
 PACKAGE = "snac_gym.ppo"
@@ -44,8 +44,8 @@ _EVALUATION_KEYS = {"every_timesteps", "episodes", "horizons_s", "seed", "succes
 
 def default_config_path(task: str) -> Path:
     """The shipped config file of ``task``."""
-    if task not in TASKS:
-        raise ValueError(f"task must be one of {TASKS}, got {task!r}")
+    if task not in task_names():
+        raise ValueError(f"task must be one of {task_names()}, got {task!r}")
     return Path(str(resources.files(PACKAGE).joinpath("configs", f"{task}.json")))
 
 
@@ -81,8 +81,8 @@ def validate_config(config: dict[str, Any], source: str = "PPO config") -> None:
     missing = [key for key in ("task", "timesteps", "seed", *_SECTIONS) if key not in config]
     if missing:
         raise ValueError(f"{source}: missing keys {missing}")
-    if config["task"] not in TASKS:
-        raise ValueError(f"{source}: task must be one of {TASKS}, got {config['task']!r}")
+    if config["task"] not in task_names():
+        raise ValueError(f"{source}: task must be one of {task_names()}, got {config['task']!r}")
     for key, allowed in (("ppo", _PPO_KEYS), ("evaluation", _EVALUATION_KEYS)):
         extra = set(config[key]) - allowed
         if extra:

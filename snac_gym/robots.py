@@ -1,0 +1,83 @@
+"""The robot registry: a robot is data, and adding one is one :func:`register_robot` call.
+
+Each :class:`Robot` names a URDF of ``example-robot-data``, the controlled frame and the base
+frame its positions are expressed in, the start pose the samplers seed IK from, and, if the
+default does not fit, its sample cuboid. Joint position and velocity limits come from the
+URDF. Everything else (the envs, the controllers, the evaluator, the real-robot run) reaches
+the robot through :class:`~snac_gym.kinematics.Kinematics` built from this entry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from snac_gym.references import PAPER_Q0
+
+
+@dataclass(frozen=True)
+class Robot:
+    """One arm.
+
+    Attributes:
+        name: Registry key (``robot=`` of the envs, ``--robot`` of the CLI).
+        urdf: URDF path inside ``example-robot-data``'s ``robots/`` folder.
+        ee_frame: URDF frame whose origin is the controlled point.
+        base_frame: URDF frame, fixed to the world, in which positions are expressed.
+        nominal_q: An elbow-up, wrist-down pose (rad) to seed inverse kinematics from; ``None``:
+            the zero pose clipped to the joint limits.
+        cuboid_low, cuboid_high: Corners of the sample cuboid (m, base frame); ``None``: the
+            UR10 cuboid scaled by the arm's reach (:meth:`~snac_gym.sampling.SampleSpace.for_robot`).
+        description: Its name in documentation.
+    """
+
+    name: str
+    urdf: str
+    ee_frame: str = "tool0"
+    base_frame: str = "base"
+    nominal_q: tuple[float, ...] | None = None
+    cuboid_low: tuple[float, float, float] | None = None
+    cuboid_high: tuple[float, float, float] | None = None
+    description: str = ""
+
+
+#: Registered robots by name.
+ROBOTS: dict[str, Robot] = {}
+
+
+def register_robot(robot: Robot) -> Robot:
+    """Add ``robot`` to :data:`ROBOTS`.
+
+    Raises:
+        ValueError: If the name is taken or only one cuboid corner is given.
+    """
+    if robot.name in ROBOTS:
+        raise ValueError(f"a robot named {robot.name!r} is already registered")
+    if (robot.cuboid_low is None) != (robot.cuboid_high is None):
+        raise ValueError(f"robot {robot.name!r}: give both cuboid corners or neither")
+    ROBOTS[robot.name] = robot
+    return robot
+
+
+def get_robot(name: str) -> Robot:
+    """The registered robot called ``name`` (case-insensitive).
+
+    Raises:
+        ValueError: If there is none, naming the registered ones.
+    """
+    key = name.lower() if isinstance(name, str) else name
+    if key not in ROBOTS:
+        raise ValueError(f"unknown robot {name!r}; choose one of {sorted(ROBOTS)}")
+    return ROBOTS[key]
+
+
+# The UR arms: tool0 in the frame the UR pendant shows ("base", π about z from base_link), so the
+# paper's numbers work unchanged; the paper's θ₀ is elbow-up, wrist-down on all three.
+for _size in ("3", "5", "10"):
+    register_robot(
+        Robot(
+            name=f"ur{_size}",
+            urdf=f"ur_description/urdf/ur{_size}_robot.urdf",
+            nominal_q=PAPER_Q0,
+            description=f"Universal Robots UR{_size}",
+        )
+    )

@@ -1,0 +1,33 @@
+"""The rollout engine: one episode or a batch, env-stepped or on the exact kinematic model.
+
+* :func:`rollout` (:mod:`.episode`): one episode of a policy in a snac-gym env (PyBullet or
+  the real robot), logged row by row; the demo, the real run and PPO evaluation use it.
+* :func:`simulate_kinematic` (:mod:`.kinematic`): B samples in lockstep on θₖ₊₁ = θₖ + uₖΔt,
+  the evaluator's default backend and the SNAC studies'.
+* :func:`simulate_pybullet` (:mod:`.episode`): B samples one after the other in the env.
+* :class:`Rollouts` (:mod:`.batch`): what both batch engines return, measured by
+  :func:`snac_gym.metrics.rollout_metrics`; :mod:`.log` holds the per-step log format.
+"""
+
+from snac_gym.rollout.batch import RolloutError, Rollouts, rollouts_from_logs, summarise_critic_diagnostics
+from snac_gym.rollout.episode import partial_log, rollout, simulate_pybullet
+from snac_gym.rollout.kinematic import reference_trajectories, simulate_kinematic
+from snac_gym.rollout.log import add_critic_diagnostics, log_array, log_columns, read_log, vector_columns, write_log
+
+__all__ = [
+    "RolloutError",
+    "Rollouts",
+    "add_critic_diagnostics",
+    "log_array",
+    "log_columns",
+    "partial_log",
+    "read_log",
+    "reference_trajectories",
+    "rollout",
+    "rollouts_from_logs",
+    "simulate_kinematic",
+    "simulate_pybullet",
+    "summarise_critic_diagnostics",
+    "vector_columns",
+    "write_log",
+]

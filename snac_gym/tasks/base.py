@@ -1,0 +1,173 @@
+"""The task contract: everything that differs between reaching a point and tracking a path.
+
+A :class:`Task` is the only place that names a task. It owns how a reference is drawn, pinned
+and parsed (env ``reset`` options and the evaluator's CSV columns), the paper's reference and
+demo, the success rule and its tolerance, and the default horizons. The envs, the evaluator,
+the demo, PPO and the real-robot run all ask the task; adding one is a new module that
+subclasses :class:`Task` plus one :func:`snac_gym.tasks.register_task` call.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+
+from snac_gym.kinematics import Kinematics
+from snac_gym.references import PAPER_Q0, Reference
+from snac_gym.sampling import SampleSpace
+
+
+class CellReader(Protocol):
+    """Typed access to one row of a samples CSV (see :mod:`evaluation.samples`)."""
+
+    def number(self, column: str, default: float | None = None) -> float:
+        """The cell as a finite float (``default`` when empty); raises naming the row and column."""
+
+    def numbers(self, columns: Sequence[str]) -> np.ndarray:
+        """Several required cells as floats."""
+
+    def error(self, column: str, message: str) -> ValueError:
+        """An error naming the row and ``column``."""
+
+
+class Task:
+    """A named reference family (subclass it; see :mod:`snac_gym.tasks.reach` for a small one).
+
+    Class attributes:
+        name: The task's name (``--task``, the ``task`` column of every results file).
+        label: Its name in tables (the paper's Table I rows).
+        code: Spawn-key code of its random samples; fixed forever, since changing it changes
+            every sample set drawn with it.
+        option_key: The env ``reset`` option that pins its reference.
+        env_id: Gymnasium id of its UR10 env.
+        env_class_name: Name of that env's class in :mod:`snac_gym.envs.core`.
+        moving_reference: Whether x_d moves (tracking): the policies then see ẋ_d ≠ 0.
+        success_tolerance: Success threshold on the error norm, m.
+        success_measure: What the success rule reads: ``"final_error"`` (‖e_K‖) or
+            ``"mean_error_2nd_half"`` (mean ‖eₖ‖ over the second half of the steps).
+        accuracy_measure: The accuracy a table shows beside the cost (a column of the
+            evaluator's results).
+        episode_steps: Default episode length of the env, control steps at 125 Hz.
+        horizon_s: Default horizon of the demo and the evaluator, s.
+        csv_columns: The columns of the evaluator's samples CSV that hold its reference.
+        env_doc: The task's paragraphs of its env's docstring: ``summary``, ``task_desc``,
+            ``centre_desc``, ``success_desc``, ``random_desc``, ``key_desc``, ``paper_desc``,
+            ``end_desc``.
+    """
+
+    name: ClassVar[str]
+    label: ClassVar[str]
+    code: ClassVar[int]
+    option_key: ClassVar[str]
+    env_id: ClassVar[str]
+    env_class_name: ClassVar[str]
+    moving_reference: ClassVar[bool] = False
+    success_tolerance: ClassVar[float]
+    success_measure: ClassVar[str] = "final_error"
+    accuracy_measure: ClassVar[str] = "final_error"
+    episode_steps: ClassVar[int]
+    horizon_s: ClassVar[float]
+    csv_columns: ClassVar[tuple[str, ...]] = ()
+    env_doc: ClassVar[Mapping[str, str]]
+
+    # -- references ------------------------------------------------------------------------
+    def sample(self, kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> Reference:
+        """A random reference from ``space``, drawn from ``rng`` (the envs' and the evaluator's)."""
+        raise NotImplementedError
+
+    def paper(self) -> Reference:
+        """The paper's reference for this task."""
+        raise NotImplementedError
+
+    def parse(self, value: Any, kinematics: Kinematics) -> Reference:
+        """The reference of the reset option ``value``, checked to be reachable.
+
+        Raises:
+            ValueError: If it is malformed or unreachable.
+        """
+        raise NotImplementedError
+
+    def option_value(self, reference: Reference) -> Any:
+        """The reset-option value (JSON types) that :meth:`parse` turns back into ``reference``."""
+        raise NotImplementedError
+
+    def reset_options(self, q0: Sequence[float], reference: Reference) -> dict[str, Any]:
+        """Env ``reset`` options that pin the start pose and the reference."""
+        return {"q0": [float(v) for v in q0], self.option_key: self.option_value(reference)}
+
+    def demo_options(self) -> dict[str, Any]:
+        """Reset options of the paper's demonstration: θ₀ of Section V and the paper's reference."""
+        return self.reset_options(PAPER_Q0, self.paper())
+
+    def horizon_steps(self, dt: float) -> int:
+        """Control steps of the default horizon at period ``dt``."""
+        return round(self.horizon_s / dt)
+
+    # -- samples CSV -------------------------------------------------------------------------
+    def csv_cells(self, reference: Reference) -> dict[str, float]:
+        """The values of :attr:`csv_columns` for ``reference``."""
+        raise NotImplementedError
+
+    def read_csv_reference(self, cells: CellReader) -> Reference:
+        """The reference of one CSV row (unreachability is checked by the caller).
+
+        Raises:
+            ValueError: From ``cells.error`` naming the offending column.
+        """
+        raise NotImplementedError
+
+    def csv_reference_span(self) -> str:
+        """The columns an unreachable reference is reported against, e.g. ``"target_0..target_2"``."""
+        return f"{self.csv_columns[0]}..{self.csv_columns[-1]}"
+
+    # -- success -----------------------------------------------------------------------------
+    def success(self, measures: Mapping[str, Any], tolerance: float | None = None) -> Any:
+        """Whether each rollout succeeded: ``measures[success_measure] <= tolerance``.
+
+        Args:
+            measures: At least :attr:`success_measure` (a float or an array of them), m.
+            tolerance: The threshold (default :attr:`success_tolerance`), m.
+        """
+        threshold = self.success_tolerance if tolerance is None else tolerance
+        return measures[self.success_measure] <= threshold
+
+    def success_text(self, tolerance: float | None = None) -> str:
+        """The success rule in words, for reports and figure titles."""
+        threshold = self.success_tolerance if tolerance is None else tolerance
+        what = "final ‖e‖" if self.success_measure == "final_error" else "mean ‖e‖ over the 2nd half"
+        return f"{what} ≤ {threshold * 1e3:g} mm"
+
+    def __repr__(self) -> str:
+        return f"<Task {self.name!r}>"
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # Tasks are registry singletons: unpickling (worker processes, Ray) returns the registered one.
+        from snac_gym.tasks import get_task
+
+        return get_task, (self.name,)
+
+
+@dataclass(frozen=True)
+class Sample:
+    """Where one rollout starts and what it must reach or follow.
+
+    Attributes:
+        task: The task's name.
+        index: Sample id, unique within the task.
+        q0: Start joint pose θ₀, rad.
+        reference: The task's reference (a fixed target, an ellipse).
+    """
+
+    task: str
+    index: int
+    q0: np.ndarray
+    reference: Reference
+
+    def reset_options(self) -> dict[str, Any]:
+        """The env ``reset`` options that pin this sample (``q0`` and the task's reference key)."""
+        from snac_gym.tasks import get_task
+
+        return get_task(self.task).reset_options(self.q0, self.reference)

@@ -1,0 +1,63 @@
+"""Regulation (Section III): bring the end effector to a fixed target point and keep it there."""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from snac_gym.kinematics import Kinematics
+from snac_gym.references import PAPER_TARGET, FixedTarget
+from snac_gym.sampling import SampleSpace, check_reachable, sample_target
+from snac_gym.tasks.base import CellReader, Task
+
+TARGET_COLUMNS = ("target_0", "target_1", "target_2")
+
+
+class ReachTask(Task):
+    """Reach a fixed target x_d (ẋ_d = 0); success is a final error within 1 mm."""
+
+    name = "reach"
+    label = "Regulation"
+    code = 0
+    option_key = "target"
+    env_id = "snac_gym/UR10Reach-v0"
+    env_class_name = "UR10ReachEnv"
+    success_tolerance = 1e-3
+    success_measure = "final_error"
+    accuracy_measure = "final_error"
+    episode_steps = 1000
+    # 12 s: SNAC's 95th-percentile settling time at equal effort is 11.7 s (docs/evaluation.md).
+    horizon_s = 12.0
+    csv_columns = TARGET_COLUMNS
+    env_doc = MappingProxyType({
+        "summary": "optimal regulation, reach a fixed target point (Section III).",
+        "task_desc": "The end effector must reach a fixed target x_d and stay there (x_d constant, ẋ_d = 0).",
+        "centre_desc": "the target",
+        "success_desc": "‖e‖ ≤ ``success_tolerance``, default 1 mm",
+        "random_desc": "random target in the cuboid",
+        "key_desc": "target position, 3 numbers, m",
+        "paper_desc": "the paper's target [-0.658, 0.626, 0.407] m",
+        "end_desc": "Termination on success only with ``terminate_on_success=True``.",
+    })
+
+    def sample(self, kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> FixedTarget:
+        return sample_target(kinematics, rng, space)
+
+    def paper(self) -> FixedTarget:
+        return FixedTarget(PAPER_TARGET)
+
+    def parse(self, value: Any, kinematics: Kinematics) -> FixedTarget:
+        target = value if isinstance(value, FixedTarget) else FixedTarget(value)
+        check_reachable(kinematics, target.points(), f"options[{self.option_key!r}]")
+        return target
+
+    def option_value(self, reference: FixedTarget) -> list[float]:
+        return reference.target.tolist()
+
+    def csv_cells(self, reference: FixedTarget) -> dict[str, float]:
+        return dict(zip(TARGET_COLUMNS, reference.target.tolist(), strict=True))
+
+    def read_csv_reference(self, cells: CellReader) -> FixedTarget:
+        return FixedTarget(cells.numbers(TARGET_COLUMNS))
