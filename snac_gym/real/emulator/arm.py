@@ -1,0 +1,136 @@
+"""The emulated arm: the controller's own model (UR DH parameters) and exact kinematic integration.
+
+The controller reports ``actual_TCP_pose`` in its **base frame** (the frame the pendant shows, the
+``base`` frame of the URDF, rotated π about z from ``base_link``) as ``[x, y, z, rx, ry, rz]``:
+the position of the TCP, i.e. the flange (``tool0``) moved by the TCP offset, and its orientation
+as a rotation vector. The emulator computes it from Universal Robots' published DH parameters,
+not from the project's URDF, so the backend's FK check compares two independent models.
+
+Motion is integrated exactly (no dynamics) once per controller cycle: ``speedj`` approaches its
+target speed, scaled by the speed slider, at its acceleration bound; ``stopj`` decelerates to
+rest; ``movej`` moves all joints together on a straight line in joint space at ``v`` scaled by
+the slider.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: DH parameters of the arms (d1, a2, a3, d4, d5, d6), m, from Universal Robots' published tables.
+UR_DH = {
+    "ur3": (0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
+    "ur5": (0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
+    "ur10": (0.1273, -0.612, -0.5723, 0.163941, 0.1157, 0.0922),
+}
+_ALPHA = (math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0)
+
+
+def _dh(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
+    ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
+    return np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0, sa, ca, d], [0, 0, 0, 1.0]])
+
+
+def pose_to_matrix(pose: np.ndarray) -> np.ndarray:
+    """4×4 transform of a UR pose ``[x, y, z, rx, ry, rz]`` (rotation vector)."""
+    pose = np.asarray(pose, dtype=float)
+    rotvec = pose[3:]
+    angle = float(np.linalg.norm(rotvec))
+    matrix = np.eye(4)
+    if angle > 1e-12:
+        k = rotvec / angle
+        skew = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        matrix[:3, :3] = np.eye(3) + math.sin(angle) * skew + (1 - math.cos(angle)) * skew @ skew
+    matrix[:3, 3] = pose[:3]
+    return matrix
+
+
+def matrix_to_pose(matrix: np.ndarray) -> np.ndarray:
+    """UR pose ``[x, y, z, rx, ry, rz]`` of a 4×4 transform."""
+    rotation = matrix[:3, :3]
+    cos_angle = min(1.0, max(-1.0, (np.trace(rotation) - 1.0) / 2.0))
+    angle = math.acos(cos_angle)
+    if angle < 1e-9:
+        rotvec = np.zeros(3)
+    elif math.pi - angle < 1e-6:  # near π: the axis from the symmetric part
+        axis = np.sqrt(np.maximum((np.diag(rotation) + 1.0) / 2.0, 0.0))
+        signs = np.sign([1.0, rotation[0, 1] + rotation[1, 0] or 1.0, rotation[0, 2] + rotation[2, 0] or 1.0])
+        rotvec = angle * axis * signs
+    else:
+        axis = np.array(
+            [rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]]
+        )
+        rotvec = angle * axis / (2.0 * math.sin(angle))
+    return np.concatenate([matrix[:3, 3], rotvec])
+
+
+def flange_transform(robot: str, q: np.ndarray) -> np.ndarray:
+    """Base-frame transform of the flange (``tool0``) at joint angles ``q``, from the DH table."""
+    d1, a2, a3, d4, d5, d6 = UR_DH[robot]
+    ds, as_ = (d1, 0.0, 0.0, d4, d5, d6), (0.0, a2, a3, 0.0, 0.0, 0.0)
+    transform = np.eye(4)
+    for theta, d, a, alpha in zip(q, ds, as_, _ALPHA):
+        transform = transform @ _dh(float(theta), d, a, alpha)
+    return transform
+
+
+class EmulatedArm:
+    """Joint state of the emulated arm, integrated exactly each controller cycle.
+
+    Args:
+        robot: ``"ur3"``, ``"ur5"`` or ``"ur10"`` (the DH table used for the TCP pose).
+        q: Initial joint angles, rad.
+        velocity_limits: Joint speed limits, rad/s (the controller never exceeds them).
+    """
+
+    def __init__(self, robot: str, q: np.ndarray, velocity_limits: np.ndarray) -> None:
+        if robot not in UR_DH:
+            raise ValueError(f"robot must be one of {sorted(UR_DH)}, got {robot!r}")
+        self.robot = robot
+        self.q = np.array(q, dtype=float)
+        self.qd = np.zeros_like(self.q)
+        self.velocity_limits = np.asarray(velocity_limits, dtype=float)
+        self.speed_target = np.zeros_like(self.q)
+        self.acceleration = 1.0
+        self.move_target: np.ndarray | None = None
+        self.move_speed = 0.0
+
+    def speedj(self, qd: np.ndarray, acceleration: float) -> None:
+        """Stream a joint speed target (``speedj``); it holds until replaced or stopped."""
+        self.move_target = None
+        self.speed_target = np.clip(np.asarray(qd, dtype=float), -self.velocity_limits, self.velocity_limits)
+        self.acceleration = max(float(acceleration), 1e-6)
+
+    def stopj(self, deceleration: float) -> None:
+        """Decelerate every joint to rest at ``deceleration`` rad/s²."""
+        self.speedj(np.zeros_like(self.q), deceleration)
+
+    def movej(self, q: np.ndarray, speed: float) -> None:
+        """Move to ``q`` on a straight joint-space line at ``speed`` rad/s (the slowest joint's pace)."""
+        self.move_target = np.array(q, dtype=float)
+        self.move_speed = max(float(speed), 1e-6)
+        self.speed_target = np.zeros_like(self.q)
+
+    def at_rest(self, tol: float = 1e-9) -> bool:
+        return self.move_target is None and bool(np.all(np.abs(self.qd) <= tol))
+
+    def step(self, dt: float, scaling: float) -> None:
+        """Advance one controller cycle of ``dt`` s with the speed slider at ``scaling``."""
+        if self.move_target is not None:
+            delta = self.move_target - self.q
+            distance = float(np.max(np.abs(delta)))
+            reach = self.move_speed * scaling * dt
+            if distance <= reach:
+                self.q, self.qd, self.move_target = self.move_target.copy(), np.zeros_like(self.q), None
+            else:
+                self.qd = delta / distance * self.move_speed * scaling
+                self.q = self.q + self.qd * dt
+            return
+        step = self.acceleration * dt
+        self.qd = self.qd + np.clip(self.speed_target * scaling - self.qd, -step, step)
+        self.q = self.q + self.qd * dt
+
+    def tcp_pose(self, tcp_offset: np.ndarray) -> np.ndarray:
+        """``actual_TCP_pose``: the flange moved by ``tcp_offset``, in the base frame."""
+        return matrix_to_pose(flange_transform(self.robot, self.q) @ pose_to_matrix(tcp_offset))
