@@ -83,16 +83,28 @@ def validate_config(config: dict[str, Any], source: str = "PPO config") -> None:
         raise ValueError(f"{source}: missing keys {missing}")
     if config["task"] not in task_names():
         raise ValueError(f"{source}: task must be one of {task_names()}, got {config['task']!r}")
+    _validate_sections(config, source)
+
+
+#: Enumerated settings: (section, key, default, allowed values).
+_CHOICES = (
+    ("vec_env", "kind", "dummy", ("dummy", "subproc")),
+    ("ppo", "learning_rate_schedule", "constant", ("constant", "linear")),
+    ("ppo", "activation", "tanh", ("tanh", "relu")),
+)
+
+
+def _validate_sections(config: dict[str, Any], source: str) -> None:
+    """The keys of the ``ppo`` and ``evaluation`` sections and the enumerated settings."""
     for key, allowed in (("ppo", _PPO_KEYS), ("evaluation", _EVALUATION_KEYS)):
         extra = set(config[key]) - allowed
         if extra:
             raise ValueError(f"{source}: unknown {key} keys {sorted(extra)}")
-    if config["vec_env"].get("kind", "dummy") not in ("dummy", "subproc"):
-        raise ValueError(f"{source}: vec_env.kind must be 'dummy' or 'subproc', got {config['vec_env'].get('kind')!r}")
-    if config["ppo"].get("learning_rate_schedule", "constant") not in ("constant", "linear"):
-        raise ValueError(f"{source}: ppo.learning_rate_schedule must be 'constant' or 'linear'")
-    if config["ppo"].get("activation", "tanh") not in ("tanh", "relu"):
-        raise ValueError(f"{source}: ppo.activation must be 'tanh' or 'relu'")
+    for section, key, default, allowed in _CHOICES:
+        value = config[section].get(key, default)
+        if value not in allowed:
+            quoted = " or ".join(repr(v) for v in allowed)
+            raise ValueError(f"{source}: {section}.{key} must be {quoted}, got {value!r}")
 
 
 def resolve_config(

@@ -49,9 +49,10 @@ from snac_gym.cost import trajectory_cost
 from snac_gym.ppo.config import resolve_config, validate_config
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec
 from snac_gym.ppo.features import FeatureSpec
+from snac_gym.rollout import log_array, rollout
+from snac_gym.tasks import get_task
 
 #: Env id of each task.
-ENV_ID_OF_TASK = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}
 #: Columns of evaluations.csv (``success_rate_<h>s`` follows ``success_rate`` for each horizon h).
 EVALUATION_COLUMNS = (
     "timesteps", "wall_time_s", "success_rate", "mean_cost", "mean_final_error_m", "median_final_error_m",
@@ -124,7 +125,7 @@ class LinearSchedule:
 # -- envs ----------------------------------------------------------------------------------------
 def make_training_env(config: dict[str, Any]) -> gym.Env:
     """One training env of ``config`` (the task's env inside :class:`PPOTrainingWrapper`)."""
-    env = gym.make(ENV_ID_OF_TASK[config["task"]], robot=config.get("robot", "ur10"), **config["env"])
+    env = gym.make(get_task(config["task"]).env_id, robot=config.get("robot", "ur10"), **config["env"])
     return PPOTrainingWrapper(env, FeatureSpec.from_dict(config["features"]), RewardSpec.from_dict(config["reward"]))
 
 
@@ -203,37 +204,28 @@ def evaluate_policy_file(
     from snac_gym.ppo.policy import PPOPolicy
 
     evaluation = config["evaluation"]
-    task = config["task"]
+    task = get_task(config["task"])
     count = int(episodes if episodes is not None else evaluation["episodes"])
     threshold = float(evaluation["success_error_m"])
-    env = gym.make(ENV_ID_OF_TASK[task], robot=config.get("robot", "ur10"), max_steps=10**9)
+    env = gym.make(task.env_id, robot=config.get("robot", "ur10"), max_steps=10**9)
     try:
         policy = PPOPolicy(env, model_path=policy_path, action_scale=action_scale)
         dt = env.unwrapped.dt
         horizons = [float(h) for h in evaluation["horizons_s"]]
         horizon_steps = [max(1, int(round(h / dt))) for h in horizons]
-        steps = max(horizon_steps)
-        n_joints = env.unwrapped.kinematics.n_joints
         costs, successes, finals, second_halves = [], [], [], []
         for i in range(count):
-            obs, info = env.reset(seed=int(evaluation["seed"]) + i)
-            policy.reset(seed=i)
-            errors = np.empty((steps + 1, 3))
-            commands = np.empty((steps, n_joints))
-            for k in range(steps):
-                errors[k] = info["error"]
-                obs, _, _, _, info = env.step(policy.act(obs))
-                commands[k] = info["command"]
-            errors[steps] = info["error"]
+            log = rollout(env, policy, seed=int(evaluation["seed"]) + i, steps=max(horizon_steps))
+            errors = np.vstack([log_array(log, "e"), np.asarray(log.attrs["final_e"], dtype=float)[None]])
             norms = np.linalg.norm(errors, axis=1)
             first = horizon_steps[0]
-            costs.append(float(trajectory_cost(errors[:first], commands[:first], dt).total))
+            costs.append(float(trajectory_cost(errors[:first], log_array(log, "u")[:first], dt).total))
             finals_i = [float(norms[k]) for k in horizon_steps]
             halves_i = [float(norms[k // 2 : k].mean()) for k in horizon_steps]
-            if task == "reach":
-                successes.append([final <= threshold for final in finals_i])
-            else:
-                successes.append([half < threshold for half in halves_i])
+            successes.append([
+                bool(task.success({"final_error": final, "mean_error_2nd_half": half}, threshold))
+                for final, half in zip(finals_i, halves_i, strict=True)
+            ])
             finals.append(finals_i[-1])
             second_halves.append(halves_i[-1])
     finally:
@@ -327,6 +319,36 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
+def _evaluate_checkpoint(run: _Run, model: Any, venv: Any, log: Callable[[str], None], lines: Any) -> dict[str, float]:
+    """Checkpoint ``model``, evaluate it, keep it as ``best/`` if it beats the best so far, log a line
+    (and put the success rate in the progress ``lines``, when there are any)."""
+    timesteps = int(model.num_timesteps)
+    policy_path = run.save("checkpoint", model, venv)
+    scores = evaluate_policy_file(policy_path, run.config)
+    is_best = _better(scores, run.state["best"])
+    row = {"timesteps": timesteps, "wall_time_s": round(run.wall_time(), 1), **scores, "is_best": int(is_best)}
+    if is_best:
+        run.state["best"] = row
+        run.save("best", model, venv, {"evaluation": row})
+    run.append_evaluation(row)
+    run.write_state(timesteps, "running")
+    if lines is not None:
+        lines.detail = f"success {100 * scores['success_rate']:.1f} % at {timesteps} timesteps"
+    total = int(run.config["timesteps"])
+    log(
+        f"[{run.config['task']}] {timesteps}/{total} steps, {row['wall_time_s'] / 60:.1f} min: success "
+        f"{100 * scores['success_rate']:.1f}%, mean cost {scores['mean_cost']:.4g}, median final error "
+        f"{1000 * scores['median_final_error_m']:.2f} mm{'  (best)' if is_best else ''}"
+    )
+    return scores
+
+
+def _next_evaluation(timesteps: int, due: int, every: int) -> int:
+    """The next multiple-of-``every`` evaluation point after ``timesteps`` (skipping those already passed)."""
+    behind = timesteps - due + 1
+    return due + every * max(1, math.ceil(behind / every))
+
+
 def _make_callback(run: _Run, venv: Any, log: Callable[[str], None], progress: Callable[[str], None] | None) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -357,8 +379,7 @@ def _make_callback(run: _Run, venv: Any, log: Callable[[str], None], progress: C
                 self.lines.update(done=self.model.num_timesteps)
             if self.model.num_timesteps >= self.next_evaluation:
                 self.evaluate()
-                behind = self.model.num_timesteps - self.next_evaluation + 1
-                self.next_evaluation += every * max(1, math.ceil(behind / every))
+                self.next_evaluation = _next_evaluation(self.model.num_timesteps, self.next_evaluation, every)
             return True
 
         def _on_training_end(self) -> None:
@@ -367,26 +388,11 @@ def _make_callback(run: _Run, venv: Any, log: Callable[[str], None], progress: C
 
         def evaluate(self) -> None:
             timesteps = int(self.model.num_timesteps)
-            policy_path = run.save("checkpoint", self.model, venv)
-            scores = evaluate_policy_file(policy_path, run.config)
-            is_best = _better(scores, run.state["best"])
-            row = {"timesteps": timesteps, "wall_time_s": round(run.wall_time(), 1), **scores, "is_best": int(is_best)}
-            if is_best:
-                run.state["best"] = row
-                run.save("best", self.model, venv, {"evaluation": row})
-            run.append_evaluation(row)
-            run.write_state(timesteps, "running")
+            scores = _evaluate_checkpoint(run, self.model, venv, log, self.lines)
             for key, value in scores.items():
                 self.logger.record(f"eval/{key}", value)
             self.logger.dump(timesteps)
             self.last_evaluated = timesteps
-            if self.lines is not None:
-                self.lines.detail = f"success {100 * scores['success_rate']:.1f} % at {timesteps} timesteps"
-            log(
-                f"[{run.config['task']}] {timesteps}/{total} steps, {row['wall_time_s'] / 60:.1f} min: success "
-                f"{100 * scores['success_rate']:.1f}%, mean cost {scores['mean_cost']:.4g}, median final error "
-                f"{1000 * scores['median_final_error_m']:.2f} mm{'  (best)' if is_best else ''}"
-            )
 
     return EvaluateAndCheckpoint()
 
@@ -405,6 +411,34 @@ def _configure_logger(folder: Path) -> Any:
 
 
 # -- the entry point -----------------------------------------------------------------------------
+def _resumed_config(out: Path, task: str, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The saved config of the run in ``out``, with the overrides a resumed run may change."""
+    checkpoint = out / "checkpoint"
+    if not (checkpoint / MODEL_FILE).is_file() or not (out / "config.json").is_file():
+        raise ValueError(f"--resume: {out} holds no checkpoint to continue (no {checkpoint / MODEL_FILE})")
+    config = json.loads((out / "config.json").read_text())
+    if config.get("task") != task:
+        raise ValueError(f"--resume: the run in {out} trains task {config.get('task')!r}, not {task!r}")
+    if overrides["timesteps"] is not None:
+        config["timesteps"] = int(overrides["timesteps"])
+    if overrides["n_envs"] is not None:
+        config["vec_env"]["n_envs"] = int(overrides["n_envs"])
+    if overrides["vec_env"] is not None:
+        config["vec_env"]["kind"] = overrides["vec_env"]
+    saved = {k: v for k, v in config.items() if k not in ("config_file", "versions")}
+    validate_config(saved, str(out / "config.json"))
+    return config
+
+
+def _new_config(out: Path, task: str, config_path: str | Path | None, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The config of a new run in ``out`` (refused if ``out`` already holds one)."""
+    if (out / "state.json").exists() or (out / "checkpoint" / MODEL_FILE).exists():
+        raise ValueError(f"{out} already holds a training run; pass --resume to continue it or choose another --out")
+    config = resolve_config(task, config_path, **overrides)
+    config["versions"] = package_versions()
+    return config
+
+
 def train_ppo(
     task: str,
     out: str | Path,
@@ -420,7 +454,7 @@ def train_ppo(
     """Train (or continue training) the PPO baseline for ``task``; see the module docstring.
 
     Args:
-        task: ``"reach"`` or ``"track"``.
+        task: A registered task's name.
         out: Output folder (created; must not hold another run unless ``resume``).
         timesteps: Total environment steps (default: the config's).
         seed: Seed of PPO and of the training envs (default: the config's).
@@ -444,27 +478,8 @@ def train_ppo(
 
     out = Path(out)
     checkpoint = out / "checkpoint"
-    if resume:
-        if not (checkpoint / MODEL_FILE).is_file() or not (out / "config.json").is_file():
-            raise ValueError(f"--resume: {out} holds no checkpoint to continue (no {checkpoint / MODEL_FILE})")
-        config = json.loads((out / "config.json").read_text())
-        if config.get("task") != task:
-            raise ValueError(f"--resume: the run in {out} trains task {config.get('task')!r}, not {task!r}")
-        if timesteps is not None:
-            config["timesteps"] = int(timesteps)
-        if n_envs is not None:
-            config["vec_env"]["n_envs"] = int(n_envs)
-        if vec_env is not None:
-            config["vec_env"]["kind"] = vec_env
-        saved = {k: v for k, v in config.items() if k not in ("config_file", "versions")}
-        validate_config(saved, str(out / "config.json"))
-    else:
-        if (out / "state.json").exists() or (checkpoint / MODEL_FILE).exists():
-            raise ValueError(
-                f"{out} already holds a training run; pass --resume to continue it or choose another --out"
-            )
-        config = resolve_config(task, config_path, timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env)
-        config["versions"] = package_versions()
+    overrides = {"timesteps": timesteps, "seed": seed, "n_envs": n_envs, "vec_env": vec_env}
+    config = _resumed_config(out, task, overrides) if resume else _new_config(out, task, config_path, overrides)
     out.mkdir(parents=True, exist_ok=True)
     _write_json(out / "config.json", config)
 
@@ -609,7 +624,8 @@ def training_curves_figure(out: str | Path, title: str | None = None) -> Any:
         axes[1].plot(steps, [row["mean_cost"] for row in evaluations], marker="o", ms=3)
         axes[1].set_yscale("log")
     threshold_mm = 1000 * float(config["evaluation"]["success_error_m"])
-    criterion = "final ‖e‖ ≤" if config["task"] == "reach" else "mean ‖e‖, 2nd half <"
+    spec = get_task(config["task"])
+    criterion = "final ‖e‖ ≤" if spec.success_measure == "final_error" else "mean ‖e‖, 2nd half ≤"
     axes[0].set(xlabel="timesteps", ylabel="success rate, %", ylim=(-2, 102),
                 title=f"success ({criterion} {threshold_mm:g} mm)")
     first_horizon = float(config["evaluation"]["horizons_s"][0])
