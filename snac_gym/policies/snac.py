@@ -271,24 +271,7 @@ class SNACPolicy(BasePolicy):
         if not math.isfinite(scale):
             raise ValueError(f"initial_weight_scale must be finite, got {initial_weight_scale}")
         self.initial_weight_scale = scale
-        if initial_weights is None:  # the earlier spelling of "uniform"
-            initial_weights = "uniform"
-        if isinstance(initial_weights, str):
-            if initial_weights not in INITIAL_WEIGHTS:
-                raise ValueError(
-                    f"initial_weights must be one of {INITIAL_WEIGHTS} or an array, got {initial_weights!r}"
-                )
-            #: ``"identity"``, ``"uniform"`` or ``"given"`` (an array was passed).
-            self.initial_weight_kind = initial_weights
-            self.initial_weights = (
-                np.where(self.basis.first == self.basis.second, scale, 0.0) if initial_weights == "identity" else None
-            )
-        else:
-            weights = np.array(initial_weights, dtype=float)
-            if weights.shape != (self.basis.size,) or not np.isfinite(weights).all():
-                raise ValueError(f"initial_weights must be {self.basis.size} finite numbers, got shape {weights.shape}")
-            self.initial_weight_kind = "given"
-            self.initial_weights = weights
+        self._set_initial_weights("uniform" if initial_weights is None else initial_weights, scale)
         self._seed = seed
         self._rng = np.random.default_rng(seed)
         self.batch_critic_weights: np.ndarray | None = None
@@ -312,6 +295,24 @@ class SNACPolicy(BasePolicy):
         self._last: tuple[Any, ...] | None = None
         self._internals: dict[str, Any] = {}
 
+    def _set_initial_weights(self, initial_weights: np.ndarray | str, scale: float) -> None:
+        """Check and store Ŵ₀: a kind (``None`` was the earlier spelling of ``"uniform"``) or an array."""
+        if isinstance(initial_weights, str):
+            if initial_weights not in INITIAL_WEIGHTS:
+                raise ValueError(
+                    f"initial_weights must be one of {INITIAL_WEIGHTS} or an array, got {initial_weights!r}"
+                )
+            #: ``"identity"``, ``"uniform"`` or ``"given"`` (an array was passed).
+            self.initial_weight_kind = initial_weights
+            self.initial_weights = (
+                np.where(self.basis.first == self.basis.second, scale, 0.0) if initial_weights == "identity" else None
+            )
+            return
+        weights = np.array(initial_weights, dtype=float)
+        if weights.shape != (self.basis.size,) or not np.isfinite(weights).all():
+            raise ValueError(f"initial_weights must be {self.basis.size} finite numbers, got shape {weights.shape}")
+        self.initial_weight_kind = "given"
+        self.initial_weights = weights
     def _make_views(self) -> None:
         self._gradient_flat = self._gradient.reshape(-1)  # a view: vec(∇σ) = T s is written here
         self._gradient_e = self._gradient[:, : self.task_dim]  # G = [J; 0] keeps the error columns (eqs. 36, 38)
