@@ -313,6 +313,7 @@ class SNACPolicy(BasePolicy):
             raise ValueError(f"initial_weights must be {self.basis.size} finite numbers, got shape {weights.shape}")
         self.initial_weight_kind = "given"
         self.initial_weights = weights
+
     def _make_views(self) -> None:
         self._gradient_flat = self._gradient.reshape(-1)  # a view: vec(∇σ) = T s is written here
         self._gradient_e = self._gradient[:, : self.task_dim]  # G = [J; 0] keeps the error columns (eqs. 36, 38)
