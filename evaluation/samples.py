@@ -62,7 +62,7 @@ EvaluationSample = Sample
 def column_names(n_joints: int) -> list[str]:
     """The CSV header for a robot with ``n_joints`` joints: every registered task's columns, in order."""
     references = [column for task in TASK_REGISTRY.values() for column in task.csv_columns]
-    return ["task", "sample"] + [f"q0_{j}" for j in range(n_joints)] + references
+    return ["task", "sample"] + [f"q0_{j}" for j in range(n_joints)] + list(dict.fromkeys(references))
 
 
 def _sample_generator(seed: int, task: str, index: int) -> np.random.Generator:
@@ -170,9 +170,8 @@ def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, i
                 f"q0_{j}",
                 f"{q0[j]} rad is outside the joint limits [{kinematics.lower_limits[j]}, {kinematics.upper_limits[j]}]",
             )
-    for other in TASK_REGISTRY.values():
-        if other is not task:
-            reader.require_empty(other.csv_columns, name)
+    foreign = dict.fromkeys(c for other in TASK_REGISTRY.values() for c in other.csv_columns if c not in task.csv_columns)
+    reader.require_empty(list(foreign), name)
     reference = task.read_csv_reference(reader)
     try:
         check_reachable(kinematics, reference.points(space.ellipse_points), f"{name} reference")
