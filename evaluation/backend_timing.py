@@ -1,4 +1,4 @@
-"""Time the kinematic backend per sample and control step: ``python -m evaluation.benchmark``.
+"""Time the kinematic backend per sample and control step: ``python -m evaluation.backend_timing``.
 
 For each registered controller (and for a policy that does nothing, which times the backend
 alone) it runs ``samples`` regulation samples in lockstep for ``steps`` steps (through the

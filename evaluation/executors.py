@@ -17,6 +17,7 @@ where they run does not change what they return.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import heapq
 import itertools
@@ -372,3 +373,19 @@ def make_executor(workers: int = 1, ray_address: str | None = None) -> SerialExe
     if workers > 1:
         return ProcessExecutor(workers)
     return SerialExecutor()
+
+
+@contextlib.contextmanager
+def open_executor(
+    workers: int = 1, ray_address: str | None = None
+) -> Iterator[SerialExecutor | ProcessExecutor | RayExecutor]:
+    """:func:`make_executor` for the length of a block: closed after it, and terminated first if the block
+    raises or is interrupted (a failed or interrupted run does not wait for the jobs still running)."""
+    executor = make_executor(workers, ray_address)
+    try:
+        yield executor
+    except BaseException:
+        executor.terminate()
+        raise
+    finally:
+        executor.close()

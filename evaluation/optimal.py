@@ -11,8 +11,8 @@ for ``--udot-start first``, Q = q·I for ``--q-scale``). It is an *open-loop*
 reference computed with knowledge of the whole reference, not a controller.
 
 **Method** (direct single shooting in U, Gauss-Newton steps in θ). θ is linear in U, so V and its
-exact gradient cost one batched FK+Jacobian pass (:func:`trajectory_cost_and_gradient`, where the
-gradient's equation lives). The quadratic effort + smoothness part has the fixed Hessian
+exact gradient cost one batched FK+Jacobian pass (:func:`trajectory_cost_and_gradient`; the cost and
+its gradient are written in :func:`snac_gym.cost.cost_and_gradient`). The quadratic effort + smoothness part has the fixed Hessian
 ``H₀ = 2Δt I + (2w/Δt) DᵀD`` in u (:func:`_effort_hessian_band`). In the variables θ₁..θ_K the
 error term depends on θₖ alone and u = Mθ + c (first differences), so the Gauss-Newton matrix
 ``MᵀH₀M ⊗ I + blockdiag(2Δt q JₖᵀJₖ)`` is block-banded (bandwidth 12 scalars, 6 without the u̇
@@ -38,7 +38,7 @@ import contextlib
 import ctypes
 import functools
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -53,7 +53,7 @@ from evaluation.backends import simulate_kinematic
 from evaluation.metrics import rollout_metrics
 from evaluation.reference_batch import reference_trajectories
 from evaluation.samples import EvaluationSample
-from snac_gym.cost import CostConvention
+from snac_gym.cost import CostConvention, cost_and_gradient
 from snac_gym.kinematics import Kinematics
 
 #: Name of the reference row in the results (selectable with ``--controllers optimal,...``).
@@ -106,11 +106,8 @@ def trajectory_cost_and_gradient(
 ) -> tuple[float, np.ndarray]:
     """V(U) and its exact gradient ∂V/∂U under ``convention`` (default: Q = I, R = I, u₋₁ = 0).
 
-    With Q = qI and the u̇ term weighted by w (1 for ``table1``, 0 for ``hjb``)::
-
-        ∂V/∂uₖ = 2Δt uₖ + (2w/Δt)((uₖ − uₖ₋₁) − (uₖ₊₁ − uₖ)) + Δt Σ_{j>k} 2Δt q Jⱼᵀ eⱼ
-
-    (u₋₁ = u₀ for ``udot_start="first"``: the first difference is 0).
+    Rolls U out from θ₀ (one batched FK+Jacobian pass) and scores it with
+    :func:`snac_gym.cost.cost_and_gradient`, where the cost and its gradient are written.
 
     Args:
         commands: ``(K, m)`` commands U.
@@ -120,24 +117,8 @@ def trajectory_cost_and_gradient(
         dt: Control period Δt, s.
         convention: The cost (:class:`snac_gym.cost.CostConvention`).
     """
-    convention = convention if convention is not None else CostConvention()
-    weight, q_scale = convention.smoothness_weight, convention.q_scale
-    steps, m = commands.shape
     positions, jacobians = kinematics.forward_and_jacobian_batch(_angles(commands, q0, dt))
-    errors = positions - x_d
-    g = (2.0 * dt * q_scale) * np.einsum("kij,ki->kj", jacobians, errors)  # g_j = 2Δt q Jⱼᵀ eⱼ
-    rates = np.diff(commands, axis=0, prepend=np.zeros((1, m)))  # uₖ − uₖ₋₁
-    if convention.udot_start == "first":
-        rates[0] = 0.0  # u₋₁ = u₀
-    value = dt * (q_scale * np.einsum("ij,ij->", errors, errors) + np.einsum("ij,ij->", commands, commands))
-    value += weight * np.einsum("ij,ij->", rates, rates) / dt
-    grad = 2.0 * dt * commands + (2.0 * weight / dt) * rates
-    grad[:-1] -= (2.0 * weight / dt) * rates[1:]
-    tail = np.zeros((steps, m))  # Σ_{j>k} g_j
-    if steps > 1:
-        tail[:-1] = np.cumsum(g[:0:-1], axis=0)[::-1]
-    grad += dt * tail
-    return float(value), grad
+    return cost_and_gradient(positions - x_d, jacobians, commands, dt, convention)
 
 
 _BLAS_THREAD_SYMBOLS = (
@@ -283,24 +264,18 @@ def _gauss_newton(
     """Unconstrained Gauss-Newton in θ₁..θ_K with a backtracking (Armijo) line search on the exact V.
 
     Each iteration solves the block-banded system (A ⊗ I_m + blockdiag(2Δt q JₖᵀJₖ)) δθ = −Mᵀ ∂V/∂u
-    (:func:`_theta_effort_band`, :func:`_jacobian_scatter`) by LAPACK's banded Cholesky, O(K·m·b²),
-    and steps u ← u + α M δθ. The matrix is positive definite (A is), so δθ is a descent direction.
-    The Jacobians are those of the last accepted cost evaluation (:meth:`Kinematics.forward_and_jacobian_batch`
-    remembers its last batch), so an iteration costs one FK+Jacobian pass when the full step is taken.
+    (:func:`_gauss_newton_direction`) and steps u ← u + α M δθ (:func:`_line_search`). The matrix is
+    positive definite (A is), so δθ is a descent direction. The Jacobians are those of the last
+    accepted cost evaluation (:meth:`Kinematics.forward_and_jacobian_batch` remembers its last batch),
+    so an iteration costs one FK+Jacobian pass when the full step is taken.
 
     Returns:
         (commands, V, ∂V/∂z flattened, iterations, cost evaluations, converged) with the stopping
         test of the L-BFGS method: max |∂V/∂z| ≤ ``gtol``, or a relative decrease ≤ ``ftol``.
     """
     steps, m = start.shape
-    weight, q_scale = convention.smoothness_weight, convention.q_scale
-    lower = _preconditioner(steps, dt, weight, convention.udot_start)
-    effort = _theta_effort_band(steps, dt, weight, convention.udot_start)
-    width = effort.shape[0]
-    rows, cols, target = _jacobian_scatter(steps, m)
-    base = np.zeros((m * (width - 1) + 1, steps * m))
-    for offset in range(width):
-        base[offset * m] = np.repeat(effort[offset], m)  # A ⊗ I_m couples each joint with itself only
+    lower = _preconditioner(steps, dt, convention.smoothness_weight, convention.udot_start)
+    base = _theta_system_base(steps, m, dt, convention)
 
     def evaluate(commands: np.ndarray) -> tuple[float, np.ndarray]:
         return trajectory_cost_and_gradient(commands, q0, x_d, kinematics, dt, convention)
@@ -313,28 +288,10 @@ def _gauss_newton(
             converged = True
             break
         _, jacobians = kinematics.forward_and_jacobian_batch(_angles(commands, q0, dt))
-        band = base.copy()
-        tail = jacobians[1:]
-        pairs = sum(tail[:, i, rows] * tail[:, i, cols] for i in range(tail.shape[1]))  # (JₖᵀJₖ)ₐᵦ, a ≥ b
-        band.reshape(-1)[target] += (2.0 * dt * q_scale) * pairs.reshape(-1)
-        factor, info = dpbtrf(band, lower=1)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")
-        grad_theta = np.empty_like(grad)  # Mᵀ ∂V/∂u
-        grad_theta[:-1] = (grad[:-1] - grad[1:]) / dt
-        grad_theta[-1] = grad[-1] / dt
-        step_theta = dpbtrs(factor, -grad_theta.reshape(-1), lower=1)[0].reshape(steps, m)
-        step = np.diff(step_theta, axis=0, prepend=np.zeros((1, m))) / dt  # M δθ
-        slope, alpha = float(np.vdot(grad, step)), 1.0
-        while True:
-            trial_value, trial_grad = evaluate(commands + alpha * step)
-            evaluations += 1
-            if trial_value <= value + ARMIJO * alpha * slope:
-                break
-            alpha *= 0.5
-            if alpha < MIN_STEP:  # no decrease along a descent direction: rounding dominates
-                break
-        if alpha < MIN_STEP:
+        step = _gauss_newton_direction(base, jacobians, grad, dt, convention.q_scale)
+        alpha, trial_value, trial_grad, tries = _line_search(evaluate, commands, value, grad, step)
+        evaluations += tries
+        if alpha < MIN_STEP:  # no decrease along a descent direction: rounding dominates
             break
         iterations += 1
         decrease = (value - trial_value) / max(abs(value), abs(trial_value), 1.0)
@@ -345,6 +302,70 @@ def _gauss_newton(
     grad_z = solve_banded((1, 0), lower, grad).ravel()
     converged = converged or float(np.abs(grad_z).max()) <= gtol
     return commands, value, grad_z, iterations, evaluations, converged
+
+
+def _theta_system_base(steps: int, m: int, dt: float, convention: CostConvention) -> np.ndarray:
+    """The fixed part A ⊗ I_m of the Gauss-Newton matrix, in LAPACK's lower band form over K·m unknowns.
+
+    A ⊗ I_m couples each joint with itself only, so band row ``offset·m`` holds A's diagonal
+    ``offset``, each entry repeated for the m joints (:func:`_theta_effort_band`).
+    """
+    effort = _theta_effort_band(steps, dt, convention.smoothness_weight, convention.udot_start)
+    width = effort.shape[0]
+    base = np.zeros((m * (width - 1) + 1, steps * m))
+    for offset in range(width):
+        base[offset * m] = np.repeat(effort[offset], m)
+    return base
+
+
+def _gauss_newton_direction(
+    base: np.ndarray, jacobians: np.ndarray, grad: np.ndarray, dt: float, q_scale: float
+) -> np.ndarray:
+    """The Gauss-Newton step in u: M δθ with (A ⊗ I_m + blockdiag(2Δt q JₖᵀJₖ)) δθ = −Mᵀ ∂V/∂u.
+
+    The blocks JₖᵀJₖ (k = 1..K−1) are scattered into the band (:func:`_jacobian_scatter`) and the
+    system is solved by LAPACK's banded Cholesky, O(K·m·b²).
+
+    Raises:
+        numpy.linalg.LinAlgError: If the matrix is not positive definite (it is, in exact arithmetic).
+    """
+    steps, m = grad.shape
+    rows, cols, target = _jacobian_scatter(steps, m)
+    band = base.copy()
+    tail = jacobians[1:]
+    pairs = sum(tail[:, i, rows] * tail[:, i, cols] for i in range(tail.shape[1]))  # (JₖᵀJₖ)ₐᵦ, a ≥ b
+    band.reshape(-1)[target] += (2.0 * dt * q_scale) * pairs.reshape(-1)
+    factor, info = dpbtrf(band, lower=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")
+    grad_theta = np.empty_like(grad)  # Mᵀ ∂V/∂u
+    grad_theta[:-1] = (grad[:-1] - grad[1:]) / dt
+    grad_theta[-1] = grad[-1] / dt
+    step_theta = dpbtrs(factor, -grad_theta.reshape(-1), lower=1)[0].reshape(steps, m)
+    return np.diff(step_theta, axis=0, prepend=np.zeros((1, m))) / dt  # M δθ
+
+
+def _line_search(
+    evaluate: Callable[[np.ndarray], tuple[float, np.ndarray]],
+    commands: np.ndarray,
+    value: float,
+    grad: np.ndarray,
+    step: np.ndarray,
+) -> tuple[float, float, np.ndarray, int]:
+    """Backtracking from the full step until V decreases enough (Armijo), or the step is below :data:`MIN_STEP`.
+
+    Returns:
+        (step fraction α, V and ∂V/∂u at the last trial, cost evaluations).
+    """
+    slope, alpha, tries = float(np.vdot(grad, step)), 1.0, 0
+    while True:
+        trial_value, trial_grad = evaluate(commands + alpha * step)
+        tries += 1
+        if trial_value <= value + ARMIJO * alpha * slope:
+            return alpha, trial_value, trial_grad, tries
+        alpha *= 0.5
+        if alpha < MIN_STEP:
+            return alpha, trial_value, trial_grad, tries
 
 
 def _lbfgs(

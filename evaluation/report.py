@@ -1,21 +1,8 @@
-"""Summaries of a results table: Table I's layout beside the paper's values, and box plots.
+"""The reports of a run: ``summary.md`` (Table I's layout and the details behind it) and the box plots.
 
-``summary.csv`` has one row per controller and, per task (prefix ``reach_`` / ``track_``):
-``cost`` (V/N, the mean over samples), ``cost_std``, ``cost_ci95_low``/``_high`` (Student-t
-95 % interval of the mean), ``n``, the mean of each cost term, ``paper`` (Table I),
-``ratio_to_snac`` and ``paper_ratio_to_snac``, ``success_rate``, ``final_error_median``,
-``time_to_1mm_median``, ``settled_fraction``, ``settle_time_median`` and ``settle_time_p95``
-(order statistics; inf when too few rollouts settled within the horizon), the effort
-statistic matched (``effort``), its knob (``effort_parameter``, ``effort_value``,
-``effort_role``), both effort statistics whichever was matched (``max_abs_u``, the maximum |u|
-over the set, and ``median_peak_limit_fraction``) and ``max_norm_u``.
-
-With the ``optimal`` reference (docs/optimal.md): ``ratio_to_optimal_mean`` (V/N's per-sample
-counterpart: the mean over samples of cost / optimum), ``ratio_to_optimal_median``,
-``ratio_of_means_to_optimal`` (V/N over the optimum's V/N) and ``below_optimal`` (samples where
-the row beat the optimum: the solver did not converge there); on the optimal row,
-``optimal_converged_fraction``, ``optimal_gradient_max``, ``optimal_gap_estimate_max``, ``optimal_bounded``,
-``optimal_iterations_median`` and ``optimal_solve_time_mean`` (s per sample).
+:func:`write_reports` writes ``summary.csv`` (the table of :mod:`evaluation.summary`),
+``summary.md`` (:func:`summary_markdown`, one helper per section) and ``cost_boxplot.png``
+(:func:`plot_cost_boxes`).
 """
 
 from __future__ import annotations
@@ -27,123 +14,10 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from evaluation.metrics import REACH_TOLERANCE, TRACK_TOLERANCE
 from evaluation.optimal import FTOL, GTOL, OPTIMAL
-from evaluation.paper import TASK_LABELS, controller_label, paper_value
-
-_TERMS = ("cost_error", "cost_effort", "cost_smoothness", "cost_smoothness_start")
-#: V under the other conventions, whatever the run's (metrics columns).
-_CONVENTIONS = ("cost_table1", "cost_table1_first", "cost_hjb")
-
-
-def mean_confidence_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float, float]:
-    """``(mean, std, low, high)``: the sample mean, its standard deviation (ddof 1) and the t interval."""
-    values = np.asarray(values, dtype=float)
-    mean = float(values.mean())
-    if values.size < 2:
-        return mean, math.nan, math.nan, math.nan
-    std = float(values.std(ddof=1))
-    half = float(stats.t.ppf(0.5 + level / 2, values.size - 1)) * std / math.sqrt(values.size)
-    return mean, std, mean - half, mean + half
-
-
-def summarise(
-    results: pd.DataFrame,
-    efforts: Sequence[Any],
-    tasks: Sequence[str],
-    controllers: Sequence[str],
-    success_threshold: float = 0.95,
-) -> pd.DataFrame:
-    """The summary table (see the module docstring) from the results and the effort records.
-
-    Only controllers whose success rate on a task reaches ``success_threshold`` are ranked there
-    (``rank``, ``ratio_to_best``, ``ratio_to_snac``); the others have ``qualified`` False and NaN
-    in those columns, so that a controller that fails the task is never shown as the cheapest.
-    """
-    effort_by_key = {(e.task, e.controller): e for e in efforts}
-    rows = []
-    for controller in controllers:
-        row: dict[str, Any] = {"controller": controller, "label": controller_label(controller)}
-        for task in tasks:
-            part = results[(results["task"] == task) & (results["controller"] == controller)]
-            if part.empty:
-                continue
-            mean, std, low, high = mean_confidence_interval(part["cost"].to_numpy())
-            p = f"{task}_"
-            row.update(
-                {
-                    p + "cost": mean,
-                    p + "cost_std": std,
-                    p + "cost_ci95_low": low,
-                    p + "cost_ci95_high": high,
-                    p + "n": len(part),
-                }
-            )
-            for term in _TERMS + _CONVENTIONS:
-                if term in part:
-                    row[p + term] = float(part[term].mean())
-            row[p + "median_error_2nd_half_median"] = float(part["median_error_2nd_half"].median())
-            for diagnostic in ("hjb_ratio_median", "critic_error_final"):
-                values = part[diagnostic] if diagnostic in part else pd.Series(dtype=float)
-                row[p + diagnostic] = float(values.median()) if values.notna().any() else math.nan
-            row[p + "paper"] = paper_value(controller, task)
-            row[p + "success_rate"] = float(part["success"].mean())
-            row[p + "final_error_median"] = float(part["final_error"].median())
-            row[p + "time_to_1mm_median"] = float(part["time_to_1mm"].median())
-            settle = part["settle_time"].fillna(np.inf).to_numpy()  # NaN: not settled within the horizon
-            row[p + "settled_fraction"] = float(np.isfinite(settle).mean())
-            row[p + "settle_time_median"] = float(np.quantile(settle, 0.5, method="inverted_cdf"))
-            row[p + "settle_time_p95"] = float(np.quantile(settle, 0.95, method="inverted_cdf"))
-            row[p + "max_abs_u"] = float(part["max_abs_u"].max())
-            row[p + "median_peak_limit_fraction"] = float(part["peak_limit_fraction"].median())
-            row[p + "max_norm_u"] = float(part["max_norm_u"].max())
-            if "ratio_to_optimal" in part:
-                row[p + "ratio_to_optimal_mean"] = float(part["ratio_to_optimal"].mean())
-                row[p + "ratio_to_optimal_median"] = float(part["ratio_to_optimal"].median())
-                row[p + "below_optimal"] = int(part["below_optimal"].sum())
-            if controller == OPTIMAL and "optimal_converged" in part:
-                row[p + "optimal_converged_fraction"] = float(part["optimal_converged"].astype(bool).mean())
-                row[p + "optimal_gradient_max"] = float(part["optimal_gradient"].max())
-                row[p + "optimal_gap_estimate_max"] = float(part["optimal_gap_estimate"].max())
-                row[p + "optimal_bounded"] = int(part["optimal_bounded"].astype(bool).sum())
-                row[p + "optimal_iterations_median"] = float(part["optimal_iterations"].median())
-                row[p + "optimal_solve_time_mean"] = float(part["optimal_solve_time"].mean())
-            record = effort_by_key.get((task, controller))
-            if record is not None:
-                row.update(
-                    {
-                        p + "effort": record.effort,
-                        p + "effort_target": record.target,
-                        p + "effort_role": record.role,
-                        p + "effort_parameter": record.knob,
-                        p + "effort_value": record.knob_value,
-                        p + "effort_passes": record.passes,
-                        p + "effort_note": record.note,
-                    }
-                )
-        rows.append(row)
-    summary = pd.DataFrame(rows)
-    for task in tasks:
-        p = f"{task}_"
-        if p + "cost" not in summary:
-            continue
-        ranked = summary[p + "success_rate"].notna() & (summary["controller"] != OPTIMAL)
-        summary[p + "qualified"] = ranked & (summary[p + "success_rate"] >= success_threshold)
-        qualified_cost = summary[p + "cost"].where(summary[p + "qualified"])
-        summary[p + "rank"] = qualified_cost.rank(method="min")
-        summary[p + "ratio_to_best"] = qualified_cost / qualified_cost.min() if qualified_cost.notna().any() else math.nan
-        snac = qualified_cost[summary["controller"] == "snac"]
-        summary[p + "ratio_to_snac"] = qualified_cost / float(snac.iloc[0]) if len(snac) and snac.notna().all() else math.nan
-        paper_snac = paper_value("snac", task)
-        summary[p + "paper_ratio_to_snac"] = [
-            (v / paper_snac) if v is not None and paper_snac else math.nan for v in summary[p + "paper"]
-        ]
-        optimum = summary.loc[summary["controller"] == OPTIMAL, p + "cost"]
-        if len(optimum):
-            summary[p + "ratio_of_means_to_optimal"] = summary[p + "cost"] / float(optimum.iloc[0])
-    return summary
+from evaluation.summary import CONVENTION_COLUMNS, TASK_LABELS, controller_label, summarise
 
 
 def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
@@ -231,15 +105,29 @@ def summary_markdown(
 ) -> str:
     """``summary.md``: Table I's layout, the details behind it, the effort matching and the plot."""
     tasks = [t for t in config.tasks if f"{t}_cost" in summary]
+    lines = _introduction_lines(summary, config, tasks, effort_statistic)
+    lines += _table_one_lines(summary, tasks)
+    lines += _convention_lines(summary, tasks, config.convention.q_scale)
+    lines += _critic_lines(summary, tasks)
+    for t in tasks:
+        lines += _task_detail_lines(summary, t)
+    if results is not None:
+        lines += optimality_markdown(summary, results, tasks)
+    lines += _effort_lines(summary, config, efforts, effort_statistic)
+    lines += _closing_lines(skipped, timings, executor)
+    return "\n".join(lines)
+
+
+def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str], effort_statistic: str) -> list[str]:
+    """The title, what was run and scored, and what success and accuracy mean."""
     n_text = ", ".join(f"{int(summary[f'{t}_n'].max())} {TASK_LABELS[t].lower()} samples" for t in tasks)
     horizons = ", ".join(f"{t} {config.steps(t)} steps ({config.steps(t) * config.dt:g} s)" for t in tasks)
-    convention = config.convention
     threshold = getattr(config, "success_threshold", 0.95)
-    lines = [
+    return [
         "# Trajectory cost V/N (Table I of the paper)",
         "",
         f"Backend `{config.backend}`, {n_text}, seed {config.seed}, Δt = {config.dt:g} s, horizons: {horizons}. "
-        f"{convention.describe()}; V/N is the mean over samples, "
+        f"{config.convention.describe()}; V/N is the mean over samples, "
         "± its standard deviation, with the 95 % confidence interval of the mean. "
         + (
             "Equal effort: " + effort_statistic + " matched (table below)."
@@ -254,40 +142,54 @@ def summary_markdown(
         "median error over the second half (track).",
         "",
     ]
+
+
+def _table_one_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
+    """Table I's layout: per task V/N, its interval, the paper's value, success, accuracy and standing."""
     header = "| Controller |" + "".join(
         f" {TASK_LABELS[t]} V/N (ours) | 95 % CI | paper | success | accuracy (mm) | rank (ratio to best) "
         "| ratio to SNAC (ours / paper) |"
         for t in tasks
     )
-    lines += [header, "|---|" + "---|---|---|---|---|---|---|" * len(tasks)]
+    lines = [header, "|---|" + "---|---|---|---|---|---|---|" * len(tasks)]
     for _, row in summary.iterrows():
         cells = [row["label"]]
         for t in tasks:
-            p = f"{t}_"
-            accuracy = row[p + ("final_error_median" if t == "reach" else "median_error_2nd_half_median")] * 1e3
-            if row["controller"] == OPTIMAL:
-                standing = "reference"
-            elif bool(row.get(p + "qualified", False)):
-                standing = f"{int(row[p + 'rank'])} ({_number(row[p + 'ratio_to_best'])})"
-            else:
-                standing = "**fails**"
-            cells += [
-                f"{_number(row[p + 'cost'])} ± {_number(row[p + 'cost_std'])}",
-                f"[{_number(row[p + 'cost_ci95_low'])}, {_number(row[p + 'cost_ci95_high'])}]",
-                _number(row[p + "paper"]),
-                f"{row[p + 'success_rate']:.1%}",
-                _number(accuracy, 3),
-                standing,
-                f"{_number(row[p + 'ratio_to_snac'])} / {_number(row[p + 'paper_ratio_to_snac'])}",
-            ]
+            cells += _table_one_cells(row, t)
         lines.append("| " + " | ".join(cells) + " |")
-    lines += [
+    return lines
+
+
+def _table_one_cells(row: pd.Series, task: str) -> list[str]:
+    """One controller's cells of ``task`` in Table I's layout."""
+    p = f"{task}_"
+    accuracy = row[p + ("final_error_median" if task == "reach" else "median_error_2nd_half_median")] * 1e3
+    if row["controller"] == OPTIMAL:
+        standing = "reference"
+    elif bool(row.get(p + "qualified", False)):
+        standing = f"{int(row[p + 'rank'])} ({_number(row[p + 'ratio_to_best'])})"
+    else:
+        standing = "**fails**"
+    return [
+        f"{_number(row[p + 'cost'])} ± {_number(row[p + 'cost_std'])}",
+        f"[{_number(row[p + 'cost_ci95_low'])}, {_number(row[p + 'cost_ci95_high'])}]",
+        _number(row[p + "paper"]),
+        f"{row[p + 'success_rate']:.1%}",
+        _number(accuracy, 3),
+        standing,
+        f"{_number(row[p + 'ratio_to_snac'])} / {_number(row[p + 'paper_ratio_to_snac'])}",
+    ]
+
+
+def _convention_lines(summary: pd.DataFrame, tasks: Sequence[str], q_scale: float) -> list[str]:
+    """V/N of the same rollouts under each cost convention."""
+    lines = [
         "",
         "## V/N under each cost convention",
         "",
         "The same rollouts scored three ways: Table I's cost with the jump from rest (u₋₁ = 0), without it "
         "(u₋₁ = u₀), and the cost the controllers are derived for, Σ (eᵀQe + uᵀRu) Δt (no u̇ term). "
-        f"Q = {'I' if convention.q_scale == 1.0 else f'{convention.q_scale:g}·I'}, R = I.",
+        f"Q = {'I' if q_scale == 1.0 else f'{q_scale:g}·I'}, R = I.",
         "",
         "| Controller |" + "".join(f" {TASK_LABELS[t]}: u₋₁ = 0 | u₋₁ = u₀ | HJB cost |" for t in tasks),
         "|---|" + "---|---|---|" * len(tasks),
@@ -295,66 +197,73 @@ def summary_markdown(
     for _, row in summary.iterrows():
         cells = [row["label"]]
         for t in tasks:
-            p = f"{t}_"
-            cells += [_general_number(row.get(p + c, math.nan)) for c in _CONVENTIONS]
+            cells += [_general_number(row.get(f"{t}_{c}", math.nan)) for c in CONVENTION_COLUMNS]
         lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _critic_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
+    """How far the critics are from optimal (only for controllers that report it)."""
     critics = [
         (t, row) for t in tasks for _, row in summary.iterrows() if not pd.isna(row.get(f"{t}_hjb_ratio_median", math.nan))
     ]
-    if critics:
-        lines += [
-            "",
-            "## How far the critics are from optimal",
-            "",
-            "Per rollout, the median over the run of the critic's HJB residual r/eᵀQe (0 for the optimal value "
-            "function; sampled every 0.2 s) and, for regulation, ‖P̂ − P*(J)‖/‖P*‖ at the last step (P*: the "
-            "frozen-Jacobian optimum); the medians over samples (docs/snac.md).",
-            "",
-            "| Task | Controller | median r/eᵀQe | median final critic error |",
-            "|---|---|---|---|",
+    if not critics:
+        return []
+    lines = [
+        "",
+        "## How far the critics are from optimal",
+        "",
+        "Per rollout, the median over the run of the critic's HJB residual r/eᵀQe (0 for the optimal value "
+        "function; sampled every 0.2 s) and, for regulation, ‖P̂ − P*(J)‖/‖P*‖ at the last step (P*: the "
+        "frozen-Jacobian optimum); the medians over samples (docs/snac.md).",
+        "",
+        "| Task | Controller | median r/eᵀQe | median final critic error |",
+        "|---|---|---|---|",
+    ]
+    for t, row in critics:
+        lines.append(
+            f"| {t} | {row['label']} | {_general_number(row[f'{t}_hjb_ratio_median'])} | "
+            f"{_general_number(row.get(f'{t}_critic_error_final', math.nan))} |"
+        )
+    return lines
+
+
+def _task_detail_lines(summary: pd.DataFrame, task: str) -> list[str]:
+    """``task``'s cost terms and outcomes per controller."""
+    p = f"{task}_"
+    lines = [
+        "",
+        f"## {TASK_LABELS[task]} ({task}): cost terms and outcomes",
+        "",
+        (
+            "| Controller | error term | effort term | smoothness term | of which first-step jump | success "
+            "| median final error (mm) | median time to 1 mm (s) | settled | settle time median / p95 (s) "
+            "| max ‖u‖∞ | max ‖u‖₂ |"
+        ),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for _, row in summary.iterrows():
+        cells = [
+            row["label"],
+            _general_number(row[p + "cost_error"]),
+            _general_number(row[p + "cost_effort"]),
+            _general_number(row[p + "cost_smoothness"]),
+            _general_number(row[p + "cost_smoothness_start"]),
+            f"{row[p + 'success_rate']:.1%}",
+            _number(row[p + "final_error_median"] * 1e3, 3),
+            _number(row[p + "time_to_1mm_median"]),
+            f"{row[p + 'settled_fraction']:.1%}",
+            f"{_number(row[p + 'settle_time_median'])} / {_number(row[p + 'settle_time_p95'])}",
+            _number(row[p + "max_abs_u"], 3),
+            _number(row[p + "max_norm_u"], 3),
         ]
-        for t, row in critics:
-            lines.append(
-                f"| {t} | {row['label']} | {_general_number(row[f'{t}_hjb_ratio_median'])} | "
-                f"{_general_number(row.get(f'{t}_critic_error_final', math.nan))} |"
-            )
-    for t in tasks:
-        p = f"{t}_"
-        lines += [
-            "",
-            f"## {TASK_LABELS[t]} ({t}): cost terms and outcomes",
-            "",
-            (
-                "| Controller | error term | effort term | smoothness term | of which first-step jump | success "
-                "| median final error (mm) | median time to 1 mm (s) | settled | settle time median / p95 (s) "
-                "| max ‖u‖∞ | max ‖u‖₂ |"
-            ),
-            "|---|---|---|---|---|---|---|---|---|---|---|---|",
-        ]
-        for _, row in summary.iterrows():
-            lines.append(
-                "| "
-                + " | ".join(
-                    [
-                        row["label"],
-                        _general_number(row[p + "cost_error"]),
-                        _general_number(row[p + "cost_effort"]),
-                        _general_number(row[p + "cost_smoothness"]),
-                        _general_number(row[p + "cost_smoothness_start"]),
-                        f"{row[p + 'success_rate']:.1%}",
-                        _number(row[p + "final_error_median"] * 1e3, 3),
-                        _number(row[p + "time_to_1mm_median"]),
-                        f"{row[p + 'settled_fraction']:.1%}",
-                        f"{_number(row[p + 'settle_time_median'])} / {_number(row[p + 'settle_time_p95'])}",
-                        _number(row[p + "max_abs_u"], 3),
-                        _number(row[p + "max_norm_u"], 3),
-                    ]
-                )
-                + " |"
-            )
-    if results is not None:
-        lines += optimality_markdown(summary, results, tasks)
-    lines += [
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _effort_lines(summary: pd.DataFrame, config: Any, efforts: Sequence[Any], effort_statistic: str) -> list[str]:
+    """How each controller's effort was set, both effort statistics, and a warning for unmatched ones."""
+    lines = [
         "",
         "## Control effort",
         "",
@@ -385,6 +294,12 @@ def summary_markdown(
             "",
             "**Warning:** effort not matched for " + ", ".join(f"{e.controller} ({e.task})" for e in unmatched) + ".",
         ]
+    return lines
+
+
+def _closing_lines(skipped: dict[str, str], timings: dict[str, float] | None, executor: str) -> list[str]:
+    """The controllers left out, the wall time, and the box plot."""
+    lines: list[str] = []
     if skipped:
         lines += ["", "Registered controllers left out:", ""] + [
             f"- `{name}`: {reason}" for name, reason in skipped.items()
@@ -398,8 +313,7 @@ def summary_markdown(
                 "a resumed run counts only its own time."
             ),
         ]
-    lines += ["", "![Per-sample trajectory cost](cost_boxplot.png)", ""]
-    return "\n".join(lines)
+    return lines + ["", "![Per-sample trajectory cost](cost_boxplot.png)", ""]
 
 
 def plot_cost_boxes(
@@ -457,3 +371,6 @@ def write_reports(
     )
     plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", getattr(config, "success_threshold", 0.95))
     return summary
+
+
+__all__ = ["optimality_markdown", "plot_cost_boxes", "summary_markdown", "write_reports"]

@@ -37,6 +37,7 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None  # type: ignore[assignment]
 
+from evaluation.samples import SampleFileError
 from snac_gym.rollout import write_log
 
 
@@ -60,6 +61,22 @@ def settings_key(kwargs: dict[str, Any], steps: int, backend: str) -> str:
 def run_id(manifest: dict[str, Any]) -> str:
     """The identity of a run: a hash of its manifest (every input that shapes the results)."""
     return hashlib.sha256(_stable_json(manifest).encode()).hexdigest()[:16]
+
+
+def file_sha1(path: Path, what: str) -> str:
+    """SHA-1 of a file's bytes (the samples file and the controllers' input files in ``run.json``).
+
+    Raises:
+        SampleFileError: If it cannot be read (one line naming ``what`` and the file).
+    """
+    digest = hashlib.sha1()
+    try:
+        with Path(path).open("rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    except OSError as exc:
+        raise SampleFileError(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+    return digest.hexdigest()
 
 
 def _tmp_path(path: Path) -> Path:

@@ -35,19 +35,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from evaluation.executors import make_executor
+from evaluation.controllers import ControllerSpec, resolve_controllers
+from evaluation.executors import open_executor
 from evaluation.metrics import REACH_TOLERANCE, TRACK_TOLERANCE
-from evaluation.paper import TASK_LABELS, controller_label
-from evaluation.runner import (
-    ControllerSpec,
-    EvaluationConfig,
-    EvaluationRun,
-    Progress,
-    load_samples,
-    resolve_controllers,
-    run_evaluation,
-)
+from evaluation.passes import EvaluationRun
+from evaluation.rollout_progress import Progress
+from evaluation.run_config import EvaluationConfig
+from evaluation.runner import load_samples, run_evaluation
 from evaluation.store import RunStore
+from evaluation.summary import TASK_LABELS, controller_label
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 
@@ -58,7 +54,7 @@ DEFAULT_POINTS, DEFAULT_SPAN = 7, 4.0
 MAX_POINTS = 25
 #: Largest span accepted: beyond it the knob reaches values no controller was built for.
 MAX_SPAN = 1e3
-#: Roles of the main run's point that make it an equal-effort point (evaluation.runner.EffortRecord).
+#: Roles of the main run's point that make it an equal-effort point (``evaluation.effort_matching.EffortRecord.role``).
 EQUAL_EFFORT_ROLES = ("reference", "matched")
 
 #: Columns of ``sweep.csv``.
@@ -195,9 +191,36 @@ def run_sweep(
     for spec in specs:
         knob_grid(float(spec.knob_value), points, span)  # a bad default is refused before the main run
     results = run_evaluation(config)
-    main = _main_points(config, results)
+    passes = _sweep_passes(config, specs, _main_points(config, results), points, span)
+    kinematics = Kinematics(config.robot)
+    space = config.space if config.space is not None else SampleSpace.for_robot(kinematics)
+    # The main run's folder, reopened: same manifest, so its parts (the main run's points) are
+    # found by run_passes instead of being recomputed, and the sweep's own parts resume alike.
+    with RunStore(config.out, config.manifest(space, all_specs), resume=True) as store:
+        with open_executor(config.workers, config.ray_address) as executor:
+            samples = load_samples(config, kinematics, space, executor)
+            progress = Progress(len(passes) * sum(len(samples[t]) for t in config.tasks), config.progress)
+            evaluation = EvaluationRun(config, store, executor, samples, progress)
+            rows = _run_points(evaluation, passes, [spec.name for spec in specs])
+        sweep = _sort_rows(rows, config, [spec.name for spec in specs])
+        summary = pd.read_csv(config.out / "summary.csv")
+        plot_tradeoff(sweep, config, summary, config.out / "tradeoff.png", span)
+    return sweep
 
-    passes: list[tuple[str, ControllerSpec, float, float, str]] = []
+
+#: One point of the sweep: task, controller, knob value, grid exponent (NaN off the grid), main-run role.
+SweepPoint = tuple[str, ControllerSpec, float, float, str]
+
+
+def _sweep_passes(
+    config: EvaluationConfig,
+    specs: Sequence[ControllerSpec],
+    main: dict[tuple[str, str], tuple[float, str]],
+    points: int,
+    span: float,
+) -> list[SweepPoint]:
+    """Every point of the sweep: the grid of each controller and task, and the main run's knob value."""
+    passes: list[SweepPoint] = []
     for task in config.tasks:
         for spec in specs:
             grid = knob_grid(float(spec.knob_value), points, span)
@@ -206,46 +229,40 @@ def run_sweep(
             values.setdefault(main_value, math.nan)
             for value in sorted(values):
                 passes.append((task, spec, value, values[value], role if value == main_value else ""))
+    return passes
 
-    kinematics = Kinematics(config.robot)
-    space = config.space if config.space is not None else SampleSpace.for_robot(kinematics)
-    # The main run's folder, reopened: same manifest, so its parts (the main run's points) are
-    # found by run_passes instead of being recomputed, and the sweep's own parts resume alike.
-    with RunStore(config.out, config.manifest(space, all_specs), resume=True) as store:
-        executor = make_executor(config.workers, config.ray_address)
-        try:
-            samples = load_samples(config, kinematics, space, executor)
-            progress = Progress(len(passes) * sum(len(samples[t]) for t in config.tasks), config.progress)
-            evaluation = EvaluationRun(config, store, executor, samples, progress)
-            rows: list[dict[str, Any]] = []
-            lock = threading.Lock()
-            names = [spec.name for spec in specs]
 
-            def one_point(task: str, spec: ControllerSpec, value: float, exponent: float, role: str) -> None:
-                # At the default, the arguments the main run used (no explicit knob): the same
-                # part files, so a reference or --no-match-effort pass is read back, not rerun.
-                kwargs = dict(spec.kwargs) if value == float(spec.knob_value) else {**spec.kwargs, spec.knob: value}
-                (table,) = evaluation.run_passes([(task, spec, kwargs)])
-                row = point_row(task, spec, value, exponent, table, role, config.success_threshold)
-                with lock:  # each point is on disk as soon as it is done
-                    rows.append(row)
-                    csv = _sort_rows(rows, config, names).to_csv(index=False, float_format="%.17g")
-                    store.write_text("sweep.csv", csv)
+def _run_points(evaluation: EvaluationRun, passes: Sequence[SweepPoint], names: Sequence[str]) -> list[dict[str, Any]]:
+    """One full pass per point, concurrently; ``sweep.csv`` is rewritten as each point completes."""
+    config, store = evaluation.config, evaluation.store
+    rows: list[dict[str, Any]] = []
+    lock = threading.Lock()
 
-            progress.status("trade-off sweep")
-            try:
-                evaluation.concurrently([functools.partial(one_point, *p) for p in passes])
-            finally:
-                progress.close()
-        except BaseException:
-            executor.terminate()  # interrupted or failed: do not wait for the jobs still running
-            raise
-        finally:
-            executor.close()
-        sweep = _sort_rows(rows, config, names)
-        summary = pd.read_csv(config.out / "summary.csv")
-        plot_tradeoff(sweep, config, summary, config.out / "tradeoff.png", span)
-    return sweep
+    def one_point(task: str, spec: ControllerSpec, value: float, exponent: float, role: str) -> None:
+        # At the default, the arguments the main run used (no explicit knob): the same
+        # part files, so a reference or --no-match-effort pass is read back, not rerun.
+        kwargs = dict(spec.kwargs) if value == float(spec.knob_value) else {**spec.kwargs, spec.knob: value}
+        (table,) = evaluation.run_passes([(task, spec, kwargs)])
+        row = point_row(task, spec, value, exponent, table, role, config.success_threshold)
+        with lock:  # each point is on disk as soon as it is done
+            rows.append(row)
+            csv = _sort_rows(rows, config, names).to_csv(index=False, float_format="%.17g")
+            store.write_text("sweep.csv", csv)
+
+    evaluation.progress.status("trade-off sweep")
+    try:
+        evaluation.concurrently([functools.partial(one_point, *p) for p in passes])
+    finally:
+        evaluation.progress.close()
+    return rows
+
+
+#: The three panels of a task's row in ``tradeoff.png``: x column, x label, log x axis.
+_PANELS = (
+    ("success_rate", "success rate", False),
+    ("median_error", "median error, m ({})", True),
+    ("max_abs_u_max", "peak effort: max |u| over the set, rad/s", False),
+)
 
 
 def plot_tradeoff(
@@ -259,7 +276,6 @@ def plot_tradeoff(
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
 
     tasks = [t for t in config.tasks if (sweep["task"] == t).any()]
     names = list(dict.fromkeys(sweep["controller"]))
@@ -269,55 +285,15 @@ def plot_tradeoff(
     fig = Figure(figsize=(15, 4.4 * len(tasks) + 0.8))
     FigureCanvasAgg(fig)
     axes = fig.subplots(len(tasks), 3, squeeze=False)
-    panels = (
-        ("success_rate", "success rate", False),
-        ("median_error", "median error, m ({})", True),
-        ("max_abs_u_max", "peak effort: max |u| over the set, rad/s", False),
-    )
     for row_axes, task in zip(axes, tasks, strict=True):
         part = sweep[sweep["task"] == task]
-        target = math.nan
-        if summary is not None and f"{task}_effort_target" in summary and config.effort_statistic == "max":
-            targets = summary[f"{task}_effort_target"].dropna()
-            target = float(targets.iloc[0]) if len(targets) else math.nan
-        for ax, (column, label, log_x) in zip(row_axes, panels, strict=True):
+        target = _effort_target(summary, config, task)
+        for ax, (column, label, log_x) in zip(row_axes, _PANELS, strict=True):
             for name in names:
-                line = part[part["controller"] == name].sort_values("knob_value")
-                if line.empty:
-                    continue
-                x, y = line[column].to_numpy(float), line["cost"].to_numpy(float)
-                ax.plot(x, y, styles[name], color=colors[name], alpha=0.7, lw=1.6, zorder=2)
-                for xi, yi, qualified, main, equal in zip(
-                    x, y, line["qualified"], line["main_run"], line["equal_effort"], strict=True
-                ):
-                    marker, size = ("*", 15) if equal else (("D", 8) if main else ("o", 6))
-                    face = colors[name] if qualified else "white"
-                    ax.plot(xi, yi, marker, ms=size, mfc=face, mec=colors[name], mew=1.5, zorder=3)
-            ax.set_yscale("log")
-            if log_x:
-                ax.set_xscale("log")
-            tolerance = REACH_TOLERANCE if task == "reach" else TRACK_TOLERANCE
-            if column == "success_rate":
-                ax.axvline(config.success_threshold, color="0.4", ls="--", lw=1)
-                ax.set_xlim(-0.03, 1.03)
-            elif column == "median_error":
-                ax.axvline(tolerance, color="0.4", ls=":", lw=1)
-            elif math.isfinite(target):
-                ax.axvline(target, color="0.4", ls="--", lw=1)
-            what = "final error" if task == "reach" else "median error over the 2nd half"
-            ax.set_xlabel(label.format(what))
-            ax.set_ylabel(f"V/N ({config.cost} cost)")
-            ax.grid(True, which="both", alpha=0.25)
+                _draw_controller(ax, part[part["controller"] == name].sort_values("knob_value"), column, colors[name], styles[name])
+            _finish_panel(ax, config, task, column, label, log_x, target)
         row_axes[0].set_title(f"{TASK_LABELS.get(task, task)} ({task})", loc="left", fontweight="bold")
-    handles = [Line2D([], [], color=colors[n], ls=styles[n], marker="o", label=controller_label(n)) for n in names]
-    handles += [
-        Line2D([], [], ls="", marker="*", ms=13, color="0.3", label="equal-effort point (main run)"),
-        Line2D([], [], ls="", marker="D", ms=7, mfc="white", color="0.3", label="main run, effort unmatched"),
-        Line2D([], [], ls="", marker="o", mfc="white", color="0.3",
-               label=f"hollow: success < {config.success_threshold:.0%}"),
-        Line2D([], [], ls="--", color="0.4", label="success threshold / effort target"),
-        Line2D([], [], ls=":", color="0.4", label="success tolerance (1 mm reach, 5 mm track)"),
-    ]
+    handles = _legend_handles(names, colors, styles, config.success_threshold)
     fig.legend(handles=handles, loc="lower center", ncol=min(6, len(handles)), frameon=False, fontsize=9)
     fig.suptitle(
         "Trade-off sweep: each controller over its effort knob "
@@ -327,6 +303,62 @@ def plot_tradeoff(
     fig.tight_layout(rect=(0, 0.07 + 0.02 / len(tasks), 1, 0.97))
     fig.savefig(path, dpi=110)
     return path
+
+
+def _effort_target(summary: pd.DataFrame | None, config: EvaluationConfig, task: str) -> float:
+    """The main run's ``max`` effort target of ``task`` (rad/s, drawn on the peak-effort panel), else NaN."""
+    if summary is None or f"{task}_effort_target" not in summary or config.effort_statistic != "max":
+        return math.nan
+    targets = summary[f"{task}_effort_target"].dropna()
+    return float(targets.iloc[0]) if len(targets) else math.nan
+
+
+def _draw_controller(ax: Any, line: pd.DataFrame, column: str, color: str, style: str) -> None:
+    """One controller's points in knob order, joined; marker by main-run role, hollow where it fails."""
+    if line.empty:
+        return
+    x, y = line[column].to_numpy(float), line["cost"].to_numpy(float)
+    ax.plot(x, y, style, color=color, alpha=0.7, lw=1.6, zorder=2)
+    for xi, yi, qualified, main, equal in zip(x, y, line["qualified"], line["main_run"], line["equal_effort"], strict=True):
+        marker, size = ("*", 15) if equal else (("D", 8) if main else ("o", 6))
+        face = color if qualified else "white"
+        ax.plot(xi, yi, marker, ms=size, mfc=face, mec=color, mew=1.5, zorder=3)
+
+
+def _finish_panel(
+    ax: Any, config: EvaluationConfig, task: str, column: str, label: str, log_x: bool, target: float
+) -> None:
+    """Scales, the panel's reference line (success threshold, error tolerance or effort target) and labels."""
+    ax.set_yscale("log")
+    if log_x:
+        ax.set_xscale("log")
+    tolerance = REACH_TOLERANCE if task == "reach" else TRACK_TOLERANCE
+    if column == "success_rate":
+        ax.axvline(config.success_threshold, color="0.4", ls="--", lw=1)
+        ax.set_xlim(-0.03, 1.03)
+    elif column == "median_error":
+        ax.axvline(tolerance, color="0.4", ls=":", lw=1)
+    elif math.isfinite(target):
+        ax.axvline(target, color="0.4", ls="--", lw=1)
+    what = "final error" if task == "reach" else "median error over the 2nd half"
+    ax.set_xlabel(label.format(what))
+    ax.set_ylabel(f"V/N ({config.cost} cost)")
+    ax.grid(True, which="both", alpha=0.25)
+
+
+def _legend_handles(names: Sequence[str], colors: dict[str, str], styles: dict[str, str], threshold: float) -> list[Any]:
+    """One entry per controller, then the markers' and reference lines' meanings."""
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=colors[n], ls=styles[n], marker="o", label=controller_label(n)) for n in names]
+    handles += [
+        Line2D([], [], ls="", marker="*", ms=13, color="0.3", label="equal-effort point (main run)"),
+        Line2D([], [], ls="", marker="D", ms=7, mfc="white", color="0.3", label="main run, effort unmatched"),
+        Line2D([], [], ls="", marker="o", mfc="white", color="0.3", label=f"hollow: success < {threshold:.0%}"),
+        Line2D([], [], ls="--", color="0.4", label="success threshold / effort target"),
+        Line2D([], [], ls=":", color="0.4", label="success tolerance (1 mm reach, 5 mm track)"),
+    ]
+    return handles
 
 
 __all__ = ["DEFAULT_POINTS", "DEFAULT_SPAN", "MAX_POINTS", "SWEEP_COLUMNS", "knob_grid", "plot_tradeoff", "run_sweep"]

@@ -72,6 +72,23 @@ def instantaneous_cost(
     return float(quadratic_form(error, Qm)), float(quadratic_form(command, Rm))
 
 
+def step_costs(
+    error: np.ndarray, command: np.ndarray, previous_command: np.ndarray, dt: float,
+    Q: np.ndarray | None = None, R: np.ndarray | None = None,
+) -> tuple[float, float, float]:
+    """One control step's cost rates as the envs report them: ``(eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ)``.
+
+    The first two are the integrand of eq. 6; the third is the smoothness term of the paper's
+    Table I cost, with u̇ₖ = (uₖ − uₖ₋₁)/Δt. ``Q``/``R`` are matrices already checked by
+    :func:`weight_matrix` (``None`` = identity): this runs every control step.
+    """
+    return (
+        float(quadratic_form(error, Q)),
+        float(quadratic_form(command, R)),
+        float(quadratic_form((command - previous_command) / dt, R)),
+    )
+
+
 @dataclass(frozen=True)
 class CostTerms:
     """The trajectory cost split into its three terms (arrays broadcast over leading axes).
@@ -214,3 +231,49 @@ class CostConvention:
         weight = "I" if self.q_scale == 1.0 else f"{self.q_scale:g}·I"
         start = "" if self.cost == "hjb" else (", u₋₁ = 0" if self.udot_start == "rest" else ", u₋₁ = u₀")
         return f"V = Σ ({integrand}) Δt with Q = {weight}, R = I{start}"
+
+
+def cost_and_gradient(
+    errors: np.ndarray,
+    jacobians: np.ndarray,
+    commands: np.ndarray,
+    dt: float,
+    convention: CostConvention | None = None,
+) -> tuple[float, np.ndarray]:
+    """V of one kinematic rollout under ``convention`` and its exact gradient ∂V/∂U (the optimum's solver).
+
+    The rollout is θₖ₊₁ = θₖ + uₖΔt with eₖ = f(θₖ) − x_d(tₖ), so eⱼ depends on uₖ for j > k
+    through ∂eⱼ/∂uₖ = Δt Jⱼ. With Q = qI, R = I and the u̇ term weighted by w (1 for ``table1``,
+    0 for ``hjb``)::
+
+        V       = Δt (q Σ eₖᵀeₖ + Σ uₖᵀuₖ) + (w/Δt) Σ (uₖ − uₖ₋₁)ᵀ(uₖ − uₖ₋₁)
+        ∂V/∂uₖ  = 2Δt uₖ + (2w/Δt)((uₖ − uₖ₋₁) − (uₖ₊₁ − uₖ)) + Δt Σ_{j>k} 2Δt q Jⱼᵀ eⱼ
+
+    (u₋₁ = 0, or u₋₁ = u₀ for ``udot_start="first"``: the first difference is 0). V is the value
+    of :func:`trajectory_cost` under ``convention`` (``convention.total``), summed in one
+    contraction over the whole rollout instead of step by step: the solver's results (its line
+    search, its stopping test and ``optimal_solver_cost``) are pinned to this summation order.
+
+    Args:
+        errors: ``(K, n)`` errors eₖ at the start of each step.
+        jacobians: ``(K, n, m)`` task Jacobians Jₖ = ∂f/∂θ at θₖ.
+        commands: ``(K, m)`` commands U.
+        dt: Control period Δt, s.
+        convention: The cost (default: Table I's, Q = I, R = I, u₋₁ = 0).
+    """
+    convention = convention if convention is not None else CostConvention()
+    weight, q_scale = convention.smoothness_weight, convention.q_scale
+    steps, m = commands.shape
+    rates = command_differences(commands, commands[0] if convention.udot_start == "first" else None)  # uₖ − uₖ₋₁
+    # Eq. 6's integrand eᵀQe + uᵀRu, plus Section V's u̇ᵀRu̇ (weighted by w), times Δt.
+    value = dt * (q_scale * np.einsum("ij,ij->", errors, errors) + np.einsum("ij,ij->", commands, commands))
+    value += weight * np.einsum("ij,ij->", rates, rates) / dt
+    # Its gradient: the effort and smoothness terms directly, the error term through every later step.
+    g = (2.0 * dt * q_scale) * np.einsum("kij,ki->kj", jacobians, errors)  # g_j = 2Δt q Jⱼᵀ eⱼ
+    grad = 2.0 * dt * commands + (2.0 * weight / dt) * rates
+    grad[:-1] -= (2.0 * weight / dt) * rates[1:]
+    tail = np.zeros((steps, m))  # Σ_{j>k} g_j
+    if steps > 1:
+        tail[:-1] = np.cumsum(g[:0:-1], axis=0)[::-1]
+    grad += dt * tail
+    return float(value), grad

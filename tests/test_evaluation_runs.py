@@ -12,10 +12,10 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-import evaluation.runner as runner_module
+import evaluation.passes as passes_module
 from evaluation import EvaluationConfig, run_evaluation
-from evaluation.paper import PAPER_TABLE_I
 from evaluation.store import RunDirectoryError
+from evaluation.summary import PAPER_TABLE_I
 from snac_gym import register_policy
 from snac_gym.cli import app
 from snac_gym.cost import trajectory_cost
@@ -155,7 +155,7 @@ def test_explicit_target_matches_every_controller_and_workers_do_not_change_resu
 def test_an_interrupted_run_resumes_without_losing_or_repeating_samples(tmp_path, monkeypatch):
     config = _config(tmp_path / "run", controllers=("dls", "svf"), effort_reference="dls")
     reference = run_evaluation(dataclasses.replace(config, out=tmp_path / "reference"))
-    real_run_job = runner_module.run_job
+    real_run_job = passes_module.run_job
     calls = {"n": 0}
 
     def interrupted(job):
@@ -164,7 +164,7 @@ def test_an_interrupted_run_resumes_without_losing_or_repeating_samples(tmp_path
             raise KeyboardInterrupt
         return real_run_job(job)
 
-    monkeypatch.setattr(runner_module, "run_job", interrupted)
+    monkeypatch.setattr(passes_module, "run_job", interrupted)
     with pytest.raises(KeyboardInterrupt):
         run_evaluation(config)
     parts = {p: p.stat().st_mtime_ns for p in (config.out / "parts").glob("*.parquet")}
@@ -175,7 +175,7 @@ def test_an_interrupted_run_resumes_without_losing_or_repeating_samples(tmp_path
     with pytest.raises(RunDirectoryError, match="seed: stored 0, now 1"):
         run_evaluation(dataclasses.replace(config, resume=True, seed=1))
 
-    monkeypatch.setattr(runner_module, "run_job", real_run_job)
+    monkeypatch.setattr(passes_module, "run_job", real_run_job)
     resumed = run_evaluation(dataclasses.replace(config, resume=True))
     assert {p: p.stat().st_mtime_ns for p in parts} == parts  # completed jobs were not run again
     pd.testing.assert_frame_equal(resumed, reference, check_exact=True)
@@ -195,21 +195,23 @@ def test_pybullet_backend_runs_through_the_env(tmp_path):
 
 
 def test_knob_searches_with_long_rollouts_run_on_fewer_samples(tmp_path):
+    from evaluation.controllers import ControllerSpec
+    from evaluation.effort_matching import EffortMatcher
+
+    def matcher(config):
+        return EffortMatcher(passes_module.EvaluationRun(config, None, None, {"reach": list(range(1000))}, None))
+
     config = _config(tmp_path, samples=1000, horizons={"reach": 8.0}, effort_statistic="median-peak")
-    evaluation = runner_module.EvaluationRun(config, None, None, {"reach": list(range(1000))}, None)
-    spec = runner_module.ControllerSpec("dls", {}, "gain", 2.0)
-    assert evaluation._screening_count("reach", spec, 40, 1) == 1000  # short rollouts: every sample
-    assert evaluation._screening_count("reach", spec, 476, 1) == 211  # 10 % of a full pass's sample-steps
-    assert evaluation._screening_count("reach", spec, 1000, 1) == 100  # never fewer than 100
-    for_max = runner_module.EvaluationRun(
-        dataclasses.replace(config, effort_statistic="max"), None, None, {"reach": list(range(1000))}, None
-    )
-    assert for_max._screening_count("reach", spec, 166, 1) == 1000  # up to 1/6 of a pass: every sample
-    assert for_max._screening_count("reach", spec, 476, 1) == 351
-    pinned = runner_module.EvaluationRun(
-        dataclasses.replace(config, calibration_samples=30), None, None, {"reach": list(range(1000))}, None
-    )
-    assert pinned._screening_count("reach", spec, 1000, 1) == 30
+    median = matcher(config)
+    spec = ControllerSpec("dls", {}, "gain", 2.0)
+    assert median.screening_count("reach", spec, 40, 1) == 1000  # short rollouts: every sample
+    assert median.screening_count("reach", spec, 476, 1) == 211  # 10 % of a full pass's sample-steps
+    assert median.screening_count("reach", spec, 1000, 1) == 100  # never fewer than 100
+    for_max = matcher(dataclasses.replace(config, effort_statistic="max"))
+    assert for_max.screening_count("reach", spec, 166, 1) == 1000  # up to 1/6 of a pass: every sample
+    assert for_max.screening_count("reach", spec, 476, 1) == 351
+    pinned = matcher(dataclasses.replace(config, calibration_samples=30))
+    assert pinned.screening_count("reach", spec, 1000, 1) == 30
 
 
 def test_resume_needs_a_run(tmp_path):

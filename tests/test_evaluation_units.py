@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from evaluation.backends import RolloutError, simulate_kinematic, simulate_pybullet
-from evaluation.calibration import match_effort
 from evaluation.drivers import LockstepPolicies, supports_batch
+from evaluation.effort_search import match_effort
 from evaluation.metrics import rollout_metrics
 from evaluation.reference_batch import reference_trajectories
 from evaluation.rollouts import Rollouts
@@ -382,7 +382,7 @@ def test_cost_conventions_score_the_same_rollout_by_hand(cost, udot_start, q_sca
 
 
 def test_a_controller_that_fails_the_task_is_never_ranked_cheapest():
-    from evaluation.report import summarise
+    from evaluation.summary import summarise
 
     rows = []
     for controller, cost, success in (("cheap_but_fails", 1.0, False), ("snac", 5.0, True), ("dls", 3.0, True)):
@@ -500,13 +500,14 @@ def test_concurrent_effort_matches_raise_the_failure_not_the_cancellations(tmp_p
     import threading
     import time
 
-    import evaluation.runner as runner_module
+    import evaluation.passes as passes_module
+    from evaluation.run_config import EvaluationConfig
 
     class Concurrent:
         concurrent = True
 
-    config = runner_module.EvaluationConfig(out=tmp_path, workers=2, progress=False)
-    evaluation = runner_module.EvaluationRun(config, None, Concurrent(), {}, None)
+    config = EvaluationConfig(out=tmp_path, workers=2, progress=False)
+    evaluation = passes_module.EvaluationRun(config, None, Concurrent(), {}, None)
     started = threading.Event()
 
     def waits_for_cancellation():
@@ -523,17 +524,18 @@ def test_concurrent_effort_matches_raise_the_failure_not_the_cancellations(tmp_p
     with pytest.raises(RuntimeError, match="policy exploded"):
         evaluation.concurrently([waits_for_cancellation, fails])
     assert evaluation.cancelled.is_set()
-    serial = runner_module.EvaluationRun(config, None, object(), {}, None)
+    serial = passes_module.EvaluationRun(config, None, object(), {}, None)
     assert serial.concurrently([lambda: 1, lambda: 2]) == [1, 2]
 
 
 def test_knob_search_evaluations_are_spread_over_the_workers(tmp_path):
     from types import SimpleNamespace
 
-    import evaluation.runner as runner_module
+    import evaluation.passes as passes_module
+    from evaluation.run_config import EvaluationConfig
 
-    config = runner_module.EvaluationConfig(out=tmp_path, workers=3, progress=False)  # chunk_size 500
-    evaluation = runner_module.EvaluationRun(config, None, None, {}, None)
+    config = EvaluationConfig(out=tmp_path, workers=3, progress=False)  # chunk_size 500
+    evaluation = passes_module.EvaluationRun(config, None, None, {}, None)
     samples = [SimpleNamespace(index=i) for i in range(100)]
 
     def sizes(**kwargs):
@@ -548,8 +550,8 @@ def test_knob_search_evaluations_are_spread_over_the_workers(tmp_path):
 def test_effort_statistics_reduce_their_columns_and_bad_names_are_refused(tmp_path):
     import pandas as pd
 
-    from evaluation.calibration import EFFORT_STATISTICS, effort_statistic_named
-    from evaluation.runner import EvaluationConfig
+    from evaluation.effort_statistics import EFFORT_STATISTICS, effort_statistic_named
+    from evaluation.run_config import EvaluationConfig
 
     rows = pd.DataFrame({"max_abs_u": [1.0, 3.15, 2.0], "peak_limit_fraction": [0.2, 1.0, 0.5]})
     assert EFFORT_STATISTICS["max"].of(rows) == 3.15  # the maximum |u| over the set, rad/s

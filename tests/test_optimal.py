@@ -144,7 +144,8 @@ def test_summary_reports_the_optimal_row_and_mean_ratios(optimal_run):
 
 
 def test_a_controller_below_the_optimum_is_reported(optimal_run):
-    from evaluation.report import optimality_markdown, summarise
+    from evaluation.report import optimality_markdown
+    from evaluation.summary import summarise
 
     config, results = optimal_run
     tampered = results.copy()

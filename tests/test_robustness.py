@@ -17,8 +17,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-import evaluation.runner as runner_module
-from evaluation import EvaluationConfig, run_evaluation
+from evaluation import EvaluationConfig, effort_matching, run_evaluation
 from evaluation.executors import ProcessExecutor, check_ray_reachable, max_workers
 from evaluation.store import RunDirectoryError, RunStore
 from snac_gym.cli import app
@@ -242,14 +241,14 @@ def test_bad_samples_files_are_one_line_errors_naming_the_file(tmp_path, content
 
 
 def test_an_unmatched_effort_is_reported_on_stderr(tmp_path, monkeypatch):
-    real = runner_module._within
-    monkeypatch.setattr(runner_module, "_within", lambda effort, target, tolerance: False)
+    real = effort_matching.within
+    monkeypatch.setattr(effort_matching, "within", lambda effort, target, tolerance: False)
     result = CliRunner().invoke(
         app,
         ["evaluate", "--out", str(tmp_path), "--task", "reach", "--samples", "2", "--controllers", "dls,svf",
          "--effort-reference", "dls", "--horizon", "0.2", "--no-progress"],
     )
-    monkeypatch.setattr(runner_module, "_within", real)
+    monkeypatch.setattr(effort_matching, "within", real)
     assert result.exit_code == 0, result.output
     assert "warning: effort not matched for svf (reach)" in result.output
 

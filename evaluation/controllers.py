@@ -1,0 +1,178 @@
+"""Which controllers a run evaluates, with what arguments and effort knob: :func:`resolve_controllers`.
+
+Step 2 of :func:`evaluation.runner.run_evaluation`: ``controllers`` or every registered policy
+that can be built from a :class:`~snac_gym.policies.base.PolicyContext` (and, with effort
+matching, declares an ``effort_parameter``); those left out are listed in the summary with the
+reason. Each controller is described by a :class:`ControllerSpec`, which the passes, the effort
+search and the manifest (``run.json``) read.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from evaluation.jobs import policy_context
+from evaluation.optimal import OPTIMAL
+from evaluation.store import file_sha1
+from evaluation.summary import PAPER_TABLE_I
+from snac_gym.kinematics import Kinematics
+from snac_gym.policies.registry import available_policies, make_policy, policy_factory
+
+if TYPE_CHECKING:
+    from evaluation.run_config import EvaluationConfig
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """A controller as evaluated: name, constructor arguments and effort knob.
+
+    Attributes:
+        name: Registered name.
+        kwargs: Constructor arguments given by the user.
+        knob: The class's ``effort_parameter`` (``None`` if it declares none).
+        knob_value: The knob's value with ``kwargs`` (the policy's attribute or constructor default).
+        inputs: SHA-1 of every file the controller reads, by file name (:func:`controller_input_hashes`).
+    """
+
+    name: str
+    kwargs: dict[str, Any]
+    knob: str | None
+    knob_value: float | None
+    inputs: dict[str, str] = field(default_factory=dict)
+
+
+class _LeftOut(Exception):
+    """A registered controller that cannot be evaluated in this run.
+
+    Args:
+        reason: Why (the summary's "left out" line, or the error's end).
+        hint: What to do about it, appended to the error when the controller was asked for.
+    """
+
+    def __init__(self, reason: str, hint: str = "") -> None:
+        super().__init__(reason)
+        self.reason, self.hint = reason, hint
+
+
+def _knob_value(policy: Any, knob: str) -> float | None:
+    value = getattr(policy, knob, None)
+    try:
+        return None if value is None else float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def controller_input_hashes(policies: Sequence[Any], kwargs: Mapping[str, Any]) -> dict[str, str]:
+    """SHA-1 of every file a controller reads: those its policies list in ``input_files`` (a PPO
+    model, shipped or not) and every constructor argument that names an existing file.
+
+    Keys are file names (the folder is left out, so that a moved install resumes), with the path
+    appended where two files share a name.
+    """
+    files: list[Path] = []
+    for policy in policies:
+        files.extend(Path(f) for f in (getattr(policy, "input_files", None) or ()))
+    for value in kwargs.values():
+        if isinstance(value, (str, Path)) and str(value) and Path(value).is_file():
+            files.append(Path(value))
+    hashes: dict[str, str] = {}
+    for path in dict.fromkeys(p.resolve() for p in files):
+        key = path.name if path.name not in hashes else str(path)
+        hashes[key] = file_sha1(path, "controller input file")
+    return hashes
+
+
+def _takes_argument(name: str, argument: str) -> bool:
+    """Whether the controller registered as ``name`` has a constructor argument ``argument``."""
+    try:
+        return argument in inspect.signature(policy_factory(name)).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def default_controller_order(names: Sequence[str]) -> list[str]:
+    """Table I's rows first, in the paper's order (RNN, SVF, SNAC), then the other names sorted."""
+    paper = [name for name in PAPER_TABLE_I if name in names]
+    return paper + sorted(name for name in names if name not in PAPER_TABLE_I)
+
+
+def _check_arguments(config: EvaluationConfig, names: Sequence[str], known: set[str]) -> None:
+    """Refuse ``--param`` arguments for a controller that is not registered or not evaluated."""
+    for name, given in config.controller_kwargs.items():
+        option = "--param " + ", ".join(f"{name}.{key}" for key in given)
+        if name not in known:
+            close = difflib.get_close_matches(name, sorted(known), n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else f"; registered: {', '.join(sorted(known))}"
+            raise ValueError(f"{option}: no controller is registered as {name!r}{hint}")
+        if name not in names:
+            raise ValueError(
+                f"{option}: {name!r} is not among the evaluated controllers ({', '.join(names) or 'none'})"
+            )
+
+
+def _controller_spec(config: EvaluationConfig, name: str) -> ControllerSpec:
+    """Build ``name``'s policies for every task and read its knob.
+
+    Raises:
+        _LeftOut: If it cannot be built, or (with effort matching) has no scalar knob.
+    """
+    kwargs = dict(config.controller_kwargs.get(name, {}))
+    if config.q_scale != 1.0 and "Q" not in kwargs and _takes_argument(name, "Q"):
+        kwargs["Q"] = [config.q_scale] * Kinematics(config.robot).task_dim  # the cost's Q, as a diagonal
+    try:
+        policies = [make_policy(name, policy_context(config.robot, config.dt, task), **kwargs) for task in config.tasks]
+    except Exception as exc:
+        reason = f"cannot be built from a PolicyContext with arguments {kwargs}: {type(exc).__name__}: {exc}"
+        raise _LeftOut(reason) from exc
+    knob = getattr(type(policies[0]), "effort_parameter", None)
+    value = _knob_value(policies[0], knob) if knob else None
+    if config.match_effort and (knob is None or value is None):
+        reason = (
+            "declares no effort_parameter (needed for --match-effort)"
+            if knob is None
+            else f"its effort_parameter {knob!r} is not a scalar attribute of the policy"
+        )
+        raise _LeftOut(reason, hint="; run it with --no-match-effort")
+    return ControllerSpec(name, kwargs, knob, value, controller_input_hashes(policies, kwargs))
+
+
+def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec], dict[str, str]]:
+    """The controllers to evaluate, and the registered ones left out with the reason.
+
+    A controller given arguments (``controller_kwargs``, ``--param``) counts as named: it is
+    never left out silently.
+
+    Raises:
+        ValueError: If an explicitly named controller is unknown, cannot be built, or (with
+            effort matching) declares no scalar ``effort_parameter``; or if arguments are given
+            for a controller that is not registered or not evaluated.
+    """
+    explicit = config.controllers is not None
+    names = list(config.controllers) if explicit else default_controller_order(available_policies())
+    names = [name for name in names if name != OPTIMAL]  # the reference row, not a policy (run_optimal)
+    known = set(available_policies())
+    _check_arguments(config, names, known)
+    if explicit and not names:
+        return [], {}
+    specs: list[ControllerSpec] = []
+    skipped: dict[str, str] = {}
+    for name in names:
+        if name not in known:
+            raise ValueError(f"unknown controller {name!r}; registered: {', '.join(sorted(known))}")
+        try:
+            specs.append(_controller_spec(config, name))
+        except _LeftOut as left_out:
+            if explicit or name in config.controller_kwargs:
+                raise ValueError(f"controller {name!r} {left_out.reason}{left_out.hint}") from left_out.__cause__
+            skipped[name] = left_out.reason
+    if not specs and not config.wants_optimal:
+        raise ValueError(f"no controller to evaluate (left out: {skipped})")
+    return specs, skipped
+
+
+__all__ = ["ControllerSpec", "controller_input_hashes", "default_controller_order", "resolve_controllers"]

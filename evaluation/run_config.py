@@ -1,0 +1,279 @@
+"""The options of one evaluation, validated: :class:`EvaluationConfig`.
+
+``snac-gym evaluate`` builds one from its command line (the text options are parsed by
+:mod:`evaluation.options`); :func:`evaluation.runner.run_evaluation` runs it. :meth:`EvaluationConfig.validate`
+checks the options by theme (one small validator each, in the order the error names the first bad
+option), :meth:`EvaluationConfig.validate_for` the ones that need the robot, and
+:meth:`EvaluationConfig.manifest` lists every input that shapes the results (``run.json``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from evaluation.backends import BACKENDS
+from evaluation.effort_statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
+from evaluation.executors import MAX_WORKERS_PER_CPU, max_workers
+from evaluation.optimal import OPTIMAL
+from evaluation.samples import TASKS
+from evaluation.store import file_sha1
+from snac_gym.cost import CostConvention
+from snac_gym.kinematics import Kinematics
+from snac_gym.sampling import SampleSpace
+
+if TYPE_CHECKING:
+    from evaluation.controllers import ControllerSpec
+
+#: Default horizon per task, s: at least every controller's 95th-percentile settling time,
+#: measured at equal effort on 100 samples (docs/evaluation.md): SNAC's reach p95 is 11.7 s.
+DEFAULT_HORIZONS: dict[str, float] = {"reach": 12.0, "track": 20.0}
+#: Samples per job of a full pass. The kinematic backend steps a job's samples in lockstep and
+#: its per-sample cost falls with the batch up to a few hundred samples (docs/evaluation.md).
+DEFAULT_CHUNK_SIZE = 500
+#: Longest horizon accepted, s: 50x the default tracking horizon. Rollouts keep per-step arrays,
+#: so an unbounded horizon (1e7 s asked for 9.3 GiB) fails late instead of being refused.
+MAX_HORIZON_S = 1000.0
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """Options of one evaluation (the ``snac-gym evaluate`` options, by the same names).
+
+    Attributes:
+        out: Output directory.
+        tasks: Tasks to evaluate, from ``("reach", "track")``.
+        controllers: Registered policy names; ``None``: every registered policy that qualifies.
+        samples: Random samples per task (ignored with ``samples_file``, whose rows are all used).
+        seed: Seed of the sample set and of every policy reset.
+        horizons: Rollout length per task, s (missing tasks take :data:`DEFAULT_HORIZONS`).
+        backend: ``"kinematic"`` or ``"pybullet"``.
+        match_effort: Calibrate every controller's effort knob to equal effort.
+        effort_reference: Controller whose effort (at its own settings) is the target.
+        effort_statistic: What "equal control effort" equalises: ``"max"`` (the maximum |u| over
+            the sample set, rad/s) or ``"median-peak"`` (:mod:`evaluation.calibration`).
+        effort_target: Explicit target of the effort statistic, in its unit (then every
+            controller is matched).
+        effort_tolerance: Relative tolerance of the match over the whole sample set.
+        calibration_samples: Samples (the first ones of each task) the knob search runs on;
+            ``None``: all of them when the search's rollouts are short, fewer when they are
+            long (see the statistic's ``screening_budget``).
+        samples_file: CSV of samples to use instead of random ones.
+        export_samples: Also write the sample set to this CSV.
+        save_trajectories: Write every rollout's per-step log under ``out/trajectories``.
+        workers: Local worker processes.
+        ray_address: Run on Ray instead (``"local"`` or a cluster address).
+        resume: Continue an interrupted run in ``out``.
+        chunk_size: Samples per job of a full pass (results do not depend on it or on the workers).
+        dt: Control period, s.
+        robot: Robot name.
+        space: Sample space (default: the UR10 cuboid scaled to the robot).
+        controller_kwargs: Constructor arguments per controller name.
+        progress: Show a progress bar.
+        use_batch: Let policies that offer the batch protocol run in lockstep batches.
+        cost: The trajectory cost of the comparison (:data:`snac_gym.cost.COSTS`): ``"table1"``
+            (with the u̇ term) or ``"hjb"`` (``Σ (eᵀQe + uᵀRu) Δt``); ``optimal`` solves for it.
+        udot_start: u₋₁ of the u̇ term: ``"rest"`` (0) or ``"first"`` (u₀).
+        q_scale: Q = q_scale·I in the cost; controllers whose constructor takes ``Q`` (``snac``,
+            ``lqr``, ``snac-hjb``) get the same Q unless ``controller_kwargs`` sets it.
+        success_threshold: Success rate a controller must reach to be ranked in the summary.
+    """
+
+    out: Path
+    tasks: tuple[str, ...] = TASKS
+    controllers: tuple[str, ...] | None = None
+    samples: int = 1000
+    seed: int = 0
+    horizons: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_HORIZONS))
+    backend: str = "kinematic"
+    match_effort: bool = True
+    effort_reference: str = "snac"
+    effort_statistic: str = DEFAULT_EFFORT_STATISTIC
+    effort_target: float | None = None
+    effort_tolerance: float = 0.02
+    calibration_samples: int | None = None
+    samples_file: Path | None = None
+    export_samples: Path | None = None
+    save_trajectories: bool = False
+    workers: int = 1
+    ray_address: str | None = None
+    resume: bool = False
+    chunk_size: int = DEFAULT_CHUNK_SIZE
+    dt: float = 1.0 / 125.0
+    robot: str = "ur10"
+    space: SampleSpace | None = None
+    controller_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    progress: bool = True
+    use_batch: bool = True
+    cost: str = "table1"
+    udot_start: str = "rest"
+    q_scale: float = 1.0
+    success_threshold: float = 0.95
+
+    @property
+    def convention(self) -> CostConvention:
+        """The :class:`~snac_gym.cost.CostConvention` of ``cost``, ``udot_start`` and ``q_scale``."""
+        return CostConvention(self.cost, self.udot_start, self.q_scale)
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad option."""
+        for check in (
+            _check_selection,
+            _check_timing,
+            _check_backend,
+            _check_effort,
+            _check_execution,
+            _check_scoring,
+        ):
+            check(self)
+
+    def validate_for(self, kinematics: Kinematics) -> None:
+        """The checks that need the robot: an effort target the clipped commands can reach.
+
+        Raises:
+            ValueError: Naming the option and its bound.
+        """
+        if self.effort_target is not None:
+            largest = self.statistic.largest(kinematics.velocity_limits)
+            if self.effort_target > largest:
+                raise ValueError(
+                    f"effort_target {self.effort_target:g} {self.statistic.unit} is out of reach: commands are "
+                    f"clipped at the velocity limits, so the {self.effort_statistic} statistic is at most {largest:g}"
+                )
+
+    @property
+    def wants_optimal(self) -> bool:
+        """Whether the ``optimal`` reference is among the controllers (never by default)."""
+        return self.controllers is not None and OPTIMAL in self.controllers
+
+    @property
+    def statistic(self) -> EffortStatistic:
+        """The effort statistic named by ``effort_statistic``."""
+        return effort_statistic_named(self.effort_statistic)
+
+    def horizon(self, task: str) -> float:
+        """Rollout length of ``task``, s."""
+        return float(self.horizons.get(task, DEFAULT_HORIZONS[task]))
+
+    def steps(self, task: str) -> int:
+        """Control steps K of ``task``'s rollouts: the horizon in periods, rounded."""
+        return max(1, round(self.horizon(task) / self.dt))
+
+    def manifest(self, space: SampleSpace, specs: Sequence[ControllerSpec] = ()) -> dict[str, Any]:
+        """Every input that shapes the results (``run.json``; compared by ``--resume``).
+
+        The options, a hash of the samples file, and per controller its effort knob's default and
+        a hash of every file it reads (:attr:`ControllerSpec.inputs`): a resume after any of them
+        changed is refused rather than mixing old and new results.
+
+        Raises:
+            SampleFileError: If ``samples_file`` cannot be read.
+        """
+        samples_hash = None
+        if self.samples_file is not None:
+            samples_hash = file_sha1(Path(self.samples_file), "samples file")
+        return {
+            "controller_inputs": {
+                spec.name: {"knob": spec.knob, "knob_value": spec.knob_value, "files": dict(spec.inputs)}
+                for spec in specs
+            },
+            "tasks": list(self.tasks),
+            "controllers": None if self.controllers is None else list(self.controllers),
+            "samples": None if self.samples_file is not None else self.samples,
+            "samples_file_sha1": samples_hash,
+            "seed": self.seed,
+            "steps": {task: self.steps(task) for task in self.tasks},
+            "backend": self.backend,
+            "match_effort": self.match_effort,
+            "effort_reference": self.effort_reference,
+            "effort_statistic": self.effort_statistic,
+            "effort_target": self.effort_target,
+            "effort_tolerance": self.effort_tolerance,
+            "calibration_samples": self.calibration_samples,
+            "save_trajectories": self.save_trajectories,
+            "chunk_size": self.chunk_size,
+            "dt": self.dt,
+            "robot": self.robot,
+            "space": dataclasses.asdict(space),
+            "controller_kwargs": {k: dict(v) for k, v in self.controller_kwargs.items()},
+            "use_batch": self.use_batch,
+            "cost": self.cost,
+            "udot_start": self.udot_start,
+            "q_scale": self.q_scale,
+        }
+
+
+# -- validators of EvaluationConfig.validate, in the order of its options ---------------------------
+def _check_selection(config: EvaluationConfig) -> None:
+    """What is evaluated: tasks, controllers, samples."""
+    tasks = config.tasks
+    if not tasks or any(t not in TASKS for t in tasks) or len(set(tasks)) != len(tasks):
+        raise ValueError(f"tasks must be distinct names from {TASKS}, got {tasks}")
+    controllers = config.controllers
+    if controllers is not None and (not controllers or len(set(controllers)) != len(controllers)):
+        raise ValueError(f"controllers must be distinct names, got {controllers}")
+    if config.samples < 1:
+        raise ValueError(f"samples must be at least 1, got {config.samples}")
+
+
+def _check_timing(config: EvaluationConfig) -> None:
+    """The horizons and the control period."""
+    unknown = set(config.horizons) - set(TASKS)
+    if unknown:
+        raise ValueError(f"horizons for unknown task(s) {sorted(unknown)}; tasks are {TASKS}")
+    if not (math.isfinite(config.dt) and config.dt > 0):
+        raise ValueError(f"dt must be a positive finite number of seconds, got {config.dt}")
+    for task in config.tasks:
+        if not config.dt <= config.horizon(task) <= MAX_HORIZON_S:
+            raise ValueError(
+                f"the {task} horizon must be between one control period ({config.dt} s) and "
+                f"{MAX_HORIZON_S:g} s, got {config.horizon(task)}"
+            )
+
+
+def _check_backend(config: EvaluationConfig) -> None:
+    """The backend, and the optimal reference's need of the kinematic one."""
+    if config.backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {config.backend!r}")
+    if config.wants_optimal and config.backend != "kinematic":
+        raise ValueError(f"the {OPTIMAL!r} reference is the optimum of the kinematic model; use --backend kinematic")
+
+
+def _check_effort(config: EvaluationConfig) -> None:
+    """The equal-effort options: statistic, target, tolerance, screening samples."""
+    effort_statistic_named(config.effort_statistic)
+    target = config.effort_target
+    if target is not None and not (math.isfinite(target) and target > 0):
+        raise ValueError(f"effort_target must be a positive finite number, got {target}")
+    if not 0 < config.effort_tolerance < 1:
+        raise ValueError(f"effort_tolerance must be in (0, 1), got {config.effort_tolerance}")
+    if config.calibration_samples is not None and config.calibration_samples < 1:
+        raise ValueError(f"calibration_samples must be at least 1, got {config.calibration_samples}")
+
+
+def _check_execution(config: EvaluationConfig) -> None:
+    """Where and in what pieces the jobs run: workers, chunk size."""
+    local = config.ray_address in (None, "local")  # a cluster's size is its own
+    if config.workers < 1 or (local and config.workers > max_workers()):
+        raise ValueError(
+            f"workers must be between 1 and {max_workers()} ({MAX_WORKERS_PER_CPU} per available CPU), "
+            f"got {config.workers}"
+        )
+    if config.chunk_size < 1:
+        raise ValueError(f"chunk_size must be at least 1, got {config.chunk_size}")
+
+
+def _check_scoring(config: EvaluationConfig) -> None:
+    """The cost convention, the success threshold and the output folder."""
+    config.convention  # noqa: B018  (validates cost, udot_start and q_scale)
+    if not 0.0 <= config.success_threshold <= 1.0:
+        raise ValueError(f"success_threshold must be in [0, 1], got {config.success_threshold}")
+    if not str(config.out).strip():
+        raise ValueError("out (--out) must name a folder, got an empty path")
+
+
+__all__ = ["DEFAULT_CHUNK_SIZE", "DEFAULT_HORIZONS", "MAX_HORIZON_S", "EvaluationConfig"]
