@@ -139,6 +139,41 @@ def real(
     typer.echo(result.summary())
 
 
+@app.command("emulate-ur")
+def emulate_ur(
+    port_base: int = typer.Option(29999, "--port-base", help="Dashboard port; RTDE at +5, script at +3/+4. ur_rtde needs 29999; 0: free ports."),
+    series: str = typer.Option("cb", "--series", help="cb (CB3, 125 Hz data) or e (e-Series, 500 Hz)."),
+    robot: str = typer.Option("ur10", "--robot", help="Arm model: ur3, ur5 or ur10."),
+    speed_scaling: float = typer.Option(1.0, "--speed-scaling", help="Speed slider fraction in (0, 1]."),
+    tcp_offset: Optional[str] = typer.Option(None, "--tcp-offset", help="TCP offset x,y,z[,rx,ry,rz] (m, rad) in reported poses: a wrong tool."),
+    protective_stop_at: Optional[float] = typer.Option(None, "--protective-stop-at", help="Protective stop, s after the first speedJ."),
+    emergency_stop_at: Optional[float] = typer.Option(None, "--emergency-stop-at", help="Emergency stop, s after the first speedJ."),
+    latency_spike: Optional[str] = typer.Option(None, "--latency-spike", help="AT,SECONDS: the controller stalls that long, AT s after the first speedJ."),
+    drop_at: Optional[float] = typer.Option(None, "--drop-at", help="Cut every connection (and refuse new ones), s after the first speedJ."),
+    stale_at: Optional[float] = typer.Option(None, "--stale-at", help="Freeze the reported timestamp and state, s after the first speedJ."),
+    watchdog_expiry_at: Optional[float] = typer.Option(None, "--watchdog-expiry-at", help="Make the RTDE watchdog fire, s after the first speedJ."),
+    duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Exit after this many seconds (default: until Ctrl-C)."),
+    rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="SCHED_FIFO priority of the control cycle (needs root/CAP_SYS_NICE); 0: off."),
+) -> None:
+    """Emulate a UR controller on 127.0.0.1 for ur_rtde (RTDE, dashboard, script upload), with faults on demand."""
+    from snac_gym.real.emulator import UREmulator
+    from snac_gym.real.emulator.serve import fault_plan, parse_numbers, serve
+
+    try:
+        offset = None if tcp_offset is None else parse_numbers(tcp_offset, "--tcp-offset", (3, 6))
+        emulator = UREmulator(
+            robot=robot, series=series, port_base=port_base, speed_scaling=speed_scaling, bind_timeout=0.0, rt_priority=rt_priority,
+            tcp_offset=None if offset is None else (offset + [0.0, 0.0, 0.0])[:6],
+        )
+        plan = fault_plan(protective_stop_at, emergency_stop_at, latency_spike, drop_at, stale_at, watchdog_expiry_at)
+        for at, fault, args in plan:
+            emulator.schedule(at, fault, *args)
+        serve(emulator, duration, typer.echo)
+    except (ValueError, OSError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+
+
 @contextlib.contextmanager
 def _sigterm_as_interrupt() -> Iterator[None]:
     """Turn SIGTERM into KeyboardInterrupt while the block runs, so that it ends the run as Ctrl-C

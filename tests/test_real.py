@@ -199,9 +199,10 @@ def test_loop_period_and_jitter_are_measured_at_125_hz():
 
 
 def test_rtde_backend_fails_fast_on_a_closed_loopback_port():
+    # 127.0.0.2: the emulator tests may be listening on 127.0.0.1:30004 at the same time
     start = time.monotonic()
-    with pytest.raises(ConnectionFailure, match="127.0.0.1:30004 refused") as excinfo:
-        URRTDEBackend("127.0.0.1", connect_timeout=2.0)
+    with pytest.raises(ConnectionFailure, match="127.0.0.2:30004 refused") as excinfo:
+        URRTDEBackend("127.0.0.2", connect_timeout=2.0)
     assert time.monotonic() - start < 5.0
     assert "\n" not in str(excinfo.value)
 
@@ -239,13 +240,13 @@ def test_real_command_with_nothing_listening_fails_in_one_line():
 
     start = time.monotonic()
     done = subprocess.run(
-        [sys.executable, "-m", "snac_gym.cli", "real", "--host", "127.0.0.1", "--out", "unused"],
+        [sys.executable, "-m", "snac_gym.cli", "real", "--host", "127.0.0.2", "--out", "unused"],
         capture_output=True, text=True, timeout=30,
     )
     assert time.monotonic() - start < 10.0
     assert done.returncode == 1
     assert done.stdout == "" and done.stderr.strip().count("\n") == 0
-    assert "127.0.0.1:30004 refused" in done.stderr
+    assert "127.0.0.2:30004 refused" in done.stderr
 
 
 def test_dry_run_command_on_the_simulated_backend_prints_what_it_would_send(tmp_path):

@@ -58,7 +58,7 @@ class ArmBackend(Protocol):
         """Mark the start of a control period; returns its start time (backend clock, s)."""
 
     def command(self, velocities: np.ndarray) -> None:
-        """Send joint-velocity command u (rad/s) for this period (and kick the watchdog)."""
+        """Send joint-velocity command u (rad/s) for this period (which also feeds the watchdog)."""
 
     def end_period(self, period_start: float) -> None:
         """Block until the period that began at ``period_start`` is over."""
@@ -102,16 +102,20 @@ def probe_port(host: str, port: int, timeout: float) -> None:
 class URRTDEBackend:
     """A real UR arm through ur_rtde: ``speedJ`` streamed at the control rate.
 
-    Each period: ``initPeriod`` → ``speedJ(u, acceleration, dt)`` → ``kickWatchdog`` →
-    ``waitPeriod``. The controller-side watchdog (``setWatchdog``) stops the arm by itself if the
-    host stops kicking it for ``watchdog_periods`` periods.
+    Each period: ``initPeriod`` → ``speedJ(u, acceleration, dt)`` → ``waitPeriod``. The
+    controller-side watchdog (``setWatchdog`` on the command register, armed at the first command
+    of each stream) stops the control script, and so the arm, if no command arrives for
+    ``watchdog_periods`` periods; the next stream re-uploads the script (``reuploadScript``).
 
     Args:
         host: IP address of the UR controller.
         kinematics: Model of the arm (UR10 by default).
         frequency: Control rate, Hz: 125 for CB-series, 500 for e-Series (see ``series``).
         series: ``"cb"`` or ``"e"``; sets ``frequency`` when that is not given.
-        acceleration: Joint acceleration bound passed to ``speedJ``, rad/s².
+        acceleration: Joint acceleration bound passed to ``speedJ``, rad/s² (of the leading joint).
+            Keep it above the safety layer's ``max_joint_acceleration``: the shaped command already
+            bounds the acceleration, and a lower ramp here makes the arm trail every command
+            change (:func:`~snac_gym.real.run.make_backend` passes twice the layer's bound).
         control: Open the control interface (``False`` for a dry run: state only, nothing sent).
         connect_timeout: Seconds to wait for the controller before giving up.
         watchdog_periods: Missed periods after which the controller's watchdog stops the arm.
@@ -151,6 +155,9 @@ class URRTDEBackend:
         self.host = host
         self._control = None
         self._receive = None
+        self.stop_calls = 0
+        self._streaming = False
+        self._snapshot: tuple[np.ndarray, np.ndarray, np.ndarray, float, float] | None = None
         probe_port(host, self.RTDE_PORT, connect_timeout)
         try:
             import rtde_control
@@ -165,16 +172,61 @@ class URRTDEBackend:
         except RuntimeError as exc:
             self.close()
             raise ConnectionFailure(f"ur_rtde could not connect to {host}: {str(exc).splitlines()[0]}") from exc
-        if self._control is not None:
-            self._control.setWatchdog(self.frequency / watchdog_periods)
+        self.watchdog_frequency = self.frequency / watchdog_periods
 
     def _require_connection(self) -> None:
         if self._receive is None or not self._receive.isConnected():
             raise ConnectionFailure(f"connection to the arm at {self.host} was lost")
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Joint state of one RTDE package (with its TCP pose, speed scaling and timestamp).
+
+        ur_rtde's getters each read the latest package, which may change between two calls; the
+        reads are repeated until the timestamp is the same before and after, so that q, θ̇, the
+        TCP pose and the timestamp all belong to the same package.
+        """
         self._require_connection()
-        return np.array(self._receive.getActualQ()), np.array(self._receive.getActualQd())
+        receive = self._receive
+        for _ in range(5):
+            stamp = float(receive.getTimestamp())
+            q, qd = np.array(receive.getActualQ()), np.array(receive.getActualQd())
+            tcp, scaling = np.array(receive.getActualTCPPose()), float(receive.getSpeedScaling())
+            if float(receive.getTimestamp()) == stamp:
+                break
+        self._snapshot = (q, qd, tcp, scaling, stamp)
+        return q.copy(), qd.copy()
+
+    def reported_tcp_position(self) -> np.ndarray:
+        """The controller's TCP position (``actual_TCP_pose[:3]``, m, UR base frame) of the last read.
+
+        With no TCP offset set on the pendant it is the flange (``tool0``) in the ``base`` frame,
+        the point and frame of :class:`~snac_gym.kinematics.Kinematics`' defaults.
+        """
+        return self._last_snapshot()[2][:3].copy()
+
+    def speed_scaling(self) -> float:
+        """The controller's speed scaling of the last read (the pendant's slider, 1.0 = 100 %)."""
+        return self._last_snapshot()[3]
+
+    def _last_snapshot(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+        if self._snapshot is None:
+            self.read_state()
+        return self._snapshot  # type: ignore[return-value]
+
+    def _ensure_program(self) -> None:
+        """Re-upload ur_rtde's control script if it is not running (the watchdog stopped it while idle).
+
+        Raises:
+            ConnectionFailure: If it does not start within ``rest_timeout`` s.
+        """
+        if self._control.isProgramRunning():
+            return
+        self._control.reuploadScript()
+        deadline = time.perf_counter() + self.rest_timeout
+        while not self._control.isProgramRunning():
+            if time.perf_counter() > deadline:
+                raise ConnectionFailure(f"the control script did not start on {self.host} (is the arm in remote control?)")
+            time.sleep(self.dt)
 
     def start_period(self) -> float:
         if self._control is None:
@@ -184,9 +236,17 @@ class URRTDEBackend:
     def command(self, velocities: np.ndarray) -> None:
         if self._control is None:
             raise RuntimeError("this backend was opened without the control interface (dry run)")
+        if not self._streaming:  # the first command after a stop: arm the watchdog for this stream
+            self._require_connection()
+            self._ensure_program()
+            self._control.setWatchdog(self.watchdog_frequency)
+            self._streaming = True
+        # No kickWatchdog: ur_rtde 1.6.5 sends it as input_int_register_0 = 0 (seen on the wire by
+        # the emulator), which overwrites speedJ's command id 9 before the control script reads it
+        # when both land in the same controller cycle. speedJ's own package refreshes the watched
+        # register every period, so the watchdog is fed all the same.
         if not self._control.speedJ(list(map(float, velocities)), self.acceleration, self.dt):
             raise ConnectionFailure(f"the arm at {self.host} rejected speedJ (connection lost or program stopped)")
-        self._control.kickWatchdog()
 
     def end_period(self, period_start: float) -> None:
         if self._control is None:
@@ -195,12 +255,15 @@ class URRTDEBackend:
         self._control.waitPeriod(period_start)
 
     def state_timestamp(self) -> float:
-        self._require_connection()
-        return float(self._receive.getTimestamp())
+        return self._last_snapshot()[4]
 
     def stop(self) -> None:
         if self._control is None:
             return
+        # Once stopped, the host goes quiet: the watchdog then ends the control script on the
+        # controller, and the next stream re-uploads it and arms the watchdog again.
+        self._streaming = False
+        self.stop_calls += 1
         try:
             self._control.speedStop(self.stop_deceleration)
         except RuntimeError:  # already disconnected: the controller's watchdog stops the arm
@@ -219,6 +282,8 @@ class URRTDEBackend:
     def move_to(self, q: np.ndarray) -> None:
         if self._control is None:
             raise RuntimeError("cannot move the arm in a dry run")
+        self._require_connection()
+        self._ensure_program()
         if not self._control.moveJ(list(map(float, q)), self.move_speed, 0.5):
             raise ConnectionFailure(f"moveJ to the start pose failed on {self.host}")
 
@@ -332,6 +397,14 @@ class SimulatedBackend:
     def safety_state(self) -> str:
         return self._fault
 
+    def reported_tcp_position(self) -> np.ndarray:
+        """The TCP position a controller would report: the model's f(q) (the simulator has no other)."""
+        return self.kinematics.forward(self.arm.joint_state()[0])
+
+    def speed_scaling(self) -> float:
+        """Speed slider of the rehearsal: always 100 %."""
+        return 1.0
+
     def inject_fault(self, state: str) -> None:
         """Make the controller report ``state`` (``protective_stop`` or ``emergency_stop``) from now on."""
         if state not in (PROTECTIVE_STOP, EMERGENCY_STOP, NORMAL):
@@ -386,6 +459,11 @@ class DryRunBackend:
 
     def safety_state(self) -> str:
         return self.inner.safety_state()
+
+    def __getattr__(self, name: str) -> object:
+        if name in ("reported_tcp_position", "speed_scaling"):  # optional reads of the inner backend
+            return getattr(self.inner, name)
+        raise AttributeError(name)
 
     def close(self) -> None:
         self.inner.close()

@@ -29,7 +29,7 @@ class RealUREnv(gym.Env):
     ur_rtde, which returns once the arm is at rest) on every way out of an episode:
 
     * a stopping rule of :class:`~snac_gym.real.safety.SafetyLimits` fires (non-finite or stale
-      state, task box, joint margin, late loop) or the controller reports a protective or
+      state, task box, joint margin, late loop, the controller's TCP away from the model's f(θ)) or the controller reports a protective or
       emergency stop: the episode terminates, ``info["safety"]`` says why and
       ``info["safety_state"]`` what the controller reports;
     * any exception inside ``step`` (a bad action, Ctrl-C, a lost connection, a bug), before it
@@ -55,8 +55,13 @@ class RealUREnv(gym.Env):
         Q, R: Cost weights of the reward (default identity).
         sample_space: Space of random references.
 
+    Each step's ``info["speed_scaling"]`` is the controller's speed scaling (the pendant's speed
+    slider; 1.0 where the backend reports none): below 1 the controller runs every command
+    slower, so the arm trails the command by design; :meth:`timing` keeps its minimum.
+
     Attributes:
         periods: Measured durations (s) between consecutive commands in this episode.
+        speed_scalings: The controller's speed scaling at reset and after each step.
         stop_reason: Why the arm was stopped mid-episode (a safety rule or an exception), or
             ``None``.
 
@@ -104,6 +109,7 @@ class RealUREnv(gym.Env):
         self.reference: Reference = self.task.paper()
         self.steps = 0
         self.periods: list[float] = []
+        self.speed_scalings: list[float] = []
         self._obs: np.ndarray | None = None
         self._last_command = np.zeros(self.kinematics.n_joints)
         self._period_start: Any = None
@@ -166,7 +172,9 @@ class RealUREnv(gym.Env):
         self.stop_reason = None
         self.safety.reset()
         q, qdot = self.backend.read_state()
-        violation = self.safety.violation(q, qdot, self.kinematics.forward(q), self.backend.state_timestamp())
+        x = self.kinematics.forward(q)
+        violation = self.safety.violation(q, qdot, x, self.backend.state_timestamp()) or self._tcp_mismatch(x)
+        self.speed_scalings = [self._speed_scaling()]
         if violation is not None:
             self._halt(violation)
             raise RuntimeError(f"the arm starts outside the safety limits: {violation}")
@@ -174,7 +182,18 @@ class RealUREnv(gym.Env):
         self._begin_period()
         self._episode_over = False
         fields = self.obs_layout.unpack(self._obs)
-        return self._obs.copy(), {"error": fields.e.copy(), "reference": reference.to_dict(), "safety_state": state}
+        info = {"error": fields.e.copy(), "reference": reference.to_dict(), "safety_state": state}
+        return self._obs.copy(), {**info, "speed_scaling": self.speed_scalings[0]}
+
+    def _tcp_mismatch(self, x_model: np.ndarray) -> str | None:
+        """The FK check: the controller's reported TCP position against the model's f(θ) (if reported)."""
+        reported = getattr(self.backend, "reported_tcp_position", None)
+        return None if reported is None else self.safety.tcp_violation(x_model, reported())
+
+    def _speed_scaling(self) -> float:
+        """The controller's speed scaling (the pendant's slider) of the last read; 1.0 if not reported."""
+        scaling = getattr(self.backend, "speed_scaling", None)
+        return 1.0 if scaling is None else float(scaling())
 
     def _pack(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
         x_d, xdot_d = self.reference.position_and_velocity(self.time)
@@ -213,7 +232,9 @@ class RealUREnv(gym.Env):
         late = self.safety.record_period(self.periods[-1]) if self.steps > 1 else None
         q, qdot = self.backend.read_state()
         self._obs = self._pack(q, qdot)
-        reason = late or self.safety.violation(q, qdot, self._obs[self.obs_layout.slices["x"]], self.backend.state_timestamp())
+        x = self._obs[self.obs_layout.slices["x"]]
+        reason = late or self.safety.violation(q, qdot, x, self.backend.state_timestamp()) or self._tcp_mismatch(x)
+        self.speed_scalings.append(self._speed_scaling())
         state = self.backend.safety_state()
         if reason is None and state != NORMAL:
             reason = f"controller reports {state}"
@@ -231,6 +252,7 @@ class RealUREnv(gym.Env):
             "error": error.copy(), "error_norm": math.sqrt(error @ error), "cost_error": cost_error,
             "cost_effort": cost_effort, "cost_smoothness": cost_smoothness, "command": command.copy(),
             "t": self.time, "is_success": success, "safety": safety, "safety_state": safety_state,
+            "speed_scaling": self.speed_scalings[-1],
         }
         terminated = safety is not None
         truncated = not terminated and self.steps >= self.max_steps
@@ -251,6 +273,7 @@ class RealUREnv(gym.Env):
             "period_ms_max": float(periods.max()),
             "jitter_ms_max": float(np.abs(periods - self.dt * 1e3).max()),
             "late_periods": int(np.sum(periods > (1 + self.safety_limits.deadline_slack) * self.dt * 1e3)),
+            "speed_scaling_min": float(min(self.speed_scalings, default=1.0)),
         }
 
     def close(self) -> None:

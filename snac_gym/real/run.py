@@ -80,6 +80,11 @@ class RealRunResult:
                 f"  loop period                 mean {t['period_ms_mean']:.3f} ms, p99 {t['period_ms_p99']:.3f} ms, "
                 f"max jitter {t['jitter_ms_max']:.3f} ms, {t['late_periods']} late"
             )
+        if self.timing and self.timing.get("speed_scaling_min", 1.0) < 1.0:
+            lines.append(
+                f"  speed slider                at {self.timing['speed_scaling_min']:.0%} (lowest): the controller "
+                "scaled every command down, the arm was slower by design, not lagging"
+            )
         if self.sent_commands is not None:
             lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
         lines.append(f"  stopped by safety layer: {self.stop_reason}" if self.stop_reason else "  no safety stop")
@@ -87,9 +92,13 @@ class RealRunResult:
 
 
 def make_backend(
-    backend: str, host: str | None, series: str, dry_run: bool, robot: str = "ur10", echo: Callable[[str], None] | None = None
+    backend: str, host: str | None, series: str, dry_run: bool, robot: str = "ur10", echo: Callable[[str], None] | None = None,
+    acceleration: float = 4.0,
 ) -> Any:
     """Build the ``rtde`` or ``sim`` backend (wrapped for a dry run).
+
+    ``acceleration`` is ``speedJ``'s ramp (rad/s²) on a real arm: above the safety layer's bound,
+    so that the arm follows the shaped command instead of trailing it.
 
     Raises:
         ValueError: On an unknown backend or a missing host.
@@ -103,7 +112,7 @@ def make_backend(
     elif backend == "rtde":
         if not host:
             raise ValueError("the rtde backend needs --host IP (or use --backend sim to rehearse)")
-        inner = URRTDEBackend(host, kinematics, series=series, control=not dry_run)
+        inner = URRTDEBackend(host, kinematics, series=series, control=not dry_run, acceleration=acceleration)
     else:
         raise ValueError(f"backend must be 'rtde' or 'sim', got {backend!r}")
     return DryRunBackend(inner, echo=echo) if dry_run else inner
@@ -153,7 +162,8 @@ def run_real_episode(
     from snac_gym.policies import make_policy
     from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
 
-    arm = make_backend(backend, host, series, dry_run, echo=echo)
+    safety = safety if safety is not None else SafetyLimits()
+    arm = make_backend(backend, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
     try:
         default_steps = round(DEFAULT_SECONDS.get(task, 1.0) / arm.dt)
         env = RealUREnv(task, arm, safety=safety, max_steps=steps if steps is not None else default_steps)

@@ -12,7 +12,9 @@ Two kinds of rule:
     limit;
   - the loop is late too often (``max_missed_deadlines`` late periods within the last
     ``deadline_window``), or once by a lot (a period longer than ``max_period``);
-  - the controller reports a protective or emergency stop (checked by the env).
+  - the controller reports a protective or emergency stop (checked by the env);
+  - the TCP position the controller reports differs from the model's f(θ) by more than
+    ``max_tcp_mismatch`` (a wrong tool, base frame or arm model), where the backend reports one.
 
 Every limit is checked when :class:`SafetyLimits` is built: a NaN or infinite limit would switch
 its rule off without a word (comparisons with NaN are false), so it is refused instead.
@@ -67,6 +69,8 @@ class SafetyLimits:
         max_stale_periods: Periods running in which the controller's state timestamp may fail to
             advance before the state counts as stale.
         rest_speed: Joint speed (rad/s) under which the arm counts as at rest after a stop.
+        max_tcp_mismatch: Largest distance (m) between the controller's reported TCP position
+            and the model's forward kinematics f(θ) of the same state, in (0, 1].
     """
 
     speed_scale: float = 0.25
@@ -80,6 +84,7 @@ class SafetyLimits:
     max_period: float = 0.04
     max_stale_periods: int = 3
     rest_speed: float = 0.01
+    max_tcp_mismatch: float = 0.005
 
     def __post_init__(self) -> None:
         _finite_in("speed_scale", self.speed_scale, 0.0, 1.0, low_open=True)
@@ -88,6 +93,7 @@ class SafetyLimits:
         _finite_in("deadline_slack", self.deadline_slack, 0.0, 10.0)
         _finite_in("max_period", self.max_period, 0.0, 10.0, low_open=True)
         _finite_in("rest_speed", self.rest_speed, 0.0, 1.0, low_open=True)
+        _finite_in("max_tcp_mismatch", self.max_tcp_mismatch, 0.0, 1.0, low_open=True)
         _whole_in("deadline_window", self.deadline_window, 1, 100_000)
         _whole_in("max_missed_deadlines", self.max_missed_deadlines, 1, self.deadline_window)
         _whole_in("max_stale_periods", self.max_stale_periods, 1, 1000)
@@ -170,6 +176,17 @@ class SafetyLayer:
                     f"for {self._stale_reads} periods running"
                 )
         return self.pose_violation(q, x)
+
+    def tcp_violation(self, x_model: np.ndarray, x_reported: np.ndarray) -> str | None:
+        """A message when the controller's TCP position and the model's f(θ) differ by over ``max_tcp_mismatch``."""
+        gap = float(np.linalg.norm(np.asarray(x_reported, dtype=float) - x_model))
+        if not gap <= self.limits.max_tcp_mismatch:  # NaN-safe
+            return (
+                f"TCP mismatch: the controller reports {np.round(x_reported, 4).tolist()} m, the model's f(q) is "
+                f"{np.round(x_model, 4).tolist()} m ({gap * 1e3:.1f} mm apart, limit "
+                f"{self.limits.max_tcp_mismatch * 1e3:.1f} mm): check the TCP offset, base frame and arm model"
+            )
+        return None
 
     def record_period(self, duration: float) -> str | None:
         """Count late periods; a message once one is over ``max_period`` or too many are late in the window."""

@@ -7,7 +7,8 @@ as a rotation vector. The emulator computes it from Universal Robots' published 
 not from the project's URDF, so the backend's FK check compares two independent models.
 
 Motion is integrated exactly (no dynamics) once per controller cycle: ``speedj`` approaches its
-target speed, scaled by the speed slider, at its acceleration bound; ``stopj`` decelerates to
+target speed, scaled by the speed slider, at its acceleration bound (of the leading joint, the
+others scaled so that the joint-space direction holds, as UR's ``speedj`` does); ``stopj`` decelerates to
 rest; ``movej`` moves all joints together on a straight line in joint space at ``v`` scaled by
 the slider.
 """
@@ -127,8 +128,11 @@ class EmulatedArm:
                 self.qd = delta / distance * self.move_speed * scaling
                 self.q = self.q + self.qd * dt
             return
+        # speedj's acceleration bounds the leading joint; the others are scaled to keep the direction.
+        delta = self.speed_target * scaling - self.qd
+        largest = float(np.max(np.abs(delta)))
         step = self.acceleration * dt
-        self.qd = self.qd + np.clip(self.speed_target * scaling - self.qd, -step, step)
+        self.qd = self.qd + (delta if largest <= step else delta * (step / largest))
         self.q = self.q + self.qd * dt
 
     def tcp_pose(self, tcp_offset: np.ndarray) -> np.ndarray:

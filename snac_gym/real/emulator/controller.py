@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import re
 import socket
 import threading
@@ -64,6 +65,9 @@ class UREmulator:
         speed_scaling: Speed slider fraction in (0, 1].
         tcp_offset: TCP offset ``[x, y, z, rx, ry, rz]`` applied to ``actual_TCP_pose``.
         bind_timeout: Seconds to wait for busy ports.
+        rt_priority: ``SCHED_FIFO`` priority of the control cycle's thread (0: normal scheduling),
+            so that on a busy host the cycle keeps its rate, as a real controller's does; needs
+            the right to set it (root or ``CAP_SYS_NICE``), else it runs at normal priority.
 
     Raises:
         ValueError: On a bad argument.
@@ -79,6 +83,7 @@ class UREmulator:
         speed_scaling: float = 1.0,
         tcp_offset: np.ndarray | None = None,
         bind_timeout: float = 30.0,
+        rt_priority: int = 0,
     ) -> None:
         if series not in FREQUENCY:
             raise ValueError(f"series must be one of {sorted(FREQUENCY)}, got {series!r}")
@@ -88,6 +93,9 @@ class UREmulator:
             raise ValueError(f"port_base must be 0 (free ports) or in [1024, 65530], got {port_base!r}")
         self.kinematics = Kinematics(robot)
         self.series, self.host, self.port_base, self.bind_timeout = series, host, port_base, bind_timeout
+        if not (isinstance(rt_priority, int) and 0 <= rt_priority <= 99):
+            raise ValueError(f"rt_priority must be a whole number in [0, 99], got {rt_priority!r}")
+        self.rt_priority = rt_priority
         self.frequency = FREQUENCY[series]
         self.dt = 1.0 / self.frequency
         self.version = VERSIONS[series]
@@ -260,6 +268,11 @@ class UREmulator:
 
     # ----------------------------------------------------------------- control cycle
     def _control_loop(self) -> None:
+        if self.rt_priority:
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+            except (PermissionError, OSError, AttributeError) as exc:
+                self.event(f"real-time priority not set ({exc}): the cycle runs at normal priority")
         next_time = time.perf_counter()
         while not self._stop.is_set():
             next_time += self.dt
@@ -517,7 +530,7 @@ class UREmulator:
     def commands_since(self, t: float) -> list[tuple[float, int]]:
         """``(time, command id)`` of every command package received after monotonic time ``t``."""
         with self.lock:
-            return [(c.t, c.command) for c in self.commands if c.t > t]
+            return [(round(c.t - t, 4), c.command, c.values) for c in self.commands if c.t > t]
 
     def status(self) -> dict[str, Any]:
         """The controller's state in plain types: arm, program, safety, events, watchdog."""

@@ -1,0 +1,71 @@
+"""``snac-gym emulate-ur``: an emulated controller in the foreground, with faults from flags."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from snac_gym.real.emulator.controller import UREmulator
+
+
+def parse_numbers(text: str, name: str, counts: tuple[int, ...]) -> list[float]:
+    """Comma-separated numbers of ``text``, as many as one of ``counts``.
+
+    Raises:
+        ValueError: With ``name`` in the message, on a bad value or count.
+    """
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError as exc:
+        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from exc
+    if len(values) not in counts:
+        raise ValueError(f"{name} needs {' or '.join(map(str, counts))} numbers, got {len(values)} in {text!r}")
+    return values
+
+
+def fault_plan(
+    protective_stop_at: float | None = None,
+    emergency_stop_at: float | None = None,
+    latency_spike: str | None = None,
+    drop_at: float | None = None,
+    stale_at: float | None = None,
+    watchdog_expiry_at: float | None = None,
+) -> list[tuple[float, str, tuple[Any, ...]]]:
+    """The faults to schedule, ``(seconds after the first speedJ, method, args)``.
+
+    Raises:
+        ValueError: On a malformed ``latency_spike`` (``AT,LENGTH`` in seconds).
+    """
+    plan: list[tuple[float, str, tuple[Any, ...]]] = []
+    singles = {
+        "protective_stop": protective_stop_at, "emergency_stop": emergency_stop_at, "drop_connection": drop_at,
+        "stale_data": stale_at, "expire_watchdog": watchdog_expiry_at,
+    }  # fmt: skip
+    plan += [(at, fault, ()) for fault, at in singles.items() if at is not None]
+    if latency_spike is not None:
+        at, length = parse_numbers(latency_spike, "--latency-spike (AT,SECONDS)", (2,))
+        plan.append((at, "latency_spike", (length,)))
+    return plan
+
+
+def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], None]) -> None:
+    """Run ``emulator`` until ``duration`` s have passed, or SIGINT/SIGTERM; then close it."""
+    stop = threading.Event()
+    handler = lambda *_: stop.set()  # noqa: E731
+    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s emulate-ur: %(message)s")
+    try:
+        with emulator:
+            ports = ", ".join(f"{name} {port}" for name, port in emulator.ports.items())
+            echo(f"emulated UR controller ({emulator.series}, {emulator.frequency:g} Hz) on {emulator.host}: {ports}")
+            deadline = None if duration is None else time.monotonic() + duration
+            while not stop.wait(0.2):
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+    finally:
+        for signum, old in previous.items():
+            signal.signal(signum, old)
