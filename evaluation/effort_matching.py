@@ -35,6 +35,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -329,21 +330,23 @@ class EffortMatcher:
                 horizon = screened.horizon
         if subset is None:
             self.screening_counts[(task, spec.name)] = count
+        record = {"sample_ids": subset_ids, "target": target, "start": start, "screening_samples": count}
+        self._save_search(record_key, record, match, screened.horizon, started)
+        return match
+
+    def _save_search(self, key: str, record: dict[str, Any], match: EffortMatch, steps: int, started: float) -> None:
+        """Record a search in ``calibration.json``: what it searched for, every evaluation, and what it found."""
         record = {
-            "sample_ids": subset_ids,
-            "target": target,
-            "start": start,
+            **record,
             "value": match.value,
             "effort": match.effort,
             "matched": match.matched,
             "evaluations": match.evaluations,
             "reason": match.reason,
-            "screening_samples": count,
-            "search_steps": screened.horizon,
+            "search_steps": steps,
             "seconds": round(time.perf_counter() - started, 3),
         }
-        self.evaluation.store.save_calibration(record_key, record)
-        return match
+        self.evaluation.store.save_calibration(key, record)
 
     def _stored_search(self, key: str, target: float, start: float, subset_ids: list[int] | None) -> EffortMatch | None:
         """The search recorded under ``key`` in ``calibration.json`` if it searched for the same thing."""

@@ -41,9 +41,7 @@ class SerialExecutor:
     #: Whether several threads may feed it jobs at once (and gain from it).
     concurrent = False
 
-    def run(
-        self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0
-    ) -> Iterator[tuple[int, Any]]:
+    def run(self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0) -> Iterator[tuple[int, Any]]:
         """Yield ``(index, function(item))`` in order (``priority`` is ignored: one job at a time)."""
         for index, item in enumerate(items):
             yield index, function(item)
@@ -93,6 +91,7 @@ def _die_with_parent(parent_pid: int) -> None:
         if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
             raise OSError(ctypes.get_errno(), "prctl")
     except (OSError, AttributeError):  # pragma: no cover - not Linux
+
         def watch() -> None:
             while os.getppid() == parent_pid:
                 time.sleep(0.5)
@@ -199,7 +198,7 @@ class ProcessExecutor:
                 continue
             try:
                 inner = self._pool.submit(function, item)
-            except BaseException as exc:  # the pool is shut down or broken
+            except BaseException as exc:  # noqa: BLE001 - the pool is shut down or broken: the caller's future gets it
                 outer.set_exception(exc)
                 continue
             self._running += 1
@@ -218,9 +217,7 @@ class ProcessExecutor:
         else:
             outer.set_result(inner.result())
 
-    def run(
-        self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0
-    ) -> Iterator[tuple[int, Any]]:
+    def run(self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0) -> Iterator[tuple[int, Any]]:
         futures: dict[Future, int] = {}
         with self._lock:
             for index, item in enumerate(items):
@@ -333,15 +330,15 @@ class RayExecutor:
                     ray.init(address=address, log_to_driver=False)
                 except (ConnectionError, TimeoutError) as exc:
                     raise RuntimeError(
-                        f"--ray {address}: no Ray cluster answered within {RAY_CONNECT_TIMEOUT_S:g} s ({exc})".splitlines()[0]
+                        f"--ray {address}: no Ray cluster answered within {RAY_CONNECT_TIMEOUT_S:g} s ({exc})".splitlines()[
+                            0
+                        ]
                     ) from None
         self.description = f"Ray ({address})"
         self._remotes: dict[Callable[[Any], Any], Any] = {}
         self._lock = threading.Lock()
 
-    def run(
-        self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0
-    ) -> Iterator[tuple[int, Any]]:
+    def run(self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0) -> Iterator[tuple[int, Any]]:
         """Yield ``(index, result)`` as Ray tasks finish (``priority`` is left to Ray's scheduler)."""
         ray = self._ray
         with self._lock:  # several threads may call run at once

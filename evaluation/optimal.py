@@ -139,7 +139,8 @@ def single_threaded_blas() -> Iterator[None]:
     """
     restore = []
     try:
-        paths = {line.split()[-1] for line in open("/proc/self/maps") if "openblas" in line.lower()}
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
     except OSError:
         paths = set()
     for path in sorted(paths):
@@ -439,23 +440,12 @@ def solve_sample(
     gap_estimate = 0.5 * float(grad_z @ grad_z)
     bounded = bool((np.abs(commands) > limits).any())
     if bounded:
-
-        def in_u(u: np.ndarray) -> tuple[float, np.ndarray]:
-            value, grad = trajectory_cost_and_gradient(u.reshape(steps, m), q0, x_d, kinematics, dt, convention)
-            return value, grad.ravel()
-
-        bounds = np.repeat(np.stack([-limits, limits], axis=1)[None], steps, axis=0).reshape(-1, 2)
-        clipped = np.clip(commands, -limits, limits)
-        options = {"maxiter": max_iterations, "maxfun": 4 * max_iterations, "gtol": gtol, "ftol": ftol, "maxcor": MEMORY}
-        polish = minimize(in_u, clipped.ravel(), jac=True, method="L-BFGS-B", bounds=bounds, options=options)
-        commands = polish.x.reshape(steps, m)
-        iterations += int(polish.nit)
-        evaluations += int(polish.nfev)
-        projected = np.clip(polish.x - polish.jac, bounds[:, 0], bounds[:, 1]) - polish.x
-        gradient = float(np.abs(projected).max())
+        commands, value, polish_iterations, polish_evaluations, gradient, converged = _bounded_polish(
+            commands, q0, x_d, kinematics, dt, limits, gtol, ftol, max_iterations, convention
+        )
+        iterations += polish_iterations
+        evaluations += polish_evaluations
         gap_estimate = float("nan")
-        converged = polish.status == 0
-        value = float(polish.fun)
     return OptimalSolution(
         commands,
         value,
@@ -466,6 +456,45 @@ def solve_sample(
         converged,
         bounded,
         time.perf_counter() - started,
+    )
+
+
+def _bounded_polish(
+    commands: np.ndarray,
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Kinematics,
+    dt: float,
+    limits: np.ndarray,
+    gtol: float,
+    ftol: float,
+    max_iterations: int,
+    convention: CostConvention,
+) -> tuple[np.ndarray, float, int, int, float, bool]:
+    """Bounded L-BFGS-B in u from the clipped ``commands`` (the unconstrained optimum broke a velocity limit).
+
+    Returns:
+        (commands, V, iterations, cost evaluations, projected max |∂V/∂u|, converged).
+    """
+    steps, m = commands.shape
+
+    def in_u(u: np.ndarray) -> tuple[float, np.ndarray]:
+        value, grad = trajectory_cost_and_gradient(u.reshape(steps, m), q0, x_d, kinematics, dt, convention)
+        return value, grad.ravel()
+
+    bounds = np.repeat(np.stack([-limits, limits], axis=1)[None], steps, axis=0).reshape(-1, 2)
+    clipped = np.clip(commands, -limits, limits)
+    options = {"maxiter": max_iterations, "maxfun": 4 * max_iterations, "gtol": gtol, "ftol": ftol, "maxcor": MEMORY}
+    polish = minimize(in_u, clipped.ravel(), jac=True, method="L-BFGS-B", bounds=bounds, options=options)
+    projected = np.clip(polish.x - polish.jac, bounds[:, 0], bounds[:, 1]) - polish.x
+    gradient = float(np.abs(projected).max())
+    return (
+        polish.x.reshape(steps, m),
+        float(polish.fun),
+        int(polish.nit),
+        int(polish.nfev),
+        gradient,
+        polish.status == 0,
     )
 
 

@@ -28,16 +28,18 @@ def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Seq
         "",
         "## Optimality gap",
         "",
-        f"`{OPTIMAL}`: per sample, the numerical optimum of the same cost over the same horizon, Δt and "
-        "velocity limits, **an open-loop reference computed with knowledge of the whole reference** (not a "
-        f"controller; no effort knob). L-BFGS in Cholesky-preconditioned commands from rest, stopped at "
-        f"max |∂V/∂z| ≤ {GTOL:g} or a relative decrease ≤ {FTOL:g} (docs/optimal.md). Ratio = a controller's "
-        "cost / the optimum on the same sample.",
+        (
+            f"`{OPTIMAL}`: per sample, the numerical optimum of the same cost over the same horizon, Δt and "
+            "velocity limits, **an open-loop reference computed with knowledge of the whole reference** (not a "
+            f"controller; no effort knob). L-BFGS in Cholesky-preconditioned commands from rest, stopped at "
+            f"max |∂V/∂z| ≤ {GTOL:g} or a relative decrease ≤ {FTOL:g} (docs/optimal.md). Ratio = a controller's "
+            "cost / the optimum on the same sample."
+        ),
         "",
         "| Task | Controller | V/N | mean ratio | median ratio | V/N ratio | samples below the optimum |",
         "|---|---|---|---|---|---|---|",
     ]
-    violations = []
+    violations: list[tuple[str, str, int]] = []
     for t in tasks:
         p = f"{t}_"
         if p + "ratio_to_optimal_mean" not in summary:
@@ -53,7 +55,13 @@ def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Seq
                 f"{_general_number(row[p + 'ratio_of_means_to_optimal'])} | {below} |"
             )
     lines.append("")
+    return lines + _solver_lines(summary, tasks) + _below_optimum_lines(results, violations)
+
+
+def _solver_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
+    """One paragraph per task on how the optimum's solver did."""
     optimal_row = summary[summary["controller"] == OPTIMAL].iloc[0]
+    lines = []
     for t in tasks:
         p = f"{t}_"
         if p + "optimal_converged_fraction" in summary:
@@ -66,19 +74,22 @@ def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Seq
                 f"{optimal_row[p + 'optimal_solve_time_mean']:.3f} s per sample (one worker)."
             )
             lines.append("")
-    if violations:
-        below = results[results["below_optimal"].astype(bool)]
-        listed = ", ".join(f"{r.task} #{r.sample} ({r.controller})" for r in below.head(20).itertuples())
-        lines += [
-            "**Warning: the optimum is not a lower bound everywhere.** The solver did not converge to the "
-            "optimum on these samples (a controller's cost is below it): "
-            + ", ".join(f"{c} on {n} {t} sample(s)" for t, c, n in violations)
-            + f". First ones: {listed}.",
-            "",
-        ]
-    else:
-        lines += ["No controller's cost is below the optimum on any sample.", ""]
     return lines
+
+
+def _below_optimum_lines(results: pd.DataFrame, violations: Sequence[tuple[str, str, int]]) -> list[str]:
+    """A warning naming the samples where a controller beat the optimum (the solver did not converge there)."""
+    if not violations:
+        return ["No controller's cost is below the optimum on any sample.", ""]
+    below = results[results["below_optimal"].astype(bool)]
+    listed = ", ".join(f"{r.task} #{r.sample} ({r.controller})" for r in below.head(20).itertuples())
+    return [
+        "**Warning: the optimum is not a lower bound everywhere.** The solver did not converge to the "
+        "optimum on these samples (a controller's cost is below it): "
+        + ", ".join(f"{c} on {n} {t} sample(s)" for t, c, n in violations)
+        + f". First ones: {listed}.",
+        "",
+    ]
 
 
 def _number(value: Any, digits: int = 2) -> str:
@@ -135,11 +146,13 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
             else "No effort matching (each controller at its own settings)."
         ),
         "",
-        f"Success: reach ends within {REACH_TOLERANCE * 1e3:g} mm, track's mean error over the second half is "
-        f"within {TRACK_TOLERANCE * 1e3:g} mm. Only controllers with a success rate of at least {threshold:.0%} on a "
-        "task are ranked there (rank, ratio to the best, ratio to SNAC); the others are marked **fails** and are "
-        "never ranked, whatever their cost. Accuracy: median final error (reach) or median over samples of the "
-        "median error over the second half (track).",
+        (
+            f"Success: reach ends within {REACH_TOLERANCE * 1e3:g} mm, track's mean error over the second half is "
+            f"within {TRACK_TOLERANCE * 1e3:g} mm. Only controllers with a success rate of at least {threshold:.0%} on a "
+            "task are ranked there (rank, ratio to the best, ratio to SNAC); the others are marked **fails** and are "
+            "never ranked, whatever their cost. Accuracy: median final error (reach) or median over samples of the "
+            "median error over the second half (track)."
+        ),
         "",
     ]
 
@@ -187,9 +200,11 @@ def _convention_lines(summary: pd.DataFrame, tasks: Sequence[str], q_scale: floa
         "",
         "## V/N under each cost convention",
         "",
-        "The same rollouts scored three ways: Table I's cost with the jump from rest (u₋₁ = 0), without it "
-        "(u₋₁ = u₀), and the cost the controllers are derived for, Σ (eᵀQe + uᵀRu) Δt (no u̇ term). "
-        f"Q = {'I' if q_scale == 1.0 else f'{q_scale:g}·I'}, R = I.",
+        (
+            "The same rollouts scored three ways: Table I's cost with the jump from rest (u₋₁ = 0), without it "
+            "(u₋₁ = u₀), and the cost the controllers are derived for, Σ (eᵀQe + uᵀRu) Δt (no u̇ term). "
+            f"Q = {'I' if q_scale == 1.0 else f'{q_scale:g}·I'}, R = I."
+        ),
         "",
         "| Controller |" + "".join(f" {TASK_LABELS[t]}: u₋₁ = 0 | u₋₁ = u₀ | HJB cost |" for t in tasks),
         "|---|" + "---|---|---|" * len(tasks),
@@ -205,7 +220,10 @@ def _convention_lines(summary: pd.DataFrame, tasks: Sequence[str], q_scale: floa
 def _critic_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
     """How far the critics are from optimal (only for controllers that report it)."""
     critics = [
-        (t, row) for t in tasks for _, row in summary.iterrows() if not pd.isna(row.get(f"{t}_hjb_ratio_median", math.nan))
+        (t, row)
+        for t in tasks
+        for _, row in summary.iterrows()
+        if not pd.isna(row.get(f"{t}_hjb_ratio_median", math.nan))
     ]
     if not critics:
         return []
@@ -213,9 +231,11 @@ def _critic_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
         "",
         "## How far the critics are from optimal",
         "",
-        "Per rollout, the median over the run of the critic's HJB residual r/eᵀQe (0 for the optimal value "
-        "function; sampled every 0.2 s) and, for regulation, ‖P̂ − P*(J)‖/‖P*‖ at the last step (P*: the "
-        "frozen-Jacobian optimum); the medians over samples (docs/snac.md).",
+        (
+            "Per rollout, the median over the run of the critic's HJB residual r/eᵀQe (0 for the optimal value "
+            "function; sampled every 0.2 s) and, for regulation, ‖P̂ − P*(J)‖/‖P*‖ at the last step (P*: the "
+            "frozen-Jacobian optimum); the medians over samples (docs/snac.md)."
+        ),
         "",
         "| Task | Controller | median r/eᵀQe | median final critic error |",
         "|---|---|---|---|",
@@ -271,11 +291,15 @@ def _effort_lines(summary: pd.DataFrame, config: Any, efforts: Sequence[Any], ef
         if config.match_effort
         else f"Statistic (not matched): {effort_statistic}.",
         "",
-        "Both statistics of every controller's rollouts, whichever was matched: the maximum |u| over the "
-        "sample set (rad/s) and the median over samples of each rollout's peak |u_j|/ū_j.",
+        (
+            "Both statistics of every controller's rollouts, whichever was matched: the maximum |u| over the "
+            "sample set (rad/s) and the median over samples of each rollout's peak |u_j|/ū_j."
+        ),
         "",
-        "| Task | Controller | role | knob | value | effort | target | max \\|u\\| over the set (rad/s) "
-        "| median peak \\|u\\|/ū | passes | note |",
+        (
+            "| Task | Controller | role | knob | value | effort | target | max \\|u\\| over the set (rad/s) "
+            "| median peak \\|u\\|/ū | passes | note |"
+        ),
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     by_controller = summary.set_index("controller")

@@ -260,8 +260,10 @@ class RunStore:
     def write_part(self, path: Path, rows: pd.DataFrame) -> None:
         """Store a completed job's rows, stamped with the run id and sample ids (atomically: a part on disk is complete)."""
         table = pa.Table.from_pandas(rows, preserve_index=False)
-        stamp = {_PART_RUN_KEY: self.run_id.encode(), _PART_SAMPLES_KEY: json.dumps(
-            [int(i) for i in rows["sample"]]).encode()}
+        stamp = {
+            _PART_RUN_KEY: self.run_id.encode(),
+            _PART_SAMPLES_KEY: json.dumps([int(i) for i in rows["sample"]]).encode(),
+        }
         table = table.replace_schema_metadata({**(table.schema.metadata or {}), **stamp})
         tmp = _tmp_path(path)
         pq.write_table(table, tmp)

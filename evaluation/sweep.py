@@ -105,7 +105,13 @@ def check_grid(points: int, span: float) -> None:
 
 
 def point_row(
-    task: str, spec: ControllerSpec, value: float, exponent: float, rows: pd.DataFrame, role: str, success_threshold: float
+    task: str,
+    spec: ControllerSpec,
+    value: float,
+    exponent: float,
+    rows: pd.DataFrame,
+    role: str,
+    success_threshold: float,
 ) -> dict[str, Any]:
     """One ``sweep.csv`` row from the per-rollout rows of one full pass."""
     costs = rows["cost"].to_numpy(dtype=float)
@@ -158,14 +164,16 @@ def _sort_rows(rows: Sequence[dict[str, Any]], config: EvaluationConfig, names: 
     name_rank = {n: i for i, n in enumerate(names)}
     order = sorted(
         range(len(table)),
-        key=lambda i: (task_rank[table["task"].iat[i]], name_rank[table["controller"].iat[i]], table["knob_value"].iat[i]),
+        key=lambda i: (
+            task_rank[table["task"].iat[i]],
+            name_rank[table["controller"].iat[i]],
+            table["knob_value"].iat[i],
+        ),
     )
     return table.iloc[order].reset_index(drop=True)
 
 
-def run_sweep(
-    config: EvaluationConfig, points: int = DEFAULT_POINTS, span: float = DEFAULT_SPAN
-) -> pd.DataFrame:
+def run_sweep(config: EvaluationConfig, points: int = DEFAULT_POINTS, span: float = DEFAULT_SPAN) -> pd.DataFrame:
     """Run the evaluation of ``config``, then every controller over its effort knob; write the sweep's files.
 
     Args:
@@ -290,7 +298,9 @@ def plot_tradeoff(
         target = _effort_target(summary, config, task)
         for ax, (column, label, log_x) in zip(row_axes, _PANELS, strict=True):
             for name in names:
-                _draw_controller(ax, part[part["controller"] == name].sort_values("knob_value"), column, colors[name], styles[name])
+                _draw_controller(
+                    ax, part[part["controller"] == name].sort_values("knob_value"), column, colors[name], styles[name]
+                )
             _finish_panel(ax, config, task, column, label, log_x, target)
         row_axes[0].set_title(f"{TASK_LABELS.get(task, task)} ({task})", loc="left", fontweight="bold")
     handles = _legend_handles(names, colors, styles, config.success_threshold)
@@ -319,7 +329,9 @@ def _draw_controller(ax: Any, line: pd.DataFrame, column: str, color: str, style
         return
     x, y = line[column].to_numpy(float), line["cost"].to_numpy(float)
     ax.plot(x, y, style, color=color, alpha=0.7, lw=1.6, zorder=2)
-    for xi, yi, qualified, main, equal in zip(x, y, line["qualified"], line["main_run"], line["equal_effort"], strict=True):
+    for xi, yi, qualified, main, equal in zip(
+        x, y, line["qualified"], line["main_run"], line["equal_effort"], strict=True
+    ):
         marker, size = ("*", 15) if equal else (("D", 8) if main else ("o", 6))
         face = color if qualified else "white"
         ax.plot(xi, yi, marker, ms=size, mfc=face, mec=color, mew=1.5, zorder=3)
@@ -346,7 +358,9 @@ def _finish_panel(
     ax.grid(True, which="both", alpha=0.25)
 
 
-def _legend_handles(names: Sequence[str], colors: dict[str, str], styles: dict[str, str], threshold: float) -> list[Any]:
+def _legend_handles(
+    names: Sequence[str], colors: dict[str, str], styles: dict[str, str], threshold: float
+) -> list[Any]:
     """One entry per controller, then the markers' and reference lines' meanings."""
     from matplotlib.lines import Line2D
 

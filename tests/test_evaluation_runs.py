@@ -101,9 +101,12 @@ def test_equal_effort_against_the_reference_or_a_visible_warning(table_run):
             rows = results[(results["task"] == task) & (results["controller"] == controller)]
             effort = rows["max_abs_u"].max()  # the default statistic: the maximum |u| over the set
             assert effort == pytest.approx(summary.loc[controller, f"{task}_effort"])
-            assert effort == np.abs(
-                np.stack([log_array(read_log(_trajectory(config, row)), "u") for _, row in rows.iterrows()])
-            ).max()
+            assert (
+                effort
+                == np.abs(
+                    np.stack([log_array(read_log(_trajectory(config, row)), "u") for _, row in rows.iterrows()])
+                ).max()
+            )
             assert summary.loc[controller, f"{task}_median_peak_limit_fraction"] == pytest.approx(
                 rows["peak_limit_fraction"].median()
             )
@@ -313,7 +316,9 @@ def test_max_statistic_refines_on_the_critical_samples_the_screening_missed(tmp_
     assert set(second["sample_ids"]) - {0, 1}  # critical samples outside the screening set
     knob = critical["effort_value"].iloc[0]
     assert knob == second["value"] < first["value"]
-    assert knob == pytest.approx(screened_all.loc[screened_all["controller"] == "dls", "effort_value"].iloc[0], rel=0.02)
+    assert knob == pytest.approx(
+        screened_all.loc[screened_all["controller"] == "dls", "effort_value"].iloc[0], rel=0.02
+    )
     summary = pd.read_csv(tmp_path / "two" / "summary.csv").set_index("controller")
     assert summary.loc["dls", "reach_effort_passes"] == 2 and summary.loc["dls", "reach_effort_role"] == "matched"
 
@@ -346,8 +351,14 @@ def test_a_failed_knob_search_is_labelled_unmatched_even_when_the_full_pass_land
 
     _CappedElbow.low_seeds = frozenset(policy_seed(0, "reach", i) for i in (0, 1))
     register_policy("evaltest-capped", _CappedElbow, overwrite=True)
-    config = _config(tmp_path, controllers=("evaltest-capped",), tasks=("reach",), samples=4, calibration_samples=2,
-                     effort_target=3.19)
+    config = _config(
+        tmp_path,
+        controllers=("evaltest-capped",),
+        tasks=("reach",),
+        samples=4,
+        calibration_samples=2,
+        effort_target=3.19,
+    )
     results = run_evaluation(config)
     summary = pd.read_csv(tmp_path / "summary.csv").set_index("controller")
     assert results["max_abs_u"].max() == pytest.approx(3.14)  # within 2 % of 3.19 over the whole set...
@@ -361,8 +372,13 @@ def test_a_failed_knob_search_is_labelled_unmatched_even_when_the_full_pass_land
 
 def test_hjb_cost_runs_give_the_same_numbers_with_one_or_two_workers(tmp_path):
     """The issue-12 controllers, the HJB cost, Q = 4I and the optimum: bit-identical with 1 or 2 workers."""
-    common = {"controllers": ("snac", "snac-hjb", "lqr", "optimal"), "match_effort": False, "cost": "hjb",
-              "q_scale": 4.0, "horizons": {"reach": 0.5, "track": 0.5}}
+    common = {
+        "controllers": ("snac", "snac-hjb", "lqr", "optimal"),
+        "match_effort": False,
+        "cost": "hjb",
+        "q_scale": 4.0,
+        "horizons": {"reach": 0.5, "track": 0.5},
+    }
     serial = run_evaluation(_config(tmp_path / "serial", **common))
     parallel = run_evaluation(_config(tmp_path / "parallel", workers=2, **common))
     timing = ["optimal_solve_time"]

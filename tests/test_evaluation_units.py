@@ -4,6 +4,7 @@ and PyBullet backends, the optional batch protocol, the per-rollout metrics and 
 from __future__ import annotations
 
 import functools
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -353,15 +354,28 @@ def test_metrics_of_a_hand_made_rollout():
     assert np.isnan(far_row["time_to_1mm"]) and np.isnan(far_row["settle_time"]) and not far_row["success"]
 
 
-@pytest.mark.parametrize(("cost", "udot_start", "q_scale"), [("table1", "rest", 1.0), ("table1", "first", 1e6), ("hjb", "rest", 100.0)])
+@pytest.mark.parametrize(
+    ("cost", "udot_start", "q_scale"), [("table1", "rest", 1.0), ("table1", "first", 1e6), ("hjb", "rest", 100.0)]
+)
 def test_cost_conventions_score_the_same_rollout_by_hand(cost, udot_start, q_scale):
     """cost, cost_table1, cost_table1_first and cost_hjb against sums written out step by step."""
     from snac_gym.cost import CostConvention
 
     rng = np.random.default_rng(3)
     errors, commands = rng.normal(scale=0.05, size=(2, 5, 3)), rng.normal(size=(2, 5, 6))
-    rollouts = Rollouts(DT, np.arange(5) * DT, None, commands, None, errors * 0, errors * 0, errors,
-                        np.zeros((2, 6)), np.zeros((2, 3)), np.zeros((2, 3)))
+    rollouts = Rollouts(
+        DT,
+        np.arange(5) * DT,
+        None,
+        commands,
+        None,
+        errors * 0,
+        errors * 0,
+        errors,
+        np.zeros((2, 6)),
+        np.zeros((2, 3)),
+        np.zeros((2, 3)),
+    )
     rows = rollout_metrics(rollouts, "reach", np.full(6, 10.0), CostConvention(cost, udot_start, q_scale))
     for b in range(2):
         error = sum(q_scale * errors[b, k] @ errors[b, k] * DT for k in range(5))
@@ -387,16 +401,31 @@ def test_a_controller_that_fails_the_task_is_never_ranked_cheapest():
     rows = []
     for controller, cost, success in (("cheap_but_fails", 1.0, False), ("snac", 5.0, True), ("dls", 3.0, True)):
         for sample in range(4):
-            rows.append({
-                "task": "reach", "controller": controller, "sample": sample, "cost": cost, "success": success,
-                "final_error": 0.1 if not success else 1e-4, "time_to_1mm": np.nan, "settle_time": np.nan,
-                "max_abs_u": 1.0, "peak_limit_fraction": 0.5, "max_norm_u": 1.0, "median_error_2nd_half": 0.1,
-                **{term: cost / 3 for term in ("cost_error", "cost_effort", "cost_smoothness")},
-                "cost_smoothness_start": 0.0,
-            })
-    summary = summarise(pd.DataFrame(rows), [], ["reach"], ["cheap_but_fails", "snac", "dls"], 0.95).set_index("controller")
+            rows.append(
+                {
+                    "task": "reach",
+                    "controller": controller,
+                    "sample": sample,
+                    "cost": cost,
+                    "success": success,
+                    "final_error": 0.1 if not success else 1e-4,
+                    "time_to_1mm": np.nan,
+                    "settle_time": np.nan,
+                    "max_abs_u": 1.0,
+                    "peak_limit_fraction": 0.5,
+                    "max_norm_u": 1.0,
+                    "median_error_2nd_half": 0.1,
+                    **{term: cost / 3 for term in ("cost_error", "cost_effort", "cost_smoothness")},
+                    "cost_smoothness_start": 0.0,
+                }
+            )
+    summary = summarise(pd.DataFrame(rows), [], ["reach"], ["cheap_but_fails", "snac", "dls"], 0.95).set_index(
+        "controller"
+    )
     assert not summary.loc["cheap_but_fails", "reach_qualified"]
-    assert np.isnan(summary.loc["cheap_but_fails", "reach_rank"]) and np.isnan(summary.loc["cheap_but_fails", "reach_ratio_to_best"])
+    assert np.isnan(summary.loc["cheap_but_fails", "reach_rank"]) and np.isnan(
+        summary.loc["cheap_but_fails", "reach_ratio_to_best"]
+    )
     assert summary.loc["dls", "reach_rank"] == 1 and summary.loc["snac", "reach_rank"] == 2
     assert summary.loc["snac", "reach_ratio_to_best"] == pytest.approx(5 / 3)
     assert summary.loc["dls", "reach_ratio_to_snac"] == pytest.approx(3 / 5)
@@ -477,7 +506,7 @@ def test_process_executor_runs_urgent_jobs_first_and_keeps_a_reserved_worker_fre
     intervals = sorted((start, end) for _, start, end in passes.values())
     assert len(intervals) == 4
     # one pass at a time while a worker is reserved...
-    assert all(later[0] >= earlier[1] for earlier, later in zip(intervals, intervals[1:]))
+    assert all(later[0] >= earlier[1] for earlier, later in itertools.pairwise(intervals))
     # ...so the search, submitted after all four, did not wait for the queued ones
     assert urgent[0][1] < intervals[-1][0]
     # without the reservation both workers take passes
@@ -588,7 +617,12 @@ def test_match_effort_needs_few_evaluations_on_saturating_statistics():
         def maximum(k, gains=gains, power=power):
             return float(np.max(np.minimum(3.15, 3 * gains * k**power)))
 
-        for measure, target, start in [(median, 1.0, 1.0), (median, median(2.0), 1.0), (maximum, 3.15, 5.0), (maximum, 3.15, 0.3)]:
+        for measure, target, start in [
+            (median, 1.0, 1.0),
+            (median, median(2.0), 1.0),
+            (maximum, 3.15, 5.0),
+            (maximum, 3.15, 0.3),
+        ]:
             result = match_effort(measure, target=target, start=start, tolerance=0.005)
             assert result.matched and target * (1 - 0.005) <= result.effort <= target * (1 + 0.005)
             # Between the smallest knobs reaching the lower and the upper edge of the band (by plain

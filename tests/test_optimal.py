@@ -158,8 +158,14 @@ def test_a_controller_below_the_optimum_is_reported(optimal_run):
 
 def test_optimal_alone_and_not_with_pybullet(tmp_path: Path):
     results = run_evaluation(
-        EvaluationConfig(out=tmp_path / "alone", tasks=("reach",), controllers=(OPTIMAL,), samples=1,
-                         horizons={"reach": 0.2}, progress=False)
+        EvaluationConfig(
+            out=tmp_path / "alone",
+            tasks=("reach",),
+            controllers=(OPTIMAL,),
+            samples=1,
+            horizons={"reach": 0.2},
+            progress=False,
+        )
     )
     assert list(results["controller"]) == [OPTIMAL]
     with pytest.raises(ValueError, match="kinematic"):

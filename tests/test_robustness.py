@@ -62,7 +62,10 @@ def test_resume_refuses_a_changed_model_file_or_controller_parameter(tmp_path):
     model = tmp_path / "model.npz"
     shutil.copyfile(shipped_model_path("reach"), model)
     config = _config(
-        tmp_path / "run", tasks=("reach",), controllers=("ppo",), match_effort=False,
+        tmp_path / "run",
+        tasks=("reach",),
+        controllers=("ppo",),
+        match_effort=False,
         controller_kwargs={"ppo": {"model_path": str(model)}},
     )
     first = run_evaluation(config)
@@ -245,8 +248,22 @@ def test_an_unmatched_effort_is_reported_on_stderr(tmp_path, monkeypatch):
     monkeypatch.setattr(effort_matching, "within", lambda effort, target, tolerance: False)
     result = CliRunner().invoke(
         app,
-        ["evaluate", "--out", str(tmp_path), "--task", "reach", "--samples", "2", "--controllers", "dls,svf",
-         "--effort-reference", "dls", "--horizon", "0.2", "--no-progress"],
+        [
+            "evaluate",
+            "--out",
+            str(tmp_path),
+            "--task",
+            "reach",
+            "--samples",
+            "2",
+            "--controllers",
+            "dls,svf",
+            "--effort-reference",
+            "dls",
+            "--horizon",
+            "0.2",
+            "--no-progress",
+        ],
     )
     monkeypatch.setattr(effort_matching, "within", real)
     assert result.exit_code == 0, result.output
@@ -301,9 +318,25 @@ def _wait_for(condition, timeout: float = 120.0) -> bool:
 def _start_long_run(tmp_path: Path) -> subprocess.Popen:
     """A two-worker evaluation far longer than the test, in its own process group."""
     command = [
-        sys.executable, "-m", "snac_gym.cli", "evaluate", "--out", str(tmp_path / "run"), "--workers", "2",
-        "--controllers", "dls,svf", "--effort-reference", "dls", "--samples", "2000", "--task", "reach",
-        "--horizon", "30", "--no-progress",
+        sys.executable,
+        "-m",
+        "snac_gym.cli",
+        "evaluate",
+        "--out",
+        str(tmp_path / "run"),
+        "--workers",
+        "2",
+        "--controllers",
+        "dls,svf",
+        "--effort-reference",
+        "dls",
+        "--samples",
+        "2000",
+        "--task",
+        "reach",
+        "--horizon",
+        "30",
+        "--no-progress",
     ]
     return subprocess.Popen(
         command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True, cwd=tmp_path
@@ -392,7 +425,10 @@ def test_physically_meaningless_ellipses_are_refused_with_their_bound(spec, mess
         ({"R": -np.eye(6)}, "R must be positive definite or semidefinite"),
         ({"R": [1.0, 1.0, np.nan, 1.0, 1.0, 1.0]}, "R must be finite"),
         ({"dt": float("inf")}, "dt must be positive, finite and at most 1 s"),
-        ({"render_mode": "rgb_array", "render_width": -1}, "render_width must be a whole number of pixels in \\[1, 8192\\]"),
+        (
+            {"render_mode": "rgb_array", "render_width": -1},
+            "render_width must be a whole number of pixels in \\[1, 8192\\]",
+        ),
         ({"render_mode": "rgb_array", "render_height": 0}, "render_height must be a whole number of pixels"),
     ],
 )

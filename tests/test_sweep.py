@@ -138,7 +138,8 @@ def test_same_sweep_with_one_worker_and_on_resume(swept, tmp_path):
 def test_bad_sweep_points_give_a_one_line_error(points, tmp_path):
     out = tmp_path / "x"
     result = CliRunner().invoke(
-        app, ["evaluate", "--out", str(out), "--samples", "2", "--controllers", "dls", "--sweep", "--sweep-points", points]
+        app,
+        ["evaluate", "--out", str(out), "--samples", "2", "--controllers", "dls", "--sweep", "--sweep-points", points],
     )
     assert result.exit_code == 2
     assert result.output.strip() == f"error: --sweep-points must be between 2 and {MAX_POINTS}, got {points}"
@@ -149,8 +150,21 @@ def test_cli_sweep_says_where_its_files_went(tmp_path):
     out = tmp_path / "cli"
     result = CliRunner().invoke(
         app,
-        ["evaluate", "--out", str(out), "--samples", "2", "--horizon", "0.2", "--controllers", "dls,lqr",
-         "--sweep", "--sweep-points", "2", "--no-progress"],
+        [
+            "evaluate",
+            "--out",
+            str(out),
+            "--samples",
+            "2",
+            "--horizon",
+            "0.2",
+            "--controllers",
+            "dls,lqr",
+            "--sweep",
+            "--sweep-points",
+            "2",
+            "--no-progress",
+        ],
     )
     assert result.exit_code == 0, result.output
     assert f"{out / 'sweep.csv'}" in result.output and f"{out / 'tradeoff.png'}" in result.output
