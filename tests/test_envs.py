@@ -111,7 +111,7 @@ def test_paper_seed_pose_observation_matches_kinematics():
     np.testing.assert_allclose(fields.q, PAPER_Q0, atol=1e-12)
     np.testing.assert_allclose(fields.x, base.kinematics.forward(np.array(PAPER_Q0)), atol=1e-12)
     # PyBullet's own link state agrees with the observation
-    np.testing.assert_allclose(base.kinematics.base_to_world(fields.x), base.arm.ee_world_position(), atol=1e-6)
+    np.testing.assert_allclose(base.kinematics.base_to_world(fields.x), base.arm.body.ee_world_position(), atol=1e-6)
     np.testing.assert_allclose(fields.x_d, PAPER_TARGET)
     np.testing.assert_allclose(fields.e, fields.x - fields.x_d)
     np.testing.assert_array_equal(fields.xdot_d, 0.0)
@@ -248,7 +248,7 @@ def test_other_ur_arms_run_through_the_same_code():
     assert base.kinematics.robot == "ur5" and obs.shape == (base.obs_layout.size,)
     assert base.sample_space.contains(base.reference.target)
     obs, *_ = env.step(np.zeros(6))
-    np.testing.assert_allclose(base.kinematics.base_to_world(obs[12:15]), base.arm.ee_world_position(), atol=1e-6)
+    np.testing.assert_allclose(base.kinematics.base_to_world(obs[12:15]), base.arm.body.ee_world_position(), atol=1e-6)
 
 
 def test_env_docstrings_document_every_section():
@@ -379,3 +379,29 @@ def test_sb3_checker_has_no_warnings_for_the_learner_configuration(env_id):
         warnings.simplefilter("error")
         sb3_check_env(env.unwrapped)
     env.close()
+
+
+@pytest.mark.parametrize("env_id", sorted(snac_gym.ENV_IDS))
+def test_kinematic_backend_is_the_evaluators_engine_episode_for_episode(env_id):
+    """backend="kinematic": θₖ₊₁ = θₖ + uₖΔt, the same observations and commands as simulate_kinematic."""
+    from gymnasium.utils.env_checker import check_env
+
+    from snac_gym.policies import make_policy
+    from snac_gym.policies.base import PolicyContext
+    from snac_gym.rollout import rollout, simulate_kinematic
+    from snac_gym.tasks import Sample
+
+    env = gym.make(env_id, backend="kinematic")
+    check_env(env.unwrapped, skip_render_check=True)
+    log = rollout(env, make_policy("snac", env), seed=5, steps=200)
+    base = env.unwrapped
+    q0 = log[[f"q_{j}" for j in range(6)]].to_numpy()[0]  # the start pose reset(seed=5) drew
+    sample = Sample(base.task_name, 0, q0, base.reference)
+    context = PolicyContext.from_env(env)
+    batch = simulate_kinematic(context, lambda: make_policy("snac", context), [sample], 200, [5])
+    np.testing.assert_allclose(log[[f"u_{j}" for j in range(6)]].to_numpy(), batch.commands[0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(log.attrs["final_e"], batch.final_errors[0], rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="needs backend='pybullet'"):
+        gym.make(env_id, backend="kinematic", render_mode="rgb_array")
+    with pytest.raises(ValueError, match="backend must be one of"):
+        gym.make(env_id, backend="mujoco")

@@ -12,9 +12,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from snac_gym.cost import quadratic_form, weight_matrix
-from snac_gym.envs.robot import SimulatedArm
-from snac_gym.envs.sim import PyBulletSim, check_image_size
+from snac_gym.cost import step_costs, weight_matrix
+from snac_gym.envs.arms import ARM_BACKENDS, Arm, make_arm
+from snac_gym.envs.sim import check_image_size
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
@@ -119,6 +119,9 @@ _ENV_DOC = """
     |                        |              | without a display it warns on the first frame and  |
     |                        |              | shows nothing)                                     |
     | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels  |
+    | ``backend``            | ``"pybullet"`` | ``"pybullet"`` (physics, velocity motors) or      |
+    |                        |              | ``"kinematic"``: θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held |
+    |                        |              | command (the evaluator's engine; no rendering)     |
 
     ## Version History
     * v0: initial version.
@@ -126,6 +129,7 @@ _ENV_DOC = """
       ``TimeLimit`` (``max_episode_steps``; ``max_steps`` kept); ``finite_observation_bounds``;
       ``observation_dtype``, ``action_type="normalized"`` and ``reward_type="shaped"`` added;
       ``render_mode="human"`` without a display no longer fails in the constructor.
+    * v0 (issue 13, same numbers by default): ``backend="kinematic"`` added.
 """
 
 #: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
@@ -302,8 +306,9 @@ class URTaskEnv(gym.Env):
         action_type: str = "velocity",
         observation_dtype: Any = np.float64,
         finite_observation_bounds: bool = False,
+        backend: str = "pybullet",
     ) -> None:
-        self._init_kwargs = dict(
+        self._init_kwargs = dict(backend=backend,
             robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
             success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
             sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
@@ -311,6 +316,10 @@ class URTaskEnv(gym.Env):
             finite_observation_bounds=finite_observation_bounds,
         )
         obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
+        if backend not in ARM_BACKENDS:
+            raise ValueError(f"backend must be one of {ARM_BACKENDS}, got {backend!r}")
+        if backend != "pybullet" and render_mode is not None:
+            raise ValueError(f"render_mode={render_mode!r} needs backend='pybullet' (the {backend} arm has no scene)")
         #: The ``max_steps`` argument: when given, the env truncates itself after it (``None``: the
         #: ``TimeLimit`` of the registration does, see :func:`apply_episode_length`).
         self.requested_max_steps = None if max_steps is None else int(max_steps)
@@ -339,10 +348,12 @@ class URTaskEnv(gym.Env):
         # "human" without a display falls back to the headless client and warns on the first frame
         # (the constructor must work headless: Gymnasium's checker builds every declared mode).
         self._headless_human = render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
-        self.sim = PyBulletSim(dt, n_substeps, gui=render_mode == "human" and not self._headless_human)
-        self.dt = self.sim.dt
-        self.arm = SimulatedArm(self.sim, self.kinematics)
-        self._initial_state = self.sim.save_state()
+        self.backend = backend
+        gui = render_mode == "human" and not self._headless_human
+        self.arm: Arm = make_arm(backend, self.kinematics, dt, n_substeps, gui=gui)
+        self.dt = self.arm.dt
+        #: The PyBullet world (renders; ``None`` for the kinematic arm).
+        self.sim = getattr(self.arm, "sim", None)
         self._marker: int | None = None
         self._warned_headless = False
 
@@ -404,8 +415,7 @@ class URTaskEnv(gym.Env):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         q0, reference = self._parse_options(options)
-        self.sim.restore_state(self._initial_state)
-        self.arm.set_joint_positions(q0)
+        self.arm.reset(q0)
         self.reference = reference
         self.steps = 0
         self._last_command = np.zeros(self.kinematics.n_joints)
@@ -431,14 +441,10 @@ class URTaskEnv(gym.Env):
             u = validate_action(action, self._unit_limits) * self.velocity_limits
         else:
             u = validate_action(action, self.velocity_limits)
-        error_before = self._obs[self._error_slice]
-        # eq. 6 integrand eᵀQe + uᵀRu, and the smoothness term u̇ᵀRu̇ of the trajectory cost
-        cost_error = float(quadratic_form(error_before, self.Q))
-        cost_effort = float(quadratic_form(u, self.R))
-        cost_smoothness = float(quadratic_form((u - self._last_command) / self.dt, self.R))
-
-        self.arm.command_velocities(u)
-        self.sim.step()
+        cost_error, cost_effort, cost_smoothness = step_costs(
+            self._obs[self._error_slice], u, self._last_command, self.dt, self.Q, self.R
+        )
+        self.arm.apply(u)
         self.steps += 1
         self._last_command = u
         self._obs = self._observe()
@@ -484,8 +490,8 @@ class URTaskEnv(gym.Env):
         return None
 
     def close(self) -> None:
-        if getattr(self, "sim", None) is not None:
-            self.sim.close()
+        if getattr(self, "arm", None) is not None:
+            self.arm.close()
 
     # -- pickling: rebuild the simulator from the arguments and put the episode back ----------
     def __getstate__(self) -> dict[str, Any]:
@@ -504,9 +510,7 @@ class URTaskEnv(gym.Env):
             self._np_random.bit_generator.state = state["np_random_state"]
         if state["episode"] is not None:
             q, qdot, self.reference, self.steps, self._last_command = state["episode"]
-            self.sim.restore_state(self._initial_state)
-            self.arm.set_joint_positions(q, qdot)
-            self.arm.command_velocities(self._last_command)
+            self.arm.restore(q, qdot, self._last_command)
             self._obs = self._observe()
 
 
