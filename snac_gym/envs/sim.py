@@ -12,7 +12,6 @@ import numpy as np
 
 from snac_gym._quiet import quiet_output
 
-
 with quiet_output():
     import pybullet as _pybullet
 
@@ -132,3 +131,13 @@ class PyBulletSim:
         if self.client >= 0 and p.isConnected(self.client):
             p.disconnect(self.client)
         self.client = -1
+
+    def __del__(self) -> None:
+        # An env dropped without close() would otherwise keep its physics server (~65 MB) for the
+        # life of the process: a test suite or a notebook that builds many envs runs out of memory.
+        try:
+            if getattr(self, "client", -1) >= 0 and p is not None and p.isConnected(self.client):
+                p.disconnect(self.client)
+        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn pybullet down already
+            pass
+
