@@ -12,7 +12,7 @@ from evaluation import EvaluationConfig, run_evaluation
 from evaluation.optimal import OPTIMAL, solve_sample, trajectory_cost_and_gradient
 from evaluation.reference_batch import reference_trajectories
 from evaluation.samples import generate_samples
-from snac_gym.cost import CostConvention, trajectory_cost
+from snac_gym.cost import CostConvention, cost_and_gradient, trajectory_cost
 from snac_gym.kinematics import Kinematics
 from snac_gym.rollout import log_array, read_log
 from snac_gym.sampling import SampleSpace
@@ -50,6 +50,36 @@ def test_cost_and_gradient_match_the_shared_cost_and_finite_differences(ur10, tr
         plus = trajectory_cost_and_gradient(commands + step, track_sample.q0, x_d, ur10, DT, convention)[0]
         minus = trajectory_cost_and_gradient(commands - step, track_sample.q0, x_d, ur10, DT, convention)[0]
         numeric[index] = (plus - minus) / 2e-6
+    np.testing.assert_allclose(grad, numeric, rtol=0, atol=1e-6 * np.abs(grad).max())
+
+
+@pytest.mark.parametrize(
+    "convention", [CostConvention(), CostConvention("table1", "first", 3.0), CostConvention("hjb")]
+)
+def test_the_shared_cost_gradient_on_a_linear_model(convention):
+    """snac_gym.cost.cost_and_gradient alone, on e = Aθ + b (constant Jacobian A): V and ∂V/∂U."""
+    rng = np.random.default_rng(1)
+    steps, m, n, dt = 7, 4, 3, 0.05
+    matrix, offset, q0 = rng.normal(size=(n, m)), rng.normal(size=n), rng.normal(size=m)
+
+    def errors_of(commands):
+        q = q0 + dt * np.vstack([np.zeros(m), np.cumsum(commands[:-1], axis=0)])
+        return q @ matrix.T + offset
+
+    def cost(commands):
+        errors = errors_of(commands)
+        return cost_and_gradient(errors, np.broadcast_to(matrix, (steps, n, m)), commands, dt, convention)
+
+    commands = rng.normal(size=(steps, m))
+    value, grad = cost(commands)
+    initial = commands[0] if convention.udot_start == "first" else None
+    terms = trajectory_cost(errors_of(commands), commands, dt, Q=convention.error_weight(n), initial_command=initial)
+    assert value == pytest.approx(float(convention.total(terms)), rel=1e-12)
+    numeric = np.zeros_like(commands)
+    for index in np.ndindex(commands.shape):
+        step = np.zeros_like(commands)
+        step[index] = 1e-6
+        numeric[index] = (cost(commands + step)[0] - cost(commands - step)[0]) / 2e-6
     np.testing.assert_allclose(grad, numeric, rtol=0, atol=1e-6 * np.abs(grad).max())
 
 
