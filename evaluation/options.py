@@ -1,4 +1,4 @@
-"""Parsing the text options of ``snac-gym evaluate`` into :class:`~evaluation.runner.EvaluationConfig` fields.
+"""Parsing the text options of ``snac-gym evaluate`` into :class:`~evaluation.run_config.EvaluationConfig` fields.
 
 Each parser raises ``ValueError`` with a message naming the option and what was wrong.
 """

@@ -55,7 +55,7 @@ class EvaluationConfig:
         match_effort: Calibrate every controller's effort knob to equal effort.
         effort_reference: Controller whose effort (at its own settings) is the target.
         effort_statistic: What "equal control effort" equalises: ``"max"`` (the maximum |u| over
-            the sample set, rad/s) or ``"median-peak"`` (:mod:`evaluation.calibration`).
+            the sample set, rad/s) or ``"median-peak"`` (:mod:`evaluation.effort_statistics`).
         effort_target: Explicit target of the effort statistic, in its unit (then every
             controller is matched).
         effort_tolerance: Relative tolerance of the match over the whole sample set.

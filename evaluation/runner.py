@@ -212,6 +212,8 @@ def _write_outputs(
     write_reports(store.root, table, efforts, config, skipped, config.statistic.description, timings, executor)
 
 
+# DEFAULT_HORIZONS, EvaluationConfig, Progress and resolve_controllers live in their own modules;
+# they stay importable from here for `evaluation/__init__.py`, the CLI and earlier callers.
 __all__ = [
     "DEFAULT_HORIZONS",
     "EvaluationConfig",
