@@ -127,7 +127,7 @@ class ResolvedRatePolicy(BasePolicy):
     scales the result into the velocity limits (:func:`scale_into_box`).
 
     The evaluator's optional batch protocol (``reset_batch`` / ``act_batch``, see
-    ``evaluation/drivers.py``) runs B episodes at once: the controllers are memoryless, so row i
+    ``snac_gym/policies/base.py``) runs B episodes at once: the controllers are memoryless, so row i
     of ``act_batch`` is ``act`` of row i; subclasses vectorise :meth:`resolve_batch` (the default
     calls :meth:`resolve` per row).
 

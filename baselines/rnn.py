@@ -97,7 +97,7 @@ class RNNPolicy(BasePolicy):
         velocity_compensation: Add the feed-forward ẋ_d to the network input (default
             ``True``; no effect in regulation, where ẋ_d = 0).
 
-    **Batch protocol** (``evaluation/drivers.py``): ``reset_batch(seeds)`` starts B networks at
+    **Batch protocol** (``snac_gym/policies/base.py``): ``reset_batch(seeds)`` starts B networks at
     rest and ``act_batch`` advances them together, the dual state a ``(B, n)`` array; the update
     is the same code as ``act``'s, row by row.
 

@@ -1,4 +1,4 @@
-"""The optional batch protocol (``reset_batch`` / ``act_batch``, evaluation/drivers.py) of SNAC and
+"""The optional batch protocol (``reset_batch`` / ``act_batch``, snac_gym/policies/base.py) of SNAC and
 the baselines: row i of ``act_batch`` equals ``act`` of a fresh object reset with seeds[i], step
 after step in closed loop, for every option; and whole evaluations give the same numbers with
 and without it."""
@@ -14,9 +14,9 @@ from baselines.lqr import LQRPolicy
 from baselines.rnn import RNNPolicy
 from baselines.svf import SVFPolicy
 from evaluation import EvaluationConfig, run_evaluation
-from evaluation.drivers import supports_batch
 from evaluation.jobs import policy_context
-from evaluation.reference_batch import reference_trajectories
+from snac_gym.policies.base import supports_batch
+from snac_gym.rollout import reference_trajectories
 from evaluation.samples import generate_samples
 from snac_gym.policies.snac import SNACPolicy
 from snac_gym.policies.snac_hjb import SNACHJBPolicy

@@ -196,7 +196,7 @@ class SNACPolicy(BasePolicy):
             ``lyapunov`` (J_s(sₖ) = ½sₖᵀsₖ), ``learning_rate`` (the schedule's αₖ),
             ``saturated`` (whether the command was clipped) and ``step`` (k).
         batch_critic_weights: ``(B, size)``, row i the weights of episode i of the batch
-            protocol (``reset_batch`` / ``act_batch``, see ``evaluation/drivers.py``): B
+            protocol (``reset_batch`` / ``act_batch``, see ``snac_gym/policies/base.py``): B
             episodes stepped in lockstep with the same laws and options as ``act``, vectorised
             over the rows; ``None`` before ``reset_batch``. ``internals`` describe ``act`` only.
     """

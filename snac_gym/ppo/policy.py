@@ -88,7 +88,7 @@ class PPOPolicy(BasePolicy):
             raise ValueError(f"observation must have shape ({self._obs_size},), got {obs.shape}")
         return self.model.command(obs, self.layout, self.velocity_limits, self.action_scale)
 
-    # -- the evaluator's optional batch protocol (evaluation.drivers) ------------------------
+    # -- the evaluator's optional batch protocol (snac_gym.policies.base) ------------------------
     def reset_batch(self, seeds: Sequence[int]) -> None:
         """Start B episodes (stateless: nothing to do beyond :meth:`reset`)."""
         self.reset()
