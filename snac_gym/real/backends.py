@@ -174,8 +174,13 @@ class URRTDEBackend:
             raise ConnectionFailure(f"ur_rtde could not connect to {host}: {str(exc).splitlines()[0]}") from exc
         self.watchdog_frequency = self.frequency / watchdog_periods
 
+    def _link_up(self) -> bool:
+        """Both ur_rtde interfaces still connected (a control call on a lost link blocks in its reconnect)."""
+        receive_up = self._receive is not None and self._receive.isConnected()
+        return receive_up and (self._control is None or self._control.isConnected())
+
     def _require_connection(self) -> None:
-        if self._receive is None or not self._receive.isConnected():
+        if not self._link_up():
             raise ConnectionFailure(f"connection to the arm at {self.host} was lost")
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -236,8 +241,8 @@ class URRTDEBackend:
     def command(self, velocities: np.ndarray) -> None:
         if self._control is None:
             raise RuntimeError("this backend was opened without the control interface (dry run)")
+        self._require_connection()
         if not self._streaming:  # the first command after a stop: arm the watchdog for this stream
-            self._require_connection()
             self._ensure_program()
             self._control.setWatchdog(self.watchdog_frequency)
             self._streaming = True
@@ -264,6 +269,10 @@ class URRTDEBackend:
         # controller, and the next stream re-uploads it and arms the watchdog again.
         self._streaming = False
         self.stop_calls += 1
+        if not self._link_up():
+            # ur_rtde's speedStop on a lost link tries to reconnect and can block for good (seen
+            # against the emulator): with no link the controller's watchdog stops the arm instead.
+            return
         try:
             self._control.speedStop(self.stop_deceleration)
         except RuntimeError:  # already disconnected: the controller's watchdog stops the arm
@@ -299,7 +308,8 @@ class URRTDEBackend:
         self.stop()
         if self._control is not None:
             try:
-                self._control.stopScript()
+                if self._link_up():
+                    self._control.stopScript()
                 self._control.disconnect()
             except RuntimeError:
                 pass

@@ -220,6 +220,12 @@ class RealUREnv(gym.Env):
         cost_effort = float(quadratic_form(command, self.R))
         cost_smoothness = float(quadratic_form((command - self._last_command) / self.dt, self.R))
 
+        # A command computed after a stall is not sent: the state it was computed from is old, and
+        # the controller's watchdog may already have stopped the arm.
+        stalled = self.safety.stall(time.perf_counter() - self._period_wall) if self.steps > 0 else None
+        if stalled is not None:
+            self._halt(f"{stalled}: command not sent")
+            return self._finish(cost_error, cost_effort, cost_smoothness, command, safety=self.stop_reason)
         self.backend.command(command)
         self.backend.end_period(self._period_start)
         previous_start = self._period_wall

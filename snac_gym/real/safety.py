@@ -188,10 +188,17 @@ class SafetyLayer:
             )
         return None
 
-    def record_period(self, duration: float) -> str | None:
-        """Count late periods; a message once one is over ``max_period`` or too many are late in the window."""
+    def stall(self, duration: float) -> str | None:
+        """A message when ``duration`` (s, a period so far or whole) is over ``max_period``."""
         if duration > self.limits.max_period:
             return f"control loop stalled: one period took {duration * 1e3:.1f} ms (limit {self.limits.max_period * 1e3:.1f} ms)"
+        return None
+
+    def record_period(self, duration: float) -> str | None:
+        """Count late periods; a message once one is over ``max_period`` or too many are late in the window."""
+        stalled = self.stall(duration)
+        if stalled is not None:
+            return stalled
         self._late_flags.append(duration > (1.0 + self.limits.deadline_slack) * self.dt)
         late = sum(self._late_flags)
         if late >= self.limits.max_missed_deadlines:

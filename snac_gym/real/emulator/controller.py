@@ -118,9 +118,11 @@ class UREmulator:
         self.first_speed_command: float | None = None
         self._watchdog: tuple[float, str] | None = None
         self._watch_update = 0.0
+        self._last_cycle = time.monotonic()
         self._stall_until = 0.0
         self._stale: dict[str, Any] | None = None
         self._refuse_until = 0.0
+        self._link_down = False
         self._input_owner: dict[str, RTDEConnection] = {}
         self._connections: list[RTDEConnection] = []
         self._sockets: list[socket.socket] = []
@@ -166,7 +168,7 @@ class UREmulator:
         listeners = []
         try:
             for name, offset in PORT_OFFSETS.items():
-                port = 0 if self.port_base == 0 else self.port_base + offset
+                port = self.ports.get(name, 0 if self.port_base == 0 else self.port_base + offset)
                 sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 listeners.append(sock)
@@ -214,9 +216,6 @@ class UREmulator:
                 return
             sock.settimeout(None)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            if time.monotonic() < self._refuse_until:
-                _close_quietly(sock)  # the link is down: connections are cut at once
-                continue
             self._serve(sock, name)
 
     def _serve(self, sock: socket.socket, name: str) -> None:
@@ -287,6 +286,8 @@ class UREmulator:
         now = time.monotonic()
         with self.lock:
             self._run_scheduled(now)
+            if self._link_down and now >= self._refuse_until:
+                self._restore_link()
             stalled = now < self._stall_until
             if not stalled and self.script is not None and self.runtime_state == p.RUNTIME_PLAYING:
                 self.script.cycle(self.inputs)
@@ -378,6 +379,9 @@ class UREmulator:
             self.event(f"watchdog set on {variable}: {min_frequency:g} Hz")
 
     def _check_watchdog(self, now: float) -> None:
+        gap, self._last_cycle = now - self._last_cycle, now
+        if gap > 3 * self.dt:  # the emulator itself was descheduled: its inputs may still be queued
+            self._watch_update += gap - self.dt
         if self._watchdog is None or self.runtime_state != p.RUNTIME_PLAYING:
             return
         if now - self._watch_update > 1.0 / self._watchdog[0]:
@@ -457,6 +461,8 @@ class UREmulator:
             if self.runtime_state == p.RUNTIME_PAUSED:
                 self.runtime_state = p.RUNTIME_STOPPED
             self._stale, self._stall_until, self._refuse_until = None, 0.0, 0.0
+            if self._link_down:
+                self._restore_link()
             self.event("faults cleared")
 
     def latency_spike(self, seconds: float) -> None:
@@ -467,16 +473,34 @@ class UREmulator:
             self.event(f"latency spike of {seconds * 1e3:.0f} ms")
 
     def drop_connection(self, refuse_for: float = float("inf")) -> None:
-        """Cut every client connection, and cut new ones for ``refuse_for`` s (default: until cleared)."""
+        """Cut every client connection and refuse new ones for ``refuse_for`` s (default: until cleared).
+
+        The servers close their sockets (the clients read end of file) and stop listening (a
+        reconnect is refused), as when the controller's network goes down.
+        """
         _check_duration("refuse_for", refuse_for, allow_inf=True)
         with self.lock:
             self._refuse_until = time.monotonic() + min(refuse_for, 1e9)
+            self._link_down = True
+            for listener in self._listeners:  # new connections are refused
+                _close_quietly(listener)
             for conn in list(self._connections):
                 conn.close()
             for sock in self._sockets:
                 _close_quietly(sock)
             self._sockets.clear()
             self.event("connections dropped")
+
+    def _restore_link(self) -> None:
+        try:
+            self._bind_all()
+        except OSError as exc:  # taken meanwhile: retried next cycle
+            self.event(f"link not restored yet: {exc}")
+            return
+        self._link_down = False
+        for name, listener in zip(PORT_OFFSETS, self._listeners):
+            self._spawn(self._accept_loop, listener, name)
+        self.event("link restored")
 
     def stale_data(self, on: bool = True) -> None:
         """Freeze the reported timestamp and joint state (the packages keep coming, unchanged)."""
@@ -486,6 +510,12 @@ class UREmulator:
                 frozen = self.state_values()
                 self._stale = {k: frozen[k] for k in ("timestamp", "actual_q", "actual_qd", "actual_TCP_pose")}
             self.event(f"stale data {'on' if on else 'off'}")
+
+    def nonfinite_state(self, on: bool = True) -> None:
+        """Report NaN joint angles (a corrupted package), or stop doing so."""
+        with self.lock:
+            self._stale = {"actual_q": [float("nan")] * 6} if on else None
+            self.event(f"non-finite state {'on' if on else 'off'}")
 
     def expire_watchdog(self) -> None:
         """Make the RTDE watchdog fire now, as if the host had gone silent."""
@@ -522,15 +552,19 @@ class UREmulator:
             getattr(self, fault)(*args)
 
     # ----------------------------------------------------------------- queries for tests
-    def speed_commands_after(self, t: float) -> list[ReceivedCommand]:
-        """``speedJ`` packages received after monotonic time ``t``."""
+    def speed_commands_after(self, t: float) -> list[tuple[float, list[float]]]:
+        """``(time, joint speeds)`` of the ``speedJ`` packages received after monotonic time ``t``."""
         with self.lock:
-            return [c for c in self.commands if c.t > t and c.command == p.SPEEDJ]
+            return [
+                (c.t, [float(c.values.get(f"input_double_register_{j}", 0.0)) for j in range(6)])
+                for c in self.commands
+                if c.t > t and c.command == p.SPEEDJ
+            ]
 
-    def commands_since(self, t: float) -> list[tuple[float, int]]:
-        """``(time, command id)`` of every command package received after monotonic time ``t``."""
+    def commands_since(self, t: float) -> list[tuple[float, int, dict[str, Any]]]:
+        """``(time, command id, register values)`` of every command package received after monotonic time ``t``."""
         with self.lock:
-            return [(round(c.t - t, 4), c.command, c.values) for c in self.commands if c.t > t]
+            return [(c.t, c.command, c.values) for c in self.commands if c.t > t]
 
     def status(self) -> dict[str, Any]:
         """The controller's state in plain types: arm, program, safety, events, watchdog."""

@@ -28,6 +28,7 @@ REMOTE_METHODS = frozenset(
         "latency_spike",
         "drop_connection",
         "stale_data",
+        "nonfinite_state",
         "expire_watchdog",
         "set_speed_scaling",
         "set_tcp_offset",
