@@ -361,19 +361,24 @@ class URTaskEnv(gym.Env):
         self.obs_layout = ObservationLayout(m, n)
         self._error_slice = self.obs_layout.slices["e"]
         self._unit_limits = np.ones(m)  # the bounds of a normalized action, checked every step
-        if action_type == "normalized":
-            self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
-        else:
-            self.action_space = gym.spaces.Box(-self.velocity_limits, self.velocity_limits, dtype=np.float64)
-        low, high = self.observation_bounds()
-        if not finite_observation_bounds:  # the default: ±inf, the real-robot env's space
-            low, high = np.full_like(low, -np.inf), np.full_like(high, np.inf)
-        self.observation_space = gym.spaces.Box(low.astype(obs_dtype), high.astype(obs_dtype), dtype=obs_dtype)
+        self._build_spaces(finite_observation_bounds)
 
         self.reference: Reference = self.task.paper()
         self.steps = 0
         self._last_command = np.zeros(m)
         self._obs: np.ndarray | None = None
+
+    def _build_spaces(self, finite_observation_bounds: bool) -> None:
+        """The action space of :attr:`action_type` and the observation space (see the class docs)."""
+        if self.action_type == "normalized":
+            self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(self.kinematics.n_joints,), dtype=np.float32)
+        else:
+            self.action_space = gym.spaces.Box(-self.velocity_limits, self.velocity_limits, dtype=np.float64)
+        low, high = self.observation_bounds()
+        if not finite_observation_bounds:  # the default: ±inf, the real-robot env's space
+            low, high = np.full_like(low, -np.inf), np.full_like(high, np.inf)
+        dtype = self.observation_dtype
+        self.observation_space = gym.spaces.Box(low.astype(dtype), high.astype(dtype), dtype=dtype)
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Float64 ``(low, high)`` of the observation (see "Observation Space")."""

@@ -277,14 +277,17 @@ class SNACPolicy(BasePolicy):
         self.batch_critic_weights: np.ndarray | None = None
         self._batch_k = 0
 
-        # Hot-path workspace: act allocates only its command and the new weights.
+        self._allocate_workspace(state_dim)
+
+    def _allocate_workspace(self, state_dim: int) -> None:
+        """The hot path's workspace: ``act`` allocates only its command and the new weights."""
         s = self.layout.slices
         self._q_slice, self._e_slice = s["q"], s["e"]
         self._xd_slice, self._xdotd_slice, self._xc_slice = s["x_d"], s["xdot_d"], s["x_c"]
         self._state = np.zeros(state_dim)
         self._gradient = np.zeros((self.basis.size, state_dim))  # ∇σ(s)
         self._make_views()
-        self._pair = np.zeros((2, n))  # rows: −½c ∇_e V̂ and h αₖ e, multiplied by J together
+        self._pair = np.zeros((2, self.task_dim))  # rows: −½c ∇_e V̂ and h αₖ e, multiplied by J together
         self._upper = self.velocity_limits.copy()
         self._lower = -self.velocity_limits
         self._upper_list = self._upper.tolist()

@@ -153,11 +153,18 @@ def simulate_kinematic(
         final_q=q,
         final_x=final_x,
         final_errors=final_x - x_d[:, steps],
-        critic_diagnostics=summarise_critic_diagnostics(
-            np.stack([row["hjb_residual"] for row in diagnostic_rows], axis=1),
-            np.stack([row["hjb_ratio"] for row in diagnostic_rows], axis=1),
-            np.stack([row["critic_error"] for row in diagnostic_rows], axis=1) if "critic_error" in diagnostic_rows[0] else None,
-        ) if diagnostic_rows else None,
+        critic_diagnostics=_stack_diagnostics(diagnostic_rows),
+    )
+
+
+def _stack_diagnostics(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray] | None:
+    """Per-rollout summaries of the critic diagnostics sampled during a run (``None`` if none were)."""
+    if not rows:
+        return None
+    critic_error = np.stack([row["critic_error"] for row in rows], axis=1) if "critic_error" in rows[0] else None
+    return summarise_critic_diagnostics(
+        np.stack([row["hjb_residual"] for row in rows], axis=1), np.stack([row["hjb_ratio"] for row in rows], axis=1),
+        critic_error,
     )
 
 
