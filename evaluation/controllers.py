@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from evaluation.jobs import policy_context
-from evaluation.optimal import OPTIMAL
+from evaluation.optimal_reference import OPTIMAL
 from evaluation.store import file_sha1
 from evaluation.summary import PAPER_TABLE_I
 from snac_gym.kinematics import Kinematics

@@ -5,7 +5,7 @@ task, in jobs of ``chunk_size`` samples (:class:`~evaluation.jobs.RolloutJob`) r
 executor (:mod:`evaluation.executors`); each finished job is stored at once as a part file
 (:mod:`evaluation.store`), and a part already on disk (``--resume``, or a pass the run made
 before) is read back instead of being run again. The optimal reference's rows are made the same
-way from :class:`~evaluation.optimal.OptimalJob` jobs. The knob search's short rollouts
+way from :class:`~evaluation.optimal_reference.OptimalJob` jobs. The knob search's short rollouts
 (:meth:`EvaluationRun.measure`) use the same jobs but are not stored.
 
 Several pipelines of dependent steps (the concurrent effort matches, the sweep's points) feed one
@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from evaluation.jobs import JobResult, RolloutJob, run_job
-from evaluation.optimal import OPTIMAL, OptimalJob, run_optimal_job
+from evaluation.optimal_reference import OPTIMAL, OptimalJob, run_optimal_job
 from evaluation.samples import EvaluationSample, policy_seed
 from evaluation.store import RunStore, settings_key
 

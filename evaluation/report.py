@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from evaluation.metrics import REACH_TOLERANCE, TRACK_TOLERANCE
-from evaluation.optimal import FTOL, GTOL, OPTIMAL
+from evaluation.optimal_reference import FTOL, GTOL, OPTIMAL
 from evaluation.summary import CONVENTION_COLUMNS, TASK_LABELS, controller_label, summarise
 
 

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 from evaluation.backends import BACKENDS
 from evaluation.effort_statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
 from evaluation.executors import MAX_WORKERS_PER_CPU, max_workers
-from evaluation.optimal import OPTIMAL
+from evaluation.optimal_reference import OPTIMAL
 from evaluation.samples import TASKS
 from evaluation.store import file_sha1
 from snac_gym.cost import CostConvention

@@ -19,7 +19,7 @@ Steps (each documented in docs/evaluation.md):
    the whole set; if it misses the tolerance, the screening target is corrected by the observed
    ratio and the search repeats (at most ``MAX_MATCH_ROUNDS`` passes).
 5. **Optimal reference** (``optimal`` among ``controllers``): every sample's numerical optimum of
-   the same cost (:mod:`evaluation.optimal`, docs/optimal.md), an open-loop row with no effort
+   the same cost (:mod:`evaluation.optimal_reference`, docs/optimal.md), an open-loop row with no effort
    knob; every row gains ``ratio_to_optimal`` and ``below_optimal``.
 6. **Reports**: ``results.csv``/``.parquet`` (one row per task, controller and sample),
    ``summary.csv`` (:mod:`evaluation.summary`), ``summary.md`` and box plots (:mod:`evaluation.report`).
@@ -40,7 +40,7 @@ import pandas as pd
 from evaluation.controllers import ControllerSpec, resolve_controllers
 from evaluation.effort_matching import EffortRecord, Results, controller_passes
 from evaluation.executors import open_executor
-from evaluation.optimal import OPTIMAL, add_optimality
+from evaluation.optimal_reference import OPTIMAL, add_optimality
 from evaluation.passes import EvaluationRun
 from evaluation.report import write_reports
 from evaluation.rollout_progress import Progress

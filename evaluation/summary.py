@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from evaluation.optimal import OPTIMAL, OPTIMAL_LABEL
+from evaluation.optimal_reference import OPTIMAL, OPTIMAL_LABEL
 
 #: Table I of the paper, rows in the paper's order: controller name in snac-gym → {task: V/N}.
 PAPER_TABLE_I: dict[str, dict[str, float]] = {

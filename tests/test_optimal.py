@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from evaluation import EvaluationConfig, run_evaluation
-from evaluation.optimal import OPTIMAL, solve_sample, trajectory_cost_and_gradient
+from evaluation.optimal_reference import OPTIMAL, solve_sample, trajectory_cost_and_gradient
 from evaluation.reference_batch import reference_trajectories
 from evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention, cost_and_gradient, trajectory_cost

@@ -9,6 +9,8 @@ over the evaluator's horizon, Δt and discretisation (docs/optimal.md), for the 
 convention (:class:`snac_gym.cost.CostConvention`: without the u̇ term for ``--cost hjb``, u₋₁ = u₀
 for ``--udot-start first``, Q = q·I for ``--q-scale``). It is an *open-loop*
 reference computed with knowledge of the whole reference, not a controller.
+(Not :mod:`snac_gym.optimality`: that is the frozen-Jacobian, infinite-horizon optimum the critics
+are compared with; this is the whole trajectory's, over the evaluator's finite horizon.)
 
 **Method** (direct single shooting in U, Gauss-Newton steps in θ). θ is linear in U, so V and its
 exact gradient cost one batched FK+Jacobian pass (:func:`trajectory_cost_and_gradient`; the cost and
