@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from evaluation.backends import simulate_kinematic
-from evaluation.drivers import supports_batch
 from evaluation.jobs import policy_context
 from evaluation.samples import generate_samples
+from snac_gym.policies.base import supports_batch
 from snac_gym.policies.registry import available_policies, make_policy
+from snac_gym.rollout import simulate_kinematic
 from snac_gym.sampling import SampleSpace
 
 

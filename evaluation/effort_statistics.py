@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-#: Results column holding each rollout's peak max_j |u_j|/ū_j (see :mod:`evaluation.metrics`), and its step.
+#: Results column holding each rollout's peak max_j |u_j|/ū_j (see :mod:`snac_gym.metrics`), and its step.
 EFFORT_COLUMN = "peak_limit_fraction"
 PEAK_STEP_COLUMN = "peak_step"
 

@@ -102,7 +102,7 @@ def kinematic_logs(rollouts: Any, samples: Sequence[Any], seeds: Sequence[int], 
 
 
 def run_job(job: RolloutJob) -> JobResult:
-    """Roll out ``job`` and measure every rollout (see :mod:`evaluation.metrics`)."""
+    """Roll out ``job`` and measure every rollout (see :mod:`snac_gym.metrics`)."""
     attrs = {"task": job.task, "policy": job.controller, "policy_kwargs": dict(job.kwargs)}
     if job.backend == "kinematic":
         context = policy_context(job.robot, job.dt, job.task)

@@ -30,8 +30,8 @@ the clipped solution (column ``optimal_bounded``), whichever method ran first.
 :data:`MAX_ITERATIONS` iterations). ``optimal_gradient`` records the final max-norm gradient in z.
 
 The reported cost of the solution is *not* the solver's value: the command sequence is rolled
-out by :func:`evaluation.backends.simulate_kinematic` (an open-loop replay policy) and measured by
-:func:`evaluation.metrics.rollout_metrics`, the path every controller takes.
+out by :func:`snac_gym.rollout.simulate_kinematic` (an open-loop replay policy) and measured by
+:func:`snac_gym.metrics.rollout_metrics`, the path every controller takes.
 """
 
 from __future__ import annotations
@@ -51,12 +51,11 @@ from scipy.linalg import cholesky_banded, solve_banded
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 from scipy.optimize import minimize
 
-from evaluation.backends import simulate_kinematic
-from evaluation.metrics import rollout_metrics
-from evaluation.reference_batch import reference_trajectories
 from evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention, cost_and_gradient
 from snac_gym.kinematics import Kinematics
+from snac_gym.metrics import rollout_metrics
+from snac_gym.rollout import reference_trajectories, simulate_kinematic
 
 #: Name of the reference row in the results (selectable with ``--controllers optimal,...``).
 OPTIMAL = "optimal"

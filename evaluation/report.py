@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from evaluation.metrics import REACH_TOLERANCE, TRACK_TOLERANCE
 from evaluation.optimal_reference import FTOL, GTOL, OPTIMAL
-from evaluation.summary import CONVENTION_COLUMNS, TASK_LABELS, controller_label, summarise
+from evaluation.summary import CONVENTION_COLUMNS, controller_label, summarise
+from snac_gym.tasks import get_task
 
 
 def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
@@ -131,7 +131,7 @@ def summary_markdown(
 
 def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str], effort_statistic: str) -> list[str]:
     """The title, what was run and scored, and what success and accuracy mean."""
-    n_text = ", ".join(f"{int(summary[f'{t}_n'].max())} {TASK_LABELS[t].lower()} samples" for t in tasks)
+    n_text = ", ".join(f"{int(summary[f'{t}_n'].max())} {get_task(t).label.lower()} samples" for t in tasks)
     horizons = ", ".join(f"{t} {config.steps(t)} steps ({config.steps(t) * config.dt:g} s)" for t in tasks)
     threshold = getattr(config, "success_threshold", 0.95)
     return [
@@ -147,8 +147,8 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
         ),
         "",
         (
-            f"Success: reach ends within {REACH_TOLERANCE * 1e3:g} mm, track's mean error over the second half is "
-            f"within {TRACK_TOLERANCE * 1e3:g} mm. Only controllers with a success rate of at least {threshold:.0%} on a "
+            "Success: " + "; ".join(f"{t}: {get_task(t).success_text()}" for t in tasks) + ". "
+            f"Only controllers with a success rate of at least {threshold:.0%} on a "
             "task are ranked there (rank, ratio to the best, ratio to SNAC); the others are marked **fails** and are "
             "never ranked, whatever their cost. Accuracy: median final error (reach) or median over samples of the "
             "median error over the second half (track)."
@@ -160,7 +160,7 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
 def _table_one_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
     """Table I's layout: per task V/N, its interval, the paper's value, success, accuracy and standing."""
     header = "| Controller |" + "".join(
-        f" {TASK_LABELS[t]} V/N (ours) | 95 % CI | paper | success | accuracy (mm) | rank (ratio to best) "
+        f" {get_task(t).label} V/N (ours) | 95 % CI | paper | success | accuracy (mm) | rank (ratio to best) "
         "| ratio to SNAC (ours / paper) |"
         for t in tasks
     )
@@ -176,7 +176,7 @@ def _table_one_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
 def _table_one_cells(row: pd.Series, task: str) -> list[str]:
     """One controller's cells of ``task`` in Table I's layout."""
     p = f"{task}_"
-    accuracy = row[p + ("final_error_median" if task == "reach" else "median_error_2nd_half_median")] * 1e3
+    accuracy = row[f"{p}{get_task(task).accuracy_measure}_median"] * 1e3
     if row["controller"] == OPTIMAL:
         standing = "reference"
     elif bool(row.get(p + "qualified", False)):
@@ -206,7 +206,7 @@ def _convention_lines(summary: pd.DataFrame, tasks: Sequence[str], q_scale: floa
             f"Q = {'I' if q_scale == 1.0 else f'{q_scale:g}·I'}, R = I."
         ),
         "",
-        "| Controller |" + "".join(f" {TASK_LABELS[t]}: u₋₁ = 0 | u₋₁ = u₀ | HJB cost |" for t in tasks),
+        "| Controller |" + "".join(f" {get_task(t).label}: u₋₁ = 0 | u₋₁ = u₀ | HJB cost |" for t in tasks),
         "|---|" + "---|---|---|" * len(tasks),
     ]
     for _, row in summary.iterrows():
@@ -253,7 +253,7 @@ def _task_detail_lines(summary: pd.DataFrame, task: str) -> list[str]:
     p = f"{task}_"
     lines = [
         "",
-        f"## {TASK_LABELS[task]} ({task}): cost terms and outcomes",
+        f"## {get_task(task).label} ({task}): cost terms and outcomes",
         "",
         (
             "| Controller | error term | effort term | smoothness term | of which first-step jump | success "
@@ -366,7 +366,7 @@ def plot_cost_boxes(
         ax.set_xticks(range(1, len(labels) + 1), labels)
         if all(np.all(d > 0) for d in data):
             ax.set_yscale("log")
-        ax.set_title(f"{TASK_LABELS[task]} ({task}), ▲ mean")
+        ax.set_title(f"{get_task(task).label} ({task}), ▲ mean")
         ax.set_ylabel("trajectory cost V per sample")
         ax.grid(True, axis="y", alpha=0.3)
     fig.tight_layout()

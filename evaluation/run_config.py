@@ -16,22 +16,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from evaluation.backends import BACKENDS
 from evaluation.effort_statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
 from evaluation.executors import MAX_WORKERS_PER_CPU, max_workers
+from evaluation.jobs import BACKENDS
 from evaluation.optimal_reference import OPTIMAL
 from evaluation.samples import TASKS
 from evaluation.store import file_sha1
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
+from snac_gym.tasks import TASKS as TASK_REGISTRY
+from snac_gym.tasks import get_task
 
 if TYPE_CHECKING:
     from evaluation.controllers import ControllerSpec
 
-#: Default horizon per task, s: at least every controller's 95th-percentile settling time,
-#: measured at equal effort on 100 samples (docs/evaluation.md): SNAC's reach p95 is 11.7 s.
-DEFAULT_HORIZONS: dict[str, float] = {"reach": 12.0, "track": 20.0}
+#: Default horizon per task, s (each task's ``horizon_s``: at least every controller's 95th-percentile
+#: settling time at equal effort on 100 samples, docs/evaluation.md), as registered at import.
+DEFAULT_HORIZONS: dict[str, float] = {name: task.horizon_s for name, task in TASK_REGISTRY.items()}
 #: Samples per job of a full pass. The kinematic backend steps a job's samples in lockstep and
 #: its per-sample cost falls with the batch up to a few hundred samples (docs/evaluation.md).
 DEFAULT_CHUNK_SIZE = 500
@@ -46,11 +48,11 @@ class EvaluationConfig:
 
     Attributes:
         out: Output directory.
-        tasks: Tasks to evaluate, from ``("reach", "track")``.
+        tasks: Tasks to evaluate (registered task names; default ``("reach", "track")``).
         controllers: Registered policy names; ``None``: every registered policy that qualifies.
         samples: Random samples per task (ignored with ``samples_file``, whose rows are all used).
         seed: Seed of the sample set and of every policy reset.
-        horizons: Rollout length per task, s (missing tasks take :data:`DEFAULT_HORIZONS`).
+        horizons: Rollout length per task, s (missing tasks take their ``Task.horizon_s``).
         backend: ``"kinematic"`` or ``"pybullet"``.
         match_effort: Calibrate every controller's effort knob to equal effort.
         effort_reference: Controller whose effort (at its own settings) is the target.
@@ -88,7 +90,7 @@ class EvaluationConfig:
     controllers: tuple[str, ...] | None = None
     samples: int = 1000
     seed: int = 0
-    horizons: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_HORIZONS))
+    horizons: Mapping[str, float] = field(default_factory=lambda: {n: TASK_REGISTRY[n].horizon_s for n in TASKS})
     backend: str = "kinematic"
     match_effort: bool = True
     effort_reference: str = "snac"
@@ -157,7 +159,7 @@ class EvaluationConfig:
 
     def horizon(self, task: str) -> float:
         """Rollout length of ``task``, s."""
-        return float(self.horizons.get(task, DEFAULT_HORIZONS[task]))
+        return float(self.horizons.get(task, get_task(task).horizon_s))
 
     def steps(self, task: str) -> int:
         """Control steps K of ``task``'s rollouts: the horizon in periods, rounded."""
@@ -211,8 +213,8 @@ class EvaluationConfig:
 def _check_selection(config: EvaluationConfig) -> None:
     """What is evaluated: tasks, controllers, samples."""
     tasks = config.tasks
-    if not tasks or any(t not in TASKS for t in tasks) or len(set(tasks)) != len(tasks):
-        raise ValueError(f"tasks must be distinct names from {TASKS}, got {tasks}")
+    if not tasks or any(t not in TASK_REGISTRY for t in tasks) or len(set(tasks)) != len(tasks):
+        raise ValueError(f"tasks must be distinct names from {tuple(TASK_REGISTRY)}, got {tasks}")
     controllers = config.controllers
     if controllers is not None and (not controllers or len(set(controllers)) != len(controllers)):
         raise ValueError(f"controllers must be distinct names, got {controllers}")
@@ -222,9 +224,9 @@ def _check_selection(config: EvaluationConfig) -> None:
 
 def _check_timing(config: EvaluationConfig) -> None:
     """The horizons and the control period."""
-    unknown = set(config.horizons) - set(TASKS)
+    unknown = set(config.horizons) - set(TASK_REGISTRY)
     if unknown:
-        raise ValueError(f"horizons for unknown task(s) {sorted(unknown)}; tasks are {TASKS}")
+        raise ValueError(f"horizons for unknown task(s) {sorted(unknown)}; tasks are {tuple(TASK_REGISTRY)}")
     if not (math.isfinite(config.dt) and config.dt > 0):
         raise ValueError(f"dt must be a positive finite number of seconds, got {config.dt}")
     for task in config.tasks:

@@ -34,6 +34,7 @@ import pandas as pd
 from scipy import stats
 
 from evaluation.optimal_reference import OPTIMAL, OPTIMAL_LABEL
+from snac_gym.tasks import TASKS
 
 #: Table I of the paper, rows in the paper's order: controller name in snac-gym → {task: V/N}.
 PAPER_TABLE_I: dict[str, dict[str, float]] = {
@@ -53,7 +54,7 @@ PAPER_LABELS: dict[str, str] = {
 }
 
 #: Column labels of Table I for each task.
-TASK_LABELS: dict[str, str] = {"reach": "Regulation", "track": "Tracking"}
+TASK_LABELS: dict[str, str] = {name: task.label for name, task in TASKS.items()}  # as registered at import
 
 
 def paper_value(controller: str, task: str) -> float | None:

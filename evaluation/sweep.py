@@ -37,15 +37,15 @@ import pandas as pd
 
 from evaluation.controllers import ControllerSpec, resolve_controllers
 from evaluation.executors import open_executor
-from evaluation.metrics import REACH_TOLERANCE, TRACK_TOLERANCE
 from evaluation.passes import EvaluationRun
 from evaluation.rollout_progress import Progress
 from evaluation.run_config import EvaluationConfig
 from evaluation.runner import load_samples, run_evaluation
 from evaluation.store import RunStore
-from evaluation.summary import TASK_LABELS, controller_label
+from evaluation.summary import controller_label
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
+from snac_gym.tasks import get_task
 
 #: Knob values per controller and task (besides the main run's), and the grid's reach either
 #: side of the default: 7 points over default/4 … default·4.
@@ -120,7 +120,7 @@ def point_row(
         from scipy import stats
 
         half = float(stats.t.ppf(0.975, costs.size - 1) * costs.std(ddof=1) / math.sqrt(costs.size))
-    accuracy = rows["final_error"] if task == "reach" else rows["median_error_2nd_half"]
+    accuracy = rows[get_task(task).accuracy_measure]
     success_rate = float(rows["success"].mean())
     return {
         "task": task,
@@ -302,7 +302,7 @@ def plot_tradeoff(
                     ax, part[part["controller"] == name].sort_values("knob_value"), column, colors[name], styles[name]
                 )
             _finish_panel(ax, config, task, column, label, log_x, target)
-        row_axes[0].set_title(f"{TASK_LABELS.get(task, task)} ({task})", loc="left", fontweight="bold")
+        row_axes[0].set_title(f"{get_task(task).label} ({task})", loc="left", fontweight="bold")
     handles = _legend_handles(names, colors, styles, config.success_threshold)
     fig.legend(handles=handles, loc="lower center", ncol=min(6, len(handles)), frameon=False, fontsize=9)
     fig.suptitle(
@@ -344,7 +344,7 @@ def _finish_panel(
     ax.set_yscale("log")
     if log_x:
         ax.set_xscale("log")
-    tolerance = REACH_TOLERANCE if task == "reach" else TRACK_TOLERANCE
+    tolerance = get_task(task).success_tolerance
     if column == "success_rate":
         ax.axvline(config.success_threshold, color="0.4", ls="--", lw=1)
         ax.set_xlim(-0.03, 1.03)
@@ -352,7 +352,7 @@ def _finish_panel(
         ax.axvline(tolerance, color="0.4", ls=":", lw=1)
     elif math.isfinite(target):
         ax.axvline(target, color="0.4", ls="--", lw=1)
-    what = "final error" if task == "reach" else "median error over the 2nd half"
+    what = get_task(task).accuracy_text
     ax.set_xlabel(label.format(what))
     ax.set_ylabel(f"V/N ({config.cost} cost)")
     ax.grid(True, which="both", alpha=0.25)

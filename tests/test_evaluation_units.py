@@ -11,12 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaluation.backends import RolloutError, simulate_kinematic, simulate_pybullet
-from evaluation.drivers import LockstepPolicies, supports_batch
 from evaluation.effort_search import match_effort
-from evaluation.metrics import rollout_metrics
-from evaluation.reference_batch import reference_trajectories
-from evaluation.rollouts import Rollouts
 from evaluation.samples import (
     EvaluationSample,
     SampleFileError,
@@ -27,9 +22,11 @@ from evaluation.samples import (
     write_samples_csv,
 )
 from snac_gym.cost import trajectory_cost
+from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
-from snac_gym.policies.base import BasePolicy, PolicyContext
+from snac_gym.policies.base import BasePolicy, LockstepPolicies, PolicyContext, supports_batch
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse, FixedTarget
+from snac_gym.rollout import RolloutError, Rollouts, reference_trajectories, simulate_kinematic, simulate_pybullet
 from snac_gym.sampling import SampleSpace, ellipse_is_feasible
 
 DT = 1.0 / 125.0

@@ -10,11 +10,10 @@ import pytest
 
 from evaluation import EvaluationConfig, run_evaluation
 from evaluation.optimal_reference import OPTIMAL, solve_sample, trajectory_cost_and_gradient
-from evaluation.reference_batch import reference_trajectories
 from evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention, cost_and_gradient, trajectory_cost
 from snac_gym.kinematics import Kinematics
-from snac_gym.rollout import log_array, read_log
+from snac_gym.rollout import log_array, read_log, reference_trajectories
 from snac_gym.sampling import SampleSpace
 
 DT = 1.0 / 125.0
@@ -85,10 +84,10 @@ def test_the_shared_cost_gradient_on_a_linear_model(convention):
 
 def test_the_hjb_optimum_is_below_the_frozen_jacobian_lqr(ur10, track_sample):
     """Without the u̇ term the optimum is close to, and never above, the LQR law's open-loop cost."""
-    from evaluation.backends import simulate_kinematic
     from evaluation.jobs import policy_context
-    from evaluation.metrics import rollout_metrics
+    from snac_gym.metrics import rollout_metrics
     from snac_gym.policies import make_policy
+    from snac_gym.rollout import simulate_kinematic
 
     convention = CostConvention("hjb")  # Q = I: far from the velocity limits
     sample = generate_samples(ur10, SampleSpace.for_robot(ur10), 0, "reach", [1])[0]

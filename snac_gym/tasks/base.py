@@ -50,6 +50,7 @@ class Task:
             ``"mean_error_2nd_half"`` (mean ‖eₖ‖ over the second half of the steps).
         accuracy_measure: The accuracy a table shows beside the cost (a column of the
             evaluator's results).
+        accuracy_text: That accuracy in words.
         episode_steps: Default episode length of the env, control steps at 125 Hz.
         horizon_s: Default horizon of the demo and the evaluator, s.
         csv_columns: The columns of the evaluator's samples CSV that hold its reference.
@@ -68,6 +69,7 @@ class Task:
     success_tolerance: ClassVar[float]
     success_measure: ClassVar[str] = "final_error"
     accuracy_measure: ClassVar[str] = "final_error"
+    accuracy_text: ClassVar[str] = "final error"
     episode_steps: ClassVar[int]
     horizon_s: ClassVar[float]
     csv_columns: ClassVar[tuple[str, ...]] = ()

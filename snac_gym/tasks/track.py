@@ -35,6 +35,7 @@ class EllipseTrackTask(Task):
     success_tolerance = 5e-3
     success_measure = "mean_error_2nd_half"
     accuracy_measure = "median_error_2nd_half"
+    accuracy_text = "median error over the 2nd half"
     episode_steps = 2500
     horizon_s = 20.0
     csv_columns = ELLIPSE_COLUMNS
