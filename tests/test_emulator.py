@@ -201,13 +201,20 @@ def test_the_watchdog_stops_the_arm_when_the_host_goes_silent(emu, default_backe
 
 def test_an_injected_watchdog_expiry_stops_the_program_and_the_stream(emu, backend):
     env = _env(backend)
-    with pytest.raises(ConnectionFailure, match="rejected speedJ"):
-        _, _, info = _run_until_stop(env, emu.expire_watchdog)
-        print(info, emu.status()["events"])
-    assert "rejected speedJ" in env.stop_reason
-    _assert_stopped_and_silent(emu, time.monotonic())
+    env.reset(options={"target": [-0.7, 0.2, 0.4]})
+    for _ in range(25):
+        env.step(SWEEP)
+    emu.expire_watchdog()
+    deadline = time.monotonic() + 2.0
+    while emu.status()["program_running"] and time.monotonic() < deadline:
+        time.sleep(0.005)
     status = emu.status()
     assert not status["program_running"] and any(e.startswith("watchdog expired") for e in status["events"])
+    with pytest.raises(ConnectionFailure, match="rejected speedJ"):
+        for _ in range(10):
+            env.step(SWEEP)
+    assert "rejected speedJ" in env.stop_reason
+    _assert_stopped_and_silent(emu, time.monotonic())
 
 
 @pytest.mark.parametrize(("extra", "rule"), [(0.1, "control loop stalled"), (0.014, "control loop missed its 8.0 ms")])

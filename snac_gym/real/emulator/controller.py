@@ -518,10 +518,18 @@ class UREmulator:
             self.event(f"non-finite state {'on' if on else 'off'}")
 
     def expire_watchdog(self) -> None:
-        """Make the RTDE watchdog fire now, as if the host had gone silent."""
+        """Make the RTDE watchdog fire at the next cycle, as if the host had gone silent.
+
+        Raises:
+            ValueError: If no watchdog is armed (``setWatchdog`` not called since the program started).
+        """
         with self.lock:
-            if self._watchdog is not None:
-                self._watch_update = -1e9
+            if self._watchdog is None:
+                raise ValueError(
+                    f"no RTDE watchdog is armed (program running: {self.runtime_state == p.RUNTIME_PLAYING})"
+                )
+            self._watch_update = -1e9
+            self.event("watchdog expiry injected")
 
     def set_speed_scaling(self, fraction: float) -> None:
         """The speed slider: commanded speeds are scaled by ``fraction`` in (0, 1]."""
