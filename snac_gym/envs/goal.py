@@ -1,0 +1,200 @@
+"""Goal-conditioned variants of the task envs, for HER and goal-conditioned RL (Gymnasium-Robotics style).
+
+``gym.make("snac_gym/UR10ReachGoal-v0")`` (and ``UR10EllipseTrackGoal-v0``, one per task)
+wraps the task env and returns ``Dict`` observations:
+
+================  ============================================================  =====
+key               value                                                         unit
+================  ============================================================  =====
+``observation``   θ, θ̇ (2m values); tracking adds ẋ_d(t) (3 values)             rad, rad/s, m/s
+``achieved_goal`` the end-effector position x = f(θ), base frame                 m
+``desired_goal``  the reference point x_d(t) (fixed for reach, moving for track)  m
+================  ============================================================  =====
+
+``observation`` holds nothing that depends on the goal's position, so HER can relabel
+``desired_goal`` and the stored transitions stay consistent. For tracking, ẋ_d stays the
+original episode's under relabelling: a relabelled goal is a point the reference never
+held, moving with the original reference's velocity (HER's usual approximation for moving
+goals; document it in any result).
+
+Rewards come from :meth:`GoalTaskEnv.compute_reward`, vectorised over a batch of goals:
+``reward_type="sparse"`` (default, as in Gymnasium-Robotics): 0 when
+‖achieved − desired‖ ≤ the task's success tolerance, −1 otherwise; ``"dense"``: −‖achieved − desired‖ (m).
+``info["is_success"]`` uses the same rule. ``compute_terminated`` is true on success only for
+reach with ``terminate_on_success=True``; ``compute_truncated`` is always false (the
+registration's ``TimeLimit`` truncates).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from snac_gym.tasks import Task, get_task
+
+#: Reward types of the goal envs.
+GOAL_REWARD_TYPES = ("sparse", "dense")
+
+
+def goal_env_id(task: Task) -> str:
+    """``snac_gym/UR10Reach-v0`` → ``snac_gym/UR10ReachGoal-v0``."""
+    base, version = task.env_id.rsplit("-", 1)
+    return f"{base}Goal-{version}"
+
+
+class GoalTaskEnv(gym.Env):
+    """A task env with a ``Dict`` observation and a goal-conditioned reward (see the module docs).
+
+    Args:
+        task: The task's name.
+        reward_type: ``"sparse"`` or ``"dense"``.
+        success_tolerance: Distance (m) under which the goal counts as reached (default: the task's).
+        terminate_on_success: Reach only: end the episode once the goal is reached.
+        **env_kwargs: Arguments of the task env (``robot``, ``dt``, ``backend``, ``action_type``,
+            ``max_steps``, ...), except ``reward_type``, ``terminate_on_success`` and ``observation_dtype``.
+
+    Raises:
+        ValueError: On an unknown reward type or a task env argument this env sets itself.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
+
+    def __init__(
+        self,
+        task: str,
+        reward_type: str = "sparse",
+        success_tolerance: float | None = None,
+        terminate_on_success: bool = False,
+        render_mode: str | None = None,
+        **env_kwargs: Any,
+    ) -> None:
+        from snac_gym.envs.core import task_env_class
+
+        if reward_type not in GOAL_REWARD_TYPES:
+            raise ValueError(f"reward_type must be one of {GOAL_REWARD_TYPES}, got {reward_type!r}")
+        reserved = {"reward_type", "terminate_on_success", "observation_dtype"} & set(env_kwargs)
+        if reserved:
+            raise ValueError(f"the goal env sets {sorted(reserved)} itself")
+        self._init_kwargs = dict(
+            task=task, reward_type=reward_type, success_tolerance=success_tolerance,
+            terminate_on_success=terminate_on_success, render_mode=render_mode, **env_kwargs,
+        )
+        self.task = get_task(task)
+        self.env = task_env_class(self.task)(
+            success_tolerance=success_tolerance, render_mode=render_mode, observation_dtype=np.float32,
+            finite_observation_bounds=True, **env_kwargs,
+        )
+        self.reward_type = reward_type
+        self.terminate_on_success = bool(terminate_on_success) and not self.task.moving_reference
+        self.success_tolerance = self.env.success_tolerance
+        self.render_mode = render_mode
+        self.action_space = self.env.action_space
+        self.observation_space = self._spaces()
+
+    # -- spaces --------------------------------------------------------------------------------
+    def _observation_fields(self) -> list[str]:
+        return ["q", "qdot", "xdot_d"] if self.task.moving_reference else ["q", "qdot"]
+
+    def _spaces(self) -> gym.spaces.Dict:
+        layout, inner = self.env.obs_layout, self.env.observation_space
+        low = np.concatenate([inner.low[layout.slices[name]] for name in self._observation_fields()])
+        high = np.concatenate([inner.high[layout.slices[name]] for name in self._observation_fields()])
+        goal_low, goal_high = inner.low[layout.slices["x"]], inner.high[layout.slices["x"]]
+        return gym.spaces.Dict({
+            "observation": gym.spaces.Box(low, high, dtype=np.float32),
+            "achieved_goal": gym.spaces.Box(goal_low, goal_high, dtype=np.float32),
+            "desired_goal": gym.spaces.Box(goal_low, goal_high, dtype=np.float32),
+        })
+
+    def _goal_observation(self, flat: np.ndarray) -> dict[str, np.ndarray]:
+        slices = self.env.obs_layout.slices
+        return {
+            "observation": np.concatenate([flat[slices[name]] for name in self._observation_fields()]),
+            "achieved_goal": flat[slices["x"]].copy(),
+            "desired_goal": flat[slices["x_d"]].copy(),
+        }
+
+    # -- the GoalEnv interface -------------------------------------------------------------------
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        """Reward of each ``(achieved, desired)`` pair (batched over leading axes); ``info`` is unused."""
+        distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        if self.reward_type == "sparse":
+            return -(distance > self.success_tolerance).astype(np.float32)
+        return -distance.astype(np.float32)
+
+    def compute_terminated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        """True where the goal is reached, for reach with ``terminate_on_success``; false otherwise."""
+        distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        return np.logical_and(self.terminate_on_success, distance <= self.success_tolerance)
+
+    def compute_truncated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
+        """Always false: the registration's ``TimeLimit`` truncates."""
+        return np.zeros(np.shape(achieved_goal)[:-1], dtype=bool)
+
+    # -- episode ---------------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        super().reset(seed=seed)
+        flat, info = self.env.reset(seed=seed, options=options)
+        return self._goal_observation(flat), info
+
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict[str, Any]]:
+        flat, _, _, truncated, info = self.env.step(action)
+        obs = self._goal_observation(flat)
+        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"], info))
+        terminated = bool(self.compute_terminated(obs["achieved_goal"], obs["desired_goal"], info))
+        # The success flag from the same float32 goals as the reward, so the two never disagree.
+        distance = float(np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"]))
+        info["is_success"] = distance <= self.success_tolerance
+        return obs, reward, terminated, truncated, info
+
+    @property
+    def requested_max_steps(self) -> int | None:
+        """The ``max_steps`` argument (read by the registration's episode-length hook)."""
+        return self.env.requested_max_steps
+
+    @property
+    def max_steps(self) -> int:
+        """Episode length in control steps."""
+        return self.env.max_steps
+
+    @max_steps.setter
+    def max_steps(self, value: int) -> None:
+        self.env.max_steps = value
+
+    @property
+    def dt(self) -> float:
+        """Control period, s."""
+        return self.env.dt
+
+    def render(self) -> np.ndarray | None:
+        return self.env.render()
+
+    def close(self) -> None:
+        self.env.close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"kwargs": self._init_kwargs, "env": self.env, "np_random": self._np_random}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(**state["kwargs"])  # type: ignore[misc]
+        self.env.close()
+        self.env = state["env"]
+        self._np_random = state["np_random"]
+
+
+def register_goal_envs() -> None:
+    """Register the goal variant of every registered task (``snac_gym/UR10ReachGoal-v0``, ...; idempotent)."""
+    from gymnasium.envs.registration import WrapperSpec
+
+    from snac_gym.tasks import TASKS
+
+    hook = WrapperSpec(name="EpisodeLength", entry_point="snac_gym.envs.core:apply_episode_length", kwargs={})
+    for task in TASKS.values():
+        env_id = goal_env_id(task)
+        if env_id not in gym.registry:
+            gym.register(
+                id=env_id, entry_point="snac_gym.envs.goal:GoalTaskEnv", kwargs={"task": task.name},
+                max_episode_steps=task.episode_steps, additional_wrappers=(hook,),
+            )

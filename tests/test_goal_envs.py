@@ -1,0 +1,104 @@
+"""The goal-conditioned variants (snac_gym/envs/goal.py): Gymnasium-Robotics conventions and HER."""
+
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import snac_gym  # noqa: F401  (registers the ids)
+from snac_gym.envs.goal import goal_env_id
+from snac_gym.tasks import TASKS
+
+GOAL_IDS = [goal_env_id(task) for task in TASKS.values()]
+
+
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_goal_envs_pass_the_checkers_with_default_arguments(env_id):
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make(env_id)
+    check_env(env.unwrapped)  # default arguments, headless: "human" must not fail in a constructor
+    assert env.spec.max_episode_steps == TASKS[env.unwrapped.task.name].episode_steps
+    env.close()
+    sb3_check_env(gym.make(env_id, backend="kinematic", action_type="normalized").unwrapped, warn=False)
+
+
+@pytest.mark.parametrize("reward_type", ["sparse", "dense"])
+def test_step_reward_is_compute_reward_and_it_is_vectorised(reward_type):
+    env = gym.make("snac_gym/UR10EllipseTrackGoal-v0", backend="kinematic", reward_type=reward_type)
+    obs, _ = env.reset(seed=1)
+    base = env.unwrapped
+    achieved, desired, rewards, infos = [], [], [], []
+    for _ in range(20):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        achieved.append(obs["achieved_goal"]), desired.append(obs["desired_goal"]), rewards.append(reward)
+        infos.append(info)
+        # achieved_goal is f(θ) and desired_goal x_d(t): their difference is the env's error e
+        np.testing.assert_allclose(obs["achieved_goal"] - obs["desired_goal"], info["error"], atol=1e-6)
+    batch = base.compute_reward(np.array(achieved), np.array(desired), infos)
+    np.testing.assert_array_equal(batch, np.array(rewards, dtype=np.float32))
+    distance = np.linalg.norm(np.array(achieved) - np.array(desired), axis=1)
+    expected = -(distance > base.success_tolerance).astype(float) if reward_type == "sparse" else -distance
+    np.testing.assert_allclose(batch, expected, rtol=1e-6)
+    # A relabelled goal equal to what was achieved is a success: reward 0 (sparse), 0 m (dense).
+    assert (base.compute_reward(np.array(achieved), np.array(achieved), infos) == 0).all()
+    assert not base.compute_truncated(np.array(achieved), np.array(desired), infos).any()
+
+
+def test_the_observation_holds_nothing_that_depends_on_the_goal():
+    env = gym.make("snac_gym/UR10ReachGoal-v0", backend="kinematic")
+    q0 = [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62]
+    first, _ = env.reset(seed=0, options={"q0": q0, "target": [-0.6, 0.3, 0.4]})
+    second, _ = env.reset(seed=0, options={"q0": q0, "target": [-0.7, 0.0, 0.5]})
+    np.testing.assert_array_equal(first["observation"], second["observation"])
+    np.testing.assert_array_equal(first["achieved_goal"], second["achieved_goal"])
+    assert not np.array_equal(first["desired_goal"], second["desired_goal"])
+
+
+def test_terminate_on_success_reaches_and_ends_the_episode():
+    env = gym.make("snac_gym/UR10ReachGoal-v0", backend="kinematic", terminate_on_success=True,
+                   success_tolerance=0.05)
+    obs, _ = env.reset(seed=0, options={"q0": [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62], "target": [-0.6, 0.5, 0.4]})
+    base = env.unwrapped
+    for step in range(500):  # resolved rate towards the goal
+        q = obs["observation"][:6].astype(float)
+        error = obs["achieved_goal"] - obs["desired_goal"]
+        command = -2.0 * np.linalg.pinv(base.env.kinematics.jacobian(q)) @ error
+        obs, reward, terminated, truncated, info = env.step(command)
+        if terminated:
+            break
+    assert terminated and info["is_success"] and reward == 0.0 and step < 499
+    with pytest.raises(ValueError, match="sets \\['observation_dtype'\\] itself"):
+        gym.make("snac_gym/UR10ReachGoal-v0", observation_dtype=np.float64)
+    with pytest.raises(ValueError, match="reward_type must be one of"):
+        gym.make("snac_gym/UR10ReachGoal-v0", reward_type="shaped")
+
+
+def test_goal_env_pickles_mid_episode():
+    env = gym.make("snac_gym/UR10EllipseTrackGoal-v0")
+    env.reset(seed=3)
+    env.step(env.action_space.sample() * 0)
+    clone = pickle.loads(pickle.dumps(env.unwrapped))
+    action = np.full(6, 0.1)
+    a = env.unwrapped.step(action)[0]
+    b = clone.step(action)[0]
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key])
+    env.close(), clone.close()
+
+
+def test_sac_with_her_trains_on_the_goal_env():
+    from stable_baselines3 import SAC, HerReplayBuffer
+
+    env = gym.make("snac_gym/UR10ReachGoal-v0", backend="kinematic", action_type="normalized", max_steps=50)
+    model = SAC(
+        "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
+        replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
+        learning_starts=100, batch_size=32, policy_kwargs={"net_arch": [32, 32]}, seed=0, device="cpu",
+    )
+    model.learn(300)
+    assert model.replay_buffer.size() * model.replay_buffer.n_envs >= 300
+    action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
+    assert env.action_space.contains(action)
