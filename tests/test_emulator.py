@@ -354,15 +354,14 @@ def test_snac_gym_real_against_the_emulator_reaches_within_1mm_with_the_usual_ou
 
 
 def test_emulate_ur_command_serves_on_free_ports_and_refuses_bad_flags():
-    import subprocess
-    import sys
+    from typer.testing import CliRunner
 
-    command = [sys.executable, "-m", "snac_gym.cli", "emulate-ur", "--port-base", "0", "--duration", "0.5"]
-    done = subprocess.run(
-        command + ["--protective-stop-at", "1", "--latency-spike", "2,0.1"], capture_output=True, text=True, timeout=60
-    )
-    assert done.returncode == 0, done.stderr
-    assert "emulated UR controller (cb, 125 Hz) on 127.0.0.1: dashboard" in done.stdout
+    from snac_gym.cli import app
+
+    command = ["emulate-ur", "--port-base", "0", "--duration", "0.3"]
+    outcome = CliRunner().invoke(app, command + ["--protective-stop-at", "1", "--latency-spike", "2,0.1"])
+    assert outcome.exit_code == 0, outcome.output
+    assert "emulated UR controller (cb, 125 Hz) on 127.0.0.1: dashboard" in outcome.output
     for flags, message in [
         (["--tcp-offset", "0.1,0.2"], "--tcp-offset needs 3 or 6 numbers"),
         (["--latency-spike", "1"], "--latency-spike (AT,SECONDS) needs 2 numbers"),
@@ -370,5 +369,5 @@ def test_emulate_ur_command_serves_on_free_ports_and_refuses_bad_flags():
         (["--series", "x"], "series must be one of ['cb', 'e']"),
         (["--port-base", "80"], "port_base must be 0"),
     ]:
-        done = subprocess.run(command + flags, capture_output=True, text=True, timeout=60)
-        assert done.returncode == 2 and message in done.stderr, (flags, done.stderr)
+        outcome = CliRunner().invoke(app, command + flags)
+        assert outcome.exit_code == 2 and message in outcome.output, (flags, outcome.output)
