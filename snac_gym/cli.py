@@ -84,6 +84,7 @@ def demo(
     duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),
+    robot: str = typer.Option("ur10", "--robot", help="A registered robot: ur3, ur5, ur10, panda, xarm7 (docs/robots.md)."),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
     from snac_gym.demo import run_demo
@@ -93,7 +94,7 @@ def demo(
         raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
     try:
         result = run_demo(task=task, controller=controller, out_dir=out, seed=seed, steps=steps, duration=duration,
-                          csv=csv, plots=plots)
+                          csv=csv, plots=plots, robot=robot)
     except ValueError as exc:  # unknown controller and other bad input: a clean message, not a traceback
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from exc
@@ -114,6 +115,7 @@ def real(
     seed: int = typer.Option(0, "--seed", help="Seed of the policy reset."),
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control periods (default: 15 s reach, 30 s track)."),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
+    max_tcp_mismatch: float = typer.Option(0.005, "--max-tcp-mismatch", help="Largest distance (m) between the controller's TCP position and the model's f(q), in (0, 1]."),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --backend sim."""
     from snac_gym.real import ConnectionFailure, SafetyLimits
@@ -123,7 +125,7 @@ def real(
     try:
         result = run_real_episode(
             task=task, controller=controller, out_dir=out, backend=backend, host=host, series=series, dry_run=dry_run,
-            seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration),
+            seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
             csv=csv, echo=typer.echo if dry_run else None,
         )
     except ConnectionFailure as exc:  # one line, no traceback: the arm was stopped on the way out
@@ -216,7 +218,7 @@ def evaluate(
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run in OUT."),
     chunk_size: Optional[int] = typer.Option(None, "--chunk-size", min=1, help="Samples per job of a full pass (default 500; results do not depend on it)."),
     cuboid: Optional[str] = typer.Option(None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."),
-    robot: str = typer.Option("ur10", "--robot", help="ur3, ur5 or ur10."),
+    robot: str = typer.Option("ur10", "--robot", help="A registered robot: ur3, ur5, ur10, panda, xarm7 (docs/robots.md)."),
     param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
     batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress on stderr: a bar on a terminal, else a line every 10 % or 10 s."),
@@ -302,8 +304,8 @@ def train_ppo_command(
     """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""
     _check_task(task)
     try:
-        from snac_gym.progress import wants_lines
         from snac_gym.ppo.train import train_ppo
+        from snac_gym.progress import wants_lines
 
         lines = (lambda text: typer.echo(text, err=True)) if progress and wants_lines() else None
         result = train_ppo(task=task, out=out, timesteps=timesteps, seed=seed, config_path=config, resume=resume,
