@@ -107,6 +107,7 @@ def run_demo(
     csv: bool = False,
     plots: bool = True,
     policy_kwargs: dict[str, Any] | None = None,
+    robot: str = "ur10",
 ) -> DemoResult:
     """Run the paper's ``task`` demo with ``controller`` and write its figures and log.
 
@@ -120,6 +121,8 @@ def run_demo(
         csv: Also write the log as CSV (with a JSON sidecar for its metadata).
         plots: Write the PNG panels.
         policy_kwargs: Constructor arguments of the policy.
+        robot: A registered robot; one that cannot reach the paper's θ₀ and references (the
+            7-DOF arms) runs its own start pose and reference (``Robot.demo_options``).
 
     Returns:
         The :class:`DemoResult`. Files in ``out_dir``, prefixed ``<task>_<controller>_``:
@@ -133,12 +136,12 @@ def run_demo(
     from snac_gym.policies import make_policy
 
     spec = get_task(task)
-    options = spec.demo_options()
+    options = spec.demo_options(robot)
     if steps is not None and duration is not None:
         raise ValueError("give steps or duration, not both")
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DEMO_DURATION_S):
         raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
-    env = gym.make(spec.env_id)
+    env = gym.make(spec.env_id, robot=robot)
     dt = env.unwrapped.dt
     if duration is not None:
         steps = round(duration / dt)
@@ -152,7 +155,7 @@ def run_demo(
         )
     if steps > env.unwrapped.max_steps:
         env.close()
-        env = gym.make(spec.env_id, max_steps=steps)
+        env = gym.make(spec.env_id, robot=robot, max_steps=steps)
     try:
         policy = make_policy(controller, env, **(policy_kwargs or {}))
         log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)

@@ -104,7 +104,7 @@ class Kinematics:
         self.urdf_path = Path(urdf_path) if urdf_path is not None else robot_urdf_path(robot)
         if not self.urdf_path.is_file():
             raise ValueError(f"URDF file not found: {self.urdf_path}")
-        self.model = pin.buildModelFromUrdf(str(self.urdf_path))
+        self.model = _locked(pin.buildModelFromUrdf(str(self.urdf_path)), spec.locked_joints if spec else ())
         if self.model.nq != self.model.nv:
             raise ValueError(
                 f"{self.urdf_path.name}: only revolute/prismatic joints are supported (nq={self.model.nq}, nv={self.model.nv})"
@@ -280,6 +280,17 @@ class Kinematics:
             q = np.clip(q + step, self.lower_limits, self.upper_limits)
         err = target - self.forward(q)
         return q, bool(err @ err <= tol * tol)
+
+
+def _locked(model: pin.Model, joints: tuple[str, ...]) -> pin.Model:
+    """``model`` with ``joints`` held at their neutral value clipped to their limits (e.g. a gripper's fingers)."""
+    if not joints:
+        return model
+    missing = [name for name in joints if not model.existJointName(name)]
+    if missing:
+        raise ValueError(f"locked joints {missing} are not in the URDF; joints: {list(model.names[1:])}")
+    reference = np.clip(pin.neutral(model), model.lowerPositionLimit, model.upperPositionLimit)
+    return pin.buildReducedModel(model, [model.getJointId(name) for name in joints], reference)
 
 
 #: Unit axis of Pinocchio's axis-aligned revolute (R*) and prismatic (P*) joint models.

@@ -9,7 +9,9 @@ the robot through :class:`~snac_gym.kinematics.Kinematics` built from this entry
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 from snac_gym.references import PAPER_Q0
 
@@ -28,6 +30,11 @@ class Robot:
         cuboid_low, cuboid_high: Corners of the sample cuboid (m, base frame); ``None``: the
             UR10 cuboid scaled by the arm's reach (:meth:`~snac_gym.sampling.SampleSpace.for_robot`).
         description: Its name in documentation.
+        locked_joints: URDF joints held at their neutral value (clipped to their limits) and left
+            out of the kinematics, e.g. the Panda's two finger joints: the controlled chain is the arm.
+        demo_options: Reset-option values of ``snac-gym demo --robot`` by task name (``"q0"`` and the
+            task's option key, e.g. ``{"q0": [...], "reach": {"target": [...]}}``); ``None``: the
+            paper's θ₀ and references, which only a UR arm reaches.
     """
 
     name: str
@@ -38,6 +45,8 @@ class Robot:
     cuboid_low: tuple[float, float, float] | None = None
     cuboid_high: tuple[float, float, float] | None = None
     description: str = ""
+    locked_joints: tuple[str, ...] = ()
+    demo_options: Mapping[str, Any] | None = field(default=None, hash=False)
 
 
 #: Registered robots by name.
@@ -81,3 +90,46 @@ for _size in ("3", "5", "10"):
             description=f"Universal Robots UR{_size}",
         )
     )
+
+
+# The 7-DOF arms (docs/robots.md). Positions are of the tool centre point in the arm's base link;
+# with 7 joints and a 3-D task the arm keeps a 4-D self-motion, so the seed pose and the cuboid
+# are chosen where the samplers' IK stays on one elbow-up, wrist-down branch inside the joint
+# limits. Each cuboid's corners are reachable with margin (tests/test_panda.py).
+register_robot(
+    Robot(
+        name="panda",
+        urdf="panda_description/urdf/panda.urdf",
+        ee_frame="panda_hand_tcp",
+        base_frame="panda_link0",
+        # franka_ros' "ready" pose: elbow up, the hand pointing down, 0.31 m in front of the base.
+        nominal_q=(0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785),
+        cuboid_low=(0.30, -0.30, 0.20),
+        cuboid_high=(0.60, 0.30, 0.60),
+        description="Franka Emika Panda",
+        locked_joints=("panda_finger_joint1", "panda_finger_joint2"),
+        demo_options={
+            "q0": [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785],
+            "reach": [0.45, 0.2, 0.3],
+            "track": {"centre": [0.45, 0.0, 0.4], "radius": 0.1},
+        },
+    )
+)
+register_robot(
+    Robot(
+        name="xarm7",
+        urdf="xarm_description/urdf/xarm7.urdf",
+        ee_frame="link_eef",
+        base_frame="link_base",
+        # Elbow up, the flange pointing down, 0.41 m in front of the base.
+        nominal_q=(0.0, -0.2, 0.0, 0.9, 0.0, 1.1, 0.0),
+        cuboid_low=(0.25, -0.30, 0.15),
+        cuboid_high=(0.55, 0.30, 0.50),
+        description="UFACTORY xArm7",
+        demo_options={
+            "q0": [0.0, -0.2, 0.0, 0.9, 0.0, 1.1, 0.0],
+            "reach": [0.45, 0.2, 0.25],
+            "track": {"centre": [0.4, 0.0, 0.35], "radius": 0.1},
+        },
+    )
+)

@@ -14,6 +14,7 @@ import numpy as np
 
 from snac_gym.cost import step_costs, weight_matrix
 from snac_gym.envs.arms import ARM_BACKENDS, Arm, make_arm
+from snac_gym.envs.scene import Scene, default_render_every, scene_of
 from snac_gym.envs.sim import check_image_size
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
@@ -102,7 +103,7 @@ _ENV_DOC = """
 
     | argument               | default      | meaning                                            |
     |------------------------|--------------|----------------------------------------------------|
-    | ``robot``              | ``"ur10"``   | ``ur3``, ``ur5`` or ``ur10`` from example-robot-data  |
+    | ``robot``              | ``"ur10"``   | a registered robot: UR3/5/10, panda, xarm7            |
     | ``dt``                 | ``1/125``    | control period, s (``env.unwrapped.dt``), in (0, 1] |
     | ``n_substeps``         | ``3``        | physics steps per control period (see README)      |
     | ``max_steps``          | ``None``     | episode length in control steps (else the          |
@@ -119,6 +120,8 @@ _ENV_DOC = """
     |                        |              | without a display it warns on the first frame and  |
     |                        |              | shows nothing)                                     |
     | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels  |
+    | ``render_every``       | 25 images/s  | control steps between two new images (5 at 125 Hz);|
+    |                        |              | ``render_fps`` is 1/dt, so videos play in real time |
     | ``backend``            | ``"pybullet"`` | ``"pybullet"`` (physics, velocity motors) or      |
     |                        |              | ``"kinematic"``: θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held |
     |                        |              | command (the evaluator's engine; no rendering)     |
@@ -130,6 +133,9 @@ _ENV_DOC = """
       ``observation_dtype``, ``action_type="normalized"`` and ``reward_type="shaped"`` added;
       ``render_mode="human"`` without a display no longer fails in the constructor.
     * v0 (issue 13, same numbers by default): ``backend="kinematic"`` added.
+    * v0 (issue 14, same numbers): frames show a floor, a coloured arm, the target and the
+      ellipse path, framed to hold the arm and the sample cuboid; ``render_fps`` = 1/dt with
+      ``render_every``, so a recorded video plays in real time.
 """
 
 #: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
@@ -307,8 +313,9 @@ class URTaskEnv(gym.Env):
         observation_dtype: Any = np.float64,
         finite_observation_bounds: bool = False,
         backend: str = "pybullet",
+        render_every: int | None = None,
     ) -> None:
-        self._init_kwargs = dict(backend=backend,
+        self._init_kwargs = dict(backend=backend, render_every=render_every,
             robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
             success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
             sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
@@ -354,8 +361,15 @@ class URTaskEnv(gym.Env):
         self.dt = self.arm.dt
         #: The PyBullet world (renders; ``None`` for the kinematic arm).
         self.sim = getattr(self.arm, "sim", None)
-        self._marker: int | None = None
         self._warned_headless = False
+        # A recorded video plays in real time: one frame per control step, a new image every render_every.
+        self.metadata = {**type(self).metadata, "render_fps": round(1.0 / self.dt)}
+        self.render_every = default_render_every(self.dt) if render_every is None else int(render_every)
+        if self.render_every < 1:
+            raise ValueError(f"render_every must be a positive number of control steps, got {render_every!r}")
+        self._scene: Scene | None = None
+        self._frame: tuple[int, np.ndarray] | None = None  # (step, image) of the last rendered image
+        self._shown_reference: Reference | None = None
 
         self.velocity_limits = self.kinematics.velocity_limits.copy()
         self.obs_layout = ObservationLayout(m, n)
@@ -487,12 +501,17 @@ class URTaskEnv(gym.Env):
                 )
                 self._warned_headless = True
             return None
-        if self._marker is None:
-            self._marker = self.sim.add_marker()
-        self.sim.move_marker(self._marker, self.kinematics.base_to_world(self.reference.position(self.time)))
-        if self.render_mode == "rgb_array":
-            return self.sim.render(self.render_width, self.render_height, target=np.array([0.0, 0.0, 0.5]))
-        return None
+        if self._scene is None:
+            self._scene = scene_of(self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height)
+        if self._shown_reference is not self.reference:
+            self._scene.show_reference(self.reference)
+            self._shown_reference, self._frame = self.reference, None
+        if self.render_mode == "human":
+            self._scene.image(self.reference.position(self.time))  # moves the target in the GUI too
+            return None
+        if self._frame is None or self.steps < self._frame[0] or self.steps - self._frame[0] >= self.render_every:
+            self._frame = (self.steps, self._scene.image(self.reference.position(self.time)))
+        return self._frame[1].copy()
 
     def close(self) -> None:
         if getattr(self, "arm", None) is not None:

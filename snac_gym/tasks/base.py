@@ -17,6 +17,7 @@ import numpy as np
 
 from snac_gym.kinematics import Kinematics
 from snac_gym.references import PAPER_Q0, Reference
+from snac_gym.robots import get_robot
 from snac_gym.sampling import SampleSpace
 
 
@@ -100,9 +101,22 @@ class Task:
         """Env ``reset`` options that pin the start pose and the reference."""
         return {"q0": [float(v) for v in q0], self.option_key: self.option_value(reference)}
 
-    def demo_options(self) -> dict[str, Any]:
-        """Reset options of the paper's demonstration: θ₀ of Section V and the paper's reference."""
-        return self.reset_options(PAPER_Q0, self.paper())
+    def demo_options(self, robot: str | None = None) -> dict[str, Any]:
+        """Reset options of the demonstration on ``robot``.
+
+        The paper's θ₀ of Section V and the paper's reference (the UR arms, ``robot=None``), or the
+        start pose and reference of the robot's registered ``demo_options`` (:mod:`snac_gym.robots`),
+        for an arm that cannot reach the paper's numbers.
+
+        Raises:
+            ValueError: If the robot's demo names no reference for this task.
+        """
+        own = None if robot is None else get_robot(robot).demo_options
+        if own is None:
+            return self.reset_options(PAPER_Q0, self.paper())
+        if self.name not in own:
+            raise ValueError(f"robot {robot!r} has no {self.name} demo; it has {sorted(k for k in own if k != 'q0')}")
+        return {"q0": [float(v) for v in own["q0"]], self.option_key: own[self.name]}
 
     def horizon_steps(self, dt: float) -> int:
         """Control steps of the default horizon at period ``dt``."""
