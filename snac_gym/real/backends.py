@@ -92,9 +92,13 @@ def probe_port(host: str, port: int, timeout: float) -> None:
         with socket.create_connection((host, port), timeout=timeout):
             return
     except socket.timeout as exc:
-        raise ConnectionFailure(f"no answer from {host}:{port} within {timeout:g} s (is the arm on and the IP right?)") from exc
+        raise ConnectionFailure(
+            f"no answer from {host}:{port} within {timeout:g} s (is the arm on and the IP right?)"
+        ) from exc
     except ConnectionRefusedError as exc:
-        raise ConnectionFailure(f"connection to {host}:{port} refused (is the UR controller running at {host}?)") from exc
+        raise ConnectionFailure(
+            f"connection to {host}:{port} refused (is the UR controller running at {host}?)"
+        ) from exc
     except OSError as exc:
         raise ConnectionFailure(f"cannot reach {host}:{port}: {exc.strerror or exc}") from exc
 
@@ -230,7 +234,9 @@ class URRTDEBackend:
         deadline = time.perf_counter() + self.rest_timeout
         while not self._control.isProgramRunning():
             if time.perf_counter() > deadline:
-                raise ConnectionFailure(f"the control script did not start on {self.host} (is the arm in remote control?)")
+                raise ConnectionFailure(
+                    f"the control script did not start on {self.host} (is the arm in remote control?)"
+                )
             time.sleep(self.dt)
 
     def start_period(self) -> float:
@@ -357,7 +363,9 @@ class SimulatedBackend:
         self.sim = PyBulletSim(self.dt, n_substeps)
         self.arm = SimulatedArm(self.sim, self.kinematics)
         self._initial_state = self.sim.save_state()
-        self.arm.set_joint_positions(nominal_configuration(self.kinematics) if home is None else np.asarray(home, float))
+        self.arm.set_joint_positions(
+            nominal_configuration(self.kinematics) if home is None else np.asarray(home, float)
+        )
         self._fault = NORMAL
         self._periods = 0
         self.commands_sent = 0

@@ -153,7 +153,9 @@ class RealUREnv(gym.Env):
             self.backend.stop()  # the previous episode may have left the arm moving
             state = self.backend.safety_state()
             if state != NORMAL:
-                raise RuntimeError(f"the controller reports {state}: clear it on the pendant before starting an episode")
+                raise RuntimeError(
+                    f"the controller reports {state}: clear it on the pendant before starting an episode"
+                )
             reference = resolve_reference(self.task, self.kinematics, self.np_random, self.sample_space, options)
             q0 = None if options is None or options.get("q0") is None else validate_q0(self.kinematics, options["q0"])
             if q0 is not None:
@@ -210,7 +212,9 @@ class RealUREnv(gym.Env):
             return self._step(validate_action(action, self.velocity_limits))
         except BaseException as exc:  # a bad action, Ctrl-C, a lost connection, a bug: stop first, then report
             if not self._episode_over:
-                self._halt(f"{type(exc).__name__} during step: {str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": "))
+                self._halt(
+                    f"{type(exc).__name__} during step: {str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": ")
+                )
             raise
 
     def _step(self, u: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -249,15 +253,27 @@ class RealUREnv(gym.Env):
         return self._finish(cost_error, cost_effort, cost_smoothness, command, safety=reason, safety_state=state)
 
     def _finish(
-        self, cost_error: float, cost_effort: float, cost_smoothness: float, command: np.ndarray,
-        safety: str | None, safety_state: str = NORMAL,
+        self,
+        cost_error: float,
+        cost_effort: float,
+        cost_smoothness: float,
+        command: np.ndarray,
+        safety: str | None,
+        safety_state: str = NORMAL,
     ) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         error = self._obs[self.obs_layout.slices["e"]]
         success = bool(error @ error <= self.success_tolerance**2)
         info = {
-            "error": error.copy(), "error_norm": math.sqrt(error @ error), "cost_error": cost_error,
-            "cost_effort": cost_effort, "cost_smoothness": cost_smoothness, "command": command.copy(),
-            "t": self.time, "is_success": success, "safety": safety, "safety_state": safety_state,
+            "error": error.copy(),
+            "error_norm": math.sqrt(error @ error),
+            "cost_error": cost_error,
+            "cost_effort": cost_effort,
+            "cost_smoothness": cost_smoothness,
+            "command": command.copy(),
+            "t": self.time,
+            "is_success": success,
+            "safety": safety,
+            "safety_state": safety_state,
             "speed_scaling": self.speed_scalings[-1],
         }
         terminated = safety is not None

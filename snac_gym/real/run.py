@@ -92,7 +92,12 @@ class RealRunResult:
 
 
 def make_backend(
-    backend: str, host: str | None, series: str, dry_run: bool, robot: str = "ur10", echo: Callable[[str], None] | None = None,
+    backend: str,
+    host: str | None,
+    series: str,
+    dry_run: bool,
+    robot: str = "ur10",
+    echo: Callable[[str], None] | None = None,
     acceleration: float = 4.0,
 ) -> Any:
     """Build the ``rtde`` or ``sim`` backend (wrapped for a dry run).
@@ -191,7 +196,9 @@ def run_real_episode(
         log, task, controller, seed, DEMO_TOLERANCES[task], out_dir, csv=csv, plots=plots, policy_kwargs=policy_kwargs
     )
     result = RealRunResult(
-        demo=demo, timing=env.timing(), stop_reason=env.stop_reason,
+        demo=demo,
+        timing=env.timing(),
+        stop_reason=env.stop_reason,
         sent_commands=len(arm.sent) if isinstance(arm, DryRunBackend) else None,
     )
     if out_dir is not None:
@@ -207,10 +214,19 @@ def _write_interrupted(env: RealUREnv, log: pd.DataFrame, out: Path, prefix: str
     log.attrs["stop_reason"] = env.stop_reason
     write_log(log, out / f"{prefix}log.parquet")
     pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3}).to_csv(out / f"{prefix}timing.csv", index_label="step")
-    (out / f"{prefix}real.json").write_text(json.dumps({
-        "interrupted": type(exc).__name__, "signal": getattr(exc, "signal_name", None), "stop_reason": env.stop_reason,
-        "steps_logged": len(log), "timing": env.timing(), "dt_ms": env.dt * 1e3,
-    }, indent=2))
+    (out / f"{prefix}real.json").write_text(
+        json.dumps(
+            {
+                "interrupted": type(exc).__name__,
+                "signal": getattr(exc, "signal_name", None),
+                "stop_reason": env.stop_reason,
+                "steps_logged": len(log),
+                "timing": env.timing(),
+                "dt_ms": env.dt * 1e3,
+            },
+            indent=2,
+        )
+    )
 
 
 def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult, plots: bool) -> list[Path]:
@@ -218,11 +234,22 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
     timing_csv = out / f"{prefix}timing.csv"
     periods.to_csv(timing_csv, index_label="step")
     summary = out / f"{prefix}real.json"
-    summary.write_text(json.dumps({"timing": result.timing, "stop_reason": result.stop_reason,
-                                   "dt_ms": env.dt * 1e3, "sent_commands": result.sent_commands}, indent=2))
+    summary.write_text(
+        json.dumps(
+            {
+                "timing": result.timing,
+                "stop_reason": result.stop_reason,
+                "dt_ms": env.dt * 1e3,
+                "sent_commands": result.sent_commands,
+            },
+            indent=2,
+        )
+    )
     files = [timing_csv, summary]
     if plots and len(periods):
         from snac_gym.plots import plot_loop_timing, save_figure
 
-        files.append(save_figure(plot_loop_timing(periods["period_ms"].to_numpy(), env.dt), out / f"{prefix}timing.png"))
+        files.append(
+            save_figure(plot_loop_timing(periods["period_ms"].to_numpy(), env.dt), out / f"{prefix}timing.png")
+        )
     return files
