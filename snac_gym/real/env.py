@@ -229,7 +229,7 @@ class RealUREnv(gym.Env):
         stalled = self.safety.stall(time.perf_counter() - self._period_wall) if self.steps > 0 else None
         if stalled is not None:
             self._halt(f"{stalled}: command not sent")
-            return self._finish(cost_error, cost_effort, cost_smoothness, command, safety=self.stop_reason)
+            return self._finish(cost_error, 0.0, 0.0, np.zeros_like(command), safety=self.stop_reason)
         self.backend.command(command)
         self.backend.end_period(self._period_start)
         previous_start = self._period_wall

@@ -358,7 +358,7 @@ class UREmulator:
             self.event(f"program {name} running (register offset {self.script.offset})")
 
     def secondary_command(self, line: str) -> None:
-        """A one-line script command (not a program): recorded; ``stop program`` style lines stop it."""
+        """A one-line script command (not a program): recorded as an event, not run."""
         self.event(f"script line ignored by the emulator: {line[:80]}")
 
     def _end_program(self, reason: str) -> None:
