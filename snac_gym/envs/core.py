@@ -262,6 +262,29 @@ def validate_q0(kinematics: Kinematics, value: Any) -> np.ndarray:
     return q0
 
 
+def draw_episode(
+    task: Task,
+    kinematics: Kinematics,
+    rng: np.random.Generator,
+    space: SampleSpace,
+    options: Mapping[str, Any] | None,
+) -> tuple[np.ndarray, Reference]:
+    """The start pose and the reference of one episode, as ``reset`` draws them.
+
+    The reference is drawn (or read from ``options``) first, then the seed pose, both from
+    ``rng``: the single env and the batched vector env (:mod:`snac_gym.envs.vector`) call this
+    with each episode's generator, so the same seed gives the same episode in both.
+
+    Raises:
+        ValueError: On bad options (see :func:`resolve_reference` and :func:`validate_q0`).
+    """
+    reference = resolve_reference(task, kinematics, rng, space, options)
+    q0 = None if options is None else options.get("q0")
+    if q0 is None:
+        return sample_seed_pose(kinematics, rng, space), reference
+    return validate_q0(kinematics, q0), reference
+
+
 def _check_choices(
     reward_type: str, action_type: str, observation_dtype: Any, render_mode: str | None, metadata: Mapping[str, Any]
 ) -> np.dtype:
@@ -423,11 +446,7 @@ class URTaskEnv(gym.Env):
         return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
 
     def _parse_options(self, options: Mapping[str, Any] | None) -> tuple[np.ndarray, Reference]:
-        reference = resolve_reference(self.task, self.kinematics, self.np_random, self.sample_space, options)
-        q0 = None if options is None else options.get("q0")
-        if q0 is None:
-            return sample_seed_pose(self.kinematics, self.np_random, self.sample_space), reference
-        return validate_q0(self.kinematics, q0), reference
+        return draw_episode(self.task, self.kinematics, self.np_random, self.sample_space, options)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None

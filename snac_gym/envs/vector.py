@@ -1,0 +1,513 @@
+"""A batched vector env: N episodes of the kinematic model stepped at once, in NumPy.
+
+``gym.make_vec("snac_gym/UR10Reach-v0", num_envs=N, vectorization_mode="vector_entry_point")``
+(and the same for every registered task) returns a :class:`URTaskVectorEnv`. It is the single
+env with ``backend="kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; the evaluator's
+engine) run N times in lockstep: the same arguments, spaces, rewards, infos and episode ends,
+but one array operation per quantity per step instead of N Python calls.
+
+Episode for episode it matches ``gym.make_vec(id, N, vectorization_mode="sync",
+backend="kinematic")``, i.e. a :class:`gymnasium.vector.SyncVectorEnv` of single kinematic envs
+(tests/test_vector_env.py): ``reset(seed=s)`` seeds sub-env i with ``s + i``, each sub-env draws
+its episodes from its own generator with the single env's code (:func:`~snac_gym.envs.core.draw_episode`),
+and autoreset follows Gymnasium's default ``AutoresetMode.NEXT_STEP``: the step after an episode
+ends returns that sub-env's reset observation and reset info, reward 0 and no termination or
+truncation, and ignores its action. Values agree to rounding (≤ 1e-12), not bit for bit: the
+single env evaluates f(θ) with Pinocchio and the reference with scalar ``math`` calls, this env
+with :class:`PositionChain` and NumPy's vectorised ``cos``/``sin``.
+
+Speed comes from keeping everything per step in arrays: forward kinematics of positions only
+(:class:`PositionChain`, no Jacobian), references as stacked ellipse parameters
+(:class:`ReferenceBatch`), costs and rewards as row sums. Resets stay per sub-env (they run the
+single env's rejection sampling and IK), once per episode.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from snac_gym.envs.core import SHAPED_REWARD, URTaskEnv, draw_episode, task_env_class
+from snac_gym.kinematics import Kinematics
+from snac_gym.references import Ellipse, FixedTarget, Reference
+from snac_gym.tasks import Task
+
+#: Unit axis index of Pinocchio's axis-aligned joint models (RX, RY, RZ, PX, PY, PZ).
+_ALIGNED = {"X": 0, "Y": 1, "Z": 2}
+
+
+class PositionChain:
+    """Batched forward kinematics of the end-effector position only, f(θ) for B configurations.
+
+    The env needs x = f(θ) each step but never J, and :class:`~snac_gym.kinematics.BatchChain`
+    builds every joint frame (3×3 rotations) to get J. This evaluates the same chain of joint
+    placements read from the Pinocchio model from the leaf inwards on one point,
+    ``v ← tᵢ + Mᵢ · Rᵢ(θᵢ) · v`` (starting from the end-effector offset), with the batch as
+    rows of length B (structure of arrays), about 4x fewer operations. Matches Pinocchio to
+    1e-15 m (tests/test_vector_env.py).
+
+    Args:
+        steps: Leaf-to-root joints, each ``(rotation M, translation t, axis, revolute, q column)``.
+        offset: The end-effector frame's position in its parent joint's frame.
+    """
+
+    def __init__(self, steps: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool, int]], offset: np.ndarray) -> None:
+        self._steps = steps
+        self._offset = offset
+        self._aligned = [_aligned_axis(axis) for _, _, axis, _, _ in steps]
+        self._identity = [bool(np.array_equal(rotation, np.eye(3))) for rotation, _, _, _, _ in steps]
+
+    @classmethod
+    def from_kinematics(cls, kinematics: Kinematics) -> PositionChain:
+        """The chain from the model's root to ``kinematics.ee_frame``.
+
+        Raises:
+            ValueError: If a joint on the way is not a 1-DoF revolute or prismatic joint.
+        """
+        model = kinematics.model
+        frame = model.frames[model.getFrameId(kinematics.ee_frame)]
+        steps = []
+        joint = int(frame.parentJoint)
+        while joint > 0:
+            joint_model = model.joints[joint]
+            kind = joint_model.shortname().removeprefix("JointModel")
+            if kind[:2] in ("RX", "RY", "RZ", "PX", "PY", "PZ") and len(kind) == 2:
+                axis = np.eye(3)[_ALIGNED[kind[1]]]
+            elif kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
+                axis = np.array(joint_model.extract().axis, dtype=float).reshape(3)
+            else:
+                raise ValueError(f"joint {model.names[joint]!r} of type {kind} is not a 1-DoF revolute or prismatic joint")
+            placement = model.jointPlacements[joint]
+            steps.append((placement.rotation.copy(), placement.translation.copy(), axis, kind[0] == "R", int(joint_model.idx_q)))
+            joint = int(model.parents[joint])
+        return cls(steps, frame.placement.translation.copy())
+
+    def forward(self, qs: np.ndarray) -> np.ndarray:
+        """End-effector positions, ``(B, m) -> (B, 3)``, in the frame of :meth:`Kinematics.forward`."""
+        qs = np.asarray(qs, dtype=float)
+        count = len(qs)
+        columns = qs.T  # joint-major: each joint's angles as one row
+        cosines, sines = np.cos(columns), np.sin(columns)
+        v = [np.full(count, value) for value in self._offset]
+        for index, (rotation, translation, axis, revolute, column) in enumerate(self._steps):
+            if revolute:
+                v = self._rotate(v, index, cosines[column], sines[column])
+            else:
+                v = [v[i] + axis[i] * columns[column] for i in range(3)]
+            if not self._identity[index]:
+                v = [rotation[i, 0] * v[0] + rotation[i, 1] * v[1] + rotation[i, 2] * v[2] for i in range(3)]
+            v = [v[i] + translation[i] for i in range(3)]
+        return np.stack(v, axis=1)
+
+    def _rotate(self, v: list[np.ndarray], index: int, cos: np.ndarray, sin: np.ndarray) -> list[np.ndarray]:
+        """``R(axis, θ) · v`` for joint ``index``: two components turn about an aligned axis, else Rodrigues."""
+        aligned = self._aligned[index]
+        if aligned is not None:
+            first, second = (aligned + 1) % 3, (aligned + 2) % 3
+            turned = list(v)
+            turned[first] = cos * v[first] - sin * v[second]
+            turned[second] = sin * v[first] + cos * v[second]
+            return turned
+        a = self._steps[index][2]
+        cross = [a[1] * v[2] - a[2] * v[1], a[2] * v[0] - a[0] * v[2], a[0] * v[1] - a[1] * v[0]]
+        double = [a[1] * cross[2] - a[2] * cross[1], a[2] * cross[0] - a[0] * cross[2], a[0] * cross[1] - a[1] * cross[0]]
+        return [v[i] + sin * cross[i] + (1.0 - cos) * double[i] for i in range(3)]
+
+
+def _aligned_axis(axis: np.ndarray) -> int | None:
+    """Index of ``axis`` if it is a positive coordinate axis, else ``None``."""
+    if np.count_nonzero(axis) == 1 and axis.max() == 1.0:
+        return int(np.argmax(axis))
+    return None
+
+
+class ReferenceBatch:
+    """The references of N episodes as arrays, evaluated for all at once each step.
+
+    Fixed targets are their centre with ẋ_d = 0; ellipses are stacked as centre, scaled axes,
+    ω and φ and evaluated with the formula of :meth:`Ellipse.position_and_velocity`; any other
+    reference type (a task registered later) is asked per episode.
+
+    Args:
+        count: Number of episodes N.
+        dim: Task dimension n.
+    """
+
+    def __init__(self, count: int, dim: int = 3) -> None:
+        self.centre = np.zeros((count, dim))
+        self._major = np.zeros((count, dim))
+        self._minor = np.zeros((count, dim))
+        self._speed = np.zeros(count)
+        self._phase = np.zeros(count)
+        self._ellipse = np.zeros(count, dtype=bool)
+        self._other: dict[int, Reference] = {}
+        self.references: list[Reference | None] = [None] * count
+
+    def set(self, index: int, reference: Reference) -> None:
+        """Make ``reference`` episode ``index``'s."""
+        self.references[index] = reference
+        self._other.pop(index, None)
+        self._ellipse[index] = isinstance(reference, Ellipse)
+        self.centre[index] = reference.centre
+        if isinstance(reference, Ellipse):
+            self._major[index] = reference._major
+            self._minor[index] = reference._minor
+            self._speed[index], self._phase[index] = reference.angular_speed, reference.phase
+        elif not isinstance(reference, FixedTarget):
+            self._other[index] = reference
+
+    def evaluate(self, times: np.ndarray, rows: Any = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """``(x_d, ẋ_d)`` of the episodes ``rows`` at their times ``times``, each ``(len(times), n)``."""
+        centre = self.centre[rows]
+        x_d, xdot_d = centre.copy(), np.zeros_like(centre)
+        ellipse = self._ellipse[rows]
+        if ellipse.any():
+            picked = slice(None) if ellipse.all() else np.flatnonzero(ellipse)
+            speed, phase = self._speed[rows][picked], self._phase[rows][picked]
+            major, minor = self._major[rows][picked], self._minor[rows][picked]
+            angle = speed * times[picked] + phase
+            cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
+            x_d[picked] = centre[picked] + cos * major + sin * minor
+            xdot_d[picked] = (speed[:, None] * cos) * minor - (speed[:, None] * sin) * major
+        if self._other:
+            indices = np.arange(len(self.centre))[rows]
+            for row, index in enumerate(indices):
+                if int(index) in self._other:
+                    x_d[row], xdot_d[row] = self._other[int(index)].position_and_velocity(float(times[row]))
+        return x_d, xdot_d
+
+
+def _row_quadratic(vectors: np.ndarray, matrix: np.ndarray | None) -> np.ndarray:
+    """``vᵢᵀMvᵢ`` per row (``None`` = identity), the batched :func:`snac_gym.cost.quadratic_form`."""
+    if matrix is None:
+        return np.einsum("ij,ij->i", vectors, vectors)
+    return np.einsum("ij,jk,ik->i", vectors, matrix, vectors)
+
+
+class KinematicEpisodes:
+    """The state of N kinematic episodes and their batched step; the engine of both vector envs.
+
+    Holds what the single kinematic env holds per episode (θ, θ̇, step count, last command,
+    reference, random generator) as arrays, and the single env ``template`` built from the same
+    arguments (it checked them and gives the kinematics, weights, limits and spaces).
+
+    Args:
+        template: A single env with ``backend="kinematic"``.
+        count: Number of episodes N.
+        horizon: Episode length in control steps (truncation).
+    """
+
+    def __init__(self, template: URTaskEnv, count: int, horizon: int) -> None:
+        self.template = template
+        kinematics = template.kinematics
+        self.count, self.horizon, self.dt = count, int(horizon), float(template.dt)
+        m, n = kinematics.n_joints, kinematics.task_dim
+        self.layout = template.obs_layout
+        self.chain = PositionChain.from_kinematics(kinematics)
+        self.limits = template.velocity_limits.copy()
+        self.q = np.zeros((count, m))
+        self.qdot = np.zeros((count, m))
+        self.last_command = np.zeros((count, m))
+        self.steps = np.zeros(count, dtype=np.int64)
+        self.x = np.zeros((count, n))
+        self.x_d = np.zeros((count, n))
+        self.xdot_d = np.zeros((count, n))
+        self.error = np.zeros((count, n))
+        self.references = ReferenceBatch(count, n)
+        self.generators: list[np.random.Generator | None] = [None] * count
+
+    # -- resets ----------------------------------------------------------------------------------
+    def reset(self, indices: Sequence[int], seeds: Sequence[int | None], options: Mapping[str, Any] | None) -> list[dict[str, Any]]:
+        """Start a new episode in each of ``indices`` (seeding its generator when a seed is given).
+
+        Returns:
+            The single env's reset info of each, in order.
+        """
+        template = self.template
+        q0s = []
+        for index, seed in zip(indices, seeds, strict=True):
+            if seed is not None or self.generators[index] is None:
+                self.generators[index] = seeding.np_random(seed)[0]
+            q0, reference = draw_episode(template.task, template.kinematics, self.generators[index], template.sample_space, options)
+            self.q[index] = q0
+            self.references.set(index, reference)
+            q0s.append(q0)
+        rows = np.asarray(indices, dtype=np.intp)
+        self.qdot[rows] = 0.0
+        self.last_command[rows] = 0.0
+        self.steps[rows] = 0
+        self._observe(rows)
+        return [self._reset_info(int(index), q0) for index, q0 in zip(rows, q0s, strict=True)]
+
+    def _reset_info(self, index: int, q0: np.ndarray) -> dict[str, Any]:
+        error = self.error[index].copy()
+        return {"error": error, "error_norm": float(np.linalg.norm(error)), "t": 0.0,
+                "is_success": bool(error @ error <= self.template.success_tolerance**2),
+                "reference": self.references.references[index].to_dict(), "q0": q0.copy()}
+
+    def _observe(self, rows: Any = slice(None)) -> None:
+        """Update x, x_d, ẋ_d and e of episodes ``rows`` from θ and the step count."""
+        x = self.chain.forward(self.q[rows])
+        x_d, xdot_d = self.references.evaluate(self.steps[rows] * self.dt, rows)
+        self.x[rows], self.x_d[rows], self.xdot_d[rows] = x, x_d, xdot_d
+        self.error[rows] = x - x_d  # e = x − x_d, as ObservationLayout.pack computes it
+
+    # -- the batched step -------------------------------------------------------------------------
+    def commands(self, actions: Any, ignored: np.ndarray | None = None) -> np.ndarray:
+        """The applied joint velocities of an ``(N, m)`` action batch: checked, clipped, scaled.
+
+        Args:
+            actions: The actions in the template's action space, one row per episode.
+            ignored: Rows whose action is not used (autoreset): NaN/inf there is not an error.
+
+        Raises:
+            ValueError: On a wrong shape or NaN/inf in a used row, naming the row.
+        """
+        try:
+            u = np.array(actions, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"actions must be an array of shape {(self.count, len(self.limits))}, got {actions!r}") from exc
+        if u.shape != (self.count, len(self.limits)):
+            raise ValueError(f"actions must have shape {(self.count, len(self.limits))}, got {u.shape}")
+        bad = ~np.isfinite(u).all(axis=1)
+        if bad.any() and ignored is not None:
+            bad &= ~ignored
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"action of sub-env {row} contains NaN or inf: {u[row].tolist()}")
+        if self.template.action_type == "normalized":
+            return np.minimum(np.maximum(u, -1.0), 1.0) * self.limits
+        return np.minimum(np.maximum(u, -self.limits), self.limits)
+
+    def step(self, u: np.ndarray) -> dict[str, np.ndarray]:
+        """Hold the commands ``u`` ``(N, m)`` for one period in every episode.
+
+        Returns:
+            Per-episode arrays: ``reward``, ``terminated``, ``truncated`` and the info fields
+            (``cost_error``, ``cost_effort``, ``cost_smoothness``, ``error_norm``, ``is_success``).
+        """
+        template = self.template
+        cost_error = _row_quadratic(self.error, template.Q)
+        cost_effort = _row_quadratic(u, template.R)
+        cost_smoothness = _row_quadratic((u - self.last_command) / self.dt, template.R)
+        self.q += u * self.dt
+        self.qdot = u.copy()
+        self.last_command = u
+        self.steps += 1
+        self._observe()
+        squared = np.einsum("ij,ij->i", self.error, self.error)
+        success = squared <= template.success_tolerance**2
+        error_norm = np.sqrt(squared)
+        if template.reward_type == "dense":
+            reward = -(cost_error + cost_effort)
+        elif template.reward_type == "shaped":
+            reward = _shaped_rewards(error_norm, u / self.limits)
+        else:
+            reward = np.where(success, 0.0, -1.0)
+        return {
+            "reward": reward, "terminated": success & template.terminate_on_success, "truncated": self.steps >= self.horizon,
+            "cost_error": cost_error, "cost_effort": cost_effort, "cost_smoothness": cost_smoothness,
+            "error_norm": error_norm, "is_success": success,
+        }
+
+    def observations(self, rows: Any = slice(None)) -> np.ndarray:
+        """The observations of episodes ``rows``, ``(len, d)``, in the template's observation dtype."""
+        q = self.q[rows]
+        obs = np.empty((len(q), self.layout.size), dtype=self.template.observation_dtype)
+        slices = self.layout.slices
+        for name, value in (("q", q), ("qdot", self.qdot[rows]), ("x", self.x[rows]), ("x_d", self.x_d[rows]),
+                            ("xdot_d", self.xdot_d[rows]), ("e", self.error[rows]), ("x_c", self.references.centre[rows])):
+            obs[:, slices[name]] = value
+        return obs
+
+
+def _shaped_rewards(error_norm: np.ndarray, normalized: np.ndarray) -> np.ndarray:
+    """:func:`snac_gym.envs.core.shaped_reward` per row."""
+    w = SHAPED_REWARD
+    bonus = w["precision_bonus"] * np.exp(-((error_norm / w["precision_scale"]) ** 2))
+    return -w["distance_weight"] * error_norm + bonus - w["action_penalty"] * np.einsum("ij,ij->i", normalized, normalized)
+
+
+class URTaskVectorEnv(gym.vector.VectorEnv):
+    """N episodes of a task's env on the exact kinematic model, stepped at once (see the module docs).
+
+    Build it with ``gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point",
+    **kwargs)``; ``kwargs`` are the single env's (``robot``, ``dt``, ``max_steps``,
+    ``reward_type``, ``action_type``, ``observation_dtype``, ``Q``, ``R``, ``success_tolerance``,
+    ``terminate_on_success``, ``sample_space``, ``finite_observation_bounds``, ...), checked by
+    building one single kinematic env from them. ``backend`` may only be ``"kinematic"`` and
+    ``render_mode`` only ``None``: for PyBullet physics use ``vectorization_mode="sync"``.
+
+    Episodes truncate after ``max_steps`` if given, else ``max_episode_steps`` (``make_vec``
+    passes the registered length), as the single env's ``TimeLimit`` does. Autoreset is
+    ``AutoresetMode.NEXT_STEP`` (Gymnasium's default); ``reset(options={"reset_mask": mask})``
+    resets only the masked sub-envs. ``step`` returns float64 rewards, bool flags and infos in
+    the layout :class:`~gymnasium.vector.SyncVectorEnv` gives (each key with its ``_key`` mask):
+    step infos ``error``, ``error_norm``, ``cost_error``, ``cost_effort``, ``cost_smoothness``,
+    ``command``, ``t``, ``is_success``; a sub-env's reset info (``error``, ``error_norm``, ``t``,
+    ``is_success``, ``reference``, ``q0``) in the step it is autoreset.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+    #: The task (set by :func:`task_vector_env_class`).
+    task_spec: Task
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        max_episode_steps: int | None = None,
+        backend: str = "kinematic",
+        render_mode: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if backend != "kinematic":
+            raise ValueError(
+                f"the vector env steps the kinematic model only (backend='kinematic'), got backend={backend!r}; "
+                "for PyBullet use gym.make_vec(..., vectorization_mode='sync')"
+            )
+        if render_mode is not None:
+            raise ValueError(f"the vector env has no scene to render (render_mode={render_mode!r}); use the single env")
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        template = task_env_class(self.task_spec)(backend="kinematic", **kwargs)
+        horizon = template.requested_max_steps or max_episode_steps or template.default_max_steps
+        if horizon < 1:
+            raise ValueError(f"max_episode_steps must be at least 1, got {max_episode_steps}")
+        self.num_envs = int(num_envs)
+        self.render_mode = None
+        self.single_env = template
+        self.episodes = KinematicEpisodes(template, self.num_envs, horizon)
+        self.max_episode_steps = int(horizon)
+        self.single_observation_space = template.observation_space
+        self.single_action_space = template.action_space
+        self.observation_space = batch_space(template.observation_space, self.num_envs)
+        self.action_space = batch_space(template.action_space, self.num_envs)
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)
+
+    def reset(
+        self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset every sub-env (or those of ``options["reset_mask"]``); seeds as SyncVectorEnv takes them."""
+        super().reset(seed=seed if isinstance(seed, int) else None)
+        seeds = _seed_list(seed, self.num_envs)
+        options = dict(options) if options is not None else None
+        mask = _reset_mask(options, self.num_envs)
+        indices = np.flatnonzero(mask)
+        infos = self._reset_infos(indices, [seeds[i] for i in indices], options)
+        self._autoreset[indices] = False
+        return self.episodes.observations(), infos
+
+    def _reset_infos(self, indices: np.ndarray, seeds: Sequence[int | None], options: Mapping[str, Any] | None) -> dict[str, Any]:
+        infos: dict[str, Any] = {}
+        for index, info in zip(indices, self.episodes.reset(indices, seeds, options), strict=True):
+            infos = self._add_info(infos, info, int(index))
+        return infos
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Step every sub-env; those whose episode ended in the last step are reset instead."""
+        episodes = self.episodes
+        resetting = self._autoreset
+        u = episodes.commands(actions, ignored=resetting)
+        result = episodes.step(u)
+        infos = self._step_infos(result, u)
+        reward, terminated, truncated = result["reward"], result["terminated"], result["truncated"]
+        if resetting.any():
+            indices = np.flatnonzero(resetting)
+            reward[indices], terminated[indices], truncated[indices] = 0.0, False, False
+            infos = _merge_reset_infos(infos, self._reset_infos(indices, [None] * len(indices), None), resetting)
+        self._autoreset = terminated | truncated
+        return episodes.observations(), reward, terminated, truncated, infos
+
+    def _step_infos(self, result: Mapping[str, np.ndarray], u: np.ndarray) -> dict[str, Any]:
+        episodes = self.episodes
+        values = {
+            "error": episodes.error.copy(), "error_norm": result["error_norm"], "cost_error": result["cost_error"],
+            "cost_effort": result["cost_effort"], "cost_smoothness": result["cost_smoothness"], "command": u.copy(),
+            "t": episodes.steps * episodes.dt, "is_success": result["is_success"],
+        }
+        infos: dict[str, Any] = {}
+        for key, value in values.items():
+            infos[key], infos[f"_{key}"] = value, np.ones(self.num_envs, dtype=bool)
+        return infos
+
+    def close_extras(self, **kwargs: Any) -> None:
+        self.single_env.close()
+
+
+def _seed_list(seed: int | Sequence[int | None] | None, count: int) -> list[int | None]:
+    """Per-sub-env seeds as :class:`~gymnasium.vector.SyncVectorEnv` derives them: ``seed + i``."""
+    if seed is None:
+        return [None] * count
+    if isinstance(seed, (int, np.integer)):
+        return [int(seed) + i for i in range(count)]
+    seeds = list(seed)
+    if len(seeds) != count:
+        raise ValueError(f"If seeds are passed as a list the length must match num_envs={count} but got length={len(seeds)}.")
+    return seeds
+
+
+def _reset_mask(options: dict[str, Any] | None, count: int) -> np.ndarray:
+    """``options.pop("reset_mask")`` checked as SyncVectorEnv checks it (all True without one)."""
+    if options is None or "reset_mask" not in options:
+        return np.ones(count, dtype=bool)
+    mask = options.pop("reset_mask")
+    if not isinstance(mask, np.ndarray) or mask.shape != (count,) or mask.dtype != np.bool_:
+        raise ValueError(f"options['reset_mask'] must be a bool numpy array of shape ({count},), got {mask!r}")
+    if not mask.any():
+        raise ValueError("options['reset_mask'] must contain at least one True value")
+    return mask
+
+
+def _merge_reset_infos(step: dict[str, Any], reset: dict[str, Any], resetting: np.ndarray) -> dict[str, Any]:
+    """The step infos with the autoreset sub-envs' rows replaced by their reset infos.
+
+    As in SyncVectorEnv: a key only a step gives is masked off for those rows (and dropped if
+    no row has it); a key both give takes the reset value; reset-only keys are added.
+    """
+    merged: dict[str, Any] = {}
+    for key, value in step.items():
+        if key.startswith("_"):
+            continue
+        if key in reset:
+            value[resetting] = reset[key][resetting]
+            merged[key], merged[f"_{key}"] = value, step[f"_{key}"]
+        else:
+            mask = step[f"_{key}"] & ~resetting
+            if mask.any():
+                value[resetting] = 0  # SyncVectorEnv's filler where a sub-env lacks the key
+                merged[key], merged[f"_{key}"] = value, mask
+    for key, value in reset.items():
+        if not key.startswith("_") and key not in merged:
+            merged[key], merged[f"_{key}"] = value, reset[f"_{key}"]
+    return merged
+
+
+def task_vector_env_class(task: Task) -> type[URTaskVectorEnv]:
+    """The vector env class of ``task`` (made once), ``<env_class_name without Env>VectorEnv`` in this module.
+
+    Its path is the ``vector_entry_point`` that :func:`snac_gym.envs.register_envs` registers.
+    """
+    name = task.env_class_name.removesuffix("Env") + "VectorEnv"
+    existing = globals().get(name)
+    if isinstance(existing, type) and issubclass(existing, URTaskVectorEnv) and existing.task_spec is task:
+        return existing
+    # A class of a task of the same name that was unregistered since (tests do that) is replaced.
+    replaced = isinstance(existing, type) and issubclass(existing, URTaskVectorEnv) and existing.task_spec.name == task.name
+    if existing is not None and not replaced:
+        raise ValueError(f"task {task.name!r}: vector env class name {name!r} is already taken")
+    attributes = {
+        "__doc__": f"``{task.env_id}``, N episodes at once on the kinematic model (see :class:`URTaskVectorEnv`).",
+        "__module__": __name__,
+        "__qualname__": name,
+        "task_spec": task,
+    }
+    cls = type(name, (URTaskVectorEnv,), attributes)
+    globals()[name] = cls
+    return cls
