@@ -57,6 +57,11 @@ class PyBulletArm:
         self.sim = PyBulletSim(dt, n_substeps, gui=gui)
         self.dt = self.sim.dt
         self.body = SimulatedArm(self.sim, kinematics)
+        self.save_initial_state()
+
+    def save_initial_state(self) -> None:
+        """Save the world as it is now (the arm at its load pose) as the state every reset restores;
+        called again after visual-only bodies (the rendered scene) are added."""
         self._initial_state = self.sim.save_state()
 
     def reset(self, q0: np.ndarray) -> None:

@@ -391,6 +391,10 @@ class URTaskEnv(gym.Env):
         if self.render_every < 1:
             raise ValueError(f"render_every must be a positive number of control steps, got {render_every!r}")
         self._scene: Scene | None = None
+        if render_mode is not None and not self._headless_human:
+            # Built before the first reset: PyBullet restores a saved state only into the same bodies.
+            self._scene = scene_of(self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height)
+            self.arm.save_initial_state()
         self._frame: tuple[int, np.ndarray] | None = None  # (step, image) of the last rendered image
         self._shown_reference: Reference | None = None
 
@@ -454,6 +458,7 @@ class URTaskEnv(gym.Env):
         super().reset(seed=seed)
         q0, reference = self._parse_options(options)
         self.arm.reset(q0)
+        self._shown_reference = None  # the restored state parked the path markers
         self.reference = reference
         self.steps = 0
         self._last_command = np.zeros(self.kinematics.n_joints)
@@ -520,8 +525,6 @@ class URTaskEnv(gym.Env):
                 )
                 self._warned_headless = True
             return None
-        if self._scene is None:
-            self._scene = scene_of(self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height)
         if self._shown_reference is not self.reference:
             self._scene.show_reference(self.reference)
             self._shown_reference, self._frame = self.reference, None

@@ -1,0 +1,167 @@
+"""What a rendered frame shows: a floor, a coloured arm, the reference and its path, framed by one camera.
+
+The camera is placed once per env so that the arm's base, its links at the seed pose and the
+whole sample cuboid fit in the image with a margin (``tests/test_rendering.py`` projects every
+link origin over random episodes and finds them inside). The target is a red sphere; for a
+tracking task the ellipse is drawn as a ring of small yellow spheres. PyBullet's TinyRenderer
+draws on the CPU, so a frame costs tens of milliseconds: the env renders a new image every
+``render_every`` control steps and repeats it in between, and declares ``render_fps`` = 1/Δt,
+so a recorded video plays in real time.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from snac_gym.envs.sim import p
+from snac_gym.kinematics import Kinematics
+from snac_gym.references import Reference
+from snac_gym.sampling import SampleSpace
+
+#: Vertical field of view of the camera, degrees.
+FIELD_OF_VIEW = 45.0
+#: Fraction of the image (per axis, from its centre) the framed points fill: the rest is room for
+#: the links' swing during an episode.
+FILL = 0.9
+#: Points of the drawn ellipse path.
+PATH_POINTS = 48
+#: Link colours, cycled (dark blue and orange: they stand out from the grey floor and the white sky).
+LINK_COLOURS = ((0.16, 0.25, 0.45, 1.0), (0.93, 0.55, 0.16, 1.0))
+FLOOR_COLOUR = (0.55, 0.57, 0.6, 1.0)
+TARGET_COLOUR = (0.85, 0.1, 0.1, 1.0)
+PATH_COLOUR = (0.95, 0.8, 0.1, 1.0)
+#: Where unused path markers wait (under the floor, out of view), m.
+PARKED = (0.0, 0.0, -5.0)
+
+
+def project(points: np.ndarray, view: list[float], projection: list[float], width: int, height: int) -> np.ndarray:
+    """Pixel coordinates ``(u, v)`` of world points through PyBullet's column-major view and projection matrices.
+
+    ``u`` runs right from the image's left edge and ``v`` down from its top edge; a point is
+    in the image when 0 ≤ u < width and 0 ≤ v < height (and in front of the camera: the
+    returned depth column, clip-space w, is positive).
+
+    Returns:
+        ``(N, 3)``: u, v and w.
+    """
+    points = np.atleast_2d(np.asarray(points, dtype=float))
+    homogeneous = np.hstack([points, np.ones((len(points), 1))])
+    view_m = np.asarray(view, dtype=float).reshape(4, 4).T
+    projection_m = np.asarray(projection, dtype=float).reshape(4, 4).T
+    clip = homogeneous @ (projection_m @ view_m).T
+    ndc = clip[:, :3] / clip[:, 3:4]
+    u = (ndc[:, 0] + 1.0) / 2.0 * width
+    v = (1.0 - ndc[:, 1]) / 2.0 * height
+    return np.column_stack([u, v, clip[:, 3]])
+
+
+class Scene:
+    """The rendered world of one env: floor, colours, markers and the camera.
+
+    Args:
+        client: The PyBullet client of the env's arm.
+        body: The arm's body id.
+        kinematics: The shared kinematics (base frame ↔ world frame).
+        space: The sample cuboid the camera must show.
+        width, height: Image size, pixels.
+    """
+
+    def __init__(self, client: int, body: int, kinematics: Kinematics, space: SampleSpace, width: int, height: int) -> None:
+        self.client, self.body, self.kinematics = client, body, kinematics
+        self.width, self.height = width, height
+        self._colour_arm()
+        self._add_floor()
+        self.target = self._sphere(0.035, TARGET_COLOUR)
+        self.path = [self._sphere(0.009, PATH_COLOUR, PARKED) for _ in range(PATH_POINTS)]
+        self.view, self.projection = self._camera(space)
+
+    # -- building ------------------------------------------------------------------------------
+    def _colour_arm(self) -> None:
+        for link in range(-1, p.getNumJoints(self.body, physicsClientId=self.client)):
+            colour = LINK_COLOURS[(link + 1) % len(LINK_COLOURS)]
+            p.changeVisualShape(self.body, link, rgbaColor=colour, physicsClientId=self.client)
+
+    def _add_floor(self) -> None:
+        shape = p.createVisualShape(p.GEOM_BOX, halfExtents=[6.0, 6.0, 0.005], rgbaColor=FLOOR_COLOUR,
+                                    physicsClientId=self.client)
+        p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, basePosition=[0, 0, -0.005],
+                          physicsClientId=self.client)
+
+    def _sphere(self, radius: float, colour: tuple[float, ...], position: tuple[float, ...] = PARKED) -> int:
+        shape = p.createVisualShape(p.GEOM_SPHERE, radius=radius, rgbaColor=colour, physicsClientId=self.client)
+        return p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, basePosition=list(position),
+                                 physicsClientId=self.client)
+
+    def framed_points(self, space: SampleSpace) -> np.ndarray:
+        """World points the camera must show: the cuboid's corners, the base and the link origins now."""
+        corners = np.array([[x, y, z] for x in (space.low[0], space.high[0]) for y in (space.low[1], space.high[1])
+                            for z in (space.low[2], space.high[2])])
+        links = self.link_origins()
+        return np.vstack([[self.kinematics.base_to_world(c) for c in corners], [[0.0, 0.0, 0.0]], links])
+
+    def link_origins(self) -> np.ndarray:
+        """World positions of every link frame of the arm."""
+        count = p.getNumJoints(self.body, physicsClientId=self.client)
+        states = [p.getLinkState(self.body, i, computeForwardKinematics=True, physicsClientId=self.client)
+                  for i in range(count)]
+        return np.array([state[4] for state in states])
+
+    def _camera(self, space: SampleSpace) -> tuple[list[float], list[float]]:
+        """View and projection matrices that fit :meth:`framed_points` (plus a margin for the links'
+        swing) in the image, seen from the arm's front, a little from above."""
+        points = self.framed_points(space)
+        aspect = self.width / self.height
+        projection = list(p.computeProjectionMatrixFOV(FIELD_OF_VIEW, aspect, 0.05, 20.0, physicsClientId=self.client))
+        towards = self.kinematics.base_to_world(np.array([-1.0, -0.6, 0.0])) - self.kinematics.base_to_world(np.zeros(3))
+        direction = np.array([towards[0], towards[1], 0.0]) / np.linalg.norm(towards[:2])
+        direction = direction + np.array([0.0, 0.0, 0.35])
+        direction /= np.linalg.norm(direction)
+        target = (points.min(axis=0) + points.max(axis=0)) / 2.0
+        distance = 3.0 * float(np.linalg.norm(points - target, axis=1).max())
+        for _ in range(4):  # recentre the points' image and scale them to FILL of the frame
+            view = list(p.computeViewMatrix((target + distance * direction).tolist(), target.tolist(), [0, 0, 1],
+                                            physicsClientId=self.client))
+            pixels = project(points, view, projection, self.width, self.height)
+            ndc = np.column_stack([pixels[:, 0] / self.width * 2 - 1, 1 - pixels[:, 1] / self.height * 2])
+            low, high = ndc.min(axis=0), ndc.max(axis=0)
+            right = np.cross(-direction, [0.0, 0.0, 1.0])
+            right /= np.linalg.norm(right)
+            up = np.cross(right, -direction)
+            half_height = math.tan(math.radians(FIELD_OF_VIEW) / 2.0) * distance
+            centre = (low + high) / 2.0
+            target = target + right * centre[0] * half_height * aspect + up * centre[1] * half_height
+            distance *= float(max(high - low)) / 2.0 / FILL
+        return view, projection
+
+    # -- per episode and per frame ---------------------------------------------------------------
+    def show_reference(self, reference: Reference) -> None:
+        """Draw the episode's reference path (the ellipse; nothing for a fixed target)."""
+        points = reference.points(PATH_POINTS)
+        if len(points) < 2:  # a fixed target has no path
+            points = []
+        for index, marker in enumerate(self.path):
+            position = self.kinematics.base_to_world(points[index]) if index < len(points) else PARKED
+            p.resetBasePositionAndOrientation(marker, list(position), [0, 0, 0, 1], physicsClientId=self.client)
+
+    def image(self, reference_point: np.ndarray) -> np.ndarray:
+        """An RGB image ``(height, width, 3)`` with the target marker at ``reference_point`` (base frame)."""
+        p.resetBasePositionAndOrientation(self.target, list(self.kinematics.base_to_world(reference_point)),
+                                          [0, 0, 0, 1], physicsClientId=self.client)
+        _, _, rgba, _, _ = p.getCameraImage(
+            self.width, self.height, viewMatrix=self.view, projectionMatrix=self.projection,
+            renderer=p.ER_TINY_RENDERER, lightDirection=[1.0, -1.0, 2.0], shadow=0, physicsClientId=self.client,
+        )
+        return np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[:, :, :3].copy()
+
+
+def default_render_every(dt: float, frame_rate: float = 25.0) -> int:
+    """Control steps between two new frames for about ``frame_rate`` distinct images per second."""
+    return max(1, round(1.0 / (dt * frame_rate)))
+
+
+def scene_of(arm: Any, kinematics: Kinematics, space: SampleSpace, width: int, height: int) -> Scene:
+    """The scene of a :class:`~snac_gym.envs.arms.PyBulletArm`."""
+    return Scene(arm.sim.client, arm.body.body, kinematics, space, width, height)
