@@ -1,0 +1,78 @@
+"""The SB3 VecEnv on the batched kinematic episodes: a DummyVecEnv of single envs, faster; PPO trains on it."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from stable_baselines3 import PPO  # noqa: E402
+from stable_baselines3.common.env_checker import check_env  # noqa: E402
+from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
+
+import snac_gym  # noqa: E402
+from snac_gym.envs.sb3 import SB3VectorEnv  # noqa: E402
+from snac_gym.ppo.config import resolve_config  # noqa: E402
+from snac_gym.ppo.train import make_training_env  # noqa: E402
+from snac_gym.ppo.vec_env import PPOVecEnv  # noqa: E402
+
+ENV_IDS = list(snac_gym.ENV_IDS)
+
+
+def _run_side_by_side(batched, dummy, steps, seed=7):
+    batched.seed(seed)
+    dummy.seed(seed)
+    np.testing.assert_allclose(batched.reset(), dummy.reset(), rtol=1e-6, atol=1e-6)
+    rng = np.random.default_rng(0)
+    low, high = batched.action_space.low, batched.action_space.high
+    dones_seen = 0
+    for _ in range(steps):
+        actions = rng.uniform(low, high, size=(batched.num_envs, len(low))).astype(batched.action_space.dtype)
+        obs, rewards, dones, infos = batched.step(actions)
+        obs_w, rewards_w, dones_w, infos_w = dummy.step(actions)
+        np.testing.assert_allclose(obs, obs_w, rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(rewards, rewards_w, rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(dones, dones_w)
+        for info, info_w in zip(infos, infos_w, strict=True):
+            assert ("terminal_observation" in info) == ("terminal_observation" in info_w)
+            if "terminal_observation" in info:
+                np.testing.assert_allclose(info["terminal_observation"], info_w["terminal_observation"], rtol=1e-6, atol=1e-6)
+                assert info["TimeLimit.truncated"] == info_w["TimeLimit.truncated"]
+                assert info["is_success"] == info_w["is_success"]
+        dones_seen += int(dones.sum())
+    assert dones_seen >= batched.num_envs  # autoreset ran in every sub-env
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_sb3_vec_env_is_a_dummy_vec_env_of_single_kinematic_envs(env_id):
+    kwargs = {"max_steps": 6, "action_type": "normalized", "reward_type": "shaped", "observation_dtype": np.float32}
+    batched = SB3VectorEnv(env_id, 3, **kwargs)
+    dummy = DummyVecEnv([lambda: gym.make(env_id, backend="kinematic", **kwargs) for _ in range(3)])
+    assert batched.observation_space == dummy.observation_space and batched.action_space == dummy.action_space
+    _run_side_by_side(batched, dummy, 14)
+    assert batched.get_attr("max_steps") == [6, 6, 6] and batched.env_is_wrapped(gym.Wrapper) == [False] * 3
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_ppo_vec_env_is_the_training_wrapper_episode_for_episode(task):
+    config = resolve_config(task)
+    config["env"] = {**config["env"], "max_steps": 5}
+    batched = PPOVecEnv(config, num_envs=3)
+    single = {**config, "env": {**config["env"], "backend": "kinematic"}}
+    dummy = DummyVecEnv([lambda: make_training_env(single) for _ in range(3)])
+    _run_side_by_side(batched, dummy, 12)
+
+
+def test_ppo_trains_on_thousands_of_episodes_at_once():
+    venv = SB3VectorEnv("snac_gym/UR10Reach-v0", 256, action_type="normalized", reward_type="shaped", max_steps=50)
+    model = PPO("MlpPolicy", venv, n_steps=4, batch_size=256, n_epochs=1, seed=0, device="cpu")
+    model.learn(total_timesteps=3 * 4 * 256)
+    assert model.num_timesteps == 3 * 4 * 256
+    actions, _ = model.predict(venv.reset(), deterministic=True)
+    assert actions.shape == (256, 6) and np.all(np.abs(actions) <= 1.0)
+
+
+def test_single_kinematic_env_passes_sb3_check_env():
+    env = gym.make("snac_gym/UR10Reach-v0", backend="kinematic", action_type="normalized",
+                   observation_dtype=np.float32, max_steps=20)
+    check_env(env, warn=True)
