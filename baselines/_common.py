@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy, positive_float
 
 
@@ -135,6 +136,9 @@ class ResolvedRatePolicy(BasePolicy):
         env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive.
         gain: Task-space feedback gain ``K`` (1/s); the effort knob: the command at the start
             of a regulation episode is about ``K‖e₀‖`` in task space.
+        joint_limits: Clamp the command into the position-limit box Ω(θ)
+            (:mod:`snac_gym.joint_limits`; these controllers have no mechanism of their own);
+            ``None`` (default): on for the 7-DOF arms only.
 
     Attributes:
         effort_parameter: Name of the constructor argument that scales the control effort
@@ -143,10 +147,11 @@ class ResolvedRatePolicy(BasePolicy):
 
     effort_parameter = "gain"
 
-    def __init__(self, env: Any, gain: float) -> None:
+    def __init__(self, env: Any, gain: float, joint_limits: bool | None = None) -> None:
         super().__init__(env)
         self.gain = positive_float("gain", gain)
         self._reader = ObservationReader(self)
+        self.limit_box = make_limit_box(self, joint_limits)
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
         """Joint velocities ``G(J) v`` before saturation (a new array)."""
@@ -170,7 +175,8 @@ class ResolvedRatePolicy(BasePolicy):
         obs_batch = self._reader.read_batch(obs_batch)
         task_velocities = reference_velocity(obs_batch, self._reader, self.gain)
         jacobians = self.kinematics.jacobian_batch(obs_batch[:, self._reader.q])
-        return scale_rows_into_box(self.resolve_batch(jacobians, task_velocities), self.velocity_limits)
+        commands = scale_rows_into_box(self.resolve_batch(jacobians, task_velocities), self.velocity_limits)
+        return commands if self.limit_box is None else self.limit_box.clamp(obs_batch[:, self._reader.q], commands)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity limits."""
@@ -179,4 +185,4 @@ class ResolvedRatePolicy(BasePolicy):
         jacobian = self.kinematics.jacobian(obs[self._reader.q])
         command, scale = scale_into_box(self.resolve(jacobian, task_velocity), self.velocity_limits)
         self.internals = {"saturation_scale": scale}
-        return command
+        return command if self.limit_box is None else self.limit_box.clamp(obs[self._reader.q], command)

@@ -34,13 +34,14 @@ class DLSPolicy(ResolvedRatePolicy):
         env: The env (or policy context) to drive.
         gain: Task-space feedback gain ``K``, 1/s; the effort knob (``effort_parameter``).
         damping: Damping factor ``λ``, m/rad.
+        joint_limits: Clamp into the position-limit box Ω(θ) (:class:`~baselines._common.ResolvedRatePolicy`).
 
     Raises:
         ValueError: If ``gain`` or ``damping`` is not positive.
     """
 
-    def __init__(self, env: Any, gain: float = 2.0, damping: float = 0.01) -> None:
-        super().__init__(env, gain)
+    def __init__(self, env: Any, gain: float = 2.0, damping: float = 0.01, joint_limits: bool | None = None) -> None:
+        super().__init__(env, gain, joint_limits)
         self.damping = positive_float("damping", damping)
         self._damping_matrix = self.damping**2 * np.eye(self.kinematics.task_dim)
 

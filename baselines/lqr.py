@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from baselines._common import ObservationReader, scale_into_box, scale_rows_into_box
+from snac_gym.joint_limits import make_limit_box
 from snac_gym.optimality import FrozenJacobianLQR
 from snac_gym.policies.base import BasePolicy, positive_float
 
@@ -68,6 +69,8 @@ class LQRPolicy(BasePolicy):
             q_scale = 1, the paper's weights, the slowest direction at the paper's θ0 (σ_min = 0.40)
             decays at 0.4 1/s and the paper's reach first gets within 1 mm at 7.95 s of its 8 s; at 9
             all of 100 random reach episodes end within 1 mm (docs/baselines.md has the measurements).
+        joint_limits: Clamp the command into the position-limit box Ω(θ) (:mod:`snac_gym.joint_limits`;
+            the frozen-Jacobian LQR has no mechanism of its own); ``None``: on for the 7-DOF arms only.
 
     Raises:
         ValueError: If Q or R is not finite, symmetric and positive definite of the right
@@ -83,8 +86,11 @@ class LQRPolicy(BasePolicy):
 
     effort_parameter = "q_scale"
 
-    def __init__(self, env: Any, Q: Any = None, R: Any = None, q_scale: float = 9.0) -> None:
+    def __init__(
+        self, env: Any, Q: Any = None, R: Any = None, q_scale: float = 9.0, joint_limits: bool | None = None
+    ) -> None:
         super().__init__(env)
+        self.limit_box = make_limit_box(self, joint_limits)
         self.q_scale = positive_float("q_scale", q_scale)
         n, m = self.kinematics.task_dim, self.kinematics.n_joints
         base = FrozenJacobianLQR(Q, R, n, m)  # validates Q and R as given, before scaling
@@ -117,7 +123,8 @@ class LQRPolicy(BasePolicy):
         obs_batch = self._reader.read_batch(obs_batch)
         jacobians = self.kinematics.jacobian_batch(obs_batch[:, self._reader.q])
         commands, _ = self._commands(jacobians, obs_batch[self._reader.e], obs_batch[self._reader.xdot_d])
-        return scale_rows_into_box(commands, self.velocity_limits)
+        commands = scale_rows_into_box(commands, self.velocity_limits)
+        return commands if self.limit_box is None else self.limit_box.clamp(obs_batch[:, self._reader.q], commands)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity limits."""
@@ -128,4 +135,4 @@ class LQRPolicy(BasePolicy):
         )
         command, scale = scale_into_box(commands[0], self.velocity_limits)
         self.internals = {"saturation_scale": scale, "value": float(value[0])}
-        return command
+        return command if self.limit_box is None else self.limit_box.clamp(obs[self._reader.q], command)

@@ -14,11 +14,11 @@ import numpy as np
 
 from baselines._common import (
     ObservationReader,
-    clip_to_box,
     positive_float,
     reference_velocity,
     transpose,
 )
+from snac_gym.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy
 
 #: Integration schemes of the network dynamics (see :class:`RNNPolicy`).
@@ -57,8 +57,13 @@ class RNNPolicy(BasePolicy):
       Zhang, Wang and Xia (IEEE TNN 14(3), 2003) that the paper modifies, and the paper's
       published summary (position feedback in the network input so that position error does
       not accumulate; a velocity-compensated variant for tracking; a static output
-      ``u = P_Ω(Jᵀλ)`` and dynamic λ). The paper also admits non-convex Ω; the UR10's limits
-      are a box, the convex case.
+      ``u = P_Ω(Jᵀλ)`` and dynamic λ). The paper also admits non-convex Ω; ours is a box,
+      the convex case.
+    * **Joint position limits** enter Ω as in Li et al., through θ-dependent speed bounds
+      ``Ω(θ) = {max(−ū, κ(θ⁻ + δ − θ)) ≤ u ≤ min(ū, κ(θ⁺ − δ − θ))}``
+      (:mod:`snac_gym.joint_limits`), the network's own mechanism: at its equilibrium the
+      other joints make the task motion a bounded joint cannot. On by default on the 7-DOF
+      arms (``joint_limits=None``); on the UR arms Ω is the velocity box ``|uᵢ| ≤ ūᵢ``.
     * The feedback gain k is a scalar (the same for every task axis), λ(0) = 0 at every
       ``reset`` (so u(0) = 0: the arm starts at rest), and ``x``, ``x_d``, ``ẋ_d`` are read from
       the observation, J from the shared kinematics at the measured θ.
@@ -96,6 +101,7 @@ class RNNPolicy(BasePolicy):
         integrator: ``"semi-implicit"`` (default) or ``"euler"`` (explicit, sub-stepped).
         velocity_compensation: Add the feed-forward ẋ_d to the network input (default
             ``True``; no effect in regulation, where ẋ_d = 0).
+        joint_limits: Add the position limits to Ω (``None``: on for the 7-DOF arms only).
 
     **Batch protocol** (``snac_gym/policies/base.py``): ``reset_batch(seeds)`` starts B networks at
     rest and ``act_batch`` advances them together, the dual state a ``(B, n)`` array; the update
@@ -120,8 +126,10 @@ class RNNPolicy(BasePolicy):
         epsilon: float = 1e-3,
         integrator: str = "semi-implicit",
         velocity_compensation: bool = True,
+        joint_limits: bool | None = None,
     ) -> None:
         super().__init__(env)
+        self.limit_box = make_limit_box(self, joint_limits)
         self.gain = positive_float("gain", gain)
         self.epsilon = positive_float("epsilon", epsilon)
         if self.gain * self.dt >= 2.0:
@@ -134,7 +142,8 @@ class RNNPolicy(BasePolicy):
         self._implicit_diagonal = (self.epsilon / self.dt) * np.eye(self.kinematics.task_dim)
         self._dual = np.zeros(self.kinematics.task_dim)
         self._batch_dual: np.ndarray | None = None  # λ of the batch protocol's B networks, (B, n, 1)
-        self._column_limits = self.velocity_limits[:, None]
+        self._velocity_box = (-self.velocity_limits, self.velocity_limits)
+        self._column_box = (-self.velocity_limits[:, None], self.velocity_limits[:, None])
 
     @property
     def dual_state(self) -> np.ndarray:
@@ -157,19 +166,21 @@ class RNNPolicy(BasePolicy):
         Returns:
             The output ``u = P_Ω(Jᵀλ)`` at the updated λ.
         """
-        return self._advance(self._dual, jacobian, network_input, self.velocity_limits)
+        return self._advance(self._dual, jacobian, network_input, self._velocity_box)
 
     def _advance(
-        self, dual: np.ndarray, jacobian: np.ndarray, network_input: np.ndarray, limits: np.ndarray
+        self, dual: np.ndarray, jacobian: np.ndarray, network_input: np.ndarray, box: tuple[np.ndarray, np.ndarray]
     ) -> np.ndarray:
         """:meth:`network_update` on ``dual`` (updated in place) for one network: λ, r ``(n,)``,
-        J ``(n, m)``, limits ``(m,)``; or for B at once, vectors as columns: λ, r ``(B, n, 1)``,
-        J ``(B, n, m)``, limits ``(m, 1)`` (see :func:`baselines._common.transpose`)."""
+        J ``(n, m)``, the bounds of Ω ``(m,)``; or for B at once, vectors as columns: λ, r
+        ``(B, n, 1)``, J ``(B, n, m)``, bounds ``(m, 1)`` or ``(B, m, 1)`` (see
+        :func:`baselines._common.transpose`)."""
+        lower, upper = box
         jacobian_t = transpose(jacobian)
         if self.integrator == "semi-implicit":
             joint_drive = jacobian_t @ dual
-            free = np.abs(joint_drive) < limits  # D: joints whose output is not clipped
-            residual = network_input - jacobian @ clip_to_box(joint_drive, limits)
+            free = (joint_drive > lower) & (joint_drive < upper)  # D: joints whose output is not clipped
+            residual = network_input - jacobian @ _project(joint_drive, box)
             system = (jacobian * transpose(free)) @ jacobian_t + self._implicit_diagonal
             dual += np.linalg.solve(system, residual)
         else:
@@ -179,17 +190,30 @@ class RNNPolicy(BasePolicy):
             if dual.ndim > 1:
                 substeps, rate = substeps[:, None, None], rate[:, None, None]
             for step in range(int(np.max(substeps))):
-                increment = rate * (network_input - jacobian @ clip_to_box(jacobian_t @ dual, limits))
+                increment = rate * (network_input - jacobian @ _project(jacobian_t @ dual, box))
                 dual += np.where(substeps > step, increment, 0.0)  # each network its own count of sub-steps
-        return clip_to_box(jacobian_t @ dual, limits)
+        return _project(jacobian_t @ dual, box)
+
+    def _box(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds of Ω for θ ``(m,)``: the velocity box, or Ω(θ) with the position limits."""
+        return self._velocity_box if self.limit_box is None else self.limit_box.bounds(q)
+
+    def _column_bounds(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds of Ω for θ ``(B, m)`` as columns: ``(m, 1)`` or ``(B, m, 1)``."""
+        if self.limit_box is None:
+            return self._column_box
+        lower, upper = self.limit_box.bounds(qs)
+        return lower[..., None], upper[..., None]
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``; advances the network by one period."""
         obs = self._reader.read(obs)
         network_input = reference_velocity(obs, self._reader, self.gain, feedforward=self.velocity_compensation)
-        jacobian = self.kinematics.jacobian(obs[self._reader.q])
-        command = self.network_update(jacobian, network_input)
-        self.internals = {"dual_state": self._dual.copy(), "active_bounds": np.abs(command) >= self.velocity_limits}
+        q = obs[self._reader.q]
+        jacobian = self.kinematics.jacobian(q)
+        lower, upper = box = self._box(q)
+        command = self._advance(self._dual, jacobian, network_input, box)
+        self.internals = {"dual_state": self._dual.copy(), "active_bounds": (command <= lower) | (command >= upper)}
         return command
 
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
@@ -202,6 +226,13 @@ class RNNPolicy(BasePolicy):
             raise RuntimeError("call reset_batch() before act_batch()")
         obs_batch = self._reader.read_batch(obs_batch)
         network_input = reference_velocity(obs_batch, self._reader, self.gain, feedforward=self.velocity_compensation)
-        jacobians = self.kinematics.jacobian_batch(obs_batch[:, self._reader.q])
-        commands = self._advance(self._batch_dual, jacobians, network_input[..., None], self._column_limits)
+        qs = obs_batch[:, self._reader.q]
+        jacobians = self.kinematics.jacobian_batch(qs)
+        commands = self._advance(self._batch_dual, jacobians, network_input[..., None], self._column_bounds(qs))
         return commands[..., 0]
+
+
+def _project(command: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """``P_Ω``: ``command`` clipped component-wise into ``box = (lower, upper)`` (``minimum(maximum(·))``,
+    as :func:`baselines._common.clip_to_box`, which it equals for the velocity box)."""
+    return np.minimum(np.maximum(command, box[0]), box[1])

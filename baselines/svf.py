@@ -48,14 +48,17 @@ class SVFPolicy(ResolvedRatePolicy):
             more closely down to smaller σ.
         sigma0: Minimum filtered singular value ``σ₀`` (default 0.005, the paper's), m/rad:
             the Jacobian's inverse gain never exceeds ``1/σ₀``.
+        joint_limits: Clamp into the position-limit box Ω(θ) (:class:`~baselines._common.ResolvedRatePolicy`).
 
     Raises:
         ValueError: If a parameter is not positive, or ``σ₀ν ≥ 2`` or ``σ₀ ≥ ν`` (where the
             bound ``h(σ) ≥ σ₀`` would no longer hold).
     """
 
-    def __init__(self, env: Any, gain: float = 2.0, nu: float = 10.0, sigma0: float = 0.005) -> None:
-        super().__init__(env, gain)
+    def __init__(
+        self, env: Any, gain: float = 2.0, nu: float = 10.0, sigma0: float = 0.005, joint_limits: bool | None = None
+    ) -> None:
+        super().__init__(env, gain, joint_limits)
         self.nu = positive_float("nu", nu)
         self.sigma0 = positive_float("sigma0", sigma0)
         if self.sigma0 * self.nu >= 2.0 or self.sigma0 >= self.nu:

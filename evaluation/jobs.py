@@ -125,6 +125,9 @@ def run_job(job: RolloutJob) -> JobResult:
                 log.attrs.update({**attrs, "sample": sample.index, "backend": job.backend})
     else:
         raise ValueError(f"unknown backend {job.backend!r}")
-    metrics = rollout_metrics(rollouts, job.task, limits, job.convention)
+    kinematics = shared_kinematics(job.robot)
+    metrics = rollout_metrics(
+        rollouts, job.task, limits, job.convention, (kinematics.lower_limits, kinematics.upper_limits)
+    )
     metrics.insert(0, "sample", [s.index for s in job.samples])
     return JobResult(metrics, logs)

@@ -553,7 +553,10 @@ def run_optimal_job(job: OptimalJob) -> Any:
     rollouts = simulate_kinematic(
         context, lambda: ReplayPolicy(commands), job.samples, job.steps, job.seeds, True, OPTIMAL
     )
-    metrics = rollout_metrics(rollouts, job.task, limits, job.convention)
+    # The optimum is of eq. 6 over u alone: joint position limits are not constraints of it; its
+    # joint_limit_margin column says how close it comes to them.
+    position_limits = (kinematics.lower_limits, kinematics.upper_limits)
+    metrics = rollout_metrics(rollouts, job.task, limits, job.convention, position_limits)
     metrics.insert(0, "sample", [s.index for s in job.samples])
     metrics["optimal_iterations"] = np.array([s.iterations for s in solutions], dtype=np.int64)
     metrics["optimal_evaluations"] = np.array([s.evaluations for s in solutions], dtype=np.int64)

@@ -48,6 +48,9 @@ hjb_ratio_median       –       critic-based controllers: median over the sampl
                                the optimal critic); NaN for the others
 critic_error_final     –       regulation critics: ‖P̂ − P*(J)‖_F/‖P*‖_F at the last step; NaN
                                otherwise
+joint_limit_margin     rad     closest approach to a joint position limit, min over k = 0..K
+                               and joints of min(θₖⱼ − θ⁻ⱼ, θ⁺ⱼ − θₖⱼ); negative: a limit was
+                               crossed (θ⁻, θ⁺ from the URDF); NaN when no limits are given
 =====================  ======  ==============================================================
 """
 
@@ -59,6 +62,7 @@ import numpy as np
 import pandas as pd
 
 from snac_gym.cost import CostConvention, CostTerms, command_differences, cost_rates, trajectory_cost
+from snac_gym.joint_limits import joint_limit_margins
 from snac_gym.rollout.batch import Rollouts
 from snac_gym.rollout.log import log_array
 from snac_gym.tasks import TASKS, get_task
@@ -96,6 +100,7 @@ METRIC_COLUMNS = (
     "hjb_residual_median",
     "hjb_ratio_median",
     "critic_error_final",
+    "joint_limit_margin",
 )
 
 
@@ -112,11 +117,16 @@ def peak_limit_fractions(commands: np.ndarray, velocity_limits: np.ndarray) -> t
 
 
 def rollout_metrics(
-    rollouts: Rollouts, task: str, velocity_limits: np.ndarray, convention: CostConvention | None = None
+    rollouts: Rollouts,
+    task: str,
+    velocity_limits: np.ndarray,
+    convention: CostConvention | None = None,
+    position_limits: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> pd.DataFrame:
     """One row of :data:`METRIC_COLUMNS` per rollout of ``rollouts``, the cost under ``convention``
     (default: the paper's Table I cost, Q = I₃, R = I₆, u₋₁ = 0); ``task`` (a name or a
-    :class:`~snac_gym.tasks.Task`) gives the success rule and the settling tolerance."""
+    :class:`~snac_gym.tasks.Task`) gives the success rule and the settling tolerance;
+    ``position_limits`` ``(θ⁻, θ⁺)`` the ``joint_limit_margin`` column (:func:`limit_margins`)."""
     spec = get_task(task)
     convention = convention if convention is not None else CostConvention()
     dt = rollouts.dt
@@ -173,8 +183,24 @@ def rollout_metrics(
             "hjb_residual_median": diagnostics.get("hjb_residual_median", nan),
             "hjb_ratio_median": diagnostics.get("hjb_ratio_median", nan),
             "critic_error_final": diagnostics.get("critic_error_final", nan),
+            "joint_limit_margin": nan if position_limits is None else limit_margins(rollouts, *position_limits),
         }
     )
+
+
+def limit_margins(rollouts: Rollouts, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``joint_limit_margin`` of each rollout over θ₀..θ_K, rad.
+
+    Where the rollouts do not keep θₖ (the evaluator's kinematic engine, ``keep_states=False``)
+    they are rebuilt from the exact model θₖ₊₁ = θₖ + uₖΔt (eq. 3) backwards from θ_K, exact to
+    rounding; this function is therefore only for rollouts of that model or with θₖ kept.
+    """
+    if rollouts.q is not None:
+        q = np.concatenate([rollouts.q, rollouts.final_q[:, None]], axis=1)
+    else:
+        travelled = np.cumsum(rollouts.commands[:, ::-1], axis=1)[:, ::-1] * rollouts.dt  # Σ_{j≥k} uⱼΔt
+        q = np.concatenate([rollouts.final_q[:, None] - travelled, rollouts.final_q[:, None]], axis=1)
+    return joint_limit_margins(q, np.asarray(lower, dtype=float), np.asarray(upper, dtype=float))
 
 
 @dataclass

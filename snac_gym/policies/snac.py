@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.cost import weight_matrix
+from snac_gym.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy
 
 #: The paper's learning-rate schedules (Section V): task -> (α_initial, α_final, n).
@@ -182,6 +183,10 @@ class SNACPolicy(BasePolicy):
         tracking_state: The reference part of the tracking critic state (:data:`TRACKING_STATES`):
             ``"paper"`` (default) ξ = [e; x_d], ``"centred"`` ξ = [e; x_d − x_c].
         seed: Seed of the initial-weight generator used by ``reset(seed=None)``.
+        joint_limits: Clamp the command into the position-limit box Ω(θ) after the velocity
+            clipping (:mod:`snac_gym.joint_limits`; the paper's law has no position limits);
+            ``None`` (default): on for the 7-DOF arms only. The critic learns from its own
+            command (eqs. 19, 38), as without the box.
 
     Commands are clipped element-wise to ``±velocity_limits`` (the env's action bounds).
 
@@ -224,8 +229,10 @@ class SNACPolicy(BasePolicy):
         command_scale: float = 1.0,
         tracking_state: str = "paper",
         seed: int | None = None,
+        joint_limits: bool | None = None,
     ) -> None:
         super().__init__(env)
+        self.limit_box = make_limit_box(self, joint_limits)
         n, m = self.kinematics.task_dim, self.kinematics.n_joints
         self.task_dim, self.n_joints = n, m
         Q_matrix, R_matrix = weight_matrix(Q, n, "Q"), weight_matrix(R, m, "R")
@@ -513,7 +520,7 @@ class SNACPolicy(BasePolicy):
         self._last = (weights, new_weights, alpha, saturated, self._k)
         self.critic_weights = new_weights
         self._k += 1
-        return command
+        return command if self.limit_box is None else self.limit_box.clamp(obs[self._q_slice], command)
 
     def _zoh_increment(
         self,
@@ -607,4 +614,5 @@ class SNACPolicy(BasePolicy):
                 new_weights = weights + self._zoh_increment(obs, jacobians, command, step_gain, state, gradient_e)
         self.batch_critic_weights = np.where(frozen[:, None], weights, new_weights)
         self._batch_k += 1
-        return np.maximum(np.minimum(command, self._upper), self._lower)
+        command = np.maximum(np.minimum(command, self._upper), self._lower)
+        return command if self.limit_box is None else self.limit_box.clamp(obs[:, self._q_slice], command)
