@@ -298,7 +298,7 @@ def train_ppo_command(
     config: Optional[Path] = typer.Option(None, "--config", help="Hyperparameter file (default: snac_gym/ppo/configs/TASK.json)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
     n_envs: Optional[int] = typer.Option(None, "--n-envs", min=1, help="Parallel training envs (default: the config's)."),
-    vec_env: Optional[str] = typer.Option(None, "--vec-env", help="dummy (one process) or subproc (one process per env)."),
+    vec_env: Optional[str] = typer.Option(None, "--vec-env", help="dummy (one process), subproc (one process per env) or batched (all episodes at once on the kinematic model)."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress lines on stderr (timesteps, time, success) where stderr is not a terminal."),
 ) -> None:
     """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""

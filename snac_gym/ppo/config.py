@@ -9,7 +9,9 @@ The shipped configs live in ``snac_gym/ppo/configs/<task>.json``. Their keys:
 * ``features``: :class:`~snac_gym.ppo.features.FeatureSpec`; ``reward``:
   :class:`~snac_gym.ppo.envs.RewardSpec`.
 * ``vec_env``: ``n_envs`` and ``kind`` (``dummy``: all envs in this process; ``subproc``:
-  one process per env, across cores).
+  one process per env, across cores; ``batched``: the ``n_envs`` episodes stepped at once on
+  the exact kinematic model, :class:`~snac_gym.ppo.vec_env.PPOVecEnv`, thousands of them in
+  one process).
 * ``normalize``: ``obs``, ``reward`` (VecNormalize), ``clip_obs``.
 * ``ppo``: stable-baselines3 PPO arguments (``learning_rate`` with ``learning_rate_schedule``
   ``constant`` or ``linear``, ``n_steps``, ``batch_size``, ``n_epochs``, ``gamma``,
@@ -88,7 +90,7 @@ def validate_config(config: dict[str, Any], source: str = "PPO config") -> None:
 
 #: Enumerated settings: (section, key, default, allowed values).
 _CHOICES = (
-    ("vec_env", "kind", "dummy", ("dummy", "subproc")),
+    ("vec_env", "kind", "dummy", ("dummy", "subproc", "batched")),
     ("ppo", "learning_rate_schedule", "constant", ("constant", "linear")),
     ("ppo", "activation", "tanh", ("tanh", "relu")),
 )

@@ -144,12 +144,18 @@ class _EnvFactory:
 
 
 def build_vec_env(config: dict[str, Any]) -> Any:
-    """The vectorised training env (``n_envs`` copies, ``dummy`` or ``subproc``), seeded with ``seed + i``."""
+    """The vectorised training env (``n_envs`` copies, ``dummy``, ``subproc`` or ``batched``), seeded with ``seed + i``."""
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     vec = config["vec_env"]
     kind = vec.get("kind", "dummy")
+    if kind == "batched":
+        from snac_gym.ppo.vec_env import PPOVecEnv
+
+        venv = PPOVecEnv(config)
+        venv.seed(int(config["seed"]))
+        return venv
     kwargs: dict[str, Any] = {"start_method": "spawn"} if kind == "subproc" else {}
     return make_vec_env(
         _EnvFactory(config), n_envs=int(vec.get("n_envs", 1)), seed=int(config["seed"]),
