@@ -200,3 +200,112 @@ def format_act_bench(results: dict[str, dict[str, Any]]) -> str:
                 f" {row['calls']:7d}"
             )
     return "\n".join(lines)
+
+
+# -- the batched kinematic vector env ------------------------------------------------------------
+def _one_thread() -> Any:
+    """A context that limits BLAS/OpenMP pools to one thread (a no-op without threadpoolctl)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl ships with scikit-learn and SB3's deps
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1)
+
+
+def _vector_env(env_id: str, count: int) -> Any:
+    import gymnasium as gym
+
+    return gym.make_vec(env_id, num_envs=count, vectorization_mode="vector_entry_point", max_steps=10**9)
+
+
+def _time_vector_steps(env: Any, seconds: float, repeats: int = 3) -> float:
+    """Best of ``repeats`` step rates (env-steps/s) over ``seconds`` each, inside episodes (no resets)."""
+    rng = np.random.default_rng(0)
+    low, high = env.single_action_space.low, env.single_action_space.high
+    actions = [0.2 * rng.uniform(low, high, size=(env.num_envs, len(low))) for _ in range(8)]
+    env.step(actions[0])
+    best = 0.0
+    for _ in range(repeats):
+        steps, start = 0, time.perf_counter()
+        while time.perf_counter() - start < seconds:
+            for action in actions:
+                env.step(action)
+            steps += len(actions)
+        best = max(best, steps * env.num_envs / (time.perf_counter() - start))
+    return best
+
+
+def _reset_seconds(env_id: str, count: int = 128) -> float:
+    """Wall time of one episode reset in the vector env (drawing the reference and seed pose), s."""
+    env = _vector_env(env_id, count)
+    env.reset(seed=0)
+    start = time.perf_counter()
+    env.reset()
+    return (time.perf_counter() - start) / count
+
+
+def _memory_per_env(env_id: str, count: int) -> tuple[float, float]:
+    """Bytes per sub-env held by a vector env of ``count`` (beyond one of 1), and the extra peak of one step."""
+    import tracemalloc
+
+    held = []
+    for size in (1, count):
+        tracemalloc.start()
+        env = _vector_env(env_id, size)
+        env.reset(seed=0)
+        action = np.zeros((size, env.single_action_space.shape[0]), dtype=env.single_action_space.dtype)
+        result = env.step(action)
+        current, _ = tracemalloc.get_traced_memory()
+        tracemalloc.reset_peak()
+        result = env.step(action)
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        held.append((current, peak - current))
+        del env, result
+    return (held[1][0] - held[0][0]) / (count - 1), held[1][1] / count
+
+
+def run_vector_bench(
+    sizes: tuple[int, ...] = (1, 64, 1024, 4096), seconds: float = 1.0, env_ids: tuple[str, ...] | None = None
+) -> list[dict[str, float | str]]:
+    """Env-steps/s of the batched kinematic vector env per task and ``num_envs``, on one core and one thread.
+
+    ``steps_per_s`` steps inside episodes (best of 3 runs of ``seconds``); ``with_resets_per_s``
+    charges each episode its reset as well (measured per episode on 128 sub-envs), i.e. the
+    rate over whole episodes of the registered length. At the largest size the memory per
+    sub-env is measured with ``tracemalloc``: the arrays it holds and the temporaries of a step.
+    """
+    import snac_gym
+
+    _pin_to_one_core()
+    rows: list[dict[str, float | str]] = []
+    with _one_thread():
+        for env_id in env_ids or tuple(snac_gym.ENV_IDS):
+            reset_s = _reset_seconds(env_id)
+            horizon = _vector_env(env_id, 1).unwrapped.single_env.default_max_steps
+            for size in sizes:
+                env = _vector_env(env_id, size)
+                env.reset(seed=0)
+                rate = _time_vector_steps(env, seconds)
+                with_resets = size * horizon / (size * horizon / rate + size * reset_s)
+                rows.append({"env_id": env_id, "num_envs": size, "steps_per_s": rate, "with_resets_per_s": with_resets,
+                             "reset_ms": reset_s * 1e3, "episode_steps": horizon})
+            held, peak = _memory_per_env(env_id, max(sizes))
+            rows[-1].update(bytes_per_env=held, step_peak_bytes_per_env=peak)
+    return rows
+
+
+def format_vector_bench(rows: list[dict[str, float | str]]) -> str:
+    """Table of :func:`run_vector_bench` rows."""
+    lines = [f"{'vector env':32s} {'N':>5s} {'env-steps/s':>13s} {'with resets':>13s}  memory per env"]
+    for row in rows:
+        memory = ""
+        if "bytes_per_env" in row:
+            memory = f"{row['bytes_per_env']:.0f} B held, {row['step_peak_bytes_per_env']:.0f} B step peak"
+        lines.append(f"{row['env_id']:32s} {row['num_envs']:5d} {row['steps_per_s']:13,.0f} {row['with_resets_per_s']:13,.0f}  {memory}")
+    resets = {row["env_id"]: (row["reset_ms"], row["episode_steps"]) for row in rows}
+    for env_id, (reset_ms, steps) in resets.items():
+        lines.append(f"{env_id}: one episode reset {reset_ms:.2f} ms (per {steps}-step episode)")
+    return "\n".join(lines)

@@ -53,11 +53,17 @@ def bench(
     substeps: bool = typer.Option(False, "--substeps", help="Also run the physics-substep accuracy study."),
     act: bool = typer.Option(False, "--act", help="Also time one act() call of every available policy that imports."),
     act_calls: int = typer.Option(5000, "--act-calls", min=100, help="Timed act() calls per policy and task."),
+    vector: bool = typer.Option(False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."),
 ) -> None:
     """Env steps per second and real-time factor of both ids on one core (and, with --act, act latency)."""
     from snac_gym.bench import format_env_bench, run_env_bench, run_substep_study
 
     typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
+    if vector:
+        from snac_gym.bench import format_vector_bench, run_vector_bench
+
+        typer.echo("\nbatched kinematic vector env (gym.make_vec(..., vectorization_mode='vector_entry_point')), one core")
+        typer.echo(format_vector_bench(run_vector_bench()))
     if substeps:
         typer.echo("\nphysics substeps: deviation from exact integration θ += u·dt over 1000 steps")
         for row in run_substep_study():
