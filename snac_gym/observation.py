@@ -38,7 +38,9 @@ class ObservationLayout:
     x_c        n         m      reference centre: the target (reach) or ellipse centre (track)
     =========  ========  =====  ========================================================
 
-    ``m`` is the number of joints and ``n`` the task dimension.
+    ``m`` is the number of joints and ``n`` the task dimension: 3 for the position tasks; 6 for
+    the pose tasks (:mod:`snac_gym.tasks.pose`), where x, x_d and x_c are ``[p; log₃ R]`` (m, rad),
+    ẋ_d is ``[ṗ_d; ω_d]`` and e is ``[p − p_d; log₃(R R_dᵀ)]``, the orientation rows in radians.
     """
 
     FIELDS = ("q", "qdot", "x", "x_d", "xdot_d", "e", "x_c")
@@ -66,9 +68,17 @@ class ObservationLayout:
         return f"ObservationLayout(n_joints={self.n_joints}, task_dim={self.task_dim})"
 
     def pack(
-        self, q: np.ndarray, qdot: np.ndarray, x: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, x_c: np.ndarray
+        self,
+        q: np.ndarray,
+        qdot: np.ndarray,
+        x: np.ndarray,
+        x_d: np.ndarray,
+        xdot_d: np.ndarray,
+        x_c: np.ndarray,
+        error: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Build the observation; the error field is computed here as ``x − x_d``."""
+        """Build the observation; the error field is ``error``, by default ``x − x_d`` computed here
+        (a pose task passes its logarithmic error, :meth:`~snac_gym.kinematics.PoseKinematics.task_error`)."""
         n = self.task_dim
         m = self.n_joints
         obs = np.empty(self.size, dtype=np.float64)
@@ -78,7 +88,10 @@ class ObservationLayout:
         obs[base : base + n] = x
         obs[base + n : base + 2 * n] = x_d
         obs[base + 2 * n : base + 3 * n] = xdot_d
-        obs[base + 3 * n : base + 4 * n] = obs[base : base + n] - obs[base + n : base + 2 * n]
+        if error is None:
+            obs[base + 3 * n : base + 4 * n] = obs[base : base + n] - obs[base + n : base + 2 * n]
+        else:
+            obs[base + 3 * n : base + 4 * n] = error
         obs[base + 4 * n : base + 5 * n] = x_c
         return obs
 

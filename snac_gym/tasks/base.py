@@ -54,6 +54,8 @@ class Task:
         accuracy_text: That accuracy in words.
         episode_steps: Default episode length of the env, control steps at 125 Hz.
         horizon_s: Default horizon of the demo and the evaluator, s.
+        real_horizon_s: Default episode of ``snac-gym real``, s: longer than the demo's, since
+            the conservative speed scale of the safety layer slows the arm down.
         csv_columns: The columns of the evaluator's samples CSV that hold its reference.
         env_doc: The task's paragraphs of its env's docstring: ``summary``, ``task_desc``,
             ``centre_desc``, ``success_desc``, ``random_desc``, ``key_desc``, ``paper_desc``,
@@ -73,8 +75,16 @@ class Task:
     accuracy_text: ClassVar[str] = "final error"
     episode_steps: ClassVar[int]
     horizon_s: ClassVar[float]
+    real_horizon_s: ClassVar[float]
     csv_columns: ClassVar[tuple[str, ...]] = ()
     env_doc: ClassVar[Mapping[str, str]]
+
+    # -- kinematics --------------------------------------------------------------------------
+    def make_kinematics(self, robot: str) -> Kinematics:
+        """The kinematics of the task's coordinates on ``robot`` (the envs build theirs here): the
+        end-effector position (:class:`Kinematics`, task_dim 3); a pose task returns a
+        :class:`~snac_gym.kinematics.PoseKinematics` (task_dim 6, its own ``task_error``)."""
+        return Kinematics(robot)
 
     # -- references ------------------------------------------------------------------------
     def sample(self, kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> Reference:

@@ -1,0 +1,228 @@
+"""Pose tasks: reach a full end-effector pose, or follow an ellipse at a fixed orientation.
+
+Task coordinates are ``x = [p; log₃ R]`` (m, rad) and the error is ``e = [p − p_d; log₃(R R_dᵀ)]``
+(:class:`~snac_gym.kinematics.PoseKinematics`): position in metres, orientation in radians, both in
+the base frame, with the 6-row ``LOCAL_WORLD_ALIGNED`` Jacobian. The cost ``eᵀQe + uᵀRu`` weighs
+both blocks with Q = I₆ by default, so 1 mrad of orientation error costs as much as 1 mm of
+position error; pass ``Q=np.diag([1, 1, 1, w², w², w²])`` to price a radian as ``w`` metres.
+Success is ``‖e‖ ≤ 1e-3`` (1 mm and 1 mrad together) for reach, a mean of 5e-3 over the second half
+for tracking, as for the position tasks.
+
+The tasks are opt-in: :func:`register_pose_tasks` adds them and their Gymnasium ids
+``snac_gym/PoseReach-v0`` and ``snac_gym/PoseEllipseTrack-v0`` (``robot=`` any registered arm;
+the 7-DOF arms are redundant for them). The evaluator's lockstep engine handles 3-D references
+only, so ``snac-gym evaluate`` does not run them yet; the envs, every controller and the rollouts
+of :mod:`snac_gym.rollout` do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from snac_gym.kinematics import PoseKinematics, shared_pose_kinematics
+from snac_gym.references import PAPER_TARGET, Ellipse
+from snac_gym.sampling import SampleSpace, sample_ellipse, sample_seed_pose
+from snac_gym.tasks.base import CellReader, Task
+
+#: The tool pointing down (π about x), the orientation of the placeholder reference.
+_DOWN = (np.pi, 0.0, 0.0)
+
+
+def _rotation_vector(value: Any, name: str) -> np.ndarray:
+    vector = np.asarray(value, dtype=float)
+    if vector.shape != (3,) or not np.all(np.isfinite(vector)):
+        raise ValueError(f"{name} must be 3 finite numbers (a rotation vector, rad), got {value!r}")
+    return vector
+
+
+@dataclass(frozen=True)
+class PoseTarget:
+    """A fixed pose: ``x_d = [p_d; r_d]`` with ``r_d = log₃ R_d`` (m, rad), ``ẋ_d = 0``."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "position", _rotation_vector(self.position, "position"))
+        object.__setattr__(self, "rotation", pin.log3(pin.exp3(_rotation_vector(self.rotation, "rotation"))))
+
+    @property
+    def centre(self) -> np.ndarray:
+        return np.concatenate([self.position, self.rotation])
+
+    def position_and_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self.centre, np.zeros(6)
+
+    def trajectory(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        count = len(np.asarray(times))
+        return np.tile(self.centre, (count, 1)), np.zeros((count, 6))
+
+    def points(self, count: int = 1) -> np.ndarray:
+        return self.centre[None, :]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"position": self.position.tolist(), "rotation": self.rotation.tolist()}
+
+
+@dataclass(frozen=True)
+class PoseEllipse:
+    """An :class:`~snac_gym.references.Ellipse` for the position at a fixed orientation ``r_d`` (rad)."""
+
+    ellipse: Ellipse
+    rotation: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rotation", pin.log3(pin.exp3(_rotation_vector(self.rotation, "rotation"))))
+
+    @property
+    def centre(self) -> np.ndarray:
+        return np.concatenate([self.ellipse.centre, self.rotation])
+
+    def position_and_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        position, velocity = self.ellipse.position_and_velocity(t)
+        return np.concatenate([position, self.rotation]), np.concatenate([velocity, np.zeros(3)])
+
+    def trajectory(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        positions, velocities = self.ellipse.trajectory(times)
+        count = len(positions)
+        return np.hstack([positions, np.tile(self.rotation, (count, 1))]), np.hstack([velocities, np.zeros((count, 3))])
+
+    def points(self, count: int = 64) -> np.ndarray:
+        positions = self.ellipse.points(count)
+        return np.hstack([positions, np.tile(self.rotation, (len(positions), 1))])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.ellipse.to_dict(), "rotation": self.rotation.tolist()}
+
+
+def check_pose_reachable(kinematics: PoseKinematics, poses: np.ndarray, what: str) -> None:
+    """Raise ``ValueError`` naming the first of ``poses`` (rows ``[p; r]``) that pose IK does not reach."""
+    q = kinematics.position.inverse_position(poses[0][:3], _nominal(kinematics))[0]
+    for pose in poses:
+        q, ok = kinematics.inverse_pose(pose, q)
+        if not ok:
+            raise ValueError(f"{what}: pose {np.round(pose, 4).tolist()} (m, rad) is not reachable by {kinematics.robot}")
+
+
+def _nominal(kinematics: PoseKinematics) -> np.ndarray:
+    from snac_gym.sampling import nominal_configuration
+
+    return nominal_configuration(kinematics.position)
+
+
+def _pose(kinematics: Any) -> PoseKinematics:
+    """The pose kinematics of the robot behind ``kinematics`` (position or pose)."""
+    return kinematics if isinstance(kinematics, PoseKinematics) else shared_pose_kinematics(kinematics.robot)
+
+
+class PoseReachTask(Task):
+    """Reach a fixed pose (position and orientation); success ``‖e‖ ≤ 1e-3`` (1 mm, 1 mrad)."""
+
+    name, label, code = "pose-reach", "Pose regulation", 10
+    option_key = "pose"
+    env_id, env_class_name = "snac_gym/PoseReach-v0", "PoseReachEnv"
+    success_tolerance = 1e-3
+    episode_steps = 1500
+    horizon_s = 12.0
+    env_doc = MappingProxyType({
+        "summary": "regulation of the full end-effector pose, position and orientation.",
+        "task_desc": "The end-effector frame must reach a fixed pose: e = [p − p_d; log₃(R R_dᵀ)] → 0.",
+        "centre_desc": "the target pose [p_d; log₃ R_d]",
+        "success_desc": "‖e‖ ≤ ``success_tolerance``, default 1e-3 (m and rad)",
+        "random_desc": "the pose of a random well-conditioned configuration with its tool in the cuboid",
+        "key_desc": "``{'position': [3 numbers, m], 'rotation': [3 numbers, rotation vector, rad]}``",
+        "paper_desc": "a placeholder until reset: the paper's target, the tool pointing down",
+        "end_desc": "Termination on success only with ``terminate_on_success=True``.",
+    })
+
+    def make_kinematics(self, robot: str) -> PoseKinematics:
+        return PoseKinematics(robot)
+
+    def sample(self, kinematics: Any, rng: np.random.Generator, space: SampleSpace) -> PoseTarget:
+        pose = _pose(kinematics)
+        x = pose.forward(sample_seed_pose(pose.position, rng, space))
+        return PoseTarget(x[:3], x[3:])
+
+    def paper(self) -> PoseTarget:
+        return PoseTarget(PAPER_TARGET, _DOWN)
+
+    def parse(self, value: Any, kinematics: Any) -> PoseTarget:
+        target = value if isinstance(value, PoseTarget) else PoseTarget(value["position"], value["rotation"])
+        check_pose_reachable(_pose(kinematics), target.points(), f"options[{self.option_key!r}]")
+        return target
+
+    def option_value(self, reference: PoseTarget) -> dict[str, Any]:
+        return reference.to_dict()
+
+    def csv_cells(self, reference: PoseTarget) -> dict[str, float]:
+        raise NotImplementedError("the evaluator does not run pose tasks yet (3-D references only)")
+
+    def read_csv_reference(self, cells: CellReader) -> PoseTarget:
+        raise NotImplementedError("the evaluator does not run pose tasks yet (3-D references only)")
+
+
+class PoseTrackTask(PoseReachTask):
+    """Follow an ellipse with the tool at a fixed orientation; success: mean ‖e‖ over the 2nd half ≤ 5e-3."""
+
+    name, label, code = "pose-track", "Pose tracking", 11
+    option_key = "pose_ellipse"
+    env_id, env_class_name = "snac_gym/PoseEllipseTrack-v0", "PoseEllipseTrackEnv"
+    moving_reference = True
+    success_tolerance = 5e-3
+    success_measure = "mean_error_2nd_half"
+    accuracy_measure = "median_error_2nd_half"
+    accuracy_text = "median error over the second half"
+    episode_steps = 2500
+    horizon_s = 20.0
+    env_doc = MappingProxyType({
+        **PoseReachTask.env_doc,
+        "summary": "tracking with the full pose: an ellipse for the position at a fixed orientation.",
+        "task_desc": "The end-effector frame must follow p_d(t) on an ellipse with orientation R_d fixed.",
+        "centre_desc": "[ellipse centre; log₃ R_d]",
+        "random_desc": "a feasible random ellipse of the cuboid at the orientation of a random seed pose",
+        "key_desc": "the ellipse keys of the position tracking task plus ``rotation`` (rad)",
+        "paper_desc": "a placeholder until reset: the paper's circle, the tool pointing down",
+    })
+
+    def sample(self, kinematics: Any, rng: np.random.Generator, space: SampleSpace) -> PoseEllipse:
+        pose = _pose(kinematics)
+        for _ in range(200):
+            ellipse = sample_ellipse(pose.position, rng, space)
+            rotation = pose.forward(sample_seed_pose(pose.position, rng, space))[3:]
+            candidate = PoseEllipse(ellipse, rotation)
+            try:
+                check_pose_reachable(pose, candidate.points(space.ellipse_points), "sample")
+            except ValueError:
+                continue
+            return candidate
+        raise RuntimeError(f"no ellipse reachable at a fixed orientation found in {space}")
+
+    def paper(self) -> PoseEllipse:
+        return PoseEllipse(Ellipse.paper_circle(), _DOWN)
+
+    def parse(self, value: Any, kinematics: Any) -> PoseEllipse:
+        if not isinstance(value, PoseEllipse):
+            spec = dict(value)
+            rotation = spec.pop("rotation")
+            value = PoseEllipse(Ellipse.from_dict(spec), rotation)
+        check_pose_reachable(_pose(kinematics), value.points(64), f"options[{self.option_key!r}]")
+        return value
+
+
+def register_pose_tasks() -> None:
+    """Register the pose tasks and their Gymnasium ids (idempotent)."""
+    import snac_gym.envs
+    from snac_gym.tasks import TASKS, register_task
+
+    for task in (PoseReachTask(), PoseTrackTask()):
+        if task.name not in TASKS:
+            register_task(task)
+    snac_gym.envs.register_envs()
+
+
+__all__ = ["PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "register_pose_tasks"]
