@@ -23,13 +23,11 @@ import pandas as pd
 
 from snac_gym.metrics import DemoMetrics, demo_metrics
 from snac_gym.rollout import add_critic_diagnostics, rollout, write_log
-from snac_gym.tasks import TASKS, get_task
+from snac_gym.tasks import get_task
 
 #: Longest demo accepted, s (50x the tracking demo): the log is held in memory, so an unbounded
 #: horizon fails late (or exhausts memory) instead of being refused.
 MAX_DEMO_DURATION_S = 1000.0
-#: Kept for importers; the tasks own these (``get_task(name).success_tolerance``).
-DEMO_TOLERANCES = {name: task.success_tolerance for name, task in TASKS.items()}
 
 
 def demo_steps(task: str, dt: float) -> int:

@@ -23,7 +23,7 @@ class HoverTask(ReachTask):
 
     name, label, code = "hover", "Hover", 90
     env_id, env_class_name = "snac_gym/UR10Hover-v0", "UR10HoverEnv"
-    success_tolerance, episode_steps, horizon_s = 2e-3, 1250, 10.0
+    success_tolerance, episode_steps, horizon_s, real_horizon_s = 2e-3, 1250, 10.0, 12.0
 
     def sample(self, kinematics, rng, space):
         high = SampleSpace(**{**space.__dict__, "low": (*space.low[:2], space.low[2] + 0.1)})

@@ -20,7 +20,7 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
 from snac_gym.sampling import SampleSpace, sample_seed_pose
-from snac_gym.tasks import TASKS, Task
+from snac_gym.tasks import TASKS, Task, get_task
 
 _ENV_DOC = """
     ## Description
@@ -308,8 +308,80 @@ def _check_choices(
     return obs_dtype
 
 
-class URTaskEnv(gym.Env):
-    """Base class of the snac-gym envs: one per task (:func:`task_env_class`); see their documentation."""
+class TaskEnvCore(gym.Env):
+    """What every snac-gym env shares, whatever arm it drives (PyBullet, the kinematic model, a real UR).
+
+    The task, the kinematics, the observation layout and its packing, the episode's start from
+    ``reset`` options, the per-step cost terms (eq. 6 and the smoothness term, from
+    :func:`snac_gym.cost.step_costs`), the info dicts and the success rule. Subclasses add the
+    arm: :class:`URTaskEnv` (simulated) and :class:`snac_gym.real.RealUREnv` (a real arm behind
+    the safety layer).
+    """
+
+    def _init_task(
+        self, task: Task | str, kinematics: Kinematics, dt: float, Q: Any, R: Any,
+        success_tolerance: float | None, sample_space: SampleSpace | None,
+    ) -> None:
+        """Set the shared state; raises ``ValueError`` on a bad tolerance or weight matrix."""
+        self.task: Task = get_task(task)
+        self.task_name = self.task.name
+        try:
+            tolerance = float(self.task.success_tolerance if success_tolerance is None else success_tolerance)
+        except (TypeError, ValueError):
+            tolerance = math.nan
+        if not (math.isfinite(tolerance) and tolerance > 0):
+            raise ValueError(f"success_tolerance must be a positive finite distance (m), got {success_tolerance!r}")
+        self.success_tolerance = tolerance
+        self.kinematics = kinematics
+        self.dt = float(dt)
+        m, n = kinematics.n_joints, kinematics.task_dim
+        self.Q = weight_matrix(Q, n, "Q")
+        self.R = weight_matrix(R, m, "R")
+        self.sample_space = sample_space if sample_space is not None else SampleSpace.for_robot(kinematics)
+        self.velocity_limits = kinematics.velocity_limits.copy()
+        self.obs_layout = ObservationLayout(m, n)
+        self._error_slice = self.obs_layout.slices["e"]
+        self.reference: Reference = self.task.paper()
+        self.steps = 0
+        self._last_command = np.zeros(m)
+        self._obs: np.ndarray | None = None
+
+    @property
+    def time(self) -> float:
+        """Time since reset, s."""
+        return self.steps * self.dt
+
+    def _pack(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+        """The observation of the measured state, with the reference at the current time."""
+        x_d, xdot_d = self.reference.position_and_velocity(self.time)
+        return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
+
+    def _is_success(self, error: np.ndarray) -> bool:
+        return bool(error @ error <= self.success_tolerance**2)
+
+    def _step_costs(self, command: np.ndarray) -> tuple[float, float, float]:
+        """``(eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ)`` of the step about to apply ``command`` (eₖ: the error now)."""
+        return step_costs(self._obs[self._error_slice], command, self._last_command, self.dt, self.Q, self.R)
+
+    def _reset_info(self, q0: np.ndarray | None) -> dict[str, Any]:
+        error = self._obs[self._error_slice]
+        info = {"error": error.copy(), "error_norm": float(np.linalg.norm(error)), "t": 0.0,
+                "is_success": self._is_success(error), "reference": self.reference.to_dict()}
+        if q0 is not None:
+            info["q0"] = np.array(q0, dtype=float)
+        return info
+
+    def _step_info(self, costs: tuple[float, float, float], command: np.ndarray) -> dict[str, Any]:
+        error = self._obs[self._error_slice]
+        return {
+            "error": error.copy(), "error_norm": math.sqrt(error @ error), "cost_error": costs[0],
+            "cost_effort": costs[1], "cost_smoothness": costs[2], "command": command.copy(), "t": self.time,
+            "is_success": self._is_success(error),
+        }
+
+
+class URTaskEnv(TaskEnvCore):
+    """Base class of the simulated envs: one per task (:func:`task_env_class`); see their documentation."""
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
     #: The task this env class runs (set by :func:`task_env_class`).
@@ -357,30 +429,28 @@ class URTaskEnv(gym.Env):
         self.max_steps = self.default_max_steps if max_steps is None else int(max_steps)
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
-        self.success_tolerance = self.default_success_tolerance if success_tolerance is None else float(success_tolerance)
-        if not self.success_tolerance > 0:
-            raise ValueError(f"success_tolerance must be positive, got {success_tolerance}")
-
-        self.task: Task = self.task_spec
-        self.task_name = self.task.name
-        self.kinematics = Kinematics(robot)
-        m, n = self.kinematics.n_joints, self.kinematics.task_dim
-        self.Q = weight_matrix(Q, n, "Q")
-        self.R = weight_matrix(R, m, "R")
+        self._init_task(self.task_spec, Kinematics(robot), dt, Q, R, success_tolerance, sample_space)
         self.reward_type = reward_type
         self.terminate_on_success = bool(terminate_on_success)
-        self.sample_space = sample_space if sample_space is not None else SampleSpace.for_robot(self.kinematics)
         self.render_mode = render_mode
         self.render_width, self.render_height = check_image_size(render_width, render_height)
 
         self.action_type = action_type
         self.observation_dtype = obs_dtype
+        self.backend = backend
+        self._build_arm(backend, n_substeps, render_every)
+        self._unit_limits = np.ones(self.kinematics.n_joints)  # the bounds of a normalized action
+        self._build_spaces(finite_observation_bounds)
+
+    def _build_arm(self, backend: str, n_substeps: int, render_every: int | None) -> None:
+        """The arm, and the rendered scene when there is a render mode."""
         # "human" without a display falls back to the headless client and warns on the first frame
         # (the constructor must work headless: Gymnasium's checker builds every declared mode).
-        self._headless_human = render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
-        self.backend = backend
-        gui = render_mode == "human" and not self._headless_human
-        self.arm: Arm = make_arm(backend, self.kinematics, dt, n_substeps, gui=gui)
+        self._headless_human = (
+            self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
+        )
+        gui = self.render_mode == "human" and not self._headless_human
+        self.arm: Arm = make_arm(backend, self.kinematics, self.dt, n_substeps, gui=gui)
         self.dt = self.arm.dt
         #: The PyBullet world (renders; ``None`` for the kinematic arm).
         self.sim = getattr(self.arm, "sim", None)
@@ -391,23 +461,12 @@ class URTaskEnv(gym.Env):
         if self.render_every < 1:
             raise ValueError(f"render_every must be a positive number of control steps, got {render_every!r}")
         self._scene: Scene | None = None
-        if render_mode is not None and not self._headless_human:
+        if self.render_mode is not None and not self._headless_human:
             # Built before the first reset: PyBullet restores a saved state only into the same bodies.
             self._scene = scene_of(self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height)
             self.arm.save_initial_state()
         self._frame: tuple[int, np.ndarray] | None = None  # (step, image) of the last rendered image
         self._shown_reference: Reference | None = None
-
-        self.velocity_limits = self.kinematics.velocity_limits.copy()
-        self.obs_layout = ObservationLayout(m, n)
-        self._error_slice = self.obs_layout.slices["e"]
-        self._unit_limits = np.ones(m)  # the bounds of a normalized action, checked every step
-        self._build_spaces(finite_observation_bounds)
-
-        self.reference: Reference = self.task.paper()
-        self.steps = 0
-        self._last_command = np.zeros(m)
-        self._obs: np.ndarray | None = None
 
     def _build_spaces(self, finite_observation_bounds: bool) -> None:
         """The action space of :attr:`action_type` and the observation space (see the class docs)."""
@@ -439,15 +498,8 @@ class URTaskEnv(gym.Env):
         return low, high
 
     # -- episode -----------------------------------------------------------------------------
-    @property
-    def time(self) -> float:
-        """Simulated time since reset, s."""
-        return self.steps * self.dt
-
     def _observe(self) -> np.ndarray:
-        q, qdot = self.arm.joint_state()
-        x_d, xdot_d = self.reference.position_and_velocity(self.time)
-        return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
+        return self._pack(*self.arm.joint_state())
 
     def _parse_options(self, options: Mapping[str, Any] | None) -> tuple[np.ndarray, Reference]:
         return draw_episode(self.task, self.kinematics, self.np_random, self.sample_space, options)
@@ -465,17 +517,11 @@ class URTaskEnv(gym.Env):
         self._obs = self._observe()
         if self.render_mode == "human":
             self.render()
-        error = self.obs_layout.unpack(self._obs).e
-        info = {"error": error.copy(), "error_norm": float(np.linalg.norm(error)), "t": 0.0,
-                "is_success": self._is_success(error), "reference": self.reference.to_dict(), "q0": q0.copy()}
-        return self._output(self._obs), info
+        return self._output(self._obs), self._reset_info(q0)
 
     def _output(self, obs: np.ndarray) -> np.ndarray:
         """A copy of ``obs`` in the observation dtype."""
         return obs.astype(self.observation_dtype)  # astype copies, also for float64
-
-    def _is_success(self, error: np.ndarray) -> bool:
-        return bool(error @ error <= self.success_tolerance**2)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._obs is None:
@@ -484,30 +530,20 @@ class URTaskEnv(gym.Env):
             u = validate_action(action, self._unit_limits) * self.velocity_limits
         else:
             u = validate_action(action, self.velocity_limits)
-        cost_error, cost_effort, cost_smoothness = step_costs(
-            self._obs[self._error_slice], u, self._last_command, self.dt, self.Q, self.R
-        )
+        costs = self._step_costs(u)
         self.arm.apply(u)
         self.steps += 1
         self._last_command = u
         self._obs = self._observe()
-
-        error = self._obs[self._error_slice]
-        success = self._is_success(error)
-        error_norm = math.sqrt(error @ error)
+        info = self._step_info(costs, u)
         if self.reward_type == "dense":
-            reward = -(cost_error + cost_effort)
+            reward = -(costs[0] + costs[1])
         elif self.reward_type == "shaped":
-            reward = shaped_reward(error_norm, u / self.velocity_limits)
+            reward = shaped_reward(info["error_norm"], u / self.velocity_limits)
         else:
-            reward = 0.0 if success else -1.0
-        terminated = self.terminate_on_success and success
+            reward = 0.0 if info["is_success"] else -1.0
+        terminated = self.terminate_on_success and info["is_success"]
         truncated = self.requested_max_steps is not None and self.steps >= self.requested_max_steps
-        info = {
-            "error": error.copy(), "error_norm": error_norm, "cost_error": cost_error,
-            "cost_effort": cost_effort, "cost_smoothness": cost_smoothness, "command": u.copy(), "t": self.time,
-            "is_success": success,
-        }
         if self.render_mode == "human":
             self.render()
         return self._output(self._obs), float(reward), terminated, truncated, info

@@ -2,24 +2,19 @@
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from snac_gym.cost import quadratic_form
-from snac_gym.envs.core import resolve_reference, validate_action, validate_q0
-from snac_gym.envs.tasks import TASKS
-from snac_gym.observation import ObservationLayout
+from snac_gym.envs.core import TaskEnvCore, resolve_reference, validate_action, validate_q0
 from snac_gym.real.backends import NORMAL, ArmBackend
 from snac_gym.real.safety import SafetyLayer, SafetyLimits
-from snac_gym.references import Reference
 from snac_gym.sampling import SampleSpace
 
 
-class RealUREnv(gym.Env):
+class RealUREnv(TaskEnvCore):
     """A UR arm streaming joint velocities, with the same observation and action spaces as
     ``snac_gym/UR10Reach-v0`` / ``snac_gym/UR10EllipseTrack-v0``, so any policy drives it unchanged.
 
@@ -47,11 +42,12 @@ class RealUREnv(gym.Env):
     are given without one; random from ``sample_space`` without options).
 
     Args:
-        task: ``"reach"`` or ``"track"``.
+        task: A registered task's name.
         backend: An :class:`~snac_gym.real.backends.ArmBackend` (ur_rtde, simulated or dry run).
         safety: Safety limits (default: the conservative :class:`SafetyLimits`).
-        max_steps: Episode length in control periods (default 8 s for reach, 20 s for track).
-        success_tolerance: Error norm counted as success, m (1 mm reach, 5 mm track).
+        max_steps: Episode length in control periods (default: the simulated env's episode in
+            seconds, 8 s for reach, 20 s for track).
+        success_tolerance: Error norm counted as success, m (default: the task's, 1 mm reach, 5 mm track).
         Q, R: Cost weights of the reward (default identity).
         sample_space: Space of random references.
 
@@ -82,44 +78,23 @@ class RealUREnv(gym.Env):
         R: np.ndarray | None = None,
         sample_space: SampleSpace | None = None,
     ) -> None:
-        if task not in TASKS:
-            raise ValueError(f"task must be one of {sorted(TASKS)}, got {task!r}")
-        self.task = TASKS[task]()
-        self.task_name = task
+        self._init_task(task, backend.kinematics, backend.dt, Q, R, success_tolerance, sample_space)
         self.backend = backend
-        self.kinematics = backend.kinematics
-        self.dt = float(backend.dt)
         self.safety_limits = safety if safety is not None else SafetyLimits()
         self.safety = SafetyLayer(self.kinematics, self.safety_limits, self.dt)
-        default_seconds = 8.0 if task == "reach" else 20.0
+        # The simulated env's episode is episode_steps at 125 Hz: the same duration at this arm's rate.
+        default_seconds = self.task.episode_steps / 125.0
         self.max_steps = int(max_steps) if max_steps is not None else int(round(default_seconds / self.dt))
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be a positive number of control periods, got {max_steps!r}")
-        self.success_tolerance = (
-            float(success_tolerance) if success_tolerance is not None else (1e-3 if task == "reach" else 5e-3)
-        )
-        if not (math.isfinite(self.success_tolerance) and self.success_tolerance > 0):
-            raise ValueError(f"success_tolerance must be a positive finite distance (m), got {success_tolerance!r}")
-        self.Q, self.R = Q, R
-        self.sample_space = sample_space if sample_space is not None else SampleSpace.for_robot(self.kinematics)
-        self.velocity_limits = self.kinematics.velocity_limits.copy()
-        self.obs_layout = ObservationLayout(self.kinematics.n_joints, self.kinematics.task_dim)
         self.action_space = gym.spaces.Box(-self.velocity_limits, self.velocity_limits, dtype=np.float64)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.obs_layout.size,), dtype=np.float64)
-        self.reference: Reference = self.task.paper()
-        self.steps = 0
         self.periods: list[float] = []
         self.speed_scalings: list[float] = []
-        self._obs: np.ndarray | None = None
-        self._last_command = np.zeros(self.kinematics.n_joints)
         self._period_start: Any = None
         self._period_wall = 0.0
         self._episode_over = True
         self.stop_reason: str | None = None
-
-    @property
-    def time(self) -> float:
-        return self.steps * self.dt
 
     def _begin_period(self) -> None:
         # A period starts once the state is read, as in ur_rtde's initPeriod/waitPeriod loop, so the
@@ -183,9 +158,8 @@ class RealUREnv(gym.Env):
         self._obs = self._pack(q, qdot)
         self._begin_period()
         self._episode_over = False
-        fields = self.obs_layout.unpack(self._obs)
-        info = {"error": fields.e.copy(), "reference": reference.to_dict(), "safety_state": state}
-        return self._obs.copy(), {**info, "speed_scaling": self.speed_scalings[0]}
+        info = self._reset_info(q0 if q0 is not None else q)
+        return self._obs.copy(), {**info, "safety_state": state, "speed_scaling": self.speed_scalings[0]}
 
     def _tcp_mismatch(self, x_model: np.ndarray) -> str | None:
         """The FK check: the controller's reported TCP position against the model's f(θ) (if reported)."""
@@ -196,10 +170,6 @@ class RealUREnv(gym.Env):
         """The controller's speed scaling (the pendant's slider) of the last read; 1.0 if not reported."""
         scaling = getattr(self.backend, "speed_scaling", None)
         return 1.0 if scaling is None else float(scaling())
-
-    def _pack(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
-        x_d, xdot_d = self.reference.position_and_velocity(self.time)
-        return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._obs is None:
@@ -219,17 +189,14 @@ class RealUREnv(gym.Env):
 
     def _step(self, u: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         command = self.safety.shape(u, self._last_command)
-        error_before = self._obs[self.obs_layout.slices["e"]]
-        cost_error = float(quadratic_form(error_before, self.Q))
-        cost_effort = float(quadratic_form(command, self.R))
-        cost_smoothness = float(quadratic_form((command - self._last_command) / self.dt, self.R))
+        costs = self._step_costs(command)
 
         # A command computed after a stall is not sent: the state it was computed from is old, and
         # the controller's watchdog may already have stopped the arm.
         stalled = self.safety.stall(time.perf_counter() - self._period_wall) if self.steps > 0 else None
         if stalled is not None:
             self._halt(f"{stalled}: command not sent")
-            return self._finish(cost_error, 0.0, 0.0, np.zeros_like(command), safety=self.stop_reason)
+            return self._finish((costs[0], 0.0, 0.0), np.zeros_like(command), safety=self.stop_reason)
         self.backend.command(command)
         self.backend.end_period(self._period_start)
         previous_start = self._period_wall
@@ -250,37 +217,18 @@ class RealUREnv(gym.Env):
             reason = f"controller reports {state}"
         if reason is not None:
             self._halt(reason)
-        return self._finish(cost_error, cost_effort, cost_smoothness, command, safety=reason, safety_state=state)
+        return self._finish(costs, command, safety=reason, safety_state=state)
 
     def _finish(
-        self,
-        cost_error: float,
-        cost_effort: float,
-        cost_smoothness: float,
-        command: np.ndarray,
-        safety: str | None,
-        safety_state: str = NORMAL,
+        self, costs: tuple[float, float, float], command: np.ndarray, safety: str | None, safety_state: str = NORMAL,
     ) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        error = self._obs[self.obs_layout.slices["e"]]
-        success = bool(error @ error <= self.success_tolerance**2)
-        info = {
-            "error": error.copy(),
-            "error_norm": math.sqrt(error @ error),
-            "cost_error": cost_error,
-            "cost_effort": cost_effort,
-            "cost_smoothness": cost_smoothness,
-            "command": command.copy(),
-            "t": self.time,
-            "is_success": success,
-            "safety": safety,
-            "safety_state": safety_state,
-            "speed_scaling": self.speed_scalings[-1],
-        }
+        info = self._step_info(costs, command)
+        info.update(safety=safety, safety_state=safety_state, speed_scaling=self.speed_scalings[-1])
         terminated = safety is not None
         truncated = not terminated and self.steps >= self.max_steps
         if truncated:
             self._end_episode()
-        return self._obs.copy(), -(cost_error + cost_effort), terminated, truncated, info
+        return self._obs.copy(), -(costs[0] + costs[1]), terminated, truncated, info
 
     def timing(self) -> dict[str, float]:
         """Loop period statistics of the episode so far (ms): mean, std, p50, p99, max, and late count."""

@@ -18,10 +18,8 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.real.backends import SERIES_FREQUENCY, DryRunBackend, SimulatedBackend, URRTDEBackend
 from snac_gym.real.env import RealUREnv
 from snac_gym.real.safety import SafetyLimits
+from snac_gym.tasks import get_task
 
-#: Episode length of a real run when none is given: longer than the simulated demo's, since
-#: the conservative speed scale slows the arm down.
-DEFAULT_SECONDS = {"reach": 15.0, "track": 30.0}
 #: Signals that end a real run through the same stop path as Ctrl-C. SIGKILL cannot be caught:
 #: then the controller's watchdog (:class:`~snac_gym.real.backends.URRTDEBackend`) stops the arm.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -157,20 +155,20 @@ def run_real_episode(
         series: ``"cb"`` (125 Hz) or ``"e"`` (500 Hz).
         dry_run: Connect and read state, send nothing; ``echo`` gets each command it would send.
         seed: Seed of the policy (and env) reset.
-        steps: Control periods (default :data:`DEFAULT_SECONDS` of the task).
+        steps: Control periods (default: the task's ``real_horizon_s``, 15 s reach, 30 s track).
         safety: Safety limits (default conservative :class:`SafetyLimits`).
         policy_kwargs: Constructor arguments of the policy.
         csv, plots: As for ``snac-gym demo``.
         echo: Where dry-run lines go (e.g. ``print``).
     """
-    from snac_gym.demo import DEMO_TOLERANCES, demo_options, write_demo_outputs
+    from snac_gym.demo import write_demo_outputs
     from snac_gym.policies import make_policy
     from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
 
     safety = safety if safety is not None else SafetyLimits()
     arm = make_backend(backend, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
     try:
-        default_steps = round(DEFAULT_SECONDS.get(task, 1.0) / arm.dt)
+        default_steps = round(get_task(task).real_horizon_s / arm.dt)
         env = RealUREnv(task, arm, safety=safety, max_steps=steps if steps is not None else default_steps)
     except BaseException:
         arm.close()
@@ -180,7 +178,7 @@ def run_real_episode(
             try:
                 policy = make_policy(controller, env, **(policy_kwargs or {}))
                 log = add_critic_diagnostics(
-                    rollout(env, policy, options=demo_options(task), seed=seed, steps=env.max_steps), policy
+                    rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps), policy
                 )
             finally:
                 env.close()
@@ -193,7 +191,7 @@ def run_real_episode(
     log.attrs["backend"] = backend + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
     demo = write_demo_outputs(
-        log, task, controller, seed, DEMO_TOLERANCES[task], out_dir, csv=csv, plots=plots, policy_kwargs=policy_kwargs
+        log, task, controller, seed, env.success_tolerance, out_dir, csv=csv, plots=plots, policy_kwargs=policy_kwargs
     )
     result = RealRunResult(
         demo=demo,

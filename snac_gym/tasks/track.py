@@ -38,6 +38,7 @@ class EllipseTrackTask(Task):
     accuracy_text = "median error over the 2nd half"
     episode_steps = 2500
     horizon_s = 20.0
+    real_horizon_s = 30.0
     csv_columns = ELLIPSE_COLUMNS
     env_doc = MappingProxyType({
         "summary": "optimal tracking of a point moving on an ellipse (Section IV).",
