@@ -116,6 +116,19 @@ def test_registered_length_and_options_reach_every_sub_env():
     np.testing.assert_allclose(obs[0], single.reset(options=options)[0], rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_batches_lie_in_the_batched_spaces(env_id):
+    env = gym.make_vec(env_id, num_envs=16, vectorization_mode="vector_entry_point", finite_observation_bounds=True,
+                       action_type="normalized", observation_dtype=np.float32)
+    obs, _ = env.reset(seed=1)
+    assert env.observation_space.contains(obs) and env.observation_space.shape == (16, 27)
+    env.action_space.seed(0)
+    for _ in range(20):
+        obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        assert env.observation_space.contains(obs)
+        assert reward.dtype == np.float64 and terminated.dtype == truncated.dtype == np.bool_
+
+
 def test_bad_arguments_are_refused():
     env_id = "snac_gym/UR10Reach-v0"
     with pytest.raises(ValueError, match="kinematic model only"):
