@@ -18,9 +18,9 @@ def _resolved_rate(base, obs, rng):
     return np.clip(u, -base.velocity_limits, base.velocity_limits)
 
 
-@pytest.mark.parametrize("task", list(TASKS))
-def test_every_link_and_the_reference_stay_in_the_image_over_random_episodes(task):
-    env = gym.make(TASKS[task].env_id, render_mode="rgb_array", render_width=SIZE, render_height=SIZE)
+@pytest.mark.parametrize("task, width, height", [("reach", SIZE, SIZE), ("track", SIZE, SIZE), ("reach", 200, 120)])
+def test_every_link_and_the_reference_stay_in_the_image_over_random_episodes(task, width, height):
+    env = gym.make(TASKS[task].env_id, render_mode="rgb_array", render_width=width, render_height=height)
     base, rng = env.unwrapped, np.random.default_rng(0)
     env.reset(seed=0)
     env.render()
@@ -32,9 +32,9 @@ def test_every_link_and_the_reference_stay_in_the_image_over_random_episodes(tas
             obs, *_ = env.step(_resolved_rate(base, obs, rng))
             if step % 20 == 0:
                 points = np.vstack([scene.link_origins(), base.kinematics.base_to_world(base.reference.position(base.time))])
-                pixels = project(points, scene.view, scene.projection, SIZE, SIZE)
+                pixels = project(points, scene.view, scene.projection, width, height)
                 assert (pixels[:, 2] > 0).all()
-                margin = np.minimum(pixels[:, :2], SIZE - pixels[:, :2]).min()
+                margin = np.minimum(pixels[:, :2], np.array([width, height]) - pixels[:, :2]).min()
                 worst = min(worst, margin)
                 assert margin > 0, f"{task} episode {episode} step {step}: a link at {pixels[:, :2].round()} is cut off"
     env.close()

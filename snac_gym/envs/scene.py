@@ -19,13 +19,13 @@ import numpy as np
 from snac_gym.envs.sim import p
 from snac_gym.kinematics import Kinematics
 from snac_gym.references import Reference
-from snac_gym.sampling import SampleSpace
+from snac_gym.sampling import SampleSpace, nominal_configuration
 
 #: Vertical field of view of the camera, degrees.
 FIELD_OF_VIEW = 45.0
 #: Fraction of the image (per axis, from its centre) the framed points fill: the rest is room for
 #: the links' swing during an episode.
-FILL = 0.9
+FILL = 0.75
 #: Points of the drawn ellipse path.
 PATH_POINTS = 48
 #: Link colours, cycled (dark blue and orange: they stand out from the grey floor and the white sky).
@@ -33,6 +33,7 @@ LINK_COLOURS = ((0.16, 0.25, 0.45, 1.0), (0.93, 0.55, 0.16, 1.0))
 FLOOR_COLOUR = (0.55, 0.57, 0.6, 1.0)
 TARGET_COLOUR = (0.85, 0.1, 0.1, 1.0)
 PATH_COLOUR = (0.95, 0.8, 0.1, 1.0)
+CUBOID_COLOUR = (0.35, 0.38, 0.42, 1.0)
 #: Where unused path markers wait (under the floor, out of view), m.
 PARKED = (0.0, 0.0, -5.0)
 
@@ -74,6 +75,7 @@ class Scene:
         self.width, self.height = width, height
         self._colour_arm()
         self._add_floor()
+        self._add_cuboid_edges(space)
         self.target = self._sphere(0.035, TARGET_COLOUR)
         self.path = [self._sphere(0.009, PATH_COLOUR, PARKED) for _ in range(PATH_POINTS)]
         self.view, self.projection = self._camera(space)
@@ -90,17 +92,54 @@ class Scene:
         p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, basePosition=[0, 0, -0.005],
                           physicsClientId=self.client)
 
+    def _add_cuboid_edges(self, space: SampleSpace) -> None:
+        """The sample cuboid's twelve edges as thin bars: where random targets and ellipses come from."""
+        low, high = np.asarray(space.low, dtype=float), np.asarray(space.high, dtype=float)
+        centre, half = (low + high) / 2.0, (high - low) / 2.0
+        for axis in range(3):
+            others = [a for a in range(3) if a != axis]
+            extents = np.full(3, 0.002)
+            extents[axis] = half[axis]
+            shape = p.createVisualShape(p.GEOM_BOX, halfExtents=extents.tolist(), rgbaColor=CUBOID_COLOUR,
+                                        physicsClientId=self.client)
+            for sign_a in (-1, 1):
+                for sign_b in (-1, 1):
+                    corner = centre.copy()
+                    corner[others[0]] += sign_a * half[others[0]]
+                    corner[others[1]] += sign_b * half[others[1]]
+                    # Bars are axis-aligned in the base frame, which is the world turned about z by a multiple of π/2
+                    # for the UR arms; the orientation keeps them aligned for any base yaw.
+                    p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape,
+                                      basePosition=self.kinematics.base_to_world(corner).tolist(),
+                                      baseOrientation=self._base_orientation(), physicsClientId=self.client)
+
+    def _base_orientation(self) -> list[float]:
+        """The base frame's orientation in the world, as a quaternion."""
+        x_axis = self.kinematics.base_to_world(np.array([1.0, 0.0, 0.0])) - self.kinematics.base_to_world(np.zeros(3))
+        yaw = math.atan2(x_axis[1], x_axis[0])
+        return list(p.getQuaternionFromEuler([0.0, 0.0, yaw]))
+
     def _sphere(self, radius: float, colour: tuple[float, ...], position: tuple[float, ...] = PARKED) -> int:
         shape = p.createVisualShape(p.GEOM_SPHERE, radius=radius, rgbaColor=colour, physicsClientId=self.client)
         return p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, basePosition=list(position),
                                  physicsClientId=self.client)
 
     def framed_points(self, space: SampleSpace) -> np.ndarray:
-        """World points the camera must show: the cuboid's corners, the base and the link origins now."""
+        """World points the camera must show: the cuboid's corners, the base, and the link origins at the
+        robot's nominal (elbow-up) pose, how the arm stands while it works in the cuboid."""
         corners = np.array([[x, y, z] for x in (space.low[0], space.high[0]) for y in (space.low[1], space.high[1])
                             for z in (space.low[2], space.high[2])])
+        joints = [i for i in range(p.getNumJoints(self.body, physicsClientId=self.client))
+                  if p.getJointInfo(self.body, i, physicsClientId=self.client)[2] != p.JOINT_FIXED]
+        load_pose = [p.getJointState(self.body, i, physicsClientId=self.client)[0] for i in joints]
+        self._pose(joints, nominal_configuration(self.kinematics))
         links = self.link_origins()
+        self._pose(joints, load_pose)  # put the arm back where the saved initial state has it
         return np.vstack([[self.kinematics.base_to_world(c) for c in corners], [[0.0, 0.0, 0.0]], links])
+
+    def _pose(self, joints: list[int], angles: Any) -> None:
+        for joint, angle in zip(joints, angles):
+            p.resetJointState(self.body, joint, float(angle), 0.0, physicsClientId=self.client)
 
     def link_origins(self) -> np.ndarray:
         """World positions of every link frame of the arm."""
