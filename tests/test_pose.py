@@ -11,10 +11,25 @@ from snac_gym.kinematics import PoseKinematics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.sampling import SampleSpace, nominal_configuration
-from snac_gym.tasks.pose import PoseEllipse, PoseTarget, register_pose_tasks
+from snac_gym.tasks.pose import POSE_TASKS, PoseEllipse, PoseTarget, register_pose_tasks
 
-register_pose_tasks()
 CONTROLLERS = ["snac", "rnn", "svf", "dls", "lqr"]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def pose_tasks():
+    """The pose tasks registered for this module only: the other modules see the two paper tasks."""
+    import gymnasium as gym
+
+    import snac_gym
+    from snac_gym.tasks import TASKS
+
+    register_pose_tasks()
+    yield
+    for task in POSE_TASKS:
+        TASKS.pop(task.name, None)
+        gym.registry.pop(task.env_id, None)
+        snac_gym.ENV_IDS.pop(task.env_id, None)
 
 
 @pytest.fixture(scope="module")
@@ -132,3 +147,33 @@ def test_pose_references_round_trip(panda):
     assert PoseTarget(**target.to_dict()).to_dict() == target.to_dict()
     x_d, xdot_d = target.position_and_velocity(3.0)
     assert x_d.shape == (6,) and not xdot_d.any()
+
+
+@pytest.mark.parametrize("env_id", ["snac_gym/PoseReach-v0", "snac_gym/PoseEllipseTrack-v0"])
+def test_check_env_on_the_pose_ids(env_id):
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(env_id, robot="panda")
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (2 * 7 + 5 * 6,)
+    env.close()
+
+
+def test_the_pose_env_logs_pinocchios_logarithm_and_dls_reaches(panda):
+    import gymnasium as gym
+
+    env = gym.make("snac_gym/PoseReach-v0", robot="panda", backend="kinematic", max_steps=3000)
+    policy = make_policy("dls", env)
+    obs, _ = env.reset(seed=4)
+    layout = env.unwrapped.obs_layout
+    for _ in range(3000):
+        fields = layout.unpack(obs)
+        M, R_d = panda.placement(fields.q), pin.exp3(fields.x_d[3:])
+        np.testing.assert_allclose(fields.e[3:], pin.log3(M.rotation @ R_d.T), atol=1e-9)
+        M_d = pin.SE3(R_d, fields.x_d[:3])
+        np.testing.assert_allclose(pin.log6(M_d.actInv(M)).angular, R_d.T @ fields.e[3:], atol=1e-9)
+        obs, _, terminated, truncated, info = env.step(policy.act(obs))
+    assert info["is_success"] and info["error_norm"] < 1e-3
+    env.close()

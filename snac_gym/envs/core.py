@@ -333,6 +333,8 @@ class TaskEnvCore(gym.Env):
             raise ValueError(f"success_tolerance must be a positive finite distance (m), got {success_tolerance!r}")
         self.success_tolerance = tolerance
         self.kinematics = kinematics
+        # A pose task's error is a logarithm (PoseKinematics.task_error), not x − x_d (None).
+        self._task_error = getattr(kinematics, "task_error", None)
         self.dt = float(dt)
         m, n = kinematics.n_joints, kinematics.task_dim
         self.Q = weight_matrix(Q, n, "Q")
@@ -354,7 +356,9 @@ class TaskEnvCore(gym.Env):
     def _pack(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
         """The observation of the measured state, with the reference at the current time."""
         x_d, xdot_d = self.reference.position_and_velocity(self.time)
-        return self.obs_layout.pack(q, qdot, self.kinematics.forward(q), x_d, xdot_d, self.reference.centre)
+        x = self.kinematics.forward(q)
+        error = None if self._task_error is None else self._task_error(x, x_d)
+        return self.obs_layout.pack(q, qdot, x, x_d, xdot_d, self.reference.centre, error)
 
     def _is_success(self, error: np.ndarray) -> bool:
         return bool(error @ error <= self.success_tolerance**2)
@@ -429,7 +433,7 @@ class URTaskEnv(TaskEnvCore):
         self.max_steps = self.default_max_steps if max_steps is None else int(max_steps)
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
-        self._init_task(self.task_spec, Kinematics(robot), dt, Q, R, success_tolerance, sample_space)
+        self._init_task(self.task_spec, self.task_spec.make_kinematics(robot), dt, Q, R, success_tolerance, sample_space)
         self.reward_type = reward_type
         self.terminate_on_success = bool(terminate_on_success)
         self.render_mode = render_mode

@@ -214,15 +214,19 @@ class PoseTrackTask(PoseReachTask):
         return value
 
 
+#: The two pose tasks, one instance each (registering them again reuses their env classes).
+POSE_TASKS: tuple[Task, ...] = (PoseReachTask(), PoseTrackTask())
+
+
 def register_pose_tasks() -> None:
     """Register the pose tasks and their Gymnasium ids (idempotent)."""
     import snac_gym.envs
     from snac_gym.tasks import TASKS, register_task
 
-    for task in (PoseReachTask(), PoseTrackTask()):
+    for task in POSE_TASKS:
         if task.name not in TASKS:
             register_task(task)
     snac_gym.envs.register_envs()
 
 
-__all__ = ["PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "register_pose_tasks"]
+__all__ = ["POSE_TASKS", "PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "register_pose_tasks"]
