@@ -19,6 +19,9 @@ import numpy as np
 import pytest
 
 pytest.importorskip("rtde_control")
+#: These run the real ur_rtde client against the emulator in real time: the README's test command
+#: runs them on their own, after the parallel run, so that no other test competes for the CPU.
+pytestmark = pytest.mark.realtime
 
 from snac_gym.kinematics import Kinematics  # noqa: E402
 from snac_gym.real import ConnectionFailure, RealUREnv, SafetyLimits, URRTDEBackend  # noqa: E402
