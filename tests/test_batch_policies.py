@@ -15,11 +15,11 @@ from baselines.rnn import RNNPolicy
 from baselines.svf import SVFPolicy
 from evaluation import EvaluationConfig, run_evaluation
 from evaluation.jobs import policy_context
-from snac_gym.policies.base import supports_batch
-from snac_gym.rollout import reference_trajectories
 from evaluation.samples import generate_samples
+from snac_gym.policies.base import supports_batch
 from snac_gym.policies.snac import SNACPolicy
 from snac_gym.policies.snac_hjb import SNACHJBPolicy
+from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
 
 DT = 1.0 / 125.0

@@ -302,8 +302,8 @@ def test_action_scale_scales_the_command_and_is_seen_by_the_network(reach_env):
 
 def _kinematic_peak_effort(task, action_scale, count=8, steps=150):
     """Median over ``count`` evaluator samples of each rollout's peak max_j |u_j|/ū_j (θ += uΔt)."""
-    from snac_gym.rollout import reference_trajectories
     from evaluation.samples import generate_samples
+    from snac_gym.rollout import reference_trajectories
     from snac_gym.sampling import SampleSpace
 
     kinematics = Kinematics("ur10")
