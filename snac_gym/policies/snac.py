@@ -131,7 +131,26 @@ class QuadraticBasis:
         return out
 
 
-class SNACPolicy(BasePolicy):
+class CriticEpisode:
+    """``reset`` of the critic-based policies: the step counter to 0 and the critic weights to Ŵ₀,
+    drawn by the class's ``_initial_weights(rng)`` from ``seed`` (when given)."""
+
+    _rng: np.random.Generator
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode: step counter to 0, critic weights to Ŵ₀ (drawn from ``seed`` where random)."""
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        self.critic_weights = self._initial_weights(self._rng)
+        self._k = 0
+        self._ready = True
+        self.internals = {"critic_weights": self.critic_weights}
+
+    def _initial_weights(self, rng: np.random.Generator) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+class SNACPolicy(CriticEpisode, BasePolicy):
     """SNAC kinematic control: regulation (eqs. 15, 19) or tracking (eqs. 36, 38) by the env's task.
 
     The critic state is ``e`` for ``reach`` and ``ξ = [e; x_d]`` (eq. 31) for ``track``
@@ -362,15 +381,6 @@ class SNACPolicy(BasePolicy):
         self._last = None
 
     # -- episode ------------------------------------------------------------------------------
-    def reset(self, seed: int | None = None) -> None:
-        """Start an episode: step counter to 0, critic weights to Ŵ₀ (drawn from ``seed`` for ``"uniform"``)."""
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
-        self.critic_weights = self._initial_weights(self._rng)
-        self._k = 0
-        self._ready = True
-        self.internals = {"critic_weights": self.critic_weights}
-
     def _initial_weights(self, rng: np.random.Generator) -> np.ndarray:
         """Ŵ₀ (a new array), drawn from ``rng`` for ``"uniform"``."""
         if self.initial_weights is not None:

@@ -76,7 +76,7 @@ from snac_gym.optimality import (
     quadratic_weights_to_matrix,
 )
 from snac_gym.policies.base import BasePolicy, positive_float
-from snac_gym.policies.snac import QuadraticBasis
+from snac_gym.policies.snac import CriticEpisode, QuadraticBasis
 
 
 def _excitation_directions(dim: int) -> np.ndarray:
@@ -86,7 +86,7 @@ def _excitation_directions(dim: int) -> np.ndarray:
     return np.vstack([eye, *pairs]) if pairs else eye
 
 
-class SNACHJBPolicy(BasePolicy):
+class SNACHJBPolicy(CriticEpisode, BasePolicy):
     """SNAC whose critic is tuned by the HJB residual (module docstring), for reach and track.
 
     Args:
@@ -184,15 +184,6 @@ class SNACHJBPolicy(BasePolicy):
         weights = weights.copy()
         weights[low] = matrix_to_quadratic_weights(raised)
         return weights
-
-    def reset(self, seed: int | None = None) -> None:
-        """Start an episode: Ŵ₀ ~ U(``initial_weight_range``) drawn from ``seed``."""
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
-        self.critic_weights = self._initial_weights(self._rng)
-        self._k = 0
-        self._ready = True
-        self.internals = {"critic_weights": self.critic_weights}
 
     def reset_batch(self, seeds: Sequence[int | None]) -> None:
         """Start ``len(seeds)`` episodes; episode i as ``reset(seed=seeds[i])`` of a fresh policy."""
