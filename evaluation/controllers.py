@@ -20,7 +20,6 @@ from evaluation.jobs import policy_context
 from evaluation.optimal_reference import OPTIMAL
 from evaluation.store import file_sha1
 from evaluation.summary import PAPER_TABLE_I
-from snac_gym.kinematics import Kinematics
 from snac_gym.policies.registry import available_policies, make_policy, policy_factory
 
 if TYPE_CHECKING:
@@ -123,7 +122,8 @@ def _controller_spec(config: EvaluationConfig, name: str) -> ControllerSpec:
     """
     kwargs = dict(config.controller_kwargs.get(name, {}))
     if config.q_scale != 1.0 and "Q" not in kwargs and _takes_argument(name, "Q"):
-        kwargs["Q"] = [config.q_scale] * Kinematics(config.robot).task_dim  # the cost's Q, as a diagonal
+        # The cost's Q, as a diagonal of the task dimension (a run's tasks share it: 3, or 6 for pose).
+        kwargs["Q"] = [config.q_scale] * policy_context(config.robot, config.dt, config.tasks[0]).layout.task_dim
     try:
         policies = [make_policy(name, policy_context(config.robot, config.dt, task), **kwargs) for task in config.tasks]
     except Exception as exc:

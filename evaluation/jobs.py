@@ -17,12 +17,14 @@ import pandas as pd
 
 from evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.kinematics import shared_kinematics, shared_pose_kinematics
 from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import simulate_kinematic, simulate_pybullet
+from snac_gym.tasks import TASKS as TASK_REGISTRY
+from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
 #: How a job's samples are rolled out: the exact kinematic model in lockstep, or the PyBullet env.
 BACKENDS = ("kinematic", "pybullet")
@@ -69,9 +71,24 @@ class JobResult:
     logs: list[pd.DataFrame] | None = field(default=None)
 
 
+def task_kinematics(robot: str, task: str) -> Any:
+    """The kinematics of ``task``'s coordinates on ``robot``, shared per process.
+
+    The position kinematics for the position tasks (x = p, n = 3); the pose kinematics for a pose
+    task (x = [p; log₃ R], n = 6, and its own ``task_error``), as the task's env builds them. A pose
+    task is registered here if it is not yet: a worker that did not inherit the parent's registry
+    (Ray, a spawned process) must still resolve its name.
+    """
+    if is_pose_task(task):
+        if task not in TASK_REGISTRY:
+            register_pose_tasks()
+        return shared_pose_kinematics(robot)
+    return shared_kinematics(robot)
+
+
 def policy_context(robot: str, dt: float, task: str) -> PolicyContext:
     """The context a policy is built from in the kinematic backend (the env's limits and layout)."""
-    kinematics = shared_kinematics(robot)
+    kinematics = task_kinematics(robot, task)
     return PolicyContext(
         kinematics,
         float(dt),

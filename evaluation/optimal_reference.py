@@ -56,6 +56,7 @@ from snac_gym.cost import CostConvention, cost_and_gradient
 from snac_gym.kinematics import Kinematics
 from snac_gym.metrics import rollout_metrics
 from snac_gym.rollout import reference_trajectories, simulate_kinematic
+from snac_gym.tasks.pose import is_pose_task
 
 #: Name of the reference row in the results (selectable with ``--controllers optimal,...``).
 OPTIMAL = "optimal"
@@ -540,6 +541,8 @@ def run_optimal_job(job: OptimalJob) -> Any:
     """
     from evaluation.jobs import JobResult, kinematic_logs, policy_context
 
+    if is_pose_task(job.task):  # run_config refuses this first; a direct caller gets the reason too
+        raise ValueError(f"the {OPTIMAL!r} reference is solved for the position tasks only, not for {job.task!r}")
     context = policy_context(job.robot, job.dt, job.task)
     kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
     times = np.arange(job.steps) * job.dt

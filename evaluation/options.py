@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from evaluation.samples import TASKS
+from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
 
 def parse_out(text: str) -> Path:
@@ -22,12 +23,15 @@ def parse_out(text: str) -> Path:
 
 
 def parse_tasks(text: str) -> tuple[str, ...]:
-    """``reach``, ``track`` or ``both``."""
+    """``reach``, ``track`` or ``both``; or a pose task, ``pose-reach`` or ``pose-track`` (registered then)."""
     if text == "both":
         return TASKS
     if text in TASKS:
         return (text,)
-    raise ValueError(f"--task must be reach, track or both, got {text!r}")
+    if is_pose_task(text):
+        register_pose_tasks()
+        return (text,)
+    raise ValueError(f"--task must be reach, track or both, or a pose task (pose-reach, pose-track), got {text!r}")
 
 
 def parse_controllers(text: str | None) -> tuple[str, ...] | None:
@@ -46,7 +50,7 @@ def parse_horizons(values: Sequence[str]) -> dict[str, float]:
     for text in values:
         task, _, seconds = text.rpartition("=")
         tasks = TASKS if not task else (task.strip(),)
-        if tasks[0] not in TASKS:
+        if tasks[0] not in TASKS and not is_pose_task(tasks[0]):
             raise ValueError(f"--horizon {text!r}: unknown task {task!r}; use reach=SECONDS or track=SECONDS")
         try:
             value = float(seconds)

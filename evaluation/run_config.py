@@ -27,6 +27,7 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import TASKS as TASK_REGISTRY
 from snac_gym.tasks import get_task
+from snac_gym.tasks.pose import POSE_TASK_NAMES, is_pose_task, register_pose_tasks
 
 if TYPE_CHECKING:
     from evaluation.controllers import ControllerSpec
@@ -48,7 +49,9 @@ class EvaluationConfig:
 
     Attributes:
         out: Output directory.
-        tasks: Tasks to evaluate (registered task names; default ``("reach", "track")``).
+        tasks: Tasks to evaluate (registered task names; default ``("reach", "track")``). Naming a
+            pose task (``pose-reach``, ``pose-track``) registers the pose tasks; a run's tasks are
+            either all position tasks or all pose tasks (the controllers' Q has one size per run).
         controllers: Registered policy names; ``None``: every registered policy that qualifies.
         samples: Random samples per task (ignored with ``samples_file``, whose rows are all used).
         seed: Seed of the sample set and of every policy reset.
@@ -213,6 +216,7 @@ class EvaluationConfig:
 def _check_selection(config: EvaluationConfig) -> None:
     """What is evaluated: tasks, controllers, samples."""
     tasks = config.tasks
+    _check_pose_tasks(config)
     if not tasks or any(t not in TASK_REGISTRY for t in tasks) or len(set(tasks)) != len(tasks):
         raise ValueError(f"tasks must be distinct names from {tuple(TASK_REGISTRY)}, got {tasks}")
     controllers = config.controllers
@@ -220,6 +224,24 @@ def _check_selection(config: EvaluationConfig) -> None:
         raise ValueError(f"controllers must be distinct names, got {controllers}")
     if config.samples < 1:
         raise ValueError(f"samples must be at least 1, got {config.samples}")
+
+
+def _check_pose_tasks(config: EvaluationConfig) -> None:
+    """Register the pose tasks when a run names one; refuse mixing them with the position tasks or
+    asking them for the ``optimal`` reference (its solver is written for x = p, e = x − x_d)."""
+    named = [task for task in config.tasks if isinstance(task, str) and is_pose_task(task)]
+    if not named:
+        return
+    register_pose_tasks()
+    if len(named) != len(config.tasks):
+        raise ValueError(
+            f"tasks {tuple(config.tasks)} mix pose tasks {POSE_TASK_NAMES} with position tasks: evaluate them in separate runs"
+        )
+    if config.wants_optimal:
+        raise ValueError(
+            f"the {OPTIMAL!r} reference is solved for the position tasks only (e = x − x_d, 3-row Jacobians), "
+            f"not for the pose tasks {tuple(named)}: leave it out of --controllers"
+        )
 
 
 def _check_timing(config: EvaluationConfig) -> None:

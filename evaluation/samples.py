@@ -21,9 +21,14 @@ CSV format (one row per sample; see docs/evaluation.md)::
   ``orientation_0..2`` (roll, pitch, yaw of the ellipse plane, rad; default 0),
   ``angular_speed`` (rad/s; default 0.075, the paper's) and ``phase`` (rad; default 0);
   the target columns empty.
+* ``pose-reach`` and ``pose-track`` rows (the pose tasks, when a run names them,
+  :mod:`snac_gym.tasks.pose`): the position reference in the columns of ``reach`` or ``track``
+  plus ``rotvec_0..2``, the target orientation as a rotation vector log₃ R_d (rad, base frame);
+  these columns exist only once the pose tasks are registered, so the position-only header is
+  unchanged.
 
 Every reference point (the target, or ``ellipse_points`` points around the ellipse) must be
-reachable; a row that is not gives a :class:`SampleFileError` naming its row and column.
+reachable (a pose by the pose IK, with its orientation); a row that is not gives a :class:`SampleFileError` naming its row and column.
 """
 
 from __future__ import annotations
@@ -174,7 +179,12 @@ def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, i
     reader.require_empty(list(foreign), name)
     reference = task.read_csv_reference(reader)
     try:
-        check_reachable(kinematics, reference.points(space.ellipse_points), f"{name} reference")
+        # A pose task checks its poses itself (orientation included); the others are positions.
+        check_pose = getattr(task, "check_reference", None)
+        if check_pose is None:
+            check_reachable(kinematics, reference.points(space.ellipse_points), f"{name} reference")
+        else:
+            check_pose(kinematics, reference, space.ellipse_points, f"{name} reference")
     except ValueError as exc:
         raise reader.error(task.csv_reference_span(), f"unreachable: {exc}") from None
     return EvaluationSample(name, index, q0, reference)

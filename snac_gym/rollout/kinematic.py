@@ -3,12 +3,17 @@
 :func:`simulate_kinematic` (the evaluator's default backend ``kinematic``): θ is integrated exactly from the command, θₖ₊₁ = θₖ + uₖΔt, with the
 shared :class:`~snac_gym.kinematics.Kinematics`, the paper's kinematic model. All samples of a
 chunk advance in lockstep: one observation array ``(B, d)`` per step, built field by field
-with the env's :class:`~snac_gym.observation.ObservationLayout` (e = x − x_d, x_c = the
-reference centre, and the measured joint-velocity field = the command held over the previous
+with the env's :class:`~snac_gym.observation.ObservationLayout` (e = x − x_d, or the task's own
+error for a pose task, see below; x_c = the reference centre, and the measured joint-velocity field = the command held over the previous
 step, zero at the start). Policies are driven through :class:`~snac_gym.policies.base.LockstepPolicies`
 (the optional batch protocol, or one object per sample). Commands are clipped to the velocity
 limits, as the env clips its actions; joint position limits are not enforced (nor are they
 by the paper's model).
+
+Any task dimension n (the layout's ``task_dim``): the 3-D position tasks use the position
+kinematics and ``e = x − x_d``; a pose task's kinematics (:class:`~snac_gym.kinematics.PoseKinematics`,
+x = [p; log₃ R]) has its own ``task_error`` (e = [p − p_d; log₃(R R_dᵀ)]), which the engine applies
+row by row exactly as the env does (:func:`task_error_function`), so both give the same numbers.
 
 The other backend, ``pybullet``, runs every sample as one episode of the Gymnasium env
 (physics, motors) with the demo's loop: :func:`snac_gym.rollout.episode.simulate_pybullet`.
@@ -30,7 +35,7 @@ DIAGNOSTIC_STRIDE = 25
 
 
 def reference_trajectories(
-    references: Sequence[Reference], times: np.ndarray
+    references: Sequence[Reference], times: np.ndarray, dim: int = 3
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``x_d`` and ``ẋ_d`` of every reference at every time, and each reference's centre.
 
@@ -40,21 +45,46 @@ def reference_trajectories(
     Args:
         references: B references (any task's, mixed or not).
         times: ``(K,)`` times, s.
+        dim: The task dimension n (3 for the position tasks, 6 for the pose tasks).
 
     Returns:
         ``(x_d, xdot_d, centres)`` of shapes ``(B, K, n)``, ``(B, K, n)`` and ``(B, n)``.
     """
     times = np.asarray(times, dtype=float)
     count, steps = len(references), len(times)
-    positions = np.empty((count, steps, 3))
-    velocities = np.empty((count, steps, 3))
-    centres = np.empty((count, 3))
+    positions = np.empty((count, steps, dim))
+    velocities = np.empty((count, steps, dim))
+    centres = np.empty((count, dim))
     for i, reference in enumerate(references):
         if not callable(getattr(reference, "trajectory", None)):
             raise TypeError(f"reference {i} is a {type(reference).__name__}, not a reference with a trajectory(times)")
         centres[i] = reference.centre
         positions[i], velocities[i] = reference.trajectory(times)
     return positions, velocities, centres
+
+
+ErrorFunction = Callable[[np.ndarray, np.ndarray, np.ndarray], Any]
+
+
+def task_error_function(kinematics: Any) -> ErrorFunction:
+    """``error(x, x_d, out)``: writes the task error of each row of ``(B, n)`` ``x`` into ``out``.
+
+    ``np.subtract`` (e = x − x_d) for kinematics without a ``task_error``, the position tasks: the
+    very call the engine always made, so their results stay bit for bit the same. A pose task's
+    kinematics has a ``task_error(x, x_d)`` of one row (a logarithm, not a difference); it is
+    applied row by row, the env's own call (:meth:`~snac_gym.envs.core.TaskEnvCore._pack`), so the
+    engine and the env agree exactly rather than to a vectorised formula's rounding.
+    """
+    row_error = getattr(kinematics, "task_error", None)
+    if row_error is None:
+        return np.subtract
+
+    def error(x: np.ndarray, x_d: np.ndarray, out: np.ndarray) -> np.ndarray:
+        for i in range(len(x)):
+            out[i] = row_error(x[i], x_d[i])
+        return out
+
+    return error
 
 
 def _check_commands(
@@ -103,7 +133,8 @@ def simulate_kinematic(
     limits = np.asarray(context.velocity_limits, dtype=float)
     count, m, n = len(samples), layout.n_joints, layout.task_dim
     times = np.arange(steps + 1) * dt
-    x_d, xdot_d, centres = reference_trajectories([s.reference for s in samples], times)
+    x_d, xdot_d, centres = reference_trajectories([s.reference for s in samples], times, n)
+    task_error = task_error_function(kinematics)
 
     q = np.array([s.q0 for s in samples], dtype=float).reshape(count, m)
     held = np.zeros((count, m))
@@ -127,7 +158,7 @@ def simulate_kinematic(
         obs[:, slices["x"]] = x
         obs[:, slices["x_d"]] = x_d[:, k]
         obs[:, slices["xdot_d"]] = xdot_d[:, k]
-        np.subtract(x, x_d[:, k], out=e_log[k])
+        task_error(x, x_d[:, k], e_log[k])
         obs[:, slices["e"]] = e_log[k]
         obs[:, slices["x_c"]] = centres
         if k in diagnostic_steps:
@@ -152,7 +183,7 @@ def simulate_kinematic(
         errors=_sample_major(e_log),
         final_q=q,
         final_x=final_x,
-        final_errors=final_x - x_d[:, steps],
+        final_errors=task_error(final_x, x_d[:, steps], np.empty((count, n))),
         critic_diagnostics=_stack_diagnostics(diagnostic_rows),
     )
 

@@ -10,9 +10,14 @@ for tracking, as for the position tasks.
 
 The tasks are opt-in: :func:`register_pose_tasks` adds them and their Gymnasium ids
 ``snac_gym/PoseReach-v0`` and ``snac_gym/PoseEllipseTrack-v0`` (``robot=`` any registered arm;
-the 7-DOF arms are redundant for them). The evaluator's lockstep engine handles 3-D references
-only, so ``snac-gym evaluate`` does not run them yet; the envs, every controller and the rollouts
-of :mod:`snac_gym.rollout` do.
+the 7-DOF arms are redundant for them). ``snac-gym evaluate --task pose-reach`` (or
+``pose-track``) registers them and runs them on the lockstep engine, which applies the same
+``task_error``; the ``optimal`` reference is position-only and is refused on them.
+
+Samples CSV (:mod:`evaluation.samples`): a pose row holds its position reference in the position
+task's columns (``target_0..2`` for ``pose-reach``, the ellipse columns for ``pose-track``) and the
+target orientation in :data:`ROTVEC_COLUMNS` ``rotvec_0..2``: the rotation vector r_d = log₃ R_d
+(rad, base frame; axis times angle).
 """
 
 from __future__ import annotations
@@ -28,9 +33,17 @@ from snac_gym.kinematics import PoseKinematics, shared_pose_kinematics
 from snac_gym.references import PAPER_TARGET, Ellipse
 from snac_gym.sampling import SampleSpace, sample_ellipse, sample_seed_pose
 from snac_gym.tasks.base import CellReader, Task
+from snac_gym.tasks.reach import TARGET_COLUMNS
+from snac_gym.tasks.track import ELLIPSE_COLUMNS, EllipseTrackTask
 
 #: The tool pointing down (π about x), the orientation of the placeholder reference.
 _DOWN = (np.pi, 0.0, 0.0)
+#: Samples-CSV columns of the target orientation: the rotation vector log₃ R_d, rad, base frame.
+ROTVEC_COLUMNS = ("rotvec_0", "rotvec_1", "rotvec_2")
+#: The names of the pose tasks (known before they are registered: naming one registers them).
+POSE_TASK_NAMES = ("pose-reach", "pose-track")
+#: Reads and writes the ellipse columns of ``pose-track`` rows (the position task's codec).
+_ELLIPSE_CODEC = EllipseTrackTask()
 
 
 def _rotation_vector(value: Any, name: str) -> np.ndarray:
@@ -38,6 +51,16 @@ def _rotation_vector(value: Any, name: str) -> np.ndarray:
     if vector.shape != (3,) or not np.all(np.isfinite(vector)):
         raise ValueError(f"{name} must be 3 finite numbers (a rotation vector, rad), got {value!r}")
     return vector
+
+
+def _principal(rotation: Any) -> np.ndarray:
+    """The rotation vector of the same rotation with norm ≤ π.
+
+    One already inside the open ball ‖r‖ < π is kept as given: ``log₃(exp₃(r))`` moves it by up
+    to 2e-11 rad, which would make a written and re-read sample differ from the one drawn.
+    """
+    vector = _rotation_vector(rotation, "rotation")
+    return vector if np.linalg.norm(vector) < np.pi else pin.log3(pin.exp3(vector))
 
 
 @dataclass(frozen=True)
@@ -49,7 +72,7 @@ class PoseTarget:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "position", _rotation_vector(self.position, "position"))
-        object.__setattr__(self, "rotation", pin.log3(pin.exp3(_rotation_vector(self.rotation, "rotation"))))
+        object.__setattr__(self, "rotation", _principal(self.rotation))
 
     @property
     def centre(self) -> np.ndarray:
@@ -77,7 +100,7 @@ class PoseEllipse:
     rotation: np.ndarray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "rotation", pin.log3(pin.exp3(_rotation_vector(self.rotation, "rotation"))))
+        object.__setattr__(self, "rotation", _principal(self.rotation))
 
     @property
     def centre(self) -> np.ndarray:
@@ -109,6 +132,11 @@ def check_pose_reachable(kinematics: PoseKinematics, poses: np.ndarray, what: st
             raise ValueError(f"{what}: pose {np.round(pose, 4).tolist()} (m, rad) is not reachable by {kinematics.robot}")
 
 
+def is_pose_task(name: str) -> bool:
+    """Whether ``name`` is one of the pose tasks (registered or not yet)."""
+    return name in POSE_TASK_NAMES
+
+
 def _nominal(kinematics: PoseKinematics) -> np.ndarray:
     from snac_gym.sampling import nominal_configuration
 
@@ -126,6 +154,7 @@ class PoseReachTask(Task):
     name, label, code = "pose-reach", "Pose regulation", 10
     option_key = "pose"
     env_id, env_class_name = "snac_gym/PoseReach-v0", "PoseReachEnv"
+    csv_columns = (*TARGET_COLUMNS, *ROTVEC_COLUMNS)
     success_tolerance = 1e-3
     episode_steps = 1500
     horizon_s = 12.0
@@ -160,10 +189,18 @@ class PoseReachTask(Task):
         return reference.to_dict()
 
     def csv_cells(self, reference: PoseTarget) -> dict[str, float]:
-        raise NotImplementedError("the evaluator does not run pose tasks yet (3-D references only)")
+        values = [*reference.position.tolist(), *reference.rotation.tolist()]
+        return dict(zip(self.csv_columns, values, strict=True))
 
     def read_csv_reference(self, cells: CellReader) -> PoseTarget:
-        raise NotImplementedError("the evaluator does not run pose tasks yet (3-D references only)")
+        return PoseTarget(cells.numbers(TARGET_COLUMNS), cells.numbers(ROTVEC_COLUMNS))
+
+    def check_reference(self, kinematics: Any, reference: PoseTarget | PoseEllipse, points: int, what: str) -> None:
+        """Raise ``ValueError`` unless pose IK reaches ``reference`` (``points`` poses of an ellipse).
+
+        The samples CSV reader calls this instead of the position check, which cannot read a pose.
+        """
+        check_pose_reachable(_pose(kinematics), reference.points(points), what)
 
 
 class PoseTrackTask(PoseReachTask):
@@ -172,6 +209,7 @@ class PoseTrackTask(PoseReachTask):
     name, label, code = "pose-track", "Pose tracking", 11
     option_key = "pose_ellipse"
     env_id, env_class_name = "snac_gym/PoseEllipseTrack-v0", "PoseEllipseTrackEnv"
+    csv_columns = (*ELLIPSE_COLUMNS, *ROTVEC_COLUMNS)
     moving_reference = True
     success_tolerance = 5e-3
     success_measure = "mean_error_2nd_half"
@@ -213,6 +251,13 @@ class PoseTrackTask(PoseReachTask):
         check_pose_reachable(_pose(kinematics), value.points(64), f"options[{self.option_key!r}]")
         return value
 
+    def csv_cells(self, reference: PoseEllipse) -> dict[str, float]:
+        rotation = dict(zip(ROTVEC_COLUMNS, reference.rotation.tolist(), strict=True))
+        return {**_ELLIPSE_CODEC.csv_cells(reference.ellipse), **rotation}
+
+    def read_csv_reference(self, cells: CellReader) -> PoseEllipse:
+        return PoseEllipse(_ELLIPSE_CODEC.read_csv_reference(cells), cells.numbers(ROTVEC_COLUMNS))
+
 
 #: The two pose tasks, one instance each (registering them again reuses their env classes).
 POSE_TASKS: tuple[Task, ...] = (PoseReachTask(), PoseTrackTask())
@@ -229,4 +274,5 @@ def register_pose_tasks() -> None:
     snac_gym.envs.register_envs()
 
 
-__all__ = ["POSE_TASKS", "PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "register_pose_tasks"]
+__all__ = ["POSE_TASKS", "POSE_TASK_NAMES", "ROTVEC_COLUMNS", "PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "is_pose_task",
+           "register_pose_tasks"]
