@@ -76,3 +76,24 @@ def test_single_kinematic_env_passes_sb3_check_env():
     env = gym.make("snac_gym/UR10Reach-v0", backend="kinematic", action_type="normalized",
                    observation_dtype=np.float32, max_steps=20)
     check_env(env, warn=True)
+
+
+def test_train_ppo_runs_on_the_batched_env(tmp_path):
+    """``vec_env.kind = "batched"``: a tiny run trains, logs episode returns, evaluates and exports a policy."""
+    import json
+
+    from snac_gym.ppo.config import default_config_path, load_config
+    from snac_gym.ppo.train import read_training_log, train_ppo
+
+    config = load_config(default_config_path("reach"))
+    config.update(timesteps=256)
+    config["env"].update(max_steps=8)
+    config["vec_env"].update(n_envs=16, kind="batched")
+    config["ppo"].update(n_steps=8, batch_size=64, n_epochs=1, net_arch={"pi": [8, 8], "vf": [8, 8]})
+    config["evaluation"].update(every_timesteps=128, episodes=1, horizons_s=[0.024])
+    path = tmp_path / "tiny.json"
+    path.write_text(json.dumps(config))
+    result = train_ppo("reach", tmp_path / "run", config_path=path, log=lambda line: None)
+    assert result.status == "finished" and result.timesteps == 256 and result.best_policy.is_file()
+    _, progress = read_training_log(tmp_path / "run")
+    assert any("rollout/ep_rew_mean" in row for row in progress)  # VecMonitor saw the episodes end

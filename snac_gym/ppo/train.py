@@ -153,9 +153,11 @@ def build_vec_env(config: dict[str, Any]) -> Any:
     if kind == "batched":
         from snac_gym.ppo.vec_env import PPOVecEnv
 
+        from stable_baselines3.common.vec_env import VecMonitor
+
         venv = PPOVecEnv(config)
         venv.seed(int(config["seed"]))
-        return venv
+        return VecMonitor(venv)  # episode returns and lengths for SB3's log (make_vec_env's Monitor does it otherwise)
     kwargs: dict[str, Any] = {"start_method": "spawn"} if kind == "subproc" else {}
     return make_vec_env(
         _EnvFactory(config), n_envs=int(vec.get("n_envs", 1)), seed=int(config["seed"]),
@@ -640,6 +642,10 @@ def training_curves_figure(out: str | Path, title: str | None = None) -> Any:
                if "rollout/ep_rew_mean" in row and "time/total_timesteps" in row]
     if rewards:
         axes[2].plot(*zip(*rewards))
+    else:  # runs made before the batched env was wrapped in VecMonitor logged no episode returns
+        axes[2].text(0.5, 0.5, "no episode returns logged", ha="center", va="center", transform=axes[2].transAxes)
+        axes[2].set_xlim(axes[0].get_xlim())
+        axes[2].set_yticks([])
     axes[2].set(xlabel="timesteps", ylabel="mean episode return", title="training reward (shaped)")
     for axis in axes:
         axis.grid(alpha=0.3)
