@@ -5,7 +5,9 @@ For one sample (seed pose θ₀, reference x_d known over the whole horizon) it 
     min_U  V(U) = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt,   k = 0..K−1,  Q = I₃, R = I₆
     s.t.   θₖ₊₁ = θₖ + uₖΔt,  |uₖⱼ| ≤ ūⱼ,  u₋₁ = 0,  u̇ₖ = (uₖ − uₖ₋₁)/Δt,  eₖ = f(θₖ) − x_d(tₖ)
 
-over the evaluator's horizon, Δt and discretisation (docs/optimal.md), for the run's cost
+(on a pose task, x = [p; log₃ R] and eₖ = [p − p_d; log₃(R R_dᵀ)] with Q = I₆, differentiated exactly:
+:func:`snac_gym.tasks.pose.pose_errors_and_jacobians`) over the evaluator's horizon, Δt and
+discretisation (docs/optimal.md), for the run's cost
 convention (:class:`snac_gym.cost.CostConvention`: without the u̇ term for ``--cost hjb``, u₋₁ = u₀
 for ``--udot-start first``, Q = q·I for ``--q-scale``). It is an *open-loop*
 reference computed with knowledge of the whole reference, not a controller.
@@ -56,7 +58,7 @@ from snac_gym.cost import CostConvention, cost_and_gradient
 from snac_gym.kinematics import Kinematics
 from snac_gym.metrics import rollout_metrics
 from snac_gym.rollout import reference_trajectories, simulate_kinematic
-from snac_gym.tasks.pose import is_pose_task
+from snac_gym.tasks.pose import pose_errors_and_jacobians
 
 #: Name of the reference row in the results (selectable with ``--controllers optimal,...``).
 OPTIMAL = "optimal"
@@ -119,8 +121,18 @@ def trajectory_cost_and_gradient(
         dt: Control period Δt, s.
         convention: The cost (:class:`snac_gym.cost.CostConvention`).
     """
-    positions, jacobians = kinematics.forward_and_jacobian_batch(_angles(commands, q0, dt))
-    return cost_and_gradient(positions - x_d, jacobians, commands, dt, convention)
+    errors, jacobians = _errors_and_jacobians(kinematics, _angles(commands, q0, dt), x_d)
+    return cost_and_gradient(errors, jacobians, commands, dt, convention)
+
+
+def _errors_and_jacobians(kinematics: Any, angles: np.ndarray, x_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """eₖ and ∂eₖ/∂θₖ along ``angles``: ``f(θ) − x_d`` and J for the position tasks (the arithmetic
+    the solver always had, so its position results stay bit for bit), the log₃ error and its exact
+    Jacobian for a pose task (:func:`snac_gym.tasks.pose.pose_errors_and_jacobians`)."""
+    if getattr(kinematics, "task_error", None) is not None:
+        return pose_errors_and_jacobians(kinematics, angles, x_d)
+    positions, jacobians = kinematics.forward_and_jacobian_batch(angles)
+    return positions - x_d, jacobians
 
 
 _BLAS_THREAD_SYMBOLS = (
@@ -290,7 +302,7 @@ def _gauss_newton(
         if np.abs(solve_banded((1, 0), lower, grad)).max() <= gtol:
             converged = True
             break
-        _, jacobians = kinematics.forward_and_jacobian_batch(_angles(commands, q0, dt))
+        _, jacobians = _errors_and_jacobians(kinematics, _angles(commands, q0, dt), x_d)
         step = _gauss_newton_direction(base, jacobians, grad, dt, convention.q_scale)
         alpha, trial_value, trial_grad, tries = _line_search(evaluate, commands, value, grad, step)
         evaluations += tries
@@ -541,12 +553,10 @@ def run_optimal_job(job: OptimalJob) -> Any:
     """
     from evaluation.jobs import JobResult, kinematic_logs, policy_context
 
-    if is_pose_task(job.task):  # run_config refuses this first; a direct caller gets the reason too
-        raise ValueError(f"the {OPTIMAL!r} reference is solved for the position tasks only, not for {job.task!r}")
     context = policy_context(job.robot, job.dt, job.task)
     kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
     times = np.arange(job.steps) * job.dt
-    x_d, _, _ = reference_trajectories([s.reference for s in job.samples], times)
+    x_d, _, _ = reference_trajectories([s.reference for s in job.samples], times, context.layout.task_dim)
     with single_threaded_blas():
         solutions = [
             solve_sample(np.asarray(s.q0, dtype=float), x_d[i], kinematics, job.dt, limits, convention=job.convention)

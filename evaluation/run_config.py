@@ -227,8 +227,8 @@ def _check_selection(config: EvaluationConfig) -> None:
 
 
 def _check_pose_tasks(config: EvaluationConfig) -> None:
-    """Register the pose tasks when a run names one; refuse mixing them with the position tasks or
-    asking them for the ``optimal`` reference (its solver is written for x = p, e = x − x_d)."""
+    """Register the pose tasks when a run names one, and refuse mixing them with the position tasks
+    (the controllers' ``Q``, given by ``q_scale``, has one size per run: 3, or 6 for a pose)."""
     named = [task for task in config.tasks if isinstance(task, str) and is_pose_task(task)]
     if not named:
         return
@@ -236,11 +236,6 @@ def _check_pose_tasks(config: EvaluationConfig) -> None:
     if len(named) != len(config.tasks):
         raise ValueError(
             f"tasks {tuple(config.tasks)} mix pose tasks {POSE_TASK_NAMES} with position tasks: evaluate them in separate runs"
-        )
-    if config.wants_optimal:
-        raise ValueError(
-            f"the {OPTIMAL!r} reference is solved for the position tasks only (e = x − x_d, 3-row Jacobians), "
-            f"not for the pose tasks {tuple(named)}: leave it out of --controllers"
         )
 
 

@@ -21,7 +21,13 @@ from snac_gym.rollout import rollout, simulate_kinematic
 from snac_gym.rollout.kinematic import task_error_function
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import Sample
-from snac_gym.tasks.pose import POSE_TASK_NAMES, POSE_TASKS, ROTVEC_COLUMNS, register_pose_tasks
+from snac_gym.tasks.pose import (
+    POSE_TASK_NAMES,
+    POSE_TASKS,
+    ROTVEC_COLUMNS,
+    pose_errors_and_jacobians,
+    register_pose_tasks,
+)
 
 POSE_ENV_IDS = ["snac_gym/PoseReach-v0", "snac_gym/PoseEllipseTrack-v0"]
 SMALL = {"robot": "panda", "samples": 3, "horizons": {"pose-reach": 0.4}, "chunk_size": 2, "progress": False}
@@ -140,16 +146,36 @@ def test_a_tiny_evaluation_runs_and_reads_back_its_samples(tmp_path):
     assert again[columns].equals(results[columns])
 
 
-@pytest.mark.parametrize(
-    ("changes", "message"),
-    [
-        ({"tasks": ("pose-reach", "reach")}, "mix pose tasks"),
-        ({"tasks": ("pose-reach",), "controllers": ("dls", "optimal")}, "position tasks only"),
-    ],
-)
-def test_pose_runs_refuse_what_they_cannot_do(tmp_path, changes, message):
-    with pytest.raises(ValueError, match=message):
-        EvaluationConfig(out=tmp_path, **{**SMALL, **changes}).validate()
+def test_pose_runs_do_not_mix_with_position_tasks(tmp_path):
+    with pytest.raises(ValueError, match="mix pose tasks"):
+        EvaluationConfig(out=tmp_path, **{**SMALL, "tasks": ("pose-reach", "reach")}).validate()
+
+
+def test_pose_error_jacobian_is_the_derivative_of_the_log3_error():
+    kin = PoseKinematics("panda")
+    rng = np.random.default_rng(7)
+    qs = rng.uniform(-1.0, 1.0, size=(6, kin.n_joints))
+    x_d = kin.forward_batch(rng.uniform(-1.0, 1.0, size=(6, kin.n_joints)))  # up to ~3 rad apart
+    errors, jacobians = pose_errors_and_jacobians(kin, qs, x_d)
+    np.testing.assert_array_equal(errors, [kin.task_error(x, d) for x, d in zip(kin.forward_batch(qs), x_d)])
+    h = 1e-6
+    for j in range(kin.n_joints):
+        step = h * np.eye(kin.n_joints)[j]
+        plus, minus = pose_errors_and_jacobians(kin, qs + step, x_d)[0], pose_errors_and_jacobians(kin, qs - step, x_d)[0]
+        np.testing.assert_allclose(jacobians[:, :, j], (plus - minus) / (2 * h), atol=1e-7)
+    # Not the controllers' J: Jlog₃ matters away from the target.
+    assert np.abs(jacobians[:, 3:] - kin.jacobian_batch(qs)[:, 3:]).max() > 0.1
+
+
+def test_the_optimum_of_a_pose_run_is_below_every_controller(tmp_path):
+    config = EvaluationConfig(out=tmp_path / "opt", tasks=("pose-reach",), controllers=("dls", "rnn", "optimal"),
+                              **{**SMALL, "horizons": {"pose-reach": 1.0}})
+    results = run_evaluation(config)
+    optimal = results[results["controller"] == "optimal"].set_index("sample")
+    assert optimal["optimal_converged"].all()
+    for name in ("dls", "rnn"):
+        rows = results[results["controller"] == name].set_index("sample")
+        assert (optimal["cost"] < rows["cost"]).all(), name
 
 
 def test_cli_evaluates_a_pose_task(tmp_path):

@@ -12,7 +12,8 @@ The tasks are opt-in: :func:`register_pose_tasks` adds them and their Gymnasium 
 ``snac_gym/PoseReach-v0`` and ``snac_gym/PoseEllipseTrack-v0`` (``robot=`` any registered arm;
 the 7-DOF arms are redundant for them). ``snac-gym evaluate --task pose-reach`` (or
 ``pose-track``) registers them and runs them on the lockstep engine, which applies the same
-``task_error``; the ``optimal`` reference is position-only and is refused on them.
+``task_error``; the ``optimal`` reference solves for the log₃ error with its exact Jacobian
+(:func:`pose_errors_and_jacobians`).
 
 Samples CSV (:mod:`evaluation.samples`): a pose row holds its position reference in the position
 task's columns (``target_0..2`` for ``pose-reach``, the ellipse columns for ``pose-track``) and the
@@ -130,6 +131,33 @@ def check_pose_reachable(kinematics: PoseKinematics, poses: np.ndarray, what: st
         q, ok = kinematics.inverse_pose(pose, q)
         if not ok:
             raise ValueError(f"{what}: pose {np.round(pose, 4).tolist()} (m, rad) is not reachable by {kinematics.robot}")
+
+
+def pose_errors_and_jacobians(
+    kinematics: PoseKinematics, qs: np.ndarray, x_d: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pose errors of ``qs`` against ``x_d`` and their exact Jacobians ∂e/∂θ (the optimum's solver).
+
+    ``e = [p − p_d; log₃(E)]`` with ``E = R R_dᵀ`` (:meth:`PoseKinematics.task_error`, row by row).
+    A joint step turns R into ``exp(δφ) R`` with δφ = J_ω δθ (the base-frame angular rows), hence E
+    into ``exp(δφ) E = E exp(Eᵀδφ)``, and ``δ log₃ E = Jlog₃(E) Eᵀ J_ω δθ``: unlike the controllers'
+    J (which drops Jlog₃ → I near the target), this is the gradient of the cost actually scored.
+
+    Args:
+        kinematics: The pose kinematics.
+        qs: ``(K, m)`` joint angles.
+        x_d: ``(K, 6)`` desired poses ``[p_d; log₃ R_d]``.
+
+    Returns:
+        ``(errors, jacobians)`` of shapes ``(K, 6)`` and ``(K, 6, m)``.
+    """
+    poses, jacobians = kinematics.forward_and_jacobian_batch(qs)
+    errors = np.empty(poses.shape)
+    for k, (x, desired) in enumerate(zip(poses, x_d, strict=True)):
+        errors[k] = kinematics.task_error(x, desired)
+        relative = pin.exp3(x[3:]) @ pin.exp3(desired[3:]).T
+        jacobians[k, 3:] = pin.Jlog3(relative) @ relative.T @ jacobians[k, 3:]
+    return errors, jacobians
 
 
 def is_pose_task(name: str) -> bool:
@@ -274,5 +302,5 @@ def register_pose_tasks() -> None:
     snac_gym.envs.register_envs()
 
 
-__all__ = ["POSE_TASKS", "POSE_TASK_NAMES", "ROTVEC_COLUMNS", "PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "is_pose_task",
+__all__ = ["POSE_TASKS", "POSE_TASK_NAMES", "ROTVEC_COLUMNS", "PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "is_pose_task", "pose_errors_and_jacobians",
            "register_pose_tasks"]
