@@ -203,7 +203,7 @@ def _sigterm_as_interrupt() -> Iterator[None]:
 @app.command()
 def evaluate(
     out: str = typer.Option("runs/evaluation", "--out", help="Output folder (results, summary, plots, parts)."),
-    task: str = typer.Option("both", "--task", help="reach, track or both."),
+    task: str = typer.Option("both", "--task", help="reach, track or both; or a pose task, pose-reach or pose-track (docs/robots.md)."),
     controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md)."),
     samples: int = typer.Option(1000, "--samples", min=1, help="Random samples per task (the paper: 1000)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
