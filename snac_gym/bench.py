@@ -145,8 +145,8 @@ def run_act_bench(
     import snac_gym  # noqa: F401  (registers the envs)
     from snac_gym.policies import make_policy
     from snac_gym.references import PAPER_Q0
+    from snac_gym.tasks import get_task
 
-    env_ids = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}
     if clock not in ("wall", "cpu"):
         raise ValueError(f"clock must be 'wall' or 'cpu', got {clock!r}")
     _pin_to_one_core()
@@ -154,7 +154,7 @@ def run_act_bench(
     for name in names:
         results[name] = {}
         for task in tasks:
-            env = gym.make(env_ids[task])
+            env = gym.make(get_task(task).env_id)
             try:
                 policy = make_policy(name, env, **(policy_kwargs or {}).get(name, {}))
             except Exception as exc:  # noqa: BLE001 - report any policy that does not build

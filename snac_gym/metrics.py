@@ -65,11 +65,8 @@ from snac_gym.cost import CostConvention, CostTerms, command_differences, cost_r
 from snac_gym.joint_limits import joint_limit_margins
 from snac_gym.rollout.batch import Rollouts
 from snac_gym.rollout.log import log_array
-from snac_gym.tasks import TASKS, get_task
+from snac_gym.tasks import get_task
 
-#: Success thresholds (m), kept for importers: the tasks own them (``get_task(name).success_tolerance``).
-REACH_TOLERANCE = TASKS["reach"].success_tolerance
-TRACK_TOLERANCE = TASKS["track"].success_tolerance
 #: Threshold of ``time_to_1mm``, m.
 ARRIVAL_TOLERANCE = 1e-3
 #: A command counts as at its limit within this relative distance.

@@ -19,6 +19,7 @@ from matplotlib.ticker import SymmetricalLogLocator
 from snac_gym.cost import cost_rates
 from snac_gym.references import Ellipse, FixedTarget
 from snac_gym.rollout import log_array
+from snac_gym.tasks import TASKS
 
 _COLOURS = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9"]
 
@@ -151,7 +152,7 @@ def plot_cost(log: pd.DataFrame, axes: Any = None, Q: np.ndarray | None = None, 
 def weight_labels(count: int, task: str | None, task_dim: int) -> list[str]:
     """Names of the quadratic-basis terms behind ``w_0..w_{count-1}`` (e for reach, ξ = [e; x_d] for track)."""
     names = [f"e{i}" for i in range(task_dim)]
-    if task == "track":
+    if task is not None and task in TASKS and TASKS[task].moving_reference:
         names += [f"xd{i}" for i in range(task_dim)]
     pairs = [(i, j) for i in range(len(names)) for j in range(i, len(names))]
     if len(pairs) != count:
