@@ -12,7 +12,7 @@ from snac_gym.tasks import TASKS
 ENV_IDS = list(snac_gym.ENV_IDS)
 
 
-@pytest.mark.parametrize("robot", ["ur3", "ur5", "ur10"])
+@pytest.mark.parametrize("robot", ["ur3", "ur5", "ur10", "panda", "xarm7"])
 def test_position_chain_is_pinocchio(robot):
     kinematics = Kinematics(robot)
     qs = np.random.default_rng(0).uniform(-2 * np.pi, 2 * np.pi, size=(64, kinematics.n_joints))
@@ -127,6 +127,23 @@ def test_batches_lie_in_the_batched_spaces(env_id):
         obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
         assert env.observation_space.contains(obs)
         assert reward.dtype == np.float64 and terminated.dtype == truncated.dtype == np.bool_
+
+
+def test_only_position_tasks_get_a_vector_entry_point():
+    from snac_gym.envs.vector import vector_env_supports
+    from snac_gym.tasks.pose import PoseReachTask, PoseTrackTask
+
+    assert all(vector_env_supports(task) for task in TASKS.values() if task.env_id in ENV_IDS)
+    assert not vector_env_supports(PoseReachTask()) and not vector_env_supports(PoseTrackTask())
+
+
+def test_a_seven_joint_arm_matches_too():
+    vector, sync = _pair("snac_gym/UR10Reach-v0", 2, robot="panda", max_steps=4)
+    np.testing.assert_allclose(vector.reset(seed=2)[0], sync.reset(seed=2)[0], rtol=0, atol=1e-12)
+    vector.action_space.seed(0)
+    for _ in range(6):
+        actions = vector.action_space.sample()
+        _assert_step_close(vector.step(actions), sync.step(actions), 1e-12)
 
 
 def test_bad_arguments_are_refused():

@@ -33,18 +33,20 @@ def register_envs() -> None:
     import gymnasium as gym
     from gymnasium.envs.registration import WrapperSpec
 
-    from snac_gym.envs.vector import task_vector_env_class
+    from snac_gym.envs.vector import task_vector_env_class, vector_env_supports
 
     hook = WrapperSpec(name="EpisodeLength", entry_point="snac_gym.envs.core:apply_episode_length", kwargs={})
     for task in TASKS.values():
         env_class = task_env_class(task)
-        vector_class = task_vector_env_class(task)
+        # The batched env steps end-effector positions only: a task with its own coordinates (a
+        # pose task's PoseKinematics) gets no vector entry point, and make_vec falls back to sync.
+        vector_class = task_vector_env_class(task) if vector_env_supports(task) else None
         ENV_IDS[task.env_id] = f"{env_class.__module__}:{env_class.__qualname__}"
         if task.env_id not in gym.registry:
             gym.register(
                 id=task.env_id, entry_point=ENV_IDS[task.env_id], disable_env_checker=False,
                 max_episode_steps=env_class.default_max_steps, additional_wrappers=(hook,),
-                vector_entry_point=f"{vector_class.__module__}:{vector_class.__qualname__}",
+                vector_entry_point=None if vector_class is None else f"{vector_class.__module__}:{vector_class.__qualname__}",
             )
             gym.registry[task.env_id] = _TaskEnvSpec(**_spec_fields(gym.registry[task.env_id]))
 

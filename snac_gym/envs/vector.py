@@ -376,7 +376,11 @@ class URTaskVectorEnv(gym.vector.VectorEnv):
             raise ValueError(f"the vector env has no scene to render (render_mode={render_mode!r}); use the single env")
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if not vector_env_supports(self.task_spec):
+            raise ValueError(f"the vector env steps end-effector positions only; task {self.task_spec.name!r} has its own kinematics")
         template = task_env_class(self.task_spec)(backend="kinematic", **kwargs)
+        if type(template.kinematics) is not Kinematics or template.kinematics.task_dim != 3:
+            raise ValueError(f"the vector env steps end-effector positions only, got {type(template.kinematics).__name__}")
         horizon = template.requested_max_steps or max_episode_steps or template.default_max_steps
         if horizon < 1:
             raise ValueError(f"max_episode_steps must be at least 1, got {max_episode_steps}")
@@ -487,6 +491,16 @@ def _merge_reset_infos(step: dict[str, Any], reset: dict[str, Any], resetting: n
         if not key.startswith("_") and key not in merged:
             merged[key], merged[f"_{key}"] = value, reset[f"_{key}"]
     return merged
+
+
+def vector_env_supports(task: Task) -> bool:
+    """Whether the batched env can run ``task``: its coordinates are the end-effector position.
+
+    A task that overrides :meth:`Task.make_kinematics` (the pose tasks: orientation error by
+    log3, task dimension 6) is not supported; :class:`PositionChain` and :class:`ReferenceBatch`
+    know positions only.
+    """
+    return type(task).make_kinematics is Task.make_kinematics
 
 
 def task_vector_env_class(task: Task) -> type[URTaskVectorEnv]:
