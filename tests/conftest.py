@@ -30,3 +30,17 @@ def track_env():
     env = gym.make("snac_gym/UR10EllipseTrack-v0")
     yield env
     env.close()
+
+
+@pytest.fixture(scope="module")
+def pose_tasks():
+    """The pose tasks registered for the requesting module only: the other modules see the paper's two."""
+    from snac_gym.tasks import TASKS
+    from snac_gym.tasks.pose import POSE_TASKS, register_pose_tasks
+
+    register_pose_tasks()
+    yield
+    for task in POSE_TASKS:
+        TASKS.pop(task.name, None)
+        gym.registry.pop(task.env_id, None)
+        snac_gym.ENV_IDS.pop(task.env_id, None)

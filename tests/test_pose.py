@@ -11,25 +11,13 @@ from snac_gym.kinematics import PoseKinematics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.sampling import SampleSpace, nominal_configuration
-from snac_gym.tasks.pose import POSE_TASKS, PoseEllipse, PoseTarget, register_pose_tasks
+from snac_gym.tasks.pose import PoseEllipse, PoseTarget
 
 CONTROLLERS = ["snac", "rnn", "svf", "dls", "lqr"]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def pose_tasks():
-    """The pose tasks registered for this module only: the other modules see the two paper tasks."""
-    import gymnasium as gym
-
-    import snac_gym
-    from snac_gym.tasks import TASKS
-
-    register_pose_tasks()
-    yield
-    for task in POSE_TASKS:
-        TASKS.pop(task.name, None)
-        gym.registry.pop(task.env_id, None)
-        snac_gym.ENV_IDS.pop(task.env_id, None)
+#: The pose tasks are registered for this module only (conftest.py): the others see the paper's two.
+pytestmark = pytest.mark.usefixtures("pose_tasks")
 
 
 @pytest.fixture(scope="module")

@@ -26,25 +26,14 @@ from snac_gym.tasks.pose import (
     POSE_TASKS,
     ROTVEC_COLUMNS,
     pose_errors_and_jacobians,
-    register_pose_tasks,
 )
 
 POSE_ENV_IDS = ["snac_gym/PoseReach-v0", "snac_gym/PoseEllipseTrack-v0"]
 SMALL = {"robot": "panda", "samples": 3, "horizons": {"pose-reach": 0.4}, "chunk_size": 2, "progress": False}
 
 
-@pytest.fixture(scope="module", autouse=True)
-def pose_tasks():
-    """The pose tasks registered for this module only: the other modules see the two paper tasks."""
-    import snac_gym
-    from snac_gym.tasks import TASKS
-
-    register_pose_tasks()
-    yield
-    for task in POSE_TASKS:
-        TASKS.pop(task.name, None)
-        gym.registry.pop(task.env_id, None)
-        snac_gym.ENV_IDS.pop(task.env_id, None)
+#: The pose tasks are registered for this module only (conftest.py): the others see the paper's two.
+pytestmark = pytest.mark.usefixtures("pose_tasks")
 
 
 @pytest.fixture(scope="module")
