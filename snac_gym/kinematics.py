@@ -423,6 +423,95 @@ class BatchChain:
         return x, jacobians
 
 
+#: Unit axis index of Pinocchio's axis-aligned joint models (RX, RY, RZ, PX, PY, PZ).
+_ALIGNED_INDEX = {"X": 0, "Y": 1, "Z": 2}
+
+
+class PositionChain:
+    """Batched forward kinematics of the end-effector position only, f(θ) for B configurations.
+
+    The env needs x = f(θ) each step but never J, and :class:`~snac_gym.kinematics.BatchChain`
+    builds every joint frame (3×3 rotations) to get J. This evaluates the same chain of joint
+    placements read from the Pinocchio model from the leaf inwards on one point,
+    ``v ← tᵢ + Mᵢ · Rᵢ(θᵢ) · v`` (starting from the end-effector offset), with the batch as
+    rows of length B (structure of arrays), about 4x fewer operations. Matches Pinocchio to
+    1e-15 m (tests/test_vector_env.py).
+
+    Args:
+        steps: Leaf-to-root joints, each ``(rotation M, translation t, axis, revolute, q column)``.
+        offset: The end-effector frame's position in its parent joint's frame.
+    """
+
+    def __init__(self, steps: list[tuple[np.ndarray, np.ndarray, np.ndarray, bool, int]], offset: np.ndarray) -> None:
+        self._steps = steps
+        self._offset = offset
+        self._aligned = [_aligned_axis(axis) for _, _, axis, _, _ in steps]
+        self._identity = [bool(np.array_equal(rotation, np.eye(3))) for rotation, _, _, _, _ in steps]
+
+    @classmethod
+    def from_kinematics(cls, kinematics: Kinematics) -> PositionChain:
+        """The chain from the model's root to ``kinematics.ee_frame``.
+
+        Raises:
+            ValueError: If a joint on the way is not a 1-DoF revolute or prismatic joint.
+        """
+        model = kinematics.model
+        frame = model.frames[model.getFrameId(kinematics.ee_frame)]
+        steps = []
+        joint = int(frame.parentJoint)
+        while joint > 0:
+            joint_model = model.joints[joint]
+            kind = joint_model.shortname().removeprefix("JointModel")
+            if kind[:2] in ("RX", "RY", "RZ", "PX", "PY", "PZ") and len(kind) == 2:
+                axis = np.eye(3)[_ALIGNED_INDEX[kind[1]]]
+            elif kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
+                axis = np.array(joint_model.extract().axis, dtype=float).reshape(3)
+            else:
+                raise ValueError(f"joint {model.names[joint]!r} of type {kind} is not a 1-DoF revolute or prismatic joint")
+            placement = model.jointPlacements[joint]
+            steps.append((placement.rotation.copy(), placement.translation.copy(), axis, kind[0] == "R", int(joint_model.idx_q)))
+            joint = int(model.parents[joint])
+        return cls(steps, frame.placement.translation.copy())
+
+    def forward(self, qs: np.ndarray) -> np.ndarray:
+        """End-effector positions, ``(B, m) -> (B, 3)``, in the frame of :meth:`Kinematics.forward`."""
+        qs = np.asarray(qs, dtype=float)
+        count = len(qs)
+        columns = qs.T  # joint-major: each joint's angles as one row
+        cosines, sines = np.cos(columns), np.sin(columns)
+        v = [np.full(count, value) for value in self._offset]
+        for index, (rotation, translation, axis, revolute, column) in enumerate(self._steps):
+            if revolute:
+                v = self._rotate(v, index, cosines[column], sines[column])
+            else:
+                v = [v[i] + axis[i] * columns[column] for i in range(3)]
+            if not self._identity[index]:
+                v = [rotation[i, 0] * v[0] + rotation[i, 1] * v[1] + rotation[i, 2] * v[2] for i in range(3)]
+            v = [v[i] + translation[i] for i in range(3)]
+        return np.stack(v, axis=1)
+
+    def _rotate(self, v: list[np.ndarray], index: int, cos: np.ndarray, sin: np.ndarray) -> list[np.ndarray]:
+        """``R(axis, θ) · v`` for joint ``index``: two components turn about an aligned axis, else Rodrigues."""
+        aligned = self._aligned[index]
+        if aligned is not None:
+            first, second = (aligned + 1) % 3, (aligned + 2) % 3
+            turned = list(v)
+            turned[first] = cos * v[first] - sin * v[second]
+            turned[second] = sin * v[first] + cos * v[second]
+            return turned
+        a = self._steps[index][2]
+        cross = [a[1] * v[2] - a[2] * v[1], a[2] * v[0] - a[0] * v[2], a[0] * v[1] - a[1] * v[0]]
+        double = [a[1] * cross[2] - a[2] * cross[1], a[2] * cross[0] - a[0] * cross[2], a[0] * cross[1] - a[1] * cross[0]]
+        return [v[i] + sin * cross[i] + (1.0 - cos) * double[i] for i in range(3)]
+
+
+def _aligned_axis(axis: np.ndarray) -> int | None:
+    """Index of ``axis`` if it is a positive coordinate axis, else ``None``."""
+    if np.count_nonzero(axis) == 1 and axis.max() == 1.0:
+        return int(np.argmax(axis))
+    return None
+
+
 def _skew(axis: np.ndarray) -> np.ndarray:
     """``[a]×``, the matrix of ``v ↦ a × v``."""
     return np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])

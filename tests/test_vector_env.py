@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 import snac_gym
-from snac_gym.envs.vector import PositionChain, URTaskVectorEnv
+from snac_gym.envs.vector import URTaskVectorEnv
+from snac_gym.kinematics import PositionChain
 from snac_gym.kinematics import Kinematics
 from snac_gym.tasks import TASKS
 
