@@ -125,10 +125,7 @@ def simulate_kinematic(
     Raises:
         RolloutError: If the policy returns a command of the wrong shape or a NaN/inf.
     """
-    if steps < 1:
-        raise ValueError(f"steps must be at least 1, got {steps}")
-    if len(seeds) != len(samples):
-        raise ValueError(f"need one seed per sample, got {len(seeds)} seeds for {len(samples)} samples")
+    _check_run(steps, seeds, samples)
     kinematics, layout, dt = context.kinematics, context.layout, float(context.dt)
     limits = np.asarray(context.velocity_limits, dtype=float)
     count, m, n = len(samples), layout.n_joints, layout.task_dim
@@ -186,6 +183,13 @@ def simulate_kinematic(
         final_errors=task_error(final_x, x_d[:, steps], np.empty((count, n))),
         critic_diagnostics=_stack_diagnostics(diagnostic_rows),
     )
+
+
+def _check_run(steps: int, seeds: Sequence[int], samples: Sequence[Any]) -> None:
+    if steps < 1:
+        raise ValueError(f"steps must be at least 1, got {steps}")
+    if len(seeds) != len(samples):
+        raise ValueError(f"need one seed per sample, got {len(seeds)} seeds for {len(samples)} samples")
 
 
 def _stack_diagnostics(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray] | None:
