@@ -80,13 +80,17 @@ def step_costs(
 
     The first two are the integrand of eq. 6; the third is the smoothness term of the paper's
     Table I cost, with u̇ₖ = (uₖ − uₖ₋₁)/Δt. ``Q``/``R`` are matrices already checked by
-    :func:`weight_matrix` (``None`` = identity): this runs every control step.
+    :func:`weight_matrix` (``None`` = identity): this runs every control step. One step gives
+    floats; rows of a batch (``(B, n)``, ``(B, m)``, the vector env) give ``(B,)`` arrays.
     """
-    return (
-        float(quadratic_form(error, Q)),
-        float(quadratic_form(command, R)),
-        float(quadratic_form((command - previous_command) / dt, R)),
+    rates = (
+        quadratic_form(error, Q),
+        quadratic_form(command, R),
+        quadratic_form((command - previous_command) / dt, R),
     )
+    if np.ndim(rates[0]) == 0:
+        return float(rates[0]), float(rates[1]), float(rates[2])
+    return rates
 
 
 @dataclass(frozen=True)

@@ -155,7 +155,7 @@ OBSERVATION_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))
 
 
 def shaped_reward(
-    error_norm: float,
+    error_norm: Any,
     action: np.ndarray,
     distance_weight: float = SHAPED_REWARD["distance_weight"],
     precision_bonus: float = SHAPED_REWARD["precision_bonus"],
@@ -163,6 +163,8 @@ def shaped_reward(
     action_penalty: float = SHAPED_REWARD["action_penalty"],
 ) -> float:
     """The ``reward_type="shaped"`` reward; the PPO training wrapper uses the same function.
+
+    One step, or the rows of a batch (the vector env): ``error_norm`` ``(B,)`` and ``action`` ``(B, m)``.
 
     Args:
         error_norm: d = ‖e‖ after the step, m.
@@ -173,8 +175,8 @@ def shaped_reward(
     Returns:
         −distance_weight·d + precision_bonus·exp(−(d / precision_scale)²) − action_penalty·‖a‖².
     """
-    bonus = precision_bonus * math.exp(-((error_norm / precision_scale) ** 2))
-    return -distance_weight * error_norm + bonus - action_penalty * float(action @ action)
+    bonus = precision_bonus * np.exp(-((error_norm / precision_scale) ** 2))
+    return -distance_weight * error_norm + bonus - action_penalty * np.einsum("...i,...i->...", action, action)
 
 
 def apply_episode_length(env: gym.Env) -> gym.Env:

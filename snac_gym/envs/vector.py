@@ -33,7 +33,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from snac_gym.envs.core import SHAPED_REWARD, URTaskEnv, draw_episode, task_env_class
+from snac_gym.cost import step_costs
+from snac_gym.envs.core import URTaskEnv, draw_episode, shaped_reward, task_env_class
 from snac_gym.kinematics import Kinematics, PositionChain
 from snac_gym.references import Ellipse, FixedTarget, Reference
 from snac_gym.tasks import Task
@@ -92,13 +93,6 @@ class ReferenceBatch:
                 if int(index) in self._other:
                     x_d[row], xdot_d[row] = self._other[int(index)].position_and_velocity(float(times[row]))
         return x_d, xdot_d
-
-
-def _row_quadratic(vectors: np.ndarray, matrix: np.ndarray | None) -> np.ndarray:
-    """``vᵢᵀMvᵢ`` per row (``None`` = identity), the batched :func:`snac_gym.cost.quadratic_form`."""
-    if matrix is None:
-        return np.einsum("ij,ij->i", vectors, vectors)
-    return np.einsum("ij,jk,ik->i", vectors, matrix, vectors)
 
 
 class KinematicEpisodes:
@@ -204,9 +198,9 @@ class KinematicEpisodes:
             (``cost_error``, ``cost_effort``, ``cost_smoothness``, ``error_norm``, ``is_success``).
         """
         template = self.template
-        cost_error = _row_quadratic(self.error, template.Q)
-        cost_effort = _row_quadratic(u, template.R)
-        cost_smoothness = _row_quadratic((u - self.last_command) / self.dt, template.R)
+        cost_error, cost_effort, cost_smoothness = step_costs(
+            self.error, u, self.last_command, self.dt, template.Q, template.R
+        )
         self.q += u * self.dt
         self.qdot = u.copy()
         self.last_command = u
@@ -218,7 +212,7 @@ class KinematicEpisodes:
         if template.reward_type == "dense":
             reward = -(cost_error + cost_effort)
         elif template.reward_type == "shaped":
-            reward = _shaped_rewards(error_norm, u / self.limits)
+            reward = shaped_reward(error_norm, u / self.limits)
         else:
             reward = np.where(success, 0.0, -1.0)
         return {
@@ -236,13 +230,6 @@ class KinematicEpisodes:
                             ("xdot_d", self.xdot_d[rows]), ("e", self.error[rows]), ("x_c", self.references.centre[rows])):
             obs[:, slices[name]] = value
         return obs
-
-
-def _shaped_rewards(error_norm: np.ndarray, normalized: np.ndarray) -> np.ndarray:
-    """:func:`snac_gym.envs.core.shaped_reward` per row."""
-    w = SHAPED_REWARD
-    bonus = w["precision_bonus"] * np.exp(-((error_norm / w["precision_scale"]) ** 2))
-    return -w["distance_weight"] * error_norm + bonus - w["action_penalty"] * np.einsum("ij,ij->i", normalized, normalized)
 
 
 class URTaskVectorEnv(gym.vector.VectorEnv):
