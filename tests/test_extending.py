@@ -15,7 +15,7 @@ from snac_gym.references import FixedTarget
 from snac_gym.robots import ROBOTS, Robot, register_robot
 from snac_gym.rollout import rollout, simulate_kinematic
 from snac_gym.sampling import SampleSpace
-from snac_gym.tasks import TASKS, ReachTask, Sample, register_task
+from snac_gym.tasks import TASKS, ReachTask, Sample, Task, register_task
 
 
 class HoverTask(ReachTask):
@@ -66,6 +66,9 @@ def test_a_task_name_or_code_is_registered_once(hover):
     clash = type("Clash", (HoverTask,), {"name": "clash"})
     with pytest.raises(ValueError, match="sample code 90 is already used by 'hover'"):
         register_task(clash())
+    bare = type("Bare", (Task,), {"name": "bare", "code": 91})
+    with pytest.raises(ValueError, match="Bare does not set \\['label', 'option_key'"):
+        register_task(bare())
 
 
 @pytest.fixture

@@ -9,6 +9,11 @@ from snac_gym.tasks.base import Sample, Task
 from snac_gym.tasks.reach import ReachTask
 from snac_gym.tasks.track import EllipseTrackTask
 
+#: What a task class must set (the rest has defaults in :class:`Task`).
+REQUIRED_ATTRIBUTES = (
+    "name", "label", "code", "option_key", "env_id", "env_class_name", "success_tolerance",
+    "episode_steps", "horizon_s", "real_horizon_s", "env_doc",
+)
 #: Registered tasks by name, in registration order (the order of reports and CSV columns).
 TASKS: dict[str, Task] = {}
 
@@ -17,8 +22,11 @@ def register_task(task: Task) -> Task:
     """Add ``task`` to :data:`TASKS` (its name and spawn-key code must be new).
 
     Raises:
-        ValueError: If the name or the code is taken.
+        ValueError: If a required attribute is missing, or the name or the code is taken.
     """
+    missing = [name for name in REQUIRED_ATTRIBUTES if not hasattr(task, name)]
+    if missing:
+        raise ValueError(f"task {type(task).__name__} does not set {missing} (see snac_gym.tasks.base.Task)")
     if task.name in TASKS:
         raise ValueError(f"a task named {task.name!r} is already registered")
     taken = {other.code: other.name for other in TASKS.values()}

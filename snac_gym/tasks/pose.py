@@ -186,6 +186,7 @@ class PoseReachTask(Task):
     success_tolerance = 1e-3
     episode_steps = 1500
     horizon_s = 12.0
+    real_horizon_s = 15.0
     env_doc = MappingProxyType({
         "summary": "regulation of the full end-effector pose, position and orientation.",
         "task_desc": "The end-effector frame must reach a fixed pose: e = [p − p_d; log₃(R R_dᵀ)] → 0.",
@@ -245,6 +246,7 @@ class PoseTrackTask(PoseReachTask):
     accuracy_text = "median error over the second half"
     episode_steps = 2500
     horizon_s = 20.0
+    real_horizon_s = 30.0
     env_doc = MappingProxyType({
         **PoseReachTask.env_doc,
         "summary": "tracking with the full pose: an ellipse for the position at a fixed orientation.",
