@@ -30,8 +30,12 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, InvalidStateError, ProcessPoolExecutor, wait
 from typing import Any
+
+
+class ExecutorStopped(RuntimeError):
+    """The executor was terminated (an interrupted or failed run) while a job was queued or running."""
 
 
 class SerialExecutor:
@@ -153,6 +157,11 @@ class ProcessExecutor:
         self._running = 0
         self._running_low = 0  # running jobs of priority above 0
         self._reserved = 0
+        # Jobs handed to the pool and not yet finished: terminate() fails them itself, since a
+        # pool whose workers were killed does not always complete their futures (an interrupted
+        # run hung in effort matching, its threads waiting on futures of a dead pool).
+        self._dispatched: set[Future] = set()
+        self._stopped = False
         method = "fork" if sys.platform.startswith("linux") else None
         self._pool = ProcessPoolExecutor(
             max_workers=workers,
@@ -188,7 +197,7 @@ class ProcessExecutor:
 
     def _dispatch(self) -> None:
         """Hand queued jobs to the pool while workers are free (call with the lock held)."""
-        while self._running < self.workers and self._queue:
+        while not self._stopped and self._running < self.workers and self._queue:
             priority = self._queue[0][0]
             low = priority > 0
             if low and self._running_low >= self.workers - self._reserved:
@@ -203,15 +212,19 @@ class ProcessExecutor:
                 continue
             self._running += 1
             self._running_low += low
+            self._dispatched.add(outer)
             inner.add_done_callback(functools.partial(self._finished, outer, low))
 
     def _finished(self, outer: Future, low: bool, inner: Future) -> None:
         with self._lock:
             self._running -= 1
             self._running_low -= low
+            self._dispatched.discard(outer)
             self._dispatch()
+        if outer.done():  # already failed by terminate()
+            return
         if inner.cancelled():
-            outer.cancel()  # pragma: no cover - inner futures are only cancelled at shutdown
+            outer.set_exception(ExecutorStopped("the job was cancelled"))  # pragma: no cover - only at shutdown
         elif inner.exception() is not None:
             outer.set_exception(inner.exception())
         else:
@@ -220,6 +233,8 @@ class ProcessExecutor:
     def run(self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0) -> Iterator[tuple[int, Any]]:
         futures: dict[Future, int] = {}
         with self._lock:
+            if self._stopped:
+                raise ExecutorStopped("the run was stopped")
             for index, item in enumerate(items):
                 outer: Future = Future()
                 heapq.heappush(self._queue, (priority, next(self._arrivals), function, item, outer))
@@ -236,22 +251,35 @@ class ProcessExecutor:
                 future.cancel()  # the ones still queued; running jobs finish in their worker
 
     def terminate(self) -> None:
-        """Stop now (an interrupted run): drop the queue and end the workers without waiting for their jobs."""
+        """Stop now (an interrupted run): drop the queue, fail every job still waited on and end the
+        workers without waiting for their jobs. Every thread blocked in :meth:`run` returns at once
+        (with :class:`ExecutorStopped`), and later calls of :meth:`run` raise it."""
         with self._lock:
-            for *_, outer in self._queue:
-                outer.cancel()
-            self._queue.clear()
+            self._stopped = True
+            self._drop_queue()
+            dispatched, self._dispatched = list(self._dispatched), set()
+        for outer in dispatched:
+            with contextlib.suppress(InvalidStateError):  # it finished meanwhile
+                outer.set_exception(ExecutorStopped("the run was stopped while this job ran"))
         # The pool has no public way to stop running jobs; its worker table is stable across
         # CPython 3.8-3.13, and without it close() still ends the workers after their jobs.
         for process in list((getattr(self._pool, "_processes", None) or {}).values()):
             if process.is_alive():
                 process.terminate()
 
+    def _drop_queue(self) -> None:
+        """Cancel the queued jobs (call with the lock held)."""
+        for *_, outer in self._queue:
+            # cancel() alone does not wake a thread blocked in wait() on the future (only
+            # set_running_or_notify_cancel notifies waiters of a cancellation): that was the hang
+            # of an interrupted effort match.
+            outer.cancel()
+            outer.set_running_or_notify_cancel()
+        self._queue.clear()
+
     def close(self) -> None:
         with self._lock:
-            for *_, outer in self._queue:
-                outer.cancel()
-            self._queue.clear()
+            self._drop_queue()
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
@@ -297,6 +325,25 @@ def check_ray_reachable(address: str, timeout: float | None = None) -> None:
         ) from None
 
 
+@contextlib.contextmanager
+def _handlers_kept() -> Iterator[None]:
+    """Restore this process's SIGINT and SIGTERM handlers after the block.
+
+    ``ray.init`` installs a SIGTERM handler that ends the process at once (exit 15, no clean-up),
+    which would bypass the run's interrupt path: the workers stopped, the one line, exit 143.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = {signum: signal.getsignal(signum) for signum in _STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in saved.items():
+            if handler is not None:
+                signal.signal(signum, handler)
+
+
 class RayExecutor:
     """Run jobs as Ray tasks on the cluster at ``address`` (``"local"``: a new local instance).
 
@@ -318,6 +365,14 @@ class RayExecutor:
             raise RuntimeError("--ray needs Ray: pip install 'snac-gym[ray]'") from exc
         self._ray = ray
         self._started_here = not ray.is_initialized()
+        with _handlers_kept():
+            self._init_ray(ray, address, workers)
+        self.description = f"Ray ({address})"
+        self._remotes: dict[Callable[[Any], Any], Any] = {}
+        self._lock = threading.Lock()
+        self._stopped = threading.Event()
+
+    def _init_ray(self, ray: Any, address: str, workers: int | None) -> None:
         if self._started_here:
             if address == "local":
                 ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
@@ -334,29 +389,35 @@ class RayExecutor:
                             0
                         ]
                     ) from None
-        self.description = f"Ray ({address})"
-        self._remotes: dict[Callable[[Any], Any], Any] = {}
-        self._lock = threading.Lock()
 
     def run(self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0) -> Iterator[tuple[int, Any]]:
         """Yield ``(index, result)`` as Ray tasks finish (``priority`` is left to Ray's scheduler)."""
         ray = self._ray
         with self._lock:  # several threads may call run at once
+            if self._stopped.is_set():
+                raise ExecutorStopped("the run was stopped")
             if function not in self._remotes:
                 self._remotes[function] = ray.remote(function)
             remote = self._remotes[function]
         refs: dict[Any, int] = {remote.remote(item): index for index, item in enumerate(items)}
         try:
             while refs:
-                done, _ = ray.wait(list(refs), num_returns=1)
+                # A bounded wait, so that terminate() (from another thread) ends this loop.
+                done, _ = ray.wait(list(refs), num_returns=1, timeout=self.POLL_S)
+                if self._stopped.is_set():
+                    raise ExecutorStopped("the run was stopped")
                 for ref in done:
                     yield refs.pop(ref), ray.get(ref)
         finally:
             for ref in refs:
-                ray.cancel(ref)
+                ray.cancel(ref, force=True)
+
+    #: Seconds between checks for :meth:`terminate` while waiting on Ray tasks.
+    POLL_S = 0.2
 
     def terminate(self) -> None:
-        """Running tasks are cancelled by :meth:`run`'s clean-up; :meth:`close` stops a local instance."""
+        """Stop now: every :meth:`run` ends within :attr:`POLL_S` and cancels its tasks; :meth:`close` stops a local instance."""
+        self._stopped.set()
 
     def close(self) -> None:
         if self._started_here:

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from evaluation.executors import ExecutorStopped
 from evaluation.jobs import JobResult, RolloutJob, run_job
 from evaluation.optimal_reference import OPTIMAL, OptimalJob, run_optimal_job
 from evaluation.samples import EvaluationSample, policy_seed
@@ -120,19 +121,17 @@ class EvaluationRun:
         futures = [pool.submit(function) for function in functions]
         try:
             wait(futures, return_when=FIRST_EXCEPTION)
-            if any(future.done() and future.exception() is not None for future in futures):
-                self.cancelled.set()
-                wait(futures)
-                errors = [future.exception() for future in futures if future.exception() is not None]
-                # The failure itself, not the cancellations it caused in the other pipelines.
-                raise next((e for e in errors if not isinstance(e, Cancelled)), errors[0])
-            return [future.result() for future in futures]
-        except BaseException as exc:
+            errors = [future.exception() for future in futures if future.done() and future.exception() is not None]
+            if not errors:
+                return [future.result() for future in futures]
+            # The failure itself, not the cancellations it caused in the other pipelines.
+            raise next((e for e in errors if not isinstance(e, Cancelled | ExecutorStopped)), errors[0])
+        except BaseException:
+            # A failed pipeline or Ctrl-C: stop the others now. terminate() ends the workers and
+            # fails every job a pipeline waits on, so the threads below return at once instead
+            # of waiting (for ever, once the workers are gone) on jobs that will not finish.
             self.cancelled.set()
-            if not isinstance(exc, Exception):
-                # Ctrl-C: end the workers now, so that the other pipelines' waits end with them
-                # instead of after their running jobs.
-                self.executor.terminate()
+            self.executor.terminate()
             raise
         finally:
             pool.shutdown(wait=True, cancel_futures=True)

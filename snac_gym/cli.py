@@ -283,7 +283,10 @@ def evaluate(
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the workers are stopped, finished jobs are kept
         signal_name = str(exc) or "SIGINT"
-        typer.echo(f"interrupted by {signal_name}: finished jobs are kept in {out_dir}/; continue with --resume", err=True)
+        if (out_dir / "run.json").exists():
+            typer.echo(f"interrupted by {signal_name}: finished jobs are kept in {out_dir}/; continue with --resume", err=True)
+        else:  # the run is recorded once its sample set is complete: nothing to resume yet
+            typer.echo(f"interrupted by {signal_name} while drawing the samples: nothing to resume; run the command again", err=True)
         raise typer.Exit(code=128 + int(signal.Signals[signal_name])) from None
     summary = (out_dir / "summary.md").read_text()
     typer.echo(summary.split("\n## ")[0].rstrip())

@@ -1,0 +1,191 @@
+"""An interrupted evaluation ends, in every phase, and ``--resume`` then gives the uninterrupted result.
+
+Each test runs ``snac-gym evaluate`` in a child process through a small driver that arms a timer at
+the entry of one phase; the timer sends the signal to the run's own process while the phase is
+still running (the driver records whether it was), as a user's Ctrl-C or a scheduler's SIGTERM
+would. The run must exit within a bound with its one line and 128 + the signal number; a
+``--resume`` of the same folder must then give the rows of an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+#: Seconds an interrupted run may take to exit (the issue's bound; it exits in well under one).
+EXIT_BOUND_S = 10.0
+
+#: The phase hooks: (module, attribute) of a function the main process calls when the phase begins.
+PHASES = {
+    "samples": ("evaluation.runner", "load_samples"),
+    "reference passes": ("evaluation.passes", "EvaluationRun.run_passes"),
+    "effort matching": ("evaluation.effort_matching", "EffortMatcher.match_all"),
+    "optimal": ("evaluation.passes", "EvaluationRun.run_optimal"),
+    "reports": ("evaluation.runner", "write_reports"),
+}
+
+DRIVER = r"""
+import importlib, os, signal, sys, threading
+module_name, attribute, signame, delay, marker = sys.argv[1:6]
+sys.argv = ["snac-gym", *sys.argv[6:]]
+# A background job of a non-interactive shell inherits SIGINT ignored; a terminal's Ctrl-C does not.
+signal.signal(signal.SIGINT, signal.default_int_handler)
+owner = importlib.import_module(module_name)
+*path, name = attribute.split(".")
+for part in path:
+    owner = getattr(owner, part)
+original = getattr(owner, name)
+state = {"armed": False, "inside": 0}
+
+def fire():
+    with open(marker, "w") as file:
+        file.write("inside" if state["inside"] else "after")
+    os.kill(os.getpid(), getattr(signal, signame))
+
+def hooked(*args, **kwargs):
+    state["inside"] += 1
+    try:
+        if not state["armed"]:
+            state["armed"] = True
+            if float(delay) > 0:  # while the phase runs
+                threading.Timer(float(delay), fire).start()
+            else:  # at its start, in this thread (phases too short for a timer)
+                fire()
+        return original(*args, **kwargs)
+    finally:
+        state["inside"] -= 1
+
+setattr(owner, name, hooked)
+from snac_gym.cli import main
+main()
+"""
+
+ARGS = [
+    "evaluate", "--samples", "6", "--seed", "3", "--chunk-size", "2", "--controllers", "snac,dls,rnn,optimal",
+    "--horizon", "reach=3", "--horizon", "track=4", "--no-progress",
+]  # fmt: skip
+#: Columns that measure this machine's speed, not the result.
+TIMING_COLUMNS = ["optimal_solve_time"]
+
+
+def _evaluate(out: Path, *extra: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "snac_gym.cli", *ARGS, "--out", str(out), *extra],
+        capture_output=True, text=True, timeout=timeout,
+    )  # fmt: skip
+
+
+def _interrupted(tmp_path: Path, phase: str, signame: str, workers: int, delay: float, *extra: str):
+    module, attribute = PHASES[phase]
+    marker, out = tmp_path / "fired", tmp_path / "run"
+    command = [sys.executable, "-c", DRIVER, module, attribute, signame, str(delay), str(marker)]
+    command += [*ARGS, "--out", str(out), "--workers", str(workers), *extra]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    fired_at = marker.stat().st_mtime if marker.exists() else None
+    return process, err, out, marker.read_text() if fired_at else None, fired_at
+
+
+def _rows(out: Path) -> pd.DataFrame:
+    return pd.read_csv(out / "results.csv").drop(columns=TIMING_COLUMNS)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> pd.DataFrame:
+    out = tmp_path_factory.mktemp("uninterrupted") / "run"
+    done = _evaluate(out, "--workers", "1")
+    assert done.returncode == 0, done.stderr
+    return _rows(out)
+
+
+@pytest.mark.parametrize(
+    ("phase", "signame", "workers", "delay"),
+    [
+        ("samples", "SIGINT", 2, 0.0),
+        ("reference passes", "SIGTERM", 2, 0.05),
+        ("effort matching", "SIGINT", 2, 0.3),
+        ("effort matching", "SIGTERM", 1, 0.3),
+        ("optimal", "SIGTERM", 2, 0.05),
+        ("reports", "SIGINT", 1, 0.0),
+    ],
+)
+def test_an_interrupt_in_every_phase_ends_the_run_and_resume_gives_the_same_rows(
+    tmp_path, uninterrupted, phase, signame, workers, delay
+):
+    process, err, out, where, fired_at = _interrupted(tmp_path, phase, signame, workers, delay)
+    ended = time.time()
+    assert where == "inside", f"the signal was not sent inside the {phase} phase ({where}); stderr: {err}"
+    assert ended - fired_at < EXIT_BOUND_S
+    signum = int(getattr(signal, signame))
+    assert process.returncode == 128 + signum, err
+    if phase == "samples":  # the run is recorded once its samples are drawn: it is run again, not resumed
+        assert err.strip().splitlines() == [
+            f"interrupted by {signame} while drawing the samples: nothing to resume; run the command again"
+        ]
+        again: tuple[str, ...] = ()
+    else:
+        assert err.strip().splitlines() == [
+            f"interrupted by {signame}: finished jobs are kept in {out}/; continue with --resume"
+        ]
+        again = ("--resume",)
+    resumed = _evaluate(out, "--workers", str(workers), *again)
+    assert resumed.returncode == 0, resumed.stderr
+    pd.testing.assert_frame_equal(_rows(out), uninterrupted, check_exact=True)
+
+
+def test_an_interrupt_on_ray_ends_the_run(tmp_path):
+    pytest.importorskip("ray")
+    process, err, out, where, fired_at = _interrupted(tmp_path, "effort matching", "SIGTERM", 2, 0.3, "--ray", "local")
+    assert where == "inside", err
+    assert time.time() - fired_at < EXIT_BOUND_S + 5  # Ray's own shutdown takes a few seconds
+    assert process.returncode == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines()[-1] == (
+        f"interrupted by SIGTERM: finished jobs are kept in {out}/; continue with --resume"
+    )
+
+
+def test_an_interrupted_process_executor_wakes_every_waiting_thread():
+    """The cause of the hang: a thread waiting on a queued job that terminate() cancelled never woke."""
+    import threading
+
+    from evaluation.executors import ExecutorStopped, ProcessExecutor
+
+    executor = ProcessExecutor(2)
+    outcomes: list[str] = []
+
+    def feed() -> None:
+        try:
+            list(executor.run(time.sleep, [5.0] * 6))  # 2 run, 4 wait in the queue
+            outcomes.append("finished")
+        except (ExecutorStopped, Exception) as exc:  # noqa: BLE001 - any error ends the wait
+            outcomes.append(type(exc).__name__)
+
+    threads = [threading.Thread(target=feed) for _ in range(3)]
+    for thread in threads:
+        thread.start()
+    time.sleep(0.5)
+    started = time.perf_counter()
+    executor.terminate()
+    for thread in threads:
+        thread.join(timeout=EXIT_BOUND_S)
+    executor.close()
+    assert not any(thread.is_alive() for thread in threads)
+    assert time.perf_counter() - started < 3.0  # not after the 5 s jobs
+    assert len(outcomes) == 3 and "finished" not in outcomes
+    with pytest.raises(ExecutorStopped):
+        next(executor.run(time.sleep, [0.0]))
+
+
+if os.name != "posix":  # pragma: no cover
+    pytestmark = pytest.mark.skip(reason="POSIX signals")
