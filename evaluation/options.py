@@ -44,14 +44,22 @@ def parse_controllers(text: str | None) -> tuple[str, ...] | None:
     return names
 
 
-def parse_horizons(values: Sequence[str]) -> dict[str, float]:
-    """``--horizon SECONDS`` (every task) or ``--horizon TASK=SECONDS``, repeatable."""
+def parse_horizons(values: Sequence[str], run_tasks: Sequence[str] = TASKS) -> dict[str, float]:
+    """``--horizon SECONDS`` (every task of the run) or ``--horizon TASK=SECONDS``, repeatable.
+
+    A task given twice, or a task the run does not evaluate, is refused: one of the values would
+    be silently ignored.
+    """
     horizons: dict[str, float] = {}
     for text in values:
         task, _, seconds = text.rpartition("=")
-        tasks = TASKS if not task else (task.strip(),)
+        tasks = tuple(run_tasks) if not task else (task.strip(),)
         if tasks[0] not in TASKS and not is_pose_task(tasks[0]):
             raise ValueError(f"--horizon {text!r}: unknown task {task!r}; use reach=SECONDS or track=SECONDS")
+        if task and tasks[0] not in run_tasks:
+            raise ValueError(f"--horizon {text!r}: the run does not evaluate {tasks[0]!r} (--task); drop this --horizon")
+        if any(name in horizons for name in tasks):
+            raise ValueError(f"--horizon {text!r}: a horizon for {', '.join(n for n in tasks if n in horizons)} is given twice")
         try:
             value = float(seconds)
         except ValueError:
@@ -73,6 +81,8 @@ def parse_cuboid(text: str | None) -> tuple[tuple[float, float, float], tuple[fl
         raise ValueError(f"--cuboid {text!r}: six comma-separated numbers (m) are needed") from None
     if len(values) != 6:
         raise ValueError(f"--cuboid {text!r}: six numbers x0,y0,z0,x1,y1,z1 are needed, got {len(values)}")
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"--cuboid {text!r}: every coordinate must be a finite number of metres")
     low, high = tuple(values[:3]), tuple(values[3:])
     if any(a >= b for a, b in zip(low, high, strict=True)):
         raise ValueError(f"--cuboid {text!r}: each low corner coordinate must be below the high one")
@@ -96,3 +106,55 @@ def parse_params(values: Sequence[str]) -> dict[str, dict[str, Any]]:
             raise ValueError(f"--param {text!r}: use CONTROLLER.KEY=VALUE, e.g. svf.nu=5")
         params.setdefault(controller.strip(), {})[key.strip()] = _value(raw.strip())
     return params
+
+
+def check_option_combinations(
+    *,
+    samples: int | None,
+    cuboid: str | None,
+    samples_file: Path | None,
+    export_samples: Path | None,
+    sweep: bool,
+    sweep_points: int | None,
+    sweep_span: float | None,
+    effort_reference: str | None,
+    match_effort: bool,
+    effort_target: float | None,
+    controllers: Sequence[str] | None,
+) -> None:
+    """Refuse an option that another one makes meaningless (it would be silently ignored), naming both."""
+    if samples_file is not None:
+        for given, option in ((samples, "--samples"), (cuboid, "--cuboid")):
+            if given is not None:
+                raise ValueError(f"{option} has no effect with --samples-file (its rows are the samples); drop {option}")
+        if export_samples is not None and _same_file(samples_file, export_samples):
+            raise ValueError(f"--export-samples {export_samples} is the --samples-file it reads; name another file")
+    if not sweep:
+        for given, option in ((sweep_points, "--sweep-points"), (sweep_span, "--sweep-span")):
+            if given is not None:
+                raise ValueError(f"{option} has no effect without --sweep; add --sweep or drop {option}")
+    if effort_reference is not None:
+        _check_effort_reference(effort_reference, match_effort, effort_target, controllers)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve() or (Path(b).exists() and Path(a).samefile(b))
+    except OSError:
+        return False
+
+
+def _check_effort_reference(
+    name: str, match_effort: bool, effort_target: float | None, controllers: Sequence[str] | None
+) -> None:
+    from snac_gym.policies import available_policies
+
+    registered = available_policies()
+    if name not in registered:
+        raise ValueError(f"--effort-reference {name!r} names no registered controller; choose one of {registered}")
+    if not match_effort:
+        raise ValueError("--effort-reference has no effect with --no-match-effort; drop one of them")
+    if effort_target is not None:
+        raise ValueError("--effort-reference has no effect with --effort-target (every controller is matched to it)")
+    if controllers is not None and name not in controllers:
+        raise ValueError(f"--effort-reference {name!r} is not among --controllers {','.join(controllers)}; add it")

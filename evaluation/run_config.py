@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +21,7 @@ from evaluation.effort_statistics import DEFAULT_EFFORT_STATISTIC, EffortStatist
 from evaluation.executors import MAX_WORKERS_PER_CPU, max_workers
 from evaluation.jobs import BACKENDS
 from evaluation.optimal_reference import OPTIMAL
-from evaluation.samples import TASKS
+from evaluation.samples import TASKS, check_samples_file
 from evaluation.store import file_sha1
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
@@ -41,6 +42,23 @@ DEFAULT_CHUNK_SIZE = 500
 #: Longest horizon accepted, s: 50x the default tracking horizon. Rollouts keep per-step arrays,
 #: so an unbounded horizon (1e7 s asked for 9.3 GiB) fails late instead of being refused.
 MAX_HORIZON_S = 1000.0
+#: Memory one sample of one task costs a run, bytes, rounded up: the sample itself (0.7 kB reach,
+#: 1.5 kB track, tracemalloc), a 0.4 kB results row per controller (8 controllers and the optimum),
+#: held about three times while the parts are read and the results table is assembled.
+BYTES_PER_SAMPLE = 16 * 1024
+
+
+def max_samples() -> int:
+    """Largest ``samples`` per task: what half of this machine's memory holds at :data:`BYTES_PER_SAMPLE`.
+
+    A larger count would allocate until the kernel ends the run. Time is the other bound: the
+    main command runs about 10 samples a second per task and worker.
+    """
+    try:
+        memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, OSError, ValueError):  # pragma: no cover - not POSIX
+        memory = 8 * 2**30
+    return max(1, memory // 2 // BYTES_PER_SAMPLE)
 
 
 @dataclass(frozen=True)
@@ -222,8 +240,13 @@ def _check_selection(config: EvaluationConfig) -> None:
     controllers = config.controllers
     if controllers is not None and (not controllers or len(set(controllers)) != len(controllers)):
         raise ValueError(f"controllers must be distinct names, got {controllers}")
-    if config.samples < 1:
-        raise ValueError(f"samples must be at least 1, got {config.samples}")
+    if config.samples_file is not None:
+        check_samples_file(config.samples_file)  # before it is hashed: a device or FIFO never ends
+    elif not 1 <= config.samples <= max_samples():
+        raise ValueError(
+            f"samples must be between 1 and {max_samples()} per task (half of this machine's memory at "
+            f"{BYTES_PER_SAMPLE // 1024} kB a sample), got {config.samples}"
+        )
 
 
 def _check_pose_tasks(config: EvaluationConfig) -> None:
@@ -265,6 +288,14 @@ def _check_backend(config: EvaluationConfig) -> None:
 def _check_effort(config: EvaluationConfig) -> None:
     """The equal-effort options: statistic, target, tolerance, screening samples."""
     effort_statistic_named(config.effort_statistic)
+    if config.match_effort and config.effort_target is None:
+        from snac_gym.policies import available_policies
+
+        if config.effort_reference not in available_policies():
+            raise ValueError(
+                f"effort_reference {config.effort_reference!r} names no registered controller; "
+                f"choose one of {available_policies()}"
+            )
     target = config.effort_target
     if target is not None and not (math.isfinite(target) and target > 0):
         raise ValueError(f"effort_target must be a positive finite number, got {target}")
@@ -295,4 +326,4 @@ def _check_scoring(config: EvaluationConfig) -> None:
         raise ValueError("out (--out) must name a folder, got an empty path")
 
 
-__all__ = ["DEFAULT_CHUNK_SIZE", "DEFAULT_HORIZONS", "MAX_HORIZON_S", "EvaluationConfig"]
+__all__ = ["BYTES_PER_SAMPLE", "DEFAULT_CHUNK_SIZE", "DEFAULT_HORIZONS", "MAX_HORIZON_S", "EvaluationConfig", "max_samples"]

@@ -205,12 +205,12 @@ def evaluate(
     out: str = typer.Option("runs/evaluation", "--out", help="Output folder (results, summary, plots, parts)."),
     task: str = typer.Option("both", "--task", help="reach, track or both; or a pose task, pose-reach or pose-track (docs/robots.md)."),
     controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md)."),
-    samples: int = typer.Option(1000, "--samples", min=1, help="Random samples per task (the paper: 1000)."),
+    samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Random samples per task (default 1000, the paper's; at most what half the memory holds)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
     horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."),
     backend: str = typer.Option("kinematic", "--backend", help="kinematic (exact θ += uΔt, fast) or pybullet (the Gymnasium env)."),
     match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
-    effort_reference: str = typer.Option("snac", "--effort-reference", help="Controller whose effort the others are matched to."),
+    effort_reference: Optional[str] = typer.Option(None, "--effort-reference", help="Controller whose effort the others are matched to (default: snac if evaluated, else the first controller)."),
     effort_statistic: str = typer.Option("max", "--effort-statistic", help="What equal effort equalises: max (the maximum |u| over the sample set, rad/s) or median-peak (the median rollout's peak |u|/limit)."),
     effort_target: Optional[float] = typer.Option(None, "--effort-target", help="Explicit effort target in the statistic's unit (rad/s for max, a fraction for median-peak); then every controller is matched."),
     effort_tolerance: float = typer.Option(0.02, "--effort-tolerance", help="Relative tolerance of the effort match."),
@@ -233,13 +233,14 @@ def evaluate(
     q_scale: float = typer.Option(1.0, "--q-scale", help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q."),
     success_threshold: float = typer.Option(0.95, "--success-threshold", help="Success rate a controller needs to be ranked in the summary."),
     sweep: bool = typer.Option(False, "--sweep/--no-sweep", help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against success, error and peak effort; docs/evaluation.md)."),
-    sweep_points: int = typer.Option(7, "--sweep-points", help="Knob values per controller and task in the sweep (2 to 25), plus the equal-effort point."),
-    sweep_span: float = typer.Option(4.0, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically."),
+    sweep_points: Optional[int] = typer.Option(None, "--sweep-points", help="Knob values per controller and task in the sweep (2 to 25; default 7), plus the equal-effort point."),
+    sweep_span: Optional[float] = typer.Option(None, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4)."),
 ) -> None:
     """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
     import time
 
     from evaluation.options import (
+        check_option_combinations,
         parse_controllers,
         parse_cuboid,
         parse_horizons,
@@ -253,14 +254,20 @@ def evaluate(
 
     try:
         out_dir = parse_out(out)
+        tasks, names = parse_tasks(task), parse_controllers(controllers)
+        check_option_combinations(
+            samples=samples, cuboid=cuboid, samples_file=samples_file, export_samples=export_samples, sweep=sweep,
+            sweep_points=sweep_points, sweep_span=sweep_span, effort_reference=effort_reference,
+            match_effort=match_effort, effort_target=effort_target, controllers=names,
+        )
         corners = parse_cuboid(cuboid)
         space = None
         if corners is not None:
             space = SampleSpace.for_robot(Kinematics(robot), low=corners[0], high=corners[1])
         config = EvaluationConfig(
-            out=out_dir, tasks=parse_tasks(task), controllers=parse_controllers(controllers), samples=samples, seed=seed,
-            horizons=parse_horizons(horizon), backend=backend, match_effort=match_effort,
-            effort_reference=effort_reference, effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
+            out=out_dir, tasks=tasks, controllers=names, samples=1000 if samples is None else samples, seed=seed,
+            horizons=parse_horizons(horizon, tasks), backend=backend, match_effort=match_effort,
+            effort_reference=effort_reference or "snac", effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
             calibration_samples=calibration_samples, samples_file=samples_file, export_samples=export_samples,
             save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
             robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, use_batch=batch,
@@ -275,7 +282,8 @@ def evaluate(
             if sweep:
                 from evaluation.sweep import run_sweep
 
-                run_sweep(config, points=sweep_points, span=sweep_span)
+                run_sweep(config, points=7 if sweep_points is None else sweep_points,
+                          span=4.0 if sweep_span is None else sweep_span)
             else:
                 run_evaluation(config)
     except (ValueError, RuntimeError, OSError) as exc:  # bad options, samples file, controller, output folder: a clean message

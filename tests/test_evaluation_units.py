@@ -532,6 +532,9 @@ def test_concurrent_effort_matches_raise_the_failure_not_the_cancellations(tmp_p
     class Concurrent:
         concurrent = True
 
+        def terminate(self) -> None:
+            """What a failed pipeline asks of the executor (stop every job)."""
+
     config = EvaluationConfig(out=tmp_path, workers=2, progress=False)
     evaluation = passes_module.EvaluationRun(config, None, Concurrent(), {}, None)
     started = threading.Event()

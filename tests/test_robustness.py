@@ -135,7 +135,7 @@ def test_a_calibration_record_of_another_run_is_refused(tmp_path):
 def test_missing_samples_file_and_corrupt_run_json_are_one_line_errors(tmp_path):
     _one_line_error(
         _cli("evaluate", "--out", str(tmp_path / "a"), "--samples-file", str(tmp_path / "nope.csv")),
-        "nope.csv: cannot read the samples file",
+        "nope.csv: no such samples file",
     )
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "run.json").write_text("{not json")
@@ -315,6 +315,13 @@ def _wait_for(condition, timeout: float = 120.0) -> bool:
     return True
 
 
+def _interrupted_line(signal_name: str, out: Path) -> str:
+    """The CLI's one line: a run is recorded (and can be resumed) once its samples are drawn."""
+    if (out / "run.json").exists():
+        return f"interrupted by {signal_name}: finished jobs are kept in {out}/; continue with --resume"
+    return f"interrupted by {signal_name} while drawing the samples: nothing to resume; run the command again"
+
+
 def _start_long_run(tmp_path: Path) -> subprocess.Popen:
     """A two-worker evaluation far longer than the test, in its own process group."""
     command = [
@@ -359,9 +366,7 @@ def test_workers_die_with_their_parent_and_release_its_pipes(tmp_path, signum):
             process.kill()
     if signum == signal.SIGTERM:  # handled like Ctrl-C: one line, the run kept for --resume
         assert process.returncode == 128 + signal.SIGTERM
-        assert err.decode().strip().splitlines() == [
-            f"interrupted by SIGTERM: finished jobs are kept in {tmp_path / 'run'}/; continue with --resume"
-        ]
+        assert err.decode().strip().splitlines() == [_interrupted_line("SIGTERM", tmp_path / "run")]
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -376,9 +381,7 @@ def test_ctrl_c_prints_one_line_and_no_worker_traceback(tmp_path):
         if process.poll() is None:
             process.kill()
     assert process.returncode == 130
-    assert err.decode().strip().splitlines() == [
-        f"interrupted by SIGINT: finished jobs are kept in {tmp_path / 'run'}/; continue with --resume"
-    ]
+    assert err.decode().strip().splitlines() == [_interrupted_line("SIGINT", tmp_path / "run")]
     assert _wait_for(lambda: not any(_alive(w) for w in workers))
 
 
