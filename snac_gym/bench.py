@@ -8,6 +8,27 @@ from typing import Any
 
 import numpy as np
 
+#: Upper bound of ``--steps``: each env is timed 5 times over ``steps`` steps, so 1,000,000 steps
+#: take ~9 min for the two snac-gym envs at the ~18,000 steps/s measured here (README) and ~80 min
+#: for panda-gym at ~1,000 steps/s; a larger count is a typo that would run until killed.
+MAX_BENCH_STEPS = 1_000_000
+#: Upper bound of ``--act-calls``: the per-call timings are kept in memory (8 B each, 8 MB at the
+#: bound) and each call costs an ``act`` plus an env step (~50-100 µs), so ~100 s per policy and task.
+MAX_ACT_CALLS = 1_000_000
+#: Fewer steps or calls than this measure the timer more than the code.
+MIN_BENCH_COUNT = 100
+
+
+def check_bench_counts(steps: int, act_calls: int) -> None:
+    """Refuse ``--steps`` or ``--act-calls`` outside ``[MIN_BENCH_COUNT, MAX_*]`` before anything runs.
+
+    Raises:
+        ValueError: Naming the option and its range.
+    """
+    for option, value, high in (("--steps", steps, MAX_BENCH_STEPS), ("--act-calls", act_calls, MAX_ACT_CALLS)):
+        if not MIN_BENCH_COUNT <= value <= high:
+            raise ValueError(f"{option} must be between {MIN_BENCH_COUNT} and {high:,}, got {value}")
+
 
 def _pin_to_one_core() -> None:
     if hasattr(os, "sched_setaffinity"):
@@ -43,6 +64,7 @@ def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, di
 
     import snac_gym
 
+    check_bench_counts(steps, MIN_BENCH_COUNT)
     _pin_to_one_core()
     results: dict[str, dict[str, float]] = {}
     for env_id in snac_gym.ENV_IDS:
@@ -149,6 +171,7 @@ def run_act_bench(
 
     if clock not in ("wall", "cpu"):
         raise ValueError(f"clock must be 'wall' or 'cpu', got {clock!r}")
+    check_bench_counts(MIN_BENCH_COUNT, calls)
     _pin_to_one_core()
     results: dict[str, dict[str, Any]] = {}
     for name in names:

@@ -48,16 +48,21 @@ def _check_task(task: str) -> None:
 
 @app.command()
 def bench(
-    steps: int = typer.Option(5000, min=100, help="Env steps per measurement."),
+    steps: int = typer.Option(5000, "--steps", help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~9 min for the two snac-gym envs at the bound)."),
     panda: bool = typer.Option(True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."),
     substeps: bool = typer.Option(False, "--substeps", help="Also run the physics-substep accuracy study."),
     act: bool = typer.Option(False, "--act", help="Also time one act() call of every available policy that imports."),
-    act_calls: int = typer.Option(5000, "--act-calls", min=100, help="Timed act() calls per policy and task."),
+    act_calls: int = typer.Option(5000, "--act-calls", help="Timed act() calls per policy and task, 100 to 1,000,000 (timings kept in memory, 8 B each; ~100 s per policy and task at the bound)."),
     vector: bool = typer.Option(False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."),
 ) -> None:
     """Env steps per second and real-time factor of both ids on one core (and, with --act, act latency)."""
-    from snac_gym.bench import format_env_bench, run_env_bench, run_substep_study
+    from snac_gym.bench import check_bench_counts, format_env_bench, run_env_bench, run_substep_study
 
+    try:  # both before the first measurement, which a bad --act-calls would otherwise follow by minutes
+        check_bench_counts(steps, act_calls)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
     typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
     if vector:
         from snac_gym.bench import format_vector_bench, run_vector_bench
@@ -85,7 +90,7 @@ def demo(
     task: str = typer.Option("reach", "--task", help="reach (fixed target) or track (the paper's circle)."),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
     out: Path = typer.Option(Path("demo_out"), "--out", help="Folder for the PNG panels, the log and summary.json."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets, ≥ 0 (a NumPy seed)."),
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control steps (default: 1500 reach = 12 s, 2500 track = 20 s)."),
     duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
@@ -101,9 +106,9 @@ def demo(
     try:
         result = run_demo(task=task, controller=controller, out_dir=out, seed=seed, steps=steps, duration=duration,
                           csv=csv, plots=plots, robot=robot)
-    except ValueError as exc:  # unknown controller and other bad input: a clean message, not a traceback
+    except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(code=2) from exc
+        raise typer.Exit(code=2) from None
     typer.echo(result.summary())
 
 
@@ -327,9 +332,9 @@ def train_ppo_command(
         lines = (lambda text: typer.echo(text, err=True)) if progress and wants_lines() else None
         result = train_ppo(task=task, out=out, timesteps=timesteps, seed=seed, config_path=config, resume=resume,
                            n_envs=n_envs, vec_env=vec_env, log=typer.echo, progress=lines)
-    except (ValueError, ImportError) as exc:  # bad config or folder, missing [rl] extra: a clean message
+    except (ValueError, ImportError) as exc:  # bad config, folder or checkpoint, missing [rl] extra: a clean message
         typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(code=2) from exc
+        raise typer.Exit(code=2) from None
     best = result.best
     typer.echo(f"{result.status}: {result.timesteps} timesteps, wall time {result.wall_time_s / 60:.1f} min")
     if best is not None:

@@ -137,6 +137,10 @@ def run_demo(
     options = spec.demo_options(robot)
     if steps is not None and duration is not None:
         raise ValueError("give steps or duration, not both")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:  # NumPy's seeding refuses the rest
+        raise ValueError(f"--seed must be an integer ≥ 0 (a NumPy seed), got {seed!r}")
+    if out_dir is not None:  # before the rollout, which the outputs would otherwise be lost after
+        usable_out_folder(Path(out_dir))
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DEMO_DURATION_S):
         raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
     env = gym.make(spec.env_id, robot=robot)
@@ -164,6 +168,20 @@ def run_demo(
         log, spec.name, controller, seed, spec.success_tolerance, out_dir,
         csv=csv, plots=plots, policy_kwargs=policy_kwargs,
     )
+
+
+def usable_out_folder(out: Path) -> None:
+    """Create the output folder ``out``, or refuse it in one line as ``evaluate`` does (a file, not writable, ...).
+
+    Raises:
+        ValueError: With the evaluator's message (:func:`evaluation.store._usable_folder`).
+    """
+    from evaluation.store import RunDirectoryError, _usable_folder
+
+    try:
+        _usable_folder(out)
+    except RunDirectoryError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def write_demo_outputs(
