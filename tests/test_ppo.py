@@ -364,8 +364,8 @@ def test_configs_are_versioned_and_checked(tmp_path):
     with pytest.raises(ValueError, match="for task 'reach', not 'track'"):
         resolve_config("track", default_config_path("reach"))
     config = load_config(default_config_path("reach"))
-    for change, message in (({"config_version": 2}, "config_version"), ({"colour": 1}, "unknown keys"),
-                            ({"ppo": {**config["ppo"], "lr": 1}}, "unknown ppo keys")):
+    for change, message in (({"config_version": 2}, "config_version"), ({"colour": 1}, "unknown key colour"),
+                            ({"ppo": {**config["ppo"], "lr": 1}}, "unknown key ppo.lr")):
         path = tmp_path / "bad.json"
         path.write_text(json.dumps({**config, **change}))
         with pytest.raises(ValueError, match=message):

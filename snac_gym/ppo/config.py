@@ -21,27 +21,37 @@ The shipped configs live in ``snac_gym/ppo/configs/<task>.json``. Their keys:
   episode is scored at: the evaluator's, 4 s and 8 s reach, 10 s and 20 s track), ``seed``
   (first reset seed of the evaluation episodes), ``success_error_m`` (reach: final ‖e‖ at
   most this; track: mean ‖e‖ over the second half of the horizon below this).
+
+:func:`validate_config` reads a config into :class:`TrainingConfig` (one frozen dataclass per
+section, every field with its type and range), so that a bad value is refused before any env,
+model or folder is made, in one line naming the field's dotted path (``ppo.batch_size``) and the
+values it takes. Unknown keys are refused (a typo would otherwise fall back to a default), and
+so are ``env`` keywords that the task's env constructor does not take. The run keeps the config
+as the JSON dict it was read from (``OUT/config.json``, the policy files' metadata).
 """
 
 from __future__ import annotations
 
 import copy
+import inspect
 import json
+import math
+from collections.abc import Callable
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
-from snac_gym.tasks import task_names
+from snac_gym.ppo.envs import REWARD_TYPES
+from snac_gym.ppo.features import FEATURE_VERSION
+from snac_gym.robots import ROBOTS
+from snac_gym.tasks import get_task, task_names
 
 CONFIG_VERSION = 1
 PACKAGE = "snac_gym.ppo"
-_SECTIONS = ("env", "features", "reward", "vec_env", "normalize", "ppo", "evaluation")
-_TOP_LEVEL = {"config_version", "task", "robot", "timesteps", "seed", "description", *_SECTIONS}
-_PPO_KEYS = {
-    "learning_rate", "learning_rate_schedule", "n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda",
-    "clip_range", "ent_coef", "vf_coef", "max_grad_norm", "net_arch", "activation", "log_std_init",
-}
-_EVALUATION_KEYS = {"every_timesteps", "episodes", "horizons_s", "seed", "success_error_m"}
+T = TypeVar("T")
+#: A config file is a few kB; a bound keeps a device such as /dev/zero from being read for ever.
+MAX_CONFIG_BYTES = 1_000_000
 
 
 def default_config_path(task: str) -> Path:
@@ -60,53 +70,26 @@ def load_config(path: str | Path) -> dict[str, Any]:
     """
     path = Path(path)
     try:
+        if not path.is_file() or path.stat().st_size > MAX_CONFIG_BYTES:
+            raise ValueError(f"not a regular file of at most {MAX_CONFIG_BYTES} bytes")
         config = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"cannot read PPO config {path}: {exc}") from exc
+    except (OSError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise ValueError(f"cannot read PPO config {path}: {exc}") from None
     validate_config(config, str(path))
     return config
 
 
-def validate_config(config: dict[str, Any], source: str = "PPO config") -> None:
-    """Check the schema of a config dict (see the module docstring).
+def validate_config(config: dict[str, Any], source: str = "PPO config") -> TrainingConfig:
+    """Read a config dict into :class:`TrainingConfig`, checking every field's type and range.
 
     Raises:
-        ValueError: Naming the offending key.
+        ConfigError: A ``ValueError`` naming ``source`` and the offending field's dotted path
+            and allowed range (unknown keys and env keywords included).
     """
-    if not isinstance(config, dict):
-        raise ValueError(f"{source}: expected a JSON object")
-    if config.get("config_version") != CONFIG_VERSION:
-        raise ValueError(f"{source}: config_version must be {CONFIG_VERSION}, got {config.get('config_version')!r}")
-    unknown = set(config) - _TOP_LEVEL
-    if unknown:
-        raise ValueError(f"{source}: unknown keys {sorted(unknown)}")
-    missing = [key for key in ("task", "timesteps", "seed", *_SECTIONS) if key not in config]
-    if missing:
-        raise ValueError(f"{source}: missing keys {missing}")
-    if config["task"] not in task_names():
-        raise ValueError(f"{source}: task must be one of {task_names()}, got {config['task']!r}")
-    _validate_sections(config, source)
-
-
-#: Enumerated settings: (section, key, default, allowed values).
-_CHOICES = (
-    ("vec_env", "kind", "dummy", ("dummy", "subproc", "batched")),
-    ("ppo", "learning_rate_schedule", "constant", ("constant", "linear")),
-    ("ppo", "activation", "tanh", ("tanh", "relu")),
-)
-
-
-def _validate_sections(config: dict[str, Any], source: str) -> None:
-    """The keys of the ``ppo`` and ``evaluation`` sections and the enumerated settings."""
-    for key, allowed in (("ppo", _PPO_KEYS), ("evaluation", _EVALUATION_KEYS)):
-        extra = set(config[key]) - allowed
-        if extra:
-            raise ValueError(f"{source}: unknown {key} keys {sorted(extra)}")
-    for section, key, default, allowed in _CHOICES:
-        value = config[section].get(key, default)
-        if value not in allowed:
-            quoted = " or ".join(repr(v) for v in allowed)
-            raise ValueError(f"{source}: {section}.{key} must be {quoted}, got {value!r}")
+    try:
+        return read_section(TrainingConfig, config)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
 
 
 def resolve_config(
@@ -134,10 +117,283 @@ def resolve_config(
         config["vec_env"]["n_envs"] = int(n_envs)
     if vec_env is not None:
         config["vec_env"]["kind"] = vec_env
+    validate_config(config, str(path))  # the overrides too
     config["config_file"] = str(path)
-    validate_config({k: v for k, v in config.items() if k != "config_file"}, str(path))
-    if config["timesteps"] < 1:
-        raise ValueError(f"timesteps must be at least 1, got {config['timesteps']}")
-    if config["vec_env"].get("n_envs", 1) < 1:
-        raise ValueError("n_envs must be at least 1")
     return config
+
+
+# -- the schema ----------------------------------------------------------------------------------
+class ConfigError(ValueError):
+    """A config value outside its schema; the message names the field by its dotted path."""
+
+
+#: SB3 seeds NumPy's global generator with the seed (``np.random.seed``: 0 to 2**32 − 1).
+MAX_SEED = 2**32 - 1
+#: Widest hidden layer accepted: 4096 units already make a 16 M-weight layer; wider is a typo.
+MAX_LAYER_WIDTH = 4096
+#: Longest evaluation horizon, s: the evaluator's bound (``evaluation.run_config``), 125 000 steps.
+MAX_HORIZON_S = 1000.0
+
+Check = Callable[[Any, str], Any]
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _interval(low: float | None, high: float | None, open_low: bool) -> str:
+    if low is None:
+        return "(finite)"
+    if high is None:
+        return f"{'>' if open_low else '≥'} {low:g}"
+    return f"in {'(' if open_low else '['}{low:g}, {high:g}]"
+
+
+def integer(low: int, high: int | None = None) -> Check:
+    """An integer (not a bool, not 2.0) in ``[low, high]``."""
+
+    def check(value: Any, path: str) -> int:
+        if not (isinstance(value, int) and not isinstance(value, bool) and low <= value and (high is None or value <= high)):
+            bounds = f"≥ {low}" if high is None else f"in [{low}, {high}]"
+            raise ConfigError(f"{path} must be an integer {bounds}, got {value!r}")
+        return value
+
+    return check
+
+
+def number(low: float | None, high: float | None = None, open_low: bool = False) -> Check:
+    """A finite number in ``[low, high]`` (``(low, high]`` with ``open_low``; any with ``low=None``)."""
+
+    def check(value: Any, path: str) -> float:
+        above = low is None or (value > low if open_low else value >= low)
+        inside = _is_number(value) and above and (high is None or value <= high)
+        if not inside:
+            raise ConfigError(f"{path} must be a number {_interval(low, high, open_low)}, got {value!r}")
+        return float(value)
+
+    return check
+
+
+def _json_object(value: Any, path: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{path} must be a JSON object, got {value!r}")
+    return dict(value)
+
+
+def boolean(value: Any, path: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{path} must be true or false, got {value!r}")
+    return value
+
+
+def text(value: Any, path: str) -> str:
+    if not isinstance(value, str):
+        raise ConfigError(f"{path} must be a string, got {value!r}")
+    return value
+
+
+def choice(*allowed: Any) -> Check:
+    def check(value: Any, path: str) -> Any:
+        if value not in allowed:
+            raise ConfigError(f"{path} must be {' or '.join(repr(v) for v in allowed)}, got {value!r}")
+        return value
+
+    return check
+
+
+def sequence(item: Check, length: int | None = None, min_length: int = 1) -> Check:
+    """A JSON list of ``length`` (or at least ``min_length``) items, each checked by ``item``."""
+
+    def check(value: Any, path: str) -> tuple[Any, ...]:
+        if not isinstance(value, list) or len(value) != (length or len(value)) or len(value) < min_length:
+            size = f"{length}" if length else f"at least {min_length}"
+            raise ConfigError(f"{path} must be a list of {size} items, got {value!r}")
+        return tuple(item(entry, f"{path}[{i}]") for i, entry in enumerate(value))
+
+    return check
+
+
+def _layers(value: Any, path: str) -> tuple[int, ...]:
+    return sequence(integer(1, MAX_LAYER_WIDTH), min_length=0)(value, path)
+
+
+def net_arch(value: Any, path: str) -> Any:
+    """SB3's ``net_arch``: ``{"pi": [...], "vf": [...]}`` or one list shared by both."""
+    if isinstance(value, list):
+        return _layers(value, path)
+    if not isinstance(value, dict) or set(value) != {"pi", "vf"}:
+        raise ConfigError(f'{path} must be {{"pi": [widths], "vf": [widths]}} or a list of widths, got {value!r}')
+    return {key: _layers(value[key], f"{path}.{key}") for key in ("pi", "vf")}
+
+
+def spec(kind: Check | type, default: Any = MISSING) -> Any:
+    """A schema field: its check (or nested section) and, when optional, its default."""
+    return field(default=default, metadata={"check": kind})
+
+
+def read_section(cls: type[T], data: Any, path: str = "") -> T:
+    """``data`` read into the dataclass ``cls``: unknown keys, missing keys, types and ranges checked.
+
+    Raises:
+        ConfigError: Naming the first offending field by its dotted path.
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path or 'the config'} must be a JSON object, got {data!r}")
+    known = {item.name: item for item in fields(cls)}  # type: ignore[arg-type]
+    for key in data:
+        if key not in known:
+            where = f"the {path} section" if path else "a config"
+            raise ConfigError(f"unknown key {_join(path, key)}: {where} takes {', '.join(known)}")
+    values: dict[str, Any] = {}
+    for name, item in known.items():
+        if name not in data:
+            if item.default is MISSING:
+                raise ConfigError(f"missing key {_join(path, name)}")
+            continue
+        kind = item.metadata["check"]
+        values[name] = read_section(kind, data[name], _join(path, name)) if is_dataclass(kind) else kind(
+            data[name], _join(path, name))
+    return cls(**values)
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+@dataclass(frozen=True)
+class FeaturesSection:
+    """``features``: :class:`~snac_gym.ppo.features.FeatureSpec`."""
+
+    error_scale_coarse: float = spec(number(0, open_low=True), 0.1)
+    error_scale_fine: float = spec(number(0, open_low=True), 0.01)
+    velocity_scale: float = spec(number(0, open_low=True), 0.1)
+    position_centre: tuple[float, ...] = spec(sequence(number(None), length=3), (-0.675, 0.15, 0.425))
+    position_scale: float = spec(number(0, open_low=True), 0.3)
+    action_fraction: float = spec(number(0, 1, open_low=True), 0.5)
+    action_scale_range: tuple[float, ...] = spec(sequence(number(0, open_low=True), length=2), (0.5, 4.0))
+    version: int = spec(choice(FEATURE_VERSION), FEATURE_VERSION)
+
+    def __post_init__(self) -> None:
+        low, high = self.action_scale_range
+        if low > high:
+            raise ConfigError(f"features.action_scale_range must be [low, high] with low ≤ high, got [{low}, {high}]")
+
+
+@dataclass(frozen=True)
+class RewardSection:
+    """``reward``: :class:`~snac_gym.ppo.envs.RewardSpec` (weights of penalties are not negative)."""
+
+    type: str = spec(choice(*REWARD_TYPES), "shaped")
+    distance_weight: float = spec(number(0), 10.0)
+    precision_bonus: float = spec(number(0), 1.0)
+    precision_scale: float = spec(number(0, open_low=True), 0.01)
+    action_penalty: float = spec(number(0), 0.01)
+    smoothness_penalty: float = spec(number(0), 0.0)
+
+
+@dataclass(frozen=True)
+class VecEnvSection:
+    """``vec_env``: how many training envs, and how they are stepped."""
+
+    n_envs: int = spec(integer(1), 1)
+    kind: str = spec(choice("dummy", "subproc", "batched"), "dummy")
+
+
+@dataclass(frozen=True)
+class NormalizeSection:
+    """``normalize``: SB3 ``VecNormalize``."""
+
+    obs: bool = spec(boolean, True)
+    reward: bool = spec(boolean, True)
+    clip_obs: float = spec(number(0, open_low=True), 10.0)
+
+
+@dataclass(frozen=True)
+class PPOSection:
+    """``ppo``: SB3 PPO arguments; an omitted one takes SB3's default (the defaults here)."""
+
+    learning_rate: float = spec(number(0, open_low=True))
+    net_arch: Any = spec(net_arch)
+    learning_rate_schedule: str = spec(choice("constant", "linear"), "constant")
+    n_steps: int = spec(integer(1), 2048)
+    batch_size: int = spec(integer(2), 64)  # SB3 normalises advantages per batch: one sample is refused
+    n_epochs: int = spec(integer(1), 10)
+    gamma: float = spec(number(0, 1), 0.99)
+    gae_lambda: float = spec(number(0, 1), 0.95)
+    clip_range: float = spec(number(0, open_low=True), 0.2)
+    ent_coef: float = spec(number(0), 0.0)
+    vf_coef: float = spec(number(0), 0.5)
+    max_grad_norm: float = spec(number(0, open_low=True), 0.5)
+    activation: str = spec(choice("tanh", "relu"), "tanh")
+    log_std_init: float = spec(number(None), 0.0)
+
+
+@dataclass(frozen=True)
+class EvaluationSection:
+    """``evaluation``: the periodic evaluation of the frozen policy."""
+
+    every_timesteps: int = spec(integer(1))
+    episodes: int = spec(integer(1))
+    horizons_s: tuple[float, ...] = spec(sequence(number(0, MAX_HORIZON_S, open_low=True)))
+    seed: int = spec(integer(0))
+    success_error_m: float = spec(number(0, open_low=True))
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    """A training config read and checked (see the module docstring); ``env`` is checked against the env's constructor."""
+
+    config_version: int = spec(choice(CONFIG_VERSION))
+    task: str = spec(text)
+    timesteps: int = spec(integer(1))
+    seed: int = spec(integer(0, MAX_SEED))
+    env: dict[str, Any] = spec(_json_object)
+    features: FeaturesSection = spec(FeaturesSection)
+    reward: RewardSection = spec(RewardSection)
+    vec_env: VecEnvSection = spec(VecEnvSection)
+    normalize: NormalizeSection = spec(NormalizeSection)
+    ppo: PPOSection = spec(PPOSection)
+    evaluation: EvaluationSection = spec(EvaluationSection)
+    robot: str = spec(text, "ur10")
+    description: str = spec(text, "")
+
+    def __post_init__(self) -> None:
+        if self.task not in task_names():
+            raise ConfigError(f"task must be one of {' or '.join(repr(t) for t in task_names())}, got {self.task!r}")
+        if self.robot not in ROBOTS:
+            raise ConfigError(f"robot must be one of {', '.join(sorted(ROBOTS))}, got {self.robot!r}")
+        if self.ppo.n_steps * self.vec_env.n_envs < 2:  # SB3's rollout buffer needs two samples
+            raise ConfigError("ppo.n_steps × vec_env.n_envs must be ≥ 2, got 1")
+        _check_env_keywords(self.task, self.env)
+
+
+#: Checks of the env constructor's arguments by annotation; every numeric one (dt, n_substeps,
+#: max_steps, success_tolerance, render sizes) is a positive quantity. Others are the env's to check.
+_ANNOTATION_CHECKS: dict[str, Check] = {
+    "int": integer(1), "float": number(0, open_low=True), "bool": boolean, "str": text,
+}
+
+
+def env_keywords(task: str) -> dict[str, inspect.Parameter]:
+    """The keyword arguments the env of ``task`` takes (``robot`` is the config's own key)."""
+    import gymnasium as gym
+
+    import snac_gym  # noqa: F401  (registers the env ids)
+
+    entry = gym.spec(get_task(task).env_id).entry_point
+    creator = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
+    parameters = inspect.signature(creator).parameters
+    named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    return {name: p for name, p in parameters.items() if p.kind in named and name != "robot"}
+
+
+def _check_env_keywords(task: str, env: dict[str, Any]) -> None:
+    accepted = env_keywords(task)
+    for key, value in env.items():
+        if key not in accepted:
+            raise ConfigError(f"unknown env keyword env.{key}: the {task} env takes {', '.join(accepted)}")
+        annotation = str(accepted[key].annotation).replace(" ", "")
+        optional = annotation.endswith("|None")
+        check = _ANNOTATION_CHECKS.get(annotation.removesuffix("|None"))
+        if check is not None and not (optional and value is None):
+            check(value, f"env.{key}")

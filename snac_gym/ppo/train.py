@@ -46,6 +46,7 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.cost import trajectory_cost
+from snac_gym.demo import usable_out_folder
 from snac_gym.ppo.config import resolve_config, validate_config
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec
 from snac_gym.ppo.features import FeatureSpec
@@ -424,9 +425,15 @@ def _resumed_config(out: Path, task: str, overrides: dict[str, Any]) -> dict[str
     checkpoint = out / "checkpoint"
     if not (checkpoint / MODEL_FILE).is_file() or not (out / "config.json").is_file():
         raise ValueError(f"--resume: {out} holds no checkpoint to continue (no {checkpoint / MODEL_FILE})")
-    config = json.loads((out / "config.json").read_text())
-    if config.get("task") != task:
-        raise ValueError(f"--resume: the run in {out} trains task {config.get('task')!r}, not {task!r}")
+    try:
+        config = json.loads((out / "config.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"--resume: {out / 'config.json'} is unreadable ({type(exc).__name__}: {exc})") from None
+    if not isinstance(config, dict) or config.get("task") != task:
+        other = config.get("task") if isinstance(config, dict) else None
+        raise ValueError(f"--resume: the run in {out} trains task {other!r}, not {task!r}")
+    saved = {k: v for k, v in config.items() if k not in ("config_file", "versions")}
+    validate_config(saved, str(out / "config.json"))  # before the overrides are written into its sections
     if overrides["timesteps"] is not None:
         config["timesteps"] = int(overrides["timesteps"])
     if overrides["n_envs"] is not None:
@@ -438,13 +445,34 @@ def _resumed_config(out: Path, task: str, overrides: dict[str, Any]) -> dict[str
     return config
 
 
+def _check_checkpoint(checkpoint: Path) -> None:
+    """Refuse a truncated or corrupt checkpoint, naming the file, before any env is built for it."""
+    import pickle
+    import zipfile
+
+    model = checkpoint / MODEL_FILE
+    try:
+        with zipfile.ZipFile(model) as archive:
+            damaged = archive.testzip()  # CRC of every member: a cut or altered file fails here
+        if damaged is not None:
+            raise zipfile.BadZipFile(f"member {damaged} fails its CRC")
+    except (OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"--resume: the checkpoint {model} is corrupt or truncated ({exc})") from None
+    statistics = checkpoint / NORMALIZE_FILE
+    try:
+        with statistics.open("rb") as handle:
+            pickle.load(handle)  # our own file, written by VecNormalize.save
+    except Exception as exc:  # noqa: BLE001 - unpickling a damaged file raises almost anything
+        raise ValueError(
+            f"--resume: the checkpoint {statistics} is corrupt or truncated ({type(exc).__name__}: {exc})"
+        ) from None
+
+
 def _new_config(out: Path, task: str, config_path: str | Path | None, overrides: dict[str, Any]) -> dict[str, Any]:
     """The config of a new run in ``out`` (refused if ``out`` already holds one)."""
     if (out / "state.json").exists() or (out / "checkpoint" / MODEL_FILE).exists():
         raise ValueError(f"{out} already holds a training run; pass --resume to continue it or choose another --out")
-    config = resolve_config(task, config_path, **overrides)
-    config["versions"] = package_versions()
-    return config
+    return resolve_config(task, config_path, **overrides)
 
 
 def train_ppo(
@@ -479,16 +507,21 @@ def train_ppo(
             or ``resume`` without a checkpoint in ``out`` or of another task.
         ImportError: If stable-baselines3 or torch is not installed.
     """
+    out = Path(out)
+    checkpoint = out / "checkpoint"
+    overrides = {"timesteps": timesteps, "seed": seed, "n_envs": n_envs, "vec_env": vec_env}
+    # Everything the input decides is checked before torch is imported or anything is made.
+    config = _resumed_config(out, task, overrides) if resume else _new_config(out, task, config_path, overrides)
+    usable_out_folder(out)  # a file or /dev/null is refused as evaluate refuses it
     _require_sb3()
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    out = Path(out)
-    checkpoint = out / "checkpoint"
-    overrides = {"timesteps": timesteps, "seed": seed, "n_envs": n_envs, "vec_env": vec_env}
-    config = _resumed_config(out, task, overrides) if resume else _new_config(out, task, config_path, overrides)
-    out.mkdir(parents=True, exist_ok=True)
+    if resume:
+        _check_checkpoint(checkpoint)
+    else:
+        config["versions"] = package_versions()
     _write_json(out / "config.json", config)
 
     torch.set_num_threads(1)  # small MLP: one thread is fastest and leaves the other cores to the envs
