@@ -503,8 +503,9 @@ def train_ppo(
             every 10 % of the timesteps or 10 s, whichever first), or ``None`` for none.
 
     Raises:
-        ValueError: On a bad config, an ``out`` that already holds a run (without ``resume``),
-            or ``resume`` without a checkpoint in ``out`` or of another task.
+        ValueError: On a bad config (naming the field, see :class:`~snac_gym.ppo.config.TrainingConfig`),
+            an ``out`` that is a file or already holds a run (without ``resume``), or ``resume``
+            without a checkpoint in ``out``, with a truncated one, or of another task.
         ImportError: If stable-baselines3 or torch is not installed.
     """
     out = Path(out)
