@@ -181,10 +181,11 @@ def test_a_dropped_link_is_seen_within_one_period_and_the_watchdog_stops_the_arm
         env.step(SWEEP)
     t_drop = time.monotonic()
     emu.drop_connection()
-    with pytest.raises(ConnectionFailure, match="was lost"):
+    # Seen as a closed link, or as ur_rtde's own reconnect starting, which ends the client (issue 31).
+    with pytest.raises(ConnectionFailure, match="was lost|started to reconnect by itself"):
         for _ in range(3):
             env.step(SWEEP)
-    assert "connection to the arm" in env.stop_reason
+    assert "ConnectionFailure" in env.stop_reason and backend.failure is not None
     assert len(env.periods) <= 27  # the step after the drop raised (one period)
     _assert_stopped_and_silent(emu, t_drop)
     events = emu.status()["events"]

@@ -9,14 +9,22 @@ time, any number of times, and returns once the arm is at rest (or cannot be rea
 
 from __future__ import annotations
 
+import collections
+import os
+import pickle
+import select
+import signal
 import socket
+import subprocess
+import sys
+import threading
 import time
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from snac_gym._quiet import quiet_output
 from snac_gym.kinematics import Kinematics
+from snac_gym.real.rtde_client import HEADER, RECONNECT_MARKERS, as_arrays, write_frame
 from snac_gym.sampling import nominal_configuration
 
 #: Safety states a backend reports (``info["safety_state"]`` of the real env).
@@ -104,12 +112,21 @@ def probe_port(host: str, port: int, timeout: float) -> None:
 
 
 class URRTDEBackend:
-    """A real UR arm through ur_rtde: ``speedJ`` streamed at the control rate.
+    """A real UR arm through ur_rtde, whose client runs in a child process: ``speedJ`` streamed at the control rate.
 
-    Each period: ``initPeriod`` → ``speedJ(u, acceleration, dt)`` → ``waitPeriod``. The
-    controller-side watchdog (``setWatchdog`` on the command register, armed at the first command
-    of each stream) stops the control script, and so the arm, if no command arrives for
-    ``watchdog_periods`` periods; the next stream re-uploads the script (``reuploadScript``).
+    Each period: ``command`` (``speedJ(u, acceleration, dt)`` in the client), a wait until the
+    period's end, then ``read_state`` (one RTDE package: q, θ̇, TCP pose, speed scaling, timestamp
+    and safety bits). The controller-side watchdog (``setWatchdog`` on the command register,
+    armed at the first command of each stream) stops the control script, and so the arm, if no
+    command arrives for ``watchdog_periods`` periods; the next stream re-uploads the script.
+
+    Isolation (:mod:`snac_gym.real.rtde_client`): ur_rtde runs in a child process, and every
+    request has a deadline the parent enforces with ``select``, outside any lock ur_rtde holds.
+    A request that misses its deadline, a client that crashes or exits, a link the client
+    reports down, and any line in which ur_rtde says it is reconnecting by itself make the
+    parent kill the client: the link counts as lost (:class:`ConnectionFailure`, reason in
+    :attr:`failure`), nothing more is sent, and the controller's watchdog stops the arm. Nothing
+    reconnects mid-run; a new run starts a new client.
 
     Args:
         host: IP address of the UR controller.
@@ -126,12 +143,17 @@ class URRTDEBackend:
         move_speed: Joint speed of ``move_to`` (``moveJ``), rad/s.
         stop_deceleration: Joint deceleration of ``speedStop``, rad/s².
         rest_timeout: Longest wait (s) for the arm to come to rest after ``speedStop``.
+        call_timeout: Deadline (s) of a ``speedJ`` or a state read (default: the watchdog's
+            ``watchdog_periods`` periods: a client blocked longer has already let the
+            controller's watchdog stop the arm, so waiting more gains nothing).
 
     Raises:
         ConnectionFailure: If the controller cannot be reached (within ``connect_timeout``).
     """
 
     RTDE_PORT = 30004
+    #: Seconds the client may take to start (a Python interpreter, numpy and ur_rtde's imports).
+    STARTUP_ALLOWANCE = 10.0
 
     def __init__(
         self,
@@ -146,6 +168,7 @@ class URRTDEBackend:
         move_speed: float = 0.3,
         stop_deceleration: float = 2.0,
         rest_timeout: float = 3.0,
+        call_timeout: float | None = None,
     ) -> None:
         if series not in SERIES_FREQUENCY:
             raise ValueError(f"series must be one of {sorted(SERIES_FREQUENCY)}, got {series!r}")
@@ -156,54 +179,58 @@ class URRTDEBackend:
         self.move_speed = float(move_speed)
         self.stop_deceleration = float(stop_deceleration)
         self.rest_timeout = float(rest_timeout)
-        self.host = host
-        self._control = None
-        self._receive = None
-        self.stop_calls = 0
-        self._streaming = False
-        self._snapshot: tuple[np.ndarray, np.ndarray, np.ndarray, float, float] | None = None
-        probe_port(host, self.RTDE_PORT, connect_timeout)
-        try:
-            import rtde_control
-            import rtde_receive
-        except ImportError as exc:  # pragma: no cover - depends on the install
-            raise ConnectionFailure("ur_rtde is not installed: pip install 'snac-gym[real]'") from exc
-        try:
-            with quiet_output():
-                self._receive = rtde_receive.RTDEReceiveInterface(host, self.frequency)
-                if control:
-                    self._control = rtde_control.RTDEControlInterface(host, self.frequency)
-        except RuntimeError as exc:
-            self.close()
-            raise ConnectionFailure(f"ur_rtde could not connect to {host}: {str(exc).splitlines()[0]}") from exc
         self.watchdog_frequency = self.frequency / watchdog_periods
+        self.call_timeout = float(call_timeout) if call_timeout is not None else watchdog_periods * self.dt
+        self.host = host
+        self.control = control
+        self.stop_calls = 0
+        self.last_stop: str | None = None
+        self._streaming = False
+        self._snapshot: tuple[np.ndarray, np.ndarray, np.ndarray, float, float, str] | None = None
+        self._fresh = False
+        probe_port(host, self.RTDE_PORT, connect_timeout)
+        self._client = ClientProcess()
+        try:
+            state = self._call(
+                "connect", host, self.frequency, control, timeout=connect_timeout + self.STARTUP_ALLOWANCE
+            )
+        except ConnectionFailure as exc:
+            self._client.close(0.0)
+            raise ConnectionFailure(f"ur_rtde could not connect to {host}: {exc}") from None
+        except BaseException:
+            self._client.close(0.0)
+            raise
+        self._keep(state)
 
-    def _link_up(self) -> bool:
-        """Both ur_rtde interfaces still connected (a control call on a lost link blocks in its reconnect)."""
-        receive_up = self._receive is not None and self._receive.isConnected()
-        return receive_up and (self._control is None or self._control.isConnected())
+    @property
+    def failure(self) -> str | None:
+        """Why the client was given up (killed, crashed, link lost), or ``None`` while it serves."""
+        return self._client.failure
 
-    def _require_connection(self) -> None:
-        if not self._link_up():
-            raise ConnectionFailure(f"connection to the arm at {self.host} was lost")
+    @property
+    def client_output(self) -> list[str]:
+        """The last lines ur_rtde printed (it prints to the process's streams, not through Python)."""
+        return list(self._client.output)
+
+    def _call(self, name: str, *args: object, timeout: float) -> Any:
+        status, payload = self._client.call(name, args, timeout)
+        if status == "ok":
+            return payload
+        if status == "lost":
+            reason = f"connection to the arm at {self.host} {payload}"
+        else:
+            reason = f"ur_rtde {name} failed: {payload}"
+        self._client.abandon(reason)
+        raise ConnectionFailure(reason)
+
+    def _keep(self, state: dict[str, Any]) -> None:
+        self._snapshot = as_arrays(state)
+        self._fresh = True
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """Joint state of one RTDE package (with its TCP pose, speed scaling and timestamp).
-
-        ur_rtde's getters each read the latest package, which may change between two calls; the
-        reads are repeated until the timestamp is the same before and after, so that q, θ̇, the
-        TCP pose and the timestamp all belong to the same package.
-        """
-        self._require_connection()
-        receive = self._receive
-        for _ in range(5):
-            stamp = float(receive.getTimestamp())
-            q, qd = np.array(receive.getActualQ()), np.array(receive.getActualQd())
-            tcp, scaling = np.array(receive.getActualTCPPose()), float(receive.getSpeedScaling())
-            if float(receive.getTimestamp()) == stamp:
-                break
-        self._snapshot = (q, qd, tcp, scaling, stamp)
-        return q.copy(), qd.copy()
+        """Joint state of one RTDE package (with its TCP pose, speed scaling, timestamp and safety bits)."""
+        self._keep(self._call("state", timeout=self.call_timeout))
+        return self._snapshot[0].copy(), self._snapshot[1].copy()  # type: ignore[index]
 
     def reported_tcp_position(self) -> np.ndarray:
         """The controller's TCP position (``actual_TCP_pose[:3]``, m, UR base frame) of the last read.
@@ -217,115 +244,194 @@ class URRTDEBackend:
         """The controller's speed scaling of the last read (the pendant's slider, 1.0 = 100 %)."""
         return self._last_snapshot()[3]
 
-    def _last_snapshot(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    def _last_snapshot(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, str]:
         if self._snapshot is None:
             self.read_state()
         return self._snapshot  # type: ignore[return-value]
 
-    def _ensure_program(self) -> None:
-        """Re-upload ur_rtde's control script if it is not running (the watchdog stopped it while idle).
-
-        Raises:
-            ConnectionFailure: If it does not start within ``rest_timeout`` s.
-        """
-        if self._control.isProgramRunning():
-            return
-        self._control.reuploadScript()
-        deadline = time.perf_counter() + self.rest_timeout
-        while not self._control.isProgramRunning():
-            if time.perf_counter() > deadline:
-                raise ConnectionFailure(
-                    f"the control script did not start on {self.host} (is the arm in remote control?)"
-                )
-            time.sleep(self.dt)
-
     def start_period(self) -> float:
-        if self._control is None:
-            return time.perf_counter()
-        return self._control.initPeriod()
+        self._fresh = False
+        return time.perf_counter()
 
     def command(self, velocities: np.ndarray) -> None:
-        if self._control is None:
+        if not self.control:
             raise RuntimeError("this backend was opened without the control interface (dry run)")
-        self._require_connection()
-        if not self._streaming:  # the first command after a stop: arm the watchdog for this stream
-            self._ensure_program()
-            self._control.setWatchdog(self.watchdog_frequency)
-            self._streaming = True
-        # No kickWatchdog: ur_rtde 1.6.5 sends it as input_int_register_0 = 0 (seen on the wire by
-        # the emulator), which overwrites speedJ's command id 9 before the control script reads it
-        # when both land in the same controller cycle. speedJ's own package refreshes the watched
-        # register every period, so the watchdog is fed all the same.
-        if not self._control.speedJ(list(map(float, velocities)), self.acceleration, self.dt):
+        # The first command of a stream may re-upload the control script: it gets the longer deadline.
+        timeout = self.call_timeout if self._streaming else self.rest_timeout + self.call_timeout
+        accepted = self._call(
+            "command", list(map(float, velocities)), self.acceleration, self.watchdog_frequency, self.rest_timeout,
+            timeout=timeout,
+        )  # fmt: skip
+        self._streaming = True
+        if not accepted:
             raise ConnectionFailure(f"the arm at {self.host} rejected speedJ (connection lost or program stopped)")
 
     def end_period(self, period_start: float) -> None:
-        if self._control is None:
-            wait_until(period_start + self.dt)
-            return
-        self._control.waitPeriod(period_start)
+        wait_until(period_start + self.dt)
 
     def state_timestamp(self) -> float:
         return self._last_snapshot()[4]
 
     def stop(self) -> None:
-        if self._control is None:
+        """``speedStop`` and wait for rest, in the client, within ``rest_timeout`` + 1 s.
+
+        With the client gone, or once it misses that deadline (and is killed), the controller's
+        watchdog, armed for every stream, stops the arm: a stop never blocks and never raises
+        :class:`ConnectionFailure`.
+        """
+        self._fresh = False
+        if not self.control:
             return
-        # Once stopped, the host goes quiet: the watchdog then ends the control script on the
-        # controller, and the next stream re-uploads it and arms the watchdog again.
         self._streaming = False
         self.stop_calls += 1
-        if not self._link_up():
-            # ur_rtde's speedStop on a lost link tries to reconnect and can block for good (seen
-            # against the emulator): with no link the controller's watchdog stops the arm instead.
+        if self._client.failure is not None:
+            self.last_stop = "client gone: left to the controller's watchdog"
             return
         try:
-            self._control.speedStop(self.stop_deceleration)
-        except RuntimeError:  # already disconnected: the controller's watchdog stops the arm
-            return
-        # speedStop returns before the arm has decelerated: wait for rest so that the next
-        # episode's acceleration bound, which starts from u = 0, holds.
-        deadline = time.perf_counter() + self.rest_timeout
-        while time.perf_counter() < deadline:
-            try:
-                if self._receive is None or max(map(abs, self._receive.getActualQd())) < 1e-3:
-                    return
-            except RuntimeError:
-                return
-            time.sleep(self.dt)
+            self.last_stop = self._call(
+                "stop", self.stop_deceleration, self.rest_timeout, timeout=self.rest_timeout + 1.0
+            )
+        except ConnectionFailure:
+            self.last_stop = "client gone: left to the controller's watchdog"
 
     def move_to(self, q: np.ndarray) -> None:
-        if self._control is None:
+        if not self.control:
             raise RuntimeError("cannot move the arm in a dry run")
-        self._require_connection()
-        self._ensure_program()
-        if not self._control.moveJ(list(map(float, q)), self.move_speed, 0.5):
+        q = np.asarray(q, dtype=float)
+        self._fresh = False
+        current = self._last_snapshot()[0]
+        travel = float(np.max(np.abs(q - current))) / self.move_speed if current.shape == q.shape else 60.0
+        timeout = 2.0 * travel + 2.0 * self.rest_timeout + 2.0  # moveJ's ramps, and a script re-upload
+        if not self._call("move_to", list(map(float, q)), self.move_speed, self.rest_timeout, timeout=timeout):
             raise ConnectionFailure(f"moveJ to the start pose failed on {self.host}")
 
     def safety_state(self) -> str:
-        self._require_connection()
-        if self._receive.isEmergencyStopped():
-            return EMERGENCY_STOP
-        if self._receive.isProtectiveStopped():
-            return PROTECTIVE_STOP
-        return NORMAL
+        if not self._fresh:  # reset asks with no read in between: read now
+            self.read_state()
+        return self._last_snapshot()[5]
 
     def close(self) -> None:
         self.stop()
-        if self._control is not None:
+        self._client.close(2.0)
+
+
+class ClientProcess:
+    """The ur_rtde client's process, seen from the parent: requests with deadlines, and its output.
+
+    :meth:`abandon` (from any thread) records why and kills it; the first reason is kept.
+    """
+
+    def __init__(self) -> None:
+        self.failure: str | None = None
+        self.output: collections.deque[str] = collections.deque(maxlen=50)
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._buffer = b""
+        self._process = subprocess.Popen(
+            [sys.executable, "-c", "from snac_gym.real.rtde_client import serve; serve()"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            bufsize=0,
+            start_new_session=True,  # a Ctrl-C at the terminal reaches the parent only, which stops the arm
+        )
+        self._reader = threading.Thread(target=self._watch_output, name="ur_rtde-output", daemon=True)
+        self._reader.start()
+
+    def _watch_output(self) -> None:
+        for raw in self._process.stderr:  # type: ignore[union-attr]
+            line = raw.decode(errors="replace").rstrip()
+            if not line:
+                continue
+            self.output.append(line)
+            if any(marker in line.lower() for marker in RECONNECT_MARKERS):
+                self.abandon(f"ur_rtde started to reconnect by itself ({line.strip()!r})")
+
+    def abandon(self, reason: str) -> None:
+        with self._lock:
+            if self.failure is None:
+                self.failure = reason
+            if self._process.returncode is None:
+                try:
+                    self._process.kill()
+                except OSError:
+                    pass
+
+    def call(self, name: str, args: tuple[object, ...], timeout: float) -> tuple[str, Any]:
+        """Send one request and wait for its reply, at most ``timeout`` s.
+
+        Raises:
+            ConnectionFailure: With the reason, if the client is gone, crashes, or misses the deadline.
+        """
+        if self.failure is not None:
+            raise ConnectionFailure(self.failure)
+        self._seq += 1
+        seq = self._seq
+        try:
+            write_frame(self._process.stdin.fileno(), (seq, name, args))  # type: ignore[union-attr]
+        except (BrokenPipeError, ValueError, OSError):
+            self._ended(name)
+        deadline = time.perf_counter() + timeout
+        while True:
+            frame = self._next_frame(deadline, name, timeout)
+            if frame[0] == seq:  # a reply to a request a signal interrupted is dropped
+                return frame[1], frame[2]
+
+    def _next_frame(self, deadline: float, name: str, timeout: float) -> tuple[int, str, Any]:
+        fd = self._process.stdout.fileno()  # type: ignore[union-attr]
+        while True:
+            if len(self._buffer) >= HEADER.size:
+                size = HEADER.unpack_from(self._buffer)[0] + HEADER.size
+                if len(self._buffer) >= size:
+                    frame, self._buffer = self._buffer[HEADER.size : size], self._buffer[size:]
+                    return pickle.loads(frame)
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0 or not select.select([fd], [], [], remaining)[0]:
+                if self._process.poll() is not None:
+                    self._ended(name)
+                self.abandon(
+                    f"ur_rtde did not return from {name} within {timeout * 1e3:.0f} ms (client killed; "
+                    "the controller's watchdog stops the arm)"
+                )
+                raise ConnectionFailure(self.failure)
+            data = os.read(fd, 65536)
+            if not data:
+                self._ended(name)
+            self._buffer += data
+
+    def _ended(self, name: str) -> None:
+        """The client's pipe closed: it crashed or was killed. Raises :class:`ConnectionFailure`."""
+        try:
+            code = self._process.wait(timeout=1.0)
+        except Exception:  # noqa: BLE001 - still not gone: kill it below
+            code = None
+        if code is not None and code < 0:
+            how = f"was killed by {signal.Signals(-code).name}"
+        else:
+            how = f"exited with code {code}"
+        last = f" after printing {self.output[-1]!r}" if self.output else ""
+        self.abandon(f"the ur_rtde client {how} during {name}{last}")
+        raise ConnectionFailure(self.failure)
+
+    def close(self, timeout: float) -> None:
+        """Ask the client to disconnect and leave; kill it if it does not within ``timeout`` s."""
+        if self.failure is None and timeout > 0:
             try:
-                if self._link_up():
-                    self._control.stopScript()
-                self._control.disconnect()
-            except RuntimeError:
+                self.call("close", (), timeout)
+            except ConnectionFailure:
                 pass
-            self._control = None
-        if self._receive is not None:
+        process = self._process
+        for stream in (process.stdin, process.stdout):
             try:
-                self._receive.disconnect()
-            except RuntimeError:
+                stream.close()  # type: ignore[union-attr]
+            except OSError:
                 pass
-            self._receive = None
+        try:
+            process.wait(timeout=max(timeout, 0.1))
+        except Exception:  # noqa: BLE001 - it would not leave: kill it
+            process.kill()
+            process.wait()
+        self._reader.join(timeout=1.0)
 
 
 class SimulatedBackend:

@@ -1,0 +1,218 @@
+"""The ur_rtde client in its own process, and the small protocol the parent drives it with.
+
+ur_rtde can block while holding the GIL (``speedStop`` on a link that just dropped retries its
+reconnect), reconnect by itself from its background threads, and crash the interpreter (a
+segfault in its reconnect after a controller stall). None of that may take a real run down or
+keep it from stopping and writing its log, so the client lives here, in a child process
+(:func:`serve`) that the parent
+(:class:`~snac_gym.real.backends.URRTDEBackend`) can always see fail and kill.
+
+Protocol: frames of a 4-byte big-endian length and a pickle, over the child's stdin (requests
+``(seq, name, args)``) and the file descriptor that was its stdout (replies ``(seq, status,
+payload)``, status ``"ok"``, ``"lost"`` (the link is down) or ``"error"``). ur_rtde prints to
+the C streams; the child sends both to its stderr, which the parent reads line by line: a line
+about reconnecting makes the parent kill the child, so that only the project reconnects.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import pickle
+import signal
+import struct
+import sys
+import time
+from typing import Any, BinaryIO
+
+import numpy as np
+
+#: Frame header: the length of the pickle that follows.
+HEADER = struct.Struct(">I")
+#: A line of ur_rtde's output that says it is reconnecting by itself (lower-cased match).
+RECONNECT_MARKERS = ("reconnect",)
+NORMAL, PROTECTIVE_STOP, EMERGENCY_STOP = "normal", "protective_stop", "emergency_stop"
+
+
+class LinkDown(Exception):
+    """The link to the controller is down: the parent ends the run (the controller's watchdog stops the arm)."""
+
+
+def write_frame(fd: int, message: Any) -> None:
+    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    os.write(fd, HEADER.pack(len(data)) + data)
+
+
+def read_frame(stream: BinaryIO) -> Any:
+    """The next frame of ``stream``; ``None`` at end of file."""
+    header = stream.read(HEADER.size)
+    if len(header) < HEADER.size:
+        return None
+    (size,) = HEADER.unpack(header)
+    body = stream.read(size)
+    return None if len(body) < size else pickle.loads(body)
+
+
+class Client:
+    """What the child does with ur_rtde: one method per request of the parent."""
+
+    def __init__(self) -> None:
+        self.control: Any = None
+        self.receive: Any = None
+        self.streaming = False
+        self.dt = 0.008
+
+    def connect(self, host: str, frequency: float, control: bool) -> dict[str, Any]:
+        import rtde_control
+        import rtde_receive
+
+        self.dt = 1.0 / frequency
+        self.receive = rtde_receive.RTDEReceiveInterface(host, frequency)
+        if control:
+            self.control = rtde_control.RTDEControlInterface(host, frequency)
+        return self.state()
+
+    def link_up(self) -> bool:
+        receive_up = self.receive is not None and self.receive.isConnected()
+        return receive_up and (self.control is None or self.control.isConnected())
+
+    def _require_link(self) -> None:
+        if not self.link_up():
+            raise LinkDown("was lost")
+
+    def state(self) -> dict[str, Any]:
+        """q, θ̇, TCP pose, speed scaling and timestamp of one RTDE package, with the safety state.
+
+        ur_rtde's getters each read the latest package, which may change between two calls; the
+        reads are repeated until the timestamp is the same before and after.
+        """
+        self._require_link()
+        receive = self.receive
+        for _ in range(5):
+            stamp = float(receive.getTimestamp())
+            q, qd = receive.getActualQ(), receive.getActualQd()
+            tcp, scaling = receive.getActualTCPPose(), float(receive.getSpeedScaling())
+            if float(receive.getTimestamp()) == stamp:
+                break
+        safety = NORMAL
+        if receive.isEmergencyStopped():
+            safety = EMERGENCY_STOP
+        elif receive.isProtectiveStopped():
+            safety = PROTECTIVE_STOP
+        return {"q": q, "qd": qd, "tcp": tcp, "scaling": scaling, "stamp": stamp, "safety": safety}
+
+    def _ensure_program(self, timeout: float) -> None:
+        """Re-upload ur_rtde's control script if the watchdog ended it while the host was idle."""
+        if self.control.isProgramRunning():
+            return
+        self.control.reuploadScript()
+        deadline = time.perf_counter() + timeout
+        while not self.control.isProgramRunning():
+            if time.perf_counter() > deadline:
+                raise LinkDown("did not start the control script (is the arm in remote control?)")
+            time.sleep(self.dt)
+
+    def command(
+        self, velocities: list[float], acceleration: float, watchdog_frequency: float, program_timeout: float
+    ) -> bool:
+        self._require_link()
+        if not self.streaming:  # the first command after a stop: arm the watchdog for this stream
+            self._ensure_program(program_timeout)
+            self.control.setWatchdog(watchdog_frequency)
+            self.streaming = True
+        # No kickWatchdog: ur_rtde 1.6.5 sends it as input_int_register_0 = 0, which overwrites
+        # speedJ's command id before the control script reads it when both land in the same
+        # controller cycle; speedJ's own package refreshes the watched register every period.
+        return bool(self.control.speedJ(velocities, acceleration, self.dt))
+
+    def stop(self, deceleration: float, rest_timeout: float) -> str:
+        """``speedStop``, then wait for rest; never on a link seen down (ur_rtde would reconnect)."""
+        self.streaming = False
+        if self.control is None:
+            return "nothing sent"
+        if not self.link_up():
+            return "link down: left to the controller's watchdog"
+        try:
+            self.control.speedStop(deceleration)
+        except RuntimeError:
+            return "disconnected: left to the controller's watchdog"
+        deadline = time.perf_counter() + rest_timeout
+        while time.perf_counter() < deadline:
+            try:
+                if max(map(abs, self.receive.getActualQd())) < 1e-3:
+                    return "at rest"
+            except RuntimeError:
+                return "disconnected while stopping"
+            time.sleep(self.dt)
+        return f"still moving after {rest_timeout:g} s"
+
+    def move_to(self, q: list[float], speed: float, program_timeout: float) -> bool:
+        self._require_link()
+        self._ensure_program(program_timeout)
+        return bool(self.control.moveJ(q, speed, 0.5))
+
+    def close(self) -> str:
+        """End the control script; the process then exits, which closes the sockets.
+
+        ``disconnect`` would take 0.5 s per interface (ur_rtde joins its threads): leaving the
+        process does the same for the controller at once.
+        """
+        if self.control is not None and self.link_up():
+            self.control.stopScript()
+            return "control script stopped"
+        return "nothing to stop"
+
+
+def _die_with_parent() -> None:
+    """Linux: SIGKILL this process when its parent dies (the controller's watchdog then stops the arm)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # pragma: no cover - not Linux
+        pass
+
+
+def _answer(client: Client, name: str, args: tuple[Any, ...]) -> tuple[str, Any]:
+    try:
+        return "ok", getattr(client, name)(*args)
+    except LinkDown as exc:
+        return "lost", str(exc)
+    except Exception as exc:  # noqa: BLE001 - reported to the parent, which decides
+        text = str(exc).splitlines()[0] if str(exc) else ""
+        return "error", f"{type(exc).__name__}: {text}".rstrip(": ")
+
+
+def serve() -> None:
+    """Child side: answer requests until end of input, a ``close`` request, or a kill."""
+    _die_with_parent()
+    # Terminal signals go to the parent, which stops the arm through this process.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    replies = os.dup(1)
+    os.dup2(2, 1)  # ur_rtde's std::cout joins its std::cerr, which the parent watches
+    sys.stdout = sys.stderr
+    requests = sys.stdin.buffer
+    client = Client()
+    names = {"connect", "state", "command", "stop", "move_to", "close"}
+    while True:
+        message = read_frame(requests)
+        if message is None:
+            break
+        seq, name, args = message
+        reply = _answer(client, name, args) if name in names else ("error", f"no request {name!r}")
+        write_frame(replies, (seq, *reply))
+        if name == "close":
+            break
+    os._exit(0)  # no C++ destructors: they join ur_rtde's threads, which may be stuck on a dead link
+
+
+def as_arrays(state: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, str]:
+    """The parent's view of a ``state`` reply."""
+    return (
+        np.array(state["q"], dtype=float),
+        np.array(state["qd"], dtype=float),
+        np.array(state["tcp"], dtype=float),
+        float(state["scaling"]),
+        float(state["stamp"]),
+        str(state["safety"]),
+    )
+
