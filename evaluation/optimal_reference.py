@@ -88,7 +88,16 @@ SOLVER_COLUMNS = (
     "optimal_bounded",
     "optimal_solver_cost",
     "optimal_solve_time",
+    "optimal_starts",
+    "optimal_winner",
+    "optimal_local_spread",
+    "optimal_lower_bound",
 )
+#: A controller's rollout becomes a start of the solver when its cost is below (1 + RESTART_MARGIN)
+#: times the best optimum found so far (see :func:`multi_start_solve`).
+RESTART_MARGIN = 0.05
+#: Name of the start at rest (U = 0) in ``optimal_winner``.
+REST_START = "rest"
 
 
 def _angles(commands: np.ndarray, q0: np.ndarray, dt: float) -> np.ndarray:
@@ -534,7 +543,13 @@ class ReplayPolicy:
 
 @dataclass(frozen=True)
 class OptimalJob:
-    """The optimum of a chunk of samples of one task (picklable, like a :class:`RolloutJob`)."""
+    """The optimum of a chunk of samples of one task (picklable, like a :class:`RolloutJob`).
+
+    ``starts``: the run's controllers as evaluated (name, constructor arguments with the matched
+    knob), whose rollouts are further starts of the solver (:func:`multi_start_solve`);
+    ``start_costs``: per sample, their costs in the run (so that only the rollouts that can be
+    starts are made again).
+    """
 
     task: str
     samples: tuple[EvaluationSample, ...]
@@ -544,6 +559,124 @@ class OptimalJob:
     robot: str = "ur10"
     keep_logs: bool = False
     convention: CostConvention = field(default_factory=CostConvention)
+    starts: tuple[tuple[str, dict[str, Any]], ...] = ()
+    start_costs: tuple[tuple[float, ...], ...] = ()
+    restart_margin: float = RESTART_MARGIN
+
+
+@dataclass
+class MultiStart:
+    """The best of several local optima of one sample.
+
+    Attributes:
+        solution: The winning solve.
+        winner: Its start: :data:`REST_START` or a controller's name.
+        starts: How many solves ran.
+        spread: (worst − best) / best over the local optima found (0 with one start).
+    """
+
+    solution: OptimalSolution
+    winner: str
+    starts: int
+    spread: float
+
+
+def multi_start_solve(
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Any,
+    dt: float,
+    limits: np.ndarray,
+    convention: CostConvention,
+    candidates: dict[str, np.ndarray],
+    margin: float = RESTART_MARGIN,
+    first: OptimalSolution | None = None,
+) -> MultiStart:
+    """Solve from rest, then from every candidate command sequence (a controller's rollout) that could win.
+
+    The cost is not convex (the arm can reach a target the other way round, on another IK branch),
+    so the solve from rest finds *a* local optimum. A controller's trajectory lies in some basin; a
+    solve started there descends to that basin's optimum, at most the controller's own cost. Starts
+    are tried cheapest first and only while their cost is below (1 + ``margin``) × the best optimum
+    so far: this makes the optimum at most every controller's cost (the guarantee the comparison
+    needs), and costs one extra solve only where a controller comes near the optimum.
+
+    A solve that ends above its own start's cost (the bounded polish from a clipped point can) is
+    redone as a bounded descent from the start itself, which cannot end above it.
+
+    ``first``: the solve from rest, when already made.
+    """
+    best = first if first is not None else solve_sample(q0, x_d, kinematics, dt, limits, convention=convention)
+    winner, optima = REST_START, [best.cost]
+    priced = sorted(
+        (trajectory_cost_and_gradient(commands, q0, x_d, kinematics, dt, convention)[0], name, commands)
+        for name, commands in candidates.items()
+    )
+    for start_cost, name, commands in priced:
+        if not start_cost < (1.0 + margin) * best.cost:
+            break
+        solution = solve_sample(q0, x_d, kinematics, dt, limits, initial=commands, convention=convention)
+        if solution.cost > start_cost:
+            solution = _polished_from(commands, solution, q0, x_d, kinematics, dt, limits, convention)
+        optima.append(solution.cost)
+        if solution.cost < best.cost:
+            best, winner = solution, name
+    spread = (max(optima) - min(optima)) / min(optima) if len(optima) > 1 and min(optima) > 0 else 0.0
+    return MultiStart(best, winner, len(optima), float(spread))
+
+
+def _polished_from(
+    commands: np.ndarray,
+    failed: OptimalSolution,
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Any,
+    dt: float,
+    limits: np.ndarray,
+    convention: CostConvention,
+) -> OptimalSolution:
+    """Bounded L-BFGS-B straight from a feasible start (a descent method: it ends at most at the start's cost)."""
+    started = time.perf_counter()
+    polished, value, iterations, evaluations, gradient, converged = _bounded_polish(
+        np.clip(commands, -limits, limits), q0, x_d, kinematics, dt, limits, GTOL, FTOL, MAX_ITERATIONS, convention
+    )
+    return OptimalSolution(
+        polished, value, failed.iterations + iterations, failed.evaluations + evaluations, gradient,
+        float("nan"), converged, True, failed.seconds + time.perf_counter() - started,
+    )  # fmt: skip
+
+
+def _start_commands(job: OptimalJob, context: Any, rest_costs: Sequence[float]) -> list[dict[str, np.ndarray]]:
+    """Per sample, the commands of each controller that may start the solver (its cost in the run below
+    (1 + margin) × the optimum from rest), rolled out again on the kinematic model as evaluated."""
+    from snac_gym.policies.registry import make_policy
+
+    starts: list[dict[str, np.ndarray]] = [{} for _ in job.samples]
+    for c, (name, kwargs) in enumerate(job.starts):
+        chosen = [i for i in range(len(job.samples))
+                  if job.start_costs[i][c] < (1.0 + job.restart_margin) * rest_costs[i]]  # fmt: skip
+        if not chosen:
+            continue
+        make = functools.partial(make_policy, name, context, **kwargs)
+        samples, seeds = [job.samples[i] for i in chosen], [job.seeds[i] for i in chosen]
+        rollouts = simulate_kinematic(context, make, samples, job.steps, seeds, True, name)
+        for row, i in enumerate(chosen):
+            starts[i][name] = rollouts.commands[row]
+    return starts
+
+
+def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray) -> np.ndarray:
+    """:func:`snac_gym.optimality.regulation_cost_lower_bound` per sample of a position regulation task, else NaN."""
+    from snac_gym.optimality import regulation_cost_lower_bound
+    from snac_gym.tasks import get_task
+
+    if get_task(job.task).moving_reference or getattr(kinematics, "task_error", None) is not None:
+        return np.full(len(job.samples), np.nan)
+    initial = np.array([np.linalg.norm(kinematics.forward(np.asarray(s.q0, float)) - x_d[i, 0])
+                        for i, s in enumerate(job.samples)])  # fmt: skip
+    return regulation_cost_lower_bound(
+        initial, job.steps, job.dt, kinematics.position_lipschitz_bound(), job.convention.q_scale
+    )
 
 
 def run_optimal_job(job: OptimalJob) -> Any:
@@ -557,11 +690,16 @@ def run_optimal_job(job: OptimalJob) -> Any:
     kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
     times = np.arange(job.steps) * job.dt
     x_d, _, _ = reference_trajectories([s.reference for s in job.samples], times, context.layout.task_dim)
+    q0s = [np.asarray(s.q0, dtype=float) for s in job.samples]
     with single_threaded_blas():
-        solutions = [
-            solve_sample(np.asarray(s.q0, dtype=float), x_d[i], kinematics, job.dt, limits, convention=job.convention)
-            for i, s in enumerate(job.samples)
-        ]
+        rest = [solve_sample(q0, x_d[i], kinematics, job.dt, limits, convention=job.convention) for i, q0 in enumerate(q0s)]
+        candidates = _start_commands(job, context, [r.cost for r in rest]) if job.starts else [{} for _ in rest]
+        results = [
+            multi_start_solve(q0, x_d[i], kinematics, job.dt, limits, job.convention, candidates[i],
+                              job.restart_margin, rest[i])
+            for i, q0 in enumerate(q0s)
+        ]  # fmt: skip
+    solutions = [result.solution for result in results]
     commands = np.stack([s.commands for s in solutions])
     rollouts = simulate_kinematic(
         context, lambda: ReplayPolicy(commands), job.samples, job.steps, job.seeds, True, OPTIMAL
@@ -579,6 +717,10 @@ def run_optimal_job(job: OptimalJob) -> Any:
     metrics["optimal_bounded"] = [s.bounded for s in solutions]
     metrics["optimal_solver_cost"] = [s.cost for s in solutions]
     metrics["optimal_solve_time"] = [s.seconds for s in solutions]
+    metrics["optimal_starts"] = np.array([r.starts for r in results], dtype=np.int64)
+    metrics["optimal_winner"] = [r.winner for r in results]
+    metrics["optimal_local_spread"] = [r.spread for r in results]
+    metrics["optimal_lower_bound"] = _lower_bounds(job, kinematics, x_d)
     attrs = {"task": job.task, "policy": OPTIMAL, "policy_kwargs": {}}
     logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
     return JobResult(metrics, logs)
@@ -604,11 +746,15 @@ __all__ = [
     "METHODS",
     "OPTIMAL",
     "OPTIMAL_LABEL",
+    "MultiStart",
     "OptimalJob",
     "OptimalSolution",
+    "REST_START",
+    "RESTART_MARGIN",
     "ReplayPolicy",
     "add_optimality",
     "run_optimal_job",
+    "multi_start_solve",
     "solve_sample",
     "trajectory_cost_and_gradient",
 ]

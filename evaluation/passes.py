@@ -174,9 +174,15 @@ class EvaluationRun:
             for i in range(0, len(samples), size)
         ]
 
-    def _optimal_jobs(self, task: str) -> list[OptimalJob]:
-        """The optimal reference's jobs of ``task``: at most :data:`OPTIMAL_CHUNK_SIZE` samples each."""
+    def _optimal_jobs(
+        self, task: str, starts: tuple[tuple[str, dict[str, Any]], ...] = (), costs: Sequence[pd.Series] = ()
+    ) -> list[OptimalJob]:
+        """The optimal reference's jobs of ``task``: at most :data:`OPTIMAL_CHUNK_SIZE` samples each.
+
+        ``costs``: per start controller, its cost per sample id in the run.
+        """
         config, samples = self.config, self.samples[task]
+        start_costs = tuple(tuple(float(c.get(s.index, np.inf)) for c in costs) for s in samples)
         size = min(config.chunk_size, OPTIMAL_CHUNK_SIZE)
         return [
             OptimalJob(
@@ -188,6 +194,8 @@ class EvaluationRun:
                 robot=config.robot,
                 keep_logs=config.save_trajectories,
                 convention=config.convention,
+                starts=starts,
+                start_costs=start_costs[i : i + size],
             )
             for i in range(0, len(samples), size)
         ]
@@ -247,15 +255,26 @@ class EvaluationRun:
             self._store_rows(job, job.controller, result, path, spec.knob, knob_value)
         return self._read_passes(paths)
 
-    def run_optimal(self) -> list[pd.DataFrame]:
-        """The ``optimal`` rows of every task (jobs of :data:`OPTIMAL_CHUNK_SIZE` samples at most, stored as they arrive)."""
+    def run_optimal(
+        self,
+        starts: dict[str, tuple[tuple[str, dict[str, Any]], ...]] | None = None,
+        costs: dict[str, list[pd.Series]] | None = None,
+    ) -> list[pd.DataFrame]:
+        """The ``optimal`` rows of every task (jobs of :data:`OPTIMAL_CHUNK_SIZE` samples at most, stored as they arrive).
+
+        ``starts``: per task, the controllers as evaluated (name, arguments) whose rollouts also start
+        the solver; ``costs``: per task, each one's cost per sample id.
+        """
         started = time.perf_counter()
         self.progress.status("optimal reference")
         todo: list[tuple[OptimalJob, Path]] = []
         paths: list[list[Path]] = []
         for task in self.config.tasks:
-            key = settings_key({}, self.config.steps(task), self.config.backend)
-            task_paths, task_todo = self._parts_to_run(OPTIMAL, key, self._optimal_jobs(task))
+            task_starts = (starts or {}).get(task, ())
+            key = settings_key({"starts": [list(start) for start in task_starts]}, self.config.steps(task),
+                               self.config.backend)  # fmt: skip
+            jobs = self._optimal_jobs(task, task_starts, (costs or {}).get(task, ()))
+            task_paths, task_todo = self._parts_to_run(OPTIMAL, key, jobs)
             paths.append(task_paths)
             todo += task_todo
         for index, result in self.executor.run(run_optimal_job, [job for job, _ in todo]):

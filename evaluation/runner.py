@@ -38,7 +38,7 @@ from typing import Any
 import pandas as pd
 
 from evaluation.controllers import ControllerSpec, resolve_controllers
-from evaluation.effort_matching import EffortRecord, Results, controller_passes
+from evaluation.effort_matching import EffortRecord, Records, Results, controller_passes
 from evaluation.executors import open_executor
 from evaluation.optimal_reference import OPTIMAL, add_optimality
 from evaluation.passes import EvaluationRun
@@ -76,7 +76,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             evaluation = EvaluationRun(config, store, executor, samples, progress)  # 3. Passes
             try:
                 results, records = controller_passes(evaluation, specs)  # 4. Equal effort
-                results.update(_optimal_rows(evaluation))  # 5. Optimal reference
+                results.update(_optimal_rows(evaluation, specs, results, records))  # 5. Optimal reference
             finally:
                 progress.close()
                 timings.update(evaluation.timings)
@@ -155,12 +155,26 @@ def _sample_set(
 
 
 # -- 5. the optimal reference -------------------------------------------------------------------
-def _optimal_rows(evaluation: EvaluationRun) -> Results:
-    """The ``optimal`` rows of every task, when asked for."""
+def _optimal_rows(
+    evaluation: EvaluationRun, specs: Sequence[ControllerSpec], results: Results, records: Records
+) -> Results:
+    """The ``optimal`` rows of every task, when asked for, started from rest and from every controller as evaluated."""
     config = evaluation.config
     if not config.wants_optimal:
         return {}
-    return {(task, OPTIMAL): rows for task, rows in zip(config.tasks, evaluation.run_optimal(), strict=True)}
+    starts = {task: tuple(_as_evaluated(spec, records.get((task, spec.name))) for spec in specs) for task in config.tasks}
+    costs = {
+        task: [results[(task, spec.name)].set_index("sample")["cost"] for spec in specs] for task in config.tasks
+    }
+    rows = evaluation.run_optimal(starts, costs)
+    return {(task, OPTIMAL): task_rows for task, task_rows in zip(config.tasks, rows, strict=True)}
+
+
+def _as_evaluated(spec: ControllerSpec, record: EffortRecord | None) -> tuple[str, dict[str, Any]]:
+    """A controller's name and constructor arguments in its final pass (the matched knob included)."""
+    if record is None or record.role in ("reference", "fixed") or spec.knob is None or record.knob_value is None:
+        return spec.name, dict(spec.kwargs)
+    return spec.name, {**spec.kwargs, spec.knob: record.knob_value}
 
 
 # -- 6. results and reports ---------------------------------------------------------------------

@@ -148,6 +148,26 @@ class Kinematics:
         frame = self.model.frames[self._ee_id]
         return str(self.model.names[frame.parentJoint]), frame.placement.translation.copy()
 
+    def position_lipschitz_bound(self) -> float:
+        """L with ‖f(θ') − f(θ)‖ ≤ L‖θ' − θ‖ for every θ, θ' (no joint limits used): a certified bound on σ_max(J).
+
+        Column j of J is z_j × (p − o_j) for a revolute joint, so ‖J_j‖ ≤ ‖p − o_j‖ ≤ d_j, the sum of
+        the lengths of the fixed offsets from joint j to the end effector (the triangle inequality;
+        rotations keep lengths). Then ‖Jδ‖ ≤ Σ d_j|δ_j| ≤ ‖d‖‖δ‖, and the mean-value theorem along the
+        segment gives the Lipschitz bound L = ‖d‖ (a prismatic joint's column has norm 1: d_j = 1).
+        """
+        frame = self.model.frames[self._ee_id]
+        reach = float(np.linalg.norm(frame.placement.translation))
+        lengths = np.zeros(self.n_joints)
+        joint = int(frame.parentJoint)
+        while joint > 0:  # from the end effector's joint back to the base, accumulating the offsets
+            index = self.model.joints[joint].idx_q
+            kind = self.model.joints[joint].shortname()
+            lengths[index] = 1.0 if "P" in kind.removeprefix("JointModel")[:2] else reach
+            reach += float(np.linalg.norm(self.model.jointPlacements[joint].translation))
+            joint = int(self.model.parents[joint])
+        return float(np.linalg.norm(lengths))
+
     def _frame_id(self, name: str) -> int:
         if not self.model.existFrame(name):
             names = [f.name for f in self.model.frames]

@@ -316,3 +316,35 @@ def matrix_to_quadratic_weights(matrix: np.ndarray) -> np.ndarray:
     first, second = _basis_pairs(matrix.shape[-1])
     upper, lower = matrix[..., first, second], matrix[..., second, first]
     return np.where(first == second, upper, upper + lower)
+
+
+def regulation_cost_lower_bound(
+    initial_error: float | np.ndarray, steps: int, dt: float, lipschitz: float, q_scale: float = 1.0
+) -> np.ndarray:
+    """A certified lower bound on the regulation cost Σₖ₌₀^{K−1} (q‖eₖ‖² + ‖uₖ‖²) Δt of *any* command sequence.
+
+    With L a Lipschitz constant of f (:meth:`snac_gym.kinematics.Kinematics.position_lipschitz_bound`),
+    a fixed target and θₖ₊₁ = θₖ + uₖΔt, the error norm rₖ = ‖eₖ‖ can fall by at most LΔt‖uₖ‖ per
+    step: rₖ₊₁ ≥ rₖ − LΔt vₖ with vₖ = ‖uₖ‖. Relaxing the arm to this scalar system (any direction
+    at the best gain L) leaves a scalar finite-horizon LQR, 1 = a, b = LΔt, whose value is P₀r₀²:
+
+        P_K = 0,   Pₖ = qΔt + Pₖ₊₁ − (b Pₖ₊₁)² / (Δt + b² Pₖ₊₁)                   (Riccati, backwards)
+
+    Its optimal rₖ stays ≥ 0 and vₖ ≥ 0, so it is also the optimum with those constraints, and every
+    real trajectory is feasible for the relaxation: the bound holds for every controller and for the
+    optimum. It ignores the velocity limits and the u̇ term (both only add cost), so it bounds the
+    Table I cost as well as the HJB cost.
+
+    Args:
+        initial_error: ‖e₀‖ (m), a scalar or an array.
+        steps: K.
+        dt: Δt, s.
+        lipschitz: L, m/rad.
+        q_scale: Q = q·I (R = I).
+    """
+    if not (steps >= 1 and dt > 0 and lipschitz > 0 and q_scale > 0):
+        raise ValueError(f"need steps ≥ 1, dt > 0, lipschitz > 0, q_scale > 0; got {steps}, {dt}, {lipschitz}, {q_scale}")
+    b, value = lipschitz * dt, 0.0
+    for _ in range(int(steps)):
+        value = q_scale * dt + value - (b * value) ** 2 / (dt + b * b * value)
+    return value * np.square(np.asarray(initial_error, dtype=float))
