@@ -1,8 +1,10 @@
 """The real-robot env on the simulated backend: the whole loop and every safety rule."""
 
+import json
 import time
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from snac_gym.policies.base import BasePolicy
@@ -282,5 +284,9 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
     monkeypatch.setattr(real_run, "make_backend", lambda *args, **kwargs: backend)
     outcome = CliRunner().invoke(app, ["real", "--host", "10.0.0.2", "--controller", "dls", "--out", str(tmp_path)])
     assert outcome.exit_code == 1
-    assert outcome.output.strip() == "error: connection to the arm at 10.0.0.2 was lost"
+    assert outcome.output.strip() == f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/"
     assert backend.stopped and backend.stop_calls >= 1
+    # the log so far is written: a lost link is a way out like any other (issue 31)
+    summary = json.loads((tmp_path / "reach_dls_real.json").read_text())
+    assert summary["ended"] == "link lost" and "was lost" in summary["reason"]
+    assert len(pd.read_parquet(tmp_path / "reach_dls_log.parquet")) >= 15

@@ -95,6 +95,8 @@ class RealUREnv(TaskEnvCore):
         self._period_wall = 0.0
         self._episode_over = True
         self.stop_reason: str | None = None
+        #: A :class:`~snac_gym.real.journal.StepJournal` that gets every period's row as it comes, or ``None``.
+        self.journal: Any = None
 
     def _begin_period(self) -> None:
         # A period starts once the state is read, as in ur_rtde's initPeriod/waitPeriod loop, so the
@@ -156,6 +158,8 @@ class RealUREnv(TaskEnvCore):
             self._halt(violation)
             raise RuntimeError(f"the arm starts outside the safety limits: {violation}")
         self._obs = self._pack(q, qdot)
+        if self.journal is not None:
+            self.journal.record(0, 0.0, None, self._obs, self.kinematics.n_joints, None, state, None)
         self._begin_period()
         self._episode_over = False
         info = self._reset_info(q0 if q0 is not None else q)
@@ -224,6 +228,10 @@ class RealUREnv(TaskEnvCore):
     ) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         info = self._step_info(costs, command)
         info.update(safety=safety, safety_state=safety_state, speed_scaling=self.speed_scalings[-1])
+        if self.journal is not None:
+            period = self.periods[-1] if len(self.periods) == self.steps and self.steps else None
+            n_joints = self.kinematics.n_joints
+            self.journal.record(self.steps, self.steps * self.dt, period, self._obs, n_joints, command, safety_state, safety)
         terminated = safety is not None
         truncated = not terminated and self.steps >= self.max_steps
         if truncated:

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import signal
+import sys
 import threading
+import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -15,18 +17,26 @@ import numpy as np
 import pandas as pd
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.real.backends import SERIES_FREQUENCY, DryRunBackend, SimulatedBackend, URRTDEBackend
+from snac_gym.real.backends import SERIES_FREQUENCY, ConnectionFailure, DryRunBackend, SimulatedBackend, URRTDEBackend
 from snac_gym.real.env import RealUREnv
+from snac_gym.real.journal import StepJournal
 from snac_gym.real.safety import SafetyLimits
 from snac_gym.tasks import get_task
 
-#: Signals that end a real run through the same stop path as Ctrl-C. SIGKILL cannot be caught:
-#: then the controller's watchdog (:class:`~snac_gym.real.backends.URRTDEBackend`) stops the arm.
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: The streamed log (:class:`~snac_gym.real.journal.StepJournal`): kept only when the run could not write the full one.
+STREAM_SUFFIX = "stream.csv"
+
+#: Signals that end a real run through the same stop path as Ctrl-C: every catchable one whose
+#: default action ends the process (SIGPIPE aside: Python ignores it). SIGKILL cannot be caught:
+#: then the client process dies with the run and the controller's watchdog
+#: (:class:`~snac_gym.real.backends.URRTDEBackend`) stops the arm.
+STOP_SIGNALS = (
+    signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1, signal.SIGUSR2,
+)  # fmt: skip
 
 
 class TerminationSignal(KeyboardInterrupt):
-    """A stop signal (SIGINT, SIGTERM, SIGHUP) received during a real run.
+    """A stop signal (:data:`STOP_SIGNALS`) received during a real run.
 
     A ``KeyboardInterrupt``, so that everything that stops the arm and saves the log on Ctrl-C
     does the same for the others.
@@ -38,23 +48,45 @@ class TerminationSignal(KeyboardInterrupt):
         super().__init__(self.signal_name)
 
 
+class SignalGuard:
+    """What :func:`stop_signals_raise` yields: the signals received, and whether they still raise.
+
+    Only the first signal raises: a second one (an impatient operator, a supervisor that sends
+    SIGTERM then SIGQUIT) must not cut the stop path or the log writing it started. After
+    :meth:`defer`, signals are only recorded; :meth:`raise_pending` raises the first one then.
+    """
+
+    def __init__(self) -> None:
+        self.received: list[int] = []
+        self.deferred = False
+
+    def handle(self, signum: int, _frame: Any) -> None:
+        self.received.append(signum)
+        if len(self.received) == 1 and not self.deferred:
+            raise TerminationSignal(signum)
+
+    def defer(self) -> None:
+        self.deferred = True
+
+    def raise_pending(self) -> None:
+        if self.received:
+            raise TerminationSignal(self.received[0])
+
+
 @contextmanager
-def stop_signals_raise() -> Iterator[None]:
-    """Within the block, every signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal`.
+def stop_signals_raise() -> Iterator[SignalGuard]:
+    """Within the block, the first signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal`.
 
     SIGINT is included because a run started from a background shell inherits it ignored.
     Handlers can only be set from the main thread; elsewhere the block runs unchanged.
     """
+    guard = SignalGuard()
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield guard
         return
-
-    def raise_termination(signum: int, _frame: Any) -> None:
-        raise TerminationSignal(signum)
-
-    previous = {signum: signal.signal(signum, raise_termination) for signum in STOP_SIGNALS}
+    previous = {signum: signal.signal(signum, guard.handle) for signum in STOP_SIGNALS}
     try:
-        yield
+        yield guard
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
@@ -140,11 +172,20 @@ def run_real_episode(
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
     The arm first moves to θ0 (``moveJ``), then the controller streams joint velocities through
-    the safety layer. The arm is stopped whatever happens (``finally: env.close()``). SIGINT,
-    SIGTERM and SIGHUP raise :class:`TerminationSignal` (a ``KeyboardInterrupt``) in the loop: the
-    arm is stopped, and the rows logged so far, the loop timing and the reason are written to
-    ``out_dir`` (``*_log.parquet``, ``*_timing.csv``, ``*_real.json``) before it propagates; any
-    other exception mid-episode saves them the same way.
+    the safety layer. The arm is stopped whatever happens (``finally: env.close()``). Every way
+    the episode can fail writes the rows logged so far, the loop timing and the reason to
+    ``out_dir`` (``*_log.parquet``, ``*_timing.csv``, ``*_real.json`` with ``ended``: ``interrupted``,
+    ``link lost`` or ``error``) before the exception propagates, with ``exc.log_dir`` set:
+
+    * a signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal` (a ``KeyboardInterrupt``);
+    * a lost link, or a ur_rtde client that blocked, crashed or began to reconnect and was killed,
+      raises :class:`~snac_gym.real.backends.ConnectionFailure` (also when the episode had
+      already ended in a safety stop: the controller's watchdog, not the host, stopped the arm);
+    * any other exception (its traceback goes to ``*_real.json``).
+
+    Meanwhile every period's row is appended to ``*_stream.csv`` and flushed each second, so a
+    host process killed outright (SIGKILL) loses at most the last second; it is removed once the
+    full log is written.
 
     Args:
         task: ``"reach"`` or ``"track"``.
@@ -161,70 +202,150 @@ def run_real_episode(
         csv, plots: As for ``snac-gym demo``.
         echo: Where dry-run lines go (e.g. ``print``).
     """
-    from snac_gym.demo import write_demo_outputs
+    safety = safety if safety is not None else SafetyLimits()
+    out = Path(out_dir) if out_dir is not None else None
+    prefix = f"{task}_{controller}_"
+    with stop_signals_raise() as guard:
+        arm = make_backend(backend, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
+        try:
+            default_steps = round(get_task(task).real_horizon_s / arm.dt)
+            env = RealUREnv(task, arm, safety=safety, max_steps=steps if steps is not None else default_steps)
+            if out is not None:
+                env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints)
+        except BaseException:
+            arm.close()
+            raise
+        log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix)
+        guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
+        result = _write_outputs(
+            env, log, task, controller, backend, dry_run, seed, out, prefix, csv, plots, policy_kwargs
+        )
+    guard.raise_pending()
+    return result
+
+
+def _run_and_stop(
+    env: RealUREnv,
+    controller: str,
+    policy_kwargs: dict[str, Any] | None,
+    seed: int,
+    guard: SignalGuard,
+    out: Path | None,
+    prefix: str,
+) -> pd.DataFrame:
+    """The episode, the arm stopped on every way out; on any failure the log so far is written, then it raises.
+
+    A client the backend had to give up (killed after a missed deadline, crashed, its link lost)
+    fails the run even when the episode itself ended in a safety stop: the arm was then stopped
+    by the controller's watchdog, not by the host.
+    """
     from snac_gym.policies import make_policy
     from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
 
-    safety = safety if safety is not None else SafetyLimits()
-    arm = make_backend(backend, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
+    log = None
     try:
-        default_steps = round(get_task(task).real_horizon_s / arm.dt)
-        env = RealUREnv(task, arm, safety=safety, max_steps=steps if steps is not None else default_steps)
-    except BaseException:
-        arm.close()
-        raise
-    try:
-        with stop_signals_raise():
-            try:
-                policy = make_policy(controller, env, **(policy_kwargs or {}))
-                log = add_critic_diagnostics(
-                    rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps), policy
-                )
-            finally:
-                env.close()
+        try:
+            policy = make_policy(controller, env, **(policy_kwargs or {}))
+            log = rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps)
+            log = add_critic_diagnostics(log, policy)
+        finally:
+            env.close()
+        failure = getattr(env.backend, "failure", None)
+        if failure is not None:
+            after = f" (after the safety stop: {env.stop_reason})" if env.stop_reason else ""
+            raise ConnectionFailure(failure + after)
     except BaseException as exc:
-        partial = partial_log(exc)
-        if partial is not None and out_dir is not None:
-            _write_interrupted(env, partial, Path(out_dir), f"{task}_{controller}_", exc)
+        guard.defer()
+        if out is not None:
+            _write_interrupted(env, partial_log(exc) if log is None else log, out, prefix, exc)
+            exc.log_dir = out  # type: ignore[attr-defined]
         raise
+    finally:
+        if env.journal is not None:
+            env.journal.close()
+    return log
+
+
+def _write_outputs(
+    env: RealUREnv,
+    log: pd.DataFrame,
+    task: str,
+    controller: str,
+    backend: str,
+    dry_run: bool,
+    seed: int,
+    out: Path | None,
+    prefix: str,
+    csv: bool,
+    plots: bool,
+    policy_kwargs: dict[str, Any] | None,
+) -> RealRunResult:
+    from snac_gym.demo import write_demo_outputs
+
     log.attrs["controller"] = controller
     log.attrs["backend"] = backend + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
     demo = write_demo_outputs(
-        log, task, controller, seed, env.success_tolerance, out_dir, csv=csv, plots=plots, policy_kwargs=policy_kwargs
+        log, task, controller, seed, env.success_tolerance, out, csv=csv, plots=plots, policy_kwargs=policy_kwargs
     )
+    arm = env.backend
     result = RealRunResult(
         demo=demo,
         timing=env.timing(),
         stop_reason=env.stop_reason,
         sent_commands=len(arm.sent) if isinstance(arm, DryRunBackend) else None,
     )
-    if out_dir is not None:
-        result.files = list(demo.files) + _write_timing(env, Path(out_dir), f"{task}_{controller}_", result, plots)
+    if out is not None:
+        result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
+        (out / f"{prefix}{STREAM_SUFFIX}").unlink(missing_ok=True)  # the full log is written: the stream is a subset
     return result
 
 
-def _write_interrupted(env: RealUREnv, log: pd.DataFrame, out: Path, prefix: str, exc: BaseException) -> None:
-    """Save what an interrupted run logged: the trajectory so far, the loop timing and why it ended."""
+def _ending(exc: BaseException) -> str:
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted"
+    if isinstance(exc, ConnectionFailure):
+        return "link lost"
+    return "error"
+
+
+def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, prefix: str, exc: BaseException) -> None:
+    """Save what a failed run logged: the trajectory so far, the loop timing and why it ended.
+
+    Each file is written on its own, so that one that fails (a full disk) does not cost the others.
+    """
     from snac_gym.rollout import write_log
 
     out.mkdir(parents=True, exist_ok=True)
-    log.attrs["stop_reason"] = env.stop_reason
-    write_log(log, out / f"{prefix}log.parquet")
-    pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3}).to_csv(out / f"{prefix}timing.csv", index_label="step")
-    (out / f"{prefix}real.json").write_text(
-        json.dumps(
-            {
-                "interrupted": type(exc).__name__,
-                "signal": getattr(exc, "signal_name", None),
-                "stop_reason": env.stop_reason,
-                "steps_logged": len(log),
-                "timing": env.timing(),
-                "dt_ms": env.dt * 1e3,
-            },
-            indent=2,
-        )
-    )
+    if log is not None:
+        log.attrs["stop_reason"] = env.stop_reason
+        _attempt(lambda: write_log(log, out / f"{prefix}log.parquet"))
+    periods = pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3})
+    _attempt(lambda: periods.to_csv(out / f"{prefix}timing.csv", index_label="step"))
+    backend = env.backend
+    summary = {
+        "ended": _ending(exc),
+        "reason": f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__,
+        "interrupted": type(exc).__name__,
+        "signal": getattr(exc, "signal_name", None),
+        "stop_reason": env.stop_reason,
+        "client_failure": getattr(backend, "failure", None),
+        "last_stop": getattr(backend, "last_stop", None),
+        "client_output": getattr(backend, "client_output", []),
+        "steps_logged": 0 if log is None else len(log),
+        "timing": env.timing(),
+        "dt_ms": env.dt * 1e3,
+    }
+    if _ending(exc) == "error":  # a bug: the CLI shows one line, the traceback is kept here
+        summary["traceback"] = traceback.format_exception(exc)
+    (out / f"{prefix}real.json").write_text(json.dumps(summary, indent=2, default=str))
+
+
+def _attempt(write: Callable[[], object]) -> None:
+    try:
+        write()
+    except Exception as exc:  # noqa: BLE001 - the other files are still written; the failure is shown
+        print(f"warning: could not write part of the log: {type(exc).__name__}: {exc}", file=sys.stderr)
 
 
 def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult, plots: bool) -> list[Path]:
