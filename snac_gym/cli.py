@@ -139,16 +139,23 @@ def real(
             seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
             csv=csv, echo=typer.echo if dry_run else None,
         )
-    except ConnectionFailure as exc:  # one line, no traceback: the arm was stopped on the way out
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(code=1) from exc
-    except (ValueError, RuntimeError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(code=2) from exc
-    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: the arm was stopped and the log so far written
-        signal_name = getattr(exc, "signal_name", "SIGINT")
-        typer.echo(f"interrupted by {signal_name}: the arm was stopped; the log so far is in {out}/", err=True)
-        raise typer.Exit(code=128 + getattr(exc, "signum", 2)) from None
+    except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
+        where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""
+        line = str(exc).splitlines()[0] if str(exc) else ""
+        if isinstance(exc, KeyboardInterrupt):  # Ctrl-C and the other stop signals: the arm was stopped
+            signal_name = getattr(exc, "signal_name", "SIGINT")
+            typer.echo(f"interrupted by {signal_name}: the arm was stopped{where or f'; the log so far is in {out}/'}", err=True)
+            raise typer.Exit(code=128 + getattr(exc, "signum", 2)) from None
+        if isinstance(exc, ConnectionFailure):  # the link or the ur_rtde client was lost: exit 1
+            typer.echo(f"error: {line}{where}", err=True)
+            raise typer.Exit(code=1) from None
+        if isinstance(exc, (ValueError, RuntimeError)):
+            typer.echo(f"error: {line}{where}", err=True)
+            raise typer.Exit(code=2) from None
+        if not isinstance(exc, Exception):
+            raise
+        typer.echo(f"error: unexpected {type(exc).__name__}: {line}{where} (traceback in its real.json)", err=True)
+        raise typer.Exit(code=3) from None
     typer.echo(result.summary())
 
 
@@ -229,6 +236,7 @@ def evaluate(
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run in OUT."),
     chunk_size: Optional[int] = typer.Option(None, "--chunk-size", min=1, help="Samples per job of a full pass (default 500; results do not depend on it)."),
     cuboid: Optional[str] = typer.Option(None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."),
+    sample_space: str = typer.Option("cuboid", "--sample-space", help="cuboid (Table I's box in front of the arm, or --cuboid) or workspace (anywhere the arm reaches, every IK branch)."),
     robot: str = typer.Option("ur10", "--robot", help="A registered robot: ur3, ur5, ur10, panda, xarm7 (docs/robots.md)."),
     param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
     batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
@@ -247,15 +255,13 @@ def evaluate(
     from evaluation.options import (
         check_option_combinations,
         parse_controllers,
-        parse_cuboid,
         parse_horizons,
         parse_out,
         parse_params,
+        parse_sample_space,
         parse_tasks,
     )
     from evaluation.runner import EvaluationConfig, export_sample_set, run_evaluation
-    from snac_gym.kinematics import Kinematics
-    from snac_gym.sampling import SampleSpace
 
     try:
         out_dir = parse_out(out)
@@ -263,12 +269,9 @@ def evaluate(
         check_option_combinations(
             samples=samples, cuboid=cuboid, samples_file=samples_file, export_samples=export_samples, sweep=sweep,
             sweep_points=sweep_points, sweep_span=sweep_span, effort_reference=effort_reference,
-            match_effort=match_effort, effort_target=effort_target, controllers=names,
+            match_effort=match_effort, effort_target=effort_target, controllers=names, sample_space=sample_space,
         )
-        corners = parse_cuboid(cuboid)
-        space = None
-        if corners is not None:
-            space = SampleSpace.for_robot(Kinematics(robot), low=corners[0], high=corners[1])
+        space = parse_sample_space(sample_space, cuboid, robot)
         config = EvaluationConfig(
             out=out_dir, tasks=tasks, controllers=names, samples=1000 if samples is None else samples, seed=seed,
             horizons=parse_horizons(horizon, tasks), backend=backend, match_effort=match_effort,
