@@ -121,8 +121,11 @@ def check_option_combinations(
     match_effort: bool,
     effort_target: float | None,
     controllers: Sequence[str] | None,
+    sample_space: str = "cuboid",
 ) -> None:
     """Refuse an option that another one makes meaningless (it would be silently ignored), naming both."""
+    if samples_file is not None and sample_space != "cuboid":
+        raise ValueError("--sample-space has no effect with --samples-file (its rows are the samples); drop one")
     if samples_file is not None:
         for given, option in ((samples, "--samples"), (cuboid, "--cuboid")):
             if given is not None:
@@ -158,3 +161,20 @@ def _check_effort_reference(
         raise ValueError("--effort-reference has no effect with --effort-target (every controller is matched to it)")
     if controllers is not None and name not in controllers:
         raise ValueError(f"--effort-reference {name!r} is not among --controllers {','.join(controllers)}; add it")
+
+
+def parse_sample_space(name: str, cuboid: str | None, robot: str) -> Any:
+    """``--sample-space cuboid`` (the default cuboid, or ``--cuboid``) or ``workspace`` (the arm's whole reach)."""
+    from snac_gym.kinematics import Kinematics
+    from snac_gym.sampling import REGIONS, SampleSpace
+
+    if name not in REGIONS:
+        raise ValueError(f"--sample-space must be one of {', '.join(REGIONS)}, got {name!r}")
+    corners = parse_cuboid(cuboid)
+    if name == "workspace":
+        if corners is not None:
+            raise ValueError("--cuboid has no effect with --sample-space workspace (the box is the arm's reach); drop one")
+        return SampleSpace.workspace(Kinematics(robot))
+    if corners is None:
+        return None
+    return SampleSpace.for_robot(Kinematics(robot), low=corners[0], high=corners[1])

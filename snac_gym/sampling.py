@@ -15,6 +15,8 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.references import Ellipse, FixedTarget
 from snac_gym.robots import ROBOTS
 
+#: Where samples come from (:class:`SampleSpace` ``region``).
+REGIONS = ("cuboid", "workspace")
 #: Default sample cuboid for the UR10, base frame, metres: a box in front of the arm
 #: (negative x, as in the paper's numbers) that holds the paper's start point, target
 #: and circle, with every corner reachable with margin (see tests/test_sampling.py).
@@ -36,6 +38,10 @@ class SampleSpace:
         semi_axis_range: Range of ellipse semi-axes, m.
         speed_range: Range of |ω|, rad/s (sign drawn at random).
         ellipse_points: How many points around an ellipse are checked for reachability.
+        region: ``"cuboid"``: end effectors, targets and ellipses in the cuboid, seed poses on the
+            elbow-up branch of the paper's θ0 (Table I's space); ``"workspace"``: seed poses and
+            targets from configurations drawn uniformly within the joint limits (less the margin),
+            so anywhere the arm reaches in the box, on every branch (:meth:`workspace`).
     """
 
     low: tuple[float, float, float] = UR10_CUBOID_LOW
@@ -45,11 +51,26 @@ class SampleSpace:
     semi_axis_range: tuple[float, float] = (0.05, 0.2)
     speed_range: tuple[float, float] = (0.05, 0.3)
     ellipse_points: int = 32
+    region: str = "cuboid"
 
     def __post_init__(self) -> None:
         low, high = np.asarray(self.low, float), np.asarray(self.high, float)
         if low.shape != (3,) or high.shape != (3,) or np.any(low >= high):
             raise ValueError(f"sample cuboid needs low < high in 3-D, got low={self.low}, high={self.high}")
+        if self.region not in REGIONS:
+            raise ValueError(f"region must be one of {REGIONS}, got {self.region!r}")
+
+    @classmethod
+    def workspace(cls, kinematics: Kinematics, **overrides: object) -> "SampleSpace":
+        """The arm's whole reach above its mounting plane: the box |x|, |y| ≤ r, 0 ≤ z ≤ r (r = |f(0)| + 5 %,
+        the outstretched arm), configurations drawn within the joint limits, ellipses up to 0.4 rad/s."""
+        reach = 1.05 * float(np.linalg.norm(kinematics.forward(np.zeros(kinematics.n_joints))))
+        params: dict[str, object] = {
+            "low": (-reach, -reach, 0.0), "high": (reach, reach, reach), "speed_range": (0.05, 0.4),
+            "region": "workspace",
+        }  # fmt: skip
+        params.update(overrides)
+        return cls(**params)  # type: ignore[arg-type]
 
     @classmethod
     def for_robot(cls, kinematics: Kinematics, **overrides: object) -> "SampleSpace":
@@ -124,6 +145,8 @@ def sample_seed_pose(kinematics: Kinematics, rng: np.random.Generator, space: Sa
     perturbed by up to ±0.4 rad per joint, so poses vary while staying on the
     elbow-up branch the paper's θ0 is on.
     """
+    if space.region == "workspace":
+        return _workspace_configuration(kinematics, rng, space)
     nominal = nominal_configuration(kinematics)
     for _ in range(1000):
         point = rng.uniform(space.low, space.high)
@@ -134,8 +157,24 @@ def sample_seed_pose(kinematics: Kinematics, rng: np.random.Generator, space: Sa
     raise RuntimeError(f"no well-conditioned seed pose found in {space}; widen the cuboid or relax the margins")
 
 
+def _workspace_configuration(kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> np.ndarray:
+    """A configuration drawn uniformly within the joint limits less the margin, well-conditioned, end effector in the box.
+
+    Uniform in joint space rather than IK of a point: every branch (elbow up or down, wrist
+    flipped, the base turned either way) comes out as often as the limits allow it.
+    """
+    low, high = kinematics.lower_limits + space.joint_margin, kinematics.upper_limits - space.joint_margin
+    for _ in range(10000):
+        q = rng.uniform(low, high)
+        if kinematics.singular_values(q)[-1] >= space.min_singular_value and space.contains(kinematics.forward(q)):
+            return q
+    raise RuntimeError(f"no well-conditioned configuration found in {space}")
+
+
 def sample_target(kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> FixedTarget:
-    """A random reachable, well-conditioned target in the cuboid."""
+    """A random reachable, well-conditioned target in the cuboid (workspace: the end effector of a random configuration)."""
+    if space.region == "workspace":
+        return FixedTarget(kinematics.forward(_workspace_configuration(kinematics, rng, space)))
     for _ in range(1000):
         point = rng.uniform(space.low, space.high)
         q = solve_reachable(kinematics, point)
@@ -163,8 +202,13 @@ def sample_ellipse(kinematics: Kinematics, rng: np.random.Generator, space: Samp
     """A random ellipse (centre, semi-axes, plane orientation, speed, phase) that is wholly feasible."""
     for _ in range(2000):
         speed = rng.uniform(*space.speed_range) * rng.choice((-1.0, 1.0))
+        centre = (
+            kinematics.forward(_workspace_configuration(kinematics, rng, space))
+            if space.region == "workspace"
+            else rng.uniform(space.low, space.high)
+        )
         ellipse = Ellipse(
-            centre=rng.uniform(space.low, space.high),
+            centre=centre,
             semi_axes=rng.uniform(*space.semi_axis_range, size=2),
             orientation=rng.uniform(-np.pi, np.pi, size=3),
             angular_speed=float(speed),
