@@ -216,7 +216,9 @@ def signalling_run(monkeypatch):
     return backend, speeds_after_stop
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.parametrize(
+    "signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1, signal.SIGUSR2]
+)
 def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_run, tmp_path, signum):
     from snac_gym.real.run import TerminationSignal, run_real_episode
 
@@ -233,6 +235,7 @@ def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_ru
     assert log.attrs["interrupted"] == "TerminationSignal"
     summary = json.loads((tmp_path / "reach_sends-signal_real.json").read_text())
     assert summary["signal"] == signal.Signals(signum).name and summary["steps_logged"] == 29
+    assert summary["ended"] == "interrupted"
     assert summary["stop_reason"] == "closed mid-episode"  # the signal came during the policy's act
     assert len(pd.read_csv(tmp_path / "reach_sends-signal_timing.csv")) == 29
 
@@ -246,6 +249,108 @@ def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path)
     assert outcome.exit_code == 128 + signal.SIGTERM
     assert outcome.output.strip() == f"interrupted by SIGTERM: the arm was stopped; the log so far is in {tmp_path}/"
     assert signalling_run[0].stopped
+
+
+class SignalsTwice(SendsSignal):
+    """Sends SIGTERM at step ``at``; its backend then sends SIGQUIT from inside the stop that follows."""
+
+    sent = False
+
+    def act(self, obs):
+        SignalsTwice.sent = self.count + 1 >= self.at
+        return super().act(obs)
+
+
+def test_a_second_signal_does_not_cut_the_stop_path_or_the_log(signalling_run, tmp_path, monkeypatch):
+    from snac_gym.real.run import TerminationSignal, run_real_episode
+
+    backend, speeds_after_stop = signalling_run
+    stop = backend.stop
+
+    def stop_interrupted_again():
+        if SignalsTwice.sent:
+            os.kill(os.getpid(), signal.SIGQUIT)  # an impatient operator, mid-stop
+        stop()
+
+    monkeypatch.setattr(backend, "stop", stop_interrupted_again)
+    register_policy("signals-twice", SignalsTwice, overwrite=True)
+    with pytest.raises(TerminationSignal) as excinfo:
+        run_real_episode(controller="signals-twice", out_dir=tmp_path, backend="sim", steps=200,
+                         safety=SafetyLimits(max_period=10.0))  # fmt: skip
+    assert excinfo.value.signum == signal.SIGTERM  # the first signal is the one reported
+    assert backend.stopped and speeds_after_stop and max(speeds_after_stop) < 1e-3  # the stop ran to rest
+    assert len(pd.read_parquet(tmp_path / "reach_signals-twice_log.parquet")) == 29
+    assert json.loads((tmp_path / "reach_signals-twice_real.json").read_text())["signal"] == "SIGTERM"
+
+
+class Crashes(BasePolicy):
+    """A policy with a bug: raises a ``ZeroDivisionError`` at step ``at``."""
+
+    def __init__(self, env, at: int = 30) -> None:
+        super().__init__(env)
+        self.at, self.count = at, 0
+
+    def act(self, obs):
+        self.count += 1
+        if self.count == self.at:
+            return 1 // 0
+        return np.full(6, 0.05)
+
+
+def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept(signalling_run, tmp_path):
+    from typer.testing import CliRunner
+
+    from snac_gym.cli import app
+
+    register_policy("crashes", Crashes, overwrite=True)
+    outcome = CliRunner().invoke(app, ["real", "--backend", "sim", "--controller", "crashes", "--out", str(tmp_path)])
+    assert outcome.exit_code == 3, outcome.output
+    assert outcome.output.strip() == (
+        f"error: unexpected ZeroDivisionError: integer division or modulo by zero; the log so far is in {tmp_path}/ "
+        "(traceback in its real.json)"
+    )
+    assert signalling_run[0].stopped
+    summary = json.loads((tmp_path / "reach_crashes_real.json").read_text())
+    assert summary["ended"] == "error" and "1 // 0" in "".join(summary["traceback"])
+    assert len(pd.read_parquet(tmp_path / "reach_crashes_log.parquet")) == 29
+    assert len(pd.read_csv(tmp_path / "reach_crashes_timing.csv")) == 29
+
+
+def test_the_stream_log_is_on_disk_within_a_second_while_the_run_goes(tmp_path, monkeypatch):
+    import snac_gym.real.journal as journal_module
+    from snac_gym.real.journal import StepJournal
+
+    monkeypatch.setattr(journal_module, "FLUSH_EVERY", 0.05)
+    path = tmp_path / "stream.csv"
+    journal = StepJournal(path, 6)
+    obs = np.arange(20.0)
+    for k in range(10):
+        journal.record(k, k * 0.008, 0.008, obs, 6, np.full(6, 0.1), "normal", None)
+    assert path.read_text().count("\n") == 1  # buffered: only the header is out
+    time.sleep(0.06)
+    journal.record(10, 0.08, 0.008, obs, 6, np.full(6, 0.1), "normal", 'stale "joint" state')
+    on_disk = pd.read_csv(path)  # read while the file is still open, as after a crash of the host
+    assert len(on_disk) == 11 and on_disk["safety"].iloc[-1] == "stale 'joint' state"
+    np.testing.assert_allclose(on_disk[[f"q_{j}" for j in range(6)]].iloc[0], obs[:6])
+    journal.close()
+
+
+def test_a_completed_run_replaces_the_stream_log_with_the_full_log(tmp_path):
+    from snac_gym.real.run import run_real_episode
+
+    run_real_episode(controller="dls", out_dir=tmp_path, backend="sim", steps=30, plots=False)
+    names = {p.name for p in tmp_path.iterdir()}
+    assert "reach_dls_log.parquet" in names and "reach_dls_stream.csv" not in names
+
+
+def test_an_interrupted_run_keeps_the_stream_log_with_every_period(signalling_run, tmp_path):
+    from snac_gym.real.run import TerminationSignal, run_real_episode
+
+    with pytest.raises(TerminationSignal):
+        run_real_episode(controller="sends-signal", out_dir=tmp_path, backend="sim", steps=200,
+                         safety=SafetyLimits(max_period=10.0))  # fmt: skip
+    stream = pd.read_csv(tmp_path / "reach_sends-signal_stream.csv")
+    assert list(stream["step"]) == list(range(30))  # the reset's row, then one per sent command
 
 
 @pytest.mark.parametrize(

@@ -36,6 +36,7 @@ class StepJournal:
         columns += [f"q_{j}" for j in joints] + [f"qdot_{j}" for j in joints] + ["x_0", "x_1", "x_2"]
         columns += [f"u_{j}" for j in joints] + ["safety_state", "safety"]
         self._file.write(",".join(columns) + "\n")
+        self._file.flush()
         self._start = time.perf_counter()
         self._last_flush = self._start
         self._sync = threading.Event()
