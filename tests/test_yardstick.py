@@ -1,0 +1,124 @@
+"""The optimality reference holds everywhere: the multi-start optimum, its certified lower bound, and
+the ``workspace`` sample space that reaches outside Table I's cuboid (where a single start from rest
+was beaten by feedback controllers)."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from evaluation import EvaluationConfig, run_evaluation
+from evaluation.jobs import policy_context
+from evaluation.optimal_reference import REST_START, multi_start_solve, solve_sample, trajectory_cost_and_gradient
+from evaluation.samples import generate_samples
+from snac_gym.cost import CostConvention
+from snac_gym.kinematics import Kinematics
+from snac_gym.optimality import regulation_cost_lower_bound
+from snac_gym.policies.registry import make_policy
+from snac_gym.rollout import reference_trajectories, simulate_kinematic
+from snac_gym.sampling import SampleSpace
+
+DT = 1.0 / 125.0
+HJB = CostConvention("hjb", "rest", 4.0)
+
+
+@pytest.fixture(scope="module")
+def ur10() -> Kinematics:
+    return Kinematics("ur10")
+
+
+def test_the_multi_start_optimum_is_below_the_single_start_on_a_workspace_sample(ur10):
+    # Workspace reach sample 4 of seed 7 over 5 s under the HJB cost (q = 4): Gauss-Newton from rest
+    # ends in a local optimum 62 % above the one it reaches from lqr's trajectory.
+    steps, context = 625, policy_context("ur10", DT, "reach")
+    sample = generate_samples(ur10, SampleSpace.workspace(ur10), 7, "reach", [4])[0]
+    make = functools.partial(make_policy, "lqr", context, q_scale=1.0)
+    lqr = simulate_kinematic(context, make, [sample], steps, [0], True, "lqr").commands[0]
+    x_d = reference_trajectories([sample.reference], np.arange(steps) * DT, 3)[0][0]
+    q0, limits = np.asarray(sample.q0), ur10.velocity_limits
+    single = solve_sample(q0, x_d, ur10, DT, limits, convention=HJB)
+    multi = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"lqr": lqr})
+    assert single.converged  # a local optimum, not a failed solve
+    assert multi.winner == "lqr" and multi.starts == 2
+    assert multi.solution.cost < 0.7 * single.cost
+    assert multi.spread == pytest.approx(single.cost / multi.solution.cost - 1.0)
+    lqr_cost = trajectory_cost_and_gradient(lqr, q0, x_d, ur10, DT, HJB)[0]
+    assert multi.solution.cost <= lqr_cost  # a descent from lqr's trajectory ends at most at its cost
+    # No start is solved when no controller comes near the optimum from rest.
+    far = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"idle": np.zeros_like(lqr)})
+    assert far.winner == REST_START and far.starts == 1 and far.spread == 0.0
+
+
+@pytest.fixture(scope="module")
+def workspace_run(tmp_path_factory) -> pd.DataFrame:
+    """Fresh workspace samples (a seed no test or default uses), the HJB cost, controllers at their own settings."""
+    config = EvaluationConfig(
+        out=tmp_path_factory.mktemp("workspace") / "run", samples=8, seed=2024, workers=1,
+        controllers=("lqr", "snac-hjb", "dls", "rnn", "optimal"), horizons={"reach": 4.0, "track": 4.0},
+        match_effort=False, progress=False, cost="hjb", q_scale=4.0, controller_kwargs={"lqr": {"q_scale": 1.0}},
+        space=SampleSpace.workspace(Kinematics("ur10")),
+    )  # fmt: skip
+    return run_evaluation(config)
+
+
+def test_no_controller_is_below_the_optimum_on_fresh_workspace_samples(workspace_run):
+    optimum = workspace_run[workspace_run.controller == "optimal"].set_index(["task", "sample"])["cost"]
+    others = workspace_run[workspace_run.controller != "optimal"]
+    reference = optimum.reindex(pd.MultiIndex.from_frame(others[["task", "sample"]])).to_numpy()
+    assert np.all(others["cost"].to_numpy() >= reference * (1 - 1e-6))
+    assert not workspace_run["below_optimal"].any()
+    rows = workspace_run[workspace_run.controller == "optimal"]
+    assert (rows["optimal_starts"] >= 1).all() and rows["optimal_local_spread"].ge(0).all()
+    assert set(rows["optimal_winner"]) <= {REST_START, "lqr", "snac-hjb", "dls", "rnn"}
+
+
+def test_the_certified_lower_bound_is_below_every_regulation_cost(workspace_run):
+    reach = workspace_run[workspace_run.task == "reach"]
+    bound = reach[reach.controller == "optimal"].set_index("sample")["optimal_lower_bound"]
+    assert bound.notna().all() and (bound > 0).all()
+    assert np.all(reach["cost"].to_numpy() >= bound.reindex(reach["sample"]).to_numpy())
+    track = workspace_run[(workspace_run.task == "track") & (workspace_run.controller == "optimal")]
+    assert track["optimal_lower_bound"].isna().all()  # certified for regulation only
+
+
+def test_the_lower_bound_is_the_scalar_riccati_value_and_tends_to_the_continuous_one():
+    # Continuous-time limit of the relaxed scalar LQR (ṙ = −Lv, cost q r² + v²): V = √q r₀² / L.
+    assert regulation_cost_lower_bound(0.3, 200_000, 1e-4, 2.0, 4.0) == pytest.approx(np.sqrt(4.0) * 0.09 / 2.0, rel=1e-3)
+    # One step: only the first error is paid for, P₀ = qΔt.
+    assert regulation_cost_lower_bound(0.5, 1, 0.01, 3.0, 2.0) == pytest.approx(2.0 * 0.01 * 0.25)
+    with pytest.raises(ValueError, match="lipschitz > 0"):
+        regulation_cost_lower_bound(0.1, 10, 0.01, 0.0)
+
+
+@pytest.mark.parametrize("robot", ["ur10", "ur5", "panda"])
+def test_the_lipschitz_bound_covers_the_jacobian_everywhere(robot):
+    kinematics = Kinematics(robot)
+    bound = kinematics.position_lipschitz_bound()
+    rng = np.random.default_rng(5)
+    largest = max(kinematics.singular_values(rng.uniform(kinematics.lower_limits, kinematics.upper_limits))[0]
+                  for _ in range(2000))  # fmt: skip
+    assert largest <= bound < 2.5 * largest  # certified, and not vacuous
+    q, step = rng.uniform(-1, 1, kinematics.n_joints), rng.normal(size=kinematics.n_joints)
+    assert np.linalg.norm(kinematics.forward(q + step) - kinematics.forward(q)) <= bound * np.linalg.norm(step)
+
+
+def test_workspace_samples_cover_the_reach_outside_the_cuboid(ur10):
+    space, cuboid = SampleSpace.workspace(ur10), SampleSpace.for_robot(ur10)
+    samples = generate_samples(ur10, space, 3, "reach", range(200))
+    targets = np.array([s.reference.target for s in samples])
+    starts = np.array([ur10.forward(np.asarray(s.q0)) for s in samples])
+    for points in (targets, starts):
+        assert (points[:, 0] > 0.2).any() and (points[:, 0] < -0.2).any()  # both sides of the base
+        assert (points[:, 2] < cuboid.low[2]).any() and (points[:, 2] > cuboid.high[2]).any()  # lower and higher
+        assert np.mean([cuboid.contains(p) for p in points]) < 0.3
+        assert all(space.contains(p) for p in points)
+    for sample in samples:
+        q = np.asarray(sample.q0)
+        assert ur10.singular_values(q)[-1] >= space.min_singular_value
+        assert np.all(q >= ur10.lower_limits + space.joint_margin) and np.all(q <= ur10.upper_limits - space.joint_margin)
+    ellipses = generate_samples(ur10, space, 3, "track", range(20))
+    speeds = [abs(s.reference.angular_speed) for s in ellipses]
+    assert max(speeds) <= 0.4 and any(abs(s.reference.centre[0]) > 0.2 and s.reference.centre[0] > 0 for s in ellipses)
