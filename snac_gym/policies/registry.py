@@ -26,6 +26,7 @@ _BUILTIN: dict[str, str] = {
     "svf": "baselines.svf:SVFPolicy",
     "rnn": "baselines.rnn:RNNPolicy",
     "lqr": "baselines.lqr:LQRPolicy",
+    "mpc": "baselines.mpc:MPCPolicy",
     "ppo": "snac_gym.ppo.policy:PPOPolicy",
 }
 _FACTORIES: dict[str, Callable[..., Any]] = {}

@@ -1,0 +1,381 @@
+"""Model-predictive control: a receding-horizon Gauss-Newton solver on the evaluator's cost.
+
+``optimal`` (evaluation/optimal_reference.py) is the open-loop optimum of a whole sample, solved
+with the whole reference known; it cannot be run. This is the best feedback law one can run on the
+same model and cost: at every re-solve, from the measured θ, it solves
+
+    min_U  Σᵢ (eᵢᵀQeᵢ + uᵢᵀRuᵢ + w u̇ᵢᵀRu̇ᵢ) Δt_s + e_Nᵀ P̄ e_N,    i = 0..N−1,  Q = q·I, R = I
+    s.t.   θᵢ₊₁ = θᵢ + uᵢΔt_s,  eᵢ = f(θᵢ) − x̂_d(t + iΔt_s),  u̇ᵢ = (uᵢ − uᵢ₋₁)/Δt,  u₋₁ = the last command
+
+applies the first command (clipped into the velocity limits) and solves again ``period`` control
+steps later. Details and measurements: docs/mpc.md.
+
+* **Solver grid (move blocking).** Δt_s = ``block``·Δt: the command is held over ``block`` control
+  periods, N = horizon/Δt_s solver steps. The effort and u̇ terms are exact for such piecewise-constant
+  commands (w = ``block`` on the grid Δt_s; w = 0 for the HJB cost); the error term is sampled at the
+  start of each block.
+* **Solver.** The Gauss-Newton step of evaluation/optimal_reference.py (the block-banded system in
+  θ₁..θ_N, :func:`~evaluation.optimal_reference._gauss_newton_direction`), with the terminal block
+  2J_NᵀP̄J_N added, and an Armijo backtracking on the exact cost, at most ``iterations`` steps per
+  re-solve, warm-started from the previous plan shifted by ``period`` control periods.
+* **Terminal cost.** P̄ = P*(J(θ_N)), the frozen-Jacobian LQR cost-to-go (:mod:`snac_gym.optimality`)
+  at the end of the warm start, held fixed during a re-solve so that the line search sees one
+  function. Without it (``terminal=False``) a short horizon is myopic: for ė = σu the finite-horizon
+  gain is tanh(σ√q T)·√q instead of √q.
+* **Velocity limits.** The solve is unconstrained; the applied command and the warm start are
+  clipped component-wise into ±ū (the projection onto the box).
+* **Reference ahead.** Not in the observation. Regulation: x_d is constant (exact). Tracking
+  (position tasks): harmonic prediction x̂_d(t+τ) = x_c + r cos ωτ + (ẋ_d/ω) sin ωτ with r = x_d − x_c,
+  exact for every ellipse of :class:`snac_gym.references.Ellipse` given ω; ω² is estimated from the
+  last two observations (r̈ = −ω²r), |ẋ_d|/|r| (exact for a circle) at the first step.
+  ``reference="hold"`` keeps x_d constant instead; pose tasks always hold.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from baselines._common import ObservationReader, clip_to_box
+from evaluation.optimal_reference import (
+    ARMIJO,
+    _errors_and_jacobians,
+    _gauss_newton_direction,
+    _theta_system_base,
+)
+from snac_gym.cost import COSTS, UDOT_STARTS, CostConvention, cost_and_gradient
+from snac_gym.joint_limits import make_limit_box
+from snac_gym.optimality import FrozenJacobianLQR
+from snac_gym.policies.base import BasePolicy, positive_float
+
+#: How the reference ahead is obtained (``reference=``).
+REFERENCES = ("predict", "hold")
+#: Step halvings of the Armijo backtracking before a sample keeps its plan for this iteration.
+MAX_BACKTRACKS = 20
+#: A sample stops iterating when the Gauss-Newton decrement −∇Vᵀδ is below this fraction of V.
+DECREMENT_TOLERANCE = 1e-12
+
+
+def _positive_int(name: str, value: Any) -> int:
+    """``value`` as an int ≥ 1 (a whole float like 2.0 is accepted).
+
+    Raises:
+        ValueError: If it is not one.
+    """
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}") from exc
+    if not (np.isfinite(number) and number >= 1 and number == int(number)):
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(number)
+
+
+def _choice(name: str, value: Any, choices: Sequence[str]) -> str:
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
+    return str(value)
+
+
+def _identity_multiple(Q: Any, dim: int) -> float:
+    """q of Q = q·I (the solver's cost has that form): ``None`` → 1.
+
+    Raises:
+        ValueError: If Q is not a positive multiple of the identity.
+    """
+    if Q is None:
+        return 1.0
+    matrix = FrozenJacobianLQR(Q, None, dim, 1).Q  # validates shape, symmetry, definiteness
+    q = float(matrix[0, 0])
+    if not np.allclose(matrix, q * np.eye(dim), rtol=1e-12, atol=0.0):
+        raise ValueError(f"Q must be a positive multiple of the identity (the cost's Q = q·I), got {matrix.tolist()}")
+    return q
+
+
+@dataclass(frozen=True)
+class _BlockedConvention(CostConvention):
+    """The run's cost on the solver grid Δt_s = block·Δt: a command held over ``block`` control periods
+    jumps once per block, so its u̇ term (1/Δt)|Δu|² is (block/Δt_s)|Δu|²: weight ``block``, not 1."""
+
+    block: int = 1
+
+    @property
+    def smoothness_weight(self) -> float:
+        return self.block * (1.0 if self.cost == "table1" else 0.0)
+
+
+class MPCPolicy(BasePolicy):
+    """Receding-horizon Gauss-Newton MPC of the kinematic model on the evaluator's cost (module docstring).
+
+    Args:
+        env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive.
+        horizon: Prediction horizon, s (rounded to whole solver steps, at least one).
+        block: Control periods per solver step (move blocking): the solver grid is block·Δt.
+        iterations: Gauss-Newton steps per re-solve (a sample stops earlier when converged).
+        period: Control periods between re-solves; in between the plan is played open loop.
+        q_scale: The effort knob (:attr:`effort_parameter`), as for ``lqr``: the solver's error weight
+            is q_scale·Q (R = I fixed), so larger is more aggressive. Default 1: the run's own cost.
+        Q: The cost's error weight, a positive multiple of the identity (``None``: I); the evaluator
+            passes ``--q-scale`` here.
+        cost: ``"table1"`` (with the u̇ term, the evaluator's default) or ``"hjb"`` (without); pass
+            the run's ``--cost`` (``--param mpc.cost=hjb``).
+        udot_start: u₋₁ of the first solve: ``"rest"`` (0) or ``"first"`` (u₀); later solves use
+            the last applied command.
+        terminal: Add the frozen-Jacobian LQR cost-to-go e_NᵀP̄e_N at the end of the horizon.
+        reference: ``"predict"`` (harmonic prediction of a tracking reference) or ``"hold"``.
+        joint_limits: Clamp the command into the position-limit box Ω(θ) (:mod:`snac_gym.joint_limits`);
+            ``None``: on for the 7-DOF arms only, as for the other baselines.
+
+    Raises:
+        ValueError: On a parameter outside its range, naming it.
+
+    Attributes:
+        effort_parameter: ``"q_scale"``.
+        steps: N, solver steps per horizon.
+        internals: After :meth:`act`: ``plan_cost`` (the solver's V of the plan) and ``solved``.
+    """
+
+    effort_parameter = "q_scale"
+
+    def __init__(
+        self,
+        env: Any,
+        horizon: float = 0.4,
+        block: int = 5,
+        iterations: int = 2,
+        period: int = 1,
+        q_scale: float = 1.0,
+        Q: Any = None,
+        cost: str = "table1",
+        udot_start: str = "rest",
+        terminal: bool = True,
+        reference: str = "predict",
+        joint_limits: bool | None = None,
+    ) -> None:
+        super().__init__(env)
+        self.horizon = positive_float("horizon", horizon)
+        self.block = _positive_int("block", block)
+        self.iterations = _positive_int("iterations", iterations)
+        self.period = _positive_int("period", period)
+        self.q_scale = positive_float("q_scale", q_scale)
+        self.cost = _choice("cost", cost, COSTS)
+        self.udot_start = _choice("udot_start", udot_start, UDOT_STARTS)
+        self.reference = _choice("reference", reference, REFERENCES)
+        if not isinstance(terminal, (bool, np.bool_)):
+            raise ValueError(f"terminal must be true or false, got {terminal!r}")
+        self.terminal = bool(terminal)
+        n, m = self.kinematics.task_dim, self.kinematics.n_joints
+        self.weight = self.q_scale * _identity_multiple(Q, n)
+        self.solver_dt = self.block * self.dt
+        self.steps = int(round(self.horizon / self.solver_dt))
+        if self.steps < 1:
+            raise ValueError(
+                f"horizon {self.horizon:g} s is shorter than one solver step (block·Δt = {self.solver_dt:g} s)"
+            )
+        if self.period > self.steps * self.block:
+            raise ValueError(
+                f"period ({self.period} control periods) must not exceed the horizon ({self.steps * self.block})"
+            )
+        self.limit_box = make_limit_box(self, joint_limits)
+        self._reader = ObservationReader(self)
+        self._lqr = FrozenJacobianLQR(self.weight * np.eye(n), None, n, m)
+        self._conventions = {
+            start: _BlockedConvention(self.cost, start, self.weight, self.block) for start in UDOT_STARTS
+        }
+        self._bases = {start: _theta_system_base(self.steps, m, self.solver_dt, c) for start, c in self._conventions.items()}
+        self._predicts = self.reference == "predict" and self.tracking and n == 3
+        self._start(1)
+
+    # -- episode state ---------------------------------------------------------------------------
+    def _start(self, count: int) -> None:
+        m = self.kinematics.n_joints
+        self._plan = np.zeros((count, self.steps, m))  # solver-grid commands of the last solve
+        self._previous = np.zeros((count, m))  # the last applied command (u₋₁ of the next solve)
+        self._count = 0  # control steps since the episode began
+        self._since_solve = 0  # control steps played from the current plan
+        self._last_reference: tuple[np.ndarray, np.ndarray] | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start an episode (the plan starts at rest; ``seed`` is unused: the law is deterministic)."""
+        self._start(1)
+        self.internals = {}
+
+    def reset_batch(self, seeds: Sequence[int]) -> None:
+        """Start ``len(seeds)`` independent episodes."""
+        self._start(len(seeds))
+        self.internals = {}
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Joint-velocity command (rad/s) for ``obs``, inside the velocity limits."""
+        obs = self._reader.read(obs)
+        command, value = self._control(obs[None])
+        self.internals = {"plan_cost": float(value[0]), "solved": self._since_solve == 1}
+        return command[0]
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        """Commands ``(B, m)`` for observations ``(B, size)``: row i is :meth:`act` of episode i."""
+        return self._control(self._reader.read_batch(obs_batch))[0]
+
+    def _control(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if len(obs) != len(self._plan):
+            raise ValueError(f"{len(obs)} observations for {len(self._plan)} episodes; call reset_batch first")
+        q = obs[:, self._reader.q]
+        references = self._references(obs)
+        value = np.full(len(obs), np.nan)
+        if self._since_solve % self.period == 0:
+            first = self._count == 0
+            start = self.udot_start if first else "rest"  # later: u₋₁ = the applied command
+            self._plan, value = self._solve(q, references, self._shifted_plan(first), start)
+            self._since_solve = 0
+        command = clip_to_box(self._plan[:, self._since_solve // self.block], self.velocity_limits)
+        if self.limit_box is not None:
+            command = self.limit_box.clamp(q, command)
+        self._previous = command
+        self._count += 1
+        self._since_solve += 1
+        return command, value
+
+    def _shifted_plan(self, first: bool) -> np.ndarray:
+        """The warm start: the last plan advanced by ``period`` control periods, its last block repeated."""
+        if first:
+            return self._plan
+        fine = np.repeat(self._plan, self.block, axis=1)  # (B, N·block, m) control-period commands
+        fine = np.concatenate([fine[:, self.period :], np.repeat(fine[:, -1:], self.period, axis=1)], axis=1)
+        shifted = fine.reshape(len(fine), self.steps, self.block, -1).mean(axis=2)
+        return clip_to_box(shifted, self.velocity_limits)
+
+    # -- the reference ahead -----------------------------------------------------------------------
+    def _references(self, obs: np.ndarray) -> np.ndarray:
+        """x̂_d at the solver times 0, Δt_s, ..., NΔt_s ahead: ``(B, N+1, n)``."""
+        x_d = obs[:, self.layout.slices["x_d"]]
+        if not self._predicts:
+            return np.repeat(x_d[:, None], self.steps + 1, axis=1)
+        radius = x_d - obs[:, self.layout.slices["x_c"]]  # r = x_d − x_c
+        velocity = obs[:, self.layout.slices["xdot_d"]]
+        omega = self._angular_rate(radius, velocity)
+        self._last_reference = (radius, velocity)
+        tau = np.arange(self.steps + 1) * self.solver_dt
+        phase = omega[:, None] * tau[None]  # (B, N+1)
+        # Harmonic motion r̈ = −ω²r from (r, ṙ): exact for an ellipse; sin(ωτ)/ω = τ·sinc(ωτ/π) stays finite at ω = 0.
+        ahead = np.cos(phase)[..., None] * radius[:, None] + (tau * np.sinc(phase / np.pi))[..., None] * velocity[:, None]
+        return obs[:, None, self.layout.slices["x_c"]] + ahead
+
+    def _angular_rate(self, radius: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        """ω per sample: from r̈ ≈ (ṙₖ − ṙₖ₋₁)/Δt = −ω² (rₖ + rₖ₋₁)/2 when the last step is known (exact
+        to O(ω²Δt²)), else the circle's |ṙ|/|r|; 0 where neither is defined (the reference holds)."""
+        norm = np.linalg.norm(radius, axis=1)
+        circle = np.divide(np.linalg.norm(velocity, axis=1), norm, out=np.zeros_like(norm), where=norm > 1e-9)
+        if self._last_reference is None or len(self._last_reference[0]) != len(radius):
+            return circle
+        last_radius, last_velocity = self._last_reference
+        middle = 0.5 * (radius + last_radius)
+        square = np.einsum("bi,bi->b", middle, middle)
+        estimate = -np.einsum("bi,bi->b", velocity - last_velocity, middle) / np.where(square > 1e-18, square, 1.0)
+        estimate /= self.dt
+        return np.where((square > 1e-18) & (estimate > 0), np.sqrt(np.maximum(estimate, 0.0)), circle)
+
+    # -- the solver --------------------------------------------------------------------------------
+    def _solve(self, q0: np.ndarray, x_d: np.ndarray, plan: np.ndarray, start: str) -> tuple[np.ndarray, np.ndarray]:
+        """At most ``iterations`` Gauss-Newton steps from ``plan`` for every sample; the plans and their V."""
+        convention, base = self._conventions[start], self._bases[start]
+        plan = plan.copy()
+        everyone = np.arange(len(plan))
+        terminal = self._terminal_weight(q0, plan)
+        value, grad, jacobians = self._evaluate(everyone, q0, x_d, plan, terminal, convention)
+        jacobians = jacobians.copy()  # the kinematics' cached batch is read-only; the line search updates rows
+        active = np.ones(len(plan), dtype=bool)
+        for _ in range(self.iterations):
+            rows = np.flatnonzero(active)
+            if not len(rows):
+                break
+            steps = np.stack([self._direction(base, jacobians[i], grad[i], terminal, i) for i in rows])
+            slopes = np.einsum("bkj,bkj->b", grad[rows], steps)
+            active[rows] = -slopes > DECREMENT_TOLERANCE * np.maximum(value[rows], 1.0)
+            self._line_search(rows, q0, x_d, plan, steps, slopes, terminal, convention, (value, grad, jacobians))
+        return plan, value
+
+    def _terminal_weight(self, q0: np.ndarray, plan: np.ndarray) -> np.ndarray | None:
+        """P̄ = P*(J(θ_N)) at the end of the warm start ``(B, n, n)`` (dropped directions where J lost rank)."""
+        if not self.terminal:
+            return None
+        end = q0 + self.solver_dt * plan.sum(axis=1)
+        _, values, right, _ = self._lqr.factors(self.kinematics.jacobian_batch(end))
+        return np.swapaxes(right, -1, -2) @ (values[..., :, None] ** -0.5 * right)  # Cᵀ diag(λ^{-1/2}) C
+
+    def _evaluate(
+        self,
+        rows: np.ndarray,
+        q0: np.ndarray,
+        x_d: np.ndarray,
+        plans: np.ndarray,
+        terminal: np.ndarray | None,
+        convention: CostConvention,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """V, ∂V/∂U and J(θ₀..θ_N) of ``plans`` (one per sample of ``rows``), one FK pass for all of them."""
+        count, steps, m = plans.shape
+        angles = np.empty((count, steps + 1, m))
+        angles[:, 0] = q0[rows]
+        np.cumsum(plans * self.solver_dt, axis=1, out=angles[:, 1:])
+        angles[:, 1:] += q0[rows, None]
+        n = x_d.shape[-1]
+        errors, jacobians = _errors_and_jacobians(self.kinematics, angles.reshape(-1, m), x_d[rows].reshape(-1, n))
+        errors, jacobians = errors.reshape(count, steps + 1, n), jacobians.reshape(count, steps + 1, n, m)
+        values, grads = np.empty(count), np.empty((count, steps, m))
+        smoothness = convention.smoothness_weight / self.solver_dt
+        for b, i in enumerate(rows):
+            values[b], grads[b] = cost_and_gradient(errors[b, :steps], jacobians[b, :steps], plans[b], self.solver_dt, convention)
+            if smoothness and convention.udot_start == "rest":
+                # cost_and_gradient takes u₋₁ = 0; the jump is from the last command: (w/Δt_s)(|u₀ − u₋₁|² − |u₀|²).
+                last = self._previous[i]
+                values[b] += smoothness * (last @ last - 2.0 * plans[b, 0] @ last)
+                grads[b, 0] -= 2.0 * smoothness * last
+            if terminal is not None:
+                # e_NᵀP̄e_N, θ_N = θ₀ + Δt_s Σ uᵢ: the same gradient Δt_s·2J_NᵀP̄e_N for every uᵢ.
+                weighted = terminal[i] @ errors[b, steps]
+                values[b] += errors[b, steps] @ weighted
+                grads[b] += 2.0 * self.solver_dt * (jacobians[b, steps].T @ weighted)
+        return values, grads, jacobians
+
+    def _direction(
+        self, base: np.ndarray, jacobians: np.ndarray, grad: np.ndarray, terminal: np.ndarray | None, i: int
+    ) -> np.ndarray:
+        """The Gauss-Newton step of the block-banded θ-system, with the terminal Hessian 2J_NᵀP̄J_N in θ_N's block."""
+        steps, m = grad.shape
+        if terminal is not None:
+            base = base.copy()
+            block = 2.0 * jacobians[steps].T @ terminal[i] @ jacobians[steps]
+            rows, cols = np.tril_indices(m)
+            base[rows - cols, (steps - 1) * m + cols] += block[rows, cols]  # lower band: [a − b, k·m + b] ← H_ab
+        return _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
+
+    def _line_search(
+        self,
+        rows: np.ndarray,
+        q0: np.ndarray,
+        x_d: np.ndarray,
+        plan: np.ndarray,
+        steps: np.ndarray,
+        slopes: np.ndarray,
+        terminal: np.ndarray | None,
+        convention: CostConvention,
+        state: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ) -> None:
+        """Armijo backtracking (evaluation/optimal_reference.py's test), every pending sample in one FK pass;
+        updates ``plan`` and ``state`` = (V, ∂V/∂U, J) in place where a step is accepted."""
+        value, grad, jacobians = state
+        alpha = np.ones(len(rows))
+        pending = np.arange(len(rows))
+        for _ in range(MAX_BACKTRACKS):
+            trial = plan[rows[pending]] + alpha[pending, None, None] * steps[pending]
+            trial_value, trial_grad, trial_jacobians = self._evaluate(rows[pending], q0, x_d, trial, terminal, convention)
+            accepted = trial_value <= value[rows[pending]] + ARMIJO * alpha[pending] * slopes[pending]
+            done = rows[pending[accepted]]
+            plan[done], value[done], grad[done] = trial[accepted], trial_value[accepted], trial_grad[accepted]
+            jacobians[done] = trial_jacobians[accepted]
+            pending = pending[~accepted]
+            if not len(pending):
+                return
+            alpha[pending] *= 0.5
