@@ -21,8 +21,10 @@ its gradient are written in :func:`snac_gym.cost.cost_and_gradient`). The quadra
 error term depends on θₖ alone and u = Mθ + c (first differences), so the Gauss-Newton matrix
 ``MᵀH₀M ⊗ I + blockdiag(2Δt q JₖᵀJₖ)`` is block-banded (bandwidth 12 scalars, 6 without the u̇
 term) and each step is one banded Cholesky solve (:func:`_gauss_newton`), followed by a
-backtracking line search on the exact V. Start: U = 0 (the robot at rest; no controller is used as
-a start, so the optimum does not depend on which controllers are evaluated). The first method,
+backtracking line search on the exact V. **Starts** (:func:`multi_start_solve`): U = 0 (the robot at
+rest), then every evaluated controller's own trajectory whose cost is within :data:`RESTART_MARGIN`
+of the best optimum so far; the best local optimum is kept (``optimal_starts``, ``optimal_winner``,
+``optimal_local_spread``), so the optimum is at most every evaluated controller's cost. The first method,
 L-BFGS in ``z = Lᵀu`` with ``H₀ = LLᵀ`` (:func:`_lbfgs`), stays available as ``method="lbfgs"``.
 If the unconstrained optimum breaks a velocity limit, it is polished by bounded L-BFGS-B in u from
 the clipped solution (column ``optimal_bounded``), whichever method ran first.
