@@ -208,6 +208,11 @@ class URRTDEBackend:
         return self._client.failure
 
     @property
+    def client_pid(self) -> int:
+        """Process id of the ur_rtde client."""
+        return self._client.pid
+
+    @property
     def client_output(self) -> list[str]:
         """The last lines ur_rtde printed (it prints to the process's streams, not through Python)."""
         return list(self._client.output)
@@ -337,6 +342,10 @@ class ClientProcess:
         )
         self._reader = threading.Thread(target=self._watch_output, name="ur_rtde-output", daemon=True)
         self._reader.start()
+
+    @property
+    def pid(self) -> int:
+        return self._process.pid
 
     def _watch_output(self) -> None:
         for raw in self._process.stderr:  # type: ignore[union-attr]

@@ -2,7 +2,8 @@
 
 The full log (``*_log.parquet``) is written when the episode ends, however it ends; this file is
 what is left if the host process itself dies (SIGKILL, out of memory, power): the rows up to the
-last flush, at most one second old.
+last flush, at most one second old. Its ``monotonic_s`` column is ``time.monotonic()``, the
+system-wide clock that controller-side logs (the emulator's) can be matched against.
 """
 
 from __future__ import annotations
@@ -32,13 +33,12 @@ class StepJournal:
         self.rows = 0
         self._file = path.open("w", buffering=1 << 20)
         joints = range(n_joints)
-        columns = ["step", "t", "wall_s", "period_ms"]
+        columns = ["step", "t", "monotonic_s", "period_ms"]
         columns += [f"q_{j}" for j in joints] + [f"qdot_{j}" for j in joints] + ["x_0", "x_1", "x_2"]
         columns += [f"u_{j}" for j in joints] + ["safety_state", "safety"]
         self._file.write(",".join(columns) + "\n")
         self._file.flush()
-        self._start = time.perf_counter()
-        self._last_flush = self._start
+        self._last_flush = time.perf_counter()
         self._sync = threading.Event()
         self._closed = False
         self._syncer = threading.Thread(target=self._sync_loop, name="journal-fsync", daemon=True)
@@ -56,7 +56,7 @@ class StepJournal:
         reason = "" if safety is None else '"' + str(safety).replace('"', "'") + '"'
         numbers = ",".join(f"{v:.9g}" for v in q_qdot_x)
         period_ms = "" if period is None else f"{period * 1e3:.4f}"
-        self._file.write(f"{step},{t:.6f},{now - self._start:.6f},{period_ms},{numbers},{u},{state},{reason}\n")
+        self._file.write(f"{step},{t:.6f},{time.monotonic():.6f},{period_ms},{numbers},{u},{state},{reason}\n")
         self.rows += 1
         if now - self._last_flush >= FLUSH_EVERY:
             self.flush(now)

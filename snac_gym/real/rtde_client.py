@@ -117,8 +117,12 @@ class Client:
     ) -> bool:
         self._require_link()
         if not self.streaming:  # the first command after a stop: arm the watchdog for this stream
+            # Said before each handshake, so that if one blocks, the parent's report names it.
+            _say("stream start: isProgramRunning/reuploadScript")
             self._ensure_program(program_timeout)
+            _say("stream start: setWatchdog")
             self.control.setWatchdog(watchdog_frequency)
+            _say("stream start: first speedJ")
             self.streaming = True
         # No kickWatchdog: ur_rtde 1.6.5 sends it as input_int_register_0 = 0, which overwrites
         # speedJ's command id before the control script reads it when both land in the same
@@ -161,6 +165,11 @@ class Client:
             self.control.stopScript()
             return "control script stopped"
         return "nothing to stop"
+
+
+def _say(text: str) -> None:
+    """A line for the parent's record of the client's output (``client_output`` in ``real.json``)."""
+    print(f"client: {text}", file=sys.stderr, flush=True)
 
 
 def _die_with_parent() -> None:
