@@ -354,7 +354,9 @@ class ClientProcess:
                 continue
             self.output.append(line)
             if any(marker in line.lower() for marker in RECONNECT_MARKERS):
-                self.abandon(f"link to the arm lost: ur_rtde began to reconnect by itself ({line.strip()!r}), client ended")
+                self.abandon(
+                    f"link to the arm lost: ur_rtde began to reconnect by itself ({line.strip()!r}), client ended"
+                )
 
     def abandon(self, reason: str) -> None:
         with self._lock:

@@ -231,7 +231,9 @@ class RealUREnv(TaskEnvCore):
         if self.journal is not None:
             period = self.periods[-1] if len(self.periods) == self.steps and self.steps else None
             n_joints = self.kinematics.n_joints
-            self.journal.record(self.steps, self.steps * self.dt, period, self._obs, n_joints, command, safety_state, safety)
+            self.journal.record(
+                self.steps, self.steps * self.dt, period, self._obs, n_joints, command, safety_state, safety
+            )
         terminated = safety is not None
         truncated = not terminated and self.steps >= self.max_steps
         if truncated:

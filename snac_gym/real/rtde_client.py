@@ -224,4 +224,3 @@ def as_arrays(state: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray
         float(state["stamp"]),
         str(state["safety"]),
     )
-
