@@ -144,7 +144,7 @@ def real(
         line = str(exc).splitlines()[0] if str(exc) else ""
         if isinstance(exc, KeyboardInterrupt):  # Ctrl-C and the other stop signals: the arm was stopped
             signal_name = getattr(exc, "signal_name", "SIGINT")
-            typer.echo(f"interrupted by {signal_name}: the arm was stopped{where or f'; the log so far is in {out}/'}", err=True)
+            typer.echo(f"interrupted by {signal_name}: the arm was stopped{where or ' (before the episode: nothing logged)'}", err=True)
             raise typer.Exit(code=128 + getattr(exc, "signum", 2)) from None
         if isinstance(exc, ConnectionFailure):  # the link or the ur_rtde client was lost: exit 1
             typer.echo(f"error: {line}{where}", err=True)
