@@ -50,7 +50,10 @@ class LQRPolicy(BasePolicy):
     ``uᵀRu`` on the motion itself.
 
     **Saturation.** The command is scaled uniformly into the joint-velocity limits
-    (:func:`baselines._common.scale_into_box`), keeping its direction.
+    (:func:`baselines._common.scale_into_box`), keeping its direction and that of ``ė = J u``:
+    a saturated feedback still decreases ``½‖e‖²`` (``eᵀJu < 0`` survives a positive factor,
+    not a per-joint clip). ``snac-hjb``, which learns this law's P*, saturates the same way, so
+    that the two differ only in the critic.
 
     **Singularities.** ``K*`` stays bounded as J loses rank (``‖K*‖ = √(q/r)`` for
     ``q_scale·Q = qI``, ``R = rI``); at an exact loss of rank the lost direction gets gain 0

@@ -151,3 +151,26 @@ def test_diagnostics_residual_is_the_are_residual_of_the_critic(ur10, rng):
         assert out["hjb_ratio"][k] == pytest.approx(expected / (e[k] @ Q @ e[k]), rel=1e-9)
         star = solve_continuous_are(np.zeros((3, 3)), jac, Q, R)
         assert out["critic_error"][k] == pytest.approx(np.linalg.norm(P - star) / np.linalg.norm(star), rel=1e-7)
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_a_command_beyond_the_limits_is_scaled_as_lqr_scales_it(ur10, rng, task):
+    """The same saturation as lqr: the whole command divided by its largest |u_j|/ū_j, direction kept."""
+    from baselines._common import scale_rows_into_box
+
+    limits = np.array([2.16, 2.16, 3.15, 3.2, 3.2, 3.2])
+    layout = ObservationLayout(ur10.n_joints, ur10.task_dim)
+    free = PolicyContext(ur10, DT, np.full(6, 1e9), layout, task)
+    bounded = PolicyContext(ur10, DT, limits, layout, task)
+    q, e, xdot_d = rng.uniform(-2, 2, 6), np.array([0.5, -0.5, 0.3]), np.array([0.2, 0.1, -0.1])
+    commands = []
+    for context in (free, bounded):
+        policy = SNACHJBPolicy(context, q_scale=400.0)
+        policy.reset(seed=3)
+        commands.append(policy.act(_obs(context, q, e, xdot_d)))
+    unsaturated, saturated = commands
+    scale = np.max(np.abs(unsaturated) / limits)
+    assert scale > 1.5  # well beyond the limits: clipping each joint would turn it
+    np.testing.assert_allclose(saturated, unsaturated / scale, rtol=1e-12)
+    assert np.max(np.abs(saturated) / limits) == pytest.approx(1.0)
+    np.testing.assert_array_equal(saturated, scale_rows_into_box(unsaturated[None], limits)[0])

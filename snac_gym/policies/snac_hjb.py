@@ -9,7 +9,7 @@ by the HJB residual instead.
 **Critic and command.** ``V̂(e) = Ŵᵀσ(e) = eᵀP̂e`` (:func:`~snac_gym.optimality.quadratic_weights_to_matrix`)::
 
     u_fb = −½ R⁻¹ Jᵀ ∇V̂(e) = −R⁻¹ Jᵀ P̂ e                  (eq. 15)
-    u    = clip(J⁺_R ẋ_d + u_fb)
+    u    = sat(J⁺_R ẋ_d + u_fb)
 
 For regulation ẋ_d = 0. For tracking the feed-forward ``J⁺_R ẋ_d = R⁻¹Jᵀ(JR⁻¹Jᵀ)⁻¹ẋ_d`` turns
 ``ė = J u − ẋ_d`` into ``ė = J u_fb``, the regulation problem, whose cost
@@ -19,6 +19,12 @@ so a critic cannot converge to it; the discounted alternative (Modares & Lewis 2
 leave a steady error that grows with the discount. The feed-forward form keeps a zero steady
 error and a well-posed critic; its price is that ``u`` is not the minimiser of the full
 instantaneous cost (the paper's remark on Kiumarsi et al. 2015).
+
+**Saturation** ``sat``: a command beyond the joint-velocity limits is scaled as a whole into them,
+the rule of the frozen-Jacobian LQR (:class:`baselines.lqr.LQRPolicy`, whose optimum this critic
+learns), so that the two differ only in the critic. Scaling keeps the direction of ``u`` and of
+``ė = J u``: a feedback that decreases ``½‖e‖²`` (``eᵀJu < 0``) still does when saturated, only
+slower, while clipping each joint turns ``J u`` away from the error and can undo that decrease.
 
 **HJB residual** at an error ``d`` with the critic's own command ``û(d) = −R⁻¹JᵀP̂d`` (eq. 9)::
 
@@ -55,7 +61,7 @@ the reach demo (docs/snac.md).
 ``warm_start_iterations`` full steps (α·Δt = 1, Kleinman's iteration) at the start pose on the
 extrapolated errors alone: the model ė = J u is known, so the critic can converge to P*(J₀)
 before the arm moves instead of paying for a poor Ŵ₀ with error while it learns. With 0
-iterations the critic starts from Ŵ₀ (docs/snac.md measures both).
+iterations the critic starts from Ŵ₀.
 
 Args of :class:`SNACHJBPolicy` are documented there; docs/snac.md has the measurements.
 """
@@ -84,6 +90,18 @@ def _excitation_directions(dim: int) -> np.ndarray:
     eye = np.eye(dim)
     pairs = [(eye[i] + eye[j]) / math.sqrt(2.0) for i in range(dim) for j in range(i + 1, dim)]
     return np.vstack([eye, *pairs]) if pairs else eye
+
+
+def _scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """Each row of ``commands`` ``(B, m)`` divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1.
+
+    :func:`baselines._common.scale_rows_into_box`, LQR's rule (module docstring), written out here
+    so that the core package does not import the baselines.
+    """
+    scales = np.max(np.abs(commands) / limits, axis=-1, keepdims=True)
+    scaled = commands / np.maximum(scales, 1.0)
+    # u/scale can land one rounding step outside the limit it was scaled onto.
+    return np.minimum(np.maximum(scaled, -limits), limits)
 
 
 class SNACHJBPolicy(CriticEpisode, BasePolicy):
@@ -242,7 +260,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         command = feedback
         if self.tracking:  # J⁺_R ẋ_d: ė = J u_fb, the regulation problem
             command = feedback + (self.lqr.weighted_pseudoinverse(jacobians) @ velocities[..., None])[..., 0]
-        command = np.minimum(np.maximum(command, -self.velocity_limits), self.velocity_limits)
+        command = _scale_rows_into_limits(command, self.velocity_limits)
 
         increment, residual = self._residual_step(weights, gram_matrix, current, self.learning_rate * self.dt)
         # eq. 19 as a stabilising term, while the feedback does not decrease J_s = ½eᵀe.
