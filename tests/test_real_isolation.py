@@ -161,7 +161,7 @@ def test_a_client_that_crashes_or_blocks_is_a_lost_link_seen_within_a_few_period
     with pytest.raises(ConnectionFailure, match=match):
         for _ in range(10):
             env.step(SWEEP)
-    assert time.monotonic() - t_fault < 0.2  # the watchdog's 5 periods (40 ms) and a scheduling margin
+    assert time.monotonic() - t_fault < 0.5  # the deadline is the watchdog's 5 periods (40 ms); margin for a loaded host
     assert match in backend.failure and "ConnectionFailure" in env.stop_reason
     assert backend.last_stop == "client gone: left to the controller's watchdog"
     _assert_at_rest_and_silent_since(emu, t_fault)
