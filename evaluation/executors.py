@@ -24,6 +24,7 @@ import itertools
 import math
 import multiprocessing
 import os
+import pickle
 import signal
 import socket
 import sys
@@ -81,12 +82,30 @@ _STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 _PR_SET_PDEATHSIG = 1
 
 
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs: a zombie (dead, not yet reaped by its own parent) counts as dead."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # pragma: no cover - another user's process has that pid now
+        return True
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+    except OSError:  # pragma: no cover - no /proc: trust kill()
+        return True
+
+
 def _die_with_parent(parent_pid: int) -> None:
-    """Make this worker exit when the process that started it dies, however it dies (even SIGKILL).
+    """Make this worker exit when the process that started the run dies, however it dies (even SIGKILL).
 
     Orphaned workers would otherwise run on, holding the parent's stdout open, so that a reader
-    of its pipe waits for ever. Linux: the kernel's parent-death signal; elsewhere a thread that
-    watches the parent's pid.
+    of its pipe waits for ever. A worker's parent is the fork server, and the fork server lives
+    as long as any worker holds its "alive" pipe (multiprocessing passes it to every worker), so
+    the kernel's parent-death signal alone would wait on itself: a thread watching the run's pid
+    (a zombie counts as dead: the run's own parent may not have reaped it yet) ends the worker,
+    then the fork server exits, and the signal ends any worker still forked from it.
     """
     try:
         import ctypes
@@ -95,18 +114,67 @@ def _die_with_parent(parent_pid: int) -> None:
         if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
             raise OSError(ctypes.get_errno(), "prctl")
     except (OSError, AttributeError):  # pragma: no cover - not Linux
+        pass
 
-        def watch() -> None:
-            while os.getppid() == parent_pid:
-                time.sleep(0.5)
-            os._exit(1)
+    def watch() -> None:
+        while _alive(parent_pid):
+            time.sleep(0.5)
+        os._exit(1)
 
-        threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-    if os.getppid() != parent_pid:  # the parent died before the signal was armed
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+    if not _alive(parent_pid):  # the run ended before the signal was armed
         os._exit(1)
 
 
-def _init_worker(parent_pid: int) -> None:
+#: Modules the fork server imports once, so that each worker it forks starts with them loaded.
+_PRELOAD = ["evaluation.jobs", "evaluation.optimal_reference"]
+
+
+def _registrations() -> bytes | None:
+    """What was registered at run time (policies, tasks, robots), pickled for the workers; ``None``
+    if some entry cannot be pickled (a lambda, a class defined in a function)."""
+    from snac_gym.policies import registry
+    from snac_gym.robots import ROBOTS
+    from snac_gym.tasks import TASKS
+
+    try:
+        return pickle.dumps((dict(registry._BUILTIN), dict(registry._FACTORIES), dict(TASKS), dict(ROBOTS)))
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return None
+
+
+def _install_registrations(data: bytes) -> None:
+    from snac_gym.policies import registry
+    from snac_gym.robots import ROBOTS
+    from snac_gym.tasks import TASKS
+
+    builtin, factories, tasks, robots = pickle.loads(data)
+    registry._BUILTIN.update(builtin)
+    registry._FACTORIES.update(factories)
+    TASKS.update(tasks)
+    ROBOTS.update(robots)
+
+
+def start_method(registrations: bytes | None) -> str | None:
+    """How workers are started: forked from this process only while it runs a single thread.
+
+    A worker forked from a process with other threads copies every lock they hold at that instant
+    (pytest-xdist's I/O thread, a progress bar's monitor, a thread pool), and one copied while held
+    never opens in the worker: a test run hung that way. Forking a single-threaded process copies
+    no held lock, and is the fastest start (nothing to import again). Otherwise the workers come
+    from a fork server: a clean single-threaded process started once, with :data:`_PRELOAD`
+    imported, to which the run's registrations are sent pickled (:func:`_registrations`); when
+    those cannot be pickled (a lambda, a class defined in a function), forking stays the only way
+    to give them to the workers.
+    """
+    if not sys.platform.startswith("linux"):
+        return None  # the platform's default (spawn)
+    if threading.active_count() == 1 or registrations is None:
+        return "fork"
+    return "forkserver"
+
+
+def _init_worker(parent_pid: int, registrations: bytes | None = None) -> None:
     """Worker initialiser: die with the parent, leave Ctrl-C to it, one BLAS thread per process.
 
     SIGINT reaches every process of the terminal's foreground group; the parent stops the run
@@ -117,6 +185,8 @@ def _init_worker(parent_pid: int) -> None:
     slower (42.7 s against 28.4 s, docs/evaluation.md).
     """
     _die_with_parent(parent_pid)
+    if registrations is not None:
+        _install_registrations(registrations)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # A forked worker inherits the parent's handlers; the CLI's turns SIGTERM into
     # KeyboardInterrupt, which in a worker would print a traceback when the parent ends it.
@@ -128,8 +198,9 @@ def _init_worker(parent_pid: int) -> None:
     threadpool_limits(1, user_api="blas")
 
 
-def _noop(item: Any) -> Any:
-    return item
+def _noop(seconds: float) -> None:
+    """Hold a worker briefly, so that the pool starts one process per start-up job."""
+    time.sleep(seconds)
 
 
 class ProcessExecutor:
@@ -162,28 +233,34 @@ class ProcessExecutor:
         # run hung in effort matching, its threads waiting on futures of a dead pool).
         self._dispatched: set[Future] = set()
         self._stopped = False
-        method = "fork" if sys.platform.startswith("linux") else None
+        registrations = _registrations()
+        method = start_method(registrations)
+        context = multiprocessing.get_context(method)
+        if method == "forkserver":
+            context.set_forkserver_preload(_PRELOAD)
+        self.start_method = context.get_start_method()
         self._pool = ProcessPoolExecutor(
             max_workers=workers,
-            mp_context=multiprocessing.get_context(method),
+            mp_context=context,
             initializer=_init_worker,
-            initargs=(os.getpid(),),
+            initargs=(os.getpid(), registrations if method == "forkserver" else None),
         )
-        # Start every worker now, from this thread: the parent-death signal follows the thread
-        # that forked a worker, and this one (the caller's) outlives the run, unlike the
-        # effort-match threads that submit jobs later.
-        # SIGINT and SIGTERM are blocked while forking: one arriving before a worker's initialiser
+        # Start every worker now, from this thread (one job each, submitted together: the pool
+        # starts a process per job while none is idle): the parent-death signal of a forked worker
+        # follows the thread that forked it, and this one (the caller's) outlives the run.
+        # SIGINT and SIGTERM are blocked meanwhile: one arriving before a worker's initialiser
         # set its handlers would print that worker's traceback (the initialiser unblocks them).
         blocked = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
         if blocked:
             signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
         try:
             try:
-                started = self._pool.submit(_noop, None)
+                started = [self._pool.submit(_noop, 0.05) for _ in range(workers)]
             finally:
                 if blocked:
                     signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
-            started.result()
+            for future in started:
+                future.result()
         except BaseException:  # interrupted while starting: no caller holds this executor to close it
             self.terminate()
             self._pool.shutdown(wait=True, cancel_futures=True)

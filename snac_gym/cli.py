@@ -194,22 +194,34 @@ def emulate_ur(
         raise typer.Exit(code=2) from exc
 
 
+#: The stop signal last received by :func:`_sigterm_as_interrupt` (a library between the handler and
+#: the CLI, such as Ray's client, may raise its own KeyboardInterrupt without the name).
+_received: list[str] = []
+
+
 @contextlib.contextmanager
 def _sigterm_as_interrupt() -> Iterator[None]:
-    """Turn SIGTERM into KeyboardInterrupt while the block runs, so that it ends the run as Ctrl-C
-    does (workers stopped, one line) instead of killing this process mid-write."""
+    """Turn SIGTERM (and SIGINT) into KeyboardInterrupt naming the signal while the block runs, so that
+    SIGTERM ends the run as Ctrl-C does (workers stopped, one line) instead of killing this process mid-write."""
 
     def interrupt(signum: int, frame: object) -> None:
+        _received.append(signal.Signals(signum).name)
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
     if threading.current_thread() is not threading.main_thread():  # signals reach only the main thread
         yield
         return
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    previous = {signum: signal.signal(signum, interrupt) for signum in (signal.SIGTERM, signal.SIGINT)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _signal_name(exc: BaseException) -> str:
+    name = _received[-1] if _received else str(exc)
+    return name if name in signal.Signals.__members__ else "SIGINT"
 
 
 @app.command()
@@ -298,7 +310,7 @@ def evaluate(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the workers are stopped, finished jobs are kept
-        signal_name = str(exc) or "SIGINT"
+        signal_name = _signal_name(exc)
         if (out_dir / "run.json").exists():
             typer.echo(f"interrupted by {signal_name}: finished jobs are kept in {out_dir}/; continue with --resume", err=True)
         else:  # the run is recorded once its sample set is complete: nothing to resume yet

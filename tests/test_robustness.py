@@ -287,7 +287,7 @@ def test_an_unreachable_ray_address_fails_within_the_stated_timeout():
 # -- process hygiene -------------------------------------------------------------------------------
 
 
-def _children(pid: int) -> set[int]:
+def _direct_children(pid: int) -> set[int]:
     found: set[int] = set()
     for task in Path(f"/proc/{pid}/task").glob("*"):
         try:
@@ -295,6 +295,21 @@ def _children(pid: int) -> set[int]:
         except OSError:
             pass
     return found
+
+
+def _children(pid: int) -> set[int]:
+    """The run's worker processes: the fork server's children (the run's grandchildren), or the
+    run's own forked children when there is no fork server."""
+    direct = _direct_children(pid)
+    grandchildren = set().union(*(_direct_children(child) for child in direct)) if direct else set()
+    return grandchildren or {c for c in direct if "forkserver" not in _cmdline(c) and "resource_tracker" not in _cmdline(c)}
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_text()
+    except OSError:
+        return ""
 
 
 def _alive(pid: int) -> bool:
