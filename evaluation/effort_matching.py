@@ -89,13 +89,14 @@ def controller_passes(evaluation: EvaluationRun, specs: Sequence[ControllerSpec]
     started = time.perf_counter()
     rows_of_passes = evaluation.run_passes(passes)
     evaluation.timings["passes"] = time.perf_counter() - started
-    results: Results = {}
+    results: Results = {(task, spec.name): rows for (task, spec, _), rows in zip(passes, rows_of_passes, strict=True)}
     records: Records = {}
-    for (task, spec, _), rows in zip(passes, rows_of_passes, strict=True):
-        results[(task, spec.name)] = rows
-        records[(task, spec.name)] = EffortRecord(
-            task, spec.name, "fixed", spec.knob, spec.knob_value, config.statistic.of(rows), None
-        )
+    for task, spec, _ in passes:
+        # A paired statistic is relative to the effort reference's rollouts: NaN when it is not run.
+        reference = results.get((task, config.effort_reference))
+        unmeasurable = config.statistic.paired and reference is None
+        effort = math.nan if unmeasurable else config.statistic.of(results[(task, spec.name)], reference)
+        records[(task, spec.name)] = EffortRecord(task, spec.name, "fixed", spec.knob, spec.knob_value, effort, None)
     return results, records
 
 
@@ -125,12 +126,19 @@ class EffortMatcher:
         self.config = evaluation.config
         #: Screening samples of each (task, controller)'s first knob search.
         self.screening_counts: dict[tuple[str, str], int] = {}
+        #: The reference's full pass of each task, which a paired statistic divides by.
+        self.reference_rows: dict[str, pd.DataFrame] = {}
 
     def match_all(self, specs: Sequence[ControllerSpec]) -> tuple[Results, Records]:
         """Run the reference, then match every other (task, controller) to it, concurrently."""
         evaluation, config = self.evaluation, self.config
         names = [s.name for s in specs]
         reference = None
+        if config.statistic.paired and config.effort_target is not None:
+            raise ValueError(
+                f"--effort-target has no meaning for the {config.effort_statistic} statistic (a ratio to the "
+                "reference's rollouts); choose max or median-peak"
+            )
         if config.effort_target is None:
             reference = config.effort_reference if config.effort_reference in names else names[0]
             results, records = self._reference_passes(specs[names.index(reference)])
@@ -168,7 +176,8 @@ class EffortMatcher:
         records: Records = {}
         for task, rows in zip(config.tasks, passes, strict=True):
             results[(task, spec.name)] = rows
-            target = config.statistic.of(rows)
+            self.reference_rows[task] = rows
+            target = config.statistic.of(rows, rows)
             records[(task, spec.name)] = EffortRecord(
                 task, spec.name, "reference", spec.knob, spec.knob_value, target, target, 1, note
             )
@@ -189,7 +198,7 @@ class EffortMatcher:
             with evaluation.searching():
                 match = self.search_knob(task, spec, plan.target, plan.start, round_number, plan.subset, plan.horizon)
             rows = evaluation.run_passes([(task, spec, {**spec.kwargs, spec.knob: match.value})])[0]
-            effort = self.config.statistic.of(rows)
+            effort = self.config.statistic.of(rows, self.reference_rows.get(task))
             # A failed search is never "matched", even when the full pass happens to land within the
             # tolerance: the knob it reports is then not one that was searched for.
             matched = match.matched and within(effort, target, self.config.effort_tolerance)
@@ -398,7 +407,7 @@ class _ScreenedEffort:
             )
             late = rows[statistic.step_column] >= self.horizon - max(10, self.horizon // 4)
             if statistic.is_maximum or self.horizon >= self.full_steps or not late.any():
-                return statistic.of(rows)
+                return statistic.of(rows, self.matcher.reference_rows.get(self.task))
             self.horizon = min(self.full_steps, 2 * self.horizon)
             if self.matcher.screening_count(self.task, spec, self.horizon, self.round_number) < len(self.screening):
                 raise _FewerSamplesNeeded
