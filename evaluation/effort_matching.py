@@ -19,9 +19,11 @@ the full pass depends on the statistic:
   search's cut, the search is refined on the critical samples alone (over rollouts that
   cover their peaks), from the value found down, which gives the smallest knob for the
   whole set, and a full pass at it ends the match.
-* ``median-peak``: if the full pass misses the target by more than the tolerance although
-  the search matched on the screening samples, the screening target is corrected by the
-  observed ratio and the search repeats from the value found.
+* ``mean-peak``, ``median-peak``, ``peak-ratio``: if the full pass misses the target by more
+  than the tolerance although the search matched on the screening samples, the screening
+  target is corrected by the observed ratio and the search repeats from the value found.
+  ``peak-ratio`` divides each rollout's peak by the reference's on the same sample, from the
+  reference's full pass (so it cannot be matched to an ``effort_target``).
 
 At most :data:`MAX_MATCH_ROUNDS` full passes are run. Every search is recorded in
 ``calibration.json`` and read back on ``--resume``. Without effort matching every controller runs
@@ -137,7 +139,7 @@ class EffortMatcher:
         if config.statistic.paired and config.effort_target is not None:
             raise ValueError(
                 f"--effort-target has no meaning for the {config.effort_statistic} statistic (a ratio to the "
-                "reference's rollouts); choose max or median-peak"
+                "reference's rollouts); choose mean-peak, max or median-peak"
             )
         if config.effort_target is None:
             reference = config.effort_reference if config.effort_reference in names else names[0]
@@ -306,7 +308,7 @@ class EffortMatcher:
         ``subset`` when given (the critical samples of a ``max`` refinement, with the
         ``horizon`` that covers their peaks). The search's rollouts stop after the steps where
         the effort peaks: a probe of :data:`PEAK_PROBE_SAMPLES` full rollouts at ``start``
-        locates the peak, and the search runs twice that step plus 25. For ``median-peak``
+        locates the peak, and the search runs twice that step plus 25. For the statistics other than ``max``
         that is the latest peak of the probe, and the horizon doubles whenever some rollout
         peaks in its last quarter (when that calls for fewer screening samples, first round
         only, the search starts again with them). For ``max`` it is the step of the probe's

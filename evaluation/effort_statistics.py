@@ -74,7 +74,7 @@ class EffortStatistic:
         is_maximum: A maximum over the set, decided by its few *critical* samples (``max``):
             a knob search cuts its rollouts after the highest peak of its probe and the match
             then checks the critical samples over the full horizon (refining on them if
-            needed). Otherwise (``median-peak``: any rollout can move the median) the search
+            needed). Otherwise (a mean, median or ratio: any rollout can move it) the search
             lengthens its cut rollouts while some rollout peaks near the cut, and the match
             corrects its target when the full pass misses.
         screening_budget: Largest fraction of a full pass's sample-steps one search evaluation
