@@ -99,10 +99,10 @@ def test_equal_effort_against_the_reference_or_a_visible_warning(table_run):
         assert summary.loc["snac", f"{task}_effort_role"] == "reference"
         for controller in ("rnn", "svf", "dls"):
             rows = results[(results["task"] == task) & (results["controller"] == controller)]
-            effort = rows["max_abs_u"].max()  # the default statistic: the maximum |u| over the set
+            effort = rows["peak_limit_fraction"].mean()  # the default statistic: the mean peak |u|/ū
             assert effort == pytest.approx(summary.loc[controller, f"{task}_effort"])
             assert (
-                effort
+                rows["max_abs_u"].max()
                 == np.abs(
                     np.stack([log_array(read_log(_trajectory(config, row)), "u") for _, row in rows.iterrows()])
                 ).max()
@@ -283,7 +283,7 @@ def test_cli_exports_reads_samples_and_reports(tmp_path):
         (["--controllers", "nope"], "unknown controller 'nope'"),
         (["--task", "wave"], "--task must be reach, track or both"),
         (["--param", "svf"], "use CONTROLLER.KEY=VALUE"),
-        (["--effort-statistic", "mean"], "--effort-statistic must be one of max, median-peak, got 'mean'"),
+        (["--effort-statistic", "mean"], "--effort-statistic must be one of max, median-peak, mean-peak, peak-ratio, got 'mean'"),
     ],
 )
 def test_cli_rejects_bad_options_with_a_message(tmp_path, arguments, message):
@@ -358,6 +358,7 @@ def test_a_failed_knob_search_is_labelled_unmatched_even_when_the_full_pass_land
         samples=4,
         calibration_samples=2,
         effort_target=3.19,
+        effort_statistic="max",
     )
     results = run_evaluation(config)
     summary = pd.read_csv(tmp_path / "summary.csv").set_index("controller")

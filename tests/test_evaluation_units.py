@@ -587,7 +587,7 @@ def test_effort_statistics_reduce_their_columns_and_bad_names_are_refused(tmp_pa
     assert EFFORT_STATISTICS["median-peak"].of(rows) == 0.5
     with pytest.raises(ValueError, match="no rollouts"):
         EFFORT_STATISTICS["max"].of(rows.iloc[:0])
-    message = "--effort-statistic must be one of max, median-peak, got 'mean'"
+    message = "--effort-statistic must be one of max, median-peak, mean-peak, peak-ratio, got 'mean'"
     with pytest.raises(ValueError, match=message):
         effort_statistic_named("mean")
     with pytest.raises(ValueError, match=message):
