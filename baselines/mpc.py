@@ -223,12 +223,12 @@ class MPCPolicy(BasePolicy):
         if len(obs) != len(self._plan):
             raise ValueError(f"{len(obs)} observations for {len(self._plan)} episodes; call reset_batch first")
         q = obs[:, self._reader.q]
-        references = self._references(obs)
+        references, end_velocity = self._references(obs)
         value = np.full(len(obs), np.nan)
         if self._since_solve % self.period == 0:
             first = self._count == 0
             start = self.udot_start if first else "rest"  # later: u₋₁ = the applied command
-            self._plan, value = self._solve(q, references, self._shifted_plan(first), start)
+            self._plan, value = self._solve(q, references, end_velocity, self._shifted_plan(first), start)
             self._since_solve = 0
         command = clip_to_box(self._plan[:, self._since_solve // self.block], self.velocity_limits)
         if self.limit_box is not None:
@@ -248,20 +248,22 @@ class MPCPolicy(BasePolicy):
         return clip_to_box(shifted, self.velocity_limits)
 
     # -- the reference ahead -----------------------------------------------------------------------
-    def _references(self, obs: np.ndarray) -> np.ndarray:
-        """x̂_d at the solver times 0, Δt_s, ..., NΔt_s ahead: ``(B, N+1, n)``."""
+    def _references(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """x̂_d at the solver times 0, Δt_s, ..., NΔt_s ahead ``(B, N+1, n)``, and ẋ̂_d at NΔt_s ``(B, n)``."""
         x_d = obs[:, self.layout.slices["x_d"]]
-        if not self._predicts:
-            return np.repeat(x_d[:, None], self.steps + 1, axis=1)
-        radius = x_d - obs[:, self.layout.slices["x_c"]]  # r = x_d − x_c
         velocity = obs[:, self.layout.slices["xdot_d"]]
+        if not self._predicts:
+            return np.repeat(x_d[:, None], self.steps + 1, axis=1), velocity
+        radius = x_d - obs[:, self.layout.slices["x_c"]]  # r = x_d − x_c
         omega = self._angular_rate(radius, velocity)
         self._last_reference = (radius, velocity)
         tau = np.arange(self.steps + 1) * self.solver_dt
         phase = omega[:, None] * tau[None]  # (B, N+1)
         # Harmonic motion r̈ = −ω²r from (r, ṙ): exact for an ellipse; sin(ωτ)/ω = τ·sinc(ωτ/π) stays finite at ω = 0.
         ahead = np.cos(phase)[..., None] * radius[:, None] + (tau * np.sinc(phase / np.pi))[..., None] * velocity[:, None]
-        return obs[:, None, self.layout.slices["x_c"]] + ahead
+        end = phase[:, -1:]
+        end_velocity = np.cos(end) * velocity - (omega[:, None] * np.sin(end)) * radius  # ṙ(τ) of the same motion
+        return obs[:, None, self.layout.slices["x_c"]] + ahead, end_velocity
 
     def _angular_rate(self, radius: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """ω per sample: from r̈ ≈ (ṙₖ − ṙₖ₋₁)/Δt = −ω² (rₖ + rₖ₋₁)/2 when the last step is known (exact
@@ -278,12 +280,14 @@ class MPCPolicy(BasePolicy):
         return np.where((square > 1e-18) & (estimate > 0), np.sqrt(np.maximum(estimate, 0.0)), circle)
 
     # -- the solver --------------------------------------------------------------------------------
-    def _solve(self, q0: np.ndarray, x_d: np.ndarray, plan: np.ndarray, start: str) -> tuple[np.ndarray, np.ndarray]:
+    def _solve(
+        self, q0: np.ndarray, x_d: np.ndarray, end_velocity: np.ndarray, plan: np.ndarray, start: str
+    ) -> tuple[np.ndarray, np.ndarray]:
         """At most ``iterations`` Gauss-Newton steps from ``plan`` for every sample; the plans and their V."""
         convention, base = self._conventions[start], self._bases[start]
         plan = plan.copy()
         everyone = np.arange(len(plan))
-        terminal = self._terminal_weight(q0, plan)
+        terminal = self._terminal_cost(q0, plan, end_velocity)
         value, grad, jacobians = self._evaluate(everyone, q0, x_d, plan, terminal, convention)
         jacobians = jacobians.copy()  # the kinematics' cached batch is read-only; the line search updates rows
         active = np.ones(len(plan), dtype=bool)
@@ -297,13 +301,23 @@ class MPCPolicy(BasePolicy):
             self._line_search(rows, q0, x_d, plan, steps, slopes, terminal, convention, (value, grad, jacobians))
         return plan, value
 
-    def _terminal_weight(self, q0: np.ndarray, plan: np.ndarray) -> np.ndarray | None:
-        """P̄ = P*(J(θ_N)) at the end of the warm start ``(B, n, n)`` (dropped directions where J lost rank)."""
+    def _terminal_cost(
+        self, q0: np.ndarray, plan: np.ndarray, end_velocity: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(P̄ ``(B, n, n)``, p̄ ``(B, n)``) of the cost-to-go e_NᵀP̄e_N + 2p̄ᵀe_N, frozen at the warm start's θ_N.
+
+        P̄ = P*(J): the frozen-Jacobian LQR's. p̄ = −(JJᵀ)⁻¹ẋ_d(t_N): after the horizon the motion costs
+        uᵀu with u = J⁺ẋ_d + u_fb, whose cross term 2(J⁺ẋ_d)ᵀu_fb makes up a lag e_N (∫J u_fb dt = −e_N)
+        at −2ẋ_dᵀ(JJᵀ)⁻¹e_N: first order in e_N, so without it the plan slows down and lags a moving
+        reference. Directions where J lost rank are dropped from both.
+        """
         if not self.terminal:
             return None
         end = q0 + self.solver_dt * plan.sum(axis=1)
         _, values, right, _ = self._lqr.factors(self.kinematics.jacobian_batch(end))
-        return np.swapaxes(right, -1, -2) @ (values[..., :, None] ** -0.5 * right)  # Cᵀ diag(λ^{-1/2}) C
+        weight = np.swapaxes(right, -1, -2) @ (values[..., :, None] ** -0.5 * right)  # P* = Cᵀ diag(λ^{-1/2}) C
+        inverse = np.swapaxes(right, -1, -2) @ (values[..., :, None] ** -1.0 * right)  # (JJᵀ)⁻¹ = Cᵀ diag(λ⁻¹) C
+        return weight, -(inverse @ end_velocity[..., None])[..., 0]
 
     def _evaluate(
         self,
@@ -311,7 +325,7 @@ class MPCPolicy(BasePolicy):
         q0: np.ndarray,
         x_d: np.ndarray,
         plans: np.ndarray,
-        terminal: np.ndarray | None,
+        terminal: tuple[np.ndarray, np.ndarray] | None,
         convention: CostConvention,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """V, ∂V/∂U and J(θ₀..θ_N) of ``plans`` (one per sample of ``rows``), one FK pass for all of them."""
@@ -333,20 +347,21 @@ class MPCPolicy(BasePolicy):
                 values[b] += smoothness * (last @ last - 2.0 * plans[b, 0] @ last)
                 grads[b, 0] -= 2.0 * smoothness * last
             if terminal is not None:
-                # e_NᵀP̄e_N, θ_N = θ₀ + Δt_s Σ uᵢ: the same gradient Δt_s·2J_NᵀP̄e_N for every uᵢ.
-                weighted = terminal[i] @ errors[b, steps]
-                values[b] += errors[b, steps] @ weighted
-                grads[b] += 2.0 * self.solver_dt * (jacobians[b, steps].T @ weighted)
+                # e_NᵀP̄e_N + 2p̄ᵀe_N, θ_N = θ₀ + Δt_s Σ uᵢ: the same gradient 2Δt_s J_Nᵀ(P̄e_N + p̄) for every uᵢ.
+                error = errors[b, steps]
+                weighted = terminal[0][i] @ error
+                values[b] += error @ (weighted + 2.0 * terminal[1][i])
+                grads[b] += 2.0 * self.solver_dt * (jacobians[b, steps].T @ (weighted + terminal[1][i]))
         return values, grads, jacobians
 
     def _direction(
-        self, base: np.ndarray, jacobians: np.ndarray, grad: np.ndarray, terminal: np.ndarray | None, i: int
+        self, base: np.ndarray, jacobians: np.ndarray, grad: np.ndarray, terminal: Any, i: int
     ) -> np.ndarray:
         """The Gauss-Newton step of the block-banded θ-system, with the terminal Hessian 2J_NᵀP̄J_N in θ_N's block."""
         steps, m = grad.shape
         if terminal is not None:
             base = base.copy()
-            block = 2.0 * jacobians[steps].T @ terminal[i] @ jacobians[steps]
+            block = 2.0 * jacobians[steps].T @ terminal[0][i] @ jacobians[steps]
             rows, cols = np.tril_indices(m)
             base[rows - cols, (steps - 1) * m + cols] += block[rows, cols]  # lower band: [a − b, k·m + b] ← H_ab
         return _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
@@ -359,7 +374,7 @@ class MPCPolicy(BasePolicy):
         plan: np.ndarray,
         steps: np.ndarray,
         slopes: np.ndarray,
-        terminal: np.ndarray | None,
+        terminal: tuple[np.ndarray, np.ndarray] | None,
         convention: CostConvention,
         state: tuple[np.ndarray, np.ndarray, np.ndarray],
     ) -> None:

@@ -94,9 +94,11 @@ def test_prediction_of_an_ellipse_is_exact(track):
     q = np.array([0.0, -1.2, 1.5, -1.8, -1.57, 0.0])
     for k in range(2):
         x_d, xdot_d = ellipse.position_and_velocity(k * DT)
-        predicted = policy._references(_observation(track, q, x_d, xdot_d, ellipse.centre)[None])[0]
+        predicted, end_velocity = policy._references(_observation(track, q, x_d, xdot_d, ellipse.centre)[None])
     times = DT + np.arange(policy.steps + 1) * policy.solver_dt
-    np.testing.assert_allclose(predicted, ellipse.trajectory(times)[0], atol=1e-8)
+    positions, velocities = ellipse.trajectory(times)
+    np.testing.assert_allclose(predicted[0], positions, atol=1e-8)
+    np.testing.assert_allclose(end_velocity[0], velocities[-1], rtol=1e-5)  # ω from two steps: O((ωΔt)²)
 
 
 @pytest.mark.parametrize(
