@@ -18,10 +18,12 @@ steps later. Details and measurements: docs/mpc.md.
   θ₁..θ_N, :func:`~evaluation.optimal_reference._gauss_newton_direction`), with the terminal block
   2J_NᵀP̄J_N added, and an Armijo backtracking on the exact cost, at most ``iterations`` steps per
   re-solve, warm-started from the previous plan shifted by ``period`` control periods.
-* **Terminal cost.** P̄ = P*(J(θ_N)), the frozen-Jacobian LQR cost-to-go (:mod:`snac_gym.optimality`)
-  at the end of the warm start, held fixed during a re-solve so that the line search sees one
-  function. Without it (``terminal=False``) a short horizon is myopic: for ė = σu the finite-horizon
-  gain is tanh(σ√q T)·√q instead of √q.
+* **Terminal cost.** e_NᵀP̄e_N + 2p̄ᵀe_N with P̄ = P*(J(θ_N)), the frozen-Jacobian LQR cost-to-go
+  (:mod:`snac_gym.optimality`), and p̄ = −(JJᵀ)⁻¹ẋ_d(t_N), the price of making up a lag behind a moving
+  reference (:meth:`MPCPolicy._terminal_cost`); both at the end of the warm start, held fixed during a
+  re-solve so that the line search sees one function. Without it (``terminal=False``) a short horizon
+  is myopic: for ė = σu the finite-horizon gain is tanh(σ√q T)·√q instead of √q. It leaves out the u̇
+  term's cost-to-go, which is why ``table1`` needs a longer horizon (:data:`DEFAULT_GRID`).
 * **Velocity limits.** The solve is unconstrained; the applied command and the warm start are
   clipped component-wise into ±ū (the projection onto the box).
 * **Reference ahead.** Not in the observation. Regulation: x_d is constant (exact). Tracking
