@@ -136,11 +136,6 @@ class EffortMatcher:
         evaluation, config = self.evaluation, self.config
         names = [s.name for s in specs]
         reference = None
-        if config.statistic.paired and config.effort_target is not None:
-            raise ValueError(
-                f"--effort-target has no meaning for the {config.effort_statistic} statistic (a ratio to the "
-                "reference's rollouts); choose mean-peak, max or median-peak"
-            )
         if config.effort_target is None:
             reference = config.effort_reference if config.effort_reference in names else names[0]
             results, records = self._reference_passes(specs[names.index(reference)])

@@ -77,8 +77,10 @@ class EvaluationConfig:
         backend: ``"kinematic"`` or ``"pybullet"``.
         match_effort: Calibrate every controller's effort knob to equal effort.
         effort_reference: Controller whose effort (at its own settings) is the target.
-        effort_statistic: What "equal control effort" equalises: ``"max"`` (the maximum |u| over
-            the sample set, rad/s) or ``"median-peak"`` (:mod:`evaluation.effort_statistics`).
+        effort_statistic: What "equal control effort" equalises (:mod:`evaluation.effort_statistics`):
+            ``"mean-peak"`` (the default: the mean over samples of each rollout's peak |u|/limit),
+            ``"peak-ratio"`` (each rollout's peak relative to the reference's on the same sample),
+            ``"median-peak"`` or ``"max"`` (the maximum |u| over the sample set, rad/s).
         effort_target: Explicit target of the effort statistic, in its unit (then every
             controller is matched).
         effort_tolerance: Relative tolerance of the match over the whole sample set.
@@ -299,6 +301,11 @@ def _check_effort(config: EvaluationConfig) -> None:
     target = config.effort_target
     if target is not None and not (math.isfinite(target) and target > 0):
         raise ValueError(f"effort_target must be a positive finite number, got {target}")
+    if target is not None and config.match_effort and config.statistic.paired:
+        raise ValueError(
+            f"--effort-target has no meaning for the {config.effort_statistic} statistic (a ratio to the "
+            "reference's rollouts on the same samples); choose mean-peak, max or median-peak"
+        )
     if not 0 < config.effort_tolerance < 1:
         raise ValueError(f"effort_tolerance must be in (0, 1), got {config.effort_tolerance}")
     if config.calibration_samples is not None and config.calibration_samples < 1:
