@@ -128,8 +128,8 @@ class MPCPolicy(BasePolicy):
             is q_scale·Q (R = I fixed), so larger is more aggressive. Default 1: the run's own cost.
         Q: The cost's error weight, a positive multiple of the identity (``None``: I); the evaluator
             passes ``--q-scale`` here.
-        cost: ``"table1"`` (with the u̇ term, the evaluator's default) or ``"hjb"`` (without); pass
-            the run's ``--cost`` (``--param mpc.cost=hjb``).
+        cost: ``"table1"`` (with the u̇ term, the evaluator's default) or ``"hjb"`` (without); the
+            evaluator passes the run's ``--cost`` (and ``--udot-start``).
         udot_start: u₋₁ of the first solve: ``"rest"`` (0) or ``"first"`` (u₀); later solves use
             the last applied command.
         terminal: Add the frozen-Jacobian LQR cost-to-go e_NᵀP̄e_N at the end of the horizon.

@@ -124,6 +124,10 @@ def _controller_spec(config: EvaluationConfig, name: str) -> ControllerSpec:
     if config.q_scale != 1.0 and "Q" not in kwargs and _takes_argument(name, "Q"):
         # The cost's Q, as a diagonal of the task dimension (a run's tasks share it: 3, or 6 for pose).
         kwargs["Q"] = [config.q_scale] * policy_context(config.robot, config.dt, config.tasks[0]).layout.task_dim
+    # A controller that optimises a trajectory cost (mpc) is given the run's, as it is given Q.
+    for key, value in (("cost", config.cost), ("udot_start", config.udot_start)):
+        if key not in kwargs and _takes_argument(name, key):
+            kwargs[key] = value
     try:
         policies = [make_policy(name, policy_context(config.robot, config.dt, task), **kwargs) for task in config.tasks]
     except Exception as exc:
