@@ -31,7 +31,9 @@ def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Seq
         (
             f"`{OPTIMAL}`: per sample, the numerical optimum of the same cost over the same horizon, Δt and "
             "velocity limits, **an open-loop reference computed with knowledge of the whole reference** (not a "
-            f"controller; no effort knob). L-BFGS in Cholesky-preconditioned commands from rest, stopped at "
+            "controller; no effort knob). Gauss–Newton in the joint angles (banded Cholesky steps, a bounded "
+            "L-BFGS-B polish where a velocity limit binds), started from rest and from every evaluated "
+            "controller's trajectory that comes within 5 % of it, the best local optimum kept; stopped at "
             f"max |∂V/∂z| ≤ {GTOL:g} or a relative decrease ≤ {FTOL:g} (docs/optimal.md). Ratio = a controller's "
             "cost / the optimum on the same sample."
         ),
