@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -30,12 +32,26 @@ def check_bench_counts(steps: int, act_calls: int) -> None:
             raise ValueError(f"{option} must be between {MIN_BENCH_COUNT} and {high:,}, got {value}")
 
 
-def _pin_to_one_core() -> None:
-    if hasattr(os, "sched_setaffinity"):
-        try:
-            os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
-        except OSError:  # pragma: no cover - restricted container
-            pass
+@contextlib.contextmanager
+def _one_core() -> Iterator[None]:
+    """Run the block pinned to one core, then give the caller its cores back.
+
+    Pinning for good would leave the caller (a test run, a notebook) on one core: torch's two
+    intra-op threads on one core made a later 4 s SAC test take 105 s.
+    """
+    if not hasattr(os, "sched_setaffinity"):  # pragma: no cover - not Linux
+        yield
+        return
+    previous = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, {sorted(previous)[0]})
+    except OSError:  # pragma: no cover - restricted container
+        pass
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            os.sched_setaffinity(0, previous)
 
 
 def _time_env(env: Any, steps: int, control_dt: float, seed: int = 0, repeats: int = 5) -> dict[str, float]:
@@ -54,6 +70,7 @@ def _time_env(env: Any, steps: int, control_dt: float, seed: int = 0, repeats: i
     return {"steps_per_s": steps / best, "real_time_factor": steps * control_dt / best, "control_dt": control_dt}
 
 
+@_one_core()
 def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, dict[str, float]]:
     """Steps/s and real-time factor (simulated s per wall s) of the snac-gym ids, on one core.
 
@@ -65,7 +82,6 @@ def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, di
     import snac_gym
 
     check_bench_counts(steps, MIN_BENCH_COUNT)
-    _pin_to_one_core()
     results: dict[str, dict[str, float]] = {}
     for env_id in snac_gym.ENV_IDS:
         env = gym.make(env_id, max_steps=10**9)
@@ -96,6 +112,7 @@ def format_env_bench(results: dict[str, dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
+@_one_core()
 def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 1000, seed: int = 0) -> list[dict[str, float]]:
     """How far PyBullet's joint motion departs from the ideal ``θₖ₊₁ = θₖ + uₖ Δt`` per substep count.
 
@@ -109,7 +126,6 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
 
     import snac_gym  # noqa: F401
 
-    _pin_to_one_core()
     rows = []
     for n_sub in substeps:
         env = gym.make("snac_gym/UR10Reach-v0", n_substeps=n_sub, max_steps=10**9).unwrapped
@@ -134,6 +150,7 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
     return rows
 
 
+@_one_core()
 def run_act_bench(
     names: tuple[str, ...] | list[str] = ("snac",),
     tasks: tuple[str, ...] = ("reach", "track"),
@@ -172,7 +189,6 @@ def run_act_bench(
     if clock not in ("wall", "cpu"):
         raise ValueError(f"clock must be 'wall' or 'cpu', got {clock!r}")
     check_bench_counts(MIN_BENCH_COUNT, calls)
-    _pin_to_one_core()
     results: dict[str, dict[str, Any]] = {}
     for name in names:
         results[name] = {}
@@ -290,6 +306,7 @@ def _memory_per_env(env_id: str, count: int) -> tuple[float, float]:
     return (held[1][0] - held[0][0]) / (count - 1), held[1][1] / count
 
 
+@_one_core()
 def run_vector_bench(
     sizes: tuple[int, ...] = (1, 64, 1024, 4096), seconds: float = 1.0, env_ids: tuple[str, ...] | None = None
 ) -> list[dict[str, float | str]]:
@@ -302,7 +319,6 @@ def run_vector_bench(
     """
     import snac_gym
 
-    _pin_to_one_core()
     rows: list[dict[str, float | str]] = []
     with _one_thread():
         for env_id in env_ids or tuple(snac_gym.ENV_IDS):
