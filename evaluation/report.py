@@ -106,6 +106,51 @@ def _general_number(value: Any) -> str:
     return f"{value:.4g}"
 
 
+def _paired_cell(row: pd.Series, prefix: str) -> list[str]:
+    ratio = row.get(prefix + "median_ratio", math.nan)
+    if pd.isna(ratio):
+        return ["—", "—", "—"]
+    p_value = row.get(prefix + "wilcoxon_p", math.nan)
+    return [
+        f"{ratio:.4g} [{row[prefix + 'ci_low']:.4g}, {row[prefix + 'ci_high']:.4g}]",
+        f"{100 * row[prefix + 'fraction_better']:.1f} %",
+        "—" if pd.isna(p_value) else f"{p_value:.2g}",
+    ]
+
+
+def paired_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
+    """The paired comparison per task: every controller against the best ranked one and the optimum."""
+    lines = [
+        "",
+        "## Paired comparison",
+        "",
+        "Every controller ran on the same samples, so each is compared with the best ranked controller and "
+        "with the optimum sample by sample: the median over samples of the cost ratio (this controller / the "
+        "other on the same sample) with a bootstrap 95 % confidence interval, the share of samples where this "
+        "controller costs less, and the two-sided Wilcoxon signed-rank p-value of the paired differences. "
+        "Medians of ratios are not moved by the few samples whose cost explodes; means are (docs/evaluation.md).",
+    ]
+    for t in tasks:
+        best = summary.get(f"{t}_vs_best")
+        best_name = best.dropna().iloc[0] if best is not None and best.notna().any() else None
+        header = f"vs the best ({controller_label(best_name)})" if best_name else "vs the best (none ranked)"
+        lines += [
+            "",
+            f"**{get_task(t).label}**",
+            "",
+            f"| Controller | {header}: median ratio [95 % CI] | cheaper on | p | vs the optimum: median ratio [95 % CI] "
+            "| cheaper on | p |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for _, row in summary.iterrows():
+            if row["controller"] == OPTIMAL or pd.isna(row.get(f"{t}_cost", math.nan)):
+                continue
+            cells = _paired_cell(row, f"{t}_vs_best_") + _paired_cell(row, f"{t}_vs_optimal_")
+            fails = "" if row.get(f"{t}_qualified", True) else " (**fails**)"  # cheap, but not doing the task
+            lines.append(f"| {controller_label(row['controller'])}{fails} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def summary_markdown(
     summary: pd.DataFrame,
     config: Any,
@@ -121,6 +166,7 @@ def summary_markdown(
     lines = _introduction_lines(summary, config, tasks, effort_statistic)
     lines += _table_one_lines(summary, tasks)
     lines += _convention_lines(summary, tasks, config.convention.q_scale)
+    lines += paired_lines(summary, tasks)
     lines += _critic_lines(summary, tasks)
     for t in tasks:
         lines += _task_detail_lines(summary, t)

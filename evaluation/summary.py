@@ -34,6 +34,7 @@ import pandas as pd
 from scipy import stats
 
 from evaluation.optimal_reference import OPTIMAL, OPTIMAL_LABEL
+from evaluation.paired import compare
 from snac_gym.tasks import TASKS
 
 #: Table I of the paper, rows in the paper's order: controller name in snac-gym → {task: V/N}.
@@ -116,7 +117,33 @@ def summarise(
     for task in tasks:
         if f"{task}_cost" in summary:
             _add_standing(summary, task, success_threshold)
+            _add_paired(summary, results, task)
     return summary
+
+
+#: What each controller is compared with, sample by sample (:mod:`evaluation.paired`).
+PAIRED_REFERENCES = ("best", "optimal")
+
+
+def _add_paired(summary: pd.DataFrame, results: pd.DataFrame, task: str) -> None:
+    """Paired statistics of each controller against the best ranked one and against the optimum:
+    ``{task}_vs_{best|optimal}_{median_ratio, ci_low, ci_high, fraction_better, wilcoxon_p}``."""
+    p = f"{task}_"
+    costs = results[results["task"] == task].pivot_table(index="sample", columns="controller", values="cost")
+    ranked = summary.loc[summary[p + "rank"] == 1, "controller"]
+    references = {"best": ranked.iloc[0] if len(ranked) else None, "optimal": OPTIMAL}
+    for key, reference in references.items():
+        for field in ("median_ratio", "ci_low", "ci_high", "fraction_better", "wilcoxon_p"):
+            summary[f"{p}vs_{key}_{field}"] = math.nan
+        if reference is None or reference not in costs:
+            continue
+        summary[f"{p}vs_{key}"] = reference
+        for i, controller in summary["controller"].items():
+            if controller == reference or controller not in costs:
+                continue
+            comparison = compare(costs[controller].to_numpy(), costs[reference].to_numpy())
+            for field in ("median_ratio", "ci_low", "ci_high", "fraction_better", "wilcoxon_p"):
+                summary.loc[i, f"{p}vs_{key}_{field}"] = getattr(comparison, field)
 
 
 def _cost_columns(part: pd.DataFrame) -> dict[str, Any]:
@@ -218,6 +245,7 @@ def _add_standing(summary: pd.DataFrame, task: str, success_threshold: float) ->
 
 __all__ = [
     "CONVENTION_COLUMNS",
+    "PAIRED_REFERENCES",
     "PAPER_LABELS",
     "PAPER_TABLE_I",
     "TASK_LABELS",
