@@ -32,7 +32,7 @@ def main(timesteps: int = 200_000, num_envs: int = 256) -> None:
     print(f"trained {model.num_timesteps} steps on {num_envs} episodes in {wall:.1f} s "
           f"({model.num_timesteps / wall:,.0f} steps/s)")
 
-    env = gym.make(ENV_ID, backend="kinematic", **ENV_KWARGS)
+    env = gym.make(ENV_ID, physics="kinematic", **ENV_KWARGS)
     errors = []
     for seed in range(3):
         obs, _ = env.reset(seed=seed)

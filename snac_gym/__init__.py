@@ -1,14 +1,13 @@
 """snac-gym: the single network adaptive critic (SNAC) kinematic controller of Menon, Prakash and
 Behera, its baselines and the paper's evaluation, on Gymnasium UR arm environments.
 
-Importing the package registers the environments ``snac_gym/UR10Reach-v0`` and
-``snac_gym/UR10EllipseTrack-v0`` and their goal-conditioned variants ``snac_gym/UR10ReachGoal-v0``
-and ``snac_gym/UR10EllipseTrackGoal-v0`` (:mod:`snac_gym.envs.goal`).
+Importing the package registers one environment id per robot and task, ``snac_gym/UR10Reach-v0``,
+``snac_gym/UR10EllipseTrack-v0``, ``snac_gym/PandaReach-v0``, ... (:mod:`snac_gym.envs.ids`), each
+with its goal-conditioned variant ``snac_gym/UR10ReachGoal-v0``, ... (:mod:`snac_gym.envs.goal`).
 """
 
 from snac_gym.cost import CostTerms, instantaneous_cost, trajectory_cost
 from snac_gym.envs import ENV_IDS, register_envs
-from snac_gym.envs.goal import register_goal_envs
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies import Policy, PolicyContext, available_policies, make_policy, register_policy
@@ -17,7 +16,6 @@ from snac_gym.references import Ellipse, FixedTarget
 __version__ = "0.1.0"
 
 register_envs()
-register_goal_envs()
 
 __all__ = [
     "ENV_IDS",

@@ -79,11 +79,11 @@ def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, di
     """
     import gymnasium as gym
 
-    import snac_gym
+    from snac_gym.tasks import TASKS
 
     check_bench_counts(steps, MIN_BENCH_COUNT)
     results: dict[str, dict[str, float]] = {}
-    for env_id in snac_gym.ENV_IDS:
+    for env_id in (task.env_id for task in TASKS.values()):  # the UR10's, the paper's arm
         env = gym.make(env_id, max_steps=10**9)
         results[env_id] = _time_env(env.unwrapped, steps, env.unwrapped.dt)
         env.close()
@@ -125,6 +125,7 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
     import gymnasium as gym
 
     import snac_gym  # noqa: F401
+    from snac_gym.kinematics import joint_step
 
     rows = []
     for n_sub in substeps:
@@ -140,7 +141,7 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
             t = k * env.dt
             u = 0.5 * env.velocity_limits * np.sin(2 * np.pi * freqs * t + phases).mean(axis=0)
             obs, *_ = env.step(u)
-            q_ideal = q_ideal + u * env.dt
+            q_ideal = joint_step(q_ideal, u, env.dt)
             max_pos = max(max_pos, float(np.abs(obs[: len(u)] - q_ideal).max()))
             max_vel = max(max_vel, float(np.abs(obs[len(u) : 2 * len(u)] - u).max()))
         elapsed = time.perf_counter() - start
@@ -317,11 +318,11 @@ def run_vector_bench(
     rate over whole episodes of the registered length. At the largest size the memory per
     sub-env is measured with ``tracemalloc``: the arrays it holds and the temporaries of a step.
     """
-    import snac_gym
+    from snac_gym.tasks import TASKS
 
     rows: list[dict[str, float | str]] = []
     with _one_thread():
-        for env_id in env_ids or tuple(snac_gym.ENV_IDS):
+        for env_id in env_ids or tuple(task.env_id for task in TASKS.values()):
             reset_s = _reset_seconds(env_id)
             horizon = _vector_env(env_id, 1).unwrapped.single_env.default_max_steps
             for size in sizes:

@@ -128,9 +128,7 @@ def run_demo(
         panels), ``figure3.png`` (the four together), ``critic_weights.png`` (policies
         that log critic weights), ``log.parquet`` (+ ``.csv``/``.json``) and ``summary.json``.
     """
-    import gymnasium as gym
-
-    import snac_gym  # noqa: F401  (registers the envs)
+    from snac_gym.envs import make_task_env
     from snac_gym.policies import make_policy
 
     spec = get_task(task)
@@ -143,7 +141,7 @@ def run_demo(
         usable_out_folder(Path(out_dir))
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DEMO_DURATION_S):
         raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
-    env = gym.make(spec.env_id, robot=robot)
+    env = make_task_env(spec, robot)
     dt = env.unwrapped.dt
     if duration is not None:
         steps = round(duration / dt)
@@ -157,7 +155,7 @@ def run_demo(
         )
     if steps > env.unwrapped.max_steps:
         env.close()
-        env = gym.make(spec.env_id, robot=robot, max_steps=steps)
+        env = make_task_env(spec, robot, max_steps=steps)
     try:
         policy = make_policy(controller, env, **(policy_kwargs or {}))
         log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)

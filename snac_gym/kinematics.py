@@ -63,6 +63,26 @@ def resolved_urdf_text(urdf_path: str | Path) -> str:
     return text.replace(_PACKAGE_PREFIX, str(robots_directory()) + "/")
 
 
+def joint_step(q: np.ndarray, u: np.ndarray, dt: float, out: np.ndarray | None = None) -> np.ndarray:
+    """The paper's kinematic model over one control period, exactly: θₖ₊₁ = θₖ + uₖΔt (eq. 3).
+
+    The one implementation of the step: the kinematic arm of the single env
+    (:class:`~snac_gym.envs.arms.KinematicArm`), the batched vector env
+    (:class:`~snac_gym.envs.vector.KinematicEpisodes`) and the evaluator's lockstep engine
+    (:func:`~snac_gym.rollout.simulate_kinematic`) all call it, so the three agree bit for bit.
+
+    Args:
+        q: Joint positions θₖ, rad: ``(m,)`` or a batch ``(B, m)``.
+        u: Joint velocities uₖ held over the period, rad/s, the same shape.
+        dt: Control period Δt, s.
+        out: Where to write θₖ₊₁ (may be ``q`` itself); a new array when ``None``.
+
+    Returns:
+        θₖ₊₁ (``out`` when given).
+    """
+    return np.add(q, u * dt, out=out)
+
+
 class Kinematics:
     """Forward kinematics and position Jacobian of a serial arm, ``ẋ = J(θ) θ̇`` (eqs. 1–3).
 

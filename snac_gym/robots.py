@@ -9,6 +9,7 @@ the robot through :class:`~snac_gym.kinematics.Kinematics` built from this entry
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -32,6 +33,8 @@ class Robot:
         description: Its name in documentation.
         locked_joints: URDF joints held at their neutral value (clipped to their limits) and left
             out of the kinematics, e.g. the Panda's two finger joints: the controlled chain is the arm.
+        env_prefix: The robot's part of its Gymnasium ids: ``UR10`` in ``snac_gym/UR10Reach-v0``
+            (:mod:`snac_gym.envs.ids`); empty: the name in CamelCase (``ur10-limited`` → ``Ur10Limited``).
         demo_options: Reset-option values of ``snac-gym demo --robot`` by task name (``"q0"`` and the
             task's option key, e.g. ``{"q0": [...], "reach": {"target": [...]}}``); ``None``: the
             paper's θ₀ and references, which only a UR arm reaches.
@@ -47,6 +50,14 @@ class Robot:
     description: str = ""
     locked_joints: tuple[str, ...] = ()
     demo_options: Mapping[str, Any] | None = field(default=None, hash=False)
+    env_prefix: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.env_prefix:
+            camel = "".join(part[:1].upper() + part[1:] for part in re.split(r"[^0-9A-Za-z]+", self.name))
+            object.__setattr__(self, "env_prefix", camel)
+        if not re.fullmatch(r"[A-Za-z][0-9A-Za-z]*", self.env_prefix):
+            raise ValueError(f"robot {self.name!r}: env_prefix must be letters and digits, got {self.env_prefix!r}")
 
 
 #: Registered robots by name.
@@ -57,12 +68,15 @@ def register_robot(robot: Robot) -> Robot:
     """Add ``robot`` to :data:`ROBOTS`.
 
     Raises:
-        ValueError: If the name is taken or only one cuboid corner is given.
+        ValueError: If the name or the id prefix is taken, or only one cuboid corner is given.
     """
     if robot.name in ROBOTS:
         raise ValueError(f"a robot named {robot.name!r} is already registered")
     if (robot.cuboid_low is None) != (robot.cuboid_high is None):
         raise ValueError(f"robot {robot.name!r}: give both cuboid corners or neither")
+    prefixes = {other.env_prefix: other.name for other in ROBOTS.values()}
+    if robot.env_prefix in prefixes:
+        raise ValueError(f"robot {robot.name!r}: env_prefix {robot.env_prefix!r} is taken by {prefixes[robot.env_prefix]!r}")
     ROBOTS[robot.name] = robot
     return robot
 
@@ -88,6 +102,7 @@ for _size in ("3", "5", "10"):
             urdf=f"ur_description/urdf/ur{_size}_robot.urdf",
             nominal_q=PAPER_Q0,
             description=f"Universal Robots UR{_size}",
+            env_prefix=f"UR{_size}",
         )
     )
 
@@ -107,6 +122,7 @@ register_robot(
         cuboid_low=(0.30, -0.30, 0.20),
         cuboid_high=(0.60, 0.30, 0.60),
         description="Franka Emika Panda",
+        env_prefix="Panda",
         locked_joints=("panda_finger_joint1", "panda_finger_joint2"),
         demo_options={
             "q0": [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785],
@@ -126,6 +142,7 @@ register_robot(
         cuboid_low=(0.25, -0.30, 0.15),
         cuboid_high=(0.55, 0.30, 0.50),
         description="UFACTORY xArm7",
+        env_prefix="XArm7",
         demo_options={
             "q0": [0.0, -0.2, 0.0, 0.9, 0.0, 1.1, 0.0],
             "reach": [0.45, 0.2, 0.25],

@@ -42,5 +42,4 @@ def pose_tasks():
     yield
     for task in POSE_TASKS:
         TASKS.pop(task.name, None)
-        gym.registry.pop(task.env_id, None)
-        snac_gym.ENV_IDS.pop(task.env_id, None)
+        snac_gym.envs.unregister_envs(task=task.name)

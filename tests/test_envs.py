@@ -8,11 +8,13 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from gymnasium.utils.passive_env_checker import env_render_passive_checker
 
-import snac_gym
+import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.cost import cost_rates
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
+from snac_gym.tasks import TASKS
 
-ENV_IDS = list(snac_gym.ENV_IDS)
+#: The UR10's ids, the paper's arm (tests/test_env_ids.py checks every robot's).
+ENV_IDS = [task.env_id for task in TASKS.values()]
 
 
 def _actions(env, count, seed=0, scale=0.3):
@@ -242,7 +244,7 @@ def test_step_before_reset_is_an_error():
 
 
 def test_other_ur_arms_run_through_the_same_code():
-    env = gym.make("snac_gym/UR10Reach-v0", robot="ur5")
+    env = gym.make("snac_gym/UR5Reach-v0")
     obs, _ = env.reset(seed=0)
     base = env.unwrapped
     assert base.kinematics.robot == "ur5" and obs.shape == (base.obs_layout.size,)
@@ -381,9 +383,9 @@ def test_sb3_checker_has_no_warnings_for_the_learner_configuration(env_id):
     env.close()
 
 
-@pytest.mark.parametrize("env_id", sorted(snac_gym.ENV_IDS))
-def test_kinematic_backend_is_the_evaluators_engine_episode_for_episode(env_id):
-    """backend="kinematic": θₖ₊₁ = θₖ + uₖΔt, the same observations and commands as simulate_kinematic."""
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS))
+def test_kinematic_physics_is_the_evaluators_engine_episode_for_episode(env_id):
+    """physics="kinematic": θₖ₊₁ = θₖ + uₖΔt, the same observations and commands as simulate_kinematic."""
     from gymnasium.utils.env_checker import check_env
 
     from snac_gym.policies import make_policy
@@ -391,7 +393,7 @@ def test_kinematic_backend_is_the_evaluators_engine_episode_for_episode(env_id):
     from snac_gym.rollout import rollout, simulate_kinematic
     from snac_gym.tasks import Sample
 
-    env = gym.make(env_id, backend="kinematic")
+    env = gym.make(env_id, physics="kinematic")
     check_env(env.unwrapped, skip_render_check=True)
     log = rollout(env, make_policy("snac", env), seed=5, steps=200)
     base = env.unwrapped
@@ -401,7 +403,7 @@ def test_kinematic_backend_is_the_evaluators_engine_episode_for_episode(env_id):
     batch = simulate_kinematic(context, lambda: make_policy("snac", context), [sample], 200, [5])
     np.testing.assert_allclose(log[[f"u_{j}" for j in range(6)]].to_numpy(), batch.commands[0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(log.attrs["final_e"], batch.final_errors[0], rtol=0, atol=1e-12)
-    with pytest.raises(ValueError, match="needs backend='pybullet'"):
-        gym.make(env_id, backend="kinematic", render_mode="rgb_array")
-    with pytest.raises(ValueError, match="backend must be one of"):
-        gym.make(env_id, backend="mujoco")
+    with pytest.raises(ValueError, match="needs physics='pybullet'"):
+        gym.make(env_id, physics="kinematic", render_mode="rgb_array")
+    with pytest.raises(ValueError, match="physics must be one of"):
+        gym.make(env_id, physics="mujoco")

@@ -22,7 +22,7 @@ class HoverTask(ReachTask):
     """Reach a target at least 10 cm above the cuboid's floor, within 2 mm, in 10 s."""
 
     name, label, code = "hover", "Hover", 90
-    env_id, env_class_name = "snac_gym/UR10Hover-v0", "UR10HoverEnv"
+    env_name = "Hover"                                # its ids: snac_gym/UR10Hover-v0, snac_gym/PandaHover-v0, ...
     success_tolerance, episode_steps, horizon_s, real_horizon_s = 2e-3, 1250, 10.0, 12.0
 
     def sample(self, kinematics, rng, space):
@@ -36,14 +36,13 @@ def hover():
     snac_gym.register_envs()
     yield task
     del TASKS[task.name]
-    gym.registry.pop(task.env_id, None)
-    snac_gym.ENV_IDS.pop(task.env_id, None)
-    delattr(env_core, task.env_class_name)
+    snac_gym.envs.unregister_envs(task=task.name)
 
 
 def test_a_new_task_is_one_class_and_one_registration(hover, tmp_path):
     env = gym.make("snac_gym/UR10Hover-v0")
     assert env.spec.max_episode_steps == 1250 and env.unwrapped.task is hover
+    assert type(env.unwrapped) is env_core.URTaskEnv and "snac_gym/XArm7Hover-v0" in gym.registry  # every robot's id
     check_env(env.unwrapped, skip_render_check=True)
     _, info = env.reset(seed=3)
     assert info["reference"]["target"][2] >= SampleSpace().low[2] + 0.1 - 1e-9
@@ -74,9 +73,11 @@ def test_a_task_name_or_code_is_registered_once(hover):
 @pytest.fixture
 def limited_ur10():
     robot = register_robot(Robot("ur10-limited", "ur_description/urdf/ur10_joint_limited_robot.urdf",
-                                 nominal_q=ROBOTS["ur10"].nominal_q))
+                                 nominal_q=ROBOTS["ur10"].nominal_q, env_prefix="UR10Limited"))
+    snac_gym.register_envs()  # its ids: snac_gym/UR10LimitedReach-v0, ...
     yield robot
     del ROBOTS[robot.name]
+    snac_gym.envs.unregister_envs(robot=robot.name)
 
 
 def test_a_new_robot_is_one_entry(limited_ur10):
@@ -84,7 +85,7 @@ def test_a_new_robot_is_one_entry(limited_ur10):
     q = np.array(limited_ur10.nominal_q)
     np.testing.assert_allclose(limited.forward(q), ur10.forward(q), atol=1e-12)  # the same arm ...
     assert limited.upper_limits.max() < ur10.upper_limits.max()  # ... with the URDF's tighter joint limits
-    env = gym.make("snac_gym/UR10Reach-v0", robot="ur10-limited", max_steps=1500)
+    env = gym.make("snac_gym/UR10LimitedReach-v0", max_steps=1500)
     check_env(env.unwrapped, skip_render_check=True)
     log = rollout(env, make_policy("snac", env), options=env.unwrapped.task.demo_options(), seed=0, steps=1500)
     assert np.linalg.norm(log.attrs["final_e"]) <= 1e-3

@@ -22,12 +22,12 @@ def test_goal_envs_pass_the_checkers_with_default_arguments(env_id):
     check_env(env.unwrapped)  # default arguments, headless: "human" must not fail in a constructor
     assert env.spec.max_episode_steps == TASKS[env.unwrapped.task.name].episode_steps
     env.close()
-    sb3_check_env(gym.make(env_id, backend="kinematic", action_type="normalized").unwrapped, warn=False)
+    sb3_check_env(gym.make(env_id, physics="kinematic", action_type="normalized").unwrapped, warn=False)
 
 
 @pytest.mark.parametrize("reward_type", ["sparse", "dense"])
 def test_step_reward_is_compute_reward_and_it_is_vectorised(reward_type):
-    env = gym.make("snac_gym/UR10EllipseTrackGoal-v0", backend="kinematic", reward_type=reward_type)
+    env = gym.make("snac_gym/UR10EllipseTrackGoal-v0", physics="kinematic", reward_type=reward_type)
     obs, _ = env.reset(seed=1)
     base = env.unwrapped
     achieved, desired, rewards, infos = [], [], [], []
@@ -48,7 +48,7 @@ def test_step_reward_is_compute_reward_and_it_is_vectorised(reward_type):
 
 
 def test_the_observation_holds_nothing_that_depends_on_the_goal():
-    env = gym.make("snac_gym/UR10ReachGoal-v0", backend="kinematic")
+    env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic")
     q0 = [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62]
     first, _ = env.reset(seed=0, options={"q0": q0, "target": [-0.6, 0.3, 0.4]})
     second, _ = env.reset(seed=0, options={"q0": q0, "target": [-0.7, 0.0, 0.5]})
@@ -58,7 +58,7 @@ def test_the_observation_holds_nothing_that_depends_on_the_goal():
 
 
 def test_terminate_on_success_reaches_and_ends_the_episode():
-    env = gym.make("snac_gym/UR10ReachGoal-v0", backend="kinematic", terminate_on_success=True,
+    env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", terminate_on_success=True,
                    success_tolerance=0.05)
     obs, _ = env.reset(seed=0, options={"q0": [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62], "target": [-0.6, 0.5, 0.4]})
     base = env.unwrapped
@@ -92,7 +92,7 @@ def test_goal_env_pickles_mid_episode():
 def test_sac_with_her_trains_on_the_goal_env():
     from stable_baselines3 import SAC, HerReplayBuffer
 
-    env = gym.make("snac_gym/UR10ReachGoal-v0", backend="kinematic", action_type="normalized", max_steps=50)
+    env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", action_type="normalized", max_steps=50)
     model = SAC(
         "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},

@@ -125,9 +125,9 @@ def test_samples_lie_in_the_cuboid_away_from_limits_and_singularities(kin):
 
 
 @pytest.mark.parametrize("robot", REDUNDANT)
-@pytest.mark.parametrize("env_id", [task.env_id for task in TASKS.values()])
-def test_check_env(env_id, robot):
-    env = gym.make(env_id, robot=robot)
+@pytest.mark.parametrize("task", list(TASKS))
+def test_check_env(task, robot):
+    env = gym.make(TASKS[task].env_id_for(robot))
     check_env(env.unwrapped, skip_render_check=True)
     obs, _ = env.reset(seed=0)
     assert obs.shape == (2 * 7 + 5 * 3,) and env.action_space.shape == (7,)

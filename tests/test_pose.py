@@ -137,12 +137,12 @@ def test_pose_references_round_trip(panda):
     assert x_d.shape == (6,) and not xdot_d.any()
 
 
-@pytest.mark.parametrize("env_id", ["snac_gym/PoseReach-v0", "snac_gym/PoseEllipseTrack-v0"])
+@pytest.mark.parametrize("env_id", ["snac_gym/PandaPoseReach-v0", "snac_gym/PandaPoseEllipseTrack-v0"])
 def test_check_env_on_the_pose_ids(env_id):
     import gymnasium as gym
     from gymnasium.utils.env_checker import check_env
 
-    env = gym.make(env_id, robot="panda")
+    env = gym.make(env_id)
     check_env(env.unwrapped, skip_render_check=True)
     obs, _ = env.reset(seed=0)
     assert obs.shape == (2 * 7 + 5 * 6,)
@@ -152,7 +152,7 @@ def test_check_env_on_the_pose_ids(env_id):
 def test_the_pose_env_logs_pinocchios_logarithm_and_dls_reaches(panda):
     import gymnasium as gym
 
-    env = gym.make("snac_gym/PoseReach-v0", robot="panda", backend="kinematic", max_steps=3000)
+    env = gym.make("snac_gym/PandaPoseReach-v0", physics="kinematic", max_steps=3000)
     policy = make_policy("dls", env)
     obs, _ = env.reset(seed=4)
     layout = env.unwrapped.obs_layout

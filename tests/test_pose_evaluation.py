@@ -28,7 +28,7 @@ from snac_gym.tasks.pose import (
     pose_errors_and_jacobians,
 )
 
-POSE_ENV_IDS = ["snac_gym/PoseReach-v0", "snac_gym/PoseEllipseTrack-v0"]
+POSE_ENV_IDS = ["snac_gym/PandaPoseReach-v0", "snac_gym/PandaPoseEllipseTrack-v0"]
 SMALL = {"robot": "panda", "samples": 3, "horizons": {"pose-reach": 0.4}, "chunk_size": 2, "progress": False}
 
 
@@ -48,8 +48,8 @@ def test_pose_task_names_are_the_registered_ones():
 @pytest.mark.parametrize("env_id", POSE_ENV_IDS)
 @pytest.mark.parametrize("controller", ["snac", "dls"])
 def test_engine_is_the_kinematic_env_episode_for_episode(env_id, controller):
-    """backend="kinematic" of a pose env and simulate_kinematic: the same commands and log₃ errors."""
-    env = gym.make(env_id, backend="kinematic", robot="panda")
+    """physics="kinematic" of a pose env and simulate_kinematic: the same commands and log₃ errors."""
+    env = gym.make(env_id, physics="kinematic")
     log = rollout(env, make_policy(controller, env), seed=5, steps=150)
     base = env.unwrapped
     m = base.kinematics.n_joints
@@ -71,7 +71,7 @@ def test_engine_is_the_kinematic_env_episode_for_episode(env_id, controller):
 
 def test_engine_errors_are_the_log3_of_the_orientation_error():
     """The orientation rows are log₃(R R_dᵀ) from the placements, not a difference of rotation vectors."""
-    env = gym.make("snac_gym/PoseReach-v0", backend="kinematic", robot="panda")
+    env = gym.make("snac_gym/PandaPoseReach-v0", physics="kinematic")
     env.reset(seed=3)
     context = PolicyContext.from_env(env)
     kin: PoseKinematics = context.kinematics

@@ -10,13 +10,14 @@ from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.env_checker import check_env  # noqa: E402
 from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
 
-import snac_gym  # noqa: E402
+import snac_gym  # noqa: E402, F401  (registers the ids)
 from snac_gym.envs.sb3 import SB3VectorEnv  # noqa: E402
 from snac_gym.ppo.config import resolve_config  # noqa: E402
 from snac_gym.ppo.train import make_training_env  # noqa: E402
 from snac_gym.ppo.vec_env import PPOVecEnv  # noqa: E402
+from snac_gym.tasks import TASKS  # noqa: E402
 
-ENV_IDS = list(snac_gym.ENV_IDS)
+ENV_IDS = [task.env_id for task in TASKS.values()]
 
 
 def _run_side_by_side(batched, dummy, steps, seed=7):
@@ -47,7 +48,7 @@ def _run_side_by_side(batched, dummy, steps, seed=7):
 def test_sb3_vec_env_is_a_dummy_vec_env_of_single_kinematic_envs(env_id):
     kwargs = {"max_steps": 6, "action_type": "normalized", "reward_type": "shaped", "observation_dtype": np.float32}
     batched = SB3VectorEnv(env_id, 3, **kwargs)
-    dummy = DummyVecEnv([lambda: gym.make(env_id, backend="kinematic", **kwargs) for _ in range(3)])
+    dummy = DummyVecEnv([lambda: gym.make(env_id, physics="kinematic", **kwargs) for _ in range(3)])
     assert batched.observation_space == dummy.observation_space and batched.action_space == dummy.action_space
     _run_side_by_side(batched, dummy, 14)
     assert batched.get_attr("max_steps") == [6, 6, 6] and batched.env_is_wrapped(gym.Wrapper) == [False] * 3
@@ -58,7 +59,7 @@ def test_ppo_vec_env_is_the_training_wrapper_episode_for_episode(task):
     config = resolve_config(task)
     config["env"] = {**config["env"], "max_steps": 5}
     batched = PPOVecEnv(config, num_envs=3)
-    single = {**config, "env": {**config["env"], "backend": "kinematic"}}
+    single = {**config, "env": {**config["env"], "physics": "kinematic"}}
     dummy = DummyVecEnv([lambda: make_training_env(single) for _ in range(3)])
     _run_side_by_side(batched, dummy, 12)
 
@@ -73,7 +74,7 @@ def test_ppo_trains_on_thousands_of_episodes_at_once():
 
 
 def test_single_kinematic_env_passes_sb3_check_env():
-    env = gym.make("snac_gym/UR10Reach-v0", backend="kinematic", action_type="normalized",
+    env = gym.make("snac_gym/UR10Reach-v0", physics="kinematic", action_type="normalized",
                    observation_dtype=np.float32, max_steps=20)
     check_env(env, warn=True)
 

@@ -4,13 +4,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import snac_gym
+import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.envs.vector import URTaskVectorEnv
 from snac_gym.kinematics import PositionChain
 from snac_gym.kinematics import Kinematics
 from snac_gym.tasks import TASKS
 
-ENV_IDS = list(snac_gym.ENV_IDS)
+ENV_IDS = [task.env_id for task in TASKS.values()]  # the UR10's; test_a_seven_joint_arm_matches_too runs a Panda
 
 
 @pytest.mark.parametrize("robot", ["ur3", "ur5", "ur10", "panda", "xarm7"])
@@ -23,7 +23,7 @@ def test_position_chain_is_pinocchio(robot):
 
 def _pair(env_id, count, **kwargs):
     vector = gym.make_vec(env_id, num_envs=count, vectorization_mode="vector_entry_point", **kwargs)
-    sync = gym.make_vec(env_id, num_envs=count, vectorization_mode="sync", backend="kinematic", **kwargs)
+    sync = gym.make_vec(env_id, num_envs=count, vectorization_mode="sync", physics="kinematic", **kwargs)
     return vector, sync
 
 
@@ -113,7 +113,7 @@ def test_registered_length_and_options_reach_every_sub_env():
     obs, infos = env.reset(options=options)
     np.testing.assert_array_equal(obs[0], obs[1])
     np.testing.assert_allclose(infos["q0"][0], options["q0"])
-    single = gym.make("snac_gym/UR10EllipseTrack-v0", backend="kinematic")
+    single = gym.make("snac_gym/UR10EllipseTrack-v0", physics="kinematic")
     np.testing.assert_allclose(obs[0], single.reset(options=options)[0], rtol=0, atol=1e-12)
 
 
@@ -139,7 +139,7 @@ def test_only_position_tasks_get_a_vector_entry_point():
 
 
 def test_a_seven_joint_arm_matches_too():
-    vector, sync = _pair("snac_gym/UR10Reach-v0", 2, robot="panda", max_steps=4)
+    vector, sync = _pair("snac_gym/PandaReach-v0", 2, max_steps=4)
     np.testing.assert_allclose(vector.reset(seed=2)[0], sync.reset(seed=2)[0], rtol=0, atol=1e-12)
     vector.action_space.seed(0)
     for _ in range(6):
@@ -150,7 +150,7 @@ def test_a_seven_joint_arm_matches_too():
 def test_bad_arguments_are_refused():
     env_id = "snac_gym/UR10Reach-v0"
     with pytest.raises(ValueError, match="kinematic model only"):
-        gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", backend="pybullet")
+        gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", physics="pybullet")
     with pytest.raises(ValueError, match="no scene to render"):
         gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", render_mode="rgb_array")
     with pytest.raises(ValueError, match="num_envs"):
@@ -170,5 +170,5 @@ def test_bad_arguments_are_refused():
 
 def test_gym_make_keeps_pybullet_and_its_episode_length_hook():
     env = gym.make("snac_gym/UR10Reach-v0", max_steps=1500)
-    assert env.unwrapped.backend == "pybullet" and env.spec.max_episode_steps == 1500
+    assert env.unwrapped.physics == "pybullet" and env.spec.max_episode_steps == 1500
     env.close()

@@ -10,45 +10,113 @@ from snac_gym.envs.core import (
     ACTION_TYPES,
     REWARD_TYPES,
     SHAPED_REWARD,
+    TASK_ENV_CLASSES,
+    EllipseTrackEnv,
+    PoseEllipseTrackEnv,
+    PoseReachEnv,
+    ReachEnv,
     UR10EllipseTrackEnv,
     UR10ReachEnv,
     URTaskEnv,
     shaped_reward,
     task_env_class,
 )
-from snac_gym.tasks import TASKS
+from snac_gym.envs.ids import REGISTERED_IDS, RegisteredId
+from snac_gym.robots import ROBOTS
+from snac_gym.tasks import TASKS, Task
 
-#: Registered ids and their entry points, one per registered task (filled by :func:`register_envs`).
+#: The registered task env ids (one per robot and task) and their entry points (filled by :func:`register_envs`).
 ENV_IDS: dict[str, str] = {}
+#: The registered goal-conditioned ids (:mod:`snac_gym.envs.goal`) and their entry points.
+GOAL_ENV_IDS: dict[str, str] = {}
 
 
 def register_envs() -> None:
-    """Register the env of every task of :data:`snac_gym.tasks.TASKS` with Gymnasium (idempotent).
+    """Register the ids of every robot of :data:`snac_gym.robots.ROBOTS` and task of
+    :data:`snac_gym.tasks.TASKS`, each with its goal variant (idempotent).
 
-    Each id's episode length is its task's ``episode_steps``, registered as
-    ``max_episode_steps`` (the ``TimeLimit`` wrapper ``gym.make`` adds); the registered
+    ``snac_gym/<Robot><Task>-v0`` (:mod:`snac_gym.envs.ids`) runs the task's env class with
+    ``robot=<robot>``; ``snac_gym/<Robot><Task>Goal-v0`` its :class:`~snac_gym.envs.goal.GoalTaskEnv`.
+    Each id's episode length is its task's ``episode_steps``, registered as ``max_episode_steps``
+    (the ``TimeLimit`` wrapper ``gym.make`` adds); the registered
     :func:`~snac_gym.envs.core.apply_episode_length` hook lets the ``max_steps`` argument set it.
-    A task registered later gets its id from the next call.
+    A task or a robot registered later gets its ids from the next call.
     """
+    for task in TASKS.values():
+        for robot in ROBOTS.values():
+            _register(task, robot.name, goal=False)
+            _register(task, robot.name, goal=True)
+
+
+def _register(task: Task, robot: str, goal: bool) -> None:
+    """Register the id of ``task`` on ``robot`` (its goal variant if ``goal``) unless it exists."""
     import gymnasium as gym
     from gymnasium.envs.registration import WrapperSpec
 
     from snac_gym.envs.vector import task_vector_env_class, vector_env_supports
 
-    hook = WrapperSpec(name="EpisodeLength", entry_point="snac_gym.envs.core:apply_episode_length", kwargs={})
-    for task in TASKS.values():
-        env_class = task_env_class(task)
+    env_id = task.env_id_for(robot, goal=goal)
+    env_class = task_env_class(task)
+    kwargs = {"robot": robot} if env_class.task_spec is task and not goal else {"robot": robot, "task": task.name}
+    if goal:
+        entry_point, vector_entry_point = "snac_gym.envs.goal:GoalTaskEnv", None
+    else:
+        entry_point = f"{env_class.__module__}:{env_class.__qualname__}"
         # The batched env steps end-effector positions only: a task with its own coordinates (a
         # pose task's PoseKinematics) gets no vector entry point, and make_vec falls back to sync.
         vector_class = task_vector_env_class(task) if vector_env_supports(task) else None
-        ENV_IDS[task.env_id] = f"{env_class.__module__}:{env_class.__qualname__}"
-        if task.env_id not in gym.registry:
-            gym.register(
-                id=task.env_id, entry_point=ENV_IDS[task.env_id], disable_env_checker=False,
-                max_episode_steps=env_class.default_max_steps, additional_wrappers=(hook,),
-                vector_entry_point=None if vector_class is None else f"{vector_class.__module__}:{vector_class.__qualname__}",
-            )
-            gym.registry[task.env_id] = _TaskEnvSpec(**_spec_fields(gym.registry[task.env_id]))
+        vector_entry_point = None if vector_class is None else f"{vector_class.__module__}:{vector_class.__qualname__}"
+    (GOAL_ENV_IDS if goal else ENV_IDS)[env_id] = entry_point
+    REGISTERED_IDS[env_id] = RegisteredId(robot, task.name, goal)
+    if env_id in gym.registry:
+        return
+    hook = WrapperSpec(name="EpisodeLength", entry_point="snac_gym.envs.core:apply_episode_length", kwargs={})
+    gym.register(
+        id=env_id, entry_point=entry_point, kwargs=kwargs, disable_env_checker=False,
+        max_episode_steps=task.episode_steps, additional_wrappers=(hook,), vector_entry_point=vector_entry_point,
+    )
+    if not goal:
+        gym.registry[env_id] = _TaskEnvSpec(**_spec_fields(gym.registry[env_id]))
+
+
+def make_task_env(task: Task | str, robot: str = "ur10", **kwargs: Any) -> Any:
+    """``gym.make`` of ``task``'s id on ``robot`` (registering the ids of a robot or task added since).
+
+    Args:
+        task: A registered task (or its name).
+        robot: A registered robot.
+        **kwargs: Arguments of ``gym.make`` and the env (not ``robot``: the id fixes it).
+    """
+    import gymnasium as gym
+
+    from snac_gym.tasks import get_task
+
+    env_id = get_task(task).env_id_for(robot)
+    if env_id not in gym.registry:
+        register_envs()
+    return gym.make(env_id, **kwargs)
+
+
+def unregister_envs(task: str | None = None, robot: str | None = None) -> list[str]:
+    """Remove the ids of a task or of a robot (both: that pair) from Gymnasium and the tables here.
+
+    The inverse of :func:`register_envs` for a task or robot taken out of its registry again.
+
+    Returns:
+        The ids removed.
+    """
+    import gymnasium as gym
+
+    removed = [
+        env_id for env_id, entry in REGISTERED_IDS.items()
+        if (task is None or entry.task == task) and (robot is None or entry.robot == robot)
+    ]
+    for env_id in removed:
+        gym.registry.pop(env_id, None)
+        ENV_IDS.pop(env_id, None)
+        GOAL_ENV_IDS.pop(env_id, None)
+        REGISTERED_IDS.pop(env_id, None)
+    return removed
 
 
 def _spec_fields(spec: Any) -> dict[str, Any]:
@@ -77,12 +145,21 @@ class _TaskEnvSpec(EnvSpec):
 __all__ = [
     "ACTION_TYPES",
     "ENV_IDS",
+    "GOAL_ENV_IDS",
+    "REGISTERED_IDS",
     "REWARD_TYPES",
     "SHAPED_REWARD",
+    "TASK_ENV_CLASSES",
+    "EllipseTrackEnv",
+    "PoseEllipseTrackEnv",
+    "PoseReachEnv",
+    "ReachEnv",
     "UR10EllipseTrackEnv",
     "UR10ReachEnv",
     "URTaskEnv",
     "register_envs",
     "shaped_reward",
+    "make_task_env",
     "task_env_class",
+    "unregister_envs",
 ]

@@ -2,8 +2,9 @@
 
 :class:`PyBulletArm` simulates the URDF with PyBullet's velocity motors (the default);
 :class:`KinematicArm` integrates the paper's model exactly, θₖ₊₁ = θₖ + uₖΔt (eq. 3, the
-evaluator's kinematic engine), thousands of times faster. The real robot's backends
-(:mod:`snac_gym.real.backends`) follow the same idea with a wall clock behind them.
+evaluator's kinematic engine), thousands of times faster. The env's ``physics=`` argument picks
+one. The real robot's connections (:mod:`snac_gym.real.backends`) follow the same idea with a
+wall clock behind them.
 """
 
 from __future__ import annotations
@@ -15,10 +16,10 @@ import numpy as np
 
 from snac_gym.envs.robot import SimulatedArm
 from snac_gym.envs.sim import MAX_DT, PyBulletSim
-from snac_gym.kinematics import Kinematics
+from snac_gym.kinematics import Kinematics, joint_step
 
-#: Arm backends of the simulated envs (``backend=`` of ``gym.make``).
-ARM_BACKENDS = ("pybullet", "kinematic")
+#: The arm models of the simulated envs (``physics=`` of ``gym.make``).
+PHYSICS = ("pybullet", "kinematic")
 
 
 @runtime_checkable
@@ -106,7 +107,7 @@ class KinematicArm:
         self._qdot = np.zeros_like(self._q)
 
     def apply(self, u: np.ndarray) -> None:
-        self._q = self._q + u * self.dt
+        self._q = joint_step(self._q, u, self.dt)
         self._qdot = np.array(u, dtype=float)
 
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -119,14 +120,14 @@ class KinematicArm:
         pass
 
 
-def make_arm(backend: str, kinematics: Kinematics, dt: float, n_substeps: int, gui: bool = False) -> Arm:
-    """The arm of ``backend`` (one of :data:`ARM_BACKENDS`).
+def make_arm(physics: str, kinematics: Kinematics, dt: float, n_substeps: int, gui: bool = False) -> Arm:
+    """The arm of ``physics`` (one of :data:`PHYSICS`).
 
     Raises:
-        ValueError: On an unknown backend.
+        ValueError: On an unknown model.
     """
-    if backend == "pybullet":
+    if physics == "pybullet":
         return PyBulletArm(kinematics, dt, n_substeps, gui=gui)
-    if backend == "kinematic":
+    if physics == "kinematic":
         return KinematicArm(kinematics, dt)
-    raise ValueError(f"backend must be one of {ARM_BACKENDS}, got {backend!r}")
+    raise ValueError(f"physics must be one of {PHYSICS}, got {physics!r}")

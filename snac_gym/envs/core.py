@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import warnings
 from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
@@ -13,130 +14,17 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.cost import step_costs, weight_matrix
-from snac_gym.envs.arms import ARM_BACKENDS, Arm, make_arm
+from snac_gym.envs.arms import PHYSICS, Arm, make_arm
+from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.envs.scene import Scene, default_render_every, scene_of
 from snac_gym.envs.sim import check_image_size
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
 from snac_gym.sampling import SampleSpace, sample_seed_pose
+from snac_gym.robots import get_robot
 from snac_gym.tasks import TASKS, Task, get_task
-
-_ENV_DOC = """
-    ## Description
-    A {robot_desc} arm under joint-velocity control (``ẋ = J u``, eq. 3) simulated in PyBullet.
-    {task_desc}
-
-    ## Action Space
-    ``action_type="velocity"`` (default): ``Box(-v_max, v_max, (m,), float64)``, the commanded
-    joint velocities u = θ̇ in rad/s, applied by PyBullet ``VELOCITY_CONTROL`` motors (each bounded
-    by its URDF effort) and held for one control period ``dt``. ``v_max`` are the URDF limits
-    (UR10: 2.16, 2.16, 3.15, 3.2, 3.2, 3.2 rad/s). ``action_type="normalized"`` (for learners):
-    ``Box(-1, 1, (m,), float32)``, the command is u = a·v_max per joint. An action outside the
-    box is **clipped** to it (``info["command"]`` holds the applied u in rad/s); an action with
-    NaN/inf or of the wrong shape raises ``ValueError``.
-
-    ## Observation Space
-    ``Box(low, high, (2m + 5n,), observation_dtype)``, m joints and task dimension n = 3 (UR10: 27
-    values), float64 by default, float32 with ``observation_dtype=np.float32`` (the float64 values
-    rounded). Positions are in the robot's ``base`` frame (the frame the UR pendant shows).
-    Bounds: ±inf by default (the space of the real-robot env); with
-    ``finite_observation_bounds=True`` (``env.unwrapped.observation_bounds()``): θ within the URDF joint limits widened by
-    :data:`JOINT_LIMIT_MARGIN` (the simulator's joint-limit constraint is soft); positions within
-    ±ρ per axis, ρ the sum of the arm's link offsets (UR10: 1.88 m, a bound on its reach); ẋ_d
-    within ±3 m/s (the fastest reference :class:`~snac_gym.references.Ellipse` accepts); e
-    within ±2ρ. θ̇ stays unbounded: the joint-limit constraint can push the measured velocity
-    well past the motor limits (2.5× measured), so physics gives no bound there.
-
-    | Index (UR10) | Observation                                    | Unit  |
-    |--------------|------------------------------------------------|-------|
-    | 0–5          | joint positions θ                              | rad   |
-    | 6–11         | joint velocities θ̇ (measured)                 | rad/s |
-    | 12–14        | end-effector (``tool0``) position x = f(θ)     | m     |
-    | 15–17        | desired position x_d(t)                        | m     |
-    | 18–20        | desired velocity ẋ_d(t)                        | m/s   |
-    | 21–23        | error e = x − x_d (eq. 4)                      | m     |
-    | 24–26        | reference centre: {centre_desc}                | m     |
-
-    ``env.unwrapped.obs_layout.unpack(obs)`` returns these as named fields.
-
-    ## Rewards
-    ``reward_type="dense"`` (default): ``−(eₖᵀQeₖ + uₖᵀRuₖ)``, the negative of the paper's
-    instantaneous cost (eq. 6) with eₖ the error at the start of the step and uₖ the applied
-    command, Q = I₃, R = I₆ by default; so ``−Σ reward·dt`` is the error and effort part of the
-    evaluator's trajectory cost. ``reward_type="sparse"``: 0 when ``is_success`` after the
-    step, −1 otherwise. ``reward_type="shaped"`` (for learners; the reward PPO trains on, see
-    :mod:`snac_gym.ppo.envs`), with d = ‖e‖ after the step and a = u / v_max the applied command
-    normalised to [−1, 1]::
-
-        r = −10·d + exp(−(d / 0.01)²) − 0.01·‖a‖²
-
-    (:data:`SHAPED_REWARD` holds the weights): the distance term pulls from afar, the Gaussian
-    bonus rewards settling to within about a centimetre, the action penalty keeps the arm still
-    once there. ``info`` carries ``error`` (vector after the step), ``error_norm``,
-    ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇ with u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),
-    ``command``, ``t`` and ``is_success`` ({success_desc}).
-
-    ## Starting State
-    ``reset(seed=None, options=None)``: with no options, a random seed pose (end effector in the
-    sample cuboid, away from singularities and joint limits) and a {random_desc}, drawn from
-    ``self.np_random``. ``options`` pins them exactly, to replay any run:
-
-    | key        | value                                                                  |
-    |------------|------------------------------------------------------------------------|
-    | ``q0``     | start joint positions, rad (missing: random)                           |
-    | ``{key}`` | {key_desc} (missing when options are given: {paper_desc})               |
-
-    Unknown keys raise ``ValueError``; a point outside the reachable workspace raises a
-    ``ValueError`` naming it. Every reset restores the simulator state saved after loading
-    (velocities, motor targets and solver caches included), then poses the joints at rest.
-
-    ## Episode End
-    {end_desc} Truncation by the registration's ``TimeLimit`` wrapper after
-    ``max_episode_steps`` control steps (default {default_steps}, i.e. {default_seconds:g} s at
-    125 Hz): ``gym.make(id, max_episode_steps=N)`` sets it and ``env.spec.max_episode_steps``
-    shows it. The older argument ``max_steps=N`` does the same (and wins over
-    ``max_episode_steps``); an env built with it also truncates itself at N, without wrappers.
-
-    ## Arguments
-    ``gym.make("snac_gym/{env_id}", **kwargs)``; unknown arguments raise ``TypeError``.
-
-    | argument               | default      | meaning                                            |
-    |------------------------|--------------|----------------------------------------------------|
-    | ``robot``              | ``"ur10"``   | a registered robot: UR3/5/10, panda, xarm7            |
-    | ``dt``                 | ``1/125``    | control period, s (``env.unwrapped.dt``), in (0, 1] |
-    | ``n_substeps``         | ``3``        | physics steps per control period (see README)      |
-    | ``max_steps``          | ``None``     | episode length in control steps (else the          |
-    |                        |              | registration's ``max_episode_steps``, {default_steps})     |
-    | ``action_type``        | ``"velocity"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
-    | ``observation_dtype``  | ``np.float64`` | ``np.float64`` or ``np.float32``                 |
-    | ``finite_observation_bounds`` | ``False`` | physical observation bounds instead of ±inf |
-    | ``reward_type``        | ``"dense"``  | ``"dense"``, ``"sparse"`` or ``"shaped"``          |
-    | ``Q``, ``R``           | identity     | cost weights (matrix or diagonal)                  |
-    | ``success_tolerance``  | {tol_default}    | success threshold on the error norm, m             |
-    | ``terminate_on_success`` | ``False``  | reach only: end the episode on success             |
-    | ``sample_space``       | UR10 cuboid  | a :class:`~snac_gym.sampling.SampleSpace`          |
-    | ``render_mode``        | ``None``     | ``"rgb_array"`` (headless) or ``"human"`` (GUI;    |
-    |                        |              | without a display it warns on the first frame and  |
-    |                        |              | shows nothing)                                     |
-    | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels  |
-    | ``render_every``       | 25 images/s  | control steps between two new images (5 at 125 Hz);|
-    |                        |              | ``render_fps`` is 1/dt, so videos play in real time |
-    | ``backend``            | ``"pybullet"`` | ``"pybullet"`` (physics, velocity motors) or      |
-    |                        |              | ``"kinematic"``: θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held |
-    |                        |              | command (the evaluator's engine; no rendering)     |
-
-    ## Version History
-    * v0: initial version.
-    * v0 (issue 14, same numbers by default): the episode limit moved to the registration's
-      ``TimeLimit`` (``max_episode_steps``; ``max_steps`` kept); ``finite_observation_bounds``;
-      ``observation_dtype``, ``action_type="normalized"`` and ``reward_type="shaped"`` added;
-      ``render_mode="human"`` without a display no longer fails in the constructor.
-    * v0 (issue 13, same numbers by default): ``backend="kinematic"`` added.
-    * v0 (issue 14, same numbers): frames show a floor, a coloured arm, the target and the
-      ellipse path, framed to hold the arm and the sample cuboid; ``render_fps`` = 1/dt with
-      ``render_every``, so a recorded video plays in real time.
-"""
+from snac_gym.tasks.pose import POSE_TASKS
 
 #: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
 ACTION_TYPES = ("velocity", "normalized")
@@ -287,6 +175,25 @@ def draw_episode(
     return validate_q0(kinematics, q0), reference
 
 
+def physics_argument(physics: str, backend: str | None = None) -> str:
+    """The ``physics=`` argument, or the deprecated ``backend=`` one (with a ``DeprecationWarning``).
+
+    Raises:
+        ValueError: If it is not one of :data:`~snac_gym.envs.arms.PHYSICS`, or both are given and differ.
+    """
+    if backend is not None:
+        warnings.warn(
+            f"backend={backend!r} is deprecated; use physics={backend!r} (the arm's model: 'pybullet' or 'kinematic')",
+            DeprecationWarning, stacklevel=3,
+        )
+        if physics not in (backend, PHYSICS[0]):
+            raise ValueError(f"give physics= only (backend= is its deprecated name), got physics={physics!r}, backend={backend!r}")
+        physics = backend
+    if physics not in PHYSICS:
+        raise ValueError(f"physics must be one of {PHYSICS}, got {physics!r}")
+    return physics
+
+
 def _check_choices(
     reward_type: str, action_type: str, observation_dtype: Any, render_mode: str | None, metadata: Mapping[str, Any]
 ) -> np.dtype:
@@ -386,14 +293,24 @@ class TaskEnvCore(gym.Env):
         }
 
 
-class URTaskEnv(TaskEnvCore):
-    """Base class of the simulated envs: one per task (:func:`task_env_class`); see their documentation."""
+class URTaskEnv(IdRobotCheck, TaskEnvCore):
+    """The simulated env: a registered robot in PyBullet or on the kinematic model, running a task.
+
+    Each task of the paper has its own subclass with its full documentation: :class:`ReachEnv`,
+    :class:`EllipseTrackEnv` (and the opt-in :class:`PoseReachEnv`, :class:`PoseEllipseTrackEnv`).
+    A task registered later (docs/extending.md) runs in this class itself, given ``task=``; its
+    ids pass it. The arguments are those of :class:`ReachEnv`, plus:
+
+    Args:
+        task: The task's name (or :class:`~snac_gym.tasks.Task`); a subclass fixes it.
+
+    Raises:
+        ValueError: On a bad argument, naming it.
+    """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
-    #: The task this env class runs (set by :func:`task_env_class`).
-    task_spec: Task
-    default_max_steps = 1000
-    default_success_tolerance = 1e-3
+    #: The task of a subclass (``None``: given by ``task=``).
+    task_spec: Task | None = None
 
     def __init__(
         self,
@@ -413,21 +330,26 @@ class URTaskEnv(TaskEnvCore):
         action_type: str = "velocity",
         observation_dtype: Any = np.float64,
         finite_observation_bounds: bool = False,
-        backend: str = "pybullet",
+        physics: str = "pybullet",
         render_every: int | None = None,
+        task: Task | str | None = None,
+        backend: str | None = None,
     ) -> None:
-        self._init_kwargs = dict(backend=backend, render_every=render_every,
+        task = self._resolve_task(task)
+        physics = physics_argument(physics, backend)
+        self._init_kwargs = dict(physics=physics, render_every=render_every,
             robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
             success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
             sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
             action_type=action_type, observation_dtype=observation_dtype,
             finite_observation_bounds=finite_observation_bounds,
+            task=None if self.task_spec is not None else task.name,
         )
         obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
-        if backend not in ARM_BACKENDS:
-            raise ValueError(f"backend must be one of {ARM_BACKENDS}, got {backend!r}")
-        if backend != "pybullet" and render_mode is not None:
-            raise ValueError(f"render_mode={render_mode!r} needs backend='pybullet' (the {backend} arm has no scene)")
+        if physics != "pybullet" and render_mode is not None:
+            raise ValueError(f"render_mode={render_mode!r} needs physics='pybullet' (the {physics} arm has no scene)")
+        #: Episode length in control steps of the task's ids (their ``max_episode_steps``).
+        self.default_max_steps = task.episode_steps
         #: The ``max_steps`` argument: when given, the env truncates itself after it (``None``: the
         #: ``TimeLimit`` of the registration does, see :func:`apply_episode_length`).
         self.requested_max_steps = None if max_steps is None else int(max_steps)
@@ -435,7 +357,7 @@ class URTaskEnv(TaskEnvCore):
         self.max_steps = self.default_max_steps if max_steps is None else int(max_steps)
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
-        self._init_task(self.task_spec, self.task_spec.make_kinematics(robot), dt, Q, R, success_tolerance, sample_space)
+        self._init_task(task, task.make_kinematics(robot), dt, Q, R, success_tolerance, sample_space)
         self.reward_type = reward_type
         self.terminate_on_success = bool(terminate_on_success)
         self.render_mode = render_mode
@@ -443,12 +365,36 @@ class URTaskEnv(TaskEnvCore):
 
         self.action_type = action_type
         self.observation_dtype = obs_dtype
-        self.backend = backend
-        self._build_arm(backend, n_substeps, render_every)
+        #: The arm's model: ``"pybullet"`` or ``"kinematic"`` (:data:`~snac_gym.envs.arms.PHYSICS`).
+        self.physics = physics
+        self._build_arm(physics, n_substeps, render_every)
         self._unit_limits = np.ones(self.kinematics.n_joints)  # the bounds of a normalized action
         self._build_spaces(finite_observation_bounds)
 
-    def _build_arm(self, backend: str, n_substeps: int, render_every: int | None) -> None:
+    def _resolve_task(self, task: Task | str | None) -> Task:
+        """The class's task, or ``task=`` for :class:`URTaskEnv` itself."""
+        own = type(self).task_spec
+        if task is None:
+            if own is None:
+                raise TypeError(f"{type(self).__name__} needs task=<a registered task's name>")
+            return own
+        task = get_task(task)
+        if own is not None and task is not own:
+            raise ValueError(f"{type(self).__name__} runs the task {own.name!r}, got task={task.name!r}")
+        return task
+
+    @property
+    def robot(self) -> str:
+        """The registered name of the robot this env drives."""
+        return get_robot(self.kinematics.robot).name
+
+    @property
+    def backend(self) -> str:
+        """Deprecated name of :attr:`physics`."""
+        warnings.warn("env.backend is deprecated; use env.physics", DeprecationWarning, stacklevel=2)
+        return self.physics
+
+    def _build_arm(self, physics: str, n_substeps: int, render_every: int | None) -> None:
         """The arm, and the rendered scene when there is a render mode."""
         # "human" without a display falls back to the headless client and warns on the first frame
         # (the constructor must work headless: Gymnasium's checker builds every declared mode).
@@ -456,7 +402,7 @@ class URTaskEnv(TaskEnvCore):
             self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
         )
         gui = self.render_mode == "human" and not self._headless_human
-        self.arm: Arm = make_arm(backend, self.kinematics, self.dt, n_substeps, gui=gui)
+        self.arm: Arm = make_arm(physics, self.kinematics, self.dt, n_substeps, gui=gui)
         self.dt = self.arm.dt
         #: The PyBullet world (renders; ``None`` for the kinematic arm).
         self.sim = getattr(self.arm, "sim", None)
@@ -602,38 +548,277 @@ class URTaskEnv(TaskEnvCore):
             self._obs = self._observe()
 
 
-def _document(cls: type[URTaskEnv], task: Task) -> None:
-    steps = cls.default_max_steps
-    cls.__doc__ = (cls.__doc__ or "") + _ENV_DOC.format(
-        env_id=task.env_id.split("/", 1)[-1], robot_desc="Universal Robots UR10", default_steps=steps, default_seconds=steps / 125.0,
-        tol_default=f"``{cls.default_success_tolerance:g}``", key=task.option_key, **task.env_doc
-    )
+# -- the env classes, one per task -------------------------------------------------------------------
+# Their docstrings are the Gymnasium-style reference of each id family (docs/environments.md links
+# them). What every class shares (action space, rewards, arguments) is written in each, on purpose:
+# ``help(ReachEnv)`` must be complete on its own.
 
 
-def task_env_class(task: Task) -> type[URTaskEnv]:
-    """The env class of ``task`` (made once, then reused), named ``task.env_class_name``.
+class ReachEnv(URTaskEnv):
+    """``snac_gym/<Robot>Reach-v0``: optimal regulation, reach a fixed target point (Section III).
 
-    The class lives in this module, so that it pickles and ``task.env_id``'s entry point
-    ``snac_gym.envs.core:<env_class_name>`` finds it.
+    ## Description
+    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or on the
+    exact kinematic model, ``physics="kinematic"``). The end effector must reach a fixed target
+    x_d and stay there (x_d constant, ẋ_d = 0). One id per registered robot:
+    ``snac_gym/UR10Reach-v0`` (the paper's arm), ``UR5Reach-v0``, ``UR3Reach-v0``,
+    ``PandaReach-v0``, ``XArm7Reach-v0``; the id fixes ``robot``.
+
+    ## Action Space
+    ``action_type="velocity"`` (default): ``Box(-v_max, v_max, (m,), float64)``, the commanded
+    joint velocities u = θ̇ in rad/s of the m joints, applied by PyBullet ``VELOCITY_CONTROL``
+    motors (each bounded by its URDF effort) and held for one control period ``dt``. ``v_max``
+    are the URDF limits (UR10: 2.16, 2.16, 3.15, 3.2, 3.2, 3.2 rad/s).
+    ``action_type="normalized"`` (for learners): ``Box(-1, 1, (m,), float32)``, the command is
+    u = a·v_max per joint. An action outside the box is **clipped** to it (``info["command"]``
+    holds the applied u in rad/s); an action with NaN/inf or of the wrong shape raises ``ValueError``.
+
+    ## Observation Space
+    ``Box(low, high, (2m + 15,), observation_dtype)`` (UR10: 27 values), float64 by default,
+    float32 with ``observation_dtype=np.float32`` (the float64 values rounded). Positions are in
+    the robot's base frame (for a UR arm the frame the pendant shows). Bounds: ±inf by default
+    (the space of the real-robot env); with ``finite_observation_bounds=True``
+    (``env.unwrapped.observation_bounds()``): θ within the URDF joint limits widened by
+    :data:`JOINT_LIMIT_MARGIN` (the simulator's joint-limit constraint is soft); positions within
+    ±ρ per axis, ρ the sum of the arm's link offsets (UR10: 1.88 m); ẋ_d within ±3 m/s; e within
+    ±2ρ. θ̇ stays unbounded: the joint-limit constraint can push the measured velocity well past
+    the motor limits, so physics gives no bound there.
+
+    | Index (UR10) | Observation                                    | Unit  |
+    |--------------|------------------------------------------------|-------|
+    | 0–5          | joint positions θ                              | rad   |
+    | 6–11         | joint velocities θ̇ (measured)                 | rad/s |
+    | 12–14        | end-effector position x = f(θ)                 | m     |
+    | 15–17        | target x_d                                     | m     |
+    | 18–20        | desired velocity ẋ_d (zero)                    | m/s   |
+    | 21–23        | error e = x − x_d (eq. 4)                      | m     |
+    | 24–26        | reference centre x_c: the target               | m     |
+
+    ``env.unwrapped.obs_layout.unpack(obs)`` returns these as named fields.
+
+    ## Rewards
+    ``reward_type="dense"`` (default): ``−(eₖᵀQeₖ + uₖᵀRuₖ)``, the negative of the paper's
+    instantaneous cost (eq. 6) with eₖ the error at the start of the step and uₖ the applied
+    command, Q = I₃, R = I by default; so ``−Σ reward·dt`` is the error and effort part of the
+    evaluator's trajectory cost. ``reward_type="sparse"``: 0 when ``is_success`` after the step,
+    −1 otherwise. ``reward_type="shaped"`` (for learners, the reward PPO trains on), with
+    d = ‖e‖ after the step and a = u / v_max: ``r = −10·d + exp(−(d / 0.01)²) − 0.01·‖a‖²``
+    (:data:`SHAPED_REWARD`). ``info`` carries ``error`` (after the step), ``error_norm``,
+    ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇, u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),
+    ``command``, ``t`` and ``is_success`` (‖e‖ ≤ ``success_tolerance``, default 1 mm).
+
+    ## Starting State
+    ``reset(seed=None, options=None)``: with no options, a random seed pose (end effector in the
+    sample cuboid, away from singularities and joint limits) and a random target in the cuboid,
+    drawn from ``self.np_random``. ``options`` pins them exactly, to replay any run:
+    ``q0`` (start joint positions, rad; missing: random) and ``target`` (3 numbers, m; missing
+    when options are given: the paper's target [-0.658, 0.626, 0.407] m). Unknown keys raise
+    ``ValueError``; a target outside the reachable workspace raises a ``ValueError`` naming it.
+    Every reset restores the simulator state saved after loading, then poses the joints at rest.
+
+    ## Episode End
+    Termination on success only with ``terminate_on_success=True``. Truncation by the
+    registration's ``TimeLimit`` after ``max_episode_steps`` control steps (default 1000, i.e.
+    8 s at 125 Hz): ``gym.make(id, max_episode_steps=N)`` sets it and
+    ``env.spec.max_episode_steps`` shows it.
+
+    ## Arguments
+    ``gym.make("snac_gym/UR10Reach-v0", **kwargs)``; unknown arguments raise ``TypeError``.
+
+    | argument               | default        | meaning                                            |
+    |------------------------|----------------|----------------------------------------------------|
+    | ``robot``              | the id's       | fixed by the id; another robot raises ``ValueError`` naming its id |
+    | ``physics``            | ``"pybullet"`` | ``"pybullet"`` (velocity motors) or ``"kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; no rendering) |
+    | ``dt``                 | ``1/125``      | control period, s, in (0, 1]                       |
+    | ``n_substeps``         | ``3``          | physics steps per control period                   |
+    | ``action_type``        | ``"velocity"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
+    | ``observation_dtype``  | ``np.float64`` | ``np.float64`` or ``np.float32``                   |
+    | ``finite_observation_bounds`` | ``False`` | physical observation bounds instead of ±inf  |
+    | ``reward_type``        | ``"dense"``    | ``"dense"``, ``"sparse"`` or ``"shaped"``          |
+    | ``Q``, ``R``           | identity       | cost weights (matrix or diagonal)                  |
+    | ``success_tolerance``  | ``1e-3``       | success threshold on the error norm, m             |
+    | ``terminate_on_success`` | ``False``    | end the episode on success                         |
+    | ``sample_space``       | the robot's cuboid | a :class:`~snac_gym.sampling.SampleSpace`      |
+    | ``render_mode``        | ``None``       | ``"rgb_array"`` (headless) or ``"human"`` (GUI; without a display it warns on the first frame) |
+    | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels |
+    | ``render_every``       | 25 images/s    | control steps between two new images; ``render_fps`` is 1/dt |
+    | ``max_steps``          | ``None``       | episode length, as ``max_episode_steps`` (also beyond the registered one) |
+    | ``backend``            | ``None``       | deprecated name of ``physics``                     |
+
+    ## Version History
+    * v0 (snac-gym 0.1.0): initial version.
+    * v0 (unreleased, same numbers): one id per robot; ``robot=`` naming another robot than the
+      id's is refused; ``physics=`` names the arm's model (``backend=`` is its deprecated alias).
     """
-    existing = globals().get(task.env_class_name)
-    if isinstance(existing, type) and issubclass(existing, URTaskEnv) and existing.task_spec is task:
-        return existing
-    if existing is not None:
-        raise ValueError(f"task {task.name!r}: env class name {task.env_class_name!r} is already taken")
-    attributes = {
-        "__doc__": f"``{task.env_id}``: {task.env_doc['summary']}",
-        "__module__": __name__,
-        "__qualname__": task.env_class_name,
-        "task_spec": task,
-        "default_max_steps": task.episode_steps,
-        "default_success_tolerance": task.success_tolerance,
-    }
-    cls = type(task.env_class_name, (URTaskEnv,), attributes)
-    _document(cls, task)
-    globals()[task.env_class_name] = cls
-    return cls
+
+    task_spec = TASKS["reach"]
 
 
-UR10ReachEnv = task_env_class(TASKS["reach"])
-UR10EllipseTrackEnv = task_env_class(TASKS["track"])
+class EllipseTrackEnv(URTaskEnv):
+    """``snac_gym/<Robot>EllipseTrack-v0``: optimal tracking of a point moving on an ellipse (Section IV).
+
+    ## Description
+    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or on the
+    exact kinematic model, ``physics="kinematic"``). The end effector must follow x_d(t) moving
+    on an ellipse (centre, semi-axes, plane orientation, angular speed, phase), with ẋ_d(t)
+    known; see :class:`~snac_gym.references.Ellipse`. One id per registered robot:
+    ``snac_gym/UR10EllipseTrack-v0`` (the paper's arm), ``UR5EllipseTrack-v0``,
+    ``UR3EllipseTrack-v0``, ``PandaEllipseTrack-v0``, ``XArm7EllipseTrack-v0``; the id fixes ``robot``.
+
+    ## Action Space
+    ``action_type="velocity"`` (default): ``Box(-v_max, v_max, (m,), float64)``, the commanded
+    joint velocities u = θ̇ in rad/s of the m joints, applied by PyBullet ``VELOCITY_CONTROL``
+    motors and held for one control period ``dt``; ``v_max`` are the URDF limits (UR10: 2.16,
+    2.16, 3.15, 3.2, 3.2, 3.2 rad/s). ``action_type="normalized"``: ``Box(-1, 1, (m,), float32)``,
+    u = a·v_max. An action outside the box is **clipped** (``info["command"]`` holds the applied
+    u); NaN/inf or a wrong shape raises ``ValueError``.
+
+    ## Observation Space
+    ``Box(low, high, (2m + 15,), observation_dtype)`` (UR10: 27 values), float64 by default or
+    float32, positions in the robot's base frame; bounds ±inf, or with
+    ``finite_observation_bounds=True`` those of :class:`ReachEnv` (ẋ_d within ±3 m/s, the
+    fastest ellipse :class:`~snac_gym.references.Ellipse` accepts).
+
+    | Index (UR10) | Observation                                    | Unit  |
+    |--------------|------------------------------------------------|-------|
+    | 0–5          | joint positions θ                              | rad   |
+    | 6–11         | joint velocities θ̇ (measured)                 | rad/s |
+    | 12–14        | end-effector position x = f(θ)                 | m     |
+    | 15–17        | desired position x_d(t)                        | m     |
+    | 18–20        | desired velocity ẋ_d(t)                        | m/s   |
+    | 21–23        | error e = x − x_d (eq. 4)                      | m     |
+    | 24–26        | the ellipse centre x_c (x_d − x_c gives φ(0) = 0, eq. 29) | m |
+
+    ## Rewards
+    As :class:`ReachEnv`: ``"dense"`` (default) ``−(eₖᵀQeₖ + uₖᵀRuₖ)`` (eq. 6), ``"sparse"``
+    0/−1 on ``is_success``, ``"shaped"`` ``−10·d + exp(−(d / 0.01)²) − 0.01·‖u/v_max‖²``.
+    ``info`` carries ``error``, ``error_norm``, ``cost_error``, ``cost_effort``,
+    ``cost_smoothness``, ``command``, ``t`` and ``is_success`` (‖e‖ ≤ ``success_tolerance``,
+    default 5 mm).
+
+    ## Starting State
+    ``reset(seed=None, options=None)``: with no options, a random seed pose and a random feasible
+    ellipse (wholly reachable, checked with the kinematics), drawn from ``self.np_random``.
+    ``options`` pins them: ``q0`` (rad) and ``ellipse`` (a dict with ``centre``, ``semi_axes``
+    or ``radius``, ``orientation``, ``angular_speed``, ``phase``; missing when options are given:
+    the paper's circle, radius 0.2 m around [-0.7, 0, 0.5] m in the horizontal plane, 0.075 rad/s).
+    Unknown keys or an unreachable ellipse raise ``ValueError``.
+
+    ## Episode End
+    Tracking never terminates; it only truncates, by the registration's ``TimeLimit`` after
+    ``max_episode_steps`` control steps (default 2500, i.e. 20 s at 125 Hz).
+
+    ## Arguments
+    ``gym.make("snac_gym/UR10EllipseTrack-v0", **kwargs)``: the arguments of :class:`ReachEnv`
+    (``robot`` fixed by the id, ``physics``, ``dt``, ``n_substeps``, ``action_type``,
+    ``observation_dtype``, ``finite_observation_bounds``, ``reward_type``, ``Q``, ``R``,
+    ``sample_space``, ``render_mode``, ``render_width``, ``render_height``, ``render_every``,
+    ``max_steps``), with ``success_tolerance`` 5e-3 m by default; ``terminate_on_success`` has no
+    effect. Unknown arguments raise ``TypeError``.
+
+    ## Version History
+    * v0 (snac-gym 0.1.0): initial version.
+    * v0 (unreleased, same numbers): one id per robot; ``robot=`` naming another robot than the
+      id's is refused; ``physics=`` names the arm's model (``backend=`` is its deprecated alias).
+    """
+
+    task_spec = TASKS["track"]
+
+
+class PoseReachEnv(URTaskEnv):
+    """``snac_gym/<Robot>PoseReach-v0``: regulation of the full end-effector pose (opt-in).
+
+    ## Description
+    The end-effector frame must reach a fixed pose, position and orientation:
+    e = [p − p_d; log₃(R R_dᵀ)] → 0 (:mod:`snac_gym.tasks.pose`). The ids exist once
+    :func:`snac_gym.tasks.pose.register_pose_tasks` ran: ``snac_gym/UR10PoseReach-v0``,
+    ``PandaPoseReach-v0``, ... (one per registered robot; the 7-DOF arms are redundant for it).
+
+    ## Action Space
+    As :class:`ReachEnv`: joint velocities in rad/s (or normalized), clipped to the URDF limits.
+
+    ## Observation Space
+    ``Box(low, high, (2m + 30,))``: θ, θ̇ (m values each), then x = [p; log₃ R], x_d, ẋ_d
+    (zero), e and the target pose [p_d; log₃ R_d] (6 values each; m and rad, base frame).
+
+    ## Rewards
+    As :class:`ReachEnv`, with Q = I₆ by default: 1 mrad of orientation error costs as much as
+    1 mm of position error. ``is_success``: ‖e‖ ≤ ``success_tolerance``, default 1e-3 (m and rad).
+
+    ## Starting State
+    With no options, a random seed pose and the pose of a random well-conditioned configuration
+    with its tool in the cuboid. ``options``: ``q0`` and ``pose``
+    (``{'position': [3 numbers, m], 'rotation': [3 numbers, rotation vector, rad]}``).
+
+    ## Episode End
+    Termination on success only with ``terminate_on_success=True``; truncation after
+    ``max_episode_steps`` (default 1500).
+
+    ## Arguments
+    Those of :class:`ReachEnv`.
+
+    ## Version History
+    * v0 (snac-gym 0.1.0): initial version, as ``snac_gym/PoseReach-v0`` with ``robot=``.
+    * v0 (unreleased, same numbers): one id per robot (``snac_gym/UR10PoseReach-v0``, ...).
+    """
+
+    task_spec = POSE_TASKS[0]
+
+
+class PoseEllipseTrackEnv(URTaskEnv):
+    """``snac_gym/<Robot>PoseEllipseTrack-v0``: an ellipse for the position at a fixed orientation (opt-in).
+
+    ## Description
+    The end-effector frame must follow p_d(t) on an ellipse with its orientation R_d fixed
+    (:mod:`snac_gym.tasks.pose`). The ids exist once
+    :func:`snac_gym.tasks.pose.register_pose_tasks` ran: ``snac_gym/UR10PoseEllipseTrack-v0``,
+    ``PandaPoseEllipseTrack-v0``, ... (one per registered robot).
+
+    ## Action Space
+    As :class:`ReachEnv`: joint velocities in rad/s (or normalized), clipped to the URDF limits.
+
+    ## Observation Space
+    As :class:`PoseReachEnv`; the centre field holds [ellipse centre; log₃ R_d].
+
+    ## Rewards
+    As :class:`PoseReachEnv`; ``is_success``: ‖e‖ ≤ ``success_tolerance``, default 5e-3.
+
+    ## Starting State
+    With no options, a random seed pose and a feasible random ellipse of the cuboid at the
+    orientation of a random seed pose. ``options``: ``q0`` and ``pose_ellipse`` (the ellipse keys
+    of :class:`EllipseTrackEnv` plus ``rotation``, rad).
+
+    ## Episode End
+    Tracking never terminates; truncation after ``max_episode_steps`` (default 2500).
+
+    ## Arguments
+    Those of :class:`ReachEnv`.
+
+    ## Version History
+    * v0 (snac-gym 0.1.0): initial version, as ``snac_gym/PoseEllipseTrack-v0`` with ``robot=``.
+    * v0 (unreleased, same numbers): one id per robot (``snac_gym/UR10PoseEllipseTrack-v0``, ...).
+    """
+
+    task_spec = POSE_TASKS[1]
+
+
+#: The env class of each task that has its own (the others run in :class:`URTaskEnv` with ``task=``).
+TASK_ENV_CLASSES: Mapping[str, type[URTaskEnv]] = MappingProxyType(
+    {cls.task_spec.name: cls for cls in (ReachEnv, EllipseTrackEnv, PoseReachEnv, PoseEllipseTrackEnv)}
+)
+
+#: Deprecated names of :class:`ReachEnv` and :class:`EllipseTrackEnv` (snac-gym 0.1.0): the
+#: classes serve every robot, the UR10 is only their default.
+UR10ReachEnv = ReachEnv
+UR10EllipseTrackEnv = EllipseTrackEnv
+
+
+def task_env_class(task: Task | str) -> type[URTaskEnv]:
+    """The env class of ``task``: its own (:data:`TASK_ENV_CLASSES`) or :class:`URTaskEnv`.
+
+    A task registered later (docs/extending.md) has no class of its own: :class:`URTaskEnv`
+    runs it, given ``task=<its name>`` (its registered ids pass that).
+    """
+    task = get_task(task)
+    own = TASK_ENV_CLASSES.get(task.name)
+    return own if own is not None and own.task_spec is task else URTaskEnv

@@ -1,6 +1,7 @@
 """Goal-conditioned variants of the task envs, for HER and goal-conditioned RL (Gymnasium-Robotics style).
 
-``gym.make("snac_gym/UR10ReachGoal-v0")`` (and ``UR10EllipseTrackGoal-v0``, one per task)
+``gym.make("snac_gym/UR10ReachGoal-v0")`` (and ``UR10EllipseTrackGoal-v0``, ``PandaReachGoal-v0``:
+one per robot and task, registered with the task envs by :func:`snac_gym.envs.register_envs`)
 wraps the task env and returns ``Dict`` observations:
 
 ================  ============================================================  =====
@@ -32,19 +33,19 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.tasks import Task, get_task
 
 #: Reward types of the goal envs.
 GOAL_REWARD_TYPES = ("sparse", "dense")
 
 
-def goal_env_id(task: Task) -> str:
-    """``snac_gym/UR10Reach-v0`` → ``snac_gym/UR10ReachGoal-v0``."""
-    base, version = task.env_id.rsplit("-", 1)
-    return f"{base}Goal-{version}"
+def goal_env_id(task: Task, robot: str = "ur10") -> str:
+    """The goal variant's id of ``task`` on ``robot``: ``snac_gym/UR10ReachGoal-v0``."""
+    return task.env_id_for(robot, goal=True)
 
 
-class GoalTaskEnv(gym.Env):
+class GoalTaskEnv(IdRobotCheck, gym.Env):
     """A task env with a ``Dict`` observation and a goal-conditioned reward (see the module docs).
 
     Args:
@@ -52,7 +53,7 @@ class GoalTaskEnv(gym.Env):
         reward_type: ``"sparse"`` or ``"dense"``.
         success_tolerance: Distance (m) under which the goal counts as reached (default: the task's).
         terminate_on_success: Reach only: end the episode once the goal is reached.
-        **env_kwargs: Arguments of the task env (``robot``, ``dt``, ``backend``, ``action_type``,
+        **env_kwargs: Arguments of the task env (``robot``, ``dt``, ``physics``, ``action_type``,
             ``max_steps``, ...), except ``reward_type``, ``terminate_on_success`` and ``observation_dtype``.
 
     Raises:
@@ -83,7 +84,7 @@ class GoalTaskEnv(gym.Env):
         )
         self.task = get_task(task)
         self.env = task_env_class(self.task)(
-            success_tolerance=success_tolerance, render_mode=render_mode, observation_dtype=np.float32,
+            task=self.task, success_tolerance=success_tolerance, render_mode=render_mode, observation_dtype=np.float32,
             finite_observation_bounds=True, **env_kwargs,
         )
         self.reward_type = reward_type
@@ -164,6 +165,11 @@ class GoalTaskEnv(gym.Env):
         self.env.max_steps = value
 
     @property
+    def robot(self) -> str:
+        """The registered name of the robot the env drives."""
+        return self.env.robot
+
+    @property
     def dt(self) -> float:
         """Control period, s."""
         return self.env.dt
@@ -183,18 +189,3 @@ class GoalTaskEnv(gym.Env):
         self.env = state["env"]
         self._np_random = state["np_random"]
 
-
-def register_goal_envs() -> None:
-    """Register the goal variant of every registered task (``snac_gym/UR10ReachGoal-v0``, ...; idempotent)."""
-    from gymnasium.envs.registration import WrapperSpec
-
-    from snac_gym.tasks import TASKS
-
-    hook = WrapperSpec(name="EpisodeLength", entry_point="snac_gym.envs.core:apply_episode_length", kwargs={})
-    for task in TASKS.values():
-        env_id = goal_env_id(task)
-        if env_id not in gym.registry:
-            gym.register(
-                id=env_id, entry_point="snac_gym.envs.goal:GoalTaskEnv", kwargs={"task": task.name},
-                max_episode_steps=task.episode_steps, additional_wrappers=(hook,),
-            )

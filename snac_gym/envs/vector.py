@@ -2,12 +2,12 @@
 
 ``gym.make_vec("snac_gym/UR10Reach-v0", num_envs=N, vectorization_mode="vector_entry_point")``
 (and the same for every registered task) returns a :class:`URTaskVectorEnv`. It is the single
-env with ``backend="kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; the evaluator's
+env with ``physics="kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; the evaluator's
 engine) run N times in lockstep: the same arguments, spaces, rewards, infos and episode ends,
 but one array operation per quantity per step instead of N Python calls.
 
 Episode for episode it matches ``gym.make_vec(id, N, vectorization_mode="sync",
-backend="kinematic")``, i.e. a :class:`gymnasium.vector.SyncVectorEnv` of single kinematic envs
+physics="kinematic")``, i.e. a :class:`gymnasium.vector.SyncVectorEnv` of single kinematic envs
 (tests/test_vector_env.py): ``reset(seed=s)`` seeds sub-env i with ``s + i``, each sub-env draws
 its episodes from its own generator with the single env's code (:func:`~snac_gym.envs.core.draw_episode`),
 and autoreset follows Gymnasium's default ``AutoresetMode.NEXT_STEP``: the step after an episode
@@ -34,10 +34,12 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from snac_gym.cost import step_costs
-from snac_gym.envs.core import URTaskEnv, draw_episode, shaped_reward, task_env_class
-from snac_gym.kinematics import Kinematics, PositionChain
+from snac_gym.envs.core import TASKS, URTaskEnv, draw_episode, physics_argument, shaped_reward, task_env_class
+from snac_gym.envs.ids import IdRobotCheck
+from snac_gym.kinematics import Kinematics, PositionChain, joint_step
 from snac_gym.references import Ellipse, FixedTarget, Reference
-from snac_gym.tasks import Task
+from snac_gym.tasks import Task, get_task
+
 
 class ReferenceBatch:
     """The references of N episodes as arrays, evaluated for all at once each step.
@@ -103,7 +105,7 @@ class KinematicEpisodes:
     arguments (it checked them and gives the kinematics, weights, limits and spaces).
 
     Args:
-        template: A single env with ``backend="kinematic"``.
+        template: A single env with ``physics="kinematic"``.
         count: Number of episodes N.
         horizon: Episode length in control steps (truncation).
     """
@@ -201,7 +203,7 @@ class KinematicEpisodes:
         cost_error, cost_effort, cost_smoothness = step_costs(
             self.error, u, self.last_command, self.dt, template.Q, template.R
         )
-        self.q += u * self.dt
+        joint_step(self.q, u, self.dt, out=self.q)
         self.qdot = u.copy()
         self.last_command = u
         self.steps += 1
@@ -232,15 +234,17 @@ class KinematicEpisodes:
         return obs
 
 
-class URTaskVectorEnv(gym.vector.VectorEnv):
+class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
     """N episodes of a task's env on the exact kinematic model, stepped at once (see the module docs).
 
     Build it with ``gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point",
     **kwargs)``; ``kwargs`` are the single env's (``robot``, ``dt``, ``max_steps``,
     ``reward_type``, ``action_type``, ``observation_dtype``, ``Q``, ``R``, ``success_tolerance``,
     ``terminate_on_success``, ``sample_space``, ``finite_observation_bounds``, ...), checked by
-    building one single kinematic env from them. ``backend`` may only be ``"kinematic"`` and
+    building one single kinematic env from them. ``physics`` may only be ``"kinematic"`` and
     ``render_mode`` only ``None``: for PyBullet physics use ``vectorization_mode="sync"``.
+    :class:`ReachVectorEnv` and :class:`EllipseTrackVectorEnv` fix the task; this class runs a
+    task registered later, given ``task=``.
 
     Episodes truncate after ``max_steps`` if given, else ``max_episode_steps`` (``make_vec``
     passes the registered length), as the single env's ``TimeLimit`` does. Autoreset is
@@ -253,30 +257,34 @@ class URTaskVectorEnv(gym.vector.VectorEnv):
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
-    #: The task (set by :func:`task_vector_env_class`).
-    task_spec: Task
+    #: The task of a subclass (``None``: given by ``task=``).
+    task_spec: Task | None = None
 
     def __init__(
         self,
         num_envs: int = 1,
         *,
         max_episode_steps: int | None = None,
-        backend: str = "kinematic",
+        physics: str = "kinematic",
         render_mode: str | None = None,
+        task: Task | str | None = None,
+        backend: str | None = None,
         **kwargs: Any,
     ) -> None:
-        if backend != "kinematic":
+        physics = physics_argument(physics, backend)
+        if physics != "kinematic":
             raise ValueError(
-                f"the vector env steps the kinematic model only (backend='kinematic'), got backend={backend!r}; "
+                f"the vector env steps the kinematic model only (physics='kinematic'), got physics={physics!r}; "
                 "for PyBullet use gym.make_vec(..., vectorization_mode='sync')"
             )
         if render_mode is not None:
             raise ValueError(f"the vector env has no scene to render (render_mode={render_mode!r}); use the single env")
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        if not vector_env_supports(self.task_spec):
-            raise ValueError(f"the vector env steps end-effector positions only; task {self.task_spec.name!r} has its own kinematics")
-        template = task_env_class(self.task_spec)(backend="kinematic", **kwargs)
+        task = get_task(task if task is not None else self.task_spec)
+        if not vector_env_supports(task):
+            raise ValueError(f"the vector env steps end-effector positions only; task {task.name!r} has its own kinematics")
+        template = task_env_class(task)(physics="kinematic", task=task, **kwargs)
         if type(template.kinematics) is not Kinematics or template.kinematics.task_dim != 3:
             raise ValueError(f"the vector env steps end-effector positions only, got {type(template.kinematics).__name__}")
         horizon = template.requested_max_steps or max_episode_steps or template.default_max_steps
@@ -338,6 +346,11 @@ class URTaskVectorEnv(gym.vector.VectorEnv):
         for key, value in values.items():
             infos[key], infos[f"_{key}"] = value, np.ones(self.num_envs, dtype=bool)
         return infos
+
+    @property
+    def robot(self) -> str:
+        """The registered name of the robot the episodes drive."""
+        return self.single_env.robot
 
     def close_extras(self, **kwargs: Any) -> None:
         self.single_env.close()
@@ -401,25 +414,23 @@ def vector_env_supports(task: Task) -> bool:
     return type(task).make_kinematics is Task.make_kinematics
 
 
-def task_vector_env_class(task: Task) -> type[URTaskVectorEnv]:
-    """The vector env class of ``task`` (made once), ``<env_class_name without Env>VectorEnv`` in this module.
+class ReachVectorEnv(URTaskVectorEnv):
+    """``snac_gym/<Robot>Reach-v0`` (:class:`~snac_gym.envs.core.ReachEnv`), N episodes at once on the kinematic model."""
 
-    Its path is the ``vector_entry_point`` that :func:`snac_gym.envs.register_envs` registers.
-    """
-    name = task.env_class_name.removesuffix("Env") + "VectorEnv"
-    existing = globals().get(name)
-    if isinstance(existing, type) and issubclass(existing, URTaskVectorEnv) and existing.task_spec is task:
-        return existing
-    # A class of a task of the same name that was unregistered since (tests do that) is replaced.
-    replaced = isinstance(existing, type) and issubclass(existing, URTaskVectorEnv) and existing.task_spec.name == task.name
-    if existing is not None and not replaced:
-        raise ValueError(f"task {task.name!r}: vector env class name {name!r} is already taken")
-    attributes = {
-        "__doc__": f"``{task.env_id}``, N episodes at once on the kinematic model (see :class:`URTaskVectorEnv`).",
-        "__module__": __name__,
-        "__qualname__": name,
-        "task_spec": task,
-    }
-    cls = type(name, (URTaskVectorEnv,), attributes)
-    globals()[name] = cls
-    return cls
+    task_spec = TASKS["reach"]
+
+
+class EllipseTrackVectorEnv(URTaskVectorEnv):
+    """``snac_gym/<Robot>EllipseTrack-v0`` (:class:`~snac_gym.envs.core.EllipseTrackEnv`), N episodes at once."""
+
+    task_spec = TASKS["track"]
+
+
+def task_vector_env_class(task: Task | str) -> type[URTaskVectorEnv]:
+    """The vector env class of ``task`` (the ``vector_entry_point`` of its ids): its own, or
+    :class:`URTaskVectorEnv` for a task registered later (its ids pass ``task=``)."""
+    task = get_task(task)
+    for cls in (ReachVectorEnv, EllipseTrackVectorEnv):
+        if cls.task_spec is task:
+            return cls
+    return URTaskVectorEnv

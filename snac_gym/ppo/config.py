@@ -375,7 +375,7 @@ _ANNOTATION_CHECKS: dict[str, Check] = {
 
 
 def env_keywords(task: str) -> dict[str, inspect.Parameter]:
-    """The keyword arguments the env of ``task`` takes (``robot`` is the config's own key)."""
+    """The keyword arguments the env of ``task`` takes (``robot`` and ``task`` are the config's own keys)."""
     import gymnasium as gym
 
     import snac_gym  # noqa: F401  (registers the env ids)
@@ -384,7 +384,7 @@ def env_keywords(task: str) -> dict[str, inspect.Parameter]:
     creator = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
     parameters = inspect.signature(creator).parameters
     named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
-    return {name: p for name, p in parameters.items() if p.kind in named and name != "robot"}
+    return {name: p for name, p in parameters.items() if p.kind in named and name not in ("robot", "task")}
 
 
 def _check_env_keywords(task: str, env: dict[str, Any]) -> None:

@@ -47,6 +47,7 @@ import numpy as np
 
 from snac_gym.cost import trajectory_cost
 from snac_gym.demo import usable_out_folder
+from snac_gym.envs import make_task_env
 from snac_gym.ppo.config import resolve_config, validate_config
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec
 from snac_gym.ppo.features import FeatureSpec
@@ -126,7 +127,7 @@ class LinearSchedule:
 # -- envs ----------------------------------------------------------------------------------------
 def make_training_env(config: dict[str, Any]) -> gym.Env:
     """One training env of ``config`` (the task's env inside :class:`PPOTrainingWrapper`)."""
-    env = gym.make(get_task(config["task"]).env_id, robot=config.get("robot", "ur10"), **config["env"])
+    env = make_task_env(config["task"], config.get("robot", "ur10"), **config["env"])
     return PPOTrainingWrapper(env, FeatureSpec.from_dict(config["features"]), RewardSpec.from_dict(config["reward"]))
 
 
@@ -216,7 +217,7 @@ def evaluate_policy_file(
     task = get_task(config["task"])
     count = int(episodes if episodes is not None else evaluation["episodes"])
     threshold = float(evaluation["success_error_m"])
-    env = gym.make(task.env_id, robot=config.get("robot", "ur10"), max_steps=10**9)
+    env = make_task_env(task, config.get("robot", "ur10"), max_steps=10**9)
     try:
         policy = PPOPolicy(env, model_path=policy_path, action_scale=action_scale)
         dt = env.unwrapped.dt

@@ -3,7 +3,7 @@
 The same features, normalised actions, per-episode effort level and shaped reward as
 :class:`~snac_gym.ppo.envs.PPOTrainingWrapper` around one env, computed for all N episodes at
 once on :class:`~snac_gym.envs.sb3.SB3VectorEnv`. Episode for episode it is a ``DummyVecEnv``
-of ``PPOTrainingWrapper``\\ s around single envs with ``backend="kinematic"``
+of ``PPOTrainingWrapper``\\ s around single envs with ``physics="kinematic"``
 (tests/test_sb3_adapter.py): each episode's ``action_scale`` is drawn from that episode's own
 generator right after its reset, as the wrapper draws it from its env's ``np_random``.
 """
@@ -34,10 +34,10 @@ class PPOVecEnv(SB3VectorEnv):
         self.features = FeatureSpec.from_dict(config["features"])
         self.reward_spec = RewardSpec.from_dict(config["reward"])
         count = int(num_envs if num_envs is not None else config["vec_env"].get("n_envs", 1))
-        env_kwargs = {k: v for k, v in config["env"].items() if k != "backend"}
+        env_kwargs = {k: v for k, v in config["env"].items() if k not in ("physics", "backend")}
         self.action_scales = np.ones(count)
         self.previous_actions = np.zeros((count, 1))
-        super().__init__(get_task(config["task"]).env_id, count, robot=config.get("robot", "ur10"), **env_kwargs)
+        super().__init__(get_task(config["task"]).env_id_for(config.get("robot", "ur10")), count, **env_kwargs)
         self.previous_actions = np.zeros((count, self.episodes.layout.n_joints))
 
     def _spaces(self) -> tuple[gym.spaces.Space, gym.spaces.Space]:

@@ -17,7 +17,6 @@ import pandas as pd
 
 from snac_gym.rollout.batch import RolloutError, Rollouts, rollouts_from_logs
 from snac_gym.rollout.log import add_critic_diagnostics, jsonable, log_columns
-from snac_gym.tasks import get_task
 
 
 def rollout(
@@ -147,9 +146,9 @@ class _Record:
 @functools.lru_cache(maxsize=2)
 def _env(robot: str, task: str, dt: float, steps: int) -> Any:
     """One PyBullet env per (robot, task, Δt, episode length) and process, reused across jobs (loading costs ~0.1 s)."""
-    import gymnasium as gym
+    from snac_gym.envs import make_task_env
 
-    return gym.make(get_task(task).env_id, robot=robot, dt=dt, max_steps=steps)
+    return make_task_env(task, robot, dt=dt, max_steps=steps)
 
 
 def simulate_pybullet(

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.kinematics import joint_step
 from snac_gym.policies.base import LockstepPolicies, PolicyContext
 from snac_gym.references import Reference
 from snac_gym.rollout.batch import RolloutError, Rollouts, summarise_critic_diagnostics
@@ -167,7 +168,7 @@ def simulate_kinematic(
         if keep_states:
             q_log[k] = q  # type: ignore[index]
             x_log[k] = x  # type: ignore[index]
-        q = q + held * dt
+        q = joint_step(q, held, dt)
     final_x = kinematics.forward_batch(q)
     return Rollouts(
         dt=dt,

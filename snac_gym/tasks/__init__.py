@@ -11,8 +11,8 @@ from snac_gym.tasks.track import EllipseTrackTask
 
 #: What a task class must set (the rest has defaults in :class:`Task`).
 REQUIRED_ATTRIBUTES = (
-    "name", "label", "code", "option_key", "env_id", "env_class_name", "success_tolerance",
-    "episode_steps", "horizon_s", "real_horizon_s", "env_doc",
+    "name", "label", "code", "option_key", "env_name", "success_tolerance",
+    "episode_steps", "horizon_s", "real_horizon_s",
 )
 #: Registered tasks by name, in registration order (the order of reports and CSV columns).
 TASKS: dict[str, Task] = {}

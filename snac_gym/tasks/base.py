@@ -43,8 +43,9 @@ class Task:
         code: Spawn-key code of its random samples; fixed forever, since changing it changes
             every sample set drawn with it.
         option_key: The env ``reset`` option that pins its reference.
-        env_id: Gymnasium id of its UR10 env.
-        env_class_name: Name of that env's class in :mod:`snac_gym.envs.core`.
+        env_name: The task's part of its Gymnasium ids: ``Reach`` in ``snac_gym/PandaReach-v0``
+            (one id per registered robot, :meth:`env_id_for`).
+        env_version: The ids' version (``-v0``).
         moving_reference: Whether x_d moves (tracking): the policies then see ẋ_d ≠ 0.
         success_tolerance: Success threshold on the error norm, m.
         success_measure: What the success rule reads: ``"final_error"`` (‖e_K‖) or
@@ -57,17 +58,14 @@ class Task:
         real_horizon_s: Default episode of ``snac-gym real``, s: longer than the demo's, since
             the conservative speed scale of the safety layer slows the arm down.
         csv_columns: The columns of the evaluator's samples CSV that hold its reference.
-        env_doc: The task's paragraphs of its env's docstring: ``summary``, ``task_desc``,
-            ``centre_desc``, ``success_desc``, ``random_desc``, ``key_desc``, ``paper_desc``,
-            ``end_desc``.
     """
 
     name: ClassVar[str]
     label: ClassVar[str]
     code: ClassVar[int]
     option_key: ClassVar[str]
-    env_id: ClassVar[str]
-    env_class_name: ClassVar[str]
+    env_name: ClassVar[str]
+    env_version: ClassVar[int] = 0
     moving_reference: ClassVar[bool] = False
     success_tolerance: ClassVar[float]
     success_measure: ClassVar[str] = "final_error"
@@ -77,7 +75,22 @@ class Task:
     horizon_s: ClassVar[float]
     real_horizon_s: ClassVar[float]
     csv_columns: ClassVar[tuple[str, ...]] = ()
-    env_doc: ClassVar[Mapping[str, str]]
+
+    # -- Gymnasium ids ---------------------------------------------------------------------
+    def env_id_for(self, robot: str = "ur10", goal: bool = False) -> str:
+        """The task's id on ``robot``: ``snac_gym/<Robot><env_name>[Goal]-v<env_version>``.
+
+        Args:
+            robot: A registered robot (its :attr:`~snac_gym.robots.Robot.env_prefix` names it).
+            goal: The goal-conditioned variant (:mod:`snac_gym.envs.goal`).
+        """
+        suffix = "Goal" if goal else ""
+        return f"snac_gym/{get_robot(robot).env_prefix}{self.env_name}{suffix}-v{self.env_version}"
+
+    @property
+    def env_id(self) -> str:
+        """The task's id on the UR10, the paper's arm (``snac_gym/UR10Reach-v0``)."""
+        return self.env_id_for("ur10")
 
     # -- kinematics --------------------------------------------------------------------------
     def make_kinematics(self, robot: str) -> Kinematics:

@@ -8,9 +8,9 @@ position error; pass ``Q=np.diag([1, 1, 1, w², w², w²])`` to price a radian a
 Success is ``‖e‖ ≤ 1e-3`` (1 mm and 1 mrad together) for reach, a mean of 5e-3 over the second half
 for tracking, as for the position tasks.
 
-The tasks are opt-in: :func:`register_pose_tasks` adds them and their Gymnasium ids
-``snac_gym/PoseReach-v0`` and ``snac_gym/PoseEllipseTrack-v0`` (``robot=`` any registered arm;
-the 7-DOF arms are redundant for them). ``snac-gym evaluate --task pose-reach`` (or
+The tasks are opt-in: :func:`register_pose_tasks` adds them and their Gymnasium ids, one per
+registered robot: ``snac_gym/UR10PoseReach-v0``, ``snac_gym/PandaPoseEllipseTrack-v0``, ... (the
+7-DOF arms are redundant for them). ``snac-gym evaluate --task pose-reach`` (or
 ``pose-track``) registers them and runs them on the lockstep engine, which applies the same
 ``task_error``; the ``optimal`` reference solves for the log₃ error with its exact Jacobian
 (:func:`pose_errors_and_jacobians`).
@@ -24,7 +24,6 @@ target orientation in :data:`ROTVEC_COLUMNS` ``rotvec_0..2``: the rotation vecto
 from __future__ import annotations
 
 from dataclasses import dataclass
-from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -181,22 +180,12 @@ class PoseReachTask(Task):
 
     name, label, code = "pose-reach", "Pose regulation", 10
     option_key = "pose"
-    env_id, env_class_name = "snac_gym/PoseReach-v0", "PoseReachEnv"
+    env_name = "PoseReach"
     csv_columns = (*TARGET_COLUMNS, *ROTVEC_COLUMNS)
     success_tolerance = 1e-3
     episode_steps = 1500
     horizon_s = 12.0
     real_horizon_s = 15.0
-    env_doc = MappingProxyType({
-        "summary": "regulation of the full end-effector pose, position and orientation.",
-        "task_desc": "The end-effector frame must reach a fixed pose: e = [p − p_d; log₃(R R_dᵀ)] → 0.",
-        "centre_desc": "the target pose [p_d; log₃ R_d]",
-        "success_desc": "‖e‖ ≤ ``success_tolerance``, default 1e-3 (m and rad)",
-        "random_desc": "the pose of a random well-conditioned configuration with its tool in the cuboid",
-        "key_desc": "``{'position': [3 numbers, m], 'rotation': [3 numbers, rotation vector, rad]}``",
-        "paper_desc": "a placeholder until reset: the paper's target, the tool pointing down",
-        "end_desc": "Termination on success only with ``terminate_on_success=True``.",
-    })
 
     def make_kinematics(self, robot: str) -> PoseKinematics:
         return PoseKinematics(robot)
@@ -237,7 +226,7 @@ class PoseTrackTask(PoseReachTask):
 
     name, label, code = "pose-track", "Pose tracking", 11
     option_key = "pose_ellipse"
-    env_id, env_class_name = "snac_gym/PoseEllipseTrack-v0", "PoseEllipseTrackEnv"
+    env_name = "PoseEllipseTrack"
     csv_columns = (*ELLIPSE_COLUMNS, *ROTVEC_COLUMNS)
     moving_reference = True
     success_tolerance = 5e-3
@@ -247,15 +236,6 @@ class PoseTrackTask(PoseReachTask):
     episode_steps = 2500
     horizon_s = 20.0
     real_horizon_s = 30.0
-    env_doc = MappingProxyType({
-        **PoseReachTask.env_doc,
-        "summary": "tracking with the full pose: an ellipse for the position at a fixed orientation.",
-        "task_desc": "The end-effector frame must follow p_d(t) on an ellipse with orientation R_d fixed.",
-        "centre_desc": "[ellipse centre; log₃ R_d]",
-        "random_desc": "a feasible random ellipse of the cuboid at the orientation of a random seed pose",
-        "key_desc": "the ellipse keys of the position tracking task plus ``rotation`` (rad)",
-        "paper_desc": "a placeholder until reset: the paper's circle, the tool pointing down",
-    })
 
     def sample(self, kinematics: Any, rng: np.random.Generator, space: SampleSpace) -> PoseEllipse:
         pose = _pose(kinematics)

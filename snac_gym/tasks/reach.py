@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -22,8 +21,7 @@ class ReachTask(Task):
     label = "Regulation"
     code = 0
     option_key = "target"
-    env_id = "snac_gym/UR10Reach-v0"
-    env_class_name = "UR10ReachEnv"
+    env_name = "Reach"
     success_tolerance = 1e-3
     success_measure = "final_error"
     accuracy_measure = "final_error"
@@ -32,16 +30,6 @@ class ReachTask(Task):
     horizon_s = 12.0
     real_horizon_s = 15.0
     csv_columns = TARGET_COLUMNS
-    env_doc = MappingProxyType({
-        "summary": "optimal regulation, reach a fixed target point (Section III).",
-        "task_desc": "The end effector must reach a fixed target x_d and stay there (x_d constant, ẋ_d = 0).",
-        "centre_desc": "the target",
-        "success_desc": "‖e‖ ≤ ``success_tolerance``, default 1 mm",
-        "random_desc": "random target in the cuboid",
-        "key_desc": "target position, 3 numbers, m",
-        "paper_desc": "the paper's target [-0.658, 0.626, 0.407] m",
-        "end_desc": "Termination on success only with ``terminate_on_success=True``.",
-    })
 
     def sample(self, kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> FixedTarget:
         return sample_target(kinematics, rng, space)

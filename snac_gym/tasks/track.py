@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -29,8 +28,7 @@ class EllipseTrackTask(Task):
     label = "Tracking"
     code = 1
     option_key = "ellipse"
-    env_id = "snac_gym/UR10EllipseTrack-v0"
-    env_class_name = "UR10EllipseTrackEnv"
+    env_name = "EllipseTrack"
     moving_reference = True
     success_tolerance = 5e-3
     success_measure = "mean_error_2nd_half"
@@ -40,20 +38,6 @@ class EllipseTrackTask(Task):
     horizon_s = 20.0
     real_horizon_s = 30.0
     csv_columns = ELLIPSE_COLUMNS
-    env_doc = MappingProxyType({
-        "summary": "optimal tracking of a point moving on an ellipse (Section IV).",
-        "task_desc": (
-            "The end effector must follow x_d(t) moving on an ellipse (centre, semi-axes, plane orientation,"
-            " angular speed, phase), with ẋ_d(t) known; see :class:`~snac_gym.references.Ellipse`."
-        ),
-        "centre_desc": "the ellipse centre (so x_d − x_c gives φ(0) = 0, eq. 29)",
-        "success_desc": "‖e‖ ≤ ``success_tolerance``, default 5 mm",
-        "random_desc": "random feasible ellipse (wholly reachable, checked with the kinematics)",
-        "key_desc": "dict with ``centre``, ``semi_axes`` or ``radius``, ``orientation``, ``angular_speed``, ``phase`` "
-        "(see :class:`~snac_gym.references.Ellipse`)",
-        "paper_desc": "the paper's circle, radius 0.2 m around [-0.7, 0, 0.5] m in the horizontal plane, 0.075 rad/s",
-        "end_desc": "Tracking never terminates; it only truncates.",
-    })
 
     def sample(self, kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> Ellipse:
         return sample_ellipse(kinematics, rng, space)
