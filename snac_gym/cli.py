@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Optional
@@ -36,6 +37,20 @@ def root(
     version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit."),
 ) -> None:
     """SNAC kinematic control of UR arms: demos, the paper's evaluation, benchmarks."""
+
+
+def _renamed_option(new: str, value: str, old: str, old_value: str | None, default: str) -> str:
+    """The value of option ``new``, or of its hidden deprecated name ``old`` (a ``DeprecationWarning``).
+
+    Raises:
+        typer.BadParameter: If both are given with different values.
+    """
+    if old_value is None:
+        return value
+    warnings.warn(f"{old} is deprecated; use {new}", DeprecationWarning, stacklevel=2)
+    if value not in (default, old_value):
+        raise typer.BadParameter(f"give {new} only ({old} is its deprecated name)", param_hint=new)
+    return old_value
 
 
 def _check_task(task: str) -> None:
@@ -114,11 +129,12 @@ def demo(
 
 @app.command()
 def real(
-    host: Optional[str] = typer.Option(None, "--host", help="IP of the UR controller (rtde backend)."),
+    host: Optional[str] = typer.Option(None, "--host", help="IP of the UR controller (--connection rtde)."),
     task: str = typer.Option("reach", "--task", help="reach or track: the demo's start pose and reference."),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
     out: Path = typer.Option(Path("real_out"), "--out", help="Folder for the log, the panels and the loop timing."),
-    backend: str = typer.Option("rtde", "--backend", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."),
+    connection: str = typer.Option("rtde", "--connection", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."),
+    backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --connection."),
     series: str = typer.Option("cb", "--series", help="cb (CB-series, 125 Hz) or e (e-Series, 500 Hz)."),
     dry_run: bool = typer.Option(False, "--dry-run", help="Connect and read state, send nothing; print what would be sent."),
     speed_scale: float = typer.Option(0.25, "--speed-scale", help="Fraction of the velocity limits allowed, in (0, 1]."),
@@ -128,14 +144,15 @@ def real(
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     max_tcp_mismatch: float = typer.Option(0.005, "--max-tcp-mismatch", help="Largest distance (m) between the controller's TCP position and the model's f(q), in (0, 1]."),
 ) -> None:
-    """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --backend sim."""
+    """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim."""
     from snac_gym.real import ConnectionFailure, SafetyLimits
     from snac_gym.real.run import run_real_episode
 
     _check_task(task)
+    connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
         result = run_real_episode(
-            task=task, controller=controller, out_dir=out, backend=backend, host=host, series=series, dry_run=dry_run,
+            task=task, controller=controller, out_dir=out, backend=connection, host=host, series=series, dry_run=dry_run,
             seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
             csv=csv, echo=typer.echo if dry_run else None,
         )
@@ -232,7 +249,8 @@ def evaluate(
     samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Random samples per task (default 1000, the paper's; at most what half the memory holds)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
     horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."),
-    backend: str = typer.Option("kinematic", "--backend", help="kinematic (exact θ += uΔt, fast) or pybullet (the Gymnasium env)."),
+    engine: str = typer.Option("kinematic", "--engine", help="kinematic (exact θ += uΔt, all samples in lockstep, fast) or pybullet (each sample an episode of the Gymnasium env)."),
+    backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --engine."),
     match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
     effort_reference: Optional[str] = typer.Option(None, "--effort-reference", help="Controller whose effort the others are matched to (default: snac if evaluated, else the first controller)."),
     effort_statistic: str = typer.Option("mean-peak", "--effort-statistic", help="What equal effort equalises: mean-peak (the mean over the samples of each rollout's peak |u|/limit; the default), max (the maximum |u| over the sample set, rad/s), median-peak (the median rollout's peak |u|/limit) or peak-ratio (each rollout's peak over the reference's on the same sample, geometric mean)."),
@@ -275,6 +293,7 @@ def evaluate(
     )
     from evaluation.runner import EvaluationConfig, export_sample_set, run_evaluation
 
+    engine = _renamed_option("--engine", engine, "--backend", backend, "kinematic")
     try:
         out_dir = parse_out(out)
         tasks, names = parse_tasks(task), parse_controllers(controllers)
@@ -286,7 +305,7 @@ def evaluate(
         space = parse_sample_space(sample_space, cuboid, robot)
         config = EvaluationConfig(
             out=out_dir, tasks=tasks, controllers=names, samples=1000 if samples is None else samples, seed=seed,
-            horizons=parse_horizons(horizon, tasks), backend=backend, match_effort=match_effort,
+            horizons=parse_horizons(horizon, tasks), backend=engine, match_effort=match_effort,
             effort_reference=effort_reference or "snac", effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
             calibration_samples=calibration_samples, samples_file=samples_file, export_samples=export_samples,
             save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,

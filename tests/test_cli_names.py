@@ -1,0 +1,69 @@
+"""The three meanings of "backend", named apart on the command line: --engine (evaluate), --connection (real).
+
+``--backend`` stays as a hidden, deprecated name of each; the env's is ``physics=`` (tests/test_env_ids.py).
+"""
+
+import pytest
+from typer.testing import CliRunner
+
+from snac_gym.cli import app
+
+
+@pytest.fixture
+def captured_config(monkeypatch):
+    """``snac-gym evaluate --export-only``, with the config it builds captured instead of written out."""
+    import evaluation.runner
+
+    seen = {}
+
+    def export(config):
+        seen["config"] = config
+        return "samples.csv"
+
+    monkeypatch.setattr(evaluation.runner, "export_sample_set", export)
+    return seen
+
+
+def _evaluate(tmp_path, *options):
+    return CliRunner().invoke(
+        app, ["evaluate", "--out", str(tmp_path / "run"), "--samples", "2", "--export-samples", str(tmp_path / "s.csv"),
+              "--export-only", "--no-progress", *options],
+    )
+
+
+def test_evaluate_names_its_engine(tmp_path, captured_config):
+    outcome = _evaluate(tmp_path, "--engine", "pybullet")
+    assert outcome.exit_code == 0, outcome.output
+    assert captured_config["config"].backend == "pybullet"  # evaluation.run_config still calls it backend
+    assert _evaluate(tmp_path).exit_code == 0 and captured_config["config"].backend == "kinematic"
+
+
+def test_evaluate_backend_is_a_hidden_deprecated_name_of_engine(tmp_path, captured_config):
+    with pytest.warns(DeprecationWarning, match="--backend is deprecated; use --engine"):
+        outcome = _evaluate(tmp_path, "--backend", "pybullet")
+    assert outcome.exit_code == 0, outcome.output
+    assert captured_config["config"].backend == "pybullet"
+    with pytest.warns(DeprecationWarning):
+        clash = _evaluate(tmp_path, "--engine", "pybullet", "--backend", "kinematic")
+    flat = " ".join(clash.output.replace("│", " ").split())  # the error panel wraps lines
+    assert clash.exit_code == 2 and "give --engine only (--backend is its deprecated name)" in flat
+    help_text = CliRunner().invoke(app, ["evaluate", "--help"]).output
+    assert "--engine" in help_text and "--backend" not in help_text
+
+
+def test_real_names_its_connection(monkeypatch, tmp_path):
+    import snac_gym.real.run as real_run
+
+    calls = []
+
+    def run(**kwargs):
+        calls.append(kwargs["backend"])  # snac_gym.real.run still calls it backend
+        raise ValueError("stopped by the test")
+
+    monkeypatch.setattr(real_run, "run_real_episode", run)
+    assert CliRunner().invoke(app, ["real", "--connection", "sim", "--out", str(tmp_path)]).exit_code == 2
+    with pytest.warns(DeprecationWarning, match="--backend is deprecated; use --connection"):
+        assert CliRunner().invoke(app, ["real", "--backend", "sim", "--out", str(tmp_path)]).exit_code == 2
+    assert calls == ["sim", "sim"]
+    help_text = CliRunner().invoke(app, ["real", "--help"]).output
+    assert "--connection" in help_text and "--backend" not in help_text
