@@ -1,4 +1,4 @@
-"""What the three baseline controllers share: reading the observation, the task-space
+"""What the baseline controllers (rnn, svf, dls, lqr, mpc) share: reading the observation, the task-space
 feedback term, staying inside the joint-velocity limits, and the resolved-rate skeleton.
 
 Every baseline commands the joint velocities ``u`` of ``ẋ = J u`` (eq. 3 of the paper) from

@@ -244,13 +244,9 @@ def format_act_bench(results: dict[str, dict[str, Any]]) -> str:
 
 # -- the batched kinematic vector env ------------------------------------------------------------
 def _one_thread() -> Any:
-    """A context that limits BLAS/OpenMP pools to one thread (a no-op without threadpoolctl)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl ships with scikit-learn and SB3's deps
-        import contextlib
+    """A context that limits BLAS/OpenMP pools to one thread (threadpoolctl, a dependency)."""
+    from threadpoolctl import threadpool_limits
 
-        return contextlib.nullcontext()
     return threadpool_limits(limits=1)
 
 

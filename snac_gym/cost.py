@@ -190,7 +190,7 @@ UDOT_STARTS = ("rest", "first")
 
 @dataclass(frozen=True)
 class CostConvention:
-    """Which trajectory cost a comparison is scored by (issue 12).
+    """Which trajectory cost a comparison is scored by.
 
     * ``cost="table1"``: the paper's Section V cost ``Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt``;
     * ``cost="hjb"``: the cost the controllers are derived for (eqs. 6, 32),

@@ -2,7 +2,9 @@
 
 * ``reach``: from θ0 = [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62] rad to the target
   [-0.658, 0.626, 0.407] m (Section V-B), default horizon 12 s (1500 steps; the env's
-  episode is 8 s, see :func:`demo_steps`).
+  episode is 8 s: with the paper's law read per second, SNAC's default, the arm is within 1 mm
+  of every one of 50 random targets after 12 s but of only 64 % of them after 8 s, docs/snac.md;
+  ``Task.horizon_s``).
 * ``track``: from the same θ0, follow the circle of radius 0.2 m around [-0.7, 0, 0.5] m at
   0.075 rad/s (Section V-C), default horizon 20 s (2500 steps, the env's episode).
 
@@ -28,17 +30,6 @@ from snac_gym.tasks import get_task
 #: Longest demo accepted, s (50x the tracking demo): the log is held in memory, so an unbounded
 #: horizon fails late (or exhausts memory) instead of being refused.
 MAX_DEMO_DURATION_S = 1000.0
-
-
-def demo_steps(task: str, dt: float) -> int:
-    """Control steps of the task's default horizon (``Task.horizon_s``) at period ``dt``.
-
-    Reach runs 12 s, longer than the env's 8 s episode: with the paper's law read per second
-    (SNAC's default) the arm is within 1 mm of the paper's target after 6.6 s and of every one
-    of 50 random targets after 12 s, but of only 64 % of them after 8 s (docs/snac.md). Track
-    runs the env's 20 s.
-    """
-    return get_task(task).horizon_steps(dt)
 
 
 def demo_options(task: str) -> dict[str, Any]:

@@ -65,8 +65,7 @@ def discretisation_study(
         steps: Horizon per task (default: the task's horizon, 1500 reach, 2500 track).
         initial_weights: ``(kind, scale)`` pairs: ``("identity", c)`` gives Ŵ₀ = c on the
             squared terms and 0 on the cross terms (``c=None``: the policy's default for the
-            task), ``("uniform", w)`` draws every weight from U(0, w) (``w=None``: 1, the
-            earlier default).
+            task), ``("uniform", w)`` draws every weight from U(0, w) (``w=None``: 1).
 
     Returns:
         One row per run: the options, ``initial_weights`` (the kind), ``initial_weight_scale``

@@ -138,4 +138,5 @@ class SB3VectorEnv(VecEnv):
         return [method(*method_args, **method_kwargs) for _ in self._indices(indices)]
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
+        del wrapper_class  # SB3's signature: the sub-envs are rows of one batched env, wrapped by nothing
         return [False for _ in self._indices(indices)]

@@ -102,14 +102,6 @@ class PyBulletSim:
     def restore_state(self, state_id: int) -> None:
         p.restoreState(stateId=state_id, physicsClientId=self.client)
 
-    def add_marker(self, radius: float = 0.015, rgba: tuple[float, ...] = (0.1, 0.8, 0.1, 0.8)) -> int:
-        """A visual-only sphere (no collision, no mass) to show the reference point."""
-        shape = p.createVisualShape(p.GEOM_SPHERE, radius=radius, rgbaColor=rgba, physicsClientId=self.client)
-        return p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, physicsClientId=self.client)
-
-    def move_marker(self, body: int, position: np.ndarray) -> None:
-        p.resetBasePositionAndOrientation(body, list(position), [0, 0, 0, 1], physicsClientId=self.client)
-
     def render(self, width: int, height: int, target: np.ndarray, distance: float = 2.2) -> np.ndarray:
         """An RGB image (``(height, width, 3)`` uint8) from a camera orbiting ``target``, headless-safe.
 

@@ -170,11 +170,6 @@ class LockstepPolicies:
                 policy.reset(seed=seed)
 
     @property
-    def policy_class(self) -> type:
-        """The class of the policies being driven."""
-        return type(self._batch_policy if self.batched else self._policies[0])
-
-    @property
     def critic(self) -> Any:
         """The ``critic_diagnostics`` method of a critic-based controller, else ``None``."""
         return getattr(self._batch_policy if self.batched else self._policies[0], "critic_diagnostics", None)

@@ -17,13 +17,12 @@ Tracking (``task="track"``, Section IV), critic state ``s = ξ = [e; x_d]`` (eq.
 Learning rate (Section V): ``α = α_i tanh(n − k) + α_f``; regulation ``n = 50, α_i = 100,
 α_f = 150``, tracking ``n = 10, α_i = 20, α_f = 70``.
 
-The defaults follow the paper where it speaks (issue 12): the critic is "initialized
+The defaults follow the paper where it speaks: the critic is "initialized
 randomly", Ŵ₀ ~ U(0, 1) drawn from the reset seed (and logged as the first row of the ``w_*``
 columns); the tracking state is the paper's ξ = [e; x_d]; α is the rate of the continuous law
 (one Euler step of Δt·α per period) with k the time in seconds; no anti-windup. Where the paper
-leaves a choice open, or where earlier versions of this project read it differently, the
-reading is a constructor argument: ``initial_weights="identity"`` (Ŵ₀ = c on the squared
-terms, the earlier default), ``tracking_state="centred"`` (ξ = [e; x_d − x_c]),
+leaves a choice open, the other readings are constructor arguments: ``initial_weights="identity"``
+(Ŵ₀ = c on the squared terms), ``tracking_state="centred"`` (ξ = [e; x_d − x_c]),
 ``learning_rate_unit="per_step"``, ``schedule_clock="steps"``, ``freeze_when_saturated``
 (anti-windup) and ``weight_update``. docs/snac.md measures each against the headline figures.
 

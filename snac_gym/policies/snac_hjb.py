@@ -1,4 +1,4 @@
-"""SNAC with a critic that converges: the paper's structure, tuned by the HJB residual (issue 12).
+"""SNAC with a critic that converges: the paper's structure, tuned by the HJB residual.
 
 The paper's weight law (eq. 19 / 38) descends the Lyapunov function J_s = ½‖s‖², not the HJB
 equation: it contains no Q and its critic does not approach the optimal value function
@@ -178,7 +178,6 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         self.basis = QuadraticBasis(n)
         self.directions = _excitation_directions(n)
         self._direction_gradients = self.basis.gradient(self.directions)  # ∇σ(d), (N, size, n)
-        self._direction_costs = np.einsum("di,ij,dj->d", self.directions, self.Q, self.directions)  # dᵀQd
         slices = self.layout.slices
         self._q, self._e, self._xdot_d = slices["q"], slices["e"], slices["xdot_d"]
         self._seed = seed

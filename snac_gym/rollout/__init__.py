@@ -3,7 +3,7 @@
 * :func:`rollout` (:mod:`.episode`): one episode of a policy in a snac-gym env (PyBullet or
   the real robot), logged row by row; the demo, the real run and PPO evaluation use it.
 * :func:`simulate_kinematic` (:mod:`.kinematic`): B samples in lockstep on θₖ₊₁ = θₖ + uₖΔt,
-  the evaluator's default backend and the SNAC studies'.
+  the evaluator's default engine and the SNAC studies'.
 * :func:`simulate_pybullet` (:mod:`.episode`): B samples one after the other in the env.
 * :class:`Rollouts` (:mod:`.batch`): what both batch engines return, measured by
   :func:`snac_gym.metrics.rollout_metrics`; :mod:`.log` holds the per-step log format.

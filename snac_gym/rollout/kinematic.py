@@ -1,6 +1,6 @@
 """The kinematic rollout engine: B samples stepped in lockstep on the exact kinematic model.
 
-:func:`simulate_kinematic` (the evaluator's default backend ``kinematic``): θ is integrated exactly from the command, θₖ₊₁ = θₖ + uₖΔt, with the
+:func:`simulate_kinematic` (the evaluator's default engine, ``--engine kinematic``): θ is integrated exactly from the command, θₖ₊₁ = θₖ + uₖΔt, with the
 shared :class:`~snac_gym.kinematics.Kinematics`, the paper's kinematic model. All samples of a
 chunk advance in lockstep: one observation array ``(B, d)`` per step, built field by field
 with the env's :class:`~snac_gym.observation.ObservationLayout` (e = x − x_d, or the task's own
@@ -15,7 +15,7 @@ kinematics and ``e = x − x_d``; a pose task's kinematics (:class:`~snac_gym.ki
 x = [p; log₃ R]) has its own ``task_error`` (e = [p − p_d; log₃(R R_dᵀ)]), which the engine applies
 row by row exactly as the env does (:func:`task_error_function`), so both give the same numbers.
 
-The other backend, ``pybullet``, runs every sample as one episode of the Gymnasium env
+The other engine, ``pybullet``, runs every sample as one episode of the Gymnasium env
 (physics, motors) with the demo's loop: :func:`snac_gym.rollout.episode.simulate_pybullet`.
 """
 
