@@ -122,22 +122,38 @@ def check_option_combinations(
     effort_target: float | None,
     controllers: Sequence[str] | None,
     sample_space: str = "cuboid",
+    effort_samples: int | None = None,
 ) -> None:
     """Refuse an option that another one makes meaningless (it would be silently ignored), naming both."""
-    if samples_file is not None and sample_space != "cuboid":
-        raise ValueError("--sample-space has no effect with --samples-file (its rows are the samples); drop one")
     if samples_file is not None:
-        for given, option in ((samples, "--samples"), (cuboid, "--cuboid")):
-            if given is not None:
-                raise ValueError(f"{option} has no effect with --samples-file (its rows are the samples); drop {option}")
-        if export_samples is not None and _same_file(samples_file, export_samples):
-            raise ValueError(f"--export-samples {export_samples} is the --samples-file it reads; name another file")
+        _check_with_samples_file(samples_file, samples, cuboid, sample_space, export_samples)
+    if effort_samples is not None:
+        _check_effort_samples(samples_file, match_effort)
     if not sweep:
         for given, option in ((sweep_points, "--sweep-points"), (sweep_span, "--sweep-span")):
             if given is not None:
                 raise ValueError(f"{option} has no effect without --sweep; add --sweep or drop {option}")
     if effort_reference is not None:
         _check_effort_reference(effort_reference, match_effort, effort_target, controllers)
+
+
+def _check_with_samples_file(
+    samples_file: Path, samples: int | None, cuboid: str | None, sample_space: str, export_samples: Path | None
+) -> None:
+    if sample_space != "cuboid":
+        raise ValueError("--sample-space has no effect with --samples-file (its rows are the samples); drop one")
+    for given, option in ((samples, "--samples"), (cuboid, "--cuboid")):
+        if given is not None:
+            raise ValueError(f"{option} has no effect with --samples-file (its rows are the samples); drop {option}")
+    if export_samples is not None and _same_file(samples_file, export_samples):
+        raise ValueError(f"--export-samples {export_samples} is the --samples-file it reads; name another file")
+
+
+def _check_effort_samples(samples_file: Path | None, match_effort: bool) -> None:
+    if samples_file is not None:
+        raise ValueError("--effort-samples has no effect with --samples-file (its rows are the set); drop --effort-samples")
+    if not match_effort:
+        raise ValueError("--effort-samples has no effect with --no-match-effort; drop one")
 
 
 def _same_file(a: Path, b: Path) -> bool:

@@ -72,6 +72,9 @@ class EvaluationRun:
         progress: Progress,
     ) -> None:
         self.config, self.store, self.executor, self.samples, self.progress = config, store, executor, samples, progress
+        #: Sample indices per task whose rows and trajectories are reported (``None``: all of them;
+        #: equal effort can be matched on more samples than are evaluated).
+        self.reported: dict[str, set[int]] | None = None
         #: Wall time spent per phase, s.
         self.timings: dict[str, float] = {}
         #: Cut each knob-search evaluation into at least one job per worker (set while fewer
@@ -221,7 +224,8 @@ class EvaluationRun:
         """Store a finished job: its trajectories, then its rows labelled with the pass they belong to."""
         if result.logs is not None:
             for log, sample in zip(result.logs, job.samples, strict=True):
-                self.store.write_trajectory(log, job.task, controller, sample.index)
+                if self.reported is None or sample.index in self.reported[job.task]:
+                    self.store.write_trajectory(log, job.task, controller, sample.index)
         rows = result.metrics
         rows.insert(0, "task", job.task)
         rows.insert(1, "controller", controller)

@@ -177,6 +177,16 @@ def summary_markdown(
     return "\n".join(lines)
 
 
+def _effort_set_text(config: Any) -> str:
+    size = getattr(config, "effort_set_size", None)
+    if size is None:
+        return ""
+    return (
+        f", on the first {size} samples of the seed (`--effort-samples`; the efforts in the effort table are "
+        "theirs), so that the matched knobs do not depend on how many samples are evaluated"
+    )
+
+
 def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str], effort_statistic: str) -> list[str]:
     """The title, what was run and scored, and what success and accuracy mean."""
     n_text = ", ".join(f"{int(summary[f'{t}_n'].max())} {get_task(t).label.lower()} samples" for t in tasks)
@@ -189,7 +199,7 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
         f"{config.convention.describe()}; V/N is the mean over samples, "
         "± its standard deviation, with the 95 % confidence interval of the mean. "
         + (
-            "Equal effort: " + effort_statistic + " matched (table below)."
+            "Equal effort: " + effort_statistic + " matched (table below)" + _effort_set_text(config) + "."
             if config.match_effort
             else "No effort matching (each controller at its own settings)."
         ),

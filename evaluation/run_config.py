@@ -84,6 +84,11 @@ class EvaluationConfig:
         effort_target: Explicit target of the effort statistic, in its unit (then every
             controller is matched).
         effort_tolerance: Relative tolerance of the match over the whole sample set.
+        effort_samples: Equal effort is matched on the first ``max(samples, effort_samples)``
+            samples of the seed's stream, so that a matched knob is a property of the controller
+            and not of how many samples are evaluated (the reported rows are still the first
+            ``samples``); ``0``: matched on the evaluated samples alone. Not used with
+            ``samples_file`` (its rows are the set) or without ``match_effort``.
         calibration_samples: Samples (the first ones of each task) the knob search runs on;
             ``None``: all of them when the search's rollouts are short, fewer when they are
             long (see the statistic's ``screening_budget``).
@@ -120,6 +125,7 @@ class EvaluationConfig:
     effort_statistic: str = DEFAULT_EFFORT_STATISTIC
     effort_target: float | None = None
     effort_tolerance: float = 0.02
+    effort_samples: int = 1000
     calibration_samples: int | None = None
     samples_file: Path | None = None
     export_samples: Path | None = None
@@ -180,6 +186,12 @@ class EvaluationConfig:
         """The effort statistic named by ``effort_statistic``."""
         return effort_statistic_named(self.effort_statistic)
 
+    @property
+    def effort_set_size(self) -> int | None:
+        """Samples per task that equal effort is matched on, when more than the evaluated ones (else ``None``)."""
+        extends = self.match_effort and self.samples_file is None and self.effort_samples > self.samples
+        return self.effort_samples if extends else None
+
     def horizon(self, task: str) -> float:
         """Rollout length of ``task``, s."""
         return float(self.horizons.get(task, get_task(task).horizon_s))
@@ -218,6 +230,7 @@ class EvaluationConfig:
             "effort_statistic": self.effort_statistic,
             "effort_target": self.effort_target,
             "effort_tolerance": self.effort_tolerance,
+            "effort_samples": self.effort_set_size,
             "calibration_samples": self.calibration_samples,
             "save_trajectories": self.save_trajectories,
             "chunk_size": self.chunk_size,
@@ -308,6 +321,8 @@ def _check_effort(config: EvaluationConfig) -> None:
         )
     if not 0 < config.effort_tolerance < 1:
         raise ValueError(f"effort_tolerance must be in (0, 1), got {config.effort_tolerance}")
+    if not 0 <= config.effort_samples <= max_samples():
+        raise ValueError(f"effort_samples must be between 0 and {max_samples()}, got {config.effort_samples}")
     if config.calibration_samples is not None and config.calibration_samples < 1:
         raise ValueError(f"calibration_samples must be at least 1, got {config.calibration_samples}")
 

@@ -72,10 +72,16 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
         with open_executor(config.workers, config.ray_address) as executor:
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
-            progress = Progress((len(specs) + config.wants_optimal) * sum(map(len, samples.values())), config.progress)
-            evaluation = EvaluationRun(config, store, executor, samples, progress)  # 3. Passes
+            matched_on = _effort_set(config, space, executor, samples)
+            rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(map(len, samples.values()))
+            progress = Progress(rollouts, config.progress)
+            evaluation = EvaluationRun(config, store, executor, matched_on, progress)  # 3. Passes
+            evaluation.reported = {task: {s.index for s in samples[task]} for task in config.tasks}
             try:
                 results, records = controller_passes(evaluation, specs)  # 4. Equal effort
+                if matched_on is not samples:  # the rows of the evaluated samples only
+                    results = {key: _reported_rows(rows, samples[key[0]]) for key, rows in results.items()}
+                    evaluation.samples = samples
                 results.update(_optimal_rows(evaluation, specs, results, records))  # 5. Optimal reference
             finally:
                 progress.close()
@@ -127,10 +133,17 @@ def load_samples(
             if not from_file[task]:
                 raise ValueError(f"{config.samples_file} has no {task!r} rows; choose --task accordingly")
         return {task: from_file[task] for task in config.tasks}
+    return _draw(config, space, executor, 0, config.samples)
+
+
+def _draw(
+    config: EvaluationConfig, space: SampleSpace, executor: Any, first: int, end: int
+) -> dict[str, list[EvaluationSample]]:
+    """Samples ``first`` to ``end - 1`` of the seed's stream for every task (each drawn from its own index)."""
     chunks = [
-        (config.robot, space, config.seed, task, list(range(start, min(start + GENERATION_CHUNK, config.samples))))
+        (config.robot, space, config.seed, task, list(range(start, min(start + GENERATION_CHUNK, end))))
         for task in config.tasks
-        for start in range(0, config.samples, GENERATION_CHUNK)
+        for start in range(first, end, GENERATION_CHUNK)
     ]
     drawn: dict[int, list[EvaluationSample]] = dict(executor.run(_generate_chunk, chunks))
     samples: dict[str, list[EvaluationSample]] = {task: [] for task in config.tasks}
@@ -152,6 +165,23 @@ def _sample_set(
     if config.export_samples is not None:
         write_samples_csv(all_samples, config.export_samples, kinematics.n_joints)
     return samples, timings
+
+
+def _effort_set(
+    config: EvaluationConfig, space: SampleSpace, executor: Any, samples: dict[str, list[EvaluationSample]]
+) -> dict[str, list[EvaluationSample]]:
+    """The samples equal effort is matched on: ``samples`` extended along the seed's stream to
+    ``effort_samples`` (a sample depends only on its index, so the evaluated ones are its first),
+    or ``samples`` itself."""
+    size = config.effort_set_size
+    if size is None:
+        return samples
+    more = _draw(config, space, executor, config.samples, size)
+    return {task: samples[task] + more[task] for task in config.tasks}
+
+
+def _reported_rows(rows: pd.DataFrame, samples: Sequence[EvaluationSample]) -> pd.DataFrame:
+    return rows[rows["sample"].isin([s.index for s in samples])].reset_index(drop=True)
 
 
 # -- 5. the optimal reference -------------------------------------------------------------------

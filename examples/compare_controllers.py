@@ -14,8 +14,9 @@ from evaluation import EvaluationConfig, run_evaluation
 
 
 def main(samples: int = 20, out: str = "runs/compare") -> None:
+    # effort_samples=0: equal effort matched on these few samples (quick); Table I matches on 1000.
     config = EvaluationConfig(out=Path(out), controllers=("snac", "dls"), samples=samples,
-                              workers=1, progress=False)
+                              effort_samples=0, workers=1, progress=False)
     results = run_evaluation(config)
     table = results.groupby(["task", "controller"]).agg(
         samples=("sample", "size"), success=("success", "mean"), V=("cost", "mean"),

@@ -256,6 +256,7 @@ def evaluate(
     effort_statistic: str = typer.Option("mean-peak", "--effort-statistic", help="What equal effort equalises: mean-peak (the mean over the samples of each rollout's peak |u|/limit; the default), max (the maximum |u| over the sample set, rad/s), median-peak (the median rollout's peak |u|/limit) or peak-ratio (each rollout's peak over the reference's on the same sample, geometric mean)."),
     effort_target: Optional[float] = typer.Option(None, "--effort-target", help="Explicit effort target in the statistic's unit (rad/s for max, a fraction for mean-peak and median-peak; not for peak-ratio); then every controller is matched."),
     effort_tolerance: float = typer.Option(0.02, "--effort-tolerance", help="Relative tolerance of the effort match."),
+    effort_samples: Optional[int] = typer.Option(None, "--effort-samples", min=0, help="Match equal effort on the first N samples of the seed's stream even when fewer are evaluated, so the matched knobs do not depend on --samples (default 1000; 0: on the evaluated samples)."),
     calibration_samples: Optional[int] = typer.Option(None, "--calibration-samples", min=1, help="Samples the knob search runs on (default: all, fewer for controllers whose effort peaks late)."),
     samples_file: Optional[Path] = typer.Option(None, "--samples-file", help="Read the samples from this CSV (docs/evaluation.md)."),
     export_samples: Optional[Path] = typer.Option(None, "--export-samples", help="Also write the sample set to this CSV."),
@@ -301,13 +302,15 @@ def evaluate(
             samples=samples, cuboid=cuboid, samples_file=samples_file, export_samples=export_samples, sweep=sweep,
             sweep_points=sweep_points, sweep_span=sweep_span, effort_reference=effort_reference,
             match_effort=match_effort, effort_target=effort_target, controllers=names, sample_space=sample_space,
+            effort_samples=effort_samples,
         )
         space = parse_sample_space(sample_space, cuboid, robot)
         config = EvaluationConfig(
             out=out_dir, tasks=tasks, controllers=names, samples=1000 if samples is None else samples, seed=seed,
             horizons=parse_horizons(horizon, tasks), backend=engine, match_effort=match_effort,
             effort_reference=effort_reference or "snac", effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
-            calibration_samples=calibration_samples, samples_file=samples_file, export_samples=export_samples,
+            calibration_samples=calibration_samples, samples_file=samples_file,
+            **({} if effort_samples is None else {"effort_samples": effort_samples}), export_samples=export_samples,
             save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
             robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, use_batch=batch,
             cost=cost, udot_start=udot_start, q_scale=q_scale, success_threshold=success_threshold,

@@ -135,6 +135,7 @@ def test_act_batch_before_reset_batch_is_an_error(cls):
 def test_batch_and_per_sample_evaluations_agree(tmp_path):
     common = dict(
         samples=4,
+        effort_samples=0,
         horizons={"reach": 0.4, "track": 0.4},
         chunk_size=4,
         progress=False,

@@ -64,6 +64,7 @@ def _matched_knob(tmp_path, statistic: str, samples: int) -> float:
     config = EvaluationConfig(
         out=tmp_path / f"{statistic}-{samples}",
         samples=samples,
+        effort_samples=0,  # the statistic on the evaluated samples: what this test measures
         tasks=("reach",),
         horizons={"reach": 0.3},
         controllers=("dls", "rnn"),

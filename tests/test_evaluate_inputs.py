@@ -92,6 +92,7 @@ def test_a_regular_small_samples_file_passes_the_check(samples_csv):
         (["--effort-reference", "dls", "--effort-target", "1"], "--effort-reference has no effect with --effort-target"),
         (["--sweep-points", "5"], "--sweep-points has no effect without --sweep"),
         (["--sweep-span", "3"], "--sweep-span has no effect without --sweep"),
+        (["--effort-samples", "500", "--no-match-effort"], "--effort-samples has no effect with --no-match-effort"),
         (["--task", "reach", "--horizon", "track=3"], "the run does not evaluate 'track' (--task)"),
         (["--horizon", "reach=3", "--horizon", "reach=1"], "a horizon for reach is given twice"),
         (["--horizon", "3", "--horizon", "track=1"], "a horizon for track is given twice"),
@@ -107,6 +108,7 @@ def test_meaningless_or_ignored_options_are_refused_naming_the_option(tmp_path, 
     [
         (["--samples", "5"], "--samples has no effect with --samples-file"),
         (["--cuboid", "-1,-1,0,0,0,1"], "--cuboid has no effect with --samples-file"),
+        (["--effort-samples", "500"], "--effort-samples has no effect with --samples-file"),
         (["--export-samples", "SAME"], "is the --samples-file it reads"),
     ],
 )

@@ -21,7 +21,7 @@ from snac_gym.cli import app
 from snac_gym.cost import trajectory_cost
 from snac_gym.rollout import log_array, read_log
 
-SMALL = {"samples": 6, "horizons": {"reach": 0.3, "track": 0.4}, "chunk_size": 2, "progress": False}
+SMALL = {"samples": 6, "effort_samples": 0, "horizons": {"reach": 0.3, "track": 0.4}, "chunk_size": 2, "progress": False}
 
 
 def _config(out: Path, **changes) -> EvaluationConfig:
@@ -114,6 +114,26 @@ def test_equal_effort_against_the_reference_or_a_visible_warning(table_run):
                 assert abs(effort / target - 1) <= config.effort_tolerance
             else:
                 assert f"{controller} ({task})" in text and "Warning" in text
+
+
+def test_equal_effort_matched_on_more_samples_than_are_evaluated_is_the_larger_runs(tmp_path):
+    """--effort-samples: 3 samples matched on the first 6 give the 6-sample run's knobs and its first 3 rows."""
+    common = {"tasks": ("reach",), "controllers": ("snac", "dls", "rnn"), "save_trajectories": True}
+    full = run_evaluation(_config(tmp_path / "six", **common))
+    few = run_evaluation(_config(tmp_path / "three", samples=3, effort_samples=6, **common))
+    assert set(few["sample"]) == {0, 1, 2}
+    expected = full[full["sample"] < 3].reset_index(drop=True).drop(columns="optimal_solve_time", errors="ignore")
+    pd.testing.assert_frame_equal(few.drop(columns="optimal_solve_time", errors="ignore"), expected, check_exact=True)
+    assert set(few.loc[few["controller"] == "rnn", "effort_value"]) == set(full.loc[full["controller"] == "rnn", "effort_value"])
+    summary = pd.read_csv(tmp_path / "three" / "summary.csv").set_index("controller")
+    assert summary.loc["dls", "reach_effort"] == pytest.approx(
+        full[full["controller"] == "dls"]["peak_limit_fraction"].mean()
+    )  # the statistic that was matched: over the 6 samples
+    saved = sorted(p.name for p in (tmp_path / "three" / "trajectories" / "reach" / "dls").iterdir())
+    assert saved == [f"sample_{i:05d}.parquet" for i in range(3)]  # the evaluated samples' logs only
+    assert "on the first 6 samples of the seed" in (tmp_path / "three" / "summary.md").read_text()
+    with pytest.raises(ValueError, match="effort_samples must be between 0 and"):
+        _config(tmp_path / "bad", effort_samples=-1).validate()
 
 
 def _trajectory(config: EvaluationConfig, row: pd.Series) -> Path:

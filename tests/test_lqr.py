@@ -217,7 +217,8 @@ def test_wrong_observation_shape_raises(reach_env):
 
 def test_a_tiny_evaluation_calibrates_the_q_scale_knob(tmp_path):
     config = EvaluationConfig(
-        out=tmp_path, samples=3, horizons={"reach": 0.3, "track": 0.3}, progress=False, controllers=("snac", "lqr")
+        out=tmp_path, samples=3, effort_samples=0, horizons={"reach": 0.3, "track": 0.3}, progress=False,
+        controllers=("snac", "lqr"),
     )
     results = run_evaluation(config)
     lqr = results[results["controller"] == "lqr"]

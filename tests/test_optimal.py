@@ -130,6 +130,7 @@ def optimal_run(tmp_path_factory):
         tasks=("reach", "track"),
         controllers=(OPTIMAL, "snac", "rnn", "svf", "dls"),
         samples=3,
+        effort_samples=0,
         horizons={"reach": 1.5, "track": 1.0},
         chunk_size=2,
         save_trajectories=True,

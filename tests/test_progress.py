@@ -89,7 +89,7 @@ def _cli(arguments: list[str], cwd: Path) -> subprocess.CompletedProcess:
 @pytest.mark.parametrize("progress", [True, False])
 def test_evaluate_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progress):
     arguments = ["evaluate", "--out", str(tmp_path / "run"), "--samples", "4", "--horizon", "0.3",
-                 "--controllers", "dls,lqr", "--effort-reference", "dls"]
+                 "--controllers", "dls,lqr", "--effort-reference", "dls", "--effort-samples", "0"]
     result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path)
     assert result.returncode == 0, result.stderr
     assert "Trajectory cost V/N" in result.stdout

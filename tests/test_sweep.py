@@ -20,6 +20,7 @@ from snac_gym.policies.registry import make_policy
 
 SMALL = {
     "samples": 4,
+    "effort_samples": 0,
     "horizons": {"reach": 0.3, "track": 0.5},
     "chunk_size": 2,
     "progress": False,
@@ -164,6 +165,8 @@ def test_cli_sweep_says_where_its_files_went(tmp_path):
             "--sweep-points",
             "2",
             "--no-progress",
+            "--effort-samples",
+            "0",
         ],
     )
     assert result.exit_code == 0, result.output

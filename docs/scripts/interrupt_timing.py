@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 ARGS = ["--samples", "20", "--chunk-size", "2", "--workers", "2", "--controllers", "snac,dls,svf,rnn,lqr,optimal",
-        "--no-progress"]
+        "--no-progress", "--effort-samples", "0"]
 
 
 def interrupt(out: Path, signum: int, at: float, bound: float = 30.0) -> tuple[int | None, float | None, str]:
