@@ -18,11 +18,12 @@ import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.envs.sb3 import SB3VectorEnv
 
 ENV_ID = "snac_gym/UR10Reach-v0"
-ENV_KWARGS = {"action_type": "normalized", "reward_type": "shaped", "max_steps": 250}
+ENV_KWARGS = {"action_type": "normalized", "reward_type": "shaped"}
+EPISODE_STEPS = 250
 
 
 def main(timesteps: int = 200_000, num_envs: int = 256) -> None:
-    venv = SB3VectorEnv(ENV_ID, num_envs, **ENV_KWARGS)
+    venv = SB3VectorEnv(ENV_ID, num_envs, max_steps=EPISODE_STEPS, **ENV_KWARGS)
     n_steps = max(2, min(64, timesteps // num_envs))
     model = PPO("MlpPolicy", venv, n_steps=n_steps, batch_size=min(4096, n_steps * num_envs),
                 n_epochs=2, seed=0, device="cpu", verbose=0)
@@ -32,7 +33,7 @@ def main(timesteps: int = 200_000, num_envs: int = 256) -> None:
     print(f"trained {model.num_timesteps} steps on {num_envs} episodes in {wall:.1f} s "
           f"({model.num_timesteps / wall:,.0f} steps/s)")
 
-    env = gym.make(ENV_ID, physics="kinematic", **ENV_KWARGS)
+    env = gym.make(ENV_ID, physics="kinematic", max_episode_steps=EPISODE_STEPS, **ENV_KWARGS)
     errors = []
     for seed in range(3):
         obs, _ = env.reset(seed=seed)

@@ -84,7 +84,7 @@ def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, di
     check_bench_counts(steps, MIN_BENCH_COUNT)
     results: dict[str, dict[str, float]] = {}
     for env_id in (task.env_id for task in TASKS.values()):  # the UR10's, the paper's arm
-        env = gym.make(env_id, max_steps=10**9)
+        env = gym.make(env_id)  # timed unwrapped: no TimeLimit, and the env sets no length of its own
         results[env_id] = _time_env(env.unwrapped, steps, env.unwrapped.dt)
         env.close()
     if include_panda:
@@ -129,7 +129,7 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
 
     rows = []
     for n_sub in substeps:
-        env = gym.make("snac_gym/UR10Reach-v0", n_substeps=n_sub, max_steps=10**9).unwrapped
+        env = gym.make("snac_gym/UR10Reach-v0", n_substeps=n_sub).unwrapped
         obs, _ = env.reset(seed=seed)
         rng = np.random.default_rng(seed)
         freqs = rng.uniform(0.1, 1.0, size=(3, env.kinematics.n_joints))

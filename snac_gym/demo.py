@@ -144,9 +144,9 @@ def run_demo(
         raise ValueError(
             f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}"
         )
-    if steps > env.unwrapped.max_steps:
+    if steps > env.spec.max_episode_steps:
         env.close()
-        env = make_task_env(spec, robot, max_steps=steps)
+        env = make_task_env(spec, robot, max_episode_steps=steps)
     try:
         policy = make_policy(controller, env, **(policy_kwargs or {}))
         log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)

@@ -89,9 +89,9 @@ def discretisation_study(
         spec = get_task(task)
         env = gym.make(spec.env_id)
         horizon = (steps or {}).get(task) or spec.horizon_steps(env.unwrapped.dt)
-        if horizon > env.unwrapped.max_steps:
+        if horizon > env.spec.max_episode_steps:
             env.close()
-            env = gym.make(spec.env_id, max_steps=horizon)
+            env = gym.make(spec.env_id, max_episode_steps=horizon)
         combos = itertools.product(
             initial_weights, weight_updates or WEIGHT_UPDATES, learning_rate_units or LEARNING_RATE_UNITS,
             freeze_options, schedule_clocks or SCHEDULE_CLOCKS,

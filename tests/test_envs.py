@@ -11,6 +11,7 @@ from gymnasium.utils.passive_env_checker import env_render_passive_checker
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.cost import cost_rates
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
+from snac_gym.rollout.episode import episode_length
 from snac_gym.tasks import TASKS
 
 #: The UR10's ids, the paper's arm (tests/test_env_ids.py checks every robot's).
@@ -174,10 +175,13 @@ def test_sparse_reward_and_success_flag():
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_truncation_after_max_steps(env_id):
-    env = gym.make(env_id, max_steps=3)
+    env = gym.make(env_id, max_episode_steps=3)
     env.reset(seed=0)
     flags = [env.step(np.zeros(6))[2:4] for _ in range(3)]
     assert flags == [(False, False), (False, False), (False, True)]
+    constructed = type(env.unwrapped)(max_steps=3, physics="kinematic")  # a constructed env truncates itself
+    constructed.reset(seed=0)
+    assert [constructed.step(np.zeros(6))[3] for _ in range(3)] == [False, False, True]
 
 
 def test_out_of_range_action_is_clipped():
@@ -280,19 +284,31 @@ def test_episode_length_comes_from_the_registration(env_id):
     default = gym.spec(env_id).max_episode_steps
     env = gym.make(env_id)
     assert default == env.unwrapped.default_max_steps  # 1000 (8 s) reach, 2500 (20 s) track
-    assert env.spec.max_episode_steps == default and env.unwrapped.max_steps == default
-    for kwargs in ({"max_episode_steps": 4}, {"max_steps": 4}):
-        env = gym.make(env_id, **kwargs)
-        assert env.spec.max_episode_steps == 4 and env.unwrapped.max_steps == 4
-        env.reset(seed=0)
-        flags = [env.step(np.zeros(6))[3] for _ in range(4)]
-        assert flags == [False, False, False, True]
+    assert env.spec.max_episode_steps == default and episode_length(env) == default
+    env = gym.make(env_id, max_episode_steps=4)
+    assert env.spec.max_episode_steps == 4 and episode_length(env) == 4
+    env.reset(seed=0)
+    flags = [env.step(np.zeros(6))[3] for _ in range(4)]
+    assert flags == [False, False, False, True]
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_max_steps_under_gym_make_is_deprecated_and_no_hook_lengthens_the_time_limit(env_id):
+    default = gym.spec(env_id).max_episode_steps
+    assert gym.spec(env_id).additional_wrappers == ()  # no episode-length hook, a plain EnvSpec
+    with pytest.warns(DeprecationWarning, match=r"max_steps=4\) is deprecated: pass max_episode_steps=4"):
+        env = gym.make(env_id, max_steps=4, physics="kinematic")
+    env.reset(seed=0)
+    assert [env.step(np.zeros(6))[3] for _ in range(4)] == [False, False, False, True]  # the env truncates itself
+    with pytest.warns(DeprecationWarning):
+        env = gym.make(env_id, max_steps=default + 2, physics="kinematic")
+    assert env.spec.max_episode_steps == default  # the registration's TimeLimit stays
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_episodes_longer_than_the_registered_one(env_id):
     default = gym.spec(env_id).max_episode_steps
-    for kwargs in ({"max_episode_steps": default + 2}, {"max_steps": default + 2}):
+    for kwargs in ({"max_episode_steps": default + 2}, {"max_episode_steps": default + 2, "physics": "kinematic"}):
         env = gym.make(env_id, **kwargs)
         assert env.spec.max_episode_steps == default + 2
         env.reset(seed=0)
@@ -304,7 +320,7 @@ def test_episodes_longer_than_the_registered_one(env_id):
 @pytest.mark.parametrize("kwargs", [{}, LEARNER], ids=["defaults", "learner"])
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_observation_bounds_are_finite_where_physics_gives_them(env_id, kwargs):
-    env = gym.make(env_id, max_steps=150, **{"finite_observation_bounds": True, **kwargs})
+    env = gym.make(env_id, max_episode_steps=150, **{"finite_observation_bounds": True, **kwargs})
     space, layout = env.observation_space, env.unwrapped.obs_layout
     finite = np.isfinite(space.low) & np.isfinite(space.high)
     assert not finite[layout.slices["qdot"]].any() and finite.sum() == layout.size - 6

@@ -85,7 +85,7 @@ def test_a_new_robot_is_one_entry(limited_ur10):
     q = np.array(limited_ur10.nominal_q)
     np.testing.assert_allclose(limited.forward(q), ur10.forward(q), atol=1e-12)  # the same arm ...
     assert limited.upper_limits.max() < ur10.upper_limits.max()  # ... with the URDF's tighter joint limits
-    env = gym.make("snac_gym/UR10LimitedReach-v0", max_steps=1500)
+    env = gym.make("snac_gym/UR10LimitedReach-v0", max_episode_steps=1500)
     check_env(env.unwrapped, skip_render_check=True)
     log = rollout(env, make_policy("snac", env), options=env.unwrapped.task.demo_options(), seed=0, steps=1500)
     assert np.linalg.norm(log.attrs["final_e"]) <= 1e-3

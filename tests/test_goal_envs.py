@@ -92,7 +92,7 @@ def test_goal_env_pickles_mid_episode():
 def test_sac_with_her_trains_on_the_goal_env():
     from stable_baselines3 import SAC, HerReplayBuffer
 
-    env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", action_type="normalized", max_steps=50)
+    env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", action_type="normalized", max_episode_steps=50)
     model = SAC(
         "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},

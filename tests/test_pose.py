@@ -152,7 +152,7 @@ def test_check_env_on_the_pose_ids(env_id):
 def test_the_pose_env_logs_pinocchios_logarithm_and_dls_reaches(panda):
     import gymnasium as gym
 
-    env = gym.make("snac_gym/PandaPoseReach-v0", physics="kinematic", max_steps=3000)
+    env = gym.make("snac_gym/PandaPoseReach-v0", physics="kinematic", max_episode_steps=3000)
     policy = make_policy("dls", env)
     obs, _ = env.reset(seed=4)
     layout = env.unwrapped.obs_layout

@@ -41,7 +41,7 @@ def _tiny_config(tmp_path, task="reach", timesteps=64):
 
 def _observations(task, count=40, seed=5):
     """Observations of a short random-action episode of the task's env."""
-    env = gym.make(ENV_OF_TASK[task], max_steps=count)
+    env = gym.make(ENV_OF_TASK[task], max_episode_steps=count)
     obs, _ = env.reset(seed=seed)
     rng = np.random.default_rng(seed)
     out = [obs]

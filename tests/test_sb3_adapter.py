@@ -46,9 +46,9 @@ def _run_side_by_side(batched, dummy, steps, seed=7):
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_sb3_vec_env_is_a_dummy_vec_env_of_single_kinematic_envs(env_id):
-    kwargs = {"max_steps": 6, "action_type": "normalized", "reward_type": "shaped", "observation_dtype": np.float32}
-    batched = SB3VectorEnv(env_id, 3, **kwargs)
-    dummy = DummyVecEnv([lambda: gym.make(env_id, physics="kinematic", **kwargs) for _ in range(3)])
+    kwargs = {"action_type": "normalized", "reward_type": "shaped", "observation_dtype": np.float32}
+    batched = SB3VectorEnv(env_id, 3, max_steps=6, **kwargs)
+    dummy = DummyVecEnv([lambda: gym.make(env_id, physics="kinematic", max_episode_steps=6, **kwargs) for _ in range(3)])
     assert batched.observation_space == dummy.observation_space and batched.action_space == dummy.action_space
     _run_side_by_side(batched, dummy, 14)
     assert batched.get_attr("max_steps") == [6, 6, 6] and batched.env_is_wrapped(gym.Wrapper) == [False] * 3
@@ -75,7 +75,7 @@ def test_ppo_trains_on_thousands_of_episodes_at_once():
 
 def test_single_kinematic_env_passes_sb3_check_env():
     env = gym.make("snac_gym/UR10Reach-v0", physics="kinematic", action_type="normalized",
-                   observation_dtype=np.float32, max_steps=20)
+                   observation_dtype=np.float32, max_episode_steps=20)
     check_env(env, warn=True)
 
 

@@ -23,7 +23,9 @@ def test_position_chain_is_pinocchio(robot):
 
 def _pair(env_id, count, **kwargs):
     vector = gym.make_vec(env_id, num_envs=count, vectorization_mode="vector_entry_point", **kwargs)
-    sync = gym.make_vec(env_id, num_envs=count, vectorization_mode="sync", physics="kinematic", **kwargs)
+    # The vector env takes max_steps itself; under gym.make (the sync sub-envs) it is max_episode_steps.
+    single = {("max_episode_steps" if key == "max_steps" else key): value for key, value in kwargs.items()}
+    sync = gym.make_vec(env_id, num_envs=count, vectorization_mode="sync", physics="kinematic", **single)
     return vector, sync
 
 
@@ -168,7 +170,7 @@ def test_bad_arguments_are_refused():
         env.reset(options={"reset_mask": np.zeros(2, dtype=bool)})
 
 
-def test_gym_make_keeps_pybullet_and_its_episode_length_hook():
-    env = gym.make("snac_gym/UR10Reach-v0", max_steps=1500)
+def test_gym_make_keeps_pybullet_and_its_episode_length():
+    env = gym.make("snac_gym/UR10Reach-v0", max_episode_steps=1500)
     assert env.unwrapped.physics == "pybullet" and env.spec.max_episode_steps == 1500
     env.close()

@@ -1,10 +1,6 @@
 """Gymnasium environments: a PyBullet UR arm under joint-velocity control, and its batched kinematic vector env."""
 
-import copy
-import dataclasses
 from typing import Any
-
-from gymnasium.envs.registration import EnvSpec
 
 from snac_gym.envs.core import (
     ACTION_TYPES,
@@ -38,9 +34,8 @@ def register_envs() -> None:
     ``snac_gym/<Robot><Task>-v0`` (:mod:`snac_gym.envs.ids`) runs the task's env class with
     ``robot=<robot>``; ``snac_gym/<Robot><Task>Goal-v0`` its :class:`~snac_gym.envs.goal.GoalTaskEnv`.
     Each id's episode length is its task's ``episode_steps``, registered as ``max_episode_steps``
-    (the ``TimeLimit`` wrapper ``gym.make`` adds); the registered
-    :func:`~snac_gym.envs.core.apply_episode_length` hook lets the ``max_steps`` argument set it.
-    A task or a robot registered later gets its ids from the next call.
+    (the ``TimeLimit`` wrapper ``gym.make`` adds; ``gym.make(id, max_episode_steps=N)`` changes
+    it). A task or a robot registered later gets its ids from the next call.
     """
     for task in TASKS.values():
         for robot in ROBOTS.values():
@@ -51,7 +46,6 @@ def register_envs() -> None:
 def _register(task: Task, robot: str, goal: bool) -> None:
     """Register the id of ``task`` on ``robot`` (its goal variant if ``goal``) unless it exists."""
     import gymnasium as gym
-    from gymnasium.envs.registration import WrapperSpec
 
     from snac_gym.envs.vector import task_vector_env_class, vector_env_supports
 
@@ -70,13 +64,10 @@ def _register(task: Task, robot: str, goal: bool) -> None:
     REGISTERED_IDS[env_id] = RegisteredId(robot, task.name, goal)
     if env_id in gym.registry:
         return
-    hook = WrapperSpec(name="EpisodeLength", entry_point="snac_gym.envs.core:apply_episode_length", kwargs={})
     gym.register(
         id=env_id, entry_point=entry_point, kwargs=kwargs, disable_env_checker=False,
-        max_episode_steps=task.episode_steps, additional_wrappers=(hook,), vector_entry_point=vector_entry_point,
+        max_episode_steps=task.episode_steps, vector_entry_point=vector_entry_point,
     )
-    if not goal:
-        gym.registry[env_id] = _TaskEnvSpec(**_spec_fields(gym.registry[env_id]))
 
 
 def make_task_env(task: Task | str, robot: str = "ur10", **kwargs: Any) -> Any:
@@ -85,7 +76,8 @@ def make_task_env(task: Task | str, robot: str = "ur10", **kwargs: Any) -> Any:
     Args:
         task: A registered task (or its name).
         robot: A registered robot.
-        **kwargs: Arguments of ``gym.make`` and the env (not ``robot``: the id fixes it).
+        **kwargs: Arguments of ``gym.make`` and the env (not ``robot``: the id fixes it);
+            ``max_steps=N`` is passed on as ``max_episode_steps=N``.
     """
     import gymnasium as gym
 
@@ -94,6 +86,8 @@ def make_task_env(task: Task | str, robot: str = "ur10", **kwargs: Any) -> Any:
     env_id = get_task(task).env_id_for(robot)
     if env_id not in gym.registry:
         register_envs()
+    if "max_steps" in kwargs:  # the episode length is Gymnasium's TimeLimit, max_episode_steps
+        kwargs["max_episode_steps"] = kwargs.pop("max_steps")
     return gym.make(env_id, **kwargs)
 
 
@@ -117,29 +111,6 @@ def unregister_envs(task: str | None = None, robot: str | None = None) -> list[s
         GOAL_ENV_IDS.pop(env_id, None)
         REGISTERED_IDS.pop(env_id, None)
     return removed
-
-
-def _spec_fields(spec: Any) -> dict[str, Any]:
-    """The constructor arguments of an ``EnvSpec``."""
-    return {f.name: getattr(spec, f.name) for f in dataclasses.fields(spec) if f.init}
-
-
-class _TaskEnvSpec(EnvSpec):
-    """The registered spec of a task env: ``gym.make`` applies the episode-length hook, ``make_vec`` can vectorise.
-
-    ``gym.make_vec(..., vectorization_mode="vector_entry_point")`` refuses a spec with
-    ``additional_wrappers`` (wrappers cannot apply to a vector env), but ``gym.make`` needs the
-    :func:`~snac_gym.envs.core.apply_episode_length` hook. ``make_vec`` works on a deep copy of
-    the spec and ``make`` on the registered one, so the copy leaves the hook out: the vector env
-    reads ``max_steps`` itself. (A ``make_vec(..., vectorization_mode="sync")`` therefore builds
-    its sub-envs without the hook too: there ``max_steps`` above the registered length is cut
-    to it by the ``TimeLimit``; pass ``max_episode_steps`` as well.)
-    """
-
-    def __deepcopy__(self, memo: dict[int, Any]) -> EnvSpec:
-        fields = copy.deepcopy(_spec_fields(self), memo)
-        fields["additional_wrappers"] = ()
-        return EnvSpec(**fields)
 
 
 __all__ = [

@@ -67,30 +67,6 @@ def shaped_reward(
     return -distance_weight * error_norm + bonus - action_penalty * np.einsum("...i,...i->...", action, action)
 
 
-def apply_episode_length(env: gym.Env) -> gym.Env:
-    """Registered ``additional_wrappers`` hook: make ``max_steps`` and ``max_episode_steps`` agree.
-
-    ``gym.make`` calls it on the env it has just wrapped in its ``TimeLimit``. An env built with
-    ``max_steps=N`` gets its ``TimeLimit`` replaced by one of N steps (so N may exceed the
-    registered length); otherwise ``env.unwrapped.max_steps`` is set to the ``TimeLimit``'s length.
-
-    Args:
-        env: The env ``gym.make`` built (a ``TimeLimit`` unless ``max_episode_steps=-1``).
-
-    Returns:
-        The env with a ``TimeLimit`` of the requested length (or ``env`` itself).
-    """
-    base = env.unwrapped
-    requested = getattr(base, "requested_max_steps", None)
-    if requested is not None:
-        inner = env.env if isinstance(env, gym.wrappers.TimeLimit) else env
-        return gym.wrappers.TimeLimit(inner, requested)
-    if isinstance(env, gym.wrappers.TimeLimit) and env.spec is not None and env.spec.max_episode_steps is not None:
-        base.max_steps = int(env.spec.max_episode_steps)
-    return env
-
-
-
 def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
     """The joint-velocity command an env applies: checked, then clipped to ``±velocity_limits``.
 
@@ -351,7 +327,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         #: Episode length in control steps of the task's ids (their ``max_episode_steps``).
         self.default_max_steps = task.episode_steps
         #: The ``max_steps`` argument: when given, the env truncates itself after it (``None``: the
-        #: ``TimeLimit`` of the registration does, see :func:`apply_episode_length`).
+        #: registration's ``TimeLimit`` does; under ``gym.make`` pass ``max_episode_steps`` instead).
         self.requested_max_steps = None if max_steps is None else int(max_steps)
         #: Episode length in control steps (the default horizon of :func:`snac_gym.rollout.rollout`).
         self.max_steps = self.default_max_steps if max_steps is None else int(max_steps)
@@ -642,13 +618,15 @@ class ReachEnv(URTaskEnv):
     | ``render_mode``        | ``None``       | ``"rgb_array"`` (headless) or ``"human"`` (GUI; without a display it warns on the first frame) |
     | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels |
     | ``render_every``       | 25 images/s    | control steps between two new images; ``render_fps`` is 1/dt |
-    | ``max_steps``          | ``None``       | episode length, as ``max_episode_steps`` (also beyond the registered one) |
+    | ``max_steps``          | ``None``       | the env truncates itself after N steps (a constructed env, the vector env); under ``gym.make`` deprecated: use ``max_episode_steps`` |
     | ``backend``            | ``None``       | deprecated name of ``physics``                     |
 
     ## Version History
     * v0 (snac-gym 0.1.0): initial version.
     * v0 (unreleased, same numbers): one id per robot; ``robot=`` naming another robot than the
-      id's is refused; ``physics=`` names the arm's model (``backend=`` is its deprecated alias).
+      id's is refused; ``physics=`` names the arm's model (``backend=`` is its deprecated alias);
+      ``gym.make(id, max_steps=N)`` is deprecated for ``max_episode_steps=N`` and no longer
+      lengthens the ``TimeLimit``.
     """
 
     task_spec = TASKS["reach"]
@@ -719,7 +697,9 @@ class EllipseTrackEnv(URTaskEnv):
     ## Version History
     * v0 (snac-gym 0.1.0): initial version.
     * v0 (unreleased, same numbers): one id per robot; ``robot=`` naming another robot than the
-      id's is refused; ``physics=`` names the arm's model (``backend=`` is its deprecated alias).
+      id's is refused; ``physics=`` names the arm's model (``backend=`` is its deprecated alias);
+      ``gym.make(id, max_steps=N)`` is deprecated for ``max_episode_steps=N`` and no longer
+      lengthens the ``TimeLimit``.
     """
 
     task_spec = TASKS["track"]

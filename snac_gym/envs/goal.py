@@ -152,17 +152,13 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
 
     @property
     def requested_max_steps(self) -> int | None:
-        """The ``max_steps`` argument (read by the registration's episode-length hook)."""
+        """The ``max_steps`` argument (under ``gym.make`` deprecated for ``max_episode_steps``)."""
         return self.env.requested_max_steps
 
     @property
     def max_steps(self) -> int:
         """Episode length in control steps."""
         return self.env.max_steps
-
-    @max_steps.setter
-    def max_steps(self, value: int) -> None:
-        self.env.max_steps = value
 
     @property
     def robot(self) -> str:

@@ -13,6 +13,7 @@ saved models, ``env.spec`` and videos record, so it must not say UR10 while a Pa
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -63,6 +64,8 @@ class IdRobotCheck:
     """Mixin of the registered env classes: setting ``spec`` (``gym.make`` does) runs :func:`check_id_robot`.
 
     The env is closed before the error is raised, so a refused ``gym.make`` leaves no simulator open.
+    An env given ``max_steps`` by ``gym.make`` warns (``DeprecationWarning``): under ``gym.make`` the
+    episode length is Gymnasium's ``max_episode_steps``, whose ``TimeLimit`` also ends the episode.
     """
 
     _spec: Any = None
@@ -79,6 +82,13 @@ class IdRobotCheck:
         except ValueError:
             self.close()
             raise
+        requested = getattr(self, "requested_max_steps", None)
+        if value is not None and requested is not None:
+            warnings.warn(
+                f"gym.make({value.id!r}, max_steps={requested}) is deprecated: pass max_episode_steps={requested} "
+                "(the registration's TimeLimit also truncates, at its own length)",
+                DeprecationWarning, stacklevel=3,
+            )
         self._spec = value
 
     @property

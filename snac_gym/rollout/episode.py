@@ -19,6 +19,15 @@ from snac_gym.rollout.batch import RolloutError, Rollouts, rollouts_from_logs
 from snac_gym.rollout.log import add_critic_diagnostics, jsonable, log_columns
 
 
+def episode_length(env: Any) -> int:
+    """Control steps of ``env``'s episode: its ``TimeLimit``'s (``env.spec.max_episode_steps``),
+    else the unwrapped env's ``max_steps`` (a constructed env, the real arm); 0 if neither."""
+    spec = getattr(env, "spec", None)
+    if spec is not None and spec.max_episode_steps is not None:
+        return int(spec.max_episode_steps)
+    return int(getattr(getattr(env, "unwrapped", env), "max_steps", 0))
+
+
 def rollout(
     env: Any,
     policy: Any,
@@ -30,7 +39,7 @@ def rollout(
 
     The env is reset with ``seed`` and ``options``; the policy with ``seed``. The loop ends
     after ``steps`` control steps, or earlier when the env terminates or truncates (so build
-    the env with ``max_steps >= steps`` to run longer than its default episode).
+    the env with ``max_episode_steps >= steps`` to run longer than its default episode).
 
     Args:
         env: A snac-gym env (wrapped or not): its unwrapped form has ``obs_layout`` and ``dt``;
@@ -39,7 +48,7 @@ def rollout(
         policy: Any :class:`~snac_gym.policies.base.Policy`.
         options: The env's ``reset`` options (``q0``, ``target`` or ``ellipse``).
         seed: Seed of both resets; the same seed (and options) gives a bit-identical log.
-        steps: Most control steps to run (default: until the episode ends).
+        steps: Most control steps to run (default: the episode length, :func:`episode_length`).
 
     Returns:
         The trajectory log (see the module docstring for columns and ``attrs``).
@@ -53,9 +62,9 @@ def rollout(
     base = getattr(env, "unwrapped", env)
     layout = base.obs_layout
     limits = np.asarray(getattr(base, "velocity_limits", np.full(layout.n_joints, np.inf)), dtype=float)
-    horizon = int(steps) if steps is not None else int(getattr(base, "max_steps", 0))
+    horizon = int(steps) if steps is not None else episode_length(env)
     if horizon < 1:
-        raise ValueError("steps must be given (and positive) for an env without max_steps")
+        raise ValueError("steps must be given (and positive) for an env without an episode length")
 
     obs, _ = env.reset(seed=seed, options=None if options is None else dict(options))
     policy.reset(seed=seed)
