@@ -6,6 +6,17 @@ import snac_gym  # noqa: F401  (registers the envs)
 from snac_gym.kinematics import Kinematics
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """One torch thread for the tests that train networks, as ``train-ppo`` uses: with two OpenMP
+    threads on two busy cores, SAC's 200 updates of a 32×32 network in test_goal_envs.py took 52 s
+    instead of 4.6 s (both threads spin while the other test process or a worker holds a core)."""
+    try:
+        import torch
+    except ImportError:  # the rl extra is optional
+        return
+    torch.set_num_threads(1)
+
+
 @pytest.fixture(scope="session")
 def ur10() -> Kinematics:
     return Kinematics("ur10")

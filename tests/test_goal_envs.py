@@ -96,7 +96,8 @@ def test_sac_with_her_trains_on_the_goal_env():
     model = SAC(
         "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
-        learning_starts=100, batch_size=32, policy_kwargs={"net_arch": [32, 32]}, seed=0, device="cpu",
+        learning_starts=100, batch_size=32, buffer_size=1000, policy_kwargs={"net_arch": [32, 32]}, seed=0,
+        device="cpu",
     )
     model.learn(300)
     assert model.replay_buffer.size() * model.replay_buffer.n_envs >= 300
