@@ -1,7 +1,7 @@
 """The unit of work: one controller with one knob setting on a chunk of samples.
 
 A :class:`RolloutJob` is plain data (picklable for worker processes and Ray); :func:`run_job`
-rolls it out on its backend and returns one metrics row per sample, plus the per-step logs
+rolls it out on its engine and returns one metrics row per sample, plus the per-step logs
 when asked. It is the only code that runs in the workers.
 """
 
@@ -27,7 +27,7 @@ from snac_gym.tasks import TASKS as TASK_REGISTRY
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
 #: How a job's samples are rolled out: the exact kinematic model in lockstep, or the PyBullet env.
-BACKENDS = ("kinematic", "pybullet")
+ENGINES = ("kinematic", "pybullet")
 
 
 @dataclass(frozen=True)
@@ -43,9 +43,9 @@ class RolloutJob:
         steps: Control steps per rollout.
         dt: Control period, s.
         robot: Robot name.
-        backend: ``"kinematic"`` or ``"pybullet"``.
+        engine: ``"kinematic"`` or ``"pybullet"``.
         keep_logs: Return the per-step logs.
-        use_batch: Let the kinematic backend use a policy's batch protocol.
+        use_batch: Let the kinematic engine use a policy's batch protocol.
         convention: The cost the rollouts are scored by.
     """
 
@@ -57,7 +57,7 @@ class RolloutJob:
     steps: int
     dt: float
     robot: str = "ur10"
-    backend: str = "kinematic"
+    engine: str = "kinematic"
     keep_logs: bool = False
     use_batch: bool = True
     convention: CostConvention = field(default_factory=CostConvention)
@@ -87,7 +87,7 @@ def task_kinematics(robot: str, task: str) -> Any:
 
 
 def policy_context(robot: str, dt: float, task: str) -> PolicyContext:
-    """The context a policy is built from in the kinematic backend (the env's limits and layout)."""
+    """The context a policy is built from in the kinematic engine (the env's limits and layout)."""
     kinematics = task_kinematics(robot, task)
     return PolicyContext(
         kinematics,
@@ -100,7 +100,7 @@ def policy_context(robot: str, dt: float, task: str) -> PolicyContext:
 
 def kinematic_logs(rollouts: Any, samples: Sequence[Any], seeds: Sequence[int], attrs: dict[str, Any],
                    limits: np.ndarray) -> list[Any]:
-    """The per-step logs of kinematic-backend rollouts, with the demo's columns and metadata."""
+    """The per-step logs of kinematic-engine rollouts, with the demo's columns and metadata."""
     return [
         rollouts.log(
             i,
@@ -111,7 +111,7 @@ def kinematic_logs(rollouts: Any, samples: Sequence[Any], seeds: Sequence[int], 
                 "options": s.reset_options(),
                 "reference": s.reference.to_dict(),
                 "velocity_limits": limits.tolist(),
-                "backend": "kinematic",
+                "engine": "kinematic",
             },
         )
         for i, (s, seed) in enumerate(zip(samples, seeds, strict=True))
@@ -121,7 +121,7 @@ def kinematic_logs(rollouts: Any, samples: Sequence[Any], seeds: Sequence[int], 
 def run_job(job: RolloutJob) -> JobResult:
     """Roll out ``job`` and measure every rollout (see :mod:`snac_gym.metrics`)."""
     attrs = {"task": job.task, "policy": job.controller, "policy_kwargs": dict(job.kwargs)}
-    if job.backend == "kinematic":
+    if job.engine == "kinematic":
         context = policy_context(job.robot, job.dt, job.task)
         make = functools.partial(make_policy, job.controller, context, **job.kwargs)
         rollouts = simulate_kinematic(
@@ -129,7 +129,7 @@ def run_job(job: RolloutJob) -> JobResult:
         )
         limits = context.velocity_limits
         logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
-    elif job.backend == "pybullet":
+    elif job.engine == "pybullet":
         make_for_env = functools.partial(make_policy, job.controller, **job.kwargs)  # called with the env
         rollouts, raw_logs = simulate_pybullet(
             job.robot, job.task, job.dt, make_for_env, job.samples, job.steps, job.seeds
@@ -139,9 +139,9 @@ def run_job(job: RolloutJob) -> JobResult:
         if job.keep_logs:
             logs = raw_logs
             for log, sample in zip(logs, job.samples, strict=True):
-                log.attrs.update({**attrs, "sample": sample.index, "backend": job.backend})
+                log.attrs.update({**attrs, "sample": sample.index, "engine": job.engine})
     else:
-        raise ValueError(f"unknown backend {job.backend!r}")
+        raise ValueError(f"unknown engine {job.engine!r}")
     kinematics = shared_kinematics(job.robot)
     metrics = rollout_metrics(
         rollouts, job.task, limits, job.convention, (kinematics.lower_limits, kinematics.upper_limits)

@@ -169,7 +169,7 @@ class EvaluationRun:
                 steps=steps,
                 dt=self.config.dt,
                 robot=self.config.robot,
-                backend=self.config.backend,
+                engine=self.config.engine,
                 keep_logs=keep_logs,
                 use_batch=self.config.use_batch,
                 convention=self.config.convention,
@@ -232,7 +232,7 @@ class EvaluationRun:
         rows.insert(3, "seed", np.array(job.seeds, dtype=np.int64))
         rows["effort_parameter"] = knob or ""
         rows["effort_value"] = np.nan if knob_value is None else float(knob_value)
-        rows["backend"] = self.config.backend
+        rows["engine"] = self.config.engine
         rows["horizon"] = job.steps * job.dt
         self.store.write_part(path, rows)
         self.progress.update(len(job.samples))
@@ -250,7 +250,7 @@ class EvaluationRun:
         for task, spec, kwargs in passes:
             steps = config.steps(task)
             jobs = self._jobs(task, spec.name, kwargs, self.samples[task], steps, config.save_trajectories)
-            pass_paths, pass_todo = self._parts_to_run(spec.name, settings_key(kwargs, steps, config.backend), jobs)
+            pass_paths, pass_todo = self._parts_to_run(spec.name, settings_key(kwargs, steps, config.engine), jobs)
             paths.append(pass_paths)
             todo += [(job, path, spec) for job, path in pass_todo]
         for index, result in self.executor.run(run_job, [job for job, _, _ in todo], priority=PASS_PRIORITY):
@@ -276,7 +276,7 @@ class EvaluationRun:
         for task in self.config.tasks:
             task_starts = (starts or {}).get(task, ())
             key = settings_key({"starts": [list(start) for start in task_starts]}, self.config.steps(task),
-                               self.config.backend)  # fmt: skip
+                               self.config.engine)  # fmt: skip
             jobs = self._optimal_jobs(task, task_starts, (costs or {}).get(task, ()))
             task_paths, task_todo = self._parts_to_run(OPTIMAL, key, jobs)
             paths.append(task_paths)

@@ -195,7 +195,7 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
     return [
         "# Trajectory cost V/N (Table I of the paper)",
         "",
-        f"Backend `{config.backend}`, {n_text}, seed {config.seed}, Δt = {config.dt:g} s, horizons: {horizons}. "
+        f"Engine `{config.engine}`, {n_text}, seed {config.seed}, Δt = {config.dt:g} s, horizons: {horizons}. "
         f"{config.convention.describe()}; V/N is the mean over samples, "
         "± its standard deviation, with the 95 % confidence interval of the mean. "
         + (

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from evaluation.effort_statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
 from evaluation.executors import MAX_WORKERS_PER_CPU, max_workers
-from evaluation.jobs import BACKENDS
+from evaluation.jobs import ENGINES
 from evaluation.optimal_reference import OPTIMAL
 from evaluation.samples import TASKS, check_samples_file
 from evaluation.store import file_sha1
@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 #: Default horizon per task, s (each task's ``horizon_s``: at least every controller's 95th-percentile
 #: settling time at equal effort on 100 samples, docs/evaluation.md), as registered at import.
 DEFAULT_HORIZONS: dict[str, float] = {name: task.horizon_s for name, task in TASK_REGISTRY.items()}
-#: Samples per job of a full pass. The kinematic backend steps a job's samples in lockstep and
+#: Samples per job of a full pass. The kinematic engine steps a job's samples in lockstep and
 #: its per-sample cost falls with the batch up to a few hundred samples (docs/evaluation.md).
 DEFAULT_CHUNK_SIZE = 500
 #: Longest horizon accepted, s: 50x the default tracking horizon. Rollouts keep per-step arrays,
@@ -74,7 +74,7 @@ class EvaluationConfig:
         samples: Random samples per task (ignored with ``samples_file``, whose rows are all used).
         seed: Seed of the sample set and of every policy reset.
         horizons: Rollout length per task, s (missing tasks take their ``Task.horizon_s``).
-        backend: ``"kinematic"`` or ``"pybullet"``.
+        engine: ``"kinematic"`` or ``"pybullet"`` (``snac-gym evaluate --engine``).
         match_effort: Calibrate every controller's effort knob to equal effort.
         effort_reference: Controller whose effort (at its own settings) is the target.
         effort_statistic: What "equal control effort" equalises (:mod:`evaluation.effort_statistics`):
@@ -119,7 +119,7 @@ class EvaluationConfig:
     samples: int = 1000
     seed: int = 0
     horizons: Mapping[str, float] = field(default_factory=lambda: {n: TASK_REGISTRY[n].horizon_s for n in TASKS})
-    backend: str = "kinematic"
+    engine: str = "kinematic"
     match_effort: bool = True
     effort_reference: str = "snac"
     effort_statistic: str = DEFAULT_EFFORT_STATISTIC
@@ -155,7 +155,7 @@ class EvaluationConfig:
         for check in (
             _check_selection,
             _check_timing,
-            _check_backend,
+            _check_engine,
             _check_effort,
             _check_execution,
             _check_scoring,
@@ -224,7 +224,7 @@ class EvaluationConfig:
             "samples_file_sha1": samples_hash,
             "seed": self.seed,
             "steps": {task: self.steps(task) for task in self.tasks},
-            "backend": self.backend,
+            "engine": self.engine,
             "match_effort": self.match_effort,
             "effort_reference": self.effort_reference,
             "effort_statistic": self.effort_statistic,
@@ -292,12 +292,12 @@ def _check_timing(config: EvaluationConfig) -> None:
             )
 
 
-def _check_backend(config: EvaluationConfig) -> None:
-    """The backend, and the optimal reference's need of the kinematic one."""
-    if config.backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {config.backend!r}")
-    if config.wants_optimal and config.backend != "kinematic":
-        raise ValueError(f"the {OPTIMAL!r} reference is the optimum of the kinematic model; use --backend kinematic")
+def _check_engine(config: EvaluationConfig) -> None:
+    """The engine, and the optimal reference's need of the kinematic one."""
+    if config.engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {config.engine!r}")
+    if config.wants_optimal and config.engine != "kinematic":
+        raise ValueError(f"the {OPTIMAL!r} reference is the optimum of the kinematic model; use --engine kinematic")
 
 
 def _check_effort(config: EvaluationConfig) -> None:

@@ -53,9 +53,9 @@ def _stable_json(value: Any) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
-def settings_key(kwargs: dict[str, Any], steps: int, backend: str) -> str:
+def settings_key(kwargs: dict[str, Any], steps: int, engine: str) -> str:
     """Short hash of what decides a job's output besides its samples."""
-    return hashlib.sha1(_stable_json({"kwargs": kwargs, "steps": steps, "backend": backend}).encode()).hexdigest()[:12]
+    return hashlib.sha1(_stable_json({"kwargs": kwargs, "steps": steps, "engine": engine}).encode()).hexdigest()[:12]
 
 
 def run_id(manifest: dict[str, Any]) -> str:

@@ -307,7 +307,7 @@ def evaluate(
         space = parse_sample_space(sample_space, cuboid, robot)
         config = EvaluationConfig(
             out=out_dir, tasks=tasks, controllers=names, samples=1000 if samples is None else samples, seed=seed,
-            horizons=parse_horizons(horizon, tasks), backend=engine, match_effort=match_effort,
+            horizons=parse_horizons(horizon, tasks), engine=engine, match_effort=match_effort,
             effort_reference=effort_reference or "snac", effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
             calibration_samples=calibration_samples, samples_file=samples_file,
             **({} if effort_samples is None else {"effort_samples": effort_samples}), export_samples=export_samples,

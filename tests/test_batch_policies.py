@@ -71,7 +71,7 @@ def _make(name: str, context):
 
 
 def _observations(context, q, x_d, xdot_d, centres, held):
-    """The backend's observation rows for joint positions ``q`` (B, m)."""
+    """The kinematic engine's observation rows for joint positions ``q`` (B, m)."""
     slices, x = context.layout.slices, context.kinematics.forward_batch(q)
     obs = np.empty((len(q), context.layout.size))
     obs[:, slices["q"]], obs[:, slices["qdot"]], obs[:, slices["x"]] = q, held, x

@@ -34,15 +34,15 @@ def _evaluate(tmp_path, *options):
 def test_evaluate_names_its_engine(tmp_path, captured_config):
     outcome = _evaluate(tmp_path, "--engine", "pybullet")
     assert outcome.exit_code == 0, outcome.output
-    assert captured_config["config"].backend == "pybullet"  # evaluation.run_config still calls it backend
-    assert _evaluate(tmp_path).exit_code == 0 and captured_config["config"].backend == "kinematic"
+    assert captured_config["config"].engine == "pybullet"
+    assert _evaluate(tmp_path).exit_code == 0 and captured_config["config"].engine == "kinematic"
 
 
 def test_evaluate_backend_is_a_hidden_deprecated_name_of_engine(tmp_path, captured_config):
     with pytest.warns(DeprecationWarning, match="--backend is deprecated; use --engine"):
         outcome = _evaluate(tmp_path, "--backend", "pybullet")
     assert outcome.exit_code == 0, outcome.output
-    assert captured_config["config"].backend == "pybullet"
+    assert captured_config["config"].engine == "pybullet"
     with pytest.warns(DeprecationWarning):
         clash = _evaluate(tmp_path, "--engine", "pybullet", "--backend", "kinematic")
     flat = " ".join(clash.output.replace("│", " ").split())  # the error panel wraps lines

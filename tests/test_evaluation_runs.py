@@ -205,12 +205,12 @@ def test_an_interrupted_run_resumes_without_losing_or_repeating_samples(tmp_path
     assert not resumed.duplicated(["task", "controller", "sample"]).any() and len(resumed) == 2 * 2 * 6
 
 
-def test_pybullet_backend_runs_through_the_env(tmp_path):
+def test_pybullet_engine_runs_through_the_env(tmp_path):
     config = _config(
-        tmp_path / "pb", controllers=("dls",), samples=2, backend="pybullet", save_trajectories=True, match_effort=False
+        tmp_path / "pb", controllers=("dls",), samples=2, engine="pybullet", save_trajectories=True, match_effort=False
     )
     results = run_evaluation(config)
-    assert len(results) == 4 and set(results["backend"]) == {"pybullet"}
+    assert len(results) == 4 and set(results["engine"]) == {"pybullet"}
     log = read_log(config.out / "trajectories" / "track" / "dls" / "sample_00001.parquet")
     assert float(trajectory_cost(log_array(log, "e"), log_array(log, "u"), log.attrs["dt"]).total) == pytest.approx(
         results.loc[(results["task"] == "track") & (results["sample"] == 1), "cost"].item(), rel=1e-12

@@ -1,5 +1,5 @@
 """The evaluator's parts: sample sets and their CSV form, the batched references, the kinematic
-and PyBullet backends, the optional batch protocol, the per-rollout metrics and the knob search."""
+and PyBullet engines, the optional batch protocol, the per-rollout metrics and the knob search."""
 
 from __future__ import annotations
 
@@ -206,7 +206,7 @@ def test_unreachable_ellipse_and_missing_columns_are_named(tmp_path, ur10):
         read_samples_csv(tmp_path / "missing.csv", ur10)
 
 
-# -- references and backends --------------------------------------------------------------------
+# -- references and engines ------------------------------------------------------------------
 
 
 def test_batched_references_equal_the_reference_methods(track_samples):
@@ -221,7 +221,7 @@ def test_batched_references_equal_the_reference_methods(track_samples):
             np.testing.assert_allclose(velocities[i, k], xdot_d, rtol=0, atol=1e-15)
 
 
-def test_kinematic_backend_integrates_exactly_and_observes_like_the_env(ur10, context_of, track_samples):
+def test_kinematic_engine_integrates_exactly_and_observes_like_the_env(ur10, context_of, track_samples):
     context = context_of("track")
     policies = []
 
@@ -280,7 +280,7 @@ def test_a_non_finite_command_names_controller_sample_and_step(context_of, reach
         simulate_kinematic(context, lambda: NaNPolicy(context), reach_samples[:1], 10, [0], label="nan-test")
 
 
-def test_pybullet_backend_follows_the_kinematic_model(context_of, reach_samples):
+def test_pybullet_engine_follows_the_kinematic_model(context_of, reach_samples):
     context = context_of("reach")
     samples, steps = reach_samples[:2], 60
     physics, logs = simulate_pybullet(

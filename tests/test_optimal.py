@@ -199,7 +199,7 @@ def test_optimal_alone_and_not_with_pybullet(tmp_path: Path):
     )
     assert list(results["controller"]) == [OPTIMAL]
     with pytest.raises(ValueError, match="kinematic"):
-        EvaluationConfig(out=tmp_path / "pb", controllers=(OPTIMAL,), backend="pybullet").validate()
+        EvaluationConfig(out=tmp_path / "pb", controllers=(OPTIMAL,), engine="pybullet").validate()
 
 
 CONVENTIONS = [CostConvention(), CostConvention("table1", "first"), CostConvention("hjb", q_scale=4.0)]

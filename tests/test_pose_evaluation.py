@@ -1,4 +1,4 @@
-"""The evaluator on the pose tasks: the lockstep engine against the env's kinematic backend, the
+"""The evaluator on the pose tasks: the lockstep engine against the env's kinematic physics, the
 pose samples CSV, and small evaluations (API and CLI) on the Panda."""
 
 from __future__ import annotations

@@ -275,7 +275,7 @@ def test_policy_acts_on_the_observation_alone_deterministically(reach_env):
     first = np.array([policy.act(obs) for obs in observations])
     policy.reset(seed=99)
     np.testing.assert_array_equal(np.array([policy.act(obs) for obs in observations]), first)
-    # the joint-velocity field differs between backends (measured vs last command): it is not read
+    # the joint-velocity field differs between the env and the kinematic engine (measured vs last command): not read
     changed = observations.copy()
     changed[:, policy.layout.slices["qdot"]] = np.random.default_rng(0).normal(size=(10, 6))
     np.testing.assert_array_equal(np.array([policy.act(obs) for obs in changed]), first)

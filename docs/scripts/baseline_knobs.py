@@ -1,6 +1,6 @@
 """Measured effect of the baselines' second knobs for docs/baselines.md: SVF's ν and σ₀, RNN's ε.
 
-Each row is one ``snac-gym evaluate`` run (kinematic backend, seed 0, default horizons reach
+Each row is one ``snac-gym evaluate`` run (kinematic engine, seed 0, default horizons reach
 12 s / track 20 s, ``--no-match-effort``, so every controller keeps its default gain K = k = 2
 1/s), one knob changed from its default. The columns are those of
 ``docs/scripts/snac_sensitivity.py`` (V/N is the mean of ``cost``, as in ``summary.csv``).

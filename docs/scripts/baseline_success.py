@@ -13,7 +13,7 @@ import numpy as np
 import snac_gym  # noqa: F401
 from snac_gym import make_policy
 
-backend, name, count = sys.argv[1], sys.argv[2], int(sys.argv[3])
+physics, name, count = sys.argv[1], sys.argv[2], int(sys.argv[3])
 kwargs = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
 for env_id in ("snac_gym/UR10Reach-v0", "snac_gym/UR10EllipseTrack-v0"):
     env = gym.make(env_id)
@@ -28,7 +28,7 @@ for env_id in ("snac_gym/UR10Reach-v0", "snac_gym/UR10EllipseTrack-v0"):
             u = policy.act(obs)
             inside = np.all(np.abs(u) <= base.velocity_limits)
             peak_ratio = max(peak_ratio, float(np.max(np.abs(u) / base.velocity_limits)))
-            if backend == "pybullet":
+            if physics == "pybullet":
                 obs, _, _, _, info = env.step(u)
                 errors.append(info["error_norm"])
             else:  # θ ← θ + uΔt with the shared kinematics, the reference read from the env
@@ -44,7 +44,7 @@ for env_id in ("snac_gym/UR10Reach-v0", "snac_gym/UR10EllipseTrack-v0"):
         metrics.append(metric)
         successes += int(metric <= limit and inside_all)
     metrics = np.array(metrics) * 1e3
-    print(f"{backend:9s} {name} {kwargs or ''} {base.task_name:5s}: {successes}/{count} succeed; "
+    print(f"{physics:9s} {name} {kwargs or ''} {base.task_name:5s}: {successes}/{count} succeed; "
           f"{'final' if base.task_name == 'reach' else 'mean 2nd-half'} error median {np.median(metrics):.4f} mm, "
           f"max {metrics.max():.4f} mm; peak |u_i|/limit {peak_ratio:.3f}", flush=True)
     env.close()

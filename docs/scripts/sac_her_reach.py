@@ -4,7 +4,7 @@ Usage::
 
     .venv/bin/python docs/scripts/sac_her_reach.py --timesteps 30000 --tolerance 0.01
 
-The env runs on the exact kinematic model (``backend="kinematic"``, the evaluator's engine), with
+The env runs on the exact kinematic model (``physics="kinematic"``, the evaluator's engine), with
 normalised actions, sparse rewards and episodes of ``--episode-steps`` control steps (125 Hz).
 After training, the deterministic policy runs ``--eval-episodes`` unseen random episodes (reset
 seeds 10 000, 10 001, ...) and the script prints the fraction that end within ``--tolerance`` of
@@ -35,7 +35,7 @@ def main() -> None:
     from stable_baselines3 import SAC, HerReplayBuffer
 
     torch.set_num_threads(1)
-    kwargs = dict(backend="kinematic", action_type="normalized", success_tolerance=args.tolerance,
+    kwargs = dict(physics="kinematic", action_type="normalized", success_tolerance=args.tolerance,
                   max_steps=args.episode_steps)
     env = gym.make("snac_gym/UR10ReachGoal-v0", **kwargs)
     model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,

@@ -1,6 +1,6 @@
 """SNAC sensitivity table for docs/snac.md: the defaults, each option changed one at a time.
 
-Every configuration is one ``snac-gym evaluate`` run (kinematic backend, seed 0, default
+Every configuration is one ``snac-gym evaluate`` run (kinematic engine, seed 0, default
 horizons reach 12 s / track 20 s, no effort matching), run through the CLI so the command of
 each row is the one a reader would type. From each ``results.csv`` it prints, per task:
 
@@ -139,7 +139,7 @@ def main(configs: list[tuple[str, list[str], str]], controller: str, argv: Seque
     for name, params, _ in configs:
         results = run(args.out / folder(name), controller, params, args.samples, args.workers, args.reuse)
         rows.append((name, figures(results, controller)))
-    print(f"{args.samples} samples per task, seed 0, kinematic backend, reach 12 s, track 20 s, --no-match-effort\n")
+    print(f"{args.samples} samples per task, seed 0, kinematic engine, reach 12 s, track 20 s, --no-match-effort\n")
     print("| name | --param | what |\n|---|---|---|")
     for name, params, note in configs:
         print(f"| {name} | {' '.join(f'`{controller}.{p}`' for p in params) or '—'} | {note} |")

@@ -1,6 +1,6 @@
-"""Time the kinematic backend per sample and control step: ``python -m evaluation.backend_timing``.
+"""Time the kinematic engine per sample and control step: ``python -m evaluation.engine_timing``.
 
-For each registered controller (and for a policy that does nothing, which times the backend
+For each registered controller (and for a policy that does nothing, which times the engine
 alone) it runs ``samples`` regulation samples in lockstep for ``steps`` steps (through the
 batch protocol where the policy offers it, as the evaluator does), best of ``repeats``, and
 prints microseconds per sample-step. The default batch is the evaluator's job size
@@ -27,7 +27,7 @@ from snac_gym.sampling import SampleSpace
 
 class NullPolicy:
     """Commands a small constant velocity (so θ moves and nothing is cached); offers the batch
-    protocol too: times the backend alone."""
+    protocol too: times the engine alone."""
 
     def __init__(self) -> None:
         self.internals: dict[str, Any] = {}
@@ -67,8 +67,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parser.parse_args(argv)
     context = policy_context("ur10", 1.0 / 125.0, "reach")
     rows = [
-        ("backend alone, batch protocol", NullPolicy, True),
-        ("backend alone, per-sample act", NullPolicy, False),
+        ("engine alone, batch protocol", NullPolicy, True),
+        ("engine alone, per-sample act", NullPolicy, False),
     ]
     for name in available_policies():
         make = functools.partial(make_policy, name, context)
