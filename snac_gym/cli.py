@@ -152,7 +152,7 @@ def real(
     connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
         result = run_real_episode(
-            task=task, controller=controller, out_dir=out, backend=connection, host=host, series=series, dry_run=dry_run,
+            task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
             seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
             csv=csv, echo=typer.echo if dry_run else None,
         )

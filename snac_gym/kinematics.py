@@ -257,7 +257,7 @@ class Kinematics:
         over the batch, 0.43 µs per configuration for 500 of them against 1.6 µs through
         Pinocchio per configuration) when the model allows it, by a loop over Pinocchio
         otherwise; either way a row does not depend on the rest of the batch. The last batch
-        is remembered, because in each control step of the evaluator the backend asks for
+        is remembered, because in each control step of the evaluator the engine asks for
         ``f(θ)`` of all samples and the policies then for ``J(θ)`` of the same configurations;
         the arrays returned are therefore read-only.
         """

@@ -1,7 +1,7 @@
 """The observation vector shared by the simulated env, the real-robot env and the evaluator.
 
 One layout, built here, so a policy that parses observations with :meth:`ObservationLayout.unpack`
-works unchanged on every backend.
+works unchanged in each of them.
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ def test_real_names_its_connection(monkeypatch, tmp_path):
     calls = []
 
     def run(**kwargs):
-        calls.append(kwargs["backend"])  # snac_gym.real.run still calls it backend
+        calls.append(kwargs["connection"])
         raise ValueError("stopped by the test")
 
     monkeypatch.setattr(real_run, "run_real_episode", run)
@@ -67,3 +67,15 @@ def test_real_names_its_connection(monkeypatch, tmp_path):
     assert calls == ["sim", "sim"]
     help_text = CliRunner().invoke(app, ["real", "--help"]).output
     assert "--connection" in help_text and "--backend" not in help_text
+
+
+def test_the_real_arm_connections_keep_their_former_names_with_a_warning():
+    import snac_gym.real as real
+
+    for old, new in [("ArmBackend", "ArmConnection"), ("URRTDEBackend", "URRTDEConnection"),
+                     ("SimulatedBackend", "SimulatedConnection"), ("DryRunBackend", "DryRunConnection")]:
+        with pytest.warns(DeprecationWarning, match=f"snac_gym.real.{old} is deprecated; use snac_gym.real.{new}"):
+            assert getattr(real, old) is getattr(real, new)
+        assert old not in real.__all__
+    with pytest.raises(AttributeError, match="no attribute 'Backend'"):
+        real.Backend  # noqa: B018

@@ -1,6 +1,6 @@
 """Hardware in the loop without a robot: the real ur_rtde client against the emulated controller.
 
-Every test drives ``URRTDEBackend`` (ur_rtde's ``RTDEReceiveInterface`` and
+Every test drives ``URRTDEConnection`` (ur_rtde's ``RTDEReceiveInterface`` and
 ``RTDEControlInterface``: dashboard, script upload, register handshake, speedJ) against
 :class:`~snac_gym.real.emulator.process.EmulatorProcess`, injects a fault in the controller,
 and checks what the controller saw: the arm at rest, and no ``speedJ`` after the stop.
@@ -24,7 +24,7 @@ pytest.importorskip("rtde_control")
 pytestmark = pytest.mark.realtime
 
 from snac_gym.kinematics import Kinematics  # noqa: E402
-from snac_gym.real import ConnectionFailure, RealUREnv, SafetyLimits, URRTDEBackend  # noqa: E402
+from snac_gym.real import ConnectionFailure, RealUREnv, SafetyLimits, URRTDEConnection  # noqa: E402
 from snac_gym.real.emulator.arm import flange_transform, matrix_to_pose  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 from snac_gym.sampling import nominal_configuration  # noqa: E402
@@ -51,24 +51,24 @@ def emu(controller: EmulatorProcess) -> EmulatorProcess:
 
 
 @pytest.fixture
-def backend(emu: EmulatorProcess) -> Iterator[URRTDEBackend]:
-    """The ur_rtde backend; its watchdog at 25 periods (200 ms) so that a busy host does not trip it."""
-    arm = URRTDEBackend(HOST, acceleration=4.0, watchdog_periods=25)
+def connection(emu: EmulatorProcess) -> Iterator[URRTDEConnection]:
+    """The ur_rtde connection; its watchdog at 25 periods (200 ms) so that a busy host does not trip it."""
+    arm = URRTDEConnection(HOST, acceleration=4.0, watchdog_periods=25)
     yield arm
     arm.close()
 
 
 @pytest.fixture
-def default_backend(emu: EmulatorProcess) -> Iterator[URRTDEBackend]:
-    """The ur_rtde backend as ``snac-gym real`` builds it: the watchdog at 5 periods (40 ms)."""
-    arm = URRTDEBackend(HOST, acceleration=4.0)
+def default_connection(emu: EmulatorProcess) -> Iterator[URRTDEConnection]:
+    """The ur_rtde connection as ``snac-gym real`` builds it: the watchdog at 5 periods (40 ms)."""
+    arm = URRTDEConnection(HOST, acceleration=4.0)
     yield arm
     arm.close()
 
 
-def _env(backend: URRTDEBackend, steps: int = 400, **safety: object) -> RealUREnv:
+def _env(connection: URRTDEConnection, steps: int = 400, **safety: object) -> RealUREnv:
     limits = {**LOOSE_TIMING, **safety}
-    return RealUREnv("reach", backend, safety=SafetyLimits(**limits), max_steps=steps)
+    return RealUREnv("reach", connection, safety=SafetyLimits(**limits), max_steps=steps)
 
 
 def _run_until_stop(
@@ -111,24 +111,24 @@ def _assert_stopped_and_silent(emu: EmulatorProcess, since: float) -> None:
 # ---------------------------------------------------------------------------- the client itself
 
 
-def test_ur_rtde_connects_uploads_its_script_and_streams_speedj(emu, backend):
+def test_ur_rtde_connects_uploads_its_script_and_streams_speedj(emu, connection):
     status = emu.status()  # the constructor uploaded ur_rtde's control script; no watchdog yet
     assert status["protocol_errors"] == [] and status["programs"] == ["rtde_control"]
     assert status["program_running"] and status["watchdog"] is None
-    q, qd = backend.read_state()
-    np.testing.assert_allclose(q, nominal_configuration(backend.kinematics), atol=1e-12)
+    q, qd = connection.read_state()
+    np.testing.assert_allclose(q, nominal_configuration(connection.kinematics), atol=1e-12)
     # The TCP pose the controller computes from its DH table is the project's f(q), base frame.
-    np.testing.assert_allclose(backend.reported_tcp_position(), backend.kinematics.forward(q), atol=1e-9)
-    assert backend.speed_scaling() == 1.0
+    np.testing.assert_allclose(connection.reported_tcp_position(), connection.kinematics.forward(q), atol=1e-9)
+    assert connection.speed_scaling() == 1.0
     for _ in range(60):
-        start = backend.start_period()
-        backend.command(np.full(6, 0.05))
-        backend.end_period(start)
+        start = connection.start_period()
+        connection.command(np.full(6, 0.05))
+        connection.end_period(start)
     status = emu.status()
     assert status["program_running"] and status["programs"] == ["rtde_control"]
     assert status["watchdog"] == [125.0 / 25, "input_int_register_0"]  # armed by the first command
-    np.testing.assert_allclose(backend.read_state()[1], 0.05, atol=1e-9)
-    backend.stop()  # speedStop: the script's handshake returns once the arm is at rest
+    np.testing.assert_allclose(connection.read_state()[1], 0.05, atol=1e-9)
+    connection.stop()  # speedStop: the script's handshake returns once the arm is at rest
     assert max(map(abs, emu.status()["qd"])) == 0.0
     assert status["unsupported_commands"] == [] and emu.status()["protocol_errors"] == []
 
@@ -143,9 +143,9 @@ def test_the_emulators_dh_model_matches_the_projects_urdf_kinematics():
     assert pose.shape == (6,) and np.linalg.norm(pose[3:]) <= np.pi + 1e-9
 
 
-def test_moveJ_to_the_start_pose_runs_the_blocking_handshake(emu, backend):
-    env = _env(backend)
-    q0 = nominal_configuration(backend.kinematics) + np.array([0.1, -0.05, 0.05, 0.0, 0.0, 0.0])
+def test_moveJ_to_the_start_pose_runs_the_blocking_handshake(emu, connection):
+    env = _env(connection)
+    q0 = nominal_configuration(connection.kinematics) + np.array([0.1, -0.05, 0.05, 0.0, 0.0, 0.0])
     env.reset(options={"q0": q0, "target": [-0.7, 0.2, 0.4]})
     np.testing.assert_allclose(emu.status()["q"], q0, atol=1e-9)
     assert [c for _, c, _ in emu.commands_since(0.0) if c not in (0, 9)] == [15, 1]  # speedStop, moveJ
@@ -158,12 +158,12 @@ def test_moveJ_to_the_start_pose_runs_the_blocking_handshake(emu, backend):
 @pytest.mark.parametrize(
     ("fault", "state"), [("protective_stop", "protective_stop"), ("emergency_stop", "emergency_stop")]
 )
-def test_a_controller_stop_ends_the_episode_and_nothing_is_sent_after_it(emu, backend, fault, state):
-    env = _env(backend)
-    stops_before = backend.stop_calls
+def test_a_controller_stop_ends_the_episode_and_nothing_is_sent_after_it(emu, connection, fault, state):
+    env = _env(connection)
+    stops_before = connection.stop_calls
     t_fault, t_end, info = _run_until_stop(env, getattr(emu, fault))
     assert info["safety_state"] == state and info["safety"] == f"controller reports {state}"
-    assert backend.stop_calls > stops_before  # speedStop was called (the paused script answers False)
+    assert connection.stop_calls > stops_before  # speedStop was called (the paused script answers False)
     # at most the command in flight when the fault hit (the host learns of it from the next package)
     assert len(emu.speed_commands_after(t_fault)) <= 5  # sent before the host could see the stop
     _assert_stopped_and_silent(emu, t_end)
@@ -174,8 +174,8 @@ def test_a_controller_stop_ends_the_episode_and_nothing_is_sent_after_it(emu, ba
     assert emu.speed_commands_after(t_end + DELIVERY) == []
 
 
-def test_a_dropped_link_is_seen_within_one_period_and_the_watchdog_stops_the_arm(emu, backend):
-    env = _env(backend)
+def test_a_dropped_link_is_seen_within_one_period_and_the_watchdog_stops_the_arm(emu, connection):
+    env = _env(connection)
     env.reset(options={"target": [-0.7, 0.2, 0.4]})
     for _ in range(25):
         env.step(SWEEP)
@@ -185,7 +185,7 @@ def test_a_dropped_link_is_seen_within_one_period_and_the_watchdog_stops_the_arm
     with pytest.raises(ConnectionFailure, match="was lost|began to reconnect by itself"):
         for _ in range(3):
             env.step(SWEEP)
-    assert "ConnectionFailure" in env.stop_reason and backend.failure is not None
+    assert "ConnectionFailure" in env.stop_reason and connection.failure is not None
     assert len(env.periods) <= 27  # the step after the drop raised (one period)
     _assert_stopped_and_silent(emu, t_drop)
     events = emu.status()["events"]
@@ -193,8 +193,8 @@ def test_a_dropped_link_is_seen_within_one_period_and_the_watchdog_stops_the_arm
     emu.clear_faults()
 
 
-def test_the_watchdog_stops_the_arm_when_the_host_goes_silent(emu, default_backend):
-    env = _env(default_backend, max_period=0.04)
+def test_the_watchdog_stops_the_arm_when_the_host_goes_silent(emu, default_connection):
+    env = _env(default_connection, max_period=0.04)
     env.reset(options={"target": [-0.7, 0.2, 0.4]})
     for _ in range(25):
         env.step(SWEEP)
@@ -209,8 +209,8 @@ def test_the_watchdog_stops_the_arm_when_the_host_goes_silent(emu, default_backe
     assert emu.speed_commands_after(t_silent + DELIVERY) == []
 
 
-def test_an_injected_watchdog_expiry_stops_the_program_and_the_stream(emu, backend):
-    env = _env(backend)
+def test_an_injected_watchdog_expiry_stops_the_program_and_the_stream(emu, connection):
+    env = _env(connection)
     env.reset(options={"target": [-0.7, 0.2, 0.4]})
     for _ in range(25):
         env.step(SWEEP)
@@ -228,9 +228,9 @@ def test_an_injected_watchdog_expiry_stops_the_program_and_the_stream(emu, backe
 
 
 @pytest.mark.parametrize(("extra", "rule"), [(0.1, "control loop stalled"), (0.014, "control loop missed its 8.0 ms")])
-def test_a_late_host_loop_stops_the_arm(emu, default_backend, extra, rule):
-    backend = default_backend
-    env = _env(backend, max_period=0.04, max_missed_deadlines=3, deadline_window=25)
+def test_a_late_host_loop_stops_the_arm(emu, default_connection, extra, rule):
+    connection = default_connection
+    env = _env(connection, max_period=0.04, max_missed_deadlines=3, deadline_window=25)
     env.reset(options={"target": [-0.7, 0.2, 0.4]})
     for k in range(200):
         if k >= 20:
@@ -242,27 +242,27 @@ def test_a_late_host_loop_stops_the_arm(emu, default_backend, extra, rule):
     _assert_stopped_and_silent(emu, time.monotonic())
 
 
-def test_the_workspace_box_stops_the_arm(emu, backend):
-    x0 = backend.kinematics.forward(nominal_configuration(backend.kinematics))
-    env = _env(backend, box_low=tuple(x0 - 0.02), box_high=tuple(x0 + 0.02))
+def test_the_workspace_box_stops_the_arm(emu, connection):
+    x0 = connection.kinematics.forward(nominal_configuration(connection.kinematics))
+    env = _env(connection, box_low=tuple(x0 - 0.02), box_high=tuple(x0 + 0.02))
     _, t_end, info = _run_until_stop(env, None)
     assert info["safety"].startswith("end effector")
     _assert_stopped_and_silent(emu, t_end)
 
 
-def test_the_joint_margin_stops_the_arm(emu, backend):
-    kinematics = backend.kinematics
+def test_the_joint_margin_stops_the_arm(emu, connection):
+    kinematics = connection.kinematics
     q0 = nominal_configuration(kinematics)
     q0[5] = kinematics.upper_limits[5] - 0.1 - 0.03  # wrist 3, 0.03 rad short of the 0.1 rad margin
-    env = _env(backend)
+    env = _env(connection)
     _, t_end, info = _run_until_stop(env, None, action=np.array([0, 0, 0, 0, 0, 0.4]), q0=q0)
     assert info["safety"].startswith("joint 5"), info["safety"]
     _assert_stopped_and_silent(emu, t_end)
 
 
 @pytest.mark.parametrize(("fault", "rule"), [("stale_data", "stale joint state"), ("nonfinite_state", "non-finite")])
-def test_stale_or_non_finite_controller_data_stops_the_arm(emu, backend, fault, rule):
-    env = _env(backend, max_stale_periods=3)
+def test_stale_or_non_finite_controller_data_stops_the_arm(emu, connection, fault, rule):
+    env = _env(connection, max_stale_periods=3)
     t_fault, t_end, info = _run_until_stop(env, getattr(emu, fault))
     assert info["safety"].startswith(rule), info["safety"]
     _assert_stopped_and_silent(emu, t_end)
@@ -270,24 +270,24 @@ def test_stale_or_non_finite_controller_data_stops_the_arm(emu, backend, fault, 
     emu.clear_faults()
 
 
-def test_a_latency_spike_freezes_the_data_and_the_stale_rule_stops_the_arm(emu, backend):
-    env = _env(backend, max_stale_periods=3)
+def test_a_latency_spike_freezes_the_data_and_the_stale_rule_stops_the_arm(emu, connection):
+    env = _env(connection, max_stale_periods=3)
     _, t_end, info = _run_until_stop(env, lambda: emu.latency_spike(0.2))
     assert info["safety"].startswith("stale joint state"), info["safety"]
     _assert_stopped_and_silent(emu, t_end)
 
 
-def test_commands_reach_the_controller_speed_clipped_and_rate_limited(emu, backend):
-    env = _env(backend, speed_scale=0.25, max_joint_acceleration=2.0, box_low=(-2, -2, -2), box_high=(2, 2, 2))
+def test_commands_reach_the_controller_speed_clipped_and_rate_limited(emu, connection):
+    env = _env(connection, speed_scale=0.25, max_joint_acceleration=2.0, box_low=(-2, -2, -2), box_high=(2, 2, 2))
     since = time.monotonic()
     env.reset(options={"target": [-0.7, 0.2, 0.4]})
     for _ in range(80):
-        env.step(backend.kinematics.velocity_limits)  # the policy asks for full speed on every joint
+        env.step(connection.kinematics.velocity_limits)  # the policy asks for full speed on every joint
     env.close()
     sent = np.array(
         [[c[2][f"input_double_register_{j}"] for j in range(6)] for c in emu.commands_since(since) if c[1] == 9]
     )
-    bound = 0.25 * backend.kinematics.velocity_limits
+    bound = 0.25 * connection.kinematics.velocity_limits
     assert len(sent) >= 79 and np.all(np.abs(sent) <= bound + 1e-12)
     assert np.all(np.abs(np.diff(sent, axis=0)) <= 2.0 * env.dt + 1e-12)
     np.testing.assert_allclose(sent[-1], bound)  # the cap was reached, so it did bind
@@ -296,25 +296,25 @@ def test_commands_reach_the_controller_speed_clipped_and_rate_limited(emu, backe
 # ---------------------------------------------------------------------------- FK check, speed slider
 
 
-def test_a_wrong_tool_offset_is_refused_before_the_arm_moves(emu, backend):
+def test_a_wrong_tool_offset_is_refused_before_the_arm_moves(emu, connection):
     emu.set_tcp_offset([0.0, 0.0, 0.05, 0.0, 0.0, 0.0])  # a 5 cm tool the model does not know
-    env = _env(backend)
+    env = _env(connection)
     with pytest.raises(RuntimeError, match=r"TCP mismatch: .*\(50.0 mm apart"):
         env.reset(options={"target": [-0.7, 0.2, 0.4]})
     assert emu.speed_commands_after(0.0) == []
 
 
-def test_a_tcp_mismatch_mid_episode_stops_the_arm(emu, backend):
-    env = _env(backend)
+def test_a_tcp_mismatch_mid_episode_stops_the_arm(emu, connection):
+    env = _env(connection)
     t_fault, t_end, info = _run_until_stop(env, lambda: emu.set_tcp_offset([0.01, 0.0, 0.0, 0.0, 0.0, 0.0]))
     assert info["safety"].startswith("TCP mismatch") and "10.0 mm apart" in info["safety"]
     _assert_stopped_and_silent(emu, t_end)
     assert len(emu.speed_commands_after(t_fault)) <= 5  # sent before the host read the mismatching pose
 
 
-def test_a_speed_slider_below_100_percent_is_reported_and_not_a_fault(emu, backend):
+def test_a_speed_slider_below_100_percent_is_reported_and_not_a_fault(emu, connection):
     emu.set_speed_scaling(0.5)
-    env = _env(backend, steps=120)
+    env = _env(connection, steps=120)
     _, info = env.reset(options={"target": [-0.7, 0.2, 0.4]})
     assert info["speed_scaling"] == 0.5
     for _ in range(120):
@@ -344,7 +344,7 @@ def test_snac_gym_real_against_the_emulator_reaches_within_1mm_with_the_usual_ou
     from snac_gym.real.run import run_real_episode
 
     result = run_real_episode(
-        task="reach", controller="snac", out_dir=tmp_path, backend="rtde", host=HOST, steps=1000,
+        task="reach", controller="snac", out_dir=tmp_path, connection="rtde", host=HOST, steps=1000,
         safety=SafetyLimits(max_stale_periods=10),
     )  # fmt: skip
     assert result.stop_reason is None, result.stop_reason

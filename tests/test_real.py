@@ -1,4 +1,4 @@
-"""The real-robot env on the simulated backend: the whole loop and every safety rule."""
+"""The real-robot env on the simulated connection: the whole loop and every safety rule."""
 
 import json
 import time
@@ -12,11 +12,11 @@ from snac_gym.real import (
     EMERGENCY_STOP,
     PROTECTIVE_STOP,
     ConnectionFailure,
-    DryRunBackend,
+    DryRunConnection,
     RealUREnv,
     SafetyLimits,
-    SimulatedBackend,
-    URRTDEBackend,
+    SimulatedConnection,
+    URRTDEConnection,
 )
 from snac_gym.references import PAPER_Q0, PAPER_TARGET
 
@@ -31,12 +31,12 @@ class ResolvedRate(BasePolicy):
 
 
 def _env(task="reach", realtime=False, **safety):
-    backend = SimulatedBackend(realtime=realtime)
-    return RealUREnv(task, backend, safety=SafetyLimits(**safety) if safety else None), backend
+    connection = SimulatedConnection(realtime=realtime)
+    return RealUREnv(task, connection, safety=SafetyLimits(**safety) if safety else None), connection
 
 
 def test_whole_loop_reaches_the_paper_target_inside_the_safety_envelope():
-    env, backend = _env(speed_scale=0.5)
+    env, connection = _env(speed_scale=0.5)
     policy = ResolvedRate(env)
     obs, _ = env.reset(options={"q0": PAPER_Q0, "target": PAPER_TARGET})
     previous = np.zeros(6)
@@ -49,9 +49,9 @@ def test_whole_loop_reaches_the_paper_target_inside_the_safety_envelope():
         if truncated:
             break
     assert info["error_norm"] < 1e-3
-    assert backend.commands_sent == env.max_steps
+    assert connection.commands_sent == env.max_steps
     env.close()
-    assert backend.stop_calls >= 1
+    assert connection.stop_calls >= 1
 
 
 def test_same_spaces_as_the_simulated_env():
@@ -63,65 +63,65 @@ def test_same_spaces_as_the_simulated_env():
     assert env.obs_layout == sim.unwrapped.obs_layout
 
 
-def _assert_at_rest(backend):
-    assert backend.stopped and backend.stop_calls >= 1
-    assert np.max(np.abs(backend.read_state()[1])) < 1e-3
+def _assert_at_rest(connection):
+    assert connection.stopped and connection.stop_calls >= 1
+    assert np.max(np.abs(connection.read_state()[1])) < 1e-3
 
 
-def _assert_stopped(env, backend, info, terminated, match):
+def _assert_stopped(env, connection, info, terminated, match):
     assert terminated and match in info["safety"]
-    assert backend.stopped and backend.stop_calls >= 1
-    sent = backend.commands_sent
+    assert connection.stopped and connection.stop_calls >= 1
+    sent = connection.commands_sent
     with pytest.raises(RuntimeError, match="stopped"):
         env.step(np.zeros(6))
-    assert backend.commands_sent == sent  # nothing after a stop
+    assert connection.commands_sent == sent  # nothing after a stop
 
 
 def test_leaving_the_task_box_stops_the_arm():
-    x0 = SimulatedBackend(realtime=False).kinematics.forward(np.array(PAPER_Q0))
-    env, backend = _env(box_low=tuple(x0 - 0.01), box_high=tuple(x0 + 0.01), speed_scale=1.0, max_joint_acceleration=40.0)
+    x0 = SimulatedConnection(realtime=False).kinematics.forward(np.array(PAPER_Q0))
+    env, connection = _env(box_low=tuple(x0 - 0.01), box_high=tuple(x0 + 0.01), speed_scale=1.0, max_joint_acceleration=40.0)
     env.reset(options={"q0": PAPER_Q0})
     for _ in range(200):
         _, _, terminated, _, info = env.step(np.array([0.5, 0, 0, 0, 0, 0]))
         if terminated:
             break
-    _assert_stopped(env, backend, info, terminated, "task box")
+    _assert_stopped(env, connection, info, terminated, "task box")
 
 
 def test_joint_limit_margin_stops_the_arm():
     q0 = np.array(PAPER_Q0)
     q0[2] = np.pi - 0.2  # elbow 0.2 rad from its URDF limit
-    env, backend = _env(box_low=(-2, -2, -2), box_high=(2, 2, 2), max_joint_acceleration=40.0, speed_scale=1.0)
+    env, connection = _env(box_low=(-2, -2, -2), box_high=(2, 2, 2), max_joint_acceleration=40.0, speed_scale=1.0)
     env.reset(options={"q0": q0})
     for _ in range(100):
         _, _, terminated, _, info = env.step(np.array([0, 0, 1.0, 0, 0, 0]))
         if terminated:
             break
-    _assert_stopped(env, backend, info, terminated, "elbow_joint")
+    _assert_stopped(env, connection, info, terminated, "elbow_joint")
 
 
 @pytest.mark.parametrize("fault", [PROTECTIVE_STOP, EMERGENCY_STOP])
 def test_controller_stops_end_the_episode(fault):
-    env, backend = _env()
+    env, connection = _env()
     env.reset(options={"q0": PAPER_Q0})
     env.step(np.full(6, 0.01))
-    backend.inject_fault(fault)
+    connection.inject_fault(fault)
     _, _, terminated, _, info = env.step(np.full(6, 0.01))
     assert info["safety_state"] == fault
-    _assert_stopped(env, backend, info, terminated, fault)
+    _assert_stopped(env, connection, info, terminated, fault)
     with pytest.raises(RuntimeError, match=fault):
         env.reset()  # cleared on the pendant first
 
 
 def test_missed_deadlines_stop_the_arm():
-    env, backend = _env(max_missed_deadlines=3)
+    env, connection = _env(max_missed_deadlines=3)
     env.reset(options={"q0": PAPER_Q0})
     env.step(np.zeros(6))
     for k in range(3):
         time.sleep(2.5 * env.dt)  # a policy that takes 2.5 periods
         _, _, terminated, _, info = env.step(np.zeros(6))
         assert terminated == (k == 2)
-    _assert_stopped(env, backend, info, terminated, "missed its 8.0 ms deadline in 3 of the last 3 periods")
+    _assert_stopped(env, connection, info, terminated, "missed its 8.0 ms deadline in 3 of the last 3 periods")
 
 
 def test_one_late_period_is_tolerated():
@@ -136,53 +136,53 @@ def test_one_late_period_is_tolerated():
 
 @pytest.mark.parametrize("error", [KeyboardInterrupt, ConnectionFailure, ZeroDivisionError])
 def test_any_exception_in_the_loop_stops_the_arm(monkeypatch, error):
-    env, backend = _env()
+    env, connection = _env()
     env.reset(options={"q0": PAPER_Q0})
     env.step(np.full(6, 0.05))
 
     def fail(_start):
         raise error("boom")
 
-    monkeypatch.setattr(backend, "end_period", fail)
+    monkeypatch.setattr(connection, "end_period", fail)
     with pytest.raises(error):
         env.step(np.full(6, 0.05))
-    assert backend.stopped and env.stop_reason == f"{error.__name__} during step: boom"
+    assert connection.stopped and env.stop_reason == f"{error.__name__} during step: boom"
 
 
 def test_close_stops_the_arm():
-    env, backend = _env()
+    env, connection = _env()
     env.reset(options={"q0": PAPER_Q0})
     env.step(np.full(6, 0.05))
     env.close()
-    assert backend.stop_calls >= 1 and backend.sim.client == -1
+    assert connection.stop_calls >= 1 and connection.sim.client == -1
 
 
 @pytest.mark.parametrize("action", [[np.nan, 0, 0, 0, 0, 0], [0.1] * 5, "fast"])
 def test_a_bad_action_stops_the_moving_arm_and_ends_the_episode(action):
-    env, backend = _env(speed_scale=1.0)
+    env, connection = _env(speed_scale=1.0)
     env.reset(options={"q0": PAPER_Q0})
     for _ in range(20):
         env.step(np.full(6, 0.1))
-    sent = backend.commands_sent
+    sent = connection.commands_sent
     with pytest.raises(ValueError, match="action"):
         env.step(action)
-    assert backend.commands_sent == sent  # the bad command itself never reached the arm
+    assert connection.commands_sent == sent  # the bad command itself never reached the arm
     assert env.stop_reason.startswith("ValueError during step: action")
-    _assert_at_rest(backend)
+    _assert_at_rest(connection)
     with pytest.raises(RuntimeError, match="stopped"):
         env.step(np.zeros(6))
 
 
 def test_dry_run_sends_nothing_and_records_what_it_would_send():
-    inner = SimulatedBackend(realtime=False)  # parked at θ0, where the (real) arm happens to be
+    inner = SimulatedConnection(realtime=False)  # parked at θ0, where the (real) arm happens to be
     lines = []
-    backend = DryRunBackend(inner, echo=lines.append)
-    env = RealUREnv("reach", backend)
+    connection = DryRunConnection(inner, echo=lines.append)
+    env = RealUREnv("reach", connection)
     obs, _ = env.reset(options={"q0": PAPER_Q0})
     policy = ResolvedRate(env)
     for _ in range(3):
         obs, *_ = env.step(policy.act(obs))
-    assert inner.commands_sent == 0 and len(backend.sent) == 3
+    assert inner.commands_sent == 0 and len(connection.sent) == 3
     assert lines[0].startswith("would moveJ") and lines[1].startswith("would send speedJ")
     # the arm did not move: the simulated motors hold it against gravity to ~1e-5 rad
     np.testing.assert_allclose(obs[:6], PAPER_Q0, atol=1e-4)
@@ -200,11 +200,11 @@ def test_loop_period_and_jitter_are_measured_at_125_hz():
     assert set(timing) >= {"period_ms_mean", "period_ms_std", "period_ms_p99", "jitter_ms_max", "late_periods"}
 
 
-def test_rtde_backend_fails_fast_on_a_closed_loopback_port():
+def test_rtde_connection_fails_fast_on_a_closed_loopback_port():
     # 127.0.0.2: the emulator tests may be listening on 127.0.0.1:30004 at the same time
     start = time.monotonic()
     with pytest.raises(ConnectionFailure, match="127.0.0.2:30004 refused") as excinfo:
-        URRTDEBackend("127.0.0.2", connect_timeout=2.0)
+        URRTDEConnection("127.0.0.2", connect_timeout=2.0)
     assert time.monotonic() - start < 5.0
     assert "\n" not in str(excinfo.value)
 
@@ -222,7 +222,7 @@ def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
 
     # a loaded CI machine may be late now and then: the deadline rule has its own tests above
     result = run_real_episode(
-        task="reach", controller="dls", out_dir=tmp_path / "real", backend="sim", steps=60,
+        task="reach", controller="dls", out_dir=tmp_path / "real", connection="sim", steps=60,
         safety=SafetyLimits(max_missed_deadlines=10**5, deadline_window=10**5, max_period=10.0),
     )
     demo = run_demo(task="reach", controller="dls", out_dir=tmp_path / "demo", steps=60)
@@ -251,13 +251,13 @@ def test_real_command_with_nothing_listening_fails_in_one_line():
     assert "127.0.0.2:30004 refused" in done.stderr
 
 
-def test_dry_run_command_on_the_simulated_backend_prints_what_it_would_send(tmp_path):
+def test_dry_run_command_on_the_simulated_connection_prints_what_it_would_send(tmp_path):
     from typer.testing import CliRunner
 
     from snac_gym.cli import app
 
     outcome = CliRunner().invoke(
-        app, ["real", "--backend", "sim", "--dry-run", "--steps", "5", "--controller", "dls", "--out", str(tmp_path)]
+        app, ["real", "--connection", "sim", "--dry-run", "--steps", "5", "--controller", "dls", "--out", str(tmp_path)]
     )
     assert outcome.exit_code == 0, outcome.output
     assert outcome.output.count("would send speedJ") == 5
@@ -270,9 +270,9 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
     import snac_gym.real.run as real_run
     from snac_gym.cli import app
 
-    backend = SimulatedBackend(realtime=False)
+    connection = SimulatedConnection(realtime=False)
     reads = {"count": 0}
-    original = backend.read_state
+    original = connection.read_state
 
     def flaky_read():
         reads["count"] += 1
@@ -280,12 +280,12 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
             raise ConnectionFailure("connection to the arm at 10.0.0.2 was lost")
         return original()
 
-    monkeypatch.setattr(backend, "read_state", flaky_read)
-    monkeypatch.setattr(real_run, "make_backend", lambda *args, **kwargs: backend)
+    monkeypatch.setattr(connection, "read_state", flaky_read)
+    monkeypatch.setattr(real_run, "make_connection", lambda *args, **kwargs: connection)
     outcome = CliRunner().invoke(app, ["real", "--host", "10.0.0.2", "--controller", "dls", "--out", str(tmp_path)])
     assert outcome.exit_code == 1
     assert outcome.output.strip() == f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/"
-    assert backend.stopped and backend.stop_calls >= 1
+    assert connection.stopped and connection.stop_calls >= 1
     # the log so far is written: a lost link is a way out like any other (issue 31)
     summary = json.loads((tmp_path / "reach_dls_real.json").read_text())
     assert summary["ended"] == "link lost" and "was lost" in summary["reason"]

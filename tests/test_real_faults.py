@@ -1,6 +1,6 @@
 """The real-robot env under faults: every way out of an episode stops the arm (issue 18).
 
-The faults are injected by :class:`FaultyBackend`, a wrapper around the simulated backend that
+The faults are injected by :class:`FaultyConnection`, a wrapper around the simulated connection that
 corrupts the state, freezes its timestamp, delays periods or keeps the arm moving, while
 counting what reached the arm.
 """
@@ -16,12 +16,12 @@ import pytest
 
 from snac_gym.policies import register_policy
 from snac_gym.policies.base import BasePolicy
-from snac_gym.real import RealUREnv, SafetyLimits, SimulatedBackend
+from snac_gym.real import RealUREnv, SafetyLimits, SimulatedConnection
 from snac_gym.references import PAPER_Q0
 
 
-class FaultyBackend:
-    """A :class:`SimulatedBackend` whose state and timing can be broken on purpose.
+class FaultyConnection:
+    """A :class:`SimulatedConnection` whose state and timing can be broken on purpose.
 
     Attributes:
         corrupt_state: ``None``, ``"nan_q"`` or ``"inf_qdot"``: what :meth:`read_state` returns.
@@ -31,7 +31,7 @@ class FaultyBackend:
     """
 
     def __init__(self) -> None:
-        self.inner = SimulatedBackend(realtime=False)
+        self.inner = SimulatedConnection(realtime=False)
         self.kinematics, self.dt = self.inner.kinematics, self.inner.dt
         self.corrupt_state: str | None = None
         self.freeze_timestamp = False
@@ -73,10 +73,10 @@ class FaultyBackend:
 
 
 def _env(**safety):
-    backend = FaultyBackend()
-    env = RealUREnv("reach", backend, safety=SafetyLimits(speed_scale=1.0, max_joint_acceleration=40.0, **safety))
+    connection = FaultyConnection()
+    env = RealUREnv("reach", connection, safety=SafetyLimits(speed_scale=1.0, max_joint_acceleration=40.0, **safety))
     env.reset(options={"q0": PAPER_Q0})
-    return env, backend
+    return env, connection
 
 
 def _drive(env, steps, u=0.1):
@@ -87,31 +87,31 @@ def _drive(env, steps, u=0.1):
     return terminated, truncated, info
 
 
-def _assert_stopped_at_rest(env, backend, match=None):
-    assert backend.inner.stopped and backend.inner.stop_calls >= 1
-    assert np.max(np.abs(backend.inner.read_state()[1])) < 1e-3
+def _assert_stopped_at_rest(env, connection, match=None):
+    assert connection.inner.stopped and connection.inner.stop_calls >= 1
+    assert np.max(np.abs(connection.inner.read_state()[1])) < 1e-3
     if match is not None:
         assert match in env.stop_reason
-    sent = backend.inner.commands_sent
+    sent = connection.inner.commands_sent
     with pytest.raises(RuntimeError, match="call reset"):
         env.step(np.zeros(6))
-    assert backend.inner.commands_sent == sent
+    assert connection.inner.commands_sent == sent
 
 
 @pytest.mark.parametrize(("fault", "match"), [("nan_q", "non-finite joint state"), ("inf_qdot", "non-finite joint velocities")])
 def test_non_finite_state_from_the_controller_stops_the_arm(fault, match):
-    env, backend = _env()
+    env, connection = _env()
     _drive(env, 20)
-    backend.corrupt_state = fault
+    connection.corrupt_state = fault
     terminated, _, info = _drive(env, 1)
     assert terminated and match in info["safety"]
-    _assert_stopped_at_rest(env, backend, match)
+    _assert_stopped_at_rest(env, connection, match)
 
 
 def test_stale_state_stops_the_arm():
-    env, backend = _env(max_stale_periods=3)
+    env, connection = _env(max_stale_periods=3)
     _drive(env, 20)
-    backend.freeze_timestamp = True
+    connection.freeze_timestamp = True
     steps = 0
     while True:
         steps += 1
@@ -119,51 +119,51 @@ def test_stale_state_stops_the_arm():
         if terminated:
             break
     assert steps == 4 and "stale joint state" in info["safety"]  # the first frozen read is still new
-    _assert_stopped_at_rest(env, backend, "stale")
+    _assert_stopped_at_rest(env, connection, "stale")
 
 
 def test_truncation_stops_the_arm_and_brings_it_to_rest():
-    env, backend = _env()
+    env, connection = _env()
     env.max_steps = 30
     terminated, truncated, _ = _drive(env, 100)
     assert truncated and not terminated and env.stop_reason is None
-    _assert_stopped_at_rest(env, backend)
+    _assert_stopped_at_rest(env, connection)
 
 
 def test_reset_without_q0_stops_a_moving_arm_before_the_next_episode():
-    env, backend = _env()
+    env, connection = _env()
     _drive(env, 40, u=0.3)
-    assert np.max(np.abs(backend.inner.read_state()[1])) > 0.2  # moving when the episode is abandoned
+    assert np.max(np.abs(connection.inner.read_state()[1])) > 0.2  # moving when the episode is abandoned
     env.reset()
-    assert np.max(np.abs(backend.inner.read_state()[1])) < 1e-3
+    assert np.max(np.abs(connection.inner.read_state()[1])) < 1e-3
     # the acceleration bound starts from rest again, and the arm really is at rest
     _, _, _, _, info = env.step(np.full(6, 3.0))
     np.testing.assert_allclose(np.abs(info["command"]), env.safety.step_bound)
 
 
 def test_reset_refuses_an_unsafe_start_pose_before_moving_there():
-    env, backend = _env()
-    moves = backend.moves
+    env, connection = _env()
+    moves = connection.moves
     q0 = np.array(PAPER_Q0)
     q0[2] = np.pi - 0.05  # elbow within the 0.1 rad margin of its limit
     with pytest.raises(ValueError, match=r"options\['q0'\] is outside the safety limits: joint 2 \(elbow_joint\)"):
         env.reset(options={"q0": q0})
-    assert backend.moves == moves
+    assert connection.moves == moves
     with pytest.raises(RuntimeError, match="call reset"):
         env.step(np.zeros(6))
 
 
 def test_an_arm_that_does_not_come_to_rest_is_not_started():
-    env, backend = _env()
-    backend.keep_moving = True
+    env, connection = _env()
+    connection.keep_moving = True
     with pytest.raises(RuntimeError, match="still moving"):
         env.reset(options={"q0": PAPER_Q0})
 
 
 def test_late_periods_that_are_not_consecutive_stop_the_arm():
-    env, backend = _env(max_missed_deadlines=3, deadline_window=25)
+    env, connection = _env(max_missed_deadlines=3, deadline_window=25)
     _drive(env, 5)
-    backend.delays = [2.5 * env.dt, 2.5 * env.dt, 0.0] * 10  # two late periods of every three
+    connection.delays = [2.5 * env.dt, 2.5 * env.dt, 0.0] * 10  # two late periods of every three
     steps = 0
     while True:
         steps += 1
@@ -171,16 +171,16 @@ def test_late_periods_that_are_not_consecutive_stop_the_arm():
         if terminated:
             break
     assert steps == 4 and "deadline in 3 of the last" in info["safety"]
-    _assert_stopped_at_rest(env, backend)
+    _assert_stopped_at_rest(env, connection)
 
 
 def test_a_single_stall_stops_the_arm():
-    env, backend = _env(max_period=0.04)
+    env, connection = _env(max_period=0.04)
     _drive(env, 5)
-    backend.delays = [0.1]
+    connection.delays = [0.1]
     terminated, _, info = _drive(env, 1)
     assert terminated and "stalled: one period took" in info["safety"]
-    _assert_stopped_at_rest(env, backend)
+    _assert_stopped_at_rest(env, connection)
 
 
 class SendsSignal(BasePolicy):
@@ -201,19 +201,19 @@ class SendsSignal(BasePolicy):
 def signalling_run(monkeypatch):
     import snac_gym.real.run as real_run
 
-    backend = SimulatedBackend(realtime=False)
+    connection = SimulatedConnection(realtime=False)
     speeds_after_stop = []
-    stop = backend.stop
+    stop = connection.stop
 
     def stop_and_record():
         stop()
-        if backend.sim.client >= 0:
-            speeds_after_stop.append(np.max(np.abs(backend.read_state()[1])))
+        if connection.sim.client >= 0:
+            speeds_after_stop.append(np.max(np.abs(connection.read_state()[1])))
 
-    monkeypatch.setattr(backend, "stop", stop_and_record)
-    monkeypatch.setattr(real_run, "make_backend", lambda *args, **kwargs: backend)
+    monkeypatch.setattr(connection, "stop", stop_and_record)
+    monkeypatch.setattr(real_run, "make_connection", lambda *args, **kwargs: connection)
     register_policy("sends-signal", SendsSignal, overwrite=True)
-    return backend, speeds_after_stop
+    return connection, speeds_after_stop
 
 
 @pytest.mark.parametrize(
@@ -224,12 +224,12 @@ def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_ru
 
     previous = signal.getsignal(signum)
     with pytest.raises(TerminationSignal) as excinfo:
-        run_real_episode(controller="sends-signal", out_dir=tmp_path, backend="sim", steps=200,
+        run_real_episode(controller="sends-signal", out_dir=tmp_path, connection="sim", steps=200,
                          policy_kwargs={"signum": signum}, safety=SafetyLimits(max_period=10.0))
     assert excinfo.value.signum == signum
     assert signal.getsignal(signum) is previous  # the handlers are put back
-    backend, speeds_after_stop = signalling_run
-    assert backend.stopped and speeds_after_stop and max(speeds_after_stop) < 1e-3
+    connection, speeds_after_stop = signalling_run
+    assert connection.stopped and speeds_after_stop and max(speeds_after_stop) < 1e-3
     log = pd.read_parquet(tmp_path / "reach_sends-signal_log.parquet")
     assert len(log) == 29  # step 30's command was never sent
     assert log.attrs["interrupted"] == "TerminationSignal"
@@ -245,14 +245,14 @@ def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path)
 
     from snac_gym.cli import app
 
-    outcome = CliRunner().invoke(app, ["real", "--backend", "sim", "--controller", "sends-signal", "--out", str(tmp_path)])
+    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "sends-signal", "--out", str(tmp_path)])
     assert outcome.exit_code == 128 + signal.SIGTERM
     assert outcome.output.strip() == f"interrupted by SIGTERM: the arm was stopped; the log so far is in {tmp_path}/"
     assert signalling_run[0].stopped
 
 
 class SignalsTwice(SendsSignal):
-    """Sends SIGTERM at step ``at``; its backend then sends SIGQUIT from inside the stop that follows."""
+    """Sends SIGTERM at step ``at``; its connection then sends SIGQUIT from inside the stop that follows."""
 
     sent = False
 
@@ -264,21 +264,21 @@ class SignalsTwice(SendsSignal):
 def test_a_second_signal_does_not_cut_the_stop_path_or_the_log(signalling_run, tmp_path, monkeypatch):
     from snac_gym.real.run import TerminationSignal, run_real_episode
 
-    backend, speeds_after_stop = signalling_run
-    stop = backend.stop
+    connection, speeds_after_stop = signalling_run
+    stop = connection.stop
 
     def stop_interrupted_again():
         if SignalsTwice.sent:
             os.kill(os.getpid(), signal.SIGQUIT)  # an impatient operator, mid-stop
         stop()
 
-    monkeypatch.setattr(backend, "stop", stop_interrupted_again)
+    monkeypatch.setattr(connection, "stop", stop_interrupted_again)
     register_policy("signals-twice", SignalsTwice, overwrite=True)
     with pytest.raises(TerminationSignal) as excinfo:
-        run_real_episode(controller="signals-twice", out_dir=tmp_path, backend="sim", steps=200,
+        run_real_episode(controller="signals-twice", out_dir=tmp_path, connection="sim", steps=200,
                          safety=SafetyLimits(max_period=10.0))  # fmt: skip
     assert excinfo.value.signum == signal.SIGTERM  # the first signal is the one reported
-    assert backend.stopped and speeds_after_stop and max(speeds_after_stop) < 1e-3  # the stop ran to rest
+    assert connection.stopped and speeds_after_stop and max(speeds_after_stop) < 1e-3  # the stop ran to rest
     assert len(pd.read_parquet(tmp_path / "reach_signals-twice_log.parquet")) == 29
     assert json.loads((tmp_path / "reach_signals-twice_real.json").read_text())["signal"] == "SIGTERM"
 
@@ -303,7 +303,7 @@ def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept
     from snac_gym.cli import app
 
     register_policy("crashes", Crashes, overwrite=True)
-    outcome = CliRunner().invoke(app, ["real", "--backend", "sim", "--controller", "crashes", "--out", str(tmp_path)])
+    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "crashes", "--out", str(tmp_path)])
     assert outcome.exit_code == 3, outcome.output
     assert outcome.output.strip() == (
         f"error: unexpected ZeroDivisionError: integer division or modulo by zero; the log so far is in {tmp_path}/ "
@@ -338,7 +338,7 @@ def test_the_stream_log_is_on_disk_within_a_second_while_the_run_goes(tmp_path, 
 def test_a_completed_run_replaces_the_stream_log_with_the_full_log(tmp_path):
     from snac_gym.real.run import run_real_episode
 
-    run_real_episode(controller="dls", out_dir=tmp_path, backend="sim", steps=30, plots=False)
+    run_real_episode(controller="dls", out_dir=tmp_path, connection="sim", steps=30, plots=False)
     names = {p.name for p in tmp_path.iterdir()}
     assert "reach_dls_log.parquet" in names and "reach_dls_stream.csv" not in names
 
@@ -347,7 +347,7 @@ def test_an_interrupted_run_keeps_the_stream_log_with_every_period(signalling_ru
     from snac_gym.real.run import TerminationSignal, run_real_episode
 
     with pytest.raises(TerminationSignal):
-        run_real_episode(controller="sends-signal", out_dir=tmp_path, backend="sim", steps=200,
+        run_real_episode(controller="sends-signal", out_dir=tmp_path, connection="sim", steps=200,
                          safety=SafetyLimits(max_period=10.0))  # fmt: skip
     stream = pd.read_csv(tmp_path / "reach_sends-signal_stream.csv")
     assert list(stream["step"]) == list(range(30))  # the reset's row, then one per sent command
@@ -383,7 +383,7 @@ def test_the_real_command_refuses_a_meaningless_acceleration_in_one_line(tmp_pat
 
     from snac_gym.cli import app
 
-    outcome = CliRunner().invoke(app, ["real", "--backend", "sim", "--max-acceleration", value, "--out", str(tmp_path)])
+    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--max-acceleration", value, "--out", str(tmp_path)])
     assert outcome.exit_code == 2
     assert "max_joint_acceleration must be a finite number" in outcome.output
     assert "Traceback" not in outcome.output and not any(tmp_path.iterdir())

@@ -31,7 +31,7 @@ import pytest
 pytest.importorskip("rtde_control")
 pytestmark = pytest.mark.realtime
 
-from snac_gym.real import ConnectionFailure, RealUREnv, SafetyLimits, URRTDEBackend  # noqa: E402
+from snac_gym.real import ConnectionFailure, RealUREnv, SafetyLimits, URRTDEConnection  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 
 HOST = "127.0.0.1"
@@ -139,8 +139,8 @@ def test_a_stalled_or_lost_controller_ends_the_run_by_itself_with_its_log(emu, t
 
 
 @pytest.fixture
-def backend(emu: EmulatorProcess) -> Iterator[URRTDEBackend]:
-    arm = URRTDEBackend(HOST, acceleration=4.0)
+def connection(emu: EmulatorProcess) -> Iterator[URRTDEConnection]:
+    arm = URRTDEConnection(HOST, acceleration=4.0)
     yield arm
     arm.close()
 
@@ -150,24 +150,24 @@ def backend(emu: EmulatorProcess) -> Iterator[URRTDEBackend]:
     [(signal.SIGSEGV, "the ur_rtde client was killed by SIGSEGV"), (signal.SIGSTOP, "did not return from")],
     ids=["client segfaults", "client blocks"],
 )
-def test_a_client_that_crashes_or_blocks_is_a_lost_link_seen_within_a_few_periods(emu, backend, signum, match):
+def test_a_client_that_crashes_or_blocks_is_a_lost_link_seen_within_a_few_periods(emu, connection, signum, match):
     limits = SafetyLimits(max_stale_periods=25, max_period=0.5, max_missed_deadlines=25)
-    env = RealUREnv("reach", backend, safety=limits, max_steps=400)
+    env = RealUREnv("reach", connection, safety=limits, max_steps=400)
     env.reset(options={"target": [-0.7, 0.2, 0.4]})
     for _ in range(25):
         env.step(SWEEP)
     t_fault = time.monotonic()
-    os.kill(backend.client_pid, signum)
+    os.kill(connection.client_pid, signum)
     with pytest.raises(ConnectionFailure, match=match):
         for _ in range(10):
             env.step(SWEEP)
     assert time.monotonic() - t_fault < 0.5  # the deadline is the watchdog's 5 periods (40 ms); margin for a loaded host
-    assert match in backend.failure and "ConnectionFailure" in env.stop_reason
-    assert backend.last_stop == "client gone: left to the controller's watchdog"
+    assert match in connection.failure and "ConnectionFailure" in env.stop_reason
+    assert connection.last_stop == "client gone: left to the controller's watchdog"
     _assert_at_rest_and_silent_since(emu, t_fault)
     assert any(e.startswith("watchdog expired") for e in emu.status()["events"])
     with pytest.raises(ConnectionFailure, match=match):  # given up for good: nothing reconnects mid-run
-        backend.read_state()
+        connection.read_state()
 
 
 # ---------------------------------------------------------------------------- signals and the host dying

@@ -3,7 +3,7 @@
 :class:`PyBulletArm` simulates the URDF with PyBullet's velocity motors (the default);
 :class:`KinematicArm` integrates the paper's model exactly, θₖ₊₁ = θₖ + uₖΔt (eq. 3, the
 evaluator's kinematic engine), thousands of times faster. The env's ``physics=`` argument picks
-one. The real robot's connections (:mod:`snac_gym.real.backends`) follow the same idea with a
+one. The real robot's connections (:mod:`snac_gym.real.connections`) follow the same idea with a
 wall clock behind them.
 """
 

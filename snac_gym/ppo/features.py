@@ -5,7 +5,7 @@ Both are used at training time (by :class:`snac_gym.ppo.envs.PPOTrainingWrapper`
 time (by :class:`snac_gym.ppo.policy.PPOPolicy`), so the two cannot drift apart. The features
 are computed from the observation vector only (through its :class:`ObservationLayout`), never
 from simulator state, so the same policy runs on the PyBullet env, the evaluator's kinematic
-backend and the real robot.
+engine and the real robot.
 
 Features (``FEATURE_VERSION`` 2), for m joints and task dimension n:
 
@@ -24,9 +24,9 @@ log10(‖e‖ + ε)        1       the error's magnitude on a log scale (ε = 1e
 ln(action_scale)      1       the effort knob the policy runs with (see below)
 ====================  ======  ==============================================================
 
-The joint-velocity field of the observation is not used: the kinematic backend fills it
+The joint-velocity field of the observation is not used: the kinematic engine fills it
 with the previous command while the PyBullet env measures it, so it is not the same
-signal on every backend.
+signal everywhere.
 
 Action: the network's output ``a`` is clipped to [−1, 1] per joint and mapped to
 ``u = action_scale · action_fraction · a ⊙ ū`` (rad/s), ū the velocity limits, clipped to ±ū.

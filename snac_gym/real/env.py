@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.envs.core import TaskEnvCore, resolve_reference, validate_action, validate_q0
-from snac_gym.real.backends import NORMAL, ArmBackend
+from snac_gym.real.connections import NORMAL, ArmConnection
 from snac_gym.real.safety import SafetyLayer, SafetyLimits
 from snac_gym.sampling import SampleSpace
 
@@ -20,7 +20,7 @@ class RealUREnv(TaskEnvCore):
 
     Every step: the action is checked and clipped like the simulated env's, then shaped by the
     safety layer (speed scale, acceleration bound), sent, and the loop waits for the period's
-    end before reading the state. The arm is stopped (``backend.stop()``, i.e. ``speedStop`` on
+    end before reading the state. The arm is stopped (``connection.stop()``, i.e. ``speedStop`` on
     ur_rtde, which returns once the arm is at rest) on every way out of an episode:
 
     * a stopping rule of :class:`~snac_gym.real.safety.SafetyLimits` fires (non-finite or stale
@@ -43,7 +43,7 @@ class RealUREnv(TaskEnvCore):
 
     Args:
         task: A registered task's name.
-        backend: An :class:`~snac_gym.real.backends.ArmBackend` (ur_rtde, simulated or dry run).
+        connection: An :class:`~snac_gym.real.connections.ArmConnection` (ur_rtde, simulated or dry run).
         safety: Safety limits (default: the conservative :class:`SafetyLimits`).
         max_steps: Episode length in control periods (default: the simulated env's episode in
             seconds, 8 s for reach, 20 s for track).
@@ -52,7 +52,7 @@ class RealUREnv(TaskEnvCore):
         sample_space: Space of random references.
 
     Each step's ``info["speed_scaling"]`` is the controller's speed scaling (the pendant's speed
-    slider; 1.0 where the backend reports none): below 1 the controller runs every command
+    slider; 1.0 where the connection reports none): below 1 the controller runs every command
     slower, so the arm trails the command by design; :meth:`timing` keeps its minimum.
 
     Attributes:
@@ -70,7 +70,7 @@ class RealUREnv(TaskEnvCore):
     def __init__(
         self,
         task: str,
-        backend: ArmBackend,
+        connection: ArmConnection,
         safety: SafetyLimits | None = None,
         max_steps: int | None = None,
         success_tolerance: float | None = None,
@@ -78,8 +78,8 @@ class RealUREnv(TaskEnvCore):
         R: np.ndarray | None = None,
         sample_space: SampleSpace | None = None,
     ) -> None:
-        self._init_task(task, backend.kinematics, backend.dt, Q, R, success_tolerance, sample_space)
-        self.backend = backend
+        self._init_task(task, connection.kinematics, connection.dt, Q, R, success_tolerance, sample_space)
+        self.connection = connection
         self.safety_limits = safety if safety is not None else SafetyLimits()
         self.safety = SafetyLayer(self.kinematics, self.safety_limits, self.dt)
         # The simulated env's episode is episode_steps at 125 Hz: the same duration at this arm's rate.
@@ -101,7 +101,7 @@ class RealUREnv(TaskEnvCore):
     def _begin_period(self) -> None:
         # A period starts once the state is read, as in ur_rtde's initPeriod/waitPeriod loop, so the
         # policy's computation falls inside the period it is computed for.
-        self._period_start = self.backend.start_period()
+        self._period_start = self.connection.start_period()
         self._period_wall = time.perf_counter()
 
     def _halt(self, reason: str) -> None:
@@ -110,10 +110,10 @@ class RealUREnv(TaskEnvCore):
 
     def _end_episode(self) -> None:
         self._episode_over = True
-        self.backend.stop()
+        self.connection.stop()
 
     def _check_at_rest(self) -> None:
-        _, qdot = self.backend.read_state()
+        _, qdot = self.connection.read_state()
         speed = float(np.max(np.abs(qdot)))
         if not speed < self.safety_limits.rest_speed:  # NaN-safe: a non-finite speed is not rest
             raise RuntimeError(
@@ -127,8 +127,8 @@ class RealUREnv(TaskEnvCore):
         super().reset(seed=seed)
         self._episode_over = True  # nothing is sent until this reset has succeeded
         try:
-            self.backend.stop()  # the previous episode may have left the arm moving
-            state = self.backend.safety_state()
+            self.connection.stop()  # the previous episode may have left the arm moving
+            state = self.connection.safety_state()
             if state != NORMAL:
                 raise RuntimeError(
                     f"the controller reports {state}: clear it on the pendant before starting an episode"
@@ -139,10 +139,10 @@ class RealUREnv(TaskEnvCore):
                 violation = self.safety.pose_violation(q0, self.kinematics.forward(q0))
                 if violation is not None:  # checked before the arm moves there
                     raise ValueError(f"options['q0'] is outside the safety limits: {violation}")
-                self.backend.move_to(q0)
+                self.connection.move_to(q0)
             self._check_at_rest()
         except BaseException:
-            self.backend.stop()
+            self.connection.stop()
             raise
         self.reference = reference
         self.steps = 0
@@ -150,9 +150,9 @@ class RealUREnv(TaskEnvCore):
         self._last_command = np.zeros(self.kinematics.n_joints)
         self.stop_reason = None
         self.safety.reset()
-        q, qdot = self.backend.read_state()
+        q, qdot = self.connection.read_state()
         x = self.kinematics.forward(q)
-        violation = self.safety.violation(q, qdot, x, self.backend.state_timestamp()) or self._tcp_mismatch(x)
+        violation = self.safety.violation(q, qdot, x, self.connection.state_timestamp()) or self._tcp_mismatch(x)
         self.speed_scalings = [self._speed_scaling()]
         if violation is not None:
             self._halt(violation)
@@ -167,12 +167,12 @@ class RealUREnv(TaskEnvCore):
 
     def _tcp_mismatch(self, x_model: np.ndarray) -> str | None:
         """The FK check: the controller's reported TCP position against the model's f(θ) (if reported)."""
-        reported = getattr(self.backend, "reported_tcp_position", None)
+        reported = getattr(self.connection, "reported_tcp_position", None)
         return None if reported is None else self.safety.tcp_violation(x_model, reported())
 
     def _speed_scaling(self) -> float:
         """The controller's speed scaling (the pendant's slider) of the last read; 1.0 if not reported."""
-        scaling = getattr(self.backend, "speed_scaling", None)
+        scaling = getattr(self.connection, "speed_scaling", None)
         return 1.0 if scaling is None else float(scaling())
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -201,8 +201,8 @@ class RealUREnv(TaskEnvCore):
         if stalled is not None:
             self._halt(f"{stalled}: command not sent")
             return self._finish((costs[0], 0.0, 0.0), np.zeros_like(command), safety=self.stop_reason)
-        self.backend.command(command)
-        self.backend.end_period(self._period_start)
+        self.connection.command(command)
+        self.connection.end_period(self._period_start)
         previous_start = self._period_wall
         self._begin_period()
         self.steps += 1
@@ -211,12 +211,12 @@ class RealUREnv(TaskEnvCore):
         self.periods.append(self._period_wall - previous_start)
         # The first period also holds the policy's start-up, while the arm is still at rest.
         late = self.safety.record_period(self.periods[-1]) if self.steps > 1 else None
-        q, qdot = self.backend.read_state()
+        q, qdot = self.connection.read_state()
         self._obs = self._pack(q, qdot)
         x = self._obs[self.obs_layout.slices["x"]]
-        reason = late or self.safety.violation(q, qdot, x, self.backend.state_timestamp()) or self._tcp_mismatch(x)
+        reason = late or self.safety.violation(q, qdot, x, self.connection.state_timestamp()) or self._tcp_mismatch(x)
         self.speed_scalings.append(self._speed_scaling())
-        state = self.backend.safety_state()
+        state = self.connection.safety_state()
         if reason is None and state != NORMAL:
             reason = f"controller reports {state}"
         if reason is not None:
@@ -260,4 +260,4 @@ class RealUREnv(TaskEnvCore):
         if not self._episode_over and self.stop_reason is None:
             self.stop_reason = "closed mid-episode"
         self._episode_over = True
-        self.backend.close()
+        self.connection.close()

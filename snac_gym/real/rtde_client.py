@@ -5,7 +5,7 @@ reconnect), reconnect by itself from its background threads, and crash the inter
 segfault in its reconnect after a controller stall). None of that may take a real run down or
 keep it from stopping and writing its log, so the client lives here, in a child process
 (:func:`serve`) that the parent
-(:class:`~snac_gym.real.backends.URRTDEBackend`) can always see fail and kill.
+(:class:`~snac_gym.real.connections.URRTDEConnection`) can always see fail and kill.
 
 Protocol: frames of a 4-byte big-endian length and a pickle, over the child's stdin (requests
 ``(seq, name, args)``) and the file descriptor that was its stdout (replies ``(seq, status,

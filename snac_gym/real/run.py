@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.real.backends import SERIES_FREQUENCY, ConnectionFailure, DryRunBackend, SimulatedBackend, URRTDEBackend
+from snac_gym.real.connections import SERIES_FREQUENCY, ConnectionFailure, DryRunConnection, SimulatedConnection, URRTDEConnection
 from snac_gym.real.env import RealUREnv
 from snac_gym.real.journal import StepJournal
 from snac_gym.real.safety import SafetyLimits
@@ -29,7 +29,7 @@ STREAM_SUFFIX = "stream.csv"
 #: Signals that end a real run through the same stop path as Ctrl-C: every catchable one whose
 #: default action ends the process (SIGPIPE aside: Python ignores it). SIGKILL cannot be caught:
 #: then the client process dies with the run and the controller's watchdog
-#: (:class:`~snac_gym.real.backends.URRTDEBackend`) stops the arm.
+#: (:class:`~snac_gym.real.connections.URRTDEConnection`) stops the arm.
 STOP_SIGNALS = (
     signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1, signal.SIGUSR2,
 )  # fmt: skip
@@ -121,8 +121,8 @@ class RealRunResult:
         return "\n".join(lines)
 
 
-def make_backend(
-    backend: str,
+def make_connection(
+    connection: str,
     host: str | None,
     series: str,
     dry_run: bool,
@@ -130,34 +130,34 @@ def make_backend(
     echo: Callable[[str], None] | None = None,
     acceleration: float = 4.0,
 ) -> Any:
-    """Build the ``rtde`` or ``sim`` backend (wrapped for a dry run).
+    """Build the ``rtde`` or ``sim`` connection (wrapped for a dry run).
 
     ``acceleration`` is ``speedJ``'s ramp (rad/s²) on a real arm: above the safety layer's bound,
     so that the arm follows the shaped command instead of trailing it.
 
     Raises:
-        ValueError: On an unknown backend or a missing host.
+        ValueError: On an unknown connection or a missing host.
         ConnectionFailure: If the arm cannot be reached.
     """
     if series not in SERIES_FREQUENCY:
         raise ValueError(f"series must be one of {sorted(SERIES_FREQUENCY)}, got {series!r}")
     kinematics = Kinematics(robot)
-    if backend == "sim":
-        inner: Any = SimulatedBackend(kinematics, frequency=SERIES_FREQUENCY[series], realtime=True)
-    elif backend == "rtde":
+    if connection == "sim":
+        inner: Any = SimulatedConnection(kinematics, frequency=SERIES_FREQUENCY[series], realtime=True)
+    elif connection == "rtde":
         if not host:
-            raise ValueError("the rtde backend needs --host IP (or use --backend sim to rehearse)")
-        inner = URRTDEBackend(host, kinematics, series=series, control=not dry_run, acceleration=acceleration)
+            raise ValueError("the rtde connection needs --host IP (or use --connection sim to rehearse)")
+        inner = URRTDEConnection(host, kinematics, series=series, control=not dry_run, acceleration=acceleration)
     else:
-        raise ValueError(f"backend must be 'rtde' or 'sim', got {backend!r}")
-    return DryRunBackend(inner, echo=echo) if dry_run else inner
+        raise ValueError(f"connection must be 'rtde' or 'sim', got {connection!r}")
+    return DryRunConnection(inner, echo=echo) if dry_run else inner
 
 
 def run_real_episode(
     task: str = "reach",
     controller: str = "snac",
     out_dir: str | Path | None = "real_out",
-    backend: str = "rtde",
+    connection: str = "rtde",
     host: str | None = None,
     series: str = "cb",
     dry_run: bool = False,
@@ -179,7 +179,7 @@ def run_real_episode(
 
     * a signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal` (a ``KeyboardInterrupt``);
     * a lost link, or a ur_rtde client that blocked, crashed or began to reconnect and was killed,
-      raises :class:`~snac_gym.real.backends.ConnectionFailure` (also when the episode had
+      raises :class:`~snac_gym.real.connections.ConnectionFailure` (also when the episode had
       already ended in a safety stop: the controller's watchdog, not the host, stopped the arm);
     * any other exception (its traceback goes to ``*_real.json``).
 
@@ -191,7 +191,7 @@ def run_real_episode(
         task: ``"reach"`` or ``"track"``.
         controller: Registered policy name.
         out_dir: Folder for the log, figures, timing and summary (``None``: write nothing).
-        backend: ``"rtde"`` (a real arm at ``host``) or ``"sim"`` (PyBullet in wall-clock time).
+        connection: ``"rtde"`` (a real arm at ``host``) or ``"sim"`` (PyBullet in wall-clock time).
         host: IP of the UR controller (``rtde`` only).
         series: ``"cb"`` (125 Hz) or ``"e"`` (500 Hz).
         dry_run: Connect and read state, send nothing; ``echo`` gets each command it would send.
@@ -206,7 +206,7 @@ def run_real_episode(
     out = Path(out_dir) if out_dir is not None else None
     prefix = f"{task}_{controller}_"
     with stop_signals_raise() as guard:
-        arm = make_backend(backend, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
+        arm = make_connection(connection, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
         try:
             default_steps = round(get_task(task).real_horizon_s / arm.dt)
             env = RealUREnv(task, arm, safety=safety, max_steps=steps if steps is not None else default_steps)
@@ -218,7 +218,7 @@ def run_real_episode(
         log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix)
         guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
         result = _write_outputs(
-            env, log, task, controller, backend, dry_run, seed, out, prefix, csv, plots, policy_kwargs
+            env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs
         )
     guard.raise_pending()
     return result
@@ -235,7 +235,7 @@ def _run_and_stop(
 ) -> pd.DataFrame:
     """The episode, the arm stopped on every way out; on any failure the log so far is written, then it raises.
 
-    A client the backend had to give up (killed after a missed deadline, crashed, its link lost)
+    A client the connection had to give up (killed after a missed deadline, crashed, its link lost)
     fails the run even when the episode itself ended in a safety stop: the arm was then stopped
     by the controller's watchdog, not by the host.
     """
@@ -250,7 +250,7 @@ def _run_and_stop(
             log = add_critic_diagnostics(log, policy)
         finally:
             env.close()
-        failure = getattr(env.backend, "failure", None)
+        failure = getattr(env.connection, "failure", None)
         if failure is not None:
             after = f" (after the safety stop: {env.stop_reason})" if env.stop_reason else ""
             raise ConnectionFailure(failure + after)
@@ -271,7 +271,7 @@ def _write_outputs(
     log: pd.DataFrame,
     task: str,
     controller: str,
-    backend: str,
+    connection: str,
     dry_run: bool,
     seed: int,
     out: Path | None,
@@ -283,17 +283,17 @@ def _write_outputs(
     from snac_gym.demo import write_demo_outputs
 
     log.attrs["controller"] = controller
-    log.attrs["backend"] = backend + (" (dry run)" if dry_run else "")
+    log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
     demo = write_demo_outputs(
         log, task, controller, seed, env.success_tolerance, out, csv=csv, plots=plots, policy_kwargs=policy_kwargs
     )
-    arm = env.backend
+    arm = env.connection
     result = RealRunResult(
         demo=demo,
         timing=env.timing(),
         stop_reason=env.stop_reason,
-        sent_commands=len(arm.sent) if isinstance(arm, DryRunBackend) else None,
+        sent_commands=len(arm.sent) if isinstance(arm, DryRunConnection) else None,
     )
     if out is not None:
         result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
@@ -322,16 +322,16 @@ def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, pref
         _attempt(lambda: write_log(log, out / f"{prefix}log.parquet"))
     periods = pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3})
     _attempt(lambda: periods.to_csv(out / f"{prefix}timing.csv", index_label="step"))
-    backend = env.backend
+    connection = env.connection
     summary = {
         "ended": _ending(exc),
         "reason": f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__,
         "interrupted": type(exc).__name__,
         "signal": getattr(exc, "signal_name", None),
         "stop_reason": env.stop_reason,
-        "client_failure": getattr(backend, "failure", None),
-        "last_stop": getattr(backend, "last_stop", None),
-        "client_output": getattr(backend, "client_output", []),
+        "client_failure": getattr(connection, "failure", None),
+        "last_stop": getattr(connection, "last_stop", None),
+        "client_output": getattr(connection, "client_output", []),
         "steps_logged": 0 if log is None else len(log),
         "timing": env.timing(),
         "dt_ms": env.dt * 1e3,

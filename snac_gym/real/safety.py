@@ -14,7 +14,7 @@ Two kinds of rule:
     ``deadline_window``), or once by a lot (a period longer than ``max_period``);
   - the controller reports a protective or emergency stop (checked by the env);
   - the TCP position the controller reports differs from the model's f(θ) by more than
-    ``max_tcp_mismatch`` (a wrong tool, base frame or arm model), where the backend reports one.
+    ``max_tcp_mismatch`` (a wrong tool, base frame or arm model), where the connection reports one.
 
 Every limit is checked when :class:`SafetyLimits` is built: a NaN or infinite limit would switch
 its rule off without a word (comparisons with NaN are false), so it is refused instead.
@@ -65,7 +65,7 @@ class SafetyLimits:
         deadline_slack: A period counts as late when it lasts over (1 + slack) × dt; in [0, 10].
         max_period: A single period longer than this (s) stops the arm at once, however rare: a
             stall of the host. Default 40 ms, five periods at 125 Hz (the controller watchdog's
-            own default in :class:`~snac_gym.real.backends.URRTDEBackend`).
+            own default in :class:`~snac_gym.real.connections.URRTDEConnection`).
         max_stale_periods: Periods running in which the controller's state timestamp may fail to
             advance before the state counts as stale.
         rest_speed: Joint speed (rad/s) under which the arm counts as at rest after a stop.

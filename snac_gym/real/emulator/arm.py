@@ -4,7 +4,7 @@ The controller reports ``actual_TCP_pose`` in its **base frame** (the frame the 
 ``base`` frame of the URDF, rotated π about z from ``base_link``) as ``[x, y, z, rx, ry, rz]``:
 the position of the TCP, i.e. the flange (``tool0``) moved by the TCP offset, and its orientation
 as a rotation vector. The emulator computes it from Universal Robots' published DH parameters,
-not from the project's URDF, so the backend's FK check compares two independent models.
+not from the project's URDF, so the connection's FK check compares two independent models.
 
 Motion is integrated exactly (no dynamics) once per controller cycle: ``speedj`` approaches its
 target speed, scaled by the speed slider, at its acceleration bound (of the leading joint, the

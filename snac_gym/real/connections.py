@@ -1,7 +1,7 @@
-"""Arm backends for the real-robot env: a small protocol, the ur_rtde backend, a wall-clock simulated
-backend for rehearsal, and a dry-run wrapper that reads state but sends nothing.
+"""Connections to the arm for the real-robot env: a small protocol, the ur_rtde connection, a wall-clock
+simulated arm for rehearsal, and a dry-run wrapper that reads state but sends nothing.
 
-A backend owns the connection and the timing of one control period: the env calls
+A connection owns the link to the arm and the timing of one control period: the env calls
 ``start_period`` and ``command`` when it sends u, then ``end_period`` (which blocks until the
 period is over), then ``read_state`` and ``state_timestamp``. ``stop`` must be safe to call at any
 time, any number of times, and returns once the arm is at rest (or cannot be reached).
@@ -27,7 +27,7 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.real.rtde_client import HEADER, RECONNECT_MARKERS, as_arrays, write_frame
 from snac_gym.sampling import nominal_configuration
 
-#: Safety states a backend reports (``info["safety_state"]`` of the real env).
+#: Safety states a connection reports (``info["safety_state"]`` of the real env).
 NORMAL = "normal"
 PROTECTIVE_STOP = "protective_stop"
 EMERGENCY_STOP = "emergency_stop"
@@ -53,7 +53,7 @@ class ConnectionFailure(ConnectionError):
 
 
 @runtime_checkable
-class ArmBackend(Protocol):
+class ArmConnection(Protocol):
     """What the real-robot env needs from an arm."""
 
     kinematics: Kinematics
@@ -63,7 +63,7 @@ class ArmBackend(Protocol):
         """Measured joint positions (rad) and velocities (rad/s)."""
 
     def start_period(self) -> float:
-        """Mark the start of a control period; returns its start time (backend clock, s)."""
+        """Mark the start of a control period; returns its start time (connection clock, s)."""
 
     def command(self, velocities: np.ndarray) -> None:
         """Send joint-velocity command u (rad/s) for this period (which also feeds the watchdog)."""
@@ -111,7 +111,7 @@ def probe_port(host: str, port: int, timeout: float) -> None:
         raise ConnectionFailure(f"cannot reach {host}:{port}: {exc.strerror or exc}") from exc
 
 
-class URRTDEBackend:
+class URRTDEConnection:
     """A real UR arm through ur_rtde, whose client runs in a child process: ``speedJ`` streamed at the control rate.
 
     Each period: ``command`` (``speedJ(u, acceleration, dt)`` in the client), a wait until the
@@ -136,7 +136,7 @@ class URRTDEBackend:
         acceleration: Joint acceleration bound passed to ``speedJ``, rad/s² (of the leading joint).
             Keep it above the safety layer's ``max_joint_acceleration``: the shaped command already
             bounds the acceleration, and a lower ramp here makes the arm trail every command
-            change (:func:`~snac_gym.real.run.make_backend` passes twice the layer's bound).
+            change (:func:`~snac_gym.real.run.make_connection` passes twice the layer's bound).
         control: Open the control interface (``False`` for a dry run: state only, nothing sent).
         connect_timeout: Seconds to wait for the controller before giving up.
         watchdog_periods: Missed periods after which the controller's watchdog stops the arm.
@@ -260,7 +260,7 @@ class URRTDEBackend:
 
     def command(self, velocities: np.ndarray) -> None:
         if not self.control:
-            raise RuntimeError("this backend was opened without the control interface (dry run)")
+            raise RuntimeError("this connection was opened without the control interface (dry run)")
         # The first command of a stream may re-upload the control script: it gets the longer deadline.
         timeout = self.call_timeout if self._streaming else self.rest_timeout + self.call_timeout
         accepted = self._call(
@@ -445,8 +445,8 @@ class ClientProcess:
         self._reader.join(timeout=1.0)
 
 
-class SimulatedBackend:
-    """The PyBullet UR arm behind the backend protocol, run in wall-clock time.
+class SimulatedConnection:
+    """The PyBullet UR arm behind the connection protocol, run in wall-clock time.
 
     ``end_period`` steps the physics by one period and then sleeps until the period's end, so a
     whole real-robot loop (policy, safety layer, timing, deadlines) is rehearsed without hardware.
@@ -458,7 +458,7 @@ class SimulatedBackend:
         frequency: Control rate, Hz.
         n_substeps: Physics steps per period.
         realtime: Sleep to hold the wall-clock period.
-        home: Where the simulated arm is parked when the backend starts (default: the
+        home: Where the simulated arm is parked when the connection starts (default: the
             nominal elbow-up pose, the paper's θ0 for a 6-joint UR arm), as a real arm would be.
     """
 
@@ -554,14 +554,14 @@ class SimulatedBackend:
             self.sim.close()
 
 
-class DryRunBackend:
-    """Wraps a backend: reads its state and keeps its timing, but sends nothing.
+class DryRunConnection:
+    """Wraps a connection: reads its state and keeps its timing, but sends nothing.
 
     Every command that would have been sent is kept in :attr:`sent` (and printed through
     ``echo`` when given), so a dry run shows exactly what a real run would stream.
     """
 
-    def __init__(self, inner: ArmBackend, echo: object = None) -> None:
+    def __init__(self, inner: ArmConnection, echo: object = None) -> None:
         self.inner = inner
         self.kinematics = inner.kinematics
         self.dt = inner.dt
@@ -596,7 +596,7 @@ class DryRunBackend:
         return self.inner.safety_state()
 
     def __getattr__(self, name: str) -> object:
-        if name in ("reported_tcp_position", "speed_scaling"):  # optional reads of the inner backend
+        if name in ("reported_tcp_position", "speed_scaling"):  # optional reads of the inner connection
             return getattr(self.inner, name)
         raise AttributeError(name)
 
