@@ -4,6 +4,7 @@
 the shell. See docs/evaluation.md.
 """
 
-from evaluation.runner import DEFAULT_HORIZONS, EvaluationConfig, run_evaluation
+from evaluation.run_config import DEFAULT_HORIZONS, EvaluationConfig
+from evaluation.runner import run_evaluation
 
 __all__ = ["DEFAULT_HORIZONS", "EvaluationConfig", "run_evaluation"]

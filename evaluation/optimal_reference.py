@@ -24,12 +24,12 @@ term) and each step is one banded Cholesky solve (:func:`_gauss_newton`), follow
 backtracking line search on the exact V. **Starts** (:func:`multi_start_solve`): U = 0 (the robot at
 rest), then every evaluated controller's own trajectory whose cost is within :data:`RESTART_MARGIN`
 of the best optimum so far; the best local optimum is kept (``optimal_starts``, ``optimal_winner``,
-``optimal_local_spread``), so the optimum is at most every evaluated controller's cost. The first method,
-L-BFGS in ``z = Lᵀu`` with ``H₀ = LLᵀ`` (:func:`_lbfgs`), stays available as ``method="lbfgs"``.
+``optimal_local_spread``), so the optimum is at most every evaluated controller's cost.
 If the unconstrained optimum breaks a velocity limit, it is polished by bounded L-BFGS-B in u from
-the clipped solution (column ``optimal_bounded``), whichever method ran first.
+the clipped solution (column ``optimal_bounded``).
 
-**Tolerance** (both methods). Stop when the largest component of the gradient in z = Lᵀu is
+**Tolerance**. With ``H₀ = LLᵀ`` (:func:`_preconditioner`), the effort + smoothness part is ‖z‖² in
+``z = Lᵀu``. Stop when the largest component of the gradient in z = Lᵀu is
 ≤ :data:`GTOL` or V decreases relatively by ≤ :data:`FTOL` per iteration (at most
 :data:`MAX_ITERATIONS` iterations). ``optimal_gradient`` records the final max-norm gradient in z.
 
@@ -41,7 +41,6 @@ out by :func:`snac_gym.rollout.simulate_kinematic` (an open-loop replay policy) 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import functools
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -70,12 +69,10 @@ OPTIMAL_LABEL = "Optimal (open-loop reference, whole reference known)"
 GTOL = 1e-6
 #: ...or when (V_k − V_{k+1}) / max(|V_k|, |V_{k+1}|, 1) ≤ FTOL.
 FTOL = 1e-13
-#: Iteration cap of each L-BFGS run.
+#: Iteration cap of each solve (Gauss-Newton, and the bounded L-BFGS-B polish).
 MAX_ITERATIONS = 5000
-#: L-BFGS memory (pairs kept).
+#: L-BFGS-B memory of the bounded polish (pairs kept).
 MEMORY = 20
-#: Unconstrained solvers of :func:`solve_sample` (the first is the default).
-METHODS = ("gauss-newton", "lbfgs")
 #: Sufficient-decrease constant of the Gauss-Newton line search (Armijo).
 ARMIJO = 1e-4
 #: Smallest step fraction the Gauss-Newton line search tries before giving up.
@@ -146,44 +143,18 @@ def _errors_and_jacobians(kinematics: Any, angles: np.ndarray, x_d: np.ndarray) 
     return positions - x_d, jacobians
 
 
-_BLAS_THREAD_SYMBOLS = (
-    ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
-    ("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
-    ("openblas_get_num_threads", "openblas_set_num_threads"),
-    ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
-)
-
-
 @contextlib.contextmanager
 def single_threaded_blas() -> Iterator[None]:
-    """Run the block with every loaded OpenBLAS on one thread (best effort; restored after).
+    """Run the block with BLAS on one thread (``threadpoolctl``; restored after).
 
-    L-BFGS-B's BLAS calls on ~10⁴ variables are far too small to gain from threads: with
-    OpenBLAS's default thread count on a busy 2-core machine a solve ran 5-10x slower
-    (measured, docs/optimal.md). Worker processes already run in parallel.
+    L-BFGS-B's and the banded Cholesky's BLAS calls on ~10⁴ variables are far too small to gain
+    from threads: with OpenBLAS's default thread count on a busy 2-core machine a solve ran 5-10x
+    slower (measured, docs/optimal.md). Worker processes already run in parallel.
     """
-    restore = []
-    try:
-        with open("/proc/self/maps") as maps:
-            paths = {line.split()[-1] for line in maps if "openblas" in line.lower()}
-    except OSError:
-        paths = set()
-    for path in sorted(paths):
-        try:
-            library = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for get_name, set_name in _BLAS_THREAD_SYMBOLS:
-            getter, setter = getattr(library, get_name, None), getattr(library, set_name, None)
-            if getter is not None and setter is not None:
-                restore.append((setter, int(getter())))
-                setter(1)
-                break
-    try:
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
         yield
-    finally:
-        for setter, count in restore:
-            setter(count)
 
 
 @functools.lru_cache(maxsize=8)
@@ -239,14 +210,6 @@ def _jacobian_scatter(steps: int, m: int) -> tuple[np.ndarray, np.ndarray, np.nd
     return rows, cols, target.ravel()
 
 
-def _upper_band(lower: np.ndarray) -> np.ndarray:
-    """Lᵀ in ``solve_banded((0, 1), ...)`` form."""
-    band = np.zeros_like(lower)
-    band[0, 1:] = lower[1, :-1]
-    band[1] = lower[0]
-    return band
-
-
 @dataclass
 class OptimalSolution:
     """One sample's solution.
@@ -254,7 +217,7 @@ class OptimalSolution:
     Attributes:
         commands: ``(K, m)`` optimal commands.
         cost: V at the solution (the solver's own evaluation).
-        iterations: Gauss-Newton (or L-BFGS) iterations, plus the bounded polish's L-BFGS-B ones if it ran.
+        iterations: Gauss-Newton iterations, plus the bounded polish's L-BFGS-B ones if it ran.
         evaluations: Cost+gradient evaluations.
         gradient: Final max |∂V/∂z| (unconstrained) or projected max |∂V/∂u| (bounded polish).
         gap_estimate: ½‖∂V/∂z‖₂² at the solution: the decrease left to a quadratic model whose
@@ -297,7 +260,7 @@ def _gauss_newton(
 
     Returns:
         (commands, V, ∂V/∂z flattened, iterations, cost evaluations, converged) with the stopping
-        test of the L-BFGS method: max |∂V/∂z| ≤ ``gtol``, or a relative decrease ≤ ``ftol``.
+        test of the module docstring: max |∂V/∂z| ≤ ``gtol``, or a relative decrease ≤ ``ftol``.
     """
     steps, m = start.shape
     lower = _preconditioner(steps, dt, convention.smoothness_weight, convention.udot_start)
@@ -394,35 +357,6 @@ def _line_search(
             return alpha, trial_value, trial_grad, tries
 
 
-def _lbfgs(
-    q0: np.ndarray,
-    x_d: np.ndarray,
-    kinematics: Kinematics,
-    dt: float,
-    start: np.ndarray,
-    gtol: float,
-    ftol: float,
-    max_iterations: int,
-    convention: CostConvention,
-) -> tuple[np.ndarray, float, np.ndarray, int, int, bool]:
-    """Unconstrained L-BFGS in z = Lᵀu (the first method; same returns as :func:`_gauss_newton`)."""
-    steps, m = start.shape
-    lower = _preconditioner(steps, dt, convention.smoothness_weight, convention.udot_start)
-    upper = _upper_band(lower)
-
-    def in_z(z: np.ndarray) -> tuple[float, np.ndarray]:
-        u = solve_banded((0, 1), upper, z.reshape(steps, m))  # u = L⁻ᵀ z
-        value, grad = trajectory_cost_and_gradient(u, q0, x_d, kinematics, dt, convention)
-        return value, solve_banded((1, 0), lower, grad).ravel()  # ∂V/∂z = L⁻¹ ∂V/∂u
-
-    z0 = upper[1][:, None] * start
-    z0[:-1] += upper[0, 1:, None] * start[1:]  # z = Lᵀu
-    options = {"maxiter": max_iterations, "maxfun": 4 * max_iterations, "gtol": gtol, "ftol": ftol, "maxcor": MEMORY}
-    result = minimize(in_z, z0.ravel(), jac=True, method="L-BFGS-B", options=options)
-    commands = solve_banded((0, 1), upper, result.x.reshape(steps, m))
-    return commands, float(result.fun), result.jac, int(result.nit), int(result.nfev), result.status == 0
-
-
 def solve_sample(
     q0: np.ndarray,
     x_d: np.ndarray,
@@ -434,7 +368,6 @@ def solve_sample(
     ftol: float = FTOL,
     max_iterations: int = MAX_ITERATIONS,
     convention: CostConvention | None = None,
-    method: str = "gauss-newton",
 ) -> OptimalSolution:
     """The optimal command sequence of one sample (see the module docstring).
 
@@ -447,18 +380,13 @@ def solve_sample(
         initial: ``(K, m)`` start (default zeros: at rest).
         gtol, ftol, max_iterations: The stopping test (:data:`GTOL`, :data:`FTOL`) and the cap.
         convention: The cost solved for (default: Table I's, Q = I, u₋₁ = 0).
-        method: The unconstrained solve, one of :data:`METHODS`: ``"gauss-newton"`` (default) or
-            ``"lbfgs"`` (the first method, kept for comparison).
     """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     started = time.perf_counter()
     convention = convention if convention is not None else CostConvention()
     steps, m = x_d.shape[0], kinematics.n_joints
     limits = np.asarray(velocity_limits, dtype=float)
     start = np.zeros((steps, m)) if initial is None else np.clip(np.asarray(initial, dtype=float), -limits, limits)
-    unconstrained = _gauss_newton if method == "gauss-newton" else _lbfgs
-    commands, value, grad_z, iterations, evaluations, converged = unconstrained(
+    commands, value, grad_z, iterations, evaluations, converged = _gauss_newton(
         q0, x_d, kinematics, float(dt), start, gtol, ftol, max_iterations, convention
     )
     gradient = float(np.abs(grad_z).max())
@@ -745,7 +673,6 @@ def add_optimality(results: pd.DataFrame) -> pd.DataFrame:
 __all__ = [
     "FTOL",
     "GTOL",
-    "METHODS",
     "OPTIMAL",
     "OPTIMAL_LABEL",
     "MultiStart",

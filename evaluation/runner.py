@@ -44,7 +44,7 @@ from evaluation.optimal_reference import OPTIMAL, add_optimality
 from evaluation.passes import EvaluationRun
 from evaluation.report import write_reports
 from evaluation.rollout_progress import Progress
-from evaluation.run_config import DEFAULT_HORIZONS, EvaluationConfig
+from evaluation.run_config import EvaluationConfig
 from evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
 from evaluation.store import RunStore
 from snac_gym.kinematics import Kinematics
@@ -256,14 +256,4 @@ def _write_outputs(
     write_reports(store.root, table, efforts, config, skipped, config.statistic.description, timings, executor)
 
 
-# DEFAULT_HORIZONS, EvaluationConfig, Progress and resolve_controllers live in their own modules;
-# they stay importable from here for `evaluation/__init__.py`, the CLI and earlier callers.
-__all__ = [
-    "DEFAULT_HORIZONS",
-    "EvaluationConfig",
-    "Progress",
-    "export_sample_set",
-    "load_samples",
-    "resolve_controllers",
-    "run_evaluation",
-]
+__all__ = ["export_sample_set", "load_samples", "run_evaluation"]

@@ -292,7 +292,8 @@ def evaluate(
         parse_sample_space,
         parse_tasks,
     )
-    from evaluation.runner import EvaluationConfig, export_sample_set, run_evaluation
+    from evaluation.run_config import EvaluationConfig
+    from evaluation.runner import export_sample_set, run_evaluation
 
     engine = _renamed_option("--engine", engine, "--backend", backend, "kinematic")
     try:

@@ -69,7 +69,8 @@ def joint_step(q: np.ndarray, u: np.ndarray, dt: float, out: np.ndarray | None =
     The one implementation of the step: the kinematic arm of the single env
     (:class:`~snac_gym.envs.arms.KinematicArm`), the batched vector env
     (:class:`~snac_gym.envs.vector.KinematicEpisodes`) and the evaluator's lockstep engine
-    (:func:`~snac_gym.rollout.simulate_kinematic`) all call it, so the three agree bit for bit.
+    (:func:`~snac_gym.rollout.simulate_kinematic`) all call it, so the three agree bit for bit; the UR
+    controller emulator's arm (``snac_gym.real.emulator.arm.EmulatedArm``) integrates its motion with it too.
 
     Args:
         q: Joint positions θₖ, rad: ``(m,)`` or a batch ``(B, m)``.

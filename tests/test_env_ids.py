@@ -215,8 +215,7 @@ def test_one_implementation_of_the_kinematic_step():
     """No joint state is advanced by hand (``q = q + u * dt``, ``q += u * dt``): all call :func:`joint_step`."""
     root = Path(snac_gym.__file__).parent
     by_hand = re.compile(r"\b(self\.)?_?q\w*(\[[^\]]*\])?\s*(\+=|=\s*(self\.)?_?q\w*(\[[^\]]*\])?\s*\+)[^#]*\bdt\b")
-    # snac_gym/real/emulator steps the emulated UR controller's own motion (its owner moves it to joint_step).
-    files = [p for p in (*root.rglob("*.py"), *(root.parent / "baselines").rglob("*.py")) if "real" not in p.parts]
+    files = [*root.rglob("*.py"), *(root.parent / "baselines").rglob("*.py")]  # snac_gym/real/ included
     found = [
         f"{path.name}:{number}: {line.strip()}"
         for path in files
@@ -225,7 +224,7 @@ def test_one_implementation_of_the_kinematic_step():
     ]
     assert found == []
     assert "return np.add(q, u * dt, out=out)" in Path(root / "kinematics.py").read_text()
-    for module in ("envs/arms.py", "envs/vector.py", "rollout/kinematic.py"):
+    for module in ("envs/arms.py", "envs/vector.py", "rollout/kinematic.py", "real/emulator/arm.py"):
         assert "joint_step(" in (root / module).read_text(), module
 
 

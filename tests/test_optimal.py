@@ -9,7 +9,19 @@ import pandas as pd
 import pytest
 
 from evaluation import EvaluationConfig, run_evaluation
-from evaluation.optimal_reference import OPTIMAL, solve_sample, trajectory_cost_and_gradient
+from scipy.linalg import solve_banded
+from scipy.optimize import minimize
+
+from evaluation.optimal_reference import (
+    FTOL,
+    GTOL,
+    MAX_ITERATIONS,
+    OPTIMAL,
+    _bounded_polish,
+    _preconditioner,
+    solve_sample,
+    trajectory_cost_and_gradient,
+)
 from evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention, cost_and_gradient, trajectory_cost
 from snac_gym.kinematics import Kinematics
@@ -205,37 +217,57 @@ def test_optimal_alone_and_not_with_pybullet(tmp_path: Path):
 CONVENTIONS = [CostConvention(), CostConvention("table1", "first"), CostConvention("hjb", q_scale=4.0)]
 
 
+def _lbfgs_optimum(q0, x_d, kinematics, limits, convention=None):
+    """An independent solve to check the Gauss-Newton one against: L-BFGS in z = Lᵀu (H₀ = LLᵀ),
+    then the bounded polish if it breaks a limit. Returns (commands, V, converged, bounded)."""
+    convention = convention if convention is not None else CostConvention()
+    steps, m = x_d.shape[0], kinematics.n_joints
+    lower = _preconditioner(steps, DT, convention.smoothness_weight, convention.udot_start)
+    upper = np.zeros_like(lower)  # Lᵀ in solve_banded((0, 1), ...) form
+    upper[0, 1:], upper[1] = lower[1, :-1], lower[0]
+
+    def in_z(z):
+        u = solve_banded((0, 1), upper, z.reshape(steps, m))  # u = L⁻ᵀ z
+        value, grad = trajectory_cost_and_gradient(u, q0, x_d, kinematics, DT, convention)
+        return value, solve_banded((1, 0), lower, grad).ravel()  # ∂V/∂z = L⁻¹ ∂V/∂u
+
+    options = {"maxiter": MAX_ITERATIONS, "maxfun": 4 * MAX_ITERATIONS, "gtol": GTOL, "ftol": FTOL, "maxcor": 20}
+    result = minimize(in_z, np.zeros(steps * m), jac=True, method="L-BFGS-B", options=options)
+    commands, value = solve_banded((0, 1), upper, result.x.reshape(steps, m)), float(result.fun)
+    bounded = bool((np.abs(commands) > limits).any())
+    converged = result.status == 0
+    if bounded:
+        commands, value, _, _, _, converged = _bounded_polish(
+            commands, q0, x_d, kinematics, DT, limits, GTOL, FTOL, MAX_ITERATIONS, convention
+        )
+    return commands, value, converged, bounded
+
+
 @pytest.mark.parametrize("convention", CONVENTIONS, ids=["table1-rest", "table1-first", "hjb-q4"])
 @pytest.mark.parametrize(("task", "steps"), [("reach", 1500), ("track", 500)])
 def test_gauss_newton_finds_the_lbfgs_optimum(ur10, convention, task, steps):
-    """The default Gauss-Newton solve and the first method (L-BFGS in z) agree: the evaluator's reach
-    horizon, and 4 s of tracking (the full 20 s make L-BFGS take 80 s here; docs/optimal.md compares those)."""
+    """The Gauss-Newton solve and an independent L-BFGS solve in z agree: the evaluator's reach
+    horizon, and 4 s of tracking (the full 20 s make L-BFGS take 80 s here)."""
     samples = generate_samples(ur10, SampleSpace.for_robot(ur10), 0, task, [0, 2])
     x_d = reference_trajectories([s.reference for s in samples], np.arange(steps) * DT)[0]
     for sample, target in zip(samples, x_d, strict=True):
-        lbfgs = solve_sample(sample.q0, target, ur10, DT, ur10.velocity_limits, convention=convention, method="lbfgs")
+        _, lbfgs_cost, lbfgs_converged, _ = _lbfgs_optimum(sample.q0, target, ur10, ur10.velocity_limits, convention)
         newton = solve_sample(sample.q0, target, ur10, DT, ur10.velocity_limits, convention=convention)
-        assert lbfgs.converged and newton.converged and not newton.bounded
-        assert newton.cost == pytest.approx(lbfgs.cost, rel=1e-8)
+        assert lbfgs_converged and newton.converged and not newton.bounded
+        assert newton.cost == pytest.approx(lbfgs_cost, rel=1e-8)
         assert newton.gradient <= 1e-6 and newton.gap_estimate < 1e-9
         value, _ = trajectory_cost_and_gradient(newton.commands, sample.q0, target, ur10, DT, convention)
         assert value == newton.cost  # the reported V is the exact cost of the returned commands
 
 
-def test_both_methods_agree_when_the_bounded_polish_runs(ur10, track_sample):
+def test_gauss_newton_and_lbfgs_agree_when_the_bounded_polish_runs(ur10, track_sample):
     steps = 100
     x_d = reference_trajectories([track_sample.reference], np.arange(steps) * DT)[0][0]
     free = solve_sample(track_sample.q0, x_d, ur10, DT, ur10.velocity_limits)
     limits = 0.5 * np.abs(free.commands).max(axis=0) + 1e-3
     newton = solve_sample(track_sample.q0, x_d, ur10, DT, limits)
-    lbfgs = solve_sample(track_sample.q0, x_d, ur10, DT, limits, method="lbfgs")
-    assert newton.bounded and lbfgs.bounded and newton.converged and lbfgs.converged
+    _, lbfgs_cost, lbfgs_converged, lbfgs_bounded = _lbfgs_optimum(track_sample.q0, x_d, ur10, limits)
+    assert newton.bounded and lbfgs_bounded and newton.converged and lbfgs_converged
     assert (np.abs(newton.commands) <= limits + 1e-12).all()
-    assert newton.cost == pytest.approx(lbfgs.cost, rel=1e-8)
-    assert np.isnan(newton.gap_estimate)  # the polish (L-BFGS-B in u, shared by both methods) has no z-gap
-
-
-def test_an_unknown_method_is_refused(ur10, track_sample):
-    x_d = reference_trajectories([track_sample.reference], np.arange(5) * DT)[0][0]
-    with pytest.raises(ValueError, match="method"):
-        solve_sample(track_sample.q0, x_d, ur10, DT, ur10.velocity_limits, method="newton")
+    assert newton.cost == pytest.approx(lbfgs_cost, rel=1e-8)
+    assert np.isnan(newton.gap_estimate)  # the polish (L-BFGS-B in u) has no z-gap

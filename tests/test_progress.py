@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from evaluation.runner import Progress
+from evaluation.rollout_progress import Progress
 from snac_gym.progress import ProgressLines, wants_lines
 
 EVALUATE_LINE = re.compile(r"^evaluate: \d+/\d+ rollouts \(\d+ %\), \d+\.\d s")

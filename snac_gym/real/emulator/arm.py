@@ -19,6 +19,8 @@ import math
 
 import numpy as np
 
+from snac_gym.kinematics import joint_step
+
 #: DH parameters of the arms (d1, a2, a3, d4, d5, d6), m, from Universal Robots' published tables.
 UR_DH = {
     "ur3": (0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
@@ -126,14 +128,14 @@ class EmulatedArm:
                 self.q, self.qd, self.move_target = self.move_target.copy(), np.zeros_like(self.q), None
             else:
                 self.qd = delta / distance * self.move_speed * scaling
-                self.q = self.q + self.qd * dt
+                self.q = joint_step(self.q, self.qd, dt)
             return
         # speedj's acceleration bounds the leading joint; the others are scaled to keep the direction.
         delta = self.speed_target * scaling - self.qd
         largest = float(np.max(np.abs(delta)))
         step = self.acceleration * dt
         self.qd = self.qd + (delta if largest <= step else delta * (step / largest))
-        self.q = self.q + self.qd * dt
+        self.q = joint_step(self.q, self.qd, dt)
 
     def tcp_pose(self, tcp_offset: np.ndarray) -> np.ndarray:
         """``actual_TCP_pose``: the flange moved by ``tcp_offset``, in the base frame."""

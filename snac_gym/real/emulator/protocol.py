@@ -192,12 +192,6 @@ def packet(kind: int, payload: bytes = b"") -> bytes:
     return HEADER.pack(HEADER.size + len(payload), kind) + payload
 
 
-def text_message(text: str, level: int = 1, source: str = "emulate-ur") -> bytes:
-    """An ``RTDE_TEXT_MESSAGE`` (protocol 2: length-prefixed message and source, then a level)."""
-    message, src = text.encode()[:255], source.encode()[:255]
-    return packet(RTDE_TEXT_MESSAGE, bytes([len(message)]) + message + bytes([len(src)]) + src + bytes([level]))
-
-
 def split_names(payload: bytes) -> list[str]:
     """Variable names of a setup request; ur_rtde ends each with a comma."""
     try:
