@@ -12,6 +12,7 @@ import gymnasium as gym
 import numpy as np
 import snac_gym  # noqa: F401
 from snac_gym import make_policy
+from snac_gym.kinematics import joint_step
 
 physics, name, count = sys.argv[1], sys.argv[2], int(sys.argv[3])
 kwargs = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
@@ -32,7 +33,7 @@ for env_id in ("snac_gym/UR10Reach-v0", "snac_gym/UR10EllipseTrack-v0"):
                 obs, _, _, _, info = env.step(u)
                 errors.append(info["error_norm"])
             else:  # θ ← θ + uΔt with the shared kinematics, the reference read from the env
-                q = q + u * base.dt
+                q = joint_step(q, u, base.dt)
                 t = (k + 1) * base.dt
                 obs = base.obs_layout.pack(q, u, base.kinematics.forward(q), base.reference.position(t),
                                            base.reference.velocity(t), base.reference.centre)
