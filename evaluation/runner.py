@@ -76,7 +76,8 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(map(len, samples.values()))
             progress = Progress(rollouts, config.progress)
             evaluation = EvaluationRun(config, store, executor, matched_on, progress)  # 3. Passes
-            evaluation.reported = {task: {s.index for s in samples[task]} for task in config.tasks}
+            if matched_on is not samples:
+                evaluation.reported = {task: {s.index for s in samples[task]} for task in config.tasks}
             try:
                 results, records = controller_passes(evaluation, specs)  # 4. Equal effort
                 if matched_on is not samples:  # the rows of the evaluated samples only

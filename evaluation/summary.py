@@ -123,6 +123,7 @@ def summarise(
 
 #: What each controller is compared with, sample by sample (:mod:`evaluation.paired`).
 PAIRED_REFERENCES = ("best", "optimal")
+_PAIRED_FIELDS = ("median_ratio", "ci_low", "ci_high", "fraction_better", "wilcoxon_p")
 
 
 def _add_paired(summary: pd.DataFrame, results: pd.DataFrame, task: str) -> None:
@@ -133,7 +134,7 @@ def _add_paired(summary: pd.DataFrame, results: pd.DataFrame, task: str) -> None
     ranked = summary.loc[summary[p + "rank"] == 1, "controller"]
     references = {"best": ranked.iloc[0] if len(ranked) else None, "optimal": OPTIMAL}
     for key, reference in references.items():
-        for field in ("median_ratio", "ci_low", "ci_high", "fraction_better", "wilcoxon_p"):
+        for field in _PAIRED_FIELDS:
             summary[f"{p}vs_{key}_{field}"] = math.nan
         if reference is None or reference not in costs:
             continue
@@ -142,7 +143,7 @@ def _add_paired(summary: pd.DataFrame, results: pd.DataFrame, task: str) -> None
             if controller == reference or controller not in costs:
                 continue
             comparison = compare(costs[controller].to_numpy(), costs[reference].to_numpy())
-            for field in ("median_ratio", "ci_low", "ci_high", "fraction_better", "wilcoxon_p"):
+            for field in _PAIRED_FIELDS:
                 summary.loc[i, f"{p}vs_{key}_{field}"] = getattr(comparison, field)
 
 
