@@ -17,7 +17,7 @@ import pandas as pd
 
 from evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention
-from snac_gym.kinematics import shared_kinematics, shared_pose_kinematics
+from snac_gym.kinematics import Kinematics, shared_kinematics, shared_pose_kinematics
 from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import PolicyContext
@@ -47,6 +47,8 @@ class RolloutJob:
         keep_logs: Return the per-step logs.
         use_batch: Let the kinematic engine use a policy's batch protocol.
         convention: The cost the rollouts are scored by.
+        model_error: The controller's arm model differs from the plant's by this
+            (:mod:`snac_gym.model_error` text; ``None``: the true model).
     """
 
     task: str
@@ -61,6 +63,7 @@ class RolloutJob:
     keep_logs: bool = False
     use_batch: bool = True
     convention: CostConvention = field(default_factory=CostConvention)
+    model_error: str | None = None
 
 
 @dataclass
@@ -86,9 +89,19 @@ def task_kinematics(robot: str, task: str) -> Any:
     return shared_kinematics(robot)
 
 
-def policy_context(robot: str, dt: float, task: str) -> PolicyContext:
-    """The context a policy is built from in the kinematic engine (the env's limits and layout)."""
-    kinematics = task_kinematics(robot, task)
+@functools.lru_cache(maxsize=8)
+def model_kinematics(robot: str, model_error: str) -> Kinematics:
+    """The wrong arm model a controller is given under ``--model-error`` (one per process and error)."""
+    return Kinematics(robot, model_error=model_error)
+
+
+def policy_context(robot: str, dt: float, task: str, model_error: str | None = None) -> PolicyContext:
+    """The context a policy is built from in the kinematic engine (the env's limits and layout).
+
+    With ``model_error``, its kinematics is the wrong model (:func:`model_kinematics`), which only
+    the controller sees: the engine's plant stays :func:`task_kinematics`.
+    """
+    kinematics = task_kinematics(robot, task) if model_error is None else model_kinematics(robot, model_error)
     return PolicyContext(
         kinematics,
         float(dt),
@@ -122,11 +135,12 @@ def run_job(job: RolloutJob) -> JobResult:
     """Roll out ``job`` and measure every rollout (see :mod:`snac_gym.metrics`)."""
     attrs = {"task": job.task, "policy": job.controller, "policy_kwargs": dict(job.kwargs)}
     if job.engine == "kinematic":
-        context = policy_context(job.robot, job.dt, job.task)
+        context = policy_context(job.robot, job.dt, job.task, job.model_error)
         make = functools.partial(make_policy, job.controller, context, **job.kwargs)
         rollouts = simulate_kinematic(
-            context, make, job.samples, job.steps, job.seeds, job.use_batch, job.controller, keep_states=job.keep_logs
-        )
+            context, make, job.samples, job.steps, job.seeds, job.use_batch, job.controller,
+            keep_states=job.keep_logs, plant=task_kinematics(job.robot, job.task),
+        )  # fmt: skip
         limits = context.velocity_limits
         logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
     elif job.engine == "pybullet":

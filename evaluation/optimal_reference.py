@@ -52,7 +52,6 @@ import pandas as pd
 import scipy.sparse as sp
 from scipy.linalg import cholesky_banded, solve_banded
 from scipy.linalg.lapack import dpbtrf, dpbtrs
-from scipy.optimize import minimize
 
 from evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention, cost_and_gradient
@@ -438,6 +437,8 @@ def _bounded_polish(
     bounds = np.repeat(np.stack([-limits, limits], axis=1)[None], steps, axis=0).reshape(-1, 2)
     clipped = np.clip(commands, -limits, limits)
     options = {"maxiter": max_iterations, "maxfun": 4 * max_iterations, "gtol": gtol, "ftol": ftol, "maxcor": MEMORY}
+    from scipy.optimize import minimize  # only for the rare bounded polish: 0.4 s to import
+
     polish = minimize(in_u, clipped.ravel(), jac=True, method="L-BFGS-B", bounds=bounds, options=options)
     projected = np.clip(polish.x - polish.jac, bounds[:, 0], bounds[:, 1]) - polish.x
     gradient = float(np.abs(projected).max())
@@ -492,6 +493,7 @@ class OptimalJob:
     starts: tuple[tuple[str, dict[str, Any]], ...] = ()
     start_costs: tuple[tuple[float, ...], ...] = ()
     restart_margin: float = RESTART_MARGIN
+    model_error: str | None = None
 
 
 @dataclass
@@ -587,9 +589,13 @@ def _start_commands(job: OptimalJob, context: Any, rest_costs: Sequence[float]) 
                   if job.start_costs[i][c] < (1.0 + job.restart_margin) * rest_costs[i]]  # fmt: skip
         if not chosen:
             continue
-        make = functools.partial(make_policy, name, context, **kwargs)
+        from evaluation.jobs import policy_context
+
+        # The controllers as evaluated: with the run's wrong model, if any (the plant stays true).
+        model_context = context if job.model_error is None else policy_context(job.robot, job.dt, job.task, job.model_error)
+        make = functools.partial(make_policy, name, model_context, **kwargs)
         samples, seeds = [job.samples[i] for i in chosen], [job.seeds[i] for i in chosen]
-        rollouts = simulate_kinematic(context, make, samples, job.steps, seeds, True, name)
+        rollouts = simulate_kinematic(model_context, make, samples, job.steps, seeds, True, name, plant=context.kinematics)
         for row, i in enumerate(chosen):
             starts[i][name] = rollouts.commands[row]
     return starts

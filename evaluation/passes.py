@@ -38,8 +38,12 @@ if TYPE_CHECKING:
     from evaluation.rollout_progress import Progress
     from evaluation.run_config import EvaluationConfig
 
-#: Samples per job of the optimal reference (solved one by one: larger jobs gain nothing).
-OPTIMAL_CHUNK_SIZE = 50
+#: Most samples per job of the optimal reference. Samples are solved one by one, but a job's
+#: solutions are replayed in one lockstep rollout, whose per-step overhead 50 samples do not
+#: amortise: 11.4 ms of replay per 1500-step sample at 50, 3.5 ms at 250 (docs/benchmarks.md).
+OPTIMAL_CHUNK_SIZE = 250
+#: Fewest samples per optimal job when the set is split so that every worker gets one.
+OPTIMAL_MIN_CHUNK = 50
 #: Executor priority of knob-search jobs over full passes (lower runs first): every later step of
 #: a controller's effort match waits on its search, while a full pass holds nothing up.
 SEARCH_PRIORITY, PASS_PRIORITY = 0, 1
@@ -173,6 +177,7 @@ class EvaluationRun:
                 keep_logs=keep_logs,
                 use_batch=self.config.use_batch,
                 convention=self.config.convention,
+                model_error=self.config.model_error,
             )
             for i in range(0, len(samples), size)
         ]
@@ -186,7 +191,8 @@ class EvaluationRun:
         """
         config, samples = self.config, self.samples[task]
         start_costs = tuple(tuple(float(c.get(s.index, np.inf)) for c in costs) for s in samples)
-        size = min(config.chunk_size, OPTIMAL_CHUNK_SIZE)
+        # At least one job per worker on a small set (a few solves each), at most OPTIMAL_CHUNK_SIZE.
+        size = min(config.chunk_size, OPTIMAL_CHUNK_SIZE, max(OPTIMAL_MIN_CHUNK, math.ceil(len(samples) / config.workers)))
         return [
             OptimalJob(
                 task=task,
@@ -199,6 +205,7 @@ class EvaluationRun:
                 convention=config.convention,
                 starts=starts,
                 start_costs=start_costs[i : i + size],
+                model_error=config.model_error,
             )
             for i in range(0, len(samples), size)
         ]
@@ -233,6 +240,9 @@ class EvaluationRun:
         rows["effort_parameter"] = knob or ""
         rows["effort_value"] = np.nan if knob_value is None else float(knob_value)
         rows["engine"] = self.config.engine
+        # The run's model error, given to the controllers ("" for none; the optimum, the plant and
+        # the cost keep the true model).
+        rows["model_error"] = self.config.model_error or ""
         rows["horizon"] = job.steps * job.dt
         self.store.write_part(path, rows)
         self.progress.update(len(job.samples))

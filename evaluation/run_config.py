@@ -111,6 +111,9 @@ class EvaluationConfig:
         q_scale: Q = q_scale·I in the cost; controllers whose constructor takes ``Q`` (``snac``,
             ``lqr``, ``snac-hjb``) get the same Q unless ``controller_kwargs`` sets it.
         success_threshold: Success rate a controller must reach to be ranked in the summary.
+        model_error: The controllers' arm model differs from the plant's by this
+            (:class:`snac_gym.model_error.ModelError` text, ``--model-error``); the plant, the cost,
+            the success rule and the ``optimal`` reference keep the true model. ``None``: none.
     """
 
     out: Path
@@ -144,6 +147,7 @@ class EvaluationConfig:
     udot_start: str = "rest"
     q_scale: float = 1.0
     success_threshold: float = 0.95
+    model_error: str | None = None
 
     @property
     def convention(self) -> CostConvention:
@@ -159,6 +163,7 @@ class EvaluationConfig:
             _check_effort,
             _check_execution,
             _check_scoring,
+            _check_model_error,
         ):
             check(self)
 
@@ -238,6 +243,8 @@ class EvaluationConfig:
             "robot": self.robot,
             "space": dataclasses.asdict(space),
             "controller_kwargs": {k: dict(v) for k, v in self.controller_kwargs.items()},
+            # Only when given, so that runs made before the option existed still resume.
+            **({"model_error": self.model_error} if self.model_error is not None else {}),
             "use_batch": self.use_batch,
             "cost": self.cost,
             "udot_start": self.udot_start,
@@ -337,6 +344,21 @@ def _check_execution(config: EvaluationConfig) -> None:
         )
     if config.chunk_size < 1:
         raise ValueError(f"chunk_size must be at least 1, got {config.chunk_size}")
+
+
+def _check_model_error(config: EvaluationConfig) -> None:
+    """A model error that parses, on position tasks and the kinematic engine."""
+    if config.model_error is None:
+        return
+    from snac_gym.kinematics import shared_kinematics
+    from snac_gym.model_error import ModelError
+
+    ModelError.parse(config.model_error).check_joints(shared_kinematics(config.robot).n_joints)
+    pose = [task for task in config.tasks if is_pose_task(task)]
+    if pose:
+        raise ValueError(f"--model-error applies to the position tasks; not to {', '.join(pose)}")
+    if config.engine != "kinematic":
+        raise ValueError("--model-error needs --engine kinematic (the plant is the exact kinematic model)")
 
 
 def _check_scoring(config: EvaluationConfig) -> None:

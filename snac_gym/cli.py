@@ -111,6 +111,7 @@ def demo(
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),
     robot: str = typer.Option("ur10", "--robot", help="A registered robot: ur3, ur5, ur10, panda, xarm7 (docs/robots.md)."),
+    model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controller a wrong arm model (as for evaluate); the simulated arm keeps the true one."),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
     from snac_gym.demo import run_demo
@@ -120,7 +121,7 @@ def demo(
         raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
     try:
         result = run_demo(task=task, controller=controller, out_dir=out, seed=seed, steps=steps, duration=duration,
-                          csv=csv, plots=plots, robot=robot)
+                          csv=csv, plots=plots, robot=robot, model_error=model_error)
     except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
@@ -276,6 +277,7 @@ def evaluate(
     udot_start: str = typer.Option("rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."),
     q_scale: float = typer.Option(1.0, "--q-scale", help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q."),
     success_threshold: float = typer.Option(0.95, "--success-threshold", help="Success rate a controller needs to be ranked in the summary."),
+    model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controllers a wrong arm model: 'joint_offset=a0,...,a5' (rad), 'link_scale=s' (relative), 'tool_offset=x,y,z' (m, tool frame), parts joined by ';'. The plant, the cost, the success rule and the optimum keep the true model."),
     sweep: bool = typer.Option(False, "--sweep/--no-sweep", help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against success, error and peak effort; docs/evaluation.md)."),
     sweep_points: Optional[int] = typer.Option(None, "--sweep-points", help="Knob values per controller and task in the sweep (2 to 25; default 7), plus the equal-effort point."),
     sweep_span: Optional[float] = typer.Option(None, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4)."),
@@ -315,6 +317,7 @@ def evaluate(
             save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
             robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, use_batch=batch,
             cost=cost, udot_start=udot_start, q_scale=q_scale, success_threshold=success_threshold,
+            model_error=model_error,
             **({} if chunk_size is None else {"chunk_size": chunk_size}),
         )
         if export_only:

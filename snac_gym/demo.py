@@ -97,6 +97,7 @@ def run_demo(
     plots: bool = True,
     policy_kwargs: dict[str, Any] | None = None,
     robot: str = "ur10",
+    model_error: str | None = None,
 ) -> DemoResult:
     """Run the paper's ``task`` demo with ``controller`` and write its figures and log.
 
@@ -112,6 +113,8 @@ def run_demo(
         policy_kwargs: Constructor arguments of the policy.
         robot: A registered robot; one that cannot reach the paper's θ₀ and references (the
             7-DOF arms) runs its own start pose and reference (``Robot.demo_options``).
+        model_error: Give the controller a wrong arm model (:mod:`snac_gym.model_error` text);
+            the simulated arm keeps the true one.
 
     Returns:
         The :class:`DemoResult`. Files in ``out_dir``, prefixed ``<task>_<controller>_``:
@@ -148,15 +151,26 @@ def run_demo(
         env.close()
         env = make_task_env(spec, robot, max_episode_steps=steps)
     try:
-        policy = make_policy(controller, env, **(policy_kwargs or {}))
+        policy = make_policy(controller, _policy_context(env, model_error), **(policy_kwargs or {}))
         log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)
     finally:
         env.close()
     log.attrs["controller"] = controller
+    if model_error is not None:
+        log.attrs["model_error"] = model_error
     return write_demo_outputs(
         log, spec.name, controller, seed, spec.success_tolerance, out_dir,
         csv=csv, plots=plots, policy_kwargs=policy_kwargs,
     )
+
+
+def _policy_context(env: Any, model_error: str | None) -> Any:
+    """What the controller is built from: the env, or its context with a wrong arm model."""
+    if model_error is None:
+        return env
+    from snac_gym.policies.base import PolicyContext
+
+    return PolicyContext.from_env(env).with_model_error(model_error)
 
 
 def usable_out_folder(out: Path) -> None:
@@ -215,6 +229,8 @@ def write_demo_outputs(
             figures["critic_weights"] = panels.plot_critic_weights(log)
         if "hjb_ratio" in log.columns:
             figures["optimality"] = panels.plot_optimality(log)
+        if "model_residual" in log.columns:
+            figures["model"] = panels.plot_model_correction(log)
         for name, figure in figures.items():
             result.files.append(panels.save_figure(figure, out / f"{prefix}{name}.png"))
     result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)

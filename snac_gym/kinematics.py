@@ -95,6 +95,9 @@ class Kinematics:
         base_frame: URDF frame in which positions, velocities and Jacobians are expressed
             (default: the robot's, ``"base"`` for the UR arms).
         urdf_path: Optional path of another URDF with revolute joints only.
+        model_error: A :class:`~snac_gym.model_error.ModelError` (or its ``--model-error`` text)
+            written into the model: the kinematics a controller with a wrong arm model uses.
+            ``None`` or a zero error: the true model.
 
     Attributes:
         n_joints: Number of actuated joints ``m``.
@@ -115,7 +118,10 @@ class Kinematics:
         ee_frame: str | None = None,
         base_frame: str | None = None,
         urdf_path: str | Path | None = None,
+        model_error: Any = None,
     ) -> None:
+        from snac_gym.model_error import parse_model_error
+
         spec = get_robot(robot) if urdf_path is None or robot.lower() in ROBOTS else None
         ee_frame = ee_frame if ee_frame is not None else (spec.ee_frame if spec else "tool0")
         base_frame = base_frame if base_frame is not None else (spec.base_frame if spec else "base")
@@ -150,6 +156,10 @@ class Kinematics:
         for frame in self.model.frames:
             if frame.parentJoint == 0:
                 frame.placement = base_from_world * frame.placement
+        error = parse_model_error(model_error)
+        self.model_error = None if error is None or error.is_zero else error
+        if self.model_error is not None:
+            self.model_error.apply(self.model, self._ee_id)
         self.data = self.model.createData()
 
         self.n_joints: int = int(self.model.nq)
@@ -198,12 +208,13 @@ class Kinematics:
     # -- pickling: rebuild from the arguments, the Pinocchio objects are not picklable
     def __reduce__(self) -> tuple[Any, ...]:
         urdf = None if self.urdf_path == robot_urdf_path(self.robot) else self.urdf_path
-        return (Kinematics, (self.robot, self.ee_frame, self.base_frame, urdf))
+        return (Kinematics, (self.robot, self.ee_frame, self.base_frame, urdf, self.model_error))
 
     def __repr__(self) -> str:
         return (
             f"Kinematics(robot={self.robot!r}, ee_frame={self.ee_frame!r}, base_frame={self.base_frame!r}, "
-            f"n_joints={self.n_joints})"
+            f"n_joints={self.n_joints}"
+            + (f", model_error={self.model_error.spec()!r})" if self.model_error is not None else ")")
         )
 
     def _check_q(self, q: np.ndarray) -> np.ndarray:
@@ -280,6 +291,25 @@ class Kinematics:
         jacobians.setflags(write=False)
         self._last_batch = (qs.copy(), positions, jacobians)
         return positions, jacobians
+
+    def frame_batch(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The end-effector frame and its full Jacobian for a batch, through Pinocchio per configuration.
+
+        Returns:
+            Positions ``(B, 3)``, rotations ``(B, 3, 3)`` (frame axes in the base frame), and the
+            linear and angular Jacobians ``(B, 3, m)`` (``LOCAL_WORLD_ALIGNED``: ṗ = J_v θ̇, ω = J_ω θ̇).
+        """
+        qs = self._check_batch(qs)
+        count = len(qs)
+        positions, rotations = np.empty((count, 3)), np.empty((count, 3, 3))
+        linear, angular = np.empty((count, 3, self.n_joints)), np.empty((count, 3, self.n_joints))
+        model, data, frame = self.model, self.data, self._ee_id
+        for k, q in enumerate(qs):
+            jacobian = pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED)
+            linear[k], angular[k] = jacobian[:3], jacobian[3:]
+            placement = data.oMf[frame]
+            positions[k], rotations[k] = placement.translation, placement.rotation
+        return positions, rotations, linear, angular
 
     def singular_values(self, q: np.ndarray) -> np.ndarray:
         """Singular values of ``J(θ)``, largest first."""

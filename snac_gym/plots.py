@@ -177,6 +177,29 @@ def plot_critic_weights(log: pd.DataFrame, ax: Any = None) -> Figure:
     return fig
 
 
+def plot_model_correction(log: pd.DataFrame) -> Figure:
+    """An adaptive controller's model being corrected: the tracking error and the model's prediction error.
+
+    Top: ‖e‖ (mm); bottom: ``model_residual`` ‖x − x̂(θ)‖ (mm), the distance between the measured
+    position and the one the controller's current model predicts (0 for an exact model); log scales.
+    """
+    fig = _figure(7.2, 5.6)
+    axes = fig.subplots(2, 1, sharex=True)
+    t = log["t"].to_numpy()
+    error = np.linalg.norm(log_array(log, "e"), axis=1) * 1e3
+    residual = log["model_residual"].to_numpy() * 1e3
+    axes[0].semilogy(t, np.maximum(error, 1e-6), color="C0", lw=1.2)
+    axes[0].set_ylabel(r"$\|e\|$ (mm)")
+    axes[0].set_title("Tracking error")
+    axes[1].semilogy(t, np.maximum(residual, 1e-6), color="C3", lw=1.2)
+    axes[1].set_ylabel(r"$\|x - \hat x(\theta)\|$ (mm)")
+    axes[1].set_title("Prediction error of the controller's arm model (identified on line)")
+    axes[1].set_xlabel("time (s)")
+    for ax in axes:
+        ax.grid(alpha=0.3, which="both")
+    return fig
+
+
 def plot_optimality(log: pd.DataFrame) -> Figure:
     """How far the critic is from optimal over the run: HJB residual r/eᵀQe, and ‖P̂ − P*‖/‖P*‖ (regulation).
 

@@ -36,6 +36,7 @@ controller in under 30 lines is in docs/extending.md.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -107,6 +108,21 @@ class PolicyContext:
     def task_spec(self) -> Task:
         """The :class:`~snac_gym.tasks.Task` (its success rule, whether x_d moves, ...)."""
         return get_task(self.task)
+
+    def with_model_error(self, model_error: Any) -> PolicyContext:
+        """This context with the arm model a wrong one (:class:`~snac_gym.model_error.ModelError` or its text).
+
+        Only the controller's kinematics change; whatever it drives keeps the true arm.
+
+        Raises:
+            ValueError: For a malformed error, or on a pose task (position kinematics only).
+        """
+        if self.kinematics.task_dim != 3:
+            raise ValueError("--model-error applies to the position tasks")
+        kinematics = Kinematics(
+            self.kinematics.robot, self.kinematics.ee_frame, self.kinematics.base_frame, model_error=model_error
+        )
+        return dataclasses.replace(self, kinematics=kinematics)
 
     @classmethod
     def from_env(cls, env: Any) -> PolicyContext:

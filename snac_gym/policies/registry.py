@@ -22,6 +22,7 @@ ENTRY_POINT_GROUP = "snac_gym.policies"
 _BUILTIN: dict[str, str] = {
     "snac": "snac_gym.policies.snac:SNACPolicy",
     "snac-hjb": "snac_gym.policies.snac_hjb:SNACHJBPolicy",
+    "snac-adaptive": "snac_gym.policies.snac_adaptive:SNACAdaptivePolicy",
     "dls": "baselines.dls:DLSPolicy",
     "svf": "baselines.svf:SVFPolicy",
     "rnn": "baselines.rnn:RNNPolicy",

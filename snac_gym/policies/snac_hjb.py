@@ -104,6 +104,32 @@ def _scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndar
     return np.minimum(np.maximum(scaled, -limits), limits)
 
 
+#: Relative margin of :func:`_certainly_above`: far above the rounding error of a Cholesky
+#: factorisation and of ``eigh`` (both backward stable, errors of order n·ε·‖P‖ ≈ 1e-15·‖P‖).
+CERTIFY_MARGIN = 1e-9
+
+
+def _certainly_above(matrices: np.ndarray, floor: float) -> np.ndarray:
+    """Rows of ``(B, n, n)`` symmetric ``matrices`` whose smallest eigenvalue is certainly ≥ ``floor``.
+
+    Cholesky (LDLᵀ pivots, vectorised over the rows) of ``P − t I`` with ``t = floor + margin·max|P|``:
+    all pivots positive means ``P − t I + E`` is positive definite for a backward error
+    ``‖E‖ ≲ n ε ‖P‖``, so ``λ_min(P) ≥ floor + (margin − n ε)‖P‖``, and ``eigh``'s computed
+    λ_min (equally backward stable) is ≥ ``floor`` too. A ``False`` row is merely undecided.
+    """
+    count, n, _ = matrices.shape
+    shift = floor + CERTIFY_MARGIN * np.abs(matrices).max(axis=(1, 2))
+    work = matrices - shift[:, None, None] * np.eye(n)
+    positive = np.ones(count, dtype=bool)
+    for k in range(n):
+        pivot = work[:, k, k]
+        positive &= pivot > 0
+        safe = np.where(positive, pivot, 1.0)
+        column = work[:, k + 1 :, k] / safe[:, None]
+        work[:, k + 1 :, k + 1 :] -= column[:, :, None] * work[:, k, None, k + 1 :]
+    return positive
+
+
 class SNACHJBPolicy(CriticEpisode, BasePolicy):
     """SNAC whose critic is tuned by the HJB residual (module docstring), for reach and track.
 
@@ -192,14 +218,23 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         return self._project(rng.uniform(*self.initial_weight_range, size=(1, self.basis.size)))[0]
 
     def _project(self, weights: np.ndarray) -> np.ndarray:
-        """Rows ``(B, size)`` projected onto {P̂ ⪰ λ_floor I} (Frobenius: eigenvalues raised to the floor)."""
-        values, vectors = np.linalg.eigh(quadratic_weights_to_matrix(weights, self.task_dim))
+        """Rows ``(B, size)`` projected onto {P̂ ⪰ λ_floor I} (Frobenius: eigenvalues raised to the floor).
+
+        Only the rows that :func:`_certainly_above` cannot clear go through ``eigh`` (most rows
+        are far above the floor); a row it clears is one whose eigh would leave it unchanged, so
+        the result is the same, bit for bit, as decomposing every row.
+        """
+        matrices = quadratic_weights_to_matrix(weights, self.task_dim)
+        unclear = np.flatnonzero(~_certainly_above(matrices, self.min_eigenvalue))
+        if unclear.size == 0:
+            return weights
+        values, vectors = np.linalg.eigh(matrices[unclear])
         low = values[:, 0] < self.min_eigenvalue
         if not low.any():
             return weights
         raised = (vectors[low] * np.maximum(values[low], self.min_eigenvalue)[:, None, :]) @ np.swapaxes(vectors[low], -1, -2)
         weights = weights.copy()
-        weights[low] = matrix_to_quadratic_weights(raised)
+        weights[unclear[low]] = matrix_to_quadratic_weights(raised)
         return weights
 
     def reset_batch(self, seeds: Sequence[int | None]) -> None:
@@ -246,7 +281,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Commands ``(B, m)``, the weights that gave them and the updated ones ``(B, size)``, and δ(e) ``(B,)``."""
         errors, velocities = obs[:, self._e], obs[:, self._xdot_d]
-        jacobians = self.kinematics.jacobian_batch(obs[:, self._q])
+        jacobians = self._jacobians(obs)
         r_inverse_jt = self.R_inverse @ np.swapaxes(jacobians, -1, -2)  # R⁻¹Jᵀ, (B, m, n)
         gram_matrix = jacobians @ r_inverse_jt  # G = J R⁻¹ Jᵀ
         norms = np.linalg.norm(errors, axis=1, keepdims=True)
@@ -269,6 +304,14 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
             descent = np.einsum("bkn,bn->bk", self.basis.gradient(errors), (gram_matrix @ errors[..., None])[..., 0])
             increment += (self.stabilising_rate * self.dt) * unstable[:, None] * descent
         return command, weights, self._project(weights + increment), residual * norms[:, 0] ** 2
+
+    def _jacobians(self, obs: np.ndarray) -> np.ndarray:
+        """The Jacobians ``(B, n, m)`` the critic and the command use at the observed θ: the model's."""
+        return self.kinematics.jacobian_batch(obs[:, self._q])
+
+    def _critic_jacobians(self, q: np.ndarray) -> np.ndarray:
+        """The Jacobians the diagnostics measure the critic against (those of the problem it learns)."""
+        return self.kinematics.jacobian_batch(q)
 
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
         """Commands ``(B, m)`` for ``(B, size)`` observations, row i as :meth:`act` of episode i.
@@ -319,7 +362,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         :meth:`snac_gym.policies.snac.SNACPolicy.critic_diagnostics`).
         """
         e = np.asarray(e, dtype=float)
-        jacobians = self.kinematics.jacobian_batch(np.asarray(q, dtype=float))
+        jacobians = self._critic_jacobians(np.asarray(q, dtype=float))
         P = quadratic_weights_to_matrix(np.asarray(weights, dtype=float), self.task_dim)
         p_e = (P @ e[..., None])[..., 0]
         command = -(self.R_inverse @ np.swapaxes(jacobians, -1, -2) @ p_e[..., None])[..., 0]

@@ -68,12 +68,14 @@ def rollout(
 
     obs, _ = env.reset(seed=seed, options=None if options is None else dict(options))
     policy.reset(seed=seed)
-    record = _Record(base, layout, horizon, "critic_weights" in getattr(policy, "internals", {}))
+    record = _Record(base, layout, horizon, "critic_weights" in getattr(policy, "internals", {}),
+                     tuple(getattr(policy, "logged_internals", ())))  # fmt: skip
     terminated = truncated = False
     try:
         while record.count < horizon:
             record.state(obs, policy)
             action = policy.act(obs)
+            record.scalars(policy)
             obs, _, terminated, truncated, info = env.step(action)
             applied = info.get("command") if isinstance(info, Mapping) else None
             record.command(applied if applied is not None else np.clip(action, -limits, limits))
@@ -94,8 +96,11 @@ def partial_log(exc: BaseException) -> pd.DataFrame | None:
 class _Record:
     """The rows of one rollout as they come; a row counts once its command was applied."""
 
-    def __init__(self, base: Any, layout: Any, horizon: int, with_weights: bool) -> None:
+    def __init__(self, base: Any, layout: Any, horizon: int, with_weights: bool, scalars: tuple[str, ...] = ()) -> None:
         self.base, self.layout = base, layout
+        #: Scalar internals the policy names in ``logged_internals``, each after the act of step k.
+        self.scalar_names = scalars
+        self.scalar_values = np.full((horizon, len(scalars)), np.nan)
         self.times = np.empty(horizon)
         self.observations = np.empty((horizon, layout.size))
         self.commands = np.empty((horizon, layout.n_joints))
@@ -108,6 +113,10 @@ class _Record:
         if self.weights is not None:
             del self.weights[self.count:]  # a row whose command never came
             self.weights.append(np.array(policy.internals["critic_weights"], dtype=float))
+
+    def scalars(self, policy: Any) -> None:
+        for column, name in enumerate(self.scalar_names):
+            self.scalar_values[self.count, column] = float(policy.internals[name])
 
     def command(self, applied: np.ndarray) -> None:
         self.commands[self.count] = applied
@@ -128,6 +137,8 @@ class _Record:
             n_weights = len(weights[0])
             blocks.append(np.stack(weights))
         log = pd.DataFrame(np.hstack(blocks), columns=log_columns(m, n, n_weights))
+        for column, name in enumerate(self.scalar_names):
+            log[name] = self.scalar_values[:count, column]
         last = layout.unpack(obs)
         reference = getattr(base, "reference", None)
         log.attrs = {

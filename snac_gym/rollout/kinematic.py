@@ -108,6 +108,7 @@ def simulate_kinematic(
     use_batch: bool = True,
     label: str = "policy",
     keep_states: bool = True,
+    plant: Any = None,
 ) -> Rollouts:
     """Roll out ``samples`` for ``steps`` control steps on the exact kinematic model, in lockstep.
 
@@ -122,12 +123,15 @@ def simulate_kinematic(
         label: Name used in error messages (the controller).
         keep_states: Log θₖ and xₖ too (the per-step logs need them; the metrics only need the
             commands and errors, and leaving them out saves a third of the memory traffic).
+        plant: The kinematics the arm moves by (default ``context.kinematics``); a policy given a
+            wrong model (``--model-error``) gets it in ``context`` while the plant stays true.
 
     Raises:
         RolloutError: If the policy returns a command of the wrong shape or a NaN/inf.
     """
     _check_run(steps, seeds, samples)
-    kinematics, layout, dt = context.kinematics, context.layout, float(context.dt)
+    kinematics = context.kinematics if plant is None else plant
+    layout, dt = context.layout, float(context.dt)
     limits = np.asarray(context.velocity_limits, dtype=float)
     count, m, n = len(samples), layout.n_joints, layout.task_dim
     times = np.arange(steps + 1) * dt

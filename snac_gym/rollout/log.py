@@ -23,6 +23,9 @@ column              unit     meaning
                              critic policies, :func:`add_critic_diagnostics`)
 ``hjb_ratio``       –        r / eₖᵀQeₖ
 ``critic_error``    –        ‖P̂ − P*(Jₖ)‖_F / ‖P*‖_F (regulation)
+NAME                –        each scalar internal a policy names in ``logged_internals``
+                             (``snac-adaptive``: ``model_residual``, m, ‖xₖ − x̂(θₖ)‖ of its
+                             model before step k's update), after step k's ``act``
 ==================  =======  ============================================================
 
 ``DataFrame.attrs`` (kept by the Parquet file) holds ``dt``, ``task``, ``n_joints``,

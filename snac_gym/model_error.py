@@ -1,0 +1,169 @@
+"""A wrong arm model: the kinematics a controller is given when it differs from the plant's.
+
+Every real arm's model is off somewhere: a joint's zero is miscalibrated, a link is a little
+longer than its drawing, the tool is mounted a few millimetres away from where the tool frame
+says. :class:`ModelError` describes such an error in three parts,
+
+* ``joint_offset = a₀, …, a_{m−1}`` (rad): the model reads joint j at θⱼ + aⱼ, i.e.
+  f_model(θ) = f(θ + a);
+* ``link_scale = s``: every fixed offset of the chain (the joint placements and the tool frame's)
+  is (1 + s) times its true length;
+* ``tool_offset = x, y, z`` (m): the model's tool point sits this far from the true one, in the
+  tool frame;
+
+and :meth:`ModelError.apply` writes it into a Pinocchio model, so that the erroneous kinematics is
+an ordinary :class:`~snac_gym.kinematics.Kinematics` (``Kinematics(robot, model_error=...)``) with
+the same batched paths. A joint offset enters the joint's placement, M_j · exp(aⱼ ωⱼ): rotations
+about one axis commute, so M_j exp(aⱼ ωⱼ) exp(θⱼ ωⱼ) = M_j exp((θⱼ + aⱼ) ωⱼ).
+
+The evaluator's ``--model-error SPEC`` gives the wrong model to the controllers, while the plant,
+the cost and the success rule keep the true one (docs/model-error.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: The parts of a ``--model-error`` specification.
+PARTS = ("joint_offset", "link_scale", "tool_offset")
+
+
+@dataclass(frozen=True)
+class ModelError:
+    """How the controllers' arm model differs from the plant's (see the module docstring).
+
+    Attributes:
+        joint_offset: Per-joint offsets aⱼ, rad (empty: none).
+        link_scale: Relative error s of every fixed link offset (0: none).
+        tool_offset: Offset of the model's tool point in the tool frame, m.
+    """
+
+    joint_offset: tuple[float, ...] = ()
+    link_scale: float = 0.0
+    tool_offset: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0))
+
+    def __post_init__(self) -> None:
+        offsets = tuple(float(a) for a in self.joint_offset)
+        tool = tuple(float(t) for t in self.tool_offset)
+        if not all(math.isfinite(a) for a in offsets):
+            raise ValueError(f"model error joint_offset must be finite, got {list(self.joint_offset)}")
+        if len(tool) != 3 or not all(math.isfinite(t) for t in tool):
+            raise ValueError(f"model error tool_offset must be 3 finite numbers (x,y,z in m), got {list(self.tool_offset)}")
+        scale = float(self.link_scale)
+        if not math.isfinite(scale) or scale <= -1.0:
+            raise ValueError(f"model error link_scale must be a finite number > -1, got {self.link_scale}")
+        object.__setattr__(self, "joint_offset", offsets)
+        object.__setattr__(self, "tool_offset", tool)
+        object.__setattr__(self, "link_scale", scale)
+
+    @classmethod
+    def parse(cls, spec: str) -> ModelError:
+        """``"joint_offset=0,0,0.3,0,0,0;link_scale=0.01;tool_offset=0,0,0.02"`` (parts separated by ``;``).
+
+        Raises:
+            ValueError: Naming the part that is wrong (an unknown name, a missing ``=``, a value
+                that is not a number).
+        """
+        values: dict[str, Any] = {}
+        for part in (p.strip() for p in str(spec).split(";")):
+            if not part:
+                continue
+            name, sep, value = part.partition("=")
+            name = name.strip()
+            if not sep or name not in PARTS:
+                raise ValueError(
+                    f"--model-error: {part!r} is not NAME=VALUES with NAME one of {', '.join(PARTS)}"
+                )
+            if name in values:
+                raise ValueError(f"--model-error: {name} is given twice")
+            try:
+                numbers = [float(v) for v in value.split(",")]
+            except ValueError:
+                raise ValueError(f"--model-error: {name}={value!r} is not a comma-separated list of numbers") from None
+            if name == "link_scale":
+                if len(numbers) != 1:
+                    raise ValueError(f"--model-error: link_scale takes one number, got {value!r}")
+                values[name] = numbers[0]
+            else:
+                values[name] = tuple(numbers)
+        if not values:
+            raise ValueError(f"--model-error: empty specification {spec!r}")
+        try:
+            return cls(**values)
+        except ValueError as exc:
+            raise ValueError(f"--model-error: {exc}") from None
+
+    @property
+    def is_zero(self) -> bool:
+        """No error at all: the model is the plant's."""
+        return not any(self.joint_offset) and self.link_scale == 0.0 and not any(self.tool_offset)
+
+    def check_joints(self, n_joints: int) -> None:
+        """Raise ``ValueError`` unless ``joint_offset`` is empty or has one value per joint."""
+        if self.joint_offset and len(self.joint_offset) != n_joints:
+            raise ValueError(
+                f"--model-error: joint_offset needs {n_joints} values (one per joint), got {len(self.joint_offset)}"
+            )
+
+    def spec(self) -> str:
+        """The ``--model-error`` text that parses back to this error (empty for no error)."""
+        parts = []
+        if any(self.joint_offset):
+            parts.append("joint_offset=" + ",".join(repr(a) for a in self.joint_offset))
+        if self.link_scale:
+            parts.append(f"link_scale={self.link_scale!r}")
+        if any(self.tool_offset):
+            parts.append("tool_offset=" + ",".join(repr(t) for t in self.tool_offset))
+        return ";".join(parts)
+
+    def apply(self, model: Any, ee_frame_id: int) -> None:
+        """Write the error into the Pinocchio ``model`` (in place; a model already rooted at its base).
+
+        Joint offsets enter the joint placements (module docstring), the link scale every placement's
+        translation and the tool frame's, the tool offset the tool frame's placement in its own axes.
+        """
+        import pinocchio as pin
+
+        self.check_joints(int(model.nq))
+        for joint in range(1, model.njoints):
+            placement = model.jointPlacements[joint]
+            if self.link_scale:
+                placement = pin.SE3(placement.rotation, (1.0 + self.link_scale) * placement.translation)
+            index = int(model.joints[joint].idx_q)
+            if self.joint_offset and self.joint_offset[index]:
+                axis = _joint_axis(model.joints[joint])
+                placement = placement * pin.SE3(pin.exp3(axis * self.joint_offset[index]), np.zeros(3))
+            model.jointPlacements[joint] = placement
+        frame = model.frames[ee_frame_id]
+        placement = frame.placement
+        if self.link_scale:
+            placement = pin.SE3(placement.rotation, (1.0 + self.link_scale) * placement.translation)
+        if any(self.tool_offset):
+            placement = placement * pin.SE3(np.eye(3), np.asarray(self.tool_offset, dtype=float))
+        frame.placement = placement
+        model.frames[ee_frame_id] = frame
+
+
+def _joint_axis(joint_model: Any) -> np.ndarray:
+    """The unit rotation axis of a revolute joint model (``ValueError`` for any other joint)."""
+    kind = joint_model.shortname().removeprefix("JointModel")
+    aligned = {"RX": (1.0, 0.0, 0.0), "RY": (0.0, 1.0, 0.0), "RZ": (0.0, 0.0, 1.0)}
+    if kind in aligned:
+        return np.array(aligned[kind])
+    if kind == "RevoluteUnaligned":
+        return np.array(joint_model.extract().axis, dtype=float).reshape(3)
+    raise ValueError(f"a joint offset needs revolute joints, got a {kind} joint")
+
+
+def parse_model_error(spec: str | ModelError | None) -> ModelError | None:
+    """``None`` or a zero error for no error; a :class:`ModelError` from its text otherwise."""
+    if spec is None or isinstance(spec, ModelError):
+        return spec
+    return ModelError.parse(spec)
+
+
+__all__ = ["PARTS", "ModelError", "parse_model_error"]

@@ -1,0 +1,187 @@
+"""A wrong arm model for the controllers (``--model-error``) and ``snac-adaptive``, which identifies it.
+
+The erroneous kinematics is checked against the true one evaluated independently (Pinocchio at
+shifted angles, scaled, offset in the tool frame); the evaluator's plant against a replay of the
+same commands; the identifier against the true Jacobian; the adaptive critic against the ARE
+(scipy).
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pinocchio as pin
+import pytest
+from scipy.linalg import solve_continuous_are
+
+from evaluation.jobs import RolloutJob, policy_context, run_job, task_kinematics
+from evaluation.optimal_reference import ReplayPolicy
+from evaluation.run_config import EvaluationConfig
+from evaluation.runner import run_evaluation
+from evaluation.samples import generate_samples
+from snac_gym.kinematics import Kinematics
+from snac_gym.model_error import ModelError
+from snac_gym.observation import ObservationLayout
+from snac_gym.optimality import quadratic_weights_to_matrix
+from snac_gym.policies.base import PolicyContext
+from snac_gym.policies.snac_adaptive import KinematicIdentifier, SNACAdaptivePolicy
+from snac_gym.rollout import simulate_kinematic
+from snac_gym.sampling import SampleSpace
+
+ELBOW = "joint_offset=0,0,0.3,0,0,0"
+
+
+def _true_frame(kinematics, q):
+    """The tool frame through Pinocchio directly (no snac-gym batching)."""
+    model, data = kinematics.model, kinematics.model.createData()
+    frame = model.getFrameId(kinematics.ee_frame)
+    pin.framesForwardKinematics(model, data, q)
+    return data.oMf[frame]
+
+
+def test_each_part_of_the_error_is_the_true_kinematics_changed_as_documented(ur10, rng):
+    offsets = rng.normal(scale=0.3, size=6)
+    shifted = Kinematics("ur10", model_error=ModelError(joint_offset=tuple(offsets)))
+    scaled = Kinematics("ur10", model_error="link_scale=0.05")
+    tool = Kinematics("ur10", model_error="tool_offset=0.01,-0.02,0.03")
+    for q in rng.uniform(-2.5, 2.5, size=(5, 6)):
+        np.testing.assert_allclose(shifted.forward(q), _true_frame(ur10, q + offsets).translation, atol=1e-12)
+        np.testing.assert_allclose(shifted.jacobian(q), ur10.jacobian(q + offsets), atol=1e-12)
+        np.testing.assert_allclose(shifted.forward_batch(q[None])[0], ur10.forward(q + offsets), atol=1e-12)
+        np.testing.assert_allclose(scaled.forward(q), 1.05 * ur10.forward(q), atol=1e-12)
+        frame = _true_frame(ur10, q)
+        np.testing.assert_allclose(tool.forward(q), frame.translation + frame.rotation @ [0.01, -0.02, 0.03], atol=1e-12)
+        # the batched chain of the wrong model agrees with its own Pinocchio evaluation
+        np.testing.assert_allclose(tool.jacobian_batch(q[None])[0], tool.jacobian(q), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("joint_offset=0,0.3", "joint_offset needs 6 values"),
+        ("joint_offset=0,0,nan,0,0,0", "must be finite"),
+        ("link_scale=-1", "link_scale must be a finite number > -1"),
+        ("tool_offset=0,0", "tool_offset must be 3 finite numbers"),
+        ("elbow=0.3", "NAME one of joint_offset, link_scale, tool_offset"),
+        ("link_scale=0.1;link_scale=0.2", "link_scale is given twice"),
+        ("joint_offset=a,b", "is not a comma-separated list of numbers"),
+    ],
+)
+def test_a_bad_specification_is_refused_naming_what_is_wrong(spec, message):
+    with pytest.raises(ValueError, match=message):
+        ModelError.parse(spec).check_joints(6)
+
+
+def test_the_cli_refuses_a_bad_specification_in_one_line(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "snac_gym.cli", "evaluate", "--out", str(tmp_path / "run"), "--samples", "2",
+         "--model-error", "joint_offset=0,0.3"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].endswith("--model-error: joint_offset needs 6 values (one per joint), got 2")
+
+
+def _samples(task, count=4):
+    kinematics = Kinematics("ur10")
+    return generate_samples(kinematics, SampleSpace.for_robot(kinematics), 5, task, range(count))
+
+
+@pytest.mark.parametrize("controller", ["lqr", "snac-hjb", "dls"])
+def test_a_zero_model_error_gives_todays_rows_bit_for_bit(controller):
+    samples = _samples("track")
+    common = {"task": "track", "controller": controller, "kwargs": {}, "samples": tuple(samples),
+              "seeds": tuple(range(4)), "steps": 60, "dt": 1 / 125}  # fmt: skip
+    today = run_job(RolloutJob(**common)).metrics
+    zero = run_job(RolloutJob(**common, model_error="joint_offset=0,0,0,0,0,0;link_scale=0")).metrics
+    pd.testing.assert_frame_equal(today, zero, check_exact=True)
+    wrong = run_job(RolloutJob(**common, model_error=ELBOW)).metrics
+    assert not np.allclose(wrong["cost"], today["cost"])  # the error does reach the controller
+
+
+def test_the_plant_moves_the_same_under_a_model_error_when_the_commands_are_replayed():
+    samples = _samples("reach")
+    commands = np.random.default_rng(3).uniform(-0.3, 0.3, size=(4, 50, 6))
+    runs = []
+    for error in (None, ELBOW):
+        context = policy_context("ur10", 1 / 125, "reach", error)
+        runs.append(simulate_kinematic(context, lambda: ReplayPolicy(commands), samples, 50, range(4), True,
+                                       plant=task_kinematics("ur10", "reach")))  # fmt: skip
+    for field in ("q", "x", "errors", "commands", "final_x"):
+        np.testing.assert_array_equal(getattr(runs[0], field), getattr(runs[1], field))
+
+
+def test_a_run_records_its_model_error_and_the_optimum_stays_below_every_controller(tmp_path):
+    config = EvaluationConfig(
+        out=tmp_path / "run", controllers=("snac-hjb", "snac-adaptive", "lqr", "optimal"), samples=3,
+        match_effort=False, horizons={"reach": 1.0, "track": 1.0}, cost="hjb", q_scale=4.0,
+        model_error=ELBOW, progress=False,
+    )  # fmt: skip
+    results = run_evaluation(config)
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["model_error"] == ELBOW
+    assert (results["model_error"] == ELBOW).all()
+    costs = results.pivot_table(index=["task", "sample"], columns="controller", values="cost")
+    assert (costs.drop(columns="optimal").min(axis=1) >= costs["optimal"]).all()
+
+
+def _context(kinematics, task="reach"):
+    layout = ObservationLayout(kinematics.n_joints, kinematics.task_dim)
+    return PolicyContext(kinematics, 1 / 125, np.full(kinematics.n_joints, 1e9), layout, task)
+
+
+def test_the_identifier_converges_to_the_true_jacobian_under_persistent_excitation_at_a_fixed_pose(ur10):
+    """Dither around one pose (a persistently exciting input): Ĵ at that pose → the true J (Pinocchio)."""
+    model = Kinematics("ur10", model_error="joint_offset=0.05,-0.1,0.3,0.1,-0.2,0.15;link_scale=0.02")
+    identifier = KinematicIdentifier(model, (0.5, 0.05, 0.05), 1e-4)
+    rng = np.random.default_rng(11)
+    q0 = np.array([0.3, -1.2, 1.4, -1.0, -1.3, 0.4])
+    size = np.linalg.norm(ur10.jacobian(q0))
+    errors = [np.linalg.norm(identifier.jacobians(q0[None])[0] - ur10.jacobian(q0)) / size]
+    for step in range(1, 1001):
+        q = q0 + rng.uniform(-0.1, 0.1, 6)
+        identifier.update(q[None], ur10.forward(q)[None])
+        if step in (100, 1000):
+            errors.append(np.linalg.norm(identifier.jacobians(q0[None])[0] - ur10.jacobian(q0)) / size)
+    assert errors[0] > 0.05  # the model starts 5 % or more off
+    assert errors[2] < 3e-5 and errors[2] < errors[1] / 10  # and keeps converging
+    assert identifier.residual[0] < 1e-5  # m: the model predicts the measured position
+    assert identifier.excitation()[0] > 0
+
+
+def _obs(context, plant, q, e, xdot_d=np.zeros(3)):
+    x = plant.forward(q)  # measured: the plant's position
+    return context.layout.pack(q, np.zeros(len(q)), x, x - e, xdot_d, x - e)
+
+
+def test_without_a_model_error_the_critic_converges_to_the_are_solution(ur10, rng):
+    context = _context(ur10)
+    policy = SNACAdaptivePolicy(context, learning_rate=60.0, warm_start_iterations=0)
+    policy.reset(seed=8)
+    q = rng.uniform(-2, 2, 6)
+    for _ in range(200):
+        policy.act(_obs(context, ur10, q, np.zeros(3)))
+    expected = solve_continuous_are(np.zeros((3, 3)), ur10.jacobian(q), np.eye(3), np.eye(6))
+    np.testing.assert_allclose(quadratic_weights_to_matrix(policy.critic_weights, 3), expected, rtol=1e-8)
+    np.testing.assert_array_equal(policy.identifier.params, 0.0)  # nothing to correct
+
+
+def test_with_a_model_error_the_critic_converges_to_the_true_problems_are_solution(ur10):
+    """snac-hjb's critic settles on P*(J_model); snac-adaptive's on P*(J), the true arm's."""
+    model = Kinematics("ur10", model_error=ELBOW)
+    context = _context(model)
+    rng = np.random.default_rng(4)
+    q0 = np.array([0.3, -1.2, 1.4, -1.0, -1.3, 0.4])
+    policy = SNACAdaptivePolicy(context, learning_rate=60.0)
+    policy.reset(seed=1)
+    for _ in range(1000):
+        policy.act(_obs(context, ur10, q0 + rng.uniform(-0.1, 0.1, 6), np.zeros(3)))
+    for _ in range(100):
+        policy.act(_obs(context, ur10, q0, np.zeros(3)))
+    true_p = solve_continuous_are(np.zeros((3, 3)), ur10.jacobian(q0), np.eye(3), np.eye(6))
+    model_p = solve_continuous_are(np.zeros((3, 3)), model.jacobian(q0), np.eye(3), np.eye(6))
+    learnt = quadratic_weights_to_matrix(policy.critic_weights, 3)
+    assert np.linalg.norm(model_p - true_p) > 0.05 * np.linalg.norm(true_p)
+    np.testing.assert_allclose(learnt, true_p, rtol=1e-4)
