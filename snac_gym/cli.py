@@ -144,6 +144,7 @@ def real(
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control periods (default: 15 s reach, 30 s track)."),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     max_tcp_mismatch: float = typer.Option(0.005, "--max-tcp-mismatch", help="Largest distance (m) between the controller's TCP position and the model's f(q), in (0, 1]."),
+    model_error: Optional[str] = typer.Option(None, "--model-error", help="With --connection sim: give the controller a wrong arm model (as for evaluate)."),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim."""
     from snac_gym.real import ConnectionFailure, SafetyLimits
@@ -155,7 +156,7 @@ def real(
         result = run_real_episode(
             task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
             seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
-            csv=csv, echo=typer.echo if dry_run else None,
+            csv=csv, echo=typer.echo if dry_run else None, model_error=model_error,
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
         where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""

@@ -185,3 +185,23 @@ def test_with_a_model_error_the_critic_converges_to_the_true_problems_are_soluti
     learnt = quadratic_weights_to_matrix(policy.critic_weights, 3)
     assert np.linalg.norm(model_p - true_p) > 0.05 * np.linalg.norm(true_p)
     np.testing.assert_allclose(learnt, true_p, rtol=1e-4)
+
+
+def test_the_demo_gives_the_wrong_model_to_the_controller_and_draws_its_correction(tmp_path):
+    from snac_gym.demo import run_demo
+
+    result = run_demo("track", "snac-adaptive", tmp_path, steps=60, model_error=ELBOW)
+    residual = result.log["model_residual"].to_numpy()
+    assert residual[0] > 0.05  # the wrong model first misplaces the tool by centimetres (0.3 rad at the elbow)
+    assert residual[-1] < 1e-3  # and predicts the measured position within 1 mm after 0.5 s
+    assert (tmp_path / "track_snac-adaptive_model.png").is_file()
+    assert result.log.attrs["model_error"] == ELBOW
+    true_model = run_demo("track", "snac-adaptive", None, steps=60)
+    assert true_model.log["model_residual"].max() < 1e-4  # PyBullet's arm matches the true model
+
+
+def test_a_real_arm_refuses_a_model_error():
+    from snac_gym.real.run import run_real_episode
+
+    with pytest.raises(ValueError, match="--connection sim only"):
+        run_real_episode(connection="rtde", host="127.0.0.1", model_error=ELBOW, out_dir=None)

@@ -168,6 +168,7 @@ def run_real_episode(
     csv: bool = False,
     plots: bool = True,
     echo: Callable[[str], None] | None = None,
+    model_error: str | None = None,
 ) -> RealRunResult:
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
@@ -201,7 +202,14 @@ def run_real_episode(
         policy_kwargs: Constructor arguments of the policy.
         csv, plots: As for ``snac-gym demo``.
         echo: Where dry-run lines go (e.g. ``print``).
+        model_error: Rehearse the controller with a wrong arm model (:mod:`snac_gym.model_error`),
+            ``connection="sim"`` only: on a real arm the model's error is the arm's own.
+
+    Raises:
+        ValueError: For ``model_error`` with another connection than ``"sim"``.
     """
+    if model_error is not None and connection != "sim":
+        raise ValueError("--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own")
     safety = safety if safety is not None else SafetyLimits()
     out = Path(out_dir) if out_dir is not None else None
     prefix = f"{task}_{controller}_"
@@ -215,7 +223,7 @@ def run_real_episode(
         except BaseException:
             arm.close()
             raise
-        log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix)
+        log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, model_error)
         guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
         result = _write_outputs(
             env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs
@@ -232,6 +240,7 @@ def _run_and_stop(
     guard: SignalGuard,
     out: Path | None,
     prefix: str,
+    model_error: str | None = None,
 ) -> pd.DataFrame:
     """The episode, the arm stopped on every way out; on any failure the log so far is written, then it raises.
 
@@ -240,12 +249,14 @@ def _run_and_stop(
     by the controller's watchdog, not by the host.
     """
     from snac_gym.policies import make_policy
+    from snac_gym.policies.base import PolicyContext
     from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
 
     log = None
     try:
         try:
-            policy = make_policy(controller, env, **(policy_kwargs or {}))
+            context = env if model_error is None else PolicyContext.from_env(env).with_model_error(model_error)
+            policy = make_policy(controller, context, **(policy_kwargs or {}))
             log = rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps)
             log = add_critic_diagnostics(log, policy)
         finally:
