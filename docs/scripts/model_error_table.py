@@ -34,7 +34,7 @@ def cells(folder: Path) -> dict[str, str]:
 
 
 def main() -> None:
-    runs = dict(argument.split("=", 1) for argument in sys.argv[1:])
+    runs = dict(argument.rsplit("=", 1) for argument in sys.argv[1:])  # LABEL=FOLDER (a label may hold "=")
     table = {name: cells(Path(folder)) for name, folder in runs.items()}
     controllers = list(dict.fromkeys(c for column in table.values() for c in column))
     print("| controller | " + " | ".join(runs) + " |")
