@@ -44,7 +44,7 @@ def _task_class(mink: Any, mujoco: Any) -> type:
 class MinkPolicy(QPIKPolicy):
     """QP differential IK with mink: the project's task on a MuJoCo model of the same URDF
     (:mod:`snac_gym.mujoco_model`: base frame as world, a site at the end-effector frame), mink's
-    ``DampingTask``, ``ConfigurationLimit`` (gain 0.95, mink's default) and ``VelocityLimit`` (the env's
+    damping (``solve_ik(damping=λ²)``), ``ConfigurationLimit`` (gain 0.95, mink's default) and ``VelocityLimit`` (the env's
     velocity limits), ``mink.solve_ik`` with daqp. Arguments: :class:`~baselines.qp_ik.QPIKPolicy`.
     """
 
@@ -58,7 +58,7 @@ class MinkPolicy(QPIKPolicy):
         self._task = _task_class(mink, mujoco)(
             model.site(EE_SITE).id, model.nv, self.task_dim, self.gain * self.dt, self.lm_damping
         )
-        self._tasks = [self._task, mink.DampingTask(model, cost=self.damping)]
+        self._tasks = [self._task]
         velocities = dict(zip(kinematics.joint_names, self.velocity_limits, strict=True))
         self._limits = [
             mink.ConfigurationLimit(model, gain=self.limit_gain),
@@ -70,5 +70,6 @@ class MinkPolicy(QPIKPolicy):
         self._configuration.update(q)
         self._task.error = error
         return self._solve_ik(
-            self._configuration, self._tasks, self.dt, solver=SOLVER, limits=self._limits, **SOLVER_SETTINGS
+            self._configuration, self._tasks, self.dt, solver=SOLVER, damping=self.regularisation, limits=self._limits,
+            **SOLVER_SETTINGS,
         )

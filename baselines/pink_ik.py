@@ -35,6 +35,16 @@ def _task_class(pink: Any) -> type:
             )
             return jacobian[: self.dim]
 
+        def compute_qp_objective(self, configuration: Any) -> tuple[np.ndarray, np.ndarray]:
+            """pink's ``(H, c)`` of ``½‖J Δq + α e‖²`` with W = I, without building W: ``H = JᵀJ + μI``,
+            ``c = α Jᵀe``, ``μ = lm_damping ‖α e‖²`` (``Task.compute_qp_objective`` with cost 1)."""
+            jacobian = self.compute_jacobian(configuration)
+            scaled_error = self.gain * self.error
+            hessian = jacobian.T @ jacobian
+            if self.lm_damping:
+                hessian.flat[:: hessian.shape[0] + 1] += self.lm_damping * (scaled_error @ scaled_error)
+            return hessian, scaled_error @ jacobian
+
         def __repr__(self) -> str:
             return f"ProjectTask(frame_id={self.frame_id}, dim={self.dim}, gain={self.gain})"
 
@@ -42,7 +52,7 @@ def _task_class(pink: Any) -> type:
 
 
 class PinkPolicy(QPIKPolicy):
-    """QP differential IK with pink: the project's task, pink's ``DampingTask``, ``ConfigurationLimit``
+    """QP differential IK with pink: the project's task, pink's damping (``solve_ik(damping=λ²)``), ``ConfigurationLimit``
     (gain 0.5, pink's default) and ``VelocityLimit`` (the env's velocity limits), ``pink.solve_ik`` with daqp.
 
     The Pinocchio model is a copy of the project's (:class:`~snac_gym.kinematics.Kinematics`: the same
@@ -56,7 +66,7 @@ class PinkPolicy(QPIKPolicy):
         model = pin.Model(kinematics.model)  # pink attaches its limits to the model: not on the shared one
         self._configuration = pink.Configuration(model, model.createData(), pin.neutral(model), copy_data=False)
         self._task = _task_class(pink)(kinematics._ee_id, self.task_dim, self.gain * self.dt, self.lm_damping)
-        self._tasks = [self._task, pink.tasks.DampingTask(cost=self.damping)]
+        self._tasks = [self._task]
         self._limits = [
             pink.limits.ConfigurationLimit(model, config_limit_gain=self.limit_gain),
             pink.limits.VelocityLimit(model, velocity_limit=self.velocity_limits),
@@ -67,5 +77,6 @@ class PinkPolicy(QPIKPolicy):
         self._configuration.update(q)
         self._task.error = error
         return self._solve_ik(
-            self._configuration, self._tasks, self.dt, solver=SOLVER, limits=self._limits, **SOLVER_SETTINGS
+            self._configuration, self._tasks, self.dt, solver=SOLVER, damping=self.regularisation, limits=self._limits,
+            **SOLVER_SETTINGS,
         )

@@ -3,7 +3,7 @@
 At every control step both solve, through their library's ``solve_ik`` (QP solver daqp), the
 quadratic program of task-based differential IK in the displacement ``Δq = u Δt``:
 
-    min_Δq  ½ ‖J Δq + α ẽ‖²_W + ½ λ² ‖Δq‖² + ½ ε ‖Δq‖²
+    min_Δq  ½ ‖J Δq + α ẽ‖²_W + ½ (λ² + ε + μ) ‖Δq‖²
     s.t.    −ū Δt ≤ Δq ≤ ū Δt                                   (VelocityLimit)
             κ (θ⁻ − θ) ≤ Δq ≤ κ (θ⁺ − θ)                         (ConfigurationLimit)
 
@@ -18,9 +18,11 @@ with, in this project's terms,
   (:func:`baselines._common.reference_velocity`);
 * ``W = I`` (the task's cost 1: 1 m of position error weighs as 1 rad of orientation error, as
   the cost's Q = I);
-* ``λ`` the cost of the library's ``DampingTask`` (default 0.01, DLS's damping), ``ε = 10⁻¹²`` the
-  libraries' own Tikhonov term, and an optional Levenberg-Marquardt term ``μ = lm_damping ‖α ẽ‖²``
-  added to ``λ² + ε`` (default 0, the libraries' default);
+* ``λ² + ε`` the ``damping`` argument of the library's ``solve_ik`` (its Tikhonov term on every
+  joint, the same term as a ``DampingTask`` of cost λ, which costs a second task's assembly per
+  step), ``λ`` = 0.01 by default (DLS's damping) and ``ε = 10⁻¹²`` the libraries' default ``damping``;
+  ``μ = lm_damping ‖α ẽ‖²`` the task's optional Levenberg-Marquardt term (default 0, the libraries'
+  default);
 * ``ū`` the env's velocity limits, ``θ⁻, θ⁺`` the URDF's position limits (those of
   :class:`~snac_gym.kinematics.Kinematics`), ``κ`` the ConfigurationLimit's gain (pink's default 0.5,
   mink's 0.95).
@@ -39,8 +41,8 @@ translational part couples to the angular velocity through ``Jlog₆`` (a screw 
 straight line of ``ė = J u − ẋ_d``), and it has no feed-forward; with it the QP controllers
 would solve a different task than every other controller of the comparison. Each library's
 ``Task`` base class is subclassed with the project's error and the library's Jacobian, and
-everything else (``Configuration``, ``DampingTask``, ``ConfigurationLimit``, ``VelocityLimit``,
-``solve_ik``) is the library's own.
+everything else (``Configuration``, ``ConfigurationLimit``, ``VelocityLimit``, ``solve_ik`` and its
+damping) is the library's own.
 """
 
 from __future__ import annotations
@@ -60,6 +62,8 @@ SOLVER = "daqp"
 #: position limit cross it by up to 1e-6 rad per step (6e-5 rad after 60 steps on the Panda's shoulder,
 #: tests/test_qp_controllers.py); at 1e-15 the bound holds to the last bit (margin ≥ 0, never negative).
 SOLVER_SETTINGS = {"primal_tol": 1e-15}
+#: ε, the libraries' default ``damping`` of ``solve_ik`` (kept under λ²: H stays positive definite at λ = 0).
+TIKHONOV = 1e-12
 
 
 def non_negative_float(name: str, value: Any) -> float:
@@ -97,7 +101,7 @@ class QPIKPolicy(BasePolicy):
         env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive.
         gain: Task-space feedback gain ``g``, 1/s; the effort knob (``effort_parameter``), as DLS's
             ``gain``. The library's task gain is ``α = g Δt``, which must be ≤ 1.
-        damping: Cost ``λ`` of the library's ``DampingTask``, m/rad (DLS's λ).
+        damping: The damping ``λ``, m/rad (DLS's λ): ``solve_ik(damping=λ² + ε)``.
         lm_damping: The task's Levenberg-Marquardt damping (the libraries' ``lm_damping``).
         limit_gain: Gain κ of the library's ``ConfigurationLimit``, in (0, 1]; ``None``: the library's default.
 
@@ -123,6 +127,8 @@ class QPIKPolicy(BasePolicy):
         if self.gain * self.dt > 1.0:
             raise ValueError(f"gain·dt must be ≤ 1 (the library's task gain α ∈ [0, 1]), got {self.gain}·{self.dt}")
         self.damping = non_negative_float("damping", damping)
+        #: The ``damping`` argument of ``solve_ik``: λ² plus the libraries' default ε.
+        self.regularisation = self.damping**2 + TIKHONOV
         self.lm_damping = non_negative_float("lm_damping", lm_damping)
         self.limit_gain = self.default_limit_gain if limit_gain is None else positive_float("limit_gain", limit_gain)
         if self.limit_gain > 1.0:
