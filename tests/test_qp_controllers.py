@@ -248,3 +248,18 @@ def test_missing_extra_is_one_line(name, monkeypatch):
         make_policy(name, policy_context("ur10", DT, "reach"))
     assert str(info.value) == f"{name} needs the 'ik' extra: pip install -e \".[ik]\""
     assert isinstance(info.value, ValueError) and isinstance(info.value, ImportError)
+
+
+def test_missing_extra_is_one_line_from_the_cli(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from snac_gym.cli import app
+
+    monkeypatch.setitem(sys.modules, "mink", None)
+    result = CliRunner().invoke(app, ["demo", "--controller", "mink", "--steps", "5", "--no-plots", "--out", str(tmp_path)])
+    assert result.exit_code == 2
+    assert result.output.strip() == "error: mink needs the 'ik' extra: pip install -e \".[ik]\""
+    evaluate = CliRunner().invoke(app, ["evaluate", "--controllers", "mink,dls", "--samples", "2", "--no-progress",
+                                        "--out", str(tmp_path / "run")])
+    assert evaluate.exit_code == 2
+    assert evaluate.output.strip() == "error: controller 'mink' is not installed: mink needs the 'ik' extra: pip install -e \".[ik]\""
