@@ -20,6 +20,7 @@ from evaluation.jobs import policy_context
 from evaluation.optimal_reference import OPTIMAL
 from evaluation.store import file_sha1
 from evaluation.summary import PAPER_TABLE_I
+from snac_gym.extras import MissingExtraError
 from snac_gym.policies.registry import available_policies, make_policy, policy_factory
 
 if TYPE_CHECKING:
@@ -130,6 +131,8 @@ def _controller_spec(config: EvaluationConfig, name: str) -> ControllerSpec:
             kwargs[key] = value
     try:
         policies = [make_policy(name, policy_context(config.robot, config.dt, task), **kwargs) for task in config.tasks]
+    except MissingExtraError as exc:  # an optional dependency: the one line that names its extra
+        raise _LeftOut(f"is not installed: {exc}") from exc
     except Exception as exc:
         reason = f"cannot be built from a PolicyContext with arguments {kwargs}: {type(exc).__name__}: {exc}"
         raise _LeftOut(reason) from exc

@@ -28,6 +28,8 @@ _BUILTIN: dict[str, str] = {
     "rnn": "baselines.rnn:RNNPolicy",
     "lqr": "baselines.lqr:LQRPolicy",
     "mpc": "baselines.mpc:MPCPolicy",
+    "pink": "baselines.pink_ik:PinkPolicy",
+    "mink": "baselines.mink_ik:MinkPolicy",
     "ppo": "snac_gym.ppo.policy:PPOPolicy",
 }
 _FACTORIES: dict[str, Callable[..., Any]] = {}

@@ -1,0 +1,174 @@
+"""What the QP differential-IK controllers (``pink``, ``mink``) share: the resolved-rate QP, read from the observation.
+
+At every control step both solve, through their library's ``solve_ik`` (QP solver daqp), the
+quadratic program of task-based differential IK in the displacement ``Δq = u Δt``:
+
+    min_Δq  ½ ‖J Δq + α ẽ‖²_W + ½ (λ² + ε + μ) ‖Δq‖²
+    s.t.    −ū Δt ≤ Δq ≤ ū Δt                                   (VelocityLimit)
+            κ (θ⁻ − θ) ≤ Δq ≤ κ (θ⁺ − θ)                         (ConfigurationLimit)
+
+with, in this project's terms,
+
+* ``J`` the task Jacobian (position rows for reach and track, ``[J_v; J_ω]`` for the pose tasks),
+  in the base frame, from the library's own kinematics (Pinocchio for pink, MuJoCo for mink);
+* ``ẽ = e − ẋ_d/g`` the project's task error ``e`` (the observation's: ``x − x_d``, or
+  ``[p − p_d; log₃(R R_dᵀ)]`` for a pose) shifted by the feed-forward of a moving reference, and
+  ``α = g Δt`` the libraries' per-step task gain, so that ``α ẽ = Δt (g e − ẋ_d)`` and the task
+  term is ``Δt² ‖J u − v‖²`` with the reference velocity ``v = ẋ_d − g e`` of every baseline
+  (:func:`baselines._common.reference_velocity`);
+* ``W = I`` (the task's cost 1: 1 m of position error weighs as 1 rad of orientation error, as
+  the cost's Q = I);
+* ``λ² + ε`` the ``damping`` argument of the library's ``solve_ik`` (its Tikhonov term on every
+  joint, the same term as a ``DampingTask`` of cost λ, which costs a second task's assembly per
+  step), ``λ`` = 0.01 by default (DLS's damping) and ``ε = 10⁻¹²`` the libraries' default ``damping``;
+  ``μ = lm_damping ‖α ẽ‖²`` the task's optional Levenberg-Marquardt term (default 0, the libraries'
+  default);
+* ``ū`` the env's velocity limits, ``θ⁻, θ⁺`` the URDF's position limits (those of
+  :class:`~snac_gym.kinematics.Kinematics`), ``κ`` the ConfigurationLimit's gain (pink's default 0.5,
+  mink's 0.95).
+
+Without active bounds the minimiser is ``u = Jᵀ(JJᵀ + λ²I)⁻¹ v``: DLS (:mod:`baselines.dls`) with the
+same λ. The two differ only in how they stay inside the limits: DLS scales the whole command
+into the velocity box (keeping its direction) and has no position limits of its own (on the
+7-DOF arms it is clamped into the box Ω(θ) of :mod:`snac_gym.joint_limits`); the QP bounds each
+joint and lets the others take over the task motion a bounded joint cannot make, and keeps
+every joint inside its position limits by construction (a joint closes at most a fraction κ of
+its distance to a limit per step).
+
+The task is the project's, not the libraries' ``FrameTask``: a FrameTask's error is the SE(3)
+logarithm of the frame's pose relative to its target, in the frame's own axes, whose
+translational part couples to the angular velocity through ``Jlog₆`` (a screw motion, not the
+straight line of ``ė = J u − ẋ_d``), and it has no feed-forward; with it the QP controllers
+would solve a different task than every other controller of the comparison. Each library's
+``Task`` base class is subclassed with the project's error and the library's Jacobian, and
+everything else (``Configuration``, ``ConfigurationLimit``, ``VelocityLimit``, ``solve_ik`` and its
+damping) is the library's own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from baselines._common import ObservationReader, clip_to_box
+from snac_gym.extras import MissingExtraError, require
+from snac_gym.policies.base import BasePolicy, positive_float
+
+#: The QP solver: daqp, installed by the ``ik`` extra (``qpsolvers[daqp]``).
+SOLVER = "daqp"
+#: daqp's settings. Its default primal tolerance, 1e-6 on Δq (rad), lets a joint pressed against a
+#: position limit cross it by up to 1e-6 rad per step (6e-5 rad after 60 steps on the Panda's shoulder,
+#: tests/test_qp_controllers.py); at 1e-15 the bound holds to the last bit (margin ≥ 0, never negative).
+SOLVER_SETTINGS = {"primal_tol": 1e-15}
+#: ε, the libraries' default ``damping`` of ``solve_ik`` (kept under λ²: H stays positive definite at λ = 0).
+TIKHONOV = 1e-12
+
+
+def non_negative_float(name: str, value: Any) -> float:
+    """``value`` as a finite float ≥ 0.
+
+    Raises:
+        ValueError: If it is not one.
+    """
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a non-negative number, got {value!r}") from exc
+    if not (np.isfinite(number) and number >= 0):
+        raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
+    return number
+
+
+def require_library(module: str, name: str) -> Any:
+    """Import the IK library ``module`` and check that qpsolvers has daqp; one line naming the extra if not.
+
+    Raises:
+        MissingExtraError: If the library, qpsolvers or daqp is not installed.
+    """
+    library = require(module, "ik", name)
+    qpsolvers = require("qpsolvers", "ik", name)
+    if SOLVER not in qpsolvers.available_solvers:
+        raise MissingExtraError(f"{name} needs the 'ik' extra (qpsolvers with daqp): pip install -e \".[ik]\"")
+    return library
+
+
+class QPIKPolicy(BasePolicy):
+    """Resolved-rate QP differential IK (module docs); subclasses set up one library.
+
+    Args:
+        env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive.
+        gain: Task-space feedback gain ``g``, 1/s; the effort knob (``effort_parameter``), as DLS's
+            ``gain``. The library's task gain is ``α = g Δt``, which must be ≤ 1.
+        damping: The damping ``λ``, m/rad (DLS's λ): ``solve_ik(damping=λ² + ε)``.
+        lm_damping: The task's Levenberg-Marquardt damping (the libraries' ``lm_damping``).
+        limit_gain: Gain κ of the library's ``ConfigurationLimit``, in (0, 1]; ``None``: the library's default.
+
+    Raises:
+        MissingExtraError: If the library or daqp is not installed.
+        ValueError: If a parameter is out of range.
+
+    Attributes:
+        effort_parameter: ``"gain"``, for the evaluator's effort matching.
+    """
+
+    effort_parameter = "gain"
+    #: The library's module (also its name in messages) and its default ConfigurationLimit gain.
+    module = ""
+    default_limit_gain = 1.0
+
+    def __init__(
+        self, env: Any, gain: float = 2.0, damping: float = 0.01, lm_damping: float = 0.0, limit_gain: float | None = None
+    ) -> None:
+        super().__init__(env)
+        library = require_library(self.module, self.module)
+        self.gain = positive_float("gain", gain)
+        if self.gain * self.dt > 1.0:
+            raise ValueError(f"gain·dt must be ≤ 1 (the library's task gain α ∈ [0, 1]), got {self.gain}·{self.dt}")
+        self.damping = non_negative_float("damping", damping)
+        #: The ``damping`` argument of ``solve_ik``: λ² plus the libraries' default ε.
+        self.regularisation = self.damping**2 + TIKHONOV
+        self.lm_damping = non_negative_float("lm_damping", lm_damping)
+        self.limit_gain = self.default_limit_gain if limit_gain is None else positive_float("limit_gain", limit_gain)
+        if self.limit_gain > 1.0:
+            raise ValueError(f"limit_gain must be in (0, 1], got {limit_gain}")
+        self._reader = ObservationReader(self)
+        self._q = self._reader.q
+        position = getattr(self.kinematics, "position", self.kinematics)  # PoseKinematics wraps the position one
+        self._lower = np.asarray(position.lower_limits, dtype=float)
+        self._upper = np.asarray(position.upper_limits, dtype=float)
+        self.task_dim = self.layout.task_dim
+        self._setup(library, position)
+
+    def _setup(self, library: Any, kinematics: Any) -> None:  # pragma: no cover - abstract
+        """Build the library's model, configuration, tasks and limits."""
+        raise NotImplementedError
+
+    def _solve(self, q: np.ndarray, error: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        """``u`` (rad/s) from the library's ``solve_ik`` at ``q`` for the task error ``ẽ``."""
+        raise NotImplementedError
+
+    def task_error(self, obs: np.ndarray) -> np.ndarray:
+        """``ẽ = e − ẋ_d/g`` of one observation (module docs)."""
+        return obs[self._reader.e] - obs[self._reader.xdot_d] / self.gain
+
+    def measured_q(self, obs: np.ndarray) -> np.ndarray:
+        """θ of ``obs``, read at the limit where it is outside its position limits by a rounding step (the
+        libraries refuse a configuration outside its limits; the QP keeps θ inside them)."""
+        return np.minimum(np.maximum(obs[self._q], self._lower), self._upper)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Joint-velocity command (rad/s) for ``obs``, inside the velocity and position limits."""
+        obs = self._reader.read(obs)
+        command = self._solve(self.measured_q(obs), self.task_error(obs))
+        return clip_to_box(command, self.velocity_limits)  # the solver's tolerance, never more
+
+    def reset_batch(self, seeds: Sequence[int]) -> None:
+        """Start ``len(seeds)`` episodes (nothing to set: the controller has no state)."""
+        self.internals = {}
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        """Commands ``(B, m)``: one QP per row, row i is :meth:`act` of row i (one library workspace for all)."""
+        obs_batch = self._reader.read_batch(obs_batch)
+        return np.array([self.act(obs) for obs in obs_batch], dtype=float).reshape(len(obs_batch), -1)
