@@ -52,6 +52,9 @@ class MinkPolicy(QPIKPolicy):
     default_limit_gain = 0.95
 
     def _setup(self, mink: Any, kinematics: Any) -> None:
+        if getattr(kinematics, "model_error", None) is not None:
+            # The MuJoCo model is built from the URDF: a wrong model would silently be the true one.
+            raise ValueError("mink builds its MuJoCo model from the URDF and cannot take --model-error (pink can)")
         mujoco = require("mujoco", "ik", "mink")
         model = shared_mujoco_model(kinematics)
         self._configuration = mink.Configuration(model)

@@ -205,3 +205,12 @@ def test_a_real_arm_refuses_a_model_error():
 
     with pytest.raises(ValueError, match="--connection sim only"):
         run_real_episode(connection="rtde", host="127.0.0.1", model_error=ELBOW, out_dir=None)
+
+
+def test_a_controller_that_cannot_take_the_wrong_model_refuses_it():
+    pytest.importorskip("mink")
+    from snac_gym.policies import make_policy
+
+    context = policy_context("ur10", 1 / 125, "reach", ELBOW)
+    with pytest.raises(ValueError, match="mink builds its MuJoCo model from the URDF"):
+        make_policy("mink", context)
