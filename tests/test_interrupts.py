@@ -144,10 +144,21 @@ def test_an_interrupt_in_every_phase_ends_the_run_and_resume_gives_the_same_rows
     pd.testing.assert_frame_equal(_rows(out), uninterrupted, check_exact=True)
 
 
-def test_an_interrupt_on_ray_ends_the_run(tmp_path):
+#: Ray's core worker aborting the driver when a cancelled task's reply arrives (a race in Ray itself,
+#: of the family ray-project/ray#54798 fixed; seen about once in ten interrupted runs on a busy machine).
+RAY_CANCEL_ABORT = "Tried to complete task that was not pending"
+
+
+def test_an_interrupt_on_ray_ends_the_run(tmp_path, uninterrupted):
     pytest.importorskip("ray")
     process, err, out, where, fired_at = _interrupted(tmp_path, "effort matching", "SIGTERM", 2, 0.3, "--ray", "local")
     assert where == "inside", err
+    if process.returncode != 128 + signal.SIGTERM and RAY_CANCEL_ABORT in err:
+        # Ray ended the process itself; what the run promises still holds: the finished jobs are kept.
+        resumed = _evaluate(out, "--workers", "2", "--resume")
+        assert resumed.returncode == 0, resumed.stderr
+        pd.testing.assert_frame_equal(_rows(out), uninterrupted, check_exact=True)
+        pytest.xfail("Ray's core worker aborted on its cancellation race; the run resumed to the same rows")
     assert time.time() - fired_at < EXIT_BOUND_S + 5  # Ray's own shutdown takes a few seconds
     assert process.returncode == 128 + signal.SIGTERM, err
     assert err.strip().splitlines()[-1] == (
