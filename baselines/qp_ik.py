@@ -154,8 +154,8 @@ class QPIKPolicy(BasePolicy):
         return obs[self._reader.e] - obs[self._reader.xdot_d] / self.gain
 
     def measured_q(self, obs: np.ndarray) -> np.ndarray:
-        """θ of ``obs``, read at the limit where it is outside its position limits by a rounding step (the
-        libraries refuse a configuration outside its limits; the QP keeps θ inside them)."""
+        """θ of ``obs``, read at the limit where it is outside its position limits (pink refuses such a
+        configuration, mink warns; the QP then allows no further motion outwards)."""
         return np.minimum(np.maximum(obs[self._q], self._lower), self._upper)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
