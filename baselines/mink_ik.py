@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.qp_ik import SOLVER, SOLVER_SETTINGS, QPIKPolicy
+from baselines.qp_ik import QPIKPolicy
 from snac_gym.extras import require
 from snac_gym.mujoco_model import EE_SITE, shared_mujoco_model
 
@@ -68,11 +68,3 @@ class MinkPolicy(QPIKPolicy):
             mink.VelocityLimit(model, velocities),
         ]
         self._solve_ik = mink.solve_ik
-
-    def _solve(self, q: np.ndarray, error: np.ndarray) -> np.ndarray:
-        self._configuration.update(q)
-        self._task.error = error
-        return self._solve_ik(
-            self._configuration, self._tasks, self.dt, solver=SOLVER, damping=self.regularisation, limits=self._limits,
-            **SOLVER_SETTINGS,
-        )

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from baselines.qp_ik import SOLVER, SOLVER_SETTINGS, QPIKPolicy
+from baselines.qp_ik import QPIKPolicy
 
 
 def _task_class(pink: Any) -> type:
@@ -72,11 +72,3 @@ class PinkPolicy(QPIKPolicy):
             pink.limits.VelocityLimit(model, velocity_limit=self.velocity_limits),
         ]
         self._solve_ik = pink.solve_ik
-
-    def _solve(self, q: np.ndarray, error: np.ndarray) -> np.ndarray:
-        self._configuration.update(q)
-        self._task.error = error
-        return self._solve_ik(
-            self._configuration, self._tasks, self.dt, solver=SOLVER, damping=self.regularisation, limits=self._limits,
-            **SOLVER_SETTINGS,
-        )

@@ -54,7 +54,7 @@ import numpy as np
 
 from baselines._common import ObservationReader, clip_to_box
 from snac_gym.extras import MissingExtraError, require
-from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.policies.base import BasePolicy, non_negative_float, positive_float
 
 #: The QP solver: daqp, installed by the ``ik`` extra (``qpsolvers[daqp]``).
 SOLVER = "daqp"
@@ -64,21 +64,6 @@ SOLVER = "daqp"
 SOLVER_SETTINGS = {"primal_tol": 1e-15}
 #: ε, the libraries' default ``damping`` of ``solve_ik`` (kept under λ²: H stays positive definite at λ = 0).
 TIKHONOV = 1e-12
-
-
-def non_negative_float(name: str, value: Any) -> float:
-    """``value`` as a finite float ≥ 0.
-
-    Raises:
-        ValueError: If it is not one.
-    """
-    try:
-        number = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a non-negative number, got {value!r}") from exc
-    if not (np.isfinite(number) and number >= 0):
-        raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
-    return number
 
 
 def require_library(module: str, name: str) -> Any:
@@ -145,9 +130,15 @@ class QPIKPolicy(BasePolicy):
         """Build the library's model, configuration, tasks and limits."""
         raise NotImplementedError
 
-    def _solve(self, q: np.ndarray, error: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
-        """``u`` (rad/s) from the library's ``solve_ik`` at ``q`` for the task error ``ẽ``."""
-        raise NotImplementedError
+    def _solve(self, q: np.ndarray, error: np.ndarray) -> np.ndarray:
+        """``u`` (rad/s) from the library's ``solve_ik`` at ``q`` for the task error ``ẽ`` (both libraries
+        share the call; ``_setup`` gives the configuration, task, limits and ``solve_ik``)."""
+        self._configuration.update(q)
+        self._task.error = error
+        return self._solve_ik(
+            self._configuration, self._tasks, self.dt, solver=SOLVER, damping=self.regularisation, limits=self._limits,
+            **SOLVER_SETTINGS,
+        )
 
     def task_error(self, obs: np.ndarray) -> np.ndarray:
         """``ẽ = e − ẋ_d/g`` of one observation (module docs)."""

@@ -124,6 +124,7 @@ def run_demo(
     """
     from snac_gym.envs import make_task_env
     from snac_gym.policies import make_policy
+    from snac_gym.policies.base import PolicyContext
 
     spec = get_task(task)
     options = spec.demo_options(robot)
@@ -151,7 +152,7 @@ def run_demo(
         env.close()
         env = make_task_env(spec, robot, max_episode_steps=steps)
     try:
-        policy = make_policy(controller, _policy_context(env, model_error), **(policy_kwargs or {}))
+        policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
         log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)
     finally:
         env.close()
@@ -162,15 +163,6 @@ def run_demo(
         log, spec.name, controller, seed, spec.success_tolerance, out_dir,
         csv=csv, plots=plots, policy_kwargs=policy_kwargs,
     )
-
-
-def _policy_context(env: Any, model_error: str | None) -> Any:
-    """What the controller is built from: the env, or its context with a wrong arm model."""
-    if model_error is None:
-        return env
-    from snac_gym.policies.base import PolicyContext
-
-    return PolicyContext.from_env(env).with_model_error(model_error)
 
 
 def usable_out_folder(out: Path) -> None:

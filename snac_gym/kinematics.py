@@ -368,6 +368,16 @@ def _locked(model: pin.Model, joints: tuple[str, ...]) -> pin.Model:
 _ALIGNED_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
 
 
+def joint_axis(joint_model: Any) -> tuple[np.ndarray, bool] | None:
+    """The unit axis of a 1-DoF revolute or prismatic Pinocchio joint model and whether it is revolute (``None`` otherwise)."""
+    kind = joint_model.shortname().removeprefix("JointModel")
+    if kind in ("RX", "RY", "RZ", "PX", "PY", "PZ"):
+        return np.array(_ALIGNED_AXES[kind[1]], dtype=float), kind[0] == "R"
+    if kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
+        return np.array(joint_model.extract().axis, dtype=float).reshape(3), kind[0] == "R"
+    return None
+
+
 class BatchChain:
     """A Pinocchio model's kinematic tree evaluated over a batch of configurations at once.
 
@@ -416,18 +426,14 @@ class BatchChain:
         parents, placements, axes, revolute, q_index = [], [], [], [], []
         for joint in range(1, model.njoints):
             joint_model = model.joints[joint]
-            kind = joint_model.shortname().removeprefix("JointModel")
-            if kind in ("RX", "RY", "RZ", "PX", "PY", "PZ"):
-                axis = np.array(_ALIGNED_AXES[kind[1]], dtype=float)
-            elif kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
-                axis = np.array(joint_model.extract().axis, dtype=float).reshape(3)
-            else:
+            found = joint_axis(joint_model)
+            if found is None:
                 return None
             parents.append(int(model.parents[joint]))
             placement = model.jointPlacements[joint]
             placements.append((placement.rotation.copy(), placement.translation.copy()))
-            axes.append(axis)
-            revolute.append(kind[0] == "R")
+            axes.append(found[0])
+            revolute.append(found[1])
             q_index.append(int(joint_model.idx_q))
         frame = model.frames[ee_frame_id]
         if frame.parentJoint == 0:

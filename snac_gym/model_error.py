@@ -128,6 +128,8 @@ class ModelError:
         """
         import pinocchio as pin
 
+        from snac_gym.kinematics import joint_axis
+
         self.check_joints(int(model.nq))
         for joint in range(1, model.njoints):
             placement = model.jointPlacements[joint]
@@ -135,7 +137,10 @@ class ModelError:
                 placement = pin.SE3(placement.rotation, (1.0 + self.link_scale) * placement.translation)
             index = int(model.joints[joint].idx_q)
             if self.joint_offset and self.joint_offset[index]:
-                axis = _joint_axis(model.joints[joint])
+                found = joint_axis(model.joints[joint])
+                if found is None or not found[1]:
+                    raise ValueError(f"a joint offset needs revolute joints; {model.names[joint]!r} is not one")
+                axis = found[0]
                 placement = placement * pin.SE3(pin.exp3(axis * self.joint_offset[index]), np.zeros(3))
             model.jointPlacements[joint] = placement
         frame = model.frames[ee_frame_id]
@@ -146,17 +151,6 @@ class ModelError:
             placement = placement * pin.SE3(np.eye(3), np.asarray(self.tool_offset, dtype=float))
         frame.placement = placement
         model.frames[ee_frame_id] = frame
-
-
-def _joint_axis(joint_model: Any) -> np.ndarray:
-    """The unit rotation axis of a revolute joint model (``ValueError`` for any other joint)."""
-    kind = joint_model.shortname().removeprefix("JointModel")
-    aligned = {"RX": (1.0, 0.0, 0.0), "RY": (0.0, 1.0, 0.0), "RZ": (0.0, 0.0, 1.0)}
-    if kind in aligned:
-        return np.array(aligned[kind])
-    if kind == "RevoluteUnaligned":
-        return np.array(joint_model.extract().axis, dtype=float).reshape(3)
-    raise ValueError(f"a joint offset needs revolute joints, got a {kind} joint")
 
 
 def parse_model_error(spec: str | ModelError | None) -> ModelError | None:

@@ -47,19 +47,25 @@ from snac_gym.observation import ObservationLayout
 from snac_gym.tasks import Task, get_task
 
 
-def positive_float(name: str, value: Any) -> float:
-    """``value`` as a finite float > 0.
-
-    Raises:
-        ValueError: If it is not one.
-    """
+def _checked_float(name: str, value: Any, kind: str, allowed: Callable[[float], bool]) -> float:
+    """``value`` as a finite float that ``allowed`` accepts, else ``ValueError`` naming ``kind``."""
     try:
         number = float(value)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a positive number, got {value!r}") from exc
-    if not (np.isfinite(number) and number > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        raise ValueError(f"{name} must be a {kind} number, got {value!r}") from exc
+    if not (np.isfinite(number) and allowed(number)):
+        raise ValueError(f"{name} must be a {kind} finite number, got {value!r}")
     return number
+
+
+def positive_float(name: str, value: Any) -> float:
+    """``value`` as a finite float > 0 (``ValueError`` otherwise)."""
+    return _checked_float(name, value, "positive", lambda number: number > 0)
+
+
+def non_negative_float(name: str, value: Any) -> float:
+    """``value`` as a finite float ≥ 0 (``ValueError`` otherwise)."""
+    return _checked_float(name, value, "non-negative", lambda number: number >= 0)
 
 
 @runtime_checkable
@@ -123,6 +129,11 @@ class PolicyContext:
             self.kinematics.robot, self.kinematics.ee_frame, self.kinematics.base_frame, model_error=model_error
         )
         return dataclasses.replace(self, kinematics=kinematics)
+
+    @classmethod
+    def for_controller(cls, env: Any, model_error: Any = None) -> Any:
+        """What to build a controller from: ``env`` itself, or with ``model_error`` its context on the wrong model."""
+        return env if model_error is None else cls.from_env(env).with_model_error(model_error)
 
     @classmethod
     def from_env(cls, env: Any) -> PolicyContext:

@@ -30,7 +30,7 @@ parameter estimator) when the regressor is persistently exciting, Σ_{k}^{k+N} H
 windows of N steps; then Ĵ → J. Along one reach path the regressors span few directions: ĉ then
 converges to *a* c that matches the arm along the path travelled (x̂ = x and Ĵu = Ju there), which
 is what the command needs, not to c*. The condition is checked at run time, not assumed:
-``internals["excitation"]`` is λ_min of the accumulated information Σ HᵀH/σ², and
+``identifier.excitation()`` is λ_min of the accumulated information Σ HᵀH/σ², and
 ``internals["model_residual"]`` the measured prediction error ‖xₖ − x̂(θₖ; ĉ)‖ before the update.
 (ii) The critic: with Ĵ fixed, the weight law is Kleinman's iteration on the frozen-Ĵ ARE, which
 converges to P*(Ĵ) from any stabilising start (Kleinman 1968); with Ĵ = J that is the true
@@ -167,7 +167,8 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
     Attributes:
         identifier: The :class:`KinematicIdentifier` (its ``params`` are ĉ per episode).
         internals: After :meth:`act`, those of ``snac-hjb`` plus ``model_residual`` (m, before the
-            update), ``excitation`` (λ_min of Σ HᵀH/σ²) and ``model_correction`` (ĉ).
+            update) and ``model_correction`` (ĉ); ``identifier.excitation()`` gives λ_min of Σ HᵀH/σ²
+            on demand (an eigendecomposition: not in every control step).
     """
 
     #: Scalar internals the episode log records as columns (:mod:`snac_gym.rollout.log`).
@@ -216,7 +217,6 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         self.internals.update(
             {
                 "model_residual": float(self.identifier.residual[0]),
-                "excitation": float(self.identifier.excitation()[0]),
                 "model_correction": self.identifier.params[0].copy(),
             }
         )

@@ -255,8 +255,7 @@ def _run_and_stop(
     log = None
     try:
         try:
-            context = env if model_error is None else PolicyContext.from_env(env).with_model_error(model_error)
-            policy = make_policy(controller, context, **(policy_kwargs or {}))
+            policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
             log = rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps)
             log = add_critic_diagnostics(log, policy)
         finally:
