@@ -27,6 +27,21 @@ with, in this project's terms,
   :class:`~snac_gym.kinematics.Kinematics`), ``κ`` the ConfigurationLimit's gain (pink's default 0.5,
   mink's 0.95).
 
+Both constraints are bounds on each joint's Δq, so the feasible set is one box
+``max(−ū Δt, κ(θ⁻ − θ)) ≤ Δq ≤ min(ū Δt, κ(θ⁺ − θ))`` (a joint without finite position limits has
+only its velocity bound, as the libraries leave it out of their ``ConfigurationLimit``).
+
+Two ways to solve it, the ``assembly`` argument:
+
+* ``"direct"`` (the default): the library's kinematics (its ``Configuration.update`` and the task's
+  Jacobian from it) and the program above written down here, ``H = JᵀJ + (λ² + ε + μ) I``,
+  ``c = α Jᵀẽ``, the box handed to daqp as simple bounds. It is the program the library's
+  ``solve_ik`` builds, row for row (``tests/test_qp_controllers.py`` checks the bounds against the
+  library's limit rows and the command against ``solve_ik``'s); it skips the library's per-step
+  generic assembly in Python (each limit stacking ±I rows, a joint-by-joint limit check, qpsolvers'
+  problem and solution objects), which costs 3–5× the solve (docs/qp-ik.md).
+* ``"library"``: the library's own ``solve_ik`` end to end, as its users call it.
+
 Without active bounds the minimiser is ``u = Jᵀ(JJᵀ + λ²I)⁻¹ v``: DLS (:mod:`baselines.dls`) with the
 same λ. The two differ only in how they stay inside the limits: DLS scales the whole command
 into the velocity box (keeping its direction) and has no position limits of its own (on the
@@ -62,6 +77,8 @@ SOLVER = "daqp"
 #: position limit cross it by up to 1e-6 rad per step (6.2e-5 rad beyond it after 1500 steps on the Panda
 #: sample of tests/test_qp_controllers.py); at 1e-15 the bound holds to the last bit (margin ≥ 0).
 SOLVER_SETTINGS = {"primal_tol": 1e-15}
+#: The ways to assemble and solve the QP (module docs).
+ASSEMBLIES = ("direct", "library")
 #: ε, the libraries' default ``damping`` of ``solve_ik`` (kept under λ²: H stays positive definite at λ = 0).
 TIKHONOV = 1e-12
 
@@ -89,6 +106,8 @@ class QPIKPolicy(BasePolicy):
         damping: The damping ``λ``, m/rad (DLS's λ): ``solve_ik(damping=λ² + ε)``.
         lm_damping: The task's Levenberg-Marquardt damping (the libraries' ``lm_damping``).
         limit_gain: Gain κ of the library's ``ConfigurationLimit``, in (0, 1]; ``None``: the library's default.
+        assembly: ``"direct"`` (the QP written down here from the library's kinematics and solved by
+            daqp with the box as bounds) or ``"library"`` (the library's ``solve_ik``); the same QP (module docs).
 
     Raises:
         MissingExtraError: If the library or daqp is not installed.
@@ -104,7 +123,13 @@ class QPIKPolicy(BasePolicy):
     default_limit_gain = 1.0
 
     def __init__(
-        self, env: Any, gain: float = 2.0, damping: float = 0.01, lm_damping: float = 0.0, limit_gain: float | None = None
+        self,
+        env: Any,
+        gain: float = 2.0,
+        damping: float = 0.01,
+        lm_damping: float = 0.0,
+        limit_gain: float | None = None,
+        assembly: str = "direct",
     ) -> None:
         super().__init__(env)
         library = require_library(self.module, self.module)
@@ -118,23 +143,53 @@ class QPIKPolicy(BasePolicy):
         self.limit_gain = self.default_limit_gain if limit_gain is None else positive_float("limit_gain", limit_gain)
         if self.limit_gain > 1.0:
             raise ValueError(f"limit_gain must be in (0, 1], got {limit_gain}")
+        if assembly not in ASSEMBLIES:
+            raise ValueError(f"assembly must be one of {', '.join(ASSEMBLIES)}, got {assembly!r}")
+        self.assembly = assembly
         self._reader = ObservationReader(self)
         self._q = self._reader.q
         position = getattr(self.kinematics, "position", self.kinematics)  # PoseKinematics wraps the position one
         self._lower = np.asarray(position.lower_limits, dtype=float)
         self._upper = np.asarray(position.upper_limits, dtype=float)
         self.task_dim = self.layout.task_dim
+        # The box's constant parts (module docs): the velocity bound ū Δt, and the position limits
+        # where both are finite (the libraries' ConfigurationLimit leaves the other joints out).
+        self._step_bound = np.asarray(self.velocity_limits, dtype=float) * self.dt
+        limited = np.isfinite(self._lower) & np.isfinite(self._upper) & (self._upper > self._lower + 1e-10)
+        self._limit_lower = np.where(limited, self._lower, -np.inf)
+        self._limit_upper = np.where(limited, self._upper, np.inf)
+        self._no_rows = np.zeros((0, len(self._lower)))
+        self._sense = np.zeros(len(self._lower), dtype=np.intc)
+        self._daqp = require("daqp", "ik", self.module) if assembly == "direct" else None
         self._setup(library, position)
 
     def _setup(self, library: Any, kinematics: Any) -> None:  # pragma: no cover - abstract
         """Build the library's model, configuration, tasks and limits."""
         raise NotImplementedError
 
+    def box(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The bounds ``(lower, upper)`` on Δq (rad) at ``q``: both limits together (module docs)."""
+        lower = np.maximum(-self._step_bound, self.limit_gain * (self._limit_lower - q))
+        upper = np.minimum(self._step_bound, self.limit_gain * (self._limit_upper - q))
+        return lower, upper
+
     def _solve(self, q: np.ndarray, error: np.ndarray) -> np.ndarray:
-        """``u`` (rad/s) from the library's ``solve_ik`` at ``q`` for the task error ``ẽ`` (both libraries
-        share the call; ``_setup`` gives the configuration, task, limits and ``solve_ik``)."""
+        """``u`` (rad/s) at ``q`` for the task error ``ẽ``, by :attr:`assembly` (module docs; ``_setup``
+        gives the library's configuration, task, limits and ``solve_ik``)."""
         self._configuration.update(q)
         self._task.error = error
+        if self.assembly == "direct":
+            jacobian = self._task.compute_jacobian(self._configuration)
+            scaled_error = self._task.gain * error  # α ẽ
+            hessian = jacobian.T @ jacobian
+            hessian.flat[:: len(hessian) + 1] += self.regularisation + self.lm_damping * (scaled_error @ scaled_error)
+            lower, upper = self.box(q)
+            step, _, status, _ = self._daqp.solve(
+                hessian, scaled_error @ jacobian, self._no_rows, upper, lower, self._sense, **SOLVER_SETTINGS
+            )
+            if status <= 0:  # the box always holds Δq = 0, so this is the solver failing, not the problem
+                raise RuntimeError(f"{self.module}: daqp found no solution (exit flag {status}) at q={q.tolist()}")
+            return step / self.dt
         return self._solve_ik(
             self._configuration, self._tasks, self.dt, solver=SOLVER, damping=self.regularisation, limits=self._limits,
             **SOLVER_SETTINGS,

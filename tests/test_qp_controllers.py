@@ -114,6 +114,7 @@ def _random_observations(kinematics, layout, task_dim, rng, count):
 @pytest.mark.parametrize(
     "robot, task, kwargs",
     [("ur10", "reach", {}), ("ur10", "track", {"lm_damping": 0.5}), ("panda", "reach", {"gain": 5.0}),
+     ("panda", "reach", {"gain": 5.0, "assembly": "library"}), ("ur10", "track", {"assembly": "library"}),
      ("panda", "pose-reach", {"damping": 0.05}), ("ur10", "pose-track", {"limit_gain": 0.3})],
 )
 def test_command_is_the_optimum_of_the_qp(controller, robot, task, kwargs, pose_tasks):
@@ -144,6 +145,49 @@ def test_command_is_the_optimum_of_the_qp(controller, robot, task, kwargs, pose_
         active["velocity"] += int(np.any(bounded & np.isclose(np.abs(command), policy.velocity_limits)))
         active["position"] += int(np.any(bounded & ~np.isclose(np.abs(command), policy.velocity_limits)))
     assert active["velocity"] > 0 and active["position"] > 0  # both kinds of constraint were exercised
+
+
+def _library_box(policy) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds on Δq that the library's own limit objects give at its configuration: each row of their
+    ``G Δq ≤ h`` is ±(a unit row), read back into a per-joint box."""
+    m = len(policy._lower)
+    lower, upper = np.full(m, -np.inf), np.full(m, np.inf)
+    for limit in policy._limits:
+        rows = limit.compute_qp_inequalities(policy._configuration, policy.dt)
+        G, h = (rows.G, rows.h) if hasattr(rows, "G") else rows
+        for row, bound in zip(G, h, strict=True):
+            (joint,) = np.flatnonzero(row)
+            if row[joint] > 0:
+                upper[joint] = min(upper[joint], bound / row[joint])
+            else:
+                lower[joint] = max(lower[joint], bound / row[joint])
+    return lower, upper
+
+
+@pytest.mark.parametrize("robot, task", [("ur10", "track"), ("panda", "reach"), ("panda", "pose-reach")])
+def test_direct_assembly_is_the_librarys_solve_ik(controller, robot, task, pose_tasks):
+    """The default ``assembly="direct"`` solves the library's own QP: its box is the library limits' rows
+    (to 1e-15) and its command the library's ``solve_ik`` (to 1e-9), at states with active bounds."""
+    context = policy_context(robot, DT, task)
+    direct = make_policy(controller, context, gain=20.0)
+    library = make_policy(controller, context, gain=20.0, assembly="library")
+    assert direct.assembly == "direct"
+    kinematics = context.kinematics.position if task.startswith("pose") else context.kinematics
+    rng = np.random.default_rng(11)
+    bounded = 0
+    for obs in _random_observations(kinematics, context.layout, context.layout.task_dim, rng, 24):
+        command, expected = direct.act(obs), library.act(obs)
+        np.testing.assert_allclose(command, expected, rtol=0, atol=1e-9 * max(1.0, np.abs(expected).max()))
+        q = library.measured_q(obs)
+        lower, upper = _library_box(library)  # at q: the library's configuration was updated by act
+        np.testing.assert_allclose(np.array(direct.box(q)), np.array([lower, upper]), rtol=1e-15, atol=1e-15)
+        bounded += int(np.any(np.isclose(command * DT, lower) | np.isclose(command * DT, upper)))
+    assert bounded > 0
+
+
+def test_an_unknown_assembly_is_refused(controller):
+    with pytest.raises(ValueError, match="assembly must be one of direct, library, got 'fast'"):
+        make_policy(controller, policy_context("ur10", DT, "reach"), assembly="fast")
 
 
 def test_without_active_bounds_the_command_is_dls(controller):

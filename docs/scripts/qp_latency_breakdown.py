@@ -3,8 +3,10 @@
 On the UR10 tracking env after 50 closed-loop steps from seed 1, each part is called alone (best of 5 ×
 2000 calls, ``timeit``, on one core): the configuration update (forward kinematics), ``solve_ik``'s
 limit check, the task's (H, c), each limit's inequality rows, ``build_ik`` (all of them stacked),
-qpsolvers' ``solve_problem`` with daqp, daqp's own ``solve`` on the same arrays, and the whole ``act``.
-DLS's ``act`` is timed beside them.
+qpsolvers' ``solve_problem`` with daqp, daqp's own ``solve`` on the same arrays, and the whole ``act``
+with the library's ``solve_ik`` (``assembly="library"``); then the parts of the default
+``assembly="direct"`` (the same QP written down from the library's Jacobian, the box as daqp's simple
+bounds) and its whole ``act``. DLS's ``act`` is timed beside them.
 
     python docs/scripts/qp_latency_breakdown.py
 """
@@ -34,7 +36,9 @@ def main() -> None:
     import qpsolvers
 
     env = gym.make("snac_gym/UR10EllipseTrack-v0", physics="kinematic")
-    policies = {name: make_policy(name, env) for name in ("pink", "mink", "dls")}
+    policies = {name: make_policy(name, env, assembly="library") for name in ("pink", "mink")}
+    direct = {name: make_policy(name, env) for name in ("pink", "mink")}
+    policies["dls"] = make_policy("dls", env)
     obs, _ = env.reset(seed=1)
     for _ in range(50):
         obs, *_ = env.step(policies["dls"].act(obs))
@@ -61,8 +65,20 @@ def main() -> None:
             "qpsolvers.solve_problem(..., 'daqp')": lambda: qpsolvers.solve_problem(
                 problem, solver=SOLVER, **SOLVER_SETTINGS),
             "daqp.solve alone": lambda: daqp.solve(H, f, G, h, lower, sense, **SOLVER_SETTINGS),
-            "the whole act(obs)": lambda: policy.act(obs),
+            "the whole act(obs), library solve_ik": lambda: policy.act(obs),
         }
+        fast = direct[name]
+        jacobian = fast._task.compute_jacobian(fast._configuration)
+        hessian, gradient = jacobian.T @ jacobian, fast._task.gain * fast.task_error(obs) @ jacobian
+        lower_box, upper_box = fast.box(q)
+        parts.update({
+            "direct: the task's Jacobian": lambda: fast._task.compute_jacobian(fast._configuration),
+            "direct: H = JᵀJ + (λ² + ε) I": lambda: jacobian.T @ jacobian + fast.regularisation * np.eye(len(q)),
+            "direct: the box (both limits)": lambda: fast.box(q),
+            "direct: daqp.solve with the box as bounds": lambda: daqp.solve(
+                hessian, gradient, fast._no_rows, upper_box, lower_box, fast._sense, **SOLVER_SETTINGS),
+            "the whole act(obs), direct (the default)": lambda: fast.act(obs),
+        })
         for label, call in parts.items():
             rows.setdefault(label, []).append(_time(call))
     for label, (pink, mink) in rows.items():
