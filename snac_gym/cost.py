@@ -229,6 +229,15 @@ class CostConvention:
         """V under this convention from its terms."""
         return terms.error + terms.effort + self.smoothness_weight * terms.smoothness
 
+    def step_rate(
+        self, error: np.ndarray, effort: np.ndarray, smoothness: np.ndarray, first_step: np.ndarray | bool
+    ) -> np.ndarray:
+        """The integrand of V for one control step from its three terms (eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ with
+        u₋₁ = 0): the u̇ term weighed in or out, and dropped on the first step when u₋₁ = u₀. Σₖ of it
+        times Δt is :meth:`total` of the trajectory (the envs' ``reward_type="cost"`` is minus it times Δt)."""
+        smoothness = np.where(first_step, 0.0, smoothness) if self.udot_start == "first" else smoothness
+        return error + effort + self.smoothness_weight * smoothness
+
     def describe(self) -> str:
         """One line for reports, e.g. ``V = Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt with Q = I, R = I, u₋₁ = 0``."""
         integrand = "eᵀQe + uᵀRu" + (" + u̇ᵀRu̇" if self.cost == "table1" else "")

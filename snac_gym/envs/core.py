@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from snac_gym.cost import step_costs, weight_matrix
+from snac_gym.cost import CostConvention, step_costs, weight_matrix
 from snac_gym.envs.arms import PHYSICS, Arm, make_arm
 from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.envs.scene import Scene, default_render_every, scene_of
@@ -29,7 +29,7 @@ from snac_gym.tasks.pose import POSE_TASKS
 #: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
 ACTION_TYPES = ("velocity", "normalized")
 #: Reward types (see the env docstrings, "Rewards").
-REWARD_TYPES = ("dense", "sparse", "shaped")
+REWARD_TYPES = ("dense", "sparse", "shaped", "cost")
 #: Weights of ``reward_type="shaped"``: r = −distance_weight·d + precision_bonus·exp(−(d/precision_scale)²)
 #: − action_penalty·‖a‖², the defaults of :class:`snac_gym.ppo.envs.RewardSpec`.
 SHAPED_REWARD: Mapping[str, float] = MappingProxyType(
@@ -168,6 +168,26 @@ def physics_argument(physics: str, backend: str | None = None) -> str:
     if physics not in PHYSICS:
         raise ValueError(f"physics must be one of {PHYSICS}, got {physics!r}")
     return physics
+
+
+def _cost_reward(reward_type: str, cost: CostConvention | None, Q: Any, R: Any) -> CostConvention | None:
+    """The cost convention of ``reward_type="cost"`` (``None`` for the other rewards); its Q and R (Q = q_scale·I,
+    R = I) become the env's, so the infos' cost terms and the reward price the same cost.
+
+    Raises:
+        ValueError: If ``cost`` is given without ``reward_type="cost"``, is not a ``CostConvention``, or
+            comes with ``Q``/``R`` (the convention sets them).
+    """
+    if reward_type != "cost":
+        if cost is not None:
+            raise ValueError(f"cost= sets the reward of reward_type='cost', got reward_type={reward_type!r}")
+        return None
+    convention = CostConvention() if cost is None else cost
+    if not isinstance(convention, CostConvention):
+        raise ValueError(f"cost must be a snac_gym.cost.CostConvention, got {cost!r}")
+    if Q is not None or R is not None:
+        raise ValueError("reward_type='cost' takes Q and R from cost= (Q = q_scale·I, R = I); do not pass Q or R")
+    return convention
 
 
 def _check_choices(
@@ -310,16 +330,18 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         render_every: int | None = None,
         task: Task | str | None = None,
         backend: str | None = None,
+        cost: CostConvention | None = None,
     ) -> None:
         task = self._resolve_task(task)
         physics = physics_argument(physics, backend)
+        self.cost_convention = _cost_reward(reward_type, cost, Q, R)
         self._init_kwargs = dict(physics=physics, render_every=render_every,
             robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
             success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
             sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
             action_type=action_type, observation_dtype=observation_dtype,
             finite_observation_bounds=finite_observation_bounds,
-            task=None if self.task_spec is not None else task.name,
+            task=None if self.task_spec is not None else task.name, cost=cost,
         )
         obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
         if physics != "pybullet" and render_mode is not None:
@@ -333,7 +355,10 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self.max_steps = self.default_max_steps if max_steps is None else int(max_steps)
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
-        self._init_task(task, task.make_kinematics(robot), dt, Q, R, success_tolerance, sample_space)
+        kinematics = task.make_kinematics(robot)
+        if self.cost_convention is not None:
+            Q = self.cost_convention.error_weight(kinematics.task_dim)
+        self._init_task(task, kinematics, dt, Q, R, success_tolerance, sample_space)
         self.reward_type = reward_type
         self.terminate_on_success = bool(terminate_on_success)
         self.render_mode = render_mode
@@ -468,6 +493,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             reward = -(costs[0] + costs[1])
         elif self.reward_type == "shaped":
             reward = shaped_reward(info["error_norm"], u / self.velocity_limits)
+        elif self.reward_type == "cost":  # minus the step's share of V: the return is −V
+            reward = -self.dt * self.cost_convention.step_rate(*costs, first_step=self.steps == 1)
         else:
             reward = 0.0 if info["is_success"] else -1.0
         terminated = self.terminate_on_success and info["is_success"]
@@ -579,7 +606,10 @@ class ReachEnv(URTaskEnv):
     evaluator's trajectory cost. ``reward_type="sparse"``: 0 when ``is_success`` after the step,
     −1 otherwise. ``reward_type="shaped"`` (for learners, the reward PPO trains on), with
     d = ‖e‖ after the step and a = u / v_max: ``r = −10·d + exp(−(d / 0.01)²) − 0.01·‖a‖²``
-    (:data:`SHAPED_REWARD`). ``info`` carries ``error`` (after the step), ``error_norm``,
+    (:data:`SHAPED_REWARD`). ``reward_type="cost"``: minus the step's share of the evaluator's
+    trajectory cost under ``cost`` (a :class:`~snac_gym.cost.CostConvention`, default the paper's
+    Table I cost), ``−Δt (eₖᵀQeₖ + uₖᵀRuₖ [+ u̇ₖᵀRu̇ₖ])``, so the return is −V exactly
+    (``tests/test_cost_reward.py``); its Q = q_scale·I and R = I are the env's. ``info`` carries ``error`` (after the step), ``error_norm``,
     ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇, u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),
     ``command``, ``t`` and ``is_success`` (‖e‖ ≤ ``success_tolerance``, default 1 mm).
 
@@ -610,7 +640,8 @@ class ReachEnv(URTaskEnv):
     | ``action_type``        | ``"velocity"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
     | ``observation_dtype``  | ``np.float64`` | ``np.float64`` or ``np.float32``                   |
     | ``finite_observation_bounds`` | ``False`` | physical observation bounds instead of ±inf  |
-    | ``reward_type``        | ``"dense"``    | ``"dense"``, ``"sparse"`` or ``"shaped"``          |
+    | ``reward_type``        | ``"dense"``    | ``"dense"``, ``"sparse"``, ``"shaped"``, ``"cost"``|
+    | ``cost``               | ``None``       | the ``CostConvention`` of ``reward_type="cost"``   |
     | ``Q``, ``R``           | identity       | cost weights (matrix or diagonal)                  |
     | ``success_tolerance``  | ``1e-3``       | success threshold on the error norm, m             |
     | ``terminate_on_success`` | ``False``    | end the episode on success                         |

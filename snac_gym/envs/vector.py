@@ -215,6 +215,10 @@ class KinematicEpisodes:
             reward = -(cost_error + cost_effort)
         elif template.reward_type == "shaped":
             reward = shaped_reward(error_norm, u / self.limits)
+        elif template.reward_type == "cost":  # minus the step's share of V, as the single env
+            reward = -self.dt * template.cost_convention.step_rate(
+                cost_error, cost_effort, cost_smoothness, first_step=self.steps == 1
+            )
         else:
             reward = np.where(success, 0.0, -1.0)
         return {
