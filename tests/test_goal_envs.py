@@ -103,3 +103,47 @@ def test_sac_with_her_trains_on_the_goal_env():
     assert model.replay_buffer.size() * model.replay_buffer.n_envs >= 300
     action, _ = model.predict(env.reset(seed=0)[0], deterministic=True)
     assert env.action_space.contains(action)
+
+
+# -- the coarse reach preset (panda-gym's PandaReach sizes) ---------------------------------------
+@pytest.mark.parametrize("robot", ["panda", "ur10"])
+def test_the_coarse_reach_preset_has_panda_gyms_sizes(robot):
+    """5 cm tolerance, 50 steps of 40 ms, every start at the nominal pose, goals in the 30 cm cube around its tool."""
+    from gymnasium.utils.env_checker import check_env
+
+    from snac_gym.envs.goal import coarse_reach_id
+    from snac_gym.kinematics import Kinematics
+    from snac_gym.sampling import nominal_configuration
+
+    env = gym.make(coarse_reach_id(robot), physics="kinematic")
+    check_env(env.unwrapped, skip_render_check=True)
+    base = env.unwrapped
+    assert base.success_tolerance == 0.05 and base.dt == 0.04 and env.spec.max_episode_steps == 50
+    kinematics = Kinematics(robot)
+    q_nominal = nominal_configuration(kinematics)
+    centre = kinematics.forward(q_nominal)
+    goals = []
+    for seed in range(30):
+        obs, info = env.reset(seed=seed)
+        np.testing.assert_allclose(info["q0"], q_nominal)
+        np.testing.assert_allclose(obs["achieved_goal"], centre, atol=1e-6)
+        goals.append(obs["desired_goal"])
+    goals = np.array(goals)
+    assert np.all(np.abs(goals - centre) <= 0.15 + 1e-6)
+    assert np.ptp(goals, axis=0).min() > 0.1  # spread over the cube, not one point
+    again, _ = env.reset(seed=3)
+    np.testing.assert_array_equal(again["desired_goal"], goals[3])
+    steps, done = 0, False
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        steps += 1
+        done = terminated or truncated
+        distance = np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])
+        assert reward == (0.0 if distance <= 0.05 else -1.0) and info["is_success"] == (distance <= 0.05)
+    assert steps == 50
+    env.close()
+
+
+def test_an_unknown_start_is_refused():
+    with pytest.raises(ValueError, match=r"start must be one of \('sampled', 'nominal'\), got 'home'"):
+        gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", start="home")

@@ -41,6 +41,8 @@ def register_envs() -> None:
         for robot in ROBOTS.values():
             _register(task, robot.name, goal=False)
             _register(task, robot.name, goal=True)
+    for robot in ROBOTS.values():
+        _register_coarse_reach(robot.name)
 
 
 def _register(task: Task, robot: str, goal: bool) -> None:
@@ -68,6 +70,21 @@ def _register(task: Task, robot: str, goal: bool) -> None:
         id=env_id, entry_point=entry_point, kwargs=kwargs, disable_env_checker=False,
         max_episode_steps=task.episode_steps, vector_entry_point=vector_entry_point,
     )
+
+
+def _register_coarse_reach(robot: str) -> None:
+    """Register the coarse reach preset on ``robot`` (:data:`snac_gym.envs.goal.COARSE_REACH`) unless it exists."""
+    import gymnasium as gym
+
+    from snac_gym.envs.goal import COARSE_REACH, coarse_reach_id
+
+    env_id = coarse_reach_id(robot)
+    if env_id in gym.registry:
+        return
+    GOAL_ENV_IDS[env_id] = "snac_gym.envs.goal:CoarseReachGoalEnv"
+    REGISTERED_IDS[env_id] = RegisteredId(robot, "reach", True)
+    gym.register(id=env_id, entry_point=GOAL_ENV_IDS[env_id], kwargs={"robot": robot},
+                 disable_env_checker=False, max_episode_steps=COARSE_REACH["episode_steps"])
 
 
 def make_task_env(task: Task | str, robot: str = "ur10", **kwargs: Any) -> Any:

@@ -38,6 +38,23 @@ from snac_gym.tasks import Task, get_task
 
 #: Reward types of the goal envs.
 GOAL_REWARD_TYPES = ("sparse", "dense")
+#: Where a goal env's episodes start: ``"sampled"`` (a random seed pose, as the task envs) or
+#: ``"nominal"`` (the robot's nominal configuration every time, as panda-gym's neutral pose).
+GOAL_STARTS = ("sampled", "nominal")
+
+#: The coarse reach preset (``snac_gym/<Robot>ReachGoalCoarse-v0``), sized as panda-gym's PandaReach:
+#: 5 cm success tolerance, 50 steps of 40 ms (25 Hz, 2 s), goals in a 30 cm cube centred on the
+#: end effector at the nominal configuration, every episode from that configuration, actions
+#: normalised to the velocity limits. panda-gym moves the end effector by Cartesian increments;
+#: here the action is still the joints' velocity.
+COARSE_REACH = {"tolerance": 0.05, "episode_steps": 50, "dt": 0.04, "n_substeps": 10, "box": 0.30}
+
+
+def coarse_reach_id(robot: str) -> str:
+    """The coarse reach preset's id on ``robot``: ``snac_gym/PandaReachGoalCoarse-v0``."""
+    from snac_gym.robots import get_robot
+
+    return f"snac_gym/{get_robot(robot).env_prefix}ReachGoalCoarse-v0"
 
 
 def goal_env_id(task: Task, robot: str = "ur10") -> str:
@@ -69,18 +86,22 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         success_tolerance: float | None = None,
         terminate_on_success: bool = False,
         render_mode: str | None = None,
+        start: str = "sampled",
         **env_kwargs: Any,
     ) -> None:
         from snac_gym.envs.core import task_env_class
+        from snac_gym.sampling import nominal_configuration
 
         if reward_type not in GOAL_REWARD_TYPES:
             raise ValueError(f"reward_type must be one of {GOAL_REWARD_TYPES}, got {reward_type!r}")
+        if start not in GOAL_STARTS:
+            raise ValueError(f"start must be one of {GOAL_STARTS}, got {start!r}")
         reserved = {"reward_type", "terminate_on_success", "observation_dtype"} & set(env_kwargs)
         if reserved:
             raise ValueError(f"the goal env sets {sorted(reserved)} itself")
         self._init_kwargs = dict(
             task=task, reward_type=reward_type, success_tolerance=success_tolerance,
-            terminate_on_success=terminate_on_success, render_mode=render_mode, **env_kwargs,
+            terminate_on_success=terminate_on_success, render_mode=render_mode, start=start, **env_kwargs,
         )
         self.task = get_task(task)
         self.env = task_env_class(self.task)(
@@ -88,6 +109,8 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
             finite_observation_bounds=True, **env_kwargs,
         )
         self.reward_type = reward_type
+        self.start = start
+        self._start_q = nominal_configuration(self.env.kinematics) if start == "nominal" else None
         self.terminate_on_success = bool(terminate_on_success) and not self.task.moving_reference
         self.success_tolerance = self.env.success_tolerance
         self.render_mode = render_mode
@@ -137,6 +160,11 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
     # -- episode ---------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
         super().reset(seed=seed)
+        if self._start_q is not None and not (options and "q0" in options):
+            if not (options and self.task.option_key in options):  # a random goal, as without the preset start
+                reference = self.task.sample(self.env.kinematics, self.np_random, self.env.sample_space)
+                options = {**(options or {}), self.task.option_key: reference}
+            options = {**options, "q0": self._start_q}
         flat, info = self.env.reset(seed=seed, options=options)
         return self._goal_observation(flat), info
 
@@ -185,3 +213,35 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         self.env = state["env"]
         self._np_random = state["np_random"]
 
+
+
+class CoarseReachGoalEnv(GoalTaskEnv):
+    """The coarse reach preset, ``snac_gym/<Robot>ReachGoalCoarse-v0``: a goal reach sized as panda-gym's PandaReach.
+
+    :data:`COARSE_REACH`: success within 5 cm (sparse reward 0 there, −1 elsewhere), 50 steps of
+    40 ms (25 Hz, 2 s per episode), goals drawn in a 30 cm cube centred on the end effector at the
+    robot's nominal configuration (and reachable, as every sampled target), every episode started
+    from that configuration, actions normalised to the velocity limits ([−1, 1]). The observation
+    and the rewards are :class:`GoalTaskEnv`'s. panda-gym moves the end effector by Cartesian
+    increments; here the action is still the joints' velocity, so the policy learns the arm's
+    kinematics as well.
+
+    Args:
+        robot: A registered robot (the id's; another is refused, as for every id).
+        **overrides: Any :class:`GoalTaskEnv` argument, replacing the preset's.
+    """
+
+    def __init__(self, robot: str = "panda", **overrides: Any) -> None:
+        from snac_gym.kinematics import Kinematics
+        from snac_gym.sampling import SampleSpace, nominal_configuration
+
+        kinematics = Kinematics(robot)
+        centre = kinematics.forward(nominal_configuration(kinematics))
+        half = COARSE_REACH["box"] / 2
+        preset = {
+            "task": "reach", "robot": robot, "success_tolerance": COARSE_REACH["tolerance"], "dt": COARSE_REACH["dt"],
+            "n_substeps": COARSE_REACH["n_substeps"], "action_type": "normalized", "start": "nominal",
+            "sample_space": SampleSpace(low=tuple(centre - half), high=tuple(centre + half)),
+        }
+        super().__init__(**{**preset, **overrides})
+        self._init_kwargs = {"robot": robot, **overrides}
