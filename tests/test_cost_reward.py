@@ -111,3 +111,62 @@ def test_q_or_r_beside_the_cost_reward_is_refused():
 def test_a_cost_that_is_not_a_convention_is_refused():
     with pytest.raises(ValueError, match="cost must be a snac_gym.cost.CostConvention, got 'hjb'"):
         gym.make(IDS["reach"], physics="kinematic", reward_type="cost", cost="hjb")
+
+
+# -- PPO's training reward ------------------------------------------------------------------------
+def _ppo_config(task: str, **reward) -> dict:
+    import copy
+
+    from snac_gym.ppo.config import default_config_path, load_config, validate_config
+
+    config = copy.deepcopy(load_config(default_config_path(task)))
+    config["reward"] = {**config["reward"], "type": "cost", **reward}
+    config["env"] = {**config["env"], "physics": "kinematic"}
+    validate_config(config)
+    return config
+
+
+def test_ppo_trains_on_minus_the_cost_in_the_single_and_the_batched_env():
+    """reward.type 'cost': the training wrapper's and the batched env's rewards are the env's cost reward,
+    and their sum over an episode's first steps is −V of the same commands (the convention's)."""
+    from snac_gym.cost import trajectory_cost
+    from snac_gym.ppo.train import make_training_env
+    from snac_gym.ppo.vec_env import PPOVecEnv
+
+    config = _ppo_config("track", cost="hjb", q_scale=4.0)
+    single = make_training_env(config)
+    batched = PPOVecEnv(config, num_envs=1)
+    single.reset(seed=7)
+    batched.seed(7)
+    batched.reset()
+    rng = np.random.default_rng(2)
+    errors, commands, total, batched_total = [], [], 0.0, 0.0
+    for _ in range(30):
+        action = rng.uniform(-1, 1, size=6)
+        errors.append(single.unwrapped._obs[single.unwrapped._error_slice].copy())
+        _, reward, _, _, info = single.step(action)
+        assert reward == info["env_reward"]
+        commands.append(info["command"])
+        total += reward
+        batched_total += float(batched.step(action[None].astype(np.float32))[1][0])
+    terms = trajectory_cost(np.array(errors)[None], np.array(commands)[None], single.unwrapped.dt, Q=4.0 * np.eye(3))
+    assert -total == pytest.approx(float(terms.error[0] + terms.effort[0]), rel=1e-10)
+    assert batched_total == pytest.approx(total, rel=1e-6)  # float32 actions in the batched env
+    single.close()
+    batched.close()
+
+
+def test_a_ppo_config_with_the_cost_reward_and_its_own_env_reward_is_refused():
+    import copy
+
+    from snac_gym.ppo.config import ConfigError, default_config_path, load_config, validate_config
+
+    config = copy.deepcopy(load_config(default_config_path("reach")))
+    config["reward"] = {**config["reward"], "type": "cost"}
+    config["env"] = {**config["env"], "reward_type": "dense"}
+    with pytest.raises(ConfigError, match="reward.type 'cost' sets the env's reward_type"):
+        validate_config(config)
+    config["env"].pop("reward_type")
+    config["reward"]["udot_start"] = "never"
+    with pytest.raises(ConfigError, match="udot_start"):
+        validate_config(config)

@@ -289,6 +289,9 @@ class RewardSection:
     precision_scale: float = spec(number(0, open_low=True), 0.01)
     action_penalty: float = spec(number(0), 0.01)
     smoothness_penalty: float = spec(number(0), 0.0)
+    cost: str = spec(choice("table1", "hjb"), "hjb")
+    q_scale: float = spec(number(0, open_low=True), 1.0)
+    udot_start: str = spec(choice("rest", "first"), "rest")
 
 
 @dataclass(frozen=True)
@@ -365,6 +368,8 @@ class TrainingConfig:
         if self.ppo.n_steps * self.vec_env.n_envs < 2:  # SB3's rollout buffer needs two samples
             raise ConfigError("ppo.n_steps × vec_env.n_envs must be ≥ 2, got 1")
         _check_env_keywords(self.task, self.env)
+        if self.reward.type == "cost" and {"reward_type", "cost", "Q", "R"} & set(self.env):
+            raise ConfigError("reward.type 'cost' sets the env's reward_type, cost, Q and R: leave them out of env")
 
 
 #: Checks of the env constructor's arguments by annotation; every numeric one (dt, n_substeps,

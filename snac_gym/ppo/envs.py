@@ -21,8 +21,11 @@ term pulls the end effector towards x_d from afar, the Gaussian bonus rewards se
 penalty keeps the arm still once there, and the smoothness penalty stops the bang-bang
 chatter around the target that the other terms alone lead to (and that the trajectory
 cost's u̇ᵀRu̇ term punishes). With
-``reward.type = "env"`` the env's own reward −(eᵀQe + uᵀRu) is used instead. The env's reward
-is always kept in ``info["env_reward"]``.
+``reward.type = "env"`` the env's own reward −(eᵀQe + uᵀRu) is used instead; with
+``reward.type = "cost"`` the env's ``reward_type="cost"`` under the spec's ``cost``, ``q_scale`` and
+``udot_start`` (the evaluator's ``--cost``, ``--q-scale``, ``--udot-start``): minus the step's share
+of the trajectory cost PPO is scored by, so the return is −V. The env's reward is always kept in
+``info["env_reward"]``.
 """
 
 from __future__ import annotations
@@ -33,10 +36,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from snac_gym.cost import CostConvention
 from snac_gym.envs.core import shaped_reward
 from snac_gym.ppo.features import FeatureSpec, action_to_command, feature_size, observation_features
 
-REWARD_TYPES = ("shaped", "env")
+REWARD_TYPES = ("shaped", "env", "cost")
 
 
 @dataclass(frozen=True)
@@ -44,12 +48,13 @@ class RewardSpec:
     """Weights of the training reward (see the module docstring).
 
     Attributes:
-        type: ``"shaped"`` or ``"env"``.
+        type: ``"shaped"``, ``"env"`` or ``"cost"``.
         distance_weight: Weight of d, 1/m.
         precision_bonus: Height of the Gaussian bonus.
         precision_scale: Width of the bonus, m.
         action_penalty: Weight of ‖a‖².
         smoothness_penalty: Weight of ‖a − a_prev‖².
+        cost, q_scale, udot_start: The cost convention of ``type="cost"`` (:class:`~snac_gym.cost.CostConvention`).
     """
 
     type: str = "shaped"
@@ -58,12 +63,24 @@ class RewardSpec:
     precision_scale: float = 0.01
     action_penalty: float = 0.01
     smoothness_penalty: float = 0.0
+    cost: str = "hjb"
+    q_scale: float = 1.0
+    udot_start: str = "rest"
 
     def __post_init__(self) -> None:
         if self.type not in REWARD_TYPES:
             raise ValueError(f"reward type must be one of {REWARD_TYPES}, got {self.type!r}")
+        self.convention()  # a bad cost, q_scale or udot_start is refused here, naming it
         if not self.precision_scale > 0:
             raise ValueError(f"reward precision_scale must be positive, got {self.precision_scale}")
+
+    def convention(self) -> CostConvention:
+        """The cost convention of ``type="cost"``."""
+        return CostConvention(self.cost, self.udot_start, self.q_scale)
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """What the training env needs for this reward: ``reward_type="cost"`` and its convention, or nothing."""
+        return {"reward_type": "cost", "cost": self.convention()} if self.type == "cost" else {}
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-JSON form."""

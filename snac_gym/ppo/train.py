@@ -127,8 +127,9 @@ class LinearSchedule:
 # -- envs ----------------------------------------------------------------------------------------
 def make_training_env(config: dict[str, Any]) -> gym.Env:
     """One training env of ``config`` (the task's env inside :class:`PPOTrainingWrapper`)."""
-    env = make_task_env(config["task"], config.get("robot", "ur10"), **config["env"])
-    return PPOTrainingWrapper(env, FeatureSpec.from_dict(config["features"]), RewardSpec.from_dict(config["reward"]))
+    reward = RewardSpec.from_dict(config["reward"])
+    env = make_task_env(config["task"], config.get("robot", "ur10"), **config["env"], **reward.env_kwargs())
+    return PPOTrainingWrapper(env, FeatureSpec.from_dict(config["features"]), reward)
 
 
 class _EnvFactory:

@@ -35,6 +35,7 @@ class PPOVecEnv(SB3VectorEnv):
         self.reward_spec = RewardSpec.from_dict(config["reward"])
         count = int(num_envs if num_envs is not None else config["vec_env"].get("n_envs", 1))
         env_kwargs = {k: v for k, v in config["env"].items() if k not in ("physics", "backend")}
+        env_kwargs.update(self.reward_spec.env_kwargs())
         self.action_scales = np.ones(count)
         self.previous_actions = np.zeros((count, 1))
         super().__init__(get_task(config["task"]).env_id_for(config.get("robot", "ur10")), count, **env_kwargs)
