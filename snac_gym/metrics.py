@@ -40,7 +40,9 @@ max_abs_udot           rad/s²  max over steps and joints of |u̇ₖⱼ| (u₋�
 steps_at_limit         –       steps with some |uₖⱼ| at its velocity limit
 mean_error_2nd_half    m       mean ‖eₖ‖ over k = ⌊K/2⌋..K−1
 median_error_2nd_half  m       median ‖eₖ‖ over the same steps
-success                –       reach: final_error ≤ 1 mm; track: mean_error_2nd_half ≤ 5 mm
+success                –       reach: final_error ≤ 1 mm; track: mean_error_2nd_half ≤ 5 mm;
+                               and, where the position limits are given, joint_limit_margin ≥ 0
+                               (no joint driven beyond a limit on the way)
 hjb_residual_median    –       critic-based controllers: median over the sampled steps of the
                                critic's HJB residual r = ∇V̂ᵀξ̇ + eᵀQe + ûᵀRû; NaN for the others
 hjb_ratio_median       –       critic-based controllers: median over the sampled steps of the
@@ -154,6 +156,9 @@ def rollout_metrics(
     diagnostics = rollouts.critic_diagnostics or {}
     nan = np.full(len(commands), np.nan)
     success = spec.success({"final_error": final_error, "mean_error_2nd_half": second_half})
+    margins = nan if position_limits is None else limit_margins(rollouts, *position_limits)
+    if position_limits is not None:  # an arm driven beyond a joint's limit has not done the task
+        success = success & (margins >= 0.0)
     return pd.DataFrame(
         {
             "cost": convention.total(terms),
@@ -180,7 +185,7 @@ def rollout_metrics(
             "hjb_residual_median": diagnostics.get("hjb_residual_median", nan),
             "hjb_ratio_median": diagnostics.get("hjb_ratio_median", nan),
             "critic_error_final": diagnostics.get("critic_error_final", nan),
-            "joint_limit_margin": nan if position_limits is None else limit_margins(rollouts, *position_limits),
+            "joint_limit_margin": margins,
         }
     )
 

@@ -94,3 +94,20 @@ def test_the_margin_column_rebuilt_from_commands_equals_the_logged_states(panda)
     column = rollout_metrics(rebuilt, "reach", context.velocity_limits, None, limits)["joint_limit_margin"]
     np.testing.assert_allclose(column.to_numpy(), expected, rtol=0, atol=1e-12)
     assert expected[0] < 0  # unguarded DLS straightens the elbow through its limit here
+
+
+def test_a_rollout_that_crosses_a_joint_limit_does_not_succeed(panda):
+    """Unguarded DLS reaches the pushing sample's target through the shoulder's limit: on target, not a success;
+    guarded RNN reaches it inside the limits: a success."""
+    context = policy_context("panda", 1 / 125, "reach")
+    sample = _pushing_sample(panda)
+    limits = (panda.lower_limits, panda.upper_limits)
+    rows = {}
+    for controller, guarded in (("dls", False), ("rnn", True)):
+        rollouts = simulate_kinematic(
+            context, lambda c=controller, g=guarded: make_policy(c, context, joint_limits=g), [sample], 1500, [0]
+        )
+        rows[controller] = rollout_metrics(rollouts, "reach", context.velocity_limits, None, limits).iloc[0]
+    assert rows["dls"]["final_error"] < 1e-3 and rows["dls"]["joint_limit_margin"] < 0
+    assert not rows["dls"]["success"]
+    assert rows["rnn"]["final_error"] < 1e-3 and rows["rnn"]["joint_limit_margin"] >= 0 and rows["rnn"]["success"]
