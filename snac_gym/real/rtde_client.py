@@ -60,6 +60,7 @@ class Client:
         self.control: Any = None
         self.receive: Any = None
         self.streaming = False
+        self.dashboard: Any = None
         self.dt = 0.008
 
     def connect(self, host: str, frequency: float, control: bool) -> dict[str, Any]:
@@ -155,6 +156,23 @@ class Client:
         self._ensure_program(program_timeout)
         return bool(self.control.moveJ(q, speed, 0.5))
 
+    def unlock_protective_stop(self, host: str) -> tuple[bool, str]:
+        """The dashboard's ``unlock protective stop``: ``(released, the controller's answer)``.
+
+        ur_rtde raises when the controller refuses (within its 5 s lockout); that is an answer,
+        not a failure of the client.
+        """
+        import dashboard_client
+
+        if self.dashboard is None or not self.dashboard.isConnected():
+            self.dashboard = dashboard_client.DashboardClient(host)
+            self.dashboard.connect()
+        try:
+            self.dashboard.unlockProtectiveStop()
+        except RuntimeError as exc:
+            return False, str(exc).splitlines()[0] if str(exc) else "refused"
+        return True, "Protective stop releasing"
+
     def close(self) -> str:
         """End the control script; the process then exits, which closes the sockets.
 
@@ -201,7 +219,7 @@ def serve() -> None:
     sys.stdout = sys.stderr
     requests = sys.stdin.buffer
     client = Client()
-    names = {"connect", "state", "command", "stop", "move_to", "close"}
+    names = {"connect", "state", "command", "stop", "move_to", "unlock_protective_stop", "close"}
     while True:
         message = read_frame(requests)
         if message is None:

@@ -20,6 +20,7 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.real.connections import SERIES_FREQUENCY, ConnectionFailure, DryRunConnection, SimulatedConnection, URRTDEConnection
 from snac_gym.real.env import RealUREnv
 from snac_gym.real.journal import StepJournal
+from snac_gym.real.recovery import RecoveryLimits
 from snac_gym.real.safety import SafetyLimits
 from snac_gym.tasks import get_task
 
@@ -101,6 +102,7 @@ class RealRunResult:
     stop_reason: str | None
     sent_commands: int | None = None
     files: list[Path] = field(default_factory=list)
+    recoveries: list[dict[str, Any]] = field(default_factory=list)
 
     def summary(self) -> str:
         lines = [self.demo.summary()]
@@ -114,6 +116,11 @@ class RealRunResult:
             lines.append(
                 f"  speed slider                at {self.timing['speed_scaling_min']:.0%} (lowest): the controller "
                 "scaled every command down, the arm was slower by design, not lagging"
+            )
+        for k, r in enumerate(self.recoveries, 1):
+            lines.append(
+                f"  recovery {k}                  {r['kind']} before step {r['step']}, {r['cleared_by']}, "
+                f"resumed after a {r['gap_s']:.2f} s gap"
             )
         if self.sent_commands is not None:
             lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
@@ -169,6 +176,7 @@ def run_real_episode(
     plots: bool = True,
     echo: Callable[[str], None] | None = None,
     model_error: str | None = None,
+    recovery: RecoveryLimits | None = None,
 ) -> RealRunResult:
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
@@ -204,6 +212,10 @@ def run_real_episode(
         echo: Where dry-run lines go (e.g. ``print``).
         model_error: Rehearse the controller with a wrong arm model (:mod:`snac_gym.model_error`),
             ``connection="sim"`` only: on a real arm the model's error is the arm's own.
+        recovery: Whether the episode resumes after a protective stop or a lost link
+            (:class:`~snac_gym.real.recovery.RecoveryLimits`; default: never). Each resumption is
+            in the summary, in ``*_real.json`` (``recoveries``) and in the log's ``resumed_after_s``
+            column (the gap's length, s, on the first row after it; NaN elsewhere).
 
     Raises:
         ValueError: For ``model_error`` with another connection than ``"sim"``.
@@ -217,7 +229,9 @@ def run_real_episode(
         arm = make_connection(connection, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
         try:
             default_steps = round(get_task(task).real_horizon_s / arm.dt)
-            env = RealUREnv(task, arm, safety=safety, max_steps=steps if steps is not None else default_steps)
+            env = RealUREnv(
+                task, arm, safety=safety, max_steps=steps if steps is not None else default_steps, recovery=recovery
+            )
             if out is not None:
                 env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints)
         except BaseException:
@@ -258,6 +272,7 @@ def _run_and_stop(
             policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
             log = rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps)
             log = add_critic_diagnostics(log, policy)
+            _mark_gaps(log, env)
         finally:
             env.close()
         failure = getattr(env.connection, "failure", None)
@@ -274,6 +289,18 @@ def _run_and_stop(
         if env.journal is not None:
             env.journal.close()
     return log
+
+
+def _mark_gaps(log: pd.DataFrame, env: RealUREnv) -> None:
+    """The ``resumed_after_s`` column: each resumption's gap (s) on the first row after it (only when there was one)."""
+    if not env.recoveries:
+        return
+    gaps = np.full(len(log), np.nan)
+    for r in env.recoveries:
+        if r["step"] < len(log):
+            gaps[r["step"]] = r["gap_s"]
+    log["resumed_after_s"] = gaps
+    log.attrs["recoveries"] = [dict(r) for r in env.recoveries]
 
 
 def _write_outputs(
@@ -304,6 +331,7 @@ def _write_outputs(
         timing=env.timing(),
         stop_reason=env.stop_reason,
         sent_commands=len(arm.sent) if isinstance(arm, DryRunConnection) else None,
+        recoveries=[dict(r) for r in env.recoveries],
     )
     if out is not None:
         result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
@@ -343,6 +371,8 @@ def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, pref
         "last_stop": getattr(connection, "last_stop", None),
         "client_output": getattr(connection, "client_output", []),
         "steps_logged": 0 if log is None else len(log),
+        "recoveries": env.recoveries,
+        "lost_links": getattr(connection, "lost_links", []),
         "timing": env.timing(),
         "dt_ms": env.dt * 1e3,
     }
@@ -370,6 +400,7 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
                 "stop_reason": result.stop_reason,
                 "dt_ms": env.dt * 1e3,
                 "sent_commands": result.sent_commands,
+                **({"recoveries": result.recoveries} if result.recoveries else {}),
             },
             indent=2,
         )
