@@ -159,9 +159,6 @@ def real(
     connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
         recovery = RecoveryLimits(max_recoveries, unlock_protective_stop, recovery_timeout, reconnect_timeout)
-    except ValueError as exc:
-        raise typer.BadParameter(str(exc).replace("max_recoveries", "--max-recoveries")) from None
-    try:
         result = run_real_episode(
             task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
             seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),

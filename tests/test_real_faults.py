@@ -8,6 +8,7 @@ counting what reached the arm.
 import json
 import os
 import signal
+import threading
 import time
 
 import numpy as np
@@ -16,7 +17,16 @@ import pytest
 
 from snac_gym.policies import register_policy
 from snac_gym.policies.base import BasePolicy
-from snac_gym.real import RealUREnv, SafetyLimits, SimulatedConnection
+from snac_gym.real import (
+    EMERGENCY_STOP,
+    NORMAL,
+    PROTECTIVE_STOP,
+    ConnectionFailure,
+    RealUREnv,
+    SafetyLimits,
+    SimulatedConnection,
+)
+from snac_gym.real.recovery import RecoveryLimits
 from snac_gym.references import PAPER_Q0
 
 
@@ -387,3 +397,111 @@ def test_the_real_command_refuses_a_meaningless_acceleration_in_one_line(tmp_pat
     assert outcome.exit_code == 2
     assert "max_joint_acceleration must be a finite number" in outcome.output
     assert "Traceback" not in outcome.output and not any(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------------------- resuming (opt-in)
+
+
+def _recovering_env(max_recoveries=1, **recovery):
+    connection = FaultyConnection()
+    limits = RecoveryLimits(max_recoveries=max_recoveries, **recovery)
+    env = RealUREnv("reach", connection, safety=SafetyLimits(max_period=10.0, max_missed_deadlines=25), recovery=limits)
+    env.reset(options={"q0": PAPER_Q0})
+    return env, connection
+
+
+def test_a_protective_stop_cleared_on_the_pendant_resumes_the_episode_from_rest():
+    env, connection = _recovering_env()
+    for _ in range(20):
+        env.step(np.full(6, 0.3))
+    connection.inject_fault(PROTECTIVE_STOP)
+    sent = connection.inner.commands_sent
+    clearing = threading.Timer(0.3, connection.inject_fault, args=(NORMAL,))  # the operator, on the pendant
+    clearing.start()
+    _, _, terminated, _, info = env.step(np.full(6, 0.3))
+    assert not terminated and info["safety"] is None and env.stop_reason is None
+    recovery = info["recovery"]
+    assert recovery["kind"] == "protective stop" and recovery["cleared_by"] == "cleared on the pendant"
+    assert recovery["step"] == 21 and 0.3 <= recovery["gap_s"] < 5.0
+    assert connection.inner.commands_sent == sent  # nothing reached the arm while it was stopped
+    _, _, _, _, info = env.step(np.full(6, 0.3))  # from rest: the first command is one acceleration step
+    np.testing.assert_allclose(np.abs(info["command"]), env.safety.step_bound)
+    assert env.recoveries == [recovery]
+
+
+def test_recoveries_are_bounded_and_a_second_stop_ends_the_episode_as_before():
+    env, connection = _recovering_env(max_recoveries=1, clear_timeout=0.2)
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(PROTECTIVE_STOP)
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    # not cleared: the episode ends at the stop, the reason says why it did not resume
+    assert terminated and info["safety"] == "controller reports protective_stop; not cleared within 0.2 s"
+    _assert_stopped_at_rest(env, connection)
+    env, connection = _recovering_env(max_recoveries=1)
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(PROTECTIVE_STOP)
+    threading.Timer(0.1, connection.inject_fault, args=(NORMAL,)).start()
+    assert env.step(np.full(6, 0.1))[4]["safety"] is None
+    connection.inject_fault(PROTECTIVE_STOP)  # the second: none left
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    assert terminated and info["safety"] == "controller reports protective_stop" and len(env.recoveries) == 1
+
+
+def test_an_emergency_stop_is_never_resumed():
+    env, connection = _recovering_env(max_recoveries=3)
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(EMERGENCY_STOP)
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    assert terminated and info["safety"] == "controller reports emergency_stop" and env.recoveries == []
+
+
+def test_an_arm_that_moved_during_the_stop_is_not_resumed():
+    env, connection = _recovering_env()
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(PROTECTIVE_STOP)
+
+    def pushed_into_the_margin():  # someone moved the arm by hand, next to a joint limit
+        q = connection.inner.read_state()[0]
+        q[5] = env.kinematics.upper_limits[5] - 0.05
+        connection.inner.arm.set_joint_positions(q)
+        connection.inject_fault(NORMAL)
+
+    threading.Timer(0.1, pushed_into_the_margin).start()
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    assert terminated and env.recoveries == []
+    assert info["safety"].startswith("controller reports protective_stop; not resumed after the protective stop: joint 5")
+
+
+def test_a_lost_link_with_no_recoveries_left_or_no_reconnect_propagates_as_before():
+    env, connection = _recovering_env()
+
+    def lost(_):
+        raise ConnectionFailure("connection to the arm at 10.0.0.1 was lost")
+
+    connection.command = lost  # a simulated arm cannot reconnect: the failure ends the run as without recovery
+    with pytest.raises(ConnectionFailure, match="was lost"):
+        env.step(np.full(6, 0.1))
+    assert env.stop_reason.startswith("ConnectionFailure during step") and env.recoveries == []
+
+
+@pytest.mark.parametrize(
+    ("limits", "match"),
+    [
+        ({"max_recoveries": -1}, "max_recoveries must be a whole number in \\[0, 100\\]"),
+        ({"max_recoveries": 1, "clear_timeout": float("nan")}, "clear_timeout must be a finite number"),
+        ({"max_recoveries": 1, "reconnect_timeout": 0.0}, "reconnect_timeout must be a finite number in \\(0"),
+        ({"unlock_protective_stop": True}, "needs max_recoveries of at least 1"),
+    ],
+)
+def test_meaningless_recovery_limits_are_refused(limits, match):
+    with pytest.raises(ValueError, match=match):
+        RecoveryLimits(**limits)
+
+
+def test_the_real_command_refuses_an_unlock_without_recoveries(tmp_path):
+    from typer.testing import CliRunner
+
+    from snac_gym.cli import app
+
+    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--unlock-protective-stop", "--out", str(tmp_path)])
+    assert outcome.exit_code == 2 and "needs max_recoveries of at least 1 (--max-recoveries N)" in outcome.output

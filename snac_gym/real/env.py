@@ -365,7 +365,7 @@ class RealUREnv(TaskEnvCore):
                 return q, qdot, stamp, None
             if time.monotonic() >= deadline:
                 return q, qdot, stamp, f"no fresh state within {self.recovery.fresh_state_timeout:g} s"
-            time.sleep(self.dt / 2)
+            self.connection.end_period(self.connection.start_period())  # one period, nothing sent
 
     def _finish(
         self, costs: tuple[float, float, float], command: np.ndarray, safety: str | None, safety_state: str = NORMAL,
