@@ -149,9 +149,11 @@ def real(
     unlock_protective_stop: bool = typer.Option(False, "--unlock-protective-stop", help="With --max-recoveries: unlock a protective stop from the dashboard after UR's 5 s lockout (else the operator clears it on the pendant)."),
     recovery_timeout: float = typer.Option(60.0, "--recovery-timeout", help="Longest wait (s) for a protective stop to be cleared, in (0, 3600]."),
     reconnect_timeout: float = typer.Option(10.0, "--reconnect-timeout", help="Longest time (s) for a lost link to come back, in (0, 600]."),
+    rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off."),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim."""
     from snac_gym.real import ConnectionFailure, SafetyLimits
+    from snac_gym.real.loop_tuning import LoopTuning
     from snac_gym.real.recovery import RecoveryLimits
     from snac_gym.real.run import run_real_episode
 
@@ -163,6 +165,7 @@ def real(
             task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
             seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
             csv=csv, echo=typer.echo if dry_run else None, model_error=model_error, recovery=recovery,
+            tuning=LoopTuning.realtime(rt_priority),
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
         where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""

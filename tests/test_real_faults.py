@@ -332,7 +332,7 @@ def test_the_stream_log_is_on_disk_within_a_second_while_the_run_goes(tmp_path, 
 
     monkeypatch.setattr(journal_module, "FLUSH_EVERY", 0.05)
     path = tmp_path / "stream.csv"
-    journal = StepJournal(path, 6)
+    journal = StepJournal(path, 6, writer="inline")
     obs = np.arange(20.0)
     for k in range(10):
         journal.record(k, k * 0.008, 0.008, obs, 6, np.full(6, 0.1), "normal", None)
@@ -343,6 +343,42 @@ def test_the_stream_log_is_on_disk_within_a_second_while_the_run_goes(tmp_path, 
     assert len(on_disk) == 11 and on_disk["safety"].iloc[-1] == "stale 'joint' state"
     np.testing.assert_allclose(on_disk[[f"q_{j}" for j in range(6)]].iloc[0], obs[:6])
     journal.close()
+
+
+def test_the_process_writer_writes_the_same_rows_off_the_loop_and_keeps_them_if_the_host_dies(tmp_path, monkeypatch):
+    import snac_gym.real.journal as journal_module
+    from snac_gym.real.journal import StepJournal
+
+    monkeypatch.setattr(journal_module, "FLUSH_EVERY", 0.05)
+    obs = np.linspace(-1.0, 1.0, 20)
+    files = {}
+    for writer in ("inline", "process"):
+        files[writer] = tmp_path / f"{writer}.csv"
+        journal = StepJournal(files[writer], 6, writer=writer)
+        journal.record(0, 0.0, None, obs, 6, None, "normal", None)
+        for k in range(1, 5):
+            journal.record(k, k * 0.008, 0.0081, obs * k, 6, np.full(6, 0.1 * k), "normal", None)
+        journal.record(5, 0.04, 0.0079, obs, 6, np.zeros(6), "protective_stop", 'controller "reports" it')
+        if writer == "process":  # on disk within the flush period, while the run goes on
+            deadline = time.monotonic() + 2.0
+            while files[writer].read_text().count("\n") < 7 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert files[writer].read_text().count("\n") == 7
+            os.kill(journal._process.pid, 0)  # still running
+        journal.close()
+    inline, process = (pd.read_csv(files[w]) for w in ("inline", "process"))
+    pd.testing.assert_frame_equal(inline.drop(columns="monotonic_s"), process.drop(columns="monotonic_s"))
+    assert process["safety"].iloc[-1] == "controller 'reports' it" and np.isnan(process["u_0"].iloc[0])
+    # the host killed outright: the pipe closes, the writer drains it and exits
+    path = tmp_path / "killed.csv"
+    journal = StepJournal(path, 6, writer="process")
+    for k in range(300):
+        journal.record(k, k * 0.008, 0.008, obs, 6, np.full(6, 0.1), "normal", None)
+    os.close(journal._pipe)  # what the kernel does to the host's end when it dies
+    journal._process.wait(timeout=5.0)
+    assert list(pd.read_csv(path)["step"]) == list(range(300))
+    with pytest.raises(ValueError, match="writer must be one of \\['process', 'inline'\\], got 'thread'"):
+        StepJournal(tmp_path / "x.csv", 6, writer="thread")
 
 
 def test_a_completed_run_replaces_the_stream_log_with_the_full_log(tmp_path):

@@ -20,6 +20,7 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.real.connections import SERIES_FREQUENCY, ConnectionFailure, DryRunConnection, SimulatedConnection, URRTDEConnection
 from snac_gym.real.env import RealUREnv
 from snac_gym.real.journal import StepJournal
+from snac_gym.real.loop_tuning import LoopTuning, frozen_gc, tuned_process
 from snac_gym.real.recovery import RecoveryLimits
 from snac_gym.real.safety import SafetyLimits
 from snac_gym.tasks import get_task
@@ -103,6 +104,7 @@ class RealRunResult:
     sent_commands: int | None = None
     files: list[Path] = field(default_factory=list)
     recoveries: list[dict[str, Any]] = field(default_factory=list)
+    tuning_notes: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         lines = [self.demo.summary()]
@@ -122,6 +124,7 @@ class RealRunResult:
                 f"  recovery {k}                  {r['kind']} before step {r['step']}, {r['cleared_by']}, "
                 f"resumed after a {r['gap_s']:.2f} s gap"
             )
+        lines += [f"  loop tuning                 {note}" for note in self.tuning_notes]
         if self.sent_commands is not None:
             lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
         lines.append(f"  stopped by safety layer: {self.stop_reason}" if self.stop_reason else "  no safety stop")
@@ -177,6 +180,8 @@ def run_real_episode(
     echo: Callable[[str], None] | None = None,
     model_error: str | None = None,
     recovery: RecoveryLimits | None = None,
+    tuning: LoopTuning | None = None,
+    journal_writer: str = "process",
 ) -> RealRunResult:
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
@@ -216,6 +221,11 @@ def run_real_episode(
             (:class:`~snac_gym.real.recovery.RecoveryLimits`; default: never). Each resumption is
             in the summary, in ``*_real.json`` (``recoveries``) and in the log's ``resumed_after_s``
             column (the gap's length, s, on the first row after it; NaN elsewhere).
+        tuning: Real-time scheduling, memory lock, garbage collector frozen
+            (:class:`~snac_gym.real.loop_tuning.LoopTuning`; default: none). What could not be
+            applied is in the summary (``tuning_notes``); the run goes on without it.
+        journal_writer: How the stream log is written: ``"process"`` (off the loop) or
+            ``"inline"`` (:class:`~snac_gym.real.journal.StepJournal`).
 
     Raises:
         ValueError: For ``model_error`` with another connection than ``"sim"``.
@@ -225,7 +235,8 @@ def run_real_episode(
     safety = safety if safety is not None else SafetyLimits()
     out = Path(out_dir) if out_dir is not None else None
     prefix = f"{task}_{controller}_"
-    with stop_signals_raise() as guard:
+    tuning = tuning if tuning is not None else LoopTuning()
+    with stop_signals_raise() as guard, tuned_process(tuning) as notes:
         arm = make_connection(connection, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
         try:
             default_steps = round(get_task(task).real_horizon_s / arm.dt)
@@ -233,15 +244,17 @@ def run_real_episode(
                 task, arm, safety=safety, max_steps=steps if steps is not None else default_steps, recovery=recovery
             )
             if out is not None:
-                env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints)
+                env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints, journal_writer)
         except BaseException:
             arm.close()
             raise
-        log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, model_error)
+        with frozen_gc(tuning.freeze_gc):
+            log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, model_error)
         guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
         result = _write_outputs(
             env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs
         )
+        result.tuning_notes = list(notes)
     guard.raise_pending()
     return result
 
