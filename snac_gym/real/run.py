@@ -197,9 +197,9 @@ def run_real_episode(
       already ended in a safety stop: the controller's watchdog, not the host, stopped the arm);
     * any other exception (its traceback goes to ``*_real.json``).
 
-    Meanwhile every period's row is appended to ``*_stream.csv`` and flushed each second, so a
-    host process killed outright (SIGKILL) loses at most the last second; it is removed once the
-    full log is written.
+    Meanwhile every period's row goes to ``*_stream.csv`` through the log's writer process
+    (:class:`~snac_gym.real.journal.StepJournal`), which writes every row it got even when the
+    host process is killed outright (SIGKILL); it is removed once the full log is written.
 
     Args:
         task: ``"reach"`` or ``"track"``.
