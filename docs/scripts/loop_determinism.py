@@ -98,6 +98,30 @@ def _default_rules_stop(periods: np.ndarray) -> int | None:
     return None
 
 
+def _command(repeats: int, seconds: float, hogs: int) -> None:
+    """``snac-gym real --series e --rt-priority 20`` as a user runs it (default safety, 5-period watchdog)."""
+    from snac_gym.real.emulator.process import EmulatorProcess
+
+    hog_processes = [_hog() for _ in range(hogs)]
+    try:
+        with EmulatorProcess(series="e", rt_priority=20, bind_timeout=90.0) as emu:
+            for k in range(repeats):
+                emu.reset()
+                load = os.getloadavg()[0]
+                with tempfile.TemporaryDirectory() as out:
+                    command = [sys.executable, "-m", "snac_gym.cli", "real", "--host", "127.0.0.1", "--series", "e",
+                               "--rt-priority", "20", "--task", "reach", "--controller", "snac",
+                               "--steps", str(round(seconds * 500)), "--out", out]  # fmt: skip
+                    child = subprocess.run(command, capture_output=True, text=True, timeout=seconds + 120)
+                lines = (child.stdout + child.stderr).splitlines()
+                shown = [ln.strip() for ln in lines if ln.strip().startswith(("loop period", "stopped", "no safety", "error", "final error"))]
+                print(f"run {k + 1}, load average {load:.1f}, exit {child.returncode}: " + " | ".join(shown), flush=True)
+    finally:
+        for hog in hog_processes:
+            hog.kill()
+            hog.wait()
+
+
 def _hog() -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-c", "while True: pass"])
 
@@ -187,12 +211,17 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--hogs", type=int, default=1, help="busy Python loops beside the run")
     parser.add_argument("--allocations", action="store_true", help="only count act's and step's allocations")
+    parser.add_argument("--command", action="store_true",
+                        help="run `snac-gym real --series e --rt-priority 20` as is (default safety and watchdog)")
     args = parser.parse_args()
     if args.one:
         _one(args.one, args.seconds)
         return
     if args.allocations:
         _allocations()
+        return
+    if args.command:
+        _command(args.repeats, args.seconds, args.hogs)
         return
     configs = args.configs.split(",")
     unknown = sorted(set(configs) - set(CONFIGS))
