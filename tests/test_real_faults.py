@@ -541,3 +541,20 @@ def test_the_real_command_refuses_an_unlock_without_recoveries(tmp_path):
 
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--unlock-protective-stop", "--out", str(tmp_path)])
     assert outcome.exit_code == 2 and "needs max_recoveries of at least 1 (--max-recoveries N)" in outcome.output
+
+
+def test_a_protective_stop_unlocked_after_the_lockout_resumes_and_a_dry_run_never_unlocks(tmp_path, monkeypatch):
+    import snac_gym.real.env as env_module
+    from snac_gym.real.run import run_real_episode
+
+    monkeypatch.setattr(env_module, "PROTECTIVE_STOP_LOCKOUT", 0.2)  # UR's 5 s, shortened
+    env, connection = _recovering_env(unlock_protective_stop=True)
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(PROTECTIVE_STOP)
+    started = time.monotonic()
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    assert not terminated and info["recovery"]["cleared_by"] == "unlocked from the dashboard"
+    assert time.monotonic() - started >= 0.2 and connection.safety_state() == NORMAL
+    with pytest.raises(ValueError, match="not in a dry run"):
+        run_real_episode(out_dir=tmp_path, connection="sim", dry_run=True,
+                         recovery=RecoveryLimits(max_recoveries=1, unlock_protective_stop=True))  # fmt: skip

@@ -592,6 +592,13 @@ class SimulatedConnection:
         """Speed slider of the rehearsal: always 100 %."""
         return 1.0
 
+    def unlock_protective_stop(self) -> str | None:
+        """The dashboard's unlock: releases a protective stop (``None``), else the controller's refusal."""
+        if self._fault != PROTECTIVE_STOP:
+            return "Cannot unlock protective stop"
+        self._fault = NORMAL
+        return None
+
     def inject_fault(self, state: str) -> None:
         """Make the controller report ``state`` (``protective_stop`` or ``emergency_stop``) from now on."""
         if state not in (PROTECTIVE_STOP, EMERGENCY_STOP, NORMAL):

@@ -27,7 +27,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
-from snac_gym.real.safety import _whole_in
+from snac_gym.real.safety import check_whole_in
 
 _MCL_CURRENT, _MCL_FUTURE = 1, 2
 
@@ -47,7 +47,7 @@ class LoopTuning:
     freeze_gc: bool = False
 
     def __post_init__(self) -> None:
-        _whole_in("rt_priority", self.rt_priority, 0, 99)
+        check_whole_in("rt_priority", self.rt_priority, 0, 99)
 
     @classmethod
     def realtime(cls, rt_priority: int) -> LoopTuning:

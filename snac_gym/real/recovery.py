@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from snac_gym.real.safety import _finite_in, _whole_in
+from snac_gym.real.safety import check_finite_in, check_whole_in
 
 PROTECTIVE_STOP_RECOVERY = "protective stop"
 LINK_RECOVERY = "lost link"
@@ -52,9 +52,9 @@ class RecoveryLimits:
     fresh_state_timeout: float = 1.0
 
     def __post_init__(self) -> None:
-        _whole_in("max_recoveries", self.max_recoveries, 0, 100)
-        _finite_in("clear_timeout", self.clear_timeout, 0.0, 3600.0, low_open=True)
-        _finite_in("reconnect_timeout", self.reconnect_timeout, 0.0, 600.0, low_open=True)
-        _finite_in("fresh_state_timeout", self.fresh_state_timeout, 0.0, 10.0, low_open=True)
+        check_whole_in("max_recoveries", self.max_recoveries, 0, 100)
+        check_finite_in("clear_timeout", self.clear_timeout, 0.0, 3600.0, low_open=True)
+        check_finite_in("reconnect_timeout", self.reconnect_timeout, 0.0, 600.0, low_open=True)
+        check_finite_in("fresh_state_timeout", self.fresh_state_timeout, 0.0, 10.0, low_open=True)
         if self.unlock_protective_stop and self.max_recoveries == 0:
             raise ValueError("unlocking a protective stop needs max_recoveries of at least 1 (--max-recoveries N)")

@@ -228,10 +228,13 @@ def run_real_episode(
             ``"inline"`` (:class:`~snac_gym.real.journal.StepJournal`).
 
     Raises:
-        ValueError: For ``model_error`` with another connection than ``"sim"``.
+        ValueError: For ``model_error`` with another connection than ``"sim"``, or a dry run that
+            would unlock a protective stop.
     """
     if model_error is not None and connection != "sim":
         raise ValueError("--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own")
+    if dry_run and recovery is not None and recovery.unlock_protective_stop:
+        raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
     safety = safety if safety is not None else SafetyLimits()
     out = Path(out_dir) if out_dir is not None else None
     prefix = f"{task}_{controller}_"
@@ -384,11 +387,12 @@ def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, pref
         "last_stop": getattr(connection, "last_stop", None),
         "client_output": getattr(connection, "client_output", []),
         "steps_logged": 0 if log is None else len(log),
-        "recoveries": env.recoveries,
-        "lost_links": getattr(connection, "lost_links", []),
         "timing": env.timing(),
         "dt_ms": env.dt * 1e3,
     }
+    if env.recovery.max_recoveries:  # only a run that could resume says how it went
+        summary["recoveries"] = env.recoveries
+        summary["lost_links"] = getattr(connection, "lost_links", [])
     if _ending(exc) == "error":  # a bug: the CLI shows one line, the traceback is kept here
         summary["traceback"] = traceback.format_exception(exc)
     (out / f"{prefix}real.json").write_text(json.dumps(summary, indent=2, default=str))
