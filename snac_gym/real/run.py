@@ -258,7 +258,11 @@ def run_real_episode(
             env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs
         )
         result.tuning_notes = list(notes)
-    guard.raise_pending()
+    try:
+        guard.raise_pending()
+    except TerminationSignal as exc:  # it came after the episode: the outputs are written all the same
+        exc.log_dir = out  # type: ignore[attr-defined]
+        raise
     return result
 
 
