@@ -145,18 +145,27 @@ def real(
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     max_tcp_mismatch: float = typer.Option(0.005, "--max-tcp-mismatch", help="Largest distance (m) between the controller's TCP position and the model's f(q), in (0, 1]."),
     model_error: Optional[str] = typer.Option(None, "--model-error", help="With --connection sim: give the controller a wrong arm model (as for evaluate)."),
+    max_recoveries: int = typer.Option(0, "--max-recoveries", min=0, max=100, help="Resume the episode after up to N protective stops or lost links (0: each ends the run)."),
+    unlock_protective_stop: bool = typer.Option(False, "--unlock-protective-stop", help="With --max-recoveries: unlock a protective stop from the dashboard after UR's 5 s lockout (else the operator clears it on the pendant)."),
+    recovery_timeout: float = typer.Option(60.0, "--recovery-timeout", help="Longest wait (s) for a protective stop to be cleared, in (0, 3600]."),
+    reconnect_timeout: float = typer.Option(10.0, "--reconnect-timeout", help="Longest time (s) for a lost link to come back, in (0, 600]."),
+    rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off."),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim."""
     from snac_gym.real import ConnectionFailure, SafetyLimits
+    from snac_gym.real.loop_tuning import LoopTuning
+    from snac_gym.real.recovery import RecoveryLimits
     from snac_gym.real.run import run_real_episode
 
     _check_task(task)
     connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
+        recovery = RecoveryLimits(max_recoveries, unlock_protective_stop, recovery_timeout, reconnect_timeout)
         result = run_real_episode(
             task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
             seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
-            csv=csv, echo=typer.echo if dry_run else None, model_error=model_error,
+            csv=csv, echo=typer.echo if dry_run else None, model_error=model_error, recovery=recovery,
+            tuning=LoopTuning.realtime(rt_priority),
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
         where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""
@@ -189,6 +198,7 @@ def emulate_ur(
     emergency_stop_at: Optional[float] = typer.Option(None, "--emergency-stop-at", help="Emergency stop, s after the first speedJ."),
     latency_spike: Optional[str] = typer.Option(None, "--latency-spike", help="AT,SECONDS: the controller stalls that long, AT s after the first speedJ."),
     drop_at: Optional[float] = typer.Option(None, "--drop-at", help="Cut every connection (and refuse new ones), s after the first speedJ."),
+    drop_for: Optional[float] = typer.Option(None, "--drop-for", help="With --drop-at: the link comes back after this many seconds (default: never)."),
     stale_at: Optional[float] = typer.Option(None, "--stale-at", help="Freeze the reported timestamp and state, s after the first speedJ."),
     watchdog_expiry_at: Optional[float] = typer.Option(None, "--watchdog-expiry-at", help="Make the RTDE watchdog fire, s after the first speedJ."),
     duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Exit after this many seconds (default: until Ctrl-C)."),
@@ -204,7 +214,7 @@ def emulate_ur(
             robot=robot, series=series, port_base=port_base, speed_scaling=speed_scaling, bind_timeout=0.0, rt_priority=rt_priority,
             tcp_offset=None if offset is None else (offset + [0.0, 0.0, 0.0])[:6],
         )
-        plan = fault_plan(protective_stop_at, emergency_stop_at, latency_spike, drop_at, stale_at, watchdog_expiry_at)
+        plan = fault_plan(protective_stop_at, emergency_stop_at, latency_spike, drop_at, stale_at, watchdog_expiry_at, drop_for)
         for at, fault, args in plan:
             emulator.schedule(at, fault, *args)
         serve(emulator, duration, typer.echo)

@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 from snac_gym.real.emulator import UREmulator
+from snac_gym.real.connections import PROTECTIVE_STOP_LOCKOUT
 from snac_gym.real.emulator import protocol as p
+from snac_gym.real.emulator.controller import UNLOCK_TOO_EARLY
 
 
 @pytest.fixture
@@ -102,9 +104,54 @@ def test_dashboard_answers_the_requests_ur_rtde_makes(emulator):
             sock.sendall((request + "\n").encode())
             assert reader.readline().strip() == answer
         emulator.protective_stop()
+        sock.sendall(b"unlock protective stop\n")  # within UR's 5 s lockout: refused, still stopped
+        assert reader.readline().strip() == UNLOCK_TOO_EARLY
+        assert emulator.safety_bits == 1 << p.SAFETY_PROTECTIVE_STOPPED
+        emulator._protective_stop_at -= PROTECTIVE_STOP_LOCKOUT  # as if 5 s had passed
         sock.sendall(b"unlock protective stop\n")
         assert reader.readline().strip() == "Protective stop releasing"
     assert emulator.safety_bits == 1
+    assert emulator.runtime_state == p.RUNTIME_STOPPED  # the program does not resume by itself
+
+
+def _speedj_package(recipe_id: int) -> bytes:
+    return p.packet(p.RTDE_DATA_PACKAGE, bytes([recipe_id]) + struct.pack(">i", p.SPEEDJ))
+
+
+def _wait_for(condition, timeout: float = 2.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.005)
+
+
+def test_motion_commands_during_a_stop_or_before_a_fresh_state_are_recorded(emulator):
+    with _connect(emulator) as sock:
+        _request(sock, p.RTDE_CONTROL_PACKAGE_SETUP_OUTPUTS, struct.pack(">d", 125.0) + b"timestamp,")
+        assert _request(sock, p.RTDE_CONTROL_PACKAGE_SETUP_INPUTS, b"input_int_register_0,") == (73, b"\x01INT32")
+        assert _request(sock, p.RTDE_CONTROL_PACKAGE_START) == (83, b"\x01")
+        sock.sendall(_speedj_package(1))  # normal: nothing to record
+        _wait_for(lambda: len(emulator.commands) == 1)
+        assert emulator.unsafe_commands == []
+        emulator.protective_stop()
+        _wait_for(lambda: emulator._stopped_since is not None)  # a state package reported the stop
+        time.sleep(0.05)
+        sock.sendall(_speedj_package(1))
+        _wait_for(lambda: emulator.unsafe_commands)
+    (_, text), = emulator.unsafe_commands
+    assert text.startswith("speedJ during PROTECTIVE_STOP (") and "ms after it was reported" in text
+    delay_ms = float(text.split("(")[1].split(" ms")[0])
+    assert delay_ms >= 50.0
+    emulator.clear_faults()
+    emulator.unsafe_commands.clear()
+    emulator.drop_connection(refuse_for=0.0)
+    _wait_for(lambda: not emulator._link_down)
+    with _connect(emulator) as sock:  # back, and no state package sent yet: a command is unsafe
+        assert _request(sock, p.RTDE_CONTROL_PACKAGE_SETUP_INPUTS, b"input_int_register_0,") == (73, b"\x01INT32")
+        sock.sendall(_speedj_package(1))
+        _wait_for(lambda: emulator.unsafe_commands)
+    assert [text for _, text in emulator.unsafe_commands] == [
+        "speedJ after the link came back, before any state package"
+    ]
 
 
 def test_a_program_that_is_not_ur_rtdes_script_is_not_run(emulator):

@@ -8,6 +8,7 @@ counting what reached the arm.
 import json
 import os
 import signal
+import threading
 import time
 
 import numpy as np
@@ -16,7 +17,16 @@ import pytest
 
 from snac_gym.policies import register_policy
 from snac_gym.policies.base import BasePolicy
-from snac_gym.real import RealUREnv, SafetyLimits, SimulatedConnection
+from snac_gym.real import (
+    EMERGENCY_STOP,
+    NORMAL,
+    PROTECTIVE_STOP,
+    ConnectionFailure,
+    RealUREnv,
+    SafetyLimits,
+    SimulatedConnection,
+)
+from snac_gym.real.recovery import RecoveryLimits
 from snac_gym.references import PAPER_Q0
 
 
@@ -322,7 +332,7 @@ def test_the_stream_log_is_on_disk_within_a_second_while_the_run_goes(tmp_path, 
 
     monkeypatch.setattr(journal_module, "FLUSH_EVERY", 0.05)
     path = tmp_path / "stream.csv"
-    journal = StepJournal(path, 6)
+    journal = StepJournal(path, 6, writer="inline")
     obs = np.arange(20.0)
     for k in range(10):
         journal.record(k, k * 0.008, 0.008, obs, 6, np.full(6, 0.1), "normal", None)
@@ -333,6 +343,42 @@ def test_the_stream_log_is_on_disk_within_a_second_while_the_run_goes(tmp_path, 
     assert len(on_disk) == 11 and on_disk["safety"].iloc[-1] == "stale 'joint' state"
     np.testing.assert_allclose(on_disk[[f"q_{j}" for j in range(6)]].iloc[0], obs[:6])
     journal.close()
+
+
+def test_the_process_writer_writes_the_same_rows_off_the_loop_and_keeps_them_if_the_host_dies(tmp_path, monkeypatch):
+    import snac_gym.real.journal as journal_module
+    from snac_gym.real.journal import StepJournal
+
+    monkeypatch.setattr(journal_module, "FLUSH_EVERY", 0.05)
+    obs = np.linspace(-1.0, 1.0, 20)
+    files = {}
+    for writer in ("inline", "process"):
+        files[writer] = tmp_path / f"{writer}.csv"
+        journal = StepJournal(files[writer], 6, writer=writer)
+        journal.record(0, 0.0, None, obs, 6, None, "normal", None)
+        for k in range(1, 5):
+            journal.record(k, k * 0.008, 0.0081, obs * k, 6, np.full(6, 0.1 * k), "normal", None)
+        journal.record(5, 0.04, 0.0079, obs, 6, np.zeros(6), "protective_stop", 'controller "reports" it')
+        if writer == "process":  # on disk within the flush period, while the run goes on
+            deadline = time.monotonic() + 2.0
+            while files[writer].read_text().count("\n") < 7 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert files[writer].read_text().count("\n") == 7
+            os.kill(journal._process.pid, 0)  # still running
+        journal.close()
+    inline, process = (pd.read_csv(files[w]) for w in ("inline", "process"))
+    pd.testing.assert_frame_equal(inline.drop(columns="monotonic_s"), process.drop(columns="monotonic_s"))
+    assert process["safety"].iloc[-1] == "controller 'reports' it" and np.isnan(process["u_0"].iloc[0])
+    # the host killed outright: the pipe closes, the writer drains it and exits
+    path = tmp_path / "killed.csv"
+    journal = StepJournal(path, 6, writer="process")
+    for k in range(300):
+        journal.record(k, k * 0.008, 0.008, obs, 6, np.full(6, 0.1), "normal", None)
+    os.close(journal._pipe)  # what the kernel does to the host's end when it dies
+    journal._process.wait(timeout=5.0)
+    assert list(pd.read_csv(path)["step"]) == list(range(300))
+    with pytest.raises(ValueError, match="writer must be one of \\['process', 'inline'\\], got 'thread'"):
+        StepJournal(tmp_path / "x.csv", 6, writer="thread")
 
 
 def test_a_completed_run_replaces_the_stream_log_with_the_full_log(tmp_path):
@@ -387,3 +433,128 @@ def test_the_real_command_refuses_a_meaningless_acceleration_in_one_line(tmp_pat
     assert outcome.exit_code == 2
     assert "max_joint_acceleration must be a finite number" in outcome.output
     assert "Traceback" not in outcome.output and not any(tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------------------- resuming (opt-in)
+
+
+def _recovering_env(max_recoveries=1, **recovery):
+    connection = FaultyConnection()
+    limits = RecoveryLimits(max_recoveries=max_recoveries, **recovery)
+    env = RealUREnv("reach", connection, safety=SafetyLimits(max_period=10.0, max_missed_deadlines=25), recovery=limits)
+    env.reset(options={"q0": PAPER_Q0})
+    return env, connection
+
+
+def test_a_protective_stop_cleared_on_the_pendant_resumes_the_episode_from_rest():
+    env, connection = _recovering_env()
+    for _ in range(20):
+        env.step(np.full(6, 0.3))
+    connection.inject_fault(PROTECTIVE_STOP)
+    sent = connection.inner.commands_sent
+    clearing = threading.Timer(0.3, connection.inject_fault, args=(NORMAL,))  # the operator, on the pendant
+    clearing.start()
+    _, _, terminated, _, info = env.step(np.full(6, 0.3))
+    assert not terminated and info["safety"] is None and env.stop_reason is None
+    recovery = info["recovery"]
+    assert recovery["kind"] == "protective stop" and recovery["cleared_by"] == "cleared on the pendant"
+    assert recovery["step"] == 21 and 0.3 <= recovery["gap_s"] < 5.0
+    assert connection.inner.commands_sent == sent  # nothing reached the arm while it was stopped
+    _, _, _, _, info = env.step(np.full(6, 0.3))  # from rest: the first command is one acceleration step
+    np.testing.assert_allclose(np.abs(info["command"]), env.safety.step_bound)
+    assert env.recoveries == [recovery]
+
+
+def test_recoveries_are_bounded_and_a_second_stop_ends_the_episode_as_before():
+    env, connection = _recovering_env(max_recoveries=1, clear_timeout=0.2)
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(PROTECTIVE_STOP)
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    # not cleared: the episode ends at the stop, the reason says why it did not resume
+    assert terminated and info["safety"] == "controller reports protective_stop; not cleared within 0.2 s"
+    _assert_stopped_at_rest(env, connection)
+    env, connection = _recovering_env(max_recoveries=1)
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(PROTECTIVE_STOP)
+    threading.Timer(0.1, connection.inject_fault, args=(NORMAL,)).start()
+    assert env.step(np.full(6, 0.1))[4]["safety"] is None
+    connection.inject_fault(PROTECTIVE_STOP)  # the second: none left
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    assert terminated and info["safety"] == "controller reports protective_stop" and len(env.recoveries) == 1
+
+
+def test_an_emergency_stop_is_never_resumed():
+    env, connection = _recovering_env(max_recoveries=3)
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(EMERGENCY_STOP)
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    assert terminated and info["safety"] == "controller reports emergency_stop" and env.recoveries == []
+
+
+def test_an_arm_that_moved_during_the_stop_is_not_resumed():
+    env, connection = _recovering_env()
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(PROTECTIVE_STOP)
+
+    def pushed_into_the_margin():  # someone moved the arm by hand, next to a joint limit
+        q = connection.inner.read_state()[0]
+        q[5] = env.kinematics.upper_limits[5] - 0.05
+        connection.inner.arm.set_joint_positions(q)
+        connection.inject_fault(NORMAL)
+
+    threading.Timer(0.1, pushed_into_the_margin).start()
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    assert terminated and env.recoveries == []
+    assert info["safety"].startswith("controller reports protective_stop; not resumed after the protective stop: joint 5")
+
+
+def test_a_lost_link_with_no_recoveries_left_or_no_reconnect_propagates_as_before():
+    env, connection = _recovering_env()
+
+    def lost(_):
+        raise ConnectionFailure("connection to the arm at 10.0.0.1 was lost")
+
+    connection.command = lost  # a simulated arm cannot reconnect: the failure ends the run as without recovery
+    with pytest.raises(ConnectionFailure, match="was lost"):
+        env.step(np.full(6, 0.1))
+    assert env.stop_reason.startswith("ConnectionFailure during step") and env.recoveries == []
+
+
+@pytest.mark.parametrize(
+    ("limits", "match"),
+    [
+        ({"max_recoveries": -1}, "max_recoveries must be a whole number in \\[0, 100\\]"),
+        ({"max_recoveries": 1, "clear_timeout": float("nan")}, "clear_timeout must be a finite number"),
+        ({"max_recoveries": 1, "reconnect_timeout": 0.0}, "reconnect_timeout must be a finite number in \\(0"),
+        ({"unlock_protective_stop": True}, "needs max_recoveries of at least 1"),
+    ],
+)
+def test_meaningless_recovery_limits_are_refused(limits, match):
+    with pytest.raises(ValueError, match=match):
+        RecoveryLimits(**limits)
+
+
+def test_the_real_command_refuses_an_unlock_without_recoveries(tmp_path):
+    from typer.testing import CliRunner
+
+    from snac_gym.cli import app
+
+    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--unlock-protective-stop", "--out", str(tmp_path)])
+    assert outcome.exit_code == 2 and "needs max_recoveries of at least 1 (--max-recoveries N)" in outcome.output
+
+
+def test_a_protective_stop_unlocked_after_the_lockout_resumes_and_a_dry_run_never_unlocks(tmp_path, monkeypatch):
+    import snac_gym.real.env as env_module
+    from snac_gym.real.run import run_real_episode
+
+    monkeypatch.setattr(env_module, "PROTECTIVE_STOP_LOCKOUT", 0.2)  # UR's 5 s, shortened
+    env, connection = _recovering_env(unlock_protective_stop=True)
+    env.step(np.full(6, 0.1))
+    connection.inject_fault(PROTECTIVE_STOP)
+    started = time.monotonic()
+    _, _, terminated, _, info = env.step(np.full(6, 0.1))
+    assert not terminated and info["recovery"]["cleared_by"] == "unlocked from the dashboard"
+    assert time.monotonic() - started >= 0.2 and connection.safety_state() == NORMAL
+    with pytest.raises(ValueError, match="not in a dry run"):
+        run_real_episode(out_dir=tmp_path, connection="sim", dry_run=True,
+                         recovery=RecoveryLimits(max_recoveries=1, unlock_protective_stop=True))  # fmt: skip

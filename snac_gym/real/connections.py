@@ -33,6 +33,8 @@ PROTECTIVE_STOP = "protective_stop"
 EMERGENCY_STOP = "emergency_stop"
 #: Control rates of the UR controller generations: CB-series 125 Hz, e-Series 500 Hz.
 SERIES_FREQUENCY = {"cb": 125.0, "e": 500.0}
+#: Seconds after a protective stop before PolyScope lets it be unlocked (pendant or dashboard).
+PROTECTIVE_STOP_LOCKOUT = 5.0
 
 
 def wait_until(deadline: float, spin: float = 5e-4) -> None:
@@ -154,6 +156,8 @@ class URRTDEConnection:
     RTDE_PORT = 30004
     #: Seconds the client may take to start (a Python interpreter, numpy and ur_rtde's imports).
     STARTUP_ALLOWANCE = 10.0
+    #: Seconds between two attempts of :meth:`reconnect`.
+    RECONNECT_PAUSE = 0.5
 
     def __init__(
         self,
@@ -183,6 +187,9 @@ class URRTDEConnection:
         self.call_timeout = float(call_timeout) if call_timeout is not None else watchdog_periods * self.dt
         self.host = host
         self.control = control
+        self.connect_timeout = float(connect_timeout)
+        #: One entry per link lost and reconnected (:meth:`reconnect`): the client's reason and last lines.
+        self.lost_links: list[dict[str, Any]] = []
         self.stop_calls = 0
         self.last_stop: str | None = None
         self._streaming = False
@@ -314,6 +321,51 @@ class URRTDEConnection:
         if not self._fresh:  # reset asks with no read in between: read now
             self.read_state()
         return self._last_snapshot()[5]
+
+    def unlock_protective_stop(self) -> str | None:
+        """The dashboard server's ``unlock protective stop`` (ur_rtde's ``DashboardClient``).
+
+        Returns ``None`` once the controller releases the stop, else its answer (within
+        :data:`PROTECTIVE_STOP_LOCKOUT` of the stop: refused). The dashboard is asked from the
+        client process, under the same deadline as any request.
+        """
+        released, answer = self._call("unlock_protective_stop", self.host, timeout=self.rest_timeout + 1.0)
+        return None if released else str(answer)
+
+    def reconnect(self, within: float) -> int:
+        """Start a new ur_rtde client and connect it, trying until ``within`` s have passed.
+
+        The old client (given up after the link was lost) is closed first; its reason and last
+        lines are kept in :attr:`lost_links`. Returns the number of attempts.
+
+        Raises:
+            ConnectionFailure: If no attempt connected within ``within`` s (the last reason given).
+        """
+        self.lost_links.append({"failure": self._client.failure, "client_output": list(self._client.output)})
+        self._client.close(0.0)
+        self._streaming = False
+        self._fresh = False
+        deadline = time.monotonic() + within
+        attempts = 0
+        while True:
+            attempts += 1
+            remaining = deadline - time.monotonic()
+            try:
+                probe_port(self.host, self.RTDE_PORT, max(min(self.connect_timeout, remaining), 0.05))
+                client = ClientProcess()
+                self._client = client
+                self._keep(self._call("connect", self.host, self.frequency, self.control,
+                                      timeout=self.connect_timeout + self.STARTUP_ALLOWANCE))  # fmt: skip
+                return attempts
+            except ConnectionFailure as exc:
+                reason = str(exc)
+                self._client.close(0.0)
+            if time.monotonic() + self.RECONNECT_PAUSE >= deadline:
+                raise ConnectionFailure(
+                    f"the link to the arm at {self.host} did not come back within {within:g} s "
+                    f"({attempts} attempts; last: {reason})"
+                )
+            time.sleep(self.RECONNECT_PAUSE)
 
     def close(self) -> None:
         self.stop()
@@ -539,6 +591,13 @@ class SimulatedConnection:
     def speed_scaling(self) -> float:
         """Speed slider of the rehearsal: always 100 %."""
         return 1.0
+
+    def unlock_protective_stop(self) -> str | None:
+        """The dashboard's unlock: releases a protective stop (``None``), else the controller's refusal."""
+        if self._fault != PROTECTIVE_STOP:
+            return "Cannot unlock protective stop"
+        self._fault = NORMAL
+        return None
 
     def inject_fault(self, state: str) -> None:
         """Make the controller report ``state`` (``protective_stop`` or ``emergency_stop``) from now on."""

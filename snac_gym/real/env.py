@@ -9,9 +9,13 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.envs.core import TaskEnvCore, resolve_reference, validate_action, validate_q0
-from snac_gym.real.connections import NORMAL, ArmConnection
+from snac_gym.real.connections import NORMAL, PROTECTIVE_STOP, PROTECTIVE_STOP_LOCKOUT, ArmConnection, ConnectionFailure
+from snac_gym.real.recovery import LINK_RECOVERY, PROTECTIVE_STOP_RECOVERY, RecoveryLimits
 from snac_gym.real.safety import SafetyLayer, SafetyLimits
 from snac_gym.sampling import SampleSpace
+
+#: Seconds between two reads of the controller's state while waiting for a protective stop to clear.
+_CLEAR_POLL = 0.05
 
 
 class RealUREnv(TaskEnvCore):
@@ -50,6 +54,11 @@ class RealUREnv(TaskEnvCore):
         success_tolerance: Error norm counted as success, m (default: the task's, 1 mm reach, 5 mm track).
         Q, R: Cost weights of the reward (default identity).
         sample_space: Space of random references.
+        recovery: Whether and how far an episode resumes after a protective stop or a lost link
+            (:class:`~snac_gym.real.recovery.RecoveryLimits`; default: never, the episode ends).
+
+    A step after which the episode resumed has ``info["recovery"]``: what happened and how long
+    the gap was (also in :attr:`recoveries`).
 
     Each step's ``info["speed_scaling"]`` is the controller's speed scaling (the pendant's speed
     slider; 1.0 where the connection reports none): below 1 the controller runs every command
@@ -60,6 +69,9 @@ class RealUREnv(TaskEnvCore):
         speed_scalings: The controller's speed scaling at reset and after each step.
         stop_reason: Why the arm was stopped mid-episode (a safety rule or an exception), or
             ``None``.
+        recoveries: One dict per resumption in this episode: ``kind`` (``"protective stop"``
+            or ``"lost link"``), ``step`` (the first step after the gap), ``cause``, ``gap_s``
+            (wall time from the fault seen to the episode resumed) and how it was cleared.
 
     Raises:
         ValueError: On an unknown task or a non-positive ``max_steps`` / ``success_tolerance``.
@@ -77,11 +89,15 @@ class RealUREnv(TaskEnvCore):
         Q: np.ndarray | None = None,
         R: np.ndarray | None = None,
         sample_space: SampleSpace | None = None,
+        recovery: RecoveryLimits | None = None,
     ) -> None:
         self._init_task(task, connection.kinematics, connection.dt, Q, R, success_tolerance, sample_space)
         self.connection = connection
         self.safety_limits = safety if safety is not None else SafetyLimits()
         self.safety = SafetyLayer(self.kinematics, self.safety_limits, self.dt)
+        self.recovery = recovery if recovery is not None else RecoveryLimits()
+        self.recoveries: list[dict[str, Any]] = []
+        self._resumed = False
         # The simulated env's episode is episode_steps at 125 Hz: the same duration at this arm's rate.
         default_seconds = self.task.episode_steps / 125.0
         self.max_steps = int(max_steps) if max_steps is not None else int(round(default_seconds / self.dt))
@@ -149,6 +165,8 @@ class RealUREnv(TaskEnvCore):
         self.periods = []
         self._last_command = np.zeros(self.kinematics.n_joints)
         self.stop_reason = None
+        self.recoveries = []
+        self._resumed = False
         self.safety.reset()
         q, qdot = self.connection.read_state()
         x = self.kinematics.forward(q)
@@ -201,17 +219,25 @@ class RealUREnv(TaskEnvCore):
         if stalled is not None:
             self._halt(f"{stalled}: command not sent")
             return self._finish((costs[0], 0.0, 0.0), np.zeros_like(command), safety=self.stop_reason)
-        self.connection.command(command)
-        self.connection.end_period(self._period_start)
+        try:
+            self.connection.command(command)
+            self.connection.end_period(self._period_start)
+        except ConnectionFailure as exc:
+            return self._after_lost_link(exc, costs, command)
         previous_start = self._period_wall
         self._begin_period()
         self.steps += 1
         self._last_command = command
         # Past its end, waitPeriod returns at once: a period longer than dt means the command came late.
         self.periods.append(self._period_wall - previous_start)
-        # The first period also holds the policy's start-up, while the arm is still at rest.
-        late = self.safety.record_period(self.periods[-1]) if self.steps > 1 else None
-        q, qdot = self.connection.read_state()
+        # The first period also holds the policy's start-up, while the arm is still at rest; the
+        # first after a resumption, the control script's re-upload.
+        late = self.safety.record_period(self.periods[-1]) if self.steps > 1 and not self._resumed else None
+        self._resumed = False
+        try:
+            q, qdot = self.connection.read_state()
+        except ConnectionFailure as exc:
+            return self._after_lost_link(exc, costs, command, counted=True)
         self._obs = self._pack(q, qdot)
         x = self._obs[self.obs_layout.slices["x"]]
         reason = late or self.safety.violation(q, qdot, x, self.connection.state_timestamp()) or self._tcp_mismatch(x)
@@ -219,15 +245,136 @@ class RealUREnv(TaskEnvCore):
         state = self.connection.safety_state()
         if reason is None and state != NORMAL:
             reason = f"controller reports {state}"
+            if state == PROTECTIVE_STOP and self._may_recover():
+                reason = self._resume(PROTECTIVE_STOP_RECOVERY, reason)
+                if reason is None:
+                    return self._finish(costs, command, safety=None, safety_state=NORMAL, recovery=self.recoveries[-1])
         if reason is not None:
             self._halt(reason)
         return self._finish(costs, command, safety=reason, safety_state=state)
 
+    def _may_recover(self) -> bool:
+        return len(self.recoveries) < self.recovery.max_recoveries
+
+    def _after_lost_link(
+        self, exc: ConnectionFailure, costs: tuple[float, float, float], command: np.ndarray, counted: bool = False
+    ) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """Resume if allowed (the step then counts, its gap marked); else ``exc`` propagates.
+
+        A client still serving means the link is up and the controller refused the command: a
+        protective stop that paused its program while the command was in flight is resumed as
+        one. A client given up (the link lost) is replaced by a new one first.
+        """
+        reconnect = getattr(self.connection, "reconnect", None)
+        if reconnect is None or not self._may_recover():
+            raise exc
+        seen = time.monotonic()
+        if getattr(self.connection, "failure", None) is None:
+            self.connection.read_state()
+            state = self.connection.safety_state()
+            if state != PROTECTIVE_STOP:
+                raise exc
+            kind, cause, cleared_by = PROTECTIVE_STOP_RECOVERY, f"controller reports {state}", ""
+        else:
+            self.connection.stop()  # the client is gone: this only records that the controller's watchdog stops the arm
+            try:
+                attempts = reconnect(self.recovery.reconnect_timeout)
+            except ConnectionFailure as again:
+                raise ConnectionFailure(f"{exc}; {again}") from exc
+            kind, cause, cleared_by = LINK_RECOVERY, str(exc), f"reconnected ({attempts} attempts)"
+        if not counted:
+            self.steps += 1
+        reason = self._resume(kind, cause, seen=seen, cleared_by=cleared_by)
+        if reason is not None:
+            self._halt(reason)
+            return self._finish(costs, command, safety=reason, safety_state=self.connection.safety_state())
+        return self._finish(costs, command, safety=None, safety_state=NORMAL, recovery=self.recoveries[-1])
+
+    def _resume(self, kind: str, cause: str, seen: float | None = None, cleared_by: str = "") -> str | None:
+        """Stop, wait for the fault to clear, re-check as at reset, and resume; else why not.
+
+        Nothing is sent in here. On success the state just read becomes the observation, the
+        command starts again from rest, and the period restarts.
+        """
+        seen = time.monotonic() if seen is None else seen
+        self.connection.stop()
+        if kind == PROTECTIVE_STOP_RECOVERY:
+            waited = self._wait_until_cleared(seen)
+            if waited.startswith("not cleared"):
+                return f"{cause}; {waited}"
+            cleared_by = waited
+        q, qdot, stamp, failure = self._fresh_state()
+        x = self.kinematics.forward(q)
+        state = self.connection.safety_state()
+        speed = float(np.max(np.abs(qdot)))
+        self.safety.reset()
+        failure = (
+            failure
+            or (f"the controller reports {state}" if state != NORMAL else None)
+            or (None if speed < self.safety_limits.rest_speed else f"the arm is still moving ({speed:.4f} rad/s)")
+            or self.safety.violation(q, qdot, x, stamp)
+            or self._tcp_mismatch(x)
+        )
+        if failure is not None:
+            return f"{cause}; not resumed after the {kind}: {failure}"
+        self.recoveries.append({
+            "kind": kind, "step": self.steps, "cause": cause, "cleared_by": cleared_by,
+            "gap_s": time.monotonic() - seen,
+        })  # fmt: skip
+        self._last_command = np.zeros(self.kinematics.n_joints)
+        self._obs = self._pack(q, qdot)
+        self._resumed = True
+        self._begin_period()
+        return None
+
+    def _wait_until_cleared(self, seen: float) -> str:
+        """Wait for the protective stop to clear; how it cleared, or ``"not cleared ..."``."""
+        limits = self.recovery
+        deadline = seen + limits.clear_timeout
+        unlock_at = seen + PROTECTIVE_STOP_LOCKOUT if limits.unlock_protective_stop else np.inf
+        answers: list[str] = []
+        while True:
+            self.connection.read_state()
+            state = self.connection.safety_state()
+            if state == NORMAL:
+                return "unlocked from the dashboard" if unlock_at == -np.inf else "cleared on the pendant"
+            if state != PROTECTIVE_STOP:
+                return f"not cleared: the controller now reports {state}"
+            now = time.monotonic()
+            if now >= deadline:
+                refused = f" (dashboard: {answers[-1]!r})" if answers else ""
+                return f"not cleared within {limits.clear_timeout:g} s{refused}"
+            if now >= unlock_at:
+                answer = self.connection.unlock_protective_stop()  # type: ignore[attr-defined]
+                if answer is None:
+                    unlock_at = -np.inf  # released: the next packages show it
+                else:
+                    answers.append(answer)
+                    unlock_at = now + 1.0
+            time.sleep(_CLEAR_POLL)
+
+    def _fresh_state(self) -> tuple[np.ndarray, np.ndarray, float, str | None]:
+        """A state package newer than the first one read now (the controller is streaming again)."""
+        q, qdot = self.connection.read_state()
+        first = self.connection.state_timestamp()
+        deadline = time.monotonic() + self.recovery.fresh_state_timeout
+        while True:
+            q, qdot = self.connection.read_state()
+            stamp = self.connection.state_timestamp()
+            if stamp > first:
+                return q, qdot, stamp, None
+            if time.monotonic() >= deadline:
+                return q, qdot, stamp, f"no fresh state within {self.recovery.fresh_state_timeout:g} s"
+            self.connection.end_period(self.connection.start_period())  # one period, nothing sent
+
     def _finish(
         self, costs: tuple[float, float, float], command: np.ndarray, safety: str | None, safety_state: str = NORMAL,
+        recovery: dict[str, Any] | None = None,
     ) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         info = self._step_info(costs, command)
         info.update(safety=safety, safety_state=safety_state, speed_scaling=self.speed_scalings[-1])
+        if recovery is not None:
+            info["recovery"] = dict(recovery)
         if self.journal is not None:
             period = self.periods[-1] if len(self.periods) == self.steps and self.steps else None
             n_joints = self.kinematics.n_joints

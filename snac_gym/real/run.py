@@ -20,6 +20,8 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.real.connections import SERIES_FREQUENCY, ConnectionFailure, DryRunConnection, SimulatedConnection, URRTDEConnection
 from snac_gym.real.env import RealUREnv
 from snac_gym.real.journal import StepJournal
+from snac_gym.real.loop_tuning import LoopTuning, frozen_gc, tuned_process
+from snac_gym.real.recovery import RecoveryLimits
 from snac_gym.real.safety import SafetyLimits
 from snac_gym.tasks import get_task
 
@@ -101,6 +103,8 @@ class RealRunResult:
     stop_reason: str | None
     sent_commands: int | None = None
     files: list[Path] = field(default_factory=list)
+    recoveries: list[dict[str, Any]] = field(default_factory=list)
+    tuning_notes: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
         lines = [self.demo.summary()]
@@ -115,6 +119,12 @@ class RealRunResult:
                 f"  speed slider                at {self.timing['speed_scaling_min']:.0%} (lowest): the controller "
                 "scaled every command down, the arm was slower by design, not lagging"
             )
+        for k, r in enumerate(self.recoveries, 1):
+            lines.append(
+                f"  recovery {k}                  {r['kind']} before step {r['step']}, {r['cleared_by']}, "
+                f"resumed after a {r['gap_s']:.2f} s gap"
+            )
+        lines += [f"  loop tuning                 {note}" for note in self.tuning_notes]
         if self.sent_commands is not None:
             lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
         lines.append(f"  stopped by safety layer: {self.stop_reason}" if self.stop_reason else "  no safety stop")
@@ -169,6 +179,9 @@ def run_real_episode(
     plots: bool = True,
     echo: Callable[[str], None] | None = None,
     model_error: str | None = None,
+    recovery: RecoveryLimits | None = None,
+    tuning: LoopTuning | None = None,
+    journal_writer: str = "process",
 ) -> RealRunResult:
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
@@ -184,9 +197,9 @@ def run_real_episode(
       already ended in a safety stop: the controller's watchdog, not the host, stopped the arm);
     * any other exception (its traceback goes to ``*_real.json``).
 
-    Meanwhile every period's row is appended to ``*_stream.csv`` and flushed each second, so a
-    host process killed outright (SIGKILL) loses at most the last second; it is removed once the
-    full log is written.
+    Meanwhile every period's row goes to ``*_stream.csv`` through the log's writer process
+    (:class:`~snac_gym.real.journal.StepJournal`), which writes every row it got even when the
+    host process is killed outright (SIGKILL); it is removed once the full log is written.
 
     Args:
         task: ``"reach"`` or ``"track"``.
@@ -204,31 +217,52 @@ def run_real_episode(
         echo: Where dry-run lines go (e.g. ``print``).
         model_error: Rehearse the controller with a wrong arm model (:mod:`snac_gym.model_error`),
             ``connection="sim"`` only: on a real arm the model's error is the arm's own.
+        recovery: Whether the episode resumes after a protective stop or a lost link
+            (:class:`~snac_gym.real.recovery.RecoveryLimits`; default: never). Each resumption is
+            in the summary, in ``*_real.json`` (``recoveries``) and in the log's ``resumed_after_s``
+            column (the gap's length, s, on the first row after it; NaN elsewhere).
+        tuning: Real-time scheduling, memory lock, garbage collector frozen
+            (:class:`~snac_gym.real.loop_tuning.LoopTuning`; default: none). What could not be
+            applied is in the summary (``tuning_notes``); the run goes on without it.
+        journal_writer: How the stream log is written: ``"process"`` (off the loop) or
+            ``"inline"`` (:class:`~snac_gym.real.journal.StepJournal`).
 
     Raises:
-        ValueError: For ``model_error`` with another connection than ``"sim"``.
+        ValueError: For ``model_error`` with another connection than ``"sim"``, or a dry run that
+            would unlock a protective stop.
     """
     if model_error is not None and connection != "sim":
         raise ValueError("--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own")
+    if dry_run and recovery is not None and recovery.unlock_protective_stop:
+        raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
     safety = safety if safety is not None else SafetyLimits()
     out = Path(out_dir) if out_dir is not None else None
     prefix = f"{task}_{controller}_"
-    with stop_signals_raise() as guard:
+    tuning = tuning if tuning is not None else LoopTuning()
+    with stop_signals_raise() as guard, tuned_process(tuning) as notes:
         arm = make_connection(connection, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
         try:
             default_steps = round(get_task(task).real_horizon_s / arm.dt)
-            env = RealUREnv(task, arm, safety=safety, max_steps=steps if steps is not None else default_steps)
+            env = RealUREnv(
+                task, arm, safety=safety, max_steps=steps if steps is not None else default_steps, recovery=recovery
+            )
             if out is not None:
-                env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints)
+                env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints, journal_writer)
         except BaseException:
             arm.close()
             raise
-        log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, model_error)
+        with frozen_gc(tuning.freeze_gc):
+            log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, model_error)
         guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
         result = _write_outputs(
             env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs
         )
-    guard.raise_pending()
+        result.tuning_notes = list(notes)
+    try:
+        guard.raise_pending()
+    except TerminationSignal as exc:  # it came after the episode: the outputs are written all the same
+        exc.log_dir = out  # type: ignore[attr-defined]
+        raise
     return result
 
 
@@ -258,6 +292,7 @@ def _run_and_stop(
             policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
             log = rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps)
             log = add_critic_diagnostics(log, policy)
+            _mark_gaps(log, env)
         finally:
             env.close()
         failure = getattr(env.connection, "failure", None)
@@ -274,6 +309,18 @@ def _run_and_stop(
         if env.journal is not None:
             env.journal.close()
     return log
+
+
+def _mark_gaps(log: pd.DataFrame, env: RealUREnv) -> None:
+    """The ``resumed_after_s`` column: each resumption's gap (s) on the first row after it (only when there was one)."""
+    if not env.recoveries:
+        return
+    gaps = np.full(len(log), np.nan)
+    for r in env.recoveries:
+        if r["step"] < len(log):
+            gaps[r["step"]] = r["gap_s"]
+    log["resumed_after_s"] = gaps
+    log.attrs["recoveries"] = [dict(r) for r in env.recoveries]
 
 
 def _write_outputs(
@@ -304,6 +351,7 @@ def _write_outputs(
         timing=env.timing(),
         stop_reason=env.stop_reason,
         sent_commands=len(arm.sent) if isinstance(arm, DryRunConnection) else None,
+        recoveries=[dict(r) for r in env.recoveries],
     )
     if out is not None:
         result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
@@ -346,6 +394,9 @@ def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, pref
         "timing": env.timing(),
         "dt_ms": env.dt * 1e3,
     }
+    if env.recovery.max_recoveries:  # only a run that could resume says how it went
+        summary["recoveries"] = env.recoveries
+        summary["lost_links"] = getattr(connection, "lost_links", [])
     if _ending(exc) == "error":  # a bug: the CLI shows one line, the traceback is kept here
         summary["traceback"] = traceback.format_exception(exc)
     (out / f"{prefix}real.json").write_text(json.dumps(summary, indent=2, default=str))
@@ -370,6 +421,7 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
                 "stop_reason": result.stop_reason,
                 "dt_ms": env.dt * 1e3,
                 "sent_commands": result.sent_commands,
+                **({"recoveries": result.recoveries} if result.recoveries else {}),
             },
             indent=2,
         )

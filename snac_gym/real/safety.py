@@ -34,7 +34,7 @@ from snac_gym.sampling import UR10_CUBOID_HIGH, UR10_CUBOID_LOW
 _BOX_MARGIN = 0.15  # m around the sample cuboid: room for overshoot, not for the table
 
 
-def _finite_in(name: str, value: float, low: float, high: float, low_open: bool = False) -> None:
+def check_finite_in(name: str, value: float, low: float, high: float, low_open: bool = False) -> None:
     """Refuse a non-finite ``value`` or one outside ``[low, high]`` (``(low, high]`` with ``low_open``)."""
     below = value <= low if low_open else value < low
     if not math.isfinite(value) or below or value > high:
@@ -42,7 +42,7 @@ def _finite_in(name: str, value: float, low: float, high: float, low_open: bool 
         raise ValueError(f"{name} must be a finite number in {bracket}{low:g}, {high:g}], got {value!r}")
 
 
-def _whole_in(name: str, value: int, low: int, high: int) -> None:
+def check_whole_in(name: str, value: int, low: int, high: int) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
         raise ValueError(f"{name} must be a whole number in [{low}, {high}], got {value!r}")
 
@@ -87,16 +87,16 @@ class SafetyLimits:
     max_tcp_mismatch: float = 0.005
 
     def __post_init__(self) -> None:
-        _finite_in("speed_scale", self.speed_scale, 0.0, 1.0, low_open=True)
-        _finite_in("max_joint_acceleration", self.max_joint_acceleration, 0.0, 40.0, low_open=True)
-        _finite_in("joint_limit_margin", self.joint_limit_margin, 0.0, math.pi / 2)
-        _finite_in("deadline_slack", self.deadline_slack, 0.0, 10.0)
-        _finite_in("max_period", self.max_period, 0.0, 10.0, low_open=True)
-        _finite_in("rest_speed", self.rest_speed, 0.0, 1.0, low_open=True)
-        _finite_in("max_tcp_mismatch", self.max_tcp_mismatch, 0.0, 1.0, low_open=True)
-        _whole_in("deadline_window", self.deadline_window, 1, 100_000)
-        _whole_in("max_missed_deadlines", self.max_missed_deadlines, 1, self.deadline_window)
-        _whole_in("max_stale_periods", self.max_stale_periods, 1, 1000)
+        check_finite_in("speed_scale", self.speed_scale, 0.0, 1.0, low_open=True)
+        check_finite_in("max_joint_acceleration", self.max_joint_acceleration, 0.0, 40.0, low_open=True)
+        check_finite_in("joint_limit_margin", self.joint_limit_margin, 0.0, math.pi / 2)
+        check_finite_in("deadline_slack", self.deadline_slack, 0.0, 10.0)
+        check_finite_in("max_period", self.max_period, 0.0, 10.0, low_open=True)
+        check_finite_in("rest_speed", self.rest_speed, 0.0, 1.0, low_open=True)
+        check_finite_in("max_tcp_mismatch", self.max_tcp_mismatch, 0.0, 1.0, low_open=True)
+        check_whole_in("deadline_window", self.deadline_window, 1, 100_000)
+        check_whole_in("max_missed_deadlines", self.max_missed_deadlines, 1, self.deadline_window)
+        check_whole_in("max_stale_periods", self.max_stale_periods, 1, 1000)
         low, high = np.asarray(self.box_low, dtype=float), np.asarray(self.box_high, dtype=float)
         if low.shape != (3,) or high.shape != (3,):
             raise ValueError(f"task box corners must be 3 numbers each (m), got {self.box_low} and {self.box_high}")

@@ -16,6 +16,7 @@ import numpy as np
 from typing_extensions import Self
 
 from snac_gym.kinematics import Kinematics
+from snac_gym.real.connections import PROTECTIVE_STOP_LOCKOUT
 from snac_gym.real.emulator import protocol as p
 from snac_gym.real.emulator.arm import EmulatedArm
 from snac_gym.real.emulator.script import ControlScript
@@ -32,6 +33,13 @@ VERSIONS = {"cb": (3, 15, 8, 106339), "e": (5, 11, 6, 108805)}
 FREQUENCY = {"cb": 125.0, "e": 500.0}
 #: Deceleration of the controller's own stops (program stopped, watchdog), rad/s².
 STOP_DECELERATION = 10.0
+#: Commands that move the arm: none may arrive while the controller reports a stop.
+MOTION_COMMANDS = frozenset({p.SPEEDJ, p.MOVEJ})
+#: The dashboard's answer to ``unlock protective stop`` within the lockout (PolyScope's wording).
+UNLOCK_TOO_EARLY = (
+    f"Cannot unlock protective stop until {PROTECTIVE_STOP_LOCKOUT:g}s after occurrence. "
+    "Always inspect cause of protective stop before unlocking"
+)
 
 
 @dataclass
@@ -65,8 +73,9 @@ class UREmulator:
         speed_scaling: Speed slider fraction in (0, 1].
         tcp_offset: TCP offset ``[x, y, z, rx, ry, rz]`` applied to ``actual_TCP_pose``.
         bind_timeout: Seconds to wait for busy ports.
-        rt_priority: ``SCHED_FIFO`` priority of the control cycle's thread (0: normal scheduling),
-            so that on a busy host the cycle keeps its rate, as a real controller's does; needs
+        rt_priority: ``SCHED_FIFO`` priority of the control cycle's thread and the servers'
+            (0: normal scheduling), so that on a busy host the cycle keeps its rate, as a real
+            controller's does; needs
             the right to set it (root or ``CAP_SYS_NICE``), else it runs at normal priority.
 
     Raises:
@@ -123,6 +132,13 @@ class UREmulator:
         self._stale: dict[str, Any] | None = None
         self._refuse_until = 0.0
         self._link_down = False
+        #: Motion commands that arrived while the controller reported a stop, or after the link came
+        #: back before any state package had gone out: what the host must never send (see
+        #: :meth:`receive_inputs`). Each: ``(time, what)``.
+        self.unsafe_commands: list[tuple[float, str]] = []
+        self._stopped_since: float | None = None  # first state package that reported the stop
+        self._protective_stop_at = 0.0
+        self._awaiting_fresh_state = False
         self._input_owner: dict[str, RTDEConnection] = {}
         self._connections: list[RTDEConnection] = []
         self._sockets: list[socket.socket] = []
@@ -187,9 +203,25 @@ class UREmulator:
         self._listeners = listeners
 
     def _spawn(self, target: Any, *args: Any) -> None:
-        thread = threading.Thread(target=target, args=args, daemon=True, name=f"emulate-ur-{target.__name__}")
+        thread = threading.Thread(
+            target=self._at_priority, args=(target, *args), daemon=True, name=f"emulate-ur-{target.__name__}"
+        )
         thread.start()
         self._threads.append(thread)
+
+    def _at_priority(self, target: Any, *args: Any) -> None:
+        """Run ``target`` under ``SCHED_FIFO`` at ``rt_priority`` (when set), every thread alike.
+
+        The servers' threads need the interpreter lock that the control cycle needs: at normal
+        priority on a busy host, one descheduled while holding it stalled the cycle (at 500 Hz,
+        no package for 6 ms and more; a command read after the 10 ms watchdog had expired).
+        """
+        if self.rt_priority and target != self._control_loop:  # the cycle says so itself if not permitted
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+            except (PermissionError, OSError, AttributeError):
+                pass
+        target(*args)
 
     def close(self) -> None:
         """Stop the control cycle, close every connection and listener, and join the threads."""
@@ -263,7 +295,25 @@ class UREmulator:
             for name, value in values.items():
                 if name.startswith("input_int_register_") and name.endswith(("_0", "_24")):
                     self.commands.append(ReceivedCommand(now, int(value), dict(values)))  # type: ignore[arg-type]
+                    if int(value) in MOTION_COMMANDS:  # type: ignore[call-overload]
+                        self._check_motion_command(now, int(value))  # type: ignore[call-overload]
                     break
+
+    def _check_motion_command(self, now: float, command: int) -> None:
+        """Record a motion command the host should not have sent.
+
+        Either the controller reports a stop (the delay since the first state package that said
+        so is kept: a command already in flight then arrives within a period or so), or the link
+        came back and no state package has been sent since (the host cannot know where the arm is).
+        """
+        name = "speedJ" if command == p.SPEEDJ else "moveJ"
+        if self.safety_bits != 1 << p.SAFETY_NORMAL:
+            since = "before it was reported" if self._stopped_since is None else (
+                f"{(now - self._stopped_since) * 1e3:.1f} ms after it was reported"
+            )
+            self.unsafe_commands.append((now, f"{name} during {self._safety_name()} ({since})"))
+        elif self._awaiting_fresh_state:
+            self.unsafe_commands.append((now, f"{name} after the link came back, before any state package"))
 
     # ----------------------------------------------------------------- control cycle
     def _control_loop(self) -> None:
@@ -301,6 +351,10 @@ class UREmulator:
                 return
             values = self.state_values()
             due = [c for c in self._connections if c.started and c.output is not None and self._due(c)]
+            if due:
+                self._awaiting_fresh_state = False
+                if self._stopped_since is None and self.safety_bits != 1 << p.SAFETY_NORMAL:
+                    self._stopped_since = now
         for conn in due:
             conn.send(conn.output.pack(values))  # type: ignore[union-attr]
 
@@ -424,10 +478,22 @@ class UREmulator:
         return "NORMAL"
 
     def _unlock_protective_stop(self) -> str:
+        """PolyScope's rule: a protective stop can be unlocked only 5 s after it occurred."""
         if self._safety_name() != "PROTECTIVE_STOP":
             return "Cannot unlock protective stop"
-        self.clear_faults()
+        if time.monotonic() - self._protective_stop_at < PROTECTIVE_STOP_LOCKOUT:
+            self.event("protective stop unlock refused: within the 5 s lockout")
+            return UNLOCK_TOO_EARLY
+        self._release_safety()
+        self.event("protective stop unlocked from the dashboard")
         return "Protective stop releasing"
+
+    def _release_safety(self) -> None:
+        self.safety_bits = 1 << p.SAFETY_NORMAL
+        self.safety_mode = p.SAFETY_MODE_NORMAL
+        self._stopped_since = None
+        if self.runtime_state == p.RUNTIME_PAUSED:  # the program does not resume: the host re-uploads it
+            self.runtime_state = p.RUNTIME_STOPPED
 
     # ----------------------------------------------------------------- faults
     def protective_stop(self) -> None:
@@ -435,6 +501,7 @@ class UREmulator:
         with self.lock:
             self.safety_bits = 1 << p.SAFETY_PROTECTIVE_STOPPED
             self.safety_mode = p.SAFETY_MODE_PROTECTIVE_STOP
+            self._protective_stop_at = time.monotonic()
             self._halt(p.RUNTIME_PAUSED, "protective stop")
 
     def emergency_stop(self) -> None:
@@ -456,10 +523,7 @@ class UREmulator:
     def clear_faults(self) -> None:
         """Back to normal: safety cleared, stale data and stalls over, connections accepted."""
         with self.lock:
-            self.safety_bits = 1 << p.SAFETY_NORMAL
-            self.safety_mode = p.SAFETY_MODE_NORMAL
-            if self.runtime_state == p.RUNTIME_PAUSED:
-                self.runtime_state = p.RUNTIME_STOPPED
+            self._release_safety()
             self._stale, self._stall_until, self._refuse_until = None, 0.0, 0.0
             if self._link_down:
                 self._restore_link()
@@ -498,6 +562,7 @@ class UREmulator:
             self.event(f"link not restored yet: {exc}")
             return
         self._link_down = False
+        self._awaiting_fresh_state = True
         for name, listener in zip(PORT_OFFSETS, self._listeners):
             self._spawn(self._accept_loop, listener, name)
         self.event("link restored")
@@ -590,6 +655,7 @@ class UREmulator:
                 "protocol_errors": list(self.protocol_errors),
                 "watchdog": self._watchdog,
                 "unsupported_commands": list(self.script.unsupported) if self.script else [],
+                "unsafe_commands": [text for _, text in self.unsafe_commands],
                 "first_speed_command": self.first_speed_command,
                 "now": time.monotonic(),
                 "tcp_pose": self.arm.tcp_pose(self.tcp_offset).tolist(),
@@ -605,6 +671,7 @@ class UREmulator:
             self.arm = EmulatedArm(self.arm.robot, start, self.kinematics.velocity_limits)
             self.tcp_offset, self.speed_scaling = np.zeros(6), 1.0
             self.commands.clear()
+            self.unsafe_commands.clear()
             self.events.clear()
             self.programs.clear()
             self.first_speed_command = None

@@ -34,18 +34,27 @@ def fault_plan(
     drop_at: float | None = None,
     stale_at: float | None = None,
     watchdog_expiry_at: float | None = None,
+    drop_for: float | None = None,
 ) -> list[tuple[float, str, tuple[Any, ...]]]:
     """The faults to schedule, ``(seconds after the first speedJ, method, args)``.
 
+    ``drop_for``: with ``drop_at``, the link comes back (new connections accepted) that many
+    seconds after the drop; without it the link stays down.
+
     Raises:
-        ValueError: On a malformed ``latency_spike`` (``AT,LENGTH`` in seconds).
+        ValueError: On a malformed ``latency_spike`` (``AT,LENGTH`` in seconds), or ``drop_for``
+            without ``drop_at``.
     """
     plan: list[tuple[float, str, tuple[Any, ...]]] = []
     singles = {
         "protective_stop": protective_stop_at, "emergency_stop": emergency_stop_at, "drop_connection": drop_at,
         "stale_data": stale_at, "expire_watchdog": watchdog_expiry_at,
     }  # fmt: skip
-    plan += [(at, fault, ()) for fault, at in singles.items() if at is not None]
+    plan += [(at, fault, ()) for fault, at in singles.items() if at is not None and fault != "drop_connection"]
+    if drop_for is not None and drop_at is None:
+        raise ValueError("--drop-for needs --drop-at (when the link drops)")
+    if drop_at is not None:
+        plan.append((drop_at, "drop_connection", () if drop_for is None else (drop_for,)))
     if latency_spike is not None:
         at, length = parse_numbers(latency_spike, "--latency-spike (AT,SECONDS)", (2,))
         plan.append((at, "latency_spike", (length,)))
