@@ -6,6 +6,7 @@ counting what reached the arm.
 """
 
 import json
+from functools import partial
 import os
 import signal
 import threading
@@ -235,7 +236,7 @@ def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_ru
     previous = signal.getsignal(signum)
     with pytest.raises(TerminationSignal) as excinfo:
         run_real_episode(controller="sends-signal", out_dir=tmp_path, connection="sim", steps=200,
-                         policy_kwargs={"signum": signum}, safety=SafetyLimits(max_period=10.0))
+                         policy_kwargs={"signum": signum}, safety=SafetyLimits(max_period=10.0, deadline_slack=10.0))
     assert excinfo.value.signum == signum
     assert signal.getsignal(signum) is previous  # the handlers are put back
     connection, speeds_after_stop = signalling_run
@@ -250,10 +251,20 @@ def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_ru
     assert len(pd.read_csv(tmp_path / "reach_sends-signal_timing.csv")) == 29
 
 
-def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path):
+def _timing_rules_off(monkeypatch) -> None:
+    """The command's safety limits without its timing rules: the simulated arm is not paced, and a busy
+    host (a writer process starting, other jobs) must not stop it before the fault under test."""
+    import snac_gym.real
+
+    monkeypatch.setattr(snac_gym.real, "SafetyLimits", partial(SafetyLimits, max_period=10.0, deadline_slack=10.0))
+
+
+def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
     from snac_gym.cli import app
+
+    _timing_rules_off(monkeypatch)
 
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "sends-signal", "--out", str(tmp_path)])
     assert outcome.exit_code == 128 + signal.SIGTERM
@@ -286,7 +297,7 @@ def test_a_second_signal_does_not_cut_the_stop_path_or_the_log(signalling_run, t
     register_policy("signals-twice", SignalsTwice, overwrite=True)
     with pytest.raises(TerminationSignal) as excinfo:
         run_real_episode(controller="signals-twice", out_dir=tmp_path, connection="sim", steps=200,
-                         safety=SafetyLimits(max_period=10.0))  # fmt: skip
+                         safety=SafetyLimits(max_period=10.0, deadline_slack=10.0))  # fmt: skip
     assert excinfo.value.signum == signal.SIGTERM  # the first signal is the one reported
     assert connection.stopped and speeds_after_stop and max(speeds_after_stop) < 1e-3  # the stop ran to rest
     assert len(pd.read_parquet(tmp_path / "reach_signals-twice_log.parquet")) == 29
@@ -307,10 +318,12 @@ class Crashes(BasePolicy):
         return np.full(6, 0.05)
 
 
-def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept(signalling_run, tmp_path):
+def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept(signalling_run, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
     from snac_gym.cli import app
+
+    _timing_rules_off(monkeypatch)
 
     register_policy("crashes", Crashes, overwrite=True)
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "crashes", "--out", str(tmp_path)])
@@ -394,7 +407,7 @@ def test_an_interrupted_run_keeps_the_stream_log_with_every_period(signalling_ru
 
     with pytest.raises(TerminationSignal):
         run_real_episode(controller="sends-signal", out_dir=tmp_path, connection="sim", steps=200,
-                         safety=SafetyLimits(max_period=10.0))  # fmt: skip
+                         safety=SafetyLimits(max_period=10.0, deadline_slack=10.0))  # fmt: skip
     stream = pd.read_csv(tmp_path / "reach_sends-signal_stream.csv")
     assert list(stream["step"]) == list(range(30))  # the reset's row, then one per sent command
 
