@@ -159,7 +159,7 @@ def physics_argument(physics: str, backend: str | None = None) -> str:
     """
     if backend is not None:
         warnings.warn(
-            f"backend={backend!r} is deprecated; use physics={backend!r} (the arm's model: 'pybullet' or 'kinematic')",
+            f"backend={backend!r} is deprecated; use physics={backend!r} (the arm's model: one of {PHYSICS})",
             DeprecationWarning, stacklevel=3,
         )
         if physics not in (backend, PHYSICS[0]):
@@ -322,8 +322,10 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             task=None if self.task_spec is not None else task.name,
         )
         obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
-        if physics != "pybullet" and render_mode is not None:
-            raise ValueError(f"render_mode={render_mode!r} needs physics='pybullet' (the {physics} arm has no scene)")
+        if physics == "kinematic" and render_mode is not None:
+            raise ValueError(
+                f"render_mode={render_mode!r} needs physics='pybullet' or 'mujoco' (the kinematic arm has no scene)"
+            )
         #: Episode length in control steps of the task's ids (their ``max_episode_steps``).
         self.default_max_steps = task.episode_steps
         #: The ``max_steps`` argument: when given, the env truncates itself after it (``None``: the
@@ -341,7 +343,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
 
         self.action_type = action_type
         self.observation_dtype = obs_dtype
-        #: The arm's model: ``"pybullet"`` or ``"kinematic"`` (:data:`~snac_gym.envs.arms.PHYSICS`).
+        #: The arm's model: ``"pybullet"``, ``"kinematic"`` or ``"mujoco"`` (:data:`~snac_gym.envs.arms.PHYSICS`).
         self.physics = physics
         self._build_arm(physics, n_substeps, render_every)
         self._unit_limits = np.ones(self.kinematics.n_joints)  # the bounds of a normalized action
@@ -372,15 +374,14 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
 
     def _build_arm(self, physics: str, n_substeps: int, render_every: int | None) -> None:
         """The arm, and the rendered scene when there is a render mode."""
-        # "human" without a display falls back to the headless client and warns on the first frame
-        # (the constructor must work headless: Gymnasium's checker builds every declared mode).
-        self._headless_human = (
-            self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
-        )
+        # "human" without a display (or in MuJoCo, which renders headless only) shows nothing and warns on
+        # the first frame (the constructor must work headless: Gymnasium's checker builds every declared mode).
+        no_display = sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
+        self._headless_human = self.render_mode == "human" and (no_display or physics == "mujoco")
         gui = self.render_mode == "human" and not self._headless_human
         self.arm: Arm = make_arm(physics, self.kinematics, self.dt, n_substeps, gui=gui)
         self.dt = self.arm.dt
-        #: The PyBullet world (renders; ``None`` for the kinematic arm).
+        #: The PyBullet world (renders; ``None`` for the kinematic and MuJoCo arms).
         self.sim = getattr(self.arm, "sim", None)
         self._warned_headless = False
         # A recorded video plays in real time: one frame per control step, a new image every render_every.
@@ -484,6 +485,9 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         if self._headless_human:
             if not self._warned_headless:
                 gym.logger.warn(
+                    "render_mode='human' with physics='mujoco' shows nothing (MuJoCo renders headless here); use "
+                    "render_mode='rgb_array' (gymnasium.wrappers.HumanRendering shows those frames in a window)"
+                    if self.physics == "mujoco" else
                     "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set: "
                     "nothing is shown; use render_mode='rgb_array' to render headless"
                 )
@@ -500,6 +504,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         return self._frame[1].copy()
 
     def close(self) -> None:
+        if getattr(self, "_scene", None) is not None and hasattr(self._scene, "close"):
+            self._scene.close()  # MuJoCo's scene holds an OpenGL context
         if getattr(self, "arm", None) is not None:
             self.arm.close()
 
