@@ -118,6 +118,11 @@ class MuJoCoArm:
         pass
 
 
+def _context_class(platform: str) -> Any:
+    """MuJoCo's ``GLContext`` class of ``platform`` (``"egl"`` or ``"osmesa"``); importing it loads the library."""
+    return importlib.import_module(f"mujoco.{platform}").GLContext
+
+
 def gl_context(width: int, height: int) -> Any:
     """A current headless OpenGL context of MuJoCo's: ``MUJOCO_GL``'s platform, else the first of
     :data:`GL_PLATFORMS` that works.
@@ -130,7 +135,7 @@ def gl_context(width: int, height: int) -> Any:
     failures = []
     for platform in platforms:
         try:
-            context = importlib.import_module(f"mujoco.{platform}").GLContext(width, height)
+            context = _context_class(platform)(width, height)
             context.make_current()
             return context
         except Exception as exc:  # noqa: BLE001 - any failure means: try the next platform
