@@ -70,23 +70,36 @@ def _time_env(env: Any, steps: int, control_dt: float, seed: int = 0, repeats: i
     return {"steps_per_s": steps / best, "real_time_factor": steps * control_dt / best, "control_dt": control_dt}
 
 
+#: The simulated physics :func:`run_env_bench` times by default (each that imports).
+BENCH_PHYSICS = ("pybullet", "mujoco")
+
+
 @_one_core()
-def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, dict[str, float]]:
+def run_env_bench(
+    steps: int = 5000, include_panda: bool = True, physics: tuple[str, ...] = BENCH_PHYSICS
+) -> dict[str, dict[str, float]]:
     """Steps/s and real-time factor (simulated s per wall s) of the snac-gym ids, on one core.
 
-    With ``include_panda`` and panda-gym installed, panda-gym's ``PandaReachJoints-v3`` is
-    measured in the same run for comparison.
+    Each of the UR10's ids is timed with each ``physics`` (``"mujoco"`` only where the mujoco extra
+    is installed). With ``include_panda`` and panda-gym installed, panda-gym's
+    ``PandaReachJoints-v3`` is measured in the same run for comparison.
     """
     import gymnasium as gym
 
+    from snac_gym.extras import MissingExtraError
     from snac_gym.tasks import TASKS
 
     check_bench_counts(steps, MIN_BENCH_COUNT)
     results: dict[str, dict[str, float]] = {}
-    for env_id in (task.env_id for task in TASKS.values()):  # the UR10's, the paper's arm
-        env = gym.make(env_id)  # timed unwrapped: no TimeLimit, and the env sets no length of its own
-        results[env_id] = _time_env(env.unwrapped, steps, env.unwrapped.dt)
-        env.close()
+    for engine in physics:
+        for env_id in (task.env_id for task in TASKS.values()):  # the UR10's, the paper's arm
+            try:
+                env = gym.make(env_id, physics=engine)
+            except MissingExtraError:
+                break
+            # timed unwrapped: no TimeLimit, and the env sets no length of its own
+            results[f"{env_id} ({engine})"] = _time_env(env.unwrapped, steps, env.unwrapped.dt)
+            env.close()
     if include_panda:
         try:
             import panda_gym  # noqa: F401
@@ -101,9 +114,9 @@ def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, di
 
 
 def format_env_bench(results: dict[str, dict[str, float]]) -> str:
-    lines = [f"{'env':40s} {'steps/s':>10s} {'control dt':>11s} {'real-time factor':>17s}"]
+    lines = [f"{'env':42s} {'steps/s':>10s} {'control dt':>11s} {'real-time factor':>17s}"]
     for name, row in results.items():
-        lines.append(f"{name:40s} {row['steps_per_s']:10.0f} {row['control_dt']*1e3:9.1f}ms {row['real_time_factor']:17.1f}")
+        lines.append(f"{name:42s} {row['steps_per_s']:10.0f} {row['control_dt']*1e3:9.1f}ms {row['real_time_factor']:17.1f}")
     panda = next((r for n, r in results.items() if "panda" in n), None)
     if panda:
         for name, row in results.items():
