@@ -386,6 +386,7 @@ def test_shaped_reward_is_the_documented_formula(action_type):
         assert reward == pytest.approx(RewardSpec().shaped(info["error_norm"], a, np.zeros(6)), rel=1e-12, abs=1e-12)
 
 
+@pytest.mark.rl
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_sb3_checker_has_no_warnings_for_the_learner_configuration(env_id):
     import warnings
