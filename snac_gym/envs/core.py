@@ -540,8 +540,8 @@ class ReachEnv(URTaskEnv):
     """``snac_gym/<Robot>Reach-v0``: optimal regulation, reach a fixed target point (Section III).
 
     ## Description
-    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or on the
-    exact kinematic model, ``physics="kinematic"``). The end effector must reach a fixed target
+    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or MuJoCo,
+    ``physics="mujoco"``, or on the exact kinematic model, ``physics="kinematic"``). The end effector must reach a fixed target
     x_d and stay there (x_d constant, ẋ_d = 0). One id per registered robot:
     ``snac_gym/UR10Reach-v0`` (the paper's arm), ``UR5Reach-v0``, ``UR3Reach-v0``,
     ``PandaReach-v0``, ``XArm7Reach-v0``; the id fixes ``robot``.
@@ -610,7 +610,7 @@ class ReachEnv(URTaskEnv):
     | argument               | default        | meaning                                            |
     |------------------------|----------------|----------------------------------------------------|
     | ``robot``              | the id's       | fixed by the id; another robot raises ``ValueError`` naming its id |
-    | ``physics``            | ``"pybullet"`` | ``"pybullet"`` (velocity motors) or ``"kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; no rendering) |
+    | ``physics``            | ``"pybullet"`` | ``"pybullet"`` (velocity motors), ``"mujoco"`` (the same URDF in MuJoCo, velocity servos; the ``mujoco`` extra) or ``"kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; no rendering) |
     | ``dt``                 | ``1/125``      | control period, s, in (0, 1]                       |
     | ``n_substeps``         | ``3``          | physics steps per control period                   |
     | ``action_type``        | ``"velocity"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
@@ -621,7 +621,7 @@ class ReachEnv(URTaskEnv):
     | ``success_tolerance``  | ``1e-3``       | success threshold on the error norm, m             |
     | ``terminate_on_success`` | ``False``    | end the episode on success                         |
     | ``sample_space``       | the robot's cuboid | a :class:`~snac_gym.sampling.SampleSpace`      |
-    | ``render_mode``        | ``None``       | ``"rgb_array"`` (headless) or ``"human"`` (GUI; without a display it warns on the first frame) |
+    | ``render_mode``        | ``None``       | ``"rgb_array"`` (headless) or ``"human"`` (PyBullet's GUI; without a display, or with MuJoCo, it warns on the first frame) |
     | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels |
     | ``render_every``       | 25 images/s    | control steps between two new images; ``render_fps`` is 1/dt |
     | ``max_steps``          | ``None``       | the env truncates itself after N steps (a constructed env, the vector env); under ``gym.make`` deprecated: use ``max_episode_steps`` |
@@ -642,8 +642,8 @@ class EllipseTrackEnv(URTaskEnv):
     """``snac_gym/<Robot>EllipseTrack-v0``: optimal tracking of a point moving on an ellipse (Section IV).
 
     ## Description
-    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or on the
-    exact kinematic model, ``physics="kinematic"``). The end effector must follow x_d(t) moving
+    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or MuJoCo,
+    ``physics="mujoco"``, or on the exact kinematic model, ``physics="kinematic"``). The end effector must follow x_d(t) moving
     on an ellipse (centre, semi-axes, plane orientation, angular speed, phase), with ẋ_d(t)
     known; see :class:`~snac_gym.references.Ellipse`. One id per registered robot:
     ``snac_gym/UR10EllipseTrack-v0`` (the paper's arm), ``UR5EllipseTrack-v0``,
