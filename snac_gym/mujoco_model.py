@@ -49,8 +49,7 @@ EE_SITE = "ee"
 #: robot's nominal pose, so every joint settles on its command with the same time constant 1/ω
 #: (0.1 ms, well inside a 2.7 ms physics step; one gain for all joints would make the wrist joints
 #: ~10⁴ times stiffer than the shoulder). The implicit integrator keeps the stiff servo stable.
-#: Measured on the UR10 (docs/benchmarks.md, ``tests/test_mujoco.py``): ω = 10⁴ follows a smooth
-#: random command within 2.4e-4 rad/s; 10³ within 7e-3.
+#: How closely it follows: ``snac-gym bench --tracking``, docs/physics.md.
 SERVO_BANDWIDTH = 1.0e4
 
 
@@ -156,8 +155,8 @@ def build_physics_spec(kinematics: Kinematics, timestep: float, site: str = EE_S
       is only what the motion needs;
     * the URDF's joint damping and friction left out (a real arm's velocity loop cancels them; here
       they would leave a steady error of b·u/k_v);
-    * MuJoCo's joint-limit constraint off: it is soft, and the stiff servo would push a joint up to
-      0.7 rad through it. :class:`~snac_gym.envs.mujoco_sim.MuJoCoArm` stops each joint at its
+    * MuJoCo's joint-limit constraint off: it is soft, and the stiff servo would push a joint tenths of
+      a radian through it (``docs/scripts/mujoco_servo_choices.py``). :class:`~snac_gym.envs.mujoco_sim.MuJoCoArm` stops each joint at its
       limit by cutting the command instead;
     * the implicit-fast integrator at ``timestep`` and a site ``site`` at the end-effector frame.
 
