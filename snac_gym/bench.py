@@ -234,7 +234,13 @@ def run_tracking_study(
     episodes: int = 5,
     steps: int = 1000,
 ) -> list[dict[str, Any]]:
-    """:func:`tracking_errors` of each engine, env and command over ``episodes`` seeds: the worst episode."""
+    """:func:`tracking_errors` of each engine, env and command over ``episodes`` seeds: the worst episode.
+
+    ``"mujoco"`` is left out where the mujoco extra is not installed.
+    """
+    import importlib.util
+
+    physics = tuple(engine for engine in physics if engine != "mujoco" or importlib.util.find_spec("mujoco"))
     rows = []
     for env_id in env_ids:
         for kind in commands:
