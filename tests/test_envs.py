@@ -423,4 +423,4 @@ def test_kinematic_physics_is_the_evaluators_engine_episode_for_episode(env_id):
     with pytest.raises(ValueError, match="needs physics='pybullet'"):
         gym.make(env_id, physics="kinematic", render_mode="rgb_array")
     with pytest.raises(ValueError, match="physics must be one of"):
-        gym.make(env_id, physics="mujoco")
+        gym.make(env_id, physics="bullet")
