@@ -21,8 +21,8 @@ from snac_gym.envs.scene import PATH_COLOUR, TARGET_COLOUR, project  # noqa: E40
 #: smooth random command of :func:`snac_gym.bench.random_command` (5 episodes of 1000 steps = 8 s):
 #: the measured joint velocity within 0.02 rad/s of the command at every step (1 % of the UR10's
 #: slowest limit), and the end effector within 2 mm of the kinematic model's after the last step.
-#: Both engines meet it (docs/benchmarks.md): PyBullet by 2.3x on the Panda's velocity and 1.6x on
-#: the UR10's drift, MuJoCo by ~20x.
+#: Both engines meet it (docs/physics.md): PyBullet by 2.3x on the Panda's velocity and 1.6x on
+#: the UR10's drift, MuJoCo by 10x or more.
 VELOCITY_TOLERANCE = 0.02
 DRIFT_TOLERANCE = 2e-3
 
