@@ -11,8 +11,9 @@ from typing import Any
 import numpy as np
 
 #: Upper bound of ``--steps``: each env is timed 5 times over ``steps`` steps, so 1,000,000 steps
-#: take ~9 min for the two snac-gym envs at the ~18,000 steps/s measured here (README) and ~80 min
-#: for panda-gym at ~1,000 steps/s; a larger count is a typo that would run until killed.
+#: take ~20 min for the UR10's two ids in PyBullet and MuJoCo at the ~18,000 steps/s measured here
+#: (docs/benchmarks.md) and ~80 min for panda-gym at ~1,000 steps/s; a larger count is a typo that
+#: would run until killed.
 MAX_BENCH_STEPS = 1_000_000
 #: Upper bound of ``--act-calls``: the per-call timings are kept in memory (8 B each, 8 MB at the
 #: bound) and each call costs an ``act`` plus an env step (~50-100 µs), so ~100 s per policy and task.

@@ -63,7 +63,7 @@ def _check_task(task: str) -> None:
 
 @app.command()
 def bench(
-    steps: int = typer.Option(5000, "--steps", help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~9 min for the two snac-gym envs at the bound)."),
+    steps: int = typer.Option(5000, "--steps", help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two ids in both engines at the bound)."),
     panda: bool = typer.Option(True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."),
     substeps: bool = typer.Option(False, "--substeps", help="Also run the physics-substep accuracy study."),
     tracking: bool = typer.Option(False, "--tracking", help="Also measure how closely PyBullet and MuJoCo follow the exact kinematic model under random commands (UR10 and Panda, 5 episodes each)."),
