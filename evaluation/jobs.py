@@ -22,12 +22,13 @@ from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.registry import make_policy
-from snac_gym.rollout import simulate_kinematic, simulate_pybullet
+from snac_gym.rollout import simulate_env, simulate_kinematic
 from snac_gym.tasks import TASKS as TASK_REGISTRY
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
-#: How a job's samples are rolled out: the exact kinematic model in lockstep, or the PyBullet env.
-ENGINES = ("kinematic", "pybullet")
+#: How a job's samples are rolled out: the exact kinematic model in lockstep, or the env with the
+#: arm in PyBullet or MuJoCo (``physics=`` of the env), one episode after the other.
+ENGINES = ("kinematic", "pybullet", "mujoco")
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,7 @@ class RolloutJob:
         steps: Control steps per rollout.
         dt: Control period, s.
         robot: Robot name.
-        engine: ``"kinematic"`` or ``"pybullet"``.
+        engine: ``"kinematic"``, ``"pybullet"`` or ``"mujoco"``.
         keep_logs: Return the per-step logs.
         use_batch: Let the kinematic engine use a policy's batch protocol.
         convention: The cost the rollouts are scored by.
@@ -143,10 +144,10 @@ def run_job(job: RolloutJob) -> JobResult:
         )  # fmt: skip
         limits = context.velocity_limits
         logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
-    elif job.engine == "pybullet":
+    elif job.engine in ENGINES:  # an env with a simulated arm: physics= names its engine
         make_for_env = functools.partial(make_policy, job.controller, **job.kwargs)  # called with the env
-        rollouts, raw_logs = simulate_pybullet(
-            job.robot, job.task, job.dt, make_for_env, job.samples, job.steps, job.seeds
+        rollouts, raw_logs = simulate_env(
+            job.robot, job.task, job.dt, make_for_env, job.samples, job.steps, job.seeds, physics=job.engine
         )
         limits = np.asarray(raw_logs[0].attrs["velocity_limits"], dtype=float)
         logs = None

@@ -74,7 +74,7 @@ class EvaluationConfig:
         samples: Random samples per task (ignored with ``samples_file``, whose rows are all used).
         seed: Seed of the sample set and of every policy reset.
         horizons: Rollout length per task, s (missing tasks take their ``Task.horizon_s``).
-        engine: ``"kinematic"`` or ``"pybullet"`` (``snac-gym evaluate --engine``).
+        engine: ``"kinematic"``, ``"pybullet"`` or ``"mujoco"`` (``snac-gym evaluate --engine``).
         match_effort: Calibrate every controller's effort knob to equal effort.
         effort_reference: Controller whose effort (at its own settings) is the target.
         effort_statistic: What "equal control effort" equalises (:mod:`evaluation.effort_statistics`):

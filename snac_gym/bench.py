@@ -11,8 +11,9 @@ from typing import Any
 import numpy as np
 
 #: Upper bound of ``--steps``: each env is timed 5 times over ``steps`` steps, so 1,000,000 steps
-#: take ~9 min for the two snac-gym envs at the ~18,000 steps/s measured here (README) and ~80 min
-#: for panda-gym at ~1,000 steps/s; a larger count is a typo that would run until killed.
+#: take ~20 min for the UR10's two ids in PyBullet and MuJoCo at the ~18,000 steps/s measured here
+#: (docs/benchmarks.md) and ~80 min for panda-gym at ~1,000 steps/s; a larger count is a typo that
+#: would run until killed.
 MAX_BENCH_STEPS = 1_000_000
 #: Upper bound of ``--act-calls``: the per-call timings are kept in memory (8 B each, 8 MB at the
 #: bound) and each call costs an ``act`` plus an env step (~50-100 µs), so ~100 s per policy and task.
@@ -70,23 +71,36 @@ def _time_env(env: Any, steps: int, control_dt: float, seed: int = 0, repeats: i
     return {"steps_per_s": steps / best, "real_time_factor": steps * control_dt / best, "control_dt": control_dt}
 
 
+#: The simulated physics :func:`run_env_bench` times by default (each that imports).
+BENCH_PHYSICS = ("pybullet", "mujoco")
+
+
 @_one_core()
-def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, dict[str, float]]:
+def run_env_bench(
+    steps: int = 5000, include_panda: bool = True, physics: tuple[str, ...] = BENCH_PHYSICS
+) -> dict[str, dict[str, float]]:
     """Steps/s and real-time factor (simulated s per wall s) of the snac-gym ids, on one core.
 
-    With ``include_panda`` and panda-gym installed, panda-gym's ``PandaReachJoints-v3`` is
-    measured in the same run for comparison.
+    Each of the UR10's ids is timed with each ``physics`` (``"mujoco"`` only where the mujoco extra
+    is installed). With ``include_panda`` and panda-gym installed, panda-gym's
+    ``PandaReachJoints-v3`` is measured in the same run for comparison.
     """
     import gymnasium as gym
 
+    from snac_gym.extras import MissingExtraError
     from snac_gym.tasks import TASKS
 
     check_bench_counts(steps, MIN_BENCH_COUNT)
     results: dict[str, dict[str, float]] = {}
-    for env_id in (task.env_id for task in TASKS.values()):  # the UR10's, the paper's arm
-        env = gym.make(env_id)  # timed unwrapped: no TimeLimit, and the env sets no length of its own
-        results[env_id] = _time_env(env.unwrapped, steps, env.unwrapped.dt)
-        env.close()
+    for engine in physics:
+        for env_id in (task.env_id for task in TASKS.values()):  # the UR10's, the paper's arm
+            try:
+                env = gym.make(env_id, physics=engine)
+            except MissingExtraError:
+                break
+            # timed unwrapped: no TimeLimit, and the env sets no length of its own
+            results[f"{env_id} ({engine})"] = _time_env(env.unwrapped, steps, env.unwrapped.dt)
+            env.close()
     if include_panda:
         try:
             import panda_gym  # noqa: F401
@@ -101,9 +115,9 @@ def run_env_bench(steps: int = 5000, include_panda: bool = True) -> dict[str, di
 
 
 def format_env_bench(results: dict[str, dict[str, float]]) -> str:
-    lines = [f"{'env':40s} {'steps/s':>10s} {'control dt':>11s} {'real-time factor':>17s}"]
+    lines = [f"{'env':42s} {'steps/s':>10s} {'control dt':>11s} {'real-time factor':>17s}"]
     for name, row in results.items():
-        lines.append(f"{name:40s} {row['steps_per_s']:10.0f} {row['control_dt']*1e3:9.1f}ms {row['real_time_factor']:17.1f}")
+        lines.append(f"{name:42s} {row['steps_per_s']:10.0f} {row['control_dt']*1e3:9.1f}ms {row['real_time_factor']:17.1f}")
     panda = next((r for n, r in results.items() if "panda" in n), None)
     if panda:
         for name, row in results.items():
@@ -149,6 +163,103 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
                      "max_joint_velocity_error_rad_s": max_vel, "steps_per_s": steps / elapsed})
         env.close()
     return rows
+
+
+#: Command profiles of :func:`run_tracking_study`.
+TRACKING_COMMANDS = ("smooth", "steps")
+#: Joint excursion of the ``"smooth"`` command from the start pose, rad: below the seed poses' 0.2 rad
+#: margin from every limit (:class:`~snac_gym.sampling.SampleSpace`), so no joint meets one.
+SMOOTH_EXCURSION = 0.15
+
+
+def random_command(kind: str, rng: np.random.Generator, velocity_limits: np.ndarray, steps: int, dt: float) -> np.ndarray:
+    """``(steps, m)`` random joint-velocity commands, rad/s, of :data:`TRACKING_COMMANDS`.
+
+    ``"smooth"``: the derivative of a random joint motion of three sinusoids per joint (0.2-1 Hz,
+    random phases), whose excursion from the start pose stays within :data:`SMOOTH_EXCURSION`
+    (up to ~0.9 rad/s). ``"steps"``: white noise, uniform in ±20 % of the velocity limits, a new
+    value every period (a step of the command every 8 ms).
+
+    Raises:
+        ValueError: On an unknown ``kind``.
+    """
+    m, t = len(velocity_limits), np.arange(steps)[:, None, None] * dt
+    if kind == "smooth":
+        omega = 2 * np.pi * rng.uniform(0.2, 1.0, size=(3, m))
+        phase = rng.uniform(0, 2 * np.pi, size=(3, m))
+        amplitude = SMOOTH_EXCURSION / 3.0
+        return np.clip((amplitude * omega * np.cos(omega * t + phase)).sum(axis=1), -velocity_limits, velocity_limits)
+    if kind == "steps":
+        return 0.2 * rng.uniform(-velocity_limits, velocity_limits, size=(steps, m))
+    raise ValueError(f"command must be one of {TRACKING_COMMANDS}, got {kind!r}")
+
+
+def tracking_errors(env_id: str, physics: str, kind: str, seed: int, steps: int = 1000) -> dict[str, float]:
+    """How far one episode of ``physics`` departs from the exact kinematic model under a random command.
+
+    The env starts from its seeded random pose; the same commands are integrated exactly
+    (θₖ₊₁ = θₖ + uₖΔt, :func:`~snac_gym.kinematics.joint_step`) from the same pose.
+
+    Returns:
+        ``max_velocity_error`` (max over steps and joints of |θ̇ − u| after each step, rad/s),
+        ``max_joint_drift`` (max |θ − θ_kin| over the episode, rad) and ``ee_drift`` (‖f(θ) − f(θ_kin)‖
+        after the last step, m).
+    """
+    import gymnasium as gym
+
+    import snac_gym  # noqa: F401  (registers the envs)
+    from snac_gym.kinematics import joint_step
+
+    env = gym.make(env_id, physics=physics).unwrapped
+    try:
+        obs, _ = env.reset(seed=seed)
+        m = env.kinematics.n_joints
+        commands = random_command(kind, np.random.default_rng(seed), env.velocity_limits, steps, env.dt)
+        q_exact = obs[:m].copy()
+        velocity_error = joint_drift = 0.0
+        for u in commands:
+            obs, *_ = env.step(u)
+            q_exact = joint_step(q_exact, u, env.dt)
+            velocity_error = max(velocity_error, float(np.abs(obs[m : 2 * m] - u).max()))
+            joint_drift = max(joint_drift, float(np.abs(obs[:m] - q_exact).max()))
+        ee_drift = float(np.linalg.norm(env.kinematics.forward(obs[:m]) - env.kinematics.forward(q_exact)))
+    finally:
+        env.close()
+    return {"max_velocity_error": velocity_error, "max_joint_drift": joint_drift, "ee_drift": ee_drift}
+
+
+def run_tracking_study(
+    physics: tuple[str, ...] = ("pybullet", "mujoco"),
+    env_ids: tuple[str, ...] = ("snac_gym/UR10Reach-v0", "snac_gym/PandaReach-v0"),
+    commands: tuple[str, ...] = TRACKING_COMMANDS,
+    episodes: int = 5,
+    steps: int = 1000,
+) -> list[dict[str, Any]]:
+    """:func:`tracking_errors` of each engine, env and command over ``episodes`` seeds: the worst episode.
+
+    ``"mujoco"`` is left out where the mujoco extra is not installed.
+    """
+    import importlib.util
+
+    physics = tuple(engine for engine in physics if engine != "mujoco" or importlib.util.find_spec("mujoco"))
+    rows = []
+    for env_id in env_ids:
+        for kind in commands:
+            for engine in physics:
+                runs = [tracking_errors(env_id, engine, kind, seed, steps) for seed in range(episodes)]
+                rows.append({"env_id": env_id, "physics": engine, "command": kind, "episodes": episodes,
+                             **{key: max(run[key] for run in runs) for key in runs[0]}})
+    return rows
+
+
+def format_tracking_study(rows: list[dict[str, Any]]) -> str:
+    """Table of :func:`run_tracking_study` rows."""
+    lines = [f"{'env':26s} {'command':8s} {'physics':9s} {'max |θ̇ − u| rad/s':>19s} {'max |θ − θ_kin| rad':>20s}"
+             f" {'ee drift mm':>12s}"]
+    for row in rows:
+        lines.append(f"{row['env_id']:26s} {row['command']:8s} {row['physics']:9s} {row['max_velocity_error']:19.2e}"
+                     f" {row['max_joint_drift']:20.2e} {row['ee_drift'] * 1e3:12.3f}")
+    return "\n".join(lines)
 
 
 @_one_core()

@@ -63,14 +63,15 @@ def _check_task(task: str) -> None:
 
 @app.command()
 def bench(
-    steps: int = typer.Option(5000, "--steps", help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~9 min for the two snac-gym envs at the bound)."),
+    steps: int = typer.Option(5000, "--steps", help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two ids in both engines at the bound)."),
     panda: bool = typer.Option(True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."),
     substeps: bool = typer.Option(False, "--substeps", help="Also run the physics-substep accuracy study."),
+    tracking: bool = typer.Option(False, "--tracking", help="Also measure how closely PyBullet and MuJoCo follow the exact kinematic model under random commands (UR10 and Panda, 5 episodes each)."),
     act: bool = typer.Option(False, "--act", help="Also time one act() call of every available policy that imports."),
     act_calls: int = typer.Option(5000, "--act-calls", help="Timed act() calls per policy and task, 100 to 1,000,000 (timings kept in memory, 8 B each; ~100 s per policy and task at the bound)."),
     vector: bool = typer.Option(False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."),
 ) -> None:
-    """Env steps per second and real-time factor of both ids on one core (and, with --act, act latency)."""
+    """Env steps per second and real-time factor of both ids, in PyBullet and MuJoCo, on one core (and, with --act, act latency)."""
     from snac_gym.bench import check_bench_counts, format_env_bench, run_env_bench, run_substep_study
 
     try:  # both before the first measurement, which a bad --act-calls would otherwise follow by minutes
@@ -84,6 +85,11 @@ def bench(
 
         typer.echo("\nbatched kinematic vector env (gym.make_vec(..., vectorization_mode='vector_entry_point')), one core")
         typer.echo(format_vector_bench(run_vector_bench()))
+    if tracking:
+        from snac_gym.bench import format_tracking_study, run_tracking_study
+
+        typer.echo("\nfollowing the exact kinematic model θₖ₊₁ = θₖ + uₖΔt over 1000 steps, worst of 5 episodes")
+        typer.echo(format_tracking_study(run_tracking_study()))
     if substeps:
         typer.echo("\nphysics substeps: deviation from exact integration θ += u·dt over 1000 steps")
         for row in run_substep_study():
@@ -261,7 +267,7 @@ def evaluate(
     samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Random samples per task (default 1000, the paper's; at most what half the memory holds)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
     horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."),
-    engine: str = typer.Option("kinematic", "--engine", help="kinematic (exact θ += uΔt, all samples in lockstep, fast) or pybullet (each sample an episode of the Gymnasium env)."),
+    engine: str = typer.Option("kinematic", "--engine", help="kinematic (exact θ += uΔt, all samples in lockstep, fast), pybullet or mujoco (each sample an episode of the Gymnasium env with that physics; mujoco needs the mujoco extra)."),
     backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --engine."),
     match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
     effort_reference: Optional[str] = typer.Option(None, "--effort-reference", help="Controller whose effort the others are matched to (default: snac if evaluated, else the first controller)."),

@@ -21,7 +21,11 @@ value clipped to the joint's limits). ``tests/test_qp_controllers.py`` checks th
 orientation and Jacobian against :class:`Kinematics` and :class:`~snac_gym.kinematics.PoseKinematics`
 at random configurations of every registered robot.
 
-Needs ``mujoco`` (the ``ik`` extra).
+:func:`build_physics_spec` builds the arm the ``physics="mujoco"`` env simulates from the same
+URDF (:mod:`snac_gym.envs.mujoco_sim`): in the URDF's world frame, as PyBullet loads it, with the
+collision meshes as geometry and velocity servos on the joints.
+
+Needs ``mujoco`` (the ``mujoco`` extra; the ``ik`` extra brings it too, through mink).
 """
 
 from __future__ import annotations
@@ -41,12 +45,23 @@ from snac_gym.robots import get_robot
 EE_SITE = "ee"
 
 
-def _urdf_without_geometry(text: str, locked: tuple[str, ...]) -> tuple[str, dict[str, float]]:
-    """The URDF with every ``<visual>`` and ``<collision>`` removed, and the value of each locked joint
-    (its neutral value 0 clipped to its URDF limits, as :func:`snac_gym.kinematics._locked` holds it)."""
+#: Bandwidth ω of the physics model's velocity servos, rad/s: joint i's gain is k_v,i = ω·M_ii at the
+#: robot's nominal pose, so every joint settles on its command with the same time constant 1/ω
+#: (0.1 ms, well inside a 2.7 ms physics step; one gain for all joints would make the wrist joints
+#: ~10⁴ times stiffer than the shoulder). The implicit integrator keeps the stiff servo stable.
+#: How closely it follows: ``snac-gym bench --tracking``, docs/physics.md.
+SERVO_BANDWIDTH = 1.0e4
+
+
+def _urdf_without_geometry(
+    text: str, locked: tuple[str, ...], keep_collision: bool = False
+) -> tuple[str, dict[str, float]]:
+    """The URDF with every ``<visual>`` removed, and every ``<collision>`` unless ``keep_collision``, and
+    the value of each locked joint (its neutral value 0 clipped to its URDF limits, as
+    :func:`snac_gym.kinematics._locked` holds it)."""
     root = ET.fromstring(text)
     for link in root.findall("link"):
-        for tag in ("visual", "collision"):
+        for tag in ("visual",) if keep_collision else ("visual", "collision"):
             for element in link.findall(tag):
                 link.remove(element)
     values: dict[str, float] = {}
@@ -121,6 +136,69 @@ def build_mujoco_model(kinematics: Kinematics, site: str = EE_SITE) -> Any:
     model = spec.compile()
     _check_joints(model, kinematics)
     return model
+
+
+def build_physics_spec(kinematics: Kinematics, timestep: float, site: str = EE_SITE) -> Any:
+    """A ``mujoco.MjSpec`` of ``kinematics``' arm for simulation, to compile (a scene may be added first).
+
+    The URDF's bodies, inertias and joints in the URDF's world frame (the frame PyBullet loads it
+    in, so :meth:`Kinematics.base_to_world` places base-frame points in it), with:
+
+    * **geometry**: the URDF's collision meshes (STL), which MuJoCo reads; the visual meshes are
+      COLLADA (``.dae``), which it does not. Contacts are off (the arm touches nothing and
+      self-collision is off, as in the PyBullet env);
+    * **a velocity servo per joint**, τ = k_v (u − θ̇), k_v = :data:`SERVO_BANDWIDTH`·M_ii at the
+      nominal pose, its force unbounded: a clamped force breaks the implicit integration of the
+      servo's damping, and the servo then oscillates (the URDF's effort bounds, which PyBullet's
+      motors keep, are left out);
+    * **gravity compensated** on every body (as a real arm's controller does), so the servo's force
+      is only what the motion needs;
+    * the URDF's joint damping and friction left out (a real arm's velocity loop cancels them; here
+      they would leave a steady error of b·u/k_v);
+    * MuJoCo's joint-limit constraint off: it is soft, and the stiff servo would push a joint tenths of
+      a radian through it (``docs/scripts/mujoco_servo_choices.py``). :class:`~snac_gym.envs.mujoco_sim.MuJoCoArm` stops each joint at its
+      limit by cutting the command instead;
+    * the implicit-fast integrator at ``timestep`` and a site ``site`` at the end-effector frame.
+
+    Raises:
+        MissingExtraError: If mujoco is not installed.
+    """
+    mujoco = require("mujoco", "mujoco", "physics='mujoco'")
+    from snac_gym.kinematics import resolved_urdf_text
+    from snac_gym.sampling import nominal_configuration
+
+    locked = _locked_joints(kinematics)
+    text, locked_values = _urdf_without_geometry(resolved_urdf_text(kinematics.urdf_path), locked, keep_collision=True)
+    spec = mujoco.MjSpec.from_string(text)
+    spec.compiler.discardvisual = False  # the URDF importer's default drops contact-free geoms: the scene's markers
+    spec.compiler.boundmass = 1e-6  # massless URDF links (tool frames) must still compile
+    spec.compiler.boundinertia = 1e-9
+    _weld_locked(mujoco, spec, locked_values)
+    spec.option.timestep = float(timestep)
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_LIMIT
+    for body in spec.bodies:
+        body.gravcomp = 1.0
+    for name in kinematics.joint_names:
+        joint = spec.joint(name)
+        for attribute in ("damping", "frictionloss", "armature"):
+            setattr(joint, attribute, np.zeros_like(getattr(joint, attribute)))
+        joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
+    frame = kinematics.model.frames[kinematics._ee_id]
+    carrier = spec.joint(str(kinematics.model.names[frame.parentJoint])).parent
+    carrier.add_site(name=site, pos=frame.placement.translation.copy(), quat=_quat(frame.placement.rotation))
+
+    model = spec.compile()
+    _check_joints(model, kinematics)
+    data = mujoco.MjData(model)
+    data.qpos[:] = nominal_configuration(kinematics)
+    inertia = np.zeros((model.nv, model.nv))
+    mujoco.mj_forward(model, data)
+    mujoco.mj_fullM(model, data, inertia)
+    for name, diagonal in zip(kinematics.joint_names, np.diag(inertia)):
+        actuator = spec.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        actuator.set_to_velocity(kv=SERVO_BANDWIDTH * float(diagonal))
+    return spec
 
 
 def _locked_joints(kinematics: Kinematics) -> tuple[str, ...]:

@@ -1,9 +1,28 @@
+import importlib.util
+
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import snac_gym  # noqa: F401  (registers the envs)
 from snac_gym.kinematics import Kinematics
+
+
+#: Why a test marked ``rl`` is skipped where torch or stable-baselines3 is missing.
+RL_SKIP_REASON = (
+    "needs the rl extra (torch, stable-baselines3), not installed: the Python 3.13 variant of the README's "
+    "test command leaves it out (PyPI has only multi-GB CUDA builds of torch there)"
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Skip the tests marked ``rl`` when torch or stable-baselines3 is not installed, saying why."""
+    if all(importlib.util.find_spec(name) is not None for name in ("torch", "stable_baselines3")):
+        return
+    skip = pytest.mark.skip(reason=RL_SKIP_REASON)
+    for item in items:
+        if "rl" in item.keywords:
+            item.add_marker(skip)
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -144,6 +144,7 @@ def _zip_bytes() -> bytes:
     return buffer.getvalue()
 
 
+@pytest.mark.rl  # the checkpoint is read by stable-baselines3
 @pytest.mark.parametrize("damaged", ["model.zip", "vecnormalize.pkl"])
 def test_resume_from_a_truncated_checkpoint_is_one_line_naming_the_file(tmp_path, damaged):
     model, statistics = _zip_bytes(), pickle.dumps({"clip_obs": 10.0})

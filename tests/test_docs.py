@@ -64,7 +64,17 @@ def test_the_documentation_has_code_to_run_and_few_opt_outs():
     assert len(skipped) <= 5, [f"{b['file']}:{b['line']}" for b in skipped]
 
 
-@pytest.mark.parametrize("path", FILES_WITH_CODE, ids=lambda path: path.relative_to(ROOT).as_posix())
+#: A block that imports stable-baselines3 or torch needs the rl extra.
+NEEDS_RL = re.compile(r"^\s*(from|import) (stable_baselines3|torch)\b", re.MULTILINE)
+
+
+def _doc_param(path: Path) -> object:
+    needs_rl = any(NEEDS_RL.search(block["code"]) for block in code_blocks(path)[0])
+    return pytest.param(path, marks=pytest.mark.rl) if needs_rl else path
+
+
+@pytest.mark.parametrize("path", [_doc_param(path) for path in FILES_WITH_CODE],
+                         ids=lambda path: path.relative_to(ROOT).as_posix())
 def test_python_blocks_run(path: Path, tmp_path: Path):
     blocks, _ = code_blocks(path)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),

@@ -138,8 +138,8 @@ def test_deprecated_backend_argument_warns_and_means_physics():
     _assert_recorded("track_kinematic", recorded.env_trajectory("snac_gym/UR10EllipseTrack-v0", 8, backend="kinematic"))
     with pytest.raises(ValueError, match="give physics= only"), pytest.warns(DeprecationWarning):
         gym.make("snac_gym/UR10Reach-v0", physics="kinematic", backend="pybullet")
-    with pytest.raises(ValueError, match=r"physics must be one of \('pybullet', 'kinematic'\), got 'mujoco'"):
-        gym.make("snac_gym/UR10Reach-v0", physics="mujoco")
+    with pytest.raises(ValueError, match=r"physics must be one of \('pybullet', 'kinematic', 'mujoco'\), got 'bullet'"):
+        gym.make("snac_gym/UR10Reach-v0", physics="bullet")
 
 
 # -- the env classes -----------------------------------------------------------------------------------------

@@ -386,6 +386,7 @@ def test_shaped_reward_is_the_documented_formula(action_type):
         assert reward == pytest.approx(RewardSpec().shaped(info["error_norm"], a, np.zeros(6)), rel=1e-12, abs=1e-12)
 
 
+@pytest.mark.rl
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_sb3_checker_has_no_warnings_for_the_learner_configuration(env_id):
     import warnings
@@ -422,4 +423,4 @@ def test_kinematic_physics_is_the_evaluators_engine_episode_for_episode(env_id):
     with pytest.raises(ValueError, match="needs physics='pybullet'"):
         gym.make(env_id, physics="kinematic", render_mode="rgb_array")
     with pytest.raises(ValueError, match="physics must be one of"):
-        gym.make(env_id, physics="mujoco")
+        gym.make(env_id, physics="bullet")

@@ -26,7 +26,7 @@ from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import BasePolicy, LockstepPolicies, PolicyContext, supports_batch
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse, FixedTarget
-from snac_gym.rollout import RolloutError, Rollouts, reference_trajectories, simulate_kinematic, simulate_pybullet
+from snac_gym.rollout import RolloutError, Rollouts, reference_trajectories, simulate_kinematic, simulate_env
 from snac_gym.sampling import SampleSpace, ellipse_is_feasible
 
 DT = 1.0 / 125.0
@@ -280,11 +280,14 @@ def test_a_non_finite_command_names_controller_sample_and_step(context_of, reach
         simulate_kinematic(context, lambda: NaNPolicy(context), reach_samples[:1], 10, [0], label="nan-test")
 
 
-def test_pybullet_engine_follows_the_kinematic_model(context_of, reach_samples):
+@pytest.mark.parametrize("engine", ["pybullet", "mujoco"])
+def test_simulated_engines_follow_the_kinematic_model(context_of, reach_samples, engine):
+    if engine == "mujoco":
+        pytest.importorskip("mujoco", reason="the mujoco engine needs the mujoco extra")
     context = context_of("reach")
     samples, steps = reach_samples[:2], 60
-    physics, logs = simulate_pybullet(
-        "ur10", "reach", DT, lambda env: PseudoInversePolicy(env, gain=2.0), samples, steps, [0, 1]
+    physics, logs = simulate_env(
+        "ur10", "reach", DT, lambda env: PseudoInversePolicy(env, gain=2.0), samples, steps, [0, 1], physics=engine
     )
     exact = simulate_kinematic(context, lambda: PseudoInversePolicy(context, gain=2.0), samples, steps, [0, 1])
     assert len(logs) == 2 and len(logs[0]) == steps

@@ -24,7 +24,11 @@ def test_every_example_is_smoke_tested():
     assert sorted(path.name for path in EXAMPLES.glob("*.py")) == sorted(RUNS)
 
 
-@pytest.mark.parametrize("name", sorted(RUNS))
+#: The examples that train with stable-baselines3 (the rl extra).
+NEEDS_RL = {"train_ppo.py"}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.rl) if n in NEEDS_RL else n for n in sorted(RUNS)])
 def test_example_runs(name: str, tmp_path: Path):
     args, expected = RUNS[name]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),

@@ -14,6 +14,7 @@ from snac_gym.tasks import TASKS
 GOAL_IDS = [goal_env_id(task) for task in TASKS.values()]
 
 
+@pytest.mark.rl
 @pytest.mark.parametrize("env_id", GOAL_IDS)
 def test_goal_envs_pass_the_checkers_with_default_arguments(env_id):
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
@@ -89,6 +90,7 @@ def test_goal_env_pickles_mid_episode():
     env.close(), clone.close()
 
 
+@pytest.mark.rl
 def test_sac_with_her_trains_on_the_goal_env():
     from stable_baselines3 import SAC, HerReplayBuffer
 

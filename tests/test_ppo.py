@@ -72,6 +72,7 @@ def trained_run(tmp_path_factory):
 
 
 # -- training: save, reload, act identically ------------------------------------------------------
+@pytest.mark.rl
 def test_tiny_training_saves_everything_needed_to_reload(trained_run):
     out, _, output = trained_run
     assert "finished" in output and "best policy" in output
@@ -93,6 +94,7 @@ def test_tiny_training_saves_everything_needed_to_reload(trained_run):
     assert metadata["evaluation"]["timesteps"] == state["best"]["timesteps"]
 
 
+@pytest.mark.rl
 def test_reloaded_policy_acts_exactly_as_the_trained_model(trained_run, reach_env):
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -122,6 +124,7 @@ def test_reloaded_policy_acts_exactly_as_the_trained_model(trained_run, reach_en
     np.testing.assert_array_equal(policy.model.obs_mean, stats.obs_rms.mean)
 
 
+@pytest.mark.rl
 def test_training_into_an_existing_run_or_resuming_nothing_is_refused(trained_run, tmp_path):
     out, config, _ = trained_run
     runner = CliRunner()
@@ -142,6 +145,7 @@ def terminal_sigint():
     signal.signal(signal.SIGINT, previous)
 
 
+@pytest.mark.rl
 def test_ctrl_c_leaves_a_usable_checkpoint_and_resume_continues(tmp_path, monkeypatch, reach_env, terminal_sigint):
     import snac_gym.ppo.train as train_module
 

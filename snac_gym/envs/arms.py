@@ -2,8 +2,9 @@
 
 :class:`PyBulletArm` simulates the URDF with PyBullet's velocity motors (the default);
 :class:`KinematicArm` integrates the paper's model exactly, θₖ₊₁ = θₖ + uₖΔt (eq. 3, the
-evaluator's kinematic engine), thousands of times faster. The env's ``physics=`` argument picks
-one. The real robot's connections (:mod:`snac_gym.real.connections`) follow the same idea with a
+evaluator's kinematic engine), thousands of times faster; :class:`~snac_gym.envs.mujoco_sim.MuJoCoArm`
+simulates the same URDF in MuJoCo with velocity servos (the ``mujoco`` extra). The env's
+``physics=`` argument picks one. The real robot's connections (:mod:`snac_gym.real.connections`) follow the same idea with a
 wall clock behind them.
 """
 
@@ -19,7 +20,7 @@ from snac_gym.envs.sim import MAX_DT, PyBulletSim
 from snac_gym.kinematics import Kinematics, joint_step
 
 #: The arm models of the simulated envs (``physics=`` of ``gym.make``).
-PHYSICS = ("pybullet", "kinematic")
+PHYSICS = ("pybullet", "kinematic", "mujoco")
 
 
 @runtime_checkable
@@ -125,9 +126,14 @@ def make_arm(physics: str, kinematics: Kinematics, dt: float, n_substeps: int, g
 
     Raises:
         ValueError: On an unknown model.
+        MissingExtraError: For ``"mujoco"`` without mujoco installed.
     """
     if physics == "pybullet":
         return PyBulletArm(kinematics, dt, n_substeps, gui=gui)
     if physics == "kinematic":
         return KinematicArm(kinematics, dt)
+    if physics == "mujoco":
+        from snac_gym.envs.mujoco_sim import MuJoCoArm  # needs the mujoco extra
+
+        return MuJoCoArm(kinematics, dt, n_substeps)
     raise ValueError(f"physics must be one of {PHYSICS}, got {physics!r}")

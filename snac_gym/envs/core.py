@@ -159,7 +159,7 @@ def physics_argument(physics: str, backend: str | None = None) -> str:
     """
     if backend is not None:
         warnings.warn(
-            f"backend={backend!r} is deprecated; use physics={backend!r} (the arm's model: 'pybullet' or 'kinematic')",
+            f"backend={backend!r} is deprecated; use physics={backend!r} (the arm's model: one of {PHYSICS})",
             DeprecationWarning, stacklevel=3,
         )
         if physics not in (backend, PHYSICS[0]):
@@ -344,8 +344,10 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             task=None if self.task_spec is not None else task.name, cost=cost,
         )
         obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
-        if physics != "pybullet" and render_mode is not None:
-            raise ValueError(f"render_mode={render_mode!r} needs physics='pybullet' (the {physics} arm has no scene)")
+        if physics == "kinematic" and render_mode is not None:
+            raise ValueError(
+                f"render_mode={render_mode!r} needs physics='pybullet' or 'mujoco' (the kinematic arm has no scene)"
+            )
         #: Episode length in control steps of the task's ids (their ``max_episode_steps``).
         self.default_max_steps = task.episode_steps
         #: The ``max_steps`` argument: when given, the env truncates itself after it (``None``: the
@@ -366,7 +368,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
 
         self.action_type = action_type
         self.observation_dtype = obs_dtype
-        #: The arm's model: ``"pybullet"`` or ``"kinematic"`` (:data:`~snac_gym.envs.arms.PHYSICS`).
+        #: The arm's model: ``"pybullet"``, ``"kinematic"`` or ``"mujoco"`` (:data:`~snac_gym.envs.arms.PHYSICS`).
         self.physics = physics
         self._build_arm(physics, n_substeps, render_every)
         self._unit_limits = np.ones(self.kinematics.n_joints)  # the bounds of a normalized action
@@ -397,15 +399,14 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
 
     def _build_arm(self, physics: str, n_substeps: int, render_every: int | None) -> None:
         """The arm, and the rendered scene when there is a render mode."""
-        # "human" without a display falls back to the headless client and warns on the first frame
-        # (the constructor must work headless: Gymnasium's checker builds every declared mode).
-        self._headless_human = (
-            self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
-        )
+        # "human" without a display (or in MuJoCo, which renders headless only) shows nothing and warns on
+        # the first frame (the constructor must work headless: Gymnasium's checker builds every declared mode).
+        no_display = sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
+        self._headless_human = self.render_mode == "human" and (no_display or physics == "mujoco")
         gui = self.render_mode == "human" and not self._headless_human
         self.arm: Arm = make_arm(physics, self.kinematics, self.dt, n_substeps, gui=gui)
         self.dt = self.arm.dt
-        #: The PyBullet world (renders; ``None`` for the kinematic arm).
+        #: The PyBullet world (renders; ``None`` for the kinematic and MuJoCo arms).
         self.sim = getattr(self.arm, "sim", None)
         self._warned_headless = False
         # A recorded video plays in real time: one frame per control step, a new image every render_every.
@@ -511,6 +512,9 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         if self._headless_human:
             if not self._warned_headless:
                 gym.logger.warn(
+                    "render_mode='human' with physics='mujoco' shows nothing (MuJoCo renders headless here); use "
+                    "render_mode='rgb_array' (gymnasium.wrappers.HumanRendering shows those frames in a window)"
+                    if self.physics == "mujoco" else
                     "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set: "
                     "nothing is shown; use render_mode='rgb_array' to render headless"
                 )
@@ -527,6 +531,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         return self._frame[1].copy()
 
     def close(self) -> None:
+        if getattr(self, "_scene", None) is not None and hasattr(self._scene, "close"):
+            self._scene.close()  # MuJoCo's scene holds an OpenGL context
         if getattr(self, "arm", None) is not None:
             self.arm.close()
 
@@ -561,8 +567,8 @@ class ReachEnv(URTaskEnv):
     """``snac_gym/<Robot>Reach-v0``: optimal regulation, reach a fixed target point (Section III).
 
     ## Description
-    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or on the
-    exact kinematic model, ``physics="kinematic"``). The end effector must reach a fixed target
+    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or MuJoCo,
+    ``physics="mujoco"``, or on the exact kinematic model, ``physics="kinematic"``). The end effector must reach a fixed target
     x_d and stay there (x_d constant, ẋ_d = 0). One id per registered robot:
     ``snac_gym/UR10Reach-v0`` (the paper's arm), ``UR5Reach-v0``, ``UR3Reach-v0``,
     ``PandaReach-v0``, ``XArm7Reach-v0``; the id fixes ``robot``.
@@ -634,7 +640,7 @@ class ReachEnv(URTaskEnv):
     | argument               | default        | meaning                                            |
     |------------------------|----------------|----------------------------------------------------|
     | ``robot``              | the id's       | fixed by the id; another robot raises ``ValueError`` naming its id |
-    | ``physics``            | ``"pybullet"`` | ``"pybullet"`` (velocity motors) or ``"kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; no rendering) |
+    | ``physics``            | ``"pybullet"`` | ``"pybullet"`` (velocity motors), ``"mujoco"`` (the same URDF in MuJoCo, velocity servos; the ``mujoco`` extra) or ``"kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; no rendering) |
     | ``dt``                 | ``1/125``      | control period, s, in (0, 1]                       |
     | ``n_substeps``         | ``3``          | physics steps per control period                   |
     | ``action_type``        | ``"velocity"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
@@ -646,7 +652,7 @@ class ReachEnv(URTaskEnv):
     | ``success_tolerance``  | ``1e-3``       | success threshold on the error norm, m             |
     | ``terminate_on_success`` | ``False``    | end the episode on success                         |
     | ``sample_space``       | the robot's cuboid | a :class:`~snac_gym.sampling.SampleSpace`      |
-    | ``render_mode``        | ``None``       | ``"rgb_array"`` (headless) or ``"human"`` (GUI; without a display it warns on the first frame) |
+    | ``render_mode``        | ``None``       | ``"rgb_array"`` (headless) or ``"human"`` (PyBullet's GUI; without a display, or with MuJoCo, it warns on the first frame) |
     | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels |
     | ``render_every``       | 25 images/s    | control steps between two new images; ``render_fps`` is 1/dt |
     | ``max_steps``          | ``None``       | the env truncates itself after N steps (a constructed env, the vector env); under ``gym.make`` deprecated: use ``max_episode_steps`` |
@@ -667,8 +673,8 @@ class EllipseTrackEnv(URTaskEnv):
     """``snac_gym/<Robot>EllipseTrack-v0``: optimal tracking of a point moving on an ellipse (Section IV).
 
     ## Description
-    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or on the
-    exact kinematic model, ``physics="kinematic"``). The end effector must follow x_d(t) moving
+    An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or MuJoCo,
+    ``physics="mujoco"``, or on the exact kinematic model, ``physics="kinematic"``). The end effector must follow x_d(t) moving
     on an ellipse (centre, semi-axes, plane orientation, angular speed, phase), with ẋ_d(t)
     known; see :class:`~snac_gym.references.Ellipse`. One id per registered robot:
     ``snac_gym/UR10EllipseTrack-v0`` (the paper's arm), ``UR5EllipseTrack-v0``,

@@ -12,6 +12,7 @@ so a recorded video plays in real time.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -36,6 +37,12 @@ PATH_COLOUR = (0.95, 0.8, 0.1, 1.0)
 CUBOID_COLOUR = (0.35, 0.38, 0.42, 1.0)
 #: Where unused path markers wait (under the floor, out of view), m.
 PARKED = (0.0, 0.0, -5.0)
+#: Marker radii and the cuboid bars' half width, m.
+TARGET_RADIUS, PATH_RADIUS, EDGE_HALF_WIDTH = 0.035, 0.009, 0.002
+#: Half extents of the floor slab, m (its top at z = 0).
+FLOOR_HALF_EXTENTS = (6.0, 6.0, 0.005)
+#: Near and far clipping planes, m.
+NEAR, FAR = 0.05, 20.0
 
 
 def project(points: np.ndarray, view: list[float], projection: list[float], width: int, height: int) -> np.ndarray:
@@ -59,6 +66,99 @@ def project(points: np.ndarray, view: list[float], projection: list[float], widt
     return np.column_stack([u, v, clip[:, 3]])
 
 
+def look_at(eye: np.ndarray, target: np.ndarray, up: Any = (0.0, 0.0, 1.0)) -> list[float]:
+    """The OpenGL view matrix (column-major, 16 floats) of a camera at ``eye`` looking at ``target``:
+    PyBullet's ``computeViewMatrix``, in NumPy."""
+    eye = np.asarray(eye, dtype=float)
+    forward = np.asarray(target, dtype=float) - eye
+    forward /= np.linalg.norm(forward)
+    side = np.cross(forward, up)
+    side /= np.linalg.norm(side)
+    matrix = np.eye(4)
+    matrix[0, :3], matrix[1, :3], matrix[2, :3] = side, np.cross(side, forward), -forward
+    matrix[:3, 3] = -matrix[:3, :3] @ eye
+    return matrix.T.ravel().tolist()
+
+
+def perspective(fov: float, aspect: float, near: float, far: float) -> list[float]:
+    """The OpenGL projection matrix (column-major) of a vertical field of view ``fov`` (degrees):
+    PyBullet's ``computeProjectionMatrixFOV``, in NumPy."""
+    focal = 1.0 / math.tan(math.radians(fov) / 2.0)
+    matrix = np.zeros((4, 4))
+    matrix[0, 0], matrix[1, 1] = focal / aspect, focal
+    matrix[2, 2], matrix[2, 3], matrix[3, 2] = (far + near) / (near - far), 2.0 * far * near / (near - far), -1.0
+    return matrix.T.ravel().tolist()
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Where the camera is and what it sees: ``eye`` looking at ``target`` (world frame, up +z), and the
+    matching OpenGL matrices (column-major, for :func:`project` and PyBullet)."""
+
+    eye: np.ndarray
+    target: np.ndarray
+    view: list[float]
+    projection: list[float]
+
+
+def fit_camera(points: np.ndarray, kinematics: Kinematics, width: int, height: int) -> Camera:
+    """The camera of every engine's scene: it sees ``points`` (world frame) from the arm's front, a
+    little from above, recentred and scaled so that they fill :data:`FILL` of the image (the rest is
+    room for the links' swing)."""
+    aspect = width / height
+    projection = perspective(FIELD_OF_VIEW, aspect, NEAR, FAR)
+    towards = kinematics.base_to_world(np.array([-1.0, -0.6, 0.0])) - kinematics.base_to_world(np.zeros(3))
+    direction = np.array([towards[0], towards[1], 0.0]) / np.linalg.norm(towards[:2])
+    direction = direction + np.array([0.0, 0.0, 0.35])
+    direction /= np.linalg.norm(direction)
+    target = (points.min(axis=0) + points.max(axis=0)) / 2.0
+    distance = 3.0 * float(np.linalg.norm(points - target, axis=1).max())
+    for _ in range(4):  # recentre the points' image and scale them to FILL of the frame
+        view = look_at(target + distance * direction, target)
+        pixels = project(points, view, projection, width, height)
+        ndc = np.column_stack([pixels[:, 0] / width * 2 - 1, 1 - pixels[:, 1] / height * 2])
+        low, high = ndc.min(axis=0), ndc.max(axis=0)
+        right = np.cross(-direction, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, -direction)
+        half_height = math.tan(math.radians(FIELD_OF_VIEW) / 2.0) * distance
+        centre = (low + high) / 2.0
+        target = target + right * centre[0] * half_height * aspect + up * centre[1] * half_height
+        distance *= float(max(high - low)) / 2.0 / FILL
+    return Camera(target + distance * direction, target, view, projection)
+
+
+def cuboid_edges(space: SampleSpace) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The sample cuboid's twelve edges as ``(centre, half-extents)`` of thin bars (base frame, axis-aligned):
+    where random targets and ellipses come from."""
+    low, high = np.asarray(space.low, dtype=float), np.asarray(space.high, dtype=float)
+    centre, half = (low + high) / 2.0, (high - low) / 2.0
+    edges = []
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        extents = np.full(3, EDGE_HALF_WIDTH)
+        extents[axis] = half[axis]
+        for sign_a in (-1, 1):
+            for sign_b in (-1, 1):
+                corner = centre.copy()
+                corner[others[0]] += sign_a * half[others[0]]
+                corner[others[1]] += sign_b * half[others[1]]
+                edges.append((corner, extents))
+    return edges
+
+
+def base_yaw(kinematics: Kinematics) -> float:
+    """The base frame's rotation about the world's z axis, rad (the bars stay aligned with it)."""
+    x_axis = kinematics.base_to_world(np.array([1.0, 0.0, 0.0])) - kinematics.base_to_world(np.zeros(3))
+    return math.atan2(x_axis[1], x_axis[0])
+
+
+def framing_corners(space: SampleSpace) -> np.ndarray:
+    """The sample cuboid's eight corners (base frame), which every frame shows."""
+    return np.array([[x, y, z] for x in (space.low[0], space.high[0]) for y in (space.low[1], space.high[1])
+                     for z in (space.low[2], space.high[2])])
+
+
 class Scene:
     """The rendered world of one env: floor, colours, markers and the camera.
 
@@ -76,8 +176,8 @@ class Scene:
         self._colour_arm()
         self._add_floor()
         self._add_cuboid_edges(space)
-        self.target = self._sphere(0.035, TARGET_COLOUR)
-        self.path = [self._sphere(0.009, PATH_COLOUR, PARKED) for _ in range(PATH_POINTS)]
+        self.target = self._sphere(TARGET_RADIUS, TARGET_COLOUR)
+        self.path = [self._sphere(PATH_RADIUS, PATH_COLOUR, PARKED) for _ in range(PATH_POINTS)]
         self.view, self.projection = self._camera(space)
 
     # -- building ------------------------------------------------------------------------------
@@ -87,37 +187,19 @@ class Scene:
             p.changeVisualShape(self.body, link, rgbaColor=colour, physicsClientId=self.client)
 
     def _add_floor(self) -> None:
-        shape = p.createVisualShape(p.GEOM_BOX, halfExtents=[6.0, 6.0, 0.005], rgbaColor=FLOOR_COLOUR,
+        shape = p.createVisualShape(p.GEOM_BOX, halfExtents=list(FLOOR_HALF_EXTENTS), rgbaColor=FLOOR_COLOUR,
                                     physicsClientId=self.client)
-        p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, basePosition=[0, 0, -0.005],
+        p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, basePosition=[0, 0, -FLOOR_HALF_EXTENTS[2]],
                           physicsClientId=self.client)
 
     def _add_cuboid_edges(self, space: SampleSpace) -> None:
-        """The sample cuboid's twelve edges as thin bars: where random targets and ellipses come from."""
-        low, high = np.asarray(space.low, dtype=float), np.asarray(space.high, dtype=float)
-        centre, half = (low + high) / 2.0, (high - low) / 2.0
-        for axis in range(3):
-            others = [a for a in range(3) if a != axis]
-            extents = np.full(3, 0.002)
-            extents[axis] = half[axis]
+        orientation = list(p.getQuaternionFromEuler([0.0, 0.0, base_yaw(self.kinematics)]))
+        for corner, extents in cuboid_edges(space):
             shape = p.createVisualShape(p.GEOM_BOX, halfExtents=extents.tolist(), rgbaColor=CUBOID_COLOUR,
                                         physicsClientId=self.client)
-            for sign_a in (-1, 1):
-                for sign_b in (-1, 1):
-                    corner = centre.copy()
-                    corner[others[0]] += sign_a * half[others[0]]
-                    corner[others[1]] += sign_b * half[others[1]]
-                    # Bars are axis-aligned in the base frame, which is the world turned about z by a multiple of π/2
-                    # for the UR arms; the orientation keeps them aligned for any base yaw.
-                    p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape,
-                                      basePosition=self.kinematics.base_to_world(corner).tolist(),
-                                      baseOrientation=self._base_orientation(), physicsClientId=self.client)
-
-    def _base_orientation(self) -> list[float]:
-        """The base frame's orientation in the world, as a quaternion."""
-        x_axis = self.kinematics.base_to_world(np.array([1.0, 0.0, 0.0])) - self.kinematics.base_to_world(np.zeros(3))
-        yaw = math.atan2(x_axis[1], x_axis[0])
-        return list(p.getQuaternionFromEuler([0.0, 0.0, yaw]))
+            p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape,
+                              basePosition=self.kinematics.base_to_world(corner).tolist(),
+                              baseOrientation=orientation, physicsClientId=self.client)
 
     def _sphere(self, radius: float, colour: tuple[float, ...], position: tuple[float, ...] = PARKED) -> int:
         shape = p.createVisualShape(p.GEOM_SPHERE, radius=radius, rgbaColor=colour, physicsClientId=self.client)
@@ -127,8 +209,7 @@ class Scene:
     def framed_points(self, space: SampleSpace) -> np.ndarray:
         """World points the camera must show: the cuboid's corners, the base, and the link origins at the
         robot's nominal (elbow-up) pose, how the arm stands while it works in the cuboid."""
-        corners = np.array([[x, y, z] for x in (space.low[0], space.high[0]) for y in (space.low[1], space.high[1])
-                            for z in (space.low[2], space.high[2])])
+        corners = framing_corners(space)
         joints = [i for i in range(p.getNumJoints(self.body, physicsClientId=self.client))
                   if p.getJointInfo(self.body, i, physicsClientId=self.client)[2] != p.JOINT_FIXED]
         load_pose = [p.getJointState(self.body, i, physicsClientId=self.client)[0] for i in joints]
@@ -149,31 +230,9 @@ class Scene:
         return np.array([state[4] for state in states])
 
     def _camera(self, space: SampleSpace) -> tuple[list[float], list[float]]:
-        """View and projection matrices that fit :meth:`framed_points` (plus a margin for the links'
-        swing) in the image, seen from the arm's front, a little from above."""
-        points = self.framed_points(space)
-        aspect = self.width / self.height
-        projection = list(p.computeProjectionMatrixFOV(FIELD_OF_VIEW, aspect, 0.05, 20.0, physicsClientId=self.client))
-        towards = self.kinematics.base_to_world(np.array([-1.0, -0.6, 0.0])) - self.kinematics.base_to_world(np.zeros(3))
-        direction = np.array([towards[0], towards[1], 0.0]) / np.linalg.norm(towards[:2])
-        direction = direction + np.array([0.0, 0.0, 0.35])
-        direction /= np.linalg.norm(direction)
-        target = (points.min(axis=0) + points.max(axis=0)) / 2.0
-        distance = 3.0 * float(np.linalg.norm(points - target, axis=1).max())
-        for _ in range(4):  # recentre the points' image and scale them to FILL of the frame
-            view = list(p.computeViewMatrix((target + distance * direction).tolist(), target.tolist(), [0, 0, 1],
-                                            physicsClientId=self.client))
-            pixels = project(points, view, projection, self.width, self.height)
-            ndc = np.column_stack([pixels[:, 0] / self.width * 2 - 1, 1 - pixels[:, 1] / self.height * 2])
-            low, high = ndc.min(axis=0), ndc.max(axis=0)
-            right = np.cross(-direction, [0.0, 0.0, 1.0])
-            right /= np.linalg.norm(right)
-            up = np.cross(right, -direction)
-            half_height = math.tan(math.radians(FIELD_OF_VIEW) / 2.0) * distance
-            centre = (low + high) / 2.0
-            target = target + right * centre[0] * half_height * aspect + up * centre[1] * half_height
-            distance *= float(max(high - low)) / 2.0 / FILL
-        return view, projection
+        """View and projection matrices that fit :meth:`framed_points` in the image (:func:`fit_camera`)."""
+        camera = fit_camera(self.framed_points(space), self.kinematics, self.width, self.height)
+        return camera.view, camera.projection
 
     # -- per episode and per frame ---------------------------------------------------------------
     def show_reference(self, reference: Reference) -> None:
@@ -201,6 +260,19 @@ def default_render_every(dt: float, frame_rate: float = 25.0) -> int:
     return max(1, round(1.0 / (dt * frame_rate)))
 
 
-def scene_of(arm: Any, kinematics: Kinematics, space: SampleSpace, width: int, height: int) -> Scene:
-    """The scene of a :class:`~snac_gym.envs.arms.PyBulletArm`."""
-    return Scene(arm.sim.client, arm.body.body, kinematics, space, width, height)
+def scene_of(arm: Any, kinematics: Kinematics, space: SampleSpace, width: int, height: int) -> Any:
+    """The scene of the env's arm: :class:`Scene` for a :class:`~snac_gym.envs.arms.PyBulletArm`,
+    :class:`~snac_gym.envs.mujoco_sim.MuJoCoScene` for a :class:`~snac_gym.envs.mujoco_sim.MuJoCoArm`.
+
+    Raises:
+        ValueError: For an arm with nothing to draw (the kinematic model).
+    """
+    from snac_gym.envs.arms import PyBulletArm
+
+    if isinstance(arm, PyBulletArm):
+        return Scene(arm.sim.client, arm.body.body, kinematics, space, width, height)
+    if type(arm).__name__ == "MuJoCoArm":  # imported only where mujoco is installed
+        from snac_gym.envs.mujoco_sim import MuJoCoScene
+
+        return MuJoCoScene(arm, kinematics, space, width, height)
+    raise ValueError(f"{type(arm).__name__} has no scene to render")

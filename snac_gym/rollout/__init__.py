@@ -4,13 +4,13 @@
   the real robot), logged row by row; the demo, the real run and PPO evaluation use it.
 * :func:`simulate_kinematic` (:mod:`.kinematic`): B samples in lockstep on θₖ₊₁ = θₖ + uₖΔt,
   the evaluator's default engine and the SNAC studies'.
-* :func:`simulate_pybullet` (:mod:`.episode`): B samples one after the other in the env.
+* :func:`simulate_env` (:mod:`.episode`): B samples one after the other in the env (PyBullet or MuJoCo).
 * :class:`Rollouts` (:mod:`.batch`): what both batch engines return, measured by
   :func:`snac_gym.metrics.rollout_metrics`; :mod:`.log` holds the per-step log format.
 """
 
 from snac_gym.rollout.batch import RolloutError, Rollouts, rollouts_from_logs, summarise_critic_diagnostics
-from snac_gym.rollout.episode import partial_log, rollout, simulate_pybullet
+from snac_gym.rollout.episode import partial_log, rollout, simulate_env
 from snac_gym.rollout.kinematic import reference_trajectories, simulate_kinematic
 from snac_gym.rollout.log import add_critic_diagnostics, log_array, log_columns, read_log, vector_columns, write_log
 
@@ -26,7 +26,7 @@ __all__ = [
     "rollout",
     "rollouts_from_logs",
     "simulate_kinematic",
-    "simulate_pybullet",
+    "simulate_env",
     "summarise_critic_diagnostics",
     "vector_columns",
     "write_log",

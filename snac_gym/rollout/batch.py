@@ -1,7 +1,7 @@
 """A batch of rollouts as arrays, and its conversion to the per-step log.
 
 Both engines return a :class:`Rollouts` (:func:`~snac_gym.rollout.kinematic.simulate_kinematic`
-and :func:`~snac_gym.rollout.episode.simulate_pybullet`): row ``k`` of every per-step array is
+and :func:`~snac_gym.rollout.episode.simulate_env`): row ``k`` of every per-step array is
 the state at the start of control step ``k`` and the command ``uₖ`` held over that step (the
 convention of the trajectory log and of the trajectory cost); ``final_*`` is the state after
 the last step.

@@ -164,14 +164,14 @@ class _Record:
 
 
 @functools.lru_cache(maxsize=2)
-def _env(robot: str, task: str, dt: float, steps: int) -> Any:
-    """One PyBullet env per (robot, task, Δt, episode length) and process, reused across jobs (loading costs ~0.1 s)."""
+def _env(robot: str, task: str, dt: float, steps: int, physics: str) -> Any:
+    """One env per (robot, task, Δt, episode length, physics) and process, reused across jobs (loading costs ~0.1 s)."""
     from snac_gym.envs import make_task_env
 
-    return make_task_env(task, robot, dt=dt, max_steps=steps)
+    return make_task_env(task, robot, dt=dt, max_steps=steps, physics=physics)
 
 
-def simulate_pybullet(
+def simulate_env(
     robot: str,
     task: str,
     dt: float,
@@ -179,8 +179,9 @@ def simulate_pybullet(
     samples: Sequence[Any],
     steps: int,
     seeds: Sequence[int],
+    physics: str = "pybullet",
 ) -> tuple[Rollouts, list[Any]]:
-    """Roll out ``samples`` one after the other in the PyBullet env of ``task``.
+    """Roll out ``samples`` one after the other in the env of ``task`` (PyBullet or MuJoCo).
 
     Args:
         robot: Robot name of the env.
@@ -190,11 +191,12 @@ def simulate_pybullet(
         samples: The samples, each pinned through the env's reset options.
         steps: Control steps per rollout.
         seeds: Seed of each rollout (env and policy reset).
+        physics: The env's arm model, ``"pybullet"`` or ``"mujoco"`` (``physics=`` of the env).
 
     Returns:
         The stacked rollouts and the per-step logs of :func:`snac_gym.rollout.rollout`.
     """
-    env = _env(robot, task, float(dt), int(steps))
+    env = _env(robot, task, float(dt), int(steps), physics)
     logs = []
     for sample, seed in zip(samples, seeds, strict=True):
         policy = make_policy(env)

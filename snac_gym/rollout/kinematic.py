@@ -16,7 +16,7 @@ x = [p; log₃ R]) has its own ``task_error`` (e = [p − p_d; log₃(R R_dᵀ)]
 row by row exactly as the env does (:func:`task_error_function`), so both give the same numbers.
 
 The other engine, ``pybullet``, runs every sample as one episode of the Gymnasium env
-(physics, motors) with the demo's loop: :func:`snac_gym.rollout.episode.simulate_pybullet`.
+(physics, motors) with the demo's loop: :func:`snac_gym.rollout.episode.simulate_env`.
 """
 
 from __future__ import annotations
