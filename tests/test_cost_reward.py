@@ -126,6 +126,7 @@ def _ppo_config(task: str, **reward) -> dict:
     return config
 
 
+@pytest.mark.rl
 def test_ppo_trains_on_minus_the_cost_in_the_single_and_the_batched_env():
     """reward.type 'cost': the training wrapper's and the batched env's rewards are the env's cost reward,
     and their sum over an episode's first steps is −V of the same commands (the convention's)."""

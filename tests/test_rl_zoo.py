@@ -34,6 +34,7 @@ def test_every_id_of_the_hyperparameter_file_is_registered_and_goal_conditioned(
         env.close()
 
 
+@pytest.mark.rl
 def test_rl_zoo3_trains_on_a_snac_gym_id_and_the_model_acts(tmp_path):
     pytest.importorskip("rl_zoo3", reason="the 'zoo' extra (rl_zoo3) is not installed")
     command = [
