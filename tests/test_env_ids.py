@@ -25,6 +25,7 @@ from snac_gym.tasks import TASKS
 DATA = Path(__file__).parent / "data"
 sys.path.insert(0, str(DATA))
 import record_ur10_trajectories as recorded  # noqa: E402
+from snac_gym.envs.goal import coarse_reach_id  # noqa: E402
 
 RECORDED = np.load(DATA / "ur10_trajectories.npz")
 NEW_IDS = [f"snac_gym/{prefix}{name}-v0" for prefix in ("UR3", "UR5", "Panda", "XArm7") for name in ("Reach", "EllipseTrack")]
@@ -39,7 +40,8 @@ def _assert_recorded(name, arrays):
 def test_one_id_per_robot_and_task_from_the_registries():
     expected = {task.env_id_for(robot) for task in TASKS.values() for robot in ROBOTS}
     assert expected == set(snac_gym.ENV_IDS)
-    assert {task.env_id_for(robot, goal=True) for task in TASKS.values() for robot in ROBOTS} == set(GOAL_ENV_IDS)
+    goal_ids = {task.env_id_for(robot, goal=True) for task in TASKS.values() for robot in ROBOTS}
+    assert goal_ids | {coarse_reach_id(robot) for robot in ROBOTS} == set(GOAL_ENV_IDS)
     assert {"snac_gym/PandaReach-v0", "snac_gym/XArm7EllipseTrack-v0", "snac_gym/UR5Reach-v0",
             "snac_gym/UR3EllipseTrack-v0", "snac_gym/PandaReachGoal-v0", "snac_gym/XArm7EllipseTrackGoal-v0"} <= set(gym.registry)
     # The UR10 ids keep their names and lengths.
