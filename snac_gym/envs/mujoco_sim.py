@@ -35,8 +35,9 @@ from snac_gym.envs.scene import (
     cuboid_edges,
     fit_camera,
     framing_corners,
+    path_positions,
 )
-from snac_gym.envs.sim import MAX_DT, check_image_size
+from snac_gym.envs.sim import check_image_size, check_timing
 from snac_gym.extras import require
 from snac_gym.kinematics import Kinematics
 from snac_gym.mujoco_model import EE_SITE, build_physics_spec
@@ -66,12 +67,7 @@ class MuJoCoArm:
     """
 
     def __init__(self, kinematics: Kinematics, dt: float, n_substeps: int) -> None:
-        if not (math.isfinite(dt) and 0 < dt <= MAX_DT):
-            raise ValueError(f"dt must be positive, finite and at most {MAX_DT:g} s, got {dt}")
-        if int(n_substeps) != n_substeps or n_substeps < 1:
-            raise ValueError(f"n_substeps must be a positive integer, got {n_substeps}")
-        self.dt = float(dt)
-        self.n_substeps = int(n_substeps)
+        self.dt, self.n_substeps = check_timing(dt, n_substeps)
         self.kinematics = kinematics
         self.spec = build_physics_spec(kinematics, self.dt / self.n_substeps)
         self._lower, self._upper = kinematics.lower_limits, kinematics.upper_limits
@@ -232,11 +228,7 @@ class MuJoCoScene:
     # -- per episode and per frame ---------------------------------------------------------------
     def show_reference(self, reference: Reference) -> None:
         """Draw the episode's reference path (the ellipse; nothing for a fixed target)."""
-        points = reference.points(PATH_POINTS)
-        if len(points) < 2:  # a fixed target has no path
-            points = []
-        for index, mocap in enumerate(self._path):
-            position = self.kinematics.base_to_world(points[index]) if index < len(points) else PARKED
+        for mocap, position in zip(self._path, path_positions(reference, self.kinematics, len(self._path)), strict=True):
             self.arm.data.mocap_pos[mocap] = position
 
     def image(self, reference_point: np.ndarray) -> np.ndarray:

@@ -237,11 +237,7 @@ class Scene:
     # -- per episode and per frame ---------------------------------------------------------------
     def show_reference(self, reference: Reference) -> None:
         """Draw the episode's reference path (the ellipse; nothing for a fixed target)."""
-        points = reference.points(PATH_POINTS)
-        if len(points) < 2:  # a fixed target has no path
-            points = []
-        for index, marker in enumerate(self.path):
-            position = self.kinematics.base_to_world(points[index]) if index < len(points) else PARKED
+        for marker, position in zip(self.path, path_positions(reference, self.kinematics, len(self.path)), strict=True):
             p.resetBasePositionAndOrientation(marker, list(position), [0, 0, 0, 1], physicsClientId=self.client)
 
     def image(self, reference_point: np.ndarray) -> np.ndarray:
@@ -253,6 +249,15 @@ class Scene:
             renderer=p.ER_TINY_RENDERER, lightDirection=[1.0, -1.0, 2.0], shadow=0, physicsClientId=self.client,
         )
         return np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[:, :, :3].copy()
+
+
+def path_positions(reference: Reference, kinematics: Kinematics, markers: int) -> list[Any]:
+    """World positions of the ``markers`` path markers for ``reference``: its path's points (the ellipse),
+    the rest parked out of view (all of them for a fixed target, which has no path)."""
+    points = reference.points(PATH_POINTS)
+    if len(points) < 2:
+        points = []
+    return [kinematics.base_to_world(points[i]) if i < len(points) else PARKED for i in range(markers)]
 
 
 def default_render_every(dt: float, frame_rate: float = 25.0) -> int:

@@ -44,6 +44,19 @@ def check_image_size(width: Any, height: Any) -> tuple[int, int]:
 MAX_DT = 1.0
 
 
+def check_timing(dt: Any, n_substeps: Any) -> tuple[float, int]:
+    """``(dt, n_substeps)`` of a physics engine, checked: 0 < dt ≤ :data:`MAX_DT`, a whole n_substeps ≥ 1.
+
+    Raises:
+        ValueError: Naming the bad one.
+    """
+    if not (math.isfinite(dt) and 0 < dt <= MAX_DT):
+        raise ValueError(f"dt must be positive, finite and at most {MAX_DT:g} s, got {dt}")
+    if int(n_substeps) != n_substeps or n_substeps < 1:
+        raise ValueError(f"n_substeps must be a positive integer, got {n_substeps}")
+    return float(dt), int(n_substeps)
+
+
 class PyBulletSim:
     """One PyBullet client that advances by a control period split into physics substeps.
 
@@ -55,12 +68,7 @@ class PyBulletSim:
     """
 
     def __init__(self, dt: float, n_substeps: int, gui: bool = False, gravity: float = 9.81) -> None:
-        if not (math.isfinite(dt) and 0 < dt <= MAX_DT):
-            raise ValueError(f"dt must be positive, finite and at most {MAX_DT:g} s, got {dt}")
-        if int(n_substeps) != n_substeps or n_substeps < 1:
-            raise ValueError(f"n_substeps must be a positive integer, got {n_substeps}")
-        self.dt = float(dt)
-        self.n_substeps = int(n_substeps)
+        self.dt, self.n_substeps = check_timing(dt, n_substeps)
         if gui and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
             # PyBullet would call exit() on a failed GUI connection, killing the caller.
             raise RuntimeError(
