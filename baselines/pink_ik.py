@@ -72,3 +72,10 @@ class PinkPolicy(QPIKPolicy):
             pink.limits.VelocityLimit(model, velocity_limit=self.velocity_limits),
         ]
         self._solve_ik = pink.solve_ik
+        self._model, self._data = model, self._configuration.data
+
+    def task_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """``J`` at ``q``: Pinocchio's frame Jacobian in one call (what pink's ``Configuration.update`` and
+        ``getFrameJacobian`` compute in two, with a read-only copy of ``q`` between)."""
+        jacobian = pin.computeFrameJacobian(self._model, self._data, q, self._task.frame_id, pin.LOCAL_WORLD_ALIGNED)
+        return jacobian[: self.task_dim]

@@ -33,8 +33,9 @@ only its velocity bound, as the libraries leave it out of their ``ConfigurationL
 
 Two ways to solve it, the ``assembly`` argument:
 
-* ``"direct"`` (the default): the library's kinematics (its ``Configuration.update`` and the task's
-  Jacobian from it) and the program above written down here, ``H = JᵀJ + (λ² + ε + μ) I``,
+* ``"direct"`` (the default): the library's kinematics (mink's ``Configuration.update`` and the site
+  Jacobian; for pink, Pinocchio's frame Jacobian in one call, what pink's ``Configuration.update``
+  computes in two) and the program above written down here, ``H = JᵀJ + (λ² + ε + μ) I``,
   ``c = α Jᵀẽ``, the box handed to daqp as simple bounds. It is the program the library's
   ``solve_ik`` builds, row for row (``tests/test_qp_controllers.py`` checks the bounds against the
   library's limit rows and the command against ``solve_ik``'s); it skips the library's per-step
@@ -67,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ObservationReader, clip_to_box
+from baselines._common import ObservationReader
 from snac_gym.extras import MissingExtraError, require
 from snac_gym.policies.base import BasePolicy, non_negative_float, positive_float
 
@@ -160,6 +161,15 @@ class QPIKPolicy(BasePolicy):
         self._limit_upper = np.where(limited, self._upper, np.inf)
         self._no_rows = np.zeros((0, len(self._lower)))
         self._sense = np.zeros(len(self._lower), dtype=np.intc)
+        # The per-step arithmetic's constants, folded once: it runs at every control step, where each
+        # small-array NumPy operation costs about a microsecond (docs/qp-ik.md, act latency).
+        self._regularisation_eye = self.regularisation * np.eye(len(self._lower))
+        self._scaled_limit_lower = self.limit_gain * self._limit_lower
+        self._scaled_limit_upper = self.limit_gain * self._limit_upper
+        self._negative_step_bound = -self._step_bound
+        self._inverse_gain = 1.0 / self.gain
+        self._rate = 1.0 / self.dt
+        self._negative_velocity_limits = -np.asarray(self.velocity_limits, dtype=float)
         self._daqp = require("daqp", "ik", self.module) if assembly == "direct" else None
         self._setup(library, position)
 
@@ -167,29 +177,36 @@ class QPIKPolicy(BasePolicy):
         """Build the library's model, configuration, tasks and limits."""
         raise NotImplementedError
 
+    def task_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """The task Jacobian ``J`` at ``q`` from the library's kinematics (its ``Configuration.update``, then the task's)."""
+        self._configuration.update(q)
+        return self._task.compute_jacobian(self._configuration)
+
     def box(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The bounds ``(lower, upper)`` on Δq (rad) at ``q``: both limits together (module docs)."""
-        lower = np.maximum(-self._step_bound, self.limit_gain * (self._limit_lower - q))
-        upper = np.minimum(self._step_bound, self.limit_gain * (self._limit_upper - q))
+        scaled_q = self.limit_gain * q
+        lower = np.maximum(self._negative_step_bound, self._scaled_limit_lower - scaled_q)
+        upper = np.minimum(self._step_bound, self._scaled_limit_upper - scaled_q)
         return lower, upper
 
     def _solve(self, q: np.ndarray, error: np.ndarray) -> np.ndarray:
         """``u`` (rad/s) at ``q`` for the task error ``ẽ``, by :attr:`assembly` (module docs; ``_setup``
         gives the library's configuration, task, limits and ``solve_ik``)."""
-        self._configuration.update(q)
-        self._task.error = error
         if self.assembly == "direct":
-            jacobian = self._task.compute_jacobian(self._configuration)
+            jacobian = self.task_jacobian(q)
             scaled_error = self._task.gain * error  # α ẽ
-            hessian = jacobian.T @ jacobian
-            hessian.flat[:: len(hessian) + 1] += self.regularisation + self.lm_damping * (scaled_error @ scaled_error)
+            hessian = jacobian.T @ jacobian + self._regularisation_eye
+            if self.lm_damping:
+                hessian.flat[:: len(hessian) + 1] += self.lm_damping * (scaled_error @ scaled_error)
             lower, upper = self.box(q)
             step, _, status, _ = self._daqp.solve(
                 hessian, scaled_error @ jacobian, self._no_rows, upper, lower, self._sense, **SOLVER_SETTINGS
             )
             if status <= 0:  # the box always holds Δq = 0, so this is the solver failing, not the problem
                 raise RuntimeError(f"{self.module}: daqp found no solution (exit flag {status}) at q={q.tolist()}")
-            return step / self.dt
+            return step * self._rate
+        self._configuration.update(q)
+        self._task.error = error
         return self._solve_ik(
             self._configuration, self._tasks, self.dt, solver=SOLVER, damping=self.regularisation, limits=self._limits,
             **SOLVER_SETTINGS,
@@ -197,7 +214,7 @@ class QPIKPolicy(BasePolicy):
 
     def task_error(self, obs: np.ndarray) -> np.ndarray:
         """``ẽ = e − ẋ_d/g`` of one observation (module docs)."""
-        return obs[self._reader.e] - obs[self._reader.xdot_d] / self.gain
+        return obs[self._reader.e] - self._inverse_gain * obs[self._reader.xdot_d]
 
     def measured_q(self, obs: np.ndarray) -> np.ndarray:
         """θ of ``obs``, read at the limit where it is outside its position limits (pink refuses such a
@@ -208,7 +225,8 @@ class QPIKPolicy(BasePolicy):
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity and position limits."""
         obs = self._reader.read(obs)
         command = self._solve(self.measured_q(obs), self.task_error(obs))
-        return clip_to_box(command, self.velocity_limits)  # the solver's tolerance, never more
+        # The solver's tolerance, never more (clip_to_box with the negated limits folded once).
+        return np.minimum(np.maximum(command, self._negative_velocity_limits), self.velocity_limits)
 
     def reset_batch(self, seeds: Sequence[int]) -> None:
         """Start ``len(seeds)`` episodes (nothing to set: the controller has no state)."""

@@ -68,12 +68,12 @@ def main() -> None:
             "the whole act(obs), library solve_ik": lambda: policy.act(obs),
         }
         fast = direct[name]
-        jacobian = fast._task.compute_jacobian(fast._configuration)
+        jacobian = fast.task_jacobian(q)
         hessian, gradient = jacobian.T @ jacobian, fast._task.gain * fast.task_error(obs) @ jacobian
         lower_box, upper_box = fast.box(q)
         parts.update({
-            "direct: the task's Jacobian": lambda: fast._task.compute_jacobian(fast._configuration),
-            "direct: H = JᵀJ + (λ² + ε) I": lambda: jacobian.T @ jacobian + fast.regularisation * np.eye(len(q)),
+            "direct: kinematics and the task's Jacobian": lambda: fast.task_jacobian(q),
+            "direct: H = JᵀJ + (λ² + ε) I": lambda: jacobian.T @ jacobian + fast._regularisation_eye,
             "direct: the box (both limits)": lambda: fast.box(q),
             "direct: daqp.solve with the box as bounds": lambda: daqp.solve(
                 hessian, gradient, fast._no_rows, upper_box, lower_box, fast._sense, **SOLVER_SETTINGS),
