@@ -155,3 +155,43 @@ def test_human_mode_warns_once_and_shows_nothing(monkeypatch):
     messages = [str(w.message) for w in caught if "render_mode='human'" in str(w.message)]
     assert len(messages) == 1 and "HumanRendering" in messages[0]
     env.close()
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_the_lockstep_mujoco_engine_is_the_env_loop_batched(task):
+    """``--engine mujoco`` steps one replica arm per sample in lockstep; each rollout must be the
+    env's own (the demo's loop through ``gym.make(..., physics="mujoco")``) to rounding, for a
+    stateless law and for SNAC, whose critic adapts on the measured state (the most sensitive)."""
+    import functools
+
+    from evaluation.jobs import policy_context
+    from evaluation.samples import generate_samples, policy_seed
+    from snac_gym.kinematics import Kinematics
+    from snac_gym.policies import make_policy
+    from snac_gym.rollout import replica_arms, simulate_arms, simulate_env
+    from snac_gym.sampling import SampleSpace
+
+    kinematics = Kinematics("ur10")
+    samples = tuple(generate_samples(kinematics, SampleSpace.for_robot(kinematics), 3, task, range(3)))
+    seeds = tuple(policy_seed(3, task, s.index) for s in samples)
+    steps = 300
+    for controller in ("dls", "snac"):
+        env_rollouts, _ = simulate_env(
+            "ur10", task, 0.008, functools.partial(make_policy, controller), samples, steps, seeds, physics="mujoco"
+        )
+        context = policy_context("ur10", 0.008, task)
+        arms, plant = replica_arms("ur10", task, 0.008, steps, "mujoco", len(samples))
+        lockstep = simulate_arms(
+            context, functools.partial(make_policy, controller, context), samples, steps, seeds, arms, plant
+        )
+        np.testing.assert_allclose(lockstep.commands, env_rollouts.commands, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(lockstep.errors, env_rollouts.errors, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(lockstep.final_q, env_rollouts.final_q, rtol=0, atol=1e-12)
+        assert np.abs(lockstep.commands).max() > 0.05  # the arms moved
+
+
+def test_replica_arms_are_refused_for_pybullet():
+    from snac_gym.rollout import replica_arms
+
+    with pytest.raises(ValueError, match="not replicated"):
+        replica_arms("ur10", "reach", 0.008, 10, "pybullet", 2)

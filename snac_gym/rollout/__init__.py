@@ -4,14 +4,17 @@
   the real robot), logged row by row; the demo, the real run and PPO evaluation use it.
 * :func:`simulate_kinematic` (:mod:`.kinematic`): B samples in lockstep on θₖ₊₁ = θₖ + uₖΔt,
   the evaluator's default engine and the SNAC studies'.
-* :func:`simulate_env` (:mod:`.episode`): B samples one after the other in the env (PyBullet or MuJoCo).
+* :func:`simulate_arms` (:mod:`.kinematic`): the same lockstep loop on one simulated arm per
+  sample (MuJoCo's, :func:`replica_arms`), the evaluator's ``mujoco`` engine.
+* :func:`simulate_env` (:mod:`.episode`): B samples one after the other in the env (PyBullet or MuJoCo),
+  the evaluator's ``pybullet`` engine.
 * :class:`Rollouts` (:mod:`.batch`): what both batch engines return, measured by
   :func:`snac_gym.metrics.rollout_metrics`; :mod:`.log` holds the per-step log format.
 """
 
 from snac_gym.rollout.batch import RolloutError, Rollouts, rollouts_from_logs, summarise_critic_diagnostics
-from snac_gym.rollout.episode import partial_log, rollout, simulate_env
-from snac_gym.rollout.kinematic import reference_trajectories, simulate_kinematic
+from snac_gym.rollout.episode import partial_log, replica_arms, rollout, simulate_env
+from snac_gym.rollout.kinematic import reference_trajectories, simulate_arms, simulate_kinematic
 from snac_gym.rollout.log import add_critic_diagnostics, log_array, log_columns, read_log, vector_columns, write_log
 
 __all__ = [
@@ -23,8 +26,10 @@ __all__ = [
     "partial_log",
     "read_log",
     "reference_trajectories",
+    "replica_arms",
     "rollout",
     "rollouts_from_logs",
+    "simulate_arms",
     "simulate_kinematic",
     "simulate_env",
     "summarise_critic_diagnostics",

@@ -171,6 +171,21 @@ def _env(robot: str, task: str, dt: float, steps: int, physics: str) -> Any:
     return make_task_env(task, robot, dt=dt, max_steps=steps, physics=physics)
 
 
+def replica_arms(robot: str, task: str, dt: float, steps: int, physics: str, count: int) -> tuple[list[Any], Any]:
+    """``count`` arms of the env of (robot, task, Δt, physics), for the lockstep engine, and the env's kinematics.
+
+    Each is a :meth:`~snac_gym.envs.mujoco_sim.MuJoCoArm.replica` of the (cached) env's arm: the env's
+    physics exactly (model, substeps, servos), one ``MjData`` per sample.
+
+    Raises:
+        ValueError: If ``physics``'s arm cannot be replicated (PyBullet's: a physics server each).
+    """
+    core = _env(robot, task, float(dt), int(steps), physics).unwrapped
+    if not callable(getattr(core.arm, "replica", None)):
+        raise ValueError(f"physics={physics!r} arms are not replicated for lockstep rollouts; use simulate_env")
+    return [core.arm.replica() for _ in range(count)], core.kinematics
+
+
 def simulate_env(
     robot: str,
     task: str,

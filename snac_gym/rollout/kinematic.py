@@ -15,8 +15,11 @@ kinematics and ``e = x − x_d``; a pose task's kinematics (:class:`~snac_gym.ki
 x = [p; log₃ R]) has its own ``task_error`` (e = [p − p_d; log₃(R R_dᵀ)]), which the engine applies
 row by row exactly as the env does (:func:`task_error_function`), so both give the same numbers.
 
-The other engine, ``pybullet``, runs every sample as one episode of the Gymnasium env
-(physics, motors) with the demo's loop: :func:`snac_gym.rollout.episode.simulate_env`.
+The physics engines: ``mujoco`` steps one MuJoCo arm per sample in the same lockstep loop
+(:func:`simulate_arms`, the arms sharing one compiled model); ``pybullet`` runs every sample as one
+episode of the Gymnasium env with the demo's loop (:func:`snac_gym.rollout.episode.simulate_env`),
+as a PyBullet arm is a physics server of its own (about 0.6 s and 70 MB to load), too heavy to hold
+one per sample.
 """
 
 from __future__ import annotations
@@ -109,8 +112,9 @@ def simulate_kinematic(
     label: str = "policy",
     keep_states: bool = True,
     plant: Any = None,
+    arms: Sequence[Any] | None = None,
 ) -> Rollouts:
-    """Roll out ``samples`` for ``steps`` control steps on the exact kinematic model, in lockstep.
+    """Roll out ``samples`` for ``steps`` control steps on the exact kinematic model (or ``arms``), in lockstep.
 
     Args:
         context: The policy context (kinematics, Δt, limits, layout, task).
@@ -125,6 +129,10 @@ def simulate_kinematic(
             commands and errors, and leaving them out saves a third of the memory traffic).
         plant: The kinematics the arm moves by (default ``context.kinematics``); a policy given a
             wrong model (``--model-error``) gets it in ``context`` while the plant stays true.
+        arms: One simulated arm per sample (:class:`~snac_gym.envs.arms.Arm`: ``reset``, ``apply``,
+            ``joint_state``), stepped instead of the exact model: θ and θ̇ are then what each arm
+            measures, as in the env of that arm, and x is ``plant``'s forward kinematics of the
+            measured θ (the env's). The physics engines' lockstep path (:func:`simulate_arms`).
 
     Raises:
         RolloutError: If the policy returns a command of the wrong shape or a NaN/inf.
@@ -140,6 +148,11 @@ def simulate_kinematic(
 
     q = np.array([s.q0 for s in samples], dtype=float).reshape(count, m)
     held = np.zeros((count, m))
+    qdot = held  # the joint-velocity field: the held command on the exact model, the arm's measurement else
+    if arms is not None:
+        if len(arms) != count:
+            raise ValueError(f"need one arm per sample, got {len(arms)} arms for {count} samples")
+        q, qdot = _reset_arms(arms, q)
     # Logged step-major, so that each step writes one contiguous block; transposed once at the end.
     u_log = np.empty((steps, count, m))
     e_log = np.empty((steps, count, n))
@@ -156,7 +169,7 @@ def simulate_kinematic(
         x = kinematics.forward_batch(q)
         obs = np.empty((count, layout.size))  # fresh each step: a policy may keep a view of its input
         obs[:, slices["q"]] = q
-        obs[:, slices["qdot"]] = held
+        obs[:, slices["qdot"]] = qdot
         obs[:, slices["x"]] = x
         obs[:, slices["x_d"]] = x_d[:, k]
         obs[:, slices["xdot_d"]] = xdot_d[:, k]
@@ -172,7 +185,11 @@ def simulate_kinematic(
         if keep_states:
             q_log[k] = q  # type: ignore[index]
             x_log[k] = x  # type: ignore[index]
-        q = joint_step(q, held, dt)
+        if arms is None:
+            q = joint_step(q, held, dt)
+            qdot = held
+        else:
+            q, qdot = _step_arms(arms, held)
     final_x = kinematics.forward_batch(q)
     return Rollouts(
         dt=dt,
@@ -187,6 +204,51 @@ def simulate_kinematic(
         final_x=final_x,
         final_errors=task_error(final_x, x_d[:, steps], np.empty((count, n))),
         critic_diagnostics=_stack_diagnostics(diagnostic_rows),
+    )
+
+
+def _reset_arms(arms: Sequence[Any], q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pose arm i at row i of ``q0``; the measured ``(θ, θ̇)`` of all, ``(B, m)`` each."""
+    for arm, row in zip(arms, q0, strict=True):
+        arm.reset(row)
+    return _joint_states(arms)
+
+
+def _step_arms(arms: Sequence[Any], commands: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hold row i of ``commands`` on arm i for one period; the measured ``(θ, θ̇)`` of all."""
+    for arm, command in zip(arms, commands, strict=True):
+        arm.apply(command)
+    return _joint_states(arms)
+
+
+def _joint_states(arms: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+    states = [arm.joint_state() for arm in arms]
+    return np.array([q for q, _ in states]), np.array([qdot for _, qdot in states])
+
+
+def simulate_arms(
+    context: PolicyContext,
+    make_policy: Callable[[], Any],
+    samples: Sequence[Any],
+    steps: int,
+    seeds: Sequence[int],
+    arms: Sequence[Any],
+    plant: Any,
+    use_batch: bool = True,
+    label: str = "policy",
+    keep_states: bool = True,
+) -> Rollouts:
+    """Roll out ``samples`` on simulated ``arms`` (one per sample) in lockstep: the env's loop, batched.
+
+    Each step is what the env of these arms does (:meth:`~snac_gym.envs.core.TaskEnvCore.step`): the
+    command clipped to the velocity limits and held on the arm for one period, the observation
+    packed from the arm's measured θ and θ̇ and ``plant``'s forward kinematics of θ; but all samples
+    advance together, so the policies act on one ``(B, d)`` array (their batch protocol) and nothing
+    of the env's per-step bookkeeping (rewards, info dicts, validation) runs. Arguments:
+    :func:`simulate_kinematic`.
+    """
+    return simulate_kinematic(
+        context, make_policy, samples, steps, seeds, use_batch, label, keep_states=keep_states, plant=plant, arms=arms
     )
 
 
