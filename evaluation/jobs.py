@@ -150,7 +150,7 @@ def run_job(job: RolloutJob) -> JobResult:
         arms, plant = replica_arms(job.robot, job.task, job.dt, job.steps, job.engine, len(job.samples))
         rollouts = simulate_arms(
             context, make, job.samples, job.steps, job.seeds, arms, plant, job.use_batch, job.controller,
-            keep_states=job.keep_logs,
+            keep_states=True,  # the joint-limit margin needs the measured θₖ (limit_margins rebuilds exact-model ones only)
         )  # fmt: skip
         limits = context.velocity_limits
         logs = None
