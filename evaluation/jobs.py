@@ -22,7 +22,7 @@ from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.registry import make_policy
-from snac_gym.rollout import replica_arms, simulate_arms, simulate_env, simulate_kinematic
+from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_kinematic
 from snac_gym.tasks import TASKS as TASK_REGISTRY
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
@@ -144,10 +144,10 @@ def run_job(job: RolloutJob) -> JobResult:
         )  # fmt: skip
         limits = context.velocity_limits
         logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
-    elif job.engine == "mujoco":  # one MuJoCo arm per sample, in lockstep (the env's physics, batched)
+    elif job.engine in ENGINES:  # one simulated arm per sample, in lockstep (the env's physics, batched)
         context = policy_context(job.robot, job.dt, job.task, job.model_error)
         make = functools.partial(make_policy, job.controller, context, **job.kwargs)
-        arms, plant = replica_arms(job.robot, job.task, job.dt, job.steps, job.engine, len(job.samples))
+        arms, plant = lockstep_arms(job.robot, job.task, job.dt, job.steps, job.engine, len(job.samples))
         rollouts = simulate_arms(
             context, make, job.samples, job.steps, job.seeds, arms, plant, job.use_batch, job.controller,
             keep_states=True,  # the joint-limit margin needs the measured θₖ (limit_margins rebuilds exact-model ones only)
@@ -158,17 +158,6 @@ def run_job(job: RolloutJob) -> JobResult:
             logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits)
             for log in logs:
                 log.attrs["engine"] = job.engine
-    elif job.engine in ENGINES:  # an env with a simulated arm: physics= names its engine
-        make_for_env = functools.partial(make_policy, job.controller, **job.kwargs)  # called with the env
-        rollouts, raw_logs = simulate_env(
-            job.robot, job.task, job.dt, make_for_env, job.samples, job.steps, job.seeds, physics=job.engine
-        )
-        limits = np.asarray(raw_logs[0].attrs["velocity_limits"], dtype=float)
-        logs = None
-        if job.keep_logs:
-            logs = raw_logs
-            for log, sample in zip(logs, job.samples, strict=True):
-                log.attrs.update({**attrs, "sample": sample.index, "engine": job.engine})
     else:
         raise ValueError(f"unknown engine {job.engine!r}")
     kinematics = shared_kinematics(job.robot)

@@ -11,7 +11,7 @@ wall clock behind them.
 from __future__ import annotations
 
 import math
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -119,6 +119,110 @@ class KinematicArm:
 
     def close(self) -> None:
         pass
+
+
+class ArmBatch(Protocol):
+    """B arms stepped together, one command row each: what the evaluator's lockstep engine drives
+    (:func:`snac_gym.rollout.simulate_arms`)."""
+
+    def reset(self, q0: np.ndarray) -> None:
+        """Pose arm i at row i of ``q0`` ``(B, m)``, at rest."""
+
+    def apply(self, commands: np.ndarray) -> None:
+        """Hold row i of ``commands`` ``(B, m)`` on arm i for one control period."""
+
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Measured ``(θ, θ̇)`` of all arms, ``(B, m)`` each."""
+
+
+class ArmList:
+    """An :class:`ArmBatch` of independent :class:`Arm` objects (e.g. MuJoCo replicas), stepped one by one."""
+
+    def __init__(self, arms: list[Arm]) -> None:
+        self.arms = list(arms)
+
+    def __len__(self) -> int:
+        return len(self.arms)
+
+    def reset(self, q0: np.ndarray) -> None:
+        for arm, row in zip(self.arms, q0, strict=True):
+            arm.reset(row)
+
+    def apply(self, commands: np.ndarray) -> None:
+        for arm, command in zip(self.arms, commands, strict=True):
+            arm.apply(command)
+
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+        states = [arm.joint_state() for arm in self.arms]
+        return np.array([q for q, _ in states]), np.array([qdot for _, qdot in states])
+
+
+class PyBulletArmBatch:
+    """B copies of the URDF in PyBullet worlds of at most ``world_size`` bodies, each world stepped by
+    one ``stepSimulation`` per period.
+
+    Each body is a :class:`~snac_gym.envs.robot.SimulatedArm` with collisions off, so the bodies never
+    interact and each moves as the env's single arm does (to 1e-12 in ``tests/test_engines.py``);
+    they are loaded without meshes (:func:`~snac_gym.envs.robot.without_meshes`), as nothing here is
+    drawn: a few ms per body instead of a physics server of its own (0.6 s, 65 MB). A world's step
+    costs more per body as it fills: a rollout step took 160, 136, 164, 187 and 309 µs per sample with
+    worlds of 1, 10, 25, 50 and 100 bodies here (200 samples, DLS), hence :attr:`WORLD_SIZE`.
+
+    Args:
+        kinematics: The shared kinematics (gives the URDF and the joint order).
+        dt: Control period, s.
+        n_substeps: Physics steps per period.
+        count: B.
+        world_size: Bodies per PyBullet world.
+    """
+
+    #: Bodies per world (``docs/physics.md``: the lockstep PyBullet engine).
+    WORLD_SIZE = 10
+
+    def __init__(self, kinematics: Kinematics, dt: float, n_substeps: int, count: int, world_size: int = WORLD_SIZE) -> None:
+        if count < 1 or world_size < 1:
+            raise ValueError(f"count and world_size must be at least 1, got {count} and {world_size}")
+        self.worlds: list[tuple[PyBulletSim, list[SimulatedArm], int]] = []
+        for start in range(0, count, world_size):
+            sim = PyBulletSim(dt, n_substeps)
+            bodies = [SimulatedArm(sim, kinematics, meshes=False) for _ in range(min(world_size, count - start))]
+            self.worlds.append((sim, bodies, sim.save_state()))
+        self.dt = self.worlds[0][0].dt
+        self._count = count
+
+    def __len__(self) -> int:
+        return self._count
+
+    def _rows(self, rows: np.ndarray) -> Any:
+        """(world, body, row) for every body, in sample order."""
+        rows = iter(rows)
+        for sim, bodies, _ in self.worlds:
+            for body in bodies:
+                yield sim, body, next(rows)
+
+    def reset(self, q0: np.ndarray) -> None:
+        if len(q0) != self._count:
+            raise ValueError(f"need {self._count} rows of q0, got {len(q0)}")
+        for sim, _, state in self.worlds:
+            sim.restore_state(state)
+        for _, body, row in self._rows(q0):
+            body.set_joint_positions(row)
+
+    def apply(self, commands: np.ndarray) -> None:
+        if len(commands) != self._count:
+            raise ValueError(f"need {self._count} rows of commands, got {len(commands)}")
+        for _, body, command in self._rows(commands):
+            body.command_velocities(command)
+        for sim, _, _ in self.worlds:
+            sim.step()
+
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+        states = [body.joint_state() for _, bodies, _ in self.worlds for body in bodies]
+        return np.array([q for q, _ in states]), np.array([qdot for _, qdot in states])
+
+    def close(self) -> None:
+        for sim, _, _ in self.worlds:
+            sim.close()
 
 
 def make_arm(physics: str, kinematics: Kinematics, dt: float, n_substeps: int, gui: bool = False) -> Arm:

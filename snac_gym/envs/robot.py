@@ -2,10 +2,22 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from snac_gym.envs.sim import PyBulletSim, p
 from snac_gym.kinematics import Kinematics, resolved_urdf_text
+
+
+def without_meshes(urdf: str) -> str:
+    """``urdf`` without its ``<visual>`` and ``<collision>`` elements: the same links, joints and inertias.
+
+    Loading the UR10's meshes costs PyBullet about 0.5 s and 25 MB per body; a body that is never drawn
+    and never collides (every :class:`SimulatedArm` has collisions off) moves the same without them,
+    as its inertias come from the URDF (``URDF_USE_INERTIA_FROM_FILE``), not from the shapes.
+    """
+    return re.sub(r"<(visual|collision)\b.*?</\1>", "", urdf, flags=re.S)
 
 
 class SimulatedArm:
@@ -17,16 +29,19 @@ class SimulatedArm:
     Args:
         sim: The physics client.
         kinematics: The shared kinematics (gives the URDF and the joint order).
+        meshes: Load the URDF's visual and collision meshes (``False``: :func:`without_meshes`, for
+            bodies that are never rendered, e.g. the evaluator's lockstep arms).
     """
 
-    def __init__(self, sim: PyBulletSim, kinematics: Kinematics) -> None:
+    def __init__(self, sim: PyBulletSim, kinematics: Kinematics, meshes: bool = True) -> None:
         self.sim = sim
         self.kinematics = kinematics
+        urdf = resolved_urdf_text(kinematics.urdf_path)
+        if not meshes:
+            urdf = without_meshes(urdf)
         # Merging the massless fixed links (world, base, ee_link, tool0) cuts a physics step by ~20%
         # without changing the motion (see the substep study in snac_gym/bench.py).
-        self.body = sim.load_urdf_text(
-            resolved_urdf_text(kinematics.urdf_path), flags=p.URDF_USE_INERTIA_FROM_FILE | p.URDF_MERGE_FIXED_LINKS
-        )
+        self.body = sim.load_urdf_text(urdf, flags=p.URDF_USE_INERTIA_FROM_FILE | p.URDF_MERGE_FIXED_LINKS)
         client = sim.client
         by_name: dict[str, int] = {}
         for index in range(p.getNumJoints(self.body, physicsClientId=client)):

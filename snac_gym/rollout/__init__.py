@@ -5,15 +5,15 @@
 * :func:`simulate_kinematic` (:mod:`.kinematic`): B samples in lockstep on θₖ₊₁ = θₖ + uₖΔt,
   the evaluator's default engine and the SNAC studies'.
 * :func:`simulate_arms` (:mod:`.kinematic`): the same lockstep loop on one simulated arm per
-  sample (MuJoCo's, :func:`replica_arms`), the evaluator's ``mujoco`` engine.
+  sample (:func:`lockstep_arms`: MuJoCo or PyBullet), the evaluator's physics engines.
 * :func:`simulate_env` (:mod:`.episode`): B samples one after the other in the env (PyBullet or MuJoCo),
-  the evaluator's ``pybullet`` engine.
+  the demo's loop; the reference the lockstep path is tested against.
 * :class:`Rollouts` (:mod:`.batch`): what both batch engines return, measured by
   :func:`snac_gym.metrics.rollout_metrics`; :mod:`.log` holds the per-step log format.
 """
 
 from snac_gym.rollout.batch import RolloutError, Rollouts, rollouts_from_logs, summarise_critic_diagnostics
-from snac_gym.rollout.episode import partial_log, replica_arms, rollout, simulate_env
+from snac_gym.rollout.episode import partial_log, lockstep_arms, rollout, simulate_env
 from snac_gym.rollout.kinematic import reference_trajectories, simulate_arms, simulate_kinematic
 from snac_gym.rollout.log import add_critic_diagnostics, log_array, log_columns, read_log, vector_columns, write_log
 
@@ -26,7 +26,7 @@ __all__ = [
     "partial_log",
     "read_log",
     "reference_trajectories",
-    "replica_arms",
+    "lockstep_arms",
     "rollout",
     "rollouts_from_logs",
     "simulate_arms",

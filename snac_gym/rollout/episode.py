@@ -171,19 +171,24 @@ def _env(robot: str, task: str, dt: float, steps: int, physics: str) -> Any:
     return make_task_env(task, robot, dt=dt, max_steps=steps, physics=physics)
 
 
-def replica_arms(robot: str, task: str, dt: float, steps: int, physics: str, count: int) -> tuple[list[Any], Any]:
+def lockstep_arms(robot: str, task: str, dt: float, steps: int, physics: str, count: int) -> tuple[Any, Any]:
     """``count`` arms of the env of (robot, task, Δt, physics), for the lockstep engine, and the env's kinematics.
 
-    Each is a :meth:`~snac_gym.envs.mujoco_sim.MuJoCoArm.replica` of the (cached) env's arm: the env's
-    physics exactly (model, substeps, servos), one ``MjData`` per sample.
+    The env's physics exactly (model, substeps, motors or servos): for ``"mujoco"`` replicas of the
+    (cached) env's arm (:meth:`~snac_gym.envs.mujoco_sim.MuJoCoArm.replica`, one ``MjData`` each), for
+    ``"pybullet"`` a :class:`~snac_gym.envs.arms.PyBulletArmBatch` with the env's Δt and substeps.
 
     Raises:
-        ValueError: If ``physics``'s arm cannot be replicated (PyBullet's: a physics server each).
+        ValueError: If ``physics`` is not a simulated engine.
     """
+    from snac_gym.envs.arms import ArmList, PyBulletArmBatch
+
+    if physics not in ("mujoco", "pybullet"):
+        raise ValueError(f"lockstep arms are simulated: physics must be 'mujoco' or 'pybullet', got {physics!r}")
     core = _env(robot, task, float(dt), int(steps), physics).unwrapped
-    if not callable(getattr(core.arm, "replica", None)):
-        raise ValueError(f"physics={physics!r} arms are not replicated for lockstep rollouts; use simulate_env")
-    return [core.arm.replica() for _ in range(count)], core.kinematics
+    if physics == "mujoco":
+        return ArmList([core.arm.replica() for _ in range(count)]), core.kinematics
+    return PyBulletArmBatch(core.kinematics, core.dt, core.arm.sim.n_substeps, count), core.kinematics
 
 
 def simulate_env(

@@ -15,11 +15,9 @@ kinematics and ``e = x − x_d``; a pose task's kinematics (:class:`~snac_gym.ki
 x = [p; log₃ R]) has its own ``task_error`` (e = [p − p_d; log₃(R R_dᵀ)]), which the engine applies
 row by row exactly as the env does (:func:`task_error_function`), so both give the same numbers.
 
-The physics engines: ``mujoco`` steps one MuJoCo arm per sample in the same lockstep loop
-(:func:`simulate_arms`, the arms sharing one compiled model); ``pybullet`` runs every sample as one
-episode of the Gymnasium env with the demo's loop (:func:`snac_gym.rollout.episode.simulate_env`),
-as a PyBullet arm is a physics server of its own (about 0.6 s and 70 MB to load), too heavy to hold
-one per sample.
+The physics engines, ``mujoco`` and ``pybullet``, step one simulated arm per sample in the same
+lockstep loop (:func:`simulate_arms`): MuJoCo replicas sharing one compiled model, or B bodies in one
+PyBullet world; each rollout is the env's own (``tests/test_engines.py``).
 """
 
 from __future__ import annotations
@@ -112,7 +110,7 @@ def simulate_kinematic(
     label: str = "policy",
     keep_states: bool = True,
     plant: Any = None,
-    arms: Sequence[Any] | None = None,
+    arms: Any = None,
 ) -> Rollouts:
     """Roll out ``samples`` for ``steps`` control steps on the exact kinematic model (or ``arms``), in lockstep.
 
@@ -129,10 +127,10 @@ def simulate_kinematic(
             commands and errors, and leaving them out saves a third of the memory traffic).
         plant: The kinematics the arm moves by (default ``context.kinematics``); a policy given a
             wrong model (``--model-error``) gets it in ``context`` while the plant stays true.
-        arms: One simulated arm per sample (:class:`~snac_gym.envs.arms.Arm`: ``reset``, ``apply``,
-            ``joint_state``), stepped instead of the exact model: θ and θ̇ are then what each arm
-            measures, as in the env of that arm, and x is ``plant``'s forward kinematics of the
-            measured θ (the env's). The physics engines' lockstep path (:func:`simulate_arms`).
+        arms: Simulated arms, one per sample (an :class:`~snac_gym.envs.arms.ArmBatch`), stepped instead
+            of the exact model: θ and θ̇ are then what each arm measures, as in the env of that arm,
+            and x is ``plant``'s forward kinematics of the measured θ (the env's). The physics
+            engines' path (:func:`simulate_arms`).
 
     Raises:
         RolloutError: If the policy returns a command of the wrong shape or a NaN/inf.
@@ -152,7 +150,8 @@ def simulate_kinematic(
     if arms is not None:
         if len(arms) != count:
             raise ValueError(f"need one arm per sample, got {len(arms)} arms for {count} samples")
-        q, qdot = _reset_arms(arms, q)
+        arms.reset(q)
+        q, qdot = arms.joint_state()
     # Logged step-major, so that each step writes one contiguous block; transposed once at the end.
     u_log = np.empty((steps, count, m))
     e_log = np.empty((steps, count, n))
@@ -189,7 +188,8 @@ def simulate_kinematic(
             q = joint_step(q, held, dt)
             qdot = held
         else:
-            q, qdot = _step_arms(arms, held)
+            arms.apply(held)
+            q, qdot = arms.joint_state()
     final_x = kinematics.forward_batch(q)
     return Rollouts(
         dt=dt,
@@ -207,38 +207,20 @@ def simulate_kinematic(
     )
 
 
-def _reset_arms(arms: Sequence[Any], q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pose arm i at row i of ``q0``; the measured ``(θ, θ̇)`` of all, ``(B, m)`` each."""
-    for arm, row in zip(arms, q0, strict=True):
-        arm.reset(row)
-    return _joint_states(arms)
-
-
-def _step_arms(arms: Sequence[Any], commands: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Hold row i of ``commands`` on arm i for one period; the measured ``(θ, θ̇)`` of all."""
-    for arm, command in zip(arms, commands, strict=True):
-        arm.apply(command)
-    return _joint_states(arms)
-
-
-def _joint_states(arms: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
-    states = [arm.joint_state() for arm in arms]
-    return np.array([q for q, _ in states]), np.array([qdot for _, qdot in states])
-
-
 def simulate_arms(
     context: PolicyContext,
     make_policy: Callable[[], Any],
     samples: Sequence[Any],
     steps: int,
     seeds: Sequence[int],
-    arms: Sequence[Any],
+    arms: Any,
     plant: Any,
     use_batch: bool = True,
     label: str = "policy",
     keep_states: bool = True,
 ) -> Rollouts:
-    """Roll out ``samples`` on simulated ``arms`` (one per sample) in lockstep: the env's loop, batched.
+    """Roll out ``samples`` on simulated ``arms`` (an :class:`~snac_gym.envs.arms.ArmBatch`, one arm per
+    sample) in lockstep: the env's loop, batched.
 
     Each step is what the env of these arms does (:meth:`~snac_gym.envs.core.TaskEnvCore.step`): the
     command clipped to the velocity limits and held on the arm for one period, the observation
