@@ -68,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ObservationReader
+from baselines._common import ObservationReader, clip_to_box
 from snac_gym.extras import MissingExtraError, require
 from snac_gym.policies.base import BasePolicy, non_negative_float, positive_float
 
@@ -169,7 +169,6 @@ class QPIKPolicy(BasePolicy):
         self._negative_step_bound = -self._step_bound
         self._inverse_gain = 1.0 / self.gain
         self._rate = 1.0 / self.dt
-        self._negative_velocity_limits = -np.asarray(self.velocity_limits, dtype=float)
         self._daqp = require("daqp", "ik", self.module) if assembly == "direct" else None
         self._setup(library, position)
 
@@ -225,8 +224,7 @@ class QPIKPolicy(BasePolicy):
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity and position limits."""
         obs = self._reader.read(obs)
         command = self._solve(self.measured_q(obs), self.task_error(obs))
-        # The solver's tolerance, never more (clip_to_box with the negated limits folded once).
-        return np.minimum(np.maximum(command, self._negative_velocity_limits), self.velocity_limits)
+        return clip_to_box(command, self.velocity_limits)  # the solver's tolerance, never more
 
     def reset_batch(self, seeds: Sequence[int]) -> None:
         """Start ``len(seeds)`` episodes (nothing to set: the controller has no state)."""

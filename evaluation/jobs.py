@@ -148,10 +148,13 @@ def run_job(job: RolloutJob) -> JobResult:
         context = policy_context(job.robot, job.dt, job.task, job.model_error)
         make = functools.partial(make_policy, job.controller, context, **job.kwargs)
         arms, plant = lockstep_arms(job.robot, job.task, job.dt, job.steps, job.engine, len(job.samples))
-        rollouts = simulate_arms(
-            context, make, job.samples, job.steps, job.seeds, arms, plant, job.use_batch, job.controller,
-            keep_states=True,  # the joint-limit margin needs the measured θₖ (limit_margins rebuilds exact-model ones only)
-        )  # fmt: skip
+        try:
+            rollouts = simulate_arms(
+                context, make, job.samples, job.steps, job.seeds, arms, plant, job.use_batch, job.controller,
+                keep_states=True,  # the joint-limit margin needs the measured θₖ (limit_margins rebuilds exact-model ones only)
+            )  # fmt: skip
+        finally:
+            arms.close()  # a job's PyBullet worlds are physics servers: not left to the garbage collector
         limits = context.velocity_limits
         logs = None
         if job.keep_logs:

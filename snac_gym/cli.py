@@ -267,7 +267,7 @@ def evaluate(
     samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Random samples per task (default 1000, the paper's; at most what half the memory holds)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
     horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."),
-    engine: str = typer.Option("kinematic", "--engine", help="kinematic (exact θ += uΔt, all samples in lockstep, fast), mujoco (one MuJoCo arm per sample, in lockstep; the mujoco extra) or pybullet (each sample an episode of the Gymnasium env)."),
+    engine: str = typer.Option("kinematic", "--engine", help="kinematic (exact θ += uΔt, all samples in lockstep, fast), mujoco or pybullet (one simulated arm per sample with that physics, in lockstep; mujoco needs the mujoco extra)."),
     backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --engine."),
     match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
     effort_reference: Optional[str] = typer.Option(None, "--effort-reference", help="Controller whose effort the others are matched to (default: snac if evaluated, else the first controller)."),

@@ -44,9 +44,12 @@ def test_the_lockstep_engine_is_the_env_loop_batched(task, physics):
         )
         context = policy_context("ur10", 0.008, task)
         arms, plant = lockstep_arms("ur10", task, 0.008, steps, physics, len(samples))
-        lockstep = simulate_arms(
-            context, functools.partial(make_policy, controller, context), samples, steps, seeds, arms, plant
-        )
+        try:
+            lockstep = simulate_arms(
+                context, functools.partial(make_policy, controller, context), samples, steps, seeds, arms, plant
+            )
+        finally:
+            arms.close()
         np.testing.assert_allclose(lockstep.commands, env_rollouts.commands, rtol=0, atol=1e-12)
         np.testing.assert_allclose(lockstep.errors, env_rollouts.errors, rtol=0, atol=1e-12)
         np.testing.assert_allclose(lockstep.q, env_rollouts.q, rtol=0, atol=1e-12)

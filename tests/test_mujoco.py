@@ -155,4 +155,3 @@ def test_human_mode_warns_once_and_shows_nothing(monkeypatch):
     messages = [str(w.message) for w in caught if "render_mode='human'" in str(w.message)]
     assert len(messages) == 1 and "HumanRendering" in messages[0]
     env.close()
-

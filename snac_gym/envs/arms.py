@@ -11,7 +11,7 @@ wall clock behind them.
 from __future__ import annotations
 
 import math
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -125,6 +125,9 @@ class ArmBatch(Protocol):
     """B arms stepped together, one command row each: what the evaluator's lockstep engine drives
     (:func:`snac_gym.rollout.simulate_arms`)."""
 
+    def __len__(self) -> int:
+        """B."""
+
     def reset(self, q0: np.ndarray) -> None:
         """Pose arm i at row i of ``q0`` ``(B, m)``, at rest."""
 
@@ -133,6 +136,14 @@ class ArmBatch(Protocol):
 
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured ``(θ, θ̇)`` of all arms, ``(B, m)`` each."""
+
+    def close(self) -> None:
+        """Release the simulators."""
+
+
+def _stacked(states: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """``(θ, θ̇)`` of each arm → ``(B, m)`` θ and ``(B, m)`` θ̇."""
+    return np.array([q for q, _ in states]), np.array([qdot for _, qdot in states])
 
 
 class ArmList:
@@ -153,8 +164,11 @@ class ArmList:
             arm.apply(command)
 
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
-        states = [arm.joint_state() for arm in self.arms]
-        return np.array([q for q, _ in states]), np.array([qdot for _, qdot in states])
+        return _stacked([arm.joint_state() for arm in self.arms])
+
+    def close(self) -> None:
+        for arm in self.arms:
+            arm.close()
 
 
 class PyBulletArmBatch:
@@ -182,46 +196,32 @@ class PyBulletArmBatch:
     def __init__(self, kinematics: Kinematics, dt: float, n_substeps: int, count: int, world_size: int = WORLD_SIZE) -> None:
         if count < 1 or world_size < 1:
             raise ValueError(f"count and world_size must be at least 1, got {count} and {world_size}")
-        self.worlds: list[tuple[PyBulletSim, list[SimulatedArm], int]] = []
-        for start in range(0, count, world_size):
-            sim = PyBulletSim(dt, n_substeps)
-            bodies = [SimulatedArm(sim, kinematics, meshes=False) for _ in range(min(world_size, count - start))]
-            self.worlds.append((sim, bodies, sim.save_state()))
-        self.dt = self.worlds[0][0].dt
-        self._count = count
+        self.sims = [PyBulletSim(dt, n_substeps) for _ in range(0, count, world_size)]
+        self.dt = self.sims[0].dt
+        #: Body i is sample i, in world i // world_size.
+        self.bodies = [SimulatedArm(self.sims[i // world_size], kinematics, meshes=False) for i in range(count)]
+        self._initial_states = [sim.save_state() for sim in self.sims]
 
     def __len__(self) -> int:
-        return self._count
-
-    def _rows(self, rows: np.ndarray) -> Any:
-        """(world, body, row) for every body, in sample order."""
-        rows = iter(rows)
-        for sim, bodies, _ in self.worlds:
-            for body in bodies:
-                yield sim, body, next(rows)
+        return len(self.bodies)
 
     def reset(self, q0: np.ndarray) -> None:
-        if len(q0) != self._count:
-            raise ValueError(f"need {self._count} rows of q0, got {len(q0)}")
-        for sim, _, state in self.worlds:
+        for sim, state in zip(self.sims, self._initial_states, strict=True):
             sim.restore_state(state)
-        for _, body, row in self._rows(q0):
+        for body, row in zip(self.bodies, q0, strict=True):
             body.set_joint_positions(row)
 
     def apply(self, commands: np.ndarray) -> None:
-        if len(commands) != self._count:
-            raise ValueError(f"need {self._count} rows of commands, got {len(commands)}")
-        for _, body, command in self._rows(commands):
+        for body, command in zip(self.bodies, commands, strict=True):
             body.command_velocities(command)
-        for sim, _, _ in self.worlds:
+        for sim in self.sims:
             sim.step()
 
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
-        states = [body.joint_state() for _, bodies, _ in self.worlds for body in bodies]
-        return np.array([q for q, _ in states]), np.array([qdot for _, qdot in states])
+        return _stacked([body.joint_state() for body in self.bodies])
 
     def close(self) -> None:
-        for sim, _, _ in self.worlds:
+        for sim in self.sims:
             sim.close()
 
 

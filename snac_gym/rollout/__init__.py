@@ -13,7 +13,7 @@
 """
 
 from snac_gym.rollout.batch import RolloutError, Rollouts, rollouts_from_logs, summarise_critic_diagnostics
-from snac_gym.rollout.episode import partial_log, lockstep_arms, rollout, simulate_env
+from snac_gym.rollout.episode import lockstep_arms, partial_log, rollout, simulate_env
 from snac_gym.rollout.kinematic import reference_trajectories, simulate_arms, simulate_kinematic
 from snac_gym.rollout.log import add_critic_diagnostics, log_array, log_columns, read_log, vector_columns, write_log
 
@@ -21,12 +21,12 @@ __all__ = [
     "RolloutError",
     "Rollouts",
     "add_critic_diagnostics",
+    "lockstep_arms",
     "log_array",
     "log_columns",
     "partial_log",
     "read_log",
     "reference_trajectories",
-    "lockstep_arms",
     "rollout",
     "rollouts_from_logs",
     "simulate_arms",

@@ -1,4 +1,4 @@
-"""The kinematic rollout engine: B samples stepped in lockstep on the exact kinematic model.
+"""The lockstep rollout engine: B samples stepped together on the exact kinematic model, or on one simulated arm each.
 
 :func:`simulate_kinematic` (the evaluator's default engine, ``--engine kinematic``): θ is integrated exactly from the command, θₖ₊₁ = θₖ + uₖΔt, with the
 shared :class:`~snac_gym.kinematics.Kinematics`, the paper's kinematic model. All samples of a
@@ -16,8 +16,8 @@ x = [p; log₃ R]) has its own ``task_error`` (e = [p − p_d; log₃(R R_dᵀ)]
 row by row exactly as the env does (:func:`task_error_function`), so both give the same numbers.
 
 The physics engines, ``mujoco`` and ``pybullet``, step one simulated arm per sample in the same
-lockstep loop (:func:`simulate_arms`): MuJoCo replicas sharing one compiled model, or B bodies in one
-PyBullet world; each rollout is the env's own (``tests/test_engines.py``).
+lockstep loop (:func:`simulate_arms`): MuJoCo replicas sharing one compiled model, or mesh-less
+bodies in PyBullet worlds of ten; each rollout is the env's own (``tests/test_engines.py``).
 """
 
 from __future__ import annotations
