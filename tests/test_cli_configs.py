@@ -59,8 +59,10 @@ def test_the_shipped_configs_validate_unchanged(task):
     raw = json.loads(path.read_text())
     config = validate_config(raw, str(path))
     assert isinstance(config, TrainingConfig) and config.task == task
-    assert config.ppo.batch_size == 8192 and config.ppo.net_arch == {"pi": (128, 128), "vf": (128, 128)}
-    assert config.evaluation.every_timesteps == 2_000_000 and config.vec_env.kind == "batched"
+    assert config.ppo.batch_size == 4096 and config.ppo.net_arch == {"pi": (64, 64), "vf": (128, 128)}
+    assert config.evaluation.every_timesteps == 200_000 and config.vec_env.kind == "batched"
+    assert config.features.action == "task-relative" and config.features.version == 3
+    assert config.reward.type == "cost" and config.reward.q_scale == 4.0
     assert load_config(path) == raw  # the dict a run writes into OUT/config.json is the file's, untouched
 
 
@@ -195,3 +197,12 @@ def test_bench_bounds_are_what_the_help_states():
     assert MAX_ACT_CALLS * 8 <= 8_000_000  # the timings array at the bound (int64)
     text = CliRunner().invoke(app, ["bench", "--help"], terminal_width=400).output
     assert "100 to 1,000,000" in text and "8 B each" in text
+
+
+def test_a_feature_version_that_does_not_go_with_the_action_kind_is_refused():
+    config = load_config(default_config_path("reach"))
+    config["features"] = {**config["features"], "version": 2}  # a joint-space version with task-relative actions
+    with pytest.raises(ConfigError, match="version 2 does not go with action 'task-relative'"):
+        validate_config(config, "reach.json")
+    config["features"].pop("action")  # without a kind, the version's own (joint) is meant: valid
+    validate_config(config, "reach.json")

@@ -143,7 +143,7 @@ def test_ppo_trains_on_minus_the_cost_in_the_single_and_the_batched_env():
     rng = np.random.default_rng(2)
     errors, commands, total, batched_total = [], [], 0.0, 0.0
     for _ in range(30):
-        action = rng.uniform(-1, 1, size=6)
+        action = rng.uniform(-1, 1, size=single.action_space.shape[0])  # 3: the shipped configs act in task space
         errors.append(single.unwrapped._obs[single.unwrapped._error_slice].copy())
         _, reward, _, _, info = single.step(action)
         assert reward == info["env_reward"]

@@ -34,9 +34,24 @@ def _tiny_config(tmp_path, task="reach", timesteps=64):
     config["vec_env"].update(n_envs=2, kind="dummy")
     config["ppo"].update(n_steps=16, batch_size=32, n_epochs=1, net_arch={"pi": [8, 8], "vf": [8, 8]})
     config["evaluation"].update(every_timesteps=32, episodes=1, horizons_s=[0.024, 0.04])
+    config["normalize"].update(obs=True)  # the frozen-normalisation path of the policy file too
     path = tmp_path / f"tiny_{task}.json"
     path.write_text(json.dumps(config))
     return path
+
+
+def _independent_task_relative_command(policy, observations, action, scale):
+    """``u = argmin ‖J u − v‖² + λ²‖u‖²`` by the normal equations ``(JᵀJ + λ²I) u = Jᵀv`` (not the
+    ``Jᵀ(JJᵀ + λ²I)⁻¹`` form the package uses), with ``v = ẋ_d + s·k_max·(‖e‖ + 10⁻⁴)·a``, clipped to ±ū."""
+    spec, layout = policy.model.features, policy.layout
+    out = []
+    for obs, a in zip(observations, action, strict=True):
+        q, e, xdot_d = obs[layout.slices["q"]], obs[layout.slices["e"]], obs[layout.slices["xdot_d"]]
+        jac = Kinematics("ur10").jacobian(q)
+        v = xdot_d + scale * spec.gain_max * (np.linalg.norm(e) + 1e-4) * np.clip(a, -1, 1)
+        u = np.linalg.solve(jac.T @ jac + spec.damping**2 * np.eye(6), jac.T @ v)
+        out.append(np.clip(u, -policy.velocity_limits, policy.velocity_limits))
+    return np.array(out)
 
 
 def _observations(task, count=40, seed=5):
@@ -114,7 +129,8 @@ def test_reloaded_policy_acts_exactly_as_the_trained_model(trained_run, reach_en
     observations = _observations("reach")
     features = observation_features(observations, policy.layout, policy.model.features)
     actions, _ = model.predict(stats.normalize_obs(features), deterministic=True)
-    expected = np.clip(actions, -1, 1) * policy.velocity_limits * policy.model.features.action_fraction
+    assert actions.shape == (len(observations), 3)  # a task-space action
+    expected = _independent_task_relative_command(policy, observations, actions, 1.0)
     commands = np.array([policy.act(obs) for obs in observations])
     np.testing.assert_allclose(commands, expected, rtol=0, atol=1e-5)
     np.testing.assert_allclose(policy.act_batch(observations), commands, rtol=0, atol=1e-9)
@@ -289,19 +305,52 @@ def test_policy_acts_on_the_observation_alone_deterministically(reach_env):
     assert np.all(np.abs(first) <= policy.velocity_limits)
 
 
-def test_action_scale_scales_the_command_and_is_seen_by_the_network(reach_env):
+def test_action_scale_scales_the_feedback_gain_not_the_network_input(reach_env):
+    """The shipped (task-relative) policies: the knob multiplies the gain of the error feedback; the
+    command equals the damped least-squares solution for that task velocity, computed independently."""
     assert PPOPolicy.effort_parameter == "action_scale"
+    observations = _observations("track", count=10)
+    track_env = gym.make(ENV_OF_TASK["track"])
+    for scale in (0.5, 2.0):
+        policy = PPOPolicy(track_env, action_scale=scale)
+        model = policy.model
+        assert model.features.task_relative
+        features = observation_features(observations, policy.layout, model.features, action_scale=scale)
+        np.testing.assert_array_equal(features, observation_features(observations, policy.layout, model.features))
+        action = np.clip(model.network_action(model.normalise(features)), -1, 1)
+        expected = _independent_task_relative_command(policy, observations, action, scale)
+        np.testing.assert_allclose(policy.act_batch(observations), expected, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(np.array([policy.act(obs) for obs in observations]), expected, rtol=0, atol=1e-9)
+    huge = PPOPolicy(track_env, action_scale=100.0).act_batch(observations)
+    assert np.all(np.abs(huge) <= track_env.unwrapped.velocity_limits)
+    track_env.close()
+
+
+def test_a_joint_space_policy_file_still_runs(reach_env, tmp_path, shipped_reach_file):
+    """Version 2 files (the network commands joints and sees ln(action_scale)) keep their meaning."""
+    layout = ObservationLayout(6, 3)
+    spec = FeatureSpec.from_dict({**FeatureSpec().to_dict(), "version": 2})
+    assert spec.action == "joint" and not spec.task_relative
+    width = feature_size(layout, spec)
+    rng = np.random.default_rng(1)
+    joint = PolicyFile(
+        hidden=((rng.normal(size=(8, width)).astype(np.float32), rng.normal(size=8).astype(np.float32)),),
+        action_layer=(rng.normal(size=(6, 8)).astype(np.float32), np.zeros(6, np.float32)),
+        activation="tanh", obs_mean=rng.normal(size=width), obs_var=np.ones(width), obs_epsilon=1e-8, obs_clip=10.0,
+        features=spec, metadata=dict(shipped_reach_file.metadata),
+    )
+    path = joint.save(tmp_path / "joint.npz")
     observations = _observations("reach", count=10)
     for scale in (0.5, 2.0):
-        policy = PPOPolicy(reach_env, action_scale=scale)
-        model = policy.model
-        features = observation_features(observations, policy.layout, model.features, action_scale=scale)
+        policy = PPOPolicy(reach_env, model_path=path, action_scale=scale)
+        features = observation_features(observations, policy.layout, policy.model.features, action_scale=scale)
         assert np.all(features[:, -1] == np.float32(np.log(scale)))
-        action = np.clip(model.network_action(model.normalise(features)), -1, 1)
-        expected = scale * model.features.action_fraction * action * policy.velocity_limits
+        action = np.clip(policy.model.network_action(policy.model.normalise(features)), -1, 1)
+        expected = scale * spec.action_fraction * action * policy.velocity_limits
         np.testing.assert_allclose(policy.act_batch(observations), expected, rtol=0, atol=1e-12)
-    huge = PPOPolicy(reach_env, action_scale=100.0).act_batch(observations)
-    assert np.all(np.abs(huge) <= reach_env.unwrapped.velocity_limits)
+    # a spec whose action and version disagree is refused, naming both
+    with pytest.raises(ValueError, match="does not go with action 'joint'"):
+        FeatureSpec.from_dict({**spec.to_dict(), "version": 3})
 
 
 def _kinematic_peak_effort(task, action_scale, count=8, steps=150):
@@ -336,17 +385,18 @@ def test_effort_grows_with_action_scale(task):
     assert efforts[0] < efforts[1] < efforts[2], efforts
 
 
-def test_shipped_reach_policy_reaches_within_a_centimetre(reach_env):
-    """Closed loop in the PyBullet env, the evaluator's 4 s horizon, five random episodes."""
+def test_shipped_reach_policy_reaches_within_a_millimetre(reach_env):
+    """Closed loop in the PyBullet env, the evaluator's 12 s horizon, five random episodes (the policy
+    was trained on the kinematic model; under Q = 4·I the optimum itself takes a median 6.3 s to 1 mm)."""
     policy = make_policy("ppo", reach_env)
     final_errors = []
     for seed in range(5):
         obs, _ = reach_env.reset(seed=seed)
         policy.reset(seed=seed)
-        for _ in range(500):
+        for _ in range(1500):
             obs, _, _, _, info = reach_env.step(policy.act(obs))
         final_errors.append(info["error_norm"])
-    assert sum(error <= 0.01 for error in final_errors) >= 4, final_errors
+    assert sum(error <= 0.001 for error in final_errors) >= 4, final_errors
 
 
 def test_inference_needs_neither_torch_nor_stable_baselines3():

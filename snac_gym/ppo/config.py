@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from snac_gym.ppo.envs import REWARD_TYPES
-from snac_gym.ppo.features import FEATURE_VERSION
+from snac_gym.ppo.features import ACTION_KINDS, FEATURE_VERSION, FeatureSpec
 from snac_gym.robots import ROBOTS
 from snac_gym.tasks import get_task, task_names
 
@@ -87,8 +87,12 @@ def validate_config(config: dict[str, Any], source: str = "PPO config") -> Train
             and allowed range (unknown keys and env keywords included).
     """
     try:
-        return read_section(TrainingConfig, config)
+        section = read_section(TrainingConfig, config)
+        FeatureSpec.from_dict(config["features"])  # the action kind and the feature version agree
+        return section
     except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
 
 
@@ -271,7 +275,10 @@ class FeaturesSection:
     position_scale: float = spec(number(0, open_low=True), 0.3)
     action_fraction: float = spec(number(0, 1, open_low=True), 0.5)
     action_scale_range: tuple[float, ...] = spec(sequence(number(0, open_low=True), length=2), (0.5, 4.0))
-    version: int = spec(choice(FEATURE_VERSION), FEATURE_VERSION)
+    action: str = spec(choice(*ACTION_KINDS), "task-relative")
+    gain_max: float = spec(number(0, open_low=True), 4.0)
+    damping: float = spec(number(0, open_low=True), 0.01)
+    version: int = spec(choice(*ACTION_KINDS.values()), FEATURE_VERSION)
 
     def __post_init__(self) -> None:
         low, high = self.action_scale_range
@@ -340,6 +347,7 @@ class EvaluationSection:
     horizons_s: tuple[float, ...] = spec(sequence(number(0, MAX_HORIZON_S, open_low=True)))
     seed: int = spec(integer(0))
     success_error_m: float = spec(number(0, open_low=True))
+    keep_checkpoints: bool = spec(boolean, False)
 
 
 @dataclass(frozen=True)

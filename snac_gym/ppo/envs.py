@@ -38,7 +38,14 @@ import numpy as np
 
 from snac_gym.cost import CostConvention
 from snac_gym.envs.core import shaped_reward
-from snac_gym.ppo.features import FeatureSpec, action_to_command, feature_size, observation_features
+from snac_gym.ppo.features import (
+    FeatureSpec,
+    action_size,
+    action_to_command,
+    feature_size,
+    observation_features,
+    task_relative_command,
+)
 
 REWARD_TYPES = ("shaped", "env", "cost")
 
@@ -124,8 +131,12 @@ class PPOTrainingWrapper(gym.Wrapper):
         self.features = features
         self.reward_spec = reward
         m = self.layout.n_joints
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(feature_size(self.layout),), dtype=np.float32)
-        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(m,), dtype=np.float32)
+        self.kinematics = base.kinematics
+        self.observation_space = gym.spaces.Box(
+            -np.inf, np.inf, shape=(feature_size(self.layout, features),), dtype=np.float32
+        )
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(action_size(self.layout, features),), dtype=np.float32)
+        self._last_obs: np.ndarray | None = None
         self._previous_action = np.zeros(m)
         self.action_scale = 1.0
 
@@ -133,7 +144,8 @@ class PPOTrainingWrapper(gym.Wrapper):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
-        self._previous_action = np.zeros(self.layout.n_joints)
+        self._previous_action = np.zeros(self.action_space.shape[0])
+        self._last_obs = np.asarray(obs, dtype=np.float64)
         low, high = self.features.action_scale_range
         self.action_scale = float(np.exp(self.np_random.uniform(np.log(low), np.log(high)))) if high > low else low
         info["action_scale"] = self.action_scale
@@ -141,7 +153,14 @@ class PPOTrainingWrapper(gym.Wrapper):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        command = action_to_command(action, self.velocity_limits, self.features, self.action_scale)
+        if self.features.task_relative:
+            obs_before = self._last_obs
+            jacobian = self.kinematics.jacobian(obs_before[self.layout.slices["q"]])
+            command = task_relative_command(
+                action, obs_before, self.layout, jacobian, self.velocity_limits, self.features, self.action_scale
+            )
+        else:
+            command = action_to_command(action, self.velocity_limits, self.features, self.action_scale)
         obs, env_reward, terminated, truncated, info = self.env.step(command)
         info["env_reward"] = env_reward
         if self.reward_spec.type == "shaped":
@@ -149,5 +168,6 @@ class PPOTrainingWrapper(gym.Wrapper):
         else:
             reward = float(env_reward)
         self._previous_action = action
+        self._last_obs = np.asarray(obs, dtype=np.float64)
         observation = observation_features(obs, self.layout, self.features, self.action_scale)
         return observation, reward, terminated, truncated, info

@@ -28,7 +28,41 @@ The joint-velocity field of the observation is not used: the kinematic engine fi
 with the previous command while the PyBullet env measures it, so it is not the same
 signal everywhere.
 
-Action: the network's output ``a`` is clipped to [−1, 1] per joint and mapped to
+Two kinds of policy (``FeatureSpec.action``):
+
+``"task-relative"`` (``FEATURE_VERSION`` 3, the shipped policies): the network chooses an
+end-effector velocity *relative to the error*, and the kinematic model's damped pseudo-inverse
+(the map DLS uses) turns it into joint velocities:
+
+    v = ẋ_d + action_scale · gain_max · (‖e‖ + ε_v) · a,    u = Jᵀ(JJᵀ + λ²I)⁻¹ v,   clipped to ±ū
+
+with a ∈ [−1, 1]ⁿ (n = task dimension), ε_v = 0.1 mm. The network sees only scale-free features:
+
+====================  ======  ==============================================================
+feature               size    meaning
+====================  ======  ==============================================================
+e / ‖e‖               n       the error's direction
+log‖e‖                1       its magnitude, (log10(‖e‖ + 10⁻⁵ m) + 2.5) / 1.5
+ẋ_d / velocity        n       the reference's velocity (zero for reach)
+ẋ_d / (‖e‖ + 1 mm)    n       the same relative to the error, / 10
+e / (2·coarse)        n       the error itself (the critic's quadratic cost needs it)
+====================  ======  ==============================================================
+
+The effort knob ``action_scale`` is not an input here: it multiplies the feedback gain, which
+the scale-free action keeps a stable linear loop for any gain a 125 Hz step allows, and a
+network trained to minimise one cost would learn to cancel a knob it could see.
+
+Why: a joint-space network has to learn the arm's kinematics from sin/cos θ and, under a
+reward equal to the quadratic cost, gets almost no signal in the last millimetres (the cost
+there is ~10⁻⁶ of the start's), so it neither beats the resolved-rate baselines nor settles
+to 1 mm. Here ``a`` is a gain per unit of error: a constant ``a = −(k/gain_max)·e/‖e‖`` is the
+resolved-rate law of gain k at every scale, so what the network learns at centimetres holds at
+micrometres, and the feed-forward ẋ_d is built in. What is learnt is the gain and direction of
+the feedback as functions of the error and the reference; the kinematics are the model's.
+
+``"joint"`` (``FEATURE_VERSION`` 2 files): the table above this one, and the action map below.
+
+Action (``"joint"``): the network's output ``a`` is clipped to [−1, 1] per joint and mapped to
 ``u = action_scale · action_fraction · a ⊙ ū`` (rad/s), ū the velocity limits, clipped to ±ū.
 ``action_fraction`` is fixed at training time; ``action_scale`` (default 1) is the
 run-time effort knob. Scaling the output of a fixed feedback policy would also scale its
@@ -47,8 +81,13 @@ import numpy as np
 
 from snac_gym.observation import ObservationLayout
 
-#: Version of the feature definition above; stored in every policy file and checked on load.
-FEATURE_VERSION = 2
+#: Version of the feature definition above; stored in every policy file and checked on load:
+#: 2 is the joint-space policy, 3 the task-relative one.
+FEATURE_VERSION = 3
+#: The feature version of each kind of policy.
+ACTION_KINDS = {"joint": 2, "task-relative": 3}
+#: ε_v of the task-relative action (m): the feedback's floor, so an error of exactly zero is still corrected.
+RELATIVE_ERROR_FLOOR = 1e-4
 #: ε of the log-magnitude feature, m.
 LOG_ERROR_FLOOR = 1e-4
 
@@ -66,6 +105,9 @@ class FeatureSpec:
         action_fraction: Fraction of the velocity limits that ``a = ±1`` commands.
         action_scale_range: ``(low, high)`` of the per-episode ``action_scale`` drawn at
             training time (log-uniform); ``low == high`` trains at one scale.
+        action: ``"joint"`` or ``"task-relative"`` (the module docs).
+        gain_max: Task-relative: the feedback gain ``a = ±1`` commands, 1/s.
+        damping: Task-relative: λ of the damped pseudo-inverse, m.
         version: :data:`FEATURE_VERSION` of the definition these scales belong to.
     """
 
@@ -76,10 +118,17 @@ class FeatureSpec:
     position_scale: float = 0.3
     action_fraction: float = 0.5
     action_scale_range: tuple[float, float] = (0.5, 4.0)
-    version: int = field(default=FEATURE_VERSION)
+    action: str = "joint"
+    gain_max: float = 4.0
+    damping: float = 0.01
+    version: int = field(default=-1)
 
     def __post_init__(self) -> None:
-        for name in ("error_scale_coarse", "error_scale_fine", "velocity_scale", "position_scale", "action_fraction"):
+        if self.action not in ACTION_KINDS:
+            raise ValueError(f"feature spec: action must be one of {sorted(ACTION_KINDS)}, got {self.action!r}")
+        if self.version == -1:
+            object.__setattr__(self, "version", ACTION_KINDS[self.action])
+        for name in ("gain_max", "damping", "error_scale_coarse", "error_scale_fine", "velocity_scale", "position_scale", "action_fraction"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"feature spec: {name} must be a positive number, got {value!r}")
@@ -108,17 +157,40 @@ class FeatureSpec:
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"feature spec: unknown keys {sorted(unknown)}")
-        spec = cls(**data)
-        if spec.version != FEATURE_VERSION:
+        # A spec that names no action has the kind of its version (version 2 files predate the
+        # task-relative kind and are joint-space).
+        data = dict(data)
+        if "action" not in data and data.get("version") in ACTION_KINDS.values():
+            data["action"] = next(kind for kind, version in ACTION_KINDS.items() if version == data["version"])
+        if "version" in data and data["version"] not in ACTION_KINDS.values():
             raise ValueError(
-                f"feature spec version {spec.version} is not the version this snac-gym computes ({FEATURE_VERSION})"
+                f"feature spec version {data['version']} is not one this snac-gym computes "
+                f"({sorted(ACTION_KINDS.values())})"
+            )
+        spec = cls(**data)
+        if spec.version != ACTION_KINDS[spec.action]:
+            raise ValueError(
+                f"feature spec version {spec.version} does not go with action {spec.action!r} "
+                f"(version {ACTION_KINDS[spec.action]})"
             )
         return spec
 
+    @property
+    def task_relative(self) -> bool:
+        """Whether the network chooses a task-space velocity relative to the error (the module docs)."""
+        return self.action == "task-relative"
 
-def feature_size(layout: ObservationLayout) -> int:
-    """Number of features for ``layout`` (2m + 4n + 2)."""
+
+def feature_size(layout: ObservationLayout, spec: FeatureSpec | None = None) -> int:
+    """Number of features for ``layout``: 2m + 4n + 2 (joint), 4n + 1 (task-relative)."""
+    if spec is not None and spec.task_relative:
+        return 4 * layout.task_dim + 1
     return 2 * layout.n_joints + 4 * layout.task_dim + 2
+
+
+def action_size(layout: ObservationLayout, spec: FeatureSpec) -> int:
+    """Size of the network's action: m joints, or the task dimension n (task-relative)."""
+    return layout.task_dim if spec.task_relative else layout.n_joints
 
 
 def observation_features(
@@ -138,6 +210,15 @@ def observation_features(
     q = obs[..., s["q"]]
     e = obs[..., s["e"]]
     error_norm = np.sqrt(np.sum(e * e, axis=-1, keepdims=True))
+    if spec.task_relative:
+        xdot_d = obs[..., s["xdot_d"]]
+        return np.concatenate((
+            e / np.maximum(error_norm, 1e-12),
+            (np.log10(error_norm + 1e-5) + 2.5) / 1.5,
+            xdot_d / spec.velocity_scale,
+            xdot_d / (error_norm + 1e-3) / 10.0,
+            e / (2.0 * spec.error_scale_coarse),
+        ), axis=-1).astype(np.float32)
     centre = np.asarray(spec.position_centre, dtype=np.float64)
     if centre.shape != (layout.task_dim,):
         raise ValueError(f"feature spec: position_centre needs {layout.task_dim} values, got {centre.shape}")
@@ -154,14 +235,46 @@ def observation_features(
     return np.concatenate(parts, axis=-1).astype(np.float32)
 
 
+def task_velocity(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, spec: FeatureSpec,
+                  action_scale: Any = 1.0) -> np.ndarray:
+    """The task-relative action's end-effector velocity ``v = ẋ_d + s·gain_max·(‖e‖ + ε_v)·clip(a)``.
+
+    ``action_scale`` is a number or one per row ``(B, 1)``.
+    """
+    s = layout.slices
+    obs = np.asarray(obs, dtype=np.float64)
+    e = obs[..., s["e"]]
+    error_norm = np.sqrt(np.sum(e * e, axis=-1, keepdims=True))
+    action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+    gain = np.asarray(action_scale, dtype=np.float64) * spec.gain_max
+    return obs[..., s["xdot_d"]] + gain * (error_norm + RELATIVE_ERROR_FLOOR) * action
+
+
+def task_relative_command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, jacobians: np.ndarray,
+                          velocity_limits: np.ndarray, spec: FeatureSpec, action_scale: Any = 1.0) -> np.ndarray:
+    """Joint velocities (rad/s) of task-relative actions ``(n,)`` or ``(B, n)``: ``Jᵀ(JJᵀ + λ²I)⁻¹ v``, clipped to ±ū.
+
+    ``jacobians`` is ``J(θ)`` ``(n, m)`` or one per row ``(B, n, m)``.
+    """
+    velocity = task_velocity(action, obs, layout, spec, action_scale)
+    jac = np.asarray(jacobians, dtype=np.float64)
+    jac_t = np.swapaxes(jac, -1, -2)
+    damped = jac @ jac_t + spec.damping**2 * np.eye(jac.shape[-2])
+    command = (jac_t @ np.linalg.solve(damped, velocity[..., None]))[..., 0]
+    limits = np.asarray(velocity_limits, dtype=np.float64)
+    return np.minimum(np.maximum(command, -limits), limits)
+
+
 def action_to_command(
     action: np.ndarray, velocity_limits: np.ndarray, spec: FeatureSpec, action_scale: float = 1.0
 ) -> np.ndarray:
-    """Joint velocities (rad/s, float64) for normalised actions ``(m,)`` or ``(B, m)``.
+    """Joint velocities (rad/s, float64) for normalised joint-space actions ``(m,)`` or ``(B, m)``.
 
     ``u = action_scale · action_fraction · clip(a, −1, 1) ⊙ ū``, clipped to ``±ū`` (which only
     matters when ``action_scale · action_fraction > 1``).
     """
+    if spec.task_relative:
+        raise ValueError("a task-relative action needs the observation and J(θ): use task_relative_command")
     limits = np.asarray(velocity_limits, dtype=np.float64)
     action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
     command = action * (limits * (spec.action_fraction * float(action_scale)))

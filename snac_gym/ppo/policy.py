@@ -67,6 +67,9 @@ class PPOPolicy(BasePolicy):
         )
         self.model.check_card(self.model_path)
         self._obs_size = self.layout.size
+        self._q = self.layout.slices["q"]
+        # The task-relative policies map their task-space action through the model's J(θ).
+        self._task_relative = self.model.features.task_relative
 
     @property
     def input_files(self) -> tuple[Path, ...]:
@@ -86,7 +89,8 @@ class PPOPolicy(BasePolicy):
         obs = np.asarray(obs, dtype=np.float64)
         if obs.shape != (self._obs_size,):
             raise ValueError(f"observation must have shape ({self._obs_size},), got {obs.shape}")
-        return self.model.command(obs, self.layout, self.velocity_limits, self.action_scale)
+        jacobian = self.kinematics.jacobian(obs[self._q]) if self._task_relative else None
+        return self.model.command(obs, self.layout, self.velocity_limits, self.action_scale, jacobian)
 
     # -- the evaluator's optional batch protocol (snac_gym.policies.base) ------------------------
     def reset_batch(self, seeds: Sequence[int]) -> None:
@@ -98,7 +102,10 @@ class PPOPolicy(BasePolicy):
         obs_batch = np.asarray(obs_batch, dtype=np.float64)
         if obs_batch.ndim != 2 or obs_batch.shape[1] != self._obs_size:
             raise ValueError(f"observations must have shape (B, {self._obs_size}), got {obs_batch.shape}")
-        return self.model.command(obs_batch, self.layout, self.velocity_limits, self.action_scale)
+        jacobians = (
+            self.kinematics.jacobian_batch(np.ascontiguousarray(obs_batch[:, self._q])) if self._task_relative else None
+        )
+        return self.model.command(obs_batch, self.layout, self.velocity_limits, self.action_scale, jacobians)
 
 
 __all__ = ["PPOPolicy", "PolicyFileError", "shipped_model_path"]

@@ -34,7 +34,14 @@ from typing import Any
 import numpy as np
 
 from snac_gym.observation import ObservationLayout
-from snac_gym.ppo.features import FeatureSpec, action_to_command, feature_size, observation_features
+from snac_gym.ppo.features import (
+    FeatureSpec,
+    action_size,
+    action_to_command,
+    feature_size,
+    observation_features,
+    task_relative_command,
+)
 
 FORMAT_NAME = "snac-gym-ppo-policy"
 FORMAT_VERSION = 1
@@ -122,10 +129,22 @@ class PolicyFile:
         return np.clip(self.network_action(self.normalise(features)), -1.0, 1.0)
 
     def command(
-        self, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray, action_scale: float = 1.0
+        self, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray, action_scale: float = 1.0,
+        jacobians: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Joint velocities (rad/s) for observations ``(d,)`` or ``(B, d)``."""
-        return action_to_command(self.action(obs, layout, action_scale), velocity_limits, self.features, action_scale)
+        """Joint velocities (rad/s) for observations ``(d,)`` or ``(B, d)``.
+
+        A task-relative policy also needs ``J(θ)`` of each observation (``(n, m)`` or ``(B, n, m)``).
+
+        Raises:
+            ValueError: If a task-relative policy is given no Jacobians.
+        """
+        action = self.action(obs, layout, action_scale)
+        if self.features.task_relative:
+            if jacobians is None:
+                raise ValueError("a task-relative PPO policy needs J(θ) of each observation (jacobians=)")
+            return task_relative_command(action, obs, layout, jacobians, velocity_limits, self.features, action_scale)
+        return action_to_command(action, velocity_limits, self.features, action_scale)
 
     # -- checks ----------------------------------------------------------------------------
     @property
@@ -287,8 +306,9 @@ class PolicyFile:
             raise PolicyFileError(f"{source}: unknown activation {self.activation!r}")
         layout = self.metadata.get("layout", {})
         try:
-            width = feature_size(ObservationLayout(int(layout["n_joints"]), int(layout["task_dim"])))
-            n_joints = int(layout["n_joints"])
+            observation_layout = ObservationLayout(int(layout["n_joints"]), int(layout["task_dim"]))
+            width = feature_size(observation_layout, self.features)
+            outputs = action_size(observation_layout, self.features)
         except (KeyError, TypeError, ValueError) as exc:
             raise PolicyFileError(f"{source}: metadata has no valid observation layout ({layout!r})") from exc
         if self.obs_mean is not None and (self.obs_mean.shape != (width,) or self.obs_var.shape != (width,)):
@@ -299,8 +319,10 @@ class PolicyFile:
                     f"{source}: layer {i} has shape {weight.shape}/{bias.shape}, expected (*, {width})"
                 )
             width = weight.shape[0]
-        if width != n_joints:
-            raise PolicyFileError(f"{source}: the network outputs {width} actions for {n_joints} joints")
+        if width != outputs:
+            raise PolicyFileError(
+                f"{source}: the network outputs {width} actions where a {self.features.action} policy has {outputs}"
+            )
 
 
 def export_policy(model: Any, vec_normalize: Any | None, metadata: dict[str, Any], features: FeatureSpec) -> PolicyFile:

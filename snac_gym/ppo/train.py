@@ -35,6 +35,7 @@ import csv
 import json
 import math
 import multiprocessing
+import shutil
 import signal
 import time
 from dataclasses import dataclass
@@ -335,6 +336,10 @@ def _evaluate_checkpoint(run: _Run, model: Any, venv: Any, log: Callable[[str], 
     (and put the success rate in the progress ``lines``, when there are any)."""
     timesteps = int(model.num_timesteps)
     policy_path = run.save("checkpoint", model, venv)
+    if run.config["evaluation"].get("keep_checkpoints", False):  # every evaluated policy, for learning curves
+        kept = run.out / "checkpoints" / f"{timesteps:09d}.npz"
+        kept.parent.mkdir(exist_ok=True)
+        shutil.copyfile(policy_path, kept)
     scores = evaluate_policy_file(policy_path, run.config)
     is_best = _better(scores, run.state["best"])
     row = {"timesteps": timesteps, "wall_time_s": round(run.wall_time(), 1), **scores, "is_best": int(is_best)}
@@ -673,7 +678,7 @@ def training_curves_figure(out: str | Path, title: str | None = None) -> Any:
     axes[0].set(xlabel="timesteps", ylabel="success rate, %", ylim=(-2, 102),
                 title=f"success ({criterion} {threshold_mm:g} mm)")
     first_horizon = float(config["evaluation"]["horizons_s"][0])
-    axes[1].set(xlabel="timesteps", ylabel="mean trajectory cost V", title=f"trajectory cost over {first_horizon:g} s")
+    axes[1].set(xlabel="timesteps", ylabel="mean trajectory cost V", title=f"Table I cost V over {first_horizon:g} s")
     rewards = [(row["time/total_timesteps"], row["rollout/ep_rew_mean"]) for row in progress
                if "rollout/ep_rew_mean" in row and "time/total_timesteps" in row]
     if rewards:
@@ -682,7 +687,11 @@ def training_curves_figure(out: str | Path, title: str | None = None) -> Any:
         axes[2].text(0.5, 0.5, "no episode returns logged", ha="center", va="center", transform=axes[2].transAxes)
         axes[2].set_xlim(axes[0].get_xlim())
         axes[2].set_yticks([])
-    axes[2].set(xlabel="timesteps", ylabel="mean episode return", title="training reward (shaped)")
+    reward = config.get("reward", {})
+    reward_name = {"shaped": "shaped", "env": "the env's"}.get(reward.get("type", "shaped"))
+    if reward_name is None:  # minus the evaluator's cost under the run's convention
+        reward_name = f"−{reward.get('cost', 'hjb')} cost, Q = {float(reward.get('q_scale', 1.0)):g}·I"
+    axes[2].set(xlabel="timesteps", ylabel="mean episode return", title=f"training reward ({reward_name})")
     for axis in axes:
         axis.grid(alpha=0.3)
         _timesteps_axis(axis)

@@ -17,7 +17,13 @@ import numpy as np
 
 from snac_gym.envs.sb3 import SB3VectorEnv
 from snac_gym.ppo.envs import RewardSpec
-from snac_gym.ppo.features import FeatureSpec, feature_size, observation_features
+from snac_gym.ppo.features import (
+    FeatureSpec,
+    action_size,
+    feature_size,
+    observation_features,
+    task_relative_command,
+)
 from snac_gym.tasks import get_task
 
 
@@ -39,12 +45,12 @@ class PPOVecEnv(SB3VectorEnv):
         self.action_scales = np.ones(count)
         self.previous_actions = np.zeros((count, 1))
         super().__init__(get_task(config["task"]).env_id_for(config.get("robot", "ur10")), count, **env_kwargs)
-        self.previous_actions = np.zeros((count, self.episodes.layout.n_joints))
+        self.previous_actions = np.zeros((count, action_size(self.episodes.layout, self.features)))
 
     def _spaces(self) -> tuple[gym.spaces.Space, gym.spaces.Space]:
         layout = self.vector_env.episodes.layout
-        observation = gym.spaces.Box(-np.inf, np.inf, shape=(feature_size(layout),), dtype=np.float32)
-        return observation, gym.spaces.Box(-1.0, 1.0, shape=(layout.n_joints,), dtype=np.float32)
+        observation = gym.spaces.Box(-np.inf, np.inf, shape=(feature_size(layout, self.features),), dtype=np.float32)
+        return observation, gym.spaces.Box(-1.0, 1.0, shape=(action_size(layout, self.features),), dtype=np.float32)
 
     def _on_reset(self, indices: np.ndarray) -> None:
         self.previous_actions[indices] = 0.0
@@ -55,14 +61,21 @@ class PPOVecEnv(SB3VectorEnv):
 
     def _features(self, observations: np.ndarray, rows: Any) -> np.ndarray:
         features = observation_features(observations, self.episodes.layout, self.features)
-        features[:, -1] = np.log(self.action_scales[rows])  # the per-episode effort feature
+        if not self.features.task_relative:
+            features[:, -1] = np.log(self.action_scales[rows])  # the per-episode effort feature
         return features
 
     def _commands(self, actions: np.ndarray) -> np.ndarray:
-        # action_to_command with one action_scale per row, in the same order of operations.
         action = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
         self._clipped = action
         limits = self.episodes.limits
+        episodes = self.episodes
+        if self.features.task_relative:
+            jacobians = episodes.template.kinematics.jacobian_batch(episodes.q)
+            command = task_relative_command(action, episodes.observations(), episodes.layout, jacobians, limits,
+                                            self.features, self.action_scales[:, None])
+            return episodes.commands(command)
+        # action_to_command with one action_scale per row, in the same order of operations.
         command = action * (limits * (self.features.action_fraction * self.action_scales[:, None]))
         return self.episodes.commands(np.minimum(np.maximum(command, -limits), limits))
 
