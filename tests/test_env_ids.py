@@ -41,7 +41,8 @@ def test_one_id_per_robot_and_task_from_the_registries():
     expected = {task.env_id_for(robot) for task in TASKS.values() for robot in ROBOTS}
     assert expected == set(snac_gym.ENV_IDS)
     goal_ids = {task.env_id_for(robot, goal=True) for task in TASKS.values() for robot in ROBOTS}
-    assert goal_ids | {coarse_reach_id(robot) for robot in ROBOTS} == set(GOAL_ENV_IDS)
+    coarse = {coarse_reach_id(robot, action) for robot in ROBOTS for action in ("joint", "cartesian")}
+    assert goal_ids | coarse == set(GOAL_ENV_IDS)
     assert {"snac_gym/PandaReach-v0", "snac_gym/XArm7EllipseTrack-v0", "snac_gym/UR5Reach-v0",
             "snac_gym/UR3EllipseTrack-v0", "snac_gym/PandaReachGoal-v0", "snac_gym/XArm7EllipseTrackGoal-v0"} <= set(gym.registry)
     # The UR10 ids keep their names and lengths.

@@ -149,3 +149,49 @@ def test_the_coarse_reach_preset_has_panda_gyms_sizes(robot):
 def test_an_unknown_start_is_refused():
     with pytest.raises(ValueError, match=r"start must be one of \('sampled', 'nominal'\), got 'home'"):
         gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", start="home")
+
+
+# -- the Cartesian action (panda-gym's end-effector control) -------------------------------------
+@pytest.mark.parametrize("robot", ["panda", "ur10"])
+def test_the_cartesian_preset_moves_the_tool_by_the_damped_least_squares_command(robot):
+    """The ``...ReachGoalCoarseCartesian-v0`` ids: the preset's sizes, a 3-D action, and each step's joint
+    velocities equal to ``argmin ‖J u − 1.25·a‖² + λ²‖u‖²`` solved by the normal equations (not the
+    package's ``Jᵀ(JJᵀ + λ²I)⁻¹`` form), clipped to the limits; a straight-line command reaches the goal."""
+    from snac_gym.envs.goal import coarse_reach_id
+    from snac_gym.kinematics import Kinematics
+
+    env = gym.make(coarse_reach_id(robot, "cartesian"), physics="kinematic")
+    check_env(env.unwrapped, skip_render_check=True)
+    base = env.unwrapped
+    assert env.action_space.shape == (3,) and base.success_tolerance == 0.05 and env.spec.max_episode_steps == 50
+    kinematics, limits = Kinematics(robot), base.env.velocity_limits
+    m = kinematics.n_joints
+    obs, info = env.reset(seed=4)
+    q = np.asarray(info["q0"], dtype=float)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        action = rng.uniform(-1, 1, 3)
+        jac = kinematics.jacobian(q)
+        expected = np.clip(np.linalg.solve(jac.T @ jac + 1e-4 * np.eye(m), jac.T @ (1.25 * action)), -limits, limits)
+        np.testing.assert_allclose(base.joint_command(action) * limits, expected, rtol=0, atol=1e-9)  # normalised
+        obs, *_ = env.step(action)
+        q = q + expected * base.dt
+        np.testing.assert_allclose(obs["observation"][:m], q, atol=1e-5)  # float32 observation
+    obs, _ = env.reset(seed=5)
+    for _ in range(50):
+        direction = obs["desired_goal"] - obs["achieved_goal"]
+        obs, reward, terminated, truncated, info = env.step(np.clip(direction / (1.25 * base.dt) * 0.5, -1, 1))
+    assert info["is_success"] and reward == 0.0
+    env.close()
+
+
+def test_a_bad_cartesian_action_or_speed_is_refused():
+    env = gym.make("snac_gym/UR10ReachGoalCoarseCartesian-v0", physics="kinematic")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action must be 3 finite values"):
+        env.step(np.array([np.nan, 0.0, 0.0]))
+    with pytest.raises(ValueError, match=r"action must be one of \('joint', 'cartesian'\), got 'polar'"):
+        gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", action="polar")
+    with pytest.raises(ValueError, match="cartesian_speed must be a positive number"):
+        gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", action="cartesian", cartesian_speed=0.0)
+    env.close()

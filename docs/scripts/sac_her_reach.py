@@ -3,6 +3,8 @@
 Usage::
 
     .venv/bin/python docs/scripts/sac_her_reach.py --timesteps 30000 --tolerance 0.01
+    .venv/bin/python docs/scripts/sac_her_reach.py --timesteps 60000 --tolerance 0.001 --action cartesian \
+        --cartesian-speed 0.5 --dt 0.04 --episode-steps 100        # the 1 mm reach with the tool's velocity as action
 
 The env runs on the exact kinematic model (``physics="kinematic"``, the evaluator's engine), with
 normalised actions, sparse rewards and episodes of ``--episode-steps`` control steps (125 Hz).
@@ -31,16 +33,23 @@ def main() -> None:
     parser.add_argument("--episode-steps", type=int, default=250)
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--action", default="joint", choices=("joint", "cartesian"),
+                        help="the goal env's action: joint velocities, or the tool's velocity through J+")
+    parser.add_argument("--cartesian-speed", type=float, default=1.25, help="m/s at |a| = 1 (--action cartesian)")
+    parser.add_argument("--dt", type=float, default=0.008, help="control period, s (a multiple of 8 ms)")
+    parser.add_argument("--gamma", type=float, default=0.98)
     args = parser.parse_args()
     from stable_baselines3 import SAC, HerReplayBuffer
 
     torch.set_num_threads(1)
     kwargs = dict(physics="kinematic", action_type="normalized", success_tolerance=args.tolerance,
-                  max_steps=args.episode_steps)
+                  max_steps=args.episode_steps, dt=args.dt)
+    if args.action == "cartesian":
+        kwargs.update(action="cartesian", cartesian_speed=args.cartesian_speed)
     env = gym.make("snac_gym/UR10ReachGoal-v0", **kwargs)
     model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
                 replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
-                learning_starts=1000, gamma=0.98, seed=args.seed, device="cpu", verbose=0)
+                learning_starts=1000, gamma=args.gamma, seed=args.seed, device="cpu", verbose=0)
     start = time.perf_counter()
     model.learn(args.timesteps)
     train_s = time.perf_counter() - start

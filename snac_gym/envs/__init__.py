@@ -78,13 +78,15 @@ def _register_coarse_reach(robot: str) -> None:
 
     from snac_gym.envs.goal import COARSE_REACH, coarse_reach_id
 
-    env_id = coarse_reach_id(robot)
-    if env_id in gym.registry:
-        return
-    GOAL_ENV_IDS[env_id] = "snac_gym.envs.goal:CoarseReachGoalEnv"
-    REGISTERED_IDS[env_id] = RegisteredId(robot, "reach", True)
-    gym.register(id=env_id, entry_point=GOAL_ENV_IDS[env_id], kwargs={"robot": robot},
-                 disable_env_checker=False, max_episode_steps=COARSE_REACH["episode_steps"])
+    for action in ("joint", "cartesian"):
+        env_id = coarse_reach_id(robot, action)
+        if env_id in gym.registry:
+            continue
+        GOAL_ENV_IDS[env_id] = "snac_gym.envs.goal:CoarseReachGoalEnv"
+        REGISTERED_IDS[env_id] = RegisteredId(robot, "reach", True)
+        kwargs = {"robot": robot} if action == "joint" else {"robot": robot, "action": action}
+        gym.register(id=env_id, entry_point=GOAL_ENV_IDS[env_id], kwargs=kwargs,
+                     disable_env_checker=False, max_episode_steps=COARSE_REACH["episode_steps"])
 
 
 def make_task_env(task: Task | str, robot: str = "ur10", **kwargs: Any) -> Any:

@@ -42,6 +42,14 @@ GOAL_REWARD_TYPES = ("sparse", "dense")
 #: ``"nominal"`` (the robot's nominal configuration every time, as panda-gym's neutral pose).
 GOAL_STARTS = ("sampled", "nominal")
 
+#: What a goal env's action is: ``"joint"`` (the task env's, joint velocities) or ``"cartesian"``
+#: (an end-effector velocity, mapped to joint velocities by the model's damped pseudo-inverse).
+GOAL_ACTIONS = ("joint", "cartesian")
+#: The Cartesian action's speed at ``|a| = 1`` (m/s): panda-gym's 5 cm per 40 ms step.
+CARTESIAN_SPEED = 1.25
+#: λ of the Cartesian action's damped pseudo-inverse (m), as the ``dls`` controller's.
+CARTESIAN_DAMPING = 0.01
+
 #: The coarse reach preset (``snac_gym/<Robot>ReachGoalCoarse-v0``), sized as panda-gym's PandaReach:
 #: 5 cm success tolerance, 50 steps of 40 ms (25 Hz, 2 s), goals in a 30 cm cube centred on the
 #: end effector at the nominal configuration, every episode from that configuration, actions
@@ -50,11 +58,13 @@ GOAL_STARTS = ("sampled", "nominal")
 COARSE_REACH = {"tolerance": 0.05, "episode_steps": 50, "dt": 0.04, "n_substeps": 10, "box": 0.30}
 
 
-def coarse_reach_id(robot: str) -> str:
-    """The coarse reach preset's id on ``robot``: ``snac_gym/PandaReachGoalCoarse-v0``."""
+def coarse_reach_id(robot: str, action: str = "joint") -> str:
+    """The coarse reach preset's id on ``robot``: ``snac_gym/PandaReachGoalCoarse-v0``, or with
+    Cartesian actions ``snac_gym/PandaReachGoalCoarseCartesian-v0``."""
     from snac_gym.robots import get_robot
 
-    return f"snac_gym/{get_robot(robot).env_prefix}ReachGoalCoarse-v0"
+    suffix = "Cartesian" if action == "cartesian" else ""
+    return f"snac_gym/{get_robot(robot).env_prefix}ReachGoalCoarse{suffix}-v0"
 
 
 def goal_env_id(task: Task, robot: str = "ur10") -> str:
@@ -70,6 +80,12 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         reward_type: ``"sparse"`` or ``"dense"``.
         success_tolerance: Distance (m) under which the goal counts as reached (default: the task's).
         terminate_on_success: Reach only: end the episode once the goal is reached.
+        start: ``"sampled"`` or ``"nominal"`` (:data:`GOAL_STARTS`).
+        action: ``"joint"`` (the task env's action) or ``"cartesian"``: a ∈ [−1, 1]ⁿ is the
+            end-effector velocity ``cartesian_speed · a`` (m/s), sent as the joint velocities
+            ``Jᵀ(JJᵀ + λ²I)⁻¹ v`` (λ = 1 cm, the model's J at the current θ) clipped to the limits,
+            as panda-gym's end-effector control moves the tool by Cartesian increments.
+        cartesian_speed: The Cartesian action's speed at ``|a| = 1``, m/s.
         **env_kwargs: Arguments of the task env (``robot``, ``dt``, ``physics``, ``action_type``,
             ``max_steps``, ...), except ``reward_type``, ``terminate_on_success`` and ``observation_dtype``.
 
@@ -87,6 +103,8 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         terminate_on_success: bool = False,
         render_mode: str | None = None,
         start: str = "sampled",
+        action: str = "joint",
+        cartesian_speed: float = CARTESIAN_SPEED,
         **env_kwargs: Any,
     ) -> None:
         from snac_gym.envs.core import task_env_class
@@ -96,12 +114,17 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
             raise ValueError(f"reward_type must be one of {GOAL_REWARD_TYPES}, got {reward_type!r}")
         if start not in GOAL_STARTS:
             raise ValueError(f"start must be one of {GOAL_STARTS}, got {start!r}")
+        if action not in GOAL_ACTIONS:
+            raise ValueError(f"action must be one of {GOAL_ACTIONS}, got {action!r}")
+        if not (np.isfinite(cartesian_speed) and cartesian_speed > 0):
+            raise ValueError(f"cartesian_speed must be a positive number (m/s), got {cartesian_speed!r}")
         reserved = {"reward_type", "terminate_on_success", "observation_dtype"} & set(env_kwargs)
         if reserved:
             raise ValueError(f"the goal env sets {sorted(reserved)} itself")
         self._init_kwargs = dict(
             task=task, reward_type=reward_type, success_tolerance=success_tolerance,
-            terminate_on_success=terminate_on_success, render_mode=render_mode, start=start, **env_kwargs,
+            terminate_on_success=terminate_on_success, render_mode=render_mode, start=start, action=action,
+            cartesian_speed=cartesian_speed, **env_kwargs,
         )
         self.task = get_task(task)
         self.env = task_env_class(self.task)(
@@ -114,7 +137,13 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         self.terminate_on_success = bool(terminate_on_success) and not self.task.moving_reference
         self.success_tolerance = self.env.success_tolerance
         self.render_mode = render_mode
-        self.action_space = self.env.action_space
+        self.action = action
+        self.cartesian_speed = float(cartesian_speed)
+        if action == "cartesian":
+            self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(self.env.kinematics.task_dim,), dtype=np.float32)
+        else:
+            self.action_space = self.env.action_space
+        self._q = np.zeros(self.env.kinematics.n_joints)
         self.observation_space = self._spaces()
 
     # -- spaces --------------------------------------------------------------------------------
@@ -166,10 +195,30 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
                 options = {**(options or {}), self.task.option_key: reference}
             options = {**options, "q0": self._start_q}
         flat, info = self.env.reset(seed=seed, options=options)
+        self._q = self._joint_angles()
         return self._goal_observation(flat), info
 
+    def _joint_angles(self) -> np.ndarray:
+        # θ at full precision (the observation is float32): the task env's own last observation.
+        return self.env._obs[self.env.obs_layout.slices["q"]].copy()
+
+    def joint_command(self, action: np.ndarray) -> np.ndarray:
+        """The task env's action for a Cartesian ``action`` at the current θ (see ``action``)."""
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != self.action_space.shape or not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be {self.action_space.shape[0]} finite values, got {action!r}")
+        velocity = self.cartesian_speed * np.clip(a, -1.0, 1.0)
+        jac = self.env.kinematics.jacobian(self._q)
+        damped = jac @ jac.T + CARTESIAN_DAMPING**2 * np.eye(len(velocity))
+        limits = self.env.velocity_limits
+        u = np.clip(jac.T @ np.linalg.solve(damped, velocity), -limits, limits)
+        return u / limits if self.env.action_type == "normalized" else u
+
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict[str, Any]]:
+        if self.action == "cartesian":
+            action = self.joint_command(action)
         flat, _, _, truncated, info = self.env.step(action)
+        self._q = self._joint_angles()
         obs = self._goal_observation(flat)
         reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"], info))
         terminated = bool(self.compute_terminated(obs["achieved_goal"], obs["desired_goal"], info))
@@ -223,8 +272,10 @@ class CoarseReachGoalEnv(GoalTaskEnv):
     robot's nominal configuration (and reachable, as every sampled target), every episode started
     from that configuration, actions normalised to the velocity limits ([−1, 1]). The observation
     and the rewards are :class:`GoalTaskEnv`'s. panda-gym moves the end effector by Cartesian
-    increments; here the action is still the joints' velocity, so the policy learns the arm's
-    kinematics as well.
+    increments; here the action is the joints' velocity, so the policy learns the arm's
+    kinematics as well, unless ``action="cartesian"`` (the ``...ReachGoalCoarseCartesian-v0`` ids):
+    then the action is an end-effector velocity of up to 1.25 m/s per axis (panda-gym's 5 cm per
+    step), mapped to the joints through the model's damped pseudo-inverse.
 
     Args:
         robot: A registered robot (the id's; another is refused, as for every id).
