@@ -43,7 +43,7 @@ def main() -> None:
 
     torch.set_num_threads(1)
     kwargs = dict(physics="kinematic", action_type="normalized", success_tolerance=args.tolerance,
-                  max_steps=args.episode_steps, dt=args.dt)
+                  max_episode_steps=args.episode_steps, dt=args.dt)
     if args.action == "cartesian":
         kwargs.update(action="cartesian", cartesian_speed=args.cartesian_speed)
     env = gym.make("snac_gym/UR10ReachGoal-v0", **kwargs)
