@@ -38,11 +38,12 @@ def main() -> None:
     parser.add_argument("--cartesian-speed", type=float, default=1.25, help="m/s at |a| = 1 (--action cartesian)")
     parser.add_argument("--dt", type=float, default=0.008, help="control period, s (a multiple of 8 ms)")
     parser.add_argument("--gamma", type=float, default=0.98)
+    parser.add_argument("--reward", default="sparse", choices=("sparse", "dense"), help="the goal env's reward_type")
     args = parser.parse_args()
     from stable_baselines3 import SAC, HerReplayBuffer
 
     torch.set_num_threads(1)
-    kwargs = dict(physics="kinematic", action_type="normalized", success_tolerance=args.tolerance,
+    kwargs = dict(physics="kinematic", action_type="normalized", success_tolerance=args.tolerance, reward_type=args.reward,
                   max_episode_steps=args.episode_steps, dt=args.dt)
     if args.action == "cartesian":
         kwargs.update(action="cartesian", cartesian_speed=args.cartesian_speed)
