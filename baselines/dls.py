@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ResolvedRatePolicy, positive_float, transpose
+from baselines._common import ResolvedRatePolicy, positive_float
+from snac_gym.kinematics import damped_least_squares
 
 
 class DLSPolicy(ResolvedRatePolicy):
@@ -47,7 +48,6 @@ class DLSPolicy(ResolvedRatePolicy):
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
         """``Jᵀ (J Jᵀ + λ² I)⁻¹ v`` for one ``(J, v)`` or stacks ``(B, n, m)``, ``(B, n, 1)``."""
-        jacobian_t = transpose(jacobian)
-        return jacobian_t @ np.linalg.solve(jacobian @ jacobian_t + self._damping_matrix, task_velocity)
+        return damped_least_squares(jacobian, task_velocity, self._damping_matrix)
 
     resolves_stacks = True

@@ -84,6 +84,17 @@ def joint_step(q: np.ndarray, u: np.ndarray, dt: float, out: np.ndarray | None =
     return np.add(q, u * dt, out=out)
 
 
+def damped_least_squares(jacobian: np.ndarray, task_velocity: np.ndarray, damping_matrix: np.ndarray) -> np.ndarray:
+    """``Jᵀ(JJᵀ + λ²I)⁻¹ v``: the joint velocity of least ``‖Ju − v‖² + λ²‖u‖²`` (damped least squares).
+
+    One ``J`` ``(n, m)`` with ``v`` ``(n,)``, or stacks ``(B, n, m)`` with ``(B, n, 1)``;
+    ``damping_matrix`` is ``λ²I`` ``(n, n)``. The map of the ``dls`` controller, the PPO policies'
+    task-space action and the goal envs' Cartesian action.
+    """
+    jacobian_t = jacobian.T if jacobian.ndim <= 2 else np.swapaxes(jacobian, -1, -2)
+    return jacobian_t @ np.linalg.solve(jacobian @ jacobian_t + damping_matrix, task_velocity)
+
+
 class Kinematics:
     """Forward kinematics and position Jacobian of a serial arm, ``ẋ = J(θ) θ̇`` (eqs. 1–3).
 

@@ -34,6 +34,7 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.envs.ids import IdRobotCheck
+from snac_gym.kinematics import damped_least_squares
 from snac_gym.tasks import Task, get_task
 
 #: Reward types of the goal envs.
@@ -143,7 +144,7 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
             self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(self.env.kinematics.task_dim,), dtype=np.float32)
         else:
             self.action_space = self.env.action_space
-        self._q = np.zeros(self.env.kinematics.n_joints)
+        self._damping_matrix = CARTESIAN_DAMPING**2 * np.eye(self.env.kinematics.task_dim)
         self.observation_space = self._spaces()
 
     # -- spaces --------------------------------------------------------------------------------
@@ -195,30 +196,24 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
                 options = {**(options or {}), self.task.option_key: reference}
             options = {**options, "q0": self._start_q}
         flat, info = self.env.reset(seed=seed, options=options)
-        self._q = self._joint_angles()
         return self._goal_observation(flat), info
-
-    def _joint_angles(self) -> np.ndarray:
-        # θ at full precision (the observation is float32): the task env's own last observation.
-        return self.env._obs[self.env.obs_layout.slices["q"]].copy()
 
     def joint_command(self, action: np.ndarray) -> np.ndarray:
         """The task env's action for a Cartesian ``action`` at the current θ (see ``action``)."""
         a = np.asarray(action, dtype=np.float64)
         if a.shape != self.action_space.shape or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be {self.action_space.shape[0]} finite values, got {action!r}")
+        # θ at full precision (the observation is float32): the task env's own last observation.
+        q = self.env._obs[self.env.obs_layout.slices["q"]]
         velocity = self.cartesian_speed * np.clip(a, -1.0, 1.0)
-        jac = self.env.kinematics.jacobian(self._q)
-        damped = jac @ jac.T + CARTESIAN_DAMPING**2 * np.eye(len(velocity))
         limits = self.env.velocity_limits
-        u = np.clip(jac.T @ np.linalg.solve(damped, velocity), -limits, limits)
+        u = np.clip(damped_least_squares(self.env.kinematics.jacobian(q), velocity, self._damping_matrix), -limits, limits)
         return u / limits if self.env.action_type == "normalized" else u
 
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict[str, Any]]:
         if self.action == "cartesian":
             action = self.joint_command(action)
         flat, _, _, truncated, info = self.env.step(action)
-        self._q = self._joint_angles()
         obs = self._goal_observation(flat)
         reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"], info))
         terminated = bool(self.compute_terminated(obs["achieved_goal"], obs["desired_goal"], info))

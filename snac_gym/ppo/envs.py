@@ -38,14 +38,7 @@ import numpy as np
 
 from snac_gym.cost import CostConvention
 from snac_gym.envs.core import shaped_reward
-from snac_gym.ppo.features import (
-    FeatureSpec,
-    action_size,
-    action_to_command,
-    feature_size,
-    observation_features,
-    task_relative_command,
-)
+from snac_gym.ppo.features import FeatureSpec, action_size, command, feature_size, observation_features
 
 REWARD_TYPES = ("shaped", "env", "cost")
 
@@ -153,15 +146,12 @@ class PPOTrainingWrapper(gym.Wrapper):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        if self.features.task_relative:
-            obs_before = self._last_obs
-            jacobian = self.kinematics.jacobian(obs_before[self.layout.slices["q"]])
-            command = task_relative_command(
-                action, obs_before, self.layout, jacobian, self.velocity_limits, self.features, self.action_scale
-            )
-        else:
-            command = action_to_command(action, self.velocity_limits, self.features, self.action_scale)
-        obs, env_reward, terminated, truncated, info = self.env.step(command)
+        before = self._last_obs
+        jacobian = self.kinematics.jacobian(before[self.layout.slices["q"]]) if self.features.task_relative else None
+        joint_velocities = command(
+            action, before, self.layout, self.velocity_limits, self.features, self.action_scale, jacobian
+        )
+        obs, env_reward, terminated, truncated, info = self.env.step(joint_velocities)
         info["env_reward"] = env_reward
         if self.reward_spec.type == "shaped":
             reward = self.reward_spec.shaped(info["error_norm"], action, self._previous_action)

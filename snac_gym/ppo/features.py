@@ -79,6 +79,7 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.kinematics import damped_least_squares
 from snac_gym.observation import ObservationLayout
 
 #: Version of the feature definition above; stored in every policy file and checked on load:
@@ -258,11 +259,29 @@ def task_relative_command(action: np.ndarray, obs: np.ndarray, layout: Observati
     """
     velocity = task_velocity(action, obs, layout, spec, action_scale)
     jac = np.asarray(jacobians, dtype=np.float64)
-    jac_t = np.swapaxes(jac, -1, -2)
-    damped = jac @ jac_t + spec.damping**2 * np.eye(jac.shape[-2])
-    command = (jac_t @ np.linalg.solve(damped, velocity[..., None]))[..., 0]
+    damping = spec.damping**2 * np.eye(jac.shape[-2])
+    if jac.ndim == 2:
+        command = damped_least_squares(jac, velocity, damping)
+    else:
+        command = damped_least_squares(jac, velocity[..., None], damping)[..., 0]
     limits = np.asarray(velocity_limits, dtype=np.float64)
     return np.minimum(np.maximum(command, -limits), limits)
+
+
+def command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray,
+            spec: FeatureSpec, action_scale: float = 1.0, jacobians: np.ndarray | None = None) -> np.ndarray:
+    """Joint velocities (rad/s) of the network's actions for observations ``(d,)`` or ``(B, d)``, either kind.
+
+    A task-relative spec also needs ``J(θ)`` of each observation (``(n, m)`` or ``(B, n, m)``).
+
+    Raises:
+        ValueError: If a task-relative spec is given no Jacobians.
+    """
+    if not spec.task_relative:
+        return action_to_command(action, velocity_limits, spec, action_scale)
+    if jacobians is None:
+        raise ValueError("a task-relative PPO policy needs J(θ) of each observation (jacobians=)")
+    return task_relative_command(action, obs, layout, jacobians, velocity_limits, spec, action_scale)
 
 
 def action_to_command(

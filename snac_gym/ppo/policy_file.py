@@ -34,14 +34,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.observation import ObservationLayout
-from snac_gym.ppo.features import (
-    FeatureSpec,
-    action_size,
-    action_to_command,
-    feature_size,
-    observation_features,
-    task_relative_command,
-)
+from snac_gym.ppo.features import FeatureSpec, action_size, command, feature_size, observation_features
 
 FORMAT_NAME = "snac-gym-ppo-policy"
 FORMAT_VERSION = 1
@@ -132,7 +125,7 @@ class PolicyFile:
         self, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray, action_scale: float = 1.0,
         jacobians: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Joint velocities (rad/s) for observations ``(d,)`` or ``(B, d)``.
+        """Joint velocities (rad/s) for observations ``(d,)`` or ``(B, d)`` (:func:`~snac_gym.ppo.features.command`).
 
         A task-relative policy also needs ``J(θ)`` of each observation (``(n, m)`` or ``(B, n, m)``).
 
@@ -140,11 +133,7 @@ class PolicyFile:
             ValueError: If a task-relative policy is given no Jacobians.
         """
         action = self.action(obs, layout, action_scale)
-        if self.features.task_relative:
-            if jacobians is None:
-                raise ValueError("a task-relative PPO policy needs J(θ) of each observation (jacobians=)")
-            return task_relative_command(action, obs, layout, jacobians, velocity_limits, self.features, action_scale)
-        return action_to_command(action, velocity_limits, self.features, action_scale)
+        return command(action, obs, layout, velocity_limits, self.features, action_scale, jacobians)
 
     # -- checks ----------------------------------------------------------------------------
     @property
