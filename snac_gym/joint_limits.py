@@ -104,4 +104,15 @@ def make_limit_box(policy: object, enabled: bool | None) -> JointLimitBox | None
 def joint_limit_margins(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """Each trajectory's closest approach to a position limit, rad: ``min over k, j of
     min(θₖⱼ − θ⁻ⱼ, θ⁺ⱼ − θₖⱼ)`` for θ ``(B, K, m)``; negative where a limit was crossed."""
-    return np.minimum(q - lower, upper - q).min(axis=(1, 2))
+    return joint_limit_margins_of_extremes(q.min(axis=1), q.max(axis=1), lower, upper)
+
+
+def joint_limit_margins_of_extremes(
+    q_min: np.ndarray, q_max: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> np.ndarray:
+    """:func:`joint_limit_margins` from each trajectory's smallest and largest θⱼ over k, ``(B, m)`` each.
+
+    The same number bit for bit: rounding is monotone, so ``min_k(θₖⱼ − θ⁻ⱼ) = (min_k θₖⱼ) − θ⁻ⱼ``
+    exactly, and two reductions replace four passes over the ``(B, K, m)`` array.
+    """
+    return np.minimum(q_min - lower, upper - q_max).min(axis=1)

@@ -64,7 +64,7 @@ import numpy as np
 import pandas as pd
 
 from snac_gym.cost import CostConvention, CostTerms, command_differences, cost_rates, trajectory_cost
-from snac_gym.joint_limits import joint_limit_margins
+from snac_gym.joint_limits import joint_limit_margins, joint_limit_margins_of_extremes
 from snac_gym.rollout.batch import Rollouts
 from snac_gym.rollout.log import log_array
 from snac_gym.tasks import get_task
@@ -197,12 +197,17 @@ def limit_margins(rollouts: Rollouts, lower: np.ndarray, upper: np.ndarray) -> n
     they are rebuilt from the exact model θₖ₊₁ = θₖ + uₖΔt (eq. 3) backwards from θ_K, exact to
     rounding; this function is therefore only for rollouts of that model or with θₖ kept.
     """
+    lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
     if rollouts.q is not None:
         q = np.concatenate([rollouts.q, rollouts.final_q[:, None]], axis=1)
-    else:
-        travelled = np.cumsum(rollouts.commands[:, ::-1], axis=1)[:, ::-1] * rollouts.dt  # Σ_{j≥k} uⱼΔt
-        q = np.concatenate([rollouts.final_q[:, None] - travelled, rollouts.final_q[:, None]], axis=1)
-    return joint_limit_margins(q, np.asarray(lower, dtype=float), np.asarray(upper, dtype=float))
+        return joint_limit_margins(q, lower, upper)
+    # θₖ = θ_K − Σ_{j≥k} uⱼΔt. Only each joint's extremes over k matter, and rounding is monotone:
+    # min_k θₖ = θ_K − max_k(Σ_{j≥k} uⱼ)·Δt exactly, so θₖ itself is never formed (θ_K: the sum 0).
+    sums = np.cumsum(rollouts.commands[:, ::-1], axis=1)
+    final = rollouts.final_q
+    largest = np.maximum(sums.max(axis=1), 0.0) * rollouts.dt
+    smallest = np.minimum(sums.min(axis=1), 0.0) * rollouts.dt
+    return joint_limit_margins_of_extremes(final - largest, final - smallest, lower, upper)
 
 
 @dataclass

@@ -195,3 +195,37 @@ def test_a_bad_cartesian_action_or_speed_is_refused():
     with pytest.raises(ValueError, match="cartesian_speed must be a positive number"):
         gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", action="cartesian", cartesian_speed=0.0)
     env.close()
+
+
+# -- the goal-error features (snac_gym.goal_features) ---------------------------------------------
+@pytest.mark.rl
+def test_the_goal_error_features_are_the_relabelled_goal_minus_the_tool_at_three_scales():
+    import torch
+
+    from snac_gym.goal_features import SCALES, GoalErrorExtractor
+
+    env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", action_type="normalized")
+    extractor = GoalErrorExtractor(env.observation_space)
+    obs, _ = env.reset(seed=3)
+    other_goal = obs["desired_goal"] + np.array([0.0005, -0.02, 0.3], dtype=np.float32)  # as HER relabels
+    for goal in (obs["desired_goal"], other_goal):
+        batch = {key: torch.as_tensor(value[None]) for key, value in {**obs, "desired_goal": goal}.items()}
+        features = extractor(batch)[0].numpy().astype(float)
+        error = goal.astype(float) - obs["achieved_goal"].astype(float)
+        raw = np.concatenate([obs["observation"], obs["achieved_goal"], goal]).astype(float)
+        expected = np.concatenate([raw, error / SCALES[0], np.tanh(error / SCALES[1]), np.tanh(error / SCALES[2])])
+        assert features.shape == (extractor.features_dim,) == expected.shape
+        np.testing.assert_allclose(features, expected, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.rl
+def test_the_goal_error_features_refuse_a_space_without_goals():
+    from snac_gym.goal_features import GoalErrorExtractor
+
+    space = gym.spaces.Dict({"observation": gym.spaces.Box(-1, 1, (4,)), "desired_goal": gym.spaces.Box(-1, 1, (3,))})
+    with pytest.raises(ValueError, match="missing achieved_goal"):
+        GoalErrorExtractor(space)
+    space = gym.spaces.Dict({"observation": gym.spaces.Box(-1, 1, (4,)), "achieved_goal": gym.spaces.Box(-1, 1, (3,)),
+                             "desired_goal": gym.spaces.Box(-1, 1, (2,))})  # fmt: skip
+    with pytest.raises(ValueError, match="differ"):
+        GoalErrorExtractor(space)

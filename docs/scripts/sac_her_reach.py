@@ -39,6 +39,9 @@ def main() -> None:
     parser.add_argument("--dt", type=float, default=0.008, help="control period, s (a multiple of 8 ms)")
     parser.add_argument("--gamma", type=float, default=0.98)
     parser.add_argument("--reward", default="sparse", choices=("sparse", "dense"), help="the goal env's reward_type")
+    parser.add_argument("--goal-features", action="store_true",
+                        help="give the networks the goal error at three scales (snac_gym.goal_features)")
+    parser.add_argument("--save", default=None, help="save the trained model to this path (.zip)")
     args = parser.parse_args()
     from stable_baselines3 import SAC, HerReplayBuffer
 
@@ -48,12 +51,19 @@ def main() -> None:
     if args.action == "cartesian":
         kwargs.update(action="cartesian", cartesian_speed=args.cartesian_speed)
     env = gym.make("snac_gym/UR10ReachGoal-v0", **kwargs)
-    model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
+    policy_kwargs = {}
+    if args.goal_features:
+        from snac_gym.goal_features import GoalErrorExtractor
+
+        policy_kwargs["features_extractor_class"] = GoalErrorExtractor
+    model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs=policy_kwargs,
                 replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
                 learning_starts=1000, gamma=args.gamma, seed=args.seed, device="cpu", verbose=0)
     start = time.perf_counter()
     model.learn(args.timesteps)
     train_s = time.perf_counter() - start
+    if args.save:
+        model.save(args.save)
     finals = []
     for episode in range(args.eval_episodes):
         obs, _ = env.reset(seed=10_000 + episode)

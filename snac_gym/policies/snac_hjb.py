@@ -270,15 +270,18 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
             (np.broadcast_to(self._direction_gradients, (count, *self._direction_gradients.shape)),
              self.basis.gradient(current)[:, None]), axis=1,
         )  # ∇σ(d), (B, N+1, size, n)
-        closed_loop = -np.einsum("bij,bjk,bdk->bdi", gram_matrix, P, directions)  # J û(d) = −G P̂ d
-        omega = np.einsum("bdkn,bdn->bdk", gradients, closed_loop)  # ω(d) = ∇σ(d) J û(d)
-        effort = -np.einsum("bij,bdj,bdi->bd", P, directions, closed_loop)  # û(d)ᵀRû(d) = dᵀP̂GP̂d
-        error_cost = np.einsum("bdi,ij,bdj->bd", directions, self.Q, directions)
-        residual = np.einsum("bdk,bk->bd", omega, weights) + error_cost + effort  # δ(d)
-        rho = 1.0 + np.einsum("bdk,bdk->bd", omega, omega)
-        gram = np.einsum("bdk,bdl,bd->bkl", omega, omega, 1.0 / rho)
+        # matmul rather than multi-operand einsum: the same sums, several times faster on (B, 7, 6) stacks.
+        closed_loop = -(directions @ np.swapaxes(gram_matrix @ P, -1, -2))  # J û(d) = −G P̂ d, (B, N+1, n)
+        omega = (gradients @ closed_loop[..., None])[..., 0]  # ω(d) = ∇σ(d) J û(d), (B, N+1, size)
+        effort = -np.sum((directions @ P) * closed_loop, axis=-1)  # û(d)ᵀRû(d) = dᵀP̂GP̂d (P̂ symmetric)
+        error_cost = np.sum((directions @ self.Q) * directions, axis=-1)
+        residual = (omega @ weights[..., None])[..., 0] + error_cost + effort  # δ(d)
+        rho = 1.0 + np.sum(omega * omega, axis=-1)
+        scaled = omega / rho[..., None]
+        omega_t = np.swapaxes(omega, -1, -2)
+        gram = omega_t @ scaled  # Σ_d ω ωᵀ/ρ
         gram += (self.regularisation * np.trace(gram, axis1=1, axis2=2))[:, None, None] * np.eye(self.basis.size)
-        gradient = np.einsum("bdk,bd->bk", omega, residual / rho)
+        gradient = (omega_t @ (residual / rho)[..., None])[..., 0]  # Σ_d ω δ/ρ
         return -step * np.linalg.solve(gram, gradient[..., None])[..., 0], residual[:, -1]
 
     def _step(
