@@ -42,11 +42,17 @@ def main() -> None:
     parser.add_argument("--goal-features", action="store_true",
                         help="give the networks the goal error at three scales (snac_gym.goal_features)")
     parser.add_argument("--save", default=None, help="save the trained model to this path (.zip)")
+    parser.add_argument("--load", default=None, help="evaluate this saved model (.zip) instead of training one")
+    parser.add_argument("--physics", default="kinematic", choices=("kinematic", "pybullet", "mujoco"),
+                        help="the env's engine (training and evaluation)")
+    parser.add_argument("--eval-seed", type=int, default=10_000, help="reset seed of the first evaluation episode")
+    parser.add_argument("--checkpoint-every", type=int, default=0,
+                        help="also save the model every this many steps, beside --save (name_<steps>_steps.zip)")
     args = parser.parse_args()
     from stable_baselines3 import SAC, HerReplayBuffer
 
     torch.set_num_threads(1)
-    kwargs = dict(physics="kinematic", action_type="normalized", success_tolerance=args.tolerance, reward_type=args.reward,
+    kwargs = dict(physics=args.physics, action_type="normalized", success_tolerance=args.tolerance, reward_type=args.reward,
                   max_episode_steps=args.episode_steps, dt=args.dt)
     if args.action == "cartesian":
         kwargs.update(action="cartesian", cartesian_speed=args.cartesian_speed)
@@ -56,17 +62,33 @@ def main() -> None:
         from snac_gym.goal_features import GoalErrorExtractor
 
         policy_kwargs["features_extractor_class"] = GoalErrorExtractor
+    if args.load:
+        evaluate(SAC.load(args.load, env=env, device="cpu"), env, args, None)
+        return
     model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs=policy_kwargs,
                 replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
                 learning_starts=1000, gamma=args.gamma, seed=args.seed, device="cpu", verbose=0)
     start = time.perf_counter()
-    model.learn(args.timesteps)
+    callback = None
+    if args.checkpoint_every and args.save:
+        from pathlib import Path
+
+        from stable_baselines3.common.callbacks import CheckpointCallback
+
+        target = Path(args.save)
+        callback = CheckpointCallback(args.checkpoint_every, str(target.parent), name_prefix=target.stem)
+    model.learn(args.timesteps, callback=callback)
     train_s = time.perf_counter() - start
     if args.save:
         model.save(args.save)
+    evaluate(model, env, args, train_s)
+
+
+def evaluate(model, env, args, train_s) -> None:
+    """Run the deterministic policy on ``--eval-episodes`` unseen episodes and print the figures."""
     finals = []
     for episode in range(args.eval_episodes):
-        obs, _ = env.reset(seed=10_000 + episode)
+        obs, _ = env.reset(seed=args.eval_seed + episode)
         for _ in range(args.episode_steps):
             obs, _, terminated, truncated, _ = env.step(model.predict(obs, deterministic=True)[0])
             if terminated or truncated:
@@ -74,9 +96,11 @@ def main() -> None:
         finals.append(float(np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])))
     finals_a = np.array(finals)
     print(f"command: {' '.join(sys.argv)}")
-    print(f"SAC+HER, {args.timesteps} steps in {train_s:.0f} s ({args.timesteps / train_s:.0f} steps/s)")
-    print(f"success (final distance <= {args.tolerance * 1e3:g} mm) on {args.eval_episodes} unseen episodes: "
-          f"{100 * np.mean(finals_a <= args.tolerance):.1f} %; median final distance {1e3 * np.median(finals_a):.1f} mm")
+    if train_s is not None:
+        print(f"SAC+HER, {args.timesteps} steps in {train_s:.0f} s ({args.timesteps / train_s:.0f} steps/s)")
+    print(f"success (final distance <= {args.tolerance * 1e3:g} mm) on {args.eval_episodes} unseen episodes "
+          f"(reset seeds {args.eval_seed}+): {100 * np.mean(finals_a <= args.tolerance):.1f} %; median final distance "
+          f"{1e3 * np.median(finals_a):.2f} mm, p90 {1e3 * np.quantile(finals_a, 0.9):.2f} mm")
 
 
 if __name__ == "__main__":
