@@ -321,7 +321,7 @@ def _gauss_newton_direction(
     rows, cols, target = _jacobian_scatter(steps, m)
     band = base.copy()
     tail = jacobians[1:]
-    pairs = (np.swapaxes(tail, 1, 2) @ tail)[:, rows, cols]  # (JₖᵀJₖ)ₐᵦ, a ≥ b
+    pairs = sum(tail[:, i, rows] * tail[:, i, cols] for i in range(tail.shape[1]))  # (JₖᵀJₖ)ₐᵦ, a ≥ b
     band.reshape(-1)[target] += (2.0 * dt * q_scale) * pairs.reshape(-1)
     factor, info = dpbtrf(band, lower=1)
     if info != 0:
