@@ -1,6 +1,7 @@
 """The real-robot env on the simulated connection: the whole loop and every safety rule."""
 
 import json
+from functools import partial
 import time
 
 import numpy as np
@@ -282,6 +283,11 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
 
     monkeypatch.setattr(connection, "read_state", flaky_read)
     monkeypatch.setattr(real_run, "make_connection", lambda *args, **kwargs: connection)
+    # Without its timing rules: the simulated arm is not paced, and a period stretched by a busy host
+    # (the other test process) would stop the episode before the 21st read drops the link.
+    import snac_gym.real
+
+    monkeypatch.setattr(snac_gym.real, "SafetyLimits", partial(SafetyLimits, max_period=10.0, deadline_slack=10.0))
     outcome = CliRunner().invoke(app, ["real", "--host", "10.0.0.2", "--controller", "dls", "--out", str(tmp_path)])
     assert outcome.exit_code == 1
     assert outcome.output.strip() == f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/"
