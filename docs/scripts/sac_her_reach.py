@@ -5,11 +5,18 @@ Usage::
     .venv/bin/python docs/scripts/sac_her_reach.py --timesteps 30000 --tolerance 0.01
     .venv/bin/python docs/scripts/sac_her_reach.py --timesteps 60000 --tolerance 0.001 --action cartesian \
         --cartesian-speed 0.5 --dt 0.04 --episode-steps 100        # the 1 mm reach with the tool's velocity as action
+    .venv/bin/python docs/scripts/sac_her_reach.py --timesteps 100000 --seed 1 --tolerance 0.001 --action cartesian \
+        --cartesian-speed 0.5 --dt 0.04 --episode-steps 100 --goal-features --save runs/sac/m.zip \
+        --checkpoint-every 20000                                   # the same, the networks given the goal error
+    .venv/bin/python docs/scripts/sac_her_reach.py --load runs/sac/m_40000_steps.zip --eval-seed 30000 \
+        --eval-episodes 500 --tolerance 0.001 --action cartesian --cartesian-speed 0.5 --dt 0.04 \
+        --episode-steps 100 --goal-features                         # evaluate a saved model on other goals
 
-The env runs on the exact kinematic model (``physics="kinematic"``, the evaluator's engine), with
-normalised actions, sparse rewards and episodes of ``--episode-steps`` control steps (125 Hz).
-After training, the deterministic policy runs ``--eval-episodes`` unseen random episodes (reset
-seeds 10 000, 10 001, ...) and the script prints the fraction that end within ``--tolerance`` of
+The env runs on the exact kinematic model by default (``--physics kinematic``, the evaluator's engine;
+``pybullet`` or ``mujoco`` otherwise), with normalised actions, sparse rewards (or ``--reward dense``)
+and episodes of ``--episode-steps`` control steps of ``--dt`` (default 8 ms).
+After training (or loading ``--load``), the deterministic policy runs ``--eval-episodes`` unseen
+random episodes (reset seeds ``--eval-seed``, default 10 000, 10 001, ...) and the script prints the fraction that end within ``--tolerance`` of
 the goal, the median final distance, the wall time, and the command.
 """
 
