@@ -73,3 +73,16 @@ def pose_tasks():
     for task in POSE_TASKS:
         TASKS.pop(task.name, None)
         snac_gym.envs.unregister_envs(task=task.name)
+
+
+@pytest.fixture
+def timing_rules_off(monkeypatch) -> None:
+    """The ``real`` command's safety limits without their timing rules: the simulated arm is not paced,
+    and a busy host (the other test process, a writer process starting) must not stop an episode
+    before the fault under test."""
+    from functools import partial
+
+    import snac_gym.real
+
+    limits = partial(snac_gym.real.SafetyLimits, max_period=10.0, deadline_slack=10.0)
+    monkeypatch.setattr(snac_gym.real, "SafetyLimits", limits)

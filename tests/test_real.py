@@ -1,7 +1,6 @@
 """The real-robot env on the simulated connection: the whole loop and every safety rule."""
 
 import json
-from functools import partial
 import time
 
 import numpy as np
@@ -265,7 +264,7 @@ def test_dry_run_command_on_the_simulated_connection_prints_what_it_would_send(t
     assert "dry run: 5 commands computed, none sent" in outcome.output
 
 
-def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monkeypatch, tmp_path):
+def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monkeypatch, tmp_path, timing_rules_off):
     from typer.testing import CliRunner
 
     import snac_gym.real.run as real_run
@@ -283,11 +282,6 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
 
     monkeypatch.setattr(connection, "read_state", flaky_read)
     monkeypatch.setattr(real_run, "make_connection", lambda *args, **kwargs: connection)
-    # Without its timing rules: the simulated arm is not paced, and a period stretched by a busy host
-    # (the other test process) would stop the episode before the 21st read drops the link.
-    import snac_gym.real
-
-    monkeypatch.setattr(snac_gym.real, "SafetyLimits", partial(SafetyLimits, max_period=10.0, deadline_slack=10.0))
     outcome = CliRunner().invoke(app, ["real", "--host", "10.0.0.2", "--controller", "dls", "--out", str(tmp_path)])
     assert outcome.exit_code == 1
     assert outcome.output.strip() == f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/"

@@ -6,7 +6,6 @@ counting what reached the arm.
 """
 
 import json
-from functools import partial
 import os
 import signal
 import threading
@@ -251,20 +250,10 @@ def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_ru
     assert len(pd.read_csv(tmp_path / "reach_sends-signal_timing.csv")) == 29
 
 
-def _timing_rules_off(monkeypatch) -> None:
-    """The command's safety limits without its timing rules: the simulated arm is not paced, and a busy
-    host (a writer process starting, other jobs) must not stop it before the fault under test."""
-    import snac_gym.real
-
-    monkeypatch.setattr(snac_gym.real, "SafetyLimits", partial(SafetyLimits, max_period=10.0, deadline_slack=10.0))
-
-
-def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path, monkeypatch):
+def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path, timing_rules_off):
     from typer.testing import CliRunner
 
     from snac_gym.cli import app
-
-    _timing_rules_off(monkeypatch)
 
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "sends-signal", "--out", str(tmp_path)])
     assert outcome.exit_code == 128 + signal.SIGTERM
@@ -318,12 +307,10 @@ class Crashes(BasePolicy):
         return np.full(6, 0.05)
 
 
-def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept(signalling_run, tmp_path, monkeypatch):
+def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept(signalling_run, tmp_path, timing_rules_off):
     from typer.testing import CliRunner
 
     from snac_gym.cli import app
-
-    _timing_rules_off(monkeypatch)
 
     register_policy("crashes", Crashes, overwrite=True)
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "crashes", "--out", str(tmp_path)])

@@ -56,6 +56,10 @@ def main() -> None:
     parser.add_argument("--checkpoint-every", type=int, default=0,
                         help="also save the model every this many steps, beside --save (name_<steps>_steps.zip)")
     args = parser.parse_args()
+    if args.checkpoint_every and not args.save:
+        parser.error("--checkpoint-every writes beside --save: give --save too")
+    if args.checkpoint_every < 0:
+        parser.error(f"--checkpoint-every must be 0 or a positive number of steps, got {args.checkpoint_every}")
     from stable_baselines3 import SAC, HerReplayBuffer
 
     torch.set_num_threads(1)
@@ -64,20 +68,20 @@ def main() -> None:
     if args.action == "cartesian":
         kwargs.update(action="cartesian", cartesian_speed=args.cartesian_speed)
     env = gym.make("snac_gym/UR10ReachGoal-v0", **kwargs)
+    if args.load:  # the saved model carries its own network settings (--goal-features included)
+        evaluate(SAC.load(args.load, env=env, device="cpu"), env, args, None)
+        return
     policy_kwargs = {}
     if args.goal_features:
         from snac_gym.goal_features import GoalErrorExtractor
 
         policy_kwargs["features_extractor_class"] = GoalErrorExtractor
-    if args.load:
-        evaluate(SAC.load(args.load, env=env, device="cpu"), env, args, None)
-        return
     model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs=policy_kwargs,
                 replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
                 learning_starts=1000, gamma=args.gamma, seed=args.seed, device="cpu", verbose=0)
     start = time.perf_counter()
     callback = None
-    if args.checkpoint_every and args.save:
+    if args.checkpoint_every:
         from pathlib import Path
 
         from stable_baselines3.common.callbacks import CheckpointCallback
