@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from baselines._common import ResolvedRatePolicy, positive_float, transpose
+from snac_gym.small_kernels import svd
 
 
 def filtered_singular_values(singular_values: np.ndarray, nu: float, sigma0: float) -> np.ndarray:
@@ -66,12 +67,12 @@ class SVFPolicy(ResolvedRatePolicy):
 
     def filtered_pseudoinverse(self, jacobian: np.ndarray) -> np.ndarray:
         """``Ĵ⁺ = V diag(1/h(σᵢ)) Uᵀ``, shape ``(m, n)``."""
-        u_mat, sigma, vt = np.linalg.svd(jacobian, full_matrices=False)
+        u_mat, sigma, vt = svd(jacobian)
         return (vt.T / filtered_singular_values(sigma, self.nu, self.sigma0)) @ u_mat.T
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
         """``Ĵ⁺ v`` for one ``(J, v)`` or stacks ``(B, n, m)``, ``(B, n, 1)``."""
-        u_mat, sigma, vt = np.linalg.svd(jacobian, full_matrices=False)
+        u_mat, sigma, vt = svd(jacobian)
         filtered = filtered_singular_values(sigma, self.nu, self.sigma0)
         if task_velocity.ndim > 1:
             filtered = filtered[..., None]  # a column per sample

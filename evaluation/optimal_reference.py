@@ -53,6 +53,7 @@ import scipy.sparse as sp
 from scipy.linalg import cholesky_banded, solve_banded
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
+from evaluation.optimal_kernels import add_jacobian_blocks
 from evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention, cost_and_gradient
 from snac_gym.kinematics import Kinematics
@@ -199,16 +200,6 @@ def _theta_effort_band(steps: int, dt: float, weight: float = 1.0, udot_start: s
     return band
 
 
-@functools.lru_cache(maxsize=8)
-def _jacobian_scatter(steps: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Where the lower triangles of the blocks JₖᵀJₖ (k = 1..K−1) go in the ``(rows, K·m)`` lower
-    band of the θ-system: (index pairs a ≥ b, flat target indices) for one vectorised ``+=``."""
-    rows, cols = np.tril_indices(m)
-    block = np.arange(steps - 1)[:, None]
-    target = (rows - cols)[None] * (steps * m) + block * m + cols[None]  # band[a − b, k·m + b] ← (JᵀJ)ₐᵦ
-    return rows, cols, target.ravel()
-
-
 @dataclass
 class OptimalSolution:
     """One sample's solution.
@@ -311,19 +302,16 @@ def _gauss_newton_direction(
 ) -> np.ndarray:
     """The Gauss-Newton step in u: M δθ with (A ⊗ I_m + blockdiag(2Δt q JₖᵀJₖ)) δθ = −Mᵀ ∂V/∂u.
 
-    The blocks JₖᵀJₖ (k = 1..K−1) are scattered into the band (:func:`_jacobian_scatter`) and the
+    The blocks JₖᵀJₖ (k = 1..K−1) are added to the band (:func:`~evaluation.optimal_kernels.add_jacobian_blocks`) and the
     system is solved by LAPACK's banded Cholesky, O(K·m·b²).
 
     Raises:
         numpy.linalg.LinAlgError: If the matrix is not positive definite (it is, in exact arithmetic).
     """
     steps, m = grad.shape
-    rows, cols, target = _jacobian_scatter(steps, m)
-    band = base.copy()
-    tail = jacobians[1:]
-    pairs = sum(tail[:, i, rows] * tail[:, i, cols] for i in range(tail.shape[1]))  # (JₖᵀJₖ)ₐᵦ, a ≥ b
-    band.reshape(-1)[target] += (2.0 * dt * q_scale) * pairs.reshape(-1)
-    factor, info = dpbtrf(band, lower=1)
+    band = np.array(base, order="F")  # LAPACK's layout, so that dpbtrf factors it in place
+    add_jacobian_blocks(band, np.ascontiguousarray(jacobians, dtype=float), 2.0 * dt * q_scale)
+    factor, info = dpbtrf(band, lower=1, overwrite_ab=1)  # band is this call's own copy
     if info != 0:
         raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")
     grad_theta = np.empty_like(grad)  # Mᵀ ∂V/∂u

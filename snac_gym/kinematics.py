@@ -395,13 +395,13 @@ class BatchChain:
     Pinocchio has no batched call from Python, and one ``computeFrameJacobian`` costs about
     1.6 µs of which most is the call itself, while the evaluator needs ``f`` and ``J`` for
     thousands of configurations per control step. This evaluates the same product of joint
-    placements and joint motions, ``oMᵢ = oM_parent(i) · M_i · exp(S_i θᵢ)``, as array
-    arithmetic over the batch, reading every placement and axis from the Pinocchio model
-    (nothing about the UR arms is written here). Rotations of the batch are stacked as a
-    ``(3B, 3)`` array so that each product with a constant matrix is one BLAS call. The
-    position Jacobian column of a revolute joint is ``zᵢ × (x − pᵢ)`` and of a prismatic joint
-    ``zᵢ`` (eq. 2); joints that do not carry the end effector have zero columns. Results match
-    Pinocchio to rounding (tests/test_kinematics.py, 1e-12).
+    placements and joint motions, ``oMᵢ = oM_parent(i) · M_i · exp(S_i θᵢ)``, for the joints that
+    carry the end effector, reading every placement and axis from the Pinocchio model (nothing
+    about the UR arms is written here), in a compiled loop over the batch
+    (:func:`~snac_gym.chain_kernel.chain_forward_and_jacobian`). The position Jacobian column of a
+    revolute joint is ``zᵢ × (x − pᵢ)`` and of a prismatic joint ``zᵢ`` (eq. 2); joints that do not
+    carry the end effector have zero columns. Results match Pinocchio to rounding
+    (tests/test_kinematics.py, 1e-12).
 
     Build one with :meth:`from_model`, which returns ``None`` for a model with other joint types.
     """
@@ -417,19 +417,24 @@ class BatchChain:
         ee_offset: np.ndarray,
         n_joints: int,
     ) -> None:
-        self._parents, self._placements, self._axes = parents, placements, axes
-        self._revolute, self._q_index = revolute, q_index
-        self._ee_joint, self._ee_offset, self._n_joints = ee_joint, ee_offset, n_joints
-        # A coordinate axis (the R*/P* joint models) turns two columns; any other goes through Rodrigues.
-        self._aligned = [int(np.argmax(a)) if np.count_nonzero(a) == 1 and a.max() == 1.0 else None for a in axes]
-        self._identity = [bool(np.array_equal(rotation, np.eye(3))) for rotation, _ in placements]
-        self._skew = [_skew(a) for a in axes]
-        self._skew_squared = [k @ k for k in self._skew]
         support, joint = [], ee_joint
         while joint > 0:
             support.append(joint)
             joint = parents[joint - 1]
         self._support = sorted(support)
+        # The chain base first, as arrays for the compiled kernel (snac_gym/chain_kernel.py).
+        slot = {joint: index for index, joint in enumerate(self._support)}
+        chain = [joint - 1 for joint in self._support]
+        self._kernel_arrays = (
+            np.array([slot.get(parents[i], -1) for i in chain], dtype=np.int64),
+            np.array([placements[i][0] for i in chain], dtype=float).reshape(-1, 3, 3),
+            np.array([placements[i][1] for i in chain], dtype=float).reshape(-1, 3),
+            np.array([axes[i] for i in chain], dtype=float).reshape(-1, 3),
+            np.array([revolute[i] for i in chain], dtype=np.bool_),
+            np.array([q_index[i] for i in chain], dtype=np.int64),
+            np.asarray(ee_offset, dtype=float).reshape(3),
+            int(n_joints),
+        )
 
     @classmethod
     def from_model(cls, model: Any, ee_frame_id: int) -> BatchChain | None:
@@ -452,63 +457,11 @@ class BatchChain:
         offset = frame.placement.translation.copy()
         return cls(parents, placements, axes, revolute, q_index, int(frame.parentJoint), offset, int(model.nq))
 
-    def _tree(self, qs: np.ndarray) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray], dict[int, np.ndarray]]:
-        """Stacked rotations ``(3B, 3)``, origins ``(B, 3)`` and axes ``(B, 3)`` of the joints carrying the end effector."""
-        count = len(qs)
-        rotations: dict[int, np.ndarray] = {}
-        origins: dict[int, np.ndarray] = {}
-        axes: dict[int, np.ndarray] = {}
-        # cos θ and sin θ of every joint, each repeated for the three rows of a sample's rotation.
-        cosines = np.repeat(np.cos(qs), 3, axis=0)
-        sines = np.repeat(np.sin(qs), 3, axis=0)
-        for joint in self._support:  # ascending: a parent comes before its children
-            i = joint - 1
-            parent = self._parents[i]
-            rotation, translation = self._placements[i]
-            if parent == 0:
-                frame = np.tile(rotation, (count, 1))
-                origin = np.broadcast_to(translation, (count, 3))
-            else:
-                frame = rotations[parent] if self._identity[i] else rotations[parent] @ rotation
-                origin = origins[parent] + (rotations[parent] @ translation).reshape(count, 3)
-            column = self._q_index[i]
-            aligned = self._aligned[i]
-            axis = (frame[:, aligned] if aligned is not None else frame @ self._axes[i]).reshape(count, 3)
-            if not self._revolute[i]:
-                rotations[joint] = frame
-                origin = origin + axis * qs[:, column, None]
-            elif aligned is not None:
-                # frame · R_k(θ) for the coordinate axis k: two columns turn, the third stays.
-                first, second = (aligned + 1) % 3, (aligned + 2) % 3
-                cos, sin = cosines[:, column], sines[:, column]
-                turned = np.empty_like(frame)
-                turned[:, first] = cos * frame[:, first] + sin * frame[:, second]
-                turned[:, second] = cos * frame[:, second] - sin * frame[:, first]
-                turned[:, aligned] = frame[:, aligned]
-                rotations[joint] = turned
-            else:
-                # Rodrigues: R(a, θ) = I + sin θ K + (1 − cos θ) K², K = [a]×.
-                sin, one_minus_cos = sines[:, column, None], 1.0 - cosines[:, column, None]
-                rotations[joint] = frame + (frame @ self._skew[i]) * sin + (frame @ self._skew_squared[i]) * one_minus_cos
-            origins[joint], axes[joint] = origin, axis
-        return rotations, origins, axes
-
     def forward_and_jacobian(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(f(θᵢ), J(θᵢ))``, shapes ``(B, 3)`` and ``(B, 3, m)``."""
-        count = len(qs)
-        rotations, origins, axes = self._tree(qs)
-        x = origins[self._ee_joint] + (rotations[self._ee_joint] @ self._ee_offset).reshape(count, 3)
-        jacobians = np.zeros((count, 3, self._n_joints))
-        for joint in self._support:
-            column, axis = self._q_index[joint - 1], axes[joint]
-            if not self._revolute[joint - 1]:
-                jacobians[:, :, column] = axis
-                continue
-            lever = x - origins[joint]
-            jacobians[:, 0, column] = axis[:, 1] * lever[:, 2] - axis[:, 2] * lever[:, 1]
-            jacobians[:, 1, column] = axis[:, 2] * lever[:, 0] - axis[:, 0] * lever[:, 2]
-            jacobians[:, 2, column] = axis[:, 0] * lever[:, 1] - axis[:, 1] * lever[:, 0]
-        return x, jacobians
+        from snac_gym.chain_kernel import chain_forward_and_jacobian  # numba: imported where first needed
+
+        return chain_forward_and_jacobian(np.ascontiguousarray(qs, dtype=float), *self._kernel_arrays)
 
 
 #: Unit axis index of Pinocchio's axis-aligned joint models (RX, RY, RZ, PX, PY, PZ).
@@ -598,11 +551,6 @@ def _aligned_axis(axis: np.ndarray) -> int | None:
     if np.count_nonzero(axis) == 1 and axis.max() == 1.0:
         return int(np.argmax(axis))
     return None
-
-
-def _skew(axis: np.ndarray) -> np.ndarray:
-    """``[a]×``, the matrix of ``v ↦ a × v``."""
-    return np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
 
 
 @lru_cache(maxsize=8)

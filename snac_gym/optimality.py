@@ -34,11 +34,14 @@ and checked against the HJB equation (:func:`hjb_residual`).
 
 from __future__ import annotations
 
+import functools
+
 from typing import Any
 
 import numpy as np
 
 from snac_gym.cost import quadratic_form, weight_matrix
+from snac_gym.small_kernels import eigh
 
 #: Eigenvalues of ``S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2}`` below this fraction of the largest are taken as
 #: zero: J has lost rank there (σ_min/σ_max ≲ 1e-6 for Q = R = I) and the eigenvalue is rounding.
@@ -117,7 +120,7 @@ class FrozenJacobianLQR:
         jacobian = np.asarray(jacobian, dtype=float)
         weighted = self.Q_half @ jacobian  # Q^{1/2} J
         weighted_t = np.swapaxes(weighted, -1, -2)
-        values, vectors = np.linalg.eigh(weighted @ self.R_inverse @ weighted_t)  # S = W diag(λ) Wᵀ
+        values, vectors = eigh(weighted @ self.R_inverse @ weighted_t)  # S = W diag(λ) Wᵀ (compiled Jacobi)
         singular = values <= SINGULAR_TOLERANCE * values[..., -1:]
         values = np.where(singular, np.inf, values)
         return self.R_inverse @ weighted_t @ vectors, values, np.swapaxes(vectors, -1, -2) @ self.Q_half, singular
@@ -260,6 +263,7 @@ def critic_error(P_hat: np.ndarray, P_star: np.ndarray) -> np.ndarray:
     return np.linalg.norm(P_hat - P_star, axis=(-2, -1)) / np.linalg.norm(P_star, axis=(-2, -1))
 
 
+@functools.lru_cache(maxsize=16)
 def _basis_pairs(dim: int) -> tuple[np.ndarray, np.ndarray]:
     """Indices (i, j), i ≤ j, of the quadratic basis terms ``s_i s_j`` in SNAC's order.
 
@@ -268,7 +272,10 @@ def _basis_pairs(dim: int) -> tuple[np.ndarray, np.ndarray]:
     """
     if dim < 1:
         raise ValueError(f"dimension must be positive, got {dim}")
-    return np.triu_indices(dim)
+    first, second = np.triu_indices(dim)  # cached: the critics convert their weights several times a step
+    first.setflags(write=False)
+    second.setflags(write=False)
+    return first, second
 
 
 def quadratic_weights_to_matrix(weights: np.ndarray, dim: int) -> np.ndarray:
