@@ -174,3 +174,52 @@ def test_a_command_beyond_the_limits_is_scaled_as_lqr_scales_it(ur10, rng, task)
     np.testing.assert_allclose(saturated, unsaturated / scale, rtol=1e-12)
     assert np.max(np.abs(saturated) / limits) == pytest.approx(1.0)
     np.testing.assert_array_equal(saturated, scale_rows_into_box(unsaturated[None], limits)[0])
+
+
+def _numpy_residual_step(policy, weights, gram_matrix, current, step):
+    """The residual law as NumPy stacks (the policy's implementation before it was compiled)."""
+    count = len(weights)
+    P = quadratic_weights_to_matrix(weights, policy.task_dim)
+    directions = np.concatenate((np.broadcast_to(policy.directions, (count, *policy.directions.shape)), current[:, None]), axis=1)
+    fixed_gradients = policy.basis.gradient(policy.directions)
+    gradients = np.concatenate(
+        (np.broadcast_to(fixed_gradients, (count, *fixed_gradients.shape)), policy.basis.gradient(current)[:, None]), axis=1
+    )
+    closed_loop = -np.einsum("bij,bjk,bdk->bdi", gram_matrix, P, directions)
+    omega = np.einsum("bdkn,bdn->bdk", gradients, closed_loop)
+    effort = -np.einsum("bdi,bij,bdj->bd", directions, P, closed_loop)
+    error_cost = np.einsum("bdi,ij,bdj->bd", directions, policy.Q, directions)
+    residual = np.einsum("bdk,bk->bd", omega, weights) + error_cost + effort
+    rho = 1.0 + np.sum(omega * omega, axis=-1)
+    gram = np.einsum("bdk,bdl->bkl", omega, omega / rho[..., None])
+    gram += (policy.regularisation * np.trace(gram, axis1=1, axis2=2))[:, None, None] * np.eye(policy.basis.size)
+    gradient = np.einsum("bdk,bd->bk", omega, residual / rho)
+    return -step * np.linalg.solve(gram, gradient[..., None])[..., 0], residual[:, -1]
+
+
+@pytest.mark.parametrize("task_dim", [3, 6])
+def test_the_compiled_residual_law_is_the_numpy_one(ur10, rng, task_dim):
+    context = _context(ur10)
+    policy = SNACHJBPolicy(context, q_scale=3.0, Q=np.diag(rng.uniform(0.5, 2.0, 3)))
+    if task_dim == 6:  # a pose-sized critic: the law does not depend on the arm, only on n
+        from snac_gym.policies.snac import QuadraticBasis
+        from snac_gym.policies.snac_hjb import _excitation_directions
+
+        policy.task_dim, policy.basis, policy.directions = 6, QuadraticBasis(6), _excitation_directions(6)
+        policy.Q = _spd(rng, 6)
+    n, size = policy.task_dim, policy.basis.size
+    count = 40
+    jacobians = rng.normal(size=(count, n, 6))
+    gram_matrix = jacobians @ jacobians.transpose(0, 2, 1)
+    weights = matrix_to_quadratic_weights(np.array([_spd(rng, n) for _ in range(count)]))
+    current = rng.normal(size=(count, n))
+    current /= np.linalg.norm(current, axis=1, keepdims=True)
+    current[0] = 0.0  # e = 0: the current direction is the zero vector
+    increments, residual = policy._residual_step(weights, gram_matrix, current, 0.4)
+    expected_increments, expected_residual = _numpy_residual_step(policy, weights, gram_matrix, current, 0.4)
+    assert increments.shape == (count, size)
+    np.testing.assert_allclose(residual, expected_residual, rtol=1e-11, atol=1e-11)
+    # Γ's condition number (up to ~1e8 for these random 21-term critics) sets how far two backward-stable
+    # solves (Cholesky here, LU in NumPy) may differ: norm-wise, per row.
+    difference = np.linalg.norm(increments - expected_increments, axis=1) / np.linalg.norm(expected_increments, axis=1)
+    assert difference.max() < (1e-10 if task_dim == 3 else 1e-6)

@@ -87,6 +87,7 @@ from snac_gym.optimality import (
     quadratic_weights_to_matrix,
 )
 from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.policies.hjb_kernel import residual_steps
 from snac_gym.policies.snac import CriticEpisode, QuadraticBasis
 
 
@@ -208,7 +209,6 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         self.initial_weight_range = (low, high)
         self.basis = QuadraticBasis(n)
         self.directions = _excitation_directions(n)
-        self._direction_gradients = self.basis.gradient(self.directions)  # ∇σ(d), (N, size, n)
         slices = self.layout.slices
         self._q, self._e, self._xdot_d = slices["q"], slices["e"], slices["xdot_d"]
         self._seed = seed
@@ -261,28 +261,10 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
             current: The current error direction e/‖e‖ (0 at e = 0), ``(B, n)``.
             step: α·Δt (1: a full Kleinman step).
         """
-        count = len(weights)
-        P = quadratic_weights_to_matrix(weights, self.task_dim)
-        directions = np.concatenate(
-            (np.broadcast_to(self.directions, (count, *self.directions.shape)), current[:, None, :]), axis=1
-        )  # (B, N+1, n)
-        gradients = np.concatenate(
-            (np.broadcast_to(self._direction_gradients, (count, *self._direction_gradients.shape)),
-             self.basis.gradient(current)[:, None]), axis=1,
-        )  # ∇σ(d), (B, N+1, size, n)
-        # matmul rather than multi-operand einsum: the same sums, several times faster on (B, 7, 6) stacks.
-        closed_loop = -(directions @ np.swapaxes(gram_matrix @ P, -1, -2))  # J û(d) = −G P̂ d, (B, N+1, n)
-        omega = (gradients @ closed_loop[..., None])[..., 0]  # ω(d) = ∇σ(d) J û(d), (B, N+1, size)
-        effort = -np.sum((directions @ P) * closed_loop, axis=-1)  # û(d)ᵀRû(d) = dᵀP̂GP̂d (P̂ symmetric)
-        error_cost = np.sum((directions @ self.Q) * directions, axis=-1)
-        residual = (omega @ weights[..., None])[..., 0] + error_cost + effort  # δ(d)
-        rho = 1.0 + np.sum(omega * omega, axis=-1)
-        scaled = omega / rho[..., None]
-        omega_t = np.swapaxes(omega, -1, -2)
-        gram = omega_t @ scaled  # Σ_d ω ωᵀ/ρ
-        gram += (self.regularisation * np.trace(gram, axis1=1, axis2=2))[:, None, None] * np.eye(self.basis.size)
-        gradient = (omega_t @ (residual / rho)[..., None])[..., 0]  # Σ_d ω δ/ρ
-        return -step * np.linalg.solve(gram, gradient[..., None])[..., 0], residual[:, -1]
+        return residual_steps(
+            np.ascontiguousarray(weights), np.ascontiguousarray(gram_matrix), np.ascontiguousarray(current),
+            float(step), self.directions, self.basis.first, self.basis.second, self.Q, self.regularisation,
+        )
 
     def _step(
         self, obs: np.ndarray, weights: np.ndarray, first: bool
