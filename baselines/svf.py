@@ -12,7 +12,6 @@ from typing import Any
 import numpy as np
 
 from baselines._common import ResolvedRatePolicy, positive_float, transpose
-from snac_gym.small_kernels import svd
 
 
 def filtered_singular_values(singular_values: np.ndarray, nu: float, sigma0: float) -> np.ndarray:
@@ -67,11 +66,15 @@ class SVFPolicy(ResolvedRatePolicy):
 
     def filtered_pseudoinverse(self, jacobian: np.ndarray) -> np.ndarray:
         """``Ĵ⁺ = V diag(1/h(σᵢ)) Uᵀ``, shape ``(m, n)``."""
+        from snac_gym.small_kernels import svd  # compiled Jacobi SVD; numba imported where first needed
+
         u_mat, sigma, vt = svd(jacobian)
         return (vt.T / filtered_singular_values(sigma, self.nu, self.sigma0)) @ u_mat.T
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
         """``Ĵ⁺ v`` for one ``(J, v)`` or stacks ``(B, n, m)``, ``(B, n, 1)``."""
+        from snac_gym.small_kernels import svd
+
         u_mat, sigma, vt = svd(jacobian)
         filtered = filtered_singular_values(sigma, self.nu, self.sigma0)
         if task_velocity.ndim > 1:

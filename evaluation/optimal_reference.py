@@ -53,7 +53,6 @@ import scipy.sparse as sp
 from scipy.linalg import cholesky_banded, solve_banded
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
-from evaluation.optimal_kernels import add_jacobian_blocks
 from evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention, cost_and_gradient
 from snac_gym.kinematics import Kinematics
@@ -309,6 +308,8 @@ def _gauss_newton_direction(
         numpy.linalg.LinAlgError: If the matrix is not positive definite (it is, in exact arithmetic).
     """
     steps, m = grad.shape
+    from evaluation.optimal_kernels import add_jacobian_blocks  # numba: imported where first needed
+
     band = np.array(base, order="F")  # LAPACK's layout, so that dpbtrf factors it in place
     add_jacobian_blocks(band, np.ascontiguousarray(jacobians, dtype=float), 2.0 * dt * q_scale)
     factor, info = dpbtrf(band, lower=1, overwrite_ab=1)  # band is this call's own copy

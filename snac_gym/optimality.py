@@ -41,7 +41,6 @@ from typing import Any
 import numpy as np
 
 from snac_gym.cost import quadratic_form, weight_matrix
-from snac_gym.small_kernels import eigh
 
 #: Eigenvalues of ``S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2}`` below this fraction of the largest are taken as
 #: zero: J has lost rank there (σ_min/σ_max ≲ 1e-6 for Q = R = I) and the eigenvalue is rounding.
@@ -120,6 +119,8 @@ class FrozenJacobianLQR:
         jacobian = np.asarray(jacobian, dtype=float)
         weighted = self.Q_half @ jacobian  # Q^{1/2} J
         weighted_t = np.swapaxes(weighted, -1, -2)
+        from snac_gym.small_kernels import eigh  # numba: imported where first needed
+
         values, vectors = eigh(weighted @ self.R_inverse @ weighted_t)  # S = W diag(λ) Wᵀ (compiled Jacobi)
         singular = values <= SINGULAR_TOLERANCE * values[..., -1:]
         values = np.where(singular, np.inf, values)

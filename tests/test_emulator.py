@@ -254,6 +254,7 @@ def test_the_joint_margin_stops_the_arm(emu, connection):
     kinematics = connection.kinematics
     q0 = nominal_configuration(kinematics)
     q0[5] = kinematics.upper_limits[5] - 0.1 - 0.03  # wrist 3, 0.03 rad short of the 0.1 rad margin
+    connection.move_speed = 2.0  # the 6 rad moveJ there at 2 rad/s (the default 0.3 takes 20 s); wrist 3 allows 3.3
     env = _env(connection)
     _, t_end, info = _run_until_stop(env, None, action=np.array([0, 0, 0, 0, 0, 0.4]), q0=q0)
     assert info["safety"].startswith("joint 5"), info["safety"]

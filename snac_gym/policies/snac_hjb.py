@@ -87,7 +87,6 @@ from snac_gym.optimality import (
     quadratic_weights_to_matrix,
 )
 from snac_gym.policies.base import BasePolicy, positive_float
-from snac_gym.policies.hjb_kernel import residual_steps
 from snac_gym.policies.snac import CriticEpisode, QuadraticBasis
 
 
@@ -261,6 +260,8 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
             current: The current error direction e/‖e‖ (0 at e = 0), ``(B, n)``.
             step: α·Δt (1: a full Kleinman step).
         """
+        from snac_gym.policies.hjb_kernel import residual_steps  # numba: imported where first needed
+
         return residual_steps(
             np.ascontiguousarray(weights), np.ascontiguousarray(gram_matrix), np.ascontiguousarray(current),
             float(step), self.directions, self.basis.first, self.basis.second, self.Q, self.regularisation,
