@@ -9,10 +9,10 @@ order, so the band is the same bit for bit (tests/test_optimal.py).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from snac_gym.compiled import kernel
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def add_jacobian_blocks(band: np.ndarray, jacobians: np.ndarray, scale: float) -> None:  # pragma: no cover - compiled
     """``band[a − b, (k−1)·m + b] += scale · (JₖᵀJₖ)ₐᵦ`` for a ≥ b and k = 1..K−1, in place.
 

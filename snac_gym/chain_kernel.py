@@ -5,7 +5,7 @@ axes, joint types) and hands it here as arrays; this module knows nothing about 
 lockstep step of the evaluator and every cost evaluation of the optimal-control solver needs
 ``f(θ)`` and ``J(θ)`` of hundreds to thousands of configurations; as NumPy array arithmetic over
 the batch that took about 1.2-1.5 µs per configuration (some 60 array operations per joint on
-rows of B), compiled it takes a fraction of that (``python docs/scripts/chain_kernel_speed.py``).
+rows of B), compiled it takes a fraction of that (``python docs/scripts/kernel_speed.py``).
 
 The arithmetic, per configuration and joint i of the chain (base first):
 
@@ -19,10 +19,10 @@ The arithmetic, per configuration and joint i of the chain (base first):
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from snac_gym.compiled import kernel
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def chain_forward_and_jacobian(  # noqa: C901 - one compiled loop nest, kept inline for speed
     qs: np.ndarray,
     parent_slot: np.ndarray,

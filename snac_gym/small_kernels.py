@@ -8,13 +8,15 @@ rotations on a matrix this small take a few dozen rotations, and are as accurate
 methods are backward stable (errors of order ε‖A‖), Jacobi's singular values even to high
 relative accuracy (Demmel and Veselić, SIAM J. Matrix Anal. Appl. 13(4), 1992).
 
-Figures: ``python docs/scripts/small_kernel_speed.py``.
+Figures: ``python docs/scripts/kernel_speed.py``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from snac_gym.compiled import kernel
 
 #: Sweeps of the Jacobi methods before giving up (a 3×3 converges in 3-5).
 MAX_SWEEPS = 60
@@ -47,7 +49,7 @@ def _sort_indices(keys: np.ndarray, order: np.ndarray, direction: float) -> None
         order[j + 1] = index
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
     """Eigenvalues (ascending) and eigenvectors (columns) of a stack ``(B, n, n)`` of symmetric matrices.
 
@@ -104,7 +106,7 @@ def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # no
     return values, vectors
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def thin_svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
     """``(U, σ, Vᵀ)`` of a stack ``(B, n, m)``, n ≤ m: ``np.linalg.svd(..., full_matrices=False)``'s contract.
 

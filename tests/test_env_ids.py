@@ -126,9 +126,14 @@ def test_vector_env_is_bit_identical_to_the_recorded_one(name, env_id):
     _assert_recorded(name, recorded.vector_trajectory(env_id, 5))
 
 
-def test_kinematic_engine_is_bit_identical_to_the_recorded_one():
+def test_kinematic_engine_is_the_recorded_one():
+    """θ bit for bit; e = f(θ) − x_d to rounding, since f(θ) is the compiled chain's (snac_gym/chain_kernel.py),
+    whose sums run in another order than the NumPy arithmetic of the recording (measured: at most 2.2e-16 m)."""
     for key, value in recorded.engine_trajectory().items():
-        np.testing.assert_array_equal(value, RECORDED[key], err_msg=key)
+        if key.endswith("_errors"):
+            np.testing.assert_allclose(value, RECORDED[key], rtol=0, atol=1e-15, err_msg=key)
+        else:
+            np.testing.assert_array_equal(value, RECORDED[key], err_msg=key)
 
 
 def test_deprecated_backend_argument_warns_and_means_physics():

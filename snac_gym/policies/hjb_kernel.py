@@ -11,10 +11,10 @@ step in the evaluator. Written out, for the directions d ∈ {d₁…d_N, e/‖e
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from snac_gym.compiled import kernel
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def residual_steps(  # noqa: C901 - one compiled loop nest, kept inline for speed
     weights: np.ndarray,
     gram_matrices: np.ndarray,

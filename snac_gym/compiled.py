@@ -1,0 +1,60 @@
+"""The project's compiled kernels: numba's ``njit``, cached on disk, with stop signals held while one compiles.
+
+A kernel compiles on its first call in a process (a few seconds; later runs load it from numba's
+cache in ``__pycache__``). Numba calls back into Python from LLVM while it compiles, and an
+exception raised there, such as the ``KeyboardInterrupt`` that ``snac-gym evaluate`` turns a
+Ctrl-C or a SIGTERM into, is printed and dropped by ``ctypes``: the run would go on as if the
+signal had never come. So the first call of each kernel runs with SIGINT and SIGTERM recorded
+instead of handled, and a signal that came meanwhile is raised again, to the handler that was in
+place, as soon as the kernel returns.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable
+from typing import Any
+
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class Kernel:
+    """A compiled function; call it like the function (the compiled dispatcher is :attr:`dispatcher`)."""
+
+    def __init__(self, function: Callable[..., Any]) -> None:
+        from numba import njit  # numba is imported by the first module that defines a kernel
+
+        self.dispatcher = njit(cache=True, nogil=True)(function)
+        self.__doc__, self.__name__, self.__wrapped__ = function.__doc__, function.__name__, function
+        self._ready = False
+
+    def __call__(self, *args: Any) -> Any:
+        if self._ready:
+            return self.dispatcher(*args)
+        result = _with_stop_signals_held(self.dispatcher, args)
+        self._ready = True
+        return result
+
+
+def kernel(function: Callable[..., Any]) -> Kernel:
+    """Decorator: ``function`` compiled by numba (``nopython``, cached, releasing the GIL), see the module docstring."""
+    return Kernel(function)
+
+
+def _with_stop_signals_held(function: Callable[..., Any], args: tuple[Any, ...]) -> Any:
+    """``function(*args)`` with SIGINT/SIGTERM recorded, then the first one received raised again."""
+    if threading.current_thread() is not threading.main_thread():  # handlers run, and are set, in the main thread only
+        return function(*args)
+    received: list[int] = []
+    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in _STOP_SIGNALS}
+    try:
+        return function(*args)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
+        if received:
+            signal.raise_signal(received[0])
+
+
+__all__ = ["Kernel", "kernel"]

@@ -1,0 +1,69 @@
+"""The compiled kernels' first call: a stop signal that comes while numba compiles is not lost."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from snac_gym.compiled import _with_stop_signals_held
+
+pytestmark = pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
+
+
+def test_a_signal_during_the_held_call_is_raised_to_the_previous_handler_once_it_returns():
+    calls: list[str] = []
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    def work(value):
+        os.kill(os.getpid(), signal.SIGTERM)  # arrives while the call runs
+        calls.append("finished")
+        return value * 2
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        with pytest.raises(KeyboardInterrupt, match="SIGTERM"):
+            _with_stop_signals_held(work, (21,))
+        assert calls == ["finished"]  # the call ran to its end first
+        assert signal.getsignal(signal.SIGTERM) is interrupt  # and the handler is back
+        assert _with_stop_signals_held(lambda: 7, ()) == 7  # nothing pending: the result comes back
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+DRIVER = r"""
+import signal, sys, threading, time
+import numpy as np
+
+def interrupt(signum, frame):
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+signal.signal(signal.SIGTERM, interrupt)
+import snac_gym.chain_kernel  # numba imported and the kernel defined, not compiled yet
+from snac_gym.kinematics import Kinematics
+chain = Kinematics("ur10")._chain
+threading.Timer(0.3, lambda: __import__("os").kill(__import__("os").getpid(), signal.SIGTERM)).start()
+started = time.perf_counter()
+try:
+    x, _ = chain.forward_and_jacobian(np.zeros((2, 6)))
+except KeyboardInterrupt as exc:
+    print("interrupted", exc, round(time.perf_counter() - started, 2), flush=True)
+    sys.exit(143)
+print("not interrupted", round(time.perf_counter() - started, 2))
+"""
+
+
+def test_sigterm_while_a_kernel_compiles_ends_the_program_after_the_compile(tmp_path):
+    # An empty cache folder: the kernel compiles in this child (seconds), and the signal comes meanwhile.
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", DRIVER], capture_output=True, text=True, timeout=120, env=env)
+    assert done.returncode == 143, done.stdout + done.stderr
+    assert done.stdout.startswith("interrupted SIGTERM"), done.stdout
+    assert "Exception ignored" not in done.stderr, done.stderr
+    assert float(done.stdout.split()[-1]) > 0.3  # raised after the compile, not at the signal
+    assert list(tmp_path.rglob("*chain_forward_and_jacobian*.nbc"))  # the compile ran to its end and was cached
