@@ -22,7 +22,13 @@ import numpy as np
 from snac_gym.compiled import kernel
 
 
-@kernel
+def _example() -> tuple:
+    """A one-joint revolute chain and two configurations: the argument types of every call."""
+    return (np.zeros((2, 1)), np.array([-1], dtype=np.int64), np.eye(3)[None].copy(), np.zeros((1, 3)),
+            np.array([[0.0, 0.0, 1.0]]), np.array([True]), np.array([0], dtype=np.int64), np.ones(3), 1)  # fmt: skip
+
+
+@kernel(_example)
 def chain_forward_and_jacobian(  # noqa: C901 - one compiled loop nest, kept inline for speed
     qs: np.ndarray,
     parent_slot: np.ndarray,

@@ -19,15 +19,27 @@ from typing import Any
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
-class Kernel:
-    """A compiled function; call it like the function (the compiled dispatcher is :attr:`dispatcher`)."""
+#: The modules that define the kinematics' and the controllers' kernels.
+POLICY_KERNEL_MODULES = ("snac_gym.chain_kernel", "snac_gym.small_kernels", "snac_gym.policies.hjb_kernel")
+#: Every module that defines a kernel (the evaluator's optimum too).
+KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "evaluation.optimal_kernels")
+_KERNELS: list[Kernel] = []
 
-    def __init__(self, function: Callable[..., Any]) -> None:
+
+class Kernel:
+    """A compiled function; call it like the function (the compiled dispatcher is :attr:`dispatcher`).
+
+    ``example`` returns arguments of the types the project calls it with, for :func:`warm_up`.
+    """
+
+    def __init__(self, function: Callable[..., Any], example: Callable[[], tuple[Any, ...]]) -> None:
         from numba import njit  # numba is imported by the first module that defines a kernel
 
         self.dispatcher = njit(cache=True, nogil=True)(function)
         self.__doc__, self.__name__, self.__wrapped__ = function.__doc__, function.__name__, function
+        self.example = example
         self._ready = False
+        _KERNELS.append(self)
 
     def __call__(self, *args: Any) -> Any:
         if self._ready:
@@ -37,9 +49,31 @@ class Kernel:
         return result
 
 
-def kernel(function: Callable[..., Any]) -> Kernel:
-    """Decorator: ``function`` compiled by numba (``nopython``, cached, releasing the GIL), see the module docstring."""
-    return Kernel(function)
+def kernel(example: Callable[[], tuple[Any, ...]]) -> Callable[[Callable[..., Any]], Kernel]:
+    """Decorator: the function compiled by numba (``nopython``, cached, releasing the GIL), see the module docstring.
+
+    Args:
+        example: Returns arguments of the types it is called with (small arrays), for :func:`warm_up`.
+    """
+    return lambda function: Kernel(function, example)
+
+
+def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
+    """Compile, or load from the cache, every kernel of ``modules`` now; the seconds it took.
+
+    A loop with a deadline calls this first (``snac-gym real``): a kernel's first call takes a
+    tenth of a second to load from the cache and seconds to compile, far beyond one control period.
+    """
+    import importlib
+    import time
+
+    started = time.perf_counter()
+    for module in modules:
+        importlib.import_module(module)
+    for compiled in _KERNELS:
+        if compiled.__wrapped__.__module__ in modules:
+            compiled(*compiled.example())
+    return time.perf_counter() - started
 
 
 def _with_stop_signals_held(function: Callable[..., Any], args: tuple[Any, ...]) -> Any:
@@ -57,4 +91,4 @@ def _with_stop_signals_held(function: Callable[..., Any], args: tuple[Any, ...])
             signal.raise_signal(received[0])
 
 
-__all__ = ["Kernel", "kernel"]
+__all__ = ["KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "kernel", "warm_up"]

@@ -49,7 +49,7 @@ def _sort_indices(keys: np.ndarray, order: np.ndarray, direction: float) -> None
         order[j + 1] = index
 
 
-@kernel
+@kernel(lambda: (np.eye(3)[None].copy(),))
 def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
     """Eigenvalues (ascending) and eigenvectors (columns) of a stack ``(B, n, n)`` of symmetric matrices.
 
@@ -106,7 +106,7 @@ def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # no
     return values, vectors
 
 
-@kernel
+@kernel(lambda: (np.ones((1, 3, 6)),))
 def thin_svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
     """``(U, σ, Vᵀ)`` of a stack ``(B, n, m)``, n ≤ m: ``np.linalg.svd(..., full_matrices=False)``'s contract.
 

@@ -67,3 +67,24 @@ def test_sigterm_while_a_kernel_compiles_ends_the_program_after_the_compile(tmp_
     assert "Exception ignored" not in done.stderr, done.stderr
     assert float(done.stdout.split()[-1]) > 0.3  # raised after the compile, not at the signal
     assert list(tmp_path.rglob("*chain_forward_and_jacobian*.nbc"))  # the compile ran to its end and was cached
+
+
+@pytest.mark.parametrize("controller", ["lqr", "svf", "snac-hjb", "dls", "snac"])
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_after_the_warm_up_no_controller_step_compiles_anything(controller, task):
+    """What ``snac-gym real`` relies on: every kernel a controller calls has the types of its warm-up example."""
+    import gymnasium as gym
+
+    from snac_gym.compiled import _KERNELS, POLICY_KERNEL_MODULES, warm_up
+    from snac_gym.policies import make_policy
+
+    warm_up(POLICY_KERNEL_MODULES)
+    compiled = {k.__name__: len(k.dispatcher.signatures) for k in _KERNELS}
+    env = gym.make(f"snac_gym/UR10{'Reach' if task == 'reach' else 'EllipseTrack'}-v0", physics="kinematic")
+    policy = make_policy(controller, env.unwrapped)
+    obs, _ = env.reset(seed=0)
+    policy.reset(seed=0)
+    for _ in range(3):
+        obs, *_ = env.step(policy.act(obs))
+    env.close()
+    assert {k.__name__: len(k.dispatcher.signatures) for k in _KERNELS} == compiled

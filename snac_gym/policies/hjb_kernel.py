@@ -14,7 +14,13 @@ import numpy as np
 from snac_gym.compiled import kernel
 
 
-@kernel
+def _example() -> tuple:
+    """A 3-D critic, one episode: the argument types of every call."""
+    first, second = np.triu_indices(3)
+    return (np.ones((1, 6)), np.eye(3)[None].copy(), np.ones((1, 3)), 0.1, np.eye(3), first, second, np.eye(3), 1e-9)
+
+
+@kernel(_example)
 def residual_steps(  # noqa: C901 - one compiled loop nest, kept inline for speed
     weights: np.ndarray,
     gram_matrices: np.ndarray,

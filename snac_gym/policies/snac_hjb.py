@@ -264,7 +264,8 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
 
         return residual_steps(
             np.ascontiguousarray(weights), np.ascontiguousarray(gram_matrix), np.ascontiguousarray(current),
-            float(step), self.directions, self.basis.first, self.basis.second, self.Q, self.regularisation,
+            float(step), self.directions, self.basis.first, self.basis.second, np.ascontiguousarray(self.Q),
+            self.regularisation,
         )
 
     def _step(

@@ -286,9 +286,12 @@ def _run_and_stop(
     from snac_gym.policies.base import PolicyContext
     from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
 
+    from snac_gym.compiled import POLICY_KERNEL_MODULES, warm_up
+
     log = None
     try:
         try:
+            warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
             policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
             log = rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps)
             log = add_critic_diagnostics(log, policy)
