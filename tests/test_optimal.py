@@ -271,3 +271,26 @@ def test_gauss_newton_and_lbfgs_agree_when_the_bounded_polish_runs(ur10, track_s
     assert (np.abs(newton.commands) <= limits + 1e-12).all()
     assert newton.cost == pytest.approx(lbfgs_cost, rel=1e-8)
     assert np.isnan(newton.gap_estimate)  # the polish (L-BFGS-B in u) has no z-gap
+
+
+def test_the_gauss_newton_band_holds_the_blocks_jk_t_jk_on_its_diagonal(rng):
+    """``add_jacobian_blocks`` against a dense assembly: block k−1 of θ₁..θ_K gets scale·JₖᵀJₖ (k = 1..K−1), the last none."""
+    from evaluation.optimal_kernels import add_jacobian_blocks
+
+    steps, n, m, scale = 7, 3, 6, 0.037
+    jacobians = rng.normal(size=(steps, n, m))
+    base = rng.normal(size=(2 * m + 1, steps * m))
+    band = np.array(base, order="F")
+    add_jacobian_blocks(band, jacobians, scale)
+
+    def dense(lower_band):
+        matrix = np.zeros((steps * m, steps * m))
+        for offset, row in enumerate(lower_band):
+            columns = np.arange(steps * m - offset)
+            matrix[columns + offset, columns] = row[: steps * m - offset]
+        return matrix
+
+    blocks = np.zeros((steps * m, steps * m))
+    for k in range(1, steps):
+        blocks[(k - 1) * m : k * m, (k - 1) * m : k * m] = scale * jacobians[k].T @ jacobians[k]
+    np.testing.assert_allclose(dense(band) - dense(base), np.tril(blocks), rtol=0, atol=1e-14)
