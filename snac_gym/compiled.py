@@ -1,12 +1,13 @@
 """The project's compiled kernels: numba's ``njit``, cached on disk, with stop signals held while one compiles.
 
-A kernel compiles on its first call in a process (a few seconds; later runs load it from numba's
-cache in ``__pycache__``). Numba calls back into Python from LLVM while it compiles, and an
-exception raised there, such as the ``KeyboardInterrupt`` that ``snac-gym evaluate`` turns a
-Ctrl-C or a SIGTERM into, is printed and dropped by ``ctypes``: the run would go on as if the
-signal had never come. So the first call of each kernel runs with SIGINT and SIGTERM recorded
-instead of handled, and a signal that came meanwhile is raised again, to the handler that was in
-place, as soon as the kernel returns.
+A kernel compiles on its first call with new argument types in a process (a few seconds; later
+runs load it from numba's cache in ``__pycache__``). Numba calls back into Python from LLVM while
+it compiles, and an exception raised there, such as the ``KeyboardInterrupt`` that ``snac-gym
+evaluate`` turns a Ctrl-C or a SIGTERM into, is printed and dropped by ``ctypes``: the run would go
+on as if the signal had never come. So every compile (numba's dispatcher calls
+``_compile_for_args`` when no compiled version fits the arguments) runs with SIGINT and SIGTERM
+recorded instead of handled, and a signal that came meanwhile is raised again, to the handler
+that was in place, as soon as the compile returns. Calls that find a compiled version pay nothing.
 """
 
 from __future__ import annotations
@@ -38,15 +39,14 @@ class Kernel:
         self.dispatcher = njit(cache=True, nogil=True)(function)
         self.__doc__, self.__name__, self.__wrapped__ = function.__doc__, function.__name__, function
         self.example = example
-        self._ready = False
+        compile_for_args = self.dispatcher._compile_for_args  # what the dispatcher calls on a miss (numba ≥ 0.50)
+        self.dispatcher._compile_for_args = lambda *args, **kwargs: _with_stop_signals_held(
+            compile_for_args, args, kwargs
+        )
         _KERNELS.append(self)
 
     def __call__(self, *args: Any) -> Any:
-        if self._ready:
-            return self.dispatcher(*args)
-        result = _with_stop_signals_held(self.dispatcher, args)
-        self._ready = True
-        return result
+        return self.dispatcher(*args)
 
 
 def kernel(example: Callable[[], tuple[Any, ...]]) -> Callable[[Callable[..., Any]], Kernel]:
@@ -76,14 +76,17 @@ def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     return time.perf_counter() - started
 
 
-def _with_stop_signals_held(function: Callable[..., Any], args: tuple[Any, ...]) -> Any:
-    """``function(*args)`` with SIGINT/SIGTERM recorded, then the first one received raised again."""
+def _with_stop_signals_held(
+    function: Callable[..., Any], args: tuple[Any, ...], kwargs: dict[str, Any] | None = None
+) -> Any:
+    """``function(*args, **kwargs)`` with SIGINT/SIGTERM recorded, then the first one received raised again."""
+    kwargs = kwargs or {}
     if threading.current_thread() is not threading.main_thread():  # handlers run, and are set, in the main thread only
-        return function(*args)
+        return function(*args, **kwargs)
     received: list[int] = []
     previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in _STOP_SIGNALS}
     try:
-        return function(*args)
+        return function(*args, **kwargs)
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
