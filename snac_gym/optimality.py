@@ -35,7 +35,6 @@ and checked against the HJB equation (:func:`hjb_residual`).
 from __future__ import annotations
 
 import functools
-
 from typing import Any
 
 import numpy as np

@@ -49,6 +49,15 @@ def _sort_indices(keys: np.ndarray, order: np.ndarray, direction: float) -> None
         order[j + 1] = index
 
 
+@njit(cache=True, nogil=True)
+def _rotate_columns(matrix: np.ndarray, p: int, q: int, c: float, s: float) -> None:  # pragma: no cover - compiled
+    """Columns p and q of ``matrix`` ← (c·x_p − s·x_q, s·x_p + c·x_q), in place: ``matrix`` times the rotation."""
+    for k in range(matrix.shape[0]):
+        first, second = matrix[k, p], matrix[k, q]
+        matrix[k, p] = c * first - s * second
+        matrix[k, q] = s * first + c * second
+
+
 @kernel(lambda: (np.eye(3)[None].copy(),))
 def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
     """Eigenvalues (ascending) and eigenvectors (columns) of a stack ``(B, n, n)`` of symmetric matrices.
@@ -80,20 +89,11 @@ def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # no
                         continue
                     rotated = True
                     c, s = _rotation(a[p, p], a[q, q], gamma)
-                    for k in range(n):  # A ← A Gᵀ ... then G A: columns p, q, then rows p, q
-                        akp, akq = a[k, p], a[k, q]
-                        a[k, p] = c * akp - s * akq
-                        a[k, q] = s * akp + c * akq
-                    for k in range(n):
-                        apk, aqk = a[p, k], a[q, k]
-                        a[p, k] = c * apk - s * aqk
-                        a[q, k] = s * apk + c * aqk
+                    _rotate_columns(a, p, q, c, s)  # A ← Gᵀ A G: columns p, q, then rows p, q
+                    _rotate_columns(a.T, p, q, c, s)
                     a[p, q] = 0.0
                     a[q, p] = 0.0
-                    for k in range(n):
-                        vkp, vkq = v[k, p], v[k, q]
-                        v[k, p] = c * vkp - s * vkq
-                        v[k, q] = s * vkp + c * vkq
+                    _rotate_columns(v, p, q, c, s)
             if not rotated:
                 break
         for i in range(n):
@@ -141,14 +141,8 @@ def thin_svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                         continue
                     rotated = True
                     c, s = _rotation(alpha, beta, gamma)
-                    for k in range(m):
-                        gkp, gkq = g[k, p], g[k, q]
-                        g[k, p] = c * gkp - s * gkq
-                        g[k, q] = s * gkp + c * gkq
-                    for k in range(n):
-                        wkp, wkq = w[k, p], w[k, q]
-                        w[k, p] = c * wkp - s * wkq
-                        w[k, q] = s * wkp + c * wkq
+                    _rotate_columns(g, p, q, c, s)
+                    _rotate_columns(w, p, q, c, s)
             if not rotated:
                 break
         for j in range(n):
