@@ -270,10 +270,18 @@ class ProcessExecutor:
         """Keep ``slots`` workers (at most ``workers − 1``) free of jobs of priority above 0 until changed."""
         with self._lock:
             self._reserved = max(0, min(int(slots), self.workers - 1))
-            self._dispatch()
+            handed = self._dispatch()
+        self._watch(handed)
 
-    def _dispatch(self) -> None:
-        """Hand queued jobs to the pool while workers are free (call with the lock held)."""
+    def _dispatch(self) -> list[tuple[Future, Callable[[Future], None]]]:
+        """Hand queued jobs to the pool while workers are free (call with the lock held).
+
+        Returns each job's pool future with the callback that ends it, for :meth:`_watch` to
+        attach once the lock is released: a job that is already done when its callback is attached
+        runs the callback at once, in the attaching thread, and the callback takes the lock (attached
+        here, with the lock held, that deadlocked a run whose jobs were quick).
+        """
+        handed: list[tuple[Future, Callable[[Future], None]]] = []
         while not self._stopped and self._running < self.workers and self._queue:
             priority = self._queue[0][0]
             low = priority > 0
@@ -290,14 +298,22 @@ class ProcessExecutor:
             self._running += 1
             self._running_low += low
             self._dispatched.add(outer)
-            inner.add_done_callback(functools.partial(self._finished, outer, low))
+            handed.append((inner, functools.partial(self._finished, outer, low)))
+        return handed
+
+    @staticmethod
+    def _watch(handed: list[tuple[Future, Callable[[Future], None]]]) -> None:
+        """Attach the callbacks :meth:`_dispatch` returned (call without the lock)."""
+        for inner, finished in handed:
+            inner.add_done_callback(finished)
 
     def _finished(self, outer: Future, low: bool, inner: Future) -> None:
         with self._lock:
             self._running -= 1
             self._running_low -= low
             self._dispatched.discard(outer)
-            self._dispatch()
+            handed = self._dispatch()
+        self._watch(handed)
         if outer.done():  # already failed by terminate()
             return
         if inner.cancelled():
@@ -316,7 +332,8 @@ class ProcessExecutor:
                 outer: Future = Future()
                 heapq.heappush(self._queue, (priority, next(self._arrivals), function, item, outer))
                 futures[outer] = index
-            self._dispatch()
+            handed = self._dispatch()
+        self._watch(handed)
         try:
             pending = set(futures)
             while pending:

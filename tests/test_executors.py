@@ -34,3 +34,36 @@ def test_workers_come_from_a_fork_server_while_other_threads_run_and_know_the_re
 def test_a_single_threaded_process_forks_and_unpicklable_registrations_force_fork():
     assert start_method(b"registrations") == ("fork" if threading.active_count() == 1 else "forkserver")
     assert start_method(None) == "fork"  # a lambda registered as a policy reaches workers only by fork
+
+
+class _DonePool:
+    """A pool whose jobs are done before ``submit`` returns: the race a quick job wins against the
+    attaching of its callback."""
+
+    def __init__(self) -> None:
+        self.submitted = 0
+
+    def submit(self, function, item):
+        from concurrent.futures import Future
+
+        self.submitted += 1
+        future: Future = Future()
+        future.set_result(function(item))
+        return future
+
+
+def test_a_job_done_before_its_callback_is_attached_does_not_deadlock_the_executor():
+    executor = ProcessExecutor(1)
+    real_pool = executor._pool
+    try:
+        executor._pool = _DonePool()
+        results: dict[int, int] = {}
+        worker = threading.Thread(target=lambda: results.update(executor.run(abs, [-3, -1, -2, 4])), daemon=True)
+        worker.start()
+        worker.join(timeout=30)
+        assert not worker.is_alive(), "the executor deadlocked on a job that finished before its callback"
+        assert results == {0: 3, 1: 1, 2: 2, 3: 4} and executor._pool.submitted == 4
+        assert executor._running == 0
+    finally:
+        executor._pool = real_pool
+        executor.close()
