@@ -286,7 +286,7 @@ class ProcessExecutor:
             priority = self._queue[0][0]
             low = priority > 0
             if low and self._running_low >= self.workers - self._reserved:
-                return  # the queue head is the most urgent job: the rest is low priority too
+                break  # the queue head is the most urgent job: the rest is low priority too
             _, _, function, item, outer = heapq.heappop(self._queue)
             if not outer.set_running_or_notify_cancel():
                 continue

@@ -52,13 +52,16 @@ class _DonePool:
         return future
 
 
-def test_a_job_done_before_its_callback_is_attached_does_not_deadlock_the_executor():
-    executor = ProcessExecutor(1)
+@pytest.mark.parametrize("priority", [0, 1], ids=["urgent", "low-priority-with-a-reserved-worker"])
+def test_a_job_done_before_its_callback_is_attached_does_not_deadlock_the_executor(priority):
+    executor = ProcessExecutor(2)
     real_pool = executor._pool
     try:
         executor._pool = _DonePool()
+        executor.reserve(1)  # low-priority jobs then run one at a time: the dispatch stops at the queue head
         results: dict[int, int] = {}
-        worker = threading.Thread(target=lambda: results.update(executor.run(abs, [-3, -1, -2, 4])), daemon=True)
+        jobs = [-3, -1, -2, 4]
+        worker = threading.Thread(target=lambda: results.update(executor.run(abs, jobs, priority)), daemon=True)
         worker.start()
         worker.join(timeout=30)
         assert not worker.is_alive(), "the executor deadlocked on a job that finished before its callback"
