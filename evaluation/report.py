@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from evaluation.optimal_reference import FTOL, GTOL, OPTIMAL
+from evaluation.optimal_reference import FTOL, GAP_RTOL, OPTIMAL
 from evaluation.summary import CONVENTION_COLUMNS, controller_label, summarise
 from snac_gym.tasks import get_task
 
@@ -34,7 +34,8 @@ def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Seq
             "controller; no effort knob). Gauss–Newton in the joint angles (banded Cholesky steps, a bounded "
             "L-BFGS-B polish where a velocity limit binds), started from rest and from every evaluated "
             "controller's trajectory that comes within 5 % of it, the best local optimum kept; stopped at "
-            f"max |∂V/∂z| ≤ {GTOL:g} or a relative decrease ≤ {FTOL:g} (docs/optimal.md). Ratio = a controller's "
+            f"a step predicting a gain ≤ {GAP_RTOL:g}·V or a relative decrease ≤ {FTOL:g} (docs/optimal.md). "
+            "Ratio = a controller's "
             "cost / the optimum on the same sample."
         ),
         "",
