@@ -13,6 +13,7 @@ numbers (seed pose, target, circle centre) work unchanged.
 from __future__ import annotations
 
 import importlib.metadata
+import math
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -348,18 +349,24 @@ class Kinematics:
             ``‖f(q) − target‖ ≤ tol``.
         """
         target = np.asarray(target, dtype=float)
-        q = np.clip(self._check_q(q_init).copy(), self.lower_limits, self.upper_limits)
-        eye = np.eye(self.task_dim)
+        lower, upper = self.lower_limits, self.upper_limits
+        q = np.clip(self._check_q(q_init).copy(), lower, upper)
+        damping_matrix = damping**2 * np.eye(self.task_dim)
+        # Called tens of thousands of times per sample set (every point of every candidate ellipse):
+        # Pinocchio and the small array operations are called directly, and max-then-min is np.clip's
+        # arithmetic without its dispatch, so the iterates are the same bit for bit.
+        model, data, frame, placements = self.model, self.data, self._ee_id, self.data.oMf
+        n = self.task_dim
         for _ in range(max_iters):
-            x, jac = self.forward_and_jacobian(q)
-            err = target - x
+            jac = pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED)[:n]
+            err = target - placements[frame].translation
             if err @ err <= tol * tol:
                 return q, True
-            step = jac.T @ np.linalg.solve(jac @ jac.T + damping**2 * eye, err)
-            norm = np.linalg.norm(step)
+            step = jac.T @ np.linalg.solve(jac @ jac.T + damping_matrix, err)
+            norm = math.sqrt(step @ step)  # np.linalg.norm's own sum and root
             if norm > 0.5:  # a trust region keeps the iteration from jumping across branches
                 step *= 0.5 / norm
-            q = np.clip(q + step, self.lower_limits, self.upper_limits)
+            q = np.minimum(np.maximum(q + step, lower), upper)
         err = target - self.forward(q)
         return q, bool(err @ err <= tol * tol)
 

@@ -8,6 +8,7 @@ so both draw from the same documented space. Everything is drawn from a NumPy
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -87,9 +88,15 @@ class SampleSpace:
         params.update(overrides)
         return cls(**params)  # type: ignore[arg-type]
 
+    @cached_property
+    def _corners(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.asarray(self.low, float), np.asarray(self.high, float)
+
     def contains(self, point: np.ndarray, tol: float = 1e-9) -> bool:
+        """Whether ``point`` ``(3,)``, or every row of ``(N, 3)`` points, lies in the cuboid (within ``tol``)."""
         point = np.asarray(point, float)
-        return bool(np.all(point >= np.asarray(self.low) - tol) and np.all(point <= np.asarray(self.high) + tol))
+        low, high = self._corners
+        return bool((point >= low - tol).all() and (point <= high + tol).all())
 
 
 def nominal_configuration(kinematics: Kinematics) -> np.ndarray:
@@ -102,9 +109,9 @@ def nominal_configuration(kinematics: Kinematics) -> np.ndarray:
 
 
 def _well_conditioned(kinematics: Kinematics, q: np.ndarray, space: SampleSpace) -> bool:
-    inside = np.all(q >= kinematics.lower_limits + space.joint_margin) and np.all(
+    inside = (q >= kinematics.lower_limits + space.joint_margin).all() and (
         q <= kinematics.upper_limits - space.joint_margin
-    )
+    ).all()
     return bool(inside) and kinematics.singular_values(q)[-1] >= space.min_singular_value
 
 
@@ -186,7 +193,7 @@ def sample_target(kinematics: Kinematics, rng: np.random.Generator, space: Sampl
 def ellipse_is_feasible(kinematics: Kinematics, ellipse: Ellipse, space: SampleSpace) -> bool:
     """Whether every checked point of ``ellipse`` lies in the cuboid and is reached well-conditioned."""
     points = ellipse.points(space.ellipse_points)
-    if not all(space.contains(p) for p in points):
+    if not space.contains(points):
         return False
     q = solve_reachable(kinematics, points[0])
     if q is None or not _well_conditioned(kinematics, q, space):

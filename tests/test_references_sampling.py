@@ -132,3 +132,14 @@ def test_trajectory_agrees_with_per_time_calls(rng):
     positions, velocities = FixedTarget([0.1, 0.2, 0.3]).trajectory(times)
     np.testing.assert_array_equal(positions, np.tile([0.1, 0.2, 0.3], (3, 1)))
     np.testing.assert_array_equal(velocities, 0.0)
+
+
+def test_the_cuboid_holds_a_set_of_points_only_when_it_holds_each():
+    space = SampleSpace(low=(0.0, 0.0, 0.0), high=(1.0, 1.0, 1.0))
+    inside = np.array([[0.0, 0.5, 1.0], [1.0, 1.0, 1.0], [0.2, 0.3, 0.4]])
+    assert space.contains(inside) and all(space.contains(p) for p in inside)
+    for row, column, value in [(0, 0, -1e-6), (2, 2, 1.0 + 1e-6)]:
+        outside = inside.copy()
+        outside[row, column] = value
+        assert not space.contains(outside) and not space.contains(outside[row])
+    assert space.contains(np.array([1.0 + 5e-10, 0.5, 0.5]))  # within the default 1e-9
