@@ -21,7 +21,9 @@ _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 #: The modules that define the kinematics' and the controllers' kernels.
-POLICY_KERNEL_MODULES = ("snac_gym.chain_kernel", "snac_gym.small_kernels", "snac_gym.policies.hjb_kernel")
+POLICY_KERNEL_MODULES = (
+    "snac_gym.chain_kernel", "snac_gym.small_kernels", "snac_gym.lqr_kernel", "snac_gym.policies.hjb_kernel",
+)
 #: Every module that defines a kernel (the evaluator's optimum too).
 KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "evaluation.optimal_kernels")
 _KERNELS: list[Kernel] = []
@@ -30,10 +32,11 @@ _KERNELS: list[Kernel] = []
 class Kernel:
     """A compiled function; call it like the function (the compiled dispatcher is :attr:`dispatcher`).
 
-    ``example`` returns arguments of the types the project calls it with, for :func:`warm_up`.
+    ``example`` returns arguments of the types the project calls it with, for :func:`warm_up`: one
+    tuple, or a list of tuples when it is called with several (a read-only array is a type of its own).
     """
 
-    def __init__(self, function: Callable[..., Any], example: Callable[[], tuple[Any, ...]]) -> None:
+    def __init__(self, function: Callable[..., Any], example: Callable[[], Any]) -> None:
         from numba import njit  # numba is imported by the first module that defines a kernel
 
         self.dispatcher = njit(cache=True, nogil=True)(function)
@@ -49,11 +52,12 @@ class Kernel:
         return self.dispatcher(*args)
 
 
-def kernel(example: Callable[[], tuple[Any, ...]]) -> Callable[[Callable[..., Any]], Kernel]:
+def kernel(example: Callable[[], Any]) -> Callable[[Callable[..., Any]], Kernel]:
     """Decorator: the function compiled by numba (``nopython``, cached, releasing the GIL), see the module docstring.
 
     Args:
-        example: Returns arguments of the types it is called with (small arrays), for :func:`warm_up`.
+        example: Returns arguments of the types it is called with (small arrays), for :func:`warm_up`
+            (a list of such tuples for several).
     """
     return lambda function: Kernel(function, example)
 
@@ -72,7 +76,9 @@ def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
         importlib.import_module(module)
     for compiled in _KERNELS:
         if compiled.__wrapped__.__module__ in modules:
-            compiled(*compiled.example())
+            examples = compiled.example()
+            for arguments in examples if isinstance(examples, list) else [examples]:
+                compiled(*arguments)
     return time.perf_counter() - started
 
 

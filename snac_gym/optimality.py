@@ -105,8 +105,8 @@ class FrozenJacobianLQR:
     def __init__(self, Q: Any, R: Any, task_dim: int, n_joints: int) -> None:
         self.Q = positive_definite_weight(Q, task_dim, "Q")
         self.R = positive_definite_weight(R, n_joints, "R")
-        self.Q_half = _symmetric_power(self.Q, 0.5)
-        self.R_inverse = _symmetric_power(self.R, -1.0)
+        self.Q_half = np.ascontiguousarray(_symmetric_power(self.Q, 0.5))
+        self.R_inverse = np.ascontiguousarray(_symmetric_power(self.R, -1.0))
 
     def factors(self, jacobian: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(A, λ, C, singular)`` of the class docstring for one J or a stack.
@@ -115,15 +115,20 @@ class FrozenJacobianLQR:
         in ``λ``, so that ``λ^{-1/2}`` and ``λ⁻¹`` are 0 there: at a lost rank no command moves the
         end effector along that direction, so the gain drops it instead of dividing by zero.
         """
-        jacobian = np.asarray(jacobian, dtype=float)
-        weighted = self.Q_half @ jacobian  # Q^{1/2} J
-        weighted_t = np.swapaxes(weighted, -1, -2)
-        from snac_gym.small_kernels import eigh  # numba: imported where first needed
+        from snac_gym.lqr_kernel import frozen_lqr_factors  # numba: imported where first needed
 
-        values, vectors = eigh(weighted @ self.R_inverse @ weighted_t)  # S = W diag(λ) Wᵀ (compiled Jacobi)
-        singular = values <= SINGULAR_TOLERANCE * values[..., -1:]
-        values = np.where(singular, np.inf, values)
-        return self.R_inverse @ weighted_t @ vectors, values, np.swapaxes(vectors, -1, -2) @ self.Q_half, singular
+        jacobian = np.asarray(jacobian, dtype=float)
+        shape = jacobian.shape
+        n, m = shape[-2:]
+        # S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2} = W diag(λ) Wᵀ, A = R⁻¹ Jᵀ Q^{1/2} W, C = Wᵀ Q^{1/2}: one compiled pass
+        left, values, right, singular = frozen_lqr_factors(
+            np.ascontiguousarray(jacobian.reshape(-1, n, m)), self.Q_half, self.R_inverse, SINGULAR_TOLERANCE
+        )
+        stack = shape[:-2]
+        return (
+            left.reshape((*stack, m, n)), values.reshape((*stack, n)), right.reshape((*stack, n, n)),
+            singular.reshape((*stack, n)),
+        )  # fmt: skip
 
     def solution(self, jacobian: np.ndarray, at_singular: str = "raise") -> np.ndarray:
         """``P*(J)``, the SPD solution of ``0 = Q − P J R⁻¹ Jᵀ P`` (closed form), ``(…, n, n)``.

@@ -58,13 +58,50 @@ def _rotate_columns(matrix: np.ndarray, p: int, q: int, c: float, s: float) -> N
         matrix[k, q] = s * first + c * second
 
 
+@njit(cache=True, nogil=True)
+def jacobi_eigh(  # noqa: C901 - one compiled loop nest
+    a: np.ndarray, v: np.ndarray, diagonal: np.ndarray, order: np.ndarray, values: np.ndarray, vectors: np.ndarray
+) -> None:  # pragma: no cover - compiled
+    """Eigenvalues (ascending) into ``values`` and eigenvectors (columns) into ``vectors`` of the
+    symmetric ``a`` ``(n, n)``, which is overwritten; ``v`` ``(n, n)``, ``diagonal`` ``(n,)`` and
+    ``order`` ``(n,)`` int64 are workspaces. Cyclic Jacobi with the relative stopping test
+    ``|a_pq| ≤ ε·√(|a_pp a_qq|)``."""
+    n = a.shape[0]
+    for i in range(n):
+        for j in range(n):
+            v[i, j] = 1.0 if i == j else 0.0
+    for _ in range(MAX_SWEEPS):
+        rotated = False
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                gamma = a[p, q]
+                if gamma == 0.0 or abs(gamma) <= _EPS * np.sqrt(abs(a[p, p] * a[q, q])):
+                    continue
+                rotated = True
+                c, s = _rotation(a[p, p], a[q, q], gamma)
+                _rotate_columns(a, p, q, c, s)  # A ← Gᵀ A G: columns p, q, then rows p, q
+                _rotate_columns(a.T, p, q, c, s)
+                a[p, q] = 0.0
+                a[q, p] = 0.0
+                _rotate_columns(v, p, q, c, s)
+        if not rotated:
+            break
+    for i in range(n):
+        diagonal[i] = a[i, i]
+    _sort_indices(diagonal, order, 1.0)
+    for j in range(n):
+        values[j] = diagonal[order[j]]
+        for i in range(n):
+            vectors[i, j] = v[i, order[j]]
+
+
 @kernel(lambda: (np.eye(3)[None].copy(),))
-def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
+def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Eigenvalues (ascending) and eigenvectors (columns) of a stack ``(B, n, n)`` of symmetric matrices.
 
-    ``np.linalg.eigh``'s contract (only the lower triangle is read), by cyclic Jacobi with the
-    relative stopping test ``|a_pq| ≤ ε·√(|a_pp a_qq|)``. Eigenvectors are unique up to sign
-    (and, for a repeated eigenvalue, up to a rotation within its eigenspace), as LAPACK's are.
+    ``np.linalg.eigh``'s contract (only the lower triangle is read), by :func:`jacobi_eigh`.
+    Eigenvectors are unique up to sign (and, for a repeated eigenvalue, up to a rotation within
+    its eigenspace), as LAPACK's are.
     """
     count, n = matrices.shape[0], matrices.shape[1]
     values = np.empty((count, n))
@@ -78,31 +115,7 @@ def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # no
             for j in range(i + 1):
                 a[i, j] = matrices[b, i, j]
                 a[j, i] = matrices[b, i, j]
-            for j in range(n):
-                v[i, j] = 1.0 if i == j else 0.0
-        for _ in range(MAX_SWEEPS):
-            rotated = False
-            for p in range(n - 1):
-                for q in range(p + 1, n):
-                    gamma = a[p, q]
-                    if gamma == 0.0 or abs(gamma) <= _EPS * np.sqrt(abs(a[p, p] * a[q, q])):
-                        continue
-                    rotated = True
-                    c, s = _rotation(a[p, p], a[q, q], gamma)
-                    _rotate_columns(a, p, q, c, s)  # A ← Gᵀ A G: columns p, q, then rows p, q
-                    _rotate_columns(a.T, p, q, c, s)
-                    a[p, q] = 0.0
-                    a[q, p] = 0.0
-                    _rotate_columns(v, p, q, c, s)
-            if not rotated:
-                break
-        for i in range(n):
-            diagonal[i] = a[i, i]
-        _sort_indices(diagonal, order, 1.0)
-        for j in range(n):
-            values[b, j] = diagonal[order[j]]
-            for i in range(n):
-                vectors[b, i, j] = v[i, order[j]]
+        jacobi_eigh(a, v, diagonal, order, values[b], vectors[b])
     return values, vectors
 
 

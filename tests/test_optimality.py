@@ -7,6 +7,7 @@ import pytest
 from scipy.linalg import fractional_matrix_power, solve_continuous_are, sqrtm
 
 from snac_gym.optimality import (
+    SINGULAR_TOLERANCE,
     FrozenJacobianLQR,
     critic_error,
     hjb_residual,
@@ -107,6 +108,36 @@ def test_hjb_residual_vanishes_at_the_optimum_and_expands_by_hand(jacobians, rng
         u_hat = -np.linalg.solve(R, jac.T @ P_hat @ e)
         G = jac @ np.linalg.solve(R, jac.T)
         assert hjb_residual(2 * P_hat @ e, jac, u_hat, e, Q, R) == pytest.approx(e @ (Q - P_hat @ G @ P_hat) @ e)
+
+
+def test_compiled_factors_match_lapack_and_numpy_products(jacobians, rng):
+    """The one-pass factors against the products and LAPACK's eigh they replaced, with general Q and R,
+    for a stack, one J, a stack of stacks and a J that lost rank (a zero row)."""
+    Q, R = _spd(rng, 3), _spd(rng, 6)
+    lqr = FrozenJacobianLQR(Q, R, 3, 6)
+    lost = jacobians[0].copy()
+    lost[2] = 0.0
+    stack = np.concatenate([jacobians, lost[None]])
+    weighted = lqr.Q_half @ stack
+    values, vectors = np.linalg.eigh(weighted @ lqr.R_inverse @ np.swapaxes(weighted, -1, -2))
+    singular = values <= SINGULAR_TOLERANCE * values[..., -1:]
+    left, got_values, right, got_singular = lqr.factors(stack)
+    np.testing.assert_array_equal(got_singular, singular)
+    assert got_singular[-1].tolist() == [True, False, False] and not got_singular[:-1].any()
+    np.testing.assert_allclose(got_values[~singular], values[~singular], rtol=1e-12)
+    assert np.isinf(got_values[singular]).all()
+    expected_left = lqr.R_inverse @ np.swapaxes(weighted, -1, -2) @ vectors
+    expected_right = np.swapaxes(vectors, -1, -2) @ lqr.Q_half
+    for i in range(3):  # each eigenpair's A column ⊗ C row: free of the eigenvector's sign
+        got = left[..., :, i, None] * right[..., None, i, :]
+        expected = expected_left[..., :, i, None] * expected_right[..., None, i, :]
+        np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
+    one = lqr.factors(stack[3])
+    nested = lqr.factors(stack[:8].reshape(2, 4, 3, 6))
+    for got, whole in zip(one, (left, got_values, right, got_singular), strict=True):
+        np.testing.assert_array_equal(got, whole[3])
+    for got, whole in zip(nested, (left, got_values, right, got_singular), strict=True):
+        np.testing.assert_array_equal(got.reshape(whole[:8].shape), whole[:8])
 
 
 def test_stacks_equal_single_calls_row_for_row(jacobians, rng):

@@ -6,6 +6,8 @@
   configuration (``computeFrameJacobian``), the path for models the kernel does not take;
 * ``symmetric_eigh`` (3×3) against ``np.linalg.eigh`` of the stack;
 * ``thin_svd`` (3×6) against ``np.linalg.svd(..., full_matrices=False)`` of the stack;
+* ``frozen_lqr_factors`` (``FrozenJacobianLQR.factors``) against the NumPy products around the
+  compiled eigh that it replaced;
 * ``add_jacobian_blocks`` (the optimum's Gauss-Newton band, a 2500-step track trajectory) against the
   NumPy products and scattered ``+=`` it replaced.
 
@@ -24,6 +26,7 @@ from threadpoolctl import threadpool_limits
 from evaluation.optimal_kernels import add_jacobian_blocks
 from snac_gym.chain_kernel import chain_forward_and_jacobian
 from snac_gym.kinematics import shared_kinematics
+from snac_gym.optimality import SINGULAR_TOLERANCE, FrozenJacobianLQR
 from snac_gym.small_kernels import symmetric_eigh, thin_svd
 
 BATCH = 500
@@ -51,6 +54,16 @@ def numpy_band(base: np.ndarray, jacobians: np.ndarray, scale: float) -> np.ndar
     return band
 
 
+def numpy_factors(lqr: FrozenJacobianLQR, jacobians: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``FrozenJacobianLQR.factors`` as it was before its one-pass kernel."""
+    weighted = lqr.Q_half @ jacobians
+    weighted_t = np.swapaxes(weighted, -1, -2)
+    values, vectors = symmetric_eigh(np.ascontiguousarray(weighted @ lqr.R_inverse @ weighted_t))
+    singular = values <= SINGULAR_TOLERANCE * values[..., -1:]
+    values = np.where(singular, np.inf, values)
+    return lqr.R_inverse @ weighted_t @ vectors, values, np.swapaxes(vectors, -1, -2) @ lqr.Q_half, singular
+
+
 def main() -> None:
     threadpool_limits(1)
     rng = np.random.default_rng(0)
@@ -68,6 +81,9 @@ def main() -> None:
     grams = np.ascontiguousarray(jacobians @ jacobians.transpose(0, 2, 1))
     rows.append(("eigh, 3×3", lambda: symmetric_eigh(grams), lambda: np.linalg.eigh(grams), "np.linalg.eigh"))
     rows.append(("SVD, 3×6", lambda: thin_svd(jacobians), lambda: np.linalg.svd(jacobians, full_matrices=False), "np.linalg.svd"))
+    lqr = FrozenJacobianLQR(9.0 * np.eye(3), None, 3, 6)  # the lqr controller's weights
+    rows.append(("LQR factors", lambda: lqr.factors(jacobians), lambda: numpy_factors(lqr, jacobians),
+                 "NumPy products around the compiled eigh"))  # fmt: skip
     print(f"{'kernel':24s} {'compiled µs/item':>17s} {'peer µs/item':>13s}  peer")
     for name, compiled, peer, label in rows:
         print(f"{name:24s} {best_of(compiled) / BATCH * 1e6:17.3f} {best_of(peer) / BATCH * 1e6:13.3f}  {label}")
