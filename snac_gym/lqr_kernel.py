@@ -11,6 +11,7 @@ eigendecomposition itself; here it is one pass over the stack, each product summ
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from snac_gym.compiled import kernel
 from snac_gym.small_kernels import jacobi_eigh
@@ -23,8 +24,19 @@ def _examples() -> list[tuple]:
     return [(np.ones((1, 3, 6)), np.eye(3), np.eye(6), 1e-12), (read_only, np.eye(3), np.eye(6), 1e-12)]
 
 
+@njit(cache=True, nogil=True)
+def _product(x: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out ← x y``, each entry summed in index order."""
+    for i in range(x.shape[0]):
+        for j in range(y.shape[1]):
+            total = 0.0
+            for k in range(x.shape[1]):
+                total += x[i, k] * y[k, j]
+            out[i, j] = total
+
+
 @kernel(_examples)
-def frozen_lqr_factors(  # noqa: C901 - one compiled loop nest
+def frozen_lqr_factors(
     jacobians: np.ndarray, q_half: np.ndarray, r_inverse: np.ndarray, tolerance: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled; tested against NumPy
     """``(A, λ, C, singular)`` of each J of a stack ``(B, n, m)``: shapes ``(B, m, n)``, ``(B, n)``, ``(B, n, n)``, ``(B, n)``.
@@ -46,42 +58,18 @@ def frozen_lqr_factors(  # noqa: C901 - one compiled loop nest
     diagonal = np.empty(n)
     order = np.empty(n, dtype=np.int64)
     for b in range(count):
-        for i in range(n):
-            for k in range(m):
-                total = 0.0
-                for j in range(n):
-                    total += q_half[i, j] * jacobians[b, j, k]
-                g[i, k] = total
-        for k in range(m):
-            for i in range(n):
-                total = 0.0
-                for j in range(m):
-                    total += r_inverse[k, j] * g[i, j]
-                rg[k, i] = total
-        for i in range(n):
-            for j in range(i + 1):
-                total = 0.0
-                for k in range(m):
-                    total += g[i, k] * rg[k, j]
-                a[i, j] = total
-                a[j, i] = total
+        _product(q_half, jacobians[b], g)
+        _product(r_inverse, g.T, rg)
+        _product(g, rg, a)
+        for i in range(n):  # symmetric exactly: the lower triangle mirrored (R ≠ I rounds the two apart)
+            for j in range(i):
+                a[j, i] = a[i, j]
         jacobi_eigh(a, v, diagonal, order, values[b], w)
         largest = values[b, n - 1]
         for i in range(n):
             singular[b, i] = values[b, i] <= tolerance * largest
-        for i in range(n):
             if singular[b, i]:
                 values[b, i] = np.inf
-        for k in range(m):
-            for i in range(n):
-                total = 0.0
-                for j in range(n):
-                    total += rg[k, j] * w[j, i]
-                left[b, k, i] = total
-        for i in range(n):
-            for j in range(n):
-                total = 0.0
-                for k in range(n):
-                    total += w[k, i] * q_half[k, j]
-                right[b, i, j] = total
+        _product(rg, w, left[b])
+        _product(w.T, q_half, right[b])
     return left, values, right, singular
