@@ -24,8 +24,8 @@ _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 POLICY_KERNEL_MODULES = (
     "snac_gym.chain_kernel", "snac_gym.small_kernels", "snac_gym.lqr_kernel", "snac_gym.policies.hjb_kernel",
 )
-#: Every module that defines a kernel (the evaluator's optimum too).
-KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "evaluation.optimal_kernels")
+#: Every module that defines a kernel (the evaluator's metrics and optimum too).
+KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "snac_gym.metrics_kernel", "evaluation.optimal_kernels")
 _KERNELS: list[Kernel] = []
 
 

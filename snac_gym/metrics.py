@@ -63,8 +63,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from snac_gym.cost import CostConvention, CostTerms, command_differences, cost_rates, trajectory_cost
+from snac_gym.cost import CostConvention, CostTerms, cost_rates, trajectory_cost
 from snac_gym.joint_limits import joint_limit_margins, joint_limit_margins_of_extremes
+from snac_gym.metrics_kernel import command_extremes, reverse_sum_extremes
 from snac_gym.rollout.batch import Rollouts
 from snac_gym.rollout.log import log_array
 from snac_gym.tasks import get_task
@@ -103,18 +104,6 @@ METRIC_COLUMNS = (
 )
 
 
-def peak_limit_fractions(commands: np.ndarray, velocity_limits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each rollout's peak of ``max_j |uₖⱼ|/ūⱼ`` over its steps, and the first step where it occurs.
-
-    Args:
-        commands: ``(B, K, m)`` commands.
-        velocity_limits: ``(m,)`` limits ū.
-    """
-    fractions = (np.abs(commands) / np.asarray(velocity_limits, dtype=float)).max(axis=-1)  # (B, K)
-    steps = np.argmax(fractions, axis=1)
-    return fractions[np.arange(len(fractions)), steps], steps
-
-
 def rollout_metrics(
     rollouts: Rollouts,
     task: str,
@@ -144,13 +133,11 @@ def rollout_metrics(
     last_outside = all_norms.shape[1] - 1 - np.argmax(outside[:, ::-1], axis=1)
     settle_time = np.where(outside.any(axis=1), (last_outside + 1) * dt, 0.0)
     settle_time[outside[:, -1]] = np.nan
-    rates = command_differences(commands) / dt
     limits = np.asarray(velocity_limits, dtype=float)
-    peak_fraction, peak_step = peak_limit_fractions(commands, limits)
-    magnitudes = np.abs(commands)
-    peak_abs = magnitudes.max(axis=-1)  # (B, K): ‖uₖ‖∞
-    peak_abs_step = np.argmax(peak_abs, axis=1)
-    at_limit = (magnitudes >= limits * (1.0 - LIMIT_RELATIVE_TOLERANCE)).any(axis=-1)
+    extremes = command_extremes(
+        np.ascontiguousarray(commands, dtype=float), limits, limits * (1.0 - LIMIT_RELATIVE_TOLERANCE), dt
+    )
+    peak_fraction, peak_step, max_abs_u, max_abs_u_step, max_abs_udot, steps_at_limit = extremes
     second_half_norms = error_norms[:, rollouts.steps // 2 :]
     second_half = second_half_norms.mean(axis=1)
     diagnostics = rollouts.critic_diagnostics or {}
@@ -172,13 +159,13 @@ def rollout_metrics(
             "final_error": final_error,
             "time_to_1mm": time_to_1mm,
             "settle_time": settle_time,
-            "max_abs_u": peak_abs[np.arange(len(peak_abs)), peak_abs_step],
-            "max_abs_u_step": peak_abs_step.astype(np.int64),
+            "max_abs_u": max_abs_u,
+            "max_abs_u_step": max_abs_u_step,
             "max_norm_u": np.linalg.norm(commands, axis=-1).max(axis=1),
             "peak_limit_fraction": peak_fraction,
-            "peak_step": peak_step.astype(np.int64),
-            "max_abs_udot": np.abs(rates).max(axis=(1, 2)),
-            "steps_at_limit": at_limit.sum(axis=1).astype(np.int64),
+            "peak_step": peak_step,
+            "max_abs_udot": max_abs_udot,
+            "steps_at_limit": steps_at_limit,
             "mean_error_2nd_half": second_half,
             "median_error_2nd_half": np.median(second_half_norms, axis=1),
             "success": success,
@@ -203,10 +190,10 @@ def limit_margins(rollouts: Rollouts, lower: np.ndarray, upper: np.ndarray) -> n
         return joint_limit_margins(q, lower, upper)
     # θₖ = θ_K − Σ_{j≥k} uⱼΔt. Only each joint's extremes over k matter, and rounding is monotone:
     # min_k θₖ = θ_K − max_k(Σ_{j≥k} uⱼ)·Δt exactly, so θₖ itself is never formed (θ_K: the sum 0).
-    sums = np.cumsum(rollouts.commands[:, ::-1], axis=1)
+    largest, smallest = reverse_sum_extremes(np.ascontiguousarray(rollouts.commands, dtype=float))
     final = rollouts.final_q
-    largest = np.maximum(sums.max(axis=1), 0.0) * rollouts.dt
-    smallest = np.minimum(sums.min(axis=1), 0.0) * rollouts.dt
+    largest = np.maximum(largest, 0.0) * rollouts.dt
+    smallest = np.minimum(smallest, 0.0) * rollouts.dt
     return joint_limit_margins_of_extremes(final - largest, final - smallest, lower, upper)
 
 

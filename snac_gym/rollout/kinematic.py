@@ -253,7 +253,13 @@ def _stack_diagnostics(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarra
 
 
 def _sample_major(log: np.ndarray) -> np.ndarray:
-    """``(K, B, d)`` → contiguous ``(B, K, d)``."""
-    return np.ascontiguousarray(log.transpose(1, 0, 2))
+    """Contiguous ``(K, B, d)`` → contiguous ``(B, K, d)``, the same values.
+
+    Each d-vector is moved as one opaque record: NumPy's transposing copy of the float array
+    itself loops over the short last axis element by element, 2.5 times slower on the evaluator's logs.
+    """
+    steps, count, width = log.shape
+    records = np.ascontiguousarray(log).view(np.dtype((np.void, width * log.itemsize))).reshape(steps, count)
+    return np.ascontiguousarray(records.T).view(log.dtype).reshape(count, steps, width)
 
 
