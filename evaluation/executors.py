@@ -34,6 +34,8 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, InvalidStateError, ProcessPoolExecutor, wait
 from typing import Any
 
+from evaluation.memory import keep_freed_memory
+
 
 class ExecutorStopped(RuntimeError):
     """The executor was terminated (an interrupted or failed run) while a job was queued or running."""
@@ -196,6 +198,7 @@ def _init_worker(parent_pid: int, registrations: bytes | None = None) -> None:
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(1, user_api="blas")
+    keep_freed_memory()
 
 
 def _noop(seconds: float) -> None:
