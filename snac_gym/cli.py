@@ -8,12 +8,16 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+import time
+import types
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Optional
 
 import typer
+
+from snac_gym._signals import inside_finaliser, send_again
 
 app = typer.Typer(
     name="snac-gym",
@@ -239,7 +243,10 @@ def _sigterm_as_interrupt() -> Iterator[None]:
     """Turn SIGTERM (and SIGINT) into KeyboardInterrupt naming the signal while the block runs, so that
     SIGTERM ends the run as Ctrl-C does (workers stopped, one line) instead of killing this process mid-write."""
 
-    def interrupt(signum: int, frame: object) -> None:
+    def interrupt(signum: int, frame: types.FrameType | None) -> None:
+        if inside_finaliser(frame):  # raised there, the interrupt would be printed and dropped
+            send_again(signum)
+            return
         _received.append(signal.Signals(signum).name)
         raise KeyboardInterrupt(signal.Signals(signum).name)
 
@@ -300,8 +307,6 @@ def evaluate(
     sweep_span: Optional[float] = typer.Option(None, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4)."),
 ) -> None:
     """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
-    import time
-
     from evaluation.options import (
         check_option_combinations,
         parse_controllers,
