@@ -6,14 +6,28 @@ backwards from θ_K. As NumPy operations that was a dozen passes over the array,
 reductions over its last axis of m = 6 or 7 values, where NumPy's per-row overhead dominates: more
 time than the rollout's cost itself. Here each is one pass. Every figure is a maximum, a minimum, a
 count or a sequential running sum, computed with the same floating-point operations as the NumPy
-expressions, so the results are the same bit for bit (``tests/test_metrics_kernel.py``).
+expressions, so the results are the same bit for bit (``tests/test_metrics_kernel.py``), a NaN
+included: as in NumPy, a maximum or minimum over values with a NaN is NaN, and a NaN is the peak.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from snac_gym.compiled import kernel
+
+
+@njit(cache=True, nogil=True)
+def _above(value: float, best: float) -> bool:  # pragma: no cover - compiled
+    """Whether ``value`` replaces ``best`` as a running maximum, NumPy's way: a NaN wins and then stays."""
+    return value > best or (value != value and best == best)
+
+
+@njit(cache=True, nogil=True)
+def _below(value: float, best: float) -> bool:  # pragma: no cover - compiled
+    """The same for a running minimum."""
+    return value < best or (value != value and best == best)
 
 
 def _examples() -> tuple:
@@ -47,14 +61,18 @@ def command_extremes(
             for j in range(m):
                 u = commands[b, k, j]
                 magnitude = abs(u)
-                fraction = max(fraction, magnitude / limits[j])
-                largest = max(largest, magnitude)
+                ratio = magnitude / limits[j]
+                if _above(ratio, fraction):
+                    fraction = ratio
+                if _above(magnitude, largest):
+                    largest = magnitude
                 reached = reached or magnitude >= at_limit[j]
                 change = abs((u - commands[b, k - 1, j]) / dt) if k > 0 else abs(u / dt)
-                rate = max(rate, change)
-            if fraction > best:  # strictly: the first step of the peak, as np.argmax
+                if _above(change, rate):
+                    rate = change
+            if _above(fraction, best):  # strictly above: the first step of the peak, as np.argmax
                 best, best_step = fraction, k
-            if largest > best_abs:
+            if _above(largest, best_abs):
                 best_abs, best_abs_step = largest, k
             at += reached
         peak[b], peak_step[b], peak_abs[b], peak_abs_step[b] = best, best_step, best_abs, best_abs_step
@@ -77,7 +95,9 @@ def reverse_sum_extremes(
             high, low = total, total
             for k in range(steps - 2, -1, -1):
                 total += commands[b, k, j]
-                high = max(high, total)
-                low = min(low, total)
+                if _above(total, high):
+                    high = total
+                if _below(total, low):
+                    low = total
             largest[b, j], smallest[b, j] = high, low
     return largest, smallest

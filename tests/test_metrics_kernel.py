@@ -50,6 +50,25 @@ def test_command_extremes_are_the_numpy_expressions_bit_for_bit(seed, count, ste
     assert compiled[1][0] == 0 and compiled[0][0] == 0.0  # at rest: step 0, peak 0
 
 
+def test_a_nan_or_an_inf_command_gives_numpys_figures():
+    """Not what the evaluator's engines let through (they refuse a non-finite command), but what a caller
+    of rollout_metrics with other rollouts gets: NaN as NumPy's maximum gives it, never a finite peak."""
+    rng = np.random.default_rng(5)
+    limits = np.full(6, 2.0)
+    commands = rng.uniform(-1.0, 1.0, (4, 20, 6))
+    commands[0, 7, 2] = np.nan
+    commands[1, 3, 5] = np.inf
+    commands[2, 0, 0] = commands[2, 11, 4] = np.nan  # two NaNs: the first is the peak's step
+    compiled = command_extremes(commands, limits, limits * (1.0 - 1e-9), 0.008)
+    for got, expected in zip(compiled, _numpy_extremes(commands, limits, limits * (1.0 - 1e-9), 0.008), strict=True):
+        np.testing.assert_array_equal(got, expected)
+    assert np.isnan(compiled[0][[0, 2]]).all() and compiled[1][0] == 7 and compiled[1][2] == 0
+    sums = np.cumsum(commands[:, ::-1], axis=1)
+    largest, smallest = reverse_sum_extremes(commands)
+    np.testing.assert_array_equal(largest, sums.max(axis=1))
+    np.testing.assert_array_equal(smallest, sums.min(axis=1))
+
+
 @pytest.mark.parametrize("seed, count, steps, m", [(0, 6, 80, 6), (1, 2, 1, 6), (2, 3, 2, 7)])
 def test_reverse_sum_extremes_are_those_of_numpys_cumsum(seed, count, steps, m):
     commands = np.random.default_rng(seed).normal(size=(count, steps, m))
