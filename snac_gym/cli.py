@@ -17,7 +17,7 @@ from typing import Optional
 
 import typer
 
-from snac_gym._signals import inside_finaliser, send_again
+from snac_gym._signals import cannot_raise_here, send_again
 
 app = typer.Typer(
     name="snac-gym",
@@ -244,7 +244,7 @@ def _sigterm_as_interrupt() -> Iterator[None]:
     SIGTERM ends the run as Ctrl-C does (workers stopped, one line) instead of killing this process mid-write."""
 
     def interrupt(signum: int, frame: types.FrameType | None) -> None:
-        if inside_finaliser(frame):  # raised there, the interrupt would be printed and dropped
+        if cannot_raise_here(frame):  # raised there, the interrupt would be dropped or turned into a SystemError
             send_again(signum)
             return
         _received.append(signal.Signals(signum).name)

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym._signals import inside_finaliser, send_again
+from snac_gym._signals import cannot_raise_here, send_again
 from snac_gym.kinematics import Kinematics
 from snac_gym.real.connections import SERIES_FREQUENCY, ConnectionFailure, DryRunConnection, SimulatedConnection, URRTDEConnection
 from snac_gym.real.env import RealUREnv
@@ -64,7 +64,7 @@ class SignalGuard:
         self.deferred = False
 
     def handle(self, signum: int, frame: Any) -> None:
-        if inside_finaliser(frame):  # raised there, it would be printed and dropped, and the arm would go on
+        if cannot_raise_here(frame):  # raised there, it would be printed and dropped, and the arm would go on
             send_again(signum)
             return
         self.received.append(signum)
