@@ -24,14 +24,40 @@ def _above(value: float, best: float) -> bool:  # pragma: no cover - compiled
     return value > best or (value != value and best == best)
 
 
-@njit(cache=True, nogil=True)
-def _below(value: float, best: float) -> bool:  # pragma: no cover - compiled
-    """The same for a running minimum."""
-    return value < best or (value != value and best == best)
-
-
 def _examples() -> tuple:
     return (np.ones((1, 2, 6)), np.ones(6), np.ones(6), 0.01)
+
+
+@njit(cache=True, nogil=True)
+def _rollout_extremes(commands, b, limits, at_limit, dt, nan_aware):  # pragma: no cover - compiled
+    """:func:`command_extremes` of rollout ``b``, and whether a NaN came up. Without ``nan_aware`` the
+    maxima are plain ones, which skip a NaN; the caller then computes the rollout again with it."""
+    steps, m = commands.shape[1], commands.shape[2]
+    best, best_step, best_abs, best_abs_step, rate, at, nan = -1.0, 0, -1.0, 0, 0.0, 0, False
+    for k in range(steps):
+        fraction, largest, reached = -1.0, -1.0, False
+        for j in range(m):
+            u = commands[b, k, j]
+            magnitude = abs(u)
+            ratio = magnitude / limits[j]
+            change = abs((u - commands[b, k - 1, j]) / dt) if k > 0 else abs(u / dt)
+            reached = reached or magnitude >= at_limit[j]
+            if nan_aware:
+                if _above(ratio, fraction):
+                    fraction = ratio
+                if _above(magnitude, largest):
+                    largest = magnitude
+                if _above(change, rate):
+                    rate = change
+            else:
+                fraction, largest, rate = max(fraction, ratio), max(largest, magnitude), max(rate, change)
+                nan |= (ratio != ratio) | (change != change)
+        if _above(fraction, best):  # strictly above: the first step of the peak, as np.argmax
+            best, best_step = fraction, k
+        if _above(largest, best_abs):
+            best_abs, best_abs_step = largest, k
+        at += reached
+    return best, best_step, best_abs, best_abs_step, rate, at, nan
 
 
 @kernel(_examples)
@@ -47,7 +73,7 @@ def command_extremes(
     ``‖uₖ‖∞`` and its first step; the largest ``|(uₖⱼ − uₖ₋₁ⱼ)/Δt|`` with u₋₁ = 0; and the number of
     steps with some ``|uₖⱼ| ≥ at_limit[j]``.
     """
-    count, steps, m = commands.shape
+    count = commands.shape[0]
     peak = np.empty(count)
     peak_step = np.empty(count, dtype=np.int64)
     peak_abs = np.empty(count)
@@ -55,28 +81,10 @@ def command_extremes(
     max_abs_rate = np.empty(count)
     steps_at_limit = np.empty(count, dtype=np.int64)
     for b in range(count):
-        best, best_step, best_abs, best_abs_step, rate, at = -1.0, 0, -1.0, 0, 0.0, 0
-        for k in range(steps):
-            fraction, largest, reached = -1.0, -1.0, False
-            for j in range(m):
-                u = commands[b, k, j]
-                magnitude = abs(u)
-                ratio = magnitude / limits[j]
-                if _above(ratio, fraction):
-                    fraction = ratio
-                if _above(magnitude, largest):
-                    largest = magnitude
-                reached = reached or magnitude >= at_limit[j]
-                change = abs((u - commands[b, k - 1, j]) / dt) if k > 0 else abs(u / dt)
-                if _above(change, rate):
-                    rate = change
-            if _above(fraction, best):  # strictly above: the first step of the peak, as np.argmax
-                best, best_step = fraction, k
-            if _above(largest, best_abs):
-                best_abs, best_abs_step = largest, k
-            at += reached
-        peak[b], peak_step[b], peak_abs[b], peak_abs_step[b] = best, best_step, best_abs, best_abs_step
-        max_abs_rate[b], steps_at_limit[b] = rate, at
+        figures = _rollout_extremes(commands, b, limits, at_limit, dt, False)
+        if figures[6]:  # a NaN: NumPy's maxima return it, and its first step
+            figures = _rollout_extremes(commands, b, limits, at_limit, dt, True)
+        peak[b], peak_step[b], peak_abs[b], peak_abs_step[b], max_abs_rate[b], steps_at_limit[b] = figures[:6]
     return peak, peak_step, peak_abs, peak_abs_step, max_abs_rate, steps_at_limit
 
 
@@ -95,9 +103,8 @@ def reverse_sum_extremes(
             high, low = total, total
             for k in range(steps - 2, -1, -1):
                 total += commands[b, k, j]
-                if _above(total, high):
-                    high = total
-                if _below(total, low):
-                    low = total
+                high, low = max(high, total), min(low, total)
+            if total != total:  # a sum turned NaN stays NaN to the last one: NumPy's extremes are NaN
+                high = low = total
             largest[b, j], smallest[b, j] = high, low
     return largest, smallest
