@@ -64,7 +64,7 @@ class SignalGuard:
         self.deferred = False
 
     def handle(self, signum: int, frame: Any) -> None:
-        if cannot_raise_here(frame):  # raised there, it would be printed and dropped, and the arm would go on
+        if cannot_raise_here(frame):  # raised there, it would be dropped (or a SystemError), and the arm would go on
             send_again(signum)
             return
         self.received.append(signum)
