@@ -13,6 +13,7 @@ Timing bounds are loose: the machine may be shared.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -341,17 +342,32 @@ def test_the_emulator_refuses_bad_fault_arguments(emu):
 # ---------------------------------------------------------------------------- the whole command
 
 
+#: The safety layer's stops for a host that fell behind: a property of the machine, not of the code.
+HOST_TIMING_STOPS = ("control loop stalled", "control loop missed its")
+
+
 def test_snac_gym_real_against_the_emulator_reaches_within_1mm_with_the_usual_outputs(emu, tmp_path):
     from snac_gym.real.run import run_real_episode
 
-    result = run_real_episode(
-        task="reach", controller="snac", out_dir=tmp_path, connection="rtde", host=HOST, steps=1000,
-        safety=SafetyLimits(max_stale_periods=10),
-    )  # fmt: skip
+    # The run keeps the default 40 ms stall limit, as `snac-gym real` does. A shared host stalls past
+    # it now and then (41 ms once in a CI run); the arm is then rightly stopped, and the run is made
+    # once more. Any other stop, or a second timing stop, fails the test.
+    for attempt in range(2):
+        emu.reset()
+        out = tmp_path / f"attempt{attempt}"
+        result = run_real_episode(
+            task="reach", controller="snac", out_dir=out, connection="rtde", host=HOST, steps=1000,
+            safety=SafetyLimits(max_stale_periods=10),
+        )  # fmt: skip
+        if attempt == 0 and result.stop_reason is not None and result.stop_reason.startswith(HOST_TIMING_STOPS):
+            assert max(map(abs, emu.status()["qd"])) == 0.0  # stopped all the same
+            warnings.warn(f"the host fell behind, run made again: {result.stop_reason}", stacklevel=1)
+            continue
+        break
     assert result.stop_reason is None, result.stop_reason
     final_error = float(np.linalg.norm(result.demo.log[["e_0", "e_1", "e_2"]].to_numpy()[-1]))
     assert final_error < 1e-3
-    names = {p.name for p in tmp_path.iterdir()}
+    names = {p.name for p in out.iterdir()}
     assert {
         "reach_snac_log.parquet",
         "reach_snac_figure3.png",
