@@ -76,6 +76,24 @@ def test_seeded_rollouts_are_bit_identical(env_id):
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
+def test_an_env_without_a_render_mode_loads_no_meshes_and_moves_bit_for_bit_as_a_drawn_one(env_id):
+    import pybullet as p
+
+    env = gym.make(env_id)
+    actions = _actions(env, 120, scale=1.0)
+    base = env.unwrapped
+    assert p.getVisualShapeData(base.arm.body.body, physicsClientId=base.sim.client) == ()
+    env.close()
+    drawn = gym.make(env_id, render_mode="rgb_array", render_width=32, render_height=32)
+    assert len(p.getVisualShapeData(drawn.unwrapped.arm.body.body, physicsClientId=drawn.unwrapped.sim.client)) > 0
+    drawn.close()
+    plain = _rollout(env_id, 5, actions)
+    shown = _rollout(env_id, 5, actions, render_mode="rgb_array", render_width=32, render_height=32)
+    np.testing.assert_array_equal(plain[0], shown[0])
+    np.testing.assert_array_equal(plain[1], shown[1])
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
 def test_reset_restores_the_saved_simulator_state(env_id):
     options = {"q0": PAPER_Q0}
     env = gym.make(env_id)
