@@ -530,7 +530,7 @@ class SimulatedConnection:
         self.dt = 1.0 / self.frequency
         self.realtime = realtime
         self.sim = PyBulletSim(self.dt, n_substeps)
-        self.arm = SimulatedArm(self.sim, self.kinematics)
+        self.arm = SimulatedArm(self.sim, self.kinematics, meshes=False)  # never drawn: loads in ms, not 0.3 s
         self._initial_state = self.sim.save_state()
         self.arm.set_joint_positions(
             nominal_configuration(self.kinematics) if home is None else np.asarray(home, float)
