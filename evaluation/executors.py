@@ -176,8 +176,9 @@ def start_method(registrations: bytes | None) -> str | None:
     return "forkserver"
 
 
-def _init_worker(parent_pid: int, registrations: bytes | None = None) -> None:
-    """Worker initialiser: die with the parent, leave Ctrl-C to it, one BLAS thread per process.
+def _init_worker(parent_pid: int, registrations: bytes | None = None, compile_locks: Sequence[Any] = ()) -> None:
+    """Worker initialiser: die with the parent, leave Ctrl-C to it, one BLAS thread per process, the
+    compiled kernels ready (compiled once among the workers, :func:`~snac_gym.compiled.warm_up_shared`).
 
     SIGINT reaches every process of the terminal's foreground group; the parent stops the run
     and ends the workers, so a worker ignores it rather than printing its own traceback.
@@ -199,6 +200,10 @@ def _init_worker(parent_pid: int, registrations: bytes | None = None) -> None:
 
     threadpool_limits(1, user_api="blas")
     keep_freed_memory()
+    if compile_locks:
+        from snac_gym.compiled import warm_up_shared
+
+        warm_up_shared(compile_locks)
 
 
 def _noop(seconds: float) -> None:
@@ -242,11 +247,14 @@ class ProcessExecutor:
         if method == "forkserver":
             context.set_forkserver_preload(_PRELOAD)
         self.start_method = context.get_start_method()
+        from snac_gym.compiled import KERNEL_MODULES
+
+        compile_locks = tuple(context.Lock() for _ in KERNEL_MODULES)
         self._pool = ProcessPoolExecutor(
             max_workers=workers,
             mp_context=context,
             initializer=_init_worker,
-            initargs=(os.getpid(), registrations if method == "forkserver" else None),
+            initargs=(os.getpid(), registrations if method == "forkserver" else None, compile_locks),
         )
         # Start every worker now, from this thread (one job each, submitted together: the pool
         # starts a process per job while none is idle): the parent-death signal of a forked worker

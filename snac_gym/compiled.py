@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -27,6 +27,8 @@ POLICY_KERNEL_MODULES = (
 #: Every module that defines a kernel (the evaluator's metrics and optimum too).
 KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "snac_gym.metrics_kernel", "evaluation.optimal_kernels")
 _KERNELS: list[Kernel] = []
+#: Longest wait (s) of :func:`warm_up_shared` for another process's compile of one module (a few s).
+_SHARED_COMPILE_WAIT_S = 120.0
 
 
 class Kernel:
@@ -82,6 +84,42 @@ def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     return time.perf_counter() - started
 
 
+def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODULES) -> list[str]:
+    """:func:`warm_up` of ``modules`` in processes that share the compiles; the modules this one compiled.
+
+    ``locks`` holds one ``multiprocessing`` lock per module, the same for every process. A process
+    takes each lock it finds free and compiles (or loads) that module's kernels while it holds
+    it; it then waits for each module another process held, and loads that from the cache the
+    other wrote. On a fresh install, where every kernel compiles, two evaluator workers took the
+    same compiles at once and the run's first phase 5 s longer; now each compile happens once.
+
+    Raises:
+        ValueError: If there is not one lock per module.
+    """
+    if len(locks) != len(modules):
+        raise ValueError(f"need one lock per module ({len(modules)}), got {len(locks)}")
+    taken, waiting = [], []
+    for module, lock in zip(modules, locks, strict=True):
+        if lock.acquire(block=False):
+            try:
+                warm_up((module,))
+            finally:
+                lock.release()
+            taken.append(module)
+        else:
+            waiting.append((module, lock))
+    for module, lock in waiting:
+        # Released once the process holding it has written the module's cache; a process that died
+        # holding it never releases it, and this one then compiles the module itself.
+        got = lock.acquire(timeout=_SHARED_COMPILE_WAIT_S)
+        try:
+            warm_up((module,))
+        finally:
+            if got:
+                lock.release()
+    return taken
+
+
 def _with_stop_signals_held(
     function: Callable[..., Any], args: tuple[Any, ...], kwargs: dict[str, Any] | None = None
 ) -> Any:
@@ -100,4 +138,4 @@ def _with_stop_signals_held(
             signal.raise_signal(received[0])
 
 
-__all__ = ["KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "kernel", "warm_up"]
+__all__ = ["KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "kernel", "warm_up", "warm_up_shared"]
