@@ -28,7 +28,7 @@ POLICY_KERNEL_MODULES = (
 KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "snac_gym.metrics_kernel", "evaluation.optimal_kernels")
 _KERNELS: list[Kernel] = []
 #: Longest wait (s) of :func:`warm_up_shared` for another process's compile of one module (a few s).
-_SHARED_COMPILE_WAIT_S = 120.0
+_SHARED_COMPILE_WAIT_S = 60.0
 
 
 class Kernel:
@@ -100,7 +100,7 @@ def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODUL
         raise ValueError(f"need one lock per module ({len(modules)}), got {len(locks)}")
     taken, waiting = [], []
     for module, lock in zip(modules, locks, strict=True):
-        if lock.acquire(block=False):
+        if lock.acquire(False):  # not blocking (multiprocessing and threading locks alike)
             try:
                 warm_up((module,))
             finally:
@@ -123,7 +123,7 @@ def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODUL
 def _with_stop_signals_held(
     function: Callable[..., Any], args: tuple[Any, ...], kwargs: dict[str, Any] | None = None
 ) -> Any:
-    """``function(*args, **kwargs)`` with SIGINT/SIGTERM recorded, then the first one received raised again."""
+    """``function(*args, **kwargs)`` with SIGINT/SIGTERM recorded, then each one received raised again."""
     kwargs = kwargs or {}
     if threading.current_thread() is not threading.main_thread():  # handlers run, and are set, in the main thread only
         return function(*args, **kwargs)
@@ -134,8 +134,10 @@ def _with_stop_signals_held(
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
-        if received:
-            signal.raise_signal(received[0])
+        # Each signal received, once, in order: a worker ignores SIGINT but must still die of the
+        # SIGTERM that came after it; where a handler raises, the first one raised ends this loop.
+        for signum in dict.fromkeys(received):
+            signal.raise_signal(signum)
 
 
 __all__ = ["KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "kernel", "warm_up", "warm_up_shared"]

@@ -36,6 +36,29 @@ def test_a_signal_during_the_held_call_is_raised_to_the_previous_handler_once_it
         signal.signal(signal.SIGTERM, previous)
 
 
+WORKER_DRIVER = r"""
+import os, signal, sys
+from snac_gym.compiled import _with_stop_signals_held
+
+signal.signal(signal.SIGINT, signal.SIG_IGN)  # as an evaluator worker: Ctrl-C is the parent's, SIGTERM ends it
+signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+def compile_like():
+    os.kill(os.getpid(), signal.SIGINT)  # the terminal's Ctrl-C, to the whole group
+    os.kill(os.getpid(), signal.SIGTERM)  # then the parent ending its workers
+    return "compiled"
+
+print(_with_stop_signals_held(compile_like, ()), flush=True)
+print("survived", flush=True)
+"""
+
+
+def test_a_worker_that_ignores_sigint_still_dies_of_the_sigterm_that_came_after_it_during_a_compile():
+    done = subprocess.run([sys.executable, "-c", WORKER_DRIVER], capture_output=True, text=True, timeout=60)
+    assert done.returncode == -signal.SIGTERM, done.stdout + done.stderr
+    assert "survived" not in done.stdout
+
+
 DRIVER = r"""
 import os, signal, sys, threading, time
 import numpy as np
@@ -93,3 +116,55 @@ def test_after_the_warm_up_no_controller_step_compiles_anything(controller, task
         obs, *_ = env.step(policy.act(obs))
     env.close()
     assert {k.__name__: len(k.dispatcher.signatures) for k in _KERNELS} == compiled
+
+
+SHARED_DRIVER = r"""
+import json, multiprocessing, sys
+from snac_gym.compiled import _KERNELS, warm_up_shared
+
+MODULES = ("evaluation.optimal_kernels", "snac_gym.metrics_kernel")
+
+def work(locks, barrier, queue):
+    barrier.wait()  # both start together, as the evaluator's workers do
+    taken = warm_up_shared(locks, MODULES)
+    compiled = sorted({k.__wrapped__.__module__ for k in _KERNELS if sum(k.dispatcher.stats.cache_misses.values())})
+    loaded = sorted({k.__wrapped__.__module__ for k in _KERNELS if sum(k.dispatcher.stats.cache_hits.values())})
+    queue.put({"taken": taken, "compiled": compiled, "loaded": loaded})
+
+context = multiprocessing.get_context(sys.argv[1])
+locks, barrier, queue = [context.Lock() for _ in MODULES], context.Barrier(2), context.Queue()
+workers = [context.Process(target=work, args=(locks, barrier, queue)) for _ in range(2)]
+for worker in workers:
+    worker.start()
+print(json.dumps([queue.get(timeout=120) for _ in workers]))
+for worker in workers:
+    worker.join()
+"""
+
+
+def test_processes_that_share_the_compile_locks_compile_each_kernel_module_once(tmp_path):
+    import json
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}  # an empty cache: every kernel compiles
+    done = subprocess.run([sys.executable, "-c", SHARED_DRIVER, "fork"], capture_output=True, text=True, timeout=180, env=env)
+    assert done.returncode == 0, done.stderr
+    reports = json.loads(done.stdout)
+    modules = {"evaluation.optimal_kernels", "snac_gym.metrics_kernel"}
+    compiled = [module for report in reports for module in report["compiled"]]
+    assert sorted(compiled) == sorted(modules)  # each module compiled by one process only
+    for report in reports:
+        assert set(report["compiled"]) <= set(report["taken"])
+        assert set(report["compiled"]) | set(report["loaded"]) == modules  # the rest came from the other's cache
+
+
+def test_a_compile_lock_never_released_delays_the_warm_up_and_does_not_block_it(monkeypatch):
+    import threading
+
+    import snac_gym.compiled as compiled
+
+    monkeypatch.setattr(compiled, "_SHARED_COMPILE_WAIT_S", 0.2)
+    held = threading.Lock()
+    held.acquire()  # as by a process that died while compiling
+    assert compiled.warm_up_shared([held], ("evaluation.optimal_kernels",)) == []
+    with pytest.raises(ValueError, match="one lock per module"):
+        compiled.warm_up_shared([], ("evaluation.optimal_kernels",))
