@@ -103,10 +103,21 @@ def _rows(out: Path) -> pd.DataFrame:
 
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory) -> pd.DataFrame:
-    out = tmp_path_factory.mktemp("uninterrupted") / "run"
-    done = _evaluate(out, "--workers", "1")
-    assert done.returncode == 0, done.stderr
-    return _rows(out)
+    """The rows of an uninterrupted run: made once per test session, the xdist workers sharing it."""
+    import fcntl
+    import shutil
+
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # the session's folder, above each worker's own
+    out = shared / "interrupts-uninterrupted"
+    with open(shared / "interrupts-uninterrupted.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # one worker runs it, the other waits and reads it
+        if not (out / "results.csv").exists():
+            shutil.rmtree(out, ignore_errors=True)  # what a failed attempt left
+            done = _evaluate(out, "--workers", "1")
+            assert done.returncode == 0, done.stderr
+        return _rows(out)
 
 
 @pytest.mark.parametrize(
