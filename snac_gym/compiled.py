@@ -85,13 +85,13 @@ def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
 
 
 def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODULES) -> list[str]:
-    """:func:`warm_up` of ``modules`` in processes that share the compiles; the modules this one compiled.
+    """:func:`warm_up` of ``modules`` in processes that share the compiles; the modules whose lock this one took.
 
     ``locks`` holds one ``multiprocessing`` lock per module, the same for every process. A process
     takes each lock it finds free and compiles (or loads) that module's kernels while it holds
     it; it then waits for each module another process held, and loads that from the cache the
-    other wrote. On a fresh install, where every kernel compiles, two evaluator workers took the
-    same compiles at once and the run's first phase 5 s longer; now each compile happens once.
+    other wrote. On a fresh install, where every kernel compiles, two evaluator workers made the
+    same compiles at once (the run's first phase 5-8 s longer); now each compile happens once.
 
     Raises:
         ValueError: If there is not one lock per module.
