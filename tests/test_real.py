@@ -10,6 +10,7 @@ import pytest
 from snac_gym.policies.base import BasePolicy
 from snac_gym.real import (
     EMERGENCY_STOP,
+    NORMAL,
     PROTECTIVE_STOP,
     ConnectionFailure,
     DryRunConnection,
@@ -111,6 +112,44 @@ def test_controller_stops_end_the_episode(fault):
     _assert_stopped(env, connection, info, terminated, fault)
     with pytest.raises(RuntimeError, match=fault):
         env.reset()  # cleared on the pendant first
+
+
+class _RefusingConnection(SimulatedConnection):
+    """A controller that refuses the command in flight when a stop (or, with ``always``, anything) paused its
+    program before the host read the stop: what ur_rtde's ``speedJ`` returning False looks like."""
+
+    def __init__(self, always: bool = False) -> None:
+        super().__init__(realtime=False)
+        self.always = always
+
+    def command(self, velocities: np.ndarray) -> None:
+        if self.always or self.safety_state() != NORMAL:
+            raise ConnectionFailure("the arm at sim rejected speedJ (connection lost or program stopped)")
+        super().command(velocities)
+
+
+@pytest.mark.parametrize("fault", [PROTECTIVE_STOP, EMERGENCY_STOP])
+def test_a_stop_first_seen_as_a_refused_command_ends_the_episode_as_a_controller_stop(fault):
+    connection = _RefusingConnection()
+    env = RealUREnv("reach", connection)
+    env.reset(options={"q0": PAPER_Q0})
+    env.step(np.full(6, 0.01))
+    connection.inject_fault(fault)
+    obs, _, terminated, _, info = env.step(np.full(6, 0.01))
+    assert info["safety_state"] == fault and info["safety"] == f"controller reports {fault}"
+    np.testing.assert_array_equal(info["command"], np.zeros(6))  # refused: logged as not sent
+    _assert_stopped(env, connection, info, terminated, fault)
+    with pytest.raises(RuntimeError, match=fault):
+        env.reset()
+
+
+def test_a_refused_command_without_a_reported_stop_is_a_lost_link():
+    connection = _RefusingConnection(always=True)
+    env = RealUREnv("reach", connection)
+    env.reset(options={"q0": PAPER_Q0})
+    with pytest.raises(ConnectionFailure, match="rejected speedJ"):
+        env.step(np.full(6, 0.01))
+    assert connection.stopped and "rejected speedJ" in env.stop_reason
 
 
 def test_missed_deadlines_stop_the_arm():

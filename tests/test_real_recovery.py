@@ -87,16 +87,13 @@ def test_a_protective_stop_unlocked_after_5_s_resumes_and_the_episode_ends_withi
 
 def test_without_recoveries_a_protective_stop_ends_the_run_as_before(emu, tmp_path):
     emu.schedule(1.0, "protective_stop")
-    try:
-        result = run_real_episode(
-            task="reach", controller=CONTROLLER, out_dir=tmp_path, connection="rtde", host=HOST, steps=STEPS,
-            safety=LOOSE_TIMING,
-        )  # fmt: skip
-    except ConnectionFailure as exc:  # the speedJ in flight when the program paused was rejected first
-        assert "rejected speedJ" in str(exc)
-    else:
-        assert result.stop_reason == "controller reports protective_stop" and result.recoveries == []
-        assert len(result.demo.log) < 200
+    # The same stop whether the host reads it first or the paused program refuses the speedJ in flight.
+    result = run_real_episode(
+        task="reach", controller=CONTROLLER, out_dir=tmp_path, connection="rtde", host=HOST, steps=STEPS,
+        safety=LOOSE_TIMING,
+    )  # fmt: skip
+    assert result.stop_reason == "controller reports protective_stop" and result.recoveries == []
+    assert len(result.demo.log) < 200
     events = emu.status()["events"]
     assert not any("unlock" in e for e in events) and emu.status()["safety"] == "PROTECTIVE_STOP"
     _assert_no_unsafe_command(emu)

@@ -261,20 +261,30 @@ class RealUREnv(TaskEnvCore):
     ) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """Resume if allowed (the step then counts, its gap marked); else ``exc`` propagates.
 
-        A client still serving means the link is up and the controller refused the command: a
-        protective stop that paused its program while the command was in flight is resumed as
-        one. A client given up (the link lost) is replaced by a new one first.
+        A client still serving means the link is up and the controller refused the command. If the
+        controller reports a stop, the command was in flight when the stop paused its program: a
+        protective stop is resumed as one where recoveries are allowed, and any other stop ends the
+        episode as a controller stop, as when the host reads it first. A client given up (the link
+        lost) is replaced by a new one first.
         """
         reconnect = getattr(self.connection, "reconnect", None)
-        if reconnect is None or not self._may_recover():
-            raise exc
+        recoverable = reconnect is not None and self._may_recover()
         seen = time.monotonic()
         if getattr(self.connection, "failure", None) is None:
-            self.connection.read_state()
+            try:
+                q, qdot = self.connection.read_state()
+            except ConnectionFailure:
+                raise exc from None
             state = self.connection.safety_state()
-            if state != PROTECTIVE_STOP:
+            if state == NORMAL:
                 raise exc
+            if state != PROTECTIVE_STOP or not recoverable:
+                self._obs = self._pack(q, qdot)
+                self._halt(f"controller reports {state}")
+                return self._finish((costs[0], 0.0, 0.0), np.zeros_like(command), safety=self.stop_reason, safety_state=state)
             kind, cause, cleared_by = PROTECTIVE_STOP_RECOVERY, f"controller reports {state}", ""
+        elif not recoverable:
+            raise exc
         else:
             self.connection.stop()  # the client is gone: this only records that the controller's watchdog stops the arm
             try:
