@@ -278,11 +278,12 @@ class RealUREnv(TaskEnvCore):
             state = self.connection.safety_state()
             if state == NORMAL:
                 raise exc
+            cause = f"controller reports {state}"
             if state != PROTECTIVE_STOP or not recoverable:
                 self._obs = self._pack(q, qdot)
-                self._halt(f"controller reports {state}")
-                return self._finish((costs[0], 0.0, 0.0), np.zeros_like(command), safety=self.stop_reason, safety_state=state)
-            kind, cause, cleared_by = PROTECTIVE_STOP_RECOVERY, f"controller reports {state}", ""
+                self._halt(cause)
+                return self._finish((costs[0], 0.0, 0.0), np.zeros_like(command), safety=cause, safety_state=state)
+            kind, cleared_by = PROTECTIVE_STOP_RECOVERY, ""
         elif not recoverable:
             raise exc
         else:
