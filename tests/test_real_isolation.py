@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from _loopback import emulator_host
 
 pytest.importorskip("rtde_control")
 pytestmark = pytest.mark.realtime
@@ -34,13 +35,13 @@ pytestmark = pytest.mark.realtime
 from snac_gym.real import ConnectionFailure, RealUREnv, SafetyLimits, URRTDEConnection  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 
-HOST = "127.0.0.1"
+HOST = emulator_host()
 #: Longest delay (s) between sending a command and the controller stamping it, on a busy host.
 DELIVERY = 0.1
 #: How the one line names a lost link or a client given up.
 LOST = (
     r"(link to the arm lost: ur_rtde began to reconnect by itself"
-    r"|connection to the arm at 127\.0\.0\.1 was lost"
+    rf"|connection to the arm at {re.escape(HOST)} was lost"
     r"|ur_rtde did not return from \w+ within \d+ ms"
     r"|the ur_rtde client was killed by SIG\w+)"
 )
@@ -49,7 +50,7 @@ SWEEP = np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
 
 @pytest.fixture(scope="module")
 def controller() -> Iterator[EmulatorProcess]:
-    with EmulatorProcess(series="cb", bind_timeout=90.0) as emulator:
+    with EmulatorProcess(series="cb", host=HOST, bind_timeout=90.0) as emulator:
         yield emulator
 
 

@@ -15,6 +15,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from _loopback import emulator_host
 
 pytest.importorskip("rtde_control")
 pytestmark = pytest.mark.realtime
@@ -25,7 +26,7 @@ from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 from snac_gym.real.recovery import RecoveryLimits  # noqa: E402
 from snac_gym.real.run import run_real_episode  # noqa: E402
 
-HOST = "127.0.0.1"
+HOST = emulator_host()
 #: Timing rules loosened: these tests are about resuming, and the host may be shared.
 LOOSE_TIMING = SafetyLimits(max_stale_periods=25, max_period=0.5, max_missed_deadlines=25)
 #: Longest delay (ms) after the controller reported a stop for a command already in flight to arrive.
@@ -39,7 +40,7 @@ STEPS = 750
 
 @pytest.fixture(scope="module")
 def controller() -> Iterator[EmulatorProcess]:
-    with EmulatorProcess(series="cb", bind_timeout=90.0) as emulator:
+    with EmulatorProcess(series="cb", host=HOST, bind_timeout=90.0) as emulator:
         yield emulator
 
 
