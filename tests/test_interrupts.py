@@ -75,11 +75,15 @@ ARGS = [
 TIMING_COLUMNS = ["optimal_solve_time"]
 
 
-def _evaluate(out: Path, *extra: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "snac_gym.cli", *ARGS, "--out", str(out), *extra],
-        capture_output=True, text=True, timeout=timeout,
-    )  # fmt: skip
+def _evaluate(out: Path, *extra: str) -> tuple[int, str]:
+    """``snac-gym evaluate`` with ARGS, in this process: an uninterrupted or resumed run needs no process
+    of its own (and the test process has paid the imports already). Returns the exit code and output."""
+    from typer.testing import CliRunner
+
+    from snac_gym.cli import app
+
+    result = CliRunner().invoke(app, [*ARGS, "--out", str(out), *extra])
+    return result.exit_code, result.output
 
 
 def _interrupted(tmp_path: Path, phase: str, signame: str, workers: int, delay: float, *extra: str):
@@ -115,8 +119,8 @@ def uninterrupted(tmp_path_factory) -> pd.DataFrame:
         fcntl.flock(lock, fcntl.LOCK_EX)  # one worker runs it, the other waits and reads it
         if not (out / "results.csv").exists():
             shutil.rmtree(out, ignore_errors=True)  # what a failed attempt left
-            done = _evaluate(out, "--workers", "1")
-            assert done.returncode == 0, done.stderr
+            code, output = _evaluate(out, "--workers", "1")
+            assert code == 0, output
         return _rows(out)
 
 
@@ -150,8 +154,8 @@ def test_an_interrupt_in_every_phase_ends_the_run_and_resume_gives_the_same_rows
             f"interrupted by {signame}: finished jobs are kept in {out}/; continue with --resume"
         ]
         again = ("--resume",)
-    resumed = _evaluate(out, "--workers", str(workers), *again)
-    assert resumed.returncode == 0, resumed.stderr
+    code, output = _evaluate(out, "--workers", str(workers), *again)
+    assert code == 0, output
     pd.testing.assert_frame_equal(_rows(out), uninterrupted, check_exact=True)
 
 
@@ -166,8 +170,8 @@ def test_an_interrupt_on_ray_ends_the_run(tmp_path, uninterrupted):
     assert where == "inside", err
     if process.returncode != 128 + signal.SIGTERM and RAY_CANCEL_ABORT in err:
         # Ray ended the process itself; what the run promises still holds: the finished jobs are kept.
-        resumed = _evaluate(out, "--workers", "2", "--resume")
-        assert resumed.returncode == 0, resumed.stderr
+        code, output = _evaluate(out, "--workers", "2", "--resume")
+        assert code == 0, output
         pd.testing.assert_frame_equal(_rows(out), uninterrupted, check_exact=True)
         pytest.xfail("Ray's core worker aborted on its cancellation race; the run resumed to the same rows")
     assert time.time() - fired_at < EXIT_BOUND_S + 5  # Ray's own shutdown takes a few seconds
