@@ -111,6 +111,27 @@ def test_weights_are_projected_onto_positive_definite_critics(ur10):
     np.testing.assert_array_equal(policy._project(weights[None])[0], weights)
 
 
+@pytest.mark.parametrize("weight_range", [(0.0, 1.0), (-1.0, 1.0)])
+def test_a_batch_reset_gives_each_episode_the_weights_of_its_own_reset(ur10, weight_range):
+    """reset_batch projects all draws at once; each row must be the single reset's, bit for bit,
+    whether the row needed the projection or not (with (-1, 1) most draws are indefinite)."""
+    def fresh() -> SNACHJBPolicy:
+        return SNACHJBPolicy(_context(ur10), initial_weight_range=weight_range, min_eigenvalue=0.2)
+
+    policy, seeds = fresh(), [*range(40), 7]
+    policy.reset_batch(seeds)
+    batch = policy.batch_critic_weights.copy()
+    rows = []
+    for seed in seeds:  # each as the reset of a fresh policy
+        single = fresh()
+        single.reset(seed=seed)
+        rows.append(single.critic_weights)
+    assert batch.tobytes() == np.array(rows).tobytes()
+    draws = np.array([np.random.default_rng(seed).uniform(*weight_range, size=policy.basis.size) for seed in range(40)])
+    projected = ~np.all(batch[:40] == draws, axis=1)
+    assert projected.any() and (weight_range[0] < 0 or not projected.all())  # both kinds of row were checked
+
+
 def test_reach_demo_critic_error_is_under_5_percent_at_the_end():
     from snac_gym.demo import run_demo
 
