@@ -34,6 +34,7 @@ reachable (a pose by the pose IK, with its orientation); a row that is not gives
 from __future__ import annotations
 
 import csv
+import functools
 import math
 import os
 import stat
@@ -106,6 +107,7 @@ def _sample_generator(seed: int, task: str, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(get_task(task).code, index)))
 
 
+@functools.lru_cache(maxsize=1 << 16)  # asked for each sample of every job of a run's knob search
 def policy_seed(seed: int, task: str, index: int) -> int:
     """The seed a policy is reset with for sample ``index`` of ``task`` (independent of N and workers)."""
     sequence = np.random.SeedSequence(seed, spawn_key=(get_task(task).code, index, _POLICY_SEED_KEY))

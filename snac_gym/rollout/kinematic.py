@@ -94,6 +94,8 @@ def _check_commands(
 ) -> None:
     if commands.shape != expected:
         raise RolloutError(f"{label}: act returned commands of shape {commands.shape} at step {k}, expected {expected}")
+    if np.isfinite(commands).all():  # one flat pass: a reduction over each row of 6 costs 5x more
+        return
     bad = ~np.isfinite(commands).all(axis=1)
     if bad.any():
         sample = samples[int(np.flatnonzero(bad)[0])]
