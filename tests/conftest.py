@@ -1,4 +1,5 @@
 import importlib.util
+import os
 
 import gymnasium as gym
 import numpy as np
@@ -30,6 +31,9 @@ HOST_TIMING_STOPS = [
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Skip the tests marked ``rl`` when torch or stable-baselines3 is not installed, saying why; give
     each ``realtime`` test one rerun after a host-timing stop."""
+    # The long real-time tests first (their marker's ``seconds``), so that two workers finish together.
+    realtime_seconds = {id(item): _realtime_seconds(item) for item in items}
+    items.sort(key=lambda item: -realtime_seconds[id(item)])  # stable: the others keep their order
     if config.pluginmanager.hasplugin("rerunfailures"):
         for item in items:
             if "realtime" in item.keywords and item.get_closest_marker("flaky") is None:
@@ -42,15 +46,18 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(skip)
 
 
+def _realtime_seconds(item: pytest.Item) -> float:
+    marker = item.get_closest_marker("realtime")
+    return float(marker.kwargs.get("seconds", 0.0)) if marker is not None else 0.0
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """One torch thread for the tests that train networks, as ``train-ppo`` uses: with two OpenMP
     threads on two busy cores, SAC's 200 updates of a 32×32 network in test_goal_envs.py took 52 s
-    instead of 4.6 s (both threads spin while the other test process or a worker holds a core)."""
-    try:
-        import torch
-    except ImportError:  # the rl extra is optional
-        return
-    torch.set_num_threads(1)
+    instead of 4.6 s (both threads spin while the other test process or a worker holds a core).
+    Set through OpenMP's variable, read when torch loads, so that a test process imports torch (1.4 s)
+    only if one of its tests needs it; NumPy's BLAS, loaded already, keeps its threads."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,8 @@
 """Long runs say where they are: plain progress lines on stderr where it is not a terminal (issue 14).
 
-The CLI runs in a subprocess with stdout and stderr on pipes, as under a log file or CI.
+The CLI runs in a subprocess with stdout and stderr on pipes, as under a log file or CI; the
+``--no-progress`` runs, which must write no line, run in this process (typer's CliRunner, stderr
+apart from stdout and not a terminal either), sparing a Python start and its imports.
 """
 
 from __future__ import annotations
@@ -79,7 +81,14 @@ def test_lines_are_wanted_off_a_terminal(tmp_path):
         assert wants_lines(handle)
 
 
-def _cli(arguments: list[str], cwd: Path) -> subprocess.CompletedProcess:
+def _cli(arguments: list[str], cwd: Path, in_process: bool = False) -> subprocess.CompletedProcess:
+    if in_process:
+        from typer.testing import CliRunner
+
+        from snac_gym.cli import app
+
+        result = CliRunner().invoke(app, arguments)
+        return subprocess.CompletedProcess(arguments, result.exit_code, result.stdout, result.stderr)
     return subprocess.run(
         [sys.executable, "-m", "snac_gym.cli", *arguments], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, cwd=cwd, timeout=300,
@@ -90,7 +99,7 @@ def _cli(arguments: list[str], cwd: Path) -> subprocess.CompletedProcess:
 def test_evaluate_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progress):
     arguments = ["evaluate", "--out", str(tmp_path / "run"), "--samples", "4", "--horizon", "0.3",
                  "--controllers", "dls,lqr", "--effort-reference", "dls", "--effort-samples", "0"]
-    result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path)
+    result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path, in_process=not progress)
     assert result.returncode == 0, result.stderr
     assert "Trajectory cost V/N" in result.stdout
     assert "rollouts" not in result.stdout  # the summary on stdout stays clean
@@ -109,7 +118,7 @@ def test_train_ppo_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, prog
 
     arguments = ["train-ppo", "--task", "reach", "--timesteps", "64", "--seed", "3", "--out", str(tmp_path / "run"),
                  "--config", str(_tiny_config(tmp_path))]
-    result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path)
+    result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path, in_process=not progress)
     assert result.returncode == 0, result.stderr
     assert "finished: " in result.stdout and "train-ppo:" not in result.stdout
     lines = [line for line in result.stderr.splitlines() if TRAIN_LINE.match(line)]

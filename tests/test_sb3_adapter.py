@@ -1,21 +1,18 @@
 """The SB3 VecEnv on the batched kinematic episodes: a DummyVecEnv of single envs, faster; PPO trains on it."""
 
+import importlib.util
+
 import gymnasium as gym
 import numpy as np
 import pytest
 
-pytest.importorskip("stable_baselines3")
+import snac_gym  # noqa: F401  (registers the ids)
+from snac_gym.tasks import TASKS
 
-from stable_baselines3 import PPO  # noqa: E402
-from stable_baselines3.common.env_checker import check_env  # noqa: E402
-from stable_baselines3.common.vec_env import DummyVecEnv  # noqa: E402
-
-import snac_gym  # noqa: E402, F401  (registers the ids)
-from snac_gym.envs.sb3 import SB3VectorEnv  # noqa: E402
-from snac_gym.ppo.config import resolve_config  # noqa: E402
-from snac_gym.ppo.train import make_training_env  # noqa: E402
-from snac_gym.ppo.vec_env import PPOVecEnv  # noqa: E402
-from snac_gym.tasks import TASKS  # noqa: E402
+if importlib.util.find_spec("stable_baselines3") is None:
+    pytest.skip("needs stable-baselines3 (the rl extra)", allow_module_level=True)
+# stable-baselines3 (and torch, 1.4 s) is imported by the tests, not at collection: a test process
+# that runs none of them does not pay for it.
 
 ENV_IDS = [task.env_id for task in TASKS.values()]
 
@@ -46,6 +43,10 @@ def _run_side_by_side(batched, dummy, steps, seed=7):
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_sb3_vec_env_is_a_dummy_vec_env_of_single_kinematic_envs(env_id):
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from snac_gym.envs.sb3 import SB3VectorEnv
+
     kwargs = {"action_type": "normalized", "reward_type": "shaped", "observation_dtype": np.float32}
     batched = SB3VectorEnv(env_id, 3, max_steps=6, **kwargs)
     dummy = DummyVecEnv([lambda: gym.make(env_id, physics="kinematic", max_episode_steps=6, **kwargs) for _ in range(3)])
@@ -56,6 +57,12 @@ def test_sb3_vec_env_is_a_dummy_vec_env_of_single_kinematic_envs(env_id):
 
 @pytest.mark.parametrize("task", ["reach", "track"])
 def test_ppo_vec_env_is_the_training_wrapper_episode_for_episode(task):
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from snac_gym.ppo.config import resolve_config
+    from snac_gym.ppo.train import make_training_env
+    from snac_gym.ppo.vec_env import PPOVecEnv
+
     config = resolve_config(task)
     config["env"] = {**config["env"], "max_steps": 5}
     batched = PPOVecEnv(config, num_envs=3)
@@ -65,6 +72,10 @@ def test_ppo_vec_env_is_the_training_wrapper_episode_for_episode(task):
 
 
 def test_ppo_trains_on_thousands_of_episodes_at_once():
+    from stable_baselines3 import PPO
+
+    from snac_gym.envs.sb3 import SB3VectorEnv
+
     venv = SB3VectorEnv("snac_gym/UR10Reach-v0", 256, action_type="normalized", reward_type="shaped", max_steps=50)
     model = PPO("MlpPolicy", venv, n_steps=4, batch_size=256, n_epochs=1, seed=0, device="cpu")
     model.learn(total_timesteps=3 * 4 * 256)
@@ -74,6 +85,8 @@ def test_ppo_trains_on_thousands_of_episodes_at_once():
 
 
 def test_single_kinematic_env_passes_sb3_check_env():
+    from stable_baselines3.common.env_checker import check_env
+
     env = gym.make("snac_gym/UR10Reach-v0", physics="kinematic", action_type="normalized",
                    observation_dtype=np.float32, max_episode_steps=20)
     check_env(env, warn=True)

@@ -62,6 +62,7 @@ def _assert_no_unsafe_command(emu: EmulatorProcess) -> None:
         assert "before it was reported" in text or (delay and float(delay.group(1)) <= IN_FLIGHT_MS), text
 
 
+@pytest.mark.realtime(seconds=15)  # about this long here: run first (conftest.py)
 def test_a_protective_stop_unlocked_after_5_s_resumes_and_the_episode_ends_within_1mm(emu, tmp_path):
     emu.schedule(2.0, "protective_stop")
     result = run_real_episode(
@@ -100,6 +101,7 @@ def test_without_recoveries_a_protective_stop_ends_the_run_as_before(emu, tmp_pa
     _assert_no_unsafe_command(emu)
 
 
+@pytest.mark.realtime(seconds=11)  # about this long here: run first (conftest.py)
 def test_a_dropped_link_that_comes_back_is_reconnected_and_the_episode_ends_within_1mm(emu, tmp_path):
     emu.schedule(2.0, "drop_connection", 1.0)
     result = run_real_episode(

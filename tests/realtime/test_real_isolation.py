@@ -113,6 +113,7 @@ def _seen(out: Path) -> float:
 # ---------------------------------------------------------------------------- controller faults
 
 
+@pytest.mark.realtime(seconds=6)  # about this long here: run first (conftest.py)
 @pytest.mark.parametrize(
     "faults",
     [
@@ -190,6 +191,7 @@ def test_stop_signals_stop_the_arm_and_write_the_log_through_ur_rtde(emu, tmp_pa
     _assert_at_rest_and_silent_since(emu, _seen(tmp_path))
 
 
+@pytest.mark.realtime(seconds=5)  # about this long here: run first (conftest.py)
 def test_a_host_killed_outright_takes_its_client_along_and_leaves_the_whole_stream_log(emu, tmp_path):
     run = _start_real(tmp_path)
     t_kill = _first_command(emu, run) + 1.5

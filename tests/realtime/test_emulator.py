@@ -342,6 +342,7 @@ def test_the_emulator_refuses_bad_fault_arguments(emu):
 # ---------------------------------------------------------------------------- the whole command
 
 
+@pytest.mark.realtime(seconds=14)  # about this long here: run first (conftest.py)
 def test_snac_gym_real_against_the_emulator_reaches_within_1mm_with_the_usual_outputs(emu, tmp_path):
     from snac_gym.real.run import run_real_episode
 
