@@ -18,6 +18,7 @@ Pairs where either cost is NaN are left out.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -59,11 +60,42 @@ def median_ratio_ci(
     ratios = ratios[np.isfinite(ratios)]
     if ratios.size == 0:
         return math.nan, math.nan, math.nan
-    index = np.random.default_rng(seed).integers(0, ratios.size, size=(resamples, ratios.size))
-    medians = np.median(ratios[index], axis=1)
+    medians = _resampled_medians(ratios, resamples, seed)
     tail = 100 * (1 - level) / 2
     low, high = np.percentile(medians, [tail, 100 - tail])
     return float(np.median(ratios)), float(low), float(high)
+
+
+def _resampled_medians(values: np.ndarray, resamples: int, seed: int) -> np.ndarray:
+    """``np.median(values[index], axis=1)`` for the bootstrap's ``(resamples, n)`` draw ``index``, bit for bit.
+
+    A report compares every controller with two others on the same samples, so the draw is the
+    same each time: how often each sample is drawn into each resample (:func:`_draw_counts`) is
+    kept, and the median of a resample is read off the cumulated counts of the sorted values,
+    twice as fast as sorting the resampled values. NumPy's median is the middle value, or the
+    mean of the two middle ones, ``(x + y) / 2``: the same arithmetic here.
+    """
+    n = values.size
+    order = np.argsort(values, kind="stable")
+    ascending = values[order]
+    drawn_up_to = np.cumsum(_draw_counts(n, resamples, seed)[:, order], axis=1)  # (resamples, n)
+
+    def kth_smallest(k: int) -> np.ndarray:
+        return ascending[np.argmax(drawn_up_to > k, axis=1)]
+
+    if n % 2:
+        return kth_smallest(n // 2)
+    return (kth_smallest(n // 2 - 1) + kth_smallest(n // 2)) / 2.0
+
+
+@functools.lru_cache(maxsize=4)
+def _draw_counts(n: int, resamples: int, seed: int) -> np.ndarray:
+    """How many times each of ``n`` samples is drawn into each resample, ``(resamples, n)``, read-only."""
+    index = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
+    flat = (index + n * np.arange(resamples)[:, None]).ravel()
+    counts = np.bincount(flat, minlength=resamples * n).reshape(resamples, n).astype(np.int32)
+    counts.setflags(write=False)
+    return counts
 
 
 def fraction_better(a: np.ndarray, b: np.ndarray) -> float:

@@ -291,6 +291,8 @@ class EvaluationRun:
             task_paths, task_todo = self._parts_to_run(OPTIMAL, key, jobs)
             paths.append(task_paths)
             todo += task_todo
+        # The longest jobs first (rows do not depend on the order), so that no worker is left with a long one at the end.
+        todo.sort(key=lambda job_path: -job_path[0].steps * len(job_path[0].samples))
         for index, result in self.executor.run(run_optimal_job, [job for job, _ in todo]):
             job, path = todo[index]
             self._store_rows(job, OPTIMAL, result, path, None, None)

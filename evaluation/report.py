@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -397,6 +398,28 @@ def _closing_lines(skipped: dict[str, str], timings: dict[str, float] | None, ex
             ),
         ]
     return lines + ["", "![Per-sample trajectory cost](cost_boxplot.png)", ""]
+
+
+def prefetch_report_modules() -> threading.Thread:
+    """Import what the reports need (scipy.stats, matplotlib's pyplot: 1-2 s) in a daemon thread and return it.
+
+    A run calls this when its workers start: its main process then mostly waits for them, and the
+    reports, written by it alone after the last job, no longer begin with these imports.
+    """
+
+    def load() -> None:
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot  # noqa: F401
+            import scipy.stats  # noqa: F401
+        except ImportError:  # the reports' own import says what is missing
+            pass
+
+    thread = threading.Thread(target=load, name="snac-gym report imports", daemon=True)
+    thread.start()
+    return thread
 
 
 def plot_cost_boxes(

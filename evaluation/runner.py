@@ -42,7 +42,7 @@ from evaluation.effort_matching import EffortRecord, Records, Results, controlle
 from evaluation.executors import open_executor
 from evaluation.optimal_reference import OPTIMAL, add_optimality
 from evaluation.passes import EvaluationRun
-from evaluation.report import write_reports
+from evaluation.report import prefetch_report_modules, write_reports
 from evaluation.rollout_progress import Progress
 from evaluation.run_config import EvaluationConfig
 from evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
@@ -71,6 +71,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     specs, skipped = resolve_controllers(config)
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
         with open_executor(config.workers, config.ray_address) as executor:
+            prefetch_report_modules()  # while the workers compute
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
             matched_on = _effort_set(config, space, executor, samples)
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(map(len, samples.values()))

@@ -24,6 +24,18 @@ def test_the_bootstrap_interval_is_the_percentiles_of_resampled_medians():
     assert median_ratio_ci(a, b, resamples=500, seed=7) == (median, low, high)  # seeded: reproducible
 
 
+@pytest.mark.parametrize("n", [1, 2, 7, 60, 1000, 1001])
+def test_the_resampled_medians_are_numpys_bit_for_bit(n):
+    """Read off counted draws, the bootstrap medians are ``np.median`` of the resampled values exactly,
+    ties (a third of the values equal) and odd and even sizes included."""
+    from evaluation.paired import _resampled_medians
+
+    values = np.random.default_rng(n).lognormal(0.0, 1.0, n)
+    values[::3] = values[0]
+    draws = np.random.default_rng(11).integers(0, n, size=(300, n))
+    np.testing.assert_array_equal(_resampled_medians(values, 300, 11), np.median(values[draws], axis=1))
+
+
 def test_the_interval_covers_the_true_median_ratio_about_95_percent_of_the_time():
     rng = np.random.default_rng(3)
     covered = 0
