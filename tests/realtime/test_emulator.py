@@ -39,18 +39,6 @@ DELIVERY = 0.1
 SWEEP = np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
 
 
-@pytest.fixture(scope="module")
-def controller() -> Iterator[EmulatorProcess]:
-    with EmulatorProcess(series="cb", host=HOST, bind_timeout=90.0) as emulator:
-        yield emulator
-
-
-@pytest.fixture
-def emu(controller: EmulatorProcess) -> EmulatorProcess:
-    controller.reset()
-    return controller
-
-
 @pytest.fixture
 def connection(emu: EmulatorProcess) -> Iterator[URRTDEConnection]:
     """The ur_rtde connection; its watchdog at 25 periods (200 ms) so that a busy host does not trip it."""

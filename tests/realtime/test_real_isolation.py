@@ -48,18 +48,6 @@ LOST = (
 SWEEP = np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
 
 
-@pytest.fixture(scope="module")
-def controller() -> Iterator[EmulatorProcess]:
-    with EmulatorProcess(series="cb", host=HOST, bind_timeout=90.0) as emulator:
-        yield emulator
-
-
-@pytest.fixture
-def emu(controller: EmulatorProcess) -> EmulatorProcess:
-    controller.reset()
-    return controller
-
-
 def _start_real(out: Path, steps: int = 625) -> subprocess.Popen[str]:
     command = [sys.executable, "-m", "snac_gym.cli", "real", "--host", HOST, "--task", "reach",
                "--controller", "snac", "--out", str(out), "--steps", str(steps)]  # fmt: skip

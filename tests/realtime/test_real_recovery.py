@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -36,18 +35,6 @@ IN_FLIGHT_MS = 100.0
 #: fault 1-2 s in and the approach after it. What is tested is the resuming, the same for every controller.
 CONTROLLER = "lqr"
 STEPS = 750
-
-
-@pytest.fixture(scope="module")
-def controller() -> Iterator[EmulatorProcess]:
-    with EmulatorProcess(series="cb", host=HOST, bind_timeout=90.0) as emulator:
-        yield emulator
-
-
-@pytest.fixture
-def emu(controller: EmulatorProcess) -> EmulatorProcess:
-    controller.reset()
-    return controller
 
 
 def _final_error(result) -> float:
