@@ -32,8 +32,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """Skip the tests marked ``rl`` when torch or stable-baselines3 is not installed, saying why; give
     each ``realtime`` test one rerun after a host-timing stop."""
     # The long real-time tests first (their marker's ``seconds``), so that two workers finish together.
-    realtime_seconds = {id(item): _realtime_seconds(item) for item in items}
-    items.sort(key=lambda item: -realtime_seconds[id(item)])  # stable: the others keep their order
+    items.sort(key=lambda item: -_realtime_seconds(item))  # stable: the others keep their order
     if config.pluginmanager.hasplugin("rerunfailures"):
         for item in items:
             if "realtime" in item.keywords and item.get_closest_marker("flaky") is None:

@@ -219,7 +219,11 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
 
     # -- episodes -------------------------------------------------------------------------------
     def _initial_weights(self, rng: np.random.Generator) -> np.ndarray:
-        return self._project(rng.uniform(*self.initial_weight_range, size=(1, self.basis.size)))[0]
+        return self._project(self._initial_draw(rng)[None])[0]
+
+    def _initial_draw(self, rng: np.random.Generator) -> np.ndarray:
+        """Ŵ₀ before its projection: uniform in :attr:`initial_weight_range`, ``(size,)``."""
+        return rng.uniform(*self.initial_weight_range, size=self.basis.size)
 
     def _project(self, weights: np.ndarray) -> np.ndarray:
         """Rows ``(B, size)`` projected onto {P̂ ⪰ λ_floor I} (Frobenius: eigenvalues raised to the floor).
@@ -247,11 +251,8 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         Each episode draws its Ŵ₀ from its own seed; the draws are projected together (a row's
         projection does not depend on the others: the same bits as :meth:`_initial_weights`, 9x faster).
         """
-        low, high = self.initial_weight_range
-        draws = np.empty((len(seeds), self.basis.size))
-        for row, seed in zip(draws, seeds, strict=True):
-            row[:] = np.random.default_rng(self._seed if seed is None else seed).uniform(low, high, size=row.size)
-        self.batch_critic_weights = self._project(draws)
+        draws = [self._initial_draw(np.random.default_rng(self._seed if seed is None else seed)) for seed in seeds]
+        self.batch_critic_weights = self._project(np.array(draws).reshape(len(seeds), self.basis.size))
         self._batch_k = 0
         self.internals = {}
 
