@@ -403,8 +403,8 @@ def _closing_lines(skipped: dict[str, str], timings: dict[str, float] | None, ex
 def prefetch_report_modules() -> threading.Thread:
     """Import what the reports need (scipy.stats, matplotlib's pyplot: 1-2 s) in a daemon thread and return it.
 
-    A run calls this when its workers start: its main process then mostly waits for them, and the
-    reports, written by it alone after the last job, no longer begin with these imports.
+    A run calls this when its last phase starts: its main process then mostly waits for the workers,
+    and the reports, written by it alone after the last job, no longer begin with these imports.
     """
 
     def load() -> None:

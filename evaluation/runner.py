@@ -71,7 +71,6 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     specs, skipped = resolve_controllers(config)
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
         with open_executor(config.workers, config.ray_address) as executor:
-            prefetch_report_modules()  # while the workers compute
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
             matched_on = _effort_set(config, space, executor, samples)
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(map(len, samples.values()))
@@ -84,6 +83,9 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
                 if matched_on is not samples:  # the rows of the evaluated samples only
                     results = {key: _reported_rows(rows, samples[key[0]]) for key, rows in results.items()}
                     evaluation.samples = samples
+                # The last phase: the main process mostly waits for the workers now. Not earlier, where a
+                # run stopped before its reports (an interrupt, an error) would only have paid for them.
+                prefetch_report_modules()
                 results.update(_optimal_rows(evaluation, specs, results, records))  # 5. Optimal reference
             finally:
                 progress.close()

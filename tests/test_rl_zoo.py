@@ -1,8 +1,8 @@
 """rl-zoo3 trains on snac-gym's ids with the shipped hyperparameter file (``hyperparams/sac.yml``).
 
-A few hundred steps only (below SAC's ``learning_starts``, so no gradient step): the test checks the
-path a user takes (``--gym-packages snac_gym``, the file's keys, HER with the Dict observation,
-VecNormalize), that the model it saves loads and acts on the id, and that every id in the file is
+A few hundred steps only (below SAC's ``learning_starts``, so no gradient step; a replay buffer of a
+thousand): the test checks the path a user takes (``--gym-packages snac_gym``, the file's keys, HER
+with the Dict observation, VecNormalize), that the model it saves loads and acts on the id, and that every id in the file is
 registered. Skipped, with the reason, without the ``zoo`` extra.
 """
 
@@ -43,7 +43,7 @@ def test_rl_zoo3_trains_on_a_snac_gym_id_and_the_model_acts(tmp_path):
     command = [
         sys.executable, "-m", "rl_zoo3.train", "--algo", "sac", "--env", ENV_ID, "--gym-packages", "snac_gym",
         "-conf", str(HYPERPARAMS), "-n", "300", "--seed", "1", "--log-folder", str(tmp_path), "--eval-freq", "-1",
-        "--no-optim-plots",
+        "--no-optim-plots", "-params", "buffer_size:1000",  # the file's 1e6 transitions take HER 2 s to allocate
     ]
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
