@@ -153,6 +153,7 @@ def real(
     seed: int = typer.Option(0, "--seed", help="Seed of the policy reset."),
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control periods (default: 15 s reach, 30 s track)."),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
+    plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels (after the arm is stopped)."),
     max_tcp_mismatch: float = typer.Option(0.005, "--max-tcp-mismatch", help="Largest distance (m) between the controller's TCP position and the model's f(q), in (0, 1]."),
     model_error: Optional[str] = typer.Option(None, "--model-error", help="With --connection sim: give the controller a wrong arm model (as for evaluate)."),
     max_recoveries: int = typer.Option(0, "--max-recoveries", min=0, max=100, help="Resume the episode after up to N protective stops or lost links (0: each ends the run)."),
@@ -174,7 +175,7 @@ def real(
         result = run_real_episode(
             task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
             seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
-            csv=csv, echo=typer.echo if dry_run else None, model_error=model_error, recovery=recovery,
+            csv=csv, plots=plots, echo=typer.echo if dry_run else None, model_error=model_error, recovery=recovery,
             tuning=LoopTuning.realtime(rt_priority),
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal

@@ -296,11 +296,14 @@ def test_dry_run_command_on_the_simulated_connection_prints_what_it_would_send(t
     from snac_gym.cli import app
 
     outcome = CliRunner().invoke(
-        app, ["real", "--connection", "sim", "--dry-run", "--steps", "5", "--controller", "dls", "--out", str(tmp_path)]
+        app,
+        ["real", "--connection", "sim", "--dry-run", "--steps", "5", "--controller", "dls", "--no-plots",
+         "--out", str(tmp_path)],  # fmt: skip
     )
     assert outcome.exit_code == 0, outcome.output
     assert outcome.output.count("would send speedJ") == 5
     assert "dry run: 5 commands computed, none sent" in outcome.output
+    assert (tmp_path / "reach_dls_log.parquet").is_file() and not list(tmp_path.glob("*.png"))  # --no-plots
 
 
 def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monkeypatch, tmp_path, timing_rules_off):
