@@ -175,7 +175,7 @@ def summary_markdown(
     if results is not None:
         lines += optimality_markdown(summary, results, tasks)
     lines += _effort_lines(summary, config, efforts, effort_statistic)
-    lines += _closing_lines(skipped, timings, executor)
+    lines += _closing_lines(skipped, timings, executor, getattr(config, "plots", True))
     return "\n".join(lines)
 
 
@@ -381,8 +381,10 @@ def _effort_lines(summary: pd.DataFrame, config: Any, efforts: Sequence[Any], ef
     return lines
 
 
-def _closing_lines(skipped: dict[str, str], timings: dict[str, float] | None, executor: str) -> list[str]:
-    """The controllers left out, the wall time, and the box plot."""
+def _closing_lines(
+    skipped: dict[str, str], timings: dict[str, float] | None, executor: str, plots: bool = True
+) -> list[str]:
+    """The controllers left out, the wall time, and the box plot (when it is drawn)."""
     lines: list[str] = []
     if skipped:
         lines += ["", "Registered controllers left out:", ""] + [
@@ -397,7 +399,7 @@ def _closing_lines(skipped: dict[str, str], timings: dict[str, float] | None, ex
                 "a resumed run counts only its own time."
             ),
         ]
-    return lines + ["", "![Per-sample trajectory cost](cost_boxplot.png)", ""]
+    return lines + (["", "![Per-sample trajectory cost](cost_boxplot.png)", ""] if plots else [""])
 
 
 def prefetch_report_modules() -> threading.Thread:
@@ -467,7 +469,8 @@ def write_reports(
     timings: dict[str, float] | None = None,
     executor: str = "",
 ) -> pd.DataFrame:
-    """Write ``summary.csv``, ``summary.md`` and ``cost_boxplot.png`` into ``root``."""
+    """Write ``summary.csv``, ``summary.md`` and ``cost_boxplot.png`` into ``root`` (the figure only
+    where ``config.plots``; else one left by an earlier run of the folder is removed, not left stale)."""
     controllers = list(dict.fromkeys(results["controller"]))
     tasks = [t for t in config.tasks if (results["task"] == t).any()]
     summary = summarise(results, efforts, tasks, controllers, getattr(config, "success_threshold", 0.95))
@@ -475,7 +478,10 @@ def write_reports(
     (root / "summary.md").write_text(
         summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results)
     )
-    plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", getattr(config, "success_threshold", 0.95))
+    if getattr(config, "plots", True):
+        plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", getattr(config, "success_threshold", 0.95))
+    else:
+        (root / "cost_boxplot.png").unlink(missing_ok=True)
     return summary
 
 

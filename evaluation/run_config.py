@@ -104,6 +104,8 @@ class EvaluationConfig:
         space: Sample space (default: the UR10 cuboid scaled to the robot).
         controller_kwargs: Constructor arguments per controller name.
         progress: Show a progress bar.
+        plots: Draw the figures (``cost_boxplot.png``; ``tradeoff.png`` of a sweep); ``False``: the
+            tables and the summary only, and a figure of an earlier run in ``out`` is removed.
         use_batch: Let policies that offer the batch protocol run in lockstep batches.
         cost: The trajectory cost of the comparison (:data:`snac_gym.cost.COSTS`): ``"table1"``
             (with the u̇ term) or ``"hjb"`` (``Σ (eᵀQe + uᵀRu) Δt``); ``optimal`` solves for it.
@@ -142,6 +144,7 @@ class EvaluationConfig:
     space: SampleSpace | None = None
     controller_kwargs: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     progress: bool = True
+    plots: bool = True
     use_batch: bool = True
     cost: str = "table1"
     udot_start: str = "rest"

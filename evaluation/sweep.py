@@ -212,7 +212,10 @@ def run_sweep(config: EvaluationConfig, points: int = DEFAULT_POINTS, span: floa
             rows = _run_points(evaluation, passes, [spec.name for spec in specs])
         sweep = _sort_rows(rows, config, [spec.name for spec in specs])
         summary = pd.read_csv(config.out / "summary.csv")
-        plot_tradeoff(sweep, config, summary, config.out / "tradeoff.png", span)
+        if config.plots:
+            plot_tradeoff(sweep, config, summary, config.out / "tradeoff.png", span)
+        else:
+            (config.out / "tradeoff.png").unlink(missing_ok=True)  # an earlier run's, not left stale
     return sweep
 
 

@@ -298,6 +298,7 @@ def evaluate(
     param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
     batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress on stderr: a bar on a terminal, else a line every 10 % or 10 s."),
+    plots: bool = typer.Option(True, "--plots/--no-plots", help="Draw cost_boxplot.png (and a sweep's tradeoff.png); --no-plots: the tables and summary only."),
     cost: str = typer.Option("table1", "--cost", help="table1 (Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt, the paper's Table I) or hjb (Σ (eᵀQe + uᵀRu) Δt, the cost of eqs. 6/32); `optimal` solves for it."),
     udot_start: str = typer.Option("rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."),
     q_scale: float = typer.Option(1.0, "--q-scale", help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q."),
@@ -338,7 +339,7 @@ def evaluate(
             calibration_samples=calibration_samples, samples_file=samples_file,
             **({} if effort_samples is None else {"effort_samples": effort_samples}), export_samples=export_samples,
             save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
-            robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, use_batch=batch,
+            robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, plots=plots, use_batch=batch,
             cost=cost, udot_start=udot_start, q_scale=q_scale, success_threshold=success_threshold,
             model_error=model_error,
             **({} if chunk_size is None else {"chunk_size": chunk_size}),
@@ -371,8 +372,10 @@ def evaluate(
         if line.startswith("**Warning:**"):
             typer.echo("warning: " + line.removeprefix("**Warning:**").strip(), err=True)
     if sweep:
-        typer.echo(f"\ntrade-off sweep: {out_dir / 'sweep.csv'} and {out_dir / 'tradeoff.png'}")
-    typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; results, summary and plots in {out_dir}/")
+        figure = f" and {out_dir / 'tradeoff.png'}" if plots else ""
+        typer.echo(f"\ntrade-off sweep: {out_dir / 'sweep.csv'}{figure}")
+    written = "results, summary and plots" if plots else "results and summary"
+    typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; {written} in {out_dir}/")
 
 
 @app.command("train-ppo")

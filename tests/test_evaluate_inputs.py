@@ -17,7 +17,7 @@ from snac_gym.kinematics import Kinematics
 
 
 def _evaluate(*arguments: str):
-    return CliRunner().invoke(app, ["evaluate", "--no-progress", *arguments])
+    return CliRunner().invoke(app, ["evaluate", "--no-progress", "--no-plots", *arguments])
 
 
 def _one_line_error(result, message: str) -> None:

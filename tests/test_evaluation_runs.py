@@ -21,7 +21,8 @@ from snac_gym.cli import app
 from snac_gym.cost import trajectory_cost
 from snac_gym.rollout import log_array, read_log
 
-SMALL = {"samples": 6, "effort_samples": 0, "horizons": {"reach": 0.3, "track": 0.4}, "chunk_size": 2, "progress": False}
+SMALL = {"samples": 6, "effort_samples": 0, "horizons": {"reach": 0.3, "track": 0.4}, "chunk_size": 2, "progress": False,
+         "plots": False}  # fmt: skip
 
 
 def _config(out: Path, **changes) -> EvaluationConfig:
@@ -32,7 +33,7 @@ def _config(out: Path, **changes) -> EvaluationConfig:
 def table_run(tmp_path_factory):
     """Every built-in controller, both tasks, equal effort against SNAC, trajectories saved."""
     out = tmp_path_factory.mktemp("table")
-    config = _config(out, controllers=("snac", "rnn", "svf", "dls"), save_trajectories=True)
+    config = _config(out, controllers=("snac", "rnn", "svf", "dls"), save_trajectories=True, plots=True)
     return config, run_evaluation(config)
 
 

@@ -69,7 +69,7 @@ main()
 
 ARGS = [
     "evaluate", "--samples", "6", "--seed", "3", "--chunk-size", "2", "--controllers", "snac,dls,rnn,optimal",
-    "--horizon", "reach=3", "--horizon", "track=4", "--no-progress", "--effort-samples", "0",
+    "--horizon", "reach=3", "--horizon", "track=4", "--no-progress", "--no-plots", "--effort-samples", "0",
 ]  # fmt: skip
 #: Columns that measure this machine's speed, not the result.
 TIMING_COLUMNS = ["optimal_solve_time"]

@@ -219,6 +219,7 @@ def test_a_tiny_evaluation_calibrates_the_q_scale_knob(tmp_path):
     config = EvaluationConfig(
         out=tmp_path, samples=3, effort_samples=0, horizons={"reach": 0.3, "track": 0.3}, progress=False,
         controllers=("snac", "lqr"),
+        plots=False,
     )
     results = run_evaluation(config)
     lqr = results[results["controller"] == "lqr"]

@@ -118,7 +118,7 @@ def test_a_run_records_its_model_error_and_the_optimum_stays_below_every_control
     config = EvaluationConfig(
         out=tmp_path / "run", controllers=("snac-hjb", "snac-adaptive", "lqr", "optimal"), samples=3,
         match_effort=False, horizons={"reach": 1.0, "track": 1.0}, cost="hjb", q_scale=4.0,
-        model_error=ELBOW, progress=False,
+        model_error=ELBOW, progress=False, plots=False,
     )  # fmt: skip
     results = run_evaluation(config)
     assert json.loads((tmp_path / "run" / "run.json").read_text())["model_error"] == ELBOW

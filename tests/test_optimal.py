@@ -148,6 +148,7 @@ def optimal_run(tmp_path_factory):
         chunk_size=2,
         save_trajectories=True,
         progress=False,
+        plots=False,
     )
     return config, run_evaluation(config)
 
@@ -208,6 +209,7 @@ def test_optimal_alone_and_not_with_pybullet(tmp_path: Path):
             samples=1,
             horizons={"reach": 0.2},
             progress=False,
+            plots=False,
         )
     )
     assert list(results["controller"]) == [OPTIMAL]

@@ -69,7 +69,7 @@ def test_edge_cases_give_nan_not_a_crash():
 def test_the_summary_reports_paired_statistics_against_the_best_and_the_optimum(tmp_path):
     config = EvaluationConfig(
         out=tmp_path, samples=5, seed=4, controllers=("dls", "rnn", "optimal"), horizons={"reach": 2.0, "track": 2.0},
-        match_effort=False, progress=False, success_threshold=0.0,
+        match_effort=False, progress=False, success_threshold=0.0, plots=False,
     )  # fmt: skip
     results = run_evaluation(config)
     summary = pd.read_csv(tmp_path / "summary.csv").set_index("controller")

@@ -5,6 +5,7 @@ the figure, determinism across workers, resuming, and the CLI's bounds."""
 from __future__ import annotations
 
 import dataclasses
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -125,14 +126,19 @@ def test_the_figure_is_written(swept):
 
 def test_same_sweep_with_one_worker_and_on_resume(swept, tmp_path):
     config, sweep = swept
-    serial = run_sweep(dataclasses.replace(config, out=tmp_path / "serial", workers=1), points=POINTS, span=SPAN)
+    serial = run_sweep(dataclasses.replace(config, out=tmp_path / "serial", workers=1, plots=False), points=POINTS, span=SPAN)
     pd.testing.assert_frame_equal(serial, sweep, check_exact=True)
-    parts = sorted((config.out / "parts").glob("*.parquet"))
-    removed = parts[-1]
+    assert not list((tmp_path / "serial").glob("*.png"))  # --no-plots: the tables only
+    assert "cost_boxplot.png" not in (tmp_path / "serial" / "summary.md").read_text()
+    copy = tmp_path / "interrupted"
+    shutil.copytree(config.out, copy)
+    removed = sorted((copy / "parts").glob("*.parquet"))[-1]
     removed.unlink()  # an interrupted sweep: one job lost
-    resumed = run_sweep(dataclasses.replace(config, resume=True), points=POINTS, span=SPAN)
+    # Resumed without figures: those of the first attempt are removed, not left beside newer tables.
+    assert {"cost_boxplot.png", "tradeoff.png"} <= {p.name for p in copy.iterdir()}
+    resumed = run_sweep(dataclasses.replace(config, out=copy, resume=True, plots=False), points=POINTS, span=SPAN)
     pd.testing.assert_frame_equal(resumed, sweep, check_exact=True)
-    assert removed.is_file()
+    assert removed.is_file() and not list(copy.glob("*.png"))
 
 
 @pytest.mark.parametrize("points", ["0", "1", str(MAX_POINTS + 1), "100000"])

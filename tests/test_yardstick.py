@@ -60,6 +60,7 @@ def workspace_run(tmp_path_factory) -> pd.DataFrame:
         controllers=("lqr", "snac-hjb", "dls", "rnn", "optimal"), horizons={"reach": 4.0, "track": 4.0},
         match_effort=False, progress=False, cost="hjb", q_scale=4.0, controller_kwargs={"lqr": {"q_scale": 1.0}},
         space=SampleSpace.workspace(Kinematics("ur10")),
+        plots=False,
     )  # fmt: skip
     return run_evaluation(config)
 
