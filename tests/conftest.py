@@ -31,8 +31,15 @@ HOST_TIMING_STOPS = [
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Skip the tests marked ``rl`` when torch or stable-baselines3 is not installed, saying why; give
     each ``realtime`` test one rerun after a host-timing stop."""
-    # The long real-time tests first (their marker's ``seconds``), so that two workers finish together.
-    items.sort(key=lambda item: -_realtime_seconds(item))  # stable: the others keep their order
+    # Long work first, so that the parallel workers finish together (pytest-xdist's worksteal hands
+    # each worker a contiguous share and lets an idle one take the tail of another's): the real-time
+    # tests by their marker's ``seconds``, the others by module, heaviest first (the ``seconds`` of
+    # its ``slow`` tests), each module's tests kept together, as its fixtures are shared.
+    module_seconds: dict[str, float] = {}
+    for item in items:
+        module = item.nodeid.split("::")[0]
+        module_seconds[module] = module_seconds.get(module, 0.0) + _seconds(item, "slow")
+    items.sort(key=lambda item: -(_seconds(item, "realtime") or module_seconds[item.nodeid.split("::")[0]]))
     if config.pluginmanager.hasplugin("rerunfailures"):
         for item in items:
             if "realtime" in item.keywords and item.get_closest_marker("flaky") is None:
@@ -45,8 +52,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(skip)
 
 
-def _realtime_seconds(item: pytest.Item) -> float:
-    marker = item.get_closest_marker("realtime")
+def _seconds(item: pytest.Item, name: str) -> float:
+    """The ``seconds`` hint of the item's ``name`` marker (``realtime`` or ``slow``), else 0."""
+    marker = item.get_closest_marker(name)
     return float(marker.kwargs.get("seconds", 0.0)) if marker is not None else 0.0
 
 

@@ -85,6 +85,7 @@ print("not interrupted", round(time.perf_counter() - started, 2))
 """
 
 
+@pytest.mark.slow(seconds=3)
 @pytest.mark.parametrize("arrays", ["writable", "read-only"])
 def test_sigterm_while_a_kernel_compiles_ends_the_program_after_the_compile(tmp_path, arrays):
     # An empty cache folder: the kernel compiles in this child (seconds), and the signal comes meanwhile.
@@ -142,6 +143,7 @@ for worker in workers:
 """
 
 
+@pytest.mark.slow(seconds=3)
 def test_processes_that_share_the_compile_locks_compile_each_kernel_module_once(tmp_path):
     import json
 

@@ -73,6 +73,7 @@ def _doc_param(path: Path) -> object:
     return pytest.param(path, marks=pytest.mark.rl) if needs_rl else path
 
 
+@pytest.mark.slow(seconds=1.5)
 @pytest.mark.parametrize("path", [_doc_param(path) for path in FILES_WITH_CODE],
                          ids=lambda path: path.relative_to(ROOT).as_posix())
 def test_python_blocks_run(path: Path, tmp_path: Path):
@@ -86,6 +87,7 @@ def test_python_blocks_run(path: Path, tmp_path: Path):
     assert result.returncode == 0, f"a python block of {path.name} failed:\n{result.stderr[-4000:]}"
 
 
+@pytest.mark.slow(seconds=4)
 def test_the_site_builds_in_strict_mode(tmp_path: Path):
     missing = _missing_docs_packages()
     if missing:

@@ -243,6 +243,7 @@ def test_resume_needs_a_run(tmp_path):
         run_evaluation(_config(tmp_path / "empty", controllers=("dls",), resume=True))
 
 
+@pytest.mark.slow(seconds=9)
 def test_ray_runs_the_same_work(tmp_path):
     pytest.importorskip("ray")
     common = {"controllers": ("dls",), "tasks": ("track",), "samples": 4, "match_effort": False}

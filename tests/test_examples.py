@@ -28,6 +28,7 @@ def test_every_example_is_smoke_tested():
 NEEDS_RL = {"train_ppo.py"}
 
 
+@pytest.mark.slow(seconds=3)
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.rl) if n in NEEDS_RL else n for n in sorted(RUNS)])
 def test_example_runs(name: str, tmp_path: Path):
     args, expected = RUNS[name]

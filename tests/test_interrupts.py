@@ -130,6 +130,7 @@ def uninterrupted(uninterrupted_folder: Path) -> pd.DataFrame:
     return _rows(uninterrupted_folder)
 
 
+@pytest.mark.slow(seconds=4)
 @pytest.mark.parametrize(
     ("phase", "signame", "workers", "delay"),
     [
@@ -178,6 +179,7 @@ def test_an_interrupt_in_every_phase_ends_the_run_and_resume_gives_the_same_rows
 RAY_CANCEL_ABORT = "Tried to complete task that was not pending"
 
 
+@pytest.mark.slow(seconds=8)
 def test_an_interrupt_on_ray_ends_the_run(tmp_path, uninterrupted):
     pytest.importorskip("ray")
     process, err, out, where, fired_at = _interrupted(tmp_path, "effort matching", "SIGTERM", 2, 0.3, "--ray", "local")

@@ -37,6 +37,7 @@ def test_mujoco_follows_the_kinematic_model_within_the_tolerance_pybullet_meets(
         assert rows["mujoco"][key] < rows["pybullet"][key], key
 
 
+@pytest.mark.slow(seconds=0.3)
 @pytest.mark.parametrize("env_id", sorted(snac_gym.ENV_IDS) + sorted(GOAL_ENV_IDS))
 def test_every_id_passes_check_env_headless_with_mujoco(env_id, monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)  # the checker also builds render_mode="human"

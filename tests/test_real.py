@@ -255,6 +255,7 @@ def test_safety_limits_validate_their_arguments():
         SafetyLimits(box_low=(0, 0, 0), box_high=(0, 1, 1))
 
 
+@pytest.mark.slow(seconds=4)
 def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
     from snac_gym.demo import run_demo
     from snac_gym.real.run import run_real_episode

@@ -35,6 +35,7 @@ def test_every_id_of_the_hyperparameter_file_is_registered_and_goal_conditioned(
         env.close()
 
 
+@pytest.mark.slow(seconds=5)
 @pytest.mark.rl
 def test_rl_zoo3_trains_on_a_snac_gym_id_and_the_model_acts(tmp_path):
     # Not imported here: rl_zoo3 replaces gymnasium's TimeLimit on import (rl_zoo3.gym_patches), for every later test.

@@ -163,6 +163,7 @@ def test_a_client_that_crashes_or_blocks_is_a_lost_link_seen_within_a_few_period
 # ---------------------------------------------------------------------------- signals and the host dying
 
 
+@pytest.mark.realtime(seconds=3)  # about this long here: run first (conftest.py)
 @pytest.mark.parametrize("signum", [signal.SIGQUIT, signal.SIGUSR1, signal.SIGUSR2])
 def test_stop_signals_stop_the_arm_and_write_the_log_through_ur_rtde(emu, tmp_path, signum):
     run = _start_real(tmp_path)

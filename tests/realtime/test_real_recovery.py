@@ -76,6 +76,7 @@ def test_a_protective_stop_unlocked_after_5_s_resumes_and_the_episode_ends_withi
     assert max(map(abs, emu.status()["qd"])) == 0.0  # stopped at the end
 
 
+@pytest.mark.realtime(seconds=2)  # about this long here: run first (conftest.py)
 def test_without_recoveries_a_protective_stop_ends_the_run_as_before(emu, tmp_path):
     emu.schedule(1.0, "protective_stop")
     # The same stop whether the host reads it first or the paused program refuses the speedJ in flight.
@@ -109,6 +110,7 @@ def test_a_dropped_link_that_comes_back_is_reconnected_and_the_episode_ends_with
     assert max(map(abs, emu.status()["qd"])) == 0.0
 
 
+@pytest.mark.realtime(seconds=3)  # about this long here: run first (conftest.py)
 def test_a_link_that_never_comes_back_ends_the_run_with_its_log(emu, tmp_path):
     emu.schedule(1.0, "drop_connection")
     with pytest.raises(ConnectionFailure, match="did not come back within 2 s") as raised:
