@@ -37,9 +37,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # its ``slow`` tests), each module's tests kept together, as its fixtures are shared.
     module_seconds: dict[str, float] = {}
     for item in items:
-        module = item.nodeid.split("::")[0]
-        module_seconds[module] = module_seconds.get(module, 0.0) + _seconds(item, "slow")
-    items.sort(key=lambda item: -(_seconds(item, "realtime") or module_seconds[item.nodeid.split("::")[0]]))
+        module_seconds[item.path] = module_seconds.get(item.path, 0.0) + _seconds(item, "slow")
+    items.sort(key=lambda item: -(_seconds(item, "realtime") or module_seconds[item.path]))
     if config.pluginmanager.hasplugin("rerunfailures"):
         for item in items:
             if "realtime" in item.keywords and item.get_closest_marker("flaky") is None:

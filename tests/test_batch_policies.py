@@ -139,10 +139,11 @@ def test_batch_and_per_sample_evaluations_agree(tmp_path):
         horizons={"reach": 0.4, "track": 0.4},
         chunk_size=4,
         progress=False,
+        plots=False,
         controllers=("snac", "rnn", "svf", "dls"),
     )
-    batched = run_evaluation(EvaluationConfig(out=tmp_path / "batch", use_batch=True, **common, plots=False))
-    looped = run_evaluation(EvaluationConfig(out=tmp_path / "loop", use_batch=False, **common, plots=False))
+    batched = run_evaluation(EvaluationConfig(out=tmp_path / "batch", use_batch=True, **common))
+    looped = run_evaluation(EvaluationConfig(out=tmp_path / "loop", use_batch=False, **common))
     keys = ["task", "controller", "sample"]
     batched, looped = batched.sort_values(keys).reset_index(drop=True), looped.sort_values(keys).reset_index(drop=True)
     pd.testing.assert_frame_equal(batched[keys], looped[keys])

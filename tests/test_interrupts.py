@@ -10,6 +10,7 @@ would. The run must exit within a bound with its one line and 128 + the signal n
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -109,7 +110,6 @@ def _rows(out: Path) -> pd.DataFrame:
 def uninterrupted_folder(tmp_path_factory) -> Path:
     """The folder of an uninterrupted run: made once per test session, the xdist workers sharing it."""
     import fcntl
-    import shutil
 
     shared = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
@@ -149,8 +149,6 @@ def test_an_interrupt_in_every_phase_ends_the_run_and_resume_gives_the_same_rows
     if phase == "reports":
         # The finished uninterrupted run, resumed: it goes straight to its reports (the same code, the
         # same files) instead of computing every job again first.
-        import shutil
-
         shutil.copytree(uninterrupted_folder, tmp_path / "run")
         extra = ("--resume",)
     process, err, out, where, fired_at = _interrupted(tmp_path, phase, signame, workers, delay, *extra)

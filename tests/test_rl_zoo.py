@@ -2,8 +2,8 @@
 
 A few hundred steps only (below SAC's ``learning_starts``, so no gradient step; a replay buffer of a
 thousand): the test checks the path a user takes (``--gym-packages snac_gym``, the file's keys, HER
-with the Dict observation, VecNormalize), that the model it saves loads and acts on the id, and that every id in the file is
-registered. Skipped, with the reason, without the ``zoo`` extra.
+with the Dict observation, VecNormalize), that the model it saves loads and acts on the id, and that
+every id in the file is registered. Skipped, with the reason, without the ``zoo`` extra.
 """
 
 from __future__ import annotations
