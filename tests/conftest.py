@@ -1,5 +1,8 @@
 import importlib.util
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -62,8 +65,63 @@ def pytest_configure(config: pytest.Config) -> None:
     threads on two busy cores, SAC's 200 updates of a 32×32 network in test_goal_envs.py took 52 s
     instead of 4.6 s (both threads spin while the other test process or a worker holds a core).
     Set through OpenMP's variable, read when torch loads, so that a test process imports torch (1.4 s)
-    only if one of its tests needs it; NumPy's BLAS, loaded already, keeps its threads."""
+    only if one of its tests needs it; NumPy's BLAS, loaded already, keeps its threads.
+
+    Bytecode is cached even where ``PYTHONDONTWRITEBYTECODE`` is set (as on the project's machines):
+    the suite starts some 80 Python processes (the CLI, evaluator workers, emulated controllers),
+    and without the cache each one compiles the project's sources again (0.2 s for the evaluator's
+    imports), and each pytest worker rewrites every test module's asserts anew. The cache goes to
+    the usual ``__pycache__/`` folders, which git ignores; installed packages have theirs already."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)  # for the workers and every subprocess
+    sys.dont_write_bytecode = False
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the numba kernels once, before any test, where their cache is missing or older than their source.
+
+    On a fresh clone nothing is cached, and every process that calls a kernel first compiles it:
+    both pytest workers and the CLI runs the heaviest tests start at once (some 8 CPU s each),
+    which made a cold run of the ordinary tests 26 s longer than a warm one. Two processes
+    compile half the modules each here, before pytest-xdist starts its workers (its own
+    ``sessionstart`` runs last), and every later process loads the kernels from the cache.
+    """
+    if hasattr(session.config, "workerinput") or not _kernel_cache_is_stale():
+        return  # a pytest-xdist worker (the controller did it), or nothing to compile
+    from snac_gym.compiled import KERNEL_MODULES
+
+    code = "import sys; from snac_gym.compiled import warm_up; warm_up(tuple(sys.argv[1:]))"
+    halves = [KERNEL_MODULES[0::2], KERNEL_MODULES[1::2]]  # about 4 CPU s each
+    processes = [
+        subprocess.Popen(
+            [sys.executable, "-c", code, *half], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
+        for half in halves
+    ]
+    for process, half in zip(processes, halves, strict=True):
+        output = process.communicate()[0]
+        if process.returncode != 0:  # every test that calls one of them would fail the same way
+            raise pytest.UsageError(f"compiling the kernels of {', '.join(half)} failed:\n{output}")
+
+
+def _kernel_cache_is_stale() -> bool:
+    """Whether some kernel module has no numba cache index beside it (``__pycache__/*.nbi``) newer than its source.
+
+    Numba keeps its cache there unless ``NUMBA_CACHE_DIR`` moves it (then this says stale, and the
+    warm-up only loads what is cached). A cache this misjudges costs nothing: numba itself checks
+    each index and compiles what is out of date on first call, as without this warm-up.
+    """
+    from snac_gym.compiled import KERNEL_MODULES
+
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return True
+    for module in KERNEL_MODULES:
+        source = Path(importlib.util.find_spec(module).origin)
+        indexes = list((source.parent / "__pycache__").glob(f"{source.stem}.*.nbi"))
+        if not indexes or min(index.stat().st_mtime for index in indexes) < source.stat().st_mtime:
+            return True
+    return False
 
 
 @pytest.fixture(scope="session")
