@@ -143,6 +143,40 @@ def test_a_stop_first_seen_as_a_refused_command_ends_the_episode_as_a_controller
         env.reset()
 
 
+class _LateReportConnection(SimulatedConnection):
+    """A controller that refuses the command at once when a stop pauses its program, while its state
+    packages report the stop only from the ``late``-th read on (the first package left before the stop)."""
+
+    def __init__(self, late: int) -> None:
+        super().__init__(realtime=False)
+        self.late, self.reads_since_fault = late, 0
+
+    def command(self, velocities: np.ndarray) -> None:
+        if self._fault != NORMAL:
+            raise ConnectionFailure("the arm at sim rejected speedJ (connection lost or program stopped)")
+        super().command(velocities)
+
+    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
+        self.reads_since_fault += self._fault != NORMAL
+        return super().read_state()
+
+    def safety_state(self) -> str:
+        return self._fault if self.reads_since_fault >= self.late else NORMAL
+
+
+@pytest.mark.parametrize("fault", [PROTECTIVE_STOP, EMERGENCY_STOP])
+def test_a_refusal_read_before_its_stop_shows_waits_for_the_package_that_shows_it(fault):
+    connection = _LateReportConnection(late=3)
+    env = RealUREnv("reach", connection)
+    env.reset(options={"q0": PAPER_Q0})
+    env.step(np.full(6, 0.01))
+    connection.inject_fault(fault)
+    _, _, terminated, _, info = env.step(np.full(6, 0.01))
+    assert connection.reads_since_fault == 3  # read again until the stop showed, not beyond
+    assert info["safety_state"] == fault and info["safety"] == f"controller reports {fault}"
+    _assert_stopped(env, connection, info, terminated, fault)
+
+
 def test_a_refused_command_without_a_reported_stop_is_a_lost_link():
     connection = _RefusingConnection(always=True)
     env = RealUREnv("reach", connection)

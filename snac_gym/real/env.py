@@ -16,6 +16,10 @@ from snac_gym.sampling import SampleSpace
 
 #: Seconds between two reads of the controller's state while waiting for a protective stop to clear.
 _CLEAR_POLL = 0.05
+#: Longest wait (s) after a refused command for the controller's state packages to show the stop that
+#: refused it: the package read first may predate the stop (RTDE streams at 125-500 Hz, so the stop
+#: is in the next one; this allows several at the slowest rate).
+STOP_REPORT_WAIT_S = 0.05
 
 
 class RealUREnv(TaskEnvCore):
@@ -253,6 +257,21 @@ class RealUREnv(TaskEnvCore):
             self._halt(reason)
         return self._finish(costs, command, safety=reason, safety_state=state)
 
+    def _state_after_refusal(self) -> tuple[np.ndarray, np.ndarray, str]:
+        """Joint state and safety state once the packages show why the controller refused a command.
+
+        A stop refuses the command at once, but the last state package may have left the
+        controller just before it: read again while the state says normal, for at most
+        :data:`STOP_REPORT_WAIT_S` (a refusal still unexplained then is taken as a lost link).
+        """
+        deadline = time.monotonic() + STOP_REPORT_WAIT_S
+        while True:
+            q, qdot = self.connection.read_state()
+            state = self.connection.safety_state()
+            if state != NORMAL or time.monotonic() >= deadline:
+                return q, qdot, state
+            time.sleep(0.001)
+
     def _may_recover(self) -> bool:
         return len(self.recoveries) < self.recovery.max_recoveries
 
@@ -272,10 +291,9 @@ class RealUREnv(TaskEnvCore):
         seen = time.monotonic()
         if getattr(self.connection, "failure", None) is None:
             try:
-                q, qdot = self.connection.read_state()
+                q, qdot, state = self._state_after_refusal()
             except ConnectionFailure:
                 raise exc from None
-            state = self.connection.safety_state()
             if state == NORMAL:
                 raise exc
             cause = f"controller reports {state}"
