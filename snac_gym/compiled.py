@@ -64,6 +64,13 @@ def kernel(example: Callable[[], Any]) -> Callable[[Callable[..., Any]], Kernel]
     return lambda function: Kernel(function, example)
 
 
+def read_only(array: Any) -> Any:
+    """``array`` marked read-only, for an ``example``: numba compiles a read-only array as a type of its own
+    (the kinematics' cached Jacobians are read-only), so a kernel called with both needs both examples."""
+    array.setflags(write=False)
+    return array
+
+
 def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     """Compile, or load from the cache, every kernel of ``modules`` now; the seconds it took.
 
@@ -140,4 +147,4 @@ def _with_stop_signals_held(
             signal.raise_signal(signum)
 
 
-__all__ = ["KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "kernel", "warm_up", "warm_up_shared"]
+__all__ = ["KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "kernel", "read_only", "warm_up", "warm_up_shared"]

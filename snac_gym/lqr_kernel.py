@@ -13,15 +13,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from snac_gym.compiled import kernel
+from snac_gym.compiled import kernel, read_only
 from snac_gym.small_kernels import jacobi_eigh
 
 
 def _examples() -> list[tuple]:
     """A writable stack, and a read-only one (the kinematics' cached Jacobians are read-only)."""
-    read_only = np.ones((1, 3, 6))
-    read_only.setflags(write=False)
-    return [(np.ones((1, 3, 6)), np.eye(3), np.eye(6), 1e-12), (read_only, np.eye(3), np.eye(6), 1e-12)]
+    return [(np.ones((1, 3, 6)), np.eye(3), np.eye(6), 1e-12), (read_only(np.ones((1, 3, 6))), np.eye(3), np.eye(6), 1e-12)]
 
 
 @njit(cache=True, nogil=True)

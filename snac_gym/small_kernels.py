@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from snac_gym.compiled import kernel
+from snac_gym.compiled import kernel, read_only
 
 #: Sweeps of the Jacobi methods before giving up (a 3×3 converges in 3-5).
 MAX_SWEEPS = 60
@@ -119,7 +119,7 @@ def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pr
     return values, vectors
 
 
-@kernel(lambda: (np.ones((1, 3, 6)),))
+@kernel(lambda: [(np.ones((1, 3, 6)),), (read_only(np.ones((1, 3, 6))),)])
 def thin_svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
     """``(U, σ, Vᵀ)`` of a stack ``(B, n, m)``, n ≤ m: ``np.linalg.svd(..., full_matrices=False)``'s contract.
 

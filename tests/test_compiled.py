@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 import signal
 import subprocess
@@ -117,6 +118,41 @@ def test_after_the_warm_up_no_controller_step_compiles_anything(controller, task
         obs, *_ = env.step(policy.act(obs))
     env.close()
     assert {k.__name__: len(k.dispatcher.signatures) for k in _KERNELS} == compiled
+
+
+def test_after_the_warm_up_an_evaluation_compiles_nothing(tmp_path, monkeypatch):
+    """What an evaluator worker relies on (it warms up every module when it starts): the rollouts, the
+    metrics and the optimum call each kernel with the types of one of its warm-up examples, read-only
+    arrays too. Every call's types are recorded, so what other tests compiled earlier does not matter."""
+    import numba
+
+    from evaluation.run_config import EvaluationConfig
+    from evaluation.runner import run_evaluation
+    from snac_gym.compiled import _KERNELS, KERNEL_MODULES, Kernel
+
+    for module in KERNEL_MODULES:
+        importlib.import_module(module)
+    warmed = {}
+    for compiled in _KERNELS:
+        examples = compiled.example()
+        examples = examples if isinstance(examples, list) else [examples]
+        warmed[compiled.__name__] = {tuple(map(numba.typeof, arguments)) for arguments in examples}
+    called: dict[str, set] = {}
+    call = Kernel.__call__
+
+    def recording(self, *args):
+        called.setdefault(self.__name__, set()).add(tuple(map(numba.typeof, args)))
+        return call(self, *args)
+
+    monkeypatch.setattr(Kernel, "__call__", recording)
+    controllers = ("snac", "snac-hjb", "lqr", "rnn", "svf", "dls", "optimal")
+    config = EvaluationConfig(
+        out=tmp_path / "run", samples=2, workers=1, controllers=controllers, horizons={"reach": 1.0, "track": 1.0},
+        effort_samples=0, progress=False, plots=False,
+    )  # fmt: skip
+    run_evaluation(config)
+    assert {"chain_forward_and_jacobian", "thin_svd", "add_jacobian_blocks"} <= called.keys()
+    assert {name: types - warmed[name] for name, types in called.items() if types - warmed[name]} == {}
 
 
 SHARED_DRIVER = r"""
