@@ -79,30 +79,20 @@ def pytest_configure(config: pytest.Config) -> None:
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_sessionstart(session: pytest.Session) -> None:
-    """Compile the numba kernels once, before any test, where their cache is missing or older than their source.
+    """Compile the numba kernels before any test, where their cache is missing or older than their source.
 
-    On a fresh clone nothing is cached, and every process that calls a kernel first compiles it:
-    both pytest workers and the CLI runs the heaviest tests start at once (some 8 CPU s each),
-    which made a cold run of the ordinary tests 26 s longer than a warm one. Two processes
-    compile half the modules each here, before pytest-xdist starts its workers (its own
-    ``sessionstart`` runs last), and every later process loads the kernels from the cache.
+    On a fresh clone the kernels compile once either way (1-2 s each); done here, no compile lands
+    inside a test with a deadline, and a kernel that fails to compile is reported once. It is the
+    evaluator's own start-up, two workers sharing the compiles
+    (:func:`~snac_gym.compiled.warm_up_shared`), in a process of its own, before pytest-xdist starts
+    its workers (its ``sessionstart`` runs last).
     """
     if hasattr(session.config, "workerinput") or not _kernel_cache_is_stale():
         return  # a pytest-xdist worker (the controller did it), or nothing to compile
-    from snac_gym.compiled import KERNEL_MODULES
-
-    code = "import sys; from snac_gym.compiled import warm_up; warm_up(tuple(sys.argv[1:]))"
-    halves = [KERNEL_MODULES[0::2], KERNEL_MODULES[1::2]]  # about 4 CPU s each
-    processes = [
-        subprocess.Popen(
-            [sys.executable, "-c", code, *half], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-        )
-        for half in halves
-    ]
-    for process, half in zip(processes, halves, strict=True):
-        output = process.communicate()[0]
-        if process.returncode != 0:  # every test that calls one of them would fail the same way
-            raise pytest.UsageError(f"compiling the kernels of {', '.join(half)} failed:\n{output}")
+    code = "from evaluation.executors import ProcessExecutor; ProcessExecutor(2).close()"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    if done.returncode != 0:  # every test that calls a kernel would fail the same way
+        raise pytest.UsageError(f"compiling the numba kernels failed:\n{done.stderr}")
 
 
 def _kernel_cache_is_stale() -> bool:
