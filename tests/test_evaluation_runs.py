@@ -243,15 +243,6 @@ def test_resume_needs_a_run(tmp_path):
         run_evaluation(_config(tmp_path / "empty", controllers=("dls",), resume=True))
 
 
-@pytest.mark.slow(seconds=9)
-def test_ray_runs_the_same_work(tmp_path):
-    pytest.importorskip("ray")
-    common = {"controllers": ("dls",), "tasks": ("track",), "samples": 4, "match_effort": False}
-    serial = run_evaluation(_config(tmp_path / "serial", **common))
-    on_ray = run_evaluation(_config(tmp_path / "ray", ray_address="local", workers=2, **common))
-    pd.testing.assert_frame_equal(serial, on_ray, check_exact=True)
-
-
 def test_cli_exports_reads_samples_and_reports(tmp_path):
     cli = CliRunner()
     samples = tmp_path / "samples.csv"
