@@ -180,10 +180,10 @@ RAY_CANCEL_ABORT = "Tried to complete task that was not pending"
 @pytest.mark.slow(seconds=8)
 def test_an_interrupt_on_ray_ends_the_run_and_the_jobs_ray_finished_give_the_same_rows(tmp_path, uninterrupted):
     """Also the test that Ray computes what the process executor computes (one Ray start instead of two):
-    the jobs Ray finished before the interrupt are kept, and with the rest computed in this process on
-    resume, the rows are those of the uninterrupted run, bit for bit."""
+    interrupted in the last phase, the run has kept every controller's rows, all computed on Ray; with
+    the optimum computed in this process on resume, the rows are those of the uninterrupted run, bit for bit."""
     pytest.importorskip("ray")
-    process, err, out, where, fired_at = _interrupted(tmp_path, "effort matching", "SIGTERM", 2, 0.3, "--ray", "local")
+    process, err, out, where, fired_at = _interrupted(tmp_path, "optimal", "SIGTERM", 2, 0.05, "--ray", "local")
     assert where == "inside", err
     ray_aborted = process.returncode != 128 + signal.SIGTERM and RAY_CANCEL_ABORT in err
     if not ray_aborted:
@@ -192,9 +192,9 @@ def test_an_interrupt_on_ray_ends_the_run_and_the_jobs_ray_finished_give_the_sam
         assert err.strip().splitlines()[-1] == (
             f"interrupted by SIGTERM: finished jobs are kept in {out}/; continue with --resume"
         )
-    # Every reference pass ended before effort matching began: their rows are Ray's.
+    # Every controller's rows were kept before the optimal phase began: Ray computed them.
     kept = {tuple(path.name.split("__")[:2]) for path in (out / "parts").glob("*.parquet")}
-    assert {("reach", "snac"), ("track", "snac")} <= kept, kept
+    assert {(task, name) for task in ("reach", "track") for name in ("snac", "dls", "rnn")} <= kept, kept
     code, output = _evaluate(out, "--workers", "1", "--resume")
     assert code == 0, output
     pd.testing.assert_frame_equal(_rows(out), uninterrupted, check_exact=True)
