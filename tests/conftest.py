@@ -2,13 +2,13 @@ import importlib.util
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import snac_gym  # noqa: F401  (registers the envs)
+from snac_gym.compiled import cached_on_disk
 from snac_gym.kinematics import Kinematics
 
 
@@ -87,31 +87,12 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     (:func:`~snac_gym.compiled.warm_up_shared`), in a process of its own, before pytest-xdist starts
     its workers (its ``sessionstart`` runs last).
     """
-    if hasattr(session.config, "workerinput") or not _kernel_cache_is_stale():
+    if hasattr(session.config, "workerinput") or cached_on_disk():
         return  # a pytest-xdist worker (the controller did it), or nothing to compile
     code = "from evaluation.executors import ProcessExecutor; ProcessExecutor(2).close()"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if done.returncode != 0:  # every test that calls a kernel would fail the same way
         raise pytest.UsageError(f"compiling the numba kernels failed:\n{done.stderr}")
-
-
-def _kernel_cache_is_stale() -> bool:
-    """Whether some kernel module has no numba cache index beside it (``__pycache__/*.nbi``) newer than its source.
-
-    Numba keeps its cache there unless ``NUMBA_CACHE_DIR`` moves it (then this says stale, and the
-    warm-up only loads what is cached). A cache this misjudges costs nothing: numba itself checks
-    each index and compiles what is out of date on first call, as without this warm-up.
-    """
-    from snac_gym.compiled import KERNEL_MODULES
-
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return True
-    for module in KERNEL_MODULES:
-        source = Path(importlib.util.find_spec(module).origin)
-        indexes = list((source.parent / "__pycache__").glob(f"{source.stem}.*.nbi"))
-        if not indexes or min(index.stat().st_mtime for index in indexes) < source.stat().st_mtime:
-            return True
-    return False
 
 
 @pytest.fixture(scope="session")

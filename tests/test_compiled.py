@@ -206,3 +206,62 @@ def test_a_compile_lock_never_released_delays_the_warm_up_and_does_not_block_it(
     assert compiled.warm_up_shared([held], ("evaluation.optimal_kernels",)) == []
     with pytest.raises(ValueError, match="one lock per module"):
         compiled.warm_up_shared([], ("evaluation.optimal_kernels",))
+
+
+def test_cached_on_disk_says_whether_every_kernel_has_a_cache_index_newer_than_its_source(tmp_path, monkeypatch):
+    from snac_gym import compiled
+
+    monkeypatch.setattr(compiled, "_KERNELS", [])  # this test's kernels only
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    name = f"tiny_kernels_{os.getpid()}"
+    source = tmp_path / f"{name}.py"
+    source.write_text(
+        "from snac_gym.compiled import kernel\n\n\n"
+        "@kernel(example=lambda: (2.0,))\ndef double(x):\n    return 2.0 * x\n\n\n"
+        "@kernel(example=lambda: (2.0,))\ndef halve(x):\n    return 0.5 * x\n"
+    )
+    try:
+        module = importlib.import_module(name)
+        assert not compiled.cached_on_disk((name,))  # never compiled
+        module.double(1.0)
+        assert not compiled.cached_on_disk((name,))  # one kernel of two
+        compiled.warm_up((name,))
+        assert compiled.cached_on_disk((name,))
+        later = source.stat().st_mtime + 10.0
+        os.utime(source, (later, later))
+        assert not compiled.cached_on_disk((name,))  # the source changed since
+        compiled.warm_up((name,))  # the process has them: nothing is written again
+        assert not compiled.cached_on_disk((name,))
+        monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "elsewhere"))
+        assert not compiled.cached_on_disk((name,))  # not where this looks
+    finally:
+        sys.modules.pop(name, None)
+
+
+PRELOAD_DRIVER = r"""
+import importlib, json
+from snac_gym import compiled
+for module in compiled.KERNEL_MODULES:
+    importlib.import_module(module)
+before = sorted(k.__name__ for k in compiled._KERNELS if k.dispatcher.overloads)
+import evaluation.kernel_preload  # what the evaluator's fork server imports before it forks any worker
+misses = []
+for k in compiled._KERNELS:
+    k.dispatcher._compile_for_args = lambda *args, _name=k.__name__, **kwargs: misses.append(_name)
+compiled.warm_up()  # what each worker's start-up calls
+after = sorted(k.__name__ for k in compiled._KERNELS if k.dispatcher.overloads)
+print(json.dumps({"before": before, "after": after, "misses": sorted(set(misses)), "all": sorted(k.__name__ for k in compiled._KERNELS)}))
+"""
+
+
+def test_the_fork_server_loads_every_kernel_its_workers_call_at_start_up():
+    """With the cache up to date (the session's start compiled it, conftest.py), a worker forked from
+    the server starts with every kernel loaded: its warm-up loads nothing itself."""
+    import json
+
+    done = subprocess.run([sys.executable, "-c", PRELOAD_DRIVER], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report["before"] == [] and report["after"] == report["all"] and len(report["all"]) >= 8
+    assert report["misses"] == []
