@@ -92,30 +92,29 @@ def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
 
 
 def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
-    """Whether every kernel of ``modules`` has a numba cache index for this Python newer than its source.
+    """Whether every kernel of ``modules`` has a numba cache index newer than its source.
 
     Then :func:`warm_up` only loads (a tenth of a second a module) instead of compiling (seconds).
-    A cache this misjudges costs time only: numba checks each index itself and compiles what is
-    out of date. ``NUMBA_CACHE_DIR`` moves the cache out of ``__pycache__/``; this then says no.
+    The index is the one numba itself reads (its cache folder and file name, for this Python);
+    a cache this misjudges costs time only, as numba checks each index and compiles what is out of
+    date. Says no where numba's cache layout is not the one known here.
     """
     import importlib
-    import os
-    import sys
     from pathlib import Path
 
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return False
-    tag = f"py{sys.version_info.major}{sys.version_info.minor}"
     for module in modules:
-        source = Path(importlib.import_module(module).__file__ or "")
-        folder = source.parent / "__pycache__"
-        for compiled in _KERNELS:
-            if compiled.__wrapped__.__module__ != module:
-                continue
-            # numba's index name: <module>.<qualified name>-<first line>.<python tag>.nbi
-            indexes = list(folder.glob(f"{source.stem}.{compiled.__wrapped__.__qualname__}-*.{tag}.nbi"))
-            if not indexes or max(index.stat().st_mtime for index in indexes) < source.stat().st_mtime:
-                return False
+        importlib.import_module(module)
+    for compiled in _KERNELS:
+        if compiled.__wrapped__.__module__ not in modules:
+            continue
+        cache = compiled.dispatcher._cache  # numba's FunctionCache (njit(cache=True))
+        try:
+            index = Path(cache._cache_path) / f"{cache._impl.filename_base}.nbi"
+            source = Path(cache._impl.locator._py_file)
+        except AttributeError:  # another numba's internals
+            return False
+        if not index.is_file() or index.stat().st_mtime < source.stat().st_mtime:
+            return False
     return True
 
 
