@@ -207,18 +207,6 @@ def _init_worker(parent_pid: int, registrations: bytes | None = None, compile_lo
         warm_up_shared(compile_locks)
 
 
-def _load_cached_kernels() -> None:
-    """Load every kernel here when numba's cache holds them all, so that forked workers inherit them.
-
-    A worker loads them from the cache otherwise, each on its own (a third of a second of CPU). A
-    kernel still to compile is left to the workers, which share the compiles (:func:`_init_worker`).
-    """
-    from snac_gym.compiled import cached_on_disk, warm_up
-
-    if cached_on_disk():
-        warm_up()
-
-
 def _noop(seconds: float) -> None:
     """Hold a worker briefly, so that the pool starts one process per start-up job."""
     time.sleep(seconds)
@@ -260,7 +248,9 @@ class ProcessExecutor:
         if method == "forkserver":
             context.set_forkserver_preload(_PRELOAD)
         elif method == "fork":
-            _load_cached_kernels()  # once here, not in every worker
+            from snac_gym.compiled import load_if_cached
+
+            load_if_cached()  # once here, for every worker forked from here
         self.start_method = context.get_start_method()
         from snac_gym.compiled import KERNEL_MODULES
 

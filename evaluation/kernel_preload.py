@@ -11,10 +11,9 @@ from __future__ import annotations
 
 import evaluation.jobs  # noqa: F401  (what the workers run)
 import evaluation.optimal_reference  # noqa: F401
-from snac_gym.compiled import cached_on_disk, warm_up
+from snac_gym.compiled import load_if_cached
 
-if cached_on_disk():
-    try:
-        warm_up()
-    except Exception:  # noqa: BLE001 - the server must start; each worker then loads, and reports, it itself
-        pass
+try:
+    load_if_cached()
+except Exception:  # noqa: BLE001 - the server must start; each worker then loads, and reports, it itself
+    pass

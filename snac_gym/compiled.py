@@ -118,6 +118,16 @@ def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
     return True
 
 
+def load_if_cached(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
+    """:func:`warm_up` of ``modules`` only where it loads every kernel from the cache (:func:`cached_on_disk`);
+    whether it did. A process that forks workers calls it so that they inherit the kernels; a kernel
+    still to compile is left to them, as they share the compiles (:func:`warm_up_shared`)."""
+    if not cached_on_disk(modules):
+        return False
+    warm_up(modules)
+    return True
+
+
 def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODULES) -> list[str]:
     """:func:`warm_up` of ``modules`` in processes that share the compiles; the modules whose lock this one took.
 
@@ -175,5 +185,5 @@ def _with_stop_signals_held(
 
 
 __all__ = [
-    "KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "cached_on_disk", "kernel", "read_only", "warm_up", "warm_up_shared",
+    "KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "cached_on_disk", "kernel", "load_if_cached", "read_only", "warm_up", "warm_up_shared",
 ]  # fmt: skip
