@@ -69,6 +69,11 @@ from snac_gym.tasks.pose import pose_errors_and_jacobians
 OPTIMAL = "optimal"
 #: Row label in the reports.
 OPTIMAL_LABEL = "Optimal (open-loop reference, whole reference known)"
+#: The reference's constraints (``--reference-limits``): the joint position and velocity limits (the
+#: success rule's), or the velocity limits only.
+REFERENCE_LIMITS = ("joints", "velocity")
+#: Row label of the variant that keeps the velocity limits only.
+OPTIMAL_VELOCITY_ONLY_LABEL = "Optimal, joint position limits ignored (open-loop reference, whole reference known)"
 #: Stop Gauss-Newton once the step just taken was predicted to remove at most GAP_RTOL·V: V − V*
 #: (of the local optimum, by the Gauss-Newton model) was then at most that, and is far less after the step.
 GAP_RTOL = 1e-7
@@ -100,11 +105,17 @@ SOLVER_COLUMNS = (
     "optimal_local_spread",
     "optimal_lower_bound",
 )
-#: A controller's rollout becomes a start of the solver when its cost is below (1 + RESTART_MARGIN)
-#: times the best optimum found so far (see :func:`multi_start_solve`).
-RESTART_MARGIN = 0.05
+#: Gauss-Newton steps a start of the reference's own is screened by (:func:`multi_start_solve`).
+SCREEN_ITERATIONS = 3
+#: A screened start is solved to the end when it then costs less than (1 + SCREEN_MARGIN) times the
+#: best optimum so far.
+SCREEN_MARGIN = 0.1
 #: Name of the start at rest (U = 0) in ``optimal_winner``.
 REST_START = "rest"
+#: How far a position limit is moved out past a θ₀ that does not keep it, rad (:func:`solve_sample`).
+START_CLEARANCE = 1e-9
+#: An interior-point start's commands are shrunk by this share into the open velocity box.
+START_SHRINK = 1e-3
 
 
 def _angles(commands: np.ndarray, q0: np.ndarray, dt: float) -> np.ndarray:
@@ -369,8 +380,15 @@ def solve_sample(
     max_iterations: int = MAX_ITERATIONS,
     convention: CostConvention | None = None,
     gap_rtol: float = GAP_RTOL,
+    position_limits: tuple[np.ndarray, np.ndarray] | None = None,
+    interior_start: np.ndarray | None = None,
 ) -> OptimalSolution:
-    """The optimal command sequence of one sample (see the module docstring).
+    """The optimal command sequence of one sample from one start (see the module docstring).
+
+    Gauss-Newton first, without constraints (the common case: its optimum keeps every limit, and is
+    then the constrained problem's too). Where that optimum breaks a limit, the interior point
+    (:func:`_interior_point`) solves the constrained problem from ``initial`` (or from rest where
+    ``initial`` does not keep the limits strictly).
 
     Args:
         q0: ``(m,)`` seed pose.
@@ -382,25 +400,33 @@ def solve_sample(
         gtol, ftol, max_iterations, gap_rtol: The stopping test (:data:`GTOL`, :data:`FTOL`,
             :data:`GAP_RTOL`) and the cap.
         convention: The cost solved for (default: Table I's, Q = I, u₋₁ = 0).
+        position_limits: ``(θ⁻, θ⁺)``, the joint position limits kept at θ₁..θ_K (``None``: velocity
+            limits only, the variant that ignores the joints' position limits). A limit that θ₀
+            itself does not keep is moved out to θ₀: no sequence could keep it.
+        interior_start: ``(K, m)`` start of the interior point, if not ``initial`` (e.g. the
+            feedback rollout that ``initial`` was refined from, which keeps the limits).
     """
     started = time.perf_counter()
     convention = convention if convention is not None else CostConvention()
     steps, m = x_d.shape[0], kinematics.n_joints
-    limits = np.asarray(velocity_limits, dtype=float)
-    start = np.zeros((steps, m)) if initial is None else np.clip(np.asarray(initial, dtype=float), -limits, limits)
+    q0 = np.asarray(q0, dtype=float)
+    limits = _limits(velocity_limits, position_limits, q0)
+    start = np.zeros((steps, m)) if initial is None else np.asarray(initial, dtype=float)
     commands, value, grad_z, iterations, evaluations, converged = _gauss_newton(
         q0, x_d, kinematics, float(dt), start, gtol, ftol, max_iterations, convention, gap_rtol
     )
     gradient = float(np.abs(grad_z).max())
     gap_estimate = 0.5 * float(grad_z @ grad_z)
-    bounded = bool((np.abs(commands) > limits).any())
+    bounded = limits.violation(commands, q0, dt) > 0.0
     if bounded:
-        commands, value, polish_iterations, polish_evaluations, gradient, converged = _bounded_polish(
-            commands, q0, x_d, kinematics, dt, limits, gtol, ftol, max_iterations, convention
+        inside = _strictly_inside(start if interior_start is None else np.asarray(interior_start, dtype=float),
+                                  q0, dt, limits)  # fmt: skip
+        commands, value, more_iterations, more_evaluations, converged = _interior_point(
+            q0, x_d, kinematics, float(dt), inside, limits, convention, max_iterations, gap_rtol
         )
-        iterations += polish_iterations
-        evaluations += polish_evaluations
-        gap_estimate = float("nan")
+        iterations += more_iterations
+        evaluations += more_evaluations
+        gradient, gap_estimate = float("nan"), float("nan")
     return OptimalSolution(
         commands,
         value,
@@ -412,6 +438,23 @@ def solve_sample(
         bounded,
         time.perf_counter() - started,
     )
+
+
+def _limits(velocity_limits: np.ndarray, position_limits: tuple[np.ndarray, np.ndarray] | None, q0: np.ndarray) -> Limits:
+    velocity = np.asarray(velocity_limits, dtype=float)
+    if position_limits is None:
+        return Limits(velocity)
+    lower, upper = (np.asarray(bound, dtype=float) for bound in position_limits)
+    # θ₀ is given: a bound it breaks (or touches) cannot be kept by any sequence, so it moves out to θ₀.
+    return Limits(velocity, np.minimum(lower, q0 - START_CLEARANCE), np.maximum(upper, q0 + START_CLEARANCE))
+
+
+def _strictly_inside(start: np.ndarray, q0: np.ndarray, dt: float, limits: Limits) -> np.ndarray:
+    """``start`` shrunk into the open velocity box if that keeps every position limit strictly, else rest."""
+    inside = np.clip(start, -(1.0 - START_SHRINK) * limits.velocity, (1.0 - START_SHRINK) * limits.velocity)
+    if limits.violation(inside, q0, dt) < 0.0:
+        return inside
+    return np.zeros_like(start)
 
 
 def _bounded_polish(
@@ -455,6 +498,203 @@ def _bounded_polish(
     )
 
 
+# -- the constrained problem: joint position and velocity limits as hard constraints ----------------
+#: Fraction-to-the-boundary of every interior-point step: a slack or a multiplier may lose at most this
+#: share of its value in one step (IPOPT's τ_min), so the iterates stay strictly inside the limits.
+BOUNDARY_FRACTION = 0.995
+#: Factor the barrier parameter μ is divided by once a barrier problem is solved (centred).
+BARRIER_DECREASE = 10.0
+#: The first μ: the barrier's own gap μ·(number of constraints) is this share of V at the start.
+BARRIER_START = 1e-2
+#: A barrier problem counts as solved once the Newton step is predicted to gain at most this share of
+#: its gap μ·n_c (the centring test; the last μ also needs the gain below GAP_RTOL·V).
+CENTRING = 0.1
+#: Safeguard of the multipliers: each zᵢ is kept within [μ/(κ sᵢ), κ μ/sᵢ] (IPOPT's κ_Σ).
+MULTIPLIER_SAFEGUARD = 1e10
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The hard constraints of the reference: |uₖⱼ| ≤ ūⱼ, and θ⁻ ≤ θₖ ≤ θ⁺ for k = 1..K when ``lower``
+    and ``upper`` are given (the limits the success rule counts, ``joint_limit_margin ≥ 0``)."""
+
+    velocity: np.ndarray
+    lower: np.ndarray | None = None
+    upper: np.ndarray | None = None
+
+    @property
+    def has_positions(self) -> bool:
+        return self.lower is not None and self.upper is not None
+
+    def slacks(self, commands: np.ndarray, angles: np.ndarray) -> list[np.ndarray]:
+        """Every constraint's slack (≥ 0 inside): ū + u, ū − u, then θ − θ⁻ and θ⁺ − θ over θ₁..θ_K."""
+        slacks = [self.velocity + commands, self.velocity - commands]
+        if self.has_positions:
+            slacks += [angles - self.lower, self.upper - angles]
+        return slacks
+
+    def violation(self, commands: np.ndarray, q0: np.ndarray, dt: float) -> float:
+        """The largest excess over any limit (≤ 0: the sequence keeps every limit)."""
+        return -min(float(s.min()) for s in self.slacks(commands, _next_angles(commands, q0, dt)))
+
+
+def _next_angles(commands: np.ndarray, q0: np.ndarray, dt: float) -> np.ndarray:
+    """θ₁..θ_K of θₖ₊₁ = θₖ + uₖΔt: the variables of the Gauss-Newton and interior-point systems."""
+    return q0 + dt * np.cumsum(commands, axis=0)
+
+
+def _difference_transpose(values: np.ndarray, dt: float) -> np.ndarray:
+    """Mᵀy for y in u-space, with u = Mθ + c, uₖ = (θₖ₊₁ − θₖ)/Δt over the variables θ₁..θ_K."""
+    out = np.empty_like(values)
+    out[:-1] = (values[:-1] - values[1:]) / dt
+    out[-1] = values[-1] / dt
+    return out
+
+
+@dataclass
+class _Barrier:
+    """The interior-point state of one solve: slacks s, multipliers z, and μ."""
+
+    limits: Limits
+    dt: float
+    mu: float
+    slacks: list[np.ndarray]
+    multipliers: list[np.ndarray]
+
+    @property
+    def count(self) -> int:
+        return sum(s.size for s in self.slacks)
+
+    def barrier(self, slacks: list[np.ndarray]) -> float:
+        return -self.mu * sum(float(np.log(s).sum()) for s in slacks)
+
+    def gradient(self) -> np.ndarray:
+        """∂(−μ Σ log s)/∂θ."""
+        inverse = [self.mu / s for s in self.slacks]
+        grad = _difference_transpose(inverse[1] - inverse[0], self.dt)
+        if self.limits.has_positions:
+            grad += inverse[3] - inverse[2]
+        return grad
+
+    def add_to_band(self, band: np.ndarray, m: int) -> None:
+        """Add Σ = z/s of every constraint to the θ-system: diagonal for θ bounds, MᵀΣM for u bounds."""
+        weights = [z / s for z, s in zip(self.multipliers, self.slacks, strict=True)]
+        velocity = (weights[0] + weights[1]) / self.dt**2
+        diagonal = velocity.copy()
+        diagonal[:-1] += velocity[1:]
+        if self.limits.has_positions:
+            diagonal += weights[2] + weights[3]
+        band[0] += diagonal.ravel()
+        band[m, : -m] -= velocity[1:].ravel()
+
+    def step_multipliers(self, slack_steps: list[np.ndarray]) -> list[np.ndarray]:
+        """δz = μ/s − z − (z/s) δs of every constraint (the linearised complementarity)."""
+        return [self.mu / s - z - (z / s) * ds for z, s, ds in zip(self.multipliers, self.slacks, slack_steps, strict=True)]
+
+    def safeguard(self) -> None:
+        for z, s in zip(self.multipliers, self.slacks, strict=True):
+            np.clip(z, self.mu / (MULTIPLIER_SAFEGUARD * s), MULTIPLIER_SAFEGUARD * self.mu / s, out=z)
+
+
+def _boundary_step(values: list[np.ndarray], steps: list[np.ndarray]) -> float:
+    """The largest α ≤ 1 with v + α δv ≥ (1 − τ) v for every entry (fraction to the boundary)."""
+    alpha = 1.0
+    for v, dv in zip(values, steps, strict=True):
+        shrinking = dv < 0
+        if shrinking.any():
+            alpha = min(alpha, float((-BOUNDARY_FRACTION * v[shrinking] / dv[shrinking]).min()))
+    return alpha
+
+
+def _interior_point(
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Any,
+    dt: float,
+    start: np.ndarray,
+    limits: Limits,
+    convention: CostConvention,
+    max_iterations: int = MAX_ITERATIONS,
+    gap_rtol: float = GAP_RTOL,
+) -> tuple[np.ndarray, float, int, int, bool]:
+    """Primal-dual interior point in θ₁..θ_K with Gauss-Newton on V: the constrained optimum from ``start``.
+
+    ``start`` must keep every limit strictly. Each iteration solves the same block-banded system as the
+    unconstrained solve, with the barrier's Σ = z/s added (diagonal for the position bounds, MᵀΣM for the
+    velocity bounds: it stays within the band), takes the largest step that keeps every slack and
+    multiplier at least 1 − τ of its value, and backtracks on the barrier function V − μ Σ log s. μ is
+    divided by :data:`BARRIER_DECREASE` each time its problem is centred, until its gap μ·n_c is at
+    most ``gap_rtol``·V: the sequence then keeps every limit and is within that of a local optimum.
+
+    Returns:
+        (commands, V, iterations, cost evaluations, converged).
+    """
+    steps, m = start.shape
+    base = _theta_system_base(steps, m, dt, convention)
+    if base.shape[0] <= m:  # without the u̇ term A is tridiagonal: room for MᵀΣM's off-diagonal
+        base = np.vstack([base, np.zeros((m + 1 - base.shape[0], base.shape[1]))])
+
+    def evaluate(commands: np.ndarray) -> tuple[float, np.ndarray]:
+        return trajectory_cost_and_gradient(commands, q0, x_d, kinematics, dt, convention)
+
+    commands = start.copy()
+    slacks = limits.slacks(commands, _next_angles(commands, q0, dt))
+    if min(float(s.min()) for s in slacks) <= 0.0:
+        raise ValueError("the interior-point start must keep every limit strictly")
+    value, grad = evaluate(commands)
+    count = sum(s.size for s in slacks)
+    mu = max(BARRIER_START * value / count, 1e-300)
+    state = _Barrier(limits, dt, mu, slacks, [mu / s for s in slacks])
+    iterations, evaluations, converged = 0, 1, False
+    while iterations < max_iterations:
+        _, jacobians = _errors_and_jacobians(kinematics, _angles(commands, q0, dt), x_d)
+        band = np.array(base, order="F")
+        from evaluation.optimal_kernels import add_jacobian_blocks
+
+        add_jacobian_blocks(band, np.ascontiguousarray(jacobians, dtype=float), 2.0 * dt * convention.q_scale)
+        state.add_to_band(band, m)
+        rhs = -(_difference_transpose(grad, dt) + state.gradient())
+        factor, info = dpbtrf(band, lower=1, overwrite_ab=1)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"interior-point matrix not positive definite (dpbtrf info {info})")
+        step_theta = dpbtrs(factor, rhs.reshape(-1), lower=1)[0].reshape(steps, m)
+        step_u = np.diff(step_theta, axis=0, prepend=np.zeros((1, m))) / dt
+        slack_steps = [step_u, -step_u] + ([step_theta, -step_theta] if limits.has_positions else [])
+        decrement = float(np.vdot(rhs, step_theta))  # −(∂Φ/∂θ)ᵀδθ: the model's decrease is half of it
+        alpha = _boundary_step(state.slacks, slack_steps)
+        multiplier_steps = state.step_multipliers(slack_steps)
+        merit = value + state.barrier(state.slacks)
+        tries = 0
+        while True:
+            trial = commands + alpha * step_u
+            trial_slacks = limits.slacks(trial, _next_angles(trial, q0, dt))
+            trial_value, trial_grad = evaluate(trial)
+            tries += 1
+            if min(float(s.min()) for s in trial_slacks) > 0.0 and (
+                trial_value + state.barrier(trial_slacks) <= merit - ARMIJO * alpha * decrement
+            ):
+                break
+            alpha *= 0.5
+            if alpha < MIN_STEP:
+                break
+        evaluations += tries
+        if alpha < MIN_STEP:  # no decrease along a descent direction: rounding dominates
+            break
+        iterations += 1
+        alpha_z = _boundary_step(state.multipliers, multiplier_steps)
+        commands, value, grad, state.slacks = trial, trial_value, trial_grad, trial_slacks
+        state.multipliers = [z + alpha_z * dz for z, dz in zip(state.multipliers, multiplier_steps, strict=True)]
+        state.safeguard()
+        if 0.5 * decrement <= CENTRING * state.mu * count:
+            if state.mu * count <= gap_rtol * abs(value) and 0.5 * decrement <= gap_rtol * abs(value):
+                converged = True
+                break
+            if state.mu * count > gap_rtol * abs(value):
+                state.mu /= BARRIER_DECREASE
+                state.safeguard()
+    return commands, value, iterations, evaluations, converged
+
+
 class ReplayPolicy:
     """An open-loop "policy" that replays precomputed command sequences (batch protocol).
 
@@ -475,14 +715,22 @@ class ReplayPolicy:
         return commands.copy()
 
 
+#: The reference's own starts besides rest: feedback laws of this project at fixed settings, rolled out
+#: on the true model and kept strictly inside the position limits by Ω(θ) (:mod:`snac_gym.joint_limits`).
+#: They are the reference's, not the run's: a sample gets the same starts whatever ``--controllers`` says.
+OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("lqr", {"q_scale": 9.0, "joint_limits": True}),
+    ("dls", {"joint_limits": True}),
+)
+
+
 @dataclass(frozen=True)
 class OptimalJob:
     """The optimum of a chunk of samples of one task (picklable, like a :class:`RolloutJob`).
 
-    ``starts``: the run's controllers as evaluated (name, constructor arguments with the matched
-    knob), whose rollouts are further starts of the solver (:func:`multi_start_solve`);
-    ``start_costs``: per sample, their costs in the run (so that only the rollouts that can be
-    starts are made again).
+    It depends on the samples, the horizon, the cost and the arm only, never on the run's contestants.
+    ``position_limits``: keep the joint position limits as hard constraints (the default reference);
+    ``False`` gives the variant that keeps the velocity limits only.
     """
 
     task: str
@@ -493,10 +741,8 @@ class OptimalJob:
     robot: str = "ur10"
     keep_logs: bool = False
     convention: CostConvention = field(default_factory=CostConvention)
-    starts: tuple[tuple[str, dict[str, Any]], ...] = ()
-    start_costs: tuple[tuple[float, ...], ...] = ()
-    restart_margin: float = RESTART_MARGIN
-    model_error: str | None = None
+    position_limits: bool = True
+    screen_margin: float = SCREEN_MARGIN
 
 
 @dataclass
@@ -505,7 +751,7 @@ class MultiStart:
 
     Attributes:
         solution: The winning solve.
-        winner: Its start: :data:`REST_START` or a controller's name.
+        winner: Its start: :data:`REST_START` or the name of one of :data:`OWN_STARTS`.
         starts: How many solves ran.
         spread: (worst − best) / best over the local optima found (0 with one start).
     """
@@ -524,35 +770,33 @@ def multi_start_solve(
     limits: np.ndarray,
     convention: CostConvention,
     candidates: dict[str, np.ndarray],
-    margin: float = RESTART_MARGIN,
+    margin: float = SCREEN_MARGIN,
     first: OptimalSolution | None = None,
+    position_limits: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> MultiStart:
-    """Solve from rest, then from every candidate command sequence (a controller's rollout) that could win.
+    """Solve from rest, then from every candidate command sequence whose basin could win.
 
-    The cost is not convex (the arm can reach a target the other way round, on another IK branch),
-    so the solve from rest finds *a* local optimum. A controller's trajectory lies in some basin; a
-    solve started there descends to that basin's optimum, at most the controller's own cost. Starts
-    are tried cheapest first and only while their cost is below (1 + ``margin``) × the best optimum
-    so far: this makes the optimum at most every controller's cost (the guarantee the comparison
-    needs), and costs one extra solve only where a controller comes near the optimum.
-
-    A solve that ends above its own start's cost (the bounded polish from a clipped point can) is
-    redone as a bounded descent from the start itself, which cannot end above it.
+    The cost is not convex (the arm can reach a target the other way round, on another IK branch), so
+    the solve from rest finds *a* local optimum. A feedback law's trajectory lies in some basin; a
+    solve started there descends to that basin's optimum. A candidate's own cost says little about its
+    basin (under Table I's cost a feedback law pays mostly for its first command's jump, which the first
+    Gauss-Newton step removes), so each candidate is screened by :data:`SCREEN_ITERATIONS` Gauss-Newton
+    steps, and solved to the end only where it then costs less than (1 + ``margin``) × the best optimum
+    so far. The candidates are the reference's own (:data:`OWN_STARTS`), never the contestants it judges.
 
     ``first``: the solve from rest, when already made.
     """
-    best = first if first is not None else solve_sample(q0, x_d, kinematics, dt, limits, convention=convention)
+    solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
+                              position_limits=position_limits)  # fmt: skip
+    best = first if first is not None else solve()
     winner, optima = REST_START, [best.cost]
-    priced = sorted(
-        (trajectory_cost_and_gradient(commands, q0, x_d, kinematics, dt, convention)[0], name, commands)
-        for name, commands in candidates.items()
-    )
-    for start_cost, name, commands in priced:
-        if not start_cost < (1.0 + margin) * best.cost:
-            break
-        solution = solve_sample(q0, x_d, kinematics, dt, limits, initial=commands, convention=convention)
-        if solution.cost > start_cost:
-            solution = _polished_from(commands, solution, q0, x_d, kinematics, dt, limits, convention)
+    for name, commands in candidates.items():
+        screened, screened_cost, *_ = _gauss_newton(
+            q0, x_d, kinematics, float(dt), commands, GTOL, FTOL, SCREEN_ITERATIONS, convention
+        )
+        if not screened_cost < (1.0 + margin) * best.cost:
+            continue
+        solution = solve(initial=screened, interior_start=commands)
         optima.append(solution.cost)
         if solution.cost < best.cost:
             best, winner = solution, name
@@ -560,47 +804,16 @@ def multi_start_solve(
     return MultiStart(best, winner, len(optima), float(spread))
 
 
-def _polished_from(
-    commands: np.ndarray,
-    failed: OptimalSolution,
-    q0: np.ndarray,
-    x_d: np.ndarray,
-    kinematics: Any,
-    dt: float,
-    limits: np.ndarray,
-    convention: CostConvention,
-) -> OptimalSolution:
-    """Bounded L-BFGS-B straight from a feasible start (a descent method: it ends at most at the start's cost)."""
-    started = time.perf_counter()
-    polished, value, iterations, evaluations, gradient, converged = _bounded_polish(
-        np.clip(commands, -limits, limits), q0, x_d, kinematics, dt, limits, GTOL, FTOL, MAX_ITERATIONS, convention
-    )
-    return OptimalSolution(
-        polished, value, failed.iterations + iterations, failed.evaluations + evaluations, gradient,
-        float("nan"), converged, True, failed.seconds + time.perf_counter() - started,
-    )  # fmt: skip
-
-
-def _start_commands(job: OptimalJob, context: Any, rest_costs: Sequence[float]) -> list[dict[str, np.ndarray]]:
-    """Per sample, the commands of each controller that may start the solver (its cost in the run below
-    (1 + margin) × the optimum from rest), rolled out again on the kinematic model as evaluated."""
+def own_start_commands(context: Any, samples: Sequence[Any], steps: int, seeds: Sequence[int]) -> list[dict[str, np.ndarray]]:
+    """Per sample, the command sequence of each of :data:`OWN_STARTS`, rolled out on the true model."""
     from snac_gym.policies.registry import make_policy
 
-    starts: list[dict[str, np.ndarray]] = [{} for _ in job.samples]
-    for c, (name, kwargs) in enumerate(job.starts):
-        chosen = [i for i in range(len(job.samples))
-                  if job.start_costs[i][c] < (1.0 + job.restart_margin) * rest_costs[i]]  # fmt: skip
-        if not chosen:
-            continue
-        from evaluation.jobs import policy_context
-
-        # The controllers as evaluated: with the run's wrong model, if any (the plant stays true).
-        model_context = context if job.model_error is None else policy_context(job.robot, job.dt, job.task, job.model_error)
-        make = functools.partial(make_policy, name, model_context, **kwargs)
-        samples, seeds = [job.samples[i] for i in chosen], [job.seeds[i] for i in chosen]
-        rollouts = simulate_kinematic(model_context, make, samples, job.steps, seeds, True, name, plant=context.kinematics)
-        for row, i in enumerate(chosen):
-            starts[i][name] = rollouts.commands[row]
+    starts: list[dict[str, np.ndarray]] = [{} for _ in samples]
+    for name, kwargs in OWN_STARTS:
+        make = functools.partial(make_policy, name, context, **kwargs)
+        rollouts = simulate_kinematic(context, make, samples, steps, seeds, True, name, keep_states=False)
+        for i in range(len(samples)):
+            starts[i][name] = rollouts.commands[i]
     return starts
 
 
@@ -630,12 +843,14 @@ def run_optimal_job(job: OptimalJob) -> Any:
     times = np.arange(job.steps) * job.dt
     x_d, _, _ = reference_trajectories([s.reference for s in job.samples], times, context.layout.task_dim)
     q0s = [np.asarray(s.q0, dtype=float) for s in job.samples]
+    position_limits = (kinematics.lower_limits, kinematics.upper_limits) if job.position_limits else None
     with single_threaded_blas():
-        rest = [solve_sample(q0, x_d[i], kinematics, job.dt, limits, convention=job.convention) for i, q0 in enumerate(q0s)]
-        candidates = _start_commands(job, context, [r.cost for r in rest]) if job.starts else [{} for _ in rest]
+        rest = [solve_sample(q0, x_d[i], kinematics, job.dt, limits, convention=job.convention,
+                             position_limits=position_limits) for i, q0 in enumerate(q0s)]  # fmt: skip
+        candidates = own_start_commands(context, job.samples, job.steps, job.seeds)
         results = [
             multi_start_solve(q0, x_d[i], kinematics, job.dt, limits, job.convention, candidates[i],
-                              job.restart_margin, rest[i])
+                              job.screen_margin, rest[i], position_limits)
             for i, q0 in enumerate(q0s)
         ]  # fmt: skip
     solutions = [result.solution for result in results]
@@ -643,10 +858,7 @@ def run_optimal_job(job: OptimalJob) -> Any:
     rollouts = simulate_kinematic(
         context, lambda: ReplayPolicy(commands), job.samples, job.steps, job.seeds, True, OPTIMAL
     )
-    # The optimum is of eq. 6 over u alone: joint position limits are not constraints of it; its
-    # joint_limit_margin column says how close it comes to them.
-    position_limits = (kinematics.lower_limits, kinematics.upper_limits)
-    metrics = rollout_metrics(rollouts, job.task, limits, job.convention, position_limits)
+    metrics = rollout_metrics(rollouts, job.task, limits, job.convention, (kinematics.lower_limits, kinematics.upper_limits))
     metrics.insert(0, "sample", [s.index for s in job.samples])
     metrics["optimal_iterations"] = np.array([s.iterations for s in solutions], dtype=np.int64)
     metrics["optimal_evaluations"] = np.array([s.evaluations for s in solutions], dtype=np.int64)
@@ -689,7 +901,12 @@ __all__ = [
     "OptimalJob",
     "OptimalSolution",
     "REST_START",
-    "RESTART_MARGIN",
+    "SCREEN_ITERATIONS",
+    "SCREEN_MARGIN",
+    "OWN_STARTS",
+    "REFERENCE_LIMITS",
+    "Limits",
+    "own_start_commands",
     "ReplayPolicy",
     "add_optimality",
     "run_optimal_job",

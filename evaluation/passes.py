@@ -182,15 +182,9 @@ class EvaluationRun:
             for i in range(0, len(samples), size)
         ]
 
-    def _optimal_jobs(
-        self, task: str, starts: tuple[tuple[str, dict[str, Any]], ...] = (), costs: Sequence[pd.Series] = ()
-    ) -> list[OptimalJob]:
-        """The optimal reference's jobs of ``task``: at most :data:`OPTIMAL_CHUNK_SIZE` samples each.
-
-        ``costs``: per start controller, its cost per sample id in the run.
-        """
+    def _optimal_jobs(self, task: str) -> list[OptimalJob]:
+        """The optimal reference's jobs of ``task``: at most :data:`OPTIMAL_CHUNK_SIZE` samples each."""
         config, samples = self.config, self.samples[task]
-        start_costs = tuple(tuple(float(c.get(s.index, np.inf)) for c in costs) for s in samples)
         # At least one job per worker on a small set (a few solves each), at most OPTIMAL_CHUNK_SIZE.
         size = min(config.chunk_size, OPTIMAL_CHUNK_SIZE, max(OPTIMAL_MIN_CHUNK, math.ceil(len(samples) / config.workers)))
         return [
@@ -203,9 +197,7 @@ class EvaluationRun:
                 robot=config.robot,
                 keep_logs=config.save_trajectories,
                 convention=config.convention,
-                starts=starts,
-                start_costs=start_costs[i : i + size],
-                model_error=config.model_error,
+                position_limits=config.reference_limits == "joints",
             )
             for i in range(0, len(samples), size)
         ]
@@ -269,25 +261,19 @@ class EvaluationRun:
             self._store_rows(job, job.controller, result, path, spec.knob, knob_value)
         return self._read_passes(paths)
 
-    def run_optimal(
-        self,
-        starts: dict[str, tuple[tuple[str, dict[str, Any]], ...]] | None = None,
-        costs: dict[str, list[pd.Series]] | None = None,
-    ) -> list[pd.DataFrame]:
+    def run_optimal(self) -> list[pd.DataFrame]:
         """The ``optimal`` rows of every task (jobs of :data:`OPTIMAL_CHUNK_SIZE` samples at most, stored as they arrive).
 
-        ``starts``: per task, the controllers as evaluated (name, arguments) whose rollouts also start
-        the solver; ``costs``: per task, each one's cost per sample id.
+        They depend on the samples, the cost and the arm alone, not on the run's controllers.
         """
         started = time.perf_counter()
         self.progress.status("optimal reference")
         todo: list[tuple[OptimalJob, Path]] = []
         paths: list[list[Path]] = []
         for task in self.config.tasks:
-            task_starts = (starts or {}).get(task, ())
-            key = settings_key({"starts": [list(start) for start in task_starts]}, self.config.steps(task),
+            key = settings_key({"reference_limits": self.config.reference_limits}, self.config.steps(task),
                                self.config.engine)  # fmt: skip
-            jobs = self._optimal_jobs(task, task_starts, (costs or {}).get(task, ()))
+            jobs = self._optimal_jobs(task)
             task_paths, task_todo = self._parts_to_run(OPTIMAL, key, jobs)
             paths.append(task_paths)
             todo += task_todo

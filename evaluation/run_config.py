@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 from evaluation.effort_statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
 from evaluation.executors import MAX_WORKERS_PER_CPU, max_workers
 from evaluation.jobs import ENGINES
-from evaluation.optimal_reference import OPTIMAL
+from evaluation.optimal_reference import OPTIMAL, REFERENCE_LIMITS
 from evaluation.samples import TASKS, check_samples_file
 from evaluation.store import file_sha1
 from snac_gym.cost import CostConvention
@@ -116,6 +116,9 @@ class EvaluationConfig:
         model_error: The controllers' arm model differs from the plant's by this
             (:class:`snac_gym.model_error.ModelError` text, ``--model-error``); the plant, the cost,
             the success rule and the ``optimal`` reference keep the true model. ``None``: none.
+        reference_limits: The constraints of the ``optimal`` reference (:data:`REFERENCE_LIMITS`):
+            ``"joints"`` (joint position and velocity limits, the limits the success rule counts) or
+            ``"velocity"`` (velocity limits only: the variant that ignores the joints' position limits).
     """
 
     out: Path
@@ -151,6 +154,7 @@ class EvaluationConfig:
     q_scale: float = 1.0
     success_threshold: float = 0.95
     model_error: str | None = None
+    reference_limits: str = "joints"
 
     @property
     def convention(self) -> CostConvention:
@@ -248,6 +252,7 @@ class EvaluationConfig:
             "controller_kwargs": {k: dict(v) for k, v in self.controller_kwargs.items()},
             # Only when given, so that runs made before the option existed still resume.
             **({"model_error": self.model_error} if self.model_error is not None else {}),
+            "reference_limits": self.reference_limits,
             "use_batch": self.use_batch,
             "cost": self.cost,
             "udot_start": self.udot_start,
@@ -371,6 +376,8 @@ def _check_scoring(config: EvaluationConfig) -> None:
         raise ValueError(f"success_threshold must be in [0, 1], got {config.success_threshold}")
     if not str(config.out).strip():
         raise ValueError("out (--out) must name a folder, got an empty path")
+    if config.reference_limits not in REFERENCE_LIMITS:
+        raise ValueError(f"reference_limits (--reference-limits) must be one of {REFERENCE_LIMITS}, got {config.reference_limits!r}")
 
 
 __all__ = ["BYTES_PER_SAMPLE", "DEFAULT_CHUNK_SIZE", "DEFAULT_HORIZONS", "MAX_HORIZON_S", "EvaluationConfig", "max_samples"]

@@ -192,15 +192,12 @@ def _reported_rows(rows: pd.DataFrame, samples: Sequence[EvaluationSample]) -> p
 def _optimal_rows(
     evaluation: EvaluationRun, specs: Sequence[ControllerSpec], results: Results, records: Records
 ) -> Results:
-    """The ``optimal`` rows of every task, when asked for, started from rest and from every controller as evaluated."""
+    """The ``optimal`` rows of every task, when asked for: a function of the samples, the cost and the arm
+    alone (:mod:`evaluation.optimal_reference`), whatever controllers the run has."""
     config = evaluation.config
     if not config.wants_optimal:
         return {}
-    starts = {task: tuple(_as_evaluated(spec, records.get((task, spec.name))) for spec in specs) for task in config.tasks}
-    costs = {
-        task: [results[(task, spec.name)].set_index("sample")["cost"] for spec in specs] for task in config.tasks
-    }
-    rows = evaluation.run_optimal(starts, costs)
+    rows = evaluation.run_optimal()
     return {(task, OPTIMAL): task_rows for task, task_rows in zip(config.tasks, rows, strict=True)}
 
 
