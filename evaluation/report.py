@@ -218,18 +218,32 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
 
 
 def _table_one_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
-    """Table I's layout: per task V/N, its interval, the paper's value, success, accuracy and standing."""
+    """Table I's layout: per task V/N, its interval, the share of it that is the first command's jump
+    (where the cost has one), the paper's value, success, accuracy and standing."""
+    jump = all(f"{t}_first_jump_percent" in summary for t in tasks)
     header = "| Controller |" + "".join(
-        f" {get_task(t).label} V/N (ours) | 95 % CI | paper | success | accuracy (mm) | rank (ratio to best) "
-        "| ratio to SNAC (ours / paper) |"
+        f" {get_task(t).label} V/N (ours) | 95 % CI |"
+        + (" jump share |" if jump else "")
+        + " paper | success | accuracy (mm) | rank (ratio to best) | ratio to SNAC (ours / paper) |"
         for t in tasks
     )
-    lines = [header, "|---|" + "---|---|---|---|---|---|---|" * len(tasks)]
+    lines = [header, "|---|" + ("---|" * (8 if jump else 7)) * len(tasks)]
     for _, row in summary.iterrows():
         cells = [row["label"]]
         for t in tasks:
-            cells += _table_one_cells(row, t)
+            task_cells = _table_one_cells(row, t)
+            if jump:
+                share = row[f"{t}_first_jump_percent"]
+                task_cells.insert(2, "—" if pd.isna(share) else f"{share:.1f} %")
+            cells += task_cells
         lines.append("| " + " | ".join(cells) + " |")
+    if jump:
+        lines += [
+            "",
+            "Jump share: the part of V/N that is the first step's jump from rest, ‖u₀‖²_R/Δt (u₋₁ = 0, Δt = "
+            "the control period; Σ over samples of that term / Σ V). Where it is near 100 % the ranking is "
+            "that of the size of the first command; V/N without it (u₋₁ = u₀) is in the next table.",
+        ]
     return lines
 
 
@@ -473,13 +487,14 @@ def write_reports(
     where ``config.plots``; else one left by an earlier run of the folder is removed, not left stale)."""
     controllers = list(dict.fromkeys(results["controller"]))
     tasks = [t for t in config.tasks if (results["task"] == t).any()]
-    summary = summarise(results, efforts, tasks, controllers, getattr(config, "success_threshold", 0.95))
+    threshold = getattr(config, "success_threshold", 0.95)
+    summary = summarise(results, efforts, tasks, controllers, threshold, config.convention)
     summary.to_csv(root / "summary.csv", index=False, float_format="%.10g")
     (root / "summary.md").write_text(
         summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results)
     )
     if getattr(config, "plots", True):
-        plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", getattr(config, "success_threshold", 0.95))
+        plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", threshold)
     else:
         (root / "cost_boxplot.png").unlink(missing_ok=True)
     return summary

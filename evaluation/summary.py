@@ -15,6 +15,10 @@ statistic matched (``effort``), its knob (``effort_parameter``, ``effort_value``
 ``effort_role``), both effort statistics whichever was matched (``max_abs_u``, the maximum |u|
 over the set, and ``median_peak_limit_fraction``) and ``max_norm_u``.
 
+Where the run's cost has the jump from rest (Table I's cost with u₋₁ = 0): ``first_jump_percent``,
+the share of V/N that is the first command's jump ‖u₀‖²_R/Δt (Σ ``first_jump_cost`` / Σ ``cost``
+over the samples, in %), and ``cost_without_first_jump``, V/N without it, i.e. with u₋₁ = u₀.
+
 With the ``optimal`` reference (docs/optimal.md): ``ratio_to_optimal_mean`` (V/N's per-sample
 counterpart: the mean over samples of cost / optimum), ``ratio_to_optimal_median``,
 ``ratio_of_means_to_optimal`` (V/N over the optimum's V/N) and ``below_optimal`` (samples where
@@ -34,6 +38,7 @@ import pandas as pd
 
 from evaluation.optimal_reference import OPTIMAL, OPTIMAL_LABEL
 from evaluation.paired import compare
+from snac_gym.cost import CostConvention
 from snac_gym.tasks import TASKS
 
 #: Table I of the paper, rows in the paper's order: controller name in snac-gym → {task: V/N}.
@@ -91,14 +96,19 @@ def summarise(
     tasks: Sequence[str],
     controllers: Sequence[str],
     success_threshold: float = 0.95,
+    convention: CostConvention | None = None,
 ) -> pd.DataFrame:
-    """The summary table (see the module docstring) from the results and the effort records.
+    """The summary table (see the module docstring) from the results and the effort records, scored
+    under ``convention`` (default: Table I's cost with u₋₁ = 0).
 
     Only controllers whose success rate on a task reaches ``success_threshold`` are ranked there
     (``rank``, ``ratio_to_best``, ``ratio_to_snac``); the others have ``qualified`` False and NaN
     in those columns, so that a controller that fails the task is never shown as the cheapest.
     """
     effort_by_key = {(e.task, e.controller): e for e in efforts}
+    # not from a run resumed from parts written before the column existed: the share would be silently low
+    jumps = results.get("first_jump_cost", pd.Series([math.nan]))
+    with_jump = (convention or CostConvention()).first_jump_weight > 0 and bool(jumps.notna().all())
     rows = []
     for controller in controllers:
         row: dict[str, Any] = {"controller": controller, "label": controller_label(controller)}
@@ -108,6 +118,7 @@ def summarise(
                 continue
             columns = {
                 **_cost_columns(part),
+                **(_first_jump_columns(part) if with_jump else {}),
                 **_outcome_columns(part, controller, task),
                 **_optimality_columns(part, controller),
                 **_effort_columns(effort_by_key.get((task, controller))),
@@ -162,6 +173,15 @@ def _cost_columns(part: pd.DataFrame) -> dict[str, Any]:
         if term in part:
             columns[term] = float(part[term].mean())
     return columns
+
+
+def _first_jump_columns(part: pd.DataFrame) -> dict[str, Any]:
+    """The share of V/N that is the first command's jump from rest, and V/N without it (u₋₁ = u₀)."""
+    total, jump = float(part["cost"].sum()), float(part["first_jump_cost"].sum())
+    return {
+        "first_jump_percent": 100.0 * jump / total if total > 0 else 0.0,
+        "cost_without_first_jump": (total - jump) / len(part),
+    }
 
 
 def _outcome_columns(part: pd.DataFrame, controller: str, task: str) -> dict[str, Any]:

@@ -221,6 +221,12 @@ class CostConvention:
         """1 when the u̇ term counts, 0 for the HJB cost."""
         return 1.0 if self.cost == "table1" else 0.0
 
+    @property
+    def first_jump_weight(self) -> float:
+        """How much of the jump from rest ‖u₀‖²_R/Δt (the u̇ term of step 0 with u₋₁ = 0) is in V:
+        1 for Table I's cost with u₋₁ = 0; 0 with u₋₁ = u₀ (no jump) or for the HJB cost (no u̇ term)."""
+        return self.smoothness_weight if self.udot_start == "rest" else 0.0
+
     def error_weight(self, task_dim: int) -> np.ndarray | None:
         """Q (``None``: identity, the paper's)."""
         return None if self.q_scale == 1.0 else self.q_scale * np.eye(task_dim)

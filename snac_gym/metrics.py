@@ -25,6 +25,9 @@ cost_smoothness_start  –       the jump from rest u₀ᵀRu₀/Δt (the first 
 cost_table1            –       error + effort + smoothness with u₋₁ = 0, whatever the convention
 cost_table1_first      –       the same with u₋₁ = u₀ (no jump from rest)
 cost_hjb               –       error + effort: the cost of eqs. 6 and 32
+first_jump_cost        –       the part of ``cost`` that is the first command's jump from rest:
+                               cost_smoothness_start under Table I's cost with u₋₁ = 0, else 0
+first_jump_share       –       first_jump_cost / cost (0 where there is no jump)
 final_error            m       ‖e_K‖ after the last step
 time_to_1mm            s       first tₖ (k = 0..K) with ‖eₖ‖ ≤ 1 mm; NaN if never
 settle_time            s       first tₖ from which ‖eⱼ‖ stays within the success tolerance (1
@@ -84,6 +87,8 @@ METRIC_COLUMNS = (
     "cost_table1",
     "cost_table1_first",
     "cost_hjb",
+    "first_jump_cost",
+    "first_jump_share",
     "final_error",
     "time_to_1mm",
     "settle_time",
@@ -123,6 +128,10 @@ def rollout_metrics(
     start_jump = cost_rates(errors[:, :1], commands[:, :1], dt).smoothness[:, 0] * dt
     smoothness = at_rest.smoothness if convention.udot_start == "rest" else at_rest.smoothness - start_jump
     terms = CostTerms(at_rest.error, at_rest.effort, smoothness)
+    cost = convention.total(terms)
+    first_jump = convention.first_jump_weight * start_jump
+    # where there is no jump V itself may be 0 (a controller that never moves): the share is 0, not NaN
+    first_jump_share = np.divide(first_jump, cost, out=np.zeros_like(cost), where=first_jump > 0)
     error_norms = np.linalg.norm(errors, axis=-1)  # (B, K)
     final_error = np.linalg.norm(rollouts.final_errors, axis=-1)
     all_norms = np.concatenate([error_norms, final_error[:, None]], axis=1)  # k = 0..K
@@ -148,7 +157,7 @@ def rollout_metrics(
         success = success & (margins >= 0.0)
     return pd.DataFrame(
         {
-            "cost": convention.total(terms),
+            "cost": cost,
             "cost_error": terms.error,
             "cost_effort": terms.effort,
             "cost_smoothness": terms.smoothness,
@@ -156,6 +165,8 @@ def rollout_metrics(
             "cost_table1": at_rest.total,
             "cost_table1_first": at_rest.total - start_jump,
             "cost_hjb": at_rest.error + at_rest.effort,
+            "first_jump_cost": first_jump,
+            "first_jump_share": first_jump_share,
             "final_error": final_error,
             "time_to_1mm": time_to_1mm,
             "settle_time": settle_time,
