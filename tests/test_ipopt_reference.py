@@ -130,3 +130,31 @@ def test_without_casadi_it_says_what_to_install(ur10, monkeypatch):
     with pytest.raises(ImportError, match=r'pip install "snac-gym\[check\]"') as error:
         solve_with_ipopt(q0, x_d, ur10, DT, ur10.velocity_limits)
     assert str(error.value) == MISSING_CASADI
+
+
+#: (cost, task, sample, binds) of workspace samples of seed 2024 over 4 s: on the first five a UR10 joint
+#: position limit (the success rule's) binds the optimum, on the last three none does (on track 2 the unconstrained
+#: optimum crosses the elbow's limit, and the constrained one is on another branch, clear of it).
+WORKSPACE_CASES = [
+    ("hjb", "reach", 0, True), ("hjb", "reach", 4, True), ("hjb", "track", 1, True), ("hjb", "track", 5, True),
+    ("table1", "reach", 0, True), ("table1", "reach", 1, False), ("table1", "track", 2, False),
+    ("hjb", "track", 0, False),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("cost", "task", "index", "binds"), WORKSPACE_CASES)
+def test_the_constrained_reference_matches_ipopt_or_is_cheaper(ur10, cost, task, index, binds):
+    from evaluation.optimal_reference import _next_angles
+
+    convention = CostConvention(cost, "rest", 4.0 if cost == "hjb" else 1.0)
+    sample = generate_samples(ur10, SampleSpace.workspace(ur10), 2024, task, [index])[0]
+    x_d = reference_trajectories([sample.reference], np.arange(500) * DT)[0][0]
+    q0, limits = np.asarray(sample.q0, dtype=float), (ur10.lower_limits, ur10.upper_limits)
+    ours = solve_sample(q0, x_d, ur10, DT, ur10.velocity_limits, convention=convention, position_limits=limits)
+    ipopt = solve_with_ipopt(q0, x_d, ur10, DT, ur10.velocity_limits, position_limits=limits, convention=convention)
+    assert ipopt.success and ours.converged
+    assert ours.cost <= ipopt.cost * (1 + 1e-4)
+    angles = _next_angles(ours.commands, q0, DT)
+    margin = min(float((angles - limits[0]).min()), float((limits[1] - angles).min()))
+    assert margin >= 0.0 and np.all(np.abs(ours.commands) <= ur10.velocity_limits)
+    assert (margin < 1e-6) == binds
