@@ -46,10 +46,12 @@ out by :func:`snac_gym.rollout.simulate_kinematic` (an open-loop replay policy) 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -720,7 +722,8 @@ class OptimalJob:
 
     It depends on the samples, the horizon, the cost and the arm only, never on the run's contestants.
     ``position_limits``: keep the joint position limits as hard constraints (the default reference);
-    ``False`` gives the variant that keeps the velocity limits only.
+    ``False`` gives the variant that keeps the velocity limits only. ``cache_dir``: reuse and store
+    the rows there by sample content (:mod:`evaluation.reference_cache`); ``None``: solve every sample.
     """
 
     task: str
@@ -733,6 +736,7 @@ class OptimalJob:
     convention: CostConvention = field(default_factory=CostConvention)
     position_limits: bool = True
     screen_margin: float = SCREEN_MARGIN
+    cache_dir: str | None = None
 
 
 @dataclass
@@ -824,8 +828,34 @@ def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray) -> np.ndarr
 def run_optimal_job(job: OptimalJob) -> Any:
     """Solve every sample of ``job``, roll the solutions out and measure them like a controller's.
 
+    With ``job.cache_dir`` (and no trajectories asked for), the samples whose rows are cached are not
+    solved again, and the rows solved here are stored.
+
     Returns a :class:`evaluation.jobs.JobResult` whose metrics carry :data:`SOLVER_COLUMNS` too.
     """
+    from evaluation import reference_cache
+    from evaluation.jobs import JobResult
+
+    if job.cache_dir is None or job.keep_logs:
+        return _solve_job(job)
+    folder = Path(job.cache_dir)
+    keys = [reference_cache.sample_key(job, sample) for sample in job.samples]
+    cached = reference_cache.read_rows(folder, keys)
+    missing = [i for i, row in enumerate(cached) if row is None]
+    rows: list[dict[str, Any] | None] = [None if row is None else {"sample": s.index, **row}
+                                         for row, s in zip(cached, job.samples, strict=True)]  # fmt: skip
+    if missing:
+        subset = dataclasses.replace(job, samples=tuple(job.samples[i] for i in missing),
+                                     seeds=tuple(job.seeds[i] for i in missing))  # fmt: skip
+        solved = _solve_job(subset).metrics
+        reference_cache.write_rows(folder, [keys[i] for i in missing], solved)
+        for i, record in zip(missing, solved.to_dict("records"), strict=True):
+            rows[i] = record
+    return JobResult(pd.DataFrame(rows), None)
+
+
+def _solve_job(job: OptimalJob) -> Any:
+    """:func:`run_optimal_job` without the cache."""
     from evaluation.jobs import JobResult, kinematic_logs, policy_context
 
     context = policy_context(job.robot, job.dt, job.task)

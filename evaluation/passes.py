@@ -30,6 +30,7 @@ import pandas as pd
 from evaluation.executors import ExecutorStopped
 from evaluation.jobs import JobResult, RolloutJob, run_job
 from evaluation.optimal_reference import OPTIMAL, OptimalJob, run_optimal_job
+from evaluation.reference_cache import cache_folder
 from evaluation.samples import EvaluationSample, policy_seed
 from evaluation.store import RunStore, settings_key
 
@@ -198,6 +199,7 @@ class EvaluationRun:
                 keep_logs=config.save_trajectories,
                 convention=config.convention,
                 position_limits=config.reference_limits == "joints",
+                cache_dir=str(cache_folder()) if config.reference_cache else None,
             )
             for i in range(0, len(samples), size)
         ]

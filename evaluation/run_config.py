@@ -119,6 +119,8 @@ class EvaluationConfig:
         reference_limits: The constraints of the ``optimal`` reference (:data:`REFERENCE_LIMITS`):
             ``"joints"`` (joint position and velocity limits, the limits the success rule counts) or
             ``"velocity"`` (velocity limits only: the variant that ignores the joints' position limits).
+        reference_cache: Reuse the reference's rows cached by sample content
+            (:mod:`evaluation.reference_cache`), and store the new ones; ``False``: solve every sample.
     """
 
     out: Path
@@ -155,6 +157,7 @@ class EvaluationConfig:
     success_threshold: float = 0.95
     model_error: str | None = None
     reference_limits: str = "joints"
+    reference_cache: bool = True
 
     @property
     def convention(self) -> CostConvention:

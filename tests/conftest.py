@@ -2,6 +2,7 @@ import importlib.util
 import os
 import subprocess
 import sys
+import tempfile
 
 import gymnasium as gym
 import numpy as np
@@ -10,6 +11,11 @@ import pytest
 import snac_gym  # noqa: F401  (registers the envs)
 from snac_gym.compiled import cached_on_disk
 from snac_gym.kinematics import Kinematics
+
+
+# The reference's row cache (evaluation/reference_cache.py) of this test process: a fresh folder, so that no
+# test reads rows another run left in the user's cache, and the suite writes nothing there.
+os.environ["SNAC_GYM_CACHE_DIR"] = tempfile.mkdtemp(prefix="snac-gym-test-cache-")
 
 
 #: Why a test marked ``rl`` is skipped where torch or stable-baselines3 is missing.

@@ -1,0 +1,94 @@
+"""The reference's rows cached by sample content (evaluation/reference_cache.py): reused bit for bit,
+keyed by everything they depend on, never used for another sample, cost or code."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from evaluation import optimal_reference, reference_cache
+from evaluation.optimal_reference import OptimalJob, run_optimal_job
+from evaluation.samples import generate_samples
+from snac_gym.cost import CostConvention
+from snac_gym.kinematics import shared_kinematics
+from snac_gym.sampling import SampleSpace
+
+
+@pytest.fixture
+def job(tmp_path) -> OptimalJob:
+    ur10 = shared_kinematics("ur10")
+    samples = tuple(generate_samples(ur10, SampleSpace.for_robot(ur10), 0, "reach", [0, 1, 2]))
+    return OptimalJob("reach", samples, (0, 1, 2), steps=150, dt=1 / 125, cache_dir=str(tmp_path / "cache"))
+
+
+def _counting(monkeypatch) -> list[int]:
+    """Count the samples solved (not read from the cache)."""
+    solved: list[int] = []
+    original = optimal_reference._solve_job
+
+    def solve(job):
+        solved.append(len(job.samples))
+        return original(job)
+
+    monkeypatch.setattr(optimal_reference, "_solve_job", solve)
+    return solved
+
+
+def test_cached_rows_are_the_solved_rows_bit_for_bit(job, monkeypatch):
+    fresh = run_optimal_job(dataclasses.replace(job, cache_dir=None)).metrics
+    solved = _counting(monkeypatch)
+    first = run_optimal_job(job).metrics
+    again = run_optimal_job(job).metrics
+    assert solved == [3]  # the second run solved nothing
+    columns = [c for c in fresh.columns if c != "optimal_solve_time"]  # wall time differs between solves
+    pd.testing.assert_frame_equal(first[columns], fresh[columns], check_exact=True)
+    pd.testing.assert_frame_equal(again, first, check_exact=True)
+
+
+def test_a_subset_with_other_ids_reuses_the_rows_of_the_same_samples(job, monkeypatch):
+    first = run_optimal_job(job).metrics
+    solved = _counting(monkeypatch)
+    renumbered = [dataclasses.replace(s, index=s.index + 100) for s in job.samples[1:]]
+    subset = dataclasses.replace(job, samples=tuple(renumbered), seeds=(7, 8))
+    rows = run_optimal_job(subset).metrics
+    assert solved == [] and list(rows["sample"]) == [101, 102]
+    pd.testing.assert_frame_equal(rows.drop(columns="sample"), first.iloc[1:].drop(columns="sample").reset_index(drop=True),
+                                  check_exact=True)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"convention": CostConvention("hjb", q_scale=4.0)},
+        {"steps": 151},
+        {"position_limits": False},
+        "code",
+        "sample",
+    ],
+    ids=["cost", "horizon", "limits", "code", "sample"],
+)
+def test_any_other_input_is_solved_anew(job, monkeypatch, change):
+    run_optimal_job(job)
+    if change == "code":  # an edited solver, cost or model: another fingerprint
+        monkeypatch.setattr(reference_cache, "code_fingerprint", lambda: "edited")
+    elif change == "sample":
+        moved = dataclasses.replace(job.samples[0], q0=tuple(np.asarray(job.samples[0].q0) + 1e-12))
+        job = dataclasses.replace(job, samples=(moved, *job.samples[1:]))
+    else:
+        job = dataclasses.replace(job, **change)
+    solved = _counting(monkeypatch)
+    run_optimal_job(job)
+    assert solved == ([1] if change == "sample" else [3])
+
+
+def test_an_unreadable_entry_is_solved_again(job, monkeypatch):
+    run_optimal_job(job)
+    for path in (reference_cache.Path(job.cache_dir)).glob("*.json"):
+        path.write_text("{not json")
+        break
+    solved = _counting(monkeypatch)
+    run_optimal_job(job)
+    assert solved == [1]
