@@ -23,3 +23,15 @@ for robot in panda xarm7; do
   snac-gym evaluate --out "$out/$robot" --robot "$robot" --controllers "$all" "${common[@]}"
 done
 snac-gym evaluate --out "$out/outside" --samples-file "$out/outside.csv" --controllers "$all" "${common[@]:2}"
+# The velocity-only variant of the reference on the same sets: the rollouts that cross a joint limit are
+# counted apart, and must not be below it.
+for set in default workspace11 workspace12 panda xarm7; do
+  case $set in
+    workspace*) extra=(--sample-space workspace --seed "${set#workspace}") ;;
+    panda|xarm7) extra=(--robot "$set") ;;
+    *) extra=() ;;
+  esac
+  snac-gym evaluate --out "$out/$set-velocity" --controllers optimal --reference-limits velocity "${extra[@]}" "${common[@]}"
+done
+snac-gym evaluate --out "$out/outside-velocity" --samples-file "$out/outside.csv" --controllers optimal \
+  --reference-limits velocity "${common[@]:2}"
