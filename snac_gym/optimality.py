@@ -35,11 +35,12 @@ and checked against the HJB equation (:func:`hjb_residual`).
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from snac_gym.cost import quadratic_form, weight_matrix
+from snac_gym.cost import CostConvention, quadratic_form, weight_matrix
 
 #: Eigenvalues of ``S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2}`` below this fraction of the largest are taken as
 #: zero: J has lost rank there (σ_min/σ_max ≲ 1e-6 for Q = R = I) and the eigenvalue is rounding.
@@ -360,3 +361,502 @@ def regulation_cost_lower_bound(
     for _ in range(int(steps)):
         value = q_scale * dt + value - (b * value) ** 2 / (dt + b * b * value)
     return value * np.square(np.asarray(initial_error, dtype=float))
+
+
+# -- A certified lower bound on the trajectory cost, for reach and track, under every cost convention ----------------
+#
+# The derivation, what is relaxed and why each step is valid, is in trajectory_cost_lower_bounds' docstring and in
+# docs/lower-bounds.md. The relaxed problem is solved by a primal-dual interior point method whose Newton systems are
+# banded (the variables interleaved as v₀, r₁, v₁, r₂, …, r_{K−1}, v_{K−1}: every coupling is within two places); the
+# kernels below are plain functions compiled by numba on first use (_relaxation_kernel), so that importing this
+# module does not import numba.
+
+#: Relative width of the interval [bound, relaxed optimum + neglected tail] at which the solve stops.
+RELAXATION_RTOL = 1e-10
+#: Interior-point iterations per horizon tried (it takes 10-20; the cap only stops a pathological solve, whose
+#: last dual value is still a certified bound).
+RELAXATION_MAX_ITERATIONS = 100
+#: First horizon solved (steps), or 0: the relaxed regulation problem's decay time (_first_horizon). It grows
+#: until the neglected tail is provably within RELAXATION_RTOL (see solve_cost_relaxation).
+RELAXATION_FIRST_STEPS = 0
+
+
+def _relaxed_hessian_band(steps, dt, q, w, rest, band):  # pragma: no cover - compiled
+    """Lower band of H, the Hessian of the relaxed cost in the interleaved variables (rows: diagonal, first and
+    second subdiagonal, at the row's index): 2qΔt on each r, 2Δt + (2w/Δt)·(jumps vₖ is in) on each v,
+    −2w/Δt between consecutive v (two places apart)."""
+    c = w / dt
+    band[:, :] = 0.0
+    for k in range(steps):
+        jumps = (1.0 if k > 0 else (1.0 if rest else 0.0)) + (1.0 if k < steps - 1 else 0.0)
+        band[0, 2 * k] = 2.0 * dt + 2.0 * c * jumps
+        if k > 0:
+            band[0, 2 * k - 1] = 2.0 * q * dt
+            band[2, 2 * k] = -2.0 * c
+
+
+def _add_constraint_curvature(steps, b, weight, capped, band):  # pragma: no cover - compiled
+    """band += Gᵀ diag(weight) G: constraint k, rₖ − bₖvₖ − rₖ₊₁ ≤ dₖ, couples rₖ, vₖ, rₖ₊₁ (places 2k−1, 2k, 2k+1)."""
+    for k in range(steps - 1):
+        wk, bk = weight[k], b[k]
+        band[0, 2 * k] += wk * bk * bk
+        band[0, 2 * k + 1] += wk
+        band[1, 2 * k + 1] += wk * bk
+        if k > 0:
+            band[0, 2 * k - 1] += wk
+            band[1, 2 * k] -= wk * bk
+            band[2, 2 * k + 1] -= wk
+    if capped:
+        for k in range(steps):
+            band[0, 2 * k] += weight[steps - 1 + k]
+
+
+def _ldl_factor(band, inverse_pivots):  # pragma: no cover - compiled
+    """In place: the band's subdiagonals become those of the unit lower L of LDLᵀ, ``inverse_pivots`` 1/D.
+
+    Lᵢ,ᵢ₋₂ = Aᵢ,ᵢ₋₂/Dᵢ₋₂,  Lᵢ,ᵢ₋₁ = (Aᵢ,ᵢ₋₁ − Lᵢ,ᵢ₋₂Lᵢ₋₁,ᵢ₋₂Dᵢ₋₂)/Dᵢ₋₁,  Dᵢ = Aᵢᵢ − Lᵢ,ᵢ₋₁²Dᵢ₋₁ − Lᵢ,ᵢ₋₂²Dᵢ₋₂
+    (the previous two pivots and L₍ᵢ₋₁,ᵢ₋₂₎ carried in scalars: this recursion is the solve's critical path).
+    """
+    pivot1, pivot2, inverse1, inverse2, previous_first = 1.0, 1.0, 0.0, 0.0, 0.0
+    for i in range(band.shape[1]):
+        second = band[2, i] * inverse2
+        coupling = band[1, i] - second * previous_first * pivot2
+        # Lᵢ,ᵢ₋₁²Dᵢ₋₁ as coupling²/Dᵢ₋₁: one multiply between the last division and the next
+        pivot = (band[0, i] - second * second * pivot2) - coupling * coupling * inverse1
+        first = coupling * inverse1
+        band[1, i], band[2, i] = first, second
+        inverse = 1.0 / pivot
+        inverse_pivots[i] = inverse
+        pivot2, inverse2, pivot1, inverse1, previous_first = pivot1, inverse1, pivot, inverse, first
+
+
+def _ldl_solve(band, inverse_pivots, rhs):  # pragma: no cover - compiled
+    """rhs ← (LDLᵀ)⁻¹ rhs with the factor of :func:`_ldl_factor` (the last two values carried in scalars)."""
+    n = band.shape[1]
+    previous2, previous1 = 0.0, 0.0
+    for i in range(n):
+        value = rhs[i] - band[2, i] * previous2 - band[1, i] * previous1
+        rhs[i] = value
+        previous2, previous1 = previous1, value
+    next2, next1 = 0.0, 0.0
+    for i in range(n - 1, -1, -1):
+        first = band[1, i + 1] if i + 1 < n else 0.0
+        second = band[2, i + 2] if i + 2 < n else 0.0
+        value = rhs[i] * inverse_pivots[i] - first * next1 - second * next2
+        rhs[i] = value
+        next2, next1 = next1, value
+    return rhs
+
+
+def _apply_constraints(steps, b, x, capped, out):  # pragma: no cover - compiled
+    """out ← G x: rₖ − bₖvₖ − rₖ₊₁ (r₀ is data, in h), then vₖ for the velocity caps."""
+    for k in range(steps - 1):
+        out[k] = (x[2 * k - 1] if k > 0 else 0.0) - b[k] * x[2 * k] - x[2 * k + 1]
+    if capped:
+        for k in range(steps):
+            out[steps - 1 + k] = x[2 * k]
+
+
+def _apply_constraints_transposed(steps, b, z, capped, out):  # pragma: no cover - compiled
+    """out ← Gᵀ z."""
+    for k in range(steps):
+        out[2 * k] = (z[steps - 1 + k] if capped else 0.0) - (b[k] * z[k] if k < steps - 1 else 0.0)
+        if k > 0:
+            out[2 * k - 1] = (z[k] if k < steps - 1 else 0.0) - z[k - 1]
+
+
+def _apply_hessian(steps, dt, q, w, rest, x, out):  # pragma: no cover - compiled
+    """out ← H x (:func:`_relaxed_hessian_band`)."""
+    c = w / dt
+    for k in range(steps):
+        v = x[2 * k]
+        value = 2.0 * dt * v
+        if k > 0:
+            value += 2.0 * c * (v - x[2 * k - 2])
+            out[2 * k - 1] = 2.0 * q * dt * x[2 * k - 1]
+        elif rest:
+            value += 2.0 * c * v
+        if k < steps - 1:
+            value += 2.0 * c * (v - x[2 * k + 2])
+        out[2 * k] = value
+
+
+def _feasible_value(r0, d, b, dt, q, w, rest, vmax, steps, x):  # pragma: no cover - compiled
+    """The relaxed cost of a feasible point built from x: vₖ clipped to [0, v̄], each rₖ₊₁ the least the
+    constraints allow, max(rₖ − bₖvₖ − dₖ, 0). Returns (value, r_{K−1}, v_{K−1}, max v)."""
+    r, previous, value, v, peak = r0, 0.0, 0.0, 0.0, 0.0
+    for k in range(steps):
+        if k > 0:
+            r = max(r - b[k - 1] * v - d[k - 1], 0.0)
+        v = min(max(x[2 * k], 0.0), vmax)
+        jump = v - previous if (k > 0 or rest) else 0.0
+        value += dt * (q * r * r + v * v) + w / dt * jump * jump
+        previous, peak = v, max(peak, v)
+    return value, r, v, peak
+
+
+def _dual_value(r0, q, dt, steps, b, capped, h, hessian, hessian_pivots, z, work, image):  # pragma: no cover - compiled
+    """The Lagrangian dual function at z ≥ 0: g(z) = min_x F(x) + zᵀ(Gx − h) = qΔt r₀² − ½ yᵀH⁻¹y − zᵀh with
+    y = Gᵀz (F = ½xᵀHx + qΔt r₀² has no linear term). A lower bound on the relaxed optimum for every z ≥ 0."""
+    _apply_constraints_transposed(steps, b, z, capped, image)
+    work[:] = image
+    _ldl_solve(hessian, hessian_pivots, work)
+    return q * dt * r0 * r0 - 0.5 * np.dot(image, work) - np.dot(z, h)
+
+
+def _max_step(value, step):  # pragma: no cover - compiled
+    """The largest α ≤ 1 with value + α·step ≥ 0 (value > 0)."""
+    alpha = 1.0
+    for i in range(value.shape[0]):
+        if step[i] * alpha < -value[i]:
+            alpha = -value[i] / step[i]
+    return alpha
+
+
+def _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
+                      rhs, dx, ds, dz, image):  # pragma: no cover - compiled
+    """The Newton direction of the perturbed KKT system  H x + Gᵀz = 0,  Gx + s = h,  s∘z = target, from its
+    residuals (``complementarity`` = s∘z − target), through the normal equations (H + GᵀS⁻¹ZG)Δx = −r_d +
+    GᵀS⁻¹(r_c − Z r_p) (factored in ``band``/``pivots``), then Δs = −r_p − GΔx and Δz = −S⁻¹(r_c + ZΔs)."""
+    for i in range(s.shape[0]):
+        ds[i] = (complementarity[i] - z[i] * primal_residual[i]) / s[i]
+    _apply_constraints_transposed(steps, b, ds, capped, rhs)
+    for i in range(rhs.shape[0]):
+        dx[i] = rhs[i] - dual_residual[i]
+    _ldl_solve(band, pivots, dx)
+    _apply_constraints(steps, b, dx, capped, image)
+    for i in range(s.shape[0]):
+        ds[i] = -primal_residual[i] - image[i]
+        dz[i] = -(complementarity[i] + z[i] * ds[i]) / s[i]
+
+
+def _residuals(steps, dt, q, w, rest, b, capped, h, x, s, z, dual_residual, primal_residual, work):  # pragma: no cover - compiled
+    """r_d = Hx + Gᵀz and r_p = Gx + s − h; returns the mean complementarity sᵀz/m."""
+    _apply_hessian(steps, dt, q, w, rest, x, dual_residual)
+    _apply_constraints_transposed(steps, b, z, capped, work)
+    dual_residual += work
+    _apply_constraints(steps, b, x, capped, primal_residual)
+    primal_residual += s - h
+    return np.dot(s, z) / s.shape[0]
+
+
+def _predictor_corrector_step(steps, b, capped, band, pivots, s, z, x, dual_residual, primal_residual, mu,
+                              work_n, dx, work_m, ds, dz, image):  # pragma: no cover - compiled
+    """One Mehrotra predictor-corrector step (the factor of the normal matrix is in ``band``/``pivots``)."""
+    complementarity = s * z
+    _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
+                      work_n, dx, ds, dz, image)
+    alpha = min(_max_step(s, ds), _max_step(z, dz))
+    predicted = np.dot(s + alpha * ds, z + alpha * dz) / s.shape[0]
+    centring = (predicted / mu) ** 3 * mu
+    complementarity += ds * dz - centring
+    _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
+                      work_n, dx, ds, dz, image)
+    alpha = min(1.0, 0.99 * min(_max_step(s, ds), _max_step(z, dz)))
+    x += alpha * dx
+    s += alpha * ds
+    z += alpha * dz
+
+
+def _constraint_bounds(r0, d, vmax, steps, capped):  # pragma: no cover - compiled
+    """h of Gx ≤ h: dₖ (less r₀ for k = 0, where r₀ is data), then v̄ for the caps."""
+    h = np.empty(steps - 1 + (steps if capped else 0))
+    h[: steps - 1] = d[: steps - 1]
+    if steps > 1:
+        h[0] -= r0
+    h[steps - 1:] = vmax
+    return h
+
+
+def _relaxation_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
+    """The relaxed problem over the first ``steps`` steps, from rest (v = 0, r = r₀: feasible) by the
+    predictor-corrector interior point method. Fills x (primal) and z (multipliers of the constraints).
+
+    Returns (bound, value, iterations, r_last, v_last, v_peak): the best dual value met (each one is a certified
+    lower bound on the relaxed optimum, whatever the iterate), the least feasible value met (an upper bound on it),
+    and the last r, last v and largest v of that feasible point. Stops once value − bound ≤ rtol·value."""
+    capped = vmax < np.inf
+    n = 2 * steps - 1
+    h = _constraint_bounds(r0, d, vmax, steps, capped)
+    m = h.shape[0]
+    x[:n] = 0.0
+    x[1:n:2] = r0
+    hessian, hessian_pivots = np.empty((3, n)), np.empty(n)
+    _relaxed_hessian_band(steps, dt, q, w, rest, hessian)
+    _ldl_factor(hessian, hessian_pivots)
+    value, r_last, v_last, v_peak = _feasible_value(r0, d, b, dt, q, w, rest, vmax, steps, x)
+    bound = q * dt * r0 * r0  # the first error is paid whatever the commands
+    if m == 0:
+        return bound, value, 0, r_last, v_last, v_peak
+    work_n, dx, dual_residual, image_n = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    primal_residual, ds, dz, work_m = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    _apply_constraints(steps, b, x[:n], capped, work_m)
+    s = np.maximum(h - work_m, 0.0) + 0.1  # strictly interior (lengths are in units of r₀ + Σd): r_p takes the rest
+    z[:m] = 1.0
+    band, pivots = np.empty((3, n)), np.empty(n)
+    iterations = 0
+    while True:
+        mu = _residuals(steps, dt, q, w, rest, b, capped, h, x[:n], s, z[:m], dual_residual, primal_residual, image_n)
+        # The certificates cost a solve and a pass: worth it once the complementarity gap m·μ is down to the tolerance.
+        if m * mu <= rtol * value or iterations >= max_iterations:
+            trial, r_end, v_end, peak = _feasible_value(r0, d, b, dt, q, w, rest, vmax, steps, x)
+            if trial < value:
+                value, r_last, v_last, v_peak = trial, r_end, v_end, peak
+            candidate = _dual_value(r0, q, dt, steps, b, capped, h, hessian, hessian_pivots, z[:m], work_n, image_n)
+            bound = max(bound, candidate)
+            if value - bound <= rtol * value or iterations >= max_iterations:
+                return bound, value, iterations, r_last, v_last, v_peak
+        iterations += 1
+        weight = z[:m] / s
+        _relaxed_hessian_band(steps, dt, q, w, rest, band)
+        _add_constraint_curvature(steps, b, weight, capped, band)
+        _ldl_factor(band, pivots)
+        _predictor_corrector_step(steps, b, capped, band, pivots, s, z[:m], x[:n], dual_residual, primal_residual,
+                                  mu, work_n, dx, work_m, ds, dz, image_n)
+
+
+def _tail_cost(q, w, dt, r, v, remaining):  # pragma: no cover - compiled
+    """An upper bound on the least relaxed cost of ``remaining`` more steps from the state (r, v): the commands
+    decay as the infinite-horizon optimum of Σ Δt v² + (w/Δt)(v − v_prev)² does, at cost P v² with
+    P² + PΔt − w = 0 (the scalar Riccati equation; P = 0 without the u̇ term), and r never rises."""
+    if remaining == 0:
+        return 0.0
+    c = w / dt
+    value = 0.5 * (np.sqrt(dt * dt + 4.0 * c * dt) - dt)
+    return q * r * r * remaining * dt + value * v * v
+
+
+def _next_horizon(x, steps, total, q, w, dt, tail, target):  # pragma: no cover - compiled
+    """The horizon to try after ``steps`` left a tail above ``target``: where the tail, decaying at the rate it
+    did over the second half of this solve, would be below it (with a margin), at least double, at most K."""
+    half = steps // 2
+    earlier = _tail_cost(q, w, dt, max(x[2 * half - 1], 0.0) if half > 0 else 0.0, max(x[2 * half], 0.0), total - half)
+    more = 2 * steps
+    if 0.0 < tail < earlier and target > 0.0:
+        more = max(more, steps + int(1.25 * (steps - half) * np.log(tail / target) / np.log(earlier / tail)) + 1)
+    return min(more, total)
+
+
+def _capped_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
+    """:func:`_relaxation_solve` without the velocity caps first (half the constraints), and with them only where
+    its solution breaks one. Dropping constraints only lowers the dual values, so the bound stays certified; and a
+    solution within the caps is feasible with them, so its value still bounds the capped optimum from above.
+    Returns (bound, value, iterations, r_last, v_last)."""
+    bound, value, used, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, np.inf, steps, rtol,
+                                                                   max_iterations, x, z)
+    if v_peak <= vmax:
+        return bound, value, used, r_last, v_last
+    bound, value, more, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol,
+                                                                   max_iterations, x, z)
+    return bound, value, used + more, r_last, v_last
+
+
+def _first_horizon(q, w, dt, b, rtol, total):  # pragma: no cover - compiled
+    """A horizon long enough for the relaxed regulation problem's tail to fall below rtol: the steps its error
+    takes to decay (the scalar Riccati closed loop rₖ₊₁ = ρ_r rₖ, ρ_r = Δt/(Δt + b²P), without the u̇ term)
+    plus those its command takes once the error is gone (v decays by ρ_v = c/(Δt + P_v + c), c = w/Δt), with a
+    margin. A guess only: a horizon found short is extended, one found long is merely slower."""
+    riccati = (q * dt * b * b + np.sqrt((q * dt * b * b) ** 2 + 4.0 * b * b * q * dt * dt)) / (2.0 * b * b)
+    error_decay = dt / (dt + b * b * riccati)
+    steps = np.log(rtol * riccati / (2.0 * q * total * dt)) / (2.0 * np.log(error_decay)) if error_decay > 0.0 else 1.0
+    c = w / dt
+    if c > 0.0:
+        command_decay = c / (dt + 0.5 * (np.sqrt(dt * dt + 4.0 * c * dt) - dt) + c)
+        steps += np.log(0.5 * rtol) / (2.0 * np.log(command_decay))
+    return min(total, int(1.25 * steps) + 16)
+
+
+def _relaxation_bounds(r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, first_steps, out):  # pragma: no cover - compiled
+    """Per sample: the relaxed problem over a horizon that grows from ``first_steps`` until the part left out is
+    provably within rtol, or the whole horizon. Rows of out: bound, upper bound on the relaxed optimum, iterations,
+    horizon solved (steps)."""
+    total = ds.shape[1] + 1
+    x, z = np.empty(2 * total - 1), np.empty(2 * total - 1)
+    for i in range(r0s.shape[0]):
+        # In units of r₀ + Σd the solve starts from the same scale for every sample; V scales with its square.
+        unit = r0s[i] + np.sum(ds[i])
+        if unit == 0.0:  # nothing to move: the trajectory at rest costs 0
+            out[:, i] = 0.0
+            continue
+        d, r0 = ds[i] / unit, r0s[i] / unit
+        steps = first_steps if first_steps > 0 else _first_horizon(q, w, dt, np.max(bs[i]) if total > 1 else 1.0, rtol, total)
+        steps, iterations = min(steps, total), 0
+        while True:
+            bound, value, used, r_last, v_last = _capped_solve(r0, d, bs[i], dt, q, w, rest, vmax / unit, steps, rtol,
+                                                               max_iterations, x, z)
+            iterations += used
+            # The truncated optimum continued by the decaying commands of _tail_cost is feasible for the whole
+            # horizon, so the relaxed optimum lies in [bound, value + tail].
+            tail = _tail_cost(q, w, dt, r_last, v_last, total - steps)
+            if steps == total or value + tail - bound <= rtol * (value + tail):
+                break
+            steps = _next_horizon(x, steps, total, q, w, dt, tail, 0.5 * rtol * bound)
+        out[0, i], out[1, i], out[2, i], out[3, i] = bound * unit * unit, (value + tail) * unit * unit, iterations, steps
+
+
+_RELAXATION_HELPERS = (
+    "_relaxed_hessian_band", "_add_constraint_curvature", "_ldl_factor", "_ldl_solve", "_apply_constraints",
+    "_apply_constraints_transposed", "_apply_hessian", "_feasible_value", "_dual_value", "_max_step",
+    "_newton_direction", "_residuals", "_predictor_corrector_step", "_constraint_bounds", "_relaxation_solve",
+    "_tail_cost", "_next_horizon", "_first_horizon", "_capped_solve",
+)
+
+
+@functools.lru_cache(maxsize=1)
+def _relaxation_kernel() -> Any:
+    """:func:`_relaxation_bounds` compiled (numba, cached on disk: a few seconds once, then a fraction of one).
+
+    The helpers are compiled first and bound in place of their Python versions in this module's namespace,
+    where the compiled callers look them up; numba imports here, not with the module.
+    """
+    from numba import njit
+
+    namespace = globals()
+    for name in _RELAXATION_HELPERS:
+        if not hasattr(namespace[name], "py_func"):
+            namespace[name] = njit(cache=True, nogil=True, fastmath={"contract"})(namespace[name])
+    return njit(cache=True, nogil=True)(_relaxation_bounds)
+
+
+def reference_steps(x_d: np.ndarray) -> np.ndarray:
+    """dₖ = ‖x_d(tₖ₊₁) − x_d(tₖ)‖, k = 0..K−2, of desired positions ``(…, K, n)``: ``(…, K−1)`` (zeros for a fixed target)."""
+    x_d = np.asarray(x_d, dtype=float)
+    return np.linalg.norm(np.diff(x_d, axis=-2), axis=-1)
+
+
+@dataclass(frozen=True)
+class CostRelaxation:
+    """The relaxed problem of :func:`solve_cost_relaxation` for B samples, each field ``(B,)``.
+
+    Attributes:
+        bound: The certified lower bound on every trajectory's cost (a dual value of the relaxation).
+        relaxed_upper: An upper bound on the relaxation's optimum (a feasible point's relaxed cost, plus the
+            cost of continuing it with v = 0 over the steps not solved): the optimum lies in [bound, relaxed_upper].
+        iterations: Interior-point iterations, over all horizons tried.
+        steps: The horizon K' ≤ K solved (the relaxation over the first K' steps bounds the K-step cost too).
+    """
+
+    bound: np.ndarray
+    relaxed_upper: np.ndarray
+    iterations: np.ndarray
+    steps: np.ndarray
+
+
+def solve_cost_relaxation(
+    initial_errors: float | np.ndarray,
+    reference_steps: np.ndarray,
+    dt: float,
+    lipschitz: float | np.ndarray,
+    convention: CostConvention | None = None,
+    velocity_norm_limit: float | None = None,
+    rtol: float = RELAXATION_RTOL,
+) -> CostRelaxation:
+    """A certified lower bound on the trajectory cost of *any* command sequence, per sample, with diagnostics.
+
+    **Problem bounded.** θₖ₊₁ = θₖ + uₖΔt, eₖ = f(θₖ) − x_d(tₖ) and (:class:`snac_gym.cost.CostConvention`;
+    Q = qI, R = I, w = 1 for ``table1``, 0 for ``hjb``)
+
+        V = Σₖ₌₀^{K−1} (q‖eₖ‖² + ‖uₖ‖² + w‖uₖ − uₖ₋₁‖²/Δt²) Δt,    u₋₁ = 0 (``rest``) or u₀ (``first``),
+
+    with |uₖⱼ| ≤ ūⱼ. **Relaxation** to the norms rₖ = ‖eₖ‖, vₖ = ‖uₖ‖:
+
+    1. For k = 0..K−2, eₖ₊₁ = eₖ + (f(θₖ₊₁) − f(θₖ)) − (x_d(tₖ₊₁) − x_d(tₖ)), so by the triangle inequality
+       rₖ₊₁ ≥ rₖ − ‖f(θₖ₊₁) − f(θₖ)‖ − dₖ ≥ rₖ − LₖΔt vₖ − dₖ, with dₖ = ‖x_d(tₖ₊₁) − x_d(tₖ)‖ and Lₖ ≥ ‖J‖₂
+       on the segment [θₖ, θₖ₊₁] (f(θ + δ) − f(θ) = ∫₀¹ J(θ + sδ)δ ds). r₀ = ‖e₀‖ is data; u_{K−1} moves θ_K,
+       which the cost does not score, so it enters through its effort and jump terms only.
+    2. ‖uₖ − uₖ₋₁‖ ≥ |vₖ − vₖ₋₁| for k ≥ 1 (reverse triangle inequality); under ``rest`` ‖u₀ − u₋₁‖ = v₀.
+    3. vₖ ≤ ‖ū‖₂ (the box |uₖⱼ| ≤ ūⱼ lies in that ball).
+    4. rₖ ≥ 0 and vₖ ≥ 0 hold but are left out: they do not change the relaxed optimum (from any feasible point,
+       v ← max(v, 0) and then r ← the least r the constraints allow, ≥ 0, is feasible and costs no more:
+       max(·, 0) is 1-Lipschitz, so no jump grows, and b, d ≥ 0).
+
+    A real trajectory gives a point (rₖ, vₖ) = (‖eₖ‖, ‖uₖ‖) feasible for 1-3 whose relaxed cost
+
+        Σₖ (q rₖ² + vₖ² + w(vₖ − vₖ₋₁)²/Δt²) Δt      (v₋₁ = 0 under ``rest``; no k = 0 jump under ``first``)
+
+    is at most V, term by term. So the relaxed optimum is at most every trajectory's cost: the optimum's and every
+    controller's, on every sample. It is a convex QP in 2K − 1 variables with banded structure.
+
+    **Certified whatever the solver's accuracy.** The value reported is the Lagrangian dual function of the relaxed
+    QP, g(z) = min_x [F(x) + zᵀ(Gx − h)] = qΔt r₀² − ½(Gᵀz)ᵀH⁻¹(Gᵀz) − zᵀh (F = ½xᵀHx + qΔt r₀², H positive
+    definite), at the interior-point multipliers z > 0, the best over the iterates: by weak duality every
+    g(z) with z ≥ 0 is ≤ the relaxed optimum, converged or not (up to floating-point rounding, ~1e-12 relative).
+    The solve stops once a feasible point's relaxed cost is within ``rtol`` of it.
+
+    **Horizon.** All terms of V are ≥ 0, so the relaxation over the first K' ≤ K steps bounds V too. K' starts at
+    :data:`RELAXATION_FIRST_STEPS` and doubles until its optimum, continued with v = 0 (r no longer falls, one
+    jump down to 0), is provably within ``rtol`` of the bound: the error has decayed by then, and the rest of
+    the horizon would add less than rtol to the bound.
+
+    Args:
+        initial_errors: r₀ = ‖e₀‖ (m), ``()`` or ``(B,)``.
+        reference_steps: dₖ, ``(K−1,)`` or ``(B, K−1)`` (:func:`reference_steps` of x_d; zeros for a fixed target).
+        dt: Δt, s.
+        lipschitz: Lₖ, m/rad: a scalar (e.g. :meth:`snac_gym.kinematics.Kinematics.position_lipschitz_bound`),
+            or per step ``(K−1,)`` or ``(B, K−1)`` (each a bound on ‖J‖₂ along that step's segment).
+        convention: The cost (default: Table I's, q = 1, u₋₁ = 0).
+        velocity_norm_limit: ‖ū‖₂ (rad/s), or ``None`` for no limit.
+        rtol: Stop once the relaxed optimum is pinned to this relative width.
+
+    Raises:
+        ValueError: On negative or non-finite errors or steps, a non-positive Lipschitz constant, Δt or limit.
+    """
+    convention = convention if convention is not None else CostConvention()
+    errors, steps, slopes, limit = _relaxation_inputs(initial_errors, reference_steps, dt, lipschitz, velocity_norm_limit)
+    out = np.empty((4, len(errors)))
+    _relaxation_kernel()(
+        errors, steps, slopes, float(dt), float(convention.q_scale), float(convention.smoothness_weight),
+        convention.udot_start == "rest", limit, float(rtol), RELAXATION_MAX_ITERATIONS, RELAXATION_FIRST_STEPS, out,
+    )  # fmt: skip
+    return CostRelaxation(out[0], out[1], out[2].astype(np.int64), out[3].astype(np.int64))
+
+
+def _relaxation_inputs(
+    initial_errors: Any, steps: Any, dt: float, lipschitz: Any, limit: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(r₀ ``(B,)``, d ``(B, K−1)``, LₖΔt ``(B, K−1)``, ‖ū‖ or inf), checked and C-contiguous for the kernel."""
+    errors = np.atleast_1d(np.asarray(initial_errors, dtype=float))
+    steps = np.asarray(steps, dtype=float)
+    if errors.ndim != 1 or steps.ndim not in (1, 2):
+        raise ValueError(f"initial_errors must be () or (B,), reference_steps (K−1,) or (B, K−1); got {errors.shape}, {steps.shape}")
+    steps = np.ascontiguousarray(np.broadcast_to(steps, (len(errors), steps.shape[-1])))
+    if not (np.all(np.isfinite(errors)) and np.all(errors >= 0) and np.all(np.isfinite(steps)) and np.all(steps >= 0)):
+        raise ValueError("initial errors and reference steps must be finite and non-negative")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be positive and finite, got {dt}")
+    slopes = np.asarray(lipschitz, dtype=float)
+    if not (np.all(np.isfinite(slopes)) and np.all(slopes > 0)):
+        raise ValueError(f"lipschitz must be positive and finite, got {lipschitz}")
+    slopes = np.ascontiguousarray(np.broadcast_to(slopes * dt, steps.shape))
+    if limit is not None and not (np.isfinite(limit) and limit > 0):
+        raise ValueError(f"velocity_norm_limit must be positive and finite (or None), got {limit}")
+    return errors, steps, slopes, float(np.inf if limit is None else limit)
+
+
+def trajectory_cost_lower_bounds(
+    initial_errors: float | np.ndarray,
+    reference_steps: np.ndarray,
+    dt: float,
+    lipschitz: float | np.ndarray,
+    convention: CostConvention | None = None,
+    velocity_norm_limit: float | None = None,
+) -> np.ndarray:
+    """The certified lower bounds of :func:`solve_cost_relaxation` (same arguments), ``(B,)``."""
+    return solve_cost_relaxation(initial_errors, reference_steps, dt, lipschitz, convention, velocity_norm_limit).bound
+
+
+def trajectory_cost_lower_bound(
+    initial_error: float,
+    reference_steps: np.ndarray,
+    dt: float,
+    lipschitz: float | np.ndarray,
+    convention: CostConvention | None = None,
+    velocity_norm_limit: float | None = None,
+) -> float:
+    """A certified lower bound on one sample's trajectory cost under ``convention``, for every command sequence.
+
+    ``reference_steps`` is ``(K−1,)``; see :func:`solve_cost_relaxation` for the argument and the other arguments.
+    """
+    if np.ndim(initial_error) != 0 or np.ndim(reference_steps) != 1:
+        raise ValueError("one sample: initial_error is a scalar and reference_steps a (K−1,) array")
+    return float(trajectory_cost_lower_bounds(initial_error, reference_steps, dt, lipschitz, convention, velocity_norm_limit)[0])
