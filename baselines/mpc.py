@@ -24,8 +24,14 @@ steps later. Details and measurements: docs/mpc.md.
   re-solve so that the line search sees one function. Without it (``terminal=False``) a short horizon
   is myopic: for ė = σu the finite-horizon gain is tanh(σ√q T)·√q instead of √q. It leaves out the u̇
   term's cost-to-go, which is why ``table1`` needs a longer horizon (:data:`DEFAULT_GRID`).
-* **Velocity limits.** The solve is unconstrained; the applied command and the warm start are
-  clipped component-wise into ±ū (the projection onto the box).
+* **Limits.** With ``constraints=True`` (default) the joint velocity limits and the URDF's joint
+  position limits (the limits of the success rule and of the ``optimal`` reference) are constraints
+  of every re-solve: a log barrier μ Σ log s over the plan (slacks ū ± uᵢ and θᵢ − θ⁻, θ⁺ − θᵢ on the
+  solver grid, where θ is piecewise linear), added to the Gauss-Newton matrix as the reference's
+  interior point adds it (:class:`~evaluation.optimal_reference._Barrier`), with the fraction-to-the-
+  boundary step; μ is fixed per re-solve at :data:`BARRIER_SHARE` of its V over the constraints. The
+  warm start is shrunk into the open limits first, so every plan, and every applied command, keeps
+  them strictly. ``constraints=False``: the first version, unconstrained, its command clipped into ±ū.
 * **Reference ahead.** Not in the observation. Regulation: x_d is constant (exact). Tracking
   (position tasks): harmonic prediction x̂_d(t+τ) = x_c + r cos ωτ + (ẋ_d/ω) sin ωτ with r = x_d − x_c,
   exact for every ellipse of :class:`snac_gym.references.Ellipse` given ω; ω² is estimated from the
@@ -44,8 +50,12 @@ import numpy as np
 from baselines._common import ObservationReader, clip_to_box
 from evaluation.optimal_reference import (
     ARMIJO,
+    Limits,
+    _Barrier,
+    _boundary_step,
     _errors_and_jacobians,
     _gauss_newton_direction,
+    _next_angles,
     _theta_system_base,
 )
 from snac_gym.cost import COSTS, UDOT_STARTS, CostConvention, cost_and_gradient
@@ -63,6 +73,12 @@ REFERENCES = ("predict", "hold")
 MAX_BACKTRACKS = 20
 #: A sample stops iterating when the Gauss-Newton decrement −∇Vᵀδ is below this fraction of V.
 DECREMENT_TOLERANCE = 1e-12
+#: The log barrier of the limits in each re-solve: μ·(number of constraints) is this share of the warm
+#: start's V, so the barrier shifts the plan by about that share of its cost (the reference drives its μ
+#: to 1e-7·V; a re-solve of two steps cannot, so it keeps one small μ).
+BARRIER_SHARE = 1e-3
+#: Commands of a warm start are shrunk by this share into the open velocity box (the barrier needs slack).
+START_SHRINK = 1e-3
 
 
 def _positive_int(name: str, value: Any) -> int:
@@ -134,6 +150,8 @@ class MPCPolicy(BasePolicy):
             the last applied command.
         terminal: Add the frozen-Jacobian LQR cost-to-go e_NᵀP̄e_N at the end of the horizon.
         reference: ``"predict"`` (harmonic prediction of a tracking reference) or ``"hold"``.
+        constraints: Keep the velocity and joint position limits as barrier constraints of each
+            re-solve (module docstring); ``False``: unconstrained, the command clipped into ±ū.
         joint_limits: Clamp the command into the position-limit box Ω(θ) (:mod:`snac_gym.joint_limits`);
             ``None``: on for the 7-DOF arms only, as for the other baselines.
 
@@ -162,6 +180,7 @@ class MPCPolicy(BasePolicy):
         terminal: bool = True,
         reference: str = "predict",
         joint_limits: bool | None = None,
+        constraints: bool = True,
     ) -> None:
         super().__init__(env)
         self.cost = _choice("cost", cost, COSTS)
@@ -175,6 +194,9 @@ class MPCPolicy(BasePolicy):
         if not isinstance(terminal, (bool, np.bool_)):
             raise ValueError(f"terminal must be true or false, got {terminal!r}")
         self.terminal = bool(terminal)
+        if not isinstance(constraints, (bool, np.bool_)):
+            raise ValueError(f"constraints must be true or false, got {constraints!r}")
+        self.constraints = bool(constraints)
         n, m = self.kinematics.task_dim, self.kinematics.n_joints
         self.weight = self.q_scale * _identity_multiple(Q, n)
         self.solver_dt = self.block * self.dt
@@ -193,7 +215,7 @@ class MPCPolicy(BasePolicy):
         self._conventions = {
             start: _BlockedConvention(self.cost, start, self.weight, self.block) for start in UDOT_STARTS
         }
-        self._bases = {start: _theta_system_base(self.steps, m, self.solver_dt, c) for start, c in self._conventions.items()}
+        self._bases = {start: self._base(c) for start, c in self._conventions.items()}
         self._predicts = self.reference == "predict" and self.tracking and n == 3
         self._start(1)
 
@@ -293,21 +315,81 @@ class MPCPolicy(BasePolicy):
     ) -> tuple[np.ndarray, np.ndarray]:
         """At most ``iterations`` Gauss-Newton steps from ``plan`` for every sample; the plans and their V."""
         convention, base = self._conventions[start], self._bases[start]
-        plan = plan.copy()
+        limits = self._limits(q0) if self.constraints else None
+        plan = self._inside(q0, plan, limits) if limits is not None else plan.copy()
         everyone = np.arange(len(plan))
         terminal = self._terminal_cost(q0, plan, end_velocity)
         value, grad, jacobians = self._evaluate(everyone, q0, x_d, plan, terminal, convention)
         jacobians = jacobians.copy()  # the kinematics' cached batch is read-only; the line search updates rows
+        if limits is not None:
+            count = 4 * plan.shape[1] * plan.shape[2]
+            self._mu = BARRIER_SHARE * np.maximum(value, 1e-12) / count
+            barrier, barrier_grad = self._barrier(everyone, q0, plan, limits)
+            value, grad = value + barrier, grad + barrier_grad
         active = np.ones(len(plan), dtype=bool)
         for _ in range(self.iterations):
             rows = np.flatnonzero(active)
             if not len(rows):
                 break
-            steps = np.stack([self._direction(base, jacobians[i], grad[i], terminal, i) for i in rows])
+            directions = [self._direction(base, jacobians[i], grad[i], terminal, i, q0, plan, limits) for i in rows]
+            steps = np.stack([step for step, _ in directions])
             slopes = np.einsum("bkj,bkj->b", grad[rows], steps)
             active[rows] = -slopes > DECREMENT_TOLERANCE * np.maximum(value[rows], 1.0)
-            self._line_search(rows, q0, x_d, plan, steps, slopes, terminal, convention, (value, grad, jacobians))
+            first = np.array([alpha for _, alpha in directions])
+            self._line_search(rows, q0, x_d, plan, steps, slopes, terminal, convention, (value, grad, jacobians),
+                              first, limits)  # fmt: skip
         return plan, value
+
+    # -- the limits as constraints of the re-solve ----------------------------------------------------
+    def _base(self, convention: CostConvention) -> np.ndarray:
+        """The fixed band of the θ-system, with room for the barrier's MᵀΣM (one off-diagonal block)."""
+        m = self.kinematics.n_joints
+        base = _theta_system_base(self.steps, m, self.solver_dt, convention)
+        if self.constraints and base.shape[0] <= m:
+            base = np.vstack([base, np.zeros((m + 1 - base.shape[0], base.shape[1]))])
+        return base
+
+    def _limits(self, q0: np.ndarray) -> list[Limits]:
+        """Each episode's limits: ū, and θ⁻, θ⁺ moved just past a θ₀ on or beyond them (a measured θ past
+        a limit could not be brought back inside a barrier's domain otherwise); the others as they are."""
+        lower = getattr(self.kinematics, "lower_limits", None)
+        upper = getattr(self.kinematics, "upper_limits", None)
+        if lower is None or upper is None:
+            return [Limits(self.velocity_limits) for _ in q0]
+        return [Limits(self.velocity_limits, np.where(q > lower, lower, q - 1e-9), np.where(q < upper, upper, q + 1e-9))
+                for q in q0]  # fmt: skip
+
+    def _inside(self, q0: np.ndarray, plan: np.ndarray, limits: list[Limits]) -> np.ndarray:
+        """The warm start shrunk into the open limits: commands into (1 − ε)ū, then halved toward rest
+        (θ stays nearer θ₀, which keeps the limits) until every θᵢ keeps them strictly."""
+        plan = clip_to_box(plan, (1.0 - START_SHRINK) * self.velocity_limits)
+        for i, limit in enumerate(limits):
+            for _ in range(60):
+                if limit.violation(plan[i], q0[i], self.solver_dt) < 0.0:
+                    break
+                plan[i] *= 0.5
+            else:
+                plan[i] = 0.0
+        return plan
+
+    def _barrier(
+        self, rows: np.ndarray, q0: np.ndarray, plans: np.ndarray, limits: list[Limits]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """−μ Σ log s of each plan (inf outside the limits) and its gradient in u."""
+        values, grads = np.empty(len(rows)), np.empty_like(plans)
+        for b, i in enumerate(rows):
+            mu, limit = self._mu[i], limits[i]
+            slacks = limit.slacks(plans[b], _next_angles(plans[b], q0[i], self.solver_dt))
+            if min(float(s.min()) for s in slacks) <= 0.0:
+                values[b], grads[b] = np.inf, 0.0
+                continue
+            values[b] = -mu * sum(float(np.log(s).sum()) for s in slacks)
+            grads[b] = mu * (1.0 / slacks[1] - 1.0 / slacks[0])
+            if limit.has_positions:
+                # θᵢ₊₁.. depend on uᵢ through Δt_s: the position terms' gradient is a reverse cumulative sum.
+                per_angle = mu * (1.0 / slacks[3] - 1.0 / slacks[2])
+                grads[b] += self.solver_dt * np.cumsum(per_angle[::-1], axis=0)[::-1]
+        return values, grads
 
     def _terminal_cost(
         self, q0: np.ndarray, plan: np.ndarray, end_velocity: np.ndarray
@@ -363,16 +445,28 @@ class MPCPolicy(BasePolicy):
         return values, grads, jacobians
 
     def _direction(
-        self, base: np.ndarray, jacobians: np.ndarray, grad: np.ndarray, terminal: Any, i: int
-    ) -> np.ndarray:
-        """The Gauss-Newton step of the block-banded θ-system, with the terminal Hessian 2J_NᵀP̄J_N in θ_N's block."""
+        self, base: np.ndarray, jacobians: np.ndarray, grad: np.ndarray, terminal: Any, i: int,
+        q0: np.ndarray, plan: np.ndarray, limits: list[Limits] | None,
+    ) -> tuple[np.ndarray, float]:
+        """The Gauss-Newton step of the block-banded θ-system, with the terminal Hessian 2J_NᵀP̄J_N in θ_N's block
+        and, with the limits, the barrier's Σ = μ/s²; and the largest step fraction (≤ 1) that keeps every
+        slack at least 1 − τ of its value."""
         steps, m = grad.shape
-        if terminal is not None:
+        if terminal is not None or limits is not None:
             base = base.copy()
+        if terminal is not None:
             block = 2.0 * jacobians[steps].T @ terminal[0][i] @ jacobians[steps]
             rows, cols = np.tril_indices(m)
             base[rows - cols, (steps - 1) * m + cols] += block[rows, cols]  # lower band: [a − b, k·m + b] ← H_ab
-        return _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
+        if limits is None:
+            return _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight), 1.0
+        slacks = limits[i].slacks(plan[i], _next_angles(plan[i], q0[i], self.solver_dt))
+        barrier = _Barrier(limits[i], self.solver_dt, float(self._mu[i]), slacks, [self._mu[i] / s for s in slacks])
+        barrier.add_to_band(base, m)  # primal barrier: z = μ/s, so Σ = z/s = μ/s²
+        step = _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
+        step_angles = self.solver_dt * np.cumsum(step, axis=0)
+        slack_steps = [step, -step] + ([step_angles, -step_angles] if limits[i].has_positions else [])
+        return step, _boundary_step(slacks, slack_steps)
 
     def _line_search(
         self,
@@ -385,15 +479,21 @@ class MPCPolicy(BasePolicy):
         terminal: tuple[np.ndarray, np.ndarray] | None,
         convention: CostConvention,
         state: tuple[np.ndarray, np.ndarray, np.ndarray],
+        first: np.ndarray | None = None,
+        limits: list[Limits] | None = None,
     ) -> None:
-        """Armijo backtracking (evaluation/optimal_reference.py's test), every pending sample in one FK pass;
-        updates ``plan`` and ``state`` = (V, ∂V/∂U, J) in place where a step is accepted."""
+        """Armijo backtracking (evaluation/optimal_reference.py's test) from step fraction ``first``, every
+        pending sample in one FK pass; updates ``plan`` and ``state`` = (V, ∂V/∂U, J) in place where a step
+        is accepted. With the limits, V includes the barrier (inf outside them)."""
         value, grad, jacobians = state
-        alpha = np.ones(len(rows))
+        alpha = np.ones(len(rows)) if first is None else first.astype(float).copy()
         pending = np.arange(len(rows))
         for _ in range(MAX_BACKTRACKS):
             trial = plan[rows[pending]] + alpha[pending, None, None] * steps[pending]
             trial_value, trial_grad, trial_jacobians = self._evaluate(rows[pending], q0, x_d, trial, terminal, convention)
+            if limits is not None:
+                barrier, barrier_grad = self._barrier(rows[pending], q0, trial, limits)
+                trial_value, trial_grad = trial_value + barrier, trial_grad + barrier_grad
             accepted = trial_value <= value[rows[pending]] + ARMIJO * alpha[pending] * slopes[pending]
             done = rows[pending[accepted]]
             plan[done], value[done], grad[done] = trial[accepted], trial_value[accepted], trial_grad[accepted]

@@ -447,8 +447,9 @@ def _limits(velocity_limits: np.ndarray, position_limits: tuple[np.ndarray, np.n
     if position_limits is None:
         return Limits(velocity)
     lower, upper = (np.asarray(bound, dtype=float) for bound in position_limits)
-    # θ₀ is given: a bound it breaks (or touches) cannot be kept by any sequence, so it moves out to θ₀.
-    return Limits(velocity, np.minimum(lower, q0 - START_CLEARANCE), np.maximum(upper, q0 + START_CLEARANCE))
+    # θ₀ is given: a bound it breaks (or touches) cannot be kept by any sequence, so it moves just past θ₀.
+    return Limits(velocity, np.where(q0 > lower, lower, q0 - START_CLEARANCE),
+                  np.where(q0 < upper, upper, q0 + START_CLEARANCE))  # fmt: skip
 
 
 def _strictly_inside(start: np.ndarray, q0: np.ndarray, dt: float, limits: Limits) -> np.ndarray:

@@ -120,3 +120,29 @@ def test_prediction_of_an_ellipse_is_exact(track):
 def test_bad_parameters_are_refused(reach, kwargs, message):
     with pytest.raises(ValueError, match=message):
         MPCPolicy(reach, **kwargs)
+
+
+def test_the_limits_are_constraints_of_the_re_solve():
+    """Workspace reach sample 2 of seed 11 (HJB cost, q = 4): unconstrained, the MPC turns joint 2 past its
+    limit by 2.9 rad; with the limits in its re-solve (the default) it keeps every position and velocity
+    limit on every step."""
+    from snac_gym.cost import CostConvention
+    from snac_gym.metrics import rollout_metrics
+
+    context = policy_context("ur10", DT, "reach")
+    kinematics = context.kinematics
+    sample = generate_samples(kinematics, SampleSpace.workspace(kinematics), 11, "reach", [2])
+    margins = {}
+    for constraints in (False, True):
+        make = lambda c=constraints: MPCPolicy(context, cost="hjb", Q=[4.0] * 3, constraints=c)  # noqa: E731
+        rollouts = simulate_kinematic(context, make, sample, 1500, [0])
+        metrics = rollout_metrics(rollouts, "reach", context.velocity_limits, CostConvention("hjb", q_scale=4.0),
+                                  (kinematics.lower_limits, kinematics.upper_limits))  # fmt: skip
+        margins[constraints] = float(metrics["joint_limit_margin"][0])
+        assert np.all(np.abs(rollouts.commands) <= context.velocity_limits)
+    assert margins[False] < -1.0 and margins[True] >= 0.0
+
+
+def test_constraints_must_be_a_boolean(reach):
+    with pytest.raises(ValueError, match="constraints must be true or false"):
+        MPCPolicy(reach, constraints="yes")

@@ -19,8 +19,8 @@ snac-gym evaluate --out "$out/default" --controllers "$all" "${common[@]}"
 for seed in 11 12; do
   snac-gym evaluate --out "$out/workspace$seed" --sample-space workspace --seed "$seed" --controllers "$all" "${common[@]}"
 done
-for robot in panda xarm7; do
-  snac-gym evaluate --out "$out/$robot" --robot "$robot" --controllers "$all" "${common[@]}"
+for robot in panda xarm7; do  # the shipped PPO policies are the UR arms' (6 joints)
+  snac-gym evaluate --out "$out/$robot" --robot "$robot" --controllers "${all/ppo,/}" "${common[@]}"
 done
 snac-gym evaluate --out "$out/outside" --samples-file "$out/outside.csv" --controllers "$all" "${common[@]:2}"
 # The velocity-only variant of the reference on the same sets: the rollouts that cross a joint limit are
