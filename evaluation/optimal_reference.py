@@ -812,18 +812,16 @@ def own_start_commands(context: Any, samples: Sequence[Any], steps: int, seeds: 
     return starts
 
 
-def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray) -> np.ndarray:
-    """:func:`snac_gym.optimality.regulation_cost_lower_bound` per sample of a position regulation task, else NaN."""
-    from snac_gym.optimality import regulation_cost_lower_bound
-    from snac_gym.tasks import get_task
+def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """:func:`snac_gym.optimality.trajectory_cost_lower_bounds` per sample of a position task (reach or
+    track, under the run's cost), else NaN: certified for every command sequence within the velocity limits."""
+    from snac_gym.optimality import reference_steps, trajectory_cost_lower_bounds
 
-    if get_task(job.task).moving_reference or getattr(kinematics, "task_error", None) is not None:
+    if getattr(kinematics, "task_error", None) is not None:
         return np.full(len(job.samples), np.nan)
-    initial = np.array([np.linalg.norm(kinematics.forward(np.asarray(s.q0, float)) - x_d[i, 0])
-                        for i, s in enumerate(job.samples)])  # fmt: skip
-    return regulation_cost_lower_bound(
-        initial, job.steps, job.dt, kinematics.position_lipschitz_bound(), job.convention.q_scale
-    )
+    initial = np.linalg.norm(kinematics.forward_batch(np.array([s.q0 for s in job.samples], dtype=float)) - x_d[:, 0], axis=1)
+    return trajectory_cost_lower_bounds(initial, reference_steps(x_d), job.dt, kinematics.position_lipschitz_bound(),
+                                        job.convention, float(np.linalg.norm(limits)))  # fmt: skip
 
 
 def run_optimal_job(job: OptimalJob) -> Any:
@@ -892,7 +890,7 @@ def _solve_job(job: OptimalJob) -> Any:
     metrics["optimal_starts"] = np.array([r.starts for r in results], dtype=np.int64)
     metrics["optimal_winner"] = [r.winner for r in results]
     metrics["optimal_local_spread"] = [r.spread for r in results]
-    metrics["optimal_lower_bound"] = _lower_bounds(job, kinematics, x_d)
+    metrics["optimal_lower_bound"] = _lower_bounds(job, kinematics, x_d, limits)
     attrs = {"task": job.task, "policy": OPTIMAL, "policy_kwargs": {}}
     logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
     return JobResult(metrics, logs)
