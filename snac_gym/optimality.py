@@ -860,3 +860,151 @@ def trajectory_cost_lower_bound(
     if np.ndim(initial_error) != 0 or np.ndim(reference_steps) != 1:
         raise ValueError("one sample: initial_error is a scalar and reference_steps a (K−1,) array")
     return float(trajectory_cost_lower_bounds(initial_error, reference_steps, dt, lipschitz, convention, velocity_norm_limit)[0])
+
+
+# -- A smaller Lipschitz constant per sample: where can a trajectory of bounded cost take the arm? ----------------------
+
+#: Joint models whose Jacobian column is zⱼ × (p − oⱼ) with a fixed unit axis (one coordinate each).
+_REVOLUTE_JOINTS = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
+
+
+def jacobian_variation_bound(kinematics: Any) -> float | None:
+    """M with σ_max(J(θ')) ≤ σ_max(J(θ)) + M‖θ' − θ‖ for every θ, θ', for a chain of revolute joints (else ``None``).
+
+    Column b of J is J_b = z_b × (p − o_b). Differentiating (rotating about joint a moves everything after it):
+    ∂J_b/∂θ_a = z_a × J_b if joint a comes before joint b, z_b × J_a otherwise, so ‖∂J_b/∂θ_a‖ ≤ c_max(a,b) with
+    c_b ≥ sup ‖J_b‖: c_b = the summed lengths of the fixed offsets from joint b to the end effector (as in
+    :meth:`~snac_gym.kinematics.Kinematics.position_lipschitz_bound`), and for the joint carrying the end effector
+    exactly ‖axis × offset‖ (the distance of p from its axis never changes). Hence ‖∂J/∂θ_a‖_F ≤ M_a =
+    (Σ_b c_max(a,b)²)^½ and, along the segment, ‖J(θ') − J(θ)‖₂ ≤ ‖J(θ') − J(θ)‖_F ≤ Σ_a |δ_a| M_a ≤ ‖δ‖ (Σ_a M_a²)^½
+    (Weyl: σ_max moves by at most ‖ΔJ‖₂). The first joint of the chain turns the whole arm about an axis fixed in the
+    base, J(θ) = R(θ₁) J(0, θ₂, …): σ_max does not depend on θ₁, so its M₁ is left out of the sum.
+    """
+    model = kinematics.model
+    joint_name, offset = kinematics.ee_mount()
+    joint = int(model.getJointId(joint_name))
+    chain: list[float] = []  # c_b from the end effector back to the base
+    reach = float(np.linalg.norm(offset))
+    while joint > 0:
+        axis = _REVOLUTE_JOINTS.get(model.joints[joint].shortname())
+        if axis is None or model.joints[joint].nq != 1:
+            return None
+        if not chain:  # the end effector's own joint: p − oⱼ is the fixed offset, turning about the axis
+            chain.append(float(np.linalg.norm(np.delete(np.asarray(offset, dtype=float), axis))))
+        else:
+            chain.append(reach)
+        reach += float(np.linalg.norm(model.jointPlacements[joint].translation))
+        joint = int(model.parents[joint])
+    lengths = np.array(chain[::-1])  # base first
+    count = len(lengths)
+    squares = [(a + 1) * lengths[a] ** 2 + float(np.sum(lengths[a + 1:] ** 2)) for a in range(count)]
+    return float(np.sqrt(np.sum(squares[1:])))
+
+
+def reachable_lipschitz_bounds(
+    kinematics: Any, q0: np.ndarray, steps: int, dt: float, cost_limits: float | np.ndarray,
+    velocity_limits: np.ndarray | None = None,
+) -> np.ndarray:
+    """Lₖ ≥ ‖J‖₂ on every step θₖ → θₖ₊₁ (k = 0..K−2) of every trajectory from θ₀ whose cost is at most V̄.
+
+    The cost contains Σ ‖uⱼ‖²Δt (R = I, every convention), so such a trajectory has, by Cauchy-Schwarz,
+    ‖θₖ₊₁ − θ₀‖ ≤ Σ_{j≤k} ‖uⱼ‖Δt ≤ (tₖ₊₁ V̄)^½, and ≤ tₖ₊₁‖ū‖₂ within the velocity limits: the segment lies in that
+    ball around θ₀, where σ_max(J) ≤ σ_max(J(θ₀)) + M·radius (:func:`jacobian_variation_bound`). Capped by the
+    global L of ``position_lipschitz_bound``; that L alone where M is not available.
+
+    Args:
+        kinematics: The arm (a :class:`~snac_gym.kinematics.Kinematics`).
+        q0: θ₀, ``(m,)`` or ``(B, m)``.
+        steps: K.
+        dt: Δt, s.
+        cost_limits: V̄ ≥ 0, a scalar or ``(B,)``.
+        velocity_limits: ū, ``(m,)``, or ``None``.
+
+    Returns:
+        ``(B, K−1)``.
+    """
+    q0 = np.atleast_2d(np.asarray(q0, dtype=float))
+    limits = np.broadcast_to(np.asarray(cost_limits, dtype=float), (len(q0),))
+    if not (np.all(np.isfinite(limits)) and np.all(limits >= 0)):
+        raise ValueError(f"cost limits must be finite and non-negative, got {cost_limits}")
+    glob = kinematics.position_lipschitz_bound()
+    variation = jacobian_variation_bound(kinematics)
+    if variation is None or steps < 2:
+        return np.full((len(q0), max(steps - 1, 0)), glob)
+    times = np.arange(1, steps) * dt  # tₖ₊₁: the far end of step k
+    radius = np.sqrt(times * limits[:, None])
+    if velocity_limits is not None:
+        radius = np.minimum(radius, times * float(np.linalg.norm(velocity_limits)))
+    # σ_max(J(θ₀)) as computed, raised by far more than its rounding (~1e-15 relative)
+    start = np.linalg.norm(kinematics.jacobian_batch(q0), ord=2, axis=(-2, -1)) * (1.0 + 1e-12)
+    return np.minimum(glob, start[:, None] + variation * radius)
+
+
+def certified_cost_lower_bounds(
+    kinematics: Any,
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    dt: float,
+    convention: CostConvention | None = None,
+    velocity_limits: np.ndarray | None = None,
+    cost_limits: float | np.ndarray | None = None,
+    refinements: int = 0,
+) -> np.ndarray:
+    """Certified lower bounds on the trajectory cost of every command sequence, per sample of a position task.
+
+    The evaluator's entry point: r₀ = ‖f(θ₀) − x_d(t₀)‖ and dₖ from the samples, then
+    :func:`trajectory_cost_lower_bounds` with
+
+    * no ``cost_limits`` and no ``refinements``: the global Lipschitz bound (one relaxation per sample);
+    * ``cost_limits`` V̄ (e.g. each sample's numerical optimum, the cost of a real trajectory): the per-step
+      bounds Lₖ(V̄) of :func:`reachable_lipschitz_bounds`, valid for every trajectory costing at most V̄. The bound
+      reported is min(B(V̄), V̄), which holds for *every* trajectory: one costing more than V̄ is above it
+      anyway. So V̄ need not bound anything: any V̄ ≥ 0 gives a certified value, and the best is where the
+      non-increasing B(V̄) crosses V̄;
+    * ``refinements`` > 0: that many bisection steps (in log V̄) towards that crossing, each one more relaxation
+      per sample, keeping the best value met. The bracket starts from V̄ (where B(V̄) < V̄ brackets from above)
+      or from the global bound B₀ (B(B₀) ≥ B₀, as Lₖ ≤ L).
+
+    Args:
+        kinematics: The arm (:class:`~snac_gym.kinematics.Kinematics`).
+        q0: θ₀, ``(m,)`` or ``(B, m)``.
+        x_d: Desired positions x_d(tₖ), ``(K, n)`` or ``(B, K, n)``.
+        dt: Δt, s.
+        convention: The cost (default: Table I's).
+        velocity_limits: ū, ``(m,)``, or ``None`` (no limit).
+        cost_limits: V̄, a scalar or ``(B,)``, or ``None``.
+        refinements: Bisection steps towards the crossing B(V̄) = V̄.
+
+    Returns:
+        ``(B,)`` bounds.
+    """
+    q0 = np.atleast_2d(np.asarray(q0, dtype=float))
+    x_d = np.asarray(x_d, dtype=float)
+    x_d = np.broadcast_to(x_d, (len(q0), *x_d.shape[-2:]))
+    errors = np.linalg.norm(kinematics.forward_batch(q0) - x_d[:, 0], axis=-1)
+    steps = reference_steps(x_d)
+    limit = None if velocity_limits is None else float(np.linalg.norm(velocity_limits))
+
+    def bound_at(lipschitz: Any) -> np.ndarray:
+        return trajectory_cost_lower_bounds(errors, steps, dt, lipschitz, convention, limit)
+
+    def reachable(limits: np.ndarray) -> np.ndarray:  # B(V̄)
+        return bound_at(reachable_lipschitz_bounds(kinematics, q0, x_d.shape[1], dt, limits, velocity_limits))
+
+    if cost_limits is None:
+        low = bound_at(kinematics.position_lipschitz_bound())
+        if refinements <= 0 or jacobian_variation_bound(kinematics) is None:
+            return low
+        best, high = low, reachable(low)  # B(B₀) ≥ B₀ (so min(B(B₀), B₀) = B₀), and B(B(B₀)) ≤ B(B₀)
+    else:
+        trial = np.broadcast_to(np.asarray(cost_limits, dtype=float), errors.shape).copy()
+        value = reachable(trial)
+        best = np.minimum(value, trial)
+        low, high = best, np.maximum(value, trial)  # the crossing is in [B(V̄), V̄] or in [V̄, B(V̄)]
+    for _ in range(refinements):
+        middle = np.sqrt(low * high)
+        value = reachable(middle)
+        best = np.maximum(best, np.minimum(value, middle))
+        above = value >= middle  # B(middle) ≥ middle: the crossing is higher
+        low, high = np.where(above, middle, low), np.where(above, high, middle)
+    return best

@@ -15,6 +15,9 @@ from snac_gym import optimality
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.optimality import (
+    certified_cost_lower_bounds,
+    jacobian_variation_bound,
+    reachable_lipschitz_bounds,
     reference_steps,
     regulation_cost_lower_bound,
     solve_cost_relaxation,
@@ -182,6 +185,8 @@ def random_commands(rng, steps, limits, kind):
 @pytest.mark.parametrize("task", ["reach", "track"])
 @pytest.mark.parametrize("convention", CONVENTIONS)
 def test_it_is_below_the_cost_of_random_commands_on_the_ur10(ur10, task, convention):
+    """Also with the per-sample Lipschitz bounds, for any cost limit V̄ (min(B(V̄), V̄) holds for every trajectory),
+    the commands' own cost among them, and with the bisection towards B(V̄) = V̄."""
     rng = np.random.default_rng(11)
     limits = ur10.velocity_limits
     for draw in range(12):
@@ -192,17 +197,60 @@ def test_it_is_below_the_cost_of_random_commands_on_the_ur10(ur10, task, convent
         assert np.all(np.abs(commands) <= limits)
         cost = trajectory_cost_and_gradient(commands, q0, x_d, ur10, DT, convention)[0]
         assert certified_bound(ur10, q0, x_d, convention) <= cost
+        limit = cost * np.array([0.01, 0.3, 1.0, 1.0 + 1e-9, 3.0, 1e3])
+        tighter = certified_cost_lower_bounds(ur10, np.tile(q0, (6, 1)), x_d, DT, convention, limits, limit, draw % 3)
+        assert np.all(tighter <= cost)
+        assert certified_cost_lower_bounds(ur10, q0, x_d, DT, convention, limits, refinements=2)[0] <= cost
 
 
 @pytest.mark.parametrize("task", ["reach", "track"])
 @pytest.mark.parametrize("convention", CONVENTIONS[:3])
 def test_it_is_below_the_numerical_optimum_on_ur10_samples(ur10, task, convention):
-    """The tightest trajectories there are: the evaluator's optimum of each sample (shortened to 3 s)."""
+    """The tightest trajectories there are: the evaluator's optimum of each sample (shortened to 3 s). With the
+    optimum's cost as V̄ the per-sample Lipschitz bounds raise the bound, and the bisection raises it further."""
+    limits = ur10.velocity_limits
     for index in range(3):
         q0, x_d = sample_problem(ur10, task, index, 375)
-        optimum = solve_sample(q0, x_d, ur10, DT, ur10.velocity_limits, convention=convention).cost
+        optimum = solve_sample(q0, x_d, ur10, DT, limits, convention=convention).cost
         bound = certified_bound(ur10, q0, x_d, convention)
         assert 0.1 * optimum < bound <= optimum
+        assert certified_cost_lower_bounds(ur10, q0, x_d, DT, convention, limits)[0] == pytest.approx(bound, rel=1e-12)
+        reachable = certified_cost_lower_bounds(ur10, q0, x_d, DT, convention, limits, optimum)[0]
+        refined = certified_cost_lower_bounds(ur10, q0, x_d, DT, convention, limits, optimum, refinements=3)[0]
+        assert bound < reachable <= refined <= optimum
+
+
+@pytest.mark.parametrize("robot", ["ur10", "ur5", "panda"])
+def test_the_jacobian_moves_no_faster_than_its_variation_bound(robot):
+    """σ_max(J) changes by at most M‖Δθ‖, and J itself too when the first joint stays (σ_max ignores it)."""
+    kinematics = shared_kinematics(robot)
+    bound = jacobian_variation_bound(kinematics)
+    rng = np.random.default_rng(2)
+    q = rng.uniform(-np.pi, np.pi, (4000, kinematics.n_joints))
+    step = rng.normal(size=q.shape) * rng.uniform(1e-3, 2.0, (len(q), 1))
+    turned = q + step
+    rates = np.abs(np.linalg.norm(kinematics.jacobian_batch(turned), ord=2, axis=(1, 2))
+                   - np.linalg.norm(kinematics.jacobian_batch(q), ord=2, axis=(1, 2))) / np.linalg.norm(step, axis=1)
+    step[:, 0] = 0.0
+    moved = np.linalg.norm(kinematics.jacobian_batch(q + step) - kinematics.jacobian_batch(q), ord=2, axis=(1, 2))
+    rates = np.maximum(rates, moved / np.linalg.norm(step, axis=1))
+    assert rates.max() <= bound < 3.0 * rates.max()  # certified, and not vacuous
+
+
+def test_reachable_lipschitz_bounds_cover_the_jacobian_along_trajectories_of_bounded_cost(ur10):
+    rng = np.random.default_rng(5)
+    limits, convention = ur10.velocity_limits, CostConvention()
+    for draw in range(12):
+        steps = 300
+        q0, x_d = sample_problem(ur10, "reach", draw, steps)
+        commands = random_commands(rng, steps, limits, ("smooth", "near-limits", "bang-bang")[draw % 3])
+        commands *= rng.uniform(0.05, 1.0)
+        cost = trajectory_cost_and_gradient(commands, q0, x_d, ur10, DT, convention)[0]
+        bounds = reachable_lipschitz_bounds(ur10, q0, steps, DT, cost, limits if draw % 2 else None)[0]
+        angles = q0 + DT * np.vstack([np.zeros(6), np.cumsum(commands, axis=0)])  # θ₀..θ_K
+        for fraction in (0.0, 0.5, 1.0):  # each step's segment: its ends and its middle
+            points = angles[:-2] + fraction * (angles[1:-1] - angles[:-2])
+            assert np.all(np.linalg.norm(ur10.jacobian_batch(points), ord=2, axis=(1, 2)) <= bounds)
 
 
 @functools.lru_cache(maxsize=None)
@@ -231,6 +279,17 @@ def test_it_is_below_the_cost_of_the_project_controllers(ur10, task, controller)
         bounds = trajectory_cost_lower_bounds(np.linalg.norm(rollouts.errors[:, 0], axis=-1), reference_steps(x_d), DT,
                                               ur10.position_lipschitz_bound(), convention, limit)  # fmt: skip
         assert np.all(bounds > 0) and np.all(bounds <= costs)
+
+
+def test_the_reachable_lipschitz_bounds_tighten_the_table1_bound_on_a_reach_sample(ur10):
+    """Reach sample 0, 12 s, Table I's cost: the optimum is 2.57x the global-Lipschitz bound, 2.22x the bound with
+    the optimum's cost as V̄, and 2.04x after four bisection steps (docs/lower-bounds.md)."""
+    q0, x_d = sample_problem(ur10, "reach", 0, 1500)
+    limits = ur10.velocity_limits
+    optimum = solve_sample(q0, x_d, ur10, DT, limits).cost
+    bounds = [certified_cost_lower_bounds(ur10, q0, x_d, DT, CostConvention(), limits, limit, refinements)[0]
+              for limit, refinements in ((None, 0), (optimum, 0), (optimum, 4))]  # fmt: skip
+    np.testing.assert_allclose(optimum / np.array(bounds), [2.57, 2.22, 2.04], atol=0.01)
 
 
 def test_under_table1_cost_it_is_far_above_the_regulation_bound(ur10):
