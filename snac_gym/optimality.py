@@ -663,7 +663,7 @@ def _first_horizon(q, w, dt, b, rtol, total):  # pragma: no cover - compiled
     if c > 0.0:
         command_decay = c / (dt + 0.5 * (np.sqrt(dt * dt + 4.0 * c * dt) - dt) + c)
         steps += np.log(0.5 * rtol) / (2.0 * np.log(command_decay))
-    return min(total, int(1.25 * steps) + 16)
+    return min(total, max(int(1.25 * steps), 0) + 16)
 
 
 def _relaxation_bounds(r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, first_steps, out):  # pragma: no cover - compiled
