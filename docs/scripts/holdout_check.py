@@ -2,7 +2,7 @@
 limits (a bug of the reference, if any) and, apart, those that cross a limit. Also the reference's own
 limit margin, convergence and winners, and its gap to the certified lower bound where there is one.
 
-Usage: python docs/scripts/holdout_check.py runs/holdout/*/results.csv
+Usage: python docs/scripts/holdout_check.py runs/holdout/*/results.csv [--markdown]
 (a folder's ``<name>-velocity`` sibling, the velocity-only reference of the same samples, is compared
 with the rollouts that cross a limit)
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 
 for path in sys.argv[1:]:
-    if Path(path).parent.name.endswith("-velocity"):
+    if path == "--markdown" or Path(path).parent.name.endswith("-velocity"):
         continue
     rows = pd.read_csv(path)
     reference = rows[rows["controller"] == "optimal"]
@@ -43,3 +43,31 @@ for path in sys.argv[1:]:
         print(f"  optimum / lower bound: median {gap.median().round(2).to_dict()}, p95 {gap.quantile(0.95).round(2).to_dict()}")
     if (inside & below).any():
         print(others.loc[inside & below, ["task", "controller", "sample", "ratio_to_optimal"]].to_string())
+
+
+def markdown_row(path: str) -> str:
+    """One row of docs/optimality.md's held-out table for a run folder's results.csv."""
+    rows = pd.read_csv(path)
+    reference = rows[rows["controller"] == "optimal"]
+    others = rows[rows["controller"] != "optimal"]
+    inside = others["joint_limit_margin"] >= 0.0
+    below = others["below_optimal"].astype(bool)
+    free_path = Path(path).parent.with_name(Path(path).parent.name + "-velocity") / "results.csv"
+    crossing, free_text = others[~inside], "—"
+    if free_path.exists():
+        free = pd.read_csv(free_path).set_index(["task", "sample"])
+        bound = free["cost"].reindex(pd.MultiIndex.from_frame(crossing[["task", "sample"]])).to_numpy()
+        free_text = f"{int((free['joint_limit_margin'] < 0).sum())} / {int((crossing['cost'].to_numpy() < bound).sum())}"
+    gap = (reference["cost"] / reference["optimal_lower_bound"]).groupby(reference["task"])
+    return (f"| {Path(path).parent.name} | {len(reference)} | {others['controller'].nunique()} | {int(inside.sum())} | "
+            f"**{int((inside & below).sum())}** | {others.loc[inside, 'ratio_to_optimal'].min():.4f} | "
+            f"{int((~inside).sum())} / {int((~inside & below).sum())} | {free_text} | "
+            f"{int((reference['joint_limit_margin'] < 1e-6).sum())} | "
+            f"{gap.median().get('reach', float('nan')):.2f} / {gap.median().get('track', float('nan')):.2f} | "
+            f"{gap.quantile(0.95).get('reach', float('nan')):.2f} / {gap.quantile(0.95).get('track', float('nan')):.2f} |")
+
+
+if __name__ == "__main__" and "--markdown" in sys.argv:
+    for path in sys.argv[1:]:
+        if path != "--markdown" and not Path(path).parent.name.endswith("-velocity"):
+            print(markdown_row(path))
