@@ -377,14 +377,14 @@ RELAXATION_RTOL = 1e-10
 #: last dual value is still a certified bound).
 RELAXATION_MAX_ITERATIONS = 100
 #: First horizon solved (steps), or 0: the relaxed regulation problem's decay time (_first_horizon). It grows
-#: until the neglected tail is provably within RELAXATION_RTOL (see solve_cost_relaxation).
+#: until the part left out is provably within RELAXATION_RTOL (see solve_cost_relaxation).
 RELAXATION_FIRST_STEPS = 0
 
 
-def _relaxed_hessian_band(steps, dt, q, w, rest, band):  # pragma: no cover - compiled
+def _relaxed_hessian_band(steps, dt, q, w, rest, terminal, band):  # pragma: no cover - compiled
     """Lower band of H, the Hessian of the relaxed cost in the interleaved variables (rows: diagonal, first and
-    second subdiagonal, at the row's index): 2qΔt on each r, 2Δt + (2w/Δt)·(jumps vₖ is in) on each v,
-    −2w/Δt between consecutive v (two places apart)."""
+    second subdiagonal, at the row's index): 2qΔt on each r, 2Δt + (2w/Δt)·(jumps vₖ is in) on each v (and
+    2·terminal on the last), −2w/Δt between consecutive v (two places apart)."""
     c = w / dt
     band[:, :] = 0.0
     for k in range(steps):
@@ -393,6 +393,7 @@ def _relaxed_hessian_band(steps, dt, q, w, rest, band):  # pragma: no cover - co
         if k > 0:
             band[0, 2 * k - 1] = 2.0 * q * dt
             band[2, 2 * k] = -2.0 * c
+    band[0, 2 * steps - 2] += 2.0 * terminal
 
 
 def _add_constraint_curvature(steps, b, weight, capped, band):  # pragma: no cover - compiled
@@ -465,7 +466,7 @@ def _apply_constraints_transposed(steps, b, z, capped, out):  # pragma: no cover
             out[2 * k - 1] = (z[k] if k < steps - 1 else 0.0) - z[k - 1]
 
 
-def _apply_hessian(steps, dt, q, w, rest, x, out):  # pragma: no cover - compiled
+def _apply_hessian(steps, dt, q, w, rest, terminal, x, out):  # pragma: no cover - compiled
     """out ← H x (:func:`_relaxed_hessian_band`)."""
     c = w / dt
     for k in range(steps):
@@ -478,10 +479,12 @@ def _apply_hessian(steps, dt, q, w, rest, x, out):  # pragma: no cover - compile
             value += 2.0 * c * v
         if k < steps - 1:
             value += 2.0 * c * (v - x[2 * k + 2])
+        else:
+            value += 2.0 * terminal * v
         out[2 * k] = value
 
 
-def _feasible_value(r0, d, b, dt, q, w, rest, vmax, steps, x):  # pragma: no cover - compiled
+def _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x):  # pragma: no cover - compiled
     """The relaxed cost of a feasible point built from x: vₖ clipped to [0, v̄], each rₖ₊₁ the least the
     constraints allow, max(rₖ − bₖvₖ − dₖ, 0). Returns (value, r_{K−1}, v_{K−1}, max v)."""
     r, previous, value, v, peak = r0, 0.0, 0.0, 0.0, 0.0
@@ -492,7 +495,7 @@ def _feasible_value(r0, d, b, dt, q, w, rest, vmax, steps, x):  # pragma: no cov
         jump = v - previous if (k > 0 or rest) else 0.0
         value += dt * (q * r * r + v * v) + w / dt * jump * jump
         previous, peak = v, max(peak, v)
-    return value, r, v, peak
+    return value + terminal * v * v, r, v, peak
 
 
 def _dual_value(r0, q, dt, steps, b, capped, h, hessian, hessian_pivots, z, work, image):  # pragma: no cover - compiled
@@ -530,9 +533,9 @@ def _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, prima
         dz[i] = -(complementarity[i] + z[i] * ds[i]) / s[i]
 
 
-def _residuals(steps, dt, q, w, rest, b, capped, h, x, s, z, dual_residual, primal_residual, work):  # pragma: no cover - compiled
+def _residuals(steps, dt, q, w, rest, terminal, b, capped, h, x, s, z, dual_residual, primal_residual, work):  # pragma: no cover - compiled
     """r_d = Hx + Gᵀz and r_p = Gx + s − h; returns the mean complementarity sᵀz/m."""
-    _apply_hessian(steps, dt, q, w, rest, x, dual_residual)
+    _apply_hessian(steps, dt, q, w, rest, terminal, x, dual_residual)
     _apply_constraints_transposed(steps, b, z, capped, work)
     dual_residual += work
     _apply_constraints(steps, b, x, capped, primal_residual)
@@ -568,9 +571,10 @@ def _constraint_bounds(r0, d, vmax, steps, capped):  # pragma: no cover - compil
     return h
 
 
-def _relaxation_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
-    """The relaxed problem over the first ``steps`` steps, from rest (v = 0, r = r₀: feasible) by the
-    predictor-corrector interior point method. Fills x (primal) and z (multipliers of the constraints).
+def _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
+    """The relaxed problem over the first ``steps`` steps (plus ``terminal``·v²_last, see _terminal_weight), from
+    rest (v = 0, r = r₀: feasible) by the predictor-corrector interior point method. Fills x (primal) and z
+    (multipliers of the constraints).
 
     Returns (bound, value, iterations, r_last, v_last, v_peak): the best dual value met (each one is a certified
     lower bound on the relaxed optimum, whatever the iterate), the least feasible value met (an upper bound on it),
@@ -582,9 +586,9 @@ def _relaxation_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol, max_iteration
     x[:n] = 0.0
     x[1:n:2] = r0
     hessian, hessian_pivots = np.empty((3, n)), np.empty(n)
-    _relaxed_hessian_band(steps, dt, q, w, rest, hessian)
+    _relaxed_hessian_band(steps, dt, q, w, rest, terminal, hessian)
     _ldl_factor(hessian, hessian_pivots)
-    value, r_last, v_last, v_peak = _feasible_value(r0, d, b, dt, q, w, rest, vmax, steps, x)
+    value, r_last, v_last, v_peak = _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x)
     bound = q * dt * r0 * r0  # the first error is paid whatever the commands
     if m == 0:
         return bound, value, 0, r_last, v_last, v_peak
@@ -596,10 +600,11 @@ def _relaxation_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol, max_iteration
     band, pivots = np.empty((3, n)), np.empty(n)
     iterations = 0
     while True:
-        mu = _residuals(steps, dt, q, w, rest, b, capped, h, x[:n], s, z[:m], dual_residual, primal_residual, image_n)
+        mu = _residuals(steps, dt, q, w, rest, terminal, b, capped, h, x[:n], s, z[:m], dual_residual, primal_residual,
+                        image_n)
         # The certificates cost a solve and a pass: worth it once the complementarity gap m·μ is down to the tolerance.
         if m * mu <= rtol * value or iterations >= max_iterations:
-            trial, r_end, v_end, peak = _feasible_value(r0, d, b, dt, q, w, rest, vmax, steps, x)
+            trial, r_end, v_end, peak = _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x)
             if trial < value:
                 value, r_last, v_last, v_peak = trial, r_end, v_end, peak
             candidate = _dual_value(r0, q, dt, steps, b, capped, h, hessian, hessian_pivots, z[:m], work_n, image_n)
@@ -608,61 +613,60 @@ def _relaxation_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol, max_iteration
                 return bound, value, iterations, r_last, v_last, v_peak
         iterations += 1
         weight = z[:m] / s
-        _relaxed_hessian_band(steps, dt, q, w, rest, band)
+        _relaxed_hessian_band(steps, dt, q, w, rest, terminal, band)
         _add_constraint_curvature(steps, b, weight, capped, band)
         _ldl_factor(band, pivots)
         _predictor_corrector_step(steps, b, capped, band, pivots, s, z[:m], x[:n], dual_residual, primal_residual,
                                   mu, work_n, dx, work_m, ds, dz, image_n)
 
 
-def _tail_cost(q, w, dt, r, v, remaining):  # pragma: no cover - compiled
-    """An upper bound on the least relaxed cost of ``remaining`` more steps from the state (r, v): the commands
-    decay as the infinite-horizon optimum of Σ Δt v² + (w/Δt)(v − v_prev)² does, at cost P v² with
-    P² + PΔt − w = 0 (the scalar Riccati equation; P = 0 without the u̇ term), and r never rises."""
-    if remaining == 0:
+def _terminal_weight(w, dt, remaining):  # pragma: no cover - compiled
+    """P_N with P_N v² the least Σ_{j<N} (Δt vⱼ² + (w/Δt)(vⱼ − vⱼ₋₁)²) over N = ``remaining`` steps from v₋₁ = v:
+    the scalar Riccati recursion P₀ = 0, Pₙ = c(Δt + Pₙ₋₁)/(c + Δt + Pₙ₋₁), c = w/Δt (0 without the u̇ term).
+
+    The steps after a truncated horizon cost at least that (their error terms are ≥ 0), so adding it to the last
+    command of the truncated relaxation keeps it a relaxation, and spares solving the command's slow decay."""
+    c, value = w / dt, 0.0
+    if c == 0.0:
         return 0.0
-    c = w / dt
-    value = 0.5 * (np.sqrt(dt * dt + 4.0 * c * dt) - dt)
-    return q * r * r * remaining * dt + value * v * v
+    for _ in range(remaining):
+        value = c * (dt + value) / (c + dt + value)
+    return value
 
 
-def _next_horizon(x, steps, total, q, w, dt, tail, target):  # pragma: no cover - compiled
+def _next_horizon(x, steps, total, q, dt, tail, target):  # pragma: no cover - compiled
     """The horizon to try after ``steps`` left a tail above ``target``: where the tail, decaying at the rate it
     did over the second half of this solve, would be below it (with a margin), at least double, at most K."""
     half = steps // 2
-    earlier = _tail_cost(q, w, dt, max(x[2 * half - 1], 0.0) if half > 0 else 0.0, max(x[2 * half], 0.0), total - half)
+    r_half = max(x[2 * half - 1], 0.0) if half > 0 else 0.0
+    earlier = q * r_half * r_half * (total - half) * dt
     more = 2 * steps
     if 0.0 < tail < earlier and target > 0.0:
         more = max(more, steps + int(1.25 * (steps - half) * np.log(tail / target) / np.log(earlier / tail)) + 1)
     return min(more, total)
 
 
-def _capped_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
+def _capped_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
     """:func:`_relaxation_solve` without the velocity caps first (half the constraints), and with them only where
     its solution breaks one. Dropping constraints only lowers the dual values, so the bound stays certified; and a
     solution within the caps is feasible with them, so its value still bounds the capped optimum from above.
     Returns (bound, value, iterations, r_last, v_last)."""
-    bound, value, used, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, np.inf, steps, rtol,
-                                                                   max_iterations, x, z)
+    bound, value, used, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, np.inf, steps,
+                                                                   rtol, max_iterations, x, z)
     if v_peak <= vmax:
         return bound, value, used, r_last, v_last
-    bound, value, more, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, vmax, steps, rtol,
-                                                                   max_iterations, x, z)
+    bound, value, more, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps,
+                                                                   rtol, max_iterations, x, z)
     return bound, value, used + more, r_last, v_last
 
 
-def _first_horizon(q, w, dt, b, rtol, total):  # pragma: no cover - compiled
-    """A horizon long enough for the relaxed regulation problem's tail to fall below rtol: the steps its error
-    takes to decay (the scalar Riccati closed loop rₖ₊₁ = ρ_r rₖ, ρ_r = Δt/(Δt + b²P), without the u̇ term)
-    plus those its command takes once the error is gone (v decays by ρ_v = c/(Δt + P_v + c), c = w/Δt), with a
-    margin. A guess only: a horizon found short is extended, one found long is merely slower."""
+def _first_horizon(q, dt, b, rtol, total):  # pragma: no cover - compiled
+    """A horizon long enough for the relaxed regulation problem's error to fall below rtol: the steps it takes in
+    the scalar Riccati closed loop rₖ₊₁ = ρ rₖ, ρ = Δt/(Δt + b²P) (without the u̇ term; with it the error stops at
+    0 sooner), with a margin. A guess only: a horizon found short is extended, one found long is merely slower."""
     riccati = (q * dt * b * b + np.sqrt((q * dt * b * b) ** 2 + 4.0 * b * b * q * dt * dt)) / (2.0 * b * b)
-    error_decay = dt / (dt + b * b * riccati)
-    steps = np.log(rtol * riccati / (2.0 * q * total * dt)) / (2.0 * np.log(error_decay)) if error_decay > 0.0 else 1.0
-    c = w / dt
-    if c > 0.0:
-        command_decay = c / (dt + 0.5 * (np.sqrt(dt * dt + 4.0 * c * dt) - dt) + c)
-        steps += np.log(0.5 * rtol) / (2.0 * np.log(command_decay))
+    decay = dt / (dt + b * b * riccati)
+    steps = np.log(rtol * riccati / (2.0 * q * total * dt)) / (2.0 * np.log(decay)) if decay > 0.0 else 1.0
     return min(total, max(int(1.25 * steps), 0) + 16)
 
 
@@ -679,18 +683,19 @@ def _relaxation_bounds(r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, 
             out[:, i] = 0.0
             continue
         d, r0 = ds[i] / unit, r0s[i] / unit
-        steps = first_steps if first_steps > 0 else _first_horizon(q, w, dt, np.max(bs[i]) if total > 1 else 1.0, rtol, total)
+        steps = first_steps if first_steps > 0 else _first_horizon(q, dt, np.max(bs[i]) if total > 1 else 1.0, rtol, total)
         steps, iterations = min(steps, total), 0
         while True:
-            bound, value, used, r_last, v_last = _capped_solve(r0, d, bs[i], dt, q, w, rest, vmax / unit, steps, rtol,
-                                                               max_iterations, x, z)
+            terminal = _terminal_weight(w, dt, total - steps)
+            bound, value, used, r_last, v_last = _capped_solve(r0, d, bs[i], dt, q, w, rest, terminal, vmax / unit, steps,
+                                                               rtol, max_iterations, x, z)
             iterations += used
-            # The truncated optimum continued by the decaying commands of _tail_cost is feasible for the whole
-            # horizon, so the relaxed optimum lies in [bound, value + tail].
-            tail = _tail_cost(q, w, dt, r_last, v_last, total - steps)
+            # Continued by the commands that cost terminal·v²_last (already in value), along which r never rises,
+            # the truncated solution is feasible for the whole horizon: the relaxed optimum is in [bound, value + tail].
+            tail = q * r_last * r_last * (total - steps) * dt
             if steps == total or value + tail - bound <= rtol * (value + tail):
                 break
-            steps = _next_horizon(x, steps, total, q, w, dt, tail, 0.5 * rtol * bound)
+            steps = _next_horizon(x, steps, total, q, dt, tail, 0.5 * rtol * bound)
         out[0, i], out[1, i], out[2, i], out[3, i] = bound * unit * unit, (value + tail) * unit * unit, iterations, steps
 
 
@@ -698,7 +703,7 @@ _RELAXATION_HELPERS = (
     "_relaxed_hessian_band", "_add_constraint_curvature", "_ldl_factor", "_ldl_solve", "_apply_constraints",
     "_apply_constraints_transposed", "_apply_hessian", "_feasible_value", "_dual_value", "_max_step",
     "_newton_direction", "_residuals", "_predictor_corrector_step", "_constraint_bounds", "_relaxation_solve",
-    "_tail_cost", "_next_horizon", "_first_horizon", "_capped_solve",
+    "_terminal_weight", "_next_horizon", "_first_horizon", "_capped_solve",
 )
 
 
@@ -783,10 +788,13 @@ def solve_cost_relaxation(
     g(z) with z ≥ 0 is ≤ the relaxed optimum, converged or not (up to floating-point rounding, ~1e-12 relative).
     The solve stops once a feasible point's relaxed cost is within ``rtol`` of it.
 
-    **Horizon.** All terms of V are ≥ 0, so the relaxation over the first K' ≤ K steps bounds V too. K' starts at
-    :data:`RELAXATION_FIRST_STEPS` and doubles until its optimum, continued with v = 0 (r no longer falls, one
-    jump down to 0), is provably within ``rtol`` of the bound: the error has decayed by then, and the rest of
-    the horizon would add less than rtol to the bound.
+    **Horizon.** All terms of V are ≥ 0, so the relaxation over the first K' ≤ K steps, plus a lower bound on the
+    rest, bounds V too: the remaining K − K' steps cost at least P_{K−K'} v²_{K'−1} (their error terms dropped, the
+    least effort and jump cost of bringing the last command down: a scalar Riccati recursion, 0 without the u̇
+    term). K' starts at the relaxed regulation problem's decay time (or :data:`RELAXATION_FIRST_STEPS`) and grows
+    until the rest is provably within ``rtol``: the truncated solution continued by those least-cost commands
+    (along which r never rises) is feasible for the whole horizon, so the relaxed optimum lies in
+    [bound, value + q r²_{K'−1}(K − K')Δt].
 
     Args:
         initial_errors: r₀ = ‖e₀‖ (m), ``()`` or ``(B,)``.
@@ -815,11 +823,12 @@ def _relaxation_inputs(
     initial_errors: Any, steps: Any, dt: float, lipschitz: Any, limit: float | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """(r₀ ``(B,)``, d ``(B, K−1)``, LₖΔt ``(B, K−1)``, ‖ū‖ or inf), checked and C-contiguous for the kernel."""
-    errors = np.atleast_1d(np.asarray(initial_errors, dtype=float))
+    errors = np.array(np.atleast_1d(np.asarray(initial_errors, dtype=float)), order="C")
     steps = np.asarray(steps, dtype=float)
     if errors.ndim != 1 or steps.ndim not in (1, 2):
         raise ValueError(f"initial_errors must be () or (B,), reference_steps (K−1,) or (B, K−1); got {errors.shape}, {steps.shape}")
-    steps = np.ascontiguousarray(np.broadcast_to(steps, (len(errors), steps.shape[-1])))
+    # Writable C copies: numba compiles a read-only array (a broadcast view) as a type of its own
+    steps = np.array(np.broadcast_to(steps, (len(errors), steps.shape[-1])), order="C")
     if not (np.all(np.isfinite(errors)) and np.all(errors >= 0) and np.all(np.isfinite(steps)) and np.all(steps >= 0)):
         raise ValueError("initial errors and reference steps must be finite and non-negative")
     if not (np.isfinite(dt) and dt > 0):
@@ -827,7 +836,7 @@ def _relaxation_inputs(
     slopes = np.asarray(lipschitz, dtype=float)
     if not (np.all(np.isfinite(slopes)) and np.all(slopes > 0)):
         raise ValueError(f"lipschitz must be positive and finite, got {lipschitz}")
-    slopes = np.ascontiguousarray(np.broadcast_to(slopes * dt, steps.shape))
+    slopes = np.array(np.broadcast_to(slopes * dt, steps.shape), order="C")
     if limit is not None and not (np.isfinite(limit) and limit > 0):
         raise ValueError(f"velocity_norm_limit must be positive and finite (or None), got {limit}")
     return errors, steps, slopes, float(np.inf if limit is None else limit)
