@@ -365,7 +365,7 @@ def regulation_cost_lower_bound(
 
 # -- A certified lower bound on the trajectory cost, for reach and track, under every cost convention ----------------
 #
-# The derivation, what is relaxed and why each step is valid, is in trajectory_cost_lower_bounds' docstring and in
+# The derivation, what is relaxed and why each step is valid, is in solve_cost_relaxation's docstring and in
 # docs/lower-bounds.md. The relaxed problem is solved by a primal-dual interior point method whose Newton systems are
 # banded (the variables interleaved as v₀, r₁, v₁, r₂, …, r_{K−1}, v_{K−1}: every coupling is within two places); the
 # kernels below are plain functions compiled by numba on first use (_relaxation_kernel), so that importing this
