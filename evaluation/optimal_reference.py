@@ -812,16 +812,17 @@ def own_start_commands(context: Any, samples: Sequence[Any], steps: int, seeds: 
     return starts
 
 
-def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.ndarray) -> np.ndarray:
-    """:func:`snac_gym.optimality.trajectory_cost_lower_bounds` per sample of a position task (reach or
-    track, under the run's cost), else NaN: certified for every command sequence within the velocity limits."""
-    from snac_gym.optimality import reference_steps, trajectory_cost_lower_bounds
+def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.ndarray, costs: np.ndarray) -> np.ndarray:
+    """:func:`snac_gym.optimality.certified_cost_lower_bounds` per sample of a position task (reach or track,
+    under the run's cost), else NaN: certified for every command sequence within the velocity limits. The
+    optimum's cost is its V̄ (the reachable set's size, which tightens the Lipschitz constant): the bound
+    holds for any V̄, so the reference does not certify itself."""
+    from snac_gym.optimality import certified_cost_lower_bounds
 
     if getattr(kinematics, "task_error", None) is not None:
         return np.full(len(job.samples), np.nan)
-    initial = np.linalg.norm(kinematics.forward_batch(np.array([s.q0 for s in job.samples], dtype=float)) - x_d[:, 0], axis=1)
-    return trajectory_cost_lower_bounds(initial, reference_steps(x_d), job.dt, kinematics.position_lipschitz_bound(),
-                                        job.convention, float(np.linalg.norm(limits)))  # fmt: skip
+    q0s = np.array([s.q0 for s in job.samples], dtype=float)
+    return certified_cost_lower_bounds(kinematics, q0s, x_d, job.dt, job.convention, limits, costs)
 
 
 def run_optimal_job(job: OptimalJob) -> Any:
@@ -890,7 +891,7 @@ def _solve_job(job: OptimalJob) -> Any:
     metrics["optimal_starts"] = np.array([r.starts for r in results], dtype=np.int64)
     metrics["optimal_winner"] = [r.winner for r in results]
     metrics["optimal_local_spread"] = [r.spread for r in results]
-    metrics["optimal_lower_bound"] = _lower_bounds(job, kinematics, x_d, limits)
+    metrics["optimal_lower_bound"] = _lower_bounds(job, kinematics, x_d, limits, np.array([s.cost for s in solutions]))
     attrs = {"task": job.task, "policy": OPTIMAL, "policy_kwargs": {}}
     logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
     return JobResult(metrics, logs)
