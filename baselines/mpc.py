@@ -57,6 +57,7 @@ from evaluation.optimal_reference import (
     _gauss_newton_direction,
     _next_angles,
     _theta_system_base,
+    position_bounds,
 )
 from snac_gym.cost import COSTS, UDOT_STARTS, CostConvention, cost_and_gradient
 from snac_gym.joint_limits import make_limit_box
@@ -350,14 +351,14 @@ class MPCPolicy(BasePolicy):
         return base
 
     def _limits(self, q0: np.ndarray) -> list[Limits]:
-        """Each episode's limits: ū, and θ⁻, θ⁺ moved just past a θ₀ on or beyond them (a measured θ past
-        a limit could not be brought back inside a barrier's domain otherwise); the others as they are."""
+        """Each episode's limits: ū, and the reference's position bounds (:func:`~evaluation.optimal_reference.position_bounds`:
+        a clearance from θ⁻ and θ⁺ against rounding, each moved just past a measured θ on or beyond it, which
+        could not be brought back inside a barrier's domain otherwise)."""
         lower = getattr(self.kinematics, "lower_limits", None)
         upper = getattr(self.kinematics, "upper_limits", None)
         if lower is None or upper is None:
             return [Limits(self.velocity_limits) for _ in q0]
-        return [Limits(self.velocity_limits, np.where(q > lower, lower, q - 1e-9), np.where(q < upper, upper, q + 1e-9))
-                for q in q0]  # fmt: skip
+        return [Limits(self.velocity_limits, *position_bounds(lower, upper, q)) for q in q0]
 
     def _inside(self, q0: np.ndarray, plan: np.ndarray, limits: list[Limits]) -> np.ndarray:
         """The warm start shrunk into the open limits: commands into (1 − ε)ū, then halved toward rest

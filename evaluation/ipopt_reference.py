@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from evaluation.optimal_reference import START_CLEARANCE, trajectory_cost_and_gradient
+from evaluation.optimal_reference import trajectory_cost_and_gradient
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics, joint_axis
 
@@ -199,7 +199,9 @@ def _bounds(q0: np.ndarray, steps: int, velocity_limits: np.ndarray,
         lower, upper = np.full(m, -np.inf), np.full(m, np.inf)
     else:
         lower, upper = (np.asarray(bound, dtype=float) for bound in position_limits)
-        lower, upper = np.minimum(lower, q0 - START_CLEARANCE), np.maximum(upper, q0 + START_CLEARANCE)
+        # The URDF's limits exactly (the project's solver keeps a 1e-9 rad clearance inside them); a bound
+        # θ₀ itself breaks cannot be kept by any sequence, so it moves just past θ₀.
+        lower, upper = np.where(q0 > lower, lower, q0 - 1e-9), np.where(q0 < upper, upper, q0 + 1e-9)
     return (
         np.concatenate([np.tile(lower, steps), np.tile(-velocity, steps)]),
         np.concatenate([np.tile(upper, steps), np.tile(velocity, steps)]),

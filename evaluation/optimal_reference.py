@@ -114,8 +114,10 @@ SCREEN_ITERATIONS = 3
 SCREEN_MARGIN = 0.1
 #: Name of the start at rest (U = 0) in ``optimal_winner``.
 REST_START = "rest"
-#: How far a position limit is moved out past a θ₀ that does not keep it, rad (:func:`solve_sample`).
-START_CLEARANCE = 1e-9
+#: The clearance, rad, kept from every joint position limit (:func:`position_bounds`): a rollout integrates
+#: θₖ₊₁ = θₖ + uₖΔt step by step, the solver sums the commands in another order, and an active limit must
+#: not be crossed by the rounding between the two (about 1e-13 rad over 2500 steps).
+LIMIT_CLEARANCE = 1e-9
 #: An interior-point start's commands are shrunk by this share into the open velocity box.
 START_SHRINK = 1e-3
 
@@ -446,10 +448,14 @@ def _limits(velocity_limits: np.ndarray, position_limits: tuple[np.ndarray, np.n
     velocity = np.asarray(velocity_limits, dtype=float)
     if position_limits is None:
         return Limits(velocity)
-    lower, upper = (np.asarray(bound, dtype=float) for bound in position_limits)
-    # θ₀ is given: a bound it breaks (or touches) cannot be kept by any sequence, so it moves just past θ₀.
-    return Limits(velocity, np.where(q0 > lower, lower, q0 - START_CLEARANCE),
-                  np.where(q0 < upper, upper, q0 + START_CLEARANCE))  # fmt: skip
+    return Limits(velocity, *position_bounds(*position_limits, q0))
+
+
+def position_bounds(lower: np.ndarray, upper: np.ndarray, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The position bounds the solvers keep: θ⁻ + c and θ⁺ − c (c = :data:`LIMIT_CLEARANCE`), each moved
+    just past a θ₀ that does not keep it (θ₀ is given: no sequence could keep that bound)."""
+    lower, upper = np.asarray(lower, dtype=float) + LIMIT_CLEARANCE, np.asarray(upper, dtype=float) - LIMIT_CLEARANCE
+    return np.where(q0 > lower, lower, q0 - LIMIT_CLEARANCE), np.where(q0 < upper, upper, q0 + LIMIT_CLEARANCE)
 
 
 def _strictly_inside(start: np.ndarray, q0: np.ndarray, dt: float, limits: Limits) -> np.ndarray:
@@ -927,6 +933,8 @@ __all__ = [
     "REFERENCE_LIMITS",
     "Limits",
     "own_start_commands",
+    "position_bounds",
+    "LIMIT_CLEARANCE",
     "ReplayPolicy",
     "add_optimality",
     "run_optimal_job",
