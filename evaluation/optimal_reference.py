@@ -3,7 +3,8 @@
 For one sample (seed pose θ₀, reference x_d known over the whole horizon) it solves
 
     min_U  V(U) = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt,   k = 0..K−1,  Q = I₃, R = I₆
-    s.t.   θₖ₊₁ = θₖ + uₖΔt,  |uₖⱼ| ≤ ūⱼ,  u₋₁ = 0,  u̇ₖ = (uₖ − uₖ₋₁)/Δt,  eₖ = f(θₖ) − x_d(tₖ)
+    s.t.   θₖ₊₁ = θₖ + uₖΔt,  |uₖⱼ| ≤ ūⱼ,  θ⁻ ≤ θₖ ≤ θ⁺ (k = 1..K),  u₋₁ = 0,  u̇ₖ = (uₖ − uₖ₋₁)/Δt,
+           eₖ = f(θₖ) − x_d(tₖ)
 
 (on a pose task, x = [p; log₃ R] and eₖ = [p − p_d; log₃(R R_dᵀ)] with Q = I₆, differentiated exactly:
 :func:`snac_gym.tasks.pose.pose_errors_and_jacobians`) over the evaluator's horizon, Δt and
@@ -21,12 +22,15 @@ its gradient are written in :func:`snac_gym.cost.cost_and_gradient`). The quadra
 error term depends on θₖ alone and u = Mθ + c (first differences), so the Gauss-Newton matrix
 ``MᵀH₀M ⊗ I + blockdiag(2Δt q JₖᵀJₖ)`` is block-banded (bandwidth 12 scalars, 6 without the u̇
 term) and each step is one banded Cholesky solve (:func:`_gauss_newton`), followed by a
-backtracking line search on the exact V. **Starts** (:func:`multi_start_solve`): U = 0 (the robot at
-rest), then every evaluated controller's own trajectory whose cost is within :data:`RESTART_MARGIN`
-of the best optimum so far; the best local optimum is kept (``optimal_starts``, ``optimal_winner``,
-``optimal_local_spread``), so the optimum is at most every evaluated controller's cost.
-If the unconstrained optimum breaks a velocity limit, it is polished by bounded L-BFGS-B in u from
-the clipped solution (column ``optimal_bounded``).
+backtracking line search on the exact V. **Limits** (:func:`_interior_point`): where that optimum
+breaks a joint position or velocity limit (the limits the success rule counts; ``--reference-limits
+velocity`` keeps the velocity limits only), a primal-dual interior point on the same banded system
+solves the constrained problem (column ``optimal_bounded``). **Starts** (:func:`multi_start_solve`):
+U = 0 (the robot at rest), then the reference's own feedback rollouts (:data:`OWN_STARTS`, fixed
+settings), each screened by :data:`SCREEN_ITERATIONS` Gauss-Newton steps; the best local optimum is
+kept (``optimal_starts``, ``optimal_winner``, ``optimal_local_spread``). The reference is thus a
+function of the sample alone, never of the controllers it judges, and can be beaten: a controller
+that keeps the limits and costs less is a failure of the reference, reported as such.
 
 **Tolerance**. Each Gauss-Newton step δ predicts the decrease −½ ∂V/∂uᵀδ, the model's
 V − V* (of the local optimum). The solve stops after a step whose prediction was ≤
