@@ -7,22 +7,23 @@
 set -euo pipefail
 n=${1:-50}
 out=runs/holdout
-all=snac,snac-hjb,snac-adaptive,lqr,mpc,rnn,svf,dls,ppo,pink,mink,optimal
-common=(--samples "$n" --workers 2 --cost hjb --q-scale 4 --no-match-effort --param lqr.q_scale=1 --no-progress --no-plots)
+all=(--controllers snac,snac-hjb,snac-adaptive,lqr,mpc,rnn,svf,dls,ppo,pink,mink,optimal)
+common=(--samples "$n" --workers 2 --cost hjb --q-scale 4 --no-match-effort --no-progress --no-plots)
+all+=(--param lqr.q_scale=1)
 mkdir -p "$out"
 # Samples of our own outside Table I's ranges: workspace draws of seed 13 whose target or ellipse centre
 # lies outside the UR10 cuboid, ellipses up to 0.4 rad/s (the cuboid's are 0.075 rad/s).
 snac-gym evaluate --out "$out/export13" --sample-space workspace --seed 13 --samples 200 \
   --export-samples "$out/outside.csv" --export-only
 python docs/scripts/outside_cuboid.py "$out/outside.csv" "$n"
-snac-gym evaluate --out "$out/default" --controllers "$all" "${common[@]}"
+snac-gym evaluate --out "$out/default" "${all[@]}" "${common[@]}"
 for seed in 11 12; do
-  snac-gym evaluate --out "$out/workspace$seed" --sample-space workspace --seed "$seed" --controllers "$all" "${common[@]}"
+  snac-gym evaluate --out "$out/workspace$seed" --sample-space workspace --seed "$seed" "${all[@]}" "${common[@]}"
 done
 for robot in panda xarm7; do  # the shipped PPO policies are the UR arms' (6 joints)
-  snac-gym evaluate --out "$out/$robot" --robot "$robot" --controllers "${all/ppo,/}" "${common[@]}"
+  snac-gym evaluate --out "$out/$robot" --robot "$robot" "${all[@]/ppo,/}" "${common[@]}"
 done
-snac-gym evaluate --out "$out/outside" --samples-file "$out/outside.csv" --controllers "$all" "${common[@]:2}"
+snac-gym evaluate --out "$out/outside" --samples-file "$out/outside.csv" "${all[@]}" "${common[@]:2}"
 # The velocity-only variant of the reference on the same sets: the rollouts that cross a joint limit are
 # counted apart, and must not be below it.
 for set in default workspace11 workspace12 panda xarm7; do
