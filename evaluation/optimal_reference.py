@@ -110,6 +110,7 @@ SOLVER_COLUMNS = (
     "optimal_winner",
     "optimal_local_spread",
     "optimal_lower_bound",
+    "optimal_limits",
 )
 #: Gauss-Newton steps a start of the reference's own is screened by (:func:`multi_start_solve`).
 SCREEN_ITERATIONS = 3
@@ -901,6 +902,7 @@ def _solve_job(job: OptimalJob) -> Any:
     metrics["optimal_starts"] = np.array([r.starts for r in results], dtype=np.int64)
     metrics["optimal_winner"] = [r.winner for r in results]
     metrics["optimal_local_spread"] = [r.spread for r in results]
+    metrics["optimal_limits"] = REFERENCE_LIMITS[0] if job.position_limits else REFERENCE_LIMITS[1]
     metrics["optimal_lower_bound"] = _lower_bounds(job, kinematics, x_d, limits, np.array([s.cost for s in solutions]))
     attrs = {"task": job.task, "policy": OPTIMAL, "policy_kwargs": {}}
     logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None

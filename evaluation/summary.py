@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from evaluation.optimal_reference import OPTIMAL, OPTIMAL_LABEL
+from evaluation.optimal_reference import OPTIMAL, OPTIMAL_LABEL, OPTIMAL_VELOCITY_ONLY_LABEL
 from evaluation.paired import compare
 from snac_gym.cost import CostConvention
 from snac_gym.tasks import TASKS
@@ -67,6 +67,14 @@ TASK_LABELS: dict[str, str] = {name: task.label for name, task in TASKS.items()}
 def paper_value(controller: str, task: str) -> float | None:
     """Table I's V/N for ``controller`` on ``task``, or ``None`` if the paper has no such entry."""
     return PAPER_TABLE_I.get(controller, {}).get(task)
+
+
+def _label(controller: str, results: pd.DataFrame) -> str:
+    """:func:`controller_label`, except that the reference without the joint position limits says so."""
+    if controller == OPTIMAL and "optimal_limits" in results:
+        if (results.loc[results["controller"] == OPTIMAL, "optimal_limits"] == "velocity").any():
+            return OPTIMAL_VELOCITY_ONLY_LABEL
+    return controller_label(controller)
 
 
 def controller_label(controller: str) -> str:
@@ -113,7 +121,7 @@ def summarise(
     with_jump = (convention or CostConvention()).first_jump_weight > 0 and bool(jumps.notna().all())
     rows = []
     for controller in controllers:
-        row: dict[str, Any] = {"controller": controller, "label": controller_label(controller)}
+        row: dict[str, Any] = {"controller": controller, "label": _label(controller, results)}
         for task in tasks:
             part = results[(results["task"] == task) & (results["controller"] == controller)]
             if part.empty:

@@ -81,8 +81,9 @@ def workspace_run(tmp_path_factory) -> pd.DataFrame:
 def velocity_only(tmp_path_factory) -> pd.DataFrame:
     """The same samples' reference with the velocity limits only (``--reference-limits velocity``)."""
     out = tmp_path_factory.mktemp("velocity") / "run"
-    rows = run_evaluation(_workspace_config(out, ("optimal",), reference_limits="velocity"))
-    return rows.set_index(["task", "sample"])
+    rows = run_evaluation(_workspace_config(out, ("optimal",), reference_limits="velocity")).set_index(["task", "sample"])
+    rows.attrs["summary"] = (out / "summary.md").read_text()
+    return rows
 
 
 def _reference(rows: pd.DataFrame, of: pd.DataFrame) -> np.ndarray:
@@ -112,6 +113,8 @@ def test_the_reference_keeps_every_limit_and_the_limits_bind(workspace_run, velo
     np.testing.assert_array_equal(crossed, binding.to_numpy())
     assert np.all(free["cost"].to_numpy()[crossed] < rows["cost"].to_numpy()[crossed])
     assert np.all(free["cost"].to_numpy() <= rows["cost"].to_numpy() * (1 + 1e-9))
+    assert set(free["optimal_limits"]) == {"velocity"} and set(rows["optimal_limits"]) == {"joints"}
+    assert "Optimal, joint position limits ignored" in velocity_only.attrs["summary"]
 
 
 def test_controllers_that_cross_a_limit_are_above_the_velocity_only_reference(workspace_run, velocity_only):
