@@ -810,13 +810,19 @@ def multi_start_solve(
     return MultiStart(best, winner, len(optima), float(spread))
 
 
-def own_start_commands(context: Any, samples: Sequence[Any], steps: int, seeds: Sequence[int]) -> list[dict[str, np.ndarray]]:
-    """Per sample, the command sequence of each of :data:`OWN_STARTS`, rolled out on the true model."""
+def own_start_commands(
+    context: Any, samples: Sequence[Any], steps: int, seeds: Sequence[int], joint_limits: bool = True
+) -> list[dict[str, np.ndarray]]:
+    """Per sample, the command sequence of each of :data:`OWN_STARTS`, rolled out on the true model.
+
+    ``joint_limits``: keep them inside the position limits (Ω(θ)); ``False`` for the problem without
+    position limits, whose better basins may lie beyond them.
+    """
     from snac_gym.policies.registry import make_policy
 
     starts: list[dict[str, np.ndarray]] = [{} for _ in samples]
     for name, kwargs in OWN_STARTS:
-        make = functools.partial(make_policy, name, context, **kwargs)
+        make = functools.partial(make_policy, name, context, **{**kwargs, "joint_limits": joint_limits})
         rollouts = simulate_kinematic(context, make, samples, steps, seeds, True, name, keep_states=False)
         for i in range(len(samples)):
             starts[i][name] = rollouts.commands[i]
@@ -878,7 +884,7 @@ def _solve_job(job: OptimalJob) -> Any:
     with single_threaded_blas():
         rest = [solve_sample(q0, x_d[i], kinematics, job.dt, limits, convention=job.convention,
                              position_limits=position_limits) for i, q0 in enumerate(q0s)]  # fmt: skip
-        candidates = own_start_commands(context, job.samples, job.steps, job.seeds)
+        candidates = own_start_commands(context, job.samples, job.steps, job.seeds, job.position_limits)
         results = [
             multi_start_solve(q0, x_d[i], kinematics, job.dt, limits, job.convention, candidates[i],
                               job.screen_margin, rest[i], position_limits)
