@@ -325,7 +325,7 @@ class MPCPolicy(BasePolicy):
         if limits is not None:
             count = 4 * plan.shape[1] * plan.shape[2]
             self._mu = BARRIER_SHARE * np.maximum(value, 1e-12) / count
-            barrier, barrier_grad = self._barrier(everyone, q0, plan, limits)
+            barrier, barrier_grad, self._slacks = self._barrier(everyone, q0, plan, limits)
             value, grad = value + barrier, grad + barrier_grad
         active = np.ones(len(plan), dtype=bool)
         for _ in range(self.iterations):
@@ -375,12 +375,13 @@ class MPCPolicy(BasePolicy):
 
     def _barrier(
         self, rows: np.ndarray, q0: np.ndarray, plans: np.ndarray, limits: list[Limits]
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """−μ Σ log s of each plan (inf outside the limits) and its gradient in u."""
-        values, grads = np.empty(len(rows)), np.empty_like(plans)
+    ) -> tuple[np.ndarray, np.ndarray, list[list[np.ndarray]]]:
+        """−μ Σ log s of each plan (inf outside the limits), its gradient in u, and the slacks."""
+        values, grads, every = np.empty(len(rows)), np.empty_like(plans), []
         for b, i in enumerate(rows):
             mu, limit = self._mu[i], limits[i]
             slacks = limit.slacks(plans[b], _next_angles(plans[b], q0[i], self.solver_dt))
+            every.append(slacks)
             if min(float(s.min()) for s in slacks) <= 0.0:
                 values[b], grads[b] = np.inf, 0.0
                 continue
@@ -390,7 +391,7 @@ class MPCPolicy(BasePolicy):
                 # θᵢ₊₁.. depend on uᵢ through Δt_s: the position terms' gradient is a reverse cumulative sum.
                 per_angle = mu * (1.0 / slacks[3] - 1.0 / slacks[2])
                 grads[b] += self.solver_dt * np.cumsum(per_angle[::-1], axis=0)[::-1]
-        return values, grads
+        return values, grads, every
 
     def _terminal_cost(
         self, q0: np.ndarray, plan: np.ndarray, end_velocity: np.ndarray
@@ -461,7 +462,7 @@ class MPCPolicy(BasePolicy):
             base[rows - cols, (steps - 1) * m + cols] += block[rows, cols]  # lower band: [a − b, k·m + b] ← H_ab
         if limits is None:
             return _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight), 1.0
-        slacks = limits[i].slacks(plan[i], _next_angles(plan[i], q0[i], self.solver_dt))
+        slacks = self._slacks[i]  # the plan's, kept from its last evaluation
         barrier = _Barrier(limits[i], self.solver_dt, float(self._mu[i]), slacks, [self._mu[i] / s for s in slacks])
         barrier.add_to_band(base, m)  # primal barrier: z = μ/s, so Σ = z/s = μ/s²
         step = _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
@@ -493,12 +494,15 @@ class MPCPolicy(BasePolicy):
             trial = plan[rows[pending]] + alpha[pending, None, None] * steps[pending]
             trial_value, trial_grad, trial_jacobians = self._evaluate(rows[pending], q0, x_d, trial, terminal, convention)
             if limits is not None:
-                barrier, barrier_grad = self._barrier(rows[pending], q0, trial, limits)
+                barrier, barrier_grad, slacks = self._barrier(rows[pending], q0, trial, limits)
                 trial_value, trial_grad = trial_value + barrier, trial_grad + barrier_grad
             accepted = trial_value <= value[rows[pending]] + ARMIJO * alpha[pending] * slopes[pending]
             done = rows[pending[accepted]]
             plan[done], value[done], grad[done] = trial[accepted], trial_value[accepted], trial_grad[accepted]
             jacobians[done] = trial_jacobians[accepted]
+            if limits is not None:
+                for b in np.flatnonzero(accepted):
+                    self._slacks[rows[pending[b]]] = slacks[b]
             pending = pending[~accepted]
             if not len(pending):
                 return
