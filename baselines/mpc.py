@@ -52,7 +52,7 @@ from evaluation.optimal_reference import (
     ARMIJO,
     Limits,
     _Barrier,
-    _boundary_step,
+    BOUNDARY_FRACTION,
     _errors_and_jacobians,
     _gauss_newton_direction,
     _next_angles,
@@ -375,22 +375,22 @@ class MPCPolicy(BasePolicy):
 
     def _barrier(
         self, rows: np.ndarray, q0: np.ndarray, plans: np.ndarray, limits: list[Limits]
-    ) -> tuple[np.ndarray, np.ndarray, list[list[np.ndarray]]]:
-        """−μ Σ log s of each plan (inf outside the limits), its gradient in u, and the slacks."""
+    ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+        """−μ Σ log s of each plan (inf outside the limits), its gradient in u, and its slacks stacked."""
         values, grads, every = np.empty(len(rows)), np.empty_like(plans), []
         for b, i in enumerate(rows):
             mu, limit = self._mu[i], limits[i]
-            slacks = limit.slacks(plans[b], _next_angles(plans[b], q0[i], self.solver_dt))
+            slacks = np.stack(limit.slacks(plans[b], _next_angles(plans[b], q0[i], self.solver_dt)))  # one array: fewer calls
             every.append(slacks)
-            if min(float(s.min()) for s in slacks) <= 0.0:
+            if slacks.min() <= 0.0:
                 values[b], grads[b] = np.inf, 0.0
                 continue
-            values[b] = -mu * sum(float(np.log(s).sum()) for s in slacks)
-            grads[b] = mu * (1.0 / slacks[1] - 1.0 / slacks[0])
+            values[b] = -mu * float(np.log(slacks).sum())
+            inverse = mu / slacks
+            grads[b] = inverse[1] - inverse[0]
             if limit.has_positions:
                 # θᵢ₊₁.. depend on uᵢ through Δt_s: the position terms' gradient is a reverse cumulative sum.
-                per_angle = mu * (1.0 / slacks[3] - 1.0 / slacks[2])
-                grads[b] += self.solver_dt * np.cumsum(per_angle[::-1], axis=0)[::-1]
+                grads[b] += self.solver_dt * np.cumsum((inverse[3] - inverse[2])[::-1], axis=0)[::-1]
         return values, grads, every
 
     def _terminal_cost(
@@ -462,13 +462,17 @@ class MPCPolicy(BasePolicy):
             base[rows - cols, (steps - 1) * m + cols] += block[rows, cols]  # lower band: [a − b, k·m + b] ← H_ab
         if limits is None:
             return _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight), 1.0
-        slacks = self._slacks[i]  # the plan's, kept from its last evaluation
-        barrier = _Barrier(limits[i], self.solver_dt, float(self._mu[i]), slacks, [self._mu[i] / s for s in slacks])
+        slacks = self._slacks[i]  # the plan's (stacked), kept from its last evaluation
+        barrier = _Barrier(limits[i], self.solver_dt, float(self._mu[i]), list(slacks), list(self._mu[i] / slacks))
         barrier.add_to_band(base, m)  # primal barrier: z = μ/s, so Σ = z/s = μ/s²
         step = _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
         step_angles = self.solver_dt * np.cumsum(step, axis=0)
-        slack_steps = [step, -step] + ([step_angles, -step_angles] if limits[i].has_positions else [])
-        return step, _boundary_step(slacks, slack_steps)
+        slack_steps = np.stack([step, -step] + ([step_angles, -step_angles] if limits[i].has_positions else []))
+        # Fraction to the boundary: the largest α ≤ 1 keeping every slack ≥ (1 − τ) of its value.
+        shrinking = slack_steps < 0.0
+        if not shrinking.any():
+            return step, 1.0
+        return step, min(1.0, float((-BOUNDARY_FRACTION * slacks[shrinking] / slack_steps[shrinking]).min()))
 
     def _line_search(
         self,
