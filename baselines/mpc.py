@@ -53,6 +53,7 @@ from evaluation.optimal_reference import (
     Limits,
     _Barrier,
     BOUNDARY_FRACTION,
+    START_SHRINK,
     _errors_and_jacobians,
     _gauss_newton_direction,
     _next_angles,
@@ -78,8 +79,7 @@ DECREMENT_TOLERANCE = 1e-12
 #: start's V, so the barrier shifts the plan by about that share of its cost (the reference drives its μ
 #: to 1e-7·V; a re-solve of two steps cannot, so it keeps one small μ).
 BARRIER_SHARE = 1e-3
-#: Commands of a warm start are shrunk by this share into the open velocity box (the barrier needs slack).
-START_SHRINK = 1e-3
+
 
 
 def _positive_int(name: str, value: Any) -> int:

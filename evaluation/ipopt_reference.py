@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from evaluation.optimal_reference import trajectory_cost_and_gradient
+from evaluation.optimal_reference import _next_angles, trajectory_cost_and_gradient
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics, joint_axis
 
@@ -156,11 +156,6 @@ def _dynamics(angles: Any, commands: Any, q0: np.ndarray, dt: float) -> Any:
     ca = _casadi()
     previous = ca.horzcat(ca.DM(q0), angles[:, : angles.shape[1] - 1])
     return angles - previous - dt * commands
-
-
-def _next_angles(commands: np.ndarray, q0: np.ndarray, dt: float) -> np.ndarray:
-    """θ₁..θ_K of θₖ₊₁ = θₖ + uₖΔt, ``(K, m)``."""
-    return q0 + dt * np.cumsum(commands, axis=0)
 
 
 def ipopt_objective(

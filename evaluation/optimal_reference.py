@@ -720,12 +720,10 @@ class ReplayPolicy:
 
 
 #: The reference's own starts besides rest: feedback laws of this project at fixed settings, rolled out
-#: on the true model and kept strictly inside the position limits by Ω(θ) (:mod:`snac_gym.joint_limits`).
-#: They are the reference's, not the run's: a sample gets the same starts whatever ``--controllers`` says.
-OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (
-    ("lqr", {"q_scale": 9.0, "joint_limits": True}),
-    ("dls", {"joint_limits": True}),
-)
+#: on the true model (kept strictly inside the position limits by Ω(θ) where the reference keeps them:
+#: :func:`own_start_commands`). They are the reference's, not the run's: a sample gets the same starts
+#: whatever ``--controllers`` says.
+OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (("lqr", {"q_scale": 9.0}), ("dls", {}))
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from typing import Any
 import pandas as pd
 
 from evaluation.controllers import ControllerSpec, resolve_controllers
-from evaluation.effort_matching import EffortRecord, Records, Results, controller_passes
+from evaluation.effort_matching import EffortRecord, Results, controller_passes
 from evaluation.executors import open_executor
 from evaluation.optimal_reference import OPTIMAL, add_optimality
 from evaluation.passes import EvaluationRun
@@ -86,7 +86,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
                 # The last phase: the main process mostly waits for the workers now. Not earlier, where a
                 # run stopped before its reports (an interrupt, an error) would only have paid for them.
                 prefetch_report_modules()
-                results.update(_optimal_rows(evaluation, specs, results, records))  # 5. Optimal reference
+                results.update(_optimal_rows(evaluation))  # 5. Optimal reference
             finally:
                 progress.close()
                 timings.update(evaluation.timings)
@@ -189,9 +189,7 @@ def _reported_rows(rows: pd.DataFrame, samples: Sequence[EvaluationSample]) -> p
 
 
 # -- 5. the optimal reference -------------------------------------------------------------------
-def _optimal_rows(
-    evaluation: EvaluationRun, specs: Sequence[ControllerSpec], results: Results, records: Records
-) -> Results:
+def _optimal_rows(evaluation: EvaluationRun) -> Results:
     """The ``optimal`` rows of every task, when asked for: a function of the samples, the cost and the arm
     alone (:mod:`evaluation.optimal_reference`), whatever controllers the run has."""
     config = evaluation.config
@@ -199,13 +197,6 @@ def _optimal_rows(
         return {}
     rows = evaluation.run_optimal()
     return {(task, OPTIMAL): task_rows for task, task_rows in zip(config.tasks, rows, strict=True)}
-
-
-def _as_evaluated(spec: ControllerSpec, record: EffortRecord | None) -> tuple[str, dict[str, Any]]:
-    """A controller's name and constructor arguments in its final pass (the matched knob included)."""
-    if record is None or record.role in ("reference", "fixed") or spec.knob is None or record.knob_value is None:
-        return spec.name, dict(spec.kwargs)
-    return spec.name, {**spec.kwargs, spec.knob: record.knob_value}
 
 
 # -- 6. results and reports ---------------------------------------------------------------------
