@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ResolvedRatePolicy, positive_float
+from snac_gym.baselines._common import ResolvedRatePolicy, positive_float
 from snac_gym.kinematics import damped_least_squares
 
 
@@ -26,7 +26,7 @@ class DLSPolicy(ResolvedRatePolicy):
         u = sat(Jᵀ (J Jᵀ + λ² I)⁻¹ v)
 
     i.e. the minimiser of ``‖J u − v‖² + λ²‖u‖²``, with ``sat`` the uniform scaling into the
-    joint-velocity limits (:func:`baselines._common.scale_into_box`). As λ → 0 this is the
+    joint-velocity limits (:func:`snac_gym.baselines._common.scale_into_box`). As λ → 0 this is the
     pseudo-inverse ``J⁺ v``; in singular-value form each direction gets ``σ/(σ² + λ²)``
     instead of ``1/σ``, at most ``1/(2λ)``. The n×n system (n = 3) is solved directly,
     never inverted.
@@ -35,7 +35,7 @@ class DLSPolicy(ResolvedRatePolicy):
         env: The env (or policy context) to drive.
         gain: Task-space feedback gain ``K``, 1/s; the effort knob (``effort_parameter``).
         damping: Damping factor ``λ``, m/rad.
-        joint_limits: Clamp into the position-limit box Ω(θ) (:class:`~baselines._common.ResolvedRatePolicy`).
+        joint_limits: Clamp into the position-limit box Ω(θ) (:class:`~snac_gym.baselines._common.ResolvedRatePolicy`).
 
     Raises:
         ValueError: If ``gain`` or ``damping`` is not positive.

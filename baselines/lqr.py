@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ObservationReader, scale_into_box, scale_rows_into_box
+from snac_gym.baselines._common import ObservationReader, scale_into_box, scale_rows_into_box
 from snac_gym.joint_limits import make_limit_box
 from snac_gym.optimality import FrozenJacobianLQR
 from snac_gym.policies.base import BasePolicy, positive_float
@@ -50,7 +50,7 @@ class LQRPolicy(BasePolicy):
     ``uᵀRu`` on the motion itself.
 
     **Saturation.** The command is scaled uniformly into the joint-velocity limits
-    (:func:`baselines._common.scale_into_box`), keeping its direction and that of ``ė = J u``:
+    (:func:`snac_gym.baselines._common.scale_into_box`), keeping its direction and that of ``ė = J u``:
     a saturated feedback still decreases ``½‖e‖²`` (``eᵀJu < 0`` survives a positive factor,
     not a per-joint clip). ``snac-hjb``, which learns this law's P*, saturates the same way, so
     that the two differ only in the critic.

@@ -1,4 +1,4 @@
-"""``mink``: resolved-rate QP differential IK with mink (MuJoCo) and daqp (:mod:`baselines.qp_ik`).
+"""``mink``: resolved-rate QP differential IK with mink (MuJoCo) and daqp (:mod:`snac_gym.baselines.qp_ik`).
 
 Reference: K. Zakka et al., "mink: Python inverse kinematics based on MuJoCo", 2024,
 https://github.com/kevinzakka/mink.
@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from baselines.qp_ik import QPIKPolicy
+from snac_gym.baselines.qp_ik import QPIKPolicy
 from snac_gym.extras import require
-from snac_gym.mujoco_model import EE_SITE, shared_mujoco_model
+from snac_gym.physics.mujoco_model import EE_SITE, shared_mujoco_model
 
 
 def _task_class(mink: Any, mujoco: Any) -> type:
@@ -43,9 +43,9 @@ def _task_class(mink: Any, mujoco: Any) -> type:
 
 class MinkPolicy(QPIKPolicy):
     """QP differential IK with mink: the project's task on a MuJoCo model of the same URDF
-    (:mod:`snac_gym.mujoco_model`: base frame as world, a site at the end-effector frame), mink's
+    (:mod:`snac_gym.physics.mujoco_model`: base frame as world, a site at the end-effector frame), mink's
     damping (``solve_ik(damping=λ²)``), ``ConfigurationLimit`` (gain 0.95, mink's default) and ``VelocityLimit`` (the env's
-    velocity limits), ``mink.solve_ik`` with daqp. Arguments: :class:`~baselines.qp_ik.QPIKPolicy`.
+    velocity limits), ``mink.solve_ik`` with daqp. Arguments: :class:`~snac_gym.baselines.qp_ik.QPIKPolicy`.
     """
 
     module = "mink"

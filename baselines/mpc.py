@@ -1,6 +1,6 @@
 """Model-predictive control: a receding-horizon Gauss-Newton solver on the evaluator's cost.
 
-``optimal`` (evaluation/optimal_reference.py) is the open-loop optimum of a whole sample, solved
+``optimal`` (evaluation/reference/optimum.py) is the open-loop optimum of a whole sample, solved
 with the whole reference known; it cannot be run. This is the best feedback law one can run on the
 same model and cost: at every re-solve, from the measured θ, it solves
 
@@ -14,8 +14,8 @@ steps later. Details and measurements: docs/mpc.md.
   periods, N = horizon/Δt_s solver steps. The effort and u̇ terms are exact for such piecewise-constant
   commands (w = ``block`` on the grid Δt_s; w = 0 for the HJB cost); the error term is sampled at the
   start of each block.
-* **Solver.** The Gauss-Newton step of evaluation/optimal_reference.py (the block-banded system in
-  θ₁..θ_N, :func:`~evaluation.optimal_reference._gauss_newton_direction`), with the terminal block
+* **Solver.** The Gauss-Newton step of the trajectory optimiser (snac_gym/trajopt.py: the block-banded system in
+  θ₁..θ_N, :func:`~snac_gym.trajopt.gauss_newton_direction`), with the terminal block
   2J_NᵀP̄J_N added, and an Armijo backtracking on the exact cost, at most ``iterations`` steps per
   re-solve, warm-started from the previous plan shifted by ``period`` control periods.
 * **Terminal cost.** e_NᵀP̄e_N + 2p̄ᵀe_N with P̄ = P*(J(θ_N)), the frozen-Jacobian LQR cost-to-go
@@ -28,7 +28,7 @@ steps later. Details and measurements: docs/mpc.md.
   position limits (the limits of the success rule and of the ``optimal`` reference) are constraints
   of every re-solve: a log barrier μ Σ log s over the plan (slacks ū ± uᵢ and θᵢ − θ⁻, θ⁺ − θᵢ on the
   solver grid, where θ is piecewise linear), added to the Gauss-Newton matrix as the reference's
-  interior point adds it (:class:`~evaluation.optimal_reference._Barrier`), with the fraction-to-the-
+  interior point adds it (:class:`~snac_gym.trajopt.Barrier`), with the fraction-to-the-
   boundary step; μ is fixed per re-solve at :data:`BARRIER_SHARE` of its V over the constraints. The
   warm start is shrunk into the open limits first, so every plan, and every applied command, keeps
   them strictly. ``constraints=False``: the first version, unconstrained, its command clipped into ±ū.
@@ -47,19 +47,8 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ObservationReader, clip_to_box
-from evaluation.optimal_reference import (
-    ARMIJO,
-    Limits,
-    _Barrier,
-    BOUNDARY_FRACTION,
-    START_SHRINK,
-    _errors_and_jacobians,
-    _gauss_newton_direction,
-    _next_angles,
-    _theta_system_base,
-    position_bounds,
-)
+from snac_gym.baselines._common import ObservationReader, clip_to_box
+from snac_gym.trajopt import ARMIJO, BOUNDARY_FRACTION, Barrier, Limits, START_SHRINK, errors_and_jacobians, gauss_newton_direction, next_angles, position_bounds, theta_system_base
 from snac_gym.cost import COSTS, UDOT_STARTS, CostConvention, cost_and_gradient
 from snac_gym.joint_limits import make_limit_box
 from snac_gym.optimality import FrozenJacobianLQR
@@ -345,13 +334,13 @@ class MPCPolicy(BasePolicy):
     def _base(self, convention: CostConvention) -> np.ndarray:
         """The fixed band of the θ-system, with room for the barrier's MᵀΣM (one off-diagonal block)."""
         m = self.kinematics.n_joints
-        base = _theta_system_base(self.steps, m, self.solver_dt, convention)
+        base = theta_system_base(self.steps, m, self.solver_dt, convention)
         if self.constraints and base.shape[0] <= m:
             base = np.vstack([base, np.zeros((m + 1 - base.shape[0], base.shape[1]))])
         return base
 
     def _limits(self, q0: np.ndarray) -> list[Limits]:
-        """Each episode's limits: ū, and the reference's position bounds (:func:`~evaluation.optimal_reference.position_bounds`:
+        """Each episode's limits: ū, and the reference's position bounds (:func:`~snac_gym.trajopt.position_bounds`:
         a clearance from θ⁻ and θ⁺ against rounding, each moved just past a measured θ on or beyond it, which
         could not be brought back inside a barrier's domain otherwise)."""
         lower = getattr(self.kinematics, "lower_limits", None)
@@ -380,7 +369,7 @@ class MPCPolicy(BasePolicy):
         values, grads, every = np.empty(len(rows)), np.empty_like(plans), []
         for b, i in enumerate(rows):
             mu, limit = self._mu[i], limits[i]
-            slacks = np.stack(limit.slacks(plans[b], _next_angles(plans[b], q0[i], self.solver_dt)))  # one array: fewer calls
+            slacks = np.stack(limit.slacks(plans[b], next_angles(plans[b], q0[i], self.solver_dt)))  # one array: fewer calls
             every.append(slacks)
             if slacks.min() <= 0.0:
                 values[b], grads[b] = np.inf, 0.0
@@ -427,7 +416,7 @@ class MPCPolicy(BasePolicy):
         np.cumsum(plans * self.solver_dt, axis=1, out=angles[:, 1:])
         angles[:, 1:] += q0[rows, None]
         n = x_d.shape[-1]
-        errors, jacobians = _errors_and_jacobians(self.kinematics, angles.reshape(-1, m), x_d[rows].reshape(-1, n))
+        errors, jacobians = errors_and_jacobians(self.kinematics, angles.reshape(-1, m), x_d[rows].reshape(-1, n))
         errors, jacobians = errors.reshape(count, steps + 1, n), jacobians.reshape(count, steps + 1, n, m)
         values, grads = np.empty(count), np.empty((count, steps, m))
         smoothness = convention.smoothness_weight / self.solver_dt
@@ -461,11 +450,11 @@ class MPCPolicy(BasePolicy):
             rows, cols = np.tril_indices(m)
             base[rows - cols, (steps - 1) * m + cols] += block[rows, cols]  # lower band: [a − b, k·m + b] ← H_ab
         if limits is None:
-            return _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight), 1.0
+            return gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight), 1.0
         slacks = self._slacks[i]  # the plan's (stacked), kept from its last evaluation
-        barrier = _Barrier(limits[i], self.solver_dt, float(self._mu[i]), list(slacks), list(self._mu[i] / slacks))
+        barrier = Barrier(limits[i], self.solver_dt, float(self._mu[i]), list(slacks), list(self._mu[i] / slacks))
         barrier.add_to_band(base, m)  # primal barrier: z = μ/s, so Σ = z/s = μ/s²
-        step = _gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
+        step = gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
         step_angles = self.solver_dt * np.cumsum(step, axis=0)
         slack_steps = np.stack([step, -step] + ([step_angles, -step_angles] if limits[i].has_positions else []))
         # Fraction to the boundary: the largest α ≤ 1 keeping every slack ≥ (1 − τ) of its value.
@@ -488,7 +477,7 @@ class MPCPolicy(BasePolicy):
         first: np.ndarray | None = None,
         limits: list[Limits] | None = None,
     ) -> None:
-        """Armijo backtracking (evaluation/optimal_reference.py's test) from step fraction ``first``, every
+        """Armijo backtracking (snac_gym/trajopt.py's test) from step fraction ``first``, every
         pending sample in one FK pass; updates ``plan`` and ``state`` = (V, ∂V/∂U, J) in place where a step
         is accepted. With the limits, V includes the barrier (inf outside them)."""
         value, grad, jacobians = state

@@ -1,4 +1,4 @@
-"""``pink``: resolved-rate QP differential IK with pink (Pinocchio) and daqp (:mod:`baselines.qp_ik`).
+"""``pink``: resolved-rate QP differential IK with pink (Pinocchio) and daqp (:mod:`snac_gym.baselines.qp_ik`).
 
 Reference: S. Caron et al., "Pink: Python inverse kinematics based on Pinocchio", 2024,
 https://github.com/stephane-caron/pink; the QP formulation of task-based differential IK:
@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from baselines.qp_ik import QPIKPolicy
+from snac_gym.baselines.qp_ik import QPIKPolicy
 
 
 def _task_class(pink: Any) -> type:
@@ -56,7 +56,7 @@ class PinkPolicy(QPIKPolicy):
     (gain 0.5, pink's default) and ``VelocityLimit`` (the env's velocity limits), ``pink.solve_ik`` with daqp.
 
     The Pinocchio model is a copy of the project's (:class:`~snac_gym.kinematics.Kinematics`: the same
-    URDF, frames and base frame), so J is the project's Jacobian. Arguments: :class:`~baselines.qp_ik.QPIKPolicy`.
+    URDF, frames and base frame), so J is the project's Jacobian. Arguments: :class:`~snac_gym.baselines.qp_ik.QPIKPolicy`.
     """
 
     module = "pink"

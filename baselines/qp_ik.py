@@ -15,7 +15,7 @@ with, in this project's terms,
   ``[p − p_d; log₃(R R_dᵀ)]`` for a pose) shifted by the feed-forward of a moving reference, and
   ``α = g Δt`` the libraries' per-step task gain, so that ``α ẽ = Δt (g e − ẋ_d)`` and the task
   term is ``Δt² ‖J u − v‖²`` with the reference velocity ``v = ẋ_d − g e`` of every baseline
-  (:func:`baselines._common.reference_velocity`);
+  (:func:`snac_gym.baselines._common.reference_velocity`);
 * ``W = I`` (the task's cost 1: 1 m of position error weighs as 1 rad of orientation error, as
   the cost's Q = I);
 * ``λ² + ε`` the ``damping`` argument of the library's ``solve_ik`` (its Tikhonov term on every
@@ -43,7 +43,7 @@ Two ways to solve it, the ``assembly`` argument:
   problem and solution objects), which costs 3–5× the solve (docs/qp-ik.md).
 * ``"library"``: the library's own ``solve_ik`` end to end, as its users call it.
 
-Without active bounds the minimiser is ``u = Jᵀ(JJᵀ + λ²I)⁻¹ v``: DLS (:mod:`baselines.dls`) with the
+Without active bounds the minimiser is ``u = Jᵀ(JJᵀ + λ²I)⁻¹ v``: DLS (:mod:`snac_gym.baselines.dls`) with the
 same λ. The two differ only in how they stay inside the limits: DLS scales the whole command
 into the velocity box (keeping its direction) and has no position limits of its own (on the
 7-DOF arms it is clamped into the box Ω(θ) of :mod:`snac_gym.joint_limits`); the QP bounds each
@@ -68,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ObservationReader, clip_to_box
+from snac_gym.baselines._common import ObservationReader, clip_to_box
 from snac_gym.extras import MissingExtraError, require
 from snac_gym.policies.base import BasePolicy, non_negative_float, positive_float
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import (
+from snac_gym.baselines._common import (
     ObservationReader,
     positive_float,
     reference_velocity,
@@ -174,7 +174,7 @@ class RNNPolicy(BasePolicy):
         """:meth:`network_update` on ``dual`` (updated in place) for one network: λ, r ``(n,)``,
         J ``(n, m)``, the bounds of Ω ``(m,)``; or for B at once, vectors as columns: λ, r
         ``(B, n, 1)``, J ``(B, n, m)``, bounds ``(m, 1)`` or ``(B, m, 1)`` (see
-        :func:`baselines._common.transpose`)."""
+        :func:`snac_gym.baselines._common.transpose`)."""
         lower, upper = box
         jacobian_t = transpose(jacobian)
         if self.integrator == "semi-implicit":
@@ -234,5 +234,5 @@ class RNNPolicy(BasePolicy):
 
 def _project(command: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """``P_Ω``: ``command`` clipped component-wise into ``box = (lower, upper)`` (``minimum(maximum(·))``,
-    as :func:`baselines._common.clip_to_box`, which it equals for the velocity box)."""
+    as :func:`snac_gym.baselines._common.clip_to_box`, which it equals for the velocity box)."""
     return np.minimum(np.maximum(command, box[0]), box[1])

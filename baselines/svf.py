@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines._common import ResolvedRatePolicy, positive_float, transpose
+from snac_gym.baselines._common import ResolvedRatePolicy, positive_float, transpose
 
 
 def filtered_singular_values(singular_values: np.ndarray, nu: float, sigma0: float) -> np.ndarray:
@@ -37,7 +37,7 @@ class SVFPolicy(ResolvedRatePolicy):
         u   = sat(Ĵ⁺ v)
 
     where ``sat`` scales ``u`` uniformly into the joint-velocity limits (keeping its direction;
-    see :func:`baselines._common.scale_into_box`). Away from singularities ``h(σ) ≈ σ`` and
+    see :func:`snac_gym.baselines._common.scale_into_box`). Away from singularities ``h(σ) ≈ σ`` and
     ``Ĵ⁺ ≈ J⁺``; near them ``1/h(σ) ≤ 1/σ₀``, so ``‖Ĵ⁺‖ ≤ 1/σ₀`` always. Regulation is the case
     ``ẋ_d = 0``.
 
@@ -48,7 +48,7 @@ class SVFPolicy(ResolvedRatePolicy):
             more closely down to smaller σ.
         sigma0: Minimum filtered singular value ``σ₀`` (default 0.005, the paper's), m/rad:
             the Jacobian's inverse gain never exceeds ``1/σ₀``.
-        joint_limits: Clamp into the position-limit box Ω(θ) (:class:`~baselines._common.ResolvedRatePolicy`).
+        joint_limits: Clamp into the position-limit box Ω(θ) (:class:`~snac_gym.baselines._common.ResolvedRatePolicy`).
 
     Raises:
         ValueError: If a parameter is not positive, or ``σ₀ν ≥ 2`` or ``σ₀ ≥ ν`` (where the
@@ -66,14 +66,14 @@ class SVFPolicy(ResolvedRatePolicy):
 
     def filtered_pseudoinverse(self, jacobian: np.ndarray) -> np.ndarray:
         """``Ĵ⁺ = V diag(1/h(σᵢ)) Uᵀ``, shape ``(m, n)``."""
-        from snac_gym.small_kernels import svd  # compiled Jacobi SVD; numba imported where first needed
+        from snac_gym.kernels.small import svd  # compiled Jacobi SVD; numba imported where first needed
 
         u_mat, sigma, vt = svd(jacobian)
         return (vt.T / filtered_singular_values(sigma, self.nu, self.sigma0)) @ u_mat.T
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
         """``Ĵ⁺ v`` for one ``(J, v)`` or stacks ``(B, n, m)``, ``(B, n, 1)``."""
-        from snac_gym.small_kernels import svd
+        from snac_gym.kernels.small import svd
 
         u_mat, sigma, vt = svd(jacobian)
         filtered = filtered_singular_values(sigma, self.nu, self.sigma0)

@@ -4,7 +4,13 @@
 the shell. See docs/evaluation.md.
 """
 
-from evaluation.run_config import DEFAULT_HORIZONS, EvaluationConfig
-from evaluation.runner import run_evaluation
+if __name__ == "evaluation":  # this folder imported as a top-level package (from the repository's root, or an old import)
+    raise ImportError(
+        "snac-gym's evaluation package is imported as snac_gym.evaluation since 0.2.0 "
+        "(`from snac_gym.evaluation import ...`); the top-level name `evaluation` is no longer installed"
+    )
+
+from snac_gym.evaluation.run_config import DEFAULT_HORIZONS, EvaluationConfig
+from snac_gym.evaluation.runner import run_evaluation
 
 __all__ = ["DEFAULT_HORIZONS", "EvaluationConfig", "run_evaluation"]

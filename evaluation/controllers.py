@@ -1,6 +1,6 @@
 """Which controllers a run evaluates, with what arguments and effort knob: :func:`resolve_controllers`.
 
-Step 2 of :func:`evaluation.runner.run_evaluation`: ``controllers`` or every registered policy
+Step 2 of :func:`snac_gym.evaluation.runner.run_evaluation`: ``controllers`` or every registered policy
 that can be built from a :class:`~snac_gym.policies.base.PolicyContext` (and, with effort
 matching, declares an ``effort_parameter``); those left out are listed in the summary with the
 reason. Each controller is described by a :class:`ControllerSpec`, which the passes, the effort
@@ -16,15 +16,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from evaluation.jobs import policy_context
-from evaluation.optimal_reference import OPTIMAL
-from evaluation.store import file_sha1
-from evaluation.summary import PAPER_TABLE_I
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference.optimum import OPTIMAL
+from snac_gym.evaluation.store import file_sha1
+from snac_gym.evaluation.reports.summary import PAPER_TABLE_I
 from snac_gym.extras import MissingExtraError
 from snac_gym.policies.registry import available_policies, make_policy, policy_factory
 
 if TYPE_CHECKING:
-    from evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.run_config import EvaluationConfig
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Parsing the text options of ``snac-gym evaluate`` into :class:`~evaluation.run_config.EvaluationConfig` fields.
+"""Parsing the text options of ``snac-gym evaluate`` into :class:`~snac_gym.evaluation.run_config.EvaluationConfig` fields.
 
 Each parser raises ``ValueError`` with a message naming the option and what was wrong.
 """
@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from evaluation.samples import TASKS
+from snac_gym.evaluation.samples import TASKS
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
 

@@ -1,7 +1,7 @@
 """The options of one evaluation, validated: :class:`EvaluationConfig`.
 
 ``snac-gym evaluate`` builds one from its command line (the text options are parsed by
-:mod:`evaluation.options`); :func:`evaluation.runner.run_evaluation` runs it. :meth:`EvaluationConfig.validate`
+:mod:`snac_gym.evaluation.options`); :func:`snac_gym.evaluation.runner.run_evaluation` runs it. :meth:`EvaluationConfig.validate`
 checks the options by theme (one small validator each, in the order the error names the first bad
 option), :meth:`EvaluationConfig.validate_for` the ones that need the robot, and
 :meth:`EvaluationConfig.manifest` lists every input that shapes the results (``run.json``).
@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from evaluation.effort_statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
-from evaluation.executors import MAX_WORKERS_PER_CPU, max_workers
-from evaluation.jobs import ENGINES
-from evaluation.optimal_reference import OPTIMAL, REFERENCE_LIMITS
-from evaluation.samples import TASKS, check_samples_file
-from evaluation.store import file_sha1
+from snac_gym.evaluation.effort.statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
+from snac_gym.evaluation.execution.executors import MAX_WORKERS_PER_CPU, max_workers
+from snac_gym.evaluation.execution.jobs import ENGINES
+from snac_gym.evaluation.reference.optimum import OPTIMAL, REFERENCE_LIMITS
+from snac_gym.evaluation.samples import TASKS, check_samples_file
+from snac_gym.evaluation.store import file_sha1
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
@@ -31,7 +31,7 @@ from snac_gym.tasks import get_task
 from snac_gym.tasks.pose import POSE_TASK_NAMES, is_pose_task, register_pose_tasks
 
 if TYPE_CHECKING:
-    from evaluation.controllers import ControllerSpec
+    from snac_gym.evaluation.controllers import ControllerSpec
 
 #: Default horizon per task, s (each task's ``horizon_s``: at least every controller's 95th-percentile
 #: settling time at equal effort on 100 samples, docs/evaluation.md), as registered at import.
@@ -77,7 +77,7 @@ class EvaluationConfig:
         engine: ``"kinematic"``, ``"pybullet"`` or ``"mujoco"`` (``snac-gym evaluate --engine``).
         match_effort: Calibrate every controller's effort knob to equal effort.
         effort_reference: Controller whose effort (at its own settings) is the target.
-        effort_statistic: What "equal control effort" equalises (:mod:`evaluation.effort_statistics`):
+        effort_statistic: What "equal control effort" equalises (:mod:`snac_gym.evaluation.effort.statistics`):
             ``"mean-peak"`` (the default: the mean over samples of each rollout's peak |u|/limit),
             ``"peak-ratio"`` (each rollout's peak relative to the reference's on the same sample),
             ``"median-peak"`` or ``"max"`` (the maximum |u| over the sample set, rad/s).
@@ -120,7 +120,7 @@ class EvaluationConfig:
             ``"joints"`` (joint position and velocity limits, the limits the success rule counts) or
             ``"velocity"`` (velocity limits only: the variant that ignores the joints' position limits).
         reference_cache: Reuse the reference's rows cached by sample content
-            (:mod:`evaluation.reference_cache`), and store the new ones; ``False``: solve every sample.
+            (:mod:`snac_gym.evaluation.reference.cache`), and store the new ones; ``False``: solve every sample.
     """
 
     out: Path

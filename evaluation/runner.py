@@ -3,28 +3,28 @@
 Steps (each documented in docs/evaluation.md):
 
 1. **Samples**: read ``samples_file`` or draw ``samples`` per task from ``seed``
-   (:mod:`evaluation.samples`), spread over the workers in chunks; written to
+   (:mod:`snac_gym.evaluation.samples`), spread over the workers in chunks; written to
    ``DIR/samples.csv`` (and ``export_samples``).
-2. **Controllers** (:mod:`evaluation.controllers`): ``controllers`` or every registered policy
+2. **Controllers** (:mod:`snac_gym.evaluation.controllers`): ``controllers`` or every registered policy
    that can be built from a :class:`~snac_gym.policies.base.PolicyContext` (and, with effort
    matching, declares an ``effort_parameter``); those left out are listed in the summary.
-3. **Passes** (:mod:`evaluation.passes`): a *pass* rolls one controller with one knob value over
-   every sample of a task, in jobs of ``chunk_size`` samples (:mod:`evaluation.jobs`) run by the
-   executor (:mod:`evaluation.executors`); each finished job is stored at once (:mod:`evaluation.store`).
-4. **Equal effort** (``match_effort``, :mod:`evaluation.effort_matching`): the reference controller
+3. **Passes** (:mod:`snac_gym.evaluation.execution.passes`): a *pass* rolls one controller with one knob value over
+   every sample of a task, in jobs of ``chunk_size`` samples (:mod:`snac_gym.evaluation.execution.jobs`) run by the
+   executor (:mod:`snac_gym.evaluation.execution.executors`); each finished job is stored at once (:mod:`snac_gym.evaluation.store`).
+4. **Equal effort** (``match_effort``, :mod:`snac_gym.evaluation.effort.matching`): the reference controller
    (``effort_reference``, default ``snac``, at its own settings) is run first; its effort statistic
-   (:mod:`evaluation.effort_statistics`) is the target, unless ``effort_target`` is given (then
+   (:mod:`snac_gym.evaluation.effort.statistics`) is the target, unless ``effort_target`` is given (then
    every controller is matched to it). Every other controller's knob is searched on the
-   screening samples (:mod:`evaluation.effort_search`), then a full pass checks the statistic over
+   screening samples (:mod:`snac_gym.evaluation.effort.search`), then a full pass checks the statistic over
    the whole set; if it misses the tolerance, the screening target is corrected by the observed
    ratio and the search repeats (at most ``MAX_MATCH_ROUNDS`` passes).
 5. **Optimal reference** (``optimal`` among ``controllers``): every sample's numerical optimum of
-   the same cost (:mod:`evaluation.optimal_reference`, docs/optimal.md), an open-loop row with no effort
+   the same cost (:mod:`snac_gym.evaluation.reference.optimum`, docs/optimal.md), an open-loop row with no effort
    knob; every row gains ``ratio_to_optimal`` and ``below_optimal``.
 6. **Reports**: ``results.csv``/``.parquet`` (one row per task, controller and sample),
-   ``summary.csv`` (:mod:`evaluation.summary`), ``summary.md`` and box plots (:mod:`evaluation.report`).
+   ``summary.csv`` (:mod:`snac_gym.evaluation.reports.summary`), ``summary.md`` and box plots (:mod:`snac_gym.evaluation.reports.writer`).
 
-The options and their checks are :mod:`evaluation.run_config`.
+The options and their checks are :mod:`snac_gym.evaluation.run_config`.
 """
 
 from __future__ import annotations
@@ -37,16 +37,16 @@ from typing import Any
 
 import pandas as pd
 
-from evaluation.controllers import ControllerSpec, resolve_controllers
-from evaluation.effort_matching import EffortRecord, Results, controller_passes
-from evaluation.executors import open_executor
-from evaluation.optimal_reference import OPTIMAL, add_optimality
-from evaluation.passes import EvaluationRun
-from evaluation.report import prefetch_report_modules, write_reports
-from evaluation.rollout_progress import Progress
-from evaluation.run_config import EvaluationConfig
-from evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
-from evaluation.store import RunStore
+from snac_gym.evaluation.controllers import ControllerSpec, resolve_controllers
+from snac_gym.evaluation.effort.matching import EffortRecord, Results, controller_passes
+from snac_gym.evaluation.execution.executors import open_executor
+from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
+from snac_gym.evaluation.execution.passes import EvaluationRun
+from snac_gym.evaluation.reports.writer import prefetch_report_modules, write_reports
+from snac_gym.evaluation.execution.progress import Progress
+from snac_gym.evaluation.run_config import EvaluationConfig
+from snac_gym.evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
+from snac_gym.evaluation.store import RunStore
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 
@@ -63,7 +63,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
 
     Raises:
         ValueError: On a bad option, controller or samples file (the message says which).
-        evaluation.store.RunDirectoryError: If ``out`` holds another run (see ``resume``).
+        snac_gym.evaluation.store.RunDirectoryError: If ``out`` holds another run (see ``resume``).
     """
     started = time.perf_counter()
     kinematics, space = _checked_setting(config)
@@ -191,7 +191,7 @@ def _reported_rows(rows: pd.DataFrame, samples: Sequence[EvaluationSample]) -> p
 # -- 5. the optimal reference -------------------------------------------------------------------
 def _optimal_rows(evaluation: EvaluationRun) -> Results:
     """The ``optimal`` rows of every task, when asked for: a function of the samples, the cost and the arm
-    alone (:mod:`evaluation.optimal_reference`), whatever controllers the run has."""
+    alone (:mod:`snac_gym.evaluation.reference.optimum`), whatever controllers the run has."""
     config = evaluation.config
     if not config.wants_optimal:
         return {}

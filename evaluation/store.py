@@ -37,7 +37,7 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None  # type: ignore[assignment]
 
-from evaluation.samples import SampleFileError
+from snac_gym.evaluation.samples import SampleFileError
 from snac_gym.rollout import write_log
 
 

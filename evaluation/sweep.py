@@ -16,7 +16,7 @@ V/N beside accuracy and peak effort at every point:
   effort, one line per controller in knob order, the main run's point starred, the points whose
   success rate is below ``success_threshold`` hollow.
 
-The main run (:func:`~evaluation.runner.run_evaluation`) comes first and the sweep's full
+The main run (:func:`~snac_gym.evaluation.runner.run_evaluation`) comes first and the sweep's full
 passes go into its run folder through the runner's own machinery (the executor, the store,
 ``run_passes``): a pass at a knob value the main run already evaluated is read back from its
 part files, every finished job is stored at once, and ``--resume`` continues an interrupted
@@ -35,14 +35,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from evaluation.controllers import ControllerSpec, resolve_controllers
-from evaluation.executors import open_executor
-from evaluation.passes import EvaluationRun
-from evaluation.rollout_progress import Progress
-from evaluation.run_config import EvaluationConfig
-from evaluation.runner import load_samples, run_evaluation
-from evaluation.store import RunStore
-from evaluation.summary import controller_label
+from snac_gym.evaluation.controllers import ControllerSpec, resolve_controllers
+from snac_gym.evaluation.execution.executors import open_executor
+from snac_gym.evaluation.execution.passes import EvaluationRun
+from snac_gym.evaluation.execution.progress import Progress
+from snac_gym.evaluation.run_config import EvaluationConfig
+from snac_gym.evaluation.runner import load_samples, run_evaluation
+from snac_gym.evaluation.store import RunStore
+from snac_gym.evaluation.reports.summary import controller_label
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
@@ -54,7 +54,7 @@ DEFAULT_POINTS, DEFAULT_SPAN = 7, 4.0
 MAX_POINTS = 25
 #: Largest span accepted: beyond it the knob reaches values no controller was built for.
 MAX_SPAN = 1e3
-#: Roles of the main run's point that make it an equal-effort point (``evaluation.effort_matching.EffortRecord.role``).
+#: Roles of the main run's point that make it an equal-effort point (``snac_gym.evaluation.effort.matching.EffortRecord.role``).
 EQUAL_EFFORT_ROLES = ("reference", "matched")
 
 #: Columns of ``sweep.csv``.
@@ -188,7 +188,7 @@ def run_sweep(config: EvaluationConfig, points: int = DEFAULT_POINTS, span: floa
 
     Raises:
         ValueError: On a bad grid or option (before anything runs), or as
-            :func:`~evaluation.runner.run_evaluation` raises.
+            :func:`~snac_gym.evaluation.runner.run_evaluation` raises.
     """
     check_grid(points, span)
     config.validate()

@@ -10,7 +10,7 @@ kinematic model and writes results.csv, summary.md and box plots into OUT. The f
 import sys
 from pathlib import Path
 
-from evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
 
 
 def main(samples: int = 20, out: str = "runs/compare") -> None:

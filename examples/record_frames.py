@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt
 
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym import make_policy
-from snac_gym.demo import demo_options
+from snac_gym.apps.demo import demo_options
 
 
 def main(frames: int = 8, out: str = "videos/frames", every: int = 125, size: int = 320) -> None:

@@ -13,7 +13,7 @@ from snac_gym.observation import ObservationLayout
 from snac_gym.policies import Policy, PolicyContext, available_policies, make_policy, register_policy
 from snac_gym.references import Ellipse, FixedTarget
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 register_envs()
 

@@ -68,7 +68,7 @@ def joint_step(q: np.ndarray, u: np.ndarray, dt: float, out: np.ndarray | None =
     """The paper's kinematic model over one control period, exactly: θₖ₊₁ = θₖ + uₖΔt (eq. 3).
 
     The one implementation of the step: the kinematic arm of the single env
-    (:class:`~snac_gym.envs.arms.KinematicArm`), the batched vector env
+    (:class:`~snac_gym.physics.KinematicArm`), the batched vector env
     (:class:`~snac_gym.envs.vector.KinematicEpisodes`) and the evaluator's lockstep engine
     (:func:`~snac_gym.rollout.simulate_kinematic`) all call it, so the three agree bit for bit; the UR
     controller emulator's arm (``snac_gym.real.emulator.arm.EmulatedArm``) integrates its motion with it too.
@@ -83,6 +83,15 @@ def joint_step(q: np.ndarray, u: np.ndarray, dt: float, out: np.ndarray | None =
         θₖ₊₁ (``out`` when given).
     """
     return np.add(q, u * dt, out=out)
+
+
+def joint_path(q0: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
+    """θ₁..θ_K of the same model over a command sequence ``(K, m)`` at once: θₖ₊₁ = θ₀ + Δt Σᵢ≤ₖ uᵢ (eq. 3).
+
+    The trajectory optimiser's form (:mod:`snac_gym.trajopt`): a cumulative sum, which rounds differently
+    from K calls of :func:`joint_step` (about 1e-13 rad over 2500 steps; hence its limit clearance).
+    """
+    return np.add(q0, np.cumsum(commands, axis=0) * dt)
 
 
 def damped_least_squares(jacobian: np.ndarray, task_velocity: np.ndarray, damping_matrix: np.ndarray) -> np.ndarray:
@@ -405,7 +414,7 @@ class BatchChain:
     placements and joint motions, ``oMᵢ = oM_parent(i) · M_i · exp(S_i θᵢ)``, for the joints that
     carry the end effector, reading every placement and axis from the Pinocchio model (nothing
     about the UR arms is written here), in a compiled loop over the batch
-    (:func:`~snac_gym.chain_kernel.chain_forward_and_jacobian`). The position Jacobian column of a
+    (:func:`~snac_gym.kernels.chain.chain_forward_and_jacobian`). The position Jacobian column of a
     revolute joint is ``zᵢ × (x − pᵢ)`` and of a prismatic joint ``zᵢ`` (eq. 2); joints that do not
     carry the end effector have zero columns. Results match Pinocchio to rounding
     (tests/test_kinematics.py, 1e-12).
@@ -429,7 +438,7 @@ class BatchChain:
             support.append(joint)
             joint = parents[joint - 1]
         self._support = sorted(support)
-        # The chain base first, as arrays for the compiled kernel (snac_gym/chain_kernel.py).
+        # The chain base first, as arrays for the compiled kernel (snac_gym/kernels/chain.py).
         slot = {joint: index for index, joint in enumerate(self._support)}
         chain = [joint - 1 for joint in self._support]
         self._kernel_arrays = (
@@ -466,7 +475,7 @@ class BatchChain:
 
     def forward_and_jacobian(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(f(θᵢ), J(θᵢ))``, shapes ``(B, 3)`` and ``(B, 3, m)``."""
-        from snac_gym.chain_kernel import chain_forward_and_jacobian  # numba: imported where first needed
+        from snac_gym.kernels.chain import chain_forward_and_jacobian  # numba: imported where first needed
 
         return chain_forward_and_jacobian(np.ascontiguousarray(qs, dtype=float), *self._kernel_arrays)
 

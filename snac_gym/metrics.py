@@ -68,7 +68,7 @@ import pandas as pd
 
 from snac_gym.cost import CostConvention, CostTerms, cost_rates, trajectory_cost
 from snac_gym.joint_limits import joint_limit_margins, joint_limit_margins_of_extremes
-from snac_gym.metrics_kernel import command_extremes, reverse_sum_extremes
+from snac_gym.kernels.metrics import command_extremes, reverse_sum_extremes
 from snac_gym.rollout.batch import Rollouts
 from snac_gym.rollout.log import log_array
 from snac_gym.tasks import get_task

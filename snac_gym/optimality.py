@@ -116,7 +116,7 @@ class FrozenJacobianLQR:
         in ``λ``, so that ``λ^{-1/2}`` and ``λ⁻¹`` are 0 there: at a lost rank no command moves the
         end effector along that direction, so the gain drops it instead of dividing by zero.
         """
-        from snac_gym.lqr_kernel import frozen_lqr_factors  # numba: imported where first needed
+        from snac_gym.kernels.lqr import frozen_lqr_factors  # numba: imported where first needed
 
         jacobian = np.asarray(jacobian, dtype=float)
         shape = jacobian.shape

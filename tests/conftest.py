@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 import snac_gym  # noqa: F401  (registers the envs)
-from snac_gym.compiled import cached_on_disk
+from snac_gym.kernels.compiled import cached_on_disk
 from snac_gym.kinematics import Kinematics
 
 
-# The reference's row cache (evaluation/reference_cache.py) of this test process: a fresh folder, so that no
+# The reference's row cache (evaluation/reference/cache.py) of this test process: a fresh folder, so that no
 # test reads rows another run left in the user's cache, and the suite writes nothing there.
 os.environ["SNAC_GYM_CACHE_DIR"] = tempfile.mkdtemp(prefix="snac-gym-test-cache-")
 
@@ -90,12 +90,12 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     On a fresh clone the kernels compile once either way (1-2 s each); done here, no compile lands
     inside a test with a deadline, and a kernel that fails to compile is reported once. It is the
     evaluator's own start-up, two workers sharing the compiles
-    (:func:`~snac_gym.compiled.warm_up_shared`), in a process of its own, before pytest-xdist starts
+    (:func:`~snac_gym.kernels.compiled.warm_up_shared`), in a process of its own, before pytest-xdist starts
     its workers (its ``sessionstart`` runs last).
     """
     if hasattr(session.config, "workerinput") or cached_on_disk():
         return  # a pytest-xdist worker (the controller did it), or nothing to compile
-    code = "from evaluation.executors import ProcessExecutor; ProcessExecutor(2).close()"
+    code = "from snac_gym.evaluation.execution.executors import ProcessExecutor; ProcessExecutor(2).close()"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if done.returncode != 0:  # every test that calls a kernel would fail the same way
         raise pytest.UsageError(f"compiling the numba kernels failed:\n{done.stderr}")

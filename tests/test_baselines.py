@@ -10,9 +10,9 @@ import pytest
 from scipy.optimize import minimize
 
 import snac_gym
-from baselines.dls import DLSPolicy
-from baselines.rnn import RNNPolicy
-from baselines.svf import SVFPolicy, filtered_singular_values
+from snac_gym.baselines.dls import DLSPolicy
+from snac_gym.baselines.rnn import RNNPolicy
+from snac_gym.baselines.svf import SVFPolicy, filtered_singular_values
 from snac_gym import make_policy
 from snac_gym.policies.base import BasePolicy, Policy
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse

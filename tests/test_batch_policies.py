@@ -9,13 +9,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from baselines.dls import DLSPolicy
-from baselines.lqr import LQRPolicy
-from baselines.rnn import RNNPolicy
-from baselines.svf import SVFPolicy
-from evaluation import EvaluationConfig, run_evaluation
-from evaluation.jobs import policy_context
-from evaluation.samples import generate_samples
+from snac_gym.baselines.dls import DLSPolicy
+from snac_gym.baselines.lqr import LQRPolicy
+from snac_gym.baselines.rnn import RNNPolicy
+from snac_gym.baselines.svf import SVFPolicy
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.policies.base import supports_batch
 from snac_gym.policies.snac import SNACPolicy
 from snac_gym.policies.snac_hjb import SNACHJBPolicy

@@ -12,8 +12,8 @@ import zipfile
 import pytest
 from typer.testing import CliRunner
 
-from snac_gym.bench import MAX_ACT_CALLS, MAX_BENCH_STEPS
-from snac_gym.cli import app
+from snac_gym.apps.bench import MAX_ACT_CALLS, MAX_BENCH_STEPS
+from snac_gym.apps.cli import app
 from snac_gym.ppo.config import (
     MAX_SEED,
     ConfigError,

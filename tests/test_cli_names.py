@@ -6,13 +6,13 @@
 import pytest
 from typer.testing import CliRunner
 
-from snac_gym.cli import app
+from snac_gym.apps.cli import app
 
 
 @pytest.fixture
 def captured_config(monkeypatch):
     """``snac-gym evaluate --export-only``, with the config it builds captured instead of written out."""
-    import evaluation.runner
+    import snac_gym.evaluation.runner
 
     seen = {}
 
@@ -20,7 +20,7 @@ def captured_config(monkeypatch):
         seen["config"] = config
         return "samples.csv"
 
-    monkeypatch.setattr(evaluation.runner, "export_sample_set", export)
+    monkeypatch.setattr(snac_gym.evaluation.runner, "export_sample_set", export)
     return seen
 
 

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from snac_gym.compiled import _with_stop_signals_held
+from snac_gym.kernels.compiled import _with_stop_signals_held
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="POSIX signals")
 
@@ -39,7 +39,7 @@ def test_a_signal_during_the_held_call_is_raised_to_the_previous_handler_once_it
 
 WORKER_DRIVER = r"""
 import os, signal, sys
-from snac_gym.compiled import _with_stop_signals_held
+from snac_gym.kernels.compiled import _with_stop_signals_held
 
 signal.signal(signal.SIGINT, signal.SIG_IGN)  # as an evaluator worker: Ctrl-C is the parent's, SIGTERM ends it
 signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -68,7 +68,7 @@ def interrupt(signum, frame):
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
 signal.signal(signal.SIGTERM, interrupt)
-import snac_gym.chain_kernel  # numba imported and the kernel defined, not compiled yet
+import snac_gym.kernels.chain  # numba imported and the kernel defined, not compiled yet
 from snac_gym.kinematics import Kinematics
 chain = Kinematics("ur10")._chain
 configurations = np.zeros((2, 6))
@@ -105,7 +105,7 @@ def test_after_the_warm_up_no_controller_step_compiles_anything(controller, task
     """What ``snac-gym real`` relies on: every kernel a controller calls has the types of its warm-up example."""
     import gymnasium as gym
 
-    from snac_gym.compiled import _KERNELS, POLICY_KERNEL_MODULES, warm_up
+    from snac_gym.kernels.compiled import _KERNELS, POLICY_KERNEL_MODULES, warm_up
     from snac_gym.policies import make_policy
 
     warm_up(POLICY_KERNEL_MODULES)
@@ -126,9 +126,9 @@ def test_after_the_warm_up_an_evaluation_compiles_nothing(tmp_path, monkeypatch)
     arrays too. Every call's types are recorded, so what other tests compiled earlier does not matter."""
     import numba
 
-    from evaluation.run_config import EvaluationConfig
-    from evaluation.runner import run_evaluation
-    from snac_gym.compiled import _KERNELS, KERNEL_MODULES, Kernel
+    from snac_gym.evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.runner import run_evaluation
+    from snac_gym.kernels.compiled import _KERNELS, KERNEL_MODULES, Kernel
 
     for module in KERNEL_MODULES:
         importlib.import_module(module)
@@ -157,9 +157,9 @@ def test_after_the_warm_up_an_evaluation_compiles_nothing(tmp_path, monkeypatch)
 
 SHARED_DRIVER = r"""
 import json, multiprocessing, sys
-from snac_gym.compiled import _KERNELS, warm_up_shared
+from snac_gym.kernels.compiled import _KERNELS, warm_up_shared
 
-MODULES = ("evaluation.optimal_kernels", "snac_gym.metrics_kernel")
+MODULES = ("snac_gym.kernels.trajopt", "snac_gym.kernels.metrics")
 
 def work(locks, barrier, queue):
     barrier.wait()  # both start together, as the evaluator's workers do
@@ -187,7 +187,7 @@ def test_processes_that_share_the_compile_locks_compile_each_kernel_module_once(
     done = subprocess.run([sys.executable, "-c", SHARED_DRIVER, "fork"], capture_output=True, text=True, timeout=180, env=env)
     assert done.returncode == 0, done.stderr
     reports = json.loads(done.stdout)
-    modules = {"evaluation.optimal_kernels", "snac_gym.metrics_kernel"}
+    modules = {"snac_gym.kernels.trajopt", "snac_gym.kernels.metrics"}
     compiled = [module for report in reports for module in report["compiled"]]
     assert sorted(compiled) == sorted(modules)  # each module compiled by one process only
     for report in reports:
@@ -198,18 +198,18 @@ def test_processes_that_share_the_compile_locks_compile_each_kernel_module_once(
 def test_a_compile_lock_never_released_delays_the_warm_up_and_does_not_block_it(monkeypatch):
     import threading
 
-    import snac_gym.compiled as compiled
+    import snac_gym.kernels.compiled as compiled
 
     monkeypatch.setattr(compiled, "_SHARED_COMPILE_WAIT_S", 0.2)
     held = threading.Lock()
     held.acquire()  # as by a process that died while compiling
-    assert compiled.warm_up_shared([held], ("evaluation.optimal_kernels",)) == []
+    assert compiled.warm_up_shared([held], ("snac_gym.kernels.trajopt",)) == []
     with pytest.raises(ValueError, match="one lock per module"):
-        compiled.warm_up_shared([], ("evaluation.optimal_kernels",))
+        compiled.warm_up_shared([], ("snac_gym.kernels.trajopt",))
 
 
 def test_cached_on_disk_says_whether_every_kernel_has_a_cache_index_newer_than_its_source(tmp_path, monkeypatch):
-    from snac_gym import compiled
+    from snac_gym.kernels import compiled
 
     monkeypatch.setattr(compiled, "_KERNELS", [])  # this test's kernels only
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))  # read when the kernels are defined
@@ -217,7 +217,7 @@ def test_cached_on_disk_says_whether_every_kernel_has_a_cache_index_newer_than_i
     name = f"tiny_kernels_{os.getpid()}"
     source = tmp_path / f"{name}.py"
     source.write_text(
-        "from snac_gym.compiled import kernel\n\n\n"
+        "from snac_gym.kernels.compiled import kernel\n\n\n"
         "@kernel(example=lambda: (2.0,))\ndef double(x):\n    return 2.0 * x\n\n\n"
         "@kernel(example=lambda: (2.0,))\ndef halve(x):\n    return 0.5 * x\n"
     )
@@ -239,11 +239,11 @@ def test_cached_on_disk_says_whether_every_kernel_has_a_cache_index_newer_than_i
 
 PRELOAD_DRIVER = r"""
 import importlib, json
-from snac_gym import compiled
+from snac_gym.kernels import compiled
 for module in compiled.KERNEL_MODULES:
     importlib.import_module(module)
 before = sorted(k.__name__ for k in compiled._KERNELS if k.dispatcher.overloads)
-import evaluation.kernel_preload  # what the evaluator's fork server imports before it forks any worker
+import snac_gym.evaluation.execution.kernel_preload  # what the evaluator's fork server imports before it forks any worker
 misses = []
 for k in compiled._KERNELS:
     k.dispatcher._compile_for_args = lambda *args, _name=k.__name__, **kwargs: misses.append(_name)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import snac_gym  # noqa: F401  (registers the ids)
-from evaluation.jobs import policy_context
-from evaluation.samples import EvaluationSample
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention
 from snac_gym.metrics import rollout_metrics
 from snac_gym.policies import make_policy

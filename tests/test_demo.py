@@ -9,16 +9,16 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from snac_gym.bench import format_act_bench, run_act_bench
-from snac_gym.cli import app
-from snac_gym.demo import demo_options, run_demo
+from snac_gym.apps.bench import format_act_bench, run_act_bench
+from snac_gym.apps.cli import app
+from snac_gym.apps.demo import demo_options, run_demo
 from snac_gym.metrics import demo_metrics
 from snac_gym.policies import register_policy, registry
 from snac_gym.policies.base import BasePolicy
 from snac_gym.policies.snac import SNACPolicy
 from snac_gym.references import PAPER_Q0, PAPER_TARGET
 from snac_gym.rollout import log_array, log_columns, read_log, rollout, write_log
-from snac_gym.studies import discretisation_study, random_episode_study, summarise_random_study, summarise_study
+from snac_gym.apps.studies import discretisation_study, random_episode_study, summarise_random_study, summarise_study
 from snac_gym.tasks import TASKS
 
 PANELS = ("path", "error", "joint_velocities", "cost", "figure3", "critic_weights", "optimality")
@@ -247,7 +247,7 @@ def test_cost_panel_shows_a_dominant_term_under_the_total():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from snac_gym.plots import plot_cost
+    from snac_gym.apps.plots import plot_cost
 
     dt, steps = 0.008, 500
     t = np.arange(steps) * dt

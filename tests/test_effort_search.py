@@ -1,4 +1,4 @@
-"""The knob search on synthetic effort functions (evaluation/effort_search.py): no rollouts involved."""
+"""The knob search on synthetic effort functions (evaluation/effort/search.py): no rollouts involved."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from evaluation.effort_search import EffortMatch, EffortSearch, match_effort, within
+from snac_gym.evaluation.effort.search import EffortMatch, EffortSearch, match_effort, within
 
 TOLERANCE = 0.005
 

@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaluation import EvaluationConfig, run_evaluation
-from evaluation.effort_statistics import DEFAULT_EFFORT_STATISTIC, EFFORT_STATISTICS, PEAK_FLOOR
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.effort.statistics import DEFAULT_EFFORT_STATISTIC, EFFORT_STATISTICS, PEAK_FLOOR
 
 
 def _rows(samples, peaks, max_abs_u=None):

@@ -24,7 +24,7 @@ from gymnasium.utils.env_checker import check_env
 
 import snac_gym
 from snac_gym.envs import GOAL_ENV_IDS, REGISTERED_IDS, core, make_task_env, vector
-from snac_gym.envs.arms import KinematicArm
+from snac_gym.physics import KinematicArm
 from snac_gym.kinematics import Kinematics
 from snac_gym.robots import ROBOTS
 from snac_gym.tasks import TASKS
@@ -144,7 +144,7 @@ def test_vector_env_is_bit_identical_to_the_recorded_one(name, env_id):
 
 
 def test_kinematic_engine_is_the_recorded_one():
-    """θ bit for bit; e = f(θ) − x_d to rounding, since f(θ) is the compiled chain's (snac_gym/chain_kernel.py),
+    """θ bit for bit; e = f(θ) − x_d to rounding, since f(θ) is the compiled chain's (snac_gym/kernels/chain.py),
     whose sums run in another order than the NumPy arithmetic of the recording (measured: at most 2.2e-16 m)."""
     for key, value in recorded.engine_trajectory().items():
         if key.endswith("_errors"):
@@ -249,7 +249,7 @@ def test_one_implementation_of_the_kinematic_step():
     ]
     assert found == []
     assert "return np.add(q, u * dt, out=out)" in Path(root / "kinematics.py").read_text()
-    for module in ("envs/arms.py", "envs/vector.py", "rollout/kinematic.py", "real/emulator/arm.py"):
+    for module in ("physics/kinematic.py", "envs/vector.py", "rollout/kinematic.py", "real/emulator/arm.py"):
         assert "joint_step(" in (root / module).read_text(), module
 
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from evaluation import EvaluationConfig
-from evaluation.run_config import BYTES_PER_SAMPLE, max_samples
-from evaluation.samples import MAX_SAMPLES_FILE_BYTES, SampleFileError, check_samples_file, read_samples_csv
-from snac_gym.cli import app
+from snac_gym.evaluation import EvaluationConfig
+from snac_gym.evaluation.run_config import BYTES_PER_SAMPLE, max_samples
+from snac_gym.evaluation.samples import MAX_SAMPLES_FILE_BYTES, SampleFileError, check_samples_file, read_samples_csv
+from snac_gym.apps.cli import app
 from snac_gym.kinematics import Kinematics
 
 

@@ -12,12 +12,12 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-import evaluation.passes as passes_module
-from evaluation import EvaluationConfig, run_evaluation
-from evaluation.store import RunDirectoryError
-from evaluation.summary import PAPER_TABLE_I
+import snac_gym.evaluation.execution.passes as passes_module
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.store import RunDirectoryError
+from snac_gym.evaluation.reports.summary import PAPER_TABLE_I
 from snac_gym import register_policy
-from snac_gym.cli import app
+from snac_gym.apps.cli import app
 from snac_gym.cost import trajectory_cost
 from snac_gym.rollout import log_array, read_log
 
@@ -160,7 +160,7 @@ def test_saved_trajectories_recompute_every_reported_number(table_run):
 
 def test_explicit_target_matches_every_controller_and_workers_do_not_change_results(tmp_path):
     register_policy(
-        "evaltest-dls", "baselines.dls:DLSPolicy", overwrite=True
+        "evaltest-dls", "snac_gym.baselines.dls:DLSPolicy", overwrite=True
     )  # a run-time registration reaches forked workers
     common = {
         "controllers": ("evaltest-dls", "rnn"),
@@ -219,8 +219,8 @@ def test_pybullet_engine_runs_through_the_env(tmp_path):
 
 
 def test_knob_searches_with_long_rollouts_run_on_fewer_samples(tmp_path):
-    from evaluation.controllers import ControllerSpec
-    from evaluation.effort_matching import EffortMatcher
+    from snac_gym.evaluation.controllers import ControllerSpec
+    from snac_gym.evaluation.effort.matching import EffortMatcher
 
     def matcher(config):
         return EffortMatcher(passes_module.EvaluationRun(config, None, None, {"reach": list(range(1000))}, None))
@@ -360,7 +360,7 @@ class _CappedElbow:
 
 
 def test_a_failed_knob_search_is_labelled_unmatched_even_when_the_full_pass_lands_near(tmp_path):
-    from evaluation.samples import policy_seed
+    from snac_gym.evaluation.samples import policy_seed
 
     _CappedElbow.low_seeds = frozenset(policy_seed(0, "reach", i) for i in (0, 1))
     register_policy("evaltest-capped", _CappedElbow, overwrite=True)

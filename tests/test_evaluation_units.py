@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaluation.effort_search import match_effort
-from evaluation.samples import (
+from snac_gym.evaluation.effort.search import match_effort
+from snac_gym.evaluation.samples import (
     EvaluationSample,
     SampleFileError,
     column_names,
@@ -396,7 +396,7 @@ def test_cost_conventions_score_the_same_rollout_by_hand(cost, udot_start, q_sca
 
 
 def test_a_controller_that_fails_the_task_is_never_ranked_cheapest():
-    from evaluation.summary import summarise
+    from snac_gym.evaluation.reports.summary import summarise
 
     rows = []
     for controller, cost, success in (("cheap_but_fails", 1.0, False), ("snac", 5.0, True), ("dls", 3.0, True)):
@@ -485,7 +485,7 @@ def _timed_job(item: tuple[str, float]) -> tuple[str, float, float]:
 def test_process_executor_runs_urgent_jobs_first_and_keeps_a_reserved_worker_free():
     import threading
 
-    from evaluation.executors import ProcessExecutor
+    from snac_gym.evaluation.execution.executors import ProcessExecutor
 
     executor = ProcessExecutor(2)
     try:
@@ -515,7 +515,7 @@ def test_process_executor_runs_urgent_jobs_first_and_keeps_a_reserved_worker_fre
 
 
 def test_process_executor_passes_job_errors_through():
-    from evaluation.executors import ProcessExecutor
+    from snac_gym.evaluation.execution.executors import ProcessExecutor
 
     executor = ProcessExecutor(2)
     try:
@@ -529,8 +529,8 @@ def test_concurrent_effort_matches_raise_the_failure_not_the_cancellations(tmp_p
     import threading
     import time
 
-    import evaluation.passes as passes_module
-    from evaluation.run_config import EvaluationConfig
+    import snac_gym.evaluation.execution.passes as passes_module
+    from snac_gym.evaluation.run_config import EvaluationConfig
 
     class Concurrent:
         concurrent = True
@@ -563,8 +563,8 @@ def test_concurrent_effort_matches_raise_the_failure_not_the_cancellations(tmp_p
 def test_knob_search_evaluations_are_spread_over_the_workers(tmp_path):
     from types import SimpleNamespace
 
-    import evaluation.passes as passes_module
-    from evaluation.run_config import EvaluationConfig
+    import snac_gym.evaluation.execution.passes as passes_module
+    from snac_gym.evaluation.run_config import EvaluationConfig
 
     config = EvaluationConfig(out=tmp_path, workers=3, progress=False)  # chunk_size 500
     evaluation = passes_module.EvaluationRun(config, None, None, {}, None)
@@ -582,8 +582,8 @@ def test_knob_search_evaluations_are_spread_over_the_workers(tmp_path):
 def test_effort_statistics_reduce_their_columns_and_bad_names_are_refused(tmp_path):
     import pandas as pd
 
-    from evaluation.effort_statistics import EFFORT_STATISTICS, effort_statistic_named
-    from evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.effort.statistics import EFFORT_STATISTICS, effort_statistic_named
+    from snac_gym.evaluation.run_config import EvaluationConfig
 
     rows = pd.DataFrame({"max_abs_u": [1.0, 3.15, 2.0], "peak_limit_fraction": [0.2, 1.0, 0.5]})
     assert EFFORT_STATISTICS["max"].of(rows) == 3.15  # the maximum |u| over the set, rad/s

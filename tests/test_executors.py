@@ -9,13 +9,13 @@ import threading
 
 import pytest
 
-from evaluation.executors import ProcessExecutor, start_method
+from snac_gym.evaluation.execution.executors import ProcessExecutor, start_method
 from snac_gym.policies import registry
 
 
 @pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="fork and forkserver are Linux's")
 def test_workers_come_from_a_fork_server_while_other_threads_run_and_know_the_registrations():
-    registry.register_policy("forkserver-test-dls", "baselines.dls:DLSPolicy", overwrite=True)
+    registry.register_policy("forkserver-test-dls", "snac_gym.baselines.dls:DLSPolicy", overwrite=True)
     stop = threading.Event()
     other = threading.Thread(target=stop.wait, daemon=True)  # as pytest-xdist's I/O thread would be
     other.start()
@@ -77,7 +77,7 @@ def test_a_job_done_before_its_callback_is_attached_does_not_deadlock_the_execut
 _FAULTS = """
 import resource, sys
 import numpy as np
-from evaluation.memory import keep_freed_memory
+from snac_gym.evaluation.execution.memory import keep_freed_memory
 kept = keep_freed_memory() if sys.argv[1] == "kept" else False
 np.ones((1000, 2500, 6))  # 120 MB, freed at once
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -89,7 +89,7 @@ print(kept, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
 def test_a_worker_reuses_a_freed_rollout_log_instead_of_faulting_in_new_pages():
     """By default the second 120 MB array is faulted in afresh (at least one fault per 2 MB huge page, 30 000
-    without huge pages); in a process set up as the workers are (evaluation/memory.py) it reuses the first's."""
+    without huge pages); in a process set up as the workers are (evaluation/execution/memory.py) it reuses the first's."""
     faults = {}
     for mode in ("default", "kept"):
         done = subprocess.run([sys.executable, "-c", _FAULTS, mode], capture_output=True, text=True, check=True)

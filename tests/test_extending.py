@@ -6,7 +6,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import snac_gym
-from evaluation.samples import generate_samples, read_samples_csv, write_samples_csv
+from snac_gym.evaluation.samples import generate_samples, read_samples_csv, write_samples_csv
 from snac_gym.envs import core as env_core
 from snac_gym.kinematics import Kinematics
 from snac_gym.policies import available_policies, make_policy, register_policy, registry

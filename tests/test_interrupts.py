@@ -25,11 +25,11 @@ EXIT_BOUND_S = 10.0
 
 #: The phase hooks: (module, attribute) of a function the main process calls when the phase begins.
 PHASES = {
-    "samples": ("evaluation.runner", "load_samples"),
-    "reference passes": ("evaluation.passes", "EvaluationRun.run_passes"),
-    "effort matching": ("evaluation.effort_matching", "EffortMatcher.match_all"),
-    "optimal": ("evaluation.passes", "EvaluationRun.run_optimal"),
-    "reports": ("evaluation.runner", "write_reports"),
+    "samples": ("snac_gym.evaluation.runner", "load_samples"),
+    "reference passes": ("snac_gym.evaluation.execution.passes", "EvaluationRun.run_passes"),
+    "effort matching": ("snac_gym.evaluation.effort.matching", "EffortMatcher.match_all"),
+    "optimal": ("snac_gym.evaluation.execution.passes", "EvaluationRun.run_optimal"),
+    "reports": ("snac_gym.evaluation.runner", "write_reports"),
 }
 
 DRIVER = r"""
@@ -64,7 +64,7 @@ def hooked(*args, **kwargs):
         state["inside"] -= 1
 
 setattr(owner, name, hooked)
-from snac_gym.cli import main
+from snac_gym.apps.cli import main
 main()
 """
 
@@ -81,7 +81,7 @@ def _evaluate(out: Path, *extra: str) -> tuple[int, str]:
     of its own (and the test process has paid the imports already). Returns the exit code and output."""
     from typer.testing import CliRunner
 
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     result = CliRunner().invoke(app, [*ARGS, "--out", str(out), *extra])
     return result.exit_code, result.output
@@ -207,7 +207,7 @@ def test_an_interrupted_process_executor_wakes_every_waiting_thread():
     """The cause of the hang: a thread waiting on a queued job that terminate() cancelled never woke."""
     import threading
 
-    from evaluation.executors import ExecutorStopped, ProcessExecutor
+    from snac_gym.evaluation.execution.executors import ExecutorStopped, ProcessExecutor
 
     executor = ProcessExecutor(2)
     outcomes: list[str] = []
@@ -241,7 +241,7 @@ if os.name != "posix":  # pragma: no cover
 
 UNRAISABLE = r"""
 import os, signal, sys, time, traceback
-from snac_gym.cli import _sigterm_as_interrupt
+from snac_gym.apps.cli import _sigterm_as_interrupt
 from snac_gym.real.run import stop_signals_raise
 ignored = []
 sys.unraisablehook = lambda unraisable: ignored.append(repr(unraisable.exc_value))

@@ -1,5 +1,5 @@
-"""The IPOPT cross-check (evaluation/ipopt_reference.py): its kinematics, its objective, and its optima
-against the project's own solver (evaluation/optimal_reference.py)."""
+"""The IPOPT cross-check (evaluation/reference/ipopt.py): its kinematics, its objective, and its optima
+against the project's own solver (evaluation/reference/optimum.py)."""
 
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from evaluation.ipopt_reference import (  # noqa: E402  (after the skip)
+from snac_gym.evaluation.reference.ipopt import (  # noqa: E402  (after the skip)
     MISSING_CASADI,
     casadi_forward_kinematics,
     ipopt_objective,
     solve_with_ipopt,
 )
-from evaluation.optimal_reference import solve_sample, trajectory_cost_and_gradient  # noqa: E402
-from evaluation.samples import generate_samples  # noqa: E402
+from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient  # noqa: E402
+from snac_gym.evaluation.samples import generate_samples  # noqa: E402
 from snac_gym.cost import CostConvention  # noqa: E402
 from snac_gym.kinematics import shared_kinematics  # noqa: E402
 from snac_gym.rollout import reference_trajectories  # noqa: E402
@@ -144,7 +144,7 @@ WORKSPACE_CASES = [
 
 @pytest.mark.parametrize(("cost", "task", "index", "binds"), WORKSPACE_CASES)
 def test_the_constrained_reference_matches_ipopt_or_is_cheaper(ur10, cost, task, index, binds):
-    from evaluation.optimal_reference import _next_angles
+    from snac_gym.trajopt import next_angles
 
     convention = CostConvention(cost, "rest", 4.0 if cost == "hjb" else 1.0)
     sample = generate_samples(ur10, SampleSpace.workspace(ur10), 2024, task, [index])[0]
@@ -154,7 +154,7 @@ def test_the_constrained_reference_matches_ipopt_or_is_cheaper(ur10, cost, task,
     ipopt = solve_with_ipopt(q0, x_d, ur10, DT, ur10.velocity_limits, position_limits=limits, convention=convention)
     assert ipopt.success and ours.converged
     assert ours.cost <= ipopt.cost * (1 + 1e-4)
-    angles = _next_angles(ours.commands, q0, DT)
+    angles = next_angles(ours.commands, q0, DT)
     margin = min(float((angles - limits[0]).min()), float((limits[1] - angles).min()))
     assert margin >= 0.0 and np.all(np.abs(ours.commands) <= ur10.velocity_limits)
     assert (margin < 1e-6) == binds

@@ -5,8 +5,8 @@ import pickle
 import numpy as np
 import pytest
 
-from snac_gym.envs.robot import SimulatedArm
-from snac_gym.envs.sim import PyBulletSim, p
+from snac_gym.physics.bullet import SimulatedArm
+from snac_gym.physics.bullet import PyBulletSim, p
 from snac_gym.kinematics import Kinematics
 from snac_gym.references import PAPER_Q0
 

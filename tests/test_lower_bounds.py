@@ -9,8 +9,8 @@ import functools
 import numpy as np
 import pytest
 
-from evaluation.optimal_reference import solve_sample, trajectory_cost_and_gradient
-from evaluation.samples import generate_samples
+from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym import optimality
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
@@ -255,7 +255,7 @@ def test_reachable_lipschitz_bounds_cover_the_jacobian_along_trajectories_of_bou
 
 @functools.lru_cache(maxsize=None)
 def controller_rollouts(task, controller):
-    from evaluation.jobs import policy_context
+    from snac_gym.evaluation.execution.jobs import policy_context
     from snac_gym.policies.registry import make_policy
     from snac_gym.rollout import simulate_kinematic
 

@@ -10,8 +10,8 @@ import pytest
 from scipy.linalg import solve_continuous_are
 
 import snac_gym
-from baselines.lqr import LQRPolicy
-from evaluation import EvaluationConfig, run_evaluation
+from snac_gym.baselines.lqr import LQRPolicy
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym import make_policy
 from snac_gym.cost import trajectory_cost
 from snac_gym.policies.base import BasePolicy, Policy, PolicyContext

@@ -1,11 +1,11 @@
-"""The compiled command extremes (snac_gym/metrics_kernel.py) against the NumPy expressions they
+"""The compiled command extremes (snac_gym/kernels/metrics.py) against the NumPy expressions they
 replaced, bit for bit: peaks with ties (the first step wins, as np.argmax), commands at a limit,
 one step, one joint."""
 
 import numpy as np
 import pytest
 
-from snac_gym.metrics_kernel import command_extremes, reverse_sum_extremes
+from snac_gym.kernels.metrics import command_extremes, reverse_sum_extremes
 from snac_gym.rollout.kinematic import _sample_major
 
 

@@ -16,11 +16,11 @@ import pinocchio as pin
 import pytest
 from scipy.linalg import solve_continuous_are
 
-from evaluation.jobs import RolloutJob, policy_context, run_job, task_kinematics
-from evaluation.optimal_reference import ReplayPolicy
-from evaluation.run_config import EvaluationConfig
-from evaluation.runner import run_evaluation
-from evaluation.samples import generate_samples
+from snac_gym.evaluation.execution.jobs import RolloutJob, policy_context, run_job, task_kinematics
+from snac_gym.evaluation.reference.optimum import ReplayPolicy
+from snac_gym.evaluation.run_config import EvaluationConfig
+from snac_gym.evaluation.runner import run_evaluation
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.kinematics import Kinematics
 from snac_gym.model_error import ModelError
 from snac_gym.observation import ObservationLayout
@@ -76,7 +76,7 @@ def test_a_bad_specification_is_refused_naming_what_is_wrong(spec, message):
 
 def test_the_cli_refuses_a_bad_specification_in_one_line(tmp_path):
     done = subprocess.run(
-        [sys.executable, "-m", "snac_gym.cli", "evaluate", "--out", str(tmp_path / "run"), "--samples", "2",
+        [sys.executable, "-m", "snac_gym.apps.cli", "evaluate", "--out", str(tmp_path / "run"), "--samples", "2",
          "--model-error", "joint_offset=0,0.3"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
@@ -188,7 +188,7 @@ def test_with_a_model_error_the_critic_converges_to_the_true_problems_are_soluti
 
 
 def test_the_demo_gives_the_wrong_model_to_the_controller_and_draws_its_correction(tmp_path):
-    from snac_gym.demo import run_demo
+    from snac_gym.apps.demo import run_demo
 
     result = run_demo("track", "snac-adaptive", tmp_path, steps=60, model_error=ELBOW)
     residual = result.log["model_residual"].to_numpy()

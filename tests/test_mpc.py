@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import snac_gym
-from baselines.mpc import MPCPolicy
-from evaluation.jobs import policy_context
-from evaluation.optimal_reference import solve_sample
-from evaluation.samples import generate_samples
+from snac_gym.baselines.mpc import MPCPolicy
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.trajopt import solve_sample
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention
 from snac_gym.policies.base import LockstepPolicies
 from snac_gym.references import Ellipse

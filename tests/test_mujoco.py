@@ -12,13 +12,13 @@ from gymnasium.utils.env_checker import check_env
 pytest.importorskip("mujoco", reason="physics='mujoco' needs the mujoco extra")
 
 import snac_gym  # noqa: E402
-from snac_gym.bench import run_tracking_study  # noqa: E402
+from snac_gym.apps.bench import run_tracking_study  # noqa: E402
 from snac_gym.envs import GOAL_ENV_IDS  # noqa: E402
-from snac_gym.envs import mujoco_sim  # noqa: E402
-from snac_gym.envs.scene import PATH_COLOUR, TARGET_COLOUR, project  # noqa: E402
+from snac_gym.physics import mujoco as mujoco_sim  # noqa: E402
+from snac_gym.physics.scene import PATH_COLOUR, TARGET_COLOUR, project  # noqa: E402
 
 #: How closely a simulated arm must follow the exact kinematic model θₖ₊₁ = θₖ + uₖΔt under the
-#: smooth random command of :func:`snac_gym.bench.random_command` (5 episodes of 1000 steps = 8 s):
+#: smooth random command of :func:`snac_gym.apps.bench.random_command` (5 episodes of 1000 steps = 8 s):
 #: the measured joint velocity within 0.02 rad/s of the command at every step (1 % of the UR10's
 #: slowest limit), and the end effector within 2 mm of the kinematic model's after the last step.
 #: Both engines meet it (docs/physics.md): PyBullet by 2.3x on the Panda's velocity and 1.6x on

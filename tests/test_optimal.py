@@ -8,21 +8,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from scipy.linalg import solve_banded
 from scipy.optimize import minimize
 
-from evaluation.optimal_reference import (
-    FTOL,
-    GAP_RTOL,
-    GTOL,
-    MAX_ITERATIONS,
-    OPTIMAL,
-    _preconditioner,
-    solve_sample,
-    trajectory_cost_and_gradient,
-)
-from evaluation.samples import generate_samples
+from snac_gym.evaluation.reference.optimum import OPTIMAL
+
+from snac_gym.trajopt import FTOL, GAP_RTOL, GTOL, MAX_ITERATIONS, _preconditioner, solve_sample, trajectory_cost_and_gradient
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention, cost_and_gradient, trajectory_cost
 from snac_gym.kinematics import Kinematics
 from snac_gym.rollout import log_array, read_log, reference_trajectories
@@ -136,7 +129,7 @@ def test_the_shared_cost_gradient_on_a_linear_model(convention):
 
 def test_the_hjb_optimum_is_below_the_frozen_jacobian_lqr(ur10, track_sample):
     """Without the u̇ term the optimum is close to, and never above, the LQR law's open-loop cost."""
-    from evaluation.jobs import policy_context
+    from snac_gym.evaluation.execution.jobs import policy_context
     from snac_gym.metrics import rollout_metrics
     from snac_gym.policies import make_policy
     from snac_gym.rollout import simulate_kinematic
@@ -227,8 +220,8 @@ def test_summary_reports_the_optimal_row_and_mean_ratios(optimal_run):
 
 
 def test_a_controller_below_the_optimum_is_reported(optimal_run):
-    from evaluation.report import optimality_markdown
-    from evaluation.summary import summarise
+    from snac_gym.evaluation.reports.writer import optimality_markdown
+    from snac_gym.evaluation.reports.summary import summarise
 
     config, results = optimal_run
     tampered = results.copy()
@@ -321,7 +314,7 @@ def test_the_interior_point_and_lbfgs_b_agree_when_a_velocity_limit_binds(ur10, 
 
 def test_the_gauss_newton_band_holds_the_blocks_jk_t_jk_on_its_diagonal(rng):
     """``add_jacobian_blocks`` against a dense assembly: block k−1 of θ₁..θ_K gets scale·JₖᵀJₖ (k = 1..K−1), the last none."""
-    from evaluation.optimal_kernels import add_jacobian_blocks
+    from snac_gym.kernels.trajopt import add_jacobian_blocks
 
     steps, n, m, scale = 7, 3, 6, 0.037
     jacobians = rng.normal(size=(steps, n, m))

@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from evaluation import EvaluationConfig, run_evaluation
-from evaluation.paired import compare, fraction_better, median_ratio_ci, wilcoxon_p
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.reports.paired import compare, fraction_better, median_ratio_ci, wilcoxon_p
 
 
 def test_the_bootstrap_interval_is_the_percentiles_of_resampled_medians():
@@ -28,7 +28,7 @@ def test_the_bootstrap_interval_is_the_percentiles_of_resampled_medians():
 def test_the_resampled_medians_are_numpys_bit_for_bit(n):
     """Read off counted draws, the bootstrap medians are ``np.median`` of the resampled values exactly,
     ties (a third of the values equal) and odd and even sizes included."""
-    from evaluation.paired import _resampled_medians
+    from snac_gym.evaluation.reports.paired import _resampled_medians
 
     values = np.random.default_rng(n).lognormal(0.0, 1.0, n)
     values[::3] = values[0]

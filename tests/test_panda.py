@@ -9,8 +9,8 @@ import pinocchio as pin
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from snac_gym.envs.robot import SimulatedArm
-from snac_gym.envs.sim import PyBulletSim, p
+from snac_gym.physics.bullet import SimulatedArm
+from snac_gym.physics.bullet import PyBulletSim, p
 from snac_gym.kinematics import Kinematics, robot_urdf_path
 from snac_gym.robots import get_robot
 from snac_gym.sampling import (
@@ -145,7 +145,7 @@ def test_the_demo_pose_and_references_are_the_robots_and_reachable(robot):
 
 
 def test_demo_runs_on_the_panda(tmp_path):
-    from snac_gym.demo import run_demo
+    from snac_gym.apps.demo import run_demo
 
     result = run_demo("reach", "dls", out_dir=None, steps=400, robot="panda")
     target = np.array(get_robot("panda").demo_options["reach"])

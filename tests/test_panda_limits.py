@@ -4,8 +4,8 @@
 import numpy as np
 import pytest
 
-from evaluation.jobs import policy_context
-from evaluation.samples import EvaluationSample
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.samples import EvaluationSample
 from snac_gym.joint_limits import POSITION_LIMIT_MARGIN, JointLimitBox, joint_limit_margins
 from snac_gym.kinematics import Kinematics
 from snac_gym.metrics import rollout_metrics

@@ -5,8 +5,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from snac_gym.envs.robot import SimulatedArm
-from snac_gym.envs.sim import PyBulletSim, p
+from snac_gym.physics.bullet import SimulatedArm
+from snac_gym.physics.bullet import PyBulletSim, p
 from snac_gym.kinematics import PoseKinematics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext

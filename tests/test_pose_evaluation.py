@@ -11,9 +11,9 @@ import pinocchio as pin
 import pytest
 from typer.testing import CliRunner
 
-from evaluation import EvaluationConfig, run_evaluation
-from evaluation.samples import SampleFileError, column_names, generate_samples, read_samples_csv, write_samples_csv
-from snac_gym.cli import app
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.samples import SampleFileError, column_names, generate_samples, read_samples_csv, write_samples_csv
+from snac_gym.apps.cli import app
 from snac_gym.kinematics import Kinematics, PoseKinematics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext

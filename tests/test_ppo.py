@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from snac_gym.cli import app
+from snac_gym.apps.cli import app
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies import make_policy
@@ -355,7 +355,7 @@ def test_a_joint_space_policy_file_still_runs(reach_env, tmp_path, shipped_reach
 
 def _kinematic_peak_effort(task, action_scale, count=8, steps=150):
     """Median over ``count`` evaluator samples of each rollout's peak max_j |u_j|/ū_j (θ += uΔt)."""
-    from evaluation.samples import generate_samples
+    from snac_gym.evaluation.samples import generate_samples
     from snac_gym.rollout import reference_trajectories
     from snac_gym.sampling import SampleSpace
 
@@ -489,8 +489,8 @@ def test_shipped_policies_beat_dls_on_the_cost_they_were_trained_on(task):
     """The shipped files' claim, on 16 evaluator samples (θ += uΔt, the evaluator's horizon): under
     Σ(4‖e‖² + ‖u‖²)Δt the median PPO/DLS cost ratio is below 1 (0.88 / 0.90 on 1000 samples) and
     every rollout ends within the task's tolerance."""
-    from baselines.dls import DLSPolicy
-    from evaluation.samples import generate_samples
+    from snac_gym.baselines.dls import DLSPolicy
+    from snac_gym.evaluation.samples import generate_samples
     from snac_gym.rollout import reference_trajectories
     from snac_gym.sampling import SampleSpace
 

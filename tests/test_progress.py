@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from evaluation.rollout_progress import Progress
+from snac_gym.evaluation.execution.progress import Progress
 from snac_gym.progress import ProgressLines, wants_lines
 
 EVALUATE_LINE = re.compile(r"^evaluate: \d+/\d+ rollouts \(\d+ %\), \d+\.\d s")
@@ -87,12 +87,12 @@ def _cli(arguments: list[str], cwd: Path, in_process: bool = False) -> subproces
     if in_process:
         from typer.testing import CliRunner
 
-        from snac_gym.cli import app
+        from snac_gym.apps.cli import app
 
         result = CliRunner().invoke(app, arguments)
         return subprocess.CompletedProcess(arguments, result.exit_code, result.stdout, result.stderr)
     return subprocess.run(
-        [sys.executable, "-m", "snac_gym.cli", *arguments], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        [sys.executable, "-m", "snac_gym.apps.cli", *arguments], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, cwd=cwd, timeout=300,
     )
 

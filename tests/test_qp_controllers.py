@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from evaluation.jobs import policy_context
-from evaluation.samples import EvaluationSample
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.samples import EvaluationSample
 from snac_gym.extras import MissingExtraError
 from snac_gym.kinematics import Kinematics, PoseKinematics
 from snac_gym.metrics import rollout_metrics
@@ -48,7 +48,7 @@ def controller(request) -> str:
 def test_mujoco_site_matches_the_kinematics(robot):
     """Site position, orientation and Jacobian [jacp; jacr] equal Kinematics/PoseKinematics to 1e-9."""
     mujoco = pytest.importorskip("mujoco", reason="the 'ik' extra (mujoco) is not installed")
-    from snac_gym.mujoco_model import EE_SITE, build_mujoco_model
+    from snac_gym.physics.mujoco_model import EE_SITE, build_mujoco_model
 
     kinematics, pose = Kinematics(robot), PoseKinematics(robot)
     model = build_mujoco_model(kinematics)
@@ -297,7 +297,7 @@ def test_missing_extra_is_one_line(name, monkeypatch):
 def test_missing_extra_is_one_line_from_the_cli(tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     monkeypatch.setitem(sys.modules, "mink", None)
     result = CliRunner().invoke(app, ["demo", "--controller", "mink", "--steps", "5", "--no-plots", "--out", str(tmp_path)])

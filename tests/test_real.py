@@ -291,7 +291,7 @@ def test_safety_limits_validate_their_arguments():
 
 @pytest.mark.slow(seconds=4)
 def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
-    from snac_gym.demo import run_demo
+    from snac_gym.apps.demo import run_demo
     from snac_gym.real.run import run_real_episode
 
     # a loaded CI machine may be late now and then: the deadline rule has its own tests above
@@ -316,7 +316,7 @@ def test_real_command_with_nothing_listening_fails_in_one_line():
 
     start = time.monotonic()
     done = subprocess.run(
-        [sys.executable, "-m", "snac_gym.cli", "real", "--host", "127.0.0.2", "--out", "unused"],
+        [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", "127.0.0.2", "--out", "unused"],
         capture_output=True, text=True, timeout=30,
     )
     assert time.monotonic() - start < 10.0
@@ -328,7 +328,7 @@ def test_real_command_with_nothing_listening_fails_in_one_line():
 def test_dry_run_command_on_the_simulated_connection_prints_what_it_would_send(tmp_path):
     from typer.testing import CliRunner
 
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     outcome = CliRunner().invoke(
         app,
@@ -345,7 +345,7 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
     from typer.testing import CliRunner
 
     import snac_gym.real.run as real_run
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     connection = SimulatedConnection(realtime=False)
     reads = {"count": 0}

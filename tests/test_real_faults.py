@@ -253,7 +253,7 @@ def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_ru
 def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path, timing_rules_off):
     from typer.testing import CliRunner
 
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "sends-signal", "--out", str(tmp_path)])
     assert outcome.exit_code == 128 + signal.SIGTERM
@@ -310,7 +310,7 @@ class Crashes(BasePolicy):
 def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept(signalling_run, tmp_path, timing_rules_off):
     from typer.testing import CliRunner
 
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     register_policy("crashes", Crashes, overwrite=True)
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "crashes", "--out", str(tmp_path)])
@@ -427,7 +427,7 @@ def test_meaningless_safety_limits_are_refused(limits, match):
 def test_the_real_command_refuses_a_meaningless_acceleration_in_one_line(tmp_path, value):
     from typer.testing import CliRunner
 
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--max-acceleration", value, "--out", str(tmp_path)])
     assert outcome.exit_code == 2
@@ -537,7 +537,7 @@ def test_meaningless_recovery_limits_are_refused(limits, match):
 def test_the_real_command_refuses_an_unlock_without_recoveries(tmp_path):
     from typer.testing import CliRunner
 
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--unlock-protective-stop", "--out", str(tmp_path)])
     assert outcome.exit_code == 2 and "needs max_recoveries of at least 1 (--max-recoveries N)" in outcome.output

@@ -1,4 +1,4 @@
-"""The reference's rows cached by sample content (evaluation/reference_cache.py): reused bit for bit,
+"""The reference's rows cached by sample content (evaluation/reference/cache.py): reused bit for bit,
 keyed by everything they depend on, never used for another sample, cost or code."""
 
 from __future__ import annotations
@@ -9,9 +9,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaluation import optimal_reference, reference_cache
-from evaluation.optimal_reference import OptimalJob, run_optimal_job
-from evaluation.samples import generate_samples
+from snac_gym.evaluation.reference import cache as reference_cache
+from snac_gym.evaluation.reference import optimum as optimal_reference
+from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.envs.scene import PATH_COLOUR, TARGET_COLOUR, project
+from snac_gym.physics.scene import PATH_COLOUR, TARGET_COLOUR, project
 from snac_gym.tasks import TASKS
 
 SIZE = 160

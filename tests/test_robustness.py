@@ -17,10 +17,11 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from evaluation import EvaluationConfig, effort_matching, run_evaluation
-from evaluation.executors import ProcessExecutor, check_ray_reachable, max_workers
-from evaluation.store import RunDirectoryError, RunStore
-from snac_gym.cli import app
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.effort import matching as effort_matching
+from snac_gym.evaluation.execution.executors import ProcessExecutor, check_ray_reachable, max_workers
+from snac_gym.evaluation.store import RunDirectoryError, RunStore
+from snac_gym.apps.cli import app
 from snac_gym.ppo.policy import shipped_model_path
 from snac_gym.ppo.policy_file import PolicyFile, PolicyFileError
 
@@ -345,7 +346,7 @@ def _start_long_run(tmp_path: Path) -> subprocess.Popen:
     command = [
         sys.executable,
         "-m",
-        "snac_gym.cli",
+        "snac_gym.apps.cli",
         "evaluate",
         "--out",
         str(tmp_path / "run"),

@@ -464,7 +464,7 @@ def test_the_optimal_critic_has_zero_residual_and_zero_critic_error(ur10, rng):
 @pytest.mark.parametrize("task", ["reach", "track"])
 def test_the_papers_snac_trajectory_does_not_depend_on_q(task):
     """Eqs. 15/19 and 36/38 contain no Q: any Q gives the same commands and weights, bit for bit."""
-    from snac_gym.demo import run_demo
+    from snac_gym.apps.demo import run_demo
 
     logs = [run_demo(task, "snac", None, seed=3, steps=150, policy_kwargs={"Q": Q}).log for Q in (None, [100.0, 0.01, 7.0])]
     diagnostics = ["hjb_residual", "hjb_ratio", "critic_error"]  # these measure against the cost, so they do see Q

@@ -133,7 +133,7 @@ def test_a_batch_reset_gives_each_episode_the_weights_of_its_own_reset(ur10, wei
 
 
 def test_reach_demo_critic_error_is_under_5_percent_at_the_end():
-    from snac_gym.demo import run_demo
+    from snac_gym.apps.demo import run_demo
 
     result = run_demo("reach", "snac-hjb", None, seed=0)
     assert result.metrics.critic_error_final <= 0.05  # 1.3e-6 measured
@@ -177,7 +177,7 @@ def test_diagnostics_residual_is_the_are_residual_of_the_critic(ur10, rng):
 @pytest.mark.parametrize("task", ["reach", "track"])
 def test_a_command_beyond_the_limits_is_scaled_as_lqr_scales_it(ur10, rng, task):
     """The same saturation as lqr: the whole command divided by its largest |u_j|/ū_j, direction kept."""
-    from baselines._common import scale_rows_into_box
+    from snac_gym.baselines._common import scale_rows_into_box
 
     limits = np.array([2.16, 2.16, 3.15, 3.2, 3.2, 3.2])
     layout = ObservationLayout(ur10.n_joints, ur10.task_dim)

@@ -13,10 +13,10 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from evaluation import EvaluationConfig, run_evaluation
-from evaluation.jobs import policy_context
-from evaluation.sweep import MAX_POINTS, SWEEP_COLUMNS, run_sweep
-from snac_gym.cli import app
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.sweep import MAX_POINTS, SWEEP_COLUMNS, run_sweep
+from snac_gym.apps.cli import app
 from snac_gym.policies.registry import make_policy
 
 SMALL = {

@@ -10,16 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from evaluation import EvaluationConfig, run_evaluation
-from evaluation.jobs import policy_context
-from evaluation.optimal_reference import (
-    OWN_STARTS,
-    REST_START,
-    multi_start_solve,
-    solve_sample,
-    trajectory_cost_and_gradient,
-)
-from evaluation.samples import generate_samples
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_start_solve
+from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 from snac_gym.optimality import regulation_cost_lower_bound

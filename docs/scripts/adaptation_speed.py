@@ -20,8 +20,8 @@ import argparse
 
 import numpy as np
 
-from evaluation.jobs import policy_context, task_kinematics
-from evaluation.samples import generate_samples, policy_seed
+from snac_gym.evaluation.execution.jobs import policy_context, task_kinematics
+from snac_gym.evaluation.samples import generate_samples, policy_seed
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import simulate_kinematic

@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 
 import snac_gym  # noqa: F401
-from baselines.lqr import LQRPolicy
+from snac_gym.baselines.lqr import LQRPolicy
 from snac_gym.cost import trajectory_cost
 from snac_gym.optimality import lqr_gain, riccati_solution
 from snac_gym.policies.base import PolicyContext

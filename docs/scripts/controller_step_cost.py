@@ -13,8 +13,8 @@ import time
 
 from threadpoolctl import threadpool_limits
 
-from evaluation.jobs import RolloutJob, run_job
-from evaluation.samples import generate_samples
+from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
 

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from evaluation.jobs import RolloutJob, run_job
-from evaluation.samples import generate_samples, policy_seed
+from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
+from snac_gym.evaluation.samples import generate_samples, policy_seed
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 

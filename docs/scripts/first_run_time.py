@@ -1,7 +1,7 @@
 """Time the README's main command on fresh clones (every kernel compiles), two revisions alternating.
 
 Each round clones the repository at each revision into a temporary folder and runs
-``python -m snac_gym.cli evaluate`` there (the clone first on ``PYTHONPATH``, so that it runs with
+``python -m snac_gym.apps.cli evaluate`` there (the clone first on ``PYTHONPATH``, so that it runs with
 an empty numba cache), then prints the wall time, the CPU time of the run and its phases
 (docs/benchmarks.md, "The first run after an install").
 
@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-COMMAND = ["-m", "snac_gym.cli", "evaluate", "--workers", "2", "--no-progress",
+COMMAND = ["-m", "snac_gym.apps.cli", "evaluate", "--workers", "2", "--no-progress",
            "--controllers", "snac,snac-hjb,lqr,rnn,svf,dls,ppo,optimal"]  # fmt: skip
 
 

@@ -24,7 +24,7 @@ ARGS = ["--samples", "20", "--chunk-size", "2", "--workers", "2", "--controllers
 def interrupt(out: Path, signum: int, at: float, bound: float = 30.0) -> tuple[int | None, float | None, str]:
     """Exit code, seconds from the signal to the exit (``None``: still running after ``bound`` s), last stderr line."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "snac_gym.cli", "evaluate", "--out", str(out), *ARGS],
+        [sys.executable, "-m", "snac_gym.apps.cli", "evaluate", "--out", str(out), *ARGS],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         # A background job of a non-interactive shell inherits SIGINT ignored; a terminal's Ctrl-C does not.
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),

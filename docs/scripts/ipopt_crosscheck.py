@@ -1,6 +1,6 @@
 """The reference against IPOPT (CasADi) on samples it was not built on: the same constrained problem
 (joint position and velocity limits), full horizons. The reference as the evaluator computes it (rest and
-its own starts, evaluation/optimal_reference.py), IPOPT from rest, and IPOPT from the reference's
+its own starts, evaluation/reference/optimum.py), IPOPT from rest, and IPOPT from the reference's
 solution (a KKT check by an independent solver: it must not find a lower cost nearby).
 
 Usage: python docs/scripts/ipopt_crosscheck.py ROBOT SPACE SEED COUNT COST
@@ -17,10 +17,11 @@ import time
 
 import numpy as np
 
-from evaluation.ipopt_reference import solve_with_ipopt
-from evaluation.jobs import policy_context
-from evaluation.optimal_reference import _next_angles, multi_start_solve, own_start_commands, single_threaded_blas
-from evaluation.samples import generate_samples
+from snac_gym.evaluation.reference.ipopt import solve_with_ipopt
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference.optimum import multi_start_solve, own_start_commands
+from snac_gym.trajopt import next_angles, single_threaded_blas
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
@@ -49,7 +50,7 @@ for task in ("reach", "track"):
         solve = functools.partial(solve_with_ipopt, q0, x_d, kinematics, 1 / 125, kinematics.velocity_limits,
                                   position_limits=limits, convention=convention)  # fmt: skip
         rest, near = solve(), solve(initial=ours.commands)
-        angles = _next_angles(ours.commands, q0, 1 / 125)
+        angles = next_angles(ours.commands, q0, 1 / 125)
         binds = min(float((angles - limits[0]).min()), float((limits[1] - angles).min())) < 1e-6
         binding += binds
         gaps.append((ours.cost - rest.cost) / rest.cost)

@@ -109,7 +109,7 @@ def _command(repeats: int, seconds: float, hogs: int) -> None:
                 emu.reset()
                 load = os.getloadavg()[0]
                 with tempfile.TemporaryDirectory() as out:
-                    command = [sys.executable, "-m", "snac_gym.cli", "real", "--host", "127.0.0.1", "--series", "e",
+                    command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", "127.0.0.1", "--series", "e",
                                "--rt-priority", "20", "--task", "reach", "--controller", "snac",
                                "--steps", str(round(seconds * 500)), "--out", out]  # fmt: skip
                     child = subprocess.run(command, capture_output=True, text=True, timeout=seconds + 120)

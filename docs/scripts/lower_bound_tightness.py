@@ -2,7 +2,7 @@
 
 On the evaluator's default samples (seed 0, the UR10 cuboid, its horizons: reach 12 s, track 20 s,
 Δt = 8 ms), per task and cost convention: the numerical optimum of each sample
-(:func:`evaluation.optimal_reference.solve_sample` from rest, the evaluator's tolerances) against the bounds of
+(:func:`snac_gym.evaluation.reference.optimum.solve_sample` from rest, the evaluator's tolerances) against the bounds of
 :func:`snac_gym.optimality.certified_cost_lower_bounds` (‖ū‖₂ as the velocity limit):
 
 * ``global L``: the global Lipschitz bound of ``Kinematics.position_lipschitz_bound`` (one relaxation);
@@ -26,8 +26,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from evaluation.optimal_reference import single_threaded_blas, solve_sample
-from evaluation.samples import generate_samples
+from snac_gym.trajopt import single_threaded_blas, solve_sample
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.optimality import certified_cost_lower_bounds, regulation_cost_lower_bound

@@ -1,6 +1,6 @@
 """Why the MuJoCo arm's servos are unbounded and its joint limits are enforced on the command (docs/physics.md).
 
-Builds the UR10's physics spec (snac_gym.mujoco_model.build_physics_spec) and, from the seeded
+Builds the UR10's physics spec (snac_gym.physics.mujoco_model.build_physics_spec) and, from the seeded
 start pose of UR10Reach-v0 (seed 0), runs the smooth random command of snac-gym bench --tracking
 for 1000 steps three ways: as built, with the servo forces clamped to the URDF efforts, and with
 MuJoCo's soft joint-limit constraint on instead of the command cut, driving wrist 1 at full speed
@@ -14,9 +14,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from snac_gym.bench import random_command
+from snac_gym.apps.bench import random_command
 from snac_gym.kinematics import Kinematics
-from snac_gym.mujoco_model import build_physics_spec
+from snac_gym.physics.mujoco_model import build_physics_spec
 from snac_gym.sampling import SampleSpace, sample_seed_pose
 
 DT, SUBSTEPS, STEPS = 1.0 / 125.0, 3, 1000

@@ -15,9 +15,9 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from evaluation.jobs import policy_context
-from evaluation.optimal_reference import ReplayPolicy
-from evaluation.samples import generate_samples
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference.optimum import ReplayPolicy
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.rollout import simulate_kinematic
 from snac_gym.sampling import SampleSpace

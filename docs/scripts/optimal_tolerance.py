@@ -5,7 +5,7 @@
 
 Arguments: task, seed, number of samples, sample space (``cuboid``, Table I's, or ``workspace``).
 Each sample is solved from rest twice: with the default stopping rule (a step predicting a gain
-≤ ``GAP_RTOL``·V, :mod:`evaluation.optimal_reference`) and with ``gap_rtol = 0``, ``gtol = 0``
+≤ ``GAP_RTOL``·V, :mod:`snac_gym.evaluation.reference.optimum`) and with ``gap_rtol = 0``, ``gtol = 0``
 and ``ftol = 1e-16`` (until rounding stops it). Prints the mean iterations of the default solve
 and the largest relative excess of its V over the tight one.
 """
@@ -17,8 +17,8 @@ import sys
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from evaluation.optimal_reference import GAP_RTOL, solve_sample
-from evaluation.samples import generate_samples
+from snac_gym.trajopt import GAP_RTOL, solve_sample
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
 

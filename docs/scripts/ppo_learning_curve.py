@@ -30,7 +30,7 @@ COST = ["--cost", "hjb", "--q-scale", "4", "--no-match-effort", "--no-progress",
 
 def evaluate(task: str, seed: int, samples: int, out: Path, controllers: str, *params: str) -> pd.DataFrame:
     if not (out / "results.csv").exists():
-        command = [sys.executable, "-m", "snac_gym.cli", "evaluate", "--task", task, "--seed", str(seed),
+        command = [sys.executable, "-m", "snac_gym.apps.cli", "evaluate", "--task", task, "--seed", str(seed),
                    "--samples", str(samples), "--controllers", controllers, "--out", str(out), *COST, *params]
         subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return pd.read_csv(out / "results.csv")

@@ -21,7 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 import snac_gym  # noqa: F401  (registers the envs)
-from baselines.qp_ik import SOLVER, SOLVER_SETTINGS
+from snac_gym.baselines.qp_ik import SOLVER, SOLVER_SETTINGS
 from snac_gym.policies import make_policy
 
 

@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-from evaluation.jobs import policy_context
-from evaluation.samples import EvaluationSample
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.samples import EvaluationSample
 from snac_gym.metrics import rollout_metrics
 from snac_gym.policies import make_policy
 from snac_gym.references import FixedTarget

@@ -32,7 +32,7 @@ FAULT_EVENTS = ("latency spike", "connections dropped")
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "snac_gym.cli", *args]
+    return [sys.executable, "-m", "snac_gym.apps.cli", *args]
 
 
 def _fault_time(log: Path) -> float | None:

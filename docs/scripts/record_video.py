@@ -15,7 +15,7 @@ import time
 import gymnasium as gym
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.demo import demo_options
+from snac_gym.apps.demo import demo_options
 from snac_gym.policies import make_policy
 from snac_gym.tasks import get_task
 

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from evaluation.samples import generate_samples
+from snac_gym.evaluation.samples import generate_samples
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
 

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from evaluation.jobs import policy_context
-from evaluation.samples import EvaluationSample
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.samples import EvaluationSample
 from snac_gym.metrics import rollout_metrics
 from snac_gym.policies import make_policy
 from snac_gym.rollout import simulate_kinematic

@@ -13,7 +13,7 @@ each row is the one a reader would type. From each ``results.csv`` it prints, pe
 * median ``max_abs_u`` (each rollout's peak |uⱼ|), rad/s.
 
 Usage (about 6 s per configuration on 2 workers; the runs use the code of the checkout that
-holds this script, through ``python -m snac_gym.cli`` with that checkout as working directory)::
+holds this script, through ``python -m snac_gym.apps.cli`` with that checkout as working directory)::
 
     .venv/bin/python docs/scripts/snac_sensitivity.py --out /tmp/sens --samples 200
 
@@ -88,9 +88,9 @@ def run(out: Path, controller: str, params: Sequence[str], samples: int, workers
             raise SystemExit(f"{out} exists and is not empty; remove it or pass --reuse")
         args = command(out, controller, params, samples, workers)
         print("$", shlex.join(args), file=sys.stderr, flush=True)
-        # `python -m snac_gym.cli` from the repository root: the code of this checkout runs,
+        # `python -m snac_gym.apps.cli` from the repository root: the code of this checkout runs,
         # whatever copy of the package the interpreter has installed.
-        subprocess.run([sys.executable, "-m", "snac_gym.cli", *args[1:]], check=True, cwd=REPO, stdout=subprocess.DEVNULL)
+        subprocess.run([sys.executable, "-m", "snac_gym.apps.cli", *args[1:]], check=True, cwd=REPO, stdout=subprocess.DEVNULL)
     return pd.read_csv(results)
 
 

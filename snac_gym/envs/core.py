@@ -14,10 +14,10 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.cost import CostConvention, step_costs, weight_matrix
-from snac_gym.envs.arms import PHYSICS, Arm, make_arm
+from snac_gym.physics import PHYSICS, Arm, make_arm, scene_of
 from snac_gym.envs.ids import IdRobotCheck
-from snac_gym.envs.scene import Scene, default_render_every, scene_of
-from snac_gym.envs.sim import check_image_size
+from snac_gym.physics.scene import default_render_every
+from snac_gym.physics.base import check_image_size
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
@@ -155,7 +155,7 @@ def physics_argument(physics: str, backend: str | None = None) -> str:
     """The ``physics=`` argument, or the deprecated ``backend=`` one (with a ``DeprecationWarning``).
 
     Raises:
-        ValueError: If it is not one of :data:`~snac_gym.envs.arms.PHYSICS`, or both are given and differ.
+        ValueError: If it is not one of :data:`~snac_gym.physics.PHYSICS`, or both are given and differ.
     """
     if backend is not None:
         warnings.warn(
@@ -368,7 +368,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
 
         self.action_type = action_type
         self.observation_dtype = obs_dtype
-        #: The arm's model: ``"pybullet"``, ``"kinematic"`` or ``"mujoco"`` (:data:`~snac_gym.envs.arms.PHYSICS`).
+        #: The arm's model: ``"pybullet"``, ``"kinematic"`` or ``"mujoco"`` (:data:`~snac_gym.physics.PHYSICS`).
         self.physics = physics
         self._build_arm(physics, n_substeps, render_every)
         self._unit_limits = np.ones(self.kinematics.n_joints)  # the bounds of a normalized action
@@ -416,7 +416,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self.render_every = default_render_every(self.dt) if render_every is None else int(render_every)
         if self.render_every < 1:
             raise ValueError(f"render_every must be a positive number of control steps, got {render_every!r}")
-        self._scene: Scene | None = None
+        self._scene: Any = None
         if self.render_mode is not None and not self._headless_human:
             # Built before the first reset: PyBullet restores a saved state only into the same bodies.
             self._scene = scene_of(self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height)

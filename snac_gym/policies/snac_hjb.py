@@ -21,7 +21,7 @@ error and a well-posed critic; its price is that ``u`` is not the minimiser of t
 instantaneous cost (the paper's remark on Kiumarsi et al. 2015).
 
 **Saturation** ``sat``: a command beyond the joint-velocity limits is scaled as a whole into them,
-the rule of the frozen-Jacobian LQR (:class:`baselines.lqr.LQRPolicy`, whose optimum this critic
+the rule of the frozen-Jacobian LQR (:class:`snac_gym.baselines.lqr.LQRPolicy`, whose optimum this critic
 learns), so that the two differ only in the critic. Scaling keeps the direction of ``u`` and of
 ``ė = J u``: a feedback that decreases ``½‖e‖²`` (``eᵀJu < 0``) still does when saturated, only
 slower, while clipping each joint turns ``J u`` away from the error and can undo that decrease.
@@ -100,7 +100,7 @@ def _excitation_directions(dim: int) -> np.ndarray:
 def _scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
     """Each row of ``commands`` ``(B, m)`` divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1.
 
-    :func:`baselines._common.scale_rows_into_box`, LQR's rule (module docstring), written out here
+    :func:`snac_gym.baselines._common.scale_rows_into_box`, LQR's rule (module docstring), written out here
     so that the core package does not import the baselines.
     """
     scales = np.max(np.abs(commands) / limits, axis=-1, keepdims=True)
@@ -268,7 +268,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
             current: The current error direction e/‖e‖ (0 at e = 0), ``(B, n)``.
             step: α·Δt (1: a full Kleinman step).
         """
-        from snac_gym.policies.hjb_kernel import residual_steps  # numba: imported where first needed
+        from snac_gym.kernels.hjb import residual_steps  # numba: imported where first needed
 
         return residual_steps(
             np.ascontiguousarray(weights), np.ascontiguousarray(gram_matrix), np.ascontiguousarray(current),

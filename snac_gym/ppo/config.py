@@ -135,7 +135,7 @@ class ConfigError(ValueError):
 MAX_SEED = 2**32 - 1
 #: Widest hidden layer accepted: 4096 units already make a 16 M-weight layer; wider is a typo.
 MAX_LAYER_WIDTH = 4096
-#: Longest evaluation horizon, s: the evaluator's bound (``evaluation.run_config``), 125 000 steps.
+#: Longest evaluation horizon, s: the evaluator's bound (``snac_gym.evaluation.run_config``), 125 000 steps.
 MAX_HORIZON_S = 1000.0
 
 Check = Callable[[Any, str], Any]

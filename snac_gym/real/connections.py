@@ -522,8 +522,8 @@ class SimulatedConnection:
         realtime: bool = True,
         home: np.ndarray | None = None,
     ) -> None:
-        from snac_gym.envs.robot import SimulatedArm
-        from snac_gym.envs.sim import PyBulletSim
+        from snac_gym.physics.bullet import SimulatedArm
+        from snac_gym.physics.bullet import PyBulletSim
 
         self.kinematics = kinematics if kinematics is not None else Kinematics("ur10")
         self.frequency = float(frequency)

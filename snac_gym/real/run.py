@@ -290,7 +290,7 @@ def _run_and_stop(
     from snac_gym.policies.base import PolicyContext
     from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
 
-    from snac_gym.compiled import POLICY_KERNEL_MODULES, warm_up
+    from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
 
     log = None
     try:
@@ -344,7 +344,7 @@ def _write_outputs(
     plots: bool,
     policy_kwargs: dict[str, Any] | None,
 ) -> RealRunResult:
-    from snac_gym.demo import write_demo_outputs
+    from snac_gym.apps.demo import write_demo_outputs
 
     log.attrs["controller"] = controller
     log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
@@ -435,7 +435,7 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
     )
     files = [timing_csv, summary]
     if plots and len(periods):
-        from snac_gym.plots import plot_loop_timing, save_figure
+        from snac_gym.apps.plots import plot_loop_timing, save_figure
 
         files.append(
             save_figure(plot_loop_timing(periods["period_ms"].to_numpy(), env.dt), out / f"{prefix}timing.png")

@@ -175,13 +175,13 @@ def lockstep_arms(robot: str, task: str, dt: float, steps: int, physics: str, co
     """``count`` arms of the env of (robot, task, Δt, physics), for the lockstep engine, and the env's kinematics.
 
     The env's physics exactly (model, substeps, motors or servos): for ``"mujoco"`` replicas of the
-    (cached) env's arm (:meth:`~snac_gym.envs.mujoco_sim.MuJoCoArm.replica`, one ``MjData`` each), for
-    ``"pybullet"`` a :class:`~snac_gym.envs.arms.PyBulletArmBatch` with the env's Δt and substeps.
+    (cached) env's arm (:meth:`~snac_gym.physics.mujoco.MuJoCoArm.replica`, one ``MjData`` each), for
+    ``"pybullet"`` a :class:`~snac_gym.physics.PyBulletArmBatch` with the env's Δt and substeps.
 
     Raises:
         ValueError: If ``physics`` is not a simulated engine.
     """
-    from snac_gym.envs.arms import ArmList, PyBulletArmBatch
+    from snac_gym.physics import ArmList, PyBulletArmBatch
 
     if physics not in ("mujoco", "pybullet"):
         raise ValueError(f"lockstep arms are simulated: physics must be 'mujoco' or 'pybullet', got {physics!r}")

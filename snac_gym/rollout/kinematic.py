@@ -121,7 +121,7 @@ def simulate_kinematic(
         context: The policy context (kinematics, Δt, limits, layout, task).
         make_policy: Builds one policy object for ``context``.
         samples: The B samples (all of ``context.task``): each has ``q0``, ``reference``,
-            ``task`` and ``index`` (an :class:`~evaluation.samples.EvaluationSample`).
+            ``task`` and ``index`` (an :class:`~snac_gym.evaluation.samples.EvaluationSample`).
         steps: Control steps K per rollout.
         seeds: Reset seed of each sample's policy.
         use_batch: Use a policy's batch protocol when it has one.
@@ -130,7 +130,7 @@ def simulate_kinematic(
             commands and errors, and leaving them out saves a third of the memory traffic).
         plant: The kinematics the arm moves by (default ``context.kinematics``); a policy given a
             wrong model (``--model-error``) gets it in ``context`` while the plant stays true.
-        arms: Simulated arms, one per sample (an :class:`~snac_gym.envs.arms.ArmBatch`), stepped instead
+        arms: Simulated arms, one per sample (an :class:`~snac_gym.physics.ArmBatch`), stepped instead
             of the exact model: θ and θ̇ are then what each arm measures, as in the env of that arm,
             and x is ``plant``'s forward kinematics of the measured θ (the env's). The physics
             engines' path (:func:`simulate_arms`).
@@ -222,7 +222,7 @@ def simulate_arms(
     label: str = "policy",
     keep_states: bool = True,
 ) -> Rollouts:
-    """Roll out ``samples`` on simulated ``arms`` (an :class:`~snac_gym.envs.arms.ArmBatch`, one arm per
+    """Roll out ``samples`` on simulated ``arms`` (an :class:`~snac_gym.physics.ArmBatch`, one arm per
     sample) in lockstep: the env's loop, batched.
 
     Each step is what the env of these arms does (:meth:`~snac_gym.envs.core.TaskEnvCore.step`): the

@@ -22,7 +22,7 @@ from snac_gym.sampling import SampleSpace
 
 
 class CellReader(Protocol):
-    """Typed access to one row of a samples CSV (see :mod:`evaluation.samples`)."""
+    """Typed access to one row of a samples CSV (see :mod:`snac_gym.evaluation.samples`)."""
 
     def number(self, column: str, default: float | None = None) -> float:
         """The cell as a finite float (``default`` when empty); raises naming the row and column."""

@@ -15,7 +15,7 @@ registered robot: ``snac_gym/UR10PoseReach-v0``, ``snac_gym/PandaPoseEllipseTrac
 ``task_error``; the ``optimal`` reference solves for the log₃ error with its exact Jacobian
 (:func:`pose_errors_and_jacobians`).
 
-Samples CSV (:mod:`evaluation.samples`): a pose row holds its position reference in the position
+Samples CSV (:mod:`snac_gym.evaluation.samples`): a pose row holds its position reference in the position
 task's columns (``target_0..2`` for ``pose-reach``, the ellipse columns for ``pose-track``) and the
 target orientation in :data:`ROTVEC_COLUMNS` ``rotvec_0..2``: the rotation vector r_d = log₃ R_d
 (rad, base frame; axis times angle).

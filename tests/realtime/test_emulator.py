@@ -365,7 +365,7 @@ def test_snac_gym_real_against_the_emulator_reaches_within_1mm_with_the_usual_ou
 def test_emulate_ur_command_serves_on_free_ports_and_refuses_bad_flags():
     from typer.testing import CliRunner
 
-    from snac_gym.cli import app
+    from snac_gym.apps.cli import app
 
     command = ["emulate-ur", "--port-base", "0", "--duration", "0.3"]
     outcome = CliRunner().invoke(app, command + ["--protective-stop-at", "1", "--latency-spike", "2,0.1"])

@@ -49,7 +49,7 @@ SWEEP = np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
 
 
 def _start_real(out: Path, steps: int = 625) -> subprocess.Popen[str]:
-    command = [sys.executable, "-m", "snac_gym.cli", "real", "--host", HOST, "--task", "reach",
+    command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", HOST, "--task", "reach",
                "--controller", "snac", "--out", str(out), "--steps", str(steps)]  # fmt: skip
     return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

@@ -1,0 +1,171 @@
+"""The unit of work: one controller with one knob setting on a chunk of samples.
+
+A :class:`RolloutJob` is plain data (picklable for worker processes and Ray); :func:`run_job`
+rolls it out on its engine and returns one metrics row per sample, plus the per-step logs
+when asked. It is the only code that runs in the workers.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from snac_gym.evaluation.samples import EvaluationSample
+from snac_gym.cost import CostConvention
+from snac_gym.kinematics import Kinematics, shared_kinematics, shared_pose_kinematics
+from snac_gym.metrics import rollout_metrics
+from snac_gym.observation import ObservationLayout
+from snac_gym.policies.base import PolicyContext
+from snac_gym.policies.registry import make_policy
+from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_kinematic
+from snac_gym.tasks import TASKS as TASK_REGISTRY
+from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
+
+#: How a job's samples are rolled out: the exact kinematic model in lockstep, or the env with the
+#: arm in PyBullet or MuJoCo (``physics=`` of the env), one episode after the other.
+ENGINES = ("kinematic", "pybullet", "mujoco")
+
+
+@dataclass(frozen=True)
+class RolloutJob:
+    """One controller, one set of constructor arguments, a chunk of samples of one task.
+
+    Attributes:
+        task: The task's name.
+        controller: Registered policy name.
+        kwargs: Constructor arguments (the effort knob included).
+        samples: The chunk's samples.
+        seeds: Each sample's policy (and env) reset seed.
+        steps: Control steps per rollout.
+        dt: Control period, s.
+        robot: Robot name.
+        engine: ``"kinematic"``, ``"pybullet"`` or ``"mujoco"``.
+        keep_logs: Return the per-step logs.
+        use_batch: Let the kinematic engine use a policy's batch protocol.
+        convention: The cost the rollouts are scored by.
+        model_error: The controller's arm model differs from the plant's by this
+            (:mod:`snac_gym.model_error` text; ``None``: the true model).
+    """
+
+    task: str
+    controller: str
+    kwargs: dict[str, Any]
+    samples: tuple[EvaluationSample, ...]
+    seeds: tuple[int, ...]
+    steps: int
+    dt: float
+    robot: str = "ur10"
+    engine: str = "kinematic"
+    keep_logs: bool = False
+    use_batch: bool = True
+    convention: CostConvention = field(default_factory=CostConvention)
+    model_error: str | None = None
+
+
+@dataclass
+class JobResult:
+    """What a job returns: metrics rows (column ``sample`` identifies them) and optional logs."""
+
+    metrics: pd.DataFrame
+    logs: list[pd.DataFrame] | None = field(default=None)
+
+
+def task_kinematics(robot: str, task: str) -> Any:
+    """The kinematics of ``task``'s coordinates on ``robot``, shared per process.
+
+    The position kinematics for the position tasks (x = p, n = 3); the pose kinematics for a pose
+    task (x = [p; log₃ R], n = 6, and its own ``task_error``), as the task's env builds them. A pose
+    task is registered here if it is not yet: a worker that did not inherit the parent's registry
+    (Ray, a spawned process) must still resolve its name.
+    """
+    if is_pose_task(task):
+        if task not in TASK_REGISTRY:
+            register_pose_tasks()
+        return shared_pose_kinematics(robot)
+    return shared_kinematics(robot)
+
+
+@functools.lru_cache(maxsize=8)
+def model_kinematics(robot: str, model_error: str) -> Kinematics:
+    """The wrong arm model a controller is given under ``--model-error`` (one per process and error)."""
+    return Kinematics(robot, model_error=model_error)
+
+
+def policy_context(robot: str, dt: float, task: str, model_error: str | None = None) -> PolicyContext:
+    """The context a policy is built from in the kinematic engine (the env's limits and layout).
+
+    With ``model_error``, its kinematics is the wrong model (:func:`model_kinematics`), which only
+    the controller sees: the engine's plant stays :func:`task_kinematics`.
+    """
+    kinematics = task_kinematics(robot, task) if model_error is None else model_kinematics(robot, model_error)
+    return PolicyContext(
+        kinematics,
+        float(dt),
+        kinematics.velocity_limits.copy(),
+        ObservationLayout(kinematics.n_joints, kinematics.task_dim),
+        task,
+    )
+
+
+def kinematic_logs(rollouts: Any, samples: Sequence[Any], seeds: Sequence[int], attrs: dict[str, Any],
+                   limits: np.ndarray) -> list[Any]:
+    """The per-step logs of kinematic-engine rollouts, with the demo's columns and metadata."""
+    return [
+        rollouts.log(
+            i,
+            {
+                **attrs,
+                "sample": s.index,
+                "seed": seed,
+                "options": s.reset_options(),
+                "reference": s.reference.to_dict(),
+                "velocity_limits": limits.tolist(),
+                "engine": "kinematic",
+            },
+        )
+        for i, (s, seed) in enumerate(zip(samples, seeds, strict=True))
+    ]
+
+
+def run_job(job: RolloutJob) -> JobResult:
+    """Roll out ``job`` and measure every rollout (see :mod:`snac_gym.metrics`)."""
+    attrs = {"task": job.task, "policy": job.controller, "policy_kwargs": dict(job.kwargs)}
+    if job.engine == "kinematic":
+        context = policy_context(job.robot, job.dt, job.task, job.model_error)
+        make = functools.partial(make_policy, job.controller, context, **job.kwargs)
+        rollouts = simulate_kinematic(
+            context, make, job.samples, job.steps, job.seeds, job.use_batch, job.controller,
+            keep_states=job.keep_logs, plant=task_kinematics(job.robot, job.task),
+        )  # fmt: skip
+        limits = context.velocity_limits
+        logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
+    elif job.engine in ENGINES:  # one simulated arm per sample, in lockstep (the env's physics, batched)
+        context = policy_context(job.robot, job.dt, job.task, job.model_error)
+        make = functools.partial(make_policy, job.controller, context, **job.kwargs)
+        arms, plant = lockstep_arms(job.robot, job.task, job.dt, job.steps, job.engine, len(job.samples))
+        try:
+            rollouts = simulate_arms(
+                context, make, job.samples, job.steps, job.seeds, arms, plant, job.use_batch, job.controller,
+                keep_states=True,  # the joint-limit margin needs the measured θₖ (limit_margins rebuilds exact-model ones only)
+            )  # fmt: skip
+        finally:
+            arms.close()  # a job's PyBullet worlds are physics servers: not left to the garbage collector
+        limits = context.velocity_limits
+        logs = None
+        if job.keep_logs:
+            logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits)
+            for log in logs:
+                log.attrs["engine"] = job.engine
+    else:
+        raise ValueError(f"unknown engine {job.engine!r}")
+    kinematics = shared_kinematics(job.robot)
+    metrics = rollout_metrics(
+        rollouts, job.task, limits, job.convention, (kinematics.lower_limits, kinematics.upper_limits)
+    )
+    metrics.insert(0, "sample", [s.index for s in job.samples])
+    return JobResult(metrics, logs)

@@ -1,0 +1,351 @@
+"""The ``optimal`` reference: each sample's numerical optimum of the evaluator's trajectory cost.
+
+For one sample (seed pose θ₀, reference x_d known over the whole horizon) it solves
+
+    min_U  V(U) = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt,   k = 0..K−1,  Q = I₃, R = I₆
+    s.t.   θₖ₊₁ = θₖ + uₖΔt,  |uₖⱼ| ≤ ūⱼ,  θ⁻ ≤ θₖ ≤ θ⁺ (k = 1..K),  u₋₁ = 0,  u̇ₖ = (uₖ − uₖ₋₁)/Δt,
+           eₖ = f(θₖ) − x_d(tₖ)
+
+(on a pose task, x = [p; log₃ R] and eₖ = [p − p_d; log₃(R R_dᵀ)] with Q = I₆, differentiated exactly:
+:func:`snac_gym.tasks.pose.pose_errors_and_jacobians`) over the evaluator's horizon, Δt and
+discretisation (docs/optimal.md), for the run's cost
+convention (:class:`snac_gym.cost.CostConvention`: without the u̇ term for ``--cost hjb``, u₋₁ = u₀
+for ``--udot-start first``, Q = q·I for ``--q-scale``). It is an *open-loop*
+reference computed with knowledge of the whole reference, not a controller.
+(Not :mod:`snac_gym.optimality`: that is the frozen-Jacobian, infinite-horizon optimum the critics
+are compared with; this is the whole trajectory's, over the evaluator's finite horizon.)
+
+**Method**: :func:`snac_gym.trajopt.solve_sample` (Gauss-Newton in θ, a primal-dual interior point where
+the unconstrained optimum breaks a joint position or velocity limit: column ``optimal_bounded``; the
+limits are those the success rule counts, ``--reference-limits velocity`` keeps the velocity limits
+only). **Starts** (:func:`multi_start_solve`): U = 0 (the robot at rest), then the reference's own
+feedback rollouts (:data:`OWN_STARTS`, fixed settings), each screened by :data:`SCREEN_ITERATIONS`
+Gauss-Newton steps; the best local optimum is kept (``optimal_starts``, ``optimal_winner``,
+``optimal_local_spread``). The reference is thus a function of the sample alone, never of the
+controllers it judges, and can be beaten: a controller that keeps the limits and costs less is a
+failure of the reference, reported as such. ``optimal_gradient`` records the final max-norm gradient
+in the preconditioned variables, ``optimal_gap_estimate`` the solver's estimate of V − V*
+(:mod:`snac_gym.trajopt`: tolerance).
+
+The reported cost of the solution is *not* the solver's value: the command sequence is rolled
+out by :func:`snac_gym.rollout.simulate_kinematic` (an open-loop replay policy) and measured by
+:func:`snac_gym.metrics.rollout_metrics`, the path every controller takes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from snac_gym.evaluation.samples import EvaluationSample
+from snac_gym.cost import CostConvention
+from snac_gym.metrics import rollout_metrics
+from snac_gym.rollout import reference_trajectories, simulate_kinematic
+from snac_gym.trajopt import (
+    FTOL,
+    GAP_RTOL,
+    GTOL,
+    LIMIT_CLEARANCE,
+    Limits,
+    OptimalSolution,
+    gauss_newton,
+    position_bounds,
+    single_threaded_blas,
+    solve_sample,
+    trajectory_cost_and_gradient,
+)
+
+#: Name of the reference row in the results (selectable with ``--controllers optimal,...``).
+OPTIMAL = "optimal"
+#: Row label in the reports.
+OPTIMAL_LABEL = "Optimal (open-loop reference, whole reference known)"
+#: The reference's constraints (``--reference-limits``): the joint position and velocity limits (the
+#: success rule's), or the velocity limits only.
+REFERENCE_LIMITS = ("joints", "velocity")
+#: Row label of the variant that keeps the velocity limits only.
+OPTIMAL_VELOCITY_ONLY_LABEL = "Optimal, joint position limits ignored (open-loop reference, whole reference known)"
+#: Extra columns of the optimal rows.
+SOLVER_COLUMNS = (
+    "optimal_iterations",
+    "optimal_evaluations",
+    "optimal_gradient",
+    "optimal_gap_estimate",
+    "optimal_converged",
+    "optimal_bounded",
+    "optimal_solver_cost",
+    "optimal_solve_time",
+    "optimal_starts",
+    "optimal_winner",
+    "optimal_local_spread",
+    "optimal_lower_bound",
+    "optimal_limits",
+)
+#: Gauss-Newton steps a start of the reference's own is screened by (:func:`multi_start_solve`).
+SCREEN_ITERATIONS = 3
+#: A screened start is solved to the end when it then costs less than (1 + SCREEN_MARGIN) times the
+#: best optimum so far.
+SCREEN_MARGIN = 0.1
+#: Name of the start at rest (U = 0) in ``optimal_winner``.
+REST_START = "rest"
+
+
+class ReplayPolicy:
+    """An open-loop "policy" that replays precomputed command sequences (batch protocol).
+
+    Used only to roll the optimal commands out through :func:`simulate_kinematic`, so that the
+    optimum is measured exactly like every controller.
+    """
+
+    def __init__(self, commands: np.ndarray) -> None:
+        self._commands = np.asarray(commands, dtype=float)  # (B, K, m)
+        self._step = 0
+
+    def reset_batch(self, seeds: Sequence[int]) -> None:
+        self._step = 0
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        commands = self._commands[:, self._step]
+        self._step += 1
+        return commands.copy()
+
+
+#: The reference's own starts besides rest: feedback laws of this project at fixed settings, rolled out
+#: on the true model (kept strictly inside the position limits by Ω(θ) where the reference keeps them:
+#: :func:`own_start_commands`). They are the reference's, not the run's: a sample gets the same starts
+#: whatever ``--controllers`` says.
+OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (("lqr", {"q_scale": 9.0}), ("dls", {}))
+
+
+@dataclass(frozen=True)
+class OptimalJob:
+    """The optimum of a chunk of samples of one task (picklable, like a :class:`RolloutJob`).
+
+    It depends on the samples, the horizon, the cost and the arm only, never on the run's contestants.
+    ``position_limits``: keep the joint position limits as hard constraints (the default reference);
+    ``False`` gives the variant that keeps the velocity limits only. ``cache_dir``: reuse and store
+    the rows there by sample content (:mod:`snac_gym.evaluation.reference.cache`); ``None``: solve every sample.
+    """
+
+    task: str
+    samples: tuple[EvaluationSample, ...]
+    seeds: tuple[int, ...]
+    steps: int
+    dt: float
+    robot: str = "ur10"
+    keep_logs: bool = False
+    convention: CostConvention = field(default_factory=CostConvention)
+    position_limits: bool = True
+    screen_margin: float = SCREEN_MARGIN
+    cache_dir: str | None = None
+
+
+@dataclass
+class MultiStart:
+    """The best of several local optima of one sample.
+
+    Attributes:
+        solution: The winning solve.
+        winner: Its start: :data:`REST_START` or the name of one of :data:`OWN_STARTS`.
+        starts: How many solves ran.
+        spread: (worst − best) / best over the local optima found (0 with one start).
+    """
+
+    solution: OptimalSolution
+    winner: str
+    starts: int
+    spread: float
+
+
+def multi_start_solve(
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Any,
+    dt: float,
+    limits: np.ndarray,
+    convention: CostConvention,
+    candidates: dict[str, np.ndarray],
+    margin: float = SCREEN_MARGIN,
+    first: OptimalSolution | None = None,
+    position_limits: tuple[np.ndarray, np.ndarray] | None = None,
+) -> MultiStart:
+    """Solve from rest, then from every candidate command sequence whose basin could win.
+
+    The cost is not convex (the arm can reach a target the other way round, on another IK branch), so
+    the solve from rest finds *a* local optimum. A feedback law's trajectory lies in some basin; a
+    solve started there descends to that basin's optimum. A candidate's own cost says little about its
+    basin (under Table I's cost a feedback law pays mostly for its first command's jump, which the first
+    Gauss-Newton step removes), so each candidate is screened by :data:`SCREEN_ITERATIONS` Gauss-Newton
+    steps, and solved to the end only where it then costs less than (1 + ``margin``) × the best optimum
+    so far. The candidates are the reference's own (:data:`OWN_STARTS`), never the contestants it judges.
+
+    ``first``: the solve from rest, when already made.
+    """
+    solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
+                              position_limits=position_limits)  # fmt: skip
+    best = first if first is not None else solve()
+    winner, optima = REST_START, [best.cost]
+    for name, commands in candidates.items():
+        screened, screened_cost, *_ = gauss_newton(
+            q0, x_d, kinematics, float(dt), commands, GTOL, FTOL, SCREEN_ITERATIONS, convention
+        )
+        if not screened_cost < (1.0 + margin) * best.cost:
+            continue
+        solution = solve(initial=screened, interior_start=commands)
+        optima.append(solution.cost)
+        if solution.cost < best.cost:
+            best, winner = solution, name
+    spread = (max(optima) - min(optima)) / min(optima) if len(optima) > 1 and min(optima) > 0 else 0.0
+    return MultiStart(best, winner, len(optima), float(spread))
+
+
+def own_start_commands(
+    context: Any, samples: Sequence[Any], steps: int, seeds: Sequence[int], joint_limits: bool = True
+) -> list[dict[str, np.ndarray]]:
+    """Per sample, the command sequence of each of :data:`OWN_STARTS`, rolled out on the true model.
+
+    ``joint_limits``: keep them inside the position limits (Ω(θ)); ``False`` for the problem without
+    position limits, whose better basins may lie beyond them.
+    """
+    from snac_gym.policies.registry import make_policy
+
+    starts: list[dict[str, np.ndarray]] = [{} for _ in samples]
+    for name, kwargs in OWN_STARTS:
+        make = functools.partial(make_policy, name, context, **{**kwargs, "joint_limits": joint_limits})
+        rollouts = simulate_kinematic(context, make, samples, steps, seeds, True, name, keep_states=False)
+        for i in range(len(samples)):
+            starts[i][name] = rollouts.commands[i]
+    return starts
+
+
+def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.ndarray, costs: np.ndarray) -> np.ndarray:
+    """:func:`snac_gym.optimality.certified_cost_lower_bounds` per sample of a position task (reach or track,
+    under the run's cost), else NaN: certified for every command sequence within the velocity limits. The
+    optimum's cost is its V̄ (the reachable set's size, which tightens the Lipschitz constant): the bound
+    holds for any V̄, so the reference does not certify itself."""
+    from snac_gym.optimality import certified_cost_lower_bounds
+
+    if getattr(kinematics, "task_error", None) is not None:
+        return np.full(len(job.samples), np.nan)
+    q0s = np.array([s.q0 for s in job.samples], dtype=float)
+    return certified_cost_lower_bounds(kinematics, q0s, x_d, job.dt, job.convention, limits, costs)
+
+
+def run_optimal_job(job: OptimalJob) -> Any:
+    """Solve every sample of ``job``, roll the solutions out and measure them like a controller's.
+
+    With ``job.cache_dir`` (and no trajectories asked for), the samples whose rows are cached are not
+    solved again, and the rows solved here are stored.
+
+    Returns a :class:`snac_gym.evaluation.execution.jobs.JobResult` whose metrics carry :data:`SOLVER_COLUMNS` too.
+    """
+    from snac_gym.evaluation.reference import cache as reference_cache
+    from snac_gym.evaluation.execution.jobs import JobResult
+
+    if job.cache_dir is None or job.keep_logs:
+        return _solve_job(job)
+    folder = Path(job.cache_dir)
+    keys = [reference_cache.sample_key(job, sample) for sample in job.samples]
+    cached = reference_cache.read_rows(folder, keys)
+    missing = [i for i, row in enumerate(cached) if row is None]
+    rows: list[dict[str, Any] | None] = [None if row is None else {"sample": s.index, **row}
+                                         for row, s in zip(cached, job.samples, strict=True)]  # fmt: skip
+    if missing:
+        subset = dataclasses.replace(job, samples=tuple(job.samples[i] for i in missing),
+                                     seeds=tuple(job.seeds[i] for i in missing))  # fmt: skip
+        solved = _solve_job(subset).metrics
+        reference_cache.write_rows(folder, [keys[i] for i in missing], solved)
+        for i, record in zip(missing, solved.to_dict("records"), strict=True):
+            rows[i] = record
+    return JobResult(pd.DataFrame(rows), None)
+
+
+def _solve_job(job: OptimalJob) -> Any:
+    """:func:`run_optimal_job` without the cache."""
+    from snac_gym.evaluation.execution.jobs import JobResult, kinematic_logs, policy_context
+
+    context = policy_context(job.robot, job.dt, job.task)
+    kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
+    times = np.arange(job.steps) * job.dt
+    x_d, _, _ = reference_trajectories([s.reference for s in job.samples], times, context.layout.task_dim)
+    q0s = [np.asarray(s.q0, dtype=float) for s in job.samples]
+    position_limits = (kinematics.lower_limits, kinematics.upper_limits) if job.position_limits else None
+    with single_threaded_blas():
+        rest = [solve_sample(q0, x_d[i], kinematics, job.dt, limits, convention=job.convention,
+                             position_limits=position_limits) for i, q0 in enumerate(q0s)]  # fmt: skip
+        candidates = own_start_commands(context, job.samples, job.steps, job.seeds, job.position_limits)
+        results = [
+            multi_start_solve(q0, x_d[i], kinematics, job.dt, limits, job.convention, candidates[i],
+                              job.screen_margin, rest[i], position_limits)
+            for i, q0 in enumerate(q0s)
+        ]  # fmt: skip
+    solutions = [result.solution for result in results]
+    commands = np.stack([s.commands for s in solutions])
+    rollouts = simulate_kinematic(
+        context, lambda: ReplayPolicy(commands), job.samples, job.steps, job.seeds, True, OPTIMAL
+    )
+    metrics = rollout_metrics(rollouts, job.task, limits, job.convention, (kinematics.lower_limits, kinematics.upper_limits))
+    metrics.insert(0, "sample", [s.index for s in job.samples])
+    metrics["optimal_iterations"] = np.array([s.iterations for s in solutions], dtype=np.int64)
+    metrics["optimal_evaluations"] = np.array([s.evaluations for s in solutions], dtype=np.int64)
+    metrics["optimal_gradient"] = [s.gradient for s in solutions]
+    metrics["optimal_gap_estimate"] = [s.gap_estimate for s in solutions]
+    metrics["optimal_converged"] = [s.converged for s in solutions]
+    metrics["optimal_bounded"] = [s.bounded for s in solutions]
+    metrics["optimal_solver_cost"] = [s.cost for s in solutions]
+    metrics["optimal_solve_time"] = [s.seconds for s in solutions]
+    metrics["optimal_starts"] = np.array([r.starts for r in results], dtype=np.int64)
+    metrics["optimal_winner"] = [r.winner for r in results]
+    metrics["optimal_local_spread"] = [r.spread for r in results]
+    metrics["optimal_limits"] = REFERENCE_LIMITS[0] if job.position_limits else REFERENCE_LIMITS[1]
+    metrics["optimal_lower_bound"] = _lower_bounds(job, kinematics, x_d, limits, np.array([s.cost for s in solutions]))
+    attrs = {"task": job.task, "policy": OPTIMAL, "policy_kwargs": {}}
+    logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
+    return JobResult(metrics, logs)
+
+
+def add_optimality(results: pd.DataFrame) -> pd.DataFrame:
+    """Add ``ratio_to_optimal`` (cost / the optimal row's cost of the same task and sample) and
+    ``below_optimal`` (the row's cost is below the optimum: the solver did not converge there)."""
+    if OPTIMAL not in set(results["controller"]):
+        return results
+    optimum = results[results["controller"] == OPTIMAL].set_index(["task", "sample"])["cost"]
+    keys = pd.MultiIndex.from_frame(results[["task", "sample"]])
+    reference = optimum.reindex(keys).to_numpy()
+    results = results.copy()
+    results["ratio_to_optimal"] = results["cost"].to_numpy() / reference
+    results["below_optimal"] = results["cost"].to_numpy() < reference
+    return results
+
+
+__all__ = [
+    "FTOL",
+    "GAP_RTOL",
+    "GTOL",
+    "OPTIMAL",
+    "OPTIMAL_LABEL",
+    "MultiStart",
+    "OptimalJob",
+    "OptimalSolution",
+    "REST_START",
+    "SCREEN_ITERATIONS",
+    "SCREEN_MARGIN",
+    "OWN_STARTS",
+    "REFERENCE_LIMITS",
+    "Limits",
+    "own_start_commands",
+    "position_bounds",
+    "LIMIT_CLEARANCE",
+    "ReplayPolicy",
+    "add_optimality",
+    "run_optimal_job",
+    "multi_start_solve",
+    "solve_sample",
+    "trajectory_cost_and_gradient",
+]

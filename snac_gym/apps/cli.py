@@ -1,0 +1,423 @@
+"""The ``snac-gym`` command: a thin face over importable functions.
+
+Each subcommand parses its options and calls a function that can be used from Python as well.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+import types
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from snac_gym._signals import cannot_raise_here, send_again
+
+app = typer.Typer(
+    name="snac-gym",
+    help="SNAC kinematic control of UR arms: demos, the paper's evaluation, benchmarks.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from snac_gym import __version__
+
+        typer.echo(f"snac-gym {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def root(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit."),
+) -> None:
+    """SNAC kinematic control of UR arms: demos, the paper's evaluation, benchmarks."""
+
+
+def _renamed_option(new: str, value: str, old: str, old_value: str | None, default: str) -> str:
+    """The value of option ``new``, or of its hidden deprecated name ``old`` (a ``DeprecationWarning``).
+
+    Raises:
+        typer.BadParameter: If both are given with different values.
+    """
+    if old_value is None:
+        return value
+    warnings.warn(f"{old} is deprecated; use {new}", DeprecationWarning, stacklevel=2)
+    if value not in (default, old_value):
+        raise typer.BadParameter(f"give {new} only ({old} is its deprecated name)", param_hint=new)
+    return old_value
+
+
+def _check_task(task: str) -> None:
+    """Refuse a ``--task`` that names no registered task."""
+    from snac_gym.tasks import task_names
+
+    if task not in task_names():
+        raise typer.BadParameter(f"must be one of {sorted(task_names())}", param_hint="--task")
+
+
+@app.command()
+def bench(
+    steps: int = typer.Option(5000, "--steps", help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two ids in both engines at the bound)."),
+    panda: bool = typer.Option(True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."),
+    substeps: bool = typer.Option(False, "--substeps", help="Also run the physics-substep accuracy study."),
+    tracking: bool = typer.Option(False, "--tracking", help="Also measure how closely PyBullet and MuJoCo follow the exact kinematic model under random commands (UR10 and Panda, 5 episodes each)."),
+    act: bool = typer.Option(False, "--act", help="Also time one act() call of every available policy that imports."),
+    act_calls: int = typer.Option(5000, "--act-calls", help="Timed act() calls per policy and task, 100 to 1,000,000 (timings kept in memory, 8 B each; ~100 s per policy and task at the bound)."),
+    vector: bool = typer.Option(False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."),
+) -> None:
+    """Env steps per second and real-time factor of both ids, in PyBullet and MuJoCo, on one core (and, with --act, act latency)."""
+    from snac_gym.apps.bench import check_bench_counts, format_env_bench, run_env_bench, run_substep_study
+
+    try:  # both before the first measurement, which a bad --act-calls would otherwise follow by minutes
+        check_bench_counts(steps, act_calls)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+    typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
+    if vector:
+        from snac_gym.apps.bench import format_vector_bench, run_vector_bench
+
+        typer.echo("\nbatched kinematic vector env (gym.make_vec(..., vectorization_mode='vector_entry_point')), one core")
+        typer.echo(format_vector_bench(run_vector_bench()))
+    if tracking:
+        from snac_gym.apps.bench import format_tracking_study, run_tracking_study
+
+        typer.echo("\nfollowing the exact kinematic model θₖ₊₁ = θₖ + uₖΔt over 1000 steps, worst of 5 episodes")
+        typer.echo(format_tracking_study(run_tracking_study()))
+    if substeps:
+        typer.echo("\nphysics substeps: deviation from exact integration θ += u·dt over 1000 steps")
+        for row in run_substep_study():
+            typer.echo(
+                f"  n_substeps={row['n_substeps']} ({row['physics_dt_ms']:.1f} ms): max |Δθ| = "
+                f"{row['max_joint_position_error_rad']:.2e} rad, max |θ̇ − u| = "
+                f"{row['max_joint_velocity_error_rad_s']:.2e} rad/s, {row['steps_per_s']:.0f} steps/s"
+            )
+    if act:
+        from snac_gym.apps.bench import format_act_bench, run_act_bench
+        from snac_gym.policies import available_policies
+
+        typer.echo("\nact latency on one core, closed loop from the paper's θ0 (goal: median ≤ 20 µs, p99 ≤ 100 µs)")
+        typer.echo(format_act_bench(run_act_bench(names=available_policies(), calls=act_calls)))
+
+
+@app.command()
+def demo(
+    task: str = typer.Option("reach", "--task", help="reach (fixed target) or track (the paper's circle)."),
+    controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
+    out: Path = typer.Option(Path("demo_out"), "--out", help="Folder for the PNG panels, the log and summary.json."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets, ≥ 0 (a NumPy seed)."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control steps (default: 1500 reach = 12 s, 2500 track = 20 s)."),
+    duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."),
+    csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
+    plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),
+    robot: str = typer.Option("ur10", "--robot", help="A registered robot: ur3, ur5, ur10, panda, xarm7 (docs/robots.md)."),
+    model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controller a wrong arm model (as for evaluate); the simulated arm keeps the true one."),
+) -> None:
+    """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
+    from snac_gym.apps.demo import run_demo
+
+    _check_task(task)
+    if steps is not None and duration is not None:
+        raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
+    try:
+        result = run_demo(task=task, controller=controller, out_dir=out, seed=seed, steps=steps, duration=duration,
+                          csv=csv, plots=plots, robot=robot, model_error=model_error)
+    except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+    typer.echo(result.summary())
+
+
+@app.command()
+def real(
+    host: Optional[str] = typer.Option(None, "--host", help="IP of the UR controller (--connection rtde)."),
+    task: str = typer.Option("reach", "--task", help="reach or track: the demo's start pose and reference."),
+    controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
+    out: Path = typer.Option(Path("real_out"), "--out", help="Folder for the log, the panels and the loop timing."),
+    connection: str = typer.Option("rtde", "--connection", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."),
+    backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --connection."),
+    series: str = typer.Option("cb", "--series", help="cb (CB-series, 125 Hz) or e (e-Series, 500 Hz)."),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Connect and read state, send nothing; print what would be sent."),
+    speed_scale: float = typer.Option(0.25, "--speed-scale", help="Fraction of the velocity limits allowed, in (0, 1]."),
+    max_acceleration: float = typer.Option(2.0, "--max-acceleration", help="Bound on joint acceleration, rad/s², in (0, 40]."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the policy reset."),
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control periods (default: 15 s reach, 30 s track)."),
+    csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
+    plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels (after the arm is stopped)."),
+    max_tcp_mismatch: float = typer.Option(0.005, "--max-tcp-mismatch", help="Largest distance (m) between the controller's TCP position and the model's f(q), in (0, 1]."),
+    model_error: Optional[str] = typer.Option(None, "--model-error", help="With --connection sim: give the controller a wrong arm model (as for evaluate)."),
+    max_recoveries: int = typer.Option(0, "--max-recoveries", min=0, max=100, help="Resume the episode after up to N protective stops or lost links (0: each ends the run)."),
+    unlock_protective_stop: bool = typer.Option(False, "--unlock-protective-stop", help="With --max-recoveries: unlock a protective stop from the dashboard after UR's 5 s lockout (else the operator clears it on the pendant)."),
+    recovery_timeout: float = typer.Option(60.0, "--recovery-timeout", help="Longest wait (s) for a protective stop to be cleared, in (0, 3600]."),
+    reconnect_timeout: float = typer.Option(10.0, "--reconnect-timeout", help="Longest time (s) for a lost link to come back, in (0, 600]."),
+    rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off."),
+) -> None:
+    """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim."""
+    from snac_gym.real import ConnectionFailure, SafetyLimits
+    from snac_gym.real.loop_tuning import LoopTuning
+    from snac_gym.real.recovery import RecoveryLimits
+    from snac_gym.real.run import run_real_episode
+
+    _check_task(task)
+    connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")
+    try:
+        recovery = RecoveryLimits(max_recoveries, unlock_protective_stop, recovery_timeout, reconnect_timeout)
+        result = run_real_episode(
+            task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
+            seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
+            csv=csv, plots=plots, echo=typer.echo if dry_run else None, model_error=model_error, recovery=recovery,
+            tuning=LoopTuning.realtime(rt_priority),
+        )
+    except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
+        where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""
+        line = str(exc).splitlines()[0] if str(exc) else ""
+        if isinstance(exc, KeyboardInterrupt):  # Ctrl-C and the other stop signals: the arm was stopped
+            signal_name = getattr(exc, "signal_name", "SIGINT")
+            typer.echo(f"interrupted by {signal_name}: the arm was stopped{where or ' (before the episode: nothing logged)'}", err=True)
+            raise typer.Exit(code=128 + getattr(exc, "signum", 2)) from None
+        if isinstance(exc, ConnectionFailure):  # the link or the ur_rtde client was lost: exit 1
+            typer.echo(f"error: {line}{where}", err=True)
+            raise typer.Exit(code=1) from None
+        if isinstance(exc, (ValueError, RuntimeError)):
+            typer.echo(f"error: {line}{where}", err=True)
+            raise typer.Exit(code=2) from None
+        if not isinstance(exc, Exception):
+            raise
+        typer.echo(f"error: unexpected {type(exc).__name__}: {line}{where} (traceback in its real.json)", err=True)
+        raise typer.Exit(code=3) from None
+    typer.echo(result.summary())
+
+
+@app.command("emulate-ur")
+def emulate_ur(
+    port_base: int = typer.Option(29999, "--port-base", help="Dashboard port; RTDE at +5, script at +3/+4. ur_rtde needs 29999; 0: free ports."),
+    series: str = typer.Option("cb", "--series", help="cb (CB3, 125 Hz data) or e (e-Series, 500 Hz)."),
+    robot: str = typer.Option("ur10", "--robot", help="Arm model: ur3, ur5 or ur10."),
+    speed_scaling: float = typer.Option(1.0, "--speed-scaling", help="Speed slider fraction in (0, 1]."),
+    tcp_offset: Optional[str] = typer.Option(None, "--tcp-offset", help="TCP offset x,y,z[,rx,ry,rz] (m, rad) in reported poses: a wrong tool."),
+    protective_stop_at: Optional[float] = typer.Option(None, "--protective-stop-at", help="Protective stop, s after the first speedJ."),
+    emergency_stop_at: Optional[float] = typer.Option(None, "--emergency-stop-at", help="Emergency stop, s after the first speedJ."),
+    latency_spike: Optional[str] = typer.Option(None, "--latency-spike", help="AT,SECONDS: the controller stalls that long, AT s after the first speedJ."),
+    drop_at: Optional[float] = typer.Option(None, "--drop-at", help="Cut every connection (and refuse new ones), s after the first speedJ."),
+    drop_for: Optional[float] = typer.Option(None, "--drop-for", help="With --drop-at: the link comes back after this many seconds (default: never)."),
+    stale_at: Optional[float] = typer.Option(None, "--stale-at", help="Freeze the reported timestamp and state, s after the first speedJ."),
+    watchdog_expiry_at: Optional[float] = typer.Option(None, "--watchdog-expiry-at", help="Make the RTDE watchdog fire, s after the first speedJ."),
+    duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Exit after this many seconds (default: until Ctrl-C)."),
+    rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="SCHED_FIFO priority of the control cycle (needs root/CAP_SYS_NICE); 0: off."),
+) -> None:
+    """Emulate a UR controller on 127.0.0.1 for ur_rtde (RTDE, dashboard, script upload), with faults on demand."""
+    from snac_gym.real.emulator import UREmulator
+    from snac_gym.real.emulator.serve import fault_plan, parse_numbers, serve
+
+    try:
+        offset = None if tcp_offset is None else parse_numbers(tcp_offset, "--tcp-offset", (3, 6))
+        emulator = UREmulator(
+            robot=robot, series=series, port_base=port_base, speed_scaling=speed_scaling, bind_timeout=0.0, rt_priority=rt_priority,
+            tcp_offset=None if offset is None else (offset + [0.0, 0.0, 0.0])[:6],
+        )
+        plan = fault_plan(protective_stop_at, emergency_stop_at, latency_spike, drop_at, stale_at, watchdog_expiry_at, drop_for)
+        for at, fault, args in plan:
+            emulator.schedule(at, fault, *args)
+        serve(emulator, duration, typer.echo)
+    except (ValueError, OSError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from exc
+
+
+#: The stop signal last received by :func:`_sigterm_as_interrupt` (a library between the handler and
+#: the CLI, such as Ray's client, may raise its own KeyboardInterrupt without the name).
+_received: list[str] = []
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Turn SIGTERM (and SIGINT) into KeyboardInterrupt naming the signal while the block runs, so that
+    SIGTERM ends the run as Ctrl-C does (workers stopped, one line) instead of killing this process mid-write."""
+
+    def interrupt(signum: int, frame: types.FrameType | None) -> None:
+        if cannot_raise_here(frame):  # raised there, the interrupt would be dropped or turned into a SystemError
+            send_again(signum)
+            return
+        _received.append(signal.Signals(signum).name)
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    if threading.current_thread() is not threading.main_thread():  # signals reach only the main thread
+        yield
+        return
+    previous = {signum: signal.signal(signum, interrupt) for signum in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _signal_name(exc: BaseException) -> str:
+    name = _received[-1] if _received else str(exc)
+    return name if name in signal.Signals.__members__ else "SIGINT"
+
+
+@app.command()
+def evaluate(
+    out: str = typer.Option("runs/evaluation", "--out", help="Output folder (results, summary, plots, parts)."),
+    task: str = typer.Option("both", "--task", help="reach, track or both; or a pose task, pose-reach or pose-track (docs/robots.md)."),
+    controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md)."),
+    samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Random samples per task (default 1000, the paper's; at most what half the memory holds)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
+    horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."),
+    engine: str = typer.Option("kinematic", "--engine", help="kinematic (exact θ += uΔt, all samples in lockstep, fast), mujoco or pybullet (one simulated arm per sample with that physics, in lockstep; mujoco needs the mujoco extra)."),
+    backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --engine."),
+    match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
+    effort_reference: Optional[str] = typer.Option(None, "--effort-reference", help="Controller whose effort the others are matched to (default: snac if evaluated, else the first controller)."),
+    effort_statistic: str = typer.Option("mean-peak", "--effort-statistic", help="What equal effort equalises: mean-peak (the mean over the samples of each rollout's peak |u|/limit; the default), max (the maximum |u| over the sample set, rad/s), median-peak (the median rollout's peak |u|/limit) or peak-ratio (each rollout's peak over the reference's on the same sample, geometric mean)."),
+    effort_target: Optional[float] = typer.Option(None, "--effort-target", help="Explicit effort target in the statistic's unit (rad/s for max, a fraction for mean-peak and median-peak; not for peak-ratio); then every controller is matched."),
+    effort_tolerance: float = typer.Option(0.02, "--effort-tolerance", help="Relative tolerance of the effort match."),
+    effort_samples: Optional[int] = typer.Option(None, "--effort-samples", min=0, help="Match equal effort on the first N samples of the seed's stream even when fewer are evaluated, so the matched knobs do not depend on --samples (default 1000; 0: on the evaluated samples)."),
+    calibration_samples: Optional[int] = typer.Option(None, "--calibration-samples", min=1, help="Samples the knob search runs on (default: all, fewer for controllers whose effort peaks late)."),
+    samples_file: Optional[Path] = typer.Option(None, "--samples-file", help="Read the samples from this CSV (docs/evaluation.md)."),
+    export_samples: Optional[Path] = typer.Option(None, "--export-samples", help="Also write the sample set to this CSV."),
+    export_only: bool = typer.Option(False, "--export-only", help="Only write --export-samples, run nothing."),
+    save_trajectories: bool = typer.Option(False, "--save-trajectories", help="Write every rollout's per-step log under OUT/trajectories."),
+    workers: int = typer.Option(1, "--workers", min=1, help="Local worker processes."),
+    ray: Optional[str] = typer.Option(None, "--ray", help="Run on Ray: 'local' (a new instance here) or a cluster address ('auto', 'ray://host:10001')."),
+    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run in OUT."),
+    chunk_size: Optional[int] = typer.Option(None, "--chunk-size", min=1, help="Samples per job of a full pass (default 500; results do not depend on it)."),
+    cuboid: Optional[str] = typer.Option(None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."),
+    sample_space: str = typer.Option("cuboid", "--sample-space", help="cuboid (Table I's box in front of the arm, or --cuboid) or workspace (anywhere the arm reaches, every IK branch)."),
+    robot: str = typer.Option("ur10", "--robot", help="A registered robot: ur3, ur5, ur10, panda, xarm7 (docs/robots.md)."),
+    param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
+    batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress on stderr: a bar on a terminal, else a line every 10 % or 10 s."),
+    plots: bool = typer.Option(True, "--plots/--no-plots", help="Draw cost_boxplot.png (and a sweep's tradeoff.png); --no-plots: the tables and summary only."),
+    cost: str = typer.Option("table1", "--cost", help="table1 (Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt, the paper's Table I) or hjb (Σ (eᵀQe + uᵀRu) Δt, the cost of eqs. 6/32); `optimal` solves for it."),
+    udot_start: str = typer.Option("rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."),
+    q_scale: float = typer.Option(1.0, "--q-scale", help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q."),
+    success_threshold: float = typer.Option(0.95, "--success-threshold", help="Success rate a controller needs to be ranked in the summary."),
+    model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controllers a wrong arm model: 'joint_offset=a0,...,a5' (rad), 'link_scale=s' (relative), 'tool_offset=x,y,z' (m, tool frame), parts joined by ';'. The plant, the cost, the success rule and the optimum keep the true model."),
+    reference_limits: str = typer.Option("joints", "--reference-limits", help="Constraints of the `optimal` reference: joints (joint position and velocity limits, as the success rule counts) or velocity (velocity limits only; its label says so)."),
+    reference_cache: bool = typer.Option(True, "--reference-cache/--no-reference-cache", help="Reuse the `optimal` rows cached by sample content (~/.cache/snac-gym/reference, or $SNAC_GYM_CACHE_DIR), keyed by everything they depend on, the code included; --no-reference-cache solves every sample anew."),
+    sweep: bool = typer.Option(False, "--sweep/--no-sweep", help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against success, error and peak effort; docs/evaluation.md)."),
+    sweep_points: Optional[int] = typer.Option(None, "--sweep-points", help="Knob values per controller and task in the sweep (2 to 25; default 7), plus the equal-effort point."),
+    sweep_span: Optional[float] = typer.Option(None, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4)."),
+) -> None:
+    """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
+    from snac_gym.evaluation.options import (
+        check_option_combinations,
+        parse_controllers,
+        parse_horizons,
+        parse_out,
+        parse_params,
+        parse_sample_space,
+        parse_tasks,
+    )
+    from snac_gym.evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.runner import export_sample_set, run_evaluation
+
+    engine = _renamed_option("--engine", engine, "--backend", backend, "kinematic")
+    try:
+        out_dir = parse_out(out)
+        tasks, names = parse_tasks(task), parse_controllers(controllers)
+        check_option_combinations(
+            samples=samples, cuboid=cuboid, samples_file=samples_file, export_samples=export_samples, sweep=sweep,
+            sweep_points=sweep_points, sweep_span=sweep_span, effort_reference=effort_reference,
+            match_effort=match_effort, effort_target=effort_target, controllers=names, sample_space=sample_space,
+            effort_samples=effort_samples,
+        )
+        space = parse_sample_space(sample_space, cuboid, robot)
+        config = EvaluationConfig(
+            out=out_dir, tasks=tasks, controllers=names, samples=1000 if samples is None else samples, seed=seed,
+            horizons=parse_horizons(horizon, tasks), engine=engine, match_effort=match_effort,
+            effort_reference=effort_reference or "snac", effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
+            calibration_samples=calibration_samples, samples_file=samples_file,
+            **({} if effort_samples is None else {"effort_samples": effort_samples}), export_samples=export_samples,
+            save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
+            robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, plots=plots, use_batch=batch,
+            cost=cost, udot_start=udot_start, q_scale=q_scale, success_threshold=success_threshold,
+            model_error=model_error, reference_limits=reference_limits,
+            reference_cache=reference_cache,
+            **({} if chunk_size is None else {"chunk_size": chunk_size}),
+        )
+        if export_only:
+            typer.echo(f"samples written to {export_sample_set(config)}")
+            return
+        start = time.perf_counter()
+        with _sigterm_as_interrupt():
+            if sweep:
+                from snac_gym.evaluation.sweep import run_sweep
+
+                run_sweep(config, points=7 if sweep_points is None else sweep_points,
+                          span=4.0 if sweep_span is None else sweep_span)
+            else:
+                run_evaluation(config)
+    except (ValueError, RuntimeError, OSError) as exc:  # bad options, samples file, controller, output folder: a clean message
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the workers are stopped, finished jobs are kept
+        signal_name = _signal_name(exc)
+        if (out_dir / "run.json").exists():
+            typer.echo(f"interrupted by {signal_name}: finished jobs are kept in {out_dir}/; continue with --resume", err=True)
+        else:  # the run is recorded once its sample set is complete: nothing to resume yet
+            typer.echo(f"interrupted by {signal_name} while drawing the samples: nothing to resume; run the command again", err=True)
+        raise typer.Exit(code=128 + int(signal.Signals[signal_name])) from None
+    summary = (out_dir / "summary.md").read_text()
+    typer.echo(summary.split("\n## ")[0].rstrip())
+    for line in summary.splitlines():  # an unmatched effort makes the comparison unequal: say so on stderr too
+        if line.startswith("**Warning:**"):
+            typer.echo("warning: " + line.removeprefix("**Warning:**").strip(), err=True)
+    if sweep:
+        figure = f" and {out_dir / 'tradeoff.png'}" if plots else ""
+        typer.echo(f"\ntrade-off sweep: {out_dir / 'sweep.csv'}{figure}")
+    written = "results, summary and plots" if plots else "results and summary"
+    typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; {written} in {out_dir}/")
+
+
+@app.command("train-ppo")
+def train_ppo_command(
+    task: str = typer.Option(..., "--task", help="reach or track."),
+    timesteps: Optional[int] = typer.Option(None, "--timesteps", min=1, help="Total env steps (default: the config's)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Seed of PPO and the training envs (default: the config's)."),
+    out: Path = typer.Option(..., "--out", help="Output folder: checkpoint/, best/, logs, evaluations.csv, curves."),
+    config: Optional[Path] = typer.Option(None, "--config", help="Hyperparameter file (default: snac_gym/ppo/configs/TASK.json)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
+    n_envs: Optional[int] = typer.Option(None, "--n-envs", min=1, help="Parallel training envs (default: the config's)."),
+    vec_env: Optional[str] = typer.Option(None, "--vec-env", help="dummy (one process), subproc (one process per env) or batched (all episodes at once on the kinematic model)."),
+    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress lines on stderr (timesteps, time, success) where stderr is not a terminal."),
+) -> None:
+    """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""
+    _check_task(task)
+    try:
+        from snac_gym.ppo.train import train_ppo
+        from snac_gym.progress import wants_lines
+
+        lines = (lambda text: typer.echo(text, err=True)) if progress and wants_lines() else None
+        result = train_ppo(task=task, out=out, timesteps=timesteps, seed=seed, config_path=config, resume=resume,
+                           n_envs=n_envs, vec_env=vec_env, log=typer.echo, progress=lines)
+    except (ValueError, ImportError) as exc:  # bad config, folder or checkpoint, missing [rl] extra: a clean message
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+    best = result.best
+    typer.echo(f"{result.status}: {result.timesteps} timesteps, wall time {result.wall_time_s / 60:.1f} min")
+    if best is not None:
+        typer.echo(f"best policy ({int(best['timesteps'])} timesteps, success {100 * best['success_rate']:.1f}%): "
+                   f"{result.best_policy}")
+    if result.status == "interrupted":
+        raise typer.Exit(code=130)
+
+
+def main() -> None:
+    """Entry point of the ``snac-gym`` console script."""
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

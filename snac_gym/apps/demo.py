@@ -1,0 +1,236 @@
+"""The paper's two demonstrations (Section V, Figure 3) for any registered controller.
+
+* ``reach``: from θ0 = [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62] rad to the target
+  [-0.658, 0.626, 0.407] m (Section V-B), default horizon 12 s (1500 steps; the env's
+  episode is 8 s: with the paper's law read per second, SNAC's default, the arm is within 1 mm
+  of every one of 50 random targets after 12 s but of only 64 % of them after 8 s, docs/snac.md;
+  ``Task.horizon_s``).
+* ``track``: from the same θ0, follow the circle of radius 0.2 m around [-0.7, 0, 0.5] m at
+  0.075 rad/s (Section V-C), default horizon 20 s (2500 steps, the env's episode).
+
+:func:`run_demo` runs one in the PyBullet env, writes the figure panels and the trajectory
+log to a folder, and returns a :class:`DemoResult` with the figures the command prints.
+``snac-gym demo`` is a thin wrapper around it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from snac_gym.metrics import DemoMetrics, demo_metrics
+from snac_gym.rollout import add_critic_diagnostics, rollout, write_log
+from snac_gym.tasks import get_task
+
+#: Longest demo accepted, s (50x the tracking demo): the log is held in memory, so an unbounded
+#: horizon fails late (or exhausts memory) instead of being refused.
+MAX_DEMO_DURATION_S = 1000.0
+
+
+def demo_options(task: str) -> dict[str, Any]:
+    """The env reset options of the paper's demo for ``task`` (θ0 and the paper's reference)."""
+    return get_task(task).demo_options()
+
+
+@dataclass
+class DemoResult:
+    """What :func:`run_demo` produced.
+
+    Attributes:
+        task, controller, seed: The run.
+        metrics: Its :class:`DemoMetrics`.
+        log: The trajectory log.
+        files: Every file written, PNGs and log.
+    """
+
+    task: str
+    controller: str
+    seed: int
+    metrics: DemoMetrics
+    log: pd.DataFrame = field(repr=False)
+    files: list[Path] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """The lines ``snac-gym demo`` prints."""
+        m = self.metrics
+
+        def seconds(value: float | None) -> str:
+            return f"{value:.3f} s" if value is not None else "never"
+
+        lines = [
+            f"{self.task} demo, controller {self.controller!r}, seed {self.seed}, {m.steps} steps",
+            f"  final error                 {m.final_error * 1e3:.4f} mm",
+            f"  time to first reach 1 mm    {seconds(m.time_to_1mm)}",
+            f"  fraction of steps eᵀė ≤ 0   {m.descent_fraction:.4f}"
+            + (f" ({m.descent_fraction_above_tolerance:.4f} while ‖e‖ > {m.tolerance * 1e3:g} mm)"
+               if m.descent_fraction_above_tolerance is not None else ""),
+            f"  {f'settled under {m.tolerance * 1e3:g} mm from':28s}{seconds(m.settling_time)}"
+            + (f" (max after: {m.max_error_after_settling * 1e3:.3f} mm)"
+               if m.max_error_after_settling is not None else ""),
+            (f"  clipped steps               {m.clipped_steps} ({100 * m.clip_fraction:.2f} %),"
+             f" max |u|/limit {m.max_speed_ratio:.3f}"),
+            (f"  trajectory cost V           {m.cost_total:.4f} (error {m.cost_error:.4f},"
+             f" effort {m.cost_effort:.4f}, smoothness {m.cost_smoothness:.4f})"),
+        ]
+        if m.hjb_ratio_median is not None:
+            lines.append(f"  HJB residual r/eᵀQe         median {m.hjb_ratio_median:.4f} (0 for the optimal critic)")
+        if m.critic_error_final is not None:
+            lines.append(f"  critic error ‖P̂−P*‖/‖P*‖    {m.critic_error_final:.4f} at the end")
+        if self.files:
+            lines.append(f"  wrote {len(self.files)} files to {self.files[0].parent}")
+        return "\n".join(lines)
+
+
+def run_demo(
+    task: str = "reach",
+    controller: str = "snac",
+    out_dir: str | Path | None = "demo_out",
+    seed: int = 0,
+    steps: int | None = None,
+    duration: float | None = None,
+    csv: bool = False,
+    plots: bool = True,
+    policy_kwargs: dict[str, Any] | None = None,
+    robot: str = "ur10",
+    model_error: str | None = None,
+) -> DemoResult:
+    """Run the paper's ``task`` demo with ``controller`` and write its figures and log.
+
+    Args:
+        task: ``"reach"`` or ``"track"``.
+        controller: A registered policy name (:func:`~snac_gym.policies.available_policies`).
+        out_dir: Folder for the outputs (created); ``None`` writes nothing.
+        seed: Seed of the env and policy resets (same seed: bit-identical log).
+        steps: Control steps (default: the task's horizon, 1500 reach / 2500 track).
+        duration: Horizon in seconds instead of ``steps`` (rounded to whole steps).
+        csv: Also write the log as CSV (with a JSON sidecar for its metadata).
+        plots: Write the PNG panels.
+        policy_kwargs: Constructor arguments of the policy.
+        robot: A registered robot; one that cannot reach the paper's θ₀ and references (the
+            7-DOF arms) runs its own start pose and reference (``Robot.demo_options``).
+        model_error: Give the controller a wrong arm model (:mod:`snac_gym.model_error` text);
+            the simulated arm keeps the true one.
+
+    Returns:
+        The :class:`DemoResult`. Files in ``out_dir``, prefixed ``<task>_<controller>_``:
+        ``path.png``, ``error.png``, ``joint_velocities.png``, ``cost.png`` (Figure 3
+        panels), ``figure3.png`` (the four together), ``critic_weights.png`` (policies
+        that log critic weights), ``log.parquet`` (+ ``.csv``/``.json``) and ``summary.json``.
+    """
+    from snac_gym.envs import make_task_env
+    from snac_gym.policies import make_policy
+    from snac_gym.policies.base import PolicyContext
+
+    spec = get_task(task)
+    options = spec.demo_options(robot)
+    if steps is not None and duration is not None:
+        raise ValueError("give steps or duration, not both")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:  # NumPy's seeding refuses the rest
+        raise ValueError(f"--seed must be an integer ≥ 0 (a NumPy seed), got {seed!r}")
+    if out_dir is not None:  # before the rollout, which the outputs would otherwise be lost after
+        usable_out_folder(Path(out_dir))
+    if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DEMO_DURATION_S):
+        raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
+    env = make_task_env(spec, robot)
+    dt = env.unwrapped.dt
+    if duration is not None:
+        steps = round(duration / dt)
+    if steps is None:
+        steps = spec.horizon_steps(dt)
+    max_steps = round(MAX_DEMO_DURATION_S / dt)
+    if not 1 <= steps <= max_steps:
+        env.close()
+        raise ValueError(
+            f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}"
+        )
+    if steps > env.spec.max_episode_steps:
+        env.close()
+        env = make_task_env(spec, robot, max_episode_steps=steps)
+    try:
+        policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
+        log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)
+    finally:
+        env.close()
+    log.attrs["controller"] = controller
+    if model_error is not None:
+        log.attrs["model_error"] = model_error
+    return write_demo_outputs(
+        log, spec.name, controller, seed, spec.success_tolerance, out_dir,
+        csv=csv, plots=plots, policy_kwargs=policy_kwargs,
+    )
+
+
+def usable_out_folder(out: Path) -> None:
+    """Create the output folder ``out``, or refuse it in one line as ``evaluate`` does (a file, not writable, ...).
+
+    Raises:
+        ValueError: With the evaluator's message (:func:`snac_gym.evaluation.store._usable_folder`).
+    """
+    from snac_gym.evaluation.store import RunDirectoryError, _usable_folder
+
+    try:
+        _usable_folder(out)
+    except RunDirectoryError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def write_demo_outputs(
+    log: pd.DataFrame,
+    task: str,
+    controller: str,
+    seed: int,
+    tolerance: float,
+    out_dir: str | Path | None,
+    csv: bool = False,
+    plots: bool = True,
+    policy_kwargs: dict[str, Any] | None = None,
+) -> DemoResult:
+    """Metrics, Figure 3 panels, log and ``summary.json`` of one run (demo or real robot).
+
+    Args:
+        log: A trajectory log from :func:`~snac_gym.rollout.rollout`.
+        task, controller, seed: What was run.
+        tolerance: Settling threshold of the metrics, m.
+        out_dir: Folder to write into (``None``: compute the metrics only).
+        csv, plots, policy_kwargs: As for :func:`run_demo`.
+    """
+    metrics = demo_metrics(log, tolerance)
+    result = DemoResult(task=task, controller=controller, seed=seed, metrics=metrics, log=log)
+    if out_dir is None:
+        return result
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    prefix = f"{task}_{controller}_"
+    if plots:
+        from snac_gym.apps import plots as panels
+
+        figures = {
+            "path": panels.plot_path(log),
+            "error": panels.plot_error(log, tolerance=tolerance),
+            "joint_velocities": panels.plot_joint_velocities(log),
+            "cost": panels.plot_cost(log),
+            "figure3": panels.plot_figure3(log, tolerance=tolerance),
+        }
+        if "w_0" in log.columns:
+            figures["critic_weights"] = panels.plot_critic_weights(log)
+        if "hjb_ratio" in log.columns:
+            figures["optimality"] = panels.plot_optimality(log)
+        if "model_residual" in log.columns:
+            figures["model"] = panels.plot_model_correction(log)
+        for name, figure in figures.items():
+            result.files.append(panels.save_figure(figure, out / f"{prefix}{name}.png"))
+    result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)
+    summary_path = out / f"{prefix}summary.json"
+    finite = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(metrics).items()}
+    summary = {"task": task, "controller": controller, "seed": seed, "policy_kwargs": policy_kwargs or {}, **finite}
+    summary_path.write_text(json.dumps(summary, indent=2))
+    result.files.append(summary_path)
+    return result
+
+

@@ -1,0 +1,189 @@
+"""The project's compiled kernels: numba's ``njit``, cached on disk, with stop signals held while one compiles.
+
+A kernel compiles on its first call with new argument types in a process (a few seconds; later
+runs load it from numba's cache in ``__pycache__``). Numba calls back into Python from LLVM while
+it compiles, and an exception raised there, such as the ``KeyboardInterrupt`` that ``snac-gym
+evaluate`` turns a Ctrl-C or a SIGTERM into, is printed and dropped by ``ctypes``: the run would go
+on as if the signal had never come. So every compile (numba's dispatcher calls
+``_compile_for_args`` when no compiled version fits the arguments) runs with SIGINT and SIGTERM
+recorded instead of handled, and a signal that came meanwhile is raised again, to the handler
+that was in place, as soon as the compile returns. Calls that find a compiled version pay nothing.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+#: The modules that define the kinematics' and the controllers' kernels.
+POLICY_KERNEL_MODULES = (
+    "snac_gym.kernels.chain", "snac_gym.kernels.small", "snac_gym.kernels.lqr", "snac_gym.kernels.hjb",
+)
+#: Every module that defines a kernel (the evaluator's metrics and optimum too).
+KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "snac_gym.kernels.metrics", "snac_gym.kernels.trajopt")
+_KERNELS: list[Kernel] = []
+#: Longest wait (s) of :func:`warm_up_shared` for another process's compile of one module (a few s).
+_SHARED_COMPILE_WAIT_S = 60.0
+
+
+class Kernel:
+    """A compiled function; call it like the function (the compiled dispatcher is :attr:`dispatcher`).
+
+    ``example`` returns arguments of the types the project calls it with, for :func:`warm_up`: one
+    tuple, or a list of tuples when it is called with several (a read-only array is a type of its own).
+    """
+
+    def __init__(self, function: Callable[..., Any], example: Callable[[], Any]) -> None:
+        from numba import njit  # numba is imported by the first module that defines a kernel
+
+        self.dispatcher = njit(cache=True, nogil=True)(function)
+        self.__doc__, self.__name__, self.__wrapped__ = function.__doc__, function.__name__, function
+        self.example = example
+        compile_for_args = self.dispatcher._compile_for_args  # what the dispatcher calls on a miss (numba ≥ 0.50)
+        self.dispatcher._compile_for_args = lambda *args, **kwargs: _with_stop_signals_held(
+            compile_for_args, args, kwargs
+        )
+        _KERNELS.append(self)
+
+    def __call__(self, *args: Any) -> Any:
+        return self.dispatcher(*args)
+
+
+def kernel(example: Callable[[], Any]) -> Callable[[Callable[..., Any]], Kernel]:
+    """Decorator: the function compiled by numba (``nopython``, cached, releasing the GIL), see the module docstring.
+
+    Args:
+        example: Returns arguments of the types it is called with (small arrays), for :func:`warm_up`
+            (a list of such tuples for several).
+    """
+    return lambda function: Kernel(function, example)
+
+
+def read_only(array: Any) -> Any:
+    """``array`` marked read-only, for an ``example``: numba compiles a read-only array as a type of its own
+    (the kinematics' cached Jacobians are read-only), so a kernel called with both needs both examples."""
+    array.setflags(write=False)
+    return array
+
+
+def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
+    """Compile, or load from the cache, every kernel of ``modules`` now; the seconds it took.
+
+    A loop with a deadline calls this first (``snac-gym real``): a kernel's first call takes a
+    tenth of a second to load from the cache and seconds to compile, far beyond one control period.
+    """
+    import importlib
+    import time
+
+    started = time.perf_counter()
+    for module in modules:
+        importlib.import_module(module)
+    for compiled in _KERNELS:
+        if compiled.__wrapped__.__module__ in modules:
+            examples = compiled.example()
+            for arguments in examples if isinstance(examples, list) else [examples]:
+                compiled(*arguments)
+    return time.perf_counter() - started
+
+
+def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
+    """Whether every kernel of ``modules`` has a numba cache index newer than its source.
+
+    Then :func:`warm_up` only loads (a tenth of a second a module) instead of compiling (seconds).
+    The index is the one numba itself reads (its cache folder and file name, for this Python);
+    a cache this misjudges costs time only, as numba checks each index and compiles what is out of
+    date. Says no where numba's cache layout is not the one known here.
+    """
+    import importlib
+    from pathlib import Path
+
+    for module in modules:
+        importlib.import_module(module)
+    for compiled in _KERNELS:
+        if compiled.__wrapped__.__module__ not in modules:
+            continue
+        cache = compiled.dispatcher._cache  # numba's FunctionCache (njit(cache=True))
+        try:
+            index = Path(cache._cache_path) / f"{cache._impl.filename_base}.nbi"
+            source = Path(cache._impl.locator._py_file)
+        except AttributeError:  # another numba's internals
+            return False
+        if not index.is_file() or index.stat().st_mtime < source.stat().st_mtime:
+            return False
+    return True
+
+
+def load_if_cached(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
+    """:func:`warm_up` of ``modules`` only where it loads every kernel from the cache (:func:`cached_on_disk`);
+    whether it did. A process that forks workers calls it so that they inherit the kernels; a kernel
+    still to compile is left to them, as they share the compiles (:func:`warm_up_shared`)."""
+    if not cached_on_disk(modules):
+        return False
+    warm_up(modules)
+    return True
+
+
+def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODULES) -> list[str]:
+    """:func:`warm_up` of ``modules`` in processes that share the compiles; the modules whose lock this one took.
+
+    ``locks`` holds one ``multiprocessing`` lock per module, the same for every process. A process
+    takes each lock it finds free and compiles (or loads) that module's kernels while it holds
+    it; it then waits for each module another process held, and loads that from the cache the
+    other wrote. On a fresh install, where every kernel compiles, two evaluator workers made the
+    same compiles at once (the run's first phase 5-8 s longer); now each compile happens once.
+
+    Raises:
+        ValueError: If there is not one lock per module.
+    """
+    if len(locks) != len(modules):
+        raise ValueError(f"need one lock per module ({len(modules)}), got {len(locks)}")
+    taken, waiting = [], []
+    for module, lock in zip(modules, locks, strict=True):
+        if lock.acquire(False):  # not blocking (multiprocessing and threading locks alike)
+            try:
+                warm_up((module,))
+            finally:
+                lock.release()
+            taken.append(module)
+        else:
+            waiting.append((module, lock))
+    for module, lock in waiting:
+        # Released once the process holding it has written the module's cache; a process that died
+        # holding it never releases it, and this one then compiles the module itself.
+        got = lock.acquire(timeout=_SHARED_COMPILE_WAIT_S)
+        try:
+            warm_up((module,))
+        finally:
+            if got:
+                lock.release()
+    return taken
+
+
+def _with_stop_signals_held(
+    function: Callable[..., Any], args: tuple[Any, ...], kwargs: dict[str, Any] | None = None
+) -> Any:
+    """``function(*args, **kwargs)`` with SIGINT/SIGTERM recorded, then each one received raised again."""
+    kwargs = kwargs or {}
+    if threading.current_thread() is not threading.main_thread():  # handlers run, and are set, in the main thread only
+        return function(*args, **kwargs)
+    received: list[int] = []
+    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in _STOP_SIGNALS}
+    try:
+        return function(*args, **kwargs)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
+        # Each signal received, once, in order: a worker ignores SIGINT but must still die of the
+        # SIGTERM that came after it; where a handler raises, the first one raised ends this loop.
+        for signum in dict.fromkeys(received):
+            signal.raise_signal(signum)
+
+
+__all__ = [
+    "KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "cached_on_disk", "kernel", "load_if_cached", "read_only", "warm_up", "warm_up_shared",
+]  # fmt: skip
