@@ -12,9 +12,8 @@ from __future__ import annotations
 import difflib
 import inspect
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.optimum import OPTIMAL
@@ -22,29 +21,7 @@ from snac_gym.evaluation.store import file_sha1
 from snac_gym.evaluation.reports.summary import PAPER_TABLE_I
 from snac_gym.extras import MissingExtraError
 from snac_gym.policies.registry import available_policies, make_policy, policy_factory
-
-if TYPE_CHECKING:
-    from snac_gym.evaluation.run_config import EvaluationConfig
-
-
-@dataclass(frozen=True)
-class ControllerSpec:
-    """A controller as evaluated: name, constructor arguments and effort knob.
-
-    Attributes:
-        name: Registered name.
-        kwargs: Constructor arguments given by the user.
-        knob: The class's ``effort_parameter`` (``None`` if it declares none).
-        knob_value: The knob's value with ``kwargs`` (the policy's attribute or constructor default).
-        inputs: SHA-1 of every file the controller reads, by file name (:func:`controller_input_hashes`).
-    """
-
-    name: str
-    kwargs: dict[str, Any]
-    knob: str | None
-    knob_value: float | None
-    inputs: dict[str, str] = field(default_factory=dict)
-
+from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
 
 class _LeftOut(Exception):
     """A registered controller that cannot be evaluated in this run.

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from snac_gym.evaluation.samples import TASKS
+from snac_gym.tasks import PAPER_TASKS, task_names
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
 
@@ -23,15 +23,17 @@ def parse_out(text: str) -> Path:
 
 
 def parse_tasks(text: str) -> tuple[str, ...]:
-    """``reach``, ``track`` or ``both``; or a pose task, ``pose-reach`` or ``pose-track`` (registered then)."""
+    """``both`` (the paper's ``reach`` and ``track``), a registered task (entry points included), or a pose task,
+    ``pose-reach`` or ``pose-track`` (registered then)."""
     if text == "both":
-        return TASKS
-    if text in TASKS:
+        return PAPER_TASKS
+    if text in task_names():
         return (text,)
     if is_pose_task(text):
         register_pose_tasks()
         return (text,)
-    raise ValueError(f"--task must be reach, track or both, or a pose task (pose-reach, pose-track), got {text!r}")
+    raise ValueError(f"--task must be both or a registered task ({', '.join(task_names())}), or a pose task "
+                     f"(pose-reach, pose-track), got {text!r}")
 
 
 def parse_controllers(text: str | None) -> tuple[str, ...] | None:
@@ -44,7 +46,7 @@ def parse_controllers(text: str | None) -> tuple[str, ...] | None:
     return names
 
 
-def parse_horizons(values: Sequence[str], run_tasks: Sequence[str] = TASKS) -> dict[str, float]:
+def parse_horizons(values: Sequence[str], run_tasks: Sequence[str] = PAPER_TASKS) -> dict[str, float]:
     """``--horizon SECONDS`` (every task of the run) or ``--horizon TASK=SECONDS``, repeatable.
 
     A task given twice, or a task the run does not evaluate, is refused: one of the values would
@@ -54,7 +56,7 @@ def parse_horizons(values: Sequence[str], run_tasks: Sequence[str] = TASKS) -> d
     for text in values:
         task, _, seconds = text.rpartition("=")
         tasks = tuple(run_tasks) if not task else (task.strip(),)
-        if tasks[0] not in TASKS and not is_pose_task(tasks[0]):
+        if tasks[0] not in task_names() and not is_pose_task(tasks[0]):
             raise ValueError(f"--horizon {text!r}: unknown task {task!r}; use reach=SECONDS or track=SECONDS")
         if task and tasks[0] not in run_tasks:
             raise ValueError(f"--horizon {text!r}: the run does not evaluate {tasks[0]!r} (--task); drop this --horizon")

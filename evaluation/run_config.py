@@ -15,27 +15,24 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from snac_gym.evaluation.effort.statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
 from snac_gym.evaluation.execution.executors import MAX_WORKERS_PER_CPU, max_workers
 from snac_gym.evaluation.execution.jobs import ENGINES
 from snac_gym.evaluation.reference.optimum import OPTIMAL, REFERENCE_LIMITS
-from snac_gym.evaluation.samples import TASKS, check_samples_file
+from snac_gym.evaluation.samples import check_samples_file
 from snac_gym.evaluation.store import file_sha1
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
-from snac_gym.tasks import TASKS as TASK_REGISTRY
-from snac_gym.tasks import get_task
+from snac_gym.tasks import PAPER_TASKS, get_task, task_names
 from snac_gym.tasks.pose import POSE_TASK_NAMES, is_pose_task, register_pose_tasks
 
-if TYPE_CHECKING:
-    from snac_gym.evaluation.controllers import ControllerSpec
 
 #: Default horizon per task, s (each task's ``horizon_s``: at least every controller's 95th-percentile
 #: settling time at equal effort on 100 samples, docs/evaluation.md), as registered at import.
-DEFAULT_HORIZONS: dict[str, float] = {name: task.horizon_s for name, task in TASK_REGISTRY.items()}
+DEFAULT_HORIZONS: dict[str, float] = {name: get_task(name).horizon_s for name in PAPER_TASKS}
 #: Samples per job of a full pass. The kinematic engine steps a job's samples in lockstep and
 #: its per-sample cost falls with the batch up to a few hundred samples (docs/evaluation.md).
 DEFAULT_CHUNK_SIZE = 500
@@ -59,6 +56,26 @@ def max_samples() -> int:
     except (AttributeError, OSError, ValueError):  # pragma: no cover - not POSIX
         memory = 8 * 2**30
     return max(1, memory // 2 // BYTES_PER_SAMPLE)
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """A controller as evaluated: name, constructor arguments and effort knob.
+
+    Attributes:
+        name: Registered name.
+        kwargs: Constructor arguments given by the user.
+        knob: The class's ``effort_parameter`` (``None`` if it declares none).
+        knob_value: The knob's value with ``kwargs`` (the policy's attribute or constructor default).
+        inputs: SHA-1 of every file the controller reads, by file name (:func:`controller_input_hashes`).
+    """
+
+    name: str
+    kwargs: dict[str, Any]
+    knob: str | None
+    knob_value: float | None
+    inputs: dict[str, str] = field(default_factory=dict)
+
 
 
 @dataclass(frozen=True)
@@ -124,11 +141,11 @@ class EvaluationConfig:
     """
 
     out: Path
-    tasks: tuple[str, ...] = TASKS
+    tasks: tuple[str, ...] = PAPER_TASKS
     controllers: tuple[str, ...] | None = None
     samples: int = 1000
     seed: int = 0
-    horizons: Mapping[str, float] = field(default_factory=lambda: {n: TASK_REGISTRY[n].horizon_s for n in TASKS})
+    horizons: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_HORIZONS))
     engine: str = "kinematic"
     match_effort: bool = True
     effort_reference: str = "snac"
@@ -268,8 +285,9 @@ def _check_selection(config: EvaluationConfig) -> None:
     """What is evaluated: tasks, controllers, samples."""
     tasks = config.tasks
     _check_pose_tasks(config)
-    if not tasks or any(t not in TASK_REGISTRY for t in tasks) or len(set(tasks)) != len(tasks):
-        raise ValueError(f"tasks must be distinct names from {tuple(TASK_REGISTRY)}, got {tasks}")
+    registered = task_names()
+    if not tasks or any(t not in registered for t in tasks) or len(set(tasks)) != len(tasks):
+        raise ValueError(f"tasks must be distinct names from {registered}, got {tasks}")
     controllers = config.controllers
     if controllers is not None and (not controllers or len(set(controllers)) != len(controllers)):
         raise ValueError(f"controllers must be distinct names, got {controllers}")
@@ -297,9 +315,9 @@ def _check_pose_tasks(config: EvaluationConfig) -> None:
 
 def _check_timing(config: EvaluationConfig) -> None:
     """The horizons and the control period."""
-    unknown = set(config.horizons) - set(TASK_REGISTRY)
+    unknown = set(config.horizons) - set(task_names())
     if unknown:
-        raise ValueError(f"horizons for unknown task(s) {sorted(unknown)}; tasks are {tuple(TASK_REGISTRY)}")
+        raise ValueError(f"horizons for unknown task(s) {sorted(unknown)}; tasks are {task_names()}")
     if not (math.isfinite(config.dt) and config.dt > 0):
         raise ValueError(f"dt must be a positive finite number of seconds, got {config.dt}")
     for task in config.tasks:

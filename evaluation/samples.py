@@ -45,11 +45,8 @@ import numpy as np
 
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace, check_reachable, sample_seed_pose
-from snac_gym.tasks import TASKS as TASK_REGISTRY
-from snac_gym.tasks import Sample, get_task
+from snac_gym.tasks import Sample, all_tasks, get_task, task_names
 
-#: Names of the registered tasks (kept for the evaluator's option checks).
-TASKS = tuple(TASK_REGISTRY)
 _POLICY_SEED_KEY = 1  # third spawn-key entry of a sample's policy seed
 
 
@@ -99,7 +96,7 @@ EvaluationSample = Sample
 
 def column_names(n_joints: int) -> list[str]:
     """The CSV header for a robot with ``n_joints`` joints: every registered task's columns, in order."""
-    references = [column for task in TASK_REGISTRY.values() for column in task.csv_columns]
+    references = [column for task in all_tasks() for column in task.csv_columns]
     return ["task", "sample"] + [f"q0_{j}" for j in range(n_joints)] + list(dict.fromkeys(references))
 
 
@@ -198,9 +195,9 @@ class _RowReader:
 
 def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, index: int) -> EvaluationSample:
     name = reader.text("task")
-    if name not in TASK_REGISTRY:
-        raise reader.error("task", f"{name!r} is not one of {list(TASK_REGISTRY)}")
-    task = TASK_REGISTRY[name]
+    if name not in task_names():
+        raise reader.error("task", f"{name!r} is not one of {list(task_names())}")
+    task = get_task(name)
     m = kinematics.n_joints
     q0 = reader.numbers([f"q0_{j}" for j in range(m)])
     for j in range(m):
@@ -209,7 +206,7 @@ def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, i
                 f"q0_{j}",
                 f"{q0[j]} rad is outside the joint limits [{kinematics.lower_limits[j]}, {kinematics.upper_limits[j]}]",
             )
-    foreign = dict.fromkeys(c for other in TASK_REGISTRY.values() for c in other.csv_columns if c not in task.csv_columns)
+    foreign = dict.fromkeys(c for other in all_tasks() for c in other.csv_columns if c not in task.csv_columns)
     reader.require_empty(list(foreign), name)
     reference = task.read_csv_reference(reader)
     try:
@@ -272,8 +269,8 @@ def _read_rows(
         raise SampleFileError(
             f"{path}: unknown column(s) {unknown}; expected columns {column_names(kinematics.n_joints)}"
         )
-    samples: dict[str, list[EvaluationSample]] = {task: [] for task in TASK_REGISTRY}
-    seen: dict[str, set[int]] = {task: set() for task in TASK_REGISTRY}
+    samples: dict[str, list[EvaluationSample]] = {task: [] for task in task_names()}
+    seen: dict[str, set[int]] = {task: set() for task in task_names()}
     for row_number, row in enumerate(reader, start=1):
         # The reader skips blank lines, so the row count is not the line: ask the reader (the
         # last line of the record, which is also where a quoted cell spanning lines ends).

@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from snac_gym.robots import ROBOTS, get_robot
+from snac_gym.model_error import joint_axis, parse_model_error
+from snac_gym.robots import get_robot, robot_names
 
 _PACKAGE_PREFIX = "package://example-robot-data/robots/"
 
@@ -141,9 +142,7 @@ class Kinematics:
         urdf_path: str | Path | None = None,
         model_error: Any = None,
     ) -> None:
-        from snac_gym.model_error import parse_model_error
-
-        spec = get_robot(robot) if urdf_path is None or robot.lower() in ROBOTS else None
+        spec = get_robot(robot) if urdf_path is None or robot.lower() in robot_names() else None
         ee_frame = ee_frame if ee_frame is not None else (spec.ee_frame if spec else "tool0")
         base_frame = base_frame if base_frame is not None else (spec.base_frame if spec else "base")
         self.robot = robot
@@ -392,19 +391,6 @@ def _locked(model: pin.Model, joints: tuple[str, ...]) -> pin.Model:
 
 
 #: Unit axis of Pinocchio's axis-aligned revolute (R*) and prismatic (P*) joint models.
-_ALIGNED_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
-
-
-def joint_axis(joint_model: Any) -> tuple[np.ndarray, bool] | None:
-    """The unit axis of a 1-DoF revolute or prismatic Pinocchio joint model and whether it is revolute (``None`` otherwise)."""
-    kind = joint_model.shortname().removeprefix("JointModel")
-    if kind in ("RX", "RY", "RZ", "PX", "PY", "PZ"):
-        return np.array(_ALIGNED_AXES[kind[1]], dtype=float), kind[0] == "R"
-    if kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
-        return np.array(joint_model.extract().axis, dtype=float).reshape(3), kind[0] == "R"
-    return None
-
-
 class BatchChain:
     """A Pinocchio model's kinematic tree evaluated over a batch of configurations at once.
 

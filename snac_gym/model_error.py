@@ -28,6 +28,20 @@ from typing import Any
 
 import numpy as np
 
+#: Pinocchio's joint-model letters → their axis.
+_ALIGNED_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
+
+
+def joint_axis(joint_model: Any) -> tuple[np.ndarray, bool] | None:
+    """The unit axis of a 1-DoF revolute or prismatic Pinocchio joint model and whether it is revolute (``None`` otherwise)."""
+    kind = joint_model.shortname().removeprefix("JointModel")
+    if kind in ("RX", "RY", "RZ", "PX", "PY", "PZ"):
+        return np.array(_ALIGNED_AXES[kind[1]], dtype=float), kind[0] == "R"
+    if kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
+        return np.array(joint_model.extract().axis, dtype=float).reshape(3), kind[0] == "R"
+    return None
+
+
 #: The parts of a ``--model-error`` specification.
 PARTS = ("joint_offset", "link_scale", "tool_offset")
 
@@ -127,8 +141,6 @@ class ModelError:
         translation and the tool frame's, the tool offset the tool frame's placement in its own axes.
         """
         import pinocchio as pin
-
-        from snac_gym.kinematics import joint_axis
 
         self.check_joints(int(model.nq))
         for joint in range(1, model.njoints):

@@ -2,13 +2,21 @@
 
 Each :class:`Robot` names a URDF of ``example-robot-data``, the controlled frame and the base
 frame its positions are expressed in, the start pose the samplers seed IK from, and, if the
-default does not fit, its sample cuboid. Joint position and velocity limits come from the
+default does not fit, its sample cuboid. Another package adds its robots through the entry-point group
+``snac_gym.robots`` (as ``snac_gym.policies`` and ``snac_gym.tasks``): an entry point names a :class:`Robot`
+(or a callable returning one), loaded and registered the first time the registry is read::
+
+    [project.entry-points."snac_gym.robots"]
+    myarm = "mypackage.robots:MYARM"
+
+``urdf`` is a path relative to example-robot-data's ``robots`` folder, or an absolute path. Joint position and velocity limits come from the
 URDF. Everything else (the envs, the controllers, the evaluator, the real-robot run) reaches
 the robot through :class:`~snac_gym.kinematics.Kinematics` built from this entry.
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -60,8 +68,12 @@ class Robot:
             raise ValueError(f"robot {self.name!r}: env_prefix must be letters and digits, got {self.env_prefix!r}")
 
 
-#: Registered robots by name.
+#: The entry-point group of robots from other packages.
+ENTRY_POINT_GROUP = "snac_gym.robots"
+#: Registered robots by name. Read it through :func:`robot_names`, :func:`all_robots` or :func:`get_robot`,
+#: which load the entry points first.
 ROBOTS: dict[str, Robot] = {}
+_loaded_entry_points: set[str] = set()
 
 
 def register_robot(robot: Robot) -> Robot:
@@ -81,6 +93,40 @@ def register_robot(robot: Robot) -> Robot:
     return robot
 
 
+def load_entry_points() -> None:
+    """Register the robots of the ``snac_gym.robots`` entry points not loaded yet.
+
+    Raises:
+        ValueError: Naming the entry point whose object is not a :class:`Robot`, or cannot be registered.
+    """
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if entry.value in _loaded_entry_points:
+            continue
+        _loaded_entry_points.add(entry.value)
+        loaded = entry.load()
+        robot = loaded if isinstance(loaded, Robot) else loaded()
+        if not isinstance(robot, Robot):
+            raise ValueError(f"entry point {entry.name} = {entry.value!r} ({ENTRY_POINT_GROUP}) gives "
+                             f"{type(robot).__name__}, not a snac_gym.robots.Robot")
+        try:
+            if ROBOTS.get(robot.name) is not robot:
+                register_robot(robot)
+        except ValueError as error:
+            raise ValueError(f"entry point {entry.name} = {entry.value!r} ({ENTRY_POINT_GROUP}): {error}") from None
+
+
+def robot_names() -> tuple[str, ...]:
+    """Names of the registered robots, in registration order (entry points included)."""
+    load_entry_points()
+    return tuple(ROBOTS)
+
+
+def all_robots() -> tuple[Robot, ...]:
+    """The registered robots, in registration order (entry points included)."""
+    load_entry_points()
+    return tuple(ROBOTS.values())
+
+
 def get_robot(name: str) -> Robot:
     """The registered robot called ``name`` (case-insensitive).
 
@@ -88,6 +134,8 @@ def get_robot(name: str) -> Robot:
         ValueError: If there is none, naming the registered ones.
     """
     key = name.lower() if isinstance(name, str) else name
+    if key not in ROBOTS:
+        load_entry_points()
     if key not in ROBOTS:
         raise ValueError(f"unknown robot {name!r}; choose one of {sorted(ROBOTS)}")
     return ROBOTS[key]

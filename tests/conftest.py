@@ -131,9 +131,10 @@ def track_env():
 def pose_tasks():
     """The pose tasks registered for the requesting module only: the other modules see the paper's two."""
     from snac_gym.tasks import TASKS
-    from snac_gym.tasks.pose import POSE_TASKS, register_pose_tasks
+    from snac_gym.envs import register_pose_envs
+    from snac_gym.tasks.pose import POSE_TASKS
 
-    register_pose_tasks()
+    register_pose_envs()
     yield
     for task in POSE_TASKS:
         TASKS.pop(task.name, None)

@@ -294,7 +294,7 @@ def test_cli_exports_reads_samples_and_reports(tmp_path):
     [
         (["--horizon", "walk=3"], "unknown task 'walk'"),
         (["--controllers", "nope"], "unknown controller 'nope'"),
-        (["--task", "wave"], "--task must be reach, track or both"),
+        (["--task", "wave"], "--task must be both or a registered task (reach, track)"),
         (["--param", "svf"], "use CONTROLLER.KEY=VALUE"),
         (["--effort-statistic", "mean"], "--effort-statistic must be one of max, median-peak, mean-peak, peak-ratio, got 'mean'"),
     ],

@@ -23,7 +23,7 @@ from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_kinematic
-from snac_gym.tasks import TASKS as TASK_REGISTRY
+from snac_gym.tasks import task_names
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
 #: How a job's samples are rolled out: the exact kinematic model in lockstep, or the env with the
@@ -84,7 +84,7 @@ def task_kinematics(robot: str, task: str) -> Any:
     (Ray, a spawned process) must still resolve its name.
     """
     if is_pose_task(task):
-        if task not in TASK_REGISTRY:
+        if task not in task_names():
             register_pose_tasks()
         return shared_pose_kinematics(robot)
     return shared_kinematics(robot)

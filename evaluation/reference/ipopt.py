@@ -37,7 +37,8 @@ import numpy as np
 
 from snac_gym.trajopt import next_angles, trajectory_cost_and_gradient
 from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics, joint_axis
+from snac_gym.kinematics import Kinematics
+from snac_gym.model_error import joint_axis
 
 #: What a missing CasADi says.
 MISSING_CASADI = 'the IPOPT cross-check needs CasADi: pip install "snac-gym[check]"'

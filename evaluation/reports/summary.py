@@ -41,7 +41,6 @@ import pandas as pd
 from snac_gym.evaluation.reference.optimum import OPTIMAL, OPTIMAL_LABEL, OPTIMAL_VELOCITY_ONLY_LABEL
 from snac_gym.evaluation.reports.paired import compare
 from snac_gym.cost import CostConvention
-from snac_gym.tasks import TASKS
 
 #: Table I of the paper, rows in the paper's order: controller name in snac-gym → {task: V/N}.
 PAPER_TABLE_I: dict[str, dict[str, float]] = {
@@ -59,10 +58,6 @@ PAPER_LABELS: dict[str, str] = {
     "ppo": "PPO",
     OPTIMAL: OPTIMAL_LABEL,
 }
-
-#: Column labels of Table I for each task.
-TASK_LABELS: dict[str, str] = {name: task.label for name, task in TASKS.items()}  # as registered at import
-
 
 def paper_value(controller: str, task: str) -> float | None:
     """Table I's V/N for ``controller`` on ``task``, or ``None`` if the paper has no such entry."""
@@ -288,7 +283,6 @@ __all__ = [
     "PAIRED_REFERENCES",
     "PAPER_LABELS",
     "PAPER_TABLE_I",
-    "TASK_LABELS",
     "controller_label",
     "mean_confidence_interval",
     "paper_value",

@@ -18,6 +18,13 @@ from typing import Optional
 import typer
 
 from snac_gym._signals import cannot_raise_here, send_again
+from snac_gym.robots import robot_names
+from snac_gym.tasks import task_names
+
+# The help lists what is registered when the command starts (built-ins and the entry points of
+# snac_gym.robots and snac_gym.tasks), not a copy written here.
+_ROBOTS = ", ".join(robot_names())
+_TASKS = ", ".join(task_names())
 
 app = typer.Typer(
     name="snac-gym",
@@ -59,8 +66,6 @@ def _renamed_option(new: str, value: str, old: str, old_value: str | None, defau
 
 def _check_task(task: str) -> None:
     """Refuse a ``--task`` that names no registered task."""
-    from snac_gym.tasks import task_names
-
     if task not in task_names():
         raise typer.BadParameter(f"must be one of {sorted(task_names())}", param_hint="--task")
 
@@ -112,7 +117,7 @@ def bench(
 
 @app.command()
 def demo(
-    task: str = typer.Option("reach", "--task", help="reach (fixed target) or track (the paper's circle)."),
+    task: str = typer.Option("reach", "--task", help=f"A registered task ({_TASKS}): reach is a fixed target, track the paper's circle."),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
     out: Path = typer.Option(Path("demo_out"), "--out", help="Folder for the PNG panels, the log and summary.json."),
     seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets, ≥ 0 (a NumPy seed)."),
@@ -120,7 +125,7 @@ def demo(
     duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),
-    robot: str = typer.Option("ur10", "--robot", help="A registered robot: ur3, ur5, ur10, panda, xarm7 (docs/robots.md)."),
+    robot: str = typer.Option("ur10", "--robot", help=f"A registered robot: {_ROBOTS} (docs/robots.md)."),
     model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controller a wrong arm model (as for evaluate); the simulated arm keeps the true one."),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
@@ -141,7 +146,7 @@ def demo(
 @app.command()
 def real(
     host: Optional[str] = typer.Option(None, "--host", help="IP of the UR controller (--connection rtde)."),
-    task: str = typer.Option("reach", "--task", help="reach or track: the demo's start pose and reference."),
+    task: str = typer.Option("reach", "--task", help=f"A registered task ({_TASKS}): the demo's start pose and reference."),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
     out: Path = typer.Option(Path("real_out"), "--out", help="Folder for the log, the panels and the loop timing."),
     connection: str = typer.Option("rtde", "--connection", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."),
@@ -202,7 +207,7 @@ def real(
 def emulate_ur(
     port_base: int = typer.Option(29999, "--port-base", help="Dashboard port; RTDE at +5, script at +3/+4. ur_rtde needs 29999; 0: free ports."),
     series: str = typer.Option("cb", "--series", help="cb (CB3, 125 Hz data) or e (e-Series, 500 Hz)."),
-    robot: str = typer.Option("ur10", "--robot", help="Arm model: ur3, ur5 or ur10."),
+    robot: str = typer.Option("ur10", "--robot", help="Arm model: ur3, ur5 or ur10 (the UR controller emulated)."),
     speed_scaling: float = typer.Option(1.0, "--speed-scaling", help="Speed slider fraction in (0, 1]."),
     tcp_offset: Optional[str] = typer.Option(None, "--tcp-offset", help="TCP offset x,y,z[,rx,ry,rz] (m, rad) in reported poses: a wrong tool."),
     protective_stop_at: Optional[float] = typer.Option(None, "--protective-stop-at", help="Protective stop, s after the first speedJ."),
@@ -270,7 +275,7 @@ def _signal_name(exc: BaseException) -> str:
 @app.command()
 def evaluate(
     out: str = typer.Option("runs/evaluation", "--out", help="Output folder (results, summary, plots, parts)."),
-    task: str = typer.Option("both", "--task", help="reach, track or both; or a pose task, pose-reach or pose-track (docs/robots.md)."),
+    task: str = typer.Option("both", "--task", help=f"both (reach and track, Table I), a registered task ({_TASKS}), or a pose task, pose-reach or pose-track (docs/robots.md)."),
     controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md)."),
     samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Random samples per task (default 1000, the paper's; at most what half the memory holds)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
@@ -294,7 +299,7 @@ def evaluate(
     chunk_size: Optional[int] = typer.Option(None, "--chunk-size", min=1, help="Samples per job of a full pass (default 500; results do not depend on it)."),
     cuboid: Optional[str] = typer.Option(None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."),
     sample_space: str = typer.Option("cuboid", "--sample-space", help="cuboid (Table I's box in front of the arm, or --cuboid) or workspace (anywhere the arm reaches, every IK branch)."),
-    robot: str = typer.Option("ur10", "--robot", help="A registered robot: ur3, ur5, ur10, panda, xarm7 (docs/robots.md)."),
+    robot: str = typer.Option("ur10", "--robot", help=f"A registered robot: {_ROBOTS} (docs/robots.md)."),
     param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
     batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress on stderr: a bar on a terminal, else a line every 10 % or 10 s."),
@@ -383,7 +388,7 @@ def evaluate(
 
 @app.command("train-ppo")
 def train_ppo_command(
-    task: str = typer.Option(..., "--task", help="reach or track."),
+    task: str = typer.Option(..., "--task", help=f"A registered task ({_TASKS})."),
     timesteps: Optional[int] = typer.Option(None, "--timesteps", min=1, help="Total env steps (default: the config's)."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Seed of PPO and the training envs (default: the config's)."),
     out: Path = typer.Option(..., "--out", help="Output folder: checkpoint/, best/, logs, evaluations.csv, curves."),

@@ -18,8 +18,9 @@ from snac_gym.envs.core import (
     task_env_class,
 )
 from snac_gym.envs.ids import REGISTERED_IDS, RegisteredId
-from snac_gym.robots import ROBOTS
-from snac_gym.tasks import TASKS, Task
+from snac_gym.robots import all_robots
+from snac_gym.tasks import Task, all_tasks
+from snac_gym.tasks.pose import register_pose_tasks
 
 #: The registered task env ids (one per robot and task) and their entry points (filled by :func:`register_envs`).
 ENV_IDS: dict[str, str] = {}
@@ -37,12 +38,20 @@ def register_envs() -> None:
     (the ``TimeLimit`` wrapper ``gym.make`` adds; ``gym.make(id, max_episode_steps=N)`` changes
     it). A task or a robot registered later gets its ids from the next call.
     """
-    for task in TASKS.values():
-        for robot in ROBOTS.values():
+    robots = all_robots()
+    for task in all_tasks():
+        for robot in robots:
             _register(task, robot.name, goal=False)
             _register(task, robot.name, goal=True)
-    for robot in ROBOTS.values():
+    for robot in robots:
         _register_coarse_reach(robot.name)
+
+
+def register_pose_envs() -> None:
+    """Register the pose tasks (:func:`snac_gym.tasks.pose.register_pose_tasks`) and their ids (idempotent):
+    ``snac_gym/UR10PoseReach-v0``, ``snac_gym/UR10PoseEllipseTrack-v0`` and those of the other robots."""
+    register_pose_tasks()
+    register_envs()
 
 
 def _register(task: Task, robot: str, goal: bool) -> None:
@@ -135,6 +144,7 @@ def unregister_envs(task: str | None = None, robot: str | None = None) -> list[s
 __all__ = [
     "ACTION_TYPES",
     "ENV_IDS",
+    "register_pose_envs",
     "GOAL_ENV_IDS",
     "REGISTERED_IDS",
     "REWARD_TYPES",

@@ -23,7 +23,7 @@ from snac_gym.observation import ObservationLayout
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
 from snac_gym.sampling import SampleSpace, sample_seed_pose
 from snac_gym.robots import get_robot
-from snac_gym.tasks import TASKS, Task, get_task
+from snac_gym.tasks import Task, get_task
 from snac_gym.tasks.pose import POSE_TASKS
 
 #: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
@@ -668,7 +668,7 @@ class ReachEnv(URTaskEnv):
       lengthens the ``TimeLimit``.
     """
 
-    task_spec = TASKS["reach"]
+    task_spec = get_task("reach")
 
 
 class EllipseTrackEnv(URTaskEnv):
@@ -741,7 +741,7 @@ class EllipseTrackEnv(URTaskEnv):
       lengthens the ``TimeLimit``.
     """
 
-    task_spec = TASKS["track"]
+    task_spec = get_task("track")
 
 
 class PoseReachEnv(URTaskEnv):
@@ -750,7 +750,7 @@ class PoseReachEnv(URTaskEnv):
     ## Description
     The end-effector frame must reach a fixed pose, position and orientation:
     e = [p − p_d; log₃(R R_dᵀ)] → 0 (:mod:`snac_gym.tasks.pose`). The ids exist once
-    :func:`snac_gym.tasks.pose.register_pose_tasks` ran: ``snac_gym/UR10PoseReach-v0``,
+    :func:`snac_gym.envs.register_pose_envs` ran: ``snac_gym/UR10PoseReach-v0``,
     ``PandaPoseReach-v0``, ... (one per registered robot; the 7-DOF arms are redundant for it).
 
     ## Action Space
@@ -790,7 +790,7 @@ class PoseEllipseTrackEnv(URTaskEnv):
     ## Description
     The end-effector frame must follow p_d(t) on an ellipse with its orientation R_d fixed
     (:mod:`snac_gym.tasks.pose`). The ids exist once
-    :func:`snac_gym.tasks.pose.register_pose_tasks` ran: ``snac_gym/UR10PoseEllipseTrack-v0``,
+    :func:`snac_gym.envs.register_pose_envs` ran: ``snac_gym/UR10PoseEllipseTrack-v0``,
     ``PandaPoseEllipseTrack-v0``, ... (one per registered robot).
 
     ## Action Space

@@ -44,7 +44,7 @@ from typing import Any, TypeVar
 
 from snac_gym.ppo.envs import REWARD_TYPES
 from snac_gym.ppo.features import ACTION_KINDS, FEATURE_VERSION, FeatureSpec
-from snac_gym.robots import ROBOTS
+from snac_gym.robots import robot_names
 from snac_gym.tasks import get_task, task_names
 
 CONFIG_VERSION = 1
@@ -371,8 +371,8 @@ class TrainingConfig:
     def __post_init__(self) -> None:
         if self.task not in task_names():
             raise ConfigError(f"task must be one of {' or '.join(repr(t) for t in task_names())}, got {self.task!r}")
-        if self.robot not in ROBOTS:
-            raise ConfigError(f"robot must be one of {', '.join(sorted(ROBOTS))}, got {self.robot!r}")
+        if self.robot not in robot_names():
+            raise ConfigError(f"robot must be one of {', '.join(sorted(robot_names()))}, got {self.robot!r}")
         if self.ppo.n_steps * self.vec_env.n_envs < 2:  # SB3's rollout buffer needs two samples
             raise ConfigError("ppo.n_steps × vec_env.n_envs must be ≥ 2, got 1")
         _check_env_keywords(self.task, self.env)

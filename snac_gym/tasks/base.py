@@ -19,6 +19,7 @@ from snac_gym.kinematics import Kinematics
 from snac_gym.references import PAPER_Q0, Reference
 from snac_gym.robots import get_robot
 from snac_gym.sampling import SampleSpace
+from snac_gym.tasks.registry import get_task
 
 
 class CellReader(Protocol):
@@ -184,8 +185,6 @@ class Task:
 
     def __reduce__(self) -> tuple[Any, ...]:
         # Tasks are registry singletons: unpickling (worker processes, Ray) returns the registered one.
-        from snac_gym.tasks import get_task
-
         return get_task, (self.name,)
 
 
@@ -207,6 +206,4 @@ class Sample:
 
     def reset_options(self) -> dict[str, Any]:
         """The env ``reset`` options that pin this sample (``q0`` and the task's reference key)."""
-        from snac_gym.tasks import get_task
-
         return get_task(self.task).reset_options(self.q0, self.reference)

@@ -33,6 +33,7 @@ from snac_gym.kinematics import PoseKinematics, shared_pose_kinematics
 from snac_gym.references import PAPER_TARGET, Ellipse
 from snac_gym.sampling import SampleSpace, sample_ellipse, sample_seed_pose
 from snac_gym.tasks.base import CellReader, Task
+from snac_gym.tasks.registry import TASKS, register_task
 from snac_gym.tasks.reach import TARGET_COLUMNS
 from snac_gym.tasks.track import ELLIPSE_COLUMNS, EllipseTrackTask
 
@@ -274,14 +275,10 @@ POSE_TASKS: tuple[Task, ...] = (PoseReachTask(), PoseTrackTask())
 
 
 def register_pose_tasks() -> None:
-    """Register the pose tasks and their Gymnasium ids (idempotent)."""
-    import snac_gym.envs
-    from snac_gym.tasks import TASKS, register_task
-
+    """Register the pose tasks (idempotent); their Gymnasium ids come with :func:`snac_gym.envs.register_pose_envs`."""
     for task in POSE_TASKS:
         if task.name not in TASKS:
             register_task(task)
-    snac_gym.envs.register_envs()
 
 
 __all__ = ["POSE_TASKS", "POSE_TASK_NAMES", "ROTVEC_COLUMNS", "PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "is_pose_task", "pose_errors_and_jacobians",
