@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from snac_gym.physics.base import check_physics
 from snac_gym.evaluation.effort.statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
 from snac_gym.evaluation.execution.executors import MAX_WORKERS_PER_CPU, max_workers
-from snac_gym.evaluation.execution.jobs import ENGINES
 from snac_gym.evaluation.reference.optimum import OPTIMAL, REFERENCE_LIMITS
 from snac_gym.evaluation.samples import check_samples_file
 from snac_gym.evaluation.store import file_sha1
@@ -330,8 +330,7 @@ def _check_timing(config: EvaluationConfig) -> None:
 
 def _check_engine(config: EvaluationConfig) -> None:
     """The engine, and the optimal reference's need of the kinematic one."""
-    if config.engine not in ENGINES:
-        raise ValueError(f"engine must be one of {ENGINES}, got {config.engine!r}")
+    check_physics(config.engine, what="engine")
     if config.wants_optimal and config.engine != "kinematic":
         raise ValueError(f"the {OPTIMAL!r} reference is the optimum of the kinematic model; use --engine kinematic")
 
@@ -380,12 +379,10 @@ def _check_model_error(config: EvaluationConfig) -> None:
     if config.model_error is None:
         return
     from snac_gym.kinematics import shared_kinematics
-    from snac_gym.model_error import ModelError
+    from snac_gym.model_error import ModelError, refuse_pose_tasks
 
     ModelError.parse(config.model_error).check_joints(shared_kinematics(config.robot).n_joints)
-    pose = [task for task in config.tasks if is_pose_task(task)]
-    if pose:
-        raise ValueError(f"--model-error applies to the position tasks; not to {', '.join(pose)}")
+    refuse_pose_tasks([task for task in config.tasks if is_pose_task(task)])
     if config.engine != "kinematic":
         raise ValueError("--model-error needs --engine kinematic (the plant is the exact kinematic model)")
 

@@ -37,6 +37,7 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None  # type: ignore[assignment]
 
+from snac_gym.outputs import OutputFolderError, usable_out_folder
 from snac_gym.evaluation.samples import SampleFileError
 from snac_gym.rollout import write_log
 
@@ -86,16 +87,10 @@ def _tmp_path(path: Path) -> Path:
 
 def _usable_folder(root: Path) -> None:
     """Refuse an ``--out`` that is a file or cannot be written, with one line saying which."""
-    if not str(root).strip():
-        raise RunDirectoryError("the output folder (--out) is empty; name a folder")
-    if root.exists() and not root.is_dir():
-        raise RunDirectoryError(f"the output folder {root} is a file, not a folder; choose another --out")
     try:
-        root.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RunDirectoryError(f"cannot create the output folder {root}: {exc.strerror or exc}") from None
-    if not os.access(root, os.W_OK | os.X_OK):
-        raise RunDirectoryError(f"the output folder {root} is not writable; choose another --out")
+        usable_out_folder(root)
+    except OutputFolderError as exc:
+        raise RunDirectoryError(str(exc)) from None
 
 
 class _FolderLock:

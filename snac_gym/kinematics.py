@@ -191,6 +191,15 @@ class Kinematics:
         self._chain = BatchChain.from_model(self.model, self._ee_id)
         self._last_batch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
+    def with_model_error(self, model_error: Any) -> Kinematics:
+        """The same arm (URDF, frames) with ``model_error`` written into its model: the one builder of the
+        wrong model a controller is given under ``--model-error`` (:mod:`snac_gym.model_error`).
+
+        Raises:
+            ValueError: For a malformed error, or one that names more joints than the arm has.
+        """
+        return Kinematics(self.robot, self.ee_frame, self.base_frame, urdf_path=self.urdf_path, model_error=model_error)
+
     def ee_mount(self) -> tuple[str, np.ndarray]:
         """The joint that carries the end-effector frame and the frame's offset in that joint's frame, m.
 

@@ -23,6 +23,7 @@ the cost and the success rule keep the true one (docs/model-error.md).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -163,6 +164,17 @@ class ModelError:
             placement = placement * pin.SE3(np.eye(3), np.asarray(self.tool_offset, dtype=float))
         frame.placement = placement
         model.frames[ee_frame_id] = frame
+
+
+def refuse_pose_tasks(pose_tasks: Sequence[str]) -> None:
+    """Refuse a model error on the pose tasks (the one refusal): the error family is written into the position
+    kinematics (:class:`~snac_gym.kinematics.Kinematics`), not into the pose kinematics.
+
+    Raises:
+        ValueError: Naming the pose tasks, if any.
+    """
+    if pose_tasks:
+        raise ValueError(f"--model-error applies to the position tasks; not to {', '.join(pose_tasks)}")
 
 
 def parse_model_error(spec: str | ModelError | None) -> ModelError | None:

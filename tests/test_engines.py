@@ -75,7 +75,7 @@ def test_a_job_does_not_depend_on_how_samples_are_chunked(physics):
 
 
 def test_lockstep_arms_are_simulated_only():
-    with pytest.raises(ValueError, match="physics must be 'mujoco' or 'pybullet'"):
+    with pytest.raises(ValueError, match=r"lockstep arms are simulated: physics must be one of \('pybullet', 'mujoco'\), got"):
         lockstep_arms("ur10", "reach", 0.008, 10, "kinematic", 2)
 
 

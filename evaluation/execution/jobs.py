@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from snac_gym.physics.base import SIMULATED
 from snac_gym.evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics, shared_kinematics, shared_pose_kinematics
@@ -25,11 +26,6 @@ from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_kinematic
 from snac_gym.tasks import task_names
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
-
-#: How a job's samples are rolled out: the exact kinematic model in lockstep, or the env with the
-#: arm in PyBullet or MuJoCo (``physics=`` of the env), one episode after the other.
-ENGINES = ("kinematic", "pybullet", "mujoco")
-
 
 @dataclass(frozen=True)
 class RolloutJob:
@@ -93,7 +89,7 @@ def task_kinematics(robot: str, task: str) -> Any:
 @functools.lru_cache(maxsize=8)
 def model_kinematics(robot: str, model_error: str) -> Kinematics:
     """The wrong arm model a controller is given under ``--model-error`` (one per process and error)."""
-    return Kinematics(robot, model_error=model_error)
+    return shared_kinematics(robot).with_model_error(model_error)
 
 
 def policy_context(robot: str, dt: float, task: str, model_error: str | None = None) -> PolicyContext:
@@ -144,7 +140,7 @@ def run_job(job: RolloutJob) -> JobResult:
         )  # fmt: skip
         limits = context.velocity_limits
         logs = kinematic_logs(rollouts, job.samples, job.seeds, attrs, limits) if job.keep_logs else None
-    elif job.engine in ENGINES:  # one simulated arm per sample, in lockstep (the env's physics, batched)
+    elif job.engine in SIMULATED:  # one simulated arm per sample, in lockstep (the env's physics, batched)
         context = policy_context(job.robot, job.dt, job.task, job.model_error)
         make = functools.partial(make_policy, job.controller, context, **job.kwargs)
         arms, plant = lockstep_arms(job.robot, job.task, job.dt, job.steps, job.engine, len(job.samples))

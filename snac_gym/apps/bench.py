@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.physics.base import SIMULATED
+
 #: Upper bound of ``--steps``: each env is timed 5 times over ``steps`` steps, so 1,000,000 steps
 #: take ~20 min for the UR10's two ids in PyBullet and MuJoCo at the ~18,000 steps/s measured here
 #: (docs/benchmarks.md) and ~80 min for panda-gym at ~1,000 steps/s; a larger count is a typo that
@@ -71,13 +73,9 @@ def _time_env(env: Any, steps: int, control_dt: float, seed: int = 0, repeats: i
     return {"steps_per_s": steps / best, "real_time_factor": steps * control_dt / best, "control_dt": control_dt}
 
 
-#: The simulated physics :func:`run_env_bench` times by default (each that imports).
-BENCH_PHYSICS = ("pybullet", "mujoco")
-
-
 @_one_core()
 def run_env_bench(
-    steps: int = 5000, include_panda: bool = True, physics: tuple[str, ...] = BENCH_PHYSICS
+    steps: int = 5000, include_panda: bool = True, physics: tuple[str, ...] = SIMULATED
 ) -> dict[str, dict[str, float]]:
     """Steps/s and real-time factor (simulated s per wall s) of the snac-gym ids, on one core.
 

@@ -23,6 +23,7 @@ from typing import Any
 
 import pandas as pd
 
+from snac_gym.outputs import usable_out_folder
 from snac_gym.metrics import DemoMetrics, demo_metrics
 from snac_gym.rollout import add_critic_diagnostics, rollout, write_log
 from snac_gym.tasks import get_task
@@ -163,20 +164,6 @@ def run_demo(
         log, spec.name, controller, seed, spec.success_tolerance, out_dir,
         csv=csv, plots=plots, policy_kwargs=policy_kwargs,
     )
-
-
-def usable_out_folder(out: Path) -> None:
-    """Create the output folder ``out``, or refuse it in one line as ``evaluate`` does (a file, not writable, ...).
-
-    Raises:
-        ValueError: With the evaluator's message (:func:`snac_gym.evaluation.store._usable_folder`).
-    """
-    from snac_gym.evaluation.store import RunDirectoryError, _usable_folder
-
-    try:
-        _usable_folder(out)
-    except RunDirectoryError as exc:
-        raise ValueError(str(exc)) from None
 
 
 def write_demo_outputs(

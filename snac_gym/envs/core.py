@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.cost import CostConvention, step_costs, weight_matrix
-from snac_gym.physics import PHYSICS, Arm, make_arm, scene_of
+from snac_gym.physics import PHYSICS, Arm, check_physics, make_arm, scene_of
 from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.physics.scene import default_render_every
 from snac_gym.physics.base import check_image_size
@@ -165,9 +165,7 @@ def physics_argument(physics: str, backend: str | None = None) -> str:
         if physics not in (backend, PHYSICS[0]):
             raise ValueError(f"give physics= only (backend= is its deprecated name), got physics={physics!r}, backend={backend!r}")
         physics = backend
-    if physics not in PHYSICS:
-        raise ValueError(f"physics must be one of {PHYSICS}, got {physics!r}")
-    return physics
+    return check_physics(physics)
 
 
 def _cost_reward(reward_type: str, cost: CostConvention | None, Q: Any, R: Any) -> CostConvention | None:

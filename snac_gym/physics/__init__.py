@@ -8,11 +8,11 @@ default), :mod:`~snac_gym.physics.kinematic` (the paper's exact model) and :mod:
 from __future__ import annotations
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.physics.base import PHYSICS, Arm, ArmBatch, ArmList, check_physics, scene_of
+from snac_gym.physics.base import PHYSICS, SIMULATED, Arm, ArmBatch, ArmList, check_physics, scene_of
 from snac_gym.physics.bullet import PyBulletArm, PyBulletArmBatch
 from snac_gym.physics.kinematic import KinematicArm
 
-__all__ = ["PHYSICS", "Arm", "ArmBatch", "ArmList", "KinematicArm", "PyBulletArm", "PyBulletArmBatch", "check_physics", "make_arm", "scene_of"]
+__all__ = ["PHYSICS", "SIMULATED", "Arm", "ArmBatch", "ArmList", "KinematicArm", "PyBulletArm", "PyBulletArmBatch", "check_physics", "make_arm", "scene_of"]
 
 
 def make_arm(
@@ -32,4 +32,5 @@ def make_arm(
         from snac_gym.physics.mujoco import MuJoCoArm  # needs the mujoco extra
 
         return MuJoCoArm(kinematics, dt, n_substeps)
-    raise ValueError(f"physics must be one of {PHYSICS}, got {physics!r}")
+    check_physics(physics)
+    raise AssertionError(f"no arm for {physics!r}")  # a name added to PHYSICS without its engine here

@@ -8,8 +8,10 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-#: The arm models of the simulated envs (``physics=`` of ``gym.make``, ``--engine`` of ``snac-gym evaluate``).
+#: The arm models: ``physics=`` of ``gym.make``, ``--engine`` of ``snac-gym evaluate`` (the one vocabulary).
 PHYSICS = ("pybullet", "kinematic", "mujoco")
+#: Those that simulate the arm (the lockstep engine's arms, ``snac-gym bench``): all but the exact model.
+SIMULATED = ("pybullet", "mujoco")
 
 
 def check_physics(physics: Any, allowed: tuple[str, ...] = PHYSICS, what: str = "physics") -> str:

@@ -42,6 +42,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from snac_gym.model_error import refuse_pose_tasks
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.tasks import Task, get_task
@@ -123,12 +124,9 @@ class PolicyContext:
         Raises:
             ValueError: For a malformed error, or on a pose task (position kinematics only).
         """
-        if self.kinematics.task_dim != 3:
-            raise ValueError("--model-error applies to the position tasks")
-        kinematics = Kinematics(
-            self.kinematics.robot, self.kinematics.ee_frame, self.kinematics.base_frame, model_error=model_error
-        )
-        return dataclasses.replace(self, kinematics=kinematics)
+        if not isinstance(self.kinematics, Kinematics):
+            refuse_pose_tasks([self.task_name])
+        return dataclasses.replace(self, kinematics=self.kinematics.with_model_error(model_error))
 
     @classmethod
     def for_controller(cls, env: Any, model_error: Any = None) -> Any:

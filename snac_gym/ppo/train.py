@@ -47,7 +47,7 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.cost import trajectory_cost
-from snac_gym.apps.demo import usable_out_folder
+from snac_gym.outputs import usable_out_folder
 from snac_gym.envs import make_task_env
 from snac_gym.ppo.config import resolve_config, validate_config
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec

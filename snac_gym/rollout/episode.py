@@ -181,10 +181,9 @@ def lockstep_arms(robot: str, task: str, dt: float, steps: int, physics: str, co
     Raises:
         ValueError: If ``physics`` is not a simulated engine.
     """
-    from snac_gym.physics import ArmList, PyBulletArmBatch
+    from snac_gym.physics import SIMULATED, ArmList, PyBulletArmBatch, check_physics
 
-    if physics not in ("mujoco", "pybullet"):
-        raise ValueError(f"lockstep arms are simulated: physics must be 'mujoco' or 'pybullet', got {physics!r}")
+    check_physics(physics, SIMULATED, "lockstep arms are simulated: physics")
     core = _env(robot, task, float(dt), int(steps), physics).unwrapped
     if physics == "mujoco":
         return ArmList([core.arm.replica() for _ in range(count)]), core.kinematics

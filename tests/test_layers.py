@@ -1,0 +1,161 @@
+"""The package's structure: import names, layers, cycles and live registries.
+
+``tools/lint_imports.py`` (in the README's test command) checks pyproject.toml's import-linter contracts and
+counts import cycles; here it is shown to pass on the package and to fail on a planted violation of each kind.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+TOOL = ROOT / "tools" / "lint_imports.py"
+sys.path.insert(0, str(TOOL.parent))
+from lint_imports import lay_out  # noqa: E402
+
+
+def _check(tree: Path | None = None) -> subprocess.CompletedProcess:
+    args = [sys.executable, str(TOOL)] + ([] if tree is None else ["--tree", str(tree)])
+    return subprocess.run(args, capture_output=True, text=True, timeout=120)
+
+
+def _plant(tree: Path, module: str, line: str) -> None:
+    """Replace the link of ``module`` (a file directly under a linked folder's parent) by a copy with ``line`` added."""
+    parts = module.split(".")
+    folder = tree.joinpath(*parts[:-1])
+    if folder.is_symlink():  # a linked package: lay out its entries one by one
+        target = folder.resolve()
+        folder.unlink()
+        folder.mkdir()
+        for entry in target.iterdir():
+            (folder / entry.name).symlink_to(entry)
+    path = folder / f"{parts[-1]}.py"
+    text = path.read_text()
+    path.unlink()
+    path.write_text(text + f"\n{line}\n")
+
+
+def test_the_package_keeps_its_layers_and_has_no_import_cycle():
+    result = _check()
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "3 kept, 0 broken" in result.stdout
+    assert "import cycles: 0" in result.stdout
+
+
+def test_a_core_module_importing_the_harness_breaks_the_layers_contract(tmp_path):
+    tree = lay_out(ROOT, tmp_path / "tree")
+    _plant(tree, "snac_gym.cost", "import snac_gym.evaluation.runner  # planted")
+    result = _check(tree)
+    assert result.returncode == 1
+    assert "BROKEN" in result.stdout
+    assert "snac_gym.cost -> snac_gym.evaluation.runner" in result.stdout
+
+
+def test_an_import_inside_a_function_counts(tmp_path):
+    tree = lay_out(ROOT, tmp_path / "tree")
+    _plant(tree, "snac_gym.physics.kinematic", "def _late():\n    from snac_gym.envs import core  # planted")
+    result = _check(tree)
+    assert result.returncode == 1
+    assert "snac_gym.physics.kinematic -> snac_gym.envs.core" in result.stdout
+
+
+def test_a_cycle_inside_one_layer_is_found(tmp_path):
+    """robots and references share the core layer, so only the cycle check can catch this one."""
+    tree = lay_out(ROOT, tmp_path / "tree")
+    _plant(tree, "snac_gym.references", "import snac_gym.robots  # planted")
+    result = _check(tree)
+    assert result.returncode == 1
+    assert "3 kept, 0 broken" in result.stdout
+    assert "import cycle: snac_gym.references -> snac_gym.robots -> snac_gym.references" in result.stdout
+    assert "import cycles: 1" in result.stdout
+
+
+def _contract_modules() -> list[str]:
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]
+    (layers,) = [c for c in config["contracts"] if c["type"] == "layers"]
+    return [name.strip() for layer in layers["layers"] for group in layer.split("|") for name in group.split(":")]
+
+
+def _modules() -> list[str]:
+    """Every module of the installed package, read from the folders as pyproject.toml maps them."""
+    folders = {"snac_gym": ROOT / "snac_gym", "snac_gym.baselines": ROOT / "baselines", "snac_gym.evaluation": ROOT / "evaluation"}
+    found = []
+    for package, folder in folders.items():
+        for path in folder.rglob("*.py"):
+            parts = path.relative_to(folder).with_suffix("").parts
+            name = ".".join((package, *parts))
+            if name.removesuffix(".__init__") not in folders or package == "snac_gym":
+                found.append(name.removesuffix(".__init__"))
+    return sorted(set(found))
+
+
+def test_every_module_belongs_to_a_layer():
+    """A new module cannot escape the contract by sitting outside every layer."""
+    layers = _contract_modules()
+    outside = [m for m in _modules() if m != "snac_gym" and not any(m == layer or m.startswith(layer + ".") for layer in layers)]
+    assert outside == []
+
+
+def test_pyproject_lists_every_package():
+    """pyproject.toml lists the packages by hand (package-dir maps two folders): none may be left out."""
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    folders = {"snac_gym": ROOT / "snac_gym", "snac_gym.baselines": ROOT / "baselines", "snac_gym.evaluation": ROOT / "evaluation"}
+    packages = {
+        ".".join((package, *init.parent.relative_to(folder).parts))
+        for package, folder in folders.items()
+        for init in folder.rglob("__init__.py")
+    }
+    assert packages == listed
+
+
+@pytest.mark.parametrize("name", ["baselines", "evaluation"])
+def test_the_generic_top_level_names_are_not_installed(tmp_path, name):
+    """Outside the repository, ``import baselines`` finds nothing; ``snac_gym.baselines`` is the import name."""
+    missing = subprocess.run([sys.executable, "-c", f"import {name}"], cwd=tmp_path, capture_output=True, text=True)
+    assert missing.returncode == 1
+    assert f"No module named '{name}'" in missing.stderr
+    found = subprocess.run([sys.executable, "-c", f"import snac_gym.{name}"], cwd=tmp_path, capture_output=True, text=True)
+    assert found.returncode == 0, found.stderr
+
+
+@pytest.mark.parametrize("name", ["baselines", "evaluation"])
+def test_the_old_import_from_the_repository_says_what_to_write(name):
+    """From the repository's root the folder is on the path: importing it under the old name is refused clearly."""
+    result = subprocess.run([sys.executable, "-c", f"import {name}"], cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 1
+    assert f"snac-gym's {name} package is imported as snac_gym.{name} since 0.2.0" in result.stderr
+
+
+def test_no_module_copies_a_registry_at_import():
+    """No module-level name is bound to a copy of the task or robot registry (tuple(TASKS), list(ROBOTS), ...).
+
+    The CLI's help text is the exception: it is written once per command, when the entry points are loaded.
+    """
+    copies = []
+    for module in _modules():
+        if module == "snac_gym.apps.cli":
+            continue
+        path = _path_of(module)
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, (ast.Assign, ast.AnnAssign)) and node.value is not None:
+                text = ast.unparse(node.value)
+                if any(f"{name}(" in text for name in ("task_names", "robot_names", "all_tasks", "all_robots")) or any(
+                    f"{wrap}({registry}" in text for wrap in ("tuple", "list", "dict", "set", "sorted")
+                    for registry in ("TASKS", "ROBOTS", "TASK_REGISTRY")
+                ):
+                    copies.append(f"{module}:{node.lineno}: {ast.unparse(node)[:80]}")
+    assert copies == []
+
+
+def _path_of(module: str) -> Path:
+    parts = module.split(".")
+    base = {"baselines": ROOT / "baselines", "evaluation": ROOT / "evaluation"}.get(parts[1] if len(parts) > 1 else "")
+    folder, rest = (base, parts[2:]) if base is not None else (ROOT / "snac_gym", parts[1:])
+    path = folder.joinpath(*rest)
+    return path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
