@@ -104,7 +104,7 @@ def load_entry_points() -> None:
             continue
         _loaded_entry_points.add(entry.value)
         loaded = entry.load()
-        robot = loaded if isinstance(loaded, Robot) else loaded()
+        robot = loaded() if callable(loaded) and not isinstance(loaded, Robot) else loaded
         if not isinstance(robot, Robot):
             raise ValueError(f"entry point {entry.name} = {entry.value!r} ({ENTRY_POINT_GROUP}) gives "
                              f"{type(robot).__name__}, not a snac_gym.robots.Robot")

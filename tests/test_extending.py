@@ -1,39 +1,48 @@
-"""docs/extending.md, walked through: a new task, a new robot and a new controller, each in a few lines."""
+"""docs/extending.md, walked through: a new task, a new robot and a new controller, each in a few lines.
+
+Each fixture runs its recipe's code block as the page writes it (read from the page, so the two cannot
+drift), then the tests check what the page promises.
+"""
 
 import gymnasium as gym
+import re
+
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
 import snac_gym
+from pathlib import Path
 from snac_gym.evaluation.samples import generate_samples, read_samples_csv, write_samples_csv
 from snac_gym.envs import core as env_core
 from snac_gym.kinematics import Kinematics
-from snac_gym.policies import available_policies, make_policy, register_policy, registry
-from snac_gym.policies.base import BasePolicy, PolicyContext, supports_batch
+from snac_gym.policies import available_policies, make_policy, registry
+from snac_gym.policies.base import PolicyContext, supports_batch
 from snac_gym.references import FixedTarget
-from snac_gym.robots import ROBOTS, Robot, register_robot
+from snac_gym.robots import ROBOTS
 from snac_gym.rollout import rollout, simulate_kinematic
 from snac_gym.sampling import SampleSpace
-from snac_gym.tasks import TASKS, ReachTask, Sample, Task, register_task
+from snac_gym.tasks import TASKS, Sample, Task, register_task
 
 
-class HoverTask(ReachTask):
-    """Reach a target at least 10 cm above the cuboid's floor, within 2 mm, in 10 s."""
+PAGE = Path(__file__).resolve().parent.parent / "docs" / "extending.md"
 
-    name, label, code = "hover", "Hover", 90
-    env_name = "Hover"                                # its ids: snac_gym/UR10Hover-v0, snac_gym/PandaHover-v0, ...
-    success_tolerance, episode_steps, horizon_s, real_horizon_s = 2e-3, 1250, 10.0, 12.0
 
-    def sample(self, kinematics, rng, space):
-        high = SampleSpace(**{**space.__dict__, "low": (*space.low[:2], space.low[2] + 0.1)})
-        return super().sample(kinematics, rng, high)
+def recipe(heading: str) -> dict:
+    """Run the first ``python`` block under ``## heading`` of docs/extending.md; its namespace."""
+    text = PAGE.read_text()
+    section = text[text.index(f"## {heading}\n"):]
+    block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    namespace: dict = {"__name__": "extending_recipe"}
+    exec(compile(block, f"{PAGE}:{heading}", "exec"), namespace)
+    return namespace
 
 
 @pytest.fixture
 def hover():
-    task = register_task(HoverTask())
-    snac_gym.register_envs()
+    namespace = recipe("How to add a task")
+    task = TASKS["hover"]
+    assert type(task) is namespace["HoverTask"]
     yield task
     del TASKS[task.name]
     snac_gym.envs.unregister_envs(task=task.name)
@@ -61,8 +70,8 @@ def test_a_new_task_is_one_class_and_one_registration(hover, tmp_path):
 
 def test_a_task_name_or_code_is_registered_once(hover):
     with pytest.raises(ValueError, match="already registered"):
-        register_task(HoverTask())
-    clash = type("Clash", (HoverTask,), {"name": "clash"})
+        register_task(type(hover)())
+    clash = type("Clash", (type(hover),), {"name": "clash"})
     with pytest.raises(ValueError, match="sample code 90 is already used by 'hover'"):
         register_task(clash())
     bare = type("Bare", (Task,), {"name": "bare", "code": 91})
@@ -72,9 +81,10 @@ def test_a_task_name_or_code_is_registered_once(hover):
 
 @pytest.fixture
 def limited_ur10():
-    robot = register_robot(Robot("ur10-limited", "ur_description/urdf/ur10_joint_limited_robot.urdf",
-                                 nominal_q=ROBOTS["ur10"].nominal_q, env_prefix="UR10Limited"))
-    snac_gym.register_envs()  # its ids: snac_gym/UR10LimitedReach-v0, ...
+    namespace = recipe("How to add a robot")
+    robot = ROBOTS["ur10-limited"]
+    assert namespace["env"].spec.id == "snac_gym/UR10LimitedReach-v0"
+    namespace["env"].close()
     yield robot
     del ROBOTS[robot.name]
     snac_gym.envs.unregister_envs(robot=robot.name)
@@ -92,25 +102,10 @@ def test_a_new_robot_is_one_entry(limited_ur10):
     env.close()
 
 
-class ResolvedRate(BasePolicy):
-    """u = J⁺(ẋ_d − k·e): the controller of docs/extending.md, with its effort knob k."""
-
-    effort_parameter = "gain"
-
-    def __init__(self, env, gain: float = 2.0) -> None:
-        super().__init__(env)
-        self.gain = float(gain)
-
-    def act(self, obs):
-        f = self.layout.unpack(obs)
-        return np.linalg.pinv(self.kinematics.jacobian(f.q)) @ (f.xdot_d - self.gain * f.e)
-
-
 @pytest.fixture
 def resolved_rate(monkeypatch):
     monkeypatch.setattr(registry, "_FACTORIES", dict(registry._FACTORIES))  # the registration ends with the test
-    register_policy("resolved-rate", ResolvedRate)
-    return ResolvedRate
+    return recipe("How to add a controller")["ResolvedRate"]
 
 
 def test_a_new_controller_runs_in_the_env_and_the_kinematic_engine(resolved_rate):

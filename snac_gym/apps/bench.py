@@ -3,14 +3,23 @@
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import os
 import time
+import tracemalloc
 from collections.abc import Iterator
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
+from threadpoolctl import threadpool_limits
 
+from snac_gym.extras import MissingExtraError
+from snac_gym.kinematics import joint_step
 from snac_gym.physics.base import SIMULATED
+from snac_gym.policies import make_policy
+from snac_gym.references import PAPER_Q0
+from snac_gym.tasks import TASKS, get_task
 
 #: Upper bound of ``--steps``: each env is timed 5 times over ``steps`` steps, so 1,000,000 steps
 #: take ~20 min for the UR10's two ids in PyBullet and MuJoCo at the ~18,000 steps/s measured here
@@ -83,11 +92,6 @@ def run_env_bench(
     is installed). With ``include_panda`` and panda-gym installed, panda-gym's
     ``PandaReachJoints-v3`` is measured in the same run for comparison.
     """
-    import gymnasium as gym
-
-    from snac_gym.extras import MissingExtraError
-    from snac_gym.tasks import TASKS
-
     check_bench_counts(steps, MIN_BENCH_COUNT)
     results: dict[str, dict[str, float]] = {}
     for engine in physics:
@@ -134,10 +138,7 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
     velocity tracking error, and the env's throughput. Used to choose the default
     ``n_substeps`` (see README).
     """
-    import gymnasium as gym
-
     import snac_gym  # noqa: F401
-    from snac_gym.kinematics import joint_step
 
     rows = []
     for n_sub in substeps:
@@ -203,10 +204,7 @@ def tracking_errors(env_id: str, physics: str, kind: str, seed: int, steps: int 
         ``max_joint_drift`` (max |θ − θ_kin| over the episode, rad) and ``ee_drift`` (‖f(θ) − f(θ_kin)‖
         after the last step, m).
     """
-    import gymnasium as gym
-
     import snac_gym  # noqa: F401  (registers the envs)
-    from snac_gym.kinematics import joint_step
 
     env = gym.make(env_id, physics=physics).unwrapped
     try:
@@ -237,8 +235,6 @@ def run_tracking_study(
 
     ``"mujoco"`` is left out where the mujoco extra is not installed.
     """
-    import importlib.util
-
     physics = tuple(engine for engine in physics if engine != "mujoco" or importlib.util.find_spec("mujoco"))
     rows = []
     for env_id in env_ids:
@@ -289,12 +285,7 @@ def run_act_bench(
         ``{name: {task: {"median_us", "p99_us", "mean_us", "calls"}}}``. A policy that fails
         to import or build is reported as ``{"error": message}`` instead of a task dict.
     """
-    import gymnasium as gym
-
     import snac_gym  # noqa: F401  (registers the envs)
-    from snac_gym.policies import make_policy
-    from snac_gym.references import PAPER_Q0
-    from snac_gym.tasks import get_task
 
     if clock not in ("wall", "cpu"):
         raise ValueError(f"clock must be 'wall' or 'cpu', got {clock!r}")
@@ -354,14 +345,10 @@ def format_act_bench(results: dict[str, dict[str, Any]]) -> str:
 # -- the batched kinematic vector env ------------------------------------------------------------
 def _one_thread() -> Any:
     """A context that limits BLAS/OpenMP pools to one thread (threadpoolctl, a dependency)."""
-    from threadpoolctl import threadpool_limits
-
     return threadpool_limits(limits=1)
 
 
 def _vector_env(env_id: str, count: int) -> Any:
-    import gymnasium as gym
-
     return gym.make_vec(env_id, num_envs=count, vectorization_mode="vector_entry_point", max_steps=10**9)
 
 
@@ -393,8 +380,6 @@ def _reset_seconds(env_id: str, count: int = 128) -> float:
 
 def _memory_per_env(env_id: str, count: int) -> tuple[float, float]:
     """Bytes per sub-env held by a vector env of ``count`` (beyond one of 1), and the extra peak of one step."""
-    import tracemalloc
-
     held = []
     for size in (1, count):
         tracemalloc.start()
@@ -423,8 +408,6 @@ def run_vector_bench(
     rate over whole episodes of the registered length. At the largest size the memory per
     sub-env is measured with ``tracemalloc``: the arrays it holds and the temporaries of a step.
     """
-    from snac_gym.tasks import TASKS
-
     rows: list[dict[str, float | str]] = []
     with _one_thread():
         for env_id in env_ids or tuple(task.env_id for task in TASKS.values()):

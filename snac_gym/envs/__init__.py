@@ -2,10 +2,8 @@
 
 from typing import Any
 
-from snac_gym.envs.core import (
-    ACTION_TYPES,
-    REWARD_TYPES,
-    SHAPED_REWARD,
+from snac_gym.envs.core import ACTION_TYPES, REWARD_TYPES, SHAPED_REWARD, URTaskEnv, shaped_reward
+from snac_gym.envs.task_envs import (
     TASK_ENV_CLASSES,
     EllipseTrackEnv,
     PoseEllipseTrackEnv,
@@ -13,8 +11,6 @@ from snac_gym.envs.core import (
     ReachEnv,
     UR10EllipseTrackEnv,
     UR10ReachEnv,
-    URTaskEnv,
-    shaped_reward,
     task_env_class,
 )
 from snac_gym.envs.ids import REGISTERED_IDS, RegisteredId

@@ -108,7 +108,7 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         cartesian_speed: float = CARTESIAN_SPEED,
         **env_kwargs: Any,
     ) -> None:
-        from snac_gym.envs.core import task_env_class
+        from snac_gym.envs.task_envs import task_env_class
         from snac_gym.sampling import nominal_configuration
 
         if reward_type not in GOAL_REWARD_TYPES:

@@ -34,7 +34,8 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from snac_gym.cost import step_costs
-from snac_gym.envs.core import URTaskEnv, draw_episode, physics_argument, shaped_reward, task_env_class
+from snac_gym.envs.core import URTaskEnv, draw_episode, physics_argument, shaped_reward
+from snac_gym.envs.task_envs import task_env_class
 from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.kinematics import Kinematics, PositionChain, joint_step
 from snac_gym.references import Ellipse, FixedTarget, Reference
@@ -419,13 +420,13 @@ def vector_env_supports(task: Task) -> bool:
 
 
 class ReachVectorEnv(URTaskVectorEnv):
-    """``snac_gym/<Robot>Reach-v0`` (:class:`~snac_gym.envs.core.ReachEnv`), N episodes at once on the kinematic model."""
+    """``snac_gym/<Robot>Reach-v0`` (:class:`~snac_gym.envs.task_envs.ReachEnv`), N episodes at once on the kinematic model."""
 
     task_spec = get_task("reach")
 
 
 class EllipseTrackVectorEnv(URTaskVectorEnv):
-    """``snac_gym/<Robot>EllipseTrack-v0`` (:class:`~snac_gym.envs.core.EllipseTrackEnv`), N episodes at once."""
+    """``snac_gym/<Robot>EllipseTrack-v0`` (:class:`~snac_gym.envs.task_envs.EllipseTrackEnv`), N episodes at once."""
 
     task_spec = get_task("track")
 
