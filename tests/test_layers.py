@@ -159,3 +159,8 @@ def _path_of(module: str) -> Path:
     folder, rest = (base, parts[2:]) if base is not None else (ROOT / "snac_gym", parts[1:])
     path = folder.joinpath(*rest)
     return path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+
+
+def test_the_layers_drawing_of_the_docs_is_generated_from_the_code():
+    result = subprocess.run([sys.executable, str(ROOT / "tools" / "layers_doc.py"), "--check"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
