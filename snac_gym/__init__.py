@@ -6,6 +6,7 @@ Importing the package registers one environment id per robot and task, ``snac_gy
 with its goal-conditioned variant ``snac_gym/UR10ReachGoal-v0``, ... (:mod:`snac_gym.envs.goal`).
 """
 
+from snac_gym import _renamed
 from snac_gym.cost import CostTerms, instantaneous_cost, trajectory_cost
 from snac_gym.envs import ENV_IDS, register_envs
 from snac_gym.kinematics import Kinematics
@@ -16,6 +17,7 @@ from snac_gym.references import Ellipse, FixedTarget
 __version__ = "0.2.0"
 
 register_envs()
+_renamed.install()  # `import evaluation` (0.1.0's name) says where it went
 
 __all__ = [
     "ENV_IDS",

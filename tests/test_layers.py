@@ -164,3 +164,13 @@ def _path_of(module: str) -> Path:
 def test_the_layers_drawing_of_the_docs_is_generated_from_the_code():
     result = subprocess.run([sys.executable, str(ROOT / "tools" / "layers_doc.py"), "--check"], capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("old", ["evaluation.runner", "baselines"])
+def test_an_old_import_after_snac_gym_names_the_new_one(tmp_path, old):
+    """For the 0.2 releases, 0.1.0's import names fail naming where they went (once snac_gym is imported)."""
+    top = old.split(".")[0]  # Python imports the parent package first
+    result = subprocess.run([sys.executable, "-c", f"import snac_gym, {old}"], cwd=tmp_path, capture_output=True, text=True)
+    assert result.returncode == 1
+    assert f"ModuleNotFoundError: No module named {top!r}: snac-gym's {top} package is imported as" in result.stderr
+    assert f"write `import snac_gym.{top}`" in result.stderr
