@@ -74,6 +74,7 @@ ENTRY_POINT_GROUP = "snac_gym.robots"
 #: which load the entry points first.
 ROBOTS: dict[str, Robot] = {}
 _loaded_entry_points: set[str] = set()
+_scanned = False  # the installed entry points are read once per process (a scan costs ~5 ms)
 
 
 def register_robot(robot: Robot) -> Robot:
@@ -93,16 +94,19 @@ def register_robot(robot: Robot) -> Robot:
     return robot
 
 
-def load_entry_points() -> None:
-    """Register the robots of the ``snac_gym.robots`` entry points not loaded yet.
+def load_entry_points(rescan: bool = False) -> None:
+    """Register the robots of the ``snac_gym.robots`` entry points not loaded yet: the installed packages are
+    read on the first call of the process (``rescan=True``: again, after installing one at run time).
 
     Raises:
         ValueError: Naming the entry point whose object is not a :class:`Robot`, or cannot be registered.
     """
+    global _scanned
+    if _scanned and not rescan:
+        return
     for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         if entry.value in _loaded_entry_points:
             continue
-        _loaded_entry_points.add(entry.value)
         loaded = entry.load()
         robot = loaded() if callable(loaded) and not isinstance(loaded, Robot) else loaded
         if not isinstance(robot, Robot):
@@ -113,6 +117,8 @@ def load_entry_points() -> None:
                 register_robot(robot)
         except ValueError as error:
             raise ValueError(f"entry point {entry.name} = {entry.value!r} ({ENTRY_POINT_GROUP}): {error}") from None
+        _loaded_entry_points.add(entry.value)
+    _scanned = True  # only once every entry point loaded: a broken one fails every lookup alike
 
 
 def robot_names() -> tuple[str, ...]:
