@@ -73,7 +73,7 @@ class SVFPolicy(ResolvedRatePolicy):
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
         """``Ĵ⁺ v`` for one ``(J, v)`` or stacks ``(B, n, m)``, ``(B, n, 1)``."""
-        from snac_gym.kernels.small import svd
+        from snac_gym.kernels.small import svd  # numba imported where first needed, as above
 
         u_mat, sigma, vt = svd(jacobian)
         filtered = filtered_singular_values(sigma, self.nu, self.sigma0)

@@ -11,6 +11,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from snac_gym.kinematics import Kinematics
+from snac_gym.policies import available_policies
+from snac_gym.sampling import REGIONS, SampleSpace
 from snac_gym.tasks import PAPER_TASKS, task_names
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
 
@@ -168,8 +171,6 @@ def _same_file(a: Path, b: Path) -> bool:
 def _check_effort_reference(
     name: str, match_effort: bool, effort_target: float | None, controllers: Sequence[str] | None
 ) -> None:
-    from snac_gym.policies import available_policies
-
     registered = available_policies()
     if name not in registered:
         raise ValueError(f"--effort-reference {name!r} names no registered controller; choose one of {registered}")
@@ -183,9 +184,6 @@ def _check_effort_reference(
 
 def parse_sample_space(name: str, cuboid: str | None, robot: str) -> Any:
     """``--sample-space cuboid`` (the default cuboid, or ``--cuboid``) or ``workspace`` (the arm's whole reach)."""
-    from snac_gym.kinematics import Kinematics
-    from snac_gym.sampling import REGIONS, SampleSpace
-
     if name not in REGIONS:
         raise ValueError(f"--sample-space must be one of {', '.join(REGIONS)}, got {name!r}")
     corners = parse_cuboid(cuboid)

@@ -24,7 +24,9 @@ from snac_gym.evaluation.reference.optimum import OPTIMAL, REFERENCE_LIMITS
 from snac_gym.evaluation.samples import check_samples_file
 from snac_gym.evaluation.store import file_sha1
 from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics
+from snac_gym.kinematics import Kinematics, shared_kinematics
+from snac_gym.model_error import ModelError, refuse_pose_tasks
+from snac_gym.policies import available_policies
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import PAPER_TASKS, get_task, task_names
 from snac_gym.tasks.pose import POSE_TASK_NAMES, is_pose_task, register_pose_tasks
@@ -339,8 +341,6 @@ def _check_effort(config: EvaluationConfig) -> None:
     """The equal-effort options: statistic, target, tolerance, screening samples."""
     effort_statistic_named(config.effort_statistic)
     if config.match_effort and config.effort_target is None:
-        from snac_gym.policies import available_policies
-
         if config.effort_reference not in available_policies():
             raise ValueError(
                 f"effort_reference {config.effort_reference!r} names no registered controller; "
@@ -378,9 +378,6 @@ def _check_model_error(config: EvaluationConfig) -> None:
     """A model error that parses, on position tasks and the kinematic engine."""
     if config.model_error is None:
         return
-    from snac_gym.kinematics import shared_kinematics
-    from snac_gym.model_error import ModelError, refuse_pose_tasks
-
     ModelError.parse(config.model_error).check_joints(shared_kinematics(config.robot).n_joints)
     refuse_pose_tasks([task for task in config.tasks if is_pose_task(task)])
     if config.engine != "kinematic":

@@ -117,7 +117,7 @@ def point_row(
     costs = rows["cost"].to_numpy(dtype=float)
     half = math.nan
     if costs.size > 1:
-        from scipy import stats
+        from scipy import stats  # ~0.5 s to import; the reports' prefetch thread loads it
 
         half = float(stats.t.ppf(0.975, costs.size - 1) * costs.std(ddof=1) / math.sqrt(costs.size))
     accuracy = rows[get_task(task).accuracy_measure]
@@ -285,6 +285,7 @@ def plot_tradeoff(
     (an open diamond where its effort match failed), and points whose success rate is below
     ``config.success_threshold`` are hollow, so a cheap point that fails the task is told apart.
     """
+    # only plotting needs matplotlib (~0.4 s; --no-plots skips it)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -365,7 +366,7 @@ def _legend_handles(
     names: Sequence[str], colors: dict[str, str], styles: dict[str, str], threshold: float
 ) -> list[Any]:
     """One entry per controller, then the markers' and reference lines' meanings."""
-    from matplotlib.lines import Line2D
+    from matplotlib.lines import Line2D  # only plotting needs matplotlib
 
     handles = [Line2D([], [], color=colors[n], ls=styles[n], marker="o", label=controller_label(n)) for n in names]
     handles += [

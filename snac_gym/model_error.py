@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pinocchio as pin
 
 #: Pinocchio's joint-model letters → their axis.
 _ALIGNED_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
@@ -141,8 +142,6 @@ class ModelError:
         Joint offsets enter the joint placements (module docstring), the link scale every placement's
         translation and the tool frame's, the tool offset the tool frame's placement in its own axes.
         """
-        import pinocchio as pin
-
         self.check_joints(int(model.nq))
         for joint in range(1, model.njoints):
             placement = model.jointPlacements[joint]

@@ -714,7 +714,7 @@ def _relaxation_kernel() -> Any:
     The helpers are compiled first and bound in place of their Python versions in this module's namespace,
     where the compiled callers look them up; numba imports here, not with the module.
     """
-    from numba import njit
+    from numba import njit  # numba (~0.2 s to import) only once a bound is asked for
 
     namespace = globals()
     for name in _RELAXATION_HELPERS:

@@ -47,6 +47,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import cholesky_banded, solve_banded
 from scipy.linalg.lapack import dpbtrf, dpbtrs
+from threadpoolctl import threadpool_limits
 
 from snac_gym.cost import CostConvention, cost_and_gradient
 from snac_gym.kinematics import Kinematics, joint_path
@@ -126,8 +127,6 @@ def single_threaded_blas() -> Iterator[None]:
     from threads: with OpenBLAS's default thread count on a busy 2-core machine a solve ran 5-10x
     slower (measured, docs/optimal.md). Worker processes already run in parallel.
     """
-    from threadpoolctl import threadpool_limits
-
     with threadpool_limits(limits=1, user_api="blas"):
         yield
 

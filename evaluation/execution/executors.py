@@ -18,6 +18,7 @@ where they run does not change what they return.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import functools
 import heapq
 import itertools
@@ -34,7 +35,13 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, InvalidStateError, ProcessPoolExecutor, wait
 from typing import Any
 
+from threadpoolctl import threadpool_limits
+
 from snac_gym.evaluation.execution.memory import keep_freed_memory
+from snac_gym.kernels.compiled import KERNEL_MODULES, load_if_cached, warm_up_shared
+from snac_gym.policies import registry
+from snac_gym.robots import ROBOTS
+from snac_gym.tasks import TASKS
 
 
 class ExecutorStopped(RuntimeError):
@@ -110,8 +117,6 @@ def _die_with_parent(parent_pid: int) -> None:
     then the fork server exits, and the signal ends any worker still forked from it.
     """
     try:
-        import ctypes
-
         libc = ctypes.CDLL(None, use_errno=True)
         if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0:
             raise OSError(ctypes.get_errno(), "prctl")
@@ -136,10 +141,6 @@ _PRELOAD = ["snac_gym.evaluation.execution.kernel_preload"]
 def _registrations() -> bytes | None:
     """What was registered at run time (policies, tasks, robots), pickled for the workers; ``None``
     if some entry cannot be pickled (a lambda, a class defined in a function)."""
-    from snac_gym.policies import registry
-    from snac_gym.robots import ROBOTS
-    from snac_gym.tasks import TASKS
-
     try:
         return pickle.dumps((dict(registry._BUILTIN), dict(registry._FACTORIES), dict(TASKS), dict(ROBOTS)))
     except (pickle.PicklingError, AttributeError, TypeError):
@@ -147,10 +148,6 @@ def _registrations() -> bytes | None:
 
 
 def _install_registrations(data: bytes) -> None:
-    from snac_gym.policies import registry
-    from snac_gym.robots import ROBOTS
-    from snac_gym.tasks import TASKS
-
     builtin, factories, tasks, robots = pickle.loads(data)
     registry._BUILTIN.update(builtin)
     registry._FACTORIES.update(factories)
@@ -197,13 +194,9 @@ def _init_worker(parent_pid: int, registrations: bytes | None = None, compile_lo
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
-    from threadpoolctl import threadpool_limits
-
     threadpool_limits(1, user_api="blas")
     keep_freed_memory()
     if compile_locks:
-        from snac_gym.kernels.compiled import warm_up_shared
-
         warm_up_shared(compile_locks)
 
 
@@ -248,12 +241,8 @@ class ProcessExecutor:
         if method == "forkserver":
             context.set_forkserver_preload(_PRELOAD)
         elif method == "fork":
-            from snac_gym.kernels.compiled import load_if_cached
-
             load_if_cached()  # once here, for every worker forked from here
         self.start_method = context.get_start_method()
-        from snac_gym.kernels.compiled import KERNEL_MODULES
-
         compile_locks = tuple(context.Lock() for _ in KERNEL_MODULES)
         self._pool = ProcessPoolExecutor(
             max_workers=workers,
@@ -470,7 +459,7 @@ class RayExecutor:
 
     def __init__(self, address: str, workers: int | None = None) -> None:
         try:
-            import ray
+            import ray  # the ray extra
         except ImportError as exc:
             raise RuntimeError("--ray needs Ray: pip install 'snac-gym[ray]'") from exc
         self._ray = ray

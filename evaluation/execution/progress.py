@@ -6,7 +6,10 @@ this wraps them with a tqdm bar for a terminal and the status text of the evalua
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
+
+from snac_gym.progress import ProgressLines, wants_lines
 
 
 class Progress:
@@ -34,11 +37,8 @@ class Progress:
         write: Callable[[str], None] | None = None,
         label: str = "evaluate:",
     ) -> None:
-        import sys
-
+        # start-up time: every worker imports this; only the parent has a bar
         from tqdm.auto import tqdm
-
-        from snac_gym.progress import ProgressLines, wants_lines
 
         self._bar = tqdm(total=total, unit="rollout", disable=None if enabled else True, dynamic_ncols=True)
         if lines is None:

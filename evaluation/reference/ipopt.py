@@ -70,7 +70,7 @@ class IpoptSolution:
 
 def _casadi() -> Any:
     try:
-        import casadi
+        import casadi  # the check extra
     except ImportError:
         raise ImportError(MISSING_CASADI) from None
     return casadi

@@ -44,9 +44,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from snac_gym.evaluation.execution.jobs import JobResult, kinematic_logs, policy_context
+from snac_gym.evaluation.reference import cache as reference_cache
 from snac_gym.evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention
 from snac_gym.metrics import rollout_metrics
+from snac_gym.optimality import certified_cost_lower_bounds
+from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import reference_trajectories, simulate_kinematic
 from snac_gym.trajopt import (
     FTOL,
@@ -213,8 +217,6 @@ def own_start_commands(
     ``joint_limits``: keep them inside the position limits (Ω(θ)); ``False`` for the problem without
     position limits, whose better basins may lie beyond them.
     """
-    from snac_gym.policies.registry import make_policy
-
     starts: list[dict[str, np.ndarray]] = [{} for _ in samples]
     for name, kwargs in OWN_STARTS:
         make = functools.partial(make_policy, name, context, **{**kwargs, "joint_limits": joint_limits})
@@ -229,8 +231,6 @@ def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.
     under the run's cost), else NaN: certified for every command sequence within the velocity limits. The
     optimum's cost is its V̄ (the reachable set's size, which tightens the Lipschitz constant): the bound
     holds for any V̄, so the reference does not certify itself."""
-    from snac_gym.optimality import certified_cost_lower_bounds
-
     if getattr(kinematics, "task_error", None) is not None:
         return np.full(len(job.samples), np.nan)
     q0s = np.array([s.q0 for s in job.samples], dtype=float)
@@ -245,9 +245,6 @@ def run_optimal_job(job: OptimalJob) -> Any:
 
     Returns a :class:`snac_gym.evaluation.execution.jobs.JobResult` whose metrics carry :data:`SOLVER_COLUMNS` too.
     """
-    from snac_gym.evaluation.reference import cache as reference_cache
-    from snac_gym.evaluation.execution.jobs import JobResult
-
     if job.cache_dir is None or job.keep_logs:
         return _solve_job(job)
     folder = Path(job.cache_dir)
@@ -268,8 +265,6 @@ def run_optimal_job(job: OptimalJob) -> Any:
 
 def _solve_job(job: OptimalJob) -> Any:
     """:func:`run_optimal_job` without the cache."""
-    from snac_gym.evaluation.execution.jobs import JobResult, kinematic_logs, policy_context
-
     context = policy_context(job.robot, job.dt, job.task)
     kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
     times = np.arange(job.steps) * job.dt

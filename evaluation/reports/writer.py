@@ -443,7 +443,7 @@ def prefetch_report_modules() -> threading.Thread:
 
     def load() -> None:
         try:
-            import matplotlib
+            import matplotlib  # in this thread, off the main one: the point of it
 
             matplotlib.use("Agg")
             import matplotlib.pyplot  # noqa: F401
@@ -461,10 +461,10 @@ def plot_cost_boxes(
 ) -> Path:
     """Box plots of the per-sample cost, one panel per task, log scale; controllers that fail the
     task (success below ``success_threshold``) are drawn hatched and labelled so."""
-    import matplotlib
+    import matplotlib  # start-up time: each worker imports this module, never plots
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # after the backend is chosen
 
     fig, axes = plt.subplots(len(tasks), 1, figsize=(1.5 + 0.9 * len(controllers), 3.6 * len(tasks)), squeeze=False)
     for ax, task in zip(axes[:, 0], tasks, strict=True):

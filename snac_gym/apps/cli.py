@@ -17,7 +17,10 @@ from typing import Optional
 
 import typer
 
+from snac_gym import __version__
 from snac_gym._signals import cannot_raise_here, send_again
+from snac_gym.policies import available_policies
+from snac_gym.progress import wants_lines
 from snac_gym.robots import robot_names
 from snac_gym.tasks import task_names
 
@@ -37,8 +40,6 @@ app = typer.Typer(
 
 def _version(value: bool) -> None:
     if value:
-        from snac_gym import __version__
-
         typer.echo(f"snac-gym {__version__}")
         raise typer.Exit()
 
@@ -81,6 +82,7 @@ def bench(
     vector: bool = typer.Option(False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."),
 ) -> None:
     """Env steps per second and real-time factor of both ids, in PyBullet and MuJoCo, on one core (and, with --act, act latency)."""
+    # start-up time: only bench needs bench.py (threadpoolctl)
     from snac_gym.apps.bench import check_bench_counts, format_env_bench, run_env_bench, run_substep_study
 
     try:  # both before the first measurement, which a bad --act-calls would otherwise follow by minutes
@@ -90,11 +92,13 @@ def bench(
         raise typer.Exit(code=2) from None
     typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
     if vector:
+        # start-up time: only bench needs bench.py
         from snac_gym.apps.bench import format_vector_bench, run_vector_bench
 
         typer.echo("\nbatched kinematic vector env (gym.make_vec(..., vectorization_mode='vector_entry_point')), one core")
         typer.echo(format_vector_bench(run_vector_bench()))
     if tracking:
+        # start-up time: only bench needs bench.py
         from snac_gym.apps.bench import format_tracking_study, run_tracking_study
 
         typer.echo("\nfollowing the exact kinematic model θₖ₊₁ = θₖ + uₖΔt over 1000 steps, worst of 5 episodes")
@@ -108,8 +112,8 @@ def bench(
                 f"{row['max_joint_velocity_error_rad_s']:.2e} rad/s, {row['steps_per_s']:.0f} steps/s"
             )
     if act:
+        # start-up time: only bench needs bench.py
         from snac_gym.apps.bench import format_act_bench, run_act_bench
-        from snac_gym.policies import available_policies
 
         typer.echo("\nact latency on one core, closed loop from the paper's θ0 (goal: median ≤ 20 µs, p99 ≤ 100 µs)")
         typer.echo(format_act_bench(run_act_bench(names=available_policies(), calls=act_calls)))
@@ -129,6 +133,7 @@ def demo(
     model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controller a wrong arm model (as for evaluate); the simulated arm keeps the true one."),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
+    # start-up time: the demo loads numba, scipy and pandas
     from snac_gym.apps.demo import run_demo
 
     _check_task(task)
@@ -168,6 +173,7 @@ def real(
     rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off."),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim."""
+    # start-up time (real.run: pandas, numba); tests swap SafetyLimits
     from snac_gym.real import ConnectionFailure, SafetyLimits
     from snac_gym.real.loop_tuning import LoopTuning
     from snac_gym.real.recovery import RecoveryLimits
@@ -221,6 +227,7 @@ def emulate_ur(
     rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="SCHED_FIFO priority of the control cycle (needs root/CAP_SYS_NICE); 0: off."),
 ) -> None:
     """Emulate a UR controller on 127.0.0.1 for ur_rtde (RTDE, dashboard, script upload), with faults on demand."""
+    # start-up time: only emulate-ur needs the emulator's servers
     from snac_gym.real.emulator import UREmulator
     from snac_gym.real.emulator.serve import fault_plan, parse_numbers, serve
 
@@ -316,6 +323,10 @@ def evaluate(
     sweep_span: Optional[float] = typer.Option(None, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4)."),
 ) -> None:
     """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
+    # start-up time: the evaluation loads numba, scipy and pandas
+    from snac_gym.evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.runner import export_sample_set, run_evaluation
+    from snac_gym.evaluation.sweep import run_sweep
     from snac_gym.evaluation.options import (
         check_option_combinations,
         parse_controllers,
@@ -325,8 +336,6 @@ def evaluate(
         parse_sample_space,
         parse_tasks,
     )
-    from snac_gym.evaluation.run_config import EvaluationConfig
-    from snac_gym.evaluation.runner import export_sample_set, run_evaluation
 
     engine = _renamed_option("--engine", engine, "--backend", backend, "kinematic")
     try:
@@ -358,8 +367,6 @@ def evaluate(
         start = time.perf_counter()
         with _sigterm_as_interrupt():
             if sweep:
-                from snac_gym.evaluation.sweep import run_sweep
-
                 run_sweep(config, points=7 if sweep_points is None else sweep_points,
                           span=4.0 if sweep_span is None else sweep_span)
             else:
@@ -401,8 +408,7 @@ def train_ppo_command(
     """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""
     _check_task(task)
     try:
-        from snac_gym.ppo.train import train_ppo
-        from snac_gym.progress import wants_lines
+        from snac_gym.ppo.train import train_ppo  # start-up time: the trainer loads pandas
 
         lines = (lambda text: typer.echo(text, err=True)) if progress and wants_lines() else None
         result = train_ppo(task=task, out=out, timesteps=timesteps, seed=seed, config_path=config, resume=resume,

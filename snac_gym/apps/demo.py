@@ -23,8 +23,11 @@ from typing import Any
 
 import pandas as pd
 
+from snac_gym.envs import make_task_env
 from snac_gym.outputs import usable_out_folder
 from snac_gym.metrics import DemoMetrics, demo_metrics
+from snac_gym.policies import make_policy
+from snac_gym.policies.base import PolicyContext
 from snac_gym.rollout import add_critic_diagnostics, rollout, write_log
 from snac_gym.tasks import get_task
 
@@ -123,10 +126,6 @@ def run_demo(
         panels), ``figure3.png`` (the four together), ``critic_weights.png`` (policies
         that log critic weights), ``log.parquet`` (+ ``.csv``/``.json``) and ``summary.json``.
     """
-    from snac_gym.envs import make_task_env
-    from snac_gym.policies import make_policy
-    from snac_gym.policies.base import PolicyContext
-
     spec = get_task(task)
     options = spec.demo_options(robot)
     if steps is not None and duration is not None:
@@ -195,7 +194,7 @@ def write_demo_outputs(
     out.mkdir(parents=True, exist_ok=True)
     prefix = f"{task}_{controller}_"
     if plots:
-        from snac_gym.apps import plots as panels
+        from snac_gym.apps import plots as panels  # matplotlib only when plotting (--no-plots)
 
         figures = {
             "path": panels.plot_path(log),

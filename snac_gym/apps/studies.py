@@ -10,15 +10,24 @@ the exact kinematic model (:func:`snac_gym.rollout.simulate_kinematic`).
 from __future__ import annotations
 
 import functools
+import itertools
 from dataclasses import asdict
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pandas as pd
 
 from snac_gym.cost import trajectory_cost
 from snac_gym.metrics import demo_metrics
 from snac_gym.policies.base import PolicyContext
+from snac_gym.policies.snac import (
+    INITIAL_WEIGHT_SCALES,
+    LEARNING_RATE_UNITS,
+    SCHEDULE_CLOCKS,
+    WEIGHT_UPDATES,
+    SNACPolicy,
+)
 from snac_gym.rollout import log_array, rollout, simulate_kinematic
 from snac_gym.tasks import Sample, Task, get_task
 
@@ -71,18 +80,7 @@ def discretisation_study(
         One row per run: the options, ``initial_weights`` (the kind), ``initial_weight_scale``
         (c or w), ``seed`` and every :class:`DemoMetrics` field.
     """
-    import itertools
-
-    import gymnasium as gym
-
     import snac_gym  # noqa: F401  (registers the envs)
-    from snac_gym.policies.snac import (
-        INITIAL_WEIGHT_SCALES,
-        LEARNING_RATE_UNITS,
-        SCHEDULE_CLOCKS,
-        WEIGHT_UPDATES,
-        SNACPolicy,
-    )
 
     rows = []
     for task in tasks:
@@ -180,10 +178,7 @@ def random_episode_study(
         (u₀ᵀu₀/Δt, the first step's share of the smoothness cost) and the three cost terms
         and their sum.
     """
-    import gymnasium as gym
-
     import snac_gym  # noqa: F401  (registers the envs)
-    from snac_gym.policies.snac import SNACPolicy
 
     rows = []
     for task in tasks:
@@ -262,10 +257,7 @@ def effort_study(
     Returns:
         One row per task, episode and scale: ``peak_command_norm``, ``cost_effort``, ``final_error``.
     """
-    import gymnasium as gym
-
     import snac_gym  # noqa: F401  (registers the envs)
-    from snac_gym.policies.snac import SNACPolicy
 
     rows = []
     for task in tasks:

@@ -2,6 +2,8 @@
 
 from typing import Any
 
+import gymnasium as gym
+
 from snac_gym.envs.core import ACTION_TYPES, REWARD_TYPES, SHAPED_REWARD, URTaskEnv, shaped_reward
 from snac_gym.envs.task_envs import (
     TASK_ENV_CLASSES,
@@ -13,9 +15,11 @@ from snac_gym.envs.task_envs import (
     UR10ReachEnv,
     task_env_class,
 )
+from snac_gym.envs.goal import COARSE_REACH, coarse_reach_id
 from snac_gym.envs.ids import REGISTERED_IDS, RegisteredId
+from snac_gym.envs.vector import task_vector_env_class, vector_env_supports
 from snac_gym.robots import all_robots
-from snac_gym.tasks import Task, all_tasks
+from snac_gym.tasks import Task, all_tasks, get_task
 from snac_gym.tasks.pose import register_pose_tasks
 
 #: The registered task env ids (one per robot and task) and their entry points (filled by :func:`register_envs`).
@@ -52,10 +56,6 @@ def register_pose_envs() -> None:
 
 def _register(task: Task, robot: str, goal: bool) -> None:
     """Register the id of ``task`` on ``robot`` (its goal variant if ``goal``) unless it exists."""
-    import gymnasium as gym
-
-    from snac_gym.envs.vector import task_vector_env_class, vector_env_supports
-
     env_id = task.env_id_for(robot, goal=goal)
     env_class = task_env_class(task)
     kwargs = {"robot": robot} if env_class.task_spec is task and not goal else {"robot": robot, "task": task.name}
@@ -79,10 +79,6 @@ def _register(task: Task, robot: str, goal: bool) -> None:
 
 def _register_coarse_reach(robot: str) -> None:
     """Register the coarse reach preset on ``robot`` (:data:`snac_gym.envs.goal.COARSE_REACH`) unless it exists."""
-    import gymnasium as gym
-
-    from snac_gym.envs.goal import COARSE_REACH, coarse_reach_id
-
     for action in ("joint", "cartesian"):
         env_id = coarse_reach_id(robot, action)
         if env_id in gym.registry:
@@ -103,10 +99,6 @@ def make_task_env(task: Task | str, robot: str = "ur10", **kwargs: Any) -> Any:
         **kwargs: Arguments of ``gym.make`` and the env (not ``robot``: the id fixes it);
             ``max_steps=N`` is passed on as ``max_episode_steps=N``.
     """
-    import gymnasium as gym
-
-    from snac_gym.tasks import get_task
-
     env_id = get_task(task).env_id_for(robot)
     if env_id not in gym.registry:
         register_envs()
@@ -123,8 +115,6 @@ def unregister_envs(task: str | None = None, robot: str | None = None) -> list[s
     Returns:
         The ids removed.
     """
-    import gymnasium as gym
-
     removed = [
         env_id for env_id, entry in REGISTERED_IDS.items()
         if (task is None or entry.task == task) and (robot is None or entry.robot == robot)

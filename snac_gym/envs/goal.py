@@ -34,7 +34,10 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.envs.ids import IdRobotCheck
-from snac_gym.kinematics import damped_least_squares
+from snac_gym.envs.task_envs import task_env_class
+from snac_gym.kinematics import Kinematics, damped_least_squares
+from snac_gym.robots import get_robot
+from snac_gym.sampling import SampleSpace, nominal_configuration
 from snac_gym.tasks import Task, get_task
 
 #: Reward types of the goal envs.
@@ -62,8 +65,6 @@ COARSE_REACH = {"tolerance": 0.05, "episode_steps": 50, "dt": 0.04, "n_substeps"
 def coarse_reach_id(robot: str, action: str = "joint") -> str:
     """The coarse reach preset's id on ``robot``: ``snac_gym/PandaReachGoalCoarse-v0``, or with
     Cartesian actions ``snac_gym/PandaReachGoalCoarseCartesian-v0``."""
-    from snac_gym.robots import get_robot
-
     suffix = "Cartesian" if action == "cartesian" else ""
     return f"snac_gym/{get_robot(robot).env_prefix}ReachGoalCoarse{suffix}-v0"
 
@@ -108,9 +109,6 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         cartesian_speed: float = CARTESIAN_SPEED,
         **env_kwargs: Any,
     ) -> None:
-        from snac_gym.envs.task_envs import task_env_class
-        from snac_gym.sampling import nominal_configuration
-
         if reward_type not in GOAL_REWARD_TYPES:
             raise ValueError(f"reward_type must be one of {GOAL_REWARD_TYPES}, got {reward_type!r}")
         if start not in GOAL_STARTS:
@@ -278,9 +276,6 @@ class CoarseReachGoalEnv(GoalTaskEnv):
     """
 
     def __init__(self, robot: str = "panda", **overrides: Any) -> None:
-        from snac_gym.kinematics import Kinematics
-        from snac_gym.sampling import SampleSpace, nominal_configuration
-
         kinematics = Kinematics(robot)
         centre = kinematics.forward(nominal_configuration(kinematics))
         half = COARSE_REACH["box"] / 2

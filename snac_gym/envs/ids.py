@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from snac_gym.robots import get_robot
+from snac_gym.tasks import get_task
 
 
 @dataclass(frozen=True)
@@ -51,8 +52,6 @@ def check_id_robot(spec: Any, robot: str) -> None:
     driven = get_robot(robot)
     if driven.name == registered.robot:
         return
-    from snac_gym.tasks import get_task
-
     right = get_task(registered.task).env_id_for(driven.name, goal=registered.goal)
     raise ValueError(
         f"{spec.id} is the id of the {get_robot(registered.robot).description or registered.robot}; "

@@ -12,9 +12,12 @@ that was in place, as soon as the compile returns. Calls that find a compiled ve
 
 from __future__ import annotations
 
+import importlib
 import signal
 import threading
+import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -77,9 +80,6 @@ def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     A loop with a deadline calls this first (``snac-gym real``): a kernel's first call takes a
     tenth of a second to load from the cache and seconds to compile, far beyond one control period.
     """
-    import importlib
-    import time
-
     started = time.perf_counter()
     for module in modules:
         importlib.import_module(module)
@@ -99,9 +99,6 @@ def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
     a cache this misjudges costs time only, as numba checks each index and compiles what is out of
     date. Says no where numba's cache layout is not the one known here.
     """
-    import importlib
-    from pathlib import Path
-
     for module in modules:
         importlib.import_module(module)
     for compiled in _KERNELS:

@@ -38,8 +38,9 @@ import numpy as np
 import pinocchio as pin
 
 from snac_gym.extras import require
-from snac_gym.kinematics import Kinematics
+from snac_gym.kinematics import Kinematics, resolved_urdf_text
 from snac_gym.robots import get_robot
+from snac_gym.sampling import nominal_configuration
 
 #: Name of the site at the controlled frame.
 EE_SITE = "ee"
@@ -164,8 +165,6 @@ def build_physics_spec(kinematics: Kinematics, timestep: float, site: str = EE_S
         MissingExtraError: If mujoco is not installed.
     """
     mujoco = require("mujoco", "mujoco", "physics='mujoco'")
-    from snac_gym.kinematics import resolved_urdf_text
-    from snac_gym.sampling import nominal_configuration
 
     locked = _locked_joints(kinematics)
     text, locked_values = _urdf_without_geometry(resolved_urdf_text(kinematics.urdf_path), locked, keep_collision=True)

@@ -42,6 +42,7 @@ import numpy as np
 
 from snac_gym.cost import weight_matrix
 from snac_gym.joint_limits import make_limit_box
+from snac_gym.optimality import FrozenJacobianLQR, critic_error, hjb_residual, quadratic_weights_to_matrix
 from snac_gym.policies.base import BasePolicy
 
 #: The paper's learning-rate schedules (Section V): task -> (α_initial, α_final, n).
@@ -430,8 +431,6 @@ class SNACPolicy(CriticEpisode, BasePolicy):
             ``hjb_residual`` and ``hjb_ratio`` ``(K,)``, plus ``critic_error`` ``(K,)``
             (‖P̂ − P*(J)‖_F / ‖P*‖_F) for regulation.
         """
-        from snac_gym.optimality import FrozenJacobianLQR, critic_error, hjb_residual, quadratic_weights_to_matrix
-
         n = self.task_dim
         e, xdot_d = np.asarray(e, dtype=float), np.asarray(xdot_d, dtype=float)
         state = e

@@ -42,6 +42,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
 
+import gymnasium as gym
+
 from snac_gym.ppo.envs import REWARD_TYPES
 from snac_gym.ppo.features import ACTION_KINDS, FEATURE_VERSION, FeatureSpec
 from snac_gym.robots import robot_names
@@ -389,8 +391,6 @@ _ANNOTATION_CHECKS: dict[str, Check] = {
 
 def env_keywords(task: str) -> dict[str, inspect.Parameter]:
     """The keyword arguments the env of ``task`` takes (``robot`` and ``task`` are the config's own keys)."""
-    import gymnasium as gym
-
     import snac_gym  # noqa: F401  (registers the env ids)
 
     entry = gym.spec(get_task(task).env_id).entry_point

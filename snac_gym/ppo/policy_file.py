@@ -328,7 +328,7 @@ def export_policy(model: Any, vec_normalize: Any | None, metadata: dict[str, Any
     Raises:
         ValueError: If the network is not a plain MLP this exporter understands.
     """
-    import torch
+    import torch  # the rl extra; the exported file is read without torch
 
     policy = model.policy
     hidden: list[tuple[np.ndarray, np.ndarray]] = []

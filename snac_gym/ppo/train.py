@@ -35,9 +35,12 @@ import csv
 import json
 import math
 import multiprocessing
+import pickle
+import platform
 import shutil
 import signal
 import time
+import zipfile
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -46,12 +49,18 @@ from typing import Any, Callable
 import gymnasium as gym
 import numpy as np
 
+from snac_gym import __version__
 from snac_gym.cost import trajectory_cost
 from snac_gym.outputs import usable_out_folder
 from snac_gym.envs import make_task_env
+from snac_gym.kinematics import Kinematics
+from snac_gym.observation import ObservationLayout
 from snac_gym.ppo.config import resolve_config, validate_config
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec
 from snac_gym.ppo.features import FeatureSpec
+from snac_gym.ppo.policy import PPOPolicy
+from snac_gym.ppo.policy_file import export_policy
+from snac_gym.progress import ProgressLines
 from snac_gym.rollout import log_array, rollout
 from snac_gym.tasks import get_task
 
@@ -102,12 +111,9 @@ def _require_sb3() -> None:
 
 def package_versions() -> dict[str, str]:
     """Versions of snac-gym and of the training stack, stored with every run and policy file."""
-    import platform
-
+    # the rl extra
     import stable_baselines3
     import torch
-
-    from snac_gym import __version__
 
     return {
         "snac_gym": __version__, "stable_baselines3": stable_baselines3.__version__, "torch": torch.__version__,
@@ -149,14 +155,15 @@ class _EnvFactory:
 
 def build_vec_env(config: dict[str, Any]) -> Any:
     """The vectorised training env (``n_envs`` copies, ``dummy``, ``subproc`` or ``batched``), seeded with ``seed + i``."""
+    # the rl extra
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     vec = config["vec_env"]
     kind = vec.get("kind", "dummy")
     if kind == "batched":
+        # the rl extra (PPOVecEnv is a stable_baselines3 VecEnv)
         from snac_gym.ppo.vec_env import PPOVecEnv
-
         from stable_baselines3.common.vec_env import VecMonitor
 
         venv = PPOVecEnv(config)
@@ -170,7 +177,7 @@ def build_vec_env(config: dict[str, Any]) -> Any:
 
 
 def _normalized(venv: Any, config: dict[str, Any]) -> Any:
-    from stable_baselines3.common.vec_env import VecNormalize
+    from stable_baselines3.common.vec_env import VecNormalize  # the rl extra
 
     normalize = config["normalize"]
     return VecNormalize(
@@ -181,6 +188,7 @@ def _normalized(venv: Any, config: dict[str, Any]) -> Any:
 
 def build_model(config: dict[str, Any], venv: Any) -> Any:
     """A fresh SB3 PPO for ``config`` on ``venv``."""
+    # the rl extra
     import torch
     from stable_baselines3 import PPO
 
@@ -213,8 +221,6 @@ def evaluate_policy_file(
         first horizon), and at the last horizon ``mean_final_error_m``,
         ``median_final_error_m``, ``mean_error_2nd_half_m``, ``median_error_2nd_half_m``.
     """
-    from snac_gym.ppo.policy import PPOPolicy
-
     evaluation = config["evaluation"]
     task = get_task(config["task"])
     count = int(episodes if episodes is not None else evaluation["episodes"])
@@ -286,9 +292,6 @@ class _Run:
         _write_json(self.state_path, self.state)
 
     def metadata(self, model: Any) -> dict[str, Any]:
-        from snac_gym.kinematics import Kinematics
-        from snac_gym.observation import ObservationLayout
-
         robot = self.config.get("robot", "ur10")
         kinematics = Kinematics(robot)
         layout = ObservationLayout(kinematics.n_joints, kinematics.task_dim)
@@ -303,8 +306,6 @@ class _Run:
 
     def save(self, folder: str, model: Any, venv: Any, extra_metadata: dict[str, Any] | None = None) -> Path:
         """Save model, normalisation statistics and the frozen policy file into ``OUT/folder``."""
-        from snac_gym.ppo.policy_file import export_policy
-
         target = self.out / folder
         target.mkdir(parents=True, exist_ok=True)
         model.save(target / MODEL_FILE)
@@ -366,9 +367,7 @@ def _next_evaluation(timesteps: int, due: int, every: int) -> int:
 
 
 def _make_callback(run: _Run, venv: Any, log: Callable[[str], None], progress: Callable[[str], None] | None) -> Any:
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    from snac_gym.progress import ProgressLines
+    from stable_baselines3.common.callbacks import BaseCallback  # the rl extra
 
     every = int(run.config["evaluation"]["every_timesteps"])
     total = int(run.config["timesteps"])
@@ -414,7 +413,7 @@ def _make_callback(run: _Run, venv: Any, log: Callable[[str], None], progress: C
 
 
 def _configure_logger(folder: Path) -> Any:
-    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.logger import configure  # the rl extra
 
     formats = ["csv"]
     try:
@@ -454,9 +453,6 @@ def _resumed_config(out: Path, task: str, overrides: dict[str, Any]) -> dict[str
 
 def _check_checkpoint(checkpoint: Path) -> None:
     """Refuse a truncated or corrupt checkpoint, naming the file, before any env is built for it."""
-    import pickle
-    import zipfile
-
     model = checkpoint / MODEL_FILE
     try:
         with zipfile.ZipFile(model) as archive:
@@ -522,6 +518,7 @@ def train_ppo(
     config = _resumed_config(out, task, overrides) if resume else _new_config(out, task, config_path, overrides)
     usable_out_folder(out)  # a file or /dev/null is refused as evaluate refuses it
     _require_sb3()
+    # the rl extra (checked just above, after the input)
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
@@ -615,10 +612,10 @@ def plot_training_curves(out: str | Path, path: str | Path | None = None, title:
     Returns:
         The path written.
     """
-    import matplotlib
+    import matplotlib  # only plotting needs matplotlib; the trainer does not
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # after the backend is chosen
 
     out = Path(out)
     fig = training_curves_figure(out, title)
@@ -634,7 +631,7 @@ def _timesteps_axis(axis: Any) -> None:
 
     Plain integers (``100000``, ``200000``, ...) on a third of a 13-inch figure run into each other.
     """
-    from matplotlib.ticker import EngFormatter, MaxNLocator
+    from matplotlib.ticker import EngFormatter, MaxNLocator  # only plotting needs matplotlib
 
     axis.xaxis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 2, 2.5, 5, 10]))
     axis.xaxis.set_major_formatter(EngFormatter(sep=""))
@@ -650,7 +647,7 @@ def training_curves_figure(out: str | Path, title: str | None = None) -> Any:
     Returns:
         The matplotlib figure; the caller closes it.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # only plotting needs matplotlib
 
     out = Path(out)
     config = json.loads((out / "config.json").read_text())

@@ -1,6 +1,7 @@
 """The real-robot path: a Gymnasium env over a UR arm (ur_rtde), its safety layer, and a
 simulated connection to rehearse the whole loop without hardware."""
 
+import warnings
 from typing import Any
 
 from snac_gym.real.connections import (
@@ -27,8 +28,6 @@ _RENAMED = {
 
 def __getattr__(name: str) -> Any:
     if name in _RENAMED:
-        import warnings
-
         new = _RENAMED[name].__name__
         warnings.warn(f"snac_gym.real.{name} is deprecated; use snac_gym.real.{new}", DeprecationWarning, stacklevel=2)
         return _RENAMED[name]

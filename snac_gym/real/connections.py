@@ -24,6 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from snac_gym.kinematics import Kinematics
+from snac_gym.physics.bullet import PyBulletSim, SimulatedArm
 from snac_gym.real.rtde_client import HEADER, RECONNECT_MARKERS, as_arrays, write_frame
 from snac_gym.sampling import nominal_configuration
 
@@ -522,9 +523,6 @@ class SimulatedConnection:
         realtime: bool = True,
         home: np.ndarray | None = None,
     ) -> None:
-        from snac_gym.physics.bullet import SimulatedArm
-        from snac_gym.physics.bullet import PyBulletSim
-
         self.kinematics = kinematics if kinematics is not None else Kinematics("ur10")
         self.frequency = float(frequency)
         self.dt = 1.0 / self.frequency

@@ -67,6 +67,7 @@ class Client:
         self.dt = 0.008
 
     def connect(self, host: str, frequency: float, control: bool) -> dict[str, Any]:
+        # the real extra (ur_rtde)
         import rtde_control
         import rtde_receive
 
@@ -169,7 +170,7 @@ class Client:
         ur_rtde raises when the controller refuses (within its 5 s lockout); that is an answer,
         not a failure of the client.
         """
-        import dashboard_client
+        import dashboard_client  # the real extra (ur_rtde)
 
         if self.dashboard is None or not self.dashboard.isConnected():
             self.dashboard = dashboard_client.DashboardClient(host)

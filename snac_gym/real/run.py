@@ -17,13 +17,18 @@ import numpy as np
 import pandas as pd
 
 from snac_gym._signals import cannot_raise_here, send_again
+from snac_gym.apps.demo import write_demo_outputs
+from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
 from snac_gym.kinematics import Kinematics
+from snac_gym.policies import make_policy
+from snac_gym.policies.base import PolicyContext
 from snac_gym.real.connections import SERIES_FREQUENCY, ConnectionFailure, DryRunConnection, SimulatedConnection, URRTDEConnection
 from snac_gym.real.env import RealUREnv
 from snac_gym.real.journal import StepJournal
 from snac_gym.real.loop_tuning import LoopTuning, frozen_gc, tuned_process
 from snac_gym.real.recovery import RecoveryLimits
 from snac_gym.real.safety import SafetyLimits
+from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
 from snac_gym.tasks import get_task
 
 #: The streamed log (:class:`~snac_gym.real.journal.StepJournal`): kept only when the run could not write the full one.
@@ -286,12 +291,6 @@ def _run_and_stop(
     fails the run even when the episode itself ended in a safety stop: the arm was then stopped
     by the controller's watchdog, not by the host.
     """
-    from snac_gym.policies import make_policy
-    from snac_gym.policies.base import PolicyContext
-    from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
-
-    from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
-
     log = None
     try:
         try:
@@ -344,8 +343,6 @@ def _write_outputs(
     plots: bool,
     policy_kwargs: dict[str, Any] | None,
 ) -> RealRunResult:
-    from snac_gym.apps.demo import write_demo_outputs
-
     log.attrs["controller"] = controller
     log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
@@ -379,8 +376,6 @@ def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, pref
 
     Each file is written on its own, so that one that fails (a full disk) does not cost the others.
     """
-    from snac_gym.rollout import write_log
-
     out.mkdir(parents=True, exist_ok=True)
     if log is not None:
         log.attrs["stop_reason"] = env.stop_reason
@@ -435,7 +430,7 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
     )
     files = [timing_csv, summary]
     if plots and len(periods):
-        from snac_gym.apps.plots import plot_loop_timing, save_figure
+        from snac_gym.apps.plots import plot_loop_timing, save_figure  # matplotlib only when plotting
 
         files.append(
             save_figure(plot_loop_timing(periods["period_ms"].to_numpy(), env.dt), out / f"{prefix}timing.png")

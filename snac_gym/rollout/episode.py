@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from snac_gym.envs import make_task_env
+from snac_gym.physics import SIMULATED, ArmList, PyBulletArmBatch, check_physics
 from snac_gym.rollout.batch import RolloutError, Rollouts, rollouts_from_logs
 from snac_gym.rollout.log import add_critic_diagnostics, jsonable, log_columns
 
@@ -166,8 +168,6 @@ class _Record:
 @functools.lru_cache(maxsize=2)
 def _env(robot: str, task: str, dt: float, steps: int, physics: str) -> Any:
     """One env per (robot, task, Δt, episode length, physics) and process, reused across jobs (loading costs ~0.1 s)."""
-    from snac_gym.envs import make_task_env
-
     return make_task_env(task, robot, dt=dt, max_steps=steps, physics=physics)
 
 
@@ -181,8 +181,6 @@ def lockstep_arms(robot: str, task: str, dt: float, steps: int, physics: str, co
     Raises:
         ValueError: If ``physics`` is not a simulated engine.
     """
-    from snac_gym.physics import SIMULATED, ArmList, PyBulletArmBatch, check_physics
-
     check_physics(physics, SIMULATED, "lockstep arms are simulated: physics")
     core = _env(robot, task, float(dt), int(steps), physics).unwrapped
     if physics == "mujoco":

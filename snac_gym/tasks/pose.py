@@ -31,7 +31,7 @@ import pinocchio as pin
 
 from snac_gym.kinematics import PoseKinematics, shared_pose_kinematics
 from snac_gym.references import PAPER_TARGET, Ellipse
-from snac_gym.sampling import SampleSpace, sample_ellipse, sample_seed_pose
+from snac_gym.sampling import SampleSpace, nominal_configuration, sample_ellipse, sample_seed_pose
 from snac_gym.tasks.base import CellReader, Task
 from snac_gym.tasks.registry import TASKS, register_task
 from snac_gym.tasks.reach import TARGET_COLUMNS
@@ -166,8 +166,6 @@ def is_pose_task(name: str) -> bool:
 
 
 def _nominal(kinematics: PoseKinematics) -> np.ndarray:
-    from snac_gym.sampling import nominal_configuration
-
     return nominal_configuration(kinematics.position)
 
 

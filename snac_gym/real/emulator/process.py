@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 from typing_extensions import Self
 
+from snac_gym.real.emulator.controller import UREmulator
+
 #: Methods of :class:`~snac_gym.real.emulator.controller.UREmulator` the parent may call.
 REMOTE_METHODS = frozenset(
     {
@@ -51,8 +53,6 @@ def _plain(value: Any) -> Any:
 
 def _serve(stdin: Any, stdout: Any) -> None:
     """Child side: build the emulator from the first line, then answer one call per line."""
-    from snac_gym.real.emulator.controller import UREmulator
-
     def reply(status: str, payload: Any) -> None:
         stdout.write(json.dumps([status, payload], default=_plain) + "\n")
         stdout.flush()
