@@ -52,7 +52,7 @@ def test_evaluate_backend_is_a_hidden_deprecated_name_of_engine(tmp_path, captur
 
 
 def test_real_names_its_connection(monkeypatch, tmp_path):
-    import snac_gym.real.run as real_run
+    import snac_gym.apps.real as real_run
 
     calls = []
 

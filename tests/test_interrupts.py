@@ -242,7 +242,7 @@ if os.name != "posix":  # pragma: no cover
 UNRAISABLE = r"""
 import os, signal, sys, time, traceback
 from snac_gym.apps.cli import _sigterm_as_interrupt
-from snac_gym.real.run import stop_signals_raise
+from snac_gym.apps.real import stop_signals_raise
 ignored = []
 sys.unraisablehook = lambda unraisable: ignored.append(repr(unraisable.exc_value))
 SPOT = "def spot():\n    os.kill(os.getpid(), signal.SIGTERM)\n    sum(range(200_000))  # the handler runs here\n"

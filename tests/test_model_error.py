@@ -201,7 +201,7 @@ def test_the_demo_gives_the_wrong_model_to_the_controller_and_draws_its_correcti
 
 
 def test_a_real_arm_refuses_a_model_error():
-    from snac_gym.real.run import run_real_episode
+    from snac_gym.apps.real import run_real_episode
 
     with pytest.raises(ValueError, match="--connection sim only"):
         run_real_episode(connection="rtde", host="127.0.0.1", model_error=ELBOW, out_dir=None)

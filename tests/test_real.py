@@ -292,7 +292,7 @@ def test_safety_limits_validate_their_arguments():
 @pytest.mark.slow(seconds=4)
 def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
     from snac_gym.apps.demo import run_demo
-    from snac_gym.real.run import run_real_episode
+    from snac_gym.apps.real import run_real_episode
 
     # a loaded CI machine may be late now and then: the deadline rule has its own tests above
     result = run_real_episode(
@@ -344,7 +344,7 @@ def test_dry_run_command_on_the_simulated_connection_prints_what_it_would_send(t
 def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monkeypatch, tmp_path, timing_rules_off):
     from typer.testing import CliRunner
 
-    import snac_gym.real.run as real_run
+    import snac_gym.apps.real as real_run
     from snac_gym.apps.cli import app
 
     connection = SimulatedConnection(realtime=False)

@@ -209,7 +209,7 @@ class SendsSignal(BasePolicy):
 
 @pytest.fixture
 def signalling_run(monkeypatch):
-    import snac_gym.real.run as real_run
+    import snac_gym.apps.real as real_run
 
     connection = SimulatedConnection(realtime=False)
     speeds_after_stop = []
@@ -230,7 +230,7 @@ def signalling_run(monkeypatch):
     "signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1, signal.SIGUSR2]
 )
 def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_run, tmp_path, signum):
-    from snac_gym.real.run import TerminationSignal, run_real_episode
+    from snac_gym.apps.real import TerminationSignal, run_real_episode
 
     previous = signal.getsignal(signum)
     with pytest.raises(TerminationSignal) as excinfo:
@@ -272,7 +272,7 @@ class SignalsTwice(SendsSignal):
 
 
 def test_a_second_signal_does_not_cut_the_stop_path_or_the_log(signalling_run, tmp_path, monkeypatch):
-    from snac_gym.real.run import TerminationSignal, run_real_episode
+    from snac_gym.apps.real import TerminationSignal, run_real_episode
 
     connection, speeds_after_stop = signalling_run
     stop = connection.stop
@@ -382,7 +382,7 @@ def test_the_process_writer_writes_the_same_rows_off_the_loop_and_keeps_them_if_
 
 
 def test_a_completed_run_replaces_the_stream_log_with_the_full_log(tmp_path):
-    from snac_gym.real.run import run_real_episode
+    from snac_gym.apps.real import run_real_episode
 
     run_real_episode(controller="dls", out_dir=tmp_path, connection="sim", steps=30, plots=False)
     names = {p.name for p in tmp_path.iterdir()}
@@ -390,7 +390,7 @@ def test_a_completed_run_replaces_the_stream_log_with_the_full_log(tmp_path):
 
 
 def test_an_interrupted_run_keeps_the_stream_log_with_every_period(signalling_run, tmp_path):
-    from snac_gym.real.run import TerminationSignal, run_real_episode
+    from snac_gym.apps.real import TerminationSignal, run_real_episode
 
     with pytest.raises(TerminationSignal):
         run_real_episode(controller="sends-signal", out_dir=tmp_path, connection="sim", steps=200,
@@ -545,7 +545,7 @@ def test_the_real_command_refuses_an_unlock_without_recoveries(tmp_path):
 
 def test_a_protective_stop_unlocked_after_the_lockout_resumes_and_a_dry_run_never_unlocks(tmp_path, monkeypatch):
     import snac_gym.real.env as env_module
-    from snac_gym.real.run import run_real_episode
+    from snac_gym.apps.real import run_real_episode
 
     monkeypatch.setattr(env_module, "PROTECTIVE_STOP_LOCKOUT", 0.2)  # UR's 5 s, shortened
     env, connection = _recovering_env(unlock_protective_stop=True)

@@ -57,10 +57,10 @@ def _one(config: str, seconds: float) -> None:
     """Child: one episode under ``config``; prints its timing as JSON."""
     import functools
 
-    import snac_gym.real.run as run_module
+    import snac_gym.apps.real as run_module
     from snac_gym.real import SafetyLimits
     from snac_gym.real.loop_tuning import LoopTuning
-    from snac_gym.real.run import run_real_episode
+    from snac_gym.apps.real import run_real_episode
 
     spec = CONFIGS[config]
     run_module.URRTDEConnection = functools.partial(run_module.URRTDEConnection, watchdog_periods=25)

@@ -1,1 +1,1 @@
-"""TODO"""
+"""Equal control effort: the effort statistics, the knob search and the matching of a run's controllers."""

@@ -173,11 +173,11 @@ def real(
     rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off."),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim."""
-    # start-up time (real.run: pandas, numba); tests swap SafetyLimits
+    # start-up time (apps.real: pandas, numba); tests swap SafetyLimits
     from snac_gym.real import ConnectionFailure, SafetyLimits
     from snac_gym.real.loop_tuning import LoopTuning
     from snac_gym.real.recovery import RecoveryLimits
-    from snac_gym.real.run import run_real_episode
+    from snac_gym.apps.real import run_real_episode
 
     _check_task(task)
     connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")

@@ -139,7 +139,7 @@ class URRTDEConnection:
         acceleration: Joint acceleration bound passed to ``speedJ``, rad/s² (of the leading joint).
             Keep it above the safety layer's ``max_joint_acceleration``: the shaped command already
             bounds the acceleration, and a lower ramp here makes the arm trail every command
-            change (:func:`~snac_gym.real.run.make_connection` passes twice the layer's bound).
+            change (:func:`~snac_gym.apps.real.make_connection` passes twice the layer's bound).
         control: Open the control interface (``False`` for a dry run: state only, nothing sent).
         connect_timeout: Seconds to wait for the controller before giving up.
         watchdog_periods: Missed periods after which the controller's watchdog stops the arm.

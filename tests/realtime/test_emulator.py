@@ -335,7 +335,7 @@ def test_the_emulator_refuses_bad_fault_arguments(emu):
 
 @pytest.mark.realtime(seconds=7)  # about this long here: run first (conftest.py)
 def test_snac_gym_real_against_the_emulator_reaches_within_1mm_with_the_usual_outputs(emu, tmp_path):
-    from snac_gym.real.run import run_real_episode
+    from snac_gym.apps.real import run_real_episode
 
     # The run keeps the default 40 ms stall limit, as `snac-gym real` does (a shared host that stalls
     # past it gets the test one rerun: see HOST_TIMING_STOPS in conftest.py). The LQR law reaches

@@ -1,0 +1,355 @@
+"""The compiled kernels of the certified lower bound (:func:`snac_gym.optimality.solve_cost_relaxation`): a primal-dual
+interior point on the relaxed problem, whose Newton systems are banded (docs/lower-bounds.md).
+
+They are plain Python functions compiled by numba on first use (:func:`relaxation_kernel`), so that importing
+:mod:`snac_gym.optimality` does not import numba.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import numpy as np
+
+
+def _relaxed_hessian_band(steps, dt, q, w, rest, terminal, band):  # pragma: no cover - compiled
+    """Lower band of H, the Hessian of the relaxed cost in the interleaved variables (rows: diagonal, first and
+    second subdiagonal, at the row's index): 2qΔt on each r, 2Δt + (2w/Δt)·(jumps vₖ is in) on each v (and
+    2·terminal on the last), −2w/Δt between consecutive v (two places apart)."""
+    c = w / dt
+    band[:, :] = 0.0
+    for k in range(steps):
+        jumps = (1.0 if k > 0 else (1.0 if rest else 0.0)) + (1.0 if k < steps - 1 else 0.0)
+        band[0, 2 * k] = 2.0 * dt + 2.0 * c * jumps
+        if k > 0:
+            band[0, 2 * k - 1] = 2.0 * q * dt
+            band[2, 2 * k] = -2.0 * c
+    band[0, 2 * steps - 2] += 2.0 * terminal
+
+
+def _add_constraint_curvature(steps, b, weight, capped, band):  # pragma: no cover - compiled
+    """band += Gᵀ diag(weight) G: constraint k, rₖ − bₖvₖ − rₖ₊₁ ≤ dₖ, couples rₖ, vₖ, rₖ₊₁ (places 2k−1, 2k, 2k+1)."""
+    for k in range(steps - 1):
+        wk, bk = weight[k], b[k]
+        band[0, 2 * k] += wk * bk * bk
+        band[0, 2 * k + 1] += wk
+        band[1, 2 * k + 1] += wk * bk
+        if k > 0:
+            band[0, 2 * k - 1] += wk
+            band[1, 2 * k] -= wk * bk
+            band[2, 2 * k + 1] -= wk
+    if capped:
+        for k in range(steps):
+            band[0, 2 * k] += weight[steps - 1 + k]
+
+
+def _ldl_factor(band, inverse_pivots):  # pragma: no cover - compiled
+    """In place: the band's subdiagonals become those of the unit lower L of LDLᵀ, ``inverse_pivots`` 1/D.
+
+    Lᵢ,ᵢ₋₂ = Aᵢ,ᵢ₋₂/Dᵢ₋₂,  Lᵢ,ᵢ₋₁ = (Aᵢ,ᵢ₋₁ − Lᵢ,ᵢ₋₂Lᵢ₋₁,ᵢ₋₂Dᵢ₋₂)/Dᵢ₋₁,  Dᵢ = Aᵢᵢ − Lᵢ,ᵢ₋₁²Dᵢ₋₁ − Lᵢ,ᵢ₋₂²Dᵢ₋₂
+    (the previous two pivots and L₍ᵢ₋₁,ᵢ₋₂₎ carried in scalars: this recursion is the solve's critical path).
+    """
+    pivot1, pivot2, inverse1, inverse2, previous_first = 1.0, 1.0, 0.0, 0.0, 0.0
+    for i in range(band.shape[1]):
+        second = band[2, i] * inverse2
+        coupling = band[1, i] - second * previous_first * pivot2
+        # Lᵢ,ᵢ₋₁²Dᵢ₋₁ as coupling²/Dᵢ₋₁: one multiply between the last division and the next
+        pivot = (band[0, i] - second * second * pivot2) - coupling * coupling * inverse1
+        first = coupling * inverse1
+        band[1, i], band[2, i] = first, second
+        inverse = 1.0 / pivot
+        inverse_pivots[i] = inverse
+        pivot2, inverse2, pivot1, inverse1, previous_first = pivot1, inverse1, pivot, inverse, first
+
+
+def _ldl_solve(band, inverse_pivots, rhs):  # pragma: no cover - compiled
+    """rhs ← (LDLᵀ)⁻¹ rhs with the factor of :func:`_ldl_factor` (the last two values carried in scalars)."""
+    n = band.shape[1]
+    previous2, previous1 = 0.0, 0.0
+    for i in range(n):
+        value = rhs[i] - band[2, i] * previous2 - band[1, i] * previous1
+        rhs[i] = value
+        previous2, previous1 = previous1, value
+    next2, next1 = 0.0, 0.0
+    for i in range(n - 1, -1, -1):
+        first = band[1, i + 1] if i + 1 < n else 0.0
+        second = band[2, i + 2] if i + 2 < n else 0.0
+        value = rhs[i] * inverse_pivots[i] - first * next1 - second * next2
+        rhs[i] = value
+        next2, next1 = next1, value
+    return rhs
+
+
+def _apply_constraints(steps, b, x, capped, out):  # pragma: no cover - compiled
+    """out ← G x: rₖ − bₖvₖ − rₖ₊₁ (r₀ is data, in h), then vₖ for the velocity caps."""
+    for k in range(steps - 1):
+        out[k] = (x[2 * k - 1] if k > 0 else 0.0) - b[k] * x[2 * k] - x[2 * k + 1]
+    if capped:
+        for k in range(steps):
+            out[steps - 1 + k] = x[2 * k]
+
+
+def _apply_constraints_transposed(steps, b, z, capped, out):  # pragma: no cover - compiled
+    """out ← Gᵀ z."""
+    for k in range(steps):
+        out[2 * k] = (z[steps - 1 + k] if capped else 0.0) - (b[k] * z[k] if k < steps - 1 else 0.0)
+        if k > 0:
+            out[2 * k - 1] = (z[k] if k < steps - 1 else 0.0) - z[k - 1]
+
+
+def _apply_hessian(steps, dt, q, w, rest, terminal, x, out):  # pragma: no cover - compiled
+    """out ← H x (:func:`_relaxed_hessian_band`)."""
+    c = w / dt
+    for k in range(steps):
+        v = x[2 * k]
+        value = 2.0 * dt * v
+        if k > 0:
+            value += 2.0 * c * (v - x[2 * k - 2])
+            out[2 * k - 1] = 2.0 * q * dt * x[2 * k - 1]
+        elif rest:
+            value += 2.0 * c * v
+        if k < steps - 1:
+            value += 2.0 * c * (v - x[2 * k + 2])
+        else:
+            value += 2.0 * terminal * v
+        out[2 * k] = value
+
+
+def _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x):  # pragma: no cover - compiled
+    """The relaxed cost of a feasible point built from x: vₖ clipped to [0, v̄], each rₖ₊₁ the least the
+    constraints allow, max(rₖ − bₖvₖ − dₖ, 0). Returns (value, r_{K−1}, v_{K−1}, max v)."""
+    r, previous, value, v, peak = r0, 0.0, 0.0, 0.0, 0.0
+    for k in range(steps):
+        if k > 0:
+            r = max(r - b[k - 1] * v - d[k - 1], 0.0)
+        v = min(max(x[2 * k], 0.0), vmax)
+        jump = v - previous if (k > 0 or rest) else 0.0
+        value += dt * (q * r * r + v * v) + w / dt * jump * jump
+        previous, peak = v, max(peak, v)
+    return value + terminal * v * v, r, v, peak
+
+
+def _dual_value(r0, q, dt, steps, b, capped, h, hessian, hessian_pivots, z, work, image):  # pragma: no cover - compiled
+    """The Lagrangian dual function at z ≥ 0: g(z) = min_x F(x) + zᵀ(Gx − h) = qΔt r₀² − ½ yᵀH⁻¹y − zᵀh with
+    y = Gᵀz (F = ½xᵀHx + qΔt r₀² has no linear term). A lower bound on the relaxed optimum for every z ≥ 0."""
+    _apply_constraints_transposed(steps, b, z, capped, image)
+    work[:] = image
+    _ldl_solve(hessian, hessian_pivots, work)
+    return q * dt * r0 * r0 - 0.5 * np.dot(image, work) - np.dot(z, h)
+
+
+def _max_step(value, step):  # pragma: no cover - compiled
+    """The largest α ≤ 1 with value + α·step ≥ 0 (value > 0)."""
+    alpha = 1.0
+    for i in range(value.shape[0]):
+        if step[i] * alpha < -value[i]:
+            alpha = -value[i] / step[i]
+    return alpha
+
+
+def _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
+                      rhs, dx, ds, dz, image):  # pragma: no cover - compiled
+    """The Newton direction of the perturbed KKT system  H x + Gᵀz = 0,  Gx + s = h,  s∘z = target, from its
+    residuals (``complementarity`` = s∘z − target), through the normal equations (H + GᵀS⁻¹ZG)Δx = −r_d +
+    GᵀS⁻¹(r_c − Z r_p) (factored in ``band``/``pivots``), then Δs = −r_p − GΔx and Δz = −S⁻¹(r_c + ZΔs)."""
+    for i in range(s.shape[0]):
+        ds[i] = (complementarity[i] - z[i] * primal_residual[i]) / s[i]
+    _apply_constraints_transposed(steps, b, ds, capped, rhs)
+    for i in range(rhs.shape[0]):
+        dx[i] = rhs[i] - dual_residual[i]
+    _ldl_solve(band, pivots, dx)
+    _apply_constraints(steps, b, dx, capped, image)
+    for i in range(s.shape[0]):
+        ds[i] = -primal_residual[i] - image[i]
+        dz[i] = -(complementarity[i] + z[i] * ds[i]) / s[i]
+
+
+def _residuals(steps, dt, q, w, rest, terminal, b, capped, h, x, s, z, dual_residual, primal_residual, work):  # pragma: no cover - compiled
+    """r_d = Hx + Gᵀz and r_p = Gx + s − h; returns the mean complementarity sᵀz/m."""
+    _apply_hessian(steps, dt, q, w, rest, terminal, x, dual_residual)
+    _apply_constraints_transposed(steps, b, z, capped, work)
+    dual_residual += work
+    _apply_constraints(steps, b, x, capped, primal_residual)
+    primal_residual += s - h
+    return np.dot(s, z) / s.shape[0]
+
+
+def _predictor_corrector_step(steps, b, capped, band, pivots, s, z, x, dual_residual, primal_residual, mu,
+                              work_n, dx, work_m, ds, dz, image):  # pragma: no cover - compiled
+    """One Mehrotra predictor-corrector step (the factor of the normal matrix is in ``band``/``pivots``)."""
+    complementarity = s * z
+    _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
+                      work_n, dx, ds, dz, image)
+    alpha = min(_max_step(s, ds), _max_step(z, dz))
+    predicted = np.dot(s + alpha * ds, z + alpha * dz) / s.shape[0]
+    centring = (predicted / mu) ** 3 * mu
+    complementarity += ds * dz - centring
+    _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
+                      work_n, dx, ds, dz, image)
+    alpha = min(1.0, 0.99 * min(_max_step(s, ds), _max_step(z, dz)))
+    x += alpha * dx
+    s += alpha * ds
+    z += alpha * dz
+
+
+def _constraint_bounds(r0, d, vmax, steps, capped):  # pragma: no cover - compiled
+    """h of Gx ≤ h: dₖ (less r₀ for k = 0, where r₀ is data), then v̄ for the caps."""
+    h = np.empty(steps - 1 + (steps if capped else 0))
+    h[: steps - 1] = d[: steps - 1]
+    if steps > 1:
+        h[0] -= r0
+    h[steps - 1:] = vmax
+    return h
+
+
+def _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
+    """The relaxed problem over the first ``steps`` steps (plus ``terminal``·v²_last, see _terminal_weight), from
+    rest (v = 0, r = r₀: feasible) by the predictor-corrector interior point method. Fills x (primal) and z
+    (multipliers of the constraints).
+
+    Returns (bound, value, iterations, r_last, v_last, v_peak): the best dual value met (each one is a certified
+    lower bound on the relaxed optimum, whatever the iterate), the least feasible value met (an upper bound on it),
+    and the last r, last v and largest v of that feasible point. Stops once value − bound ≤ rtol·value."""
+    capped = vmax < np.inf
+    n = 2 * steps - 1
+    h = _constraint_bounds(r0, d, vmax, steps, capped)
+    m = h.shape[0]
+    x[:n] = 0.0
+    x[1:n:2] = r0
+    hessian, hessian_pivots = np.empty((3, n)), np.empty(n)
+    _relaxed_hessian_band(steps, dt, q, w, rest, terminal, hessian)
+    _ldl_factor(hessian, hessian_pivots)
+    value, r_last, v_last, v_peak = _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x)
+    bound = q * dt * r0 * r0  # the first error is paid whatever the commands
+    if m == 0:
+        return bound, value, 0, r_last, v_last, v_peak
+    work_n, dx, dual_residual, image_n = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    primal_residual, ds, dz, work_m = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    _apply_constraints(steps, b, x[:n], capped, work_m)
+    s = np.maximum(h - work_m, 0.0) + 0.1  # strictly interior (lengths are in units of r₀ + Σd): r_p takes the rest
+    z[:m] = 1.0
+    band, pivots = np.empty((3, n)), np.empty(n)
+    iterations = 0
+    while True:
+        mu = _residuals(steps, dt, q, w, rest, terminal, b, capped, h, x[:n], s, z[:m], dual_residual, primal_residual,
+                        image_n)
+        # The certificates cost a solve and a pass: worth it once the complementarity gap m·μ is down to the tolerance.
+        if m * mu <= rtol * value or iterations >= max_iterations:
+            trial, r_end, v_end, peak = _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x)
+            if trial < value:
+                value, r_last, v_last, v_peak = trial, r_end, v_end, peak
+            candidate = _dual_value(r0, q, dt, steps, b, capped, h, hessian, hessian_pivots, z[:m], work_n, image_n)
+            bound = max(bound, candidate)
+            if value - bound <= rtol * value or iterations >= max_iterations:
+                return bound, value, iterations, r_last, v_last, v_peak
+        iterations += 1
+        weight = z[:m] / s
+        _relaxed_hessian_band(steps, dt, q, w, rest, terminal, band)
+        _add_constraint_curvature(steps, b, weight, capped, band)
+        _ldl_factor(band, pivots)
+        _predictor_corrector_step(steps, b, capped, band, pivots, s, z[:m], x[:n], dual_residual, primal_residual,
+                                  mu, work_n, dx, work_m, ds, dz, image_n)
+
+
+def _terminal_weight(w, dt, remaining):  # pragma: no cover - compiled
+    """P_N with P_N v² the least Σ_{j<N} (Δt vⱼ² + (w/Δt)(vⱼ − vⱼ₋₁)²) over N = ``remaining`` steps from v₋₁ = v:
+    the scalar Riccati recursion P₀ = 0, Pₙ = c(Δt + Pₙ₋₁)/(c + Δt + Pₙ₋₁), c = w/Δt (0 without the u̇ term).
+
+    The steps after a truncated horizon cost at least that (their error terms are ≥ 0), so adding it to the last
+    command of the truncated relaxation keeps it a relaxation, and spares solving the command's slow decay."""
+    c, value = w / dt, 0.0
+    if c == 0.0:
+        return 0.0
+    for _ in range(remaining):
+        value = c * (dt + value) / (c + dt + value)
+    return value
+
+
+def _next_horizon(x, steps, total, q, dt, tail, target):  # pragma: no cover - compiled
+    """The horizon to try after ``steps`` left a tail above ``target``: where the tail, decaying at the rate it
+    did over the second half of this solve, would be below it (with a margin), at least double, at most K."""
+    half = steps // 2
+    r_half = max(x[2 * half - 1], 0.0) if half > 0 else 0.0
+    earlier = q * r_half * r_half * (total - half) * dt
+    more = 2 * steps
+    if 0.0 < tail < earlier and target > 0.0:
+        more = max(more, steps + int(1.25 * (steps - half) * np.log(tail / target) / np.log(earlier / tail)) + 1)
+    return min(more, total)
+
+
+def _capped_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
+    """:func:`_relaxation_solve` without the velocity caps first (half the constraints), and with them only where
+    its solution breaks one. Dropping constraints only lowers the dual values, so the bound stays certified; and a
+    solution within the caps is feasible with them, so its value still bounds the capped optimum from above.
+    Returns (bound, value, iterations, r_last, v_last)."""
+    bound, value, used, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, np.inf, steps,
+                                                                   rtol, max_iterations, x, z)
+    if v_peak <= vmax:
+        return bound, value, used, r_last, v_last
+    bound, value, more, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps,
+                                                                   rtol, max_iterations, x, z)
+    return bound, value, used + more, r_last, v_last
+
+
+def _first_horizon(q, dt, b, rtol, total):  # pragma: no cover - compiled
+    """A horizon long enough for the relaxed regulation problem's error to fall below rtol: the steps it takes in
+    the scalar Riccati closed loop rₖ₊₁ = ρ rₖ, ρ = Δt/(Δt + b²P) (without the u̇ term; with it the error stops at
+    0 sooner), with a margin. A guess only: a horizon found short is extended, one found long is merely slower."""
+    riccati = (q * dt * b * b + np.sqrt((q * dt * b * b) ** 2 + 4.0 * b * b * q * dt * dt)) / (2.0 * b * b)
+    decay = dt / (dt + b * b * riccati)
+    steps = np.log(rtol * riccati / (2.0 * q * total * dt)) / (2.0 * np.log(decay)) if decay > 0.0 else 1.0
+    return min(total, max(int(1.25 * steps), 0) + 16)
+
+
+def _relaxation_bounds(r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, first_steps, out):  # pragma: no cover - compiled
+    """Per sample: the relaxed problem over a horizon that grows from ``first_steps`` until the part left out is
+    provably within rtol, or the whole horizon. Rows of out: bound, upper bound on the relaxed optimum, iterations,
+    horizon solved (steps)."""
+    total = ds.shape[1] + 1
+    x, z = np.empty(2 * total - 1), np.empty(2 * total - 1)
+    for i in range(r0s.shape[0]):
+        # In units of r₀ + Σd the solve starts from the same scale for every sample; V scales with its square.
+        unit = r0s[i] + np.sum(ds[i])
+        if unit == 0.0:  # nothing to move: the trajectory at rest costs 0
+            out[:, i] = 0.0
+            continue
+        d, r0 = ds[i] / unit, r0s[i] / unit
+        steps = first_steps if first_steps > 0 else _first_horizon(q, dt, np.max(bs[i]) if total > 1 else 1.0, rtol, total)
+        steps, iterations = min(steps, total), 0
+        while True:
+            terminal = _terminal_weight(w, dt, total - steps)
+            bound, value, used, r_last, v_last = _capped_solve(r0, d, bs[i], dt, q, w, rest, terminal, vmax / unit, steps,
+                                                               rtol, max_iterations, x, z)
+            iterations += used
+            # Continued by the commands that cost terminal·v²_last (already in value), along which r never rises,
+            # the truncated solution is feasible for the whole horizon: the relaxed optimum is in [bound, value + tail].
+            tail = q * r_last * r_last * (total - steps) * dt
+            if steps == total or value + tail - bound <= rtol * (value + tail):
+                break
+            steps = _next_horizon(x, steps, total, q, dt, tail, 0.5 * rtol * bound)
+        out[0, i], out[1, i], out[2, i], out[3, i] = bound * unit * unit, (value + tail) * unit * unit, iterations, steps
+
+
+_RELAXATION_HELPERS = (
+    "_relaxed_hessian_band", "_add_constraint_curvature", "_ldl_factor", "_ldl_solve", "_apply_constraints",
+    "_apply_constraints_transposed", "_apply_hessian", "_feasible_value", "_dual_value", "_max_step",
+    "_newton_direction", "_residuals", "_predictor_corrector_step", "_constraint_bounds", "_relaxation_solve",
+    "_terminal_weight", "_next_horizon", "_first_horizon", "_capped_solve",
+)
+
+
+@functools.lru_cache(maxsize=1)
+def relaxation_kernel() -> Any:
+    """:func:`_relaxation_bounds` compiled (numba, cached on disk: a few seconds once, then a fraction of one).
+
+    The helpers are compiled first and bound in place of their Python versions in this module's namespace,
+    where the compiled callers look them up; numba imports here, not with the module.
+    """
+    from numba import njit  # numba (~0.2 s to import) only once a bound is asked for
+
+    namespace = globals()
+    for name in _RELAXATION_HELPERS:
+        if not hasattr(namespace[name], "py_func"):
+            namespace[name] = njit(cache=True, nogil=True, fastmath={"contract"})(namespace[name])
+    return njit(cache=True, nogil=True)(_relaxation_bounds)
