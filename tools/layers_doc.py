@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import tomllib
 from pathlib import Path
 
@@ -35,9 +36,10 @@ def part_of(module: str, parts: list[str]) -> str | None:
 def section() -> str:
     import grimp
 
-    tree = lay_out(ROOT, ROOT / "build" / "layers")
-    sys.path.insert(0, str(tree))
-    graph = grimp.build_graph("snac_gym", include_external_packages=False, cache_dir=None)
+    with tempfile.TemporaryDirectory(prefix="snac-gym-layers-") as scratch:
+        tree = lay_out(ROOT, Path(scratch) / "tree")
+        sys.path.insert(0, str(tree))
+        graph = grimp.build_graph("snac_gym", include_external_packages=False, cache_dir=None)
     stack = layers()
     parts = [p for layer in stack for p in layer]
     edges: set[tuple[str, str]] = set()

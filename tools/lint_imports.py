@@ -3,7 +3,7 @@ pyproject.toml's ``[tool.importlinter]`` (import-linter), and no import cycle be
 
 ``baselines/`` and ``evaluation/`` install as ``snac_gym.baselines`` and ``snac_gym.evaluation`` (setuptools'
 package-dir, pyproject.toml). import-linter and grimp read the package from the file system, so this lays
-out ``snac_gym`` as the install does (links under ``build/layers/``) and analyses that. The cycle check
+out ``snac_gym`` as the install does (links in a temporary folder) and analyses that. The cycle check
 counts every import, those inside functions and under ``TYPE_CHECKING`` included.
 
     python tools/lint_imports.py              # the repository's package
@@ -16,6 +16,7 @@ import argparse
 import os
 import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -55,14 +56,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tree", type=Path, help="analyse this laid-out tree instead of the repository's package")
     args = parser.parse_args(argv)
-    tree = args.tree.resolve() if args.tree else lay_out(ROOT, ROOT / "build" / "layers")
-    from importlinter.cli import lint_imports
+    with tempfile.TemporaryDirectory(prefix="snac-gym-layers-") as scratch:  # private: two checks may run at once
+        tree = args.tree.resolve() if args.tree else lay_out(ROOT, Path(scratch) / "tree")
+        from importlinter.cli import lint_imports
 
-    # import-linter puts the working directory first on sys.path: run it from the tree so that it reads
-    # the laid-out package, not the repository's snac_gym/ folder.
-    os.chdir(tree)
-    status = lint_imports(config_filename=str(ROOT / "pyproject.toml"), no_cache=True, no_logo=True)
-    cycles = import_cycles(tree)
+        # import-linter puts the working directory first on sys.path: run it from the tree so that it reads
+        # the laid-out package, not the repository's snac_gym/ folder.
+        os.chdir(tree)
+        status = lint_imports(config_filename=str(ROOT / "pyproject.toml"), no_cache=True, no_logo=True)
+        cycles = import_cycles(tree)
+        os.chdir(ROOT)
     for cycle in cycles:
         print("import cycle: " + " -> ".join(cycle))
     print(f"import cycles: {len(cycles)}")
