@@ -93,3 +93,27 @@ def test_an_unreadable_entry_is_solved_again(job, monkeypatch):
     solved = _counting(monkeypatch)
     run_optimal_job(job)
     assert solved == [1]
+
+
+def test_the_key_covers_the_solver_and_every_kernel_the_reference_reaches():
+    """The cache key hashes the source of SOURCES: the solver and each compiled kernel the reference imports,
+    directly or not, must be among them (read from the import graph, so a moved or new kernel is caught)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    script = (
+        "import sys, tempfile; from pathlib import Path; sys.path.insert(0, sys.argv[1] + '/tools');"
+        "from lint_imports import lay_out, ROOT; tree = lay_out(ROOT, Path(tempfile.mkdtemp()) / 't');"
+        "sys.path.insert(0, str(tree)); import grimp;"
+        "g = grimp.build_graph('snac_gym', include_external_packages=False, cache_dir=None);"
+        "print('\\n'.join(sorted(g.find_upstream_modules('snac_gym.evaluation.reference.optimum'))))"
+    )
+    result = subprocess.run([sys.executable, "-c", script, str(root)], capture_output=True, text=True, cwd=root)
+    assert result.returncode == 0, result.stderr
+    reached = set(result.stdout.split())
+    numerics = {m for m in reached if m.startswith("snac_gym.kernels.") and m != "snac_gym.kernels.compiled"}
+    numerics |= {"snac_gym.trajopt", "snac_gym.cost", "snac_gym.kinematics", "snac_gym.metrics"} & reached
+    assert len(numerics) >= 9
+    assert numerics <= set(reference_cache.SOURCES)

@@ -33,7 +33,14 @@ CACHE_ENV = "SNAC_GYM_CACHE_DIR"
 #: The modules whose source the reference's rows depend on (its solver, starts, cost, model, metrics).
 SOURCES = (
     "snac_gym.evaluation.reference.optimum",
+    "snac_gym.trajopt",
     "snac_gym.kernels.trajopt",
+    "snac_gym.kernels.chain",
+    "snac_gym.kernels.small",
+    "snac_gym.kernels.lqr",
+    "snac_gym.kernels.relaxation",
+    "snac_gym.model_error",
+    "snac_gym.tasks.pose",
     "snac_gym.evaluation.execution.jobs",
     "snac_gym.cost",
     "snac_gym.kinematics",
