@@ -1,4 +1,5 @@
-"""The paper's quantitative test: random samples, the trajectory cost and the reports.
+"""The paper's quantitative test: random samples, the trajectory cost and the reports. This folder installs as
+``snac_gym.evaluation`` (subpackages by job: ``execution``, ``effort``, ``reference``, ``reports``).
 
 ``run_evaluation(EvaluationConfig(out=...))`` runs it from Python; ``snac-gym evaluate`` from
 the shell. See docs/evaluation.md.
