@@ -6,6 +6,7 @@ Each subcommand parses its options and calls a function that can be used from Py
 from __future__ import annotations
 
 import contextlib
+import math
 import signal
 import threading
 import time
@@ -13,7 +14,7 @@ import types
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import typer
 
@@ -171,8 +172,20 @@ def real(
     recovery_timeout: float = typer.Option(60.0, "--recovery-timeout", help="Longest wait (s) for a protective stop to be cleared, in (0, 3600]."),
     reconnect_timeout: float = typer.Option(10.0, "--reconnect-timeout", help="Longest time (s) for a lost link to come back, in (0, 600]."),
     rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off."),
+    robot: str = typer.Option("ur10", "--robot", help="The UR arm: ur3, ur5 or ur10 (its kinematics, limits and default task box)."),
+    q0: Optional[str] = typer.Option(None, "--q0", help="Start pose, 6 joint angles in rad (comma-separated); default the paper's (the UR10's). The arm moveJs there first."),
+    target: Optional[str] = typer.Option(None, "--target", help="Reach: the target x,y,z in m (base frame); default the paper's (the UR10's)."),
+    ellipse_centre: Optional[str] = typer.Option(None, "--ellipse-centre", help="Track: the ellipse's centre x,y,z in m; with --ellipse-radius."),
+    ellipse_radius: Optional[float] = typer.Option(None, "--ellipse-radius", help="Track: the circle's radius in m (the paper's plane and speed)."),
+    task_box: Optional[str] = typer.Option(None, "--task-box", help="The box the tool must stay in, x0,y0,z0,x1,y1,z1 in m; default the arm's sample cuboid grown by 0.15 m."),
+    joint_margin: float = typer.Option(0.1, "--joint-margin", help="Distance (rad) from the joint limits that stops the arm, in [0, π/2]."),
 ) -> None:
-    """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim."""
+    """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim.
+
+    Exit codes: 0 the episode ran to its end; 1 the link to the arm was lost; 2 a refused input; 3 an
+    unexpected error; 4 the safety layer stopped the arm; 5 the controller reported a protective stop;
+    6 an emergency stop; 128 + n a signal n (SIGINT 130, SIGTERM 143).
+    """
     # start-up time (apps.real: pandas, numba); tests swap SafetyLimits
     from snac_gym.real import ConnectionFailure, SafetyLimits
     from snac_gym.real.loop_tuning import LoopTuning
@@ -183,11 +196,18 @@ def real(
     connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
         recovery = RecoveryLimits(max_recoveries, unlock_protective_stop, recovery_timeout, reconnect_timeout)
+        box = None if task_box is None else _numbers("--task-box", task_box, 6)
+        safety = SafetyLimits(
+            speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch,
+            joint_limit_margin=joint_margin, box_low=None if box is None else tuple(box[:3]),
+            box_high=None if box is None else tuple(box[3:]),
+        )
         result = run_real_episode(
             task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
-            seed=seed, steps=steps, safety=SafetyLimits(speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch),
-            csv=csv, plots=plots, echo=typer.echo if dry_run else None, model_error=model_error, recovery=recovery,
-            tuning=LoopTuning.realtime(rt_priority),
+            seed=seed, steps=steps, safety=safety, csv=csv, plots=plots, echo=typer.echo if dry_run else None,
+            model_error=model_error, recovery=recovery, tuning=LoopTuning.realtime(rt_priority), robot=robot,
+            q0=None if q0 is None else _numbers("--q0", q0, 6),
+            reference=_real_reference(task, target, ellipse_centre, ellipse_radius),
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
         where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""
@@ -207,6 +227,36 @@ def real(
         typer.echo(f"error: unexpected {type(exc).__name__}: {line}{where} (traceback in its real.json)", err=True)
         raise typer.Exit(code=3) from None
     typer.echo(result.summary())
+    if result.stop_reason:  # the episode did not run to its end: a script must see it
+        raise typer.Exit(code=result.exit_code)
+
+
+def _numbers(option: str, text: str, count: int) -> list[float]:
+    """``count`` comma-separated finite numbers, or a ``ValueError`` naming ``option``."""
+    try:
+        values = [float(part) for part in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{option} needs {count} finite numbers separated by commas, got {text!r}")
+    return values
+
+
+def _real_reference(task: str, target: str | None, centre: str | None, radius: float | None) -> Any:
+    """The reference option of ``real``'s task from its options (``None``: the paper's)."""
+    if task == "reach":
+        if centre is not None or radius is not None:
+            raise ValueError("--ellipse-centre and --ellipse-radius are for --task track; reach takes --target")
+        return None if target is None else _numbers("--target", target, 3)
+    if target is not None:
+        raise ValueError(f"--target is for --task reach; {task} takes --ellipse-centre and --ellipse-radius")
+    if (centre is None) != (radius is None):
+        raise ValueError("give --ellipse-centre and --ellipse-radius together")
+    if centre is None:
+        return None
+    if not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f"--ellipse-radius must be a positive number of metres, got {radius!r}")
+    return {"centre": _numbers("--ellipse-centre", centre, 3), "radius": float(radius)}
 
 
 @app.command("emulate-ur")

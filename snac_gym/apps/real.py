@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import sys
 import threading
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,7 @@ import pandas as pd
 from snac_gym._signals import cannot_raise_here, send_again
 from snac_gym.apps.demo import write_demo_outputs
 from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
+from snac_gym.envs.core import resolve_reference, validate_q0
 from snac_gym.kinematics import Kinematics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
@@ -27,8 +29,9 @@ from snac_gym.real.env import RealUREnv
 from snac_gym.real.journal import StepJournal
 from snac_gym.real.loop_tuning import LoopTuning, frozen_gc, tuned_process
 from snac_gym.real.recovery import RecoveryLimits
-from snac_gym.real.safety import SafetyLimits
+from snac_gym.real.safety import SafetyLayer, SafetyLimits
 from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
+from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
 
 #: The streamed log (:class:`~snac_gym.real.journal.StepJournal`): kept only when the run could not write the full one.
@@ -115,6 +118,17 @@ class RealRunResult:
     recoveries: list[dict[str, Any]] = field(default_factory=list)
     tuning_notes: list[str] = field(default_factory=list)
 
+    @property
+    def exit_code(self) -> int:
+        """``snac-gym real``'s exit code for this end: 0 the episode ran to its end, 4 the safety layer stopped
+        the arm, 5 the controller reported a protective stop, 6 an emergency stop (:data:`EXIT_CODES`)."""
+        if not self.stop_reason:
+            return 0
+        for state, code in (("protective_stop", 5), ("emergency_stop", 6)):
+            if self.stop_reason == f"controller reports {state}":
+                return code
+        return 4
+
     def summary(self) -> str:
         lines = [self.demo.summary()]
         if self.timing:
@@ -138,6 +152,64 @@ class RealRunResult:
             lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
         lines.append(f"  stopped by safety layer: {self.stop_reason}" if self.stop_reason else "  no safety stop")
         return "\n".join(lines)
+
+
+#: ``snac-gym real``'s exit codes, by how the run ended (``--help`` and docs/real-arm.md list them).
+EXIT_CODES = {
+    "ran to its end (or a dry run)": 0, "link to the arm lost": 1, "input refused": 2, "unexpected error": 3,
+    "safety layer stopped the arm": 4, "protective stop": 5, "emergency stop": 6, "signal n": "128 + n",
+}
+#: The arms ``snac-gym real`` drives: the UR models of the registry (ur_rtde; ``snac-gym emulate-ur`` serves the same).
+UR_ROBOTS = ("ur3", "ur5", "ur10")
+
+
+def run_setup(
+    task: str, robot: str, q0: Sequence[float] | None, reference: Any, safety: SafetyLimits
+) -> dict[str, Any]:
+    """The checked start pose, reference and limits of a real run, before anything connects; ``*_real.json``
+    records it and the dry run prints it.
+
+    ``q0`` and ``reference`` (the task's reset-option value, e.g. the target ``[x, y, z]`` of reach) default to
+    the paper's (``snac-gym demo``'s), which the UR10 reaches; the smaller arms need their own.
+
+    Raises:
+        ValueError: Naming what is wrong: a robot that is not a UR arm, a start pose outside the joint limits
+            or the safety margins, an unreachable reference, or a start or reference outside the task box.
+    """
+    if robot not in UR_ROBOTS:
+        raise ValueError(f"--robot must be one of {', '.join(UR_ROBOTS)} (the UR arms ur_rtde drives), got {robot!r}")
+    spec, kinematics = get_task(task), Kinematics(robot)
+    options = spec.demo_options()
+    if q0 is not None:
+        options["q0"] = [float(v) for v in q0]
+    if reference is not None:
+        options[spec.option_key] = reference
+    hint = "" if robot == "ur10" or (q0 is not None and reference is not None) else (
+        f" (the paper's start pose and reference are the UR10's: give --q0 and the reference for {robot})")
+    try:
+        start = validate_q0(kinematics, options["q0"])
+        resolved = resolve_reference(spec, kinematics, np.random.default_rng(0), SampleSpace.for_robot(kinematics), options)
+    except ValueError as exc:
+        raise ValueError(re.sub(r"options\['(\w+)'\]", r"--\1", str(exc)) + hint) from None
+    layer = SafetyLayer(kinematics, safety, 1.0)
+    violation = layer.pose_violation(start, kinematics.forward(start))
+    if violation is not None:
+        raise ValueError(f"--q0 is outside the safety limits: {violation}{hint}")
+    low, high = safety.task_box(kinematics)
+    points = np.atleast_2d(resolved.points(64) if hasattr(resolved, "points") else resolved.centre)
+    outside = [p for p in points if np.any(p < low) or np.any(p > high)]
+    if outside:
+        raise ValueError(f"the {task} reference leaves the task box [{_fmt(low)}] .. [{_fmt(high)}] m at "
+                         f"[{_fmt(outside[0])}]: choose another reference, or --task-box{hint}")
+    return {
+        "robot": robot, "task": task, "q0": [float(v) for v in start], spec.option_key: options[spec.option_key],
+        "task_box": [low.tolist(), high.tolist()], "joint_limit_margin": safety.joint_limit_margin,
+        "speed_scale": safety.speed_scale, "max_joint_acceleration": safety.max_joint_acceleration,
+    }
+
+
+def _fmt(values: Any) -> str:
+    return ", ".join(f"{v:.3f}" for v in np.asarray(values, dtype=float))
 
 
 def make_connection(
@@ -191,6 +263,9 @@ def run_real_episode(
     recovery: RecoveryLimits | None = None,
     tuning: LoopTuning | None = None,
     journal_writer: str = "process",
+    robot: str = "ur10",
+    q0: Sequence[float] | None = None,
+    reference: Any = None,
 ) -> RealRunResult:
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
@@ -235,6 +310,9 @@ def run_real_episode(
             applied is in the summary (``tuning_notes``); the run goes on without it.
         journal_writer: How the stream log is written: ``"process"`` (off the loop) or
             ``"inline"`` (:class:`~snac_gym.real.journal.StepJournal`).
+        robot: The UR arm (:data:`UR_ROBOTS`): its kinematics, limits and default task box.
+        q0, reference: The start pose (rad) and the task's reference option (reach: the target, m); default
+            the paper's (:func:`run_setup`, which checks them before anything connects).
 
     Raises:
         ValueError: For ``model_error`` with another connection than ``"sim"``, or a dry run that
@@ -245,16 +323,23 @@ def run_real_episode(
     if dry_run and recovery is not None and recovery.unlock_protective_stop:
         raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
     safety = safety if safety is not None else SafetyLimits()
+    setup = run_setup(task, robot, q0, reference, safety)
+    if echo is not None:
+        echo("setup: " + json.dumps(setup))
     out = Path(out_dir) if out_dir is not None else None
     prefix = f"{task}_{controller}_"
     tuning = tuning if tuning is not None else LoopTuning()
     with stop_signals_raise() as guard, tuned_process(tuning) as notes:
-        arm = make_connection(connection, host, series, dry_run, echo=echo, acceleration=2.0 * safety.max_joint_acceleration)
+        arm = make_connection(
+            connection, host, series, dry_run, robot=robot, echo=echo, acceleration=2.0 * safety.max_joint_acceleration
+        )
         try:
             default_steps = round(get_task(task).real_horizon_s / arm.dt)
             env = RealUREnv(
                 task, arm, safety=safety, max_steps=steps if steps is not None else default_steps, recovery=recovery
             )
+            env.run_setup = setup  # type: ignore[attr-defined]
+            env.demo_start = {"q0": setup["q0"], env.task.option_key: setup[env.task.option_key]}  # type: ignore[attr-defined]
             if out is not None:
                 env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints, journal_writer)
         except BaseException:
@@ -296,7 +381,7 @@ def _run_and_stop(
         try:
             warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
             policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
-            log = rollout(env, policy, options=env.task.demo_options(), seed=seed, steps=env.max_steps)
+            log = rollout(env, policy, options=dict(env.demo_start), seed=seed, steps=env.max_steps)
             log = add_critic_diagnostics(log, policy)
             _mark_gaps(log, env)
         finally:
@@ -395,6 +480,7 @@ def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, pref
         "steps_logged": 0 if log is None else len(log),
         "timing": env.timing(),
         "dt_ms": env.dt * 1e3,
+        "setup": getattr(env, "run_setup", None),
     }
     if env.recovery.max_recoveries:  # only a run that could resume says how it went
         summary["recoveries"] = env.recoveries
@@ -423,6 +509,7 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
                 "stop_reason": result.stop_reason,
                 "dt_ms": env.dt * 1e3,
                 "sent_commands": result.sent_commands,
+                "setup": getattr(env, "run_setup", None),
                 **({"recoveries": result.recoveries} if result.recoveries else {}),
             },
             indent=2,

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.sampling import UR10_CUBOID_HIGH, UR10_CUBOID_LOW
+from snac_gym.sampling import SampleSpace
 
 _BOX_MARGIN = 0.15  # m around the sample cuboid: room for overshoot, not for the table
 
@@ -57,7 +57,8 @@ class SafetyLimits:
         max_joint_acceleration: Bound on |u_k − u_{k−1}| / dt, rad/s², in (0, 40] (the UR
             controllers' own joint acceleration limit is 40 rad/s²).
         box_low, box_high: Task-space box (m, base frame) the end effector must stay in; finite,
-            low < high; default: the sample cuboid grown by 0.15 m.
+            low < high; both or neither (``None``: the arm's sample cuboid grown by 0.15 m,
+            :meth:`task_box`).
         joint_limit_margin: Distance (rad) from the URDF joint limits that stops the arm, in
             [0, π/2].
         max_missed_deadlines: Late periods within the last ``deadline_window`` that stop the arm.
@@ -75,8 +76,8 @@ class SafetyLimits:
 
     speed_scale: float = 0.25
     max_joint_acceleration: float = 2.0
-    box_low: tuple[float, float, float] = tuple(v - _BOX_MARGIN for v in UR10_CUBOID_LOW)  # type: ignore[assignment]
-    box_high: tuple[float, float, float] = tuple(v + _BOX_MARGIN for v in UR10_CUBOID_HIGH)  # type: ignore[assignment]
+    box_low: tuple[float, float, float] | None = None
+    box_high: tuple[float, float, float] | None = None
     joint_limit_margin: float = 0.1
     max_missed_deadlines: int = 3
     deadline_window: int = 25
@@ -97,6 +98,10 @@ class SafetyLimits:
         check_whole_in("deadline_window", self.deadline_window, 1, 100_000)
         check_whole_in("max_missed_deadlines", self.max_missed_deadlines, 1, self.deadline_window)
         check_whole_in("max_stale_periods", self.max_stale_periods, 1, 1000)
+        if (self.box_low is None) != (self.box_high is None):
+            raise ValueError(f"give both corners of the task box or neither, got {self.box_low} and {self.box_high}")
+        if self.box_low is None:
+            return
         low, high = np.asarray(self.box_low, dtype=float), np.asarray(self.box_high, dtype=float)
         if low.shape != (3,) or high.shape != (3,):
             raise ValueError(f"task box corners must be 3 numbers each (m), got {self.box_low} and {self.box_high}")
@@ -104,6 +109,14 @@ class SafetyLimits:
             raise ValueError(f"task box corners must be finite (m), got {self.box_low} and {self.box_high}")
         if np.any(low >= high):
             raise ValueError(f"task box needs low < high, got {self.box_low} and {self.box_high}")
+
+    def task_box(self, kinematics: Kinematics) -> tuple[np.ndarray, np.ndarray]:
+        """The task box's corners (m, base frame): the given ones, or the arm's sample cuboid
+        (:meth:`~snac_gym.sampling.SampleSpace.for_robot`: the UR10's, scaled by the arm's reach) grown by 0.15 m."""
+        if self.box_low is not None:
+            return np.asarray(self.box_low, dtype=float), np.asarray(self.box_high, dtype=float)
+        space = SampleSpace.for_robot(kinematics)
+        return np.asarray(space.low, dtype=float) - _BOX_MARGIN, np.asarray(space.high, dtype=float) + _BOX_MARGIN
 
 
 class SafetyLayer:
@@ -121,8 +134,7 @@ class SafetyLayer:
         self.dt = dt
         self.speed_bound = limits.speed_scale * kinematics.velocity_limits
         self.step_bound = limits.max_joint_acceleration * dt
-        self._box_low = np.asarray(limits.box_low, dtype=float)
-        self._box_high = np.asarray(limits.box_high, dtype=float)
+        self._box_low, self._box_high = limits.task_box(kinematics)
         self._joint_low = kinematics.lower_limits + limits.joint_limit_margin
         self._joint_high = kinematics.upper_limits - limits.joint_limit_margin
         self._late_flags: deque[bool] = deque(maxlen=limits.deadline_window)

@@ -451,7 +451,7 @@ class UREmulator:
             answers = {
                 "PolyscopeVersion": f"URSoftware {major}.{minor}.{bugfix}.{build} (emulated)",
                 "get serial number": "20235500001",
-                "get robot model": "UR10",
+                "get robot model": self.arm.robot.upper(),
                 "is in remote control": "true",
                 "robotmode": "Robotmode: RUNNING",
                 "safetystatus": f"Safetystatus: {self._safety_name()}",
