@@ -3,6 +3,8 @@ given on the command line, the arm within 1 mm of the target at the end, exit co
 
 from __future__ import annotations
 
+import threading
+import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -18,10 +20,13 @@ from snac_gym.apps.cli import app  # noqa: E402
 from snac_gym.evaluation.samples import generate_samples  # noqa: E402
 from snac_gym.kinematics import Kinematics  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
+from snac_gym.references import PAPER_Q0 as PAPER_POSE  # noqa: E402
 from snac_gym.sampling import SampleSpace  # noqa: E402
 
 pytestmark = pytest.mark.realtime
 HOST = emulator_host()
+#: The paper's start pose: elbow up, wrist down on every UR model.
+PAPER_Q0 = np.asarray(PAPER_POSE, dtype=float)
 
 
 @pytest.fixture(scope="module", params=["ur3", "ur5", "ur10"])
@@ -37,6 +42,7 @@ def _numbers(values: np.ndarray) -> str:
 @pytest.mark.realtime(seconds=10)
 def test_real_reaches_a_command_line_target_on_each_ur_model(model, tmp_path):
     robot, emulator = model
+    emulator.reset()
     kinematics = Kinematics(robot)
     # A start pose and a target the arm's own samplers draw (seed 7: not the paper's numbers, which only the
     # UR10 reaches), as a user picks them in the arm's sample cuboid.
@@ -54,3 +60,28 @@ def test_real_reaches_a_command_line_target_on_each_ur_model(model, tmp_path):
     assert status["protocol_errors"] == [] and max(map(abs, status["qd"])) == 0.0
     setup = pd.read_json(out / "reach_lqr_real.json", typ="series")["setup"]
     assert setup["robot"] == robot and np.allclose(setup["target"], sample.reference.target)
+
+
+@pytest.mark.realtime(seconds=4)
+def test_a_protective_stop_mid_run_exits_5_and_no_speedj_follows(model, tmp_path):
+    """The controller reports a protective stop 1.5 s into the run: the command exits 5 (a script sees it), and
+    no speed command reaches the controller after the host has had one period to read the stop."""
+    robot, emulator = model
+    emulator.reset()
+    stopped_at: list[float] = []
+
+    def stop_later() -> None:
+        time.sleep(1.5)
+        stopped_at.append(time.monotonic())
+        emulator.protective_stop()
+
+    threading.Thread(target=stop_later, daemon=True).start()
+    result = CliRunner().invoke(app, [
+        "real", "--connection", "rtde", "--host", HOST, "--robot", robot, "--controller", "lqr", "--steps", "1000",
+        "--q0", _numbers(PAPER_Q0), "--target", _numbers(Kinematics(robot).forward(PAPER_Q0) + 0.02),
+        "--no-plots", "--out", str(tmp_path / robot),
+    ])  # fmt: skip
+    assert result.exit_code == 5, result.output
+    assert "controller reports protective_stop" in result.output
+    assert emulator.speed_commands_after(stopped_at[0] + 0.1) == []
+    emulator.reset()
