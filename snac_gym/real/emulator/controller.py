@@ -439,9 +439,17 @@ class UREmulator:
         if self._watchdog is None or self.runtime_state != p.RUNTIME_PLAYING:
             return
         if now - self._watch_update > 1.0 / self._watchdog[0]:
-            self._end_program(
-                f"watchdog expired: no update of {self._watchdog[1]} for {now - self._watch_update:.3f} s"
-            )
+            owner = self._input_owner.get(self._watchdog[1])
+            if owner is None or owner.closed:  # the usual end of a run: not a fault
+                self._end_program(
+                    f"watchdog expired after the client closed the link (the usual end of a run, not a fault): "
+                    f"program stopped {now - self._watch_update:.3f} s after its last command"
+                )
+            else:
+                self._end_program(
+                    f"watchdog expired: no update of {self._watchdog[1]} for {now - self._watch_update:.3f} s "
+                    "from a connected client (a stalled host)"
+                )
 
     # ----------------------------------------------------------------- dashboard
     def dashboard(self, request: str) -> str:
