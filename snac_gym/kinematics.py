@@ -475,8 +475,29 @@ class BatchChain:
         return chain_forward_and_jacobian(np.ascontiguousarray(qs, dtype=float), *self._kernel_arrays)
 
 
-#: Unit axis index of Pinocchio's axis-aligned joint models (RX, RY, RZ, PX, PY, PZ).
-_ALIGNED_INDEX = {"X": 0, "Y": 1, "Z": 2}
+def leaf_chain(kinematics: Kinematics) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray, bool, int]], np.ndarray]:
+    """The joints that carry the end effector, leaf first, as (rotation, translation, axis, revolute, q index) of
+    each joint's placement and motion, and the end-effector frame's offset in its joint's frame.
+
+    Read from ``kinematics.model``, whose root joints are already placed in the base frame, so the chain gives
+    base-frame positions (:class:`PositionChain`, and the IPOPT cross-check's CasADi expression).
+
+    Raises:
+        ValueError: If a joint on the way is not a 1-DoF revolute or prismatic joint.
+    """
+    model = kinematics.model
+    frame = model.frames[model.getFrameId(kinematics.ee_frame)]
+    steps = []
+    joint = int(frame.parentJoint)
+    while joint > 0:
+        found = joint_axis(model.joints[joint])
+        if found is None:
+            raise ValueError(f"joint {model.names[joint]!r} is not a 1-DoF revolute or prismatic joint")
+        placement = model.jointPlacements[joint]
+        steps.append((placement.rotation.copy(), placement.translation.copy(), found[0], found[1],
+                      int(model.joints[joint].idx_q)))
+        joint = int(model.parents[joint])
+    return steps, frame.placement.translation.copy()
 
 
 class PositionChain:
@@ -502,28 +523,12 @@ class PositionChain:
 
     @classmethod
     def from_kinematics(cls, kinematics: Kinematics) -> PositionChain:
-        """The chain from the model's root to ``kinematics.ee_frame``.
+        """The chain from the model's root to ``kinematics.ee_frame`` (:func:`leaf_chain`).
 
         Raises:
             ValueError: If a joint on the way is not a 1-DoF revolute or prismatic joint.
         """
-        model = kinematics.model
-        frame = model.frames[model.getFrameId(kinematics.ee_frame)]
-        steps = []
-        joint = int(frame.parentJoint)
-        while joint > 0:
-            joint_model = model.joints[joint]
-            kind = joint_model.shortname().removeprefix("JointModel")
-            if kind[:2] in ("RX", "RY", "RZ", "PX", "PY", "PZ") and len(kind) == 2:
-                axis = np.eye(3)[_ALIGNED_INDEX[kind[1]]]
-            elif kind in ("RevoluteUnaligned", "PrismaticUnaligned"):
-                axis = np.array(joint_model.extract().axis, dtype=float).reshape(3)
-            else:
-                raise ValueError(f"joint {model.names[joint]!r} of type {kind} is not a 1-DoF revolute or prismatic joint")
-            placement = model.jointPlacements[joint]
-            steps.append((placement.rotation.copy(), placement.translation.copy(), axis, kind[0] == "R", int(joint_model.idx_q)))
-            joint = int(model.parents[joint])
-        return cls(steps, frame.placement.translation.copy())
+        return cls(*leaf_chain(kinematics))
 
     def forward(self, qs: np.ndarray) -> np.ndarray:
         """End-effector positions, ``(B, m) -> (B, 3)``, in the frame of :meth:`Kinematics.forward`."""

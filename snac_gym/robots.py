@@ -16,12 +16,12 @@ the robot through :class:`~snac_gym.kinematics.Kinematics` built from this entry
 
 from __future__ import annotations
 
-import importlib.metadata
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from snac_gym.entry_points import EntryPointGroup
 from snac_gym.references import PAPER_Q0
 
 
@@ -73,8 +73,7 @@ ENTRY_POINT_GROUP = "snac_gym.robots"
 #: Registered robots by name. Read it through :func:`robot_names`, :func:`all_robots` or :func:`get_robot`,
 #: which load the entry points first.
 ROBOTS: dict[str, Robot] = {}
-_loaded_entry_points: set[str] = set()
-_scanned = False  # the installed entry points are read once per process (a scan costs ~5 ms)
+_ENTRY_POINTS = EntryPointGroup(ENTRY_POINT_GROUP)
 
 
 def register_robot(robot: Robot) -> Robot:
@@ -101,24 +100,15 @@ def load_entry_points(rescan: bool = False) -> None:
     Raises:
         ValueError: Naming the entry point whose object is not a :class:`Robot`, or cannot be registered.
     """
-    global _scanned
-    if _scanned and not rescan:
-        return
-    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        if entry.value in _loaded_entry_points:
-            continue
-        loaded = entry.load()
+    for entry, loaded in _ENTRY_POINTS.new(rescan):
         robot = loaded() if callable(loaded) and not isinstance(loaded, Robot) else loaded
         if not isinstance(robot, Robot):
-            raise ValueError(f"entry point {entry.name} = {entry.value!r} ({ENTRY_POINT_GROUP}) gives "
-                             f"{type(robot).__name__}, not a snac_gym.robots.Robot")
+            raise ValueError(f"{_ENTRY_POINTS.name(entry)} gives {type(robot).__name__}, not a snac_gym.robots.Robot")
         try:
             if ROBOTS.get(robot.name) is not robot:
                 register_robot(robot)
         except ValueError as error:
-            raise ValueError(f"entry point {entry.name} = {entry.value!r} ({ENTRY_POINT_GROUP}): {error}") from None
-        _loaded_entry_points.add(entry.value)
-    _scanned = True  # only once every entry point loaded: a broken one fails every lookup alike
+            raise ValueError(f"{_ENTRY_POINTS.name(entry)}: {error}") from None
 
 
 def robot_names() -> tuple[str, ...]:

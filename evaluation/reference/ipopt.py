@@ -37,8 +37,7 @@ import numpy as np
 
 from snac_gym.trajopt import next_angles, trajectory_cost_and_gradient
 from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics
-from snac_gym.model_error import joint_axis
+from snac_gym.kinematics import Kinematics, leaf_chain
 
 #: What a missing CasADi says.
 MISSING_CASADI = 'the IPOPT cross-check needs CasADi: pip install "snac-gym[check]"'
@@ -76,31 +75,6 @@ def _casadi() -> Any:
     return casadi
 
 
-def _chain(kinematics: Kinematics) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray, bool, int]], np.ndarray]:
-    """The joints that carry the end effector, leaf first, as (rotation, translation, axis, revolute, q index),
-    and the end-effector frame's offset in its joint's frame.
-
-    Read from ``kinematics.model``, whose root joints are already placed in the base frame (the
-    :class:`~snac_gym.kinematics.Kinematics` re-roots the model there), so the chain gives base-frame positions.
-
-    Raises:
-        ValueError: If a joint on the way is not a 1-DoF revolute or prismatic joint.
-    """
-    model = kinematics.model
-    frame = model.frames[model.getFrameId(kinematics.ee_frame)]
-    steps = []
-    joint = int(frame.parentJoint)
-    while joint > 0:
-        found = joint_axis(model.joints[joint])
-        if found is None:
-            raise ValueError(f"joint {model.names[joint]!r} is not a 1-DoF revolute or prismatic joint")
-        placement = model.jointPlacements[joint]
-        index = int(model.joints[joint].idx_q)
-        steps.append((placement.rotation.copy(), placement.translation.copy(), found[0], found[1], index))
-        joint = int(model.parents[joint])
-    return steps, frame.placement.translation.copy()
-
-
 def casadi_forward_kinematics(kinematics: Kinematics) -> Any:
     """``fk(θ) → x``: the end-effector position in the base frame as a CasADi function of one ``(m,)`` configuration.
 
@@ -109,7 +83,7 @@ def casadi_forward_kinematics(kinematics: Kinematics) -> Any:
     prismatic one). Equals :meth:`Kinematics.forward` to rounding.
     """
     ca = _casadi()
-    steps, offset = _chain(kinematics)
+    steps, offset = leaf_chain(kinematics)
     q = ca.SX.sym("q", kinematics.n_joints)
     v = ca.SX(ca.DM(offset))
     for rotation, translation, axis, revolute, index in steps:

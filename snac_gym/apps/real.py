@@ -117,6 +117,8 @@ class RealRunResult:
     files: list[Path] = field(default_factory=list)
     recoveries: list[dict[str, Any]] = field(default_factory=list)
     tuning_notes: list[str] = field(default_factory=list)
+    #: The checked start pose, reference and limits (:func:`run_setup`).
+    setup: dict[str, Any] = field(default_factory=dict)
 
     @property
     def exit_code(self) -> int:
@@ -196,8 +198,7 @@ def run_setup(
     if violation is not None:
         raise ValueError(f"--q0 is outside the safety limits: {violation}{hint}")
     low, high = safety.task_box(kinematics)
-    points = np.atleast_2d(resolved.points(64) if hasattr(resolved, "points") else resolved.centre)
-    outside = [p for p in points if np.any(p < low) or np.any(p > high)]
+    outside = [p for p in np.atleast_2d(resolved.points(64)) if np.any(p < low) or np.any(p > high)]
     if outside:
         raise ValueError(f"the {task} reference leaves the task box [{_fmt(low)}] .. [{_fmt(high)}] m at "
                          f"[{_fmt(outside[0])}]: choose another reference, or --task-box{hint}")
@@ -338,18 +339,16 @@ def run_real_episode(
             env = RealUREnv(
                 task, arm, safety=safety, max_steps=steps if steps is not None else default_steps, recovery=recovery
             )
-            env.run_setup = setup  # type: ignore[attr-defined]
-            env.demo_start = {"q0": setup["q0"], env.task.option_key: setup[env.task.option_key]}  # type: ignore[attr-defined]
             if out is not None:
                 env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints, journal_writer)
         except BaseException:
             arm.close()
             raise
         with frozen_gc(tuning.freeze_gc):
-            log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, model_error)
+            log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error)
         guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
         result = _write_outputs(
-            env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs
+            env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs, setup
         )
         result.tuning_notes = list(notes)
     try:
@@ -368,6 +367,7 @@ def _run_and_stop(
     guard: SignalGuard,
     out: Path | None,
     prefix: str,
+    setup: dict[str, Any],
     model_error: str | None = None,
 ) -> pd.DataFrame:
     """The episode, the arm stopped on every way out; on any failure the log so far is written, then it raises.
@@ -381,7 +381,8 @@ def _run_and_stop(
         try:
             warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
             policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
-            log = rollout(env, policy, options=dict(env.demo_start), seed=seed, steps=env.max_steps)
+            options = {"q0": setup["q0"], env.task.option_key: setup[env.task.option_key]}
+            log = rollout(env, policy, options=options, seed=seed, steps=env.max_steps)
             log = add_critic_diagnostics(log, policy)
             _mark_gaps(log, env)
         finally:
@@ -393,7 +394,7 @@ def _run_and_stop(
     except BaseException as exc:
         guard.defer()
         if out is not None:
-            _write_interrupted(env, partial_log(exc) if log is None else log, out, prefix, exc)
+            _write_interrupted(env, partial_log(exc) if log is None else log, out, prefix, exc, setup)
             exc.log_dir = out  # type: ignore[attr-defined]
         raise
     finally:
@@ -427,6 +428,7 @@ def _write_outputs(
     csv: bool,
     plots: bool,
     policy_kwargs: dict[str, Any] | None,
+    setup: dict[str, Any],
 ) -> RealRunResult:
     log.attrs["controller"] = controller
     log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
@@ -441,6 +443,7 @@ def _write_outputs(
         stop_reason=env.stop_reason,
         sent_commands=len(arm.sent) if isinstance(arm, DryRunConnection) else None,
         recoveries=[dict(r) for r in env.recoveries],
+        setup=setup,
     )
     if out is not None:
         result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
@@ -456,7 +459,9 @@ def _ending(exc: BaseException) -> str:
     return "error"
 
 
-def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, prefix: str, exc: BaseException) -> None:
+def _write_interrupted(
+    env: RealUREnv, log: pd.DataFrame | None, out: Path, prefix: str, exc: BaseException, setup: dict[str, Any]
+) -> None:
     """Save what a failed run logged: the trajectory so far, the loop timing and why it ended.
 
     Each file is written on its own, so that one that fails (a full disk) does not cost the others.
@@ -480,7 +485,7 @@ def _write_interrupted(env: RealUREnv, log: pd.DataFrame | None, out: Path, pref
         "steps_logged": 0 if log is None else len(log),
         "timing": env.timing(),
         "dt_ms": env.dt * 1e3,
-        "setup": getattr(env, "run_setup", None),
+        "setup": setup,
     }
     if env.recovery.max_recoveries:  # only a run that could resume says how it went
         summary["recoveries"] = env.recoveries
@@ -509,7 +514,7 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
                 "stop_reason": result.stop_reason,
                 "dt_ms": env.dt * 1e3,
                 "sent_commands": result.sent_commands,
-                "setup": getattr(env, "run_setup", None),
+                "setup": result.setup,
                 **({"recoveries": result.recoveries} if result.recoveries else {}),
             },
             indent=2,

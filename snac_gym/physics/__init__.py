@@ -24,13 +24,11 @@ def make_arm(
         ValueError: On an unknown model.
         MissingExtraError: For ``"mujoco"`` without mujoco installed.
     """
-    if physics == "pybullet":
-        return PyBulletArm(kinematics, dt, n_substeps, gui=gui, meshes=meshes)
+    check_physics(physics)
     if physics == "kinematic":
         return KinematicArm(kinematics, dt)
     if physics == "mujoco":
         from snac_gym.physics.mujoco import MuJoCoArm  # needs the mujoco extra
 
         return MuJoCoArm(kinematics, dt, n_substeps)
-    check_physics(physics)
-    raise AssertionError(f"no arm for {physics!r}")  # a name added to PHYSICS without its engine here
+    return PyBulletArm(kinematics, dt, n_substeps, gui=gui, meshes=meshes)

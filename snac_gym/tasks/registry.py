@@ -12,8 +12,9 @@ instance; it is loaded and registered the first time the registry is read.
 
 from __future__ import annotations
 
-import importlib.metadata
 from typing import Any
+
+from snac_gym.entry_points import EntryPointGroup
 
 #: The entry-point group of tasks from other packages.
 ENTRY_POINT_GROUP = "snac_gym.tasks"
@@ -25,8 +26,7 @@ REQUIRED_ATTRIBUTES = (
 #: Registered tasks by name, in registration order (the order of reports and CSV columns). Read it through
 #: :func:`task_names`, :func:`all_tasks` or :func:`get_task`, which load the entry points first.
 TASKS: dict[str, Any] = {}
-_loaded_entry_points: set[str] = set()
-_scanned = False  # the installed entry points are read once per process (a scan costs ~5 ms)
+_ENTRY_POINTS = EntryPointGroup(ENTRY_POINT_GROUP)
 
 
 def register_task(task: Any) -> Any:
@@ -54,21 +54,13 @@ def load_entry_points(rescan: bool = False) -> None:
     Raises:
         ValueError: Naming the entry point whose object is not a task, or whose task cannot be registered.
     """
-    global _scanned
-    if _scanned and not rescan:
-        return
-    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        if entry.value in _loaded_entry_points:
-            continue
-        loaded = entry.load()
+    for entry, loaded in _ENTRY_POINTS.new(rescan):
         task = loaded() if isinstance(loaded, type) else loaded
         try:
             if getattr(task, "name", None) not in TASKS or TASKS[task.name] is not task:
                 register_task(task)
         except ValueError as error:
-            raise ValueError(f"entry point {entry.name} = {entry.value!r} ({ENTRY_POINT_GROUP}): {error}") from None
-        _loaded_entry_points.add(entry.value)
-    _scanned = True  # only once every entry point loaded: a broken one fails every lookup alike
+            raise ValueError(f"{_ENTRY_POINTS.name(entry)}: {error}") from None
 
 
 def _is_task(value: Any) -> bool:
