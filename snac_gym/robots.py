@@ -23,6 +23,7 @@ from typing import Any
 
 from snac_gym.entry_points import EntryPointGroup
 from snac_gym.references import PAPER_Q0
+from snac_gym.ur_models import E_SERIES_URDF_DIR, UR_MODELS
 
 
 @dataclass(frozen=True)
@@ -138,15 +139,18 @@ def get_robot(name: str) -> Robot:
 
 
 # The UR arms: tool0 in the frame the UR pendant shows ("base", π about z from base_link), so the
-# paper's numbers work unchanged; the paper's θ₀ is elbow-up, wrist-down on all three.
-for _size in ("3", "5", "10"):
+# paper's numbers work unchanged; the paper's θ₀ is elbow-up, wrist-down on all of them. The CB3 arms'
+# URDFs are example-robot-data's; the e-series arms' are written from UR's DH parameters and datasheet
+# (snac_gym.ur_models, tools/write_ur_urdfs.py), as example-robot-data has none.
+for _model in UR_MODELS.values():
     register_robot(
         Robot(
-            name=f"ur{_size}",
-            urdf=f"ur_description/urdf/ur{_size}_robot.urdf",
+            name=_model.name,
+            urdf=(f"ur_description/urdf/{_model.name}_robot.urdf" if _model.series == "cb"
+                  else str(E_SERIES_URDF_DIR / f"{_model.name}.urdf")),
             nominal_q=PAPER_Q0,
-            description=f"Universal Robots UR{_size}",
-            env_prefix=f"UR{_size}",
+            description=f"Universal Robots {_model.label}",
+            env_prefix=_model.label[:2] + _model.label[2:],
         )
     )
 

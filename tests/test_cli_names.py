@@ -79,3 +79,19 @@ def test_the_real_arm_connections_keep_their_former_names_with_a_warning():
         assert old not in real.__all__
     with pytest.raises(AttributeError, match="no attribute 'Backend'"):
         real.Backend  # noqa: B018
+
+
+def test_every_option_name_is_whole_in_the_help_at_80_columns():
+    """No "--unlock-protectiv…": each command's help, 80 columns wide, spells every visible option out."""
+    import typer.main
+
+    group = typer.main.get_command(app)
+    for name, command in group.commands.items():
+        text = CliRunner().invoke(app, [name, "--help"], terminal_width=80, env={"COLUMNS": "80"}).output
+        assert "…" not in text and max(map(len, text.splitlines())) <= 80, name
+        for param in command.params:
+            if getattr(param, "hidden", False):
+                continue
+            for option in [*param.opts, *getattr(param, "secondary_opts", [])]:
+                if option.startswith("--"):
+                    assert option in text, (name, option)

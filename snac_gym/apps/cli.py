@@ -24,11 +24,13 @@ from snac_gym.policies import available_policies
 from snac_gym.progress import wants_lines
 from snac_gym.robots import robot_names
 from snac_gym.tasks import task_names
+from snac_gym.ur_models import UR_MODELS
 
 # The help lists what is registered when the command starts (built-ins and the entry points of
 # snac_gym.robots and snac_gym.tasks), not a copy written here.
 _ROBOTS = ", ".join(robot_names())
 _TASKS = ", ".join(task_names())
+_UR_ARMS = ", ".join(UR_MODELS)
 
 app = typer.Typer(
     name="snac-gym",
@@ -36,6 +38,8 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # Click's plain help: rich's option tables cut long option names ("--unlock-protectiv…") at 80 columns.
+    rich_markup_mode=None,
 )
 
 
@@ -157,7 +161,7 @@ def real(
     out: Path = typer.Option(Path("real_out"), "--out", help="Folder for the log, the panels and the loop timing."),
     connection: str = typer.Option("rtde", "--connection", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."),
     backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --connection."),
-    series: str = typer.Option("cb", "--series", help="cb (CB-series, 125 Hz) or e (e-Series, 500 Hz)."),
+    series: Optional[str] = typer.Option(None, "--series", help="cb (CB3, 125 Hz) or e (e-Series, 500 Hz); default the arm's own."),
     dry_run: bool = typer.Option(False, "--dry-run", help="Connect and read state, send nothing; print what would be sent."),
     speed_scale: float = typer.Option(0.25, "--speed-scale", help="Fraction of the velocity limits allowed, in (0, 1]."),
     max_acceleration: float = typer.Option(2.0, "--max-acceleration", help="Bound on joint acceleration, rad/s², in (0, 40]."),
@@ -172,7 +176,7 @@ def real(
     recovery_timeout: float = typer.Option(60.0, "--recovery-timeout", help="Longest wait (s) for a protective stop to be cleared, in (0, 3600]."),
     reconnect_timeout: float = typer.Option(10.0, "--reconnect-timeout", help="Longest time (s) for a lost link to come back, in (0, 600]."),
     rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off."),
-    robot: str = typer.Option("ur10", "--robot", help="The UR arm: ur3, ur5 or ur10 (its kinematics, limits and default task box)."),
+    robot: str = typer.Option("ur10", "--robot", help=f"The UR arm: {_UR_ARMS} (its kinematics, datasheet limits and default task box)."),
     q0: Optional[str] = typer.Option(None, "--q0", help="Start pose, 6 joint angles in rad (comma-separated); default the paper's (the UR10's). The arm moveJs there first."),
     target: Optional[str] = typer.Option(None, "--target", help="Reach: the target x,y,z in m (base frame); default the paper's (the UR10's)."),
     ellipse_centre: Optional[str] = typer.Option(None, "--ellipse-centre", help="Track: the ellipse's centre x,y,z in m; with --ellipse-radius."),
@@ -262,8 +266,8 @@ def _real_reference(task: str, target: str | None, centre: str | None, radius: f
 @app.command("emulate-ur")
 def emulate_ur(
     port_base: int = typer.Option(29999, "--port-base", help="Dashboard port; RTDE at +5, script at +3/+4. ur_rtde needs 29999; 0: free ports."),
-    series: str = typer.Option("cb", "--series", help="cb (CB3, 125 Hz data) or e (e-Series, 500 Hz)."),
-    robot: str = typer.Option("ur10", "--robot", help="Arm model: ur3, ur5 or ur10 (the UR controller emulated)."),
+    series: Optional[str] = typer.Option(None, "--series", help="cb (CB3, 125 Hz data) or e (e-Series, 500 Hz); default the arm's own."),
+    robot: str = typer.Option("ur10", "--robot", help=f"Arm model: {_UR_ARMS} (the UR controller emulated)."),
     speed_scaling: float = typer.Option(1.0, "--speed-scaling", help="Speed slider fraction in (0, 1]."),
     tcp_offset: Optional[str] = typer.Option(None, "--tcp-offset", help="TCP offset x,y,z[,rx,ry,rz] (m, rad) in reported poses: a wrong tool."),
     protective_stop_at: Optional[float] = typer.Option(None, "--protective-stop-at", help="Protective stop, s after the first speedJ."),

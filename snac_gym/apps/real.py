@@ -33,6 +33,7 @@ from snac_gym.real.safety import SafetyLayer, SafetyLimits
 from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
+from snac_gym.ur_models import UR_MODELS, get_ur_model, series_of, velocity_limits
 
 #: The streamed log (:class:`~snac_gym.real.journal.StepJournal`): kept only when the run could not write the full one.
 STREAM_SUFFIX = "stream.csv"
@@ -162,11 +163,11 @@ EXIT_CODES = {
     "safety layer stopped the arm": 4, "protective stop": 5, "emergency stop": 6, "signal n": "128 + n",
 }
 #: The arms ``snac-gym real`` drives: the UR models of the registry (ur_rtde; ``snac-gym emulate-ur`` serves the same).
-UR_ROBOTS = ("ur3", "ur5", "ur10")
+UR_ROBOTS = tuple(UR_MODELS)
 
 
 def run_setup(
-    task: str, robot: str, q0: Sequence[float] | None, reference: Any, safety: SafetyLimits
+    task: str, robot: str, q0: Sequence[float] | None, reference: Any, safety: SafetyLimits, series: str | None = None
 ) -> dict[str, Any]:
     """The checked start pose, reference and limits of a real run, before anything connects; ``*_real.json``
     records it and the dry run prints it.
@@ -175,11 +176,13 @@ def run_setup(
     the paper's (``snac-gym demo``'s), which the UR10 reaches; the smaller arms need their own.
 
     Raises:
-        ValueError: Naming what is wrong: a robot that is not a UR arm, a start pose outside the joint limits
-            or the safety margins, an unreachable reference, or a start or reference outside the task box.
+        ValueError: Naming what is wrong: a robot that is not a UR arm, a series it does not run at, a start pose
+            outside the joint limits or the safety margins, an unreachable reference or one beyond the
+            datasheet's reach (from the shoulder), or a start or reference outside the task box.
     """
     if robot not in UR_ROBOTS:
         raise ValueError(f"--robot must be one of {', '.join(UR_ROBOTS)} (the UR arms ur_rtde drives), got {robot!r}")
+    series = series_of(robot, series)
     spec, kinematics = get_task(task), Kinematics(robot)
     options = spec.demo_options()
     if q0 is not None:
@@ -197,8 +200,16 @@ def run_setup(
     violation = layer.pose_violation(start, kinematics.forward(start))
     if violation is not None:
         raise ValueError(f"--q0 is outside the safety limits: {violation}{hint}")
+    points = np.atleast_2d(resolved.points(64))
+    model = get_ur_model(robot)
+    shoulder = np.array([0.0, 0.0, model.dh[0]])
+    farthest = int(np.argmax(np.linalg.norm(points - shoulder, axis=1)))
+    if np.linalg.norm(points[farthest] - shoulder) > model.reach:
+        raise ValueError(f"the {task} reference reaches [{_fmt(points[farthest])}] m, "
+                         f"{np.linalg.norm(points[farthest] - shoulder):.3f} m from the shoulder: beyond the {model.label}'s "
+                         f"datasheet reach of {model.reach:.3f} m{hint}")
     low, high = safety.task_box(kinematics)
-    outside = [p for p in np.atleast_2d(resolved.points(64)) if np.any(p < low) or np.any(p > high)]
+    outside = [p for p in points if np.any(p < low) or np.any(p > high)]
     if outside:
         raise ValueError(f"the {task} reference leaves the task box [{_fmt(low)}] .. [{_fmt(high)}] m at "
                          f"[{_fmt(outside[0])}]: choose another reference, or --task-box{hint}")
@@ -206,6 +217,9 @@ def run_setup(
         "robot": robot, "task": task, "q0": [float(v) for v in start], spec.option_key: options[spec.option_key],
         "task_box": [low.tolist(), high.tolist()], "joint_limit_margin": safety.joint_limit_margin,
         "speed_scale": safety.speed_scale, "max_joint_acceleration": safety.max_joint_acceleration,
+        "series": series, "speed_limits": [float(v) for v in velocity_limits(robot, kinematics.velocity_limits)],
+        "speed_limits_source": f"the URDF's, capped at the {model.source['speeds']}",
+        "reach": model.reach,
     }
 
 
@@ -251,7 +265,7 @@ def run_real_episode(
     out_dir: str | Path | None = "real_out",
     connection: str = "rtde",
     host: str | None = None,
-    series: str = "cb",
+    series: str | None = None,
     dry_run: bool = False,
     seed: int = 0,
     steps: int | None = None,
@@ -292,7 +306,7 @@ def run_real_episode(
         out_dir: Folder for the log, figures, timing and summary (``None``: write nothing).
         connection: ``"rtde"`` (a real arm at ``host``) or ``"sim"`` (PyBullet in wall-clock time).
         host: IP of the UR controller (``rtde`` only).
-        series: ``"cb"`` (125 Hz) or ``"e"`` (500 Hz).
+        series: ``"cb"`` (125 Hz) or ``"e"`` (500 Hz); ``None``: the arm's own (:func:`~snac_gym.ur_models.series_of`).
         dry_run: Connect and read state, send nothing; ``echo`` gets each command it would send.
         seed: Seed of the policy (and env) reset.
         steps: Control periods (default: the task's ``real_horizon_s``, 15 s reach, 30 s track).
@@ -324,7 +338,8 @@ def run_real_episode(
     if dry_run and recovery is not None and recovery.unlock_protective_stop:
         raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
     safety = safety if safety is not None else SafetyLimits()
-    setup = run_setup(task, robot, q0, reference, safety)
+    setup = run_setup(task, robot, q0, reference, safety, series)
+    series = setup["series"]
     if echo is not None:
         echo("setup: " + json.dumps(setup))
     out = Path(out_dir) if out_dir is not None else None
@@ -514,6 +529,8 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
                 "stop_reason": result.stop_reason,
                 "dt_ms": env.dt * 1e3,
                 "sent_commands": result.sent_commands,
+                # What the last stop command returned (``None``: none was sent, e.g. a dry run).
+                "last_stop": getattr(env.connection, "last_stop", None),
                 "setup": result.setup,
                 **({"recoveries": result.recoveries} if result.recoveries else {}),
             },

@@ -2,7 +2,8 @@
 
 Two kinds of rule:
 
-* **Shaping** (every command): clip to ``speed_scale`` × the URDF velocity limits, then bound the
+* **Shaping** (every command): clip to ``speed_scale`` × the joint speed limits (the URDF's, and on a UR
+  arm no more than its datasheet's: :func:`snac_gym.ur_models.velocity_limits`), then bound the
   change from the previous command by ``max_joint_acceleration`` × dt.
 * **Stopping** (the arm is stopped and the episode ends):
 
@@ -30,6 +31,7 @@ import numpy as np
 
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
+from snac_gym.ur_models import velocity_limits
 
 _BOX_MARGIN = 0.15  # m around the sample cuboid: room for overshoot, not for the table
 
@@ -52,8 +54,8 @@ class SafetyLimits:
     """Conservative defaults for a first run next to a real arm.
 
     Attributes:
-        speed_scale: Fraction of the URDF joint-velocity limits the command may use (0.25: the
-            UR10 base joints at most 0.54 rad/s), in (0, 1].
+        speed_scale: Fraction of the joint speed limits the command may use (the URDF's, and on a UR arm
+            no more than the datasheet's; 0.25: the UR10 base joints at most 0.52 rad/s), in (0, 1].
         max_joint_acceleration: Bound on |u_k − u_{k−1}| / dt, rad/s², in (0, 40] (the UR
             controllers' own joint acceleration limit is 40 rad/s²).
         box_low, box_high: Task-space box (m, base frame) the end effector must stay in; finite,
@@ -132,7 +134,7 @@ class SafetyLayer:
         self.kinematics = kinematics
         self.limits = limits
         self.dt = dt
-        self.speed_bound = limits.speed_scale * kinematics.velocity_limits
+        self.speed_bound = limits.speed_scale * velocity_limits(kinematics.robot, kinematics.velocity_limits)
         self.step_bound = limits.max_joint_acceleration * dt
         self._box_low, self._box_high = limits.task_box(kinematics)
         self._joint_low = kinematics.lower_limits + limits.joint_limit_margin

@@ -26,7 +26,8 @@ pytestmark = pytest.mark.realtime
 
 from snac_gym.kinematics import Kinematics  # noqa: E402
 from snac_gym.real import ConnectionFailure, RealUREnv, SafetyLimits, URRTDEConnection  # noqa: E402
-from snac_gym.real.emulator.arm import flange_transform, matrix_to_pose  # noqa: E402
+from snac_gym.real.emulator.arm import matrix_to_pose  # noqa: E402
+from snac_gym.ur_models import flange_transform  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 from snac_gym.sampling import nominal_configuration  # noqa: E402
 
@@ -280,7 +281,7 @@ def test_commands_reach_the_controller_speed_clipped_and_rate_limited(emu, conne
     sent = np.array(
         [[c[2][f"input_double_register_{j}"] for j in range(6)] for c in emu.commands_since(since) if c[1] == 9]
     )
-    bound = 0.25 * connection.kinematics.velocity_limits
+    bound = 0.25 * np.radians([120, 120, 180, 180, 180, 180])  # the UR10's datasheet, below its URDF's speeds
     assert len(sent) >= 79 and np.all(np.abs(sent) <= bound + 1e-12)
     assert np.all(np.abs(np.diff(sent, axis=0)) <= 2.0 * env.dt + 1e-12)
     np.testing.assert_allclose(sent[-1], bound)  # the cap was reached, so it did bind
@@ -375,7 +376,8 @@ def test_emulate_ur_command_serves_on_free_ports_and_refuses_bad_flags():
         (["--tcp-offset", "0.1,0.2"], "--tcp-offset needs 3 or 6 numbers"),
         (["--latency-spike", "1"], "--latency-spike (AT,SECONDS) needs 2 numbers"),
         (["--speed-scaling", "0"], "speed scaling must be in (0, 1]"),
-        (["--series", "x"], "series must be one of ['cb', 'e']"),
+        (["--series", "x"], "--series must be one of cb, e, got 'x'"),
+        (["--series", "e"], "--series e is the e-Series' 500 Hz; the UR10 is a CB3 arm"),
         (["--port-base", "80"], "port_base must be 0"),
     ]:
         outcome = CliRunner().invoke(app, command + flags)

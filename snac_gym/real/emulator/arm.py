@@ -3,8 +3,10 @@
 The controller reports ``actual_TCP_pose`` in its **base frame** (the frame the pendant shows, the
 ``base`` frame of the URDF, rotated π about z from ``base_link``) as ``[x, y, z, rx, ry, rz]``:
 the position of the TCP, i.e. the flange (``tool0``) moved by the TCP offset, and its orientation
-as a rotation vector. The emulator computes it from Universal Robots' published DH parameters,
-not from the project's URDF, so the connection's FK check compares two independent models.
+as a rotation vector. The emulator computes it from Universal Robots' published DH parameters
+(:func:`snac_gym.ur_models.flange_transform`), not from the URDF: for the CB3 arms (example-robot-data's
+URDFs) the connection's FK check compares two independent models; the e-series URDFs are written from the
+same DH rows, so for them it checks the frames and the tool offset, not the DH numbers.
 
 Motion is integrated exactly (no dynamics) once per controller cycle: ``speedj`` approaches its
 target speed, scaled by the speed slider, at its acceleration bound (of the leading joint, the
@@ -20,20 +22,7 @@ import math
 import numpy as np
 
 from snac_gym.kinematics import joint_step
-
-#: DH parameters of the arms (d1, a2, a3, d4, d5, d6), m, from Universal Robots' published tables.
-UR_DH = {
-    "ur3": (0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
-    "ur5": (0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
-    "ur10": (0.1273, -0.612, -0.5723, 0.163941, 0.1157, 0.0922),
-}
-_ALPHA = (math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0)
-
-
-def _dh(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
-    ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
-    return np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0, sa, ca, d], [0, 0, 0, 1.0]])
-
+from snac_gym.ur_models import UR_MODELS, flange_transform
 
 def pose_to_matrix(pose: np.ndarray) -> np.ndarray:
     """4×4 transform of a UR pose ``[x, y, z, rx, ry, rz]`` (rotation vector)."""
@@ -68,28 +57,18 @@ def matrix_to_pose(matrix: np.ndarray) -> np.ndarray:
     return np.concatenate([matrix[:3, 3], rotvec])
 
 
-def flange_transform(robot: str, q: np.ndarray) -> np.ndarray:
-    """Base-frame transform of the flange (``tool0``) at joint angles ``q``, from the DH table."""
-    d1, a2, a3, d4, d5, d6 = UR_DH[robot]
-    ds, as_ = (d1, 0.0, 0.0, d4, d5, d6), (0.0, a2, a3, 0.0, 0.0, 0.0)
-    transform = np.eye(4)
-    for theta, d, a, alpha in zip(q, ds, as_, _ALPHA):
-        transform = transform @ _dh(float(theta), d, a, alpha)
-    return transform
-
-
 class EmulatedArm:
     """Joint state of the emulated arm, integrated exactly each controller cycle.
 
     Args:
-        robot: ``"ur3"``, ``"ur5"`` or ``"ur10"`` (the DH table used for the TCP pose).
+        robot: A UR model of :data:`~snac_gym.ur_models.UR_MODELS` (its DH rows give the TCP pose).
         q: Initial joint angles, rad.
         velocity_limits: Joint speed limits, rad/s (the controller never exceeds them).
     """
 
     def __init__(self, robot: str, q: np.ndarray, velocity_limits: np.ndarray) -> None:
-        if robot not in UR_DH:
-            raise ValueError(f"robot must be one of {sorted(UR_DH)}, got {robot!r}")
+        if robot not in UR_MODELS:
+            raise ValueError(f"robot must be one of {', '.join(UR_MODELS)}, got {robot!r}")
         self.robot = robot
         self.q = np.array(q, dtype=float)
         self.qd = np.zeros_like(self.q)

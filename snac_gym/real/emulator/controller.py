@@ -22,6 +22,7 @@ from snac_gym.real.emulator.arm import EmulatedArm
 from snac_gym.real.emulator.script import ControlScript
 from snac_gym.real.emulator.servers import RTDEConnection, serve_dashboard, serve_script
 from snac_gym.sampling import nominal_configuration
+from snac_gym.ur_models import SERIES_FREQUENCY, series_of, velocity_limits
 
 log = logging.getLogger("snac_gym.emulate_ur")
 
@@ -30,7 +31,8 @@ PORT_OFFSETS = {"dashboard": 0, "secondary": 3, "realtime": 4, "rtde": 5}
 STANDARD_PORT_BASE = 29999
 #: Controller versions reported (``getControllerVersion``): CB3 runs 3.x, e-Series 5.x.
 VERSIONS = {"cb": (3, 15, 8, 106339), "e": (5, 11, 6, 108805)}
-FREQUENCY = {"cb": 125.0, "e": 500.0}
+
+_SAFETY_STOPS = ("protective stop", "emergency stop")
 #: Deceleration of the controller's own stops (program stopped, watchdog), rad/s².
 STOP_DECELERATION = 10.0
 #: Commands that move the arm: none may arrive while the controller reports a stop.
@@ -66,7 +68,7 @@ class UREmulator:
 
     Args:
         robot: Arm model (UR DH table and the start pose's velocity limits).
-        series: ``"cb"`` or ``"e"``.
+        series: ``"cb"`` or ``"e"``; ``None``: the arm's own.
         host: Loopback address to listen on (only ``127.x.x.x`` is accepted).
         port_base: Dashboard port; the others follow at the standard offsets.
         q0: Initial joint angles (default: the nominal elbow-up pose).
@@ -85,7 +87,7 @@ class UREmulator:
     def __init__(
         self,
         robot: str = "ur10",
-        series: str = "cb",
+        series: str | None = None,
         host: str = "127.0.0.1",
         port_base: int = STANDARD_PORT_BASE,
         q0: np.ndarray | None = None,
@@ -94,8 +96,7 @@ class UREmulator:
         bind_timeout: float = 30.0,
         rt_priority: int = 0,
     ) -> None:
-        if series not in FREQUENCY:
-            raise ValueError(f"series must be one of {sorted(FREQUENCY)}, got {series!r}")
+        series = series_of(robot, series)
         if not re.fullmatch(r"127\.\d{1,3}\.\d{1,3}\.\d{1,3}", host):
             raise ValueError(f"the emulator listens on loopback addresses only (127.x.x.x), got {host!r}")
         if not (port_base == 0 or 1024 <= port_base <= 65535 - max(PORT_OFFSETS.values())):
@@ -105,11 +106,11 @@ class UREmulator:
         if not (isinstance(rt_priority, int) and 0 <= rt_priority <= 99):
             raise ValueError(f"rt_priority must be a whole number in [0, 99], got {rt_priority!r}")
         self.rt_priority = rt_priority
-        self.frequency = FREQUENCY[series]
+        self.frequency = SERIES_FREQUENCY[series]
         self.dt = 1.0 / self.frequency
         self.version = VERSIONS[series]
         start = nominal_configuration(self.kinematics) if q0 is None else np.asarray(q0, dtype=float)
-        self.arm = EmulatedArm(robot, start, self.kinematics.velocity_limits)
+        self.arm = EmulatedArm(robot, start, velocity_limits(robot, self.kinematics.velocity_limits))
         self.tcp_offset = np.zeros(6) if tcp_offset is None else np.asarray(tcp_offset, dtype=float)
         self.set_speed_scaling(speed_scaling)
         self.lock = threading.RLock()
@@ -659,6 +660,10 @@ class UREmulator:
                 "safety": self._safety_name(),
                 "speed_scaling": self.speed_scaling,
                 "events": [text for _, text in self.events],
+                # Monotonic time of the last protective or emergency stop (None: none since the reset).
+                "safety_stop_at": next((t for t, text in reversed(self.events) if text in _SAFETY_STOPS), None),
+                # When the first data package showing a stop was sent: the host cannot know of it before.
+                "stop_reported_at": self._stopped_since,
                 "programs": list(self.programs),
                 "protocol_errors": list(self.protocol_errors),
                 "watchdog": self._watchdog,
@@ -676,7 +681,7 @@ class UREmulator:
             self.runtime_state = p.RUNTIME_STOPPED
             self.script, self._watchdog, self._scheduled = None, None, []
             start = nominal_configuration(self.kinematics) if q0 is None else np.asarray(q0, dtype=float)
-            self.arm = EmulatedArm(self.arm.robot, start, self.kinematics.velocity_limits)
+            self.arm = EmulatedArm(self.arm.robot, start, velocity_limits(self.arm.robot, self.kinematics.velocity_limits))
             self.tcp_offset, self.speed_scaling = np.zeros(6), 1.0
             self.commands.clear()
             self.unsafe_commands.clear()
