@@ -264,10 +264,10 @@ class UREmulator:
         else:
             self._spawn(serve_script, self, sock)
 
-    def event(self, text: str) -> None:
-        """Record (and log) something the controller did."""
+    def event(self, text: str, level: int = logging.INFO) -> None:
+        """Record (and log, at ``level``: a fault of the host at WARNING) something the controller did."""
         self.events.append((time.monotonic(), text))
-        log.info(text)
+        log.log(level, text)
 
     # ----------------------------------------------------------------- RTDE inputs
     def input_in_use(self, name: str, conn: RTDEConnection) -> bool:
@@ -416,11 +416,11 @@ class UREmulator:
         """A one-line script command (not a program): recorded as an event, not run."""
         self.event(f"script line ignored by the emulator: {line[:80]}")
 
-    def _end_program(self, reason: str) -> None:
+    def _end_program(self, reason: str, level: int = logging.INFO) -> None:
         self.runtime_state = p.RUNTIME_STOPPED
         self.arm.stopj(STOP_DECELERATION)
         self._watchdog = None
-        self.event(reason)
+        self.event(reason, level)
 
     def on_speed_command(self) -> None:
         if self.first_speed_command is None:
@@ -449,7 +449,8 @@ class UREmulator:
             else:
                 self._end_program(
                     f"watchdog expired: no update of {self._watchdog[1]} for {now - self._watch_update:.3f} s "
-                    "from a connected client (a stalled host)"
+                    "from a connected client (a stalled host)",
+                    logging.WARNING,
                 )
 
     # ----------------------------------------------------------------- dashboard

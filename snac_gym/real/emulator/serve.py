@@ -66,7 +66,7 @@ def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], No
     stop = threading.Event()
     handler = lambda *_: stop.set()  # noqa: E731
     previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s emulate-ur: %(message)s")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s emulate-ur %(levelname)s: %(message)s")
     try:
         with emulator:
             ports = ", ".join(f"{name} {port}" for name, port in emulator.ports.items())
