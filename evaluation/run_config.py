@@ -140,6 +140,9 @@ class EvaluationConfig:
             ``"velocity"`` (velocity limits only: the variant that ignores the joints' position limits).
         reference_cache: Reuse the reference's rows cached by sample content
             (:mod:`snac_gym.evaluation.reference.cache`), and store the new ones; ``False``: solve every sample.
+        calibration_cache: Reuse the matched knobs of an earlier run with the same effort set, settings and code
+            (:mod:`snac_gym.evaluation.effort.cache`), and store new ones; ``False``: neither.
+        recalibrate: Match the effort anew and overwrite the cached knobs (``--recalibrate``).
     """
 
     out: Path
@@ -177,6 +180,8 @@ class EvaluationConfig:
     model_error: str | None = None
     reference_limits: str = "joints"
     reference_cache: bool = True
+    calibration_cache: bool = True
+    recalibrate: bool = False
 
     @property
     def convention(self) -> CostConvention:

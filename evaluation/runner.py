@@ -29,6 +29,7 @@ The options and their checks are :mod:`snac_gym.evaluation.run_config`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Sequence
@@ -38,7 +39,8 @@ from typing import Any
 import pandas as pd
 
 from snac_gym.evaluation.controllers import ControllerSpec, resolve_controllers
-from snac_gym.evaluation.effort.matching import EffortRecord, Results, controller_passes
+from snac_gym.evaluation.effort.cache import cache_enabled, calibration_folder, calibration_identity, read_records, write_records
+from snac_gym.evaluation.effort.matching import EffortRecord, Records, Results, controller_passes
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
 from snac_gym.evaluation.execution.passes import EvaluationRun
@@ -72,14 +74,21 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
         with open_executor(config.workers, config.ray_address) as executor:
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
-            matched_on = _effort_set(config, space, executor, samples)
+            identities = _calibration_identities(config, space, specs)
+            cached = _cached_calibration(config, identities)
+            matched_on = samples if cached is not None else _effort_set(config, space, executor, samples)
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(map(len, samples.values()))
             progress = Progress(rollouts, config.progress)
             evaluation = EvaluationRun(config, store, executor, matched_on, progress)  # 3. Passes
             if matched_on is not samples:
                 evaluation.reported = {task: {s.index for s in samples[task]} for task in config.tasks}
             try:
-                results, records = controller_passes(evaluation, specs)  # 4. Equal effort
+                if cached is not None:  # 4. Equal effort, at the knobs an earlier run matched
+                    results, records = _passes_at_cached_knobs(evaluation, specs, *cached)
+                else:  # 4. Equal effort
+                    results, records = controller_passes(evaluation, specs)
+                    if identities:
+                        write_records(calibration_folder(), identities, records, str(Path(config.out).resolve()))
                 if matched_on is not samples:  # the rows of the evaluated samples only
                     results = {key: _reported_rows(rows, samples[key[0]]) for key, rows in results.items()}
                     evaluation.samples = samples
@@ -182,6 +191,54 @@ def _effort_set(
         return samples
     more = _draw(config, space, executor, config.samples, size)
     return {task: samples[task] + more[task] for task in config.tasks}
+
+
+def _calibration_identities(
+    config: EvaluationConfig, space: SampleSpace, specs: Sequence[ControllerSpec]
+) -> dict[tuple[str, str], dict[str, Any]]:
+    """The calibration-cache identity of every (task, controller) a run matches (none without matching,
+    with the cache off, or with no controllers)."""
+    if not (config.match_effort and config.calibration_cache and specs and cache_enabled()):
+        return {}
+    names = [s.name for s in specs]
+    reference = None
+    if config.effort_target is None:
+        reference = specs[names.index(config.effort_reference if config.effort_reference in names else names[0])]
+    return {
+        (task, spec.name): calibration_identity(config, space, task, spec, reference)
+        for task in config.tasks
+        for spec in specs
+    }
+
+
+def _cached_calibration(
+    config: EvaluationConfig, identities: dict[tuple[str, str], dict[str, Any]]
+) -> tuple[Records, dict[str, Any]] | None:
+    """The cached records of every (task, controller) and the stamp of the run that made them, or ``None``."""
+    if not identities or config.recalibrate or config.resume:
+        return None
+    return read_records(calibration_folder(), identities)
+
+
+def _passes_at_cached_knobs(
+    evaluation: EvaluationRun, specs: Sequence[ControllerSpec], records: Records, stamp: dict[str, Any]
+) -> tuple[Results, Records]:
+    """Each controller's one pass on the reported samples at its cached knob: the reference at its own settings,
+    the others at the knob their match found, as the last full pass of a match runs them."""
+    config = evaluation.config
+    passes = []
+    for task in config.tasks:
+        for spec in specs:
+            record = records[(task, spec.name)]
+            own = spec.knob is None or record.role in ("reference", "fixed")
+            passes.append((task, spec, spec.kwargs if own else {**spec.kwargs, spec.knob: record.knob_value}))
+    started = time.perf_counter()
+    rows_of_passes = evaluation.run_passes(passes)
+    evaluation.timings["passes at cached knobs"] = time.perf_counter() - started
+    where = f"the run in {stamp.get('run')} ({stamp.get('at')})"
+    noted = {key: dataclasses.replace(r, calibrated_by=where) for key, r in records.items()}
+    results = {(task, spec.name): rows for (task, spec, _), rows in zip(passes, rows_of_passes, strict=True)}
+    return results, noted
 
 
 def _reported_rows(rows: pd.DataFrame, samples: Sequence[EvaluationSample]) -> pd.DataFrame:

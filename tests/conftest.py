@@ -16,6 +16,9 @@ from snac_gym.kinematics import Kinematics
 # The reference's row cache (evaluation/reference/cache.py) of this test process: a fresh folder, so that no
 # test reads rows another run left in the user's cache, and the suite writes nothing there.
 os.environ["SNAC_GYM_CACHE_DIR"] = tempfile.mkdtemp(prefix="snac-gym-test-cache-")
+# The calibration cache off: a test that compares two runs' knobs (other workers, fewer samples) must match
+# them anew, or it would compare a knob with itself. tests/test_calibration_cache.py turns it on.
+os.environ["SNAC_GYM_CALIBRATION_CACHE"] = "0"
 
 
 #: Why a test marked ``rl`` is skipped where torch or stable-baselines3 is missing.

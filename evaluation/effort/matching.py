@@ -71,6 +71,8 @@ class EffortRecord:
     target: float | None
     passes: int = 1
     note: str = ""
+    #: Where the knob came from when it was not matched by this run: the calibration cache's run and time.
+    calibrated_by: str = ""
 
 
 Records = dict[tuple[str, str], EffortRecord]

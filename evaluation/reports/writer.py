@@ -373,6 +373,19 @@ def _task_detail_lines(summary: pd.DataFrame, task: str) -> list[str]:
     return lines
 
 
+def _calibration_source_lines(efforts: Sequence[Any]) -> list[str]:
+    """Where the knobs came from when this run did not match them (the calibration cache)."""
+    sources = sorted({e.calibrated_by for e in efforts if getattr(e, "calibrated_by", "")})
+    if not sources:
+        return []
+    return [
+        f"**The knobs were not matched by this run**: they come from the calibration cache, matched by "
+        f"{' and '.join(sources)} on the same effort set, settings and code (the efforts and targets below are "
+        "that run's, on the effort set). `--recalibrate` matches them anew.",
+        "",
+    ]
+
+
 def _effort_lines(summary: pd.DataFrame, config: Any, efforts: Sequence[Any], effort_statistic: str) -> list[str]:
     """How each controller's effort was set, both effort statistics, and a warning for unmatched ones."""
     lines = [
@@ -383,6 +396,7 @@ def _effort_lines(summary: pd.DataFrame, config: Any, efforts: Sequence[Any], ef
         if config.match_effort
         else f"Statistic (not matched): {effort_statistic}.",
         "",
+        *_calibration_source_lines(efforts),
         (
             "Both statistics of every controller's rollouts, whichever was matched: the maximum |u| over the "
             "sample set (rad/s) and the median over samples of each rollout's peak |u_j|/ū_j."

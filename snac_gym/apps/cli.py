@@ -372,6 +372,7 @@ def evaluate(
     model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controllers a wrong arm model: 'joint_offset=a0,...,a5' (rad), 'link_scale=s' (relative), 'tool_offset=x,y,z' (m, tool frame), parts joined by ';'. The plant, the cost, the success rule and the optimum keep the true model."),
     reference_limits: str = typer.Option("joints", "--reference-limits", help="Constraints of the `optimal` reference: joints (joint position and velocity limits, as the success rule counts) or velocity (velocity limits only; its label says so)."),
     reference_cache: bool = typer.Option(True, "--reference-cache/--no-reference-cache", help="Reuse the `optimal` rows cached by sample content (~/.cache/snac-gym/reference, or $SNAC_GYM_CACHE_DIR), keyed by everything they depend on, the code included; --no-reference-cache solves every sample anew."),
+    recalibrate: bool = typer.Option(False, "--recalibrate", help="Match the effort anew even where an earlier run with the same effort set, settings and code cached its knobs (~/.cache/snac-gym/calibration, or $SNAC_GYM_CACHE_DIR), and overwrite them."),
     sweep: bool = typer.Option(False, "--sweep/--no-sweep", help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against success, error and peak effort; docs/evaluation.md)."),
     sweep_points: Optional[int] = typer.Option(None, "--sweep-points", help="Knob values per controller and task in the sweep (2 to 25; default 7), plus the equal-effort point."),
     sweep_span: Optional[float] = typer.Option(None, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4)."),
@@ -413,6 +414,7 @@ def evaluate(
             cost=cost, udot_start=udot_start, q_scale=q_scale, success_threshold=success_threshold,
             model_error=model_error, reference_limits=reference_limits,
             reference_cache=reference_cache,
+            recalibrate=recalibrate,
             **({} if chunk_size is None else {"chunk_size": chunk_size}),
         )
         if export_only:

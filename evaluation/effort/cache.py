@@ -1,0 +1,169 @@
+"""Matched effort knobs, cached on disk across runs: a small question asked after one full calibration
+answers in seconds.
+
+A controller's matched knob depends on the arm, the task, its horizon and Δt, the engine, the cost, the
+effort statistic, tolerance and target, the **effort set** (the samples it is matched on: the seed, the
+sample space and the set's size, or the samples file's content), the controller's settings and files,
+the effort reference's settings and files, and the code. It does not depend on how many of the effort
+set's samples a run reports: ``--samples 50`` is matched on the first 1000 samples, like ``--samples
+1000``. Each (task, controller) is one JSON file named by the SHA-256 of all of those inputs; the code
+enters as the SHA-256 of every source file of the package and of the shipped PPO policies, with the
+versions of NumPy, SciPy, Pinocchio and Numba, so that a changed controller, rollout or statistic never
+reuses a stale knob.
+
+A run reuses the cache only when every (task, controller) it matches is there (a partial hit re-runs the
+whole match, which a new target would change anyway). It then runs each controller once on the samples
+it reports, at the cached knob, and its summary names the run that calibrated it. ``--recalibrate``
+matches anew and overwrites the entries. The folder is ``$SNAC_GYM_CACHE_DIR/calibration`` (default
+``~/.cache/snac-gym/calibration``, or under ``$XDG_CACHE_HOME``); ``SNAC_GYM_CALIBRATION_CACHE=0`` turns it off
+(the test suite does, so that no test compares a knob with itself).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import importlib.metadata
+import json
+import os
+from collections.abc import Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import snac_gym
+import snac_gym.baselines
+from snac_gym.evaluation.effort.matching import EffortRecord
+from snac_gym.evaluation.reference.cache import CACHE_ENV
+from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
+from snac_gym.sampling import SampleSpace
+
+#: Environment variable that turns the cache off (``0``, ``off``, ``false`` or ``no``) whatever the options say.
+SWITCH_ENV = "SNAC_GYM_CALIBRATION_CACHE"
+#: Distributions whose version is part of the key (their numerics shape the rollouts).
+DISTRIBUTIONS = ("numpy", "scipy", "pin", "example-robot-data", "numba", "stable-baselines3", "torch")
+#: Files besides the sources that controllers read from the package (the shipped PPO policies).
+DATA_PATTERNS = ("*.py", "*.npz", "*.json")
+
+
+def cache_enabled() -> bool:
+    """Whether :data:`SWITCH_ENV` leaves the cache on (it is, unless set to ``0``, ``off``, ``false`` or ``no``)."""
+    return os.environ.get(SWITCH_ENV, "1").strip().lower() not in ("0", "off", "false", "no")
+
+
+def calibration_folder() -> Path:
+    """``$SNAC_GYM_CACHE_DIR/calibration``, else ``$XDG_CACHE_HOME/snac-gym/calibration`` or ``~/.cache/...``."""
+    root = os.environ.get(CACHE_ENV)
+    if root:
+        return Path(root) / "calibration"
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "snac-gym" / "calibration"
+
+
+def package_folders() -> tuple[tuple[str, Path], ...]:
+    """The folders the installed package reads its code and shipped files from: ``snac_gym`` and the folders
+    its ``baselines`` and ``evaluation`` install from."""
+    evaluation = Path(__file__).resolve().parents[1]  # this package's own folder (its __init__ imports the runner)
+    return (("snac_gym", Path(snac_gym.__file__).parent), ("snac_gym.baselines", Path(snac_gym.baselines.__file__).parent),
+            ("snac_gym.evaluation", evaluation))
+
+
+def folders_fingerprint(folders: Sequence[tuple[str, Path]]) -> str:
+    """SHA-256 of every file of :data:`DATA_PATTERNS` under each named folder: its path and its content."""
+    digest = hashlib.sha256()
+    for name, root in folders:
+        files = sorted({f for pattern in DATA_PATTERNS for f in root.rglob(pattern) if "__pycache__" not in f.parts})
+        for path in files:
+            digest.update(f"{name}/{path.relative_to(root).as_posix()}".encode())
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """SHA-256 of :func:`folders_fingerprint` of the :func:`package_folders` and of the versions of
+    :data:`DISTRIBUTIONS`."""
+    digest = hashlib.sha256(folders_fingerprint(package_folders()).encode())
+    for name in DISTRIBUTIONS:
+        try:
+            version = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            version = "absent"
+        digest.update(f"{name}=={version}".encode())
+    return digest.hexdigest()
+
+
+def _controller(spec: ControllerSpec) -> dict[str, Any]:
+    return {"name": spec.name, "kwargs": spec.kwargs, "knob": spec.knob, "knob_value": spec.knob_value,
+            "files": dict(spec.inputs)}
+
+
+def calibration_identity(
+    config: EvaluationConfig, space: SampleSpace, task: str, spec: ControllerSpec, reference: ControllerSpec | None
+) -> dict[str, Any]:
+    """Everything the matched knob of ``spec`` on ``task`` depends on (the module docstring), as plain values.
+
+    ``reference`` is the controller whose effort is the target (``None`` with an ``effort_target``).
+    """
+    manifest = config.manifest(space)
+    effort_set = (
+        {"samples_file_sha1": manifest["samples_file_sha1"]}
+        if config.samples_file is not None
+        else {"seed": config.seed, "space": manifest["space"], "size": max(config.samples, config.effort_samples)}
+    )
+    shared = ("robot", "dt", "engine", "effort_statistic", "effort_target", "effort_tolerance", "calibration_samples",
+              "cost", "udot_start", "q_scale", "use_batch", "chunk_size", "reference_limits")
+    return {
+        **{name: manifest[name] for name in shared},
+        "model_error": manifest.get("model_error"),
+        "task": task,
+        "steps": config.steps(task),
+        "effort_set": effort_set,
+        "controller": _controller(spec),
+        "effort_reference": None if reference is None else _controller(reference),
+        "code": code_fingerprint(),
+    }
+
+
+def _key(identity: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def read_records(
+    folder: Path, identities: dict[tuple[str, str], dict[str, Any]]
+) -> tuple[dict[tuple[str, str], EffortRecord], dict[str, Any]] | None:
+    """The cached records of every (task, controller) of ``identities`` and the calibrating run's stamp, or
+    ``None`` unless all of them are cached (an unreadable or foreign entry counts as missing)."""
+    records: dict[tuple[str, str], EffortRecord] = {}
+    stamp: dict[str, Any] = {}
+    for key, identity in identities.items():
+        path = folder / f"{_key(identity)}.json"
+        try:
+            entry = json.loads(path.read_text())
+            if entry["identity"] != json.loads(json.dumps(identity, default=str)):
+                return None
+            records[key] = EffortRecord(**entry["record"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+        stamp = entry["calibrated_by"]
+    return records, stamp
+
+
+def write_records(
+    folder: Path, identities: dict[tuple[str, str], dict[str, Any]], records: dict[tuple[str, str], EffortRecord],
+    run: str,
+) -> None:
+    """Store each record of ``records`` under its identity's key, stamped with ``run`` (the output folder) and
+    the time. Written to a temporary name and renamed, so that a reader never sees half a file."""
+    folder.mkdir(parents=True, exist_ok=True)
+    stamp = {"run": run, "at": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    for key, identity in identities.items():
+        if key not in records:
+            continue
+        path = folder / f"{_key(identity)}.json"
+        partial = path.with_suffix(f".{os.getpid()}.tmp")
+        entry = {"identity": identity, "record": dataclasses.asdict(records[key]), "calibrated_by": stamp}
+        partial.write_text(json.dumps(entry, indent=1, sort_keys=True, default=str))
+        partial.replace(path)
+
