@@ -98,6 +98,9 @@ def test_the_code_fingerprint_sees_a_change_to_any_source_file(tmp_path):
     source.write_text(source.read_text() + " ")
     edited = cache.folders_fingerprint(folders)
     assert edited != before
+    report = tmp_path / "snac_gym.evaluation" / "reports" / "writer.py"  # no knob depends on the reports
+    report.write_text(report.read_text() + " ")
+    assert cache.folders_fingerprint(folders) == edited
     policy = next((tmp_path / "snac_gym" / "ppo" / "models").glob("*.npz"))
     policy.write_bytes(policy.read_bytes()[:-1] + bytes([policy.read_bytes()[-1] ^ 1]))
     assert cache.folders_fingerprint(folders) not in (before, edited)

@@ -69,11 +69,19 @@ def package_folders() -> tuple[tuple[str, Path], ...]:
             ("snac_gym.evaluation", evaluation))
 
 
+#: Sub-folders no knob depends on: the command line (its options are in the key), the real arm, the reports.
+UNUSED_BY_MATCHING = {("snac_gym", "apps"), ("snac_gym", "real"), ("snac_gym.evaluation", "reports")}
+
+
 def folders_fingerprint(folders: Sequence[tuple[str, Path]]) -> str:
-    """SHA-256 of every file of :data:`DATA_PATTERNS` under each named folder: its path and its content."""
+    """SHA-256 of every file of :data:`DATA_PATTERNS` under each named folder (but :data:`UNUSED_BY_MATCHING`):
+    its path and its content."""
     digest = hashlib.sha256()
     for name, root in folders:
-        files = sorted({f for pattern in DATA_PATTERNS for f in root.rglob(pattern) if "__pycache__" not in f.parts})
+        files = sorted(
+            f for f in {f for pattern in DATA_PATTERNS for f in root.rglob(pattern)}
+            if "__pycache__" not in f.parts and (name, f.relative_to(root).parts[0]) not in UNUSED_BY_MATCHING
+        )
         for path in files:
             digest.update(f"{name}/{path.relative_to(root).as_posix()}".encode())
             digest.update(hashlib.sha256(path.read_bytes()).digest())

@@ -217,7 +217,8 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
         "",
         f"Engine `{config.engine}`, {n_text}, seed {config.seed}, Δt = {config.dt:g} s, horizons: {horizons}. "
         f"{config.convention.describe()}; V/N is the mean over samples, "
-        "± its standard deviation, with the 95 % confidence interval of the mean. "
+        "± its standard deviation, with the 95 % bootstrap percentile interval of the mean (seeded; the paired "
+        "medians below are the comparison one heavy-tailed sample cannot move). "
         + (
             "Equal effort: " + effort_statistic + " matched (table below)" + _effort_set_text(config) + "."
             if config.match_effort
