@@ -111,3 +111,18 @@ def test_the_switch_turns_the_cache_off(tmp_path, monkeypatch):
     monkeypatch.setenv(cache.SWITCH_ENV, "off")
     _run(tmp_path, "first")
     assert not (tmp_path / "cache" / "calibration").exists()
+
+
+def test_a_ppo_row_is_the_same_bits_alone_or_in_any_batch():
+    """What lets a run on fewer samples repeat a larger run's rows: a batch's row i is act() of row i alone."""
+    import numpy as np
+
+    from snac_gym.ppo.policy import shipped_model_path
+    from snac_gym.ppo.policy_file import PolicyFile
+
+    policy = PolicyFile.load(shipped_model_path("reach"))
+    inputs = np.random.default_rng(4).normal(size=(300, policy._layers64[0][0].shape[0]))
+    batch = policy.network_action(inputs)
+    assert np.array_equal(batch[:50], policy.network_action(inputs[:50]))
+    assert np.array_equal(batch[17], policy.network_action(inputs[17]))
+    assert all(np.array_equal(batch[i], policy.network_action(inputs[i : i + 1])[0]) for i in range(0, 300, 7))
