@@ -61,7 +61,9 @@ joint_limit_margin     rad     closest approach to a joint position limit, min o
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -252,6 +254,13 @@ class DemoMetrics:
     steps: int
     hjb_ratio_median: float | None = None
     critic_error_final: float | None = None
+    mean_error_2nd_half: float = math.nan
+
+    def success(self, task: Any) -> bool:
+        """Whether the run meets ``task``'s success rule (a name or a :class:`~snac_gym.tasks.Task`), as the
+        evaluator scores it."""
+        measures = {"final_error": self.final_error, "mean_error_2nd_half": self.mean_error_2nd_half}
+        return bool(get_task(task).success(measures))
 
 
 def demo_metrics(log: pd.DataFrame, tolerance: float) -> DemoMetrics:
@@ -296,4 +305,5 @@ def demo_metrics(log: pd.DataFrame, tolerance: float) -> DemoMetrics:
         steps=len(log),
         hjb_ratio_median=float(np.nanmedian(log["hjb_ratio"])) if "hjb_ratio" in log.columns else None,
         critic_error_final=float(log["critic_error"].iloc[-1]) if "critic_error" in log.columns else None,
+        mean_error_2nd_half=float(norms[len(errors) // 2 : -1].mean()),  # ‖eₖ‖, k = ⌊K/2⌋..K−1, as the evaluator
     )

@@ -91,6 +91,25 @@ def test_summary_has_table_one_layout_with_paper_values_and_ratios(table_run):
     assert "| Proposed (SNAC) |" in text and "49.74" in text and "cost_boxplot.png" in text
 
 
+def test_the_summary_leads_with_a_table_of_at_most_eight_columns_that_marks_failures(table_run):
+    """The first table a reader meets (and the CLI prints): ≤ 8 columns, cost beside success and accuracy,
+    the paired comparisons; a controller under the success threshold is marked and gets no comparison."""
+    config, _ = table_run
+    summary = pd.read_csv(config.out / "summary.csv").set_index("controller")
+    head = (config.out / "summary.md").read_text().split("\n## ")[0]
+    tables = [line for line in head.splitlines() if line.startswith("| Controller |")]
+    assert len(tables) == 2 and all(line.count("|") - 1 <= 8 for line in tables)
+    assert "V/N [95 % CI]" in tables[0] and "success" in tables[0] and "vs the best" in tables[0]
+    for task, label in (("reach", "Regulation"), ("track", "Tracking")):
+        block = head.split(f"**{label}**")[1].split("\n\n")[1]
+        for controller, row in summary.iterrows():
+            (line,) = [line for line in block.splitlines() if line.startswith(f"| {row['label']} |")]
+            if not row[f"{task}_qualified"]:
+                assert "**fails**" in line and "— (fails the task)" in line, line
+            else:
+                assert "**fails**" not in line
+
+
 def test_equal_effort_against_the_reference_or_a_visible_warning(table_run):
     config, results = table_run
     summary = pd.read_csv(config.out / "summary.csv").set_index("controller")

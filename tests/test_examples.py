@@ -42,3 +42,9 @@ def test_example_runs(name: str, tmp_path: Path):
         assert len(list((tmp_path / "frames").glob("*.png"))) == 2
     if name == "compare_controllers.py":
         assert (tmp_path / "out" / "summary.md").is_file()
+        import pandas as pd  # the example marks every controller whose success rate is below the threshold
+
+        rates = pd.read_parquet(tmp_path / "out" / "results.parquet").groupby(["task", "controller"])["success"].mean()
+        for (task, controller), rate in rates.items():
+            line = next(line for line in result.stdout.splitlines() if line.split()[:2] == [task, controller])
+            assert ("FAILS the task" in line) == (rate < 0.95), (task, controller, rate, line)

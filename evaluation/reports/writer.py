@@ -184,6 +184,8 @@ def summary_markdown(
     """``summary.md``: Table I's layout, the details behind it, the effort matching and the plot."""
     tasks = [t for t in config.tasks if f"{t}_cost" in summary]
     lines = _introduction_lines(summary, config, tasks, effort_statistic)
+    lines += overview_lines(summary, tasks)
+    lines += ["", "## Table I, in the paper's layout", ""]
     lines += _table_one_lines(summary, tasks)
     lines += _convention_lines(summary, tasks, config.convention.q_scale)
     lines += paired_lines(summary, tasks)
@@ -234,6 +236,50 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
         ),
         "",
     ]
+
+
+#: The overview's columns (at most 8: a table a person reads).
+OVERVIEW_COLUMNS = ("Controller", "V/N [95 % CI]", "success", "accuracy (mm)", "rank (ratio to best)",
+                    "cost / optimum (median)", "vs the best: median ratio [95 % CI]", "cheaper than the best on")
+
+
+def overview_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
+    """The summary's first table, one per task: cost beside accuracy and the paired comparisons. A controller
+    below the success threshold is marked **fails** and not ranked, whatever its cost."""
+    lines: list[str] = []
+    for t in tasks:
+        p = f"{t}_"
+        best = summary.get(f"{t}_vs_best")
+        best_name = best.dropna().iloc[0] if best is not None and best.notna().any() else None
+        lines += [
+            f"**{get_task(t).label}** ({int(summary[p + 'n'].max())} samples; the best ranked: "
+            f"{controller_label(best_name) if best_name else 'none'})",
+            "",
+            "| " + " | ".join(OVERVIEW_COLUMNS) + " |",
+            "|" + "---|" * len(OVERVIEW_COLUMNS),
+        ]
+        for _, row in summary.iterrows():
+            if pd.isna(row.get(p + "cost", math.nan)):
+                continue
+            accuracy = row[f"{p}{get_task(t).accuracy_measure}_median"] * 1e3
+            versus, cheaper = _paired_cell(row, p + "vs_best_")[:2]
+            if row["controller"] == OPTIMAL:
+                standing, to_optimum, versus, cheaper = "reference", "1", "—", "—"
+            else:
+                qualified = bool(row.get(p + "qualified", False))
+                standing = f"{int(row[p + 'rank'])} ({_number(row[p + 'ratio_to_best'])})" if qualified else "**fails**"
+                to_optimum = _general_number(row.get(p + "vs_optimal_median_ratio", math.nan))
+                if not qualified:  # cheaper than the best is no merit in a controller that does not do the task
+                    versus, cheaper = "— (fails the task)", "—"
+            if row["controller"] == best_name:
+                versus, cheaper = "(the best)", "—"
+            lines.append("| " + " | ".join([
+                row["label"],
+                f"{_number(row[p + 'cost'])} [{_number(row[p + 'cost_ci95_low'])}, {_number(row[p + 'cost_ci95_high'])}]",
+                f"{row[p + 'success_rate']:.1%}", _number(accuracy, 3), standing, to_optimum, versus, cheaper,
+            ]) + " |")  # fmt: skip
+        lines.append("")
+    return lines
 
 
 def _table_one_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:

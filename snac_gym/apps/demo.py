@@ -80,6 +80,9 @@ class DemoResult:
              f" max |u|/limit {m.max_speed_ratio:.3f}"),
             (f"  trajectory cost V           {m.cost_total:.4f} (error {m.cost_error:.4f},"
              f" effort {m.cost_effort:.4f}, smoothness {m.cost_smoothness:.4f})"),
+            # A cost is only comparable between runs that do the task: say whether this one did.
+            f"  task success                {'yes' if m.success(self.task) else 'NO, it fails the task'}"
+            f" ({get_task(self.task).success_text()})",
         ]
         if m.hjb_ratio_median is not None:
             lines.append(f"  HJB residual r/eᵀQe         median {m.hjb_ratio_median:.4f} (0 for the optimal critic)")

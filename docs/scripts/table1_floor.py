@@ -1,0 +1,129 @@
+"""The floor of the README's main command (Table I) on this machine, beside the measured time.
+
+    python docs/scripts/table1_floor.py RUN [RUN_WARM] [--workers 2]
+
+RUN is the folder of a finished ``snac-gym evaluate`` of the README's main command whose knobs were matched
+(empty calibration cache: its ``calibration.json`` holds the searches), RUN_WARM (optional) one run with the
+calibration and reference caches warm. The floor is the work such a run cannot avoid, at the rate this
+machine does it:
+
+* **passes**: every controller on every sample once at full horizon, timed as ``run_job`` (the evaluator's
+  lockstep rollout and the metrics of its rows) on one core, in process, on a chunk of the run's own samples
+  at the run's matched knob, best of 3 after a warm-up; the full set's steps at that rate, shared by the
+  workers;
+* **searches**: the knob evaluations the run's searches made (``calibration.json``: evaluations ×
+  screening samples × search steps, plus the 20-sample probe at full horizon), at the same rate;
+* **reference**: ``run_optimal_job`` without the cache (every start, its screening, the winner's solve and
+  the replay), timed in process on one core on the first ``REFERENCE_SAMPLES`` samples of each task and
+  scaled to the set (``optimal_solve_time`` counts the winning solve only), shared by the workers.
+
+Everything else (process start, sample drawing, job dispatch, parquet parts, reports, plots) is overhead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import pandas as pd
+from threadpoolctl import threadpool_limits
+
+from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
+from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
+from snac_gym.evaluation.samples import read_samples_csv
+from snac_gym.kinematics import Kinematics
+from snac_gym.sampling import SampleSpace
+from snac_gym.cost import CostConvention
+
+CHUNK = 250  # samples per timed job (the evaluator's chunks are 500)
+PROBE = 20
+REFERENCE_SAMPLES = 40
+
+
+def rates(run: Path) -> dict[tuple[str, str], float]:
+    """Steps per second of ``run_job`` on one core for each (task, controller) of ``run`` at its knob."""
+    config = json.loads((run / "run.json").read_text())
+    results = pd.read_parquet(run / "results.parquet")
+    kinematics = Kinematics(config["robot"])
+    space = SampleSpace(**config["space"])
+    samples = read_samples_csv(run / "samples.csv", kinematics, space)
+    convention = CostConvention(config["cost"], config["udot_start"], config["q_scale"])
+    out: dict[tuple[str, str], float] = {}
+    for (task, controller), rows in results.groupby(["task", "controller"], sort=False):
+        if controller == "optimal":
+            continue
+        knob, value = rows["effort_parameter"].iloc[0], rows["effort_value"].iloc[0]
+        kwargs = dict(config["controller_kwargs"].get(controller, {}))
+        if isinstance(knob, str) and pd.notna(value):
+            kwargs[knob] = float(value)
+        chunk = tuple(samples[task][:CHUNK])
+        job = RolloutJob(task, controller, kwargs, chunk, tuple(range(len(chunk))), config["steps"][task], config["dt"],
+                         config["robot"], convention=convention)  # fmt: skip
+        run_job(job)  # compile and warm up
+        best = min(_timed(job) for _ in range(3))
+        out[(task, controller)] = len(chunk) * job.steps / best
+        print(f"  {task:5s} {controller:9s} {out[(task, controller)] / 1e6:6.3f} M steps/s")
+    return out
+
+
+def reference_seconds(run: Path) -> float:
+    """Seconds of one core to solve every reference row of ``run``, from a timed subset of each task."""
+    config = json.loads((run / "run.json").read_text())
+    kinematics = Kinematics(config["robot"])
+    samples = read_samples_csv(run / "samples.csv", kinematics, SampleSpace(**config["space"]))
+    convention = CostConvention(config["cost"], config["udot_start"], config["q_scale"])
+    total = 0.0
+    for task, task_samples in samples.items():
+        chunk = tuple(task_samples[:REFERENCE_SAMPLES])
+        job = OptimalJob(task, chunk, tuple(range(len(chunk))), config["steps"][task], config["dt"], config["robot"],
+                         convention=convention, position_limits=config["reference_limits"] == "joints")  # fmt: skip
+        run_optimal_job(OptimalJob(task, chunk[:2], (0, 1), job.steps, job.dt, job.robot, convention=convention))
+        seconds = _timed(job)
+        total += seconds * len(task_samples) / len(chunk)
+        print(f"  {task:5s} optimal   {seconds / len(chunk) * 1e3:6.1f} ms per sample")
+    return total
+
+
+def _timed(job: object) -> float:
+    started = time.perf_counter()
+    run_optimal_job(job) if isinstance(job, OptimalJob) else run_job(job)
+    return time.perf_counter() - started
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run", type=Path)
+    parser.add_argument("warm", type=Path, nargs="?")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    with threadpool_limits(1):
+        per_second = rates(args.run)
+        reference = reference_seconds(args.run)
+    manifest = json.loads((args.run / "run.json").read_text())
+    results = pd.read_parquet(args.run / "results.parquet")
+    counts = results.groupby(["task", "controller"]).size()
+    pass_seconds = sum(counts[key] * manifest["steps"][key[0]] / rate for key, rate in per_second.items())
+    calibration = json.loads((args.run / "calibration.json").read_text())
+    search_seconds = 0.0
+    for key, record in calibration.items():
+        if not isinstance(record, dict) or "evaluations" not in record:
+            continue
+        task, controller = key.split("/")[:2]
+        steps = len(record["evaluations"]) * record["screening_samples"] * record["search_steps"]
+        steps += PROBE * manifest["steps"][task]
+        search_seconds += steps / per_second[(task, controller)]
+    timings = json.loads((args.run / "timings.json").read_text())
+    cold_floor = (pass_seconds + search_seconds + reference) / args.workers
+    print(f"passes {pass_seconds / args.workers:.1f} s, searches {search_seconds / args.workers:.1f} s, "
+          f"reference {reference / args.workers:.1f} s on {args.workers} workers")
+    print(f"cold: floor {cold_floor:.1f} s, measured {timings['total']:.1f} s (ratio {timings['total'] / cold_floor:.2f})")
+    if args.warm is not None:
+        warm = json.loads((args.warm / "timings.json").read_text())
+        warm_floor = pass_seconds / args.workers  # the knobs and the reference rows are read, not made
+        print(f"warm: floor {warm_floor:.1f} s, measured {warm['total']:.1f} s (ratio {warm['total'] / warm_floor:.2f})")
+
+
+if __name__ == "__main__":
+    main()
