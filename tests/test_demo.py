@@ -272,3 +272,34 @@ def test_cost_panel_shows_a_dominant_term_under_the_total():
         assert _colour_pixels(fig, bottom, "k", tolerance=60) > 200
     finally:
         plt.close(fig)
+
+
+def test_the_figure3_panels_name_what_they_draw(tmp_path):
+    """The track demo's panels: the whole ellipse beside the part x_d covers, a legend below the 3-D axes, at
+    most 5 tick labels per 3-D axis, the error components named x, y, z, and a legend entry for the limits."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from snac_gym.apps.plots import plot_figure3
+
+    log = run_demo("track", "snac", tmp_path, seed=0, steps=400, plots=False).log
+    fig = plot_figure3(log, tolerance=5e-3)
+    try:
+        fig.canvas.draw()
+        path, error = fig.axes[0], fig.axes[1]
+        labels = [text.get_text() for text in path.get_legend().get_texts()]
+        assert "reference ellipse (whole)" in labels and any(label.startswith("desired $x_d(t)$") for label in labels)
+        whole = next(line for line in path.get_lines() if line.get_label() == "reference ellipse (whole)")
+        assert len(whole.get_data_3d()[0]) > 100  # the closed curve, not the arc x_d covered (400 steps: 3.2 s)
+        legend_box = path.get_legend().get_window_extent()
+        assert legend_box.y1 <= path.get_window_extent().y0 + 1  # below the axes, off the path
+        for axis in (path.xaxis, path.yaxis, path.zaxis):
+            low, high = sorted(axis.get_view_interval())
+            assert len([tick for tick in axis.get_majorticklocs() if low <= tick <= high]) <= 5
+        assert [t.get_text() for t in error.get_legend().get_texts()] == ["$e_{x}$", "$e_{y}$", "$e_{z}$"]
+        velocities = fig.axes[3]
+        assert "±limit (the joint's colour)" in [t.get_text() for t in velocities.get_legend().get_texts()]
+    finally:
+        plt.close(fig)

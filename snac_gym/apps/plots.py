@@ -14,7 +14,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import SymmetricalLogLocator
+from matplotlib.lines import Line2D
+from matplotlib.ticker import MaxNLocator, SymmetricalLogLocator
 
 from snac_gym.cost import cost_rates
 from snac_gym.references import Ellipse, FixedTarget
@@ -46,20 +47,29 @@ def plot_path(log: pd.DataFrame, ax: Any = None) -> Figure:
     ax = ax if ax is not None else fig.add_subplot(projection="3d")
     x, x_d = log_array(log, "x"), log_array(log, "x_d")
     points = _reference_points(log)
-    if points is not None and len(points) > 1:
+    fixed = np.allclose(x_d, x_d[:1])
+    if points is not None and len(points) > 1 and not fixed:
+        # The whole ellipse: in the paper's 20 s x_d covers only part of it, which alone does not show the curve.
         closed = np.vstack([points, points[:1]])
-        ax.plot(*closed.T, color="0.6", lw=1.0, ls=":", label="reference (whole)")
-    ax.plot(*x_d.T, color="C1", lw=1.5, ls="--", label="desired $x_d(t)$")
+        ax.plot(*closed.T, color="0.55", lw=1.2, label="reference ellipse (whole)")
+    if fixed:
+        ax.scatter(*x_d[0], color="C3", marker="*", s=120, label="target")
+    else:
+        ax.plot(*x_d.T, color="C1", lw=2.0, ls="--", label=f"desired $x_d(t)$, 0–{log['t'].iloc[-1]:.0f} s")
     ax.plot(*x.T, color="C0", lw=1.8, label="end effector $x(t)$")
     ax.scatter(*x[0], color="C0", marker="o", s=25, label="start")
-    if np.allclose(x_d, x_d[:1]):
-        ax.scatter(*x_d[0], color="C3", marker="*", s=120, label="target")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
+    for axis, name in ((ax.xaxis, "x"), (ax.yaxis, "y"), (ax.zaxis, "z")):
+        axis.set_major_locator(MaxNLocator(4))  # the default's 7-9 labels run into each other on a 3-D axis
+        axis.set_tick_params(labelsize="small")
+        axis.set_label_text(f"{name} (m)")
     ax.set_title("End-effector path")
-    ax.legend(loc="upper left", fontsize="small")
+    # Below the axes: inside, it covered the path's corner.
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=2, fontsize="small", frameon=False)
     return fig
+
+
+#: The error components' names by task dimension: position, then the orientation's rotation-vector components.
+ERROR_COMPONENTS = {3: ["x", "y", "z"], 6: ["x", "y", "z", "rx", "ry", "rz"]}
 
 
 def plot_error(log: pd.DataFrame, axes: Any = None, tolerance: float | None = None) -> Figure:
@@ -67,8 +77,9 @@ def plot_error(log: pd.DataFrame, axes: Any = None, tolerance: float | None = No
     fig = axes[0].figure if axes is not None else _figure(6.4, 5.6)
     top, bottom = axes if axes is not None else fig.subplots(2, 1, sharex=True)
     t, e = log["t"].to_numpy(), log_array(log, "e")
+    names = ERROR_COMPONENTS.get(e.shape[1], [str(i) for i in range(e.shape[1])])
     for i in range(e.shape[1]):
-        top.plot(t, e[:, i], color=_COLOURS[i % 10], label=f"$e_{i}$")
+        top.plot(t, e[:, i], color=_COLOURS[i % 10], label=f"$e_{{{names[i]}}}$")
     top.set_ylabel("error (m)")
     top.set_title("Task-space error $e = x - x_d$")
     top.legend(fontsize="small")
@@ -98,8 +109,11 @@ def plot_joint_velocities(log: pd.DataFrame, ax: Any = None) -> Figure:
             ax.axhline(-limits[j], color=colour, ls="--", lw=0.8, alpha=0.6)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("joint velocity (rad/s)")
-    ax.set_title("Joint velocities (dashed: limits)")
-    ax.legend(ncol=3, fontsize="small")
+    ax.set_title("Joint velocities and their limits")
+    handles, _ = ax.get_legend_handles_labels()
+    if limits is not None:
+        handles.append(Line2D([], [], color="0.4", ls="--", lw=0.8, label="±limit (the joint's colour)"))
+    ax.legend(handles=handles, ncol=3, fontsize="small")
     ax.grid(alpha=0.3)
     return fig
 
