@@ -232,6 +232,9 @@ def _passes_at_cached_knobs(
             record = records[(task, spec.name)]
             own = spec.knob is None or record.role in ("reference", "fixed")
             passes.append((task, spec, spec.kwargs if own else {**spec.kwargs, spec.knob: record.knob_value}))
+    # The longest rollouts first, so that the short ones fill the workers' last gaps instead of a long one
+    # running alone at the end (rows do not depend on the order).
+    passes.sort(key=lambda item: -config.steps(item[0]))
     started = time.perf_counter()
     rows_of_passes = evaluation.run_passes(passes)
     evaluation.timings["passes at cached knobs"] = time.perf_counter() - started
