@@ -184,6 +184,7 @@ def summary_markdown(
     """``summary.md``: Table I's layout, the details behind it, the effort matching and the plot."""
     tasks = [t for t in config.tasks if f"{t}_cost" in summary]
     lines = _introduction_lines(summary, config, tasks, effort_statistic)
+    lines += _calibration_source_lines(efforts)  # before the first table: the command prints up to its first "##"
     lines += overview_lines(summary, tasks)
     lines += ["", "## Table I, in the paper's layout", ""]
     lines += _table_one_lines(summary, tasks)
