@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import importlib.metadata
 import json
 import os
 from collections.abc import Sequence
@@ -35,7 +34,7 @@ from typing import Any
 import snac_gym
 import snac_gym.baselines
 from snac_gym.evaluation.effort.matching import EffortRecord
-from snac_gym.evaluation.reference.cache import CACHE_ENV
+from snac_gym.evaluation.reference.cache import add_versions, cache_root
 from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
 from snac_gym.sampling import SampleSpace
 
@@ -53,12 +52,8 @@ def cache_enabled() -> bool:
 
 
 def calibration_folder() -> Path:
-    """``$SNAC_GYM_CACHE_DIR/calibration``, else ``$XDG_CACHE_HOME/snac-gym/calibration`` or ``~/.cache/...``."""
-    root = os.environ.get(CACHE_ENV)
-    if root:
-        return Path(root) / "calibration"
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "snac-gym" / "calibration"
+    """The matched knobs: ``calibration`` under :func:`~snac_gym.evaluation.reference.cache.cache_root`."""
+    return cache_root() / "calibration"
 
 
 def package_folders() -> tuple[tuple[str, Path], ...]:
@@ -93,12 +88,7 @@ def code_fingerprint() -> str:
     """SHA-256 of :func:`folders_fingerprint` of the :func:`package_folders` and of the versions of
     :data:`DISTRIBUTIONS`."""
     digest = hashlib.sha256(folders_fingerprint(package_folders()).encode())
-    for name in DISTRIBUTIONS:
-        try:
-            version = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            version = "absent"
-        digest.update(f"{name}=={version}".encode())
+    add_versions(digest, DISTRIBUTIONS)
     return digest.hexdigest()
 
 

@@ -59,13 +59,18 @@ SOURCES = (
 DISTRIBUTIONS = ("numpy", "scipy", "pin", "example-robot-data", "numba")
 
 
-def cache_folder() -> Path:
-    """``$SNAC_GYM_CACHE_DIR/reference``, else ``$XDG_CACHE_HOME/snac-gym/reference`` or ``~/.cache/...``."""
+def cache_root() -> Path:
+    """The parent of the project's caches: ``$SNAC_GYM_CACHE_DIR``, else ``$XDG_CACHE_HOME/snac-gym`` or
+    ``~/.cache/snac-gym``."""
     root = os.environ.get(CACHE_ENV)
     if root:
-        return Path(root) / "reference"
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "snac-gym" / "reference"
+        return Path(root)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "snac-gym"
+
+
+def cache_folder() -> Path:
+    """The reference's rows: ``reference`` under :func:`cache_root`."""
+    return cache_root() / "reference"
 
 
 @functools.lru_cache(maxsize=1)
@@ -77,13 +82,18 @@ def code_fingerprint() -> str:
         origin = None if spec is None else spec.origin
         digest.update(name.encode())
         digest.update(Path(origin).read_bytes() if origin else b"missing")
-    for name in DISTRIBUTIONS:
+    add_versions(digest, DISTRIBUTIONS)
+    return digest.hexdigest()
+
+
+def add_versions(digest: Any, distributions: Sequence[str]) -> None:
+    """Feed ``name==version`` of each installed distribution (``missing`` if not installed) to ``digest``."""
+    for name in distributions:
         try:
             version = importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:
             version = "missing"
         digest.update(f"{name}=={version}".encode())
-    return digest.hexdigest()
 
 
 def sample_key(job: Any, sample: Any) -> str:
