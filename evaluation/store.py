@@ -13,9 +13,12 @@ Layout of ``--out DIR``::
 
 A job's part file is written only after its trajectories, by renaming a finished temporary
 file, so a part on disk means the job is complete. Each part carries the run's id (a hash of
-``run.json``) and its sample ids in its Parquet metadata. A resumed run skips every job whose
-part exists and recomputes the others, and refuses a part of another run or of other samples:
-no completed sample is lost, counted twice or mixed in from elsewhere.
+``run.json``) and its sample ids in its Parquet metadata, and the SHA-256 of its bytes beside it
+(``PART.sha256``, written before the part is renamed into place). A resumed run skips every job whose
+part exists and is intact, recomputes the others (a part whose bytes no longer match its checksum, or
+that has none, is moved aside as ``PART.corrupt`` and its job run again, with a line on stderr), and
+refuses a part of another run or of other samples: no completed sample is lost, counted twice, mixed in
+from elsewhere or read from a damaged file. Reading a part checks it again.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -78,6 +82,27 @@ def file_sha1(path: Path, what: str) -> str:
     except OSError as exc:
         raise SampleFileError(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
     return digest.hexdigest()
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def checksum_path(part: Path) -> Path:
+    """Where the SHA-256 of ``part`` is kept."""
+    return part.with_name(part.name + ".sha256")
+
+
+def part_is_intact(part: Path) -> bool:
+    """Whether ``part``'s bytes still have the SHA-256 written beside them when it was stored."""
+    try:
+        return checksum_path(part).read_text().strip() == _sha256(part)
+    except OSError:
+        return False
 
 
 def _tmp_path(path: Path) -> Path:
@@ -238,18 +263,27 @@ class RunStore:
         if not path.is_file():
             return False
         try:
-            metadata = pq.read_schema(path).metadata or {}
+            metadata: dict[bytes, bytes] | None = pq.read_schema(path).metadata or {}
         except (OSError, ValueError, pa.ArrowException) as exc:
-            raise RunDirectoryError(f"--resume: the part file {path} is unreadable ({exc}); remove it") from None
-        stored_run = metadata.get(_PART_RUN_KEY, b"").decode(errors="replace")
-        stored_ids = metadata.get(_PART_SAMPLES_KEY, b"").decode(errors="replace")
-        expected_ids = json.dumps([int(i) for i in sample_ids])
-        if stored_run != self.run_id or stored_ids != expected_ids:
-            what = "another run" if stored_run != self.run_id else "other samples"
-            raise RunDirectoryError(
-                f"--resume: the part file {path} belongs to {what} (run {stored_run or 'unknown'!r}, "
-                f"this run {self.run_id!r}); remove it to recompute that job"
-            )
+            metadata, unreadable = None, exc
+        if metadata is not None:  # a part another run or other samples wrote is refused, not redone
+            stored_run = metadata.get(_PART_RUN_KEY, b"").decode(errors="replace")
+            stored_ids = metadata.get(_PART_SAMPLES_KEY, b"").decode(errors="replace")
+            expected_ids = json.dumps([int(i) for i in sample_ids])
+            if stored_run != self.run_id or stored_ids != expected_ids:
+                what = "another run" if stored_run != self.run_id else "other samples"
+                raise RunDirectoryError(
+                    f"--resume: the part file {path} belongs to {what} (run {stored_run or 'unknown'!r}, "
+                    f"this run {self.run_id!r}); remove it to recompute that job"
+                )
+        if not part_is_intact(path):  # damaged (or stored before checksums): never read, run again
+            aside = path.with_name(path.name + ".corrupt")
+            os.replace(path, aside)
+            sys.stderr.write(f"--resume: the part file {path.name} does not match its SHA-256 (or has none); "
+                             f"moved to {aside.name}, its job runs again\n")
+            return False
+        if metadata is None:
+            raise RunDirectoryError(f"--resume: the part file {path} is unreadable ({unreadable}); remove it")
         return True
 
     def write_part(self, path: Path, rows: pd.DataFrame) -> None:
@@ -262,9 +296,20 @@ class RunStore:
         table = table.replace_schema_metadata({**(table.schema.metadata or {}), **stamp})
         tmp = _tmp_path(path)
         pq.write_table(table, tmp)
+        self._write_text(checksum_path(path), _sha256(tmp) + "\n")  # before the part: a part on disk has its sum
         os.replace(tmp, path)
 
     def read_part(self, path: Path) -> pd.DataFrame:
+        """A stored part's rows, after its bytes are checked against their SHA-256.
+
+        Raises:
+            RunDirectoryError: If the part changed after it was written.
+        """
+        if not part_is_intact(path):
+            raise RunDirectoryError(
+                f"the part file {path} changed after it was written (its SHA-256 does not match {checksum_path(path).name}); "
+                "remove it and run again with --resume to recompute that job"
+            )
         return pd.read_parquet(path)
 
     # -- trajectories -----------------------------------------------------------------------------
