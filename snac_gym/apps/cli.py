@@ -280,7 +280,11 @@ def emulate_ur(
     duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Exit after this many seconds (default: until Ctrl-C)."),
     rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="SCHED_FIFO priority of the control cycle (needs root/CAP_SYS_NICE); 0: off."),
 ) -> None:
-    """Emulate a UR controller on 127.0.0.1 for ur_rtde (RTDE, dashboard, script upload), with faults on demand."""
+    """Emulate a UR controller on 127.0.0.1 for ur_rtde (RTDE, dashboard, script upload), with faults on demand.
+
+    Exit codes: 0 it ran until --duration or a signal; 1 one of its threads failed (the line says how);
+    2 a refused option or a port it could not bind.
+    """
     # start-up time: only emulate-ur needs the emulator's servers
     from snac_gym.real.emulator import UREmulator
     from snac_gym.real.emulator.serve import fault_plan, parse_numbers, serve
@@ -298,6 +302,10 @@ def emulate_ur(
     except (ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from exc
+    if emulator.failure is not None:  # a thread of the emulator died: not a clean end
+        failure = emulator.failure
+        typer.echo(f"error: the emulator stopped: {type(failure).__name__}: {failure}", err=True)
+        raise typer.Exit(code=1)
 
 
 #: The stop signal last received by :func:`_sigterm_as_interrupt` (a library between the handler and

@@ -147,6 +147,8 @@ class UREmulator:
         self._threads: list[threading.Thread] = []
         self._scheduled: list[tuple[float, str, tuple[Any, ...]]] = []
         self._stop = threading.Event()
+        #: The error that ended one of the emulator's threads (it then stops as a whole), or ``None``.
+        self.failure: BaseException | None = None
         self._cycle = 0
 
     # ----------------------------------------------------------------- life cycle
@@ -222,7 +224,12 @@ class UREmulator:
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
             except (PermissionError, OSError, AttributeError):
                 pass
-        target(*args)
+        try:
+            target(*args)
+        except BaseException as exc:  # a dead thread would leave a controller that looks alive: stop it all
+            self.failure = exc
+            log.exception("emulate-ur: %s ended by %s: %s; the emulator stops", target.__name__, type(exc).__name__, exc)
+            self._stop.set()
 
     def close(self) -> None:
         """Stop the control cycle, close every connection and listener, and join the threads."""
@@ -624,6 +631,9 @@ class UREmulator:
         if not callable(getattr(self, fault, None)) or fault.startswith("_"):
             raise ValueError(f"unknown fault {fault!r}")
         _check_duration("fault time", after_first_speed_command)
+        check = _FAULT_ARGUMENTS.get(fault)
+        if check is not None:  # refused now, not when the fault comes due inside the control cycle
+            check(*args)
         self._scheduled.append((after_first_speed_command, fault, args))
 
     def _run_scheduled(self, now: float) -> None:
@@ -711,6 +721,13 @@ def _check_duration(name: str, seconds: float, allow_inf: bool = False) -> None:
     ok = isinstance(seconds, (int, float)) and seconds >= 0 and (allow_inf or np.isfinite(seconds))
     if not ok or np.isnan(seconds):
         raise ValueError(f"{name} must be a non-negative number of seconds, got {seconds!r}")
+
+
+#: The argument checks of the faults that take arguments, run when a fault is scheduled.
+_FAULT_ARGUMENTS: dict[str, Any] = {
+    "latency_spike": lambda seconds: _check_duration("latency spike", seconds),
+    "drop_connection": lambda refuse_for=float("inf"): _check_duration("refuse_for", refuse_for, allow_inf=True),
+}
 
 
 def _close_quietly(sock: socket.socket) -> None:

@@ -73,7 +73,7 @@ def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], No
             echo(f"emulated UR controller ({emulator.series}, {emulator.frequency:g} Hz) on {emulator.host}: {ports}")
             deadline = None if duration is None else time.monotonic() + duration
             while not stop.wait(0.2):
-                if deadline is not None and time.monotonic() >= deadline:
+                if emulator.failure is not None or (deadline is not None and time.monotonic() >= deadline):
                     break
     finally:
         for signum, old in previous.items():
