@@ -11,11 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from snac_gym.physics.base import check_physics
 from snac_gym.evaluation.effort.statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
@@ -191,6 +194,7 @@ class EvaluationConfig:
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad option."""
         for check in (
+            _check_types,
             _check_selection,
             _check_timing,
             _check_engine,
@@ -288,6 +292,27 @@ class EvaluationConfig:
 
 
 # -- validators of EvaluationConfig.validate, in the order of its options ---------------------------
+#: The options that are whole numbers, real numbers and switches (``None`` allowed where the default is).
+_WHOLE = ("samples", "seed", "effort_samples", "workers", "chunk_size", "calibration_samples")
+_REAL = ("effort_tolerance", "dt", "q_scale", "success_threshold", "effort_target")
+_SWITCHES = ("match_effort", "save_trajectories", "resume", "progress", "plots", "use_batch", "reference_cache",
+             "calibration_cache", "recalibrate")
+
+
+def _check_types(config: EvaluationConfig) -> None:
+    """Exact types first: ``samples=True`` is not one sample, ``dt='0.008'`` not a period, ``plots=1`` not a switch
+    (the range checks that follow name the bounds)."""
+    for name in _WHOLE:
+        value = getattr(config, name)
+        if value is not None and (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral)):
+            raise ValueError(f"{name} must be a whole number, got {value!r}")
+    for name in _REAL:
+        value = getattr(config, name)
+        if value is not None and (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real)):
+            raise ValueError(f"{name} must be a real number, got {value!r}")
+    for name in _SWITCHES:
+        if not isinstance(getattr(config, name), (bool, np.bool_)):
+            raise ValueError(f"{name} must be True or False, got {getattr(config, name)!r}")
 def _check_selection(config: EvaluationConfig) -> None:
     """What is evaluated: tasks, controllers, samples."""
     tasks = config.tasks

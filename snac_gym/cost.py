@@ -10,9 +10,13 @@ Q = I₃ and R = I₆ in the paper.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
+
+from snac_gym.validation import real_number
 
 
 def weight_matrix(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray | None:
@@ -30,6 +34,8 @@ def weight_matrix(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray 
     if matrix is None:
         return None
     try:
+        if np.asarray(matrix).dtype.kind not in "iuf":  # a complex weight is refused, not cast to its real part
+            raise TypeError(f"dtype {np.asarray(matrix).dtype}")
         matrix = np.asarray(matrix, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name} must be a ({dim}, {dim}) matrix or a length-{dim} diagonal of numbers: {exc}") from None
@@ -144,14 +150,19 @@ def cost_rates(
         Q, R: Weights (``None`` = identity, the paper's choice).
         initial_command: u₋₁ (default zero: the robot starts at rest).
     """
+    for name, values in (("errors", errors), ("commands", commands)):
+        kind = np.asarray(values).dtype.kind
+        if kind not in "iuf":  # complex or not numbers: refused, not cast
+            raise ValueError(f"{name} must be real numbers, got dtype {np.asarray(values).dtype}")
     errors = np.asarray(errors, dtype=float)
     commands = np.asarray(commands, dtype=float)
     if errors.ndim < 2 or commands.ndim < 2 or errors.shape[:-1] != commands.shape[:-1]:
         raise ValueError(
             f"errors (..., K, n) and commands (..., K, m) must share leading axes, got {errors.shape} and {commands.shape}"
         )
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be positive and finite, got {dt}")
+    if errors.shape[-2] == 0:
+        raise ValueError(f"a trajectory cost needs at least one step, got K = 0 (errors {errors.shape})")
+    real_number("dt", dt, 0.0, math.inf, low_open=True)
     Qm = weight_matrix(Q, errors.shape[-1], "Q")
     Rm = weight_matrix(R, commands.shape[-1], "R")
     command_rates = command_differences(commands, initial_command) / dt

@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from snac_gym.validation import real_number
+
 #: Pinocchio's joint-model letters → their axis.
 _ALIGNED_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
 
@@ -44,6 +46,10 @@ def joint_axis(joint_model: Any) -> tuple[np.ndarray, bool] | None:
     return None
 
 
+#: Largest relative link error a model may have (+100 %: every link twice its length).
+MAX_LINK_SCALE = 1.0
+#: Largest tool offset of a model in any axis, m.
+MAX_TOOL_OFFSET = 1.0
 #: The parts of a ``--model-error`` specification.
 PARTS = ("joint_offset", "link_scale", "tool_offset")
 
@@ -63,15 +69,13 @@ class ModelError:
     tool_offset: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0))
 
     def __post_init__(self) -> None:
-        offsets = tuple(float(a) for a in self.joint_offset)
-        tool = tuple(float(t) for t in self.tool_offset)
-        if not all(math.isfinite(a) for a in offsets):
-            raise ValueError(f"model error joint_offset must be finite, got {list(self.joint_offset)}")
-        if len(tool) != 3 or not all(math.isfinite(t) for t in tool):
+        # Bounded to what a wrong model can be: a joint offset beyond ±π wraps round, a model link more than
+        # twice its length or a tool a metre away is another arm (link_scale=1e6 used to be taken).
+        offsets = tuple(real_number("model error joint_offset", a, -math.pi, math.pi) for a in self.joint_offset)
+        if len(self.tool_offset) != 3:
             raise ValueError(f"model error tool_offset must be 3 finite numbers (x,y,z in m), got {list(self.tool_offset)}")
-        scale = float(self.link_scale)
-        if not math.isfinite(scale) or scale <= -1.0:
-            raise ValueError(f"model error link_scale must be a finite number > -1, got {self.link_scale}")
+        tool = tuple(real_number("model error tool_offset (m)", t, -MAX_TOOL_OFFSET, MAX_TOOL_OFFSET) for t in self.tool_offset)
+        scale = real_number("model error link_scale", self.link_scale, -1.0, MAX_LINK_SCALE, low_open=True)
         object.__setattr__(self, "joint_offset", offsets)
         object.__setattr__(self, "tool_offset", tool)
         object.__setattr__(self, "link_scale", scale)

@@ -51,5 +51,5 @@ def test_instantaneous_cost_and_bad_shapes():
         instantaneous_cost(np.ones(3), np.ones(6), Q=np.eye(2))
     with pytest.raises(ValueError, match="share leading axes"):
         trajectory_cost(np.ones((5, 3)), np.ones((4, 6)), 0.1)
-    with pytest.raises(ValueError, match="dt must be positive"):
+    with pytest.raises(ValueError, match=r"dt must be a finite number in \(0, inf\]"):
         trajectory_cost(np.ones((5, 3)), np.ones((5, 6)), 0.0)

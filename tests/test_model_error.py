@@ -61,8 +61,9 @@ def test_each_part_of_the_error_is_the_true_kinematics_changed_as_documented(ur1
     ("spec", "message"),
     [
         ("joint_offset=0,0.3", "joint_offset needs 6 values"),
-        ("joint_offset=0,0,nan,0,0,0", "must be finite"),
-        ("link_scale=-1", "link_scale must be a finite number > -1"),
+        ("joint_offset=0,0,nan,0,0,0", r"joint_offset must be a finite number in \[-3.14159, 3.14159\], got nan"),
+        ("link_scale=-1", r"link_scale must be a finite number in \(-1, 1\], got -1.0"),
+        ("link_scale=1e6", r"link_scale must be a finite number in \(-1, 1\], got 1000000.0"),
         ("tool_offset=0,0", "tool_offset must be 3 finite numbers"),
         ("elbow=0.3", "NAME one of joint_offset, link_scale, tool_offset"),
         ("link_scale=0.1;link_scale=0.2", "link_scale is given twice"),

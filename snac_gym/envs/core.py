@@ -17,7 +17,8 @@ from snac_gym.cost import CostConvention, step_costs, weight_matrix
 from snac_gym.physics import PHYSICS, Arm, check_physics, make_arm, scene_of
 from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.physics.scene import default_render_every
-from snac_gym.physics.base import check_image_size
+from snac_gym.physics.base import check_image_size, check_timing
+from snac_gym.validation import whole_number
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
@@ -66,6 +67,10 @@ def shaped_reward(
     return -distance_weight * error_norm + bonus - action_penalty * np.einsum("...i,...i->...", action, action)
 
 
+#: Longest episode an env accepts, control steps (about 22 hours at 125 Hz): a bound on what a typo can cost.
+MAX_EPISODE_STEPS = 10_000_000
+
+
 def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
     """The joint-velocity command an env applies: checked, then clipped to ``±velocity_limits``.
 
@@ -75,9 +80,12 @@ def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
         ValueError: If ``action`` is not numeric, has the wrong shape, or holds NaN/inf.
     """
     try:
-        u = np.array(action, dtype=np.float64)
+        raw = np.asarray(action)
+        if raw.dtype.kind not in "iuf":  # a complex, bool or string action is refused, not cast
+            raise TypeError(raw.dtype)
+        u = np.array(raw, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"action must be {len(velocity_limits)} joint velocities in rad/s, got {action!r}") from exc
+        raise ValueError(f"action must be {len(velocity_limits)} joint velocities in rad/s (real numbers), got {action!r}") from exc
     if u.shape != velocity_limits.shape:
         raise ValueError(f"action must have shape {velocity_limits.shape} (joint velocities, rad/s), got {u.shape}")
     if not np.isfinite(u).all():
@@ -331,6 +339,9 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
     ) -> None:
         task = self._resolve_task(task)
         physics = physics_argument(physics, backend)
+        dt, n_substeps = check_timing(dt, n_substeps)  # every engine, the kinematic one too
+        if max_steps is not None:
+            max_steps = whole_number("max_steps", max_steps, 1, MAX_EPISODE_STEPS)
         self.cost_convention = _cost_reward(reward_type, cost, Q, R)
         self._init_kwargs = dict(physics=physics, render_every=render_every,
             robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,

@@ -39,6 +39,7 @@ from snac_gym.kinematics import Kinematics, damped_least_squares
 from snac_gym.robots import get_robot
 from snac_gym.sampling import SampleSpace, nominal_configuration
 from snac_gym.tasks import Task, get_task
+from snac_gym.validation import real_array
 
 #: Reward types of the goal envs.
 GOAL_REWARD_TYPES = ("sparse", "dense")
@@ -169,16 +170,41 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         }
 
     # -- the GoalEnv interface -------------------------------------------------------------------
+    def _goal_distance(self, achieved_goal: Any, desired_goal: Any) -> np.ndarray:
+        """‖achieved − desired‖ of each pair: both real, finite, of one shape ``(..., goal size)``.
+
+        Raises:
+            ValueError: Naming the goal that is not (a NaN goal must not score as reached, nor a goal of another
+                size broadcast against the other).
+        """
+        size = self.observation_space["desired_goal"].shape[-1]
+        achieved = real_array("achieved_goal", achieved_goal)
+        desired = real_array("desired_goal", desired_goal)
+        for name, goal in (("achieved_goal", achieved), ("desired_goal", desired)):
+            if goal.ndim == 0 or goal.shape[-1] != size:
+                raise ValueError(f"{name} must have shape (..., {size}), got {goal.shape}")
+        if achieved.shape != desired.shape:
+            raise ValueError(f"achieved_goal and desired_goal must have one shape, got {achieved.shape} and {desired.shape}")
+        return np.linalg.norm(achieved - desired, axis=-1)
+
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
-        """Reward of each ``(achieved, desired)`` pair (batched over leading axes); ``info`` is unused."""
-        distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        """Reward of each ``(achieved, desired)`` pair (batched over leading axes); ``info`` is unused.
+
+        Raises:
+            ValueError: For goals that are not real, finite and of one shape ``(..., goal size)``.
+        """
+        distance = self._goal_distance(achieved_goal, desired_goal)
         if self.reward_type == "sparse":
             return -(distance > self.success_tolerance).astype(np.float32)
         return -distance.astype(np.float32)
 
     def compute_terminated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
-        """True where the goal is reached, for reach with ``terminate_on_success``; false otherwise."""
-        distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        """True where the goal is reached, for reach with ``terminate_on_success``; false otherwise.
+
+        Raises:
+            ValueError: As :meth:`compute_reward`.
+        """
+        distance = self._goal_distance(achieved_goal, desired_goal)
         return np.logical_and(self.terminate_on_success, distance <= self.success_tolerance)
 
     def compute_truncated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
