@@ -400,6 +400,9 @@ def _check_execution(config: EvaluationConfig) -> None:
             f"workers must be between 1 and {max_workers()} ({MAX_WORKERS_PER_CPU} per available CPU), "
             f"got {config.workers}"
         )
+    if not local and config.workers != 1:
+        raise ValueError(f"--workers {config.workers} has no effect on a Ray cluster ({config.ray_address}): its CPUs run "
+                         "the jobs; leave --workers out (with --ray local it sets the CPUs of the new instance)")
     if config.chunk_size < 1:
         raise ValueError(f"chunk_size must be at least 1, got {config.chunk_size}")
 

@@ -148,3 +148,33 @@ def test_the_shared_checks():
         real_array("a", np.zeros((2, 2)), (None, 3))
     with pytest.raises(ValueError, match="a must be an array of real numbers"):
         real_array("a", [[1, 2], [3]])
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["real", "--connection", "sim", "--host", "10.0.0.1", "--dry-run"], "--host is for --connection rtde"),
+        (["real", "--connection", "sim", "--steps", "1000000000000", "--dry-run"],
+         "--steps must be a whole number in [1, 1800000], got 1000000000000"),
+        (["evaluate", "--seed", "-1", "--samples", "2"], "Invalid value for '--seed'"),
+        (["evaluate", "--ray", "auto", "--workers", "2", "--samples", "2"], "--workers 2 has no effect on a Ray cluster"),
+        (["train-ppo", "--task", "reach", "--n-envs", "100000000"], "Invalid value for '--n-envs'"),
+    ],
+    ids=["sim-host", "real-steps", "seed", "ray-workers", "n-envs"],
+)
+def test_cli_inputs_it_used_to_ignore_or_hang_on_are_refused(tmp_path, arguments, message):
+    """Each before anything runs, with exit 2 (the long runs and the hang never start)."""
+    from typer.testing import CliRunner
+
+    from snac_gym.apps.cli import app
+
+    result = CliRunner().invoke(app, [*arguments, "--out", str(tmp_path / "out")], terminal_width=200)
+    assert result.exit_code == 2, result.output
+    assert message in " ".join(result.output.split()), result.output
+
+
+def test_a_ppo_config_with_too_many_envs_is_refused():
+    from snac_gym.ppo.config import ConfigError, resolve_config, validate_config
+
+    with pytest.raises(ConfigError, match=r"vec_env.n_envs must be an integer in \[1, 1024\], got 100000000"):
+        validate_config(resolve_config("reach", n_envs=100_000_000))

@@ -34,6 +34,7 @@ from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
 from snac_gym.ur_models import UR_MODELS, get_ur_model, series_of, velocity_limits
+from snac_gym.validation import whole_number
 
 #: The streamed log (:class:`~snac_gym.real.journal.StepJournal`): kept only when the run could not write the full one.
 STREAM_SUFFIX = "stream.csv"
@@ -162,6 +163,8 @@ EXIT_CODES = {
     "ran to its end (or a dry run)": 0, "link to the arm lost": 1, "input refused": 2, "unexpected error": 3,
     "safety layer stopped the arm": 4, "protective stop": 5, "emergency stop": 6, "signal n": "128 + n",
 }
+#: Longest episode ``snac-gym real`` runs, s (``--steps`` is bounded by it at 500 Hz): an hour of streaming.
+MAX_REAL_SECONDS = 3600.0
 #: The arms ``snac-gym real`` drives: the UR models of the registry (ur_rtde; ``snac-gym emulate-ur`` serves the same).
 UR_ROBOTS = tuple(UR_MODELS)
 
@@ -333,6 +336,10 @@ def run_real_episode(
         ValueError: For ``model_error`` with another connection than ``"sim"``, or a dry run that
             would unlock a protective stop.
     """
+    if connection == "sim" and host is not None:
+        raise ValueError("--host is for --connection rtde (a real arm); --connection sim rehearses on PyBullet here")
+    if steps is not None:
+        whole_number("--steps", steps, 1, round(MAX_REAL_SECONDS * SERIES_FREQUENCY["e"]))
     if model_error is not None and connection != "sim":
         raise ValueError("--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own")
     if dry_run and recovery is not None and recovery.unlock_protective_stop:

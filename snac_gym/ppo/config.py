@@ -307,7 +307,7 @@ class RewardSection:
 class VecEnvSection:
     """``vec_env``: how many training envs, and how they are stepped."""
 
-    n_envs: int = spec(integer(1), 1)
+    n_envs: int = spec(integer(1, 1024), 1)  # more would only exhaust memory (10⁸ hung, then MemoryError)
     kind: str = spec(choice("dummy", "subproc", "batched"), "dummy")
 
 
