@@ -310,6 +310,8 @@ def _check_types(config: EvaluationConfig) -> None:
         value = getattr(config, name)
         if value is not None and (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real)):
             raise ValueError(f"{name} must be a real number, got {value!r}")
+    if not 0 <= config.seed <= 2**32 - 1:
+        raise ValueError(f"seed must be a whole number in [0, {2**32 - 1}] (a NumPy seed), got {config.seed}")
     for name in _SWITCHES:
         if not isinstance(getattr(config, name), (bool, np.bool_)):
             raise ValueError(f"{name} must be True or False, got {getattr(config, name)!r}")

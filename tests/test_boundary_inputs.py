@@ -156,11 +156,12 @@ def test_the_shared_checks():
         (["real", "--connection", "sim", "--host", "10.0.0.1", "--dry-run"], "--host is for --connection rtde"),
         (["real", "--connection", "sim", "--steps", "1000000000000", "--dry-run"],
          "--steps must be a whole number in [1, 1800000], got 1000000000000"),
-        (["evaluate", "--seed", "-1", "--samples", "2"], "Invalid value for '--seed'"),
+        (["evaluate", "--seed", "-1", "--samples", "2"], "seed must be a whole number in [0, 4294967295] (a NumPy seed), got -1"),
+        (["real", "--connection", "sim", "--seed", "-1", "--dry-run"], "--seed must be a whole number in [0, 4294967295], got -1"),
         (["evaluate", "--ray", "auto", "--workers", "2", "--samples", "2"], "--workers 2 has no effect on a Ray cluster"),
         (["train-ppo", "--task", "reach", "--n-envs", "100000000"], "Invalid value for '--n-envs'"),
     ],
-    ids=["sim-host", "real-steps", "seed", "ray-workers", "n-envs"],
+    ids=["sim-host", "real-steps", "seed", "real-seed", "ray-workers", "n-envs"],
 )
 def test_cli_inputs_it_used_to_ignore_or_hang_on_are_refused(tmp_path, arguments, message):
     """Each before anything runs, with exit 2 (the long runs and the hang never start)."""

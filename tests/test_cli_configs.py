@@ -72,7 +72,7 @@ def test_the_shipped_configs_validate_unchanged(task):
         ("ppo.batch_size", 0, "ppo.batch_size must be an integer ≥ 2, got 0"),
         ("ppo.n_epochs", 0, "ppo.n_epochs must be an integer ≥ 1, got 0"),
         ("evaluation.every_timesteps", 0, "evaluation.every_timesteps must be an integer ≥ 1, got 0"),
-        ("vec_env.n_envs", "8", "vec_env.n_envs must be an integer ≥ 1, got '8'"),
+        ("vec_env.n_envs", "8", "vec_env.n_envs must be an integer in [1, 1024], got '8'"),
         ("timesteps", "1000", "timesteps must be an integer ≥ 1, got '1000'"),
         ("timesteps", 2e7, "timesteps must be an integer ≥ 1, got 20000000.0"),
         ("ppo.net_arch", {"pi": [64, -1], "vf": [64]}, "ppo.net_arch.pi[1] must be an integer in [1, 4096], got -1"),

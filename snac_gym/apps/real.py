@@ -340,6 +340,7 @@ def run_real_episode(
         raise ValueError("--host is for --connection rtde (a real arm); --connection sim rehearses on PyBullet here")
     if steps is not None:
         whole_number("--steps", steps, 1, round(MAX_REAL_SECONDS * SERIES_FREQUENCY["e"]))
+    whole_number("--seed", seed, 0, 2**32 - 1)
     if model_error is not None and connection != "sim":
         raise ValueError("--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own")
     if dry_run and recovery is not None and recovery.unlock_protective_stop:
