@@ -204,8 +204,9 @@ def _calibration_identities(
     reference = None
     if config.effort_target is None:
         reference = specs[names.index(config.effort_reference if config.effort_reference in names else names[0])]
+    manifest = config.manifest(space)  # once: it hashes the samples file
     return {
-        (task, spec.name): calibration_identity(config, space, task, spec, reference)
+        (task, spec.name): calibration_identity(config, manifest, task, spec, reference)
         for task in config.tasks
         for spec in specs
     }

@@ -255,16 +255,20 @@ class DemoMetrics:
     hjb_ratio_median: float | None = None
     critic_error_final: float | None = None
     mean_error_2nd_half: float = math.nan
+    joint_limit_margin: float = math.nan
 
     def success(self, task: Any) -> bool:
-        """Whether the run meets ``task``'s success rule (a name or a :class:`~snac_gym.tasks.Task`), as the
-        evaluator scores it."""
+        """Whether the run meets ``task``'s success rule (a name or a :class:`~snac_gym.tasks.Task`) as the
+        evaluator scores it: the error rule, and every joint inside its limits (where they were given)."""
         measures = {"final_error": self.final_error, "mean_error_2nd_half": self.mean_error_2nd_half}
-        return bool(get_task(task).success(measures))
+        return bool(get_task(task).success(measures)) and not self.joint_limit_margin < 0.0
 
 
-def demo_metrics(log: pd.DataFrame, tolerance: float) -> DemoMetrics:
-    """Compute :class:`DemoMetrics` from a log of :func:`~snac_gym.rollout.rollout`."""
+def demo_metrics(
+    log: pd.DataFrame, tolerance: float, position_limits: tuple[np.ndarray, np.ndarray] | None = None
+) -> DemoMetrics:
+    """Compute :class:`DemoMetrics` from a log of :func:`~snac_gym.rollout.rollout`; ``position_limits``
+    ``(θ⁻, θ⁺)`` give its ``joint_limit_margin`` over θ₀..θ_K (NaN without them)."""
     dt = float(log.attrs["dt"])
     errors = log_array(log, "e")
     commands = log_array(log, "u")
@@ -306,4 +310,14 @@ def demo_metrics(log: pd.DataFrame, tolerance: float) -> DemoMetrics:
         hjb_ratio_median=float(np.nanmedian(log["hjb_ratio"])) if "hjb_ratio" in log.columns else None,
         critic_error_final=float(log["critic_error"].iloc[-1]) if "critic_error" in log.columns else None,
         mean_error_2nd_half=float(norms[len(errors) // 2 : -1].mean()),  # ‖eₖ‖, k = ⌊K/2⌋..K−1, as the evaluator
+        joint_limit_margin=math.nan if position_limits is None else float(
+            joint_limit_margins(_states(log)[None], *position_limits)[0]
+        ),
     )
+
+
+def _states(log: pd.DataFrame) -> np.ndarray:
+    """θ₀..θ_K of a log (θ_K from its metadata, where a cut-short log still has it)."""
+    q = log_array(log, "q")
+    final = log.attrs.get("final_q")
+    return q if final is None else np.vstack([q, np.asarray(final, dtype=float)])

@@ -244,7 +244,7 @@ def urdf_text(name: str) -> str:
     for i, (joint, link) in enumerate(zip(_JOINTS, _LINKS)):
         xyz, rpy = origins[i]
         segment = np.array(origins[i + 1][0]) if i + 1 < len(origins) else None
-        parts.append(_link(link, masses[i + 1] if i + 1 < len(masses) else masses[-1], segment, radius * (0.75 if i >= 3 else 1.0)))
+        parts.append(_link(link, masses[i + 1], segment, radius * (0.75 if i >= 3 else 1.0)))
         lower, upper = (-math.pi, math.pi) if joint == "elbow" else (-DATASHEET_RANGE, DATASHEET_RANGE)
         parts.append(
             f'  <joint name="{joint}_joint" type="revolute"><parent link="{parent}"/><child link="{link}"/>'

@@ -163,6 +163,22 @@ def test_metrics_on_a_hand_made_log():
     assert m.clipped_steps == 1 and m.max_speed_ratio == pytest.approx(1.0)
 
 
+def test_the_demo_success_rule_is_the_evaluators_joint_limits_included():
+    """The reach rule by hand (final ‖e‖ ≤ 1 mm), and a run that ends on target after crossing a joint limit
+    (θ_K past θ⁺, as the evaluator's success column counts it) does not succeed."""
+    dt = 0.5
+    log = pd.DataFrame({"t": np.arange(2) * dt, **{f"e_{i}": [3e-3, 1e-3] if i == 0 else [0.0, 0.0] for i in range(3)},
+                        **{f"u_{j}": [0.0, 0.0] for j in range(2)}, **{f"q_{j}": [0.0, 0.5] for j in range(2)}})
+    log.attrs = {"dt": dt, "final_e": [0.2e-3, 0, 0], "final_t": 1.0, "velocity_limits": [2.0, 1.0], "final_q": [0.9, 0.5]}
+    assert demo_metrics(log, 1e-3).success("reach")  # limits not given: the error rule alone
+    inside = demo_metrics(log, 1e-3, (np.full(2, -1.0), np.full(2, 1.0)))
+    assert inside.joint_limit_margin == pytest.approx(0.1) and inside.success("reach")
+    crossed = demo_metrics(log, 1e-3, (np.full(2, -1.0), np.full(2, 0.8)))
+    assert crossed.joint_limit_margin == pytest.approx(-0.1) and not crossed.success("reach")
+    track = demo_metrics(log, 1e-3)  # the second half is step 1 alone: 1 mm, within the track rule's 5 mm
+    assert track.mean_error_2nd_half == pytest.approx(1e-3) and track.success("track")
+
+
 def test_write_log_round_trips(tmp_path):
     env = gym.make("snac_gym/UR10EllipseTrack-v0")
     log = rollout(env, SNACPolicy(env), options=demo_options("track"), seed=2, steps=20)

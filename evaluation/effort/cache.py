@@ -36,7 +36,6 @@ import snac_gym.baselines
 from snac_gym.evaluation.effort.matching import EffortRecord
 from snac_gym.evaluation.reference.cache import add_versions, cache_root
 from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
-from snac_gym.sampling import SampleSpace
 
 #: Environment variable that turns the cache off (``0``, ``off``, ``false`` or ``no``) whatever the options say.
 SWITCH_ENV = "SNAC_GYM_CALIBRATION_CACHE"
@@ -98,13 +97,13 @@ def _controller(spec: ControllerSpec) -> dict[str, Any]:
 
 
 def calibration_identity(
-    config: EvaluationConfig, space: SampleSpace, task: str, spec: ControllerSpec, reference: ControllerSpec | None
+    config: EvaluationConfig, manifest: dict[str, Any], task: str, spec: ControllerSpec, reference: ControllerSpec | None
 ) -> dict[str, Any]:
     """Everything the matched knob of ``spec`` on ``task`` depends on (the module docstring), as plain values.
 
-    ``reference`` is the controller whose effort is the target (``None`` with an ``effort_target``).
+    ``manifest`` is the run's :meth:`~snac_gym.evaluation.run_config.EvaluationConfig.manifest`; ``reference``
+    the controller whose effort is the target (``None`` with an ``effort_target``).
     """
-    manifest = config.manifest(space)
     effort_set = (
         {"samples_file_sha1": manifest["samples_file_sha1"]}
         if config.samples_file is not None

@@ -154,6 +154,7 @@ def run_demo(
     if steps > env.spec.max_episode_steps:
         env.close()
         env = make_task_env(spec, robot, max_episode_steps=steps)
+    kinematics = env.unwrapped.kinematics
     try:
         policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
         log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)
@@ -164,7 +165,7 @@ def run_demo(
         log.attrs["model_error"] = model_error
     return write_demo_outputs(
         log, spec.name, controller, seed, spec.success_tolerance, out_dir,
-        csv=csv, plots=plots, policy_kwargs=policy_kwargs,
+        csv=csv, plots=plots, policy_kwargs=policy_kwargs, position_limits=(kinematics.lower_limits, kinematics.upper_limits),
     )
 
 
@@ -178,6 +179,7 @@ def write_demo_outputs(
     csv: bool = False,
     plots: bool = True,
     policy_kwargs: dict[str, Any] | None = None,
+    position_limits: tuple[Any, Any] | None = None,
 ) -> DemoResult:
     """Metrics, Figure 3 panels, log and ``summary.json`` of one run (demo or real robot).
 
@@ -187,8 +189,9 @@ def write_demo_outputs(
         tolerance: Settling threshold of the metrics, m.
         out_dir: Folder to write into (``None``: compute the metrics only).
         csv, plots, policy_kwargs: As for :func:`run_demo`.
+        position_limits: The arm's joint limits ``(θ⁻, θ⁺)``: the success line then counts them, as the evaluator.
     """
-    metrics = demo_metrics(log, tolerance)
+    metrics = demo_metrics(log, tolerance, position_limits)
     result = DemoResult(task=task, controller=controller, seed=seed, metrics=metrics, log=log)
     if out_dir is None:
         return result

@@ -206,11 +206,11 @@ def run_setup(
     points = np.atleast_2d(resolved.points(64))
     model = get_ur_model(robot)
     shoulder = np.array([0.0, 0.0, model.dh[0]])
-    farthest = int(np.argmax(np.linalg.norm(points - shoulder, axis=1)))
-    if np.linalg.norm(points[farthest] - shoulder) > model.reach:
-        raise ValueError(f"the {task} reference reaches [{_fmt(points[farthest])}] m, "
-                         f"{np.linalg.norm(points[farthest] - shoulder):.3f} m from the shoulder: beyond the {model.label}'s "
-                         f"datasheet reach of {model.reach:.3f} m{hint}")
+    distances = np.linalg.norm(points - shoulder, axis=1)
+    farthest = int(np.argmax(distances))
+    if distances[farthest] > model.reach:
+        raise ValueError(f"the {task} reference reaches [{_fmt(points[farthest])}] m, {distances[farthest]:.3f} m from "
+                         f"the shoulder: beyond the {model.label}'s datasheet reach of {model.reach:.3f} m{hint}")
     low, high = safety.task_box(kinematics)
     outside = [p for p in points if np.any(p < low) or np.any(p > high)]
     if outside:
@@ -456,8 +456,10 @@ def _write_outputs(
     log.attrs["controller"] = controller
     log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
+    limits = (env.kinematics.lower_limits, env.kinematics.upper_limits)
     demo = write_demo_outputs(
-        log, task, controller, seed, env.success_tolerance, out, csv=csv, plots=plots, policy_kwargs=policy_kwargs
+        log, task, controller, seed, env.success_tolerance, out, csv=csv, plots=plots, policy_kwargs=policy_kwargs,
+        position_limits=limits,
     )
     arm = env.connection
     result = RealRunResult(

@@ -23,17 +23,16 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from snac_gym.ur_models import SERIES_FREQUENCY
 from snac_gym.kinematics import Kinematics
 from snac_gym.physics.bullet import PyBulletSim, SimulatedArm
 from snac_gym.real.rtde_client import HEADER, RECONNECT_MARKERS, as_arrays, write_frame
 from snac_gym.sampling import nominal_configuration
+from snac_gym.ur_models import SERIES_FREQUENCY  # the controller generations' rates, re-exported here
 
 #: Safety states a connection reports (``info["safety_state"]`` of the real env).
 NORMAL = "normal"
 PROTECTIVE_STOP = "protective_stop"
 EMERGENCY_STOP = "emergency_stop"
-#: Control rates of the UR controller generations: CB-series 125 Hz, e-Series 500 Hz.
 #: Seconds after a protective stop before PolyScope lets it be unlocked (pendant or dashboard).
 PROTECTIVE_STOP_LOCKOUT = 5.0
 

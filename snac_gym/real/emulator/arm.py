@@ -24,6 +24,7 @@ import numpy as np
 from snac_gym.kinematics import joint_step
 from snac_gym.ur_models import UR_MODELS, flange_transform
 
+
 def pose_to_matrix(pose: np.ndarray) -> np.ndarray:
     """4×4 transform of a UR pose ``[x, y, z, rx, ry, rz]`` (rotation vector)."""
     pose = np.asarray(pose, dtype=float)

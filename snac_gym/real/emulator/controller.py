@@ -31,7 +31,7 @@ PORT_OFFSETS = {"dashboard": 0, "secondary": 3, "realtime": 4, "rtde": 5}
 STANDARD_PORT_BASE = 29999
 #: Controller versions reported (``getControllerVersion``): CB3 runs 3.x, e-Series 5.x.
 VERSIONS = {"cb": (3, 15, 8, 106339), "e": (5, 11, 6, 108805)}
-
+#: The events that record a controller stop (``status()["safety_stop_at"]``).
 _SAFETY_STOPS = ("protective stop", "emergency stop")
 #: Deceleration of the controller's own stops (program stopped, watchdog), rad/s².
 STOP_DECELERATION = 10.0
@@ -110,7 +110,9 @@ class UREmulator:
         self.dt = 1.0 / self.frequency
         self.version = VERSIONS[series]
         start = nominal_configuration(self.kinematics) if q0 is None else np.asarray(q0, dtype=float)
-        self.arm = EmulatedArm(robot, start, velocity_limits(robot, self.kinematics.velocity_limits))
+        #: Joint speed limits the controller keeps: the URDF's, capped at the model's datasheet.
+        self.velocity_limits = velocity_limits(robot, self.kinematics.velocity_limits)
+        self.arm = EmulatedArm(robot, start, self.velocity_limits)
         self.tcp_offset = np.zeros(6) if tcp_offset is None else np.asarray(tcp_offset, dtype=float)
         self.set_speed_scaling(speed_scaling)
         self.lock = threading.RLock()
@@ -548,7 +550,7 @@ class UREmulator:
 
     def latency_spike(self, seconds: float) -> None:
         """The controller stalls for ``seconds``: no data sent, no input served (the arm keeps moving)."""
-        _check_duration("latency spike", seconds)
+        _FAULT_ARGUMENTS["latency_spike"](seconds)
         with self.lock:
             self._stall_until = time.monotonic() + seconds
             self.event(f"latency spike of {seconds * 1e3:.0f} ms")
@@ -559,7 +561,7 @@ class UREmulator:
         The servers close their sockets (the clients read end of file) and stop listening (a
         reconnect is refused), as when the controller's network goes down.
         """
-        _check_duration("refuse_for", refuse_for, allow_inf=True)
+        _FAULT_ARGUMENTS["drop_connection"](refuse_for)
         with self.lock:
             self._refuse_until = time.monotonic() + min(refuse_for, 1e9)
             self._link_down = True
@@ -692,7 +694,7 @@ class UREmulator:
             self.runtime_state = p.RUNTIME_STOPPED
             self.script, self._watchdog, self._scheduled = None, None, []
             start = nominal_configuration(self.kinematics) if q0 is None else np.asarray(q0, dtype=float)
-            self.arm = EmulatedArm(self.arm.robot, start, velocity_limits(self.arm.robot, self.kinematics.velocity_limits))
+            self.arm = EmulatedArm(self.arm.robot, start, self.velocity_limits)
             self.tcp_offset, self.speed_scaling = np.zeros(6), 1.0
             self.commands.clear()
             self.unsafe_commands.clear()
@@ -723,7 +725,7 @@ def _check_duration(name: str, seconds: float, allow_inf: bool = False) -> None:
         raise ValueError(f"{name} must be a non-negative number of seconds, got {seconds!r}")
 
 
-#: The argument checks of the faults that take arguments, run when a fault is scheduled.
+#: The argument checks of the faults that take arguments: run by each fault, and before, when it is scheduled.
 _FAULT_ARGUMENTS: dict[str, Any] = {
     "latency_spike": lambda seconds: _check_duration("latency spike", seconds),
     "drop_connection": lambda refuse_for=float("inf"): _check_duration("refuse_for", refuse_for, allow_inf=True),
