@@ -1,4 +1,11 @@
-"""Stop-signal handlers that raise, without losing the signal where Python cannot raise it.
+"""Stop signals: one set for every command, handlers that raise once, and never lost where Python cannot raise.
+
+Every ``snac-gym`` command ends the same way on :data:`STOP_SIGNALS` (SIGINT, SIGTERM, SIGHUP,
+SIGQUIT): :func:`stop_signals_raise` turns the first into :class:`TerminationSignal` (a
+``KeyboardInterrupt``, so that every clean-up written for Ctrl-C runs for the others too), the
+command says in one line what it kept, and the process exits 128 + the signal's number
+(:func:`exit_code`). A second signal only is recorded: it must not cut the clean-up the first one
+started.
 
 A handler runs in the main thread at whatever Python code runs there when the signal comes, and
 some code cannot take an exception:
@@ -19,9 +26,17 @@ one computes).
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 import types
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+#: The signals every command ends on: Ctrl-C, a scheduler's or ``kill``'s SIGTERM, a closed
+#: terminal's SIGHUP and Ctrl-\\'s SIGQUIT (whose default would dump core). SIGKILL cannot be caught.
+STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 #: Packages whose Python code is called back from compiled code, where an exception cannot propagate.
 _CALLED_BACK = ("numba", "llvmlite")
@@ -47,3 +62,76 @@ def send_again(signum: int, delay: float = 0.001) -> None:
         os.kill(os.getpid(), signum)
 
     threading.Thread(target=send, name=f"resend-signal-{signum}", daemon=True).start()
+
+
+class TerminationSignal(KeyboardInterrupt):
+    """A stop signal received while :func:`stop_signals_raise` was in force.
+
+    A ``KeyboardInterrupt``, so that everything that cleans up on Ctrl-C does the same for the others.
+    """
+
+    def __init__(self, signum: int) -> None:
+        self.signum = int(signum)
+        self.signal_name = signal.Signals(signum).name
+        super().__init__(self.signal_name)
+
+
+class SignalGuard:
+    """What :func:`stop_signals_raise` yields: the signals received, and whether they still raise.
+
+    Only the first signal raises: a second one (an impatient operator, a supervisor that sends
+    SIGTERM then SIGQUIT) must not cut the clean-up the first started. After :meth:`defer`,
+    signals are only recorded; :meth:`raise_pending` raises the first one then.
+    """
+
+    def __init__(self) -> None:
+        self.received: list[int] = []
+        self.deferred = False
+
+    def handle(self, signum: int, frame: Any) -> None:
+        if cannot_raise_here(frame):  # raised there, it would be dropped (or a SystemError)
+            send_again(signum)
+            return
+        self.received.append(signum)
+        if len(self.received) == 1 and not self.deferred:
+            raise TerminationSignal(signum)
+
+    def defer(self) -> None:
+        self.deferred = True
+
+    def raise_pending(self) -> None:
+        if self.received:
+            raise TerminationSignal(self.received[0])
+
+    def signal_name(self, exc: BaseException | None = None) -> str:
+        """The name of the signal that ended the run: ``exc``'s own, else the first received, else SIGINT
+        (a library between the handler and the caller, such as Ray's client, may raise its own
+        ``KeyboardInterrupt`` without the name)."""
+        name = getattr(exc, "signal_name", None)
+        if name is None and self.received:
+            name = signal.Signals(self.received[0]).name
+        return name if name in signal.Signals.__members__ else "SIGINT"
+
+
+@contextmanager
+def stop_signals_raise(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[SignalGuard]:
+    """Within the block, the first of ``signals`` raises :class:`TerminationSignal`; the handlers before are restored after.
+
+    SIGINT is included because a process started from a background shell inherits it ignored.
+    Handlers can only be set from the main thread; elsewhere the block runs unchanged.
+    """
+    guard = SignalGuard()
+    if threading.current_thread() is not threading.main_thread():
+        yield guard
+        return
+    previous = {signum: signal.signal(signum, guard.handle) for signum in signals}
+    try:
+        yield guard
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
+
+
+def exit_code(signal_name: str) -> int:
+    """The exit status of a process ended by ``signal_name``, as a shell reports it: 128 + its number."""
+    return 128 + int(signal.Signals[signal_name])

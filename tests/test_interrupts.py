@@ -135,10 +135,10 @@ def uninterrupted(uninterrupted_folder: Path) -> pd.DataFrame:
     ("phase", "signame", "workers", "delay"),
     [
         ("samples", "SIGINT", 2, 0.0),
-        ("reference passes", "SIGTERM", 2, 0.05),
+        ("reference passes", "SIGHUP", 2, 0.05),
         ("effort matching", "SIGINT", 2, 0.3),
         ("effort matching", "SIGTERM", 1, 0.3),
-        ("optimal", "SIGTERM", 2, 0.05),
+        ("optimal", "SIGQUIT", 2, 0.05),
         ("reports", "SIGINT", 1, 0.0),
     ],
 )
@@ -241,7 +241,7 @@ if os.name != "posix":  # pragma: no cover
 
 UNRAISABLE = r"""
 import os, signal, sys, time, traceback
-from snac_gym.apps.cli import _sigterm_as_interrupt
+from snac_gym._signals import stop_signals_raise as command_signals_raise
 from snac_gym.apps.real import stop_signals_raise
 ignored = []
 sys.unraisablehook = lambda unraisable: ignored.append(repr(unraisable.exc_value))
@@ -265,7 +265,7 @@ except KeyboardInterrupt as exc:
 
 
 @pytest.mark.parametrize("where", ["__del__", "numba"])
-@pytest.mark.parametrize("handlers", ["_sigterm_as_interrupt", "stop_signals_raise"])  # snac-gym evaluate, snac-gym real
+@pytest.mark.parametrize("handlers", ["command_signals_raise", "stop_signals_raise"])  # every command's, snac-gym real's
 def test_a_signal_that_comes_where_python_cannot_raise_interrupts_the_run_after_it(handlers, where):
     """A signal handled in a ``__del__`` or in numba's Python code is sent again for when that code has returned.
 

@@ -37,6 +37,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
+from snac_gym._signals import STOP_SIGNALS
 from snac_gym.evaluation.execution.memory import keep_freed_memory
 from snac_gym.kernels.compiled import KERNEL_MODULES, load_if_cached, warm_up_shared
 from snac_gym.policies import registry
@@ -86,7 +87,7 @@ def max_workers() -> int:
 
 
 #: Signals that end a run: the parent handles them, a worker only dies of SIGTERM.
-_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+_STOP_SIGNALS = set(STOP_SIGNALS)
 #: Linux ``prctl`` option that sends a signal to a process when its parent dies.
 _PR_SET_PDEATHSIG = 1
 
@@ -188,9 +189,12 @@ def _init_worker(parent_pid: int, registrations: bytes | None = None, compile_lo
     _die_with_parent(parent_pid)
     if registrations is not None:
         _install_registrations(registrations)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # A forked worker inherits the parent's handlers; the CLI's turns SIGTERM into
-    # KeyboardInterrupt, which in a worker would print a traceback when the parent ends it.
+    # SIGINT (Ctrl-C), SIGHUP (a closed terminal) and SIGQUIT (Ctrl-\\) reach the whole foreground group:
+    # the parent ends the run and its workers. A forked worker inherits the parent's handlers; the
+    # CLI's turns SIGTERM into KeyboardInterrupt, which in a worker would print a traceback when the
+    # parent ends it.
+    for signum in _STOP_SIGNALS - {signal.SIGTERM}:
+        signal.signal(signum, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
@@ -253,7 +257,7 @@ class ProcessExecutor:
         # Start every worker now, from this thread (one job each, submitted together: the pool
         # starts a process per job while none is idle): the parent-death signal of a forked worker
         # follows the thread that forked it, and this one (the caller's) outlives the run.
-        # SIGINT and SIGTERM are blocked meanwhile: one arriving before a worker's initialiser
+        # The stop signals are blocked meanwhile: one arriving before a worker's initialiser
         # set its handlers would print that worker's traceback (the initialiser unblocks them).
         blocked = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
         if blocked:
@@ -426,7 +430,7 @@ def check_ray_reachable(address: str, timeout: float | None = None) -> None:
 
 @contextlib.contextmanager
 def _handlers_kept() -> Iterator[None]:
-    """Restore this process's SIGINT and SIGTERM handlers after the block.
+    """Restore this process's stop-signal handlers after the block.
 
     ``ray.init`` installs a SIGTERM handler that ends the process at once (exit 15, no clean-up),
     which would bypass the run's interrupt path: the workers stopped, the one line, exit 143.

@@ -5,21 +5,17 @@ Each subcommand parses its options and calls a function that can be used from Py
 
 from __future__ import annotations
 
-import contextlib
 import math
-import signal
-import threading
+import sys
 import time
-import types
 import warnings
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Optional
 
 import typer
 
 from snac_gym import __version__
-from snac_gym._signals import cannot_raise_here, send_again
+from snac_gym._signals import STOP_SIGNALS, SignalGuard, exit_code, stop_signals_raise
 from snac_gym.policies import available_policies
 from snac_gym.progress import wants_lines
 from snac_gym.robots import robot_names
@@ -88,13 +84,23 @@ def bench(
 ) -> None:
     """Env steps per second and real-time factor of both ids, in PyBullet and MuJoCo, on one core (and, with --act, act latency)."""
     # start-up time: only bench needs bench.py (threadpoolctl)
-    from snac_gym.apps.bench import check_bench_counts, format_env_bench, run_env_bench, run_substep_study
+    from snac_gym.apps.bench import check_bench_counts
 
     try:  # both before the first measurement, which a bad --act-calls would otherwise follow by minutes
         check_bench_counts(steps, act_calls)
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
+    try:
+        _bench(steps, panda, substeps, tracking, act, act_calls, vector)
+    except KeyboardInterrupt as exc:  # bench writes no file: the tables printed so far are whole
+        raise _interrupted(exc, "bench writes no files; the tables printed above are complete") from None
+
+
+def _bench(steps: int, panda: bool, substeps: bool, tracking: bool, act: bool, act_calls: int, vector: bool) -> None:
+    # start-up time: only bench needs bench.py (threadpoolctl)
+    from snac_gym.apps.bench import format_env_bench, run_env_bench, run_substep_study
+
     typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
     if vector:
         # start-up time: only bench needs bench.py
@@ -150,6 +156,8 @@ def demo(
     except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
+    except KeyboardInterrupt as exc:  # a stop signal: run_demo says what it wrote (a partial run is marked so)
+        raise _interrupted(exc, getattr(exc, "kept", "nothing was written")) from None
     typer.echo(result.summary())
 
 
@@ -282,8 +290,8 @@ def emulate_ur(
 ) -> None:
     """Emulate a UR controller on 127.0.0.1 for ur_rtde (RTDE, dashboard, script upload), with faults on demand.
 
-    Exit codes: 0 it ran until --duration or a signal; 1 one of its threads failed (the line says how);
-    2 a refused option or a port it could not bind.
+    Exit codes: 0 it ran until --duration; 1 one of its threads failed (the line says how); 2 a refused
+    option or a port it could not bind; 128 + n a signal n (SIGINT 130, SIGTERM 143).
     """
     # start-up time: only emulate-ur needs the emulator's servers
     from snac_gym.real.emulator import UREmulator
@@ -298,47 +306,34 @@ def emulate_ur(
         plan = fault_plan(protective_stop_at, emergency_stop_at, latency_spike, drop_at, stale_at, watchdog_expiry_at, drop_for)
         for at, fault, args in plan:
             emulator.schedule(at, fault, *args)
-        serve(emulator, duration, typer.echo)
+        stopped_by = serve(emulator, duration, typer.echo)
     except (ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from exc
+    if stopped_by is not None and emulator.failure is None:
+        typer.echo(f"interrupted by {stopped_by}: the emulator closed its connections; it keeps no files", err=True)
+        raise typer.Exit(code=exit_code(stopped_by))
     if emulator.failure is not None:  # a thread of the emulator died: not a clean end
         failure = emulator.failure
         typer.echo(f"error: the emulator stopped: {type(failure).__name__}: {failure}", err=True)
         raise typer.Exit(code=1)
 
 
-#: The stop signal last received by :func:`_sigterm_as_interrupt` (a library between the handler and
-#: the CLI, such as Ray's client, may raise its own KeyboardInterrupt without the name).
-_received: list[str] = []
+#: The stop-signal guard :func:`main` holds for the whole command (``None`` where the app is called
+#: without it, as by click's test runner: then only Ctrl-C interrupts, as Python's default).
+_main_guard: SignalGuard | None = None
 
 
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """Turn SIGTERM (and SIGINT) into KeyboardInterrupt naming the signal while the block runs, so that
-    SIGTERM ends the run as Ctrl-C does (workers stopped, one line) instead of killing this process mid-write."""
-
-    def interrupt(signum: int, frame: types.FrameType | None) -> None:
-        if cannot_raise_here(frame):  # raised there, the interrupt would be dropped or turned into a SystemError
-            send_again(signum)
-            return
-        _received.append(signal.Signals(signum).name)
-        raise KeyboardInterrupt(signal.Signals(signum).name)
-
-    if threading.current_thread() is not threading.main_thread():  # signals reach only the main thread
-        yield
-        return
-    previous = {signum: signal.signal(signum, interrupt) for signum in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+#: Whether the command said it was interrupted (:func:`_interrupted`), so that :func:`main` does not say it again.
+_reported: list[str] = []
 
 
-def _signal_name(exc: BaseException) -> str:
-    name = _received[-1] if _received else str(exc)
-    return name if name in signal.Signals.__members__ else "SIGINT"
+def _interrupted(exc: BaseException, kept: str, during: str = "") -> typer.Exit:
+    """Say in one line which signal ended the command (and ``during`` what) and what it kept; return the exit to raise (128 + n)."""
+    name = (_main_guard or SignalGuard()).signal_name(exc)
+    _reported.append(name)
+    typer.echo(f"interrupted by {name}{' ' + during if during else ''}: {kept}", err=True)
+    return typer.Exit(code=exit_code(name))
 
 
 @app.command()
@@ -386,22 +381,24 @@ def evaluate(
     sweep_span: Optional[float] = typer.Option(None, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4)."),
 ) -> None:
     """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
-    # start-up time: the evaluation loads numba, scipy and pandas
-    from snac_gym.evaluation.run_config import EvaluationConfig
-    from snac_gym.evaluation.runner import export_sample_set, run_evaluation
-    from snac_gym.evaluation.sweep import run_sweep
-    from snac_gym.evaluation.options import (
-        check_option_combinations,
-        parse_controllers,
-        parse_horizons,
-        parse_out,
-        parse_params,
-        parse_sample_space,
-        parse_tasks,
-    )
-
     engine = _renamed_option("--engine", engine, "--backend", backend, "kinematic")
+    out_dir: Path | None = None
+    start: float | None = None
     try:
+        # start-up time: the evaluation loads numba, scipy and pandas
+        from snac_gym.evaluation.run_config import EvaluationConfig
+        from snac_gym.evaluation.runner import export_sample_set, run_evaluation
+        from snac_gym.evaluation.sweep import run_sweep
+        from snac_gym.evaluation.options import (
+            check_option_combinations,
+            parse_controllers,
+            parse_horizons,
+            parse_out,
+            parse_params,
+            parse_sample_space,
+            parse_tasks,
+        )
+
         out_dir = parse_out(out)
         tasks, names = parse_tasks(task), parse_controllers(controllers)
         check_option_combinations(
@@ -425,26 +422,25 @@ def evaluate(
             recalibrate=recalibrate,
             **({} if chunk_size is None else {"chunk_size": chunk_size}),
         )
+        start = time.perf_counter()
         if export_only:
             typer.echo(f"samples written to {export_sample_set(config)}")
             return
-        start = time.perf_counter()
-        with _sigterm_as_interrupt():
-            if sweep:
-                run_sweep(config, points=7 if sweep_points is None else sweep_points,
-                          span=4.0 if sweep_span is None else sweep_span)
-            else:
-                run_evaluation(config)
+        if sweep:
+            run_sweep(config, points=7 if sweep_points is None else sweep_points,
+                      span=4.0 if sweep_span is None else sweep_span)
+        else:
+            run_evaluation(config)
     except (ValueError, RuntimeError, OSError) as exc:  # bad options, samples file, controller, output folder: a clean message
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
-    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM: the workers are stopped, finished jobs are kept
-        signal_name = _signal_name(exc)
-        if (out_dir / "run.json").exists():
-            typer.echo(f"interrupted by {signal_name}: finished jobs are kept in {out_dir}/; continue with --resume", err=True)
-        else:  # the run is recorded once its sample set is complete: nothing to resume yet
-            typer.echo(f"interrupted by {signal_name} while drawing the samples: nothing to resume; run the command again", err=True)
-        raise typer.Exit(code=128 + int(signal.Signals[signal_name])) from None
+    except KeyboardInterrupt as exc:  # a stop signal: the workers are stopped, finished jobs are kept
+        if start is None:  # in the imports or the option checks
+            raise _interrupted(exc, "nothing was written; run the command again", "before the run started") from None
+        if out_dir is not None and (out_dir / "run.json").exists():
+            raise _interrupted(exc, f"finished jobs are kept in {out_dir}/; continue with --resume") from None
+        # the run is recorded once its sample set is complete: nothing to resume yet
+        raise _interrupted(exc, "nothing to resume; run the command again", "while drawing the samples") from None
     summary = (out_dir / "summary.md").read_text()
     typer.echo(summary.split("\n## ")[0].rstrip())
     for line in summary.splitlines():  # an unmatched effort makes the comparison unequal: say so on stderr too
@@ -480,18 +476,50 @@ def train_ppo_command(
     except (ValueError, ImportError) as exc:  # bad config, folder or checkpoint, missing [rl] extra: a clean message
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
+    except KeyboardInterrupt as exc:  # before training started (or in the curves after it finished)
+        kept = "the checkpoint is unchanged; run the command again" if resume else "nothing was trained; run the command again"
+        raise _interrupted(exc, getattr(exc, "kept", kept)) from None
+    if result.status == "interrupted":
+        raise _interrupted(
+            KeyboardInterrupt(), f"checkpoint of {result.timesteps} timesteps saved in {out / 'checkpoint'}/ with every "
+            f"evaluation so far; continue with --resume --out {out}", "during training",
+        )
     best = result.best
     typer.echo(f"{result.status}: {result.timesteps} timesteps, wall time {result.wall_time_s / 60:.1f} min")
     if best is not None:
         typer.echo(f"best policy ({int(best['timesteps'])} timesteps, success {100 * best['success_rate']:.1f}%): "
                    f"{result.best_policy}")
-    if result.status == "interrupted":
-        raise typer.Exit(code=130)
 
 
 def main() -> None:
-    """Entry point of the ``snac-gym`` console script."""
-    app()
+    """Entry point of the ``snac-gym`` console script.
+
+    SIGINT, SIGTERM, SIGHUP and SIGQUIT end every command the same way from its first line: one
+    line on stderr saying what was interrupted and what was kept, and exit 128 + the signal's
+    number. Each command says what it kept; a signal before a command started (in the option
+    parsing) finds nothing written.
+    """
+    global _main_guard
+    import click  # typer's own dependency
+
+    with stop_signals_raise(STOP_SIGNALS) as guard:
+        _main_guard = guard
+        _reported.clear()
+        try:
+            code = app(standalone_mode=False)
+        except click.ClickException as exc:  # a usage error: click's message, as in standalone mode
+            exc.show()
+            sys.exit(exc.exit_code)
+        except click.exceptions.Abort:  # end of input at a prompt
+            typer.echo("Aborted!", err=True)
+            sys.exit(1)
+        finally:
+            _main_guard = None
+        if code == 130 and not _reported:  # typer's own exit for a KeyboardInterrupt no command caught
+            name = guard.signal_name()
+            typer.echo(f"interrupted by {name} while the command was starting: nothing was written", err=True)
+            sys.exit(exit_code(name))
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -28,7 +28,7 @@ from snac_gym.outputs import usable_out_folder
 from snac_gym.metrics import DemoMetrics, demo_metrics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
-from snac_gym.rollout import add_critic_diagnostics, rollout, write_log
+from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
 from snac_gym.tasks import get_task
 
 #: Longest demo accepted, s (50x the tracking demo): the log is held in memory, so an unbounded
@@ -93,6 +93,17 @@ class DemoResult:
         return "\n".join(lines)
 
 
+def _check_demo_arguments(seed: Any, steps: int | None, duration: float | None, out_dir: str | Path | None) -> None:
+    if steps is not None and duration is not None:
+        raise ValueError("give steps or duration, not both")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:  # NumPy's seeding refuses the rest
+        raise ValueError(f"--seed must be an integer ≥ 0 (a NumPy seed), got {seed!r}")
+    if out_dir is not None:  # before the rollout, which the outputs would otherwise be lost after
+        usable_out_folder(Path(out_dir))
+    if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DEMO_DURATION_S):
+        raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
+
+
 def run_demo(
     task: str = "reach",
     controller: str = "snac",
@@ -131,14 +142,7 @@ def run_demo(
     """
     spec = get_task(task)
     options = spec.demo_options(robot)
-    if steps is not None and duration is not None:
-        raise ValueError("give steps or duration, not both")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:  # NumPy's seeding refuses the rest
-        raise ValueError(f"--seed must be an integer ≥ 0 (a NumPy seed), got {seed!r}")
-    if out_dir is not None:  # before the rollout, which the outputs would otherwise be lost after
-        usable_out_folder(Path(out_dir))
-    if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DEMO_DURATION_S):
-        raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
+    _check_demo_arguments(seed, steps, duration, out_dir)
     env = make_task_env(spec, robot)
     dt = env.unwrapped.dt
     if duration is not None:
@@ -155,9 +159,22 @@ def run_demo(
         env.close()
         env = make_task_env(spec, robot, max_episode_steps=steps)
     kinematics = env.unwrapped.kinematics
+    limits = (kinematics.lower_limits, kinematics.upper_limits)
     try:
         policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
         log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)
+    except KeyboardInterrupt as exc:  # Ctrl-C or a stop signal: keep the steps run, marked as a partial run
+        partial = partial_log(exc)
+        exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
+        if out_dir is not None and partial is not None and len(partial):
+            partial.attrs["controller"] = controller
+            status = {"complete": False, "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
+                      "steps_run": len(partial), "steps": steps}
+            write_demo_outputs(partial, spec.name, controller, seed, spec.success_tolerance, out_dir, csv=csv,
+                               plots=False, policy_kwargs=policy_kwargs, position_limits=limits, status=status)
+            exc.kept = (f"the log of the {len(partial)} of {steps} steps run and a summary marked "  # type: ignore[attr-defined]
+                        f'"complete": false are in {out_dir}/ (no figures)')
+        raise
     finally:
         env.close()
     log.attrs["controller"] = controller
@@ -165,7 +182,7 @@ def run_demo(
         log.attrs["model_error"] = model_error
     return write_demo_outputs(
         log, spec.name, controller, seed, spec.success_tolerance, out_dir,
-        csv=csv, plots=plots, policy_kwargs=policy_kwargs, position_limits=(kinematics.lower_limits, kinematics.upper_limits),
+        csv=csv, plots=plots, policy_kwargs=policy_kwargs, position_limits=limits,
     )
 
 
@@ -180,8 +197,12 @@ def write_demo_outputs(
     plots: bool = True,
     policy_kwargs: dict[str, Any] | None = None,
     position_limits: tuple[Any, Any] | None = None,
+    status: dict[str, Any] | None = None,
 ) -> DemoResult:
-    """Metrics, Figure 3 panels, log and ``summary.json`` of one run (demo or real robot).
+    """Metrics, log, ``summary.json`` and Figure 3 panels of one run (demo or real robot), in that order.
+
+    The log and the summary come first: a run interrupted while its figures are drawn keeps them
+    whole, and every figure is written whole or not at all.
 
     Args:
         log: A trajectory log from :func:`~snac_gym.rollout.rollout`.
@@ -190,6 +211,7 @@ def write_demo_outputs(
         out_dir: Folder to write into (``None``: compute the metrics only).
         csv, plots, policy_kwargs: As for :func:`run_demo`.
         position_limits: The arm's joint limits ``(θ⁻, θ⁺)``: the success line then counts them, as the evaluator.
+        status: Written into the summary (default ``{"complete": True}``; an interrupted run says what it ran).
     """
     metrics = demo_metrics(log, tolerance, position_limits)
     result = DemoResult(task=task, controller=controller, seed=seed, metrics=metrics, log=log)
@@ -199,30 +221,38 @@ def write_demo_outputs(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     prefix = f"{task}_{controller}_"
-    if plots:
-        from snac_gym.apps import plots as panels  # matplotlib only when plotting (--no-plots)
-
-        figures = {
-            "path": panels.plot_path(log),
-            "error": panels.plot_error(log, tolerance=tolerance),
-            "joint_velocities": panels.plot_joint_velocities(log),
-            "cost": panels.plot_cost(log),
-            "figure3": panels.plot_figure3(log, tolerance=tolerance),
-        }
-        if "w_0" in log.columns:
-            figures["critic_weights"] = panels.plot_critic_weights(log)
-        if "hjb_ratio" in log.columns:
-            figures["optimality"] = panels.plot_optimality(log)
-        if "model_residual" in log.columns:
-            figures["model"] = panels.plot_model_correction(log)
-        for name, figure in figures.items():
-            result.files.append(panels.save_figure(figure, out / f"{prefix}{name}.png"))
     result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)
     summary_path = out / f"{prefix}summary.json"
     finite = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(metrics).items()}
-    summary = {"task": task, "controller": controller, "seed": seed, "policy_kwargs": policy_kwargs or {}, **finite}
+    summary = {"task": task, "controller": controller, "seed": seed, "policy_kwargs": policy_kwargs or {},
+               **(status or {"complete": True}), **finite}
     summary_path.write_text(json.dumps(summary, indent=2))
     result.files.append(summary_path)
+    if not plots:
+        return result
+    from snac_gym.apps import plots as panels  # matplotlib only when plotting (--no-plots)
+
+    drawers = {
+        "path": lambda: panels.plot_path(log),
+        "error": lambda: panels.plot_error(log, tolerance=tolerance),
+        "joint_velocities": lambda: panels.plot_joint_velocities(log),
+        "cost": lambda: panels.plot_cost(log),
+        "figure3": lambda: panels.plot_figure3(log, tolerance=tolerance),
+    }
+    if "w_0" in log.columns:
+        drawers["critic_weights"] = lambda: panels.plot_critic_weights(log)
+    if "hjb_ratio" in log.columns:
+        drawers["optimality"] = lambda: panels.plot_optimality(log)
+    if "model_residual" in log.columns:
+        drawers["model"] = lambda: panels.plot_model_correction(log)
+    try:
+        for name, draw in drawers.items():
+            result.files.append(panels.save_figure(draw(), out / f"{prefix}{name}.png"))
+    except KeyboardInterrupt as exc:
+        drawn = len(result.files) - 2
+        exc.kept = (f"the log and summary are complete in {out}/; {drawn} of {len(drawers)} figures "  # type: ignore[attr-defined]
+                    "were drawn (each whole)")
+        raise
     return result
 
 

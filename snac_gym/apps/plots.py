@@ -282,5 +282,10 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
     """Write ``fig`` as PNG to ``path`` (folders created) and return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    partial = path.with_name(path.name + ".partial")  # a run stopped mid-write leaves no truncated PNG
+    try:
+        fig.savefig(partial, dpi=dpi, format="png")
+        partial.replace(path)
+    finally:
+        partial.unlink(missing_ok=True)
     return path

@@ -6,10 +6,8 @@ import json
 import re
 import signal
 import sys
-import threading
 import traceback
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,7 +15,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym._signals import cannot_raise_here, send_again
+from snac_gym._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
+from snac_gym._signals import SignalGuard, TerminationSignal
+from snac_gym._signals import stop_signals_raise as _stop_signals_raise
 from snac_gym.apps.demo import write_demo_outputs
 from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
 from snac_gym.envs.core import resolve_reference, validate_q0
@@ -43,69 +43,13 @@ STREAM_SUFFIX = "stream.csv"
 #: default action ends the process (SIGPIPE aside: Python ignores it). SIGKILL cannot be caught:
 #: then the client process dies with the run and the controller's watchdog
 #: (:class:`~snac_gym.real.connections.URRTDEConnection`) stops the arm.
-STOP_SIGNALS = (
-    signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGUSR1, signal.SIGUSR2,
-)  # fmt: skip
+STOP_SIGNALS = (*COMMAND_STOP_SIGNALS, signal.SIGUSR1, signal.SIGUSR2)
 
 
-class TerminationSignal(KeyboardInterrupt):
-    """A stop signal (:data:`STOP_SIGNALS`) received during a real run.
-
-    A ``KeyboardInterrupt``, so that everything that stops the arm and saves the log on Ctrl-C
-    does the same for the others.
-    """
-
-    def __init__(self, signum: int) -> None:
-        self.signum = int(signum)
-        self.signal_name = signal.Signals(signum).name
-        super().__init__(self.signal_name)
-
-
-class SignalGuard:
-    """What :func:`stop_signals_raise` yields: the signals received, and whether they still raise.
-
-    Only the first signal raises: a second one (an impatient operator, a supervisor that sends
-    SIGTERM then SIGQUIT) must not cut the stop path or the log writing it started. After
-    :meth:`defer`, signals are only recorded; :meth:`raise_pending` raises the first one then.
-    """
-
-    def __init__(self) -> None:
-        self.received: list[int] = []
-        self.deferred = False
-
-    def handle(self, signum: int, frame: Any) -> None:
-        if cannot_raise_here(frame):  # raised there, it would be dropped (or a SystemError), and the arm would go on
-            send_again(signum)
-            return
-        self.received.append(signum)
-        if len(self.received) == 1 and not self.deferred:
-            raise TerminationSignal(signum)
-
-    def defer(self) -> None:
-        self.deferred = True
-
-    def raise_pending(self) -> None:
-        if self.received:
-            raise TerminationSignal(self.received[0])
-
-
-@contextmanager
-def stop_signals_raise() -> Iterator[SignalGuard]:
-    """Within the block, the first signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal`.
-
-    SIGINT is included because a run started from a background shell inherits it ignored.
-    Handlers can only be set from the main thread; elsewhere the block runs unchanged.
-    """
-    guard = SignalGuard()
-    if threading.current_thread() is not threading.main_thread():
-        yield guard
-        return
-    previous = {signum: signal.signal(signum, guard.handle) for signum in STOP_SIGNALS}
-    try:
-        yield guard
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+def stop_signals_raise() -> Any:
+    """Within the block, the first signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal`
+    (:func:`snac_gym._signals.stop_signals_raise` with the real run's wider set)."""
+    return _stop_signals_raise(STOP_SIGNALS)
 
 
 @dataclass

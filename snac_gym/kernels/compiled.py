@@ -5,7 +5,7 @@ runs load it from numba's cache in ``__pycache__``). Numba calls back into Pytho
 it compiles, and an exception raised there, such as the ``KeyboardInterrupt`` that ``snac-gym
 evaluate`` turns a Ctrl-C or a SIGTERM into, is printed and dropped by ``ctypes``: the run would go
 on as if the signal had never come. So every compile (numba's dispatcher calls
-``_compile_for_args`` when no compiled version fits the arguments) runs with SIGINT and SIGTERM
+``_compile_for_args`` when no compiled version fits the arguments) runs with the stop signals (SIGINT, SIGTERM, SIGHUP, SIGQUIT)
 recorded instead of handled, and a signal that came meanwhile is raised again, to the handler
 that was in place, as soon as the compile returns. Calls that find a compiled version pay nothing.
 """
@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+from snac_gym._signals import STOP_SIGNALS as _STOP_SIGNALS
 
 
 #: The modules that define the kinematics' and the controllers' kernels.
@@ -164,7 +164,7 @@ def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODUL
 def _with_stop_signals_held(
     function: Callable[..., Any], args: tuple[Any, ...], kwargs: dict[str, Any] | None = None
 ) -> Any:
-    """``function(*args, **kwargs)`` with SIGINT/SIGTERM recorded, then each one received raised again."""
+    """``function(*args, **kwargs)`` with the stop signals recorded, then each one received raised again."""
     kwargs = kwargs or {}
     if threading.current_thread() is not threading.main_thread():  # handlers run, and are set, in the main thread only
         return function(*args, **kwargs)

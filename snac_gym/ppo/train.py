@@ -25,13 +25,20 @@ if it does at every horizon. The trajectory cost is :func:`snac_gym.cost.traject
 the first horizon. The best model is the one with the highest success rate, ties broken by
 the lower mean cost.
 
-Ctrl-C stops training after saving ``checkpoint/`` (a usable ``policy.npz`` included);
-``resume=True`` (``--resume``) continues from it up to the total ``timesteps``.
+Ctrl-C (or any stop signal the caller turns into ``KeyboardInterrupt``, as the CLI does SIGTERM,
+SIGHUP and SIGQUIT) stops training after saving ``checkpoint/`` (a usable ``policy.npz`` included);
+``resume=True`` (``--resume``) continues from it up to the total ``timesteps``. A checkpoint is
+written whole or not at all, with the sha256 of its files (``checkpoint/sha256.json``), which a
+resume checks. A resume keeps every evaluation row: one whose evaluation the interruption cut is
+run first. It is not bit-identical to an uninterrupted run: SB3 saves neither the random
+generators nor the rollout and the training episodes in flight, so the resumed segment collects
+new rollouts from fresh episodes (docs/ppo.md).
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import multiprocessing
@@ -73,6 +80,8 @@ EVALUATION_COLUMNS = (
 MODEL_FILE = "model.zip"
 NORMALIZE_FILE = "vecnormalize.pkl"
 POLICY_FILE = "policy.npz"
+#: The sha256 of the three files above, written into the checkpoint folder with them.
+CHECKSUM_FILE = "sha256.json"
 
 
 @dataclass
@@ -305,15 +314,41 @@ class _Run:
         }
 
     def save(self, folder: str, model: Any, venv: Any, extra_metadata: dict[str, Any] | None = None) -> Path:
-        """Save model, normalisation statistics and the frozen policy file into ``OUT/folder``."""
+        """Save model, normalisation statistics and the frozen policy file into ``OUT/folder``, whole or not at all.
+
+        The files are written into ``OUT/folder.tmp`` with their sha256 in its ``CHECKSUM_FILE``, which
+        then replaces ``OUT/folder``: a run killed while saving leaves the previous folder, and a file
+        altered later fails its checksum on ``--resume`` (:func:`_check_checkpoint`).
+        """
         target = self.out / folder
-        target.mkdir(parents=True, exist_ok=True)
-        model.save(target / MODEL_FILE)
-        venv.save(str(target / NORMALIZE_FILE))
+        staging = self.out / f"{folder}.tmp"
+        shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir(parents=True)
+        model.save(staging / MODEL_FILE)
+        venv.save(str(staging / NORMALIZE_FILE))
         metadata = self.metadata(model)
         metadata.update(extra_metadata or {})
         features = FeatureSpec.from_dict(self.config["features"])
-        return export_policy(model, venv, metadata, features).save(target / POLICY_FILE)
+        export_policy(model, venv, metadata, features).save(staging / POLICY_FILE)
+        checksums = {name: _sha256(staging / name) for name in (MODEL_FILE, NORMALIZE_FILE, POLICY_FILE)}
+        _write_json(staging / CHECKSUM_FILE, {"timesteps": int(model.num_timesteps), "sha256": checksums})
+        _replace_folder(staging, target)
+        return target / POLICY_FILE
+
+    def evaluated_timesteps(self) -> list[int]:
+        """The timesteps of the rows in evaluations.csv, in order."""
+        rows, _ = read_training_log(self.out)
+        return [int(row["timesteps"]) for row in rows]
+
+    def best_of_rows(self) -> dict[str, float] | None:
+        """The best row of evaluations.csv (as :func:`_better` ranks them): state.json's ``best`` may lag
+        the rows when a run was killed between writing one and the other."""
+        rows, _ = read_training_log(self.out)
+        best = None
+        for row in rows:
+            if _better(row, best):
+                best = row
+        return best
 
     def append_evaluation(self, row: dict[str, Any]) -> None:
         new = not self.evaluations_path.exists()
@@ -324,6 +359,24 @@ class _Run:
             if new:
                 writer.writeheader()
             writer.writerow({key: row[key] for key in columns})
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _replace_folder(staging: Path, target: Path) -> None:
+    """Put the complete folder ``staging`` in the place of ``target`` (two renames: at every moment one of them is whole)."""
+    previous = target.with_name(target.name + ".old")
+    shutil.rmtree(previous, ignore_errors=True)
+    if target.exists():
+        target.rename(previous)
+    staging.rename(target)
+    shutil.rmtree(previous, ignore_errors=True)
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
@@ -366,6 +419,18 @@ def _next_evaluation(timesteps: int, due: int, every: int) -> int:
     return due + every * max(1, math.ceil(behind / every))
 
 
+def _first_evaluation(run: _Run, timesteps: int, every: int, evaluate: Callable[[], None]) -> int:
+    """The first evaluation point after ``timesteps``, where a (resumed) segment starts.
+
+    A run interrupted (or killed) during an evaluation saved its checkpoint at that evaluation's
+    timesteps without its row: ``evaluate`` runs it first, so that a resumed run keeps every row.
+    """
+    due = timesteps // every * every
+    if due > 0 and max(run.evaluated_timesteps(), default=-1) < due:
+        evaluate()
+    return due + every
+
+
 def _make_callback(run: _Run, venv: Any, log: Callable[[str], None], progress: Callable[[str], None] | None) -> Any:
     from stable_baselines3.common.callbacks import BaseCallback  # the rl extra
 
@@ -387,7 +452,7 @@ def _make_callback(run: _Run, venv: Any, log: Callable[[str], None], progress: C
             self.lines = ProgressLines(f"train-ppo: {task}", total, progress, unit="timesteps") if progress else None
 
         def _on_training_start(self) -> None:
-            self.next_evaluation = (self.model.num_timesteps // every + 1) * every
+            self.next_evaluation = _first_evaluation(run, int(self.model.num_timesteps), every, self.evaluate)
 
         def _on_step(self) -> bool:
             if self.lines is not None:
@@ -452,7 +517,20 @@ def _resumed_config(out: Path, task: str, overrides: dict[str, Any]) -> dict[str
 
 
 def _check_checkpoint(checkpoint: Path) -> None:
-    """Refuse a truncated or corrupt checkpoint, naming the file, before any env is built for it."""
+    """Refuse a truncated, corrupt or altered checkpoint, naming the file, before any env is built for it."""
+    manifest = checkpoint / CHECKSUM_FILE
+    if manifest.is_file():  # runs saved before 0.2.0 have none: their zip CRCs below are all there is
+        try:
+            expected = json.loads(manifest.read_text())["sha256"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"--resume: the checksum file {manifest} is unreadable ({type(exc).__name__}: {exc})") from None
+        for name, digest in expected.items():
+            path = checkpoint / name
+            if not path.is_file() or _sha256(path) != digest:
+                raise ValueError(
+                    f"--resume: the checkpoint file {path} does not match the sha256 written with it in {manifest}: "
+                    "it was altered or damaged after the run saved it; train anew or restore it"
+                )
     model = checkpoint / MODEL_FILE
     try:
         with zipfile.ZipFile(model) as archive:
@@ -473,7 +551,8 @@ def _check_checkpoint(checkpoint: Path) -> None:
 
 def _new_config(out: Path, task: str, config_path: str | Path | None, overrides: dict[str, Any]) -> dict[str, Any]:
     """The config of a new run in ``out`` (refused if ``out`` already holds one)."""
-    if (out / "state.json").exists() or (out / "checkpoint" / MODEL_FILE).exists():
+    # A state.json without a checkpoint is a run stopped before it saved anything: it is started anew.
+    if (out / "checkpoint" / MODEL_FILE).exists():
         raise ValueError(f"{out} already holds a training run; pass --resume to continue it or choose another --out")
     return resolve_config(task, config_path, **overrides)
 
@@ -540,6 +619,8 @@ def train_ppo(
         venv = _normalized(inner, config)
         model = build_model(config, venv)
     start_timesteps = int(model.num_timesteps)
+    if resume:
+        run.state["best"] = run.best_of_rows()
     remaining = int(config["timesteps"]) - start_timesteps
     if remaining <= 0:
         venv.close()
@@ -548,6 +629,7 @@ def train_ppo(
     model.set_logger(_configure_logger(out / "logs" / f"segment_{start_timesteps}"))
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     run.state["segments"].append({"start_timesteps": start_timesteps, "started_at": started_at})
+    run.state.pop("interrupted_by", None)
     run.write_state(start_timesteps, "running")
     log(f"training PPO on {config['task']} for {config['timesteps']} timesteps ({config['vec_env']['n_envs']} "
         f"{config['vec_env'].get('kind', 'dummy')} envs, seed {config['seed']}) into {out}")
@@ -555,8 +637,9 @@ def train_ppo(
     status = "finished"
     try:
         model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False, progress_bar=False)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, or a stop signal the caller turned into one (the CLI's four)
         status = "interrupted"
+        run.state["interrupted_by"] = getattr(exc, "signal_name", "SIGINT")
     timesteps_done = int(model.num_timesteps)
     run.save("checkpoint", model, venv)
     run.write_state(timesteps_done, status)
@@ -564,11 +647,13 @@ def train_ppo(
         venv.close()
     except (EOFError, BrokenPipeError, ConnectionResetError):  # pragma: no cover - workers gone after Ctrl-C
         pass
-    if status == "interrupted":
-        log(f"interrupted at {timesteps_done} timesteps; checkpoint saved in {checkpoint} "
-            f"(continue with --resume --out {out})")
+    if status == "interrupted":  # the caller says so (status, timesteps, checkpoint); the curves wait for the finished run
+        return _result(run, status, timesteps_done)
     try:
         plot_training_curves(out)
+    except KeyboardInterrupt as exc:  # the run is complete and saved; only the figure is missing
+        exc.kept = f"the finished run is saved in {out}/ (training_curves.png not drawn)"  # type: ignore[attr-defined]
+        raise
     except Exception as exc:  # noqa: BLE001 - a missing plot must not lose a finished training run
         log(f"training curves not plotted: {exc}")
     return _result(run, status, timesteps_done)

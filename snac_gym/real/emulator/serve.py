@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from snac_gym._signals import STOP_SIGNALS
 from snac_gym.real.emulator.controller import UREmulator
 
 
@@ -61,11 +62,20 @@ def fault_plan(
     return plan
 
 
-def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], None]) -> None:
-    """Run ``emulator`` until ``duration`` s have passed, or SIGINT/SIGTERM; then close it."""
+def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], None]) -> str | None:
+    """Run ``emulator`` until ``duration`` s have passed, a stop signal or a failed thread; then close it.
+
+    Returns:
+        The name of the signal that stopped it (SIGINT, SIGTERM, SIGHUP or SIGQUIT), else ``None``.
+    """
     stop = threading.Event()
-    handler = lambda *_: stop.set()  # noqa: E731
-    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    received: list[int] = []
+
+    def handler(signum: int, frame: object) -> None:
+        received.append(signum)
+        stop.set()
+
+    previous = {s: signal.signal(s, handler) for s in STOP_SIGNALS}
     logging.basicConfig(level=logging.INFO, format="%(asctime)s emulate-ur %(levelname)s: %(message)s")
     try:
         with emulator:
@@ -78,3 +88,4 @@ def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], No
     finally:
         for signum, old in previous.items():
             signal.signal(signum, old)
+    return signal.Signals(received[0]).name if received else None
