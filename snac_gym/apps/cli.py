@@ -6,6 +6,7 @@ Each subcommand parses its options and calls a function that can be used from Py
 from __future__ import annotations
 
 import math
+import signal
 import sys
 import time
 import warnings
@@ -15,7 +16,7 @@ from typing import Any, Optional
 import typer
 
 from snac_gym import __version__
-from snac_gym._signals import STOP_SIGNALS, SignalGuard, exit_code, stop_signals_raise
+from snac_gym._signals import STOP_SIGNALS, SignalGuard, TerminationSignal, exit_code
 from snac_gym.policies import available_policies
 from snac_gym.progress import wants_lines
 from snac_gym.robots import robot_names
@@ -225,9 +226,7 @@ def real(
         where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""
         line = str(exc).splitlines()[0] if str(exc) else ""
         if isinstance(exc, KeyboardInterrupt):  # Ctrl-C and the other stop signals: the arm was stopped
-            signal_name = getattr(exc, "signal_name", "SIGINT")
-            typer.echo(f"interrupted by {signal_name}: the arm was stopped{where or ' (before the episode: nothing logged)'}", err=True)
-            raise typer.Exit(code=128 + getattr(exc, "signum", 2)) from None
+            raise _interrupted(exc, f"the arm was stopped{where or ' (before the episode: nothing logged)'}") from None
         if isinstance(exc, ConnectionFailure):  # the link or the ur_rtde client was lost: exit 1
             typer.echo(f"error: {line}{where}", err=True)
             raise typer.Exit(code=1) from None
@@ -311,8 +310,7 @@ def emulate_ur(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from exc
     if stopped_by is not None and emulator.failure is None:
-        typer.echo(f"interrupted by {stopped_by}: the emulator closed its connections; it keeps no files", err=True)
-        raise typer.Exit(code=exit_code(stopped_by))
+        raise _interrupted(TerminationSignal(signal.Signals[stopped_by]), "the emulator closed its connections; it keeps no files")
     if emulator.failure is not None:  # a thread of the emulator died: not a clean end
         failure = emulator.failure
         typer.echo(f"error: the emulator stopped: {type(failure).__name__}: {failure}", err=True)
@@ -497,28 +495,35 @@ def main() -> None:
     SIGINT, SIGTERM, SIGHUP and SIGQUIT end every command the same way from its first line: one
     line on stderr saying what was interrupted and what was kept, and exit 128 + the signal's
     number. Each command says what it kept; a signal before a command started (in the option
-    parsing) finds nothing written.
+    parsing) finds nothing written. It ends the process: the handlers stay, deferred, so that a
+    signal while the interpreter exits is recorded instead of killing it mid-exit.
     """
     global _main_guard
     import click  # typer's own dependency
 
-    with stop_signals_raise(STOP_SIGNALS) as guard:
-        _main_guard = guard
-        _reported.clear()
-        try:
-            code = app(standalone_mode=False)
-        except click.ClickException as exc:  # a usage error: click's message, as in standalone mode
-            exc.show()
-            sys.exit(exc.exit_code)
-        except click.exceptions.Abort:  # end of input at a prompt
-            typer.echo("Aborted!", err=True)
-            sys.exit(1)
-        finally:
-            _main_guard = None
-        if code == 130 and not _reported:  # typer's own exit for a KeyboardInterrupt no command caught
-            name = guard.signal_name()
-            typer.echo(f"interrupted by {name} while the command was starting: nothing was written", err=True)
-            sys.exit(exit_code(name))
+    guard = SignalGuard()
+    for signum in STOP_SIGNALS:  # not restored: a signal while the process exits must not kill it mid-exit
+        signal.signal(signum, guard.handle)
+    _main_guard = guard
+    _reported.clear()
+    interrupt: BaseException | None = None
+    try:
+        code = app(standalone_mode=False)
+    except click.ClickException as exc:  # a usage error: click's message, as in standalone mode
+        exc.show()
+        code = exc.exit_code
+    except click.exceptions.Abort:  # end of input at a prompt
+        typer.echo("Aborted!", err=True)
+        code = 1
+    except KeyboardInterrupt as exc:  # while typer built the command, before click's main
+        code, interrupt = 130, exc
+    finally:
+        guard.defer()  # the command has ended: a later signal is only recorded
+        _main_guard = None
+    if code == 130 and not _reported:  # typer's own exit for a KeyboardInterrupt no command caught
+        name = guard.signal_name(interrupt)
+        typer.echo(f"interrupted by {name} while the command was starting: nothing was written", err=True)
+        code = exit_code(name)
     sys.exit(code if isinstance(code, int) else 0)
 
 

@@ -168,8 +168,7 @@ def run_demo(
         exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
         if out_dir is not None and partial is not None and len(partial):
             partial.attrs["controller"] = controller
-            status = {"complete": False, "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
-                      "steps_run": len(partial), "steps": steps}
+            status = {"complete": False, "interrupted_by": getattr(exc, "signal_name", "SIGINT"), "steps_planned": steps}
             write_demo_outputs(partial, spec.name, controller, seed, spec.success_tolerance, out_dir, csv=csv,
                                plots=False, policy_kwargs=policy_kwargs, position_limits=limits, status=status)
             exc.kept = (f"the log of the {len(partial)} of {steps} steps run and a summary marked "  # type: ignore[attr-defined]

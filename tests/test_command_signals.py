@@ -1,0 +1,289 @@
+"""Every command ends the same way on SIGINT, SIGTERM, SIGHUP and SIGQUIT: one line on stderr saying what
+was interrupted and what was kept, exit 128 + the signal's number, and outputs that are whole (a run that
+can be resumed, or one marked partial).
+
+Each test runs ``snac-gym`` in a child process, as a user's terminal or a scheduler would, and sends the
+signal to it either as soon as its handlers are in place (the command's first second, before it wrote
+anything) or from inside one phase of its work (a small driver hooks the function that phase calls).
+The mid-run interrupts of ``evaluate`` and ``real`` are in tests/test_interrupts.py and
+tests/test_real_faults.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+if os.name != "posix":  # pragma: no cover
+    pytest.skip("POSIX signals", allow_module_level=True)
+
+SIGNALS = ["SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT"]
+#: Seconds a command may take to end after the signal.
+EXIT_BOUND_S = 20.0
+
+#: Runs ``snac-gym`` with argv[3:]; with a hook, sends signal argv[2] to itself at the argv[1]-th call of
+#: the hooked function (module:attribute in argv[1] as "module:attr@count").
+DRIVER = r"""
+import importlib, os, signal, sys
+hook, signame = sys.argv[1], sys.argv[2]
+sys.argv = ["snac-gym", *sys.argv[3:]]
+signal.signal(signal.SIGINT, signal.default_int_handler)  # a background job starts with SIGINT ignored
+if hook != "-":
+    target, count = hook.split("@")
+    module_name, attribute = target.split(":")
+    owner = importlib.import_module(module_name)
+    *path, name = attribute.split(".")
+    for part in path:
+        owner = getattr(owner, part)
+    original = getattr(owner, name)
+    calls = [0]
+
+    def hooked(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == int(count):
+            os.kill(os.getpid(), getattr(signal, signame))
+        return original(*args, **kwargs)
+
+    setattr(owner, name, hooked)
+from snac_gym.apps.cli import main
+main()
+"""
+
+
+def _catches_stop_signals(pid: int) -> bool:
+    """Whether the process has handlers for all four stop signals (its ``SigCgt`` mask)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    mask = int(next(line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), 16)
+    return all(mask >> (int(getattr(signal, name)) - 1) & 1 for name in SIGNALS)
+
+
+def _run(args: list[str], signame: str, hook: str = "-", cwd: Path | None = None,
+         send_when: str | None = "handlers", timeout: float = 120.0, delay: float = 0.0) -> tuple[int, str, str]:
+    """Run the driver; without a hook, send ``signame`` once the handlers are in place (or once
+    ``send_when`` appears on stdout). Returns (exit code, stderr, stdout)."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", DRIVER, hook, signame, *args], cwd=cwd, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        if hook == "-" and send_when == "handlers":
+            deadline = time.monotonic() + 60
+            while not _catches_stop_signals(process.pid) and time.monotonic() < deadline:
+                time.sleep(0.005)
+            time.sleep(delay)
+            os.kill(process.pid, getattr(signal, signame))
+        elif hook == "-":
+            assert process.stdout is not None
+            for line in process.stdout:  # a server: once it says it serves
+                if send_when in line:
+                    break
+            os.kill(process.pid, getattr(signal, signame))
+        out, err = process.communicate(timeout=timeout)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    return process.returncode, err, out
+
+
+def _one_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+# -- the first second: nothing written, one line ------------------------------------------------------
+COMMANDS = {
+    "demo": ["demo", "--task", "reach", "--out", "{out}"],
+    "evaluate": ["evaluate", "--out", "{out}", "--samples", "4", "--no-progress"],
+    "train-ppo": ["train-ppo", "--task", "reach", "--out", "{out}"],
+    "bench": ["bench", "--steps", "2000", "--no-panda"],
+    "real": ["real", "--connection", "sim", "--out", "{out}", "--steps", "50"],
+}
+
+
+#: What each command says it kept when a signal comes in its start (its imports and option checks), besides
+#: "while the command was starting: nothing was written" (a signal before its body ran).
+EARLY_LINES = {
+    "demo": ["nothing was written"],
+    "evaluate": ["before the run started: nothing was written", "while drawing the samples: nothing to resume"],
+    "train-ppo": ["nothing was trained; run the command again"],
+    "bench": ["bench writes no files; the tables printed above are complete"],
+    "real": ["the arm was stopped (before the episode: nothing logged)"],
+}
+#: Seconds after the handlers are in place: at once (in typer's start) or a little later (in the command's body).
+DELAYS = {"SIGINT": 0.0, "SIGTERM": 0.4, "SIGHUP": 0.0, "SIGQUIT": 0.4}
+
+
+@pytest.mark.slow(seconds=12)
+@pytest.mark.parametrize("signame", SIGNALS)
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_a_stop_signal_in_a_commands_first_second_ends_it_with_one_line_and_nothing_written(tmp_path, command, signame):
+    out = tmp_path / "out"
+    args = [arg.replace("{out}", str(out)) for arg in COMMANDS[command]]
+    code, err, _ = _run(args, signame, cwd=tmp_path, delay=DELAYS[signame])
+    assert code == 128 + int(getattr(signal, signame)), err
+    line = _one_line(err)
+    kept = ["while the command was starting: nothing was written", *EARLY_LINES[command]]
+    assert line.startswith(f"interrupted by {signame}") and any(text in line for text in kept), line
+    assert not out.exists() or not [p for p in out.rglob("*") if p.is_file()], sorted(out.rglob("*"))
+
+
+@pytest.mark.parametrize("signame", SIGNALS)
+def test_the_emulator_ends_on_each_stop_signal_with_its_line(tmp_path, signame):
+    code, err, _ = _run(["emulate-ur", "--port-base", "0"], signame, send_when="emulated UR controller")
+    assert code == 128 + int(getattr(signal, signame)), err
+    assert [line for line in err.splitlines() if "interrupted" in line] == [
+        f"interrupted by {signame}: the emulator closed its connections; it keeps no files"
+    ], err
+
+
+# -- demo: a partial run is kept and marked ------------------------------------------------------------
+@pytest.mark.slow(seconds=4)
+@pytest.mark.parametrize("signame", SIGNALS)
+def test_demo_interrupted_mid_rollout_keeps_the_steps_run_marked_partial(tmp_path, signame):
+    out = tmp_path / "demo"
+    hook = "snac_gym.rollout.episode:_Record.command@40"  # the 40th applied command
+    code, err, _ = _run(["demo", "--task", "track", "--out", str(out)], signame, hook=hook)
+    assert code == 128 + int(getattr(signal, signame)), err
+    assert _one_line(err) == (
+        f"interrupted by {signame}: the log of the 39 of 2500 steps run and a summary marked "
+        f'"complete": false are in {out}/ (no figures)'
+    )
+    summary = json.loads((out / "track_snac_summary.json").read_text())
+    assert summary["complete"] is False and summary["interrupted_by"] == signame
+    assert summary["steps"] == 39 and summary["steps_planned"] == 2500
+    log = pd.read_parquet(out / "track_snac_log.parquet")
+    assert len(log) == 39 and not list(out.glob("*.png"))
+
+
+@pytest.mark.slow(seconds=6)
+def test_demo_interrupted_while_drawing_keeps_log_summary_and_whole_figures(tmp_path):
+    out = tmp_path / "demo"
+    hook = "snac_gym.apps.plots:save_figure@3"  # as the third figure is written
+    code, err, _ = _run(["demo", "--task", "reach", "--steps", "200", "--out", str(out)], "SIGTERM", hook=hook)
+    assert code == 143, err
+    assert _one_line(err) == (
+        f"interrupted by SIGTERM: the log and summary are complete in {out}/; 2 of 7 figures were drawn (each whole)"
+    )
+    assert json.loads((out / "reach_snac_summary.json").read_text())["complete"] is True
+    pngs = sorted(out.glob("*.png*"))
+    assert [p.suffix for p in pngs] == [".png", ".png"], pngs  # no .partial left
+    for png in pngs:
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.read_bytes()[-8:-4] == b"IEND"
+
+
+# -- train-ppo: a checkpoint to resume, every evaluation row kept ----------------------------------------
+def _tiny_config(tmp_path: Path, timesteps: int = 96) -> Path:
+    from snac_gym.ppo.config import default_config_path, load_config
+
+    config = load_config(default_config_path("reach"))
+    config.update(timesteps=timesteps)
+    config["vec_env"].update(n_envs=2, kind="dummy")
+    config["ppo"].update(n_steps=16, batch_size=32, n_epochs=1, net_arch={"pi": [8, 8], "vf": [8, 8]})
+    config["evaluation"].update(every_timesteps=32, episodes=1, horizons_s=[0.024, 0.04])
+    path = tmp_path / "tiny_reach.json"
+    path.write_text(json.dumps(config))
+    return path
+
+
+@pytest.mark.rl
+@pytest.mark.slow(seconds=8)
+@pytest.mark.parametrize("signame", SIGNALS)
+def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_path, signame):
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "run"
+    hook = "snac_gym.ppo.envs:PPOTrainingWrapper.step@50"  # the 50th env step (of two envs): mid-training
+    args = ["train-ppo", "--task", "reach", "--out", str(out), "--config", str(_tiny_config(tmp_path)), "--no-progress"]
+    code, err, _ = _run(args, signame, hook=hook)
+    assert code == 128 + int(getattr(signal, signame)), err
+    state = json.loads((out / "state.json").read_text())
+    assert state["status"] == "interrupted" and state["interrupted_by"] == signame
+    assert _one_line(err) == (
+        f"interrupted by {signame} during training: checkpoint of {state['timesteps']} timesteps saved in "
+        f"{out / 'checkpoint'}/ with every evaluation so far; continue with --resume --out {out}"
+    )
+    manifest = json.loads((out / "checkpoint" / "sha256.json").read_text())
+    assert manifest["timesteps"] == state["timesteps"] and set(manifest["sha256"]) == {"model.zip", "vecnormalize.pkl", "policy.npz"}
+    assert not (out / "checkpoint.tmp").exists() and not (out / "checkpoint.old").exists()
+    if signame == "SIGHUP":  # one resume (the others' checkpoints are the same kind of file)
+        from snac_gym.ppo.train import train_ppo
+
+        resumed = train_ppo("reach", out, resume=True, log=lambda line: None)
+        assert resumed.status == "finished" and resumed.timesteps >= 96
+
+
+@pytest.mark.rl
+@pytest.mark.slow(seconds=8)
+def test_a_resumed_training_keeps_the_evaluation_row_the_interrupt_cut(tmp_path, monkeypatch):
+    """Interrupted inside its second evaluation, then resumed: the evaluation rows are at the timesteps of an
+    uninterrupted run's, and those before the interrupt are the same rows (the resumed segment is not
+    bit-identical: SB3 saves neither the random generators nor the rollout in flight, docs/ppo.md)."""
+    pytest.importorskip("stable_baselines3")
+    import snac_gym.ppo.train as train
+
+    config = _tiny_config(tmp_path, timesteps=128)
+    whole = train.train_ppo("reach", tmp_path / "whole", seed=5, config_path=config, log=lambda line: None)
+    assert whole.status == "finished"
+    expected, _ = train.read_training_log(tmp_path / "whole")
+
+    original = train.evaluate_policy_file
+    calls = [0]
+
+    def interrupted_second(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == 2:
+            raise KeyboardInterrupt  # as a signal handler raises it, mid-evaluation
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(train, "evaluate_policy_file", interrupted_second)
+    cut = train.train_ppo("reach", tmp_path / "cut", seed=5, config_path=config, log=lambda line: None)
+    assert cut.status == "interrupted"
+    rows, _ = train.read_training_log(tmp_path / "cut")
+    assert [r["timesteps"] for r in rows] == [expected[0]["timesteps"]]  # the second row was cut
+    monkeypatch.setattr(train, "evaluate_policy_file", original)
+    resumed = train.train_ppo("reach", tmp_path / "cut", resume=True, log=lambda line: None)
+    assert resumed.status == "finished"
+    rows, _ = train.read_training_log(tmp_path / "cut")
+    assert [r["timesteps"] for r in rows] == [r["timesteps"] for r in expected]
+    for key in ("success_rate", "mean_cost", "mean_final_error_m"):  # the cut evaluation, redone: the same policy
+        assert [r[key] for r in rows[:2]] == [r[key] for r in expected[:2]], key
+    state = json.loads((tmp_path / "cut" / "state.json").read_text())
+    assert state["best"]["timesteps"] in [r["timesteps"] for r in rows]
+
+
+@pytest.mark.rl
+@pytest.mark.parametrize("name", ["model.zip", "vecnormalize.pkl", "policy.npz"])
+def test_a_checkpoint_file_with_one_flipped_bit_is_refused_on_resume(tmp_path, name):
+    pytest.importorskip("stable_baselines3")
+    from snac_gym.ppo.train import train_ppo
+
+    out = tmp_path / "run"
+    assert train_ppo("reach", out, timesteps=32, config_path=_tiny_config(tmp_path), log=lambda line: None).status == "finished"
+    path = out / "checkpoint" / name
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match=f"checkpoint file {path} does not match the sha256 written with it"):
+        train_ppo("reach", out, timesteps=64, resume=True, log=lambda line: None)
+
+
+# -- bench: the tables printed are whole ----------------------------------------------------------------
+@pytest.mark.slow(seconds=4)
+def test_bench_interrupted_after_a_table_says_the_printed_tables_are_complete(tmp_path):
+    hook = "snac_gym.apps.bench:run_substep_study@1"  # after the env table was printed
+    code, err, out = _run(["bench", "--steps", "100", "--no-panda", "--substeps"], "SIGQUIT", hook=hook)
+    assert code == 128 + int(signal.SIGQUIT), err
+    assert _one_line(err) == "interrupted by SIGQUIT: bench writes no files; the tables printed above are complete"
+    assert "steps/s" in out
