@@ -302,13 +302,18 @@ _SWITCHES = ("match_effort", "save_trajectories", "resume", "progress", "plots",
 def _check_types(config: EvaluationConfig) -> None:
     """Exact types first: ``samples=True`` is not one sample, ``dt='0.008'`` not a period, ``plots=1`` not a switch
     (the range checks that follow name the bounds)."""
+    optional = {item.name for item in dataclasses.fields(config) if item.default is None}  # None: "the default"
     for name in _WHOLE:
         value = getattr(config, name)
-        if value is not None and (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral)):
+        if value is None and name in optional:
+            continue
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
             raise ValueError(f"{name} must be a whole number, got {value!r}")
     for name in _REAL:
         value = getattr(config, name)
-        if value is not None and (isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real)):
+        if value is None and name in optional:
+            continue
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
             raise ValueError(f"{name} must be a real number, got {value!r}")
     if not 0 <= config.seed <= 2**32 - 1:
         raise ValueError(f"seed must be a whole number in [0, {2**32 - 1}] (a NumPy seed), got {config.seed}")

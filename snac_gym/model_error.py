@@ -71,6 +71,9 @@ class ModelError:
     def __post_init__(self) -> None:
         # Bounded to what a wrong model can be: a joint offset beyond ±π wraps round, a model link more than
         # twice its length or a tool a metre away is another arm (link_scale=1e6 used to be taken).
+        for name, value in (("joint_offset", self.joint_offset), ("tool_offset", self.tool_offset)):
+            if isinstance(value, (str, bytes)) or not isinstance(value, (Sequence, np.ndarray)):
+                raise ValueError(f"model error {name} must be a sequence of numbers, got {value!r}")
         offsets = tuple(real_number("model error joint_offset", a, -math.pi, math.pi) for a in self.joint_offset)
         if len(self.tool_offset) != 3:
             raise ValueError(f"model error tool_offset must be 3 finite numbers (x,y,z in m), got {list(self.tool_offset)}")

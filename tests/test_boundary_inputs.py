@@ -3,6 +3,9 @@ naming the argument: the list of a robustness pass over the landed code."""
 
 from __future__ import annotations
 
+import json
+import os
+import warnings
 from pathlib import Path
 
 import gymnasium as gym
@@ -179,3 +182,90 @@ def test_a_ppo_config_with_too_many_envs_is_refused():
 
     with pytest.raises(ConfigError, match=r"vec_env.n_envs must be an integer in \[1, 1024\], got 100000000"):
         validate_config(resolve_config("reach", n_envs=100_000_000))
+
+
+# -- the rest of the inputs reported as accepted, hanging or unclear -------------------------------------
+def test_a_complex_action_is_refused_by_the_goal_env_and_the_vector_env():
+    goal = gym.make("snac_gym/UR10ReachGoal-v0")
+    goal.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must be 6 joint velocities in rad/s \(real numbers\)"):
+        goal.step(np.full(6, 0.5j))
+    goal.close()
+    vector = gym.make_vec(ID, 2, vectorization_mode="vector_entry_point")
+    vector.reset(seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # not a ComplexWarning and a cast: an error
+        with pytest.raises(ValueError, match=r"actions must be an array of real numbers of shape \(2, 6\)"):
+            vector.step(np.full((2, 6), 0.5j))
+    vector.close()
+
+
+def test_a_vector_env_of_a_billion_episodes_is_refused_before_it_allocates():
+    with pytest.raises(ValueError, match=r"num_envs must be a whole number in \[1, 1048576\], got 1000000000"):
+        gym.make_vec(ID, 10**9, vectorization_mode="vector_entry_point")
+    with pytest.raises(ValueError, match=r"num_envs must be a whole number in \[1, 1048576\], got 2.5"):
+        gym.make_vec(ID, 2.5, vectorization_mode="vector_entry_point")
+
+
+def test_mujoco_refuses_a_billion_substeps_too():
+    pytest.importorskip("mujoco")
+    with pytest.raises(ValueError, match=r"n_substeps must be a whole number in \[1, 1000\], got 1000000000"):
+        gym.make(ID, physics="mujoco", n_substeps=10**9)
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "message"),
+    [
+        ("env", "n_substeps", 1e9, r"n_substeps must be a whole number in \[1, 1000\], got 1000000000.0"),
+        ("env", "dt", "0.008", r"dt \(s\) must be a real number in \(0, 1\], got '0.008'"),
+    ],
+)
+def test_a_ppo_config_with_an_env_argument_out_of_range_is_refused_before_training(tmp_path, section, key, value, message):
+    from snac_gym.ppo.config import default_config_path, load_config
+    from snac_gym.ppo.train import train_ppo
+
+    config = load_config(default_config_path("reach"))
+    config[section][key] = value
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(config))
+    with pytest.raises(ValueError, match=message):
+        train_ppo("reach", tmp_path / "out", config_path=path, log=lambda line: None)
+    assert not (tmp_path / "out" / "state.json").exists()
+
+
+def test_a_ppo_model_path_that_is_a_device_or_folder_is_named_as_such(tmp_path):
+    from snac_gym.ppo import PolicyFileError
+
+    env = gym.make(ID, physics="kinematic")
+    for path, what in (("/dev/zero", "a device, pipe or socket"), (str(tmp_path), "a folder")):
+        with pytest.raises(PolicyFileError, match=f"PPO policy file {path} is {what}, not a policy file"):
+            make_policy("ppo", env.unwrapped, model_path=path)
+    env.close()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "file"])
+def test_real_refuses_an_out_that_is_a_pipe_or_a_file_before_it_connects(tmp_path, kind):
+    from typer.testing import CliRunner
+
+    from snac_gym.apps.cli import app
+
+    out = tmp_path / "out"
+    os.mkfifo(out) if kind == "fifo" else out.write_text("")
+    result = CliRunner().invoke(app, ["real", "--connection", "sim", "--out", str(out), "--steps", "5"], terminal_width=200)
+    what = "a named pipe" if kind == "fifo" else "a file"
+    assert result.exit_code == 2, result.output
+    assert f"error: the output folder {out} is {what}, not a folder; choose another --out" in result.output
+
+
+def test_evaluate_refuses_a_model_error_no_arm_can_have(tmp_path):
+    from typer.testing import CliRunner
+
+    from snac_gym.apps.cli import app
+
+    result = CliRunner().invoke(
+        app, ["evaluate", "--out", str(tmp_path / "out"), "--samples", "2", "--model-error", "link_scale=1e6"],
+        terminal_width=200,
+    )
+    assert result.exit_code == 2, result.output
+    assert "model error link_scale must be a finite number in (-1, 1], got 1000000.0" in result.output
+    assert not (tmp_path / "out" / "run.json").exists()

@@ -287,3 +287,10 @@ def test_bench_interrupted_after_a_table_says_the_printed_tables_are_complete(tm
     assert code == 128 + int(signal.SIGQUIT), err
     assert _one_line(err) == "interrupted by SIGQUIT: bench writes no files; the tables printed above are complete"
     assert "steps/s" in out
+
+
+def test_the_compiled_kernels_hold_the_same_stop_signals_as_the_commands():
+    from snac_gym._signals import STOP_SIGNALS
+    from snac_gym.kernels import compiled
+
+    assert tuple(compiled._STOP_SIGNALS) == tuple(STOP_SIGNALS)

@@ -73,6 +73,19 @@ def _check_task(task: str) -> None:
         raise typer.BadParameter(f"must be one of {sorted(task_names())}", param_hint="--task")
 
 
+def _check_ur_arm(robot: str) -> None:
+    """Refuse a ``--robot`` of ``real`` or ``emulate-ur`` that is not a UR arm."""
+    if robot not in UR_MODELS:
+        raise typer.BadParameter(f"{robot!r} is not a UR model; choose one of {_UR_ARMS}", param_hint="--robot")
+
+
+def _check_controller(controller: str) -> None:
+    """Refuse a ``--controller`` that names no registered policy (before any env is built for it)."""
+    if controller not in available_policies():
+        raise typer.BadParameter(f"unknown policy {controller!r}; available: {', '.join(available_policies())}",
+                                 param_hint="--controller")
+
+
 @app.command()
 def bench(
     steps: int = typer.Option(5000, "--steps", help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two ids in both engines at the bound)."),
@@ -149,6 +162,7 @@ def demo(
     from snac_gym.apps.demo import run_demo
 
     _check_task(task)
+    _check_controller(controller)
     if steps is not None and duration is not None:
         raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
     try:
@@ -206,15 +220,21 @@ def real(
     from snac_gym.apps.real import run_real_episode
 
     _check_task(task)
+    _check_controller(controller)
+    _check_ur_arm(robot)
     connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
         recovery = RecoveryLimits(max_recoveries, unlock_protective_stop, recovery_timeout, reconnect_timeout)
         box = None if task_box is None else _numbers("--task-box", task_box, 6)
-        safety = SafetyLimits(
-            speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch,
-            joint_limit_margin=joint_margin, box_low=None if box is None else tuple(box[:3]),
-            box_high=None if box is None else tuple(box[3:]),
-        )
+        try:
+            safety = SafetyLimits(
+                speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch,
+                joint_limit_margin=joint_margin, box_low=None if box is None else tuple(box[:3]),
+                box_high=None if box is None else tuple(box[3:]),
+            )
+        except ValueError as exc:  # the limits' own names, told by their options'
+            field = next((name for name in _SAFETY_OPTIONS if str(exc).startswith(name)), None)
+            raise ValueError(str(exc) if field is None else f"{_SAFETY_OPTIONS[field]} ({exc})") from None
         result = run_real_episode(
             task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
             seed=seed, steps=steps, safety=safety, csv=csv, plots=plots, echo=typer.echo if dry_run else None,
@@ -240,6 +260,13 @@ def real(
     typer.echo(result.summary())
     if result.stop_reason:  # the episode did not run to its end: a script must see it
         raise typer.Exit(code=result.exit_code)
+
+
+#: The options of ``real`` that set a field of :class:`~snac_gym.real.SafetyLimits`.
+_SAFETY_OPTIONS = {
+    "speed_scale": "--speed-scale", "max_joint_acceleration": "--max-acceleration", "joint_limit_margin": "--joint-margin",
+    "max_tcp_mismatch": "--max-tcp-mismatch", "task box": "--task-box", "give both corners of the task box": "--task-box",
+}
 
 
 def _numbers(option: str, text: str, count: int) -> list[float]:
@@ -292,6 +319,7 @@ def emulate_ur(
     Exit codes: 0 it ran until --duration; 1 one of its threads failed (the line says how); 2 a refused
     option or a port it could not bind; 128 + n a signal n (SIGINT 130, SIGTERM 143).
     """
+    _check_ur_arm(robot)
     # start-up time: only emulate-ur needs the emulator's servers
     from snac_gym.real.emulator import UREmulator
     from snac_gym.real.emulator.serve import fault_plan, parse_numbers, serve

@@ -19,6 +19,7 @@ from snac_gym._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
 from snac_gym._signals import SignalGuard, TerminationSignal
 from snac_gym._signals import stop_signals_raise as _stop_signals_raise
 from snac_gym.apps.demo import write_demo_outputs
+from snac_gym.outputs import usable_out_folder
 from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
 from snac_gym.envs.core import resolve_reference, validate_q0
 from snac_gym.kinematics import Kinematics
@@ -295,6 +296,8 @@ def run_real_episode(
     if echo is not None:
         echo("setup: " + json.dumps(setup))
     out = Path(out_dir) if out_dir is not None else None
+    if out is not None:  # before the arm is connected: a file, a pipe or an unwritable --out is refused here
+        usable_out_folder(out)
     prefix = f"{task}_{controller}_"
     tuning = tuning if tuning is not None else LoopTuning()
     with stop_signals_raise() as guard, tuned_process(tuning) as notes:

@@ -208,8 +208,12 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         return np.logical_and(self.terminate_on_success, distance <= self.success_tolerance)
 
     def compute_truncated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
-        """Always false: the registration's ``TimeLimit`` truncates."""
-        return np.zeros(np.shape(achieved_goal)[:-1], dtype=bool)
+        """Always false: the registration's ``TimeLimit`` truncates.
+
+        Raises:
+            ValueError: As :meth:`compute_reward` (a goal it would refuse is refused here too).
+        """
+        return np.zeros(self._goal_distance(achieved_goal, desired_goal).shape, dtype=bool)
 
     # -- episode ---------------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:

@@ -40,6 +40,10 @@ from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.kinematics import Kinematics, PositionChain, joint_step
 from snac_gym.references import Ellipse, FixedTarget, Reference
 from snac_gym.tasks import Task, get_task
+from snac_gym.validation import whole_number
+
+#: The most episodes one vector env steps (2**20: about 3.3 GB of state at 3.2 kB each; the benchmarks use 4096).
+MAX_NUM_ENVS = 1 << 20
 
 
 class ReferenceBatch:
@@ -178,9 +182,14 @@ class KinematicEpisodes:
             ValueError: On a wrong shape or NaN/inf in a used row, naming the row.
         """
         try:
-            u = np.array(actions, dtype=np.float64)
+            raw = np.asarray(actions)
+            if raw.dtype.kind not in "iuf":  # a complex, bool or string action is refused, not cast
+                raise TypeError(raw.dtype)
+            u = np.array(raw, dtype=np.float64)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"actions must be an array of shape {(self.count, len(self.limits))}, got {actions!r}") from exc
+            raise ValueError(
+                f"actions must be an array of real numbers of shape {(self.count, len(self.limits))}, got {actions!r}"
+            ) from exc
         if u.shape != (self.count, len(self.limits)):
             raise ValueError(f"actions must have shape {(self.count, len(self.limits))}, got {u.shape}")
         bad = ~np.isfinite(u).all(axis=1)
@@ -284,8 +293,8 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
             )
         if render_mode is not None:
             raise ValueError(f"the vector env has no scene to render (render_mode={render_mode!r}); use the single env")
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        # the bound keeps a typo (10**9) from asking for terabytes
+        whole_number("num_envs", num_envs, 1, MAX_NUM_ENVS)
         task = get_task(task if task is not None else self.task_spec)
         if not vector_env_supports(task):
             raise ValueError(f"the vector env steps end-effector positions only; task {task.name!r} has its own kinematics")

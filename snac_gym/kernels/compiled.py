@@ -20,7 +20,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from snac_gym._signals import STOP_SIGNALS as _STOP_SIGNALS
+#: The stop signals of every command (snac_gym._signals.STOP_SIGNALS, written again: kernels import no higher layer).
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
 #: The modules that define the kinematics' and the controllers' kernels.

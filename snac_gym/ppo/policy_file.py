@@ -208,10 +208,13 @@ class PolicyFile:
 
         Raises:
             MissingPolicyFileError: If ``path`` does not exist.
-            PolicyFileError: If it is not a readable policy file of this format, or its arrays
+            PolicyFileError: If it is a folder, device or pipe, not a readable policy file of this format, or its arrays
                 do not match their checksum (a damaged file).
         """
         path = Path(path)
+        if path.exists() and not path.is_file():  # np.load of /dev/zero or a pipe would read for ever
+            what = "a folder" if path.is_dir() else "a device, pipe or socket"
+            raise PolicyFileError(f"PPO policy file {path} is {what}, not a policy file (.npz)")
         if not path.is_file():
             raise MissingPolicyFileError(
                 f"PPO policy file {path} does not exist; train one with `snac-gym train-ppo` "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import signal
 import threading
 import time
@@ -47,6 +48,13 @@ def fault_plan(
             without ``drop_at``.
     """
     plan: list[tuple[float, str, tuple[Any, ...]]] = []
+    options = {
+        "--protective-stop-at": protective_stop_at, "--emergency-stop-at": emergency_stop_at, "--drop-at": drop_at,
+        "--stale-at": stale_at, "--watchdog-expiry-at": watchdog_expiry_at, "--drop-for": drop_for,
+    }  # fmt: skip
+    for option, seconds in options.items():  # here, so that the message names the option
+        if seconds is not None and not (math.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f"{option} must be a non-negative number of seconds, got {seconds!r}")
     singles = {
         "protective_stop": protective_stop_at, "emergency_stop": emergency_stop_at, "drop_connection": drop_at,
         "stale_data": stale_at, "expire_watchdog": watchdog_expiry_at,
@@ -58,6 +66,8 @@ def fault_plan(
         plan.append((drop_at, "drop_connection", () if drop_for is None else (drop_for,)))
     if latency_spike is not None:
         at, length = parse_numbers(latency_spike, "--latency-spike (AT,SECONDS)", (2,))
+        if not all(math.isfinite(v) and v >= 0 for v in (at, length)):
+            raise ValueError(f"--latency-spike (AT,SECONDS) must be two non-negative numbers of seconds, got {latency_spike!r}")
         plan.append((at, "latency_spike", (length,)))
     return plan
 
