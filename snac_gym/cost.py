@@ -156,6 +156,9 @@ def cost_rates(
             raise ValueError(f"{name} must be real numbers, got dtype {np.asarray(values).dtype}")
     errors = np.asarray(errors, dtype=float)
     commands = np.asarray(commands, dtype=float)
+    for name, values in (("errors", errors), ("commands", commands)):
+        if not np.isfinite(values).all():  # a NaN cost would rank as neither better nor worse
+            raise ValueError(f"{name} must be finite, got NaN or inf at {np.argwhere(~np.isfinite(values))[0].tolist()}")
     if errors.ndim < 2 or commands.ndim < 2 or errors.shape[:-1] != commands.shape[:-1]:
         raise ValueError(
             f"errors (..., K, n) and commands (..., K, m) must share leading axes, got {errors.shape} and {commands.shape}"

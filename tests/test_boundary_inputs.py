@@ -58,11 +58,12 @@ def test_a_goal_that_is_not_a_goal_never_scores(goal_env, desired, message):
         ({"n_substeps": 2.5}, r"n_substeps must be a whole number in \[1, 1000\], got 2.5"),
         ({"n_substeps": 10**9}, r"n_substeps must be a whole number in \[1, 1000\], got 1000000000"),
         ({"n_substeps": True}, r"n_substeps must be a whole number"),
-        ({"dt": "0.008"}, r"dt \(s\) must be a real number in \(0, 1\], got '0.008'"),
-        ({"dt": True}, r"dt \(s\) must be a real number in \(0, 1\], got True"),
+        ({"dt": "0.008"}, r"dt \(s\) must be a real number in \[1e-06, 1\], got '0.008'"),
+        ({"dt": True}, r"dt \(s\) must be a real number in \[1e-06, 1\], got True"),
         ({"dt": 0.5j}, r"dt \(s\) must be a real number"),
         ({"max_steps": 2.7}, r"max_steps must be a whole number in \[1, 10000000\], got 2.7"),
         ({"max_steps": 10**8}, r"max_steps must be a whole number in \[1, 10000000\]"),
+        ({"dt": 1e-320}, r"dt \(s\) must be a finite number in \[1e-06, 1\], got 1e-320"),
     ],
 )
 @pytest.mark.parametrize("physics", ["kinematic", "pybullet"])
@@ -93,6 +94,10 @@ def test_trajectory_cost_refuses_an_empty_trajectory_and_complex_weights():
         trajectory_cost(np.zeros((2, 3)), np.zeros((2, 6)), 0.008, Q=np.eye(3) * 1j)
     with pytest.raises(ValueError, match=r"commands must be real numbers, got dtype complex128"):
         trajectory_cost(np.zeros((2, 3)), np.full((2, 6), 1j), 0.008)
+    with pytest.raises(ValueError, match=r"errors must be finite, got NaN or inf at \[1, 2\]"):
+        trajectory_cost(np.array([[0.0, 0, 0], [0, 0, np.nan]]), np.zeros((2, 6)), 0.008)
+    with pytest.raises(ValueError, match=r"commands must be finite, got NaN or inf at \[0, 0\]"):
+        trajectory_cost(np.zeros((2, 3)), np.full((2, 6), np.inf), 0.008)
     with pytest.raises(ValueError, match=r"dt must be a finite number in \(0, inf\]"):
         trajectory_cost(np.zeros((2, 3)), np.zeros((2, 6)), -1.0)
     assert float(trajectory_cost(np.ones((1, 3)), np.zeros((1, 6)), 0.5).total) == pytest.approx(1.5)
@@ -163,8 +168,9 @@ def test_the_shared_checks():
         (["real", "--connection", "sim", "--seed", "-1", "--dry-run"], "--seed must be a whole number in [0, 4294967295], got -1"),
         (["evaluate", "--ray", "auto", "--workers", "2", "--samples", "2"], "--workers 2 has no effect on a Ray cluster"),
         (["train-ppo", "--task", "reach", "--n-envs", "100000000"], "Invalid value for '--n-envs'"),
+        (["train-ppo", "--task", "reach", "--resume", "--seed", "3"], "--seed has no effect with --resume"),
     ],
-    ids=["sim-host", "real-steps", "seed", "real-seed", "ray-workers", "n-envs"],
+    ids=["sim-host", "real-steps", "seed", "real-seed", "ray-workers", "n-envs", "resume-seed"],
 )
 def test_cli_inputs_it_used_to_ignore_or_hang_on_are_refused(tmp_path, arguments, message):
     """Each before anything runs, with exit 2 (the long runs and the hang never start)."""
@@ -216,8 +222,9 @@ def test_mujoco_refuses_a_billion_substeps_too():
 @pytest.mark.parametrize(
     ("section", "key", "value", "message"),
     [
-        ("env", "n_substeps", 1e9, r"n_substeps must be a whole number in \[1, 1000\], got 1000000000.0"),
-        ("env", "dt", "0.008", r"dt \(s\) must be a real number in \(0, 1\], got '0.008'"),
+        ("env", "n_substeps", 10**9, r"env.n_substeps must be a whole number in \[1, 1000\], got 1000000000"),
+        ("env", "dt", "0.008", r"env.dt must be a number > 0, got '0.008'"),
+        ("env", "dt", 1e-9, r"env.dt \(s\) must be a finite number in \[1e-06, 1\], got 1e-09"),
     ],
 )
 def test_a_ppo_config_with_an_env_argument_out_of_range_is_refused_before_training(tmp_path, section, key, value, message):

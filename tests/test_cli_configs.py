@@ -125,7 +125,8 @@ def test_train_out_that_is_a_file_is_one_line(tmp_path, kind):
     out = tmp_path / "taken.txt" if kind == "file" else "/dev/null"
     if kind == "file":
         out.write_text("keep me")
-    _one_line_error(_train("--out", str(out)), f"the output folder {out} is a file, not a folder; choose another --out")
+    what = "a file" if kind == "file" else "a device"
+    _one_line_error(_train("--out", str(out)), f"the output folder {out} is {what}, not a folder; choose another --out")
     if kind == "file":
         assert out.read_text() == "keep me"
 
@@ -175,7 +176,8 @@ def test_demo_out_must_be_a_usable_folder(tmp_path, kind):
     out = tmp_path / "taken.txt" if kind == "file" else "/dev/null"
     if kind == "file":
         out.write_text("keep me")
-    _one_line_error(_demo(tmp_path, "--out", str(out)), f"the output folder {out} is a file, not a folder")
+    what = "a file" if kind == "file" else "a device"
+    _one_line_error(_demo(tmp_path, "--out", str(out)), f"the output folder {out} is {what}, not a folder")
 
 
 @pytest.mark.parametrize(

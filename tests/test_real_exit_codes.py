@@ -50,7 +50,7 @@ def test_each_way_a_run_ends_has_its_exit_code(monkeypatch, tmp_path, outcome, c
 @pytest.mark.parametrize(
     ("arguments", "message"),
     [
-        (["--robot", "panda"], "--robot must be one of ur3, ur5, ur10, ur3e, ur5e, ur10e, ur16e (the UR arms ur_rtde drives), got 'panda'"),
+        (["--robot", "panda"], "Invalid value for --robot: 'panda' is not a UR model; choose one of ur3, ur5, ur10, ur3e, ur5e, ur10e, ur16e"),
         (["--robot", "ur10", "--series", "e"], "--series e is the e-Series' 500 Hz; the UR10 is a CB3 arm (125 Hz)"),
         (["--robot", "ur5e", "--series", "x"], "--series must be one of cb, e, got 'x'"),
         (["--q0", "1,2,3"], "--q0 needs 6 finite numbers separated by commas, got '1,2,3'"),

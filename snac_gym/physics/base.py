@@ -53,19 +53,22 @@ def check_image_size(width: Any, height: Any) -> tuple[int, int]:
 MAX_DT = 1.0
 
 
+#: The shortest control period: 1 µs (1 MHz; UR controllers run at 125 and 500 Hz). Shorter ones are no
+#: control loop, and their step counts overflow (dt = 1e-320 made 1/dt infinite).
+MIN_DT = 1e-6
 #: Most physics steps per control period: 1000 (an 8 µs physics step at the paper's 8 ms). More would only
 #: make every step take seconds (10⁹ hung the first step).
 MAX_SUBSTEPS = 1000
 
 
 def check_timing(dt: Any, n_substeps: Any) -> tuple[float, int]:
-    """``(dt, n_substeps)`` of a physics engine, checked: a real 0 < dt ≤ :data:`MAX_DT` s and a whole
+    """``(dt, n_substeps)`` of a physics engine, checked: a real :data:`MIN_DT` ≤ dt ≤ :data:`MAX_DT` s and a whole
     1 ≤ n_substeps ≤ :data:`MAX_SUBSTEPS` (no bools, strings or complex numbers: :mod:`snac_gym.validation`).
 
     Raises:
         ValueError: Naming the bad one.
     """
-    return (real_number("dt (s)", dt, 0.0, MAX_DT, low_open=True),
+    return (real_number("dt (s)", dt, MIN_DT, MAX_DT),
             whole_number("n_substeps", n_substeps, 1, MAX_SUBSTEPS))
 
 

@@ -44,6 +44,7 @@ from typing import Any, TypeVar
 
 import gymnasium as gym
 
+from snac_gym.physics.base import check_timing
 from snac_gym.ppo.envs import REWARD_TYPES
 from snac_gym.ppo.features import ACTION_KINDS, FEATURE_VERSION, FeatureSpec
 from snac_gym.robots import robot_names
@@ -171,8 +172,9 @@ def number(low: float | None, high: float | None = None, open_low: bool = False)
     """A finite number in ``[low, high]`` (``(low, high]`` with ``open_low``; any with ``low=None``)."""
 
     def check(value: Any, path: str) -> float:
-        above = low is None or (value > low if open_low else value >= low)
-        inside = _is_number(value) and above and (high is None or value <= high)
+        inside = _is_number(value) and (low is None or (value > low if open_low else value >= low)) and (
+            high is None or value <= high
+        )
         if not inside:
             raise ConfigError(f"{path} must be a number {_interval(low, high, open_low)}, got {value!r}")
         return float(value)
@@ -410,3 +412,9 @@ def _check_env_keywords(task: str, env: dict[str, Any]) -> None:
         check = _ANNOTATION_CHECKS.get(annotation.removesuffix("|None"))
         if check is not None and not (optional and value is None):
             check(value, f"env.{key}")
+    # The engines' own timing check, with its bounds (n_substeps ≤ 1000: 10⁹ hung the first step)
+    timing = {key: env[key] for key in ("dt", "n_substeps") if env.get(key) is not None}
+    try:
+        check_timing(timing.get("dt", 0.008), timing.get("n_substeps", 1))
+    except ValueError as exc:
+        raise ConfigError(f"env.{exc}") from None

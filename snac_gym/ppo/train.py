@@ -493,6 +493,8 @@ def _configure_logger(folder: Path) -> Any:
 # -- the entry point -----------------------------------------------------------------------------
 def _resumed_config(out: Path, task: str, overrides: dict[str, Any]) -> dict[str, Any]:
     """The saved config of the run in ``out``, with the overrides a resumed run may change."""
+    if overrides["seed"] is not None:
+        raise ValueError("--seed has no effect with --resume: a resumed run keeps the seed it started with")
     checkpoint = out / "checkpoint"
     if not (checkpoint / MODEL_FILE).is_file() or not (out / "config.json").is_file():
         raise ValueError(f"--resume: {out} holds no checkpoint to continue (no {checkpoint / MODEL_FILE})")
