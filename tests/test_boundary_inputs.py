@@ -276,3 +276,16 @@ def test_evaluate_refuses_a_model_error_no_arm_can_have(tmp_path):
     assert result.exit_code == 2, result.output
     assert "model error link_scale must be a finite number in (-1, 1], got 1000000.0" in result.output
     assert not (tmp_path / "out" / "run.json").exists()
+
+
+def test_a_local_ray_instance_gets_the_workers_as_its_cpus(monkeypatch):
+    """`evaluate --ray local --workers 2` used to ignore --workers: the local instance now has that many CPUs."""
+    import types
+
+    from snac_gym.evaluation.execution import executors
+
+    calls = []
+    fake = types.SimpleNamespace(is_initialized=lambda: False, init=lambda **kwargs: calls.append(kwargs))
+    monkeypatch.setitem(__import__("sys").modules, "ray", fake)
+    executors.RayExecutor("local", 2)
+    assert calls == [{"num_cpus": 2, "include_dashboard": False, "log_to_driver": False}]

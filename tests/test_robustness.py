@@ -446,7 +446,7 @@ def test_physically_meaningless_ellipses_are_refused_with_their_bound(spec, mess
         ({"Q": [np.nan, 1.0, 1.0]}, "Q must be finite"),
         ({"R": -np.eye(6)}, "R must be positive definite or semidefinite"),
         ({"R": [1.0, 1.0, np.nan, 1.0, 1.0, 1.0]}, "R must be finite"),
-        ({"dt": float("inf")}, r"dt \(s\) must be a finite number in \(0, 1\], got inf"),
+        ({"dt": float("inf")}, r"dt \(s\) must be a finite number in \[1e-06, 1\], got inf"),
         (
             {"render_mode": "rgb_array", "render_width": -1},
             "render_width must be a whole number of pixels in \\[1, 8192\\]",
