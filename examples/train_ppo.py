@@ -3,8 +3,8 @@
     python examples/train_ppo.py [TIMESTEPS] [NUM_ENVS]          # default 200000 steps, 256 episodes
 
 Needs the ``rl`` extra (stable-baselines3, torch). The shipped policies were trained with
-``snac-gym train-ppo`` for 15-20 M steps (docs/rl.md); a short run like this one only shows the
-pipeline, it does not reach 1 mm.
+``snac-gym train-ppo`` for 2 M steps each, the best checkpoints kept at 0.8 M (reach) and 1.0 M (track)
+steps (docs/rl.md); a short run like this one only shows the pipeline, it does not reach 1 mm.
 """
 
 import sys

@@ -25,6 +25,17 @@ HYPERPARAMS = ROOT / "hyperparams" / "sac.yml"
 ENV_ID = "snac_gym/PandaReachGoalCoarse-v0"
 
 
+def test_every_registered_goal_id_has_an_entry_and_the_file_is_generated_from_the_registry():
+    entries = yaml.safe_load(HYPERPARAMS.read_text())
+    goal_ids = [env_id for env_id in gym.registry if env_id.startswith("snac_gym/") and "Goal" in env_id]
+    assert len(goal_ids) >= 36 and sorted(entries) == sorted(goal_ids)
+    for env_id in goal_ids:  # each entry resolves to a whole preset (the YAML merge keys included)
+        assert entries[env_id]["replay_buffer_class"] == "HerReplayBuffer" and entries[env_id]["n_timesteps"] > 0
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "write_zoo_hyperparams.py"), "--check"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
 def test_every_id_of_the_hyperparameter_file_is_registered_and_goal_conditioned():
     entries = yaml.safe_load(HYPERPARAMS.read_text())
     assert ENV_ID in entries and len(entries) >= 2

@@ -16,7 +16,7 @@ import numpy as np
 from snac_gym.cost import CostConvention, step_costs, weight_matrix
 from snac_gym.physics import PHYSICS, Arm, check_physics, make_arm, scene_of
 from snac_gym.envs.ids import IdRobotCheck
-from snac_gym.physics.scene import default_render_every
+from snac_gym.physics.scene import CameraOptions, default_render_every
 from snac_gym.physics.base import check_image_size, check_timing
 from snac_gym.validation import whole_number
 from snac_gym.kinematics import Kinematics
@@ -328,6 +328,10 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         render_mode: str | None = None,
         render_width: int = 480,
         render_height: int = 480,
+        render_distance: float | None = None,
+        render_yaw: float | None = None,
+        render_pitch: float | None = None,
+        render_target_position: Any = None,
         action_type: str = "velocity",
         observation_dtype: Any = np.float64,
         finite_observation_bounds: bool = False,
@@ -347,6 +351,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
             success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
             sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
+            render_distance=render_distance, render_yaw=render_yaw, render_pitch=render_pitch,
+            render_target_position=render_target_position,
             action_type=action_type, observation_dtype=observation_dtype,
             finite_observation_bounds=finite_observation_bounds,
             task=None if self.task_spec is not None else task.name, cost=cost,
@@ -373,6 +379,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self.terminate_on_success = bool(terminate_on_success)
         self.render_mode = render_mode
         self.render_width, self.render_height = check_image_size(render_width, render_height)
+        self.camera_options = CameraOptions(render_distance, render_yaw, render_pitch, render_target_position)
 
         self.action_type = action_type
         self.observation_dtype = obs_dtype
@@ -427,7 +434,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self._scene: Any = None
         if self.render_mode is not None and not self._headless_human:
             # Built before the first reset: PyBullet restores a saved state only into the same bodies.
-            self._scene = scene_of(self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height)
+            self._scene = scene_of(self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height,
+                                   self.camera_options)
             self.arm.save_initial_state()
         self._frame: tuple[int, np.ndarray] | None = None  # (step, image) of the last rendered image
         self._shown_reference: Reference | None = None

@@ -147,7 +147,7 @@ class ArmList:
 
 
 
-def scene_of(arm: Any, kinematics: Any, space: Any, width: int, height: int) -> Any:
+def scene_of(arm: Any, kinematics: Any, space: Any, width: int, height: int, camera: Any = None) -> Any:
     """What a frame of ``arm`` shows: its engine's scene (the arm's ``scene`` method).
 
     Raises:
@@ -156,4 +156,4 @@ def scene_of(arm: Any, kinematics: Any, space: Any, width: int, height: int) -> 
     make_scene = getattr(arm, "scene", None)
     if make_scene is None:
         raise ValueError(f"{type(arm).__name__} has no scene to render")
-    return make_scene(kinematics, space, width, height)
+    return make_scene(kinematics, space, width, height, camera)

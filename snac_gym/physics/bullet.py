@@ -27,7 +27,9 @@ from snac_gym.physics.scene import (
     TARGET_RADIUS,
     base_yaw,
     cuboid_edges,
+    CameraOptions,
     fit_camera,
+    framing_configurations,
     framing_corners,
     path_positions,
 )
@@ -230,9 +232,10 @@ class PyBulletArm:
         called again after visual-only bodies (the rendered scene) are added."""
         self._initial_state = self.sim.save_state()
 
-    def scene(self, kinematics: Kinematics, space: SampleSpace, width: int, height: int) -> PyBulletScene:
+    def scene(self, kinematics: Kinematics, space: SampleSpace, width: int, height: int,
+              camera: CameraOptions | None = None) -> PyBulletScene:
         """What a frame of this arm shows (drawn by PyBullet's TinyRenderer)."""
-        return PyBulletScene(self.sim.client, self.body.body, kinematics, space, width, height)
+        return PyBulletScene(self.sim.client, self.body.body, kinematics, space, width, height, camera)
 
     def reset(self, q0: np.ndarray) -> None:
         # Restoring the saved state clears velocities, motor targets and solver caches, so an
@@ -322,9 +325,11 @@ class PyBulletScene:
         width, height: Image size, pixels.
     """
 
-    def __init__(self, client: int, body: int, kinematics: Kinematics, space: SampleSpace, width: int, height: int) -> None:
+    def __init__(self, client: int, body: int, kinematics: Kinematics, space: SampleSpace, width: int, height: int,
+                 camera: CameraOptions | None = None) -> None:
         self.client, self.body, self.kinematics = client, body, kinematics
         self.width, self.height = width, height
+        self.camera_options = camera
         self._colour_arm()
         self._add_floor()
         self._add_cuboid_edges(space)
@@ -360,14 +365,20 @@ class PyBulletScene:
 
     def framed_points(self, space: SampleSpace) -> np.ndarray:
         """World points the camera must show: the cuboid's corners, the base, and the link origins at the
-        robot's nominal (elbow-up) pose, how the arm stands while it works in the cuboid."""
+        robot's nominal (elbow-up) pose; the links at start poses as ``reset`` draws them
+        (:func:`framing_configurations`) are kept in ``start_points``, for :func:`fit_camera`'s ``also``."""
         corners = framing_corners(space)
         joints = [i for i in range(p.getNumJoints(self.body, physicsClientId=self.client))
                   if p.getJointInfo(self.body, i, physicsClientId=self.client)[2] != p.JOINT_FIXED]
         load_pose = [p.getJointState(self.body, i, physicsClientId=self.client)[0] for i in joints]
         self._pose(joints, nominal_configuration(self.kinematics))
         links = self.link_origins()
+        starts = []
+        for pose in framing_configurations(self.kinematics, space):
+            self._pose(joints, pose)
+            starts.append(self.link_origins())
         self._pose(joints, load_pose)  # put the arm back where the saved initial state has it
+        self.start_points = np.vstack(starts)
         return np.vstack([[self.kinematics.base_to_world(c) for c in corners], [[0.0, 0.0, 0.0]], links])
 
     def _pose(self, joints: list[int], angles: Any) -> None:
@@ -383,7 +394,8 @@ class PyBulletScene:
 
     def _camera(self, space: SampleSpace) -> tuple[list[float], list[float]]:
         """View and projection matrices that fit :meth:`framed_points` in the image (:func:`fit_camera`)."""
-        camera = fit_camera(self.framed_points(space), self.kinematics, self.width, self.height)
+        points = self.framed_points(space)
+        camera = fit_camera(points, self.kinematics, self.width, self.height, self.camera_options, self.start_points)
         return camera.view, camera.projection
 
     # -- per episode and per frame ---------------------------------------------------------------

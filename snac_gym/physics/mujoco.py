@@ -34,7 +34,9 @@ from snac_gym.physics.scene import (
     TARGET_RADIUS,
     base_yaw,
     cuboid_edges,
+    CameraOptions,
     fit_camera,
+    framing_configurations,
     framing_corners,
     path_positions,
 )
@@ -122,9 +124,10 @@ class MuJoCoArm:
     def close(self) -> None:
         pass
 
-    def scene(self, kinematics: Kinematics, space: SampleSpace, width: int, height: int) -> MuJoCoScene:
+    def scene(self, kinematics: Kinematics, space: SampleSpace, width: int, height: int,
+              camera: CameraOptions | None = None) -> MuJoCoScene:
         """What a frame of this arm shows (drawn by MuJoCo's renderer)."""
-        return MuJoCoScene(self, kinematics, space, width, height)
+        return MuJoCoScene(self, kinematics, space, width, height, camera)
 
 
 def _context_class(platform: str) -> Any:
@@ -173,11 +176,13 @@ class MuJoCoScene:
         RuntimeError: If no headless OpenGL platform works (:func:`gl_context`).
     """
 
-    def __init__(self, arm: MuJoCoArm, kinematics: Kinematics, space: SampleSpace, width: int, height: int) -> None:
+    def __init__(self, arm: MuJoCoArm, kinematics: Kinematics, space: SampleSpace, width: int, height: int,
+                 camera: CameraOptions | None = None) -> None:
         self.arm, self.kinematics = arm, kinematics
         self.width, self.height = check_image_size(width, height)
         self._arm_bodies = list(range(1, arm.model.nbody))  # the world body is 0; the scene's come after
-        self.camera = fit_camera(self.framed_points(space), kinematics, self.width, self.height)
+        points = self.framed_points(space)
+        self.camera = fit_camera(points, kinematics, self.width, self.height, camera, self.start_points)
         self.view, self.projection = self.camera.view, self.camera.projection
         arm.add_to_world(lambda spec: self._build(spec, space))
         model = arm.model
@@ -230,6 +235,11 @@ class MuJoCoScene:
         """World points the camera must show: the cuboid's corners, the base, and the body origins at the
         robot's nominal (elbow-up) pose, as :meth:`PyBulletScene.framed_points <snac_gym.physics.bullet.PyBulletScene.framed_points>`."""
         corners = [self.kinematics.base_to_world(c) for c in framing_corners(space)]
+        starts = []
+        for pose in framing_configurations(self.kinematics, space):
+            self.arm.reset(pose)
+            starts.append(self.link_origins())
+        self.start_points = np.vstack(starts)
         self.arm.reset(nominal_configuration(self.kinematics))
         return np.vstack([corners, [[0.0, 0.0, 0.0]], self.link_origins()])
 

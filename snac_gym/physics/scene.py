@@ -19,7 +19,8 @@ import numpy as np
 
 from snac_gym.kinematics import Kinematics
 from snac_gym.references import Reference
-from snac_gym.sampling import SampleSpace
+from snac_gym.sampling import SampleSpace, sample_seed_pose
+from snac_gym.validation import real_array, real_number
 
 #: Vertical field of view of the camera, degrees.
 FIELD_OF_VIEW = 45.0
@@ -100,19 +101,77 @@ class Camera:
     projection: list[float]
 
 
-def fit_camera(points: np.ndarray, kinematics: Kinematics, width: int, height: int) -> Camera:
+@dataclass(frozen=True)
+class CameraOptions:
+    """Where the camera looks from, in panda-gym's and PyBullet's terms; ``None``: fitted to the scene.
+
+    Attributes:
+        distance: From the camera to its target, m, in (0, 20).
+        yaw: The camera's azimuth about the world's z axis, degrees (PyBullet's
+            ``computeViewMatrixFromYawPitchRoll``: 0 looks along +y, 90 along −x).
+        pitch: Its elevation, degrees in [−89, 89]; negative looks down (panda-gym's default is −30).
+        target: The point it looks at, world frame, m.
+    """
+
+    distance: float | None = None
+    yaw: float | None = None
+    pitch: float | None = None
+    target: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.distance is not None:
+            object.__setattr__(self, "distance", real_number("render_distance (m)", self.distance, 0.0, FAR, low_open=True))
+        if self.yaw is not None:
+            object.__setattr__(self, "yaw", real_number("render_yaw (degrees)", self.yaw, -360.0, 360.0))
+        if self.pitch is not None:
+            object.__setattr__(self, "pitch", real_number("render_pitch (degrees)", self.pitch, -89.0, 89.0))
+        if self.target is not None:
+            target = real_array("render_target_position (m)", self.target, (3,))
+            if np.abs(target).max() > FAR:
+                raise ValueError(f"render_target_position (m) must lie within {FAR:g} m of the origin, got {self.target}")
+            object.__setattr__(self, "target", tuple(float(t) for t in target))
+
+    def direction(self, fitted: np.ndarray) -> np.ndarray:
+        """The unit vector from the target to the camera: ``fitted``'s, with the given yaw and pitch."""
+        if self.yaw is None and self.pitch is None:
+            return fitted
+        yaw = math.radians(self.yaw) if self.yaw is not None else math.atan2(fitted[0], -fitted[1])
+        pitch = math.radians(self.pitch) if self.pitch is not None else -math.asin(float(fitted[2]))
+        return np.array([math.sin(yaw) * math.cos(pitch), -math.cos(yaw) * math.cos(pitch), -math.sin(pitch)])
+
+
+def fit_camera(
+    points: np.ndarray, kinematics: Kinematics, width: int, height: int, options: CameraOptions | None = None,
+    also: np.ndarray | None = None,
+) -> Camera:
     """The camera of every engine's scene: it sees ``points`` (world frame) from the arm's front, a
     little from above, recentred and scaled so that they fill :data:`FILL` of the image (the rest is
-    room for the links' swing)."""
+    room for the links' swing). ``options`` fixes any of distance, yaw, pitch and target instead.
+    ``also``: points the frame must show too; the camera is fitted to them as well only where the
+    first fit leaves one out (the start poses of a redundant arm), so that a frame that shows them
+    already keeps its scale."""
+    camera = _fit_camera(points, kinematics, width, height, options or CameraOptions())
+    if also is None or not len(also):
+        return camera
+    pixels = project(np.asarray(also, dtype=float), camera.view, camera.projection, width, height)
+    ndc = np.column_stack([pixels[:, 0] / width * 2 - 1, 1 - pixels[:, 1] / height * 2])
+    if np.abs(ndc).max() <= FILL:  # inside the part of the frame the fitted points fill: the links' bodies fit too
+        return camera
+    return _fit_camera(np.vstack([points, also]), kinematics, width, height, options or CameraOptions())
+
+
+def _fit_camera(points: np.ndarray, kinematics: Kinematics, width: int, height: int, options: CameraOptions) -> Camera:
     aspect = width / height
     projection = perspective(FIELD_OF_VIEW, aspect, NEAR, FAR)
     towards = kinematics.base_to_world(np.array([-1.0, -0.6, 0.0])) - kinematics.base_to_world(np.zeros(3))
     direction = np.array([towards[0], towards[1], 0.0]) / np.linalg.norm(towards[:2])
     direction = direction + np.array([0.0, 0.0, 0.35])
-    direction /= np.linalg.norm(direction)
-    target = (points.min(axis=0) + points.max(axis=0)) / 2.0
-    distance = 3.0 * float(np.linalg.norm(points - target, axis=1).max())
-    for _ in range(4):  # recentre the points' image and scale them to FILL of the frame
+    direction = options.direction(direction / np.linalg.norm(direction))
+    target = np.array(options.target) if options.target is not None else (points.min(axis=0) + points.max(axis=0)) / 2.0
+    distance = options.distance or 3.0 * float(np.linalg.norm(points - target, axis=1).max())
+    if options.target is not None and options.distance is not None:
+        return Camera(target + distance * direction, target, look_at(target + distance * direction, target), projection)
+    for _ in range(4):  # recentre the points' image and scale them to FILL of the frame (what is not given)
         view = look_at(target + distance * direction, target)
         pixels = project(points, view, projection, width, height)
         ndc = np.column_stack([pixels[:, 0] / width * 2 - 1, 1 - pixels[:, 1] / height * 2])
@@ -122,8 +181,11 @@ def fit_camera(points: np.ndarray, kinematics: Kinematics, width: int, height: i
         up = np.cross(right, -direction)
         half_height = math.tan(math.radians(FIELD_OF_VIEW) / 2.0) * distance
         centre = (low + high) / 2.0
-        target = target + right * centre[0] * half_height * aspect + up * centre[1] * half_height
-        distance *= float(max(high - low)) / 2.0 / FILL
+        if options.target is None:
+            target = target + right * centre[0] * half_height * aspect + up * centre[1] * half_height
+        if options.distance is None:
+            distance *= float(max(high - low)) / 2.0 / FILL
+    view = look_at(target + distance * direction, target)
     return Camera(target + distance * direction, target, view, projection)
 
 
@@ -150,6 +212,18 @@ def base_yaw(kinematics: Kinematics) -> float:
     """The base frame's rotation about the world's z axis, rad (the bars stay aligned with it)."""
     x_axis = kinematics.base_to_world(np.array([1.0, 0.0, 0.0])) - kinematics.base_to_world(np.zeros(3))
     return math.atan2(x_axis[1], x_axis[0])
+
+
+#: Start poses the default camera frames, besides the nominal one: an episode starts at a random seed
+#: pose, and a redundant arm's elbow rises far above the cuboid in some (the Panda's frame was cut at the top).
+FRAMED_START_POSES = 12
+
+
+def framing_configurations(kinematics: Kinematics, space: SampleSpace) -> list[np.ndarray]:
+    """The start poses whose links every default frame shows too: :data:`FRAMED_START_POSES` seed
+    poses as ``reset`` draws them (a fixed generator: the same camera in every run)."""
+    rng = np.random.default_rng(0)
+    return [sample_seed_pose(kinematics, rng, space) for _ in range(FRAMED_START_POSES)]
 
 
 def framing_corners(space: SampleSpace) -> np.ndarray:
