@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 import types
@@ -99,6 +100,25 @@ class SignalGuard:
     def defer(self) -> None:
         self.deferred = True
 
+    def unraisable(self, unraisable: Any, previous: Any) -> None:
+        """``sys.unraisablehook`` while the guard holds: an interrupt raised where Python drops exceptions
+        (a weakref or garbage-collector callback, code called back from C, none of which
+        :func:`cannot_raise_here` sees) is sent again instead of being lost."""
+        if isinstance(unraisable.exc_value, TerminationSignal) and not self.deferred:
+            if self.received:
+                self.received.pop()  # not delivered: the signal sent again raises in its place
+            send_again(unraisable.exc_value.signum)
+            return
+        previous(unraisable)
+
+    def install(self, signals: Sequence[int] = STOP_SIGNALS) -> dict[int, Any]:
+        """Set the handlers of ``signals`` and the unraisable hook; return what they replaced (signal: handler)."""
+        previous = {signum: signal.signal(signum, self.handle) for signum in signals}
+        hook = sys.unraisablehook
+        sys.unraisablehook = lambda unraisable: self.unraisable(unraisable, hook)
+        previous[-1] = hook
+        return previous
+
     def raise_pending(self) -> None:
         if self.received:
             raise TerminationSignal(self.received[0])
@@ -124,10 +144,11 @@ def stop_signals_raise(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[Signal
     if threading.current_thread() is not threading.main_thread():
         yield guard
         return
-    previous = {signum: signal.signal(signum, guard.handle) for signum in signals}
+    previous = guard.install(signals)
     try:
         yield guard
     finally:
+        sys.unraisablehook = previous.pop(-1)
         for signum, handler in previous.items():
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
 

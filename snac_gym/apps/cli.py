@@ -530,8 +530,7 @@ def main() -> None:
     import click  # typer's own dependency
 
     guard = SignalGuard()
-    for signum in STOP_SIGNALS:  # not restored: a signal while the process exits must not kill it mid-exit
-        signal.signal(signum, guard.handle)
+    guard.install(STOP_SIGNALS)  # not restored: a signal while the process exits must not kill it mid-exit
     _main_guard = guard
     _reported.clear()
     interrupt: BaseException | None = None
