@@ -111,13 +111,12 @@ class SignalGuard:
             return
         previous(unraisable)
 
-    def install(self, signals: Sequence[int] = STOP_SIGNALS) -> dict[int, Any]:
-        """Set the handlers of ``signals`` and the unraisable hook; return what they replaced (signal: handler)."""
-        previous = {signum: signal.signal(signum, self.handle) for signum in signals}
+    def install(self, signals: Sequence[int] = STOP_SIGNALS) -> tuple[dict[int, Any], Any]:
+        """Set the handlers of ``signals`` and the unraisable hook; return what they replaced."""
+        handlers = {signum: signal.signal(signum, self.handle) for signum in signals}
         hook = sys.unraisablehook
         sys.unraisablehook = lambda unraisable: self.unraisable(unraisable, hook)
-        previous[-1] = hook
-        return previous
+        return handlers, hook
 
     def raise_pending(self) -> None:
         if self.received:
@@ -144,12 +143,12 @@ def stop_signals_raise(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[Signal
     if threading.current_thread() is not threading.main_thread():
         yield guard
         return
-    previous = guard.install(signals)
+    handlers, hook = guard.install(signals)
     try:
         yield guard
     finally:
-        sys.unraisablehook = previous.pop(-1)
-        for signum, handler in previous.items():
+        sys.unraisablehook = hook
+        for signum, handler in handlers.items():
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
 
 

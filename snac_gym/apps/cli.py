@@ -6,7 +6,6 @@ Each subcommand parses its options and calls a function that can be used from Py
 from __future__ import annotations
 
 import math
-import signal
 import sys
 import time
 import warnings
@@ -338,7 +337,7 @@ def emulate_ur(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from exc
     if stopped_by is not None and emulator.failure is None:
-        raise _interrupted(TerminationSignal(signal.Signals[stopped_by]), "the emulator closed its connections; it keeps no files")
+        raise _interrupted(TerminationSignal(stopped_by), "the emulator closed its connections; it keeps no files")
     if emulator.failure is not None:  # a thread of the emulator died: not a clean end
         failure = emulator.failure
         typer.echo(f"error: the emulator stopped: {type(failure).__name__}: {failure}", err=True)

@@ -244,11 +244,12 @@ def write_demo_outputs(
         drawers["optimality"] = lambda: panels.plot_optimality(log)
     if "model_residual" in log.columns:
         drawers["model"] = lambda: panels.plot_model_correction(log)
+    drawn = 0
     try:
         for name, draw in drawers.items():
             result.files.append(panels.save_figure(draw(), out / f"{prefix}{name}.png"))
+            drawn += 1
     except KeyboardInterrupt as exc:
-        drawn = len(result.files) - 2
         exc.kept = (f"the log and summary are complete in {out}/; {drawn} of {len(drawers)} figures "  # type: ignore[attr-defined]
                     "were drawn (each whole)")
         raise

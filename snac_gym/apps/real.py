@@ -8,6 +8,7 @@ import signal
 import sys
 import traceback
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,7 +48,7 @@ STREAM_SUFFIX = "stream.csv"
 STOP_SIGNALS = (*COMMAND_STOP_SIGNALS, signal.SIGUSR1, signal.SIGUSR2)
 
 
-def stop_signals_raise() -> Any:
+def stop_signals_raise() -> AbstractContextManager[SignalGuard]:
     """Within the block, the first signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal`
     (:func:`snac_gym._signals.stop_signals_raise` with the real run's wider set)."""
     return _stop_signals_raise(STOP_SIGNALS)

@@ -365,21 +365,27 @@ class PyBulletScene:
 
     def framed_points(self, space: SampleSpace) -> np.ndarray:
         """World points the camera must show: the cuboid's corners, the base, and the link origins at the
-        robot's nominal (elbow-up) pose; the links at start poses as ``reset`` draws them
-        (:func:`framing_configurations`) are kept in ``start_points``, for :func:`fit_camera`'s ``also``."""
+        robot's nominal (elbow-up) pose, how the arm stands while it works in the cuboid."""
         corners = framing_corners(space)
+        links = self._links_at([nominal_configuration(self.kinematics)])
+        return np.vstack([[self.kinematics.base_to_world(c) for c in corners], [[0.0, 0.0, 0.0]], links])
+
+    def start_points(self, space: SampleSpace) -> np.ndarray:
+        """The link origins at start poses as ``reset`` draws them (:func:`framing_configurations`), for
+        :func:`fit_camera`'s ``also``."""
+        return self._links_at(framing_configurations(self.kinematics, space))
+
+    def _links_at(self, poses: list[np.ndarray]) -> np.ndarray:
+        """The link origins of the arm at each of ``poses``, stacked; the arm is put back where it was."""
         joints = [i for i in range(p.getNumJoints(self.body, physicsClientId=self.client))
                   if p.getJointInfo(self.body, i, physicsClientId=self.client)[2] != p.JOINT_FIXED]
         load_pose = [p.getJointState(self.body, i, physicsClientId=self.client)[0] for i in joints]
-        self._pose(joints, nominal_configuration(self.kinematics))
-        links = self.link_origins()
-        starts = []
-        for pose in framing_configurations(self.kinematics, space):
+        links = []
+        for pose in poses:
             self._pose(joints, pose)
-            starts.append(self.link_origins())
+            links.append(self.link_origins())
         self._pose(joints, load_pose)  # put the arm back where the saved initial state has it
-        self.start_points = np.vstack(starts)
-        return np.vstack([[self.kinematics.base_to_world(c) for c in corners], [[0.0, 0.0, 0.0]], links])
+        return np.vstack(links)
 
     def _pose(self, joints: list[int], angles: Any) -> None:
         for joint, angle in zip(joints, angles):
@@ -394,8 +400,8 @@ class PyBulletScene:
 
     def _camera(self, space: SampleSpace) -> tuple[list[float], list[float]]:
         """View and projection matrices that fit :meth:`framed_points` in the image (:func:`fit_camera`)."""
-        points = self.framed_points(space)
-        camera = fit_camera(points, self.kinematics, self.width, self.height, self.camera_options, self.start_points)
+        camera = fit_camera(self.framed_points(space), self.kinematics, self.width, self.height, self.camera_options,
+                            self.start_points(space))
         return camera.view, camera.projection
 
     # -- per episode and per frame ---------------------------------------------------------------

@@ -181,8 +181,8 @@ class MuJoCoScene:
         self.arm, self.kinematics = arm, kinematics
         self.width, self.height = check_image_size(width, height)
         self._arm_bodies = list(range(1, arm.model.nbody))  # the world body is 0; the scene's come after
-        points = self.framed_points(space)
-        self.camera = fit_camera(points, kinematics, self.width, self.height, camera, self.start_points)
+        self.camera = fit_camera(self.framed_points(space), kinematics, self.width, self.height, camera,
+                                 self.start_points(space))
         self.view, self.projection = self.camera.view, self.camera.projection
         arm.add_to_world(lambda spec: self._build(spec, space))
         model = arm.model
@@ -235,13 +235,18 @@ class MuJoCoScene:
         """World points the camera must show: the cuboid's corners, the base, and the body origins at the
         robot's nominal (elbow-up) pose, as :meth:`PyBulletScene.framed_points <snac_gym.physics.bullet.PyBulletScene.framed_points>`."""
         corners = [self.kinematics.base_to_world(c) for c in framing_corners(space)]
+        self.arm.reset(nominal_configuration(self.kinematics))
+        return np.vstack([corners, [[0.0, 0.0, 0.0]], self.link_origins()])
+
+    def start_points(self, space: SampleSpace) -> np.ndarray:
+        """The body origins at start poses as ``reset`` draws them (:func:`framing_configurations`), for
+        :func:`fit_camera`'s ``also``; the arm is left at its nominal pose, as :meth:`framed_points` leaves it."""
         starts = []
         for pose in framing_configurations(self.kinematics, space):
             self.arm.reset(pose)
             starts.append(self.link_origins())
-        self.start_points = np.vstack(starts)
         self.arm.reset(nominal_configuration(self.kinematics))
-        return np.vstack([corners, [[0.0, 0.0, 0.0]], self.link_origins()])
+        return np.vstack(starts)
 
     def link_origins(self) -> np.ndarray:
         """World positions of every body frame of the arm (MuJoCo fuses the URDF's fixed links)."""

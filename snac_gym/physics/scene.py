@@ -106,7 +106,7 @@ class CameraOptions:
     """Where the camera looks from, in panda-gym's and PyBullet's terms; ``None``: fitted to the scene.
 
     Attributes:
-        distance: From the camera to its target, m, in (0, 20).
+        distance: From the camera to its target, m, in (0, 20].
         yaw: The camera's azimuth about the world's z axis, degrees (PyBullet's
             ``computeViewMatrixFromYawPitchRoll``: 0 looks along +y, 90 along −x).
         pitch: Its elevation, degrees in [−89, 89]; negative looks down (panda-gym's default is −30).

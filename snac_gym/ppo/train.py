@@ -337,15 +337,13 @@ class _Run:
 
     def evaluated_timesteps(self) -> list[int]:
         """The timesteps of the rows in evaluations.csv, in order."""
-        rows, _ = read_training_log(self.out)
-        return [int(row["timesteps"]) for row in rows]
+        return [int(row["timesteps"]) for row in read_evaluations(self.out)]
 
     def best_of_rows(self) -> dict[str, float] | None:
         """The best row of evaluations.csv (as :func:`_better` ranks them): state.json's ``best`` may lag
         the rows when a run was killed between writing one and the other."""
-        rows, _ = read_training_log(self.out)
         best = None
-        for row in rows:
+        for row in read_evaluations(self.out):
             if _better(row, best):
                 best = row
         return best
@@ -670,13 +668,19 @@ def _result(run: _Run, status: str, timesteps: int) -> TrainingResult:
     )
 
 
+def read_evaluations(out: str | Path) -> list[dict[str, float]]:
+    """The rows of a run folder's evaluations.csv, in order (none if it has no evaluation yet)."""
+    path = Path(out) / "evaluations.csv"
+    if not path.exists():
+        return []
+    with path.open() as handle:
+        return [{k: float(v) for k, v in row.items() if v != ""} for row in csv.DictReader(handle)]
+
+
 def read_training_log(out: str | Path) -> tuple[list[dict[str, float]], list[dict[str, float]]]:
     """The evaluation rows and the SB3 progress rows (all segments, in order) of a run folder."""
     out = Path(out)
-    evaluations: list[dict[str, float]] = []
-    if (out / "evaluations.csv").exists():
-        with (out / "evaluations.csv").open() as handle:
-            evaluations = [{k: float(v) for k, v in row.items() if v != ""} for row in csv.DictReader(handle)]
+    evaluations = read_evaluations(out)
     progress: list[dict[str, float]] = []
     segments = sorted((out / "logs").glob("segment_*"), key=lambda p: int(p.name.split("_")[1]))
     for segment in segments:

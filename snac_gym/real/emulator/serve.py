@@ -72,11 +72,11 @@ def fault_plan(
     return plan
 
 
-def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], None]) -> str | None:
+def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], None]) -> int | None:
     """Run ``emulator`` until ``duration`` s have passed, a stop signal or a failed thread; then close it.
 
     Returns:
-        The name of the signal that stopped it (SIGINT, SIGTERM, SIGHUP or SIGQUIT), else ``None``.
+        The number of the signal that stopped it (SIGINT, SIGTERM, SIGHUP or SIGQUIT), else ``None``.
     """
     stop = threading.Event()
     received: list[int] = []
@@ -98,4 +98,4 @@ def serve(emulator: UREmulator, duration: float | None, echo: Callable[[str], No
     finally:
         for signum, old in previous.items():
             signal.signal(signum, old)
-    return signal.Signals(received[0]).name if received else None
+    return received[0] if received else None
