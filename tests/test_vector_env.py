@@ -8,6 +8,7 @@ import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.envs.vector import URTaskVectorEnv
 from snac_gym.kinematics import PositionChain
 from snac_gym.kinematics import Kinematics
+from snac_gym.physics.scene import PATH_COLOUR
 from snac_gym.tasks import TASKS
 
 ENV_IDS = [task.env_id for task in TASKS.values()]  # the UR10's; test_a_seven_joint_arm_matches_too runs a Panda
@@ -153,8 +154,8 @@ def test_bad_arguments_are_refused():
     env_id = "snac_gym/UR10Reach-v0"
     with pytest.raises(ValueError, match="kinematic model only"):
         gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", physics="pybullet")
-    with pytest.raises(ValueError, match="no scene to render"):
-        gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", render_mode="rgb_array")
+    with pytest.raises(ValueError, match="renders render_mode='rgb_array'"):
+        gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", render_mode="human")
     with pytest.raises(ValueError, match="num_envs"):
         gym.make_vec(env_id, num_envs=0, vectorization_mode="vector_entry_point")
     with pytest.raises(TypeError):
@@ -174,3 +175,33 @@ def test_gym_make_keeps_pybullet_and_its_episode_length():
     env = gym.make("snac_gym/UR10Reach-v0", max_episode_steps=1500)
     assert env.unwrapped.physics == "pybullet" and env.spec.max_episode_steps == 1500
     env.close()
+
+
+def test_the_vector_env_renders_its_first_episode_as_the_single_env_draws_it():
+    """make_vec(..., render_mode="rgb_array").render() is the frame of sub-env 0: the single env, reset with the
+    same seed and given the same commands, draws the same image (its arm set to the same joint angles)."""
+    env_id = "snac_gym/UR10EllipseTrack-v0"
+    kwargs = {"render_width": 96, "render_height": 72}
+    vector = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", render_mode="rgb_array", **kwargs)
+    single = gym.make(env_id, physics="kinematic", **kwargs)
+    viewer = gym.make(env_id, render_mode="rgb_array", **kwargs)
+    vector.reset(seed=4), single.reset(seed=4)
+    commands = np.full((3, 6), 0.2)
+    for _ in range(30):
+        vector.step(commands)
+        single.step(commands[0])
+    frame = vector.render()
+    assert frame.shape == (72, 96, 3) and frame.dtype == np.uint8
+    base = viewer.unwrapped
+    viewer.reset(seed=4)
+    base.reference, base.steps = single.unwrapped.reference, single.unwrapped.steps
+    base.arm.restore(*single.unwrapped.arm.joint_state(), np.zeros(6))
+    base._frame = None
+    np.testing.assert_array_equal(frame, viewer.render())
+    vector.step(np.full((3, 6), -0.5))
+    later = vector.render()
+    assert not np.array_equal(frame, later)  # the frame follows the episode
+    path = np.array(PATH_COLOUR[:3]) * 255
+    for image in (frame, later):  # the ellipse's markers stay drawn from one frame to the next
+        assert (np.abs(image.astype(int) - path) <= 40).all(-1).sum() > 5
+    vector.close(), single.close(), viewer.close()

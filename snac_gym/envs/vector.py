@@ -255,8 +255,10 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
     **kwargs)``; ``kwargs`` are the single env's (``robot``, ``dt``, ``max_steps``,
     ``reward_type``, ``action_type``, ``observation_dtype``, ``Q``, ``R``, ``success_tolerance``,
     ``terminate_on_success``, ``sample_space``, ``finite_observation_bounds``, ...), checked by
-    building one single kinematic env from them. ``physics`` may only be ``"kinematic"`` and
-    ``render_mode`` only ``None``: for PyBullet physics use ``vectorization_mode="sync"``.
+    building one single kinematic env from them. ``physics`` may only be ``"kinematic"`` (the
+    episodes step the exact model θₖ₊₁ = θₖ + uₖΔt, not ``gym.make(id)``'s PyBullet: for PyBullet
+    physics use ``vectorization_mode="sync"``); ``render_mode="rgb_array"`` makes :meth:`render`
+    return the first episode's frame, drawn by PyBullet's scene.
     :class:`ReachVectorEnv` and :class:`EllipseTrackVectorEnv` fix the task; this class runs a
     task registered later, given ``task=``.
 
@@ -270,7 +272,7 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
     ``is_success``, ``reference``, ``q0``) in the step it is autoreset.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"]}
     #: The task of a subclass (``None``: given by ``task=``).
     task_spec: Task | None = None
 
@@ -291,8 +293,10 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
                 f"the vector env steps the kinematic model only (physics='kinematic'), got physics={physics!r}; "
                 "for PyBullet use gym.make_vec(..., vectorization_mode='sync')"
             )
-        if render_mode is not None:
-            raise ValueError(f"the vector env has no scene to render (render_mode={render_mode!r}); use the single env")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(
+                f"the vector env renders render_mode='rgb_array' (its first episode's frame), got {render_mode!r}"
+            )
         # the bound keeps a typo (10**9) from asking for terabytes
         whole_number("num_envs", num_envs, 1, MAX_NUM_ENVS)
         task = get_task(task if task is not None else self.task_spec)
@@ -305,8 +309,11 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         if horizon < 1:
             raise ValueError(f"max_episode_steps must be at least 1, got {max_episode_steps}")
         self.num_envs = int(num_envs)
-        self.render_mode = None
+        self.render_mode = render_mode
         self.single_env = template
+        # The frame of episode 0, drawn by a PyBullet env of the same arguments (built at the first render)
+        self._viewer_kwargs = {"task": task, **kwargs}
+        self._viewer: URTaskEnv | None = None
         self.episodes = KinematicEpisodes(template, self.num_envs, horizon)
         self.max_episode_steps = int(horizon)
         self.single_observation_space = template.observation_space
@@ -366,8 +373,31 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         """The registered name of the robot the episodes drive."""
         return self.single_env.robot
 
+    def render(self) -> np.ndarray | None:
+        """The frame of the first episode (sub-env 0), as ``gym.make(id, render_mode="rgb_array")`` draws it.
+
+        The episodes step the exact kinematic model; the frame is drawn by PyBullet's scene with the
+        arm set to episode 0's joint angles (a frame, not a simulation: the physics is the vector env's).
+        """
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make_vec")
+            return None
+        if self._viewer is None:
+            self._viewer = task_env_class(self._viewer_kwargs["task"])(
+                physics="pybullet", render_mode="rgb_array", **self._viewer_kwargs
+            )
+            self._viewer.reset(seed=0)
+        viewer, episodes = self._viewer, self.episodes
+        viewer.reference = episodes.references.references[0]
+        viewer.steps = int(episodes.steps[0])
+        viewer.arm.restore(episodes.q[0], episodes.qdot[0], episodes.last_command[0])  # markers parked too
+        viewer._frame, viewer._shown_reference = None, None  # draw episode 0's state and path anew
+        return viewer.render()
+
     def close_extras(self, **kwargs: Any) -> None:
         self.single_env.close()
+        if self._viewer is not None:
+            self._viewer.close()
 
 
 def _seed_list(seed: int | Sequence[int | None] | None, count: int) -> list[int | None]:
