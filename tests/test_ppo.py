@@ -521,3 +521,24 @@ def test_shipped_policies_beat_dls_on_the_cost_they_were_trained_on(task):
         final_errors[name] = errors[-1] if task == "reach" else errors[steps // 2:].mean(axis=0)
     assert np.median(costs["ppo"] / costs["dls"]) < 1.0, costs
     assert np.all(final_errors["ppo"] <= (0.001 if task == "reach" else 0.005)), final_errors["ppo"]
+
+
+def test_a_config_trains_on_the_workspace_when_its_env_says_so(tmp_path):
+    """``env.sample_space: "workspace"`` reaches every env the trainer builds: the batched training envs, the
+    single ones and the periodic evaluation's; another region name is refused by name."""
+    from snac_gym.ppo.config import ConfigError, env_arguments, validate_config
+
+    config = resolve_config("reach", n_envs=2)
+    config["env"]["sample_space"] = "workspace"
+    validate_config({k: v for k, v in config.items() if k not in ("config_file", "versions")})
+    assert env_arguments(config)["sample_space"].region == "workspace"
+    pytest.importorskip("stable_baselines3")
+    from snac_gym.ppo.train import make_training_env
+    from snac_gym.ppo.vec_env import PPOVecEnv
+
+    assert PPOVecEnv(config).vector_env.single_env.sample_space.region == "workspace"
+    assert make_training_env(config).unwrapped.sample_space.region == "workspace"
+    assert env_arguments(resolve_config("reach")).get("sample_space") is None  # the default: the cuboid
+    config["env"]["sample_space"] = "everywhere"
+    with pytest.raises(ConfigError, match="env.sample_space must be one of cuboid, workspace, got 'everywhere'"):
+        validate_config({k: v for k, v in config.items() if k not in ("config_file", "versions")})

@@ -48,6 +48,9 @@ from snac_gym.physics.base import check_timing
 from snac_gym.ppo.envs import REWARD_TYPES
 from snac_gym.ppo.features import ACTION_KINDS, FEATURE_VERSION, FeatureSpec
 from snac_gym.robots import robot_names
+from snac_gym.kinematics import Kinematics
+from snac_gym.sampling import REGIONS as SAMPLE_REGIONS
+from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task, task_names
 
 CONFIG_VERSION = 1
@@ -402,9 +405,25 @@ def env_keywords(task: str) -> dict[str, inspect.Parameter]:
     return {name: p for name, p in parameters.items() if p.kind in named and name not in ("robot", "task")}
 
 
+def env_arguments(config: dict[str, Any]) -> dict[str, Any]:
+    """The env keyword arguments of a resolved ``config``: its ``env`` section, with ``sample_space``
+    (``"cuboid"``: the robot's sample cuboid, the default; ``"workspace"``: anywhere the arm reaches,
+    every IK branch, as ``snac-gym evaluate --sample-space workspace``) made a :class:`~snac_gym.sampling.SampleSpace`."""
+    arguments = dict(config["env"])
+    region = arguments.pop("sample_space", None)
+    if region == "workspace":
+        arguments["sample_space"] = SampleSpace.workspace(Kinematics(config.get("robot", "ur10")))
+    return arguments
+
+
 def _check_env_keywords(task: str, env: dict[str, Any]) -> None:
     accepted = env_keywords(task)
+    region = env.get("sample_space")
+    if region is not None and region not in SAMPLE_REGIONS:
+        raise ConfigError(f"env.sample_space must be one of {', '.join(SAMPLE_REGIONS)}, got {region!r}")
     for key, value in env.items():
+        if key == "sample_space":
+            continue
         if key not in accepted:
             raise ConfigError(f"unknown env keyword env.{key}: the {task} env takes {', '.join(accepted)}")
         annotation = str(accepted[key].annotation).replace(" ", "")

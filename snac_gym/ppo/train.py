@@ -62,7 +62,7 @@ from snac_gym.outputs import usable_out_folder
 from snac_gym.envs import make_task_env
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
-from snac_gym.ppo.config import resolve_config, validate_config
+from snac_gym.ppo.config import env_arguments, resolve_config, validate_config
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec
 from snac_gym.ppo.features import FeatureSpec
 from snac_gym.ppo.policy import PPOPolicy
@@ -144,7 +144,7 @@ class LinearSchedule:
 def make_training_env(config: dict[str, Any]) -> gym.Env:
     """One training env of ``config`` (the task's env inside :class:`PPOTrainingWrapper`)."""
     reward = RewardSpec.from_dict(config["reward"])
-    env = make_task_env(config["task"], config.get("robot", "ur10"), **config["env"], **reward.env_kwargs())
+    env = make_task_env(config["task"], config.get("robot", "ur10"), **env_arguments(config), **reward.env_kwargs())
     return PPOTrainingWrapper(env, FeatureSpec.from_dict(config["features"]), reward)
 
 
@@ -234,7 +234,9 @@ def evaluate_policy_file(
     task = get_task(config["task"])
     count = int(episodes if episodes is not None else evaluation["episodes"])
     threshold = float(evaluation["success_error_m"])
-    env = make_task_env(task, config.get("robot", "ur10"), max_steps=10**9)
+    # the episodes of the region trained on (the sample cuboid unless env.sample_space says otherwise)
+    space = env_arguments(config).get("sample_space")
+    env = make_task_env(task, config.get("robot", "ur10"), max_steps=10**9, **({} if space is None else {"sample_space": space}))
     try:
         policy = PPOPolicy(env, model_path=policy_path, action_scale=action_scale)
         dt = env.unwrapped.dt

@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.envs.sb3 import SB3VectorEnv
+from snac_gym.ppo.config import env_arguments
 from snac_gym.ppo.envs import RewardSpec
 from snac_gym.ppo.features import (
     FeatureSpec,
@@ -40,7 +41,7 @@ class PPOVecEnv(SB3VectorEnv):
         self.features = FeatureSpec.from_dict(config["features"])
         self.reward_spec = RewardSpec.from_dict(config["reward"])
         count = int(num_envs if num_envs is not None else config["vec_env"].get("n_envs", 1))
-        env_kwargs = {k: v for k, v in config["env"].items() if k not in ("physics", "backend")}
+        env_kwargs = {k: v for k, v in env_arguments(config).items() if k not in ("physics", "backend")}
         env_kwargs.update(self.reward_spec.env_kwargs())
         self.action_scales = np.ones(count)
         self.previous_actions = np.zeros((count, 1))
