@@ -130,6 +130,9 @@ DELAYS = {"SIGINT": 0.0, "SIGTERM": 0.4, "SIGHUP": 0.0, "SIGQUIT": 0.4}
 @pytest.mark.parametrize("signame", SIGNALS)
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_a_stop_signal_in_a_commands_first_second_ends_it_with_one_line_and_nothing_written(tmp_path, command, signame):
+    if command == "train-ppo":
+        # Without the rl extra the command refuses at once and may be gone before the signal comes.
+        pytest.importorskip("stable_baselines3")
     out = tmp_path / "out"
     args = [arg.replace("{out}", str(out)) for arg in COMMANDS[command]]
     code, err, _ = _run(args, signame, cwd=tmp_path, delay=DELAYS[signame])
