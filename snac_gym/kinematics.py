@@ -12,6 +12,7 @@ numbers (seed pose, target, circle centre) work unchanged.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.metadata
 import math
 from functools import lru_cache
@@ -21,7 +22,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from snac_gym.model_error import joint_axis, parse_model_error
+from snac_gym.model_error import ModelError, joint_axis, parse_model_error
 from snac_gym.robots import get_robot, robot_names
 
 _PACKAGE_PREFIX = "package://example-robot-data/robots/"
@@ -119,7 +120,8 @@ class Kinematics:
         urdf_path: Optional path of another URDF with revolute joints only.
         model_error: A :class:`~snac_gym.model_error.ModelError` (or its ``--model-error`` text)
             written into the model: the kinematics a controller with a wrong arm model uses.
-            ``None`` or a zero error: the true model.
+            ``None`` or a zero error: the true model. Its ``model`` part may only name this robot
+            itself (another robot is refused: :meth:`with_model_error` builds that one).
 
     Attributes:
         n_joints: Number of actuated joints ``m``.
@@ -176,7 +178,9 @@ class Kinematics:
         for frame in self.model.frames:
             if frame.parentJoint == 0:
                 frame.placement = base_from_world * frame.placement
-        error = parse_model_error(model_error)
+        error = _own_model_error(robot, self.urdf_path, model_error)
+        if error is not None:
+            error.check_joints(int(self.model.nq))  # a zero error of the wrong count too
         self.model_error = None if error is None or error.is_zero else error
         if self.model_error is not None:
             self.model_error.apply(self.model, self._ee_id)
@@ -195,10 +199,26 @@ class Kinematics:
         """The same arm (URDF, frames) with ``model_error`` written into its model: the one builder of the
         wrong model a controller is given under ``--model-error`` (:mod:`snac_gym.model_error`).
 
+        With a ``model=NAME`` part the result is robot ``NAME``'s kinematics (its URDF) with the other parts
+        written into it, expressed in this arm's end-effector and base frames where ``NAME`` has frames of those
+        names, else in ``NAME``'s own; its ``robot`` is ``NAME`` and its ``model_error`` the other parts.
+
         Raises:
-            ValueError: For a malformed error, or one that names more joints than the arm has.
+            ValueError: For a malformed error, one that names more joints than the arm has, or a ``model``
+                with another joint count than this arm's (naming both robots and counts).
         """
-        return Kinematics(self.robot, self.ee_frame, self.base_frame, urdf_path=self.urdf_path, model_error=model_error)
+        error = parse_model_error(model_error)
+        if error is None or error.model is None or _is_robot(self.robot, self.urdf_path, error.model):
+            return Kinematics(self.robot, self.ee_frame, self.base_frame, urdf_path=self.urdf_path, model_error=error)
+        other = Kinematics(error.model)
+        if other.n_joints != self.n_joints:
+            raise ValueError(
+                f"--model-error: model={error.model} has {other.n_joints} joints but {self.robot} has {self.n_joints}; "
+                "the model must have the arm's joint count"
+            )
+        ee_frame = self.ee_frame if other.model.existFrame(self.ee_frame) else other.ee_frame
+        base_frame = self.base_frame if other.model.existFrame(self.base_frame) else other.base_frame
+        return Kinematics(error.model, ee_frame, base_frame, model_error=dataclasses.replace(error, model=None))
 
     def ee_mount(self) -> tuple[str, np.ndarray]:
         """The joint that carries the end-effector frame and the frame's offset in that joint's frame, m.
@@ -386,6 +406,28 @@ class Kinematics:
             q = np.minimum(np.maximum(q + step, lower), upper)
         err = target - self.forward(q)
         return q, bool(err @ err <= tol * tol)
+
+
+def _is_robot(robot: str, urdf_path: Path, name: str) -> bool:
+    """Whether ``robot`` with ``urdf_path`` is the registered robot ``name`` (its URDF)."""
+    return name == robot.lower() and urdf_path == robot_urdf_path(name)
+
+
+def _own_model_error(robot: str, urdf_path: Path, model_error: Any) -> ModelError | None:
+    """``model_error`` parsed, for ``robot`` itself: a ``model`` part naming this robot dropped (nothing to change).
+
+    Raises:
+        ValueError: If its ``model`` names another robot (:meth:`Kinematics.with_model_error` builds that one).
+    """
+    error = parse_model_error(model_error)
+    if error is None or error.model is None:
+        return error
+    if not _is_robot(robot, urdf_path, error.model):
+        raise ValueError(
+            f"--model-error model={error.model}: Kinematics({robot!r}) does not become another robot; "
+            f"Kinematics({robot!r}).with_model_error(...) builds {error.model}'s kinematics with the other parts"
+        )
+    return dataclasses.replace(error, model=None)
 
 
 def _locked(model: pin.Model, joints: tuple[str, ...]) -> pin.Model:
