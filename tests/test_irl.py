@@ -122,3 +122,94 @@ def test_bad_arguments_are_refused(rng):
         simulate_linear(-np.eye(2), np.eye(2), [1.0, 0.0], lambda t, x: x, window=0.0, windows=3)
     with pytest.raises(ValueError, match="steps_per_window"):
         windows_from_samples(np.zeros((5, 2)), np.zeros((4, 2)), 0.1, steps_per_window=0)
+
+
+# -- the arm controller ---------------------------------------------------------------------------
+DT = 1.0 / 125.0
+
+
+def _arm_context(kinematics, task="reach"):
+    from snac_gym.observation import ObservationLayout
+    from snac_gym.policies.base import PolicyContext
+
+    layout = ObservationLayout(kinematics.n_joints, kinematics.task_dim)
+    return PolicyContext(kinematics, DT, np.full(kinematics.n_joints, 3.0), layout, task)
+
+
+def test_registered():
+    from snac_gym.policies import available_policies
+
+    assert "snac-irl" in available_policies()
+
+
+def test_on_a_frozen_jacobian_the_arm_learner_finds_the_are_gain_from_data(ur10):
+    """ė = J₀u with J₀ frozen (the learner's assumption): the gain learned from the measured (e, u)
+    is the ARE's R⁻¹J₀ᵀP*(J₀), although the policy never evaluates J after its K₀."""
+    from snac_gym.optimality import FrozenJacobianLQR
+    from snac_gym.policies import make_policy
+
+    context = _arm_context(ur10)
+    q = np.array([0.0, -1.2, 1.5, -1.8, -1.57, 0.0])
+    J0, x_d = ur10.jacobian(q), ur10.forward(q) + np.array([0.3, -0.2, 0.1])
+    policy = make_policy("snac-irl", context, Q=[4.0] * 3, initial_gain_scale=0.5)
+    policy.reset(seed=3)
+    e = ur10.forward(q) - x_d
+    for _ in range(policy.learning_steps + 1):
+        u = policy.act(context.layout.pack(q, np.zeros(6), x_d + e, x_d, np.zeros(3), x_d))
+        e = e + DT * J0 @ u
+    K_star = FrozenJacobianLQR([4.0] * 3, None, 3, 6).gain(J0)
+    assert policy.internals["learned"]
+    assert np.linalg.norm(policy._batch["gain"][0] - K_star) <= 1e-4 * np.linalg.norm(K_star)
+
+
+def test_the_batch_rows_are_the_single_episodes(ur10):
+    from snac_gym.policies import make_policy
+
+    context = _arm_context(ur10)
+    rng = np.random.default_rng(5)
+    q = np.array([0.0, -1.2, 1.5, -1.8, -1.57, 0.0]) + rng.normal(scale=0.2, size=(3, 6))
+    x_d = np.array([ur10.forward(row) for row in q]) + rng.uniform(-0.2, 0.2, size=(3, 3))
+    batch = make_policy("snac-irl", context)
+    batch.reset_batch([0, 1, 2])
+    singles = [make_policy("snac-irl", context) for _ in range(3)]
+    for seed, single in enumerate(singles):
+        single.reset(seed=seed)
+    for _ in range(batch.learning_steps + 3):
+        obs = np.array([context.layout.pack(q[i], np.zeros(6), ur10.forward(q[i]), x_d[i], np.zeros(3), x_d[i]) for i in range(3)])
+        commands = batch.act_batch(obs)
+        for i, single in enumerate(singles):
+            assert np.allclose(single.act(obs[i]), commands[i], atol=1e-12)
+        q = q + DT * commands
+
+
+def test_the_reach_env_error_decreases():
+    import gymnasium as gym
+
+    from snac_gym.policies import make_policy
+
+    env = gym.make("snac_gym/UR10Reach-v0")
+    policy = make_policy("snac-irl", env)
+    obs, _ = env.reset(seed=0)
+    policy.reset(seed=0)
+    e_slice = policy.layout.slices["e"]
+    start = np.linalg.norm(obs[e_slice])
+    for _ in range(300):
+        obs, *_ = env.step(policy.act(obs))
+    assert np.linalg.norm(obs[e_slice]) < 0.5 * start  # 0.79 m -> 0.22 m after 2.4 s (seed 0)
+    env.close()
+
+
+def test_bad_arm_arguments_are_refused(ur10):
+    from snac_gym.policies.snac_irl import SNACIRLPolicy
+
+    context = _arm_context(ur10)
+    with pytest.raises(ValueError, match="learning_time"):
+        SNACIRLPolicy(context, learning_time=0.05)  # 6 windows, eq. 13 needs 24
+    with pytest.raises(ValueError, match="exploration"):
+        SNACIRLPolicy(context, exploration=-0.1)
+    with pytest.raises(ValueError, match="frequency_range"):
+        SNACIRLPolicy(context, frequency_range=(1.0, 1000.0))
+    with pytest.raises(ValueError, match="relearn_every"):
+        SNACIRLPolicy(context, relearn_every=-1)
+    with pytest.raises(RuntimeError, match="reset"):
+        SNACIRLPolicy(context).act(np.zeros(context.layout.size))

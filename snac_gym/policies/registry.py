@@ -23,6 +23,7 @@ _BUILTIN: dict[str, str] = {
     "snac": "snac_gym.policies.snac:SNACPolicy",
     "snac-hjb": "snac_gym.policies.snac_hjb:SNACHJBPolicy",
     "snac-adaptive": "snac_gym.policies.snac_adaptive:SNACAdaptivePolicy",
+    "snac-irl": "snac_gym.policies.snac_irl:SNACIRLPolicy",
     "dls": "snac_gym.baselines.dls:DLSPolicy",
     "svf": "snac_gym.baselines.svf:SVFPolicy",
     "rnn": "snac_gym.baselines.rnn:RNNPolicy",
