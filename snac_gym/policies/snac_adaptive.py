@@ -54,11 +54,12 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.kinematics import leaf_chain
 from snac_gym.policies.base import positive_float
 from snac_gym.policies.snac_hjb import SNACHJBPolicy
 
-#: Default prior standard deviations: joint offsets (rad), link scale (relative), tool offset (m).
-PRIOR_JOINT_OFFSET, PRIOR_LINK_SCALE, PRIOR_TOOL_OFFSET = 0.5, 0.05, 0.05
+#: Default prior standard deviations of every frame's correction: translation (m), rotation (rad).
+PRIOR_TRANSLATION, PRIOR_ROTATION = 0.1, 0.05
 #: Default measurement noise of x, m.
 MEASUREMENT_NOISE = 1e-4
 #: Default random-walk standard deviation of every parameter per step: lets the filter forget the
@@ -68,35 +69,77 @@ PROCESS_NOISE = 1e-4
 #: Gauss–Newton re-linearisations of each measurement update (1: the plain EKF, whose tracking
 #: succeeded on 9 of 10 ellipses where 3 succeeded on all 10; docs/model-error.md).
 ITERATIONS = 3
+#: Divergence bounds (:class:`DivergenceMonitor`): growth past ‖e₀‖ (m), the stall floor (m), the
+#: stall window (s) and least progress over it (fraction), the prediction residual (m) after a settling time (s).
+DIVERGENCE_GROWTH, DIVERGENCE_FLOOR, DIVERGENCE_WINDOW, DIVERGENCE_PROGRESS = 0.05, 0.02, 0.5, 0.1
+DIVERGENCE_RESIDUAL, DIVERGENCE_SETTLE = 0.01, 0.2
+#: What a diverged episode commands.
+FALLBACKS = ("stop", "none")
 
 
 def _skew_rows(vectors: np.ndarray) -> np.ndarray:
-    """``[v]ₓ`` of every row of ``(B, 3)`` vectors, ``(B, 3, 3)``."""
-    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    """``[v]ₓ`` of every row of ``(..., 3)`` vectors, ``(..., 3, 3)``."""
+    x, y, z = vectors[..., 0], vectors[..., 1], vectors[..., 2]
     zero = np.zeros_like(x)
     return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
 
 
-class KinematicIdentifier:
-    """The EKF of the module docstring over B episodes at once.
+def _rodrigues(axis: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> np.ndarray:
+    """Rot(a, θ) = cos θ I + sin θ [a]ₓ + (1 − cos θ) a aᵀ for one unit axis and ``(B,)`` angles, ``(B, 3, 3)``."""
+    skew = _skew_rows(axis)
+    return (cos[:, None, None] * np.eye(3) + sin[:, None, None] * skew
+            + (1.0 - cos)[:, None, None] * np.outer(axis, axis))  # fmt: skip
+
+
+def _exp_and_right_jacobian(rotation_vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exp(ρ) and its right Jacobian J_r(ρ) for ``(B, 3)`` rotation vectors, each ``(B, 3, 3)``.
+
+    d/dρ [Exp(ρ) y] = −Exp(ρ) [y]ₓ J_r(ρ), with J_r(ρ) = I − (1 − cos φ)/φ² [ρ]ₓ + (φ − sin φ)/φ³ [ρ]ₓ².
+    """
+    angle = np.linalg.norm(rotation_vectors, axis=-1)
+    small = angle < 1e-6
+    safe = np.where(small, 1.0, angle)
+    # Taylor series below 1e-6 rad, where the closed forms lose their digits.
+    a = np.where(small, 1.0 - angle**2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    c = np.where(small, 1.0 / 6.0 - angle**2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    skew = _skew_rows(rotation_vectors)
+    skew2 = skew @ skew
+    eye = np.eye(3)
+    return eye + a[:, None, None] * skew + b[:, None, None] * skew2, eye - b[:, None, None] * skew + c[:, None, None] * skew2
+
+
+class GeometricIdentifier:
+    """The iterated EKF of the module docstring over the complete geometric correction, B episodes at once.
 
     Args:
         kinematics: The (possibly wrong) arm model the correction is relative to.
-        prior: Standard deviations of the prior on (joint offsets, link scale, tool offset).
+        prior: Standard deviations of the prior on each frame's (translation in m, rotation in rad).
         noise: Standard deviation σ of the measured position, m.
         iterations: Re-linearisations of each measurement update (the iterated EKF).
         process_noise: Random-walk standard deviation of every parameter per step.
     """
 
     def __init__(
-        self, kinematics: Any, prior: tuple[float, float, float], noise: float, iterations: int = ITERATIONS,
+        self, kinematics: Any, prior: tuple[float, float], noise: float, iterations: int = ITERATIONS,
         process_noise: float = PROCESS_NOISE,
     ) -> None:
         self.kinematics = kinematics
         self.iterations = int(iterations)
-        m = kinematics.n_joints
-        self.n_joints, self.size = m, m + 4
-        self.prior = np.diag(np.concatenate([np.full(m, prior[0] ** 2), [prior[1] ** 2], np.full(3, prior[2] ** 2)]))
+        steps, offset = leaf_chain(kinematics)
+        steps = steps[::-1]  # base first
+        if not all(revolute for _, _, _, revolute, _ in steps):
+            raise ValueError("snac-adaptive's identifier needs an arm of revolute joints")
+        self._rotations = np.array([rotation for rotation, _, _, _, _ in steps])
+        self._translations = np.array([translation for _, translation, _, _, _ in steps])
+        self._axes = np.array([axis for _, _, axis, _, _ in steps])
+        self._columns = [column for _, _, _, _, column in steps]
+        self._offset = np.asarray(offset, dtype=float)
+        self.n_joints = kinematics.n_joints
+        self.frames = len(steps) + 1  # the base and each joint's frame after its motion
+        self.size = 6 * self.frames
+        block = np.concatenate([np.full(3, prior[0] ** 2), np.full(3, prior[1] ** 2)])
+        self.prior = np.diag(np.tile(block, self.frames))
         self.noise = float(noise)
         self.process_noise = float(process_noise) ** 2 * np.eye(self.size)
         self.reset(1)
@@ -109,17 +152,45 @@ class KinematicIdentifier:
         self.residual = np.zeros(count)
 
     def _model(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """x̂, Ĵ and H at θ (rows) for the current ĉ."""
-        m = self.n_joints
+        """x̂, Ĵ and H at θ (rows) for the current ĉ: the chain with every frame's correction in it."""
+        count = len(q)
         # One episode's estimate may serve many rows (a demo log's diagnostics, at the final ĉ).
-        params = np.broadcast_to(self.params, (len(q), self.size))
-        offsets, scale, tool = params[:, :m], params[:, m], params[:, m + 1 :]
-        f, rotation, linear, angular = self.kinematics.frame_batch(q + offsets)
-        tool_point = np.einsum("bij,bj->bi", rotation, tool)
-        predicted = (1.0 + scale)[:, None] * f + tool_point
-        jacobian = (1.0 + scale)[:, None, None] * linear - _skew_rows(tool_point) @ angular
-        regressor = np.concatenate([jacobian, f[:, :, None], rotation], axis=2)
-        return predicted, jacobian, regressor
+        params = np.broadcast_to(self.params, (count, self.size)).reshape(count, self.frames, 6)
+        rotations = np.empty((count, self.frames, 3, 3))
+        right = np.empty((count, self.frames, 3, 3))
+        for frame in range(self.frames):
+            rotations[:, frame], right[:, frame] = _exp_and_right_jacobian(params[:, frame, 3:])
+        translations = params[:, :, :3]
+        # Frame 0, the base: x = Exp(ρ₀)·(the chain) + τ₀.
+        R = rotations[:, 0].copy()
+        p = translations[:, 0].copy()
+        before = [np.broadcast_to(np.eye(3), (count, 3, 3))]  # each correction's frame before it
+        after = [(R, p)]  # and after it
+        axes, origins = [], []
+        cos_sin = np.cos(q), np.sin(q)
+        for j in range(self.frames - 1):
+            frame = R @ self._rotations[j]
+            p = p + R @ self._translations[j]
+            axis = frame @ self._axes[j]
+            axes.append(axis)
+            origins.append(p)
+            column = self._columns[j]
+            turn = _rodrigues(self._axes[j], cos_sin[0][:, column], cos_sin[1][:, column])
+            R = frame @ turn
+            before.append(R)
+            p = p + (R @ translations[:, j + 1, :, None])[..., 0]
+            R = R @ rotations[:, j + 1]
+            after.append((R, p))
+        x = p + R @ self._offset
+        jacobian = np.zeros((count, 3, self.n_joints))
+        for j, (axis, origin) in enumerate(zip(axes, origins, strict=True)):
+            jacobian[:, :, self._columns[j]] = np.cross(axis, x - origin)
+        regressor = np.empty((count, 3, self.size))
+        for frame in range(self.frames):
+            rotation, origin = after[frame]
+            regressor[:, :, 6 * frame : 6 * frame + 3] = before[frame]
+            regressor[:, :, 6 * frame + 3 : 6 * frame + 6] = -_skew_rows(x - origin) @ rotation @ right[:, frame]
+        return x, jacobian, regressor
 
     def update(self, q: np.ndarray, x: np.ndarray) -> np.ndarray:
         """One iterated-EKF step on the measurements (θ, x) of every episode; returns Ĵ at θ after it.
@@ -152,27 +223,95 @@ class KinematicIdentifier:
         return np.linalg.eigvalsh(self.information)[:, 0]
 
 
+class DivergenceMonitor:
+    """The bounds an adaptive controller watches itself by, over B episodes (module docstring, "Divergence").
+
+    Args:
+        dt: Control period, s.
+        growth: An episode diverges when ‖eₖ‖ exceeds ‖e₀‖ by this much, m.
+        floor: Below this error, m, an episode is never said to stall.
+        window: The stall window, s: ‖eₖ‖ above ``floor`` that has not fallen by ``progress``
+            (a fraction) since the window's start diverges.
+        progress: The least relative decrease of ‖e‖ over a window above the floor.
+        residual: An episode diverges when the model's prediction residual exceeds this, m, once the
+            identifier has had ``settle`` s to correct the first error of the model.
+        settle: Time before the residual bound applies, s.
+    """
+
+    def __init__(
+        self, dt: float, growth: float = DIVERGENCE_GROWTH, floor: float = DIVERGENCE_FLOOR,
+        window: float = DIVERGENCE_WINDOW, progress: float = DIVERGENCE_PROGRESS,
+        residual: float = DIVERGENCE_RESIDUAL, settle: float = DIVERGENCE_SETTLE,
+    ) -> None:
+        self.growth, self.floor, self.progress, self.residual_bound = growth, floor, progress, residual
+        self.window = max(1, round(window / dt))
+        self.settle = max(1, round(settle / dt))
+        self.reset(1)
+
+    def reset(self, count: int) -> None:
+        """Start ``count`` episodes, none diverged."""
+        self.k = 0
+        self.initial = np.zeros(count)
+        self.history = np.zeros((self.window, count))  # ‖e‖ of the last ``window`` steps, a ring
+        self.diverged = np.zeros(count, dtype=bool)
+        self.step = np.full(count, -1)  # the step each episode was flagged at (−1: never)
+        self.reason = np.full(count, "", dtype=object)
+
+    def describe(self, episode: int) -> str:
+        """Why and when episode ``episode`` was flagged (empty if it was not)."""
+        if not self.diverged[episode]:
+            return ""
+        return f"{self.reason[episode]} at step {self.step[episode]}"
+
+    def check(self, error_norms: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+        """Update with this step's ‖eₖ‖ and prediction residuals; returns the episodes flagged (ever)."""
+        k = self.k
+        if k == 0:
+            self.initial = error_norms.copy()
+        rules = {
+            "error grew": error_norms > self.initial + self.growth,
+            "error stalled": (k >= self.window) & (error_norms > self.floor)
+            & (error_norms > (1.0 - self.progress) * self.history[k % self.window]),
+            "prediction residual": (k >= self.settle) & (residuals > self.residual_bound),
+        }
+        for reason, fired in rules.items():
+            new = fired & ~self.diverged
+            if new.any():
+                self.diverged |= new
+                self.step[new] = k
+                self.reason[new] = reason
+        self.history[k % self.window] = error_norms
+        self.k += 1
+        return self.diverged
+
+
 class SNACAdaptivePolicy(SNACHJBPolicy):
-    """``snac-hjb`` on the identified Jacobian Ĵ (module docstring), for reach and track.
+    """``snac-hjb`` on the identified Jacobian Ĵ (module docstring), for reach and track, watching itself.
 
     Args:
         env: The env (or :class:`~snac_gym.policies.base.PolicyContext`) to drive; its kinematics
             is the arm *model* (the evaluator's ``--model-error`` makes it wrong).
         Q, R, q_scale: As for ``snac-hjb`` (the cost the critic learns; ``q_scale`` is the effort knob).
-        prior_joint_offset, prior_link_scale, prior_tool_offset: Prior standard deviations of the
-            correction's parts (rad, relative, m).
+        prior_translation, prior_rotation: Prior standard deviations of every frame's correction
+            (m, rad): how far the model may be from the arm.
         measurement_noise: σ of the measured position, m.
+        fallback: What a diverged episode commands from then on: ``"stop"`` (zero velocity, the
+            default) or ``"none"`` (keep the adaptive command; the flag is still raised).
+        divergence_growth, divergence_floor, divergence_window, divergence_progress,
+        divergence_residual: The bounds of :class:`DivergenceMonitor` (m, m, s, fraction, m).
         **kwargs: The other arguments of :class:`~snac_gym.policies.snac_hjb.SNACHJBPolicy`.
 
     Attributes:
-        identifier: The :class:`KinematicIdentifier` (its ``params`` are ĉ per episode).
+        identifier: The :class:`GeometricIdentifier` (its ``params`` are ĉ per episode).
+        monitor: The :class:`DivergenceMonitor` (its ``diverged``, ``step`` and ``reason`` per episode).
         internals: After :meth:`act`, those of ``snac-hjb`` plus ``model_residual`` (m, before the
-            update) and ``model_correction`` (ĉ); ``identifier.excitation()`` gives λ_min of Σ HᵀH/σ²
-            on demand (an eigendecomposition: not in every control step).
+            update), ``model_correction`` (ĉ), ``diverged`` (1.0 once flagged, else 0.0) and ``divergence``
+            (which bound and when, empty while none was crossed);
+            ``identifier.excitation()`` gives λ_min of Σ HᵀH/σ² on demand.
     """
 
     #: Scalar internals the episode log records as columns (:mod:`snac_gym.rollout.log`).
-    logged_internals = ("model_residual",)
+    logged_internals = ("model_residual", "diverged")
 
     def __init__(
         self,
@@ -180,47 +319,75 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         Q: Any = None,
         R: Any = None,
         q_scale: float = 1.0,
-        prior_joint_offset: float = PRIOR_JOINT_OFFSET,
-        prior_link_scale: float = PRIOR_LINK_SCALE,
-        prior_tool_offset: float = PRIOR_TOOL_OFFSET,
+        prior_translation: float = PRIOR_TRANSLATION,
+        prior_rotation: float = PRIOR_ROTATION,
         measurement_noise: float = MEASUREMENT_NOISE,
+        fallback: str = "stop",
+        divergence_growth: float = DIVERGENCE_GROWTH,
+        divergence_floor: float = DIVERGENCE_FLOOR,
+        divergence_window: float = DIVERGENCE_WINDOW,
+        divergence_progress: float = DIVERGENCE_PROGRESS,
+        divergence_residual: float = DIVERGENCE_RESIDUAL,
         **kwargs: Any,
     ) -> None:
         super().__init__(env, Q=Q, R=R, q_scale=q_scale, **kwargs)
         if self.task_dim != 3:
             raise ValueError("snac-adaptive identifies the position kinematics: it runs the position tasks only")
-        prior = tuple(
-            positive_float(name, value)
-            for name, value in (
-                ("prior_joint_offset", prior_joint_offset),
-                ("prior_link_scale", prior_link_scale),
-                ("prior_tool_offset", prior_tool_offset),
-            )
-        )
-        self.identifier = KinematicIdentifier(self.kinematics, prior, positive_float("measurement_noise", measurement_noise))
+        if fallback not in FALLBACKS:
+            raise ValueError(f"fallback must be one of {', '.join(FALLBACKS)}, got {fallback!r}")
+        self.fallback = fallback
+        prior = (positive_float("prior_translation", prior_translation), positive_float("prior_rotation", prior_rotation))
+        self.identifier = GeometricIdentifier(self.kinematics, prior, positive_float("measurement_noise", measurement_noise))
+        progress = positive_float("divergence_progress", divergence_progress)
+        if progress >= 1.0:
+            raise ValueError(f"divergence_progress must be a fraction below 1, got {divergence_progress}")
+        window = positive_float("divergence_window", divergence_window)
+        self.monitor = DivergenceMonitor(
+            self.dt, positive_float("divergence_growth", divergence_growth), positive_float("divergence_floor", divergence_floor),
+            window, progress, positive_float("divergence_residual", divergence_residual),
+        )  # fmt: skip
         self._x = self.layout.slices["x"]
 
     def reset(self, seed: int | None = None) -> None:
         super().reset(seed)
         self.identifier.reset(1)
+        self.monitor.reset(1)
 
     def reset_batch(self, seeds: Sequence[int | None]) -> None:
         super().reset_batch(seeds)
         self.identifier.reset(len(seeds))
+        self.monitor.reset(len(seeds))
 
     def _jacobians(self, obs: np.ndarray) -> np.ndarray:
         """Ĵ after one identifier step on the measured (θ, x) of this period."""
         return self.identifier.update(obs[:, self._q], obs[:, self._x])
 
+    def _watched(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
+        """The command after the divergence check of this step (the identifier has just run)."""
+        diverged = self.monitor.check(np.linalg.norm(obs[:, self._e], axis=1), self.identifier.residual)
+        if self.fallback == "stop" and diverged.any():
+            command = np.where(diverged[:, None], 0.0, command)
+        return command
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        obs_batch = np.asarray(obs_batch, dtype=float)
+        return self._watched(obs_batch, super().act_batch(obs_batch))
+
     def act(self, obs: np.ndarray) -> np.ndarray:
-        command = super().act(obs)
+        command = self._watched(np.asarray(obs, dtype=float)[None], super().act(obs)[None])[0]
         self.internals.update(
             {
                 "model_residual": float(self.identifier.residual[0]),
                 "model_correction": self.identifier.params[0].copy(),
+                "diverged": float(self.monitor.diverged[0]),
+                "divergence": self.monitor.describe(0),
             }
         )
         return command
+
+    def episode_flags(self) -> dict[str, np.ndarray]:
+        """Per-episode flags for the results: ``diverged`` (bool) and ``diverged_step`` (−1: never)."""
+        return {"diverged": self.monitor.diverged.copy(), "diverged_step": self.monitor.step.copy()}
 
     def _critic_jacobians(self, q: np.ndarray) -> np.ndarray:
         """Ĵ for the diagnostics: the critic learns the problem on Ĵ (it cannot know J). In the
@@ -229,4 +396,4 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         return self.identifier.jacobians(q)
 
 
-__all__ = ["KinematicIdentifier", "SNACAdaptivePolicy"]
+__all__ = ["DivergenceMonitor", "GeometricIdentifier", "SNACAdaptivePolicy"]

@@ -115,6 +115,7 @@ class RealUREnv(TaskEnvCore):
         self._period_wall = 0.0
         self._episode_over = True
         self.stop_reason: str | None = None
+        self._stop_request: str | None = None
         #: A :class:`~snac_gym.real.journal.StepJournal` that gets every period's row as it comes, or ``None``.
         self.journal: Any = None
 
@@ -169,6 +170,7 @@ class RealUREnv(TaskEnvCore):
         self.periods = []
         self._last_command = np.zeros(self.kinematics.n_joints)
         self.stop_reason = None
+        self._stop_request = None
         self.recoveries = []
         self._resumed = False
         self.safety.reset()
@@ -213,9 +215,21 @@ class RealUREnv(TaskEnvCore):
                 )
             raise
 
+    def stop_for(self, reason: str) -> None:
+        """Stop the arm at the next step for ``reason``: a controller that has noticed it is diverging says so here.
+
+        That step's command is not sent; the arm is halted as by a safety rule, the episode terminates
+        and ``info["safety"]`` and :attr:`stop_reason` carry ``reason``.
+        """
+        self._stop_request = str(reason)
+
     def _step(self, u: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         command = self.safety.shape(u, self._last_command)
         costs = self._step_costs(command)
+        if self._stop_request is not None:
+            reason, self._stop_request = self._stop_request, None
+            self._halt(reason)
+            return self._finish((costs[0], 0.0, 0.0), np.zeros_like(command), safety=reason)
 
         # A command computed after a stall is not sent: the state it was computed from is old, and
         # the controller's watchdog may already have stopped the arm.

@@ -42,6 +42,8 @@ class Rollouts:
         final_errors: ``(B, n)`` e_K.
         critic_diagnostics: For critic-based controllers, ``hjb_ratio_median`` and
             ``critic_error_final`` ``(B,)`` (:func:`summarise_critic_diagnostics`); ``None`` otherwise.
+        flags: For controllers that watch themselves, their per-rollout flags (``diverged`` ``(B,)``
+            bool and ``diverged_step`` ``(B,)``, −1 where never); ``None`` otherwise.
     """
 
     dt: float
@@ -56,6 +58,7 @@ class Rollouts:
     final_x: np.ndarray
     final_errors: np.ndarray
     critic_diagnostics: dict[str, np.ndarray] | None = None
+    flags: dict[str, np.ndarray] | None = None
 
     @property
     def count(self) -> int:
@@ -117,6 +120,10 @@ def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
             np.stack([log["hjb_ratio"].to_numpy() for log in logs]),
             np.stack([log["critic_error"].to_numpy() for log in logs]) if "critic_error" in logs[0] else None,
         )
+    flags = None
+    if all("diverged" in log.columns for log in logs):
+        flagged = np.stack([log["diverged"].to_numpy() > 0 for log in logs])
+        flags = {"diverged": flagged.any(axis=1), "diverged_step": np.where(flagged.any(axis=1), flagged.argmax(axis=1), -1)}
     return Rollouts(
         dt=float(logs[0].attrs["dt"]),
         times=logs[0]["t"].to_numpy(),
@@ -130,6 +137,7 @@ def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
         final_x=np.array([log.attrs["final_x"] for log in logs], dtype=float),
         final_errors=np.array([log.attrs["final_e"] for log in logs], dtype=float),
         critic_diagnostics=diagnostics,
+        flags=flags,
     )
 
 

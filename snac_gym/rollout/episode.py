@@ -73,11 +73,16 @@ def rollout(
     record = _Record(base, layout, horizon, "critic_weights" in getattr(policy, "internals", {}),
                      tuple(getattr(policy, "logged_internals", ())))  # fmt: skip
     terminated = truncated = False
+    # An env that can stop the arm for the controller (the real arm's safety layer) hears of a divergence.
+    stop_for = getattr(base, "stop_for", None)
     try:
         while record.count < horizon:
             record.state(obs, policy)
             action = policy.act(obs)
             record.scalars(policy)
+            divergence = getattr(policy, "internals", {}).get("divergence")
+            if divergence and stop_for is not None:
+                stop_for(f"the controller diverged: {divergence}")
             obs, _, terminated, truncated, info = env.step(action)
             applied = info.get("command") if isinstance(info, Mapping) else None
             record.command(applied if applied is not None else np.clip(action, -limits, limits))

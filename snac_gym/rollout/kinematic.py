@@ -207,6 +207,7 @@ def simulate_kinematic(
         final_x=final_x,
         final_errors=task_error(final_x, x_d[:, steps], np.empty((count, n))),
         critic_diagnostics=_stack_diagnostics(diagnostic_rows),
+        flags=policies.episode_flags(),
     )
 
 
