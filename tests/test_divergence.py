@@ -1,0 +1,130 @@
+"""``snac-adaptive`` watching itself: its divergence bounds, the flag in the results, the fallback, the real arm told.
+
+A divergence is forced by an error the identifier is not allowed to correct (a prior of 1e-9 m and
+rad and a measurement noise of 1 km: Ĵ stays the model's) and that turns the command away from the error: the model reads the base
+joint 2 rad off, so Ĵ = Rz(2)·J and the loop ė = −J R⁻¹JᵀRz(−2)P̂e turns the error by 115° in the
+horizontal plane. Without the monitor that episode runs away silently.
+"""
+
+import numpy as np
+import pytest
+
+from snac_gym.evaluation.execution.jobs import RolloutJob, policy_context, run_job, task_kinematics
+from snac_gym.evaluation.samples import generate_samples
+from snac_gym.kinematics import Kinematics
+from snac_gym.policies.registry import make_policy
+from snac_gym.policies.snac_adaptive import DivergenceMonitor
+from snac_gym.rollout import simulate_kinematic
+from snac_gym.sampling import SampleSpace
+
+DT = 1 / 125
+TURNED = "joint_offset=2.0,0,0,0,0,0"
+COMBINED = "joint_offset=0,0.3,0.5,0,0.3,0;link_scale=-0.1;tool_offset=0.05,0.05,0.07"
+FROZEN = {"prior_translation": 1e-9, "prior_rotation": 1e-9, "measurement_noise": 1e3}
+#: The same, and the prediction residual's bound out of reach: only the task error's bounds can fire.
+ERROR_RULES_ONLY = {**FROZEN, "divergence_residual": 100.0}
+
+
+def _samples(task, count=3, seed=13):
+    kinematics = Kinematics("ur10")
+    return generate_samples(kinematics, SampleSpace.for_robot(kinematics), seed, task, range(count))
+
+
+def _rollouts(task, model_error, steps=250, **kwargs):
+    context = policy_context("ur10", DT, task, model_error)
+    samples = _samples(task)
+    rollouts = simulate_kinematic(
+        context, lambda: make_policy("snac-adaptive", context, **kwargs), samples, steps, range(len(samples)),
+        plant=task_kinematics("ur10", task),
+    )  # fmt: skip
+    return rollouts
+
+
+def test_a_monitor_passes_a_decaying_error_and_flags_growth_a_stall_and_a_residual_each_at_its_bound():
+    monitor = DivergenceMonitor(DT)
+    monitor.reset(4)
+    window, settle = monitor.window, monitor.settle
+    for k in range(400):
+        decaying = 0.5 * np.exp(-2.0 * k * DT)  # a converging reach: 0.5 m at 2/s
+        growing = 0.3 + 0.0011 * k  # more than 5 cm past its start from k = 46, before a stall window ends
+        stalled = 0.10  # 10 cm and not moving
+        residual = 0.02 if k >= 10 else 0.0  # 2 cm from step 10, before the settling time ends
+        monitor.check(np.array([decaying, growing, stalled, 0.0]), np.array([0.0, 0.0, 0.0, residual]))
+    assert monitor.diverged.tolist() == [False, True, True, True]
+    assert monitor.reason[1:].tolist() == ["error grew", "error stalled", "prediction residual"]
+    assert monitor.step[1] == 46  # the first step more than 5 cm above ‖e₀‖
+    assert monitor.step[2] == window  # a stall needs a whole window
+    assert monitor.step[3] == settle  # the residual bound waits for the identifier's first correction
+    assert monitor.describe(0) == "" and monitor.describe(2) == f"error stalled at step {window}"
+
+
+def test_a_stalled_error_below_the_floor_is_not_a_divergence():
+    monitor = DivergenceMonitor(DT)
+    monitor.reset(1)
+    for _ in range(300):
+        monitor.check(np.array([0.9 * monitor.floor]), np.zeros(1))  # a steady tracking error of 1.8 cm
+    assert not monitor.diverged[0]
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+@pytest.mark.parametrize("bounds", ["all bounds", "the error's bounds only"])
+def test_a_forced_divergence_is_flagged_and_the_arm_stops_from_that_step(task, bounds):
+    rollouts = _rollouts(task, TURNED, **(FROZEN if bounds == "all bounds" else ERROR_RULES_ONLY))
+    flags = rollouts.flags
+    assert flags is not None and flags["diverged"].all()
+    for i, step in enumerate(flags["diverged_step"]):
+        assert 0 < step < rollouts.steps
+        assert np.any(rollouts.commands[i, step - 1] != 0)  # it moved until then
+        np.testing.assert_array_equal(rollouts.commands[i, step:], 0.0)  # the fallback: a stop, held
+
+
+def test_the_stop_bounds_the_error_where_without_it_the_error_runs_away():
+    """``fallback="none"`` keeps the adaptive command: the flag comes at the same step, and the error then runs
+    away, where the stop holds it within the growth bound (plus the last period's motion)."""
+    watched = _rollouts("reach", TURNED, **ERROR_RULES_ONLY)
+    unwatched = _rollouts("reach", TURNED, fallback="none", **ERROR_RULES_ONLY)
+    np.testing.assert_array_equal(watched.flags["diverged_step"], unwatched.flags["diverged_step"])
+    start = np.linalg.norm(watched.errors[:, 0], axis=1)
+    bound = start + DivergenceMonitor(DT).growth + 0.01
+    assert (np.linalg.norm(watched.errors, axis=2).max(axis=1) <= bound).all()
+    assert (np.linalg.norm(unwatched.errors, axis=2).max(axis=1) > bound).any()
+
+
+def test_the_results_carry_the_flag_and_its_time_and_leave_it_empty_for_controllers_that_do_not_watch():
+    common = {"task": "reach", "samples": tuple(_samples("reach")), "seeds": (0, 1, 2), "steps": 250, "dt": DT}
+    forced = run_job(RolloutJob(controller="snac-adaptive", kwargs=FROZEN, model_error=TURNED, **common)).metrics
+    assert forced["diverged"].tolist() == [True, True, True]
+    assert (forced["diverged_time"] > 0).all() and (forced["diverged_time"] < 250 * DT).all()
+    healthy = run_job(RolloutJob(controller="snac-adaptive", kwargs={}, model_error=COMBINED, **common)).metrics
+    assert healthy["diverged"].tolist() == [False, False, False]  # the identifier corrects this one
+    assert healthy["diverged_time"].isna().all()
+    other = run_job(RolloutJob(controller="lqr", kwargs={}, **common)).metrics
+    assert other["diverged"].isna().all()  # not False: lqr does not watch itself
+
+
+def test_a_real_arm_is_stopped_through_its_safety_layer_when_the_controller_diverges(tmp_path):
+    from snac_gym.apps.real import run_real_episode
+
+    result = run_real_episode(
+        task="reach", controller="snac-adaptive", out_dir=tmp_path, connection="sim", steps=80, plots=False,
+        model_error=TURNED, policy_kwargs=FROZEN,
+    )  # fmt: skip
+    assert result.stop_reason is not None and result.stop_reason.startswith("the controller diverged: ")
+    log = result.demo.log
+    flagged = int(np.argmax(log["diverged"].to_numpy() > 0))
+    assert 0 < flagged < 80 and len(log) == flagged + 1  # the period it was flagged in is the last
+
+
+@pytest.mark.parametrize(
+    "name, value, message",
+    [
+        ("fallback", "brake", "fallback must be one of stop, none"),
+        ("divergence_progress", 1.5, "divergence_progress must be a fraction below 1"),
+        ("divergence_growth", -0.1, "divergence_growth"),
+        ("prior_translation", 0.0, "prior_translation"),
+    ],
+)
+def test_a_bad_monitor_or_prior_argument_is_refused_naming_it(name, value, message):
+    context = policy_context("ur10", DT, "reach", None)
+    with pytest.raises(ValueError, match=message):
+        make_policy("snac-adaptive", context, **{name: value})
