@@ -418,7 +418,9 @@ def _check_model_error(config: EvaluationConfig) -> None:
     """A model error that parses, on position tasks and the kinematic engine."""
     if config.model_error is None:
         return
-    ModelError.parse(config.model_error).check_joints(shared_kinematics(config.robot).n_joints)
+    # Built once here, so that what only the build can refuse (another robot's joint count, a link length
+    # that a zero-length placement cannot take) is refused before anything is written.
+    shared_kinematics(config.robot).with_model_error(ModelError.parse(config.model_error))
     refuse_pose_tasks([task for task in config.tasks if is_pose_task(task)])
     if config.engine != "kinematic":
         raise ValueError("--model-error needs --engine kinematic (the plant is the exact kinematic model)")

@@ -258,3 +258,27 @@ def test_tool_displacement_is_the_distance_of_the_tool_points(ur10, qs):
     np.testing.assert_allclose(tool_displacement(ur10, model, qs), 0.03, rtol=1e-12)
     with pytest.raises(ValueError, match="same joint count, got 6 and 7"):
         tool_displacement(ur10, Kinematics("panda"), qs)
+
+
+def test_another_robots_model_keeps_the_arms_velocity_limits_and_name_for_the_controllers():
+    """Under model=ur5 the UR10 is still the arm: its limits clip the commands, and a policy trained on it runs."""
+    from snac_gym.evaluation.execution.jobs import policy_context
+    from snac_gym.policies.registry import make_policy
+
+    context = policy_context("ur10", 1 / 125, "reach", "model=ur5")
+    assert context.kinematics.robot == "ur5" and context.arm_robot == "ur10"
+    np.testing.assert_array_equal(context.velocity_limits, Kinematics("ur10").velocity_limits)
+    assert not np.array_equal(context.velocity_limits, Kinematics("ur5").velocity_limits)  # the case that matters
+    policy = make_policy("ppo", context)  # trained on the UR10: refused before, naming 'ur5' as the env's robot
+    policy.reset(seed=0)
+    assert np.isfinite(policy.act(np.full(context.layout.size, 0.1))).all()
+
+
+def test_the_evaluator_refuses_another_robots_model_with_another_joint_count_before_writing(tmp_path):
+    from snac_gym.evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.runner import run_evaluation
+
+    config = EvaluationConfig(out=tmp_path / "run", controllers=("lqr",), samples=2, model_error="model=panda")
+    with pytest.raises(ValueError, match="model=panda has 7 joints but ur10 has 6"):
+        run_evaluation(config)
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())

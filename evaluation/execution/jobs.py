@@ -98,13 +98,16 @@ def policy_context(robot: str, dt: float, task: str, model_error: str | None = N
     With ``model_error``, its kinematics is the wrong model (:func:`model_kinematics`), which only
     the controller sees: the engine's plant stays :func:`task_kinematics`.
     """
-    kinematics = task_kinematics(robot, task) if model_error is None else model_kinematics(robot, model_error)
+    arm = task_kinematics(robot, task)
+    kinematics = arm if model_error is None else model_kinematics(robot, model_error)
+    # The limits are the arm's, which the env clips to, whichever robot's model the controller has.
     return PolicyContext(
         kinematics,
         float(dt),
-        kinematics.velocity_limits.copy(),
+        arm.velocity_limits.copy(),
         ObservationLayout(kinematics.n_joints, kinematics.task_dim),
         task,
+        arm=None if model_error is None else robot,
     )
 
 

@@ -100,6 +100,8 @@ class PolicyContext:
         velocity_limits: Joint speed limits, rad/s (the action bounds).
         layout: The observation layout.
         task: The task's name (a registered :class:`~snac_gym.tasks.Task`).
+        arm: The robot the env drives, when the kinematics is another robot's model
+            (``--model-error model=NAME``); ``None``: ``kinematics.robot``.
     """
 
     kinematics: Kinematics
@@ -107,6 +109,12 @@ class PolicyContext:
     velocity_limits: np.ndarray
     layout: ObservationLayout
     task: str
+    arm: str | None = None
+
+    @property
+    def arm_robot(self) -> str:
+        """The name of the robot the env drives (whatever model the controller was given)."""
+        return self.arm if self.arm is not None else self.kinematics.robot
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "task", get_task(self.task).name)  # a Task may be given; keep its name
@@ -128,7 +136,7 @@ class PolicyContext:
         """
         if not isinstance(self.kinematics, Kinematics):
             refuse_pose_tasks([self.task_name])
-        return dataclasses.replace(self, kinematics=self.kinematics.with_model_error(model_error))
+        return dataclasses.replace(self, kinematics=self.kinematics.with_model_error(model_error), arm=self.arm_robot)
 
     @classmethod
     def for_controller(cls, env: Any, model_error: Any = None) -> Any:

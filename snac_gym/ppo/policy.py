@@ -63,7 +63,7 @@ class PPOPolicy(BasePolicy):
         self.model_path = Path(model_path) if model_path is not None else shipped_model_path(self.task)
         self.model = PolicyFile.load(self.model_path)
         self.model.check_compatible(
-            self.task, self.layout, self.kinematics.robot, source=f"PPO policy file {self.model_path}"
+            self.task, self.layout, self.context.arm_robot, source=f"PPO policy file {self.model_path}"
         )
         self.model.check_card(self.model_path)
         self._obs_size = self.layout.size
