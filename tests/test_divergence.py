@@ -40,30 +40,32 @@ def _rollouts(task, model_error, steps=250, **kwargs):
     return rollouts
 
 
-def test_a_monitor_passes_a_decaying_error_and_flags_growth_a_stall_and_a_residual_each_at_its_bound():
+def test_a_monitor_passes_a_decaying_error_and_flags_each_bound_at_its_step():
     monitor = DivergenceMonitor(DT)
-    monitor.reset(4)
-    window, settle = monitor.window, monitor.settle
+    count = 6
+    monitor.reset(count)
+    window, patience, settle = monitor.window, monitor.patience, monitor.settle
     for k in range(400):
-        decaying = 0.5 * np.exp(-2.0 * k * DT)  # a converging reach: 0.5 m at 2/s
-        growing = 0.3 + 0.0011 * k  # more than 5 cm past its start from k = 46, before a stall window ends
-        stalled = 0.10  # 10 cm and not moving
-        residual = 0.02 if k >= 10 else 0.0  # 2 cm from step 10, before the settling time ends
-        monitor.check(np.array([decaying, growing, stalled, 0.0]), np.array([0.0, 0.0, 0.0, residual]))
-    assert monitor.diverged.tolist() == [False, True, True, True]
-    assert monitor.reason[1:].tolist() == ["error grew", "error stalled", "prediction residual"]
-    assert monitor.step[1] == 46  # the first step more than 5 cm above ‖e₀‖
-    assert monitor.step[2] == window  # a stall needs a whole window
-    assert monitor.step[3] == settle  # the residual bound waits for the identifier's first correction
-    assert monitor.describe(0) == "" and monitor.describe(2) == f"error stalled at step {window}"
-
-
-def test_a_stalled_error_below_the_floor_is_not_a_divergence():
-    monitor = DivergenceMonitor(DT)
-    monitor.reset(1)
-    for _ in range(300):
-        monitor.check(np.array([0.9 * monitor.floor]), np.zeros(1))  # a steady tracking error of 1.8 cm
-    assert not monitor.diverged[0]
+        decaying = 0.5 * np.exp(-2.0 * k * DT)  # a converging reach: 0.5 m at 2/s, as predicted
+        slow = 0.3 - 0.0001 * k  # 1.25 cm/s, as predicted (a velocity limit, a singular direction)
+        growing = 0.3 + 0.0011 * k  # more than 5 cm past its start from k = 46
+        short = 0.10  # 10 cm and not moving, where the controller predicts 0.5 mm a step
+        stuck = 0.10  # 10 cm and not moving, as the controller predicts (Ĵᵀe = 0)
+        norms = np.array([decaying, slow, growing, short, stuck, 0.0])
+        predicted = np.array([0.5 * np.exp(-2.0 * (k + 1) * DT), slow - 0.0001, growing - 0.0005, short - 0.0005,
+                              stuck, 0.0])  # fmt: skip
+        residual = np.array([0, 0, 0, 0, 0, 0.02 if k >= 10 else 0.0])  # 2 cm from step 10, before the settling time
+        monitor.check(norms, residual, predicted)
+    assert monitor.diverged.tolist() == [False, False, True, True, True, True]
+    assert monitor.reason[2:].tolist() == ["error grew", "progress fell short of the prediction", "no progress",
+                                           "prediction residual"]  # fmt: skip
+    assert monitor.step[2] == 46  # the first step more than 5 cm above ‖e₀‖
+    # 0.5 mm a step predicted, none measured: a shortfall of 1 cm (and half the prediction) after 20 steps, once
+    # a whole window of measurements is in
+    assert monitor.step[3] == window
+    assert monitor.step[4] == patience  # no progress needs the whole 2 s
+    assert monitor.step[5] == settle  # the residual bound waits for the identifier's first correction
+    assert monitor.describe(0) == "" and monitor.describe(4) == f"no progress at step {patience}"
 
 
 @pytest.mark.parametrize("task", ["reach", "track"])
@@ -119,7 +121,7 @@ def test_a_real_arm_is_stopped_through_its_safety_layer_when_the_controller_dive
     "name, value, message",
     [
         ("fallback", "brake", "fallback must be one of stop, none"),
-        ("divergence_progress", 1.5, "divergence_progress must be a fraction below 1"),
+        ("divergence_shortfall", 0.0, "divergence_shortfall"),
         ("divergence_growth", -0.1, "divergence_growth"),
         ("prior_translation", 0.0, "prior_translation"),
     ],

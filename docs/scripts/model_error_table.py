@@ -33,6 +33,17 @@ def cells(folder: Path) -> dict[str, str]:
     return out
 
 
+def watch_cells(folder: Path) -> str:
+    """The controllers that watch themselves: episodes flagged ``diverged``, and those ending > 5 cm off without it."""
+    results = pd.read_csv(folder / "results.csv")
+    watched = results[results["diverged"].notna()] if "diverged" in results else results.iloc[:0]
+    if watched.empty:
+        return "—"
+    flagged = watched["diverged"].astype(str).str.lower() == "true"
+    far = watched["final_error"] > 0.05
+    return f"{int(flagged.sum())} flagged, {int(far.sum())} end > 5 cm off, {int((far & ~flagged).sum())} of them unflagged"
+
+
 def main() -> None:
     runs = dict(argument.rsplit("=", 1) for argument in sys.argv[1:])  # LABEL=FOLDER (a label may hold "=")
     table = {name: cells(Path(folder)) for name, folder in runs.items()}
@@ -42,6 +53,10 @@ def main() -> None:
     for controller in controllers:
         row = [table[name].get(controller, "—") for name in runs]
         print(f"| {LABELS.get(controller, '`' + controller + '`')} | " + " | ".join(row) + " |")
+    print()
+    print("| divergence flags (controllers that watch themselves, reach + track) | " + " | ".join(runs) + " |")
+    print("|---|" + "---|" * len(runs))
+    print("| `snac-adaptive` | " + " | ".join(watch_cells(Path(folder)) for folder in runs.values()) + " |")
 
 
 if __name__ == "__main__":

@@ -7,22 +7,32 @@ the wrong problem, and nothing in the measured data reaches it. This controller 
 critic, command and weight law (eqs. 15 and 19 as in ``snac-hjb``) and replaces the model's J by
 Ĵ from an **identifier** that learns, from the measured stream (θₖ, xₖ), what the model gets
 wrong: a separate identifier beside the critic, as in Bhasin et al. (Automatica 2013), here a
-parametric one.
+parametric one over every geometric error an arm can have.
 
-**Identifier.** The correction is parameterised by the family of errors the model can have
-(:mod:`snac_gym.model_error`), c = (c_a ∈ Rᵐ, c_s, c_t ∈ R³) (joint offsets, a scale of every
-link, a tool-point offset in the tool frame), applied to the model's forward kinematics f, tool
-rotation R and Jacobians J_v, J_ω at φ = θ + c_a::
+**Identifier.** The correction is not told which error the model has. It is a rigid error at every
+fixed transform of the chain, the complete family of geometric errors of a serial arm: a twist
+c₀ = (τ₀, ρ₀) ∈ R⁶ at the base and cⱼ = (τⱼ, ρⱼ) ∈ R⁶ after joint j's motion, j = 1..m, applied as
+Eⱼ = (Exp(ρⱼ), τⱼ) in the chain of the model's placements Mⱼ and joint motions::
 
-    x̂(θ; c) = (1 + c_s) f(φ) + R(φ) c_t
-    Ĵ(θ; c)  = ∂x̂/∂θ = (1 + c_s) J_v(φ) − [R(φ) c_t]ₓ J_ω(φ)
-    H        = ∂x̂/∂c = [Ĵ, f(φ), R(φ)]                                  (3 × (m + 4))
+    T(θ; c) = E₀ · M₁ Rot(a₁, θ₁) E₁ · M₂ Rot(a₂, θ₂) E₂ ⋯ Mₘ Rot(aₘ, θₘ) Eₘ,   x̂(θ; c) = T(θ; c) · p_tool
 
-The family is closed under inversion, so the true arm is x̂(·; c*) for some c*: the identification
-is exact, not an approximation. c is estimated by an extended Kalman filter on the measurement
-xₖ = x̂(θₖ; c*) (a recursive Gauss–Newton with the prior c ~ N(0, Σ₀)): each control step
-r = xₖ − x̂(θₖ; ĉ), ĉ ← ĉ + K r, Σ ← (I − K H) Σ, K = Σ Hᵀ(H Σ Hᵀ + σ²I)⁻¹. The critic and the
-command then use Ĵ(θₖ; ĉ) wherever ``snac-hjb`` uses J.
+An error before joint j's motion (a joint zero, an axis tilt) is an error after joint j − 1's; an
+error of the tool frame is one after the last joint's; so every placement error, including another
+robot's link lengths (``model=ur5``), is some c* (6(m + 1) = 42 numbers for a 6-joint arm). What
+it cannot represent: a joint's gear ratio or encoder scale, compliance, backlash, anything that
+depends on load or speed. Its derivatives are exact, for frame k at (R_k⁻, R_k⁺ = R_k⁻Exp(ρ_k), p_k⁺)
+before and after its correction::
+
+    Ĵ(θ; c) = [zⱼ × (x̂ − oⱼ)]ⱼ                        (eq. 2 on the corrected chain)
+    H_k     = ∂x̂/∂c_k = [R_k⁻,  −[x̂ − p_k⁺]ₓ R_k⁺ J_r(ρ_k)]     (3 × 6 per frame; J_r: SO(3)'s right Jacobian)
+
+Position measurements see only a part of c (a translation along a joint's axis and the next
+joint's offset trade against each other): the prior c ~ N(0, Σ₀), Σ₀ = diag(0.1 m, 0.05 rad)² per
+frame, holds the directions the data do not reach, and the estimate is the most probable c given
+the prior and the data, not c*. c is estimated by an iterated extended Kalman filter on the
+measurement xₖ = x̂(θₖ; c*) (a recursive Gauss–Newton): each control step
+r = xₖ − x̂(θₖ; ĉ), ĉ ← ĉ + K r, Σ ← (I − K H) Σ, K = Σ Hᵀ(H Σ Hᵀ + σ²I)⁻¹, re-linearised three
+times. The critic and the command then use Ĵ(θₖ; ĉ) wherever ``snac-hjb`` uses J.
 
 **What converges, and under which condition.** (i) The identifier: recursive Gauss–Newton on an
 exactly parameterised, smooth regression converges locally to c* (Ljung 1979, the EKF as a
@@ -39,6 +49,28 @@ when J R⁻¹ĴᵀP̂ has a positive definite symmetric part, which holds once �
 the error grows (eᵀĴu_fb > 0 by the estimate) eq. 19's stabilising term acts, as in ``snac-hjb``.
 Nothing here proves a bound on the transient before ĉ has converged; docs/model-error.md
 measures it.
+
+**Divergence.** Because nothing bounds that transient, the controller watches itself
+(:class:`DivergenceMonitor`) and says when a bound is crossed, instead of running away silently.
+An episode *diverges* when, at some step k,
+
+* the error grew: ‖eₖ‖ > ‖e₀‖ + 5 cm;
+* the progress fell short of the prediction: ‖eₖ‖ > 2 cm and, over the last 0.5 s, the measured
+  decrease of ‖e‖ fell short of the one the controller predicted for its own commands
+  (ê = e + (Ĵu − ẋ_d)Δt) by more than 1 cm and half the prediction: slow progress that the
+  controller expected (a velocity limit, a direction J hardly moves in) is not a divergence, and
+  a Ĵ that points the arm the wrong way is;
+* no progress: ‖eₖ‖ > 2 cm and ‖e‖ fell by less than 1 mm over the last 2 s (a wrong Ĵ whose
+  command vanishes, Ĵᵀe = 0, predicts no progress either);
+* the model failed: the prediction residual ‖xₖ − x̂(θₖ; ĉ)‖ > 1 cm after the first 0.2 s (the
+  complete family fits any rigid error to the measurement noise, so a residual this size means a
+  fault of the measurement or of the model class).
+
+From that step the episode's command is the fallback, a stop (u = 0, ``fallback="stop"``), and
+its ``diverged`` flag is raised: a log column, ``diverged`` and ``diverged_time`` in the
+evaluator's results, and on a real arm a stop through the safety layer
+(:meth:`~snac_gym.real.env.RealUREnv.stop_for`) with the reason in the run's ``stop_reason``.
+The bounds are arguments; ``fallback="none"`` keeps the command and only raises the flag.
 
 The position x must be *measured* (the evaluator's plant, the PyBullet env, an external tracker
 on a real arm): on a real arm x computed from the encoders through the same wrong model carries
@@ -69,9 +101,11 @@ PROCESS_NOISE = 1e-4
 #: Gauss–Newton re-linearisations of each measurement update (1: the plain EKF, whose tracking
 #: succeeded on 9 of 10 ellipses where 3 succeeded on all 10; docs/model-error.md).
 ITERATIONS = 3
-#: Divergence bounds (:class:`DivergenceMonitor`): growth past ‖e₀‖ (m), the stall floor (m), the
-#: stall window (s) and least progress over it (fraction), the prediction residual (m) after a settling time (s).
-DIVERGENCE_GROWTH, DIVERGENCE_FLOOR, DIVERGENCE_WINDOW, DIVERGENCE_PROGRESS = 0.05, 0.02, 0.5, 0.1
+#: Divergence bounds (:class:`DivergenceMonitor`): growth past ‖e₀‖ (m); the floor below which nothing stalls (m);
+#: the window (s) and least shortfall (m) of the measured progress against the predicted one; the window (s) and
+#: least progress (m) of the no-progress rule; the prediction residual (m) after a settling time (s).
+DIVERGENCE_GROWTH, DIVERGENCE_FLOOR = 0.05, 0.02
+DIVERGENCE_WINDOW, DIVERGENCE_SHORTFALL, DIVERGENCE_PATIENCE, DIVERGENCE_LEAST_PROGRESS = 0.5, 0.01, 2.0, 0.001
 DIVERGENCE_RESIDUAL, DIVERGENCE_SETTLE = 0.01, 0.2
 #: What a diverged episode commands.
 FALLBACKS = ("stop", "none")
@@ -229,10 +263,13 @@ class DivergenceMonitor:
     Args:
         dt: Control period, s.
         growth: An episode diverges when ‖eₖ‖ exceeds ‖e₀‖ by this much, m.
-        floor: Below this error, m, an episode is never said to stall.
-        window: The stall window, s: ‖eₖ‖ above ``floor`` that has not fallen by ``progress``
-            (a fraction) since the window's start diverges.
-        progress: The least relative decrease of ‖e‖ over a window above the floor.
+        floor: Below this error, m, no episode is said to stall.
+        window: The window over which the measured progress is held against the predicted one, s.
+        shortfall: The least shortfall of the measured progress below the predicted one over a window
+            that counts, m (it must also be half the predicted progress or more).
+        patience: The window of the no-progress rule, s.
+        least_progress: The decrease of ‖e‖ over ``patience`` below which an episode above the floor
+            has made no progress, m.
         residual: An episode diverges when the model's prediction residual exceeds this, m, once the
             identifier has had ``settle`` s to correct the first error of the model.
         settle: Time before the residual bound applies, s.
@@ -240,11 +277,14 @@ class DivergenceMonitor:
 
     def __init__(
         self, dt: float, growth: float = DIVERGENCE_GROWTH, floor: float = DIVERGENCE_FLOOR,
-        window: float = DIVERGENCE_WINDOW, progress: float = DIVERGENCE_PROGRESS,
+        window: float = DIVERGENCE_WINDOW, shortfall: float = DIVERGENCE_SHORTFALL,
+        patience: float = DIVERGENCE_PATIENCE, least_progress: float = DIVERGENCE_LEAST_PROGRESS,
         residual: float = DIVERGENCE_RESIDUAL, settle: float = DIVERGENCE_SETTLE,
     ) -> None:
-        self.growth, self.floor, self.progress, self.residual_bound = growth, floor, progress, residual
+        self.growth, self.floor, self.shortfall, self.least_progress = growth, floor, shortfall, least_progress
+        self.residual_bound = residual
         self.window = max(1, round(window / dt))
+        self.patience = max(1, round(patience / dt))
         self.settle = max(1, round(settle / dt))
         self.reset(1)
 
@@ -252,7 +292,10 @@ class DivergenceMonitor:
         """Start ``count`` episodes, none diverged."""
         self.k = 0
         self.initial = np.zeros(count)
-        self.history = np.zeros((self.window, count))  # ‖e‖ of the last ``window`` steps, a ring
+        self.previous = np.zeros(count)
+        self.predicted = np.zeros((self.window, count))  # ‖eⱼ‖ − ‖êⱼ₊₁‖ of the last ``window`` steps, a ring
+        self.measured = np.zeros((self.window, count))  # ‖eⱼ‖ − ‖eⱼ₊₁‖ of the same steps
+        self.history = np.zeros((self.patience, count))  # ‖e‖ of the last ``patience`` steps, a ring
         self.diverged = np.zeros(count, dtype=bool)
         self.step = np.full(count, -1)  # the step each episode was flagged at (−1: never)
         self.reason = np.full(count, "", dtype=object)
@@ -263,15 +306,23 @@ class DivergenceMonitor:
             return ""
         return f"{self.reason[episode]} at step {self.step[episode]}"
 
-    def check(self, error_norms: np.ndarray, residuals: np.ndarray) -> np.ndarray:
-        """Update with this step's ‖eₖ‖ and prediction residuals; returns the episodes flagged (ever)."""
+    def check(self, error_norms: np.ndarray, residuals: np.ndarray, predicted_norms: np.ndarray) -> np.ndarray:
+        """Update with this step's ‖eₖ‖, the prediction residuals and the controller's own prediction ‖êₖ₊₁‖ of the
+        next error under the command it is about to send; returns the episodes flagged (ever)."""
         k = self.k
         if k == 0:
             self.initial = error_norms.copy()
+        else:
+            self.measured[(k - 1) % self.window] = self.previous - error_norms
+        predicted, measured = self.predicted.sum(axis=0), self.measured.sum(axis=0)
+        above = error_norms > self.floor
         rules = {
             "error grew": error_norms > self.initial + self.growth,
-            "error stalled": (k >= self.window) & (error_norms > self.floor)
-            & (error_norms > (1.0 - self.progress) * self.history[k % self.window]),
+            # Slow progress the controller predicted (a velocity limit, a singular direction) is not a divergence.
+            "progress fell short of the prediction": (k >= self.window) & above
+            & (predicted - measured > np.maximum(self.shortfall, 0.5 * predicted)),
+            "no progress": (k >= self.patience) & above
+            & (self.history[k % self.patience] - error_norms < self.least_progress),
             "prediction residual": (k >= self.settle) & (residuals > self.residual_bound),
         }
         for reason, fired in rules.items():
@@ -280,7 +331,9 @@ class DivergenceMonitor:
                 self.diverged |= new
                 self.step[new] = k
                 self.reason[new] = reason
-        self.history[k % self.window] = error_norms
+        self.predicted[k % self.window] = error_norms - predicted_norms
+        self.history[k % self.patience] = error_norms
+        self.previous = error_norms
         self.k += 1
         return self.diverged
 
@@ -297,8 +350,9 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         measurement_noise: σ of the measured position, m.
         fallback: What a diverged episode commands from then on: ``"stop"`` (zero velocity, the
             default) or ``"none"`` (keep the adaptive command; the flag is still raised).
-        divergence_growth, divergence_floor, divergence_window, divergence_progress,
-        divergence_residual: The bounds of :class:`DivergenceMonitor` (m, m, s, fraction, m).
+        divergence_growth, divergence_floor, divergence_window, divergence_shortfall, divergence_patience,
+        divergence_least_progress, divergence_residual: The bounds of :class:`DivergenceMonitor`
+            (m, m, s, m, s, m, m).
         **kwargs: The other arguments of :class:`~snac_gym.policies.snac_hjb.SNACHJBPolicy`.
 
     Attributes:
@@ -326,7 +380,9 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         divergence_growth: float = DIVERGENCE_GROWTH,
         divergence_floor: float = DIVERGENCE_FLOOR,
         divergence_window: float = DIVERGENCE_WINDOW,
-        divergence_progress: float = DIVERGENCE_PROGRESS,
+        divergence_shortfall: float = DIVERGENCE_SHORTFALL,
+        divergence_patience: float = DIVERGENCE_PATIENCE,
+        divergence_least_progress: float = DIVERGENCE_LEAST_PROGRESS,
         divergence_residual: float = DIVERGENCE_RESIDUAL,
         **kwargs: Any,
     ) -> None:
@@ -338,13 +394,11 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         self.fallback = fallback
         prior = (positive_float("prior_translation", prior_translation), positive_float("prior_rotation", prior_rotation))
         self.identifier = GeometricIdentifier(self.kinematics, prior, positive_float("measurement_noise", measurement_noise))
-        progress = positive_float("divergence_progress", divergence_progress)
-        if progress >= 1.0:
-            raise ValueError(f"divergence_progress must be a fraction below 1, got {divergence_progress}")
-        window = positive_float("divergence_window", divergence_window)
         self.monitor = DivergenceMonitor(
-            self.dt, positive_float("divergence_growth", divergence_growth), positive_float("divergence_floor", divergence_floor),
-            window, progress, positive_float("divergence_residual", divergence_residual),
+            self.dt, **{name: positive_float(f"divergence_{name}", value) for name, value in (
+                ("growth", divergence_growth), ("floor", divergence_floor), ("window", divergence_window),
+                ("shortfall", divergence_shortfall), ("patience", divergence_patience),
+                ("least_progress", divergence_least_progress), ("residual", divergence_residual))},
         )  # fmt: skip
         self._x = self.layout.slices["x"]
 
@@ -360,11 +414,17 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
 
     def _jacobians(self, obs: np.ndarray) -> np.ndarray:
         """Ĵ after one identifier step on the measured (θ, x) of this period."""
-        return self.identifier.update(obs[:, self._q], obs[:, self._x])
+        self._last_jacobians = self.identifier.update(obs[:, self._q], obs[:, self._x])
+        return self._last_jacobians
 
     def _watched(self, obs: np.ndarray, command: np.ndarray) -> np.ndarray:
         """The command after the divergence check of this step (the identifier has just run)."""
-        diverged = self.monitor.check(np.linalg.norm(obs[:, self._e], axis=1), self.identifier.residual)
+        errors = obs[:, self._e]
+        # The controller's own prediction of the next error: ê = e + (Ĵu − ẋ_d)Δt.
+        predicted = errors + ((self._last_jacobians @ command[..., None])[..., 0] - obs[:, self._xdot_d]) * self.dt
+        diverged = self.monitor.check(
+            np.linalg.norm(errors, axis=1), self.identifier.residual, np.linalg.norm(predicted, axis=1)
+        )
         if self.fallback == "stop" and diverged.any():
             command = np.where(diverged[:, None], 0.0, command)
         return command
