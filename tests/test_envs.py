@@ -1,6 +1,7 @@
 """Gymnasium behaviour of every registered id: API, determinism, pickling, bad input."""
 
 import pickle
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -42,12 +43,18 @@ def test_rgb_array_render_is_headless(env_id):
     env.close()
 
 
-def test_human_render_without_display_warns_on_the_first_frame(monkeypatch):
+def test_human_render_without_display_warns_on_the_first_step(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     env = gym.make(ENV_IDS[0], render_mode="human")  # the constructor works headless (check_env builds it)
-    with pytest.warns(UserWarning, match="needs a display"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # check_env builds, resets and renders a "human" env: all quiet
         env.reset(seed=0)
-    assert env.render() is None
+        assert env.render() is None
+    with pytest.warns(UserWarning, match="needs a display"):
+        env.step(env.action_space.sample() * 0)  # the first frame a "human" env draws in an episode
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once
+        env.step(env.action_space.sample() * 0)
     env.close()
 
 

@@ -40,6 +40,16 @@ SHAPED_REWARD: Mapping[str, float] = MappingProxyType(
 JOINT_LIMIT_MARGIN = 0.1
 #: Observation dtypes.
 OBSERVATION_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))
+#: Values of ``finite_observation_bounds``: ±inf (``False``), the physical bounds with θ̇ unbounded
+#: (``True``), or every field bounded and the observation clipped into the bounds (``"clip"``, the -v1 default).
+OBSERVATION_BOUNDS = (False, True, "clip")
+#: The bound of a joint angle whose URDF gives it no finite limit (a continuous joint), rad.
+CONTINUOUS_JOINT_BOUND = 2 * math.pi
+#: The defaults of the -v1 ids (:func:`snac_gym.envs.register_envs`): normalized float32 actions,
+#: float32 observations with finite bounds on every field. The -v0 ids keep the constructor's defaults.
+V1_DEFAULTS: Mapping[str, Any] = MappingProxyType(
+    {"action_type": "normalized", "observation_dtype": "float32", "finite_observation_bounds": "clip"}
+)
 
 
 def shaped_reward(
@@ -195,6 +205,19 @@ def _cost_reward(reward_type: str, cost: CostConvention | None, Q: Any, R: Any) 
     return convention
 
 
+def check_observation_bounds(value: Any) -> bool | str:
+    """``finite_observation_bounds`` checked: ``False``, ``True`` or ``"clip"`` (:data:`OBSERVATION_BOUNDS`).
+
+    Raises:
+        ValueError: For any other value.
+    """
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if value == "clip":
+        return "clip"
+    raise ValueError(f"finite_observation_bounds must be False, True or 'clip', got {value!r}")
+
+
 def _check_choices(
     reward_type: str, action_type: str, observation_dtype: Any, render_mode: str | None, metadata: Mapping[str, Any]
 ) -> np.dtype:
@@ -334,7 +357,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         render_target_position: Any = None,
         action_type: str = "velocity",
         observation_dtype: Any = np.float64,
-        finite_observation_bounds: bool = False,
+        finite_observation_bounds: bool | str = False,
         physics: str = "pybullet",
         render_every: int | None = None,
         task: Task | str | None = None,
@@ -358,6 +381,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             task=None if self.task_spec is not None else task.name, cost=cost,
         )
         obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
+        finite_observation_bounds = check_observation_bounds(finite_observation_bounds)
         if physics == "kinematic" and render_mode is not None:
             raise ValueError(
                 f"render_mode={render_mode!r} needs physics='pybullet' or 'mujoco' (the kinematic arm has no scene)"
@@ -415,7 +439,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
     def _build_arm(self, physics: str, n_substeps: int, render_every: int | None) -> None:
         """The arm, and the rendered scene when there is a render mode."""
         # "human" without a display (or in MuJoCo, which renders headless only) shows nothing and warns on
-        # the first frame (the constructor must work headless: Gymnasium's checker builds every declared mode).
+        # the first step (construction, reset and render stay quiet: Gymnasium's checker builds, resets and renders every declared mode).
         no_display = sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
         self._headless_human = self.render_mode == "human" and (no_display or physics == "mujoco")
         gui = self.render_mode == "human" and not self._headless_human
@@ -440,33 +464,49 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self._frame: tuple[int, np.ndarray] | None = None  # (step, image) of the last rendered image
         self._shown_reference: Reference | None = None
 
-    def _build_spaces(self, finite_observation_bounds: bool) -> None:
+    def _build_spaces(self, finite_observation_bounds: bool | str) -> None:
         """The action space of :attr:`action_type` and the observation space (see the class docs)."""
         if self.action_type == "normalized":
             self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(self.kinematics.n_joints,), dtype=np.float32)
         else:
             self.action_space = gym.spaces.Box(-self.velocity_limits, self.velocity_limits, dtype=np.float64)
-        low, high = self.observation_bounds()
-        if not finite_observation_bounds:  # the default: ±inf, the real-robot env's space
+        #: ``finite_observation_bounds``: ``False``, ``True`` or ``"clip"`` (:data:`OBSERVATION_BOUNDS`).
+        self.finite_observation_bounds = finite_observation_bounds
+        clip = finite_observation_bounds == "clip"
+        low, high = self.observation_bounds(bounded_velocities=clip)
+        #: The float64 ``(low, high)`` each observation is clipped into (``finite_observation_bounds="clip"``), else ``None``.
+        self.observation_clip = (low, high) if clip else None
+        if not finite_observation_bounds:  # the -v0 default: ±inf, the real-robot env's space
             low, high = np.full_like(low, -np.inf), np.full_like(high, np.inf)
         dtype = self.observation_dtype
         self.observation_space = gym.spaces.Box(low.astype(dtype), high.astype(dtype), dtype=dtype)
 
-    def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Float64 ``(low, high)`` of the observation (see "Observation Space")."""
+    def observation_bounds(self, bounded_velocities: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Float64 ``(low, high)`` of the observation (see "Observation Space").
+
+        θ: the URDF limits widened by :data:`JOINT_LIMIT_MARGIN` (±:data:`CONTINUOUS_JOINT_BOUND` where a
+        joint has no finite limit); θ̇: ±inf, or with ``bounded_velocities`` the velocity limits; positions:
+        ±ρ per axis, ρ the sum of the arm's link offsets (the furthest the tool can be from the base);
+        orientations (a pose task's rotation vectors): ±π; ẋ_d: ±3 m/s; e: ±2ρ (±π for orientation).
+        """
         k = self.kinematics
         reach = sum(float(np.linalg.norm(k.model.jointPlacements[j].translation)) for j in range(1, k.model.njoints))
         reach += float(np.linalg.norm(k.ee_mount()[1]))
         n = k.task_dim
         box = np.full(n, reach)
+        error = np.full(n, 2 * reach)
+        if n == 6:  # a pose task: [p; log₃ R], a rotation vector has norm ≤ π
+            box[3:] = error[3:] = math.pi
         speed = np.full(n, MAX_REFERENCE_SPEED)
-        inf = np.full(k.n_joints, np.inf)
+        qdot = k.velocity_limits.copy() if bounded_velocities else np.full(k.n_joints, np.inf)
+        upper = np.where(np.isfinite(k.upper_limits), k.upper_limits + JOINT_LIMIT_MARGIN, CONTINUOUS_JOINT_BOUND)
+        lower = np.where(np.isfinite(k.lower_limits), k.lower_limits - JOINT_LIMIT_MARGIN, -CONTINUOUS_JOINT_BOUND)
         high = np.empty(self.obs_layout.size)
-        for name, value in (("q", k.upper_limits + JOINT_LIMIT_MARGIN), ("qdot", inf), ("x", box), ("x_d", box),
-                            ("xdot_d", speed), ("e", 2 * box), ("x_c", box)):
+        for name, value in (("q", upper), ("qdot", qdot), ("x", box), ("x_d", box),
+                            ("xdot_d", speed), ("e", error), ("x_c", box)):
             high[self.obs_layout.slices[name]] = value
         low = -high
-        low[self.obs_layout.slices["q"]] = k.lower_limits - JOINT_LIMIT_MARGIN
+        low[self.obs_layout.slices["q"]] = lower
         return low, high
 
     # -- episode -----------------------------------------------------------------------------
@@ -492,7 +532,9 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         return self._output(self._obs), self._reset_info(q0)
 
     def _output(self, obs: np.ndarray) -> np.ndarray:
-        """A copy of ``obs`` in the observation dtype."""
+        """A copy of ``obs`` in the observation dtype, clipped into its bounds with ``finite_observation_bounds="clip"``."""
+        if self.observation_clip is not None:  # clipped in float64: rounding keeps it inside the float32 bounds
+            obs = np.clip(obs, *self.observation_clip)
         return obs.astype(self.observation_dtype)  # astype copies, also for float64
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -519,24 +561,24 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         terminated = self.terminate_on_success and info["is_success"]
         truncated = self.requested_max_steps is not None and self.steps >= self.requested_max_steps
         if self.render_mode == "human":
+            if self._headless_human and not self._warned_headless:
+                self._warn_headless()  # the first frame of an episode that shows nothing
             self.render()
         return self._output(self._obs), float(reward), terminated, truncated, info
 
     # -- rendering -----------------------------------------------------------------------------
     def render(self) -> np.ndarray | None:
+        """The frame (``"rgb_array"``), or ``None`` after drawing it in the GUI (``"human"``).
+
+        ``"human"`` without a display (or with MuJoCo) shows nothing and returns ``None``; it warns once, on
+        the first ``step()``, where a ``"human"`` env draws its frames. Construction, ``reset()`` and
+        ``render()`` stay quiet: Gymnasium's ``check_env`` builds, resets and renders a ``"human"`` env of
+        every id, headless too.
+        """
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
             return None
         if self._headless_human:
-            if not self._warned_headless:
-                gym.logger.warn(
-                    "render_mode='human' with physics='mujoco' shows nothing (MuJoCo renders headless here); use "
-                    "render_mode='rgb_array' (gymnasium.wrappers.HumanRendering shows those frames in a window)"
-                    if self.physics == "mujoco" else
-                    "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set: "
-                    "nothing is shown; use render_mode='rgb_array' to render headless"
-                )
-                self._warned_headless = True
             return None
         if self._shown_reference is not self.reference:
             self._scene.show_reference(self.reference)
@@ -547,6 +589,17 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         if self._frame is None or self.steps < self._frame[0] or self.steps - self._frame[0] >= self.render_every:
             self._frame = (self.steps, self._scene.image(self.reference.position(self.time)))
         return self._frame[1].copy()
+
+    def _warn_headless(self) -> None:
+        """Say (once) that ``render_mode="human"`` shows nothing here."""
+        gym.logger.warn(
+            "render_mode='human' with physics='mujoco' shows nothing (MuJoCo renders headless here); use "
+            "render_mode='rgb_array' (gymnasium.wrappers.HumanRendering shows those frames in a window)"
+            if self.physics == "mujoco" else
+            "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set: "
+            "nothing is shown; use render_mode='rgb_array' to render headless"
+        )
+        self._warned_headless = True
 
     def close(self) -> None:
         if getattr(self, "_scene", None) is not None and hasattr(self._scene, "close"):

@@ -63,11 +63,11 @@ CARTESIAN_DAMPING = 0.01
 COARSE_REACH = {"tolerance": 0.05, "episode_steps": 50, "dt": 0.04, "n_substeps": 10, "box": 0.30}
 
 
-def coarse_reach_id(robot: str, action: str = "joint") -> str:
+def coarse_reach_id(robot: str, action: str = "joint", version: int = 0) -> str:
     """The coarse reach preset's id on ``robot``: ``snac_gym/PandaReachGoalCoarse-v0``, or with
-    Cartesian actions ``snac_gym/PandaReachGoalCoarseCartesian-v0``."""
+    Cartesian actions ``snac_gym/PandaReachGoalCoarseCartesian-v0`` (``version=1``: the -v1 id)."""
     suffix = "Cartesian" if action == "cartesian" else ""
-    return f"snac_gym/{get_robot(robot).env_prefix}ReachGoalCoarse{suffix}-v0"
+    return f"snac_gym/{get_robot(robot).env_prefix}ReachGoalCoarse{suffix}-v{version}"
 
 
 def goal_env_id(task: Task, robot: str = "ur10") -> str:
@@ -89,6 +89,8 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
             ``Jᵀ(JJᵀ + λ²I)⁻¹ v`` (λ = 1 cm, the model's J at the current θ) clipped to the limits,
             as panda-gym's end-effector control moves the tool by Cartesian increments.
         cartesian_speed: The Cartesian action's speed at ``|a| = 1``, m/s.
+        finite_observation_bounds: The task env's (``True``: θ̇ unbounded, the -v0 ids; ``"clip"``: every
+            field bounded, θ̇ by the velocity limits, and the observation clipped into the bounds, the -v1 ids).
         **env_kwargs: Arguments of the task env (``robot``, ``dt``, ``physics``, ``action_type``,
             ``max_steps``, ...), except ``reward_type``, ``terminate_on_success`` and ``observation_dtype``.
 
@@ -108,6 +110,7 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         start: str = "sampled",
         action: str = "joint",
         cartesian_speed: float = CARTESIAN_SPEED,
+        finite_observation_bounds: bool | str = True,
         **env_kwargs: Any,
     ) -> None:
         if reward_type not in GOAL_REWARD_TYPES:
@@ -124,12 +127,12 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         self._init_kwargs = dict(
             task=task, reward_type=reward_type, success_tolerance=success_tolerance,
             terminate_on_success=terminate_on_success, render_mode=render_mode, start=start, action=action,
-            cartesian_speed=cartesian_speed, **env_kwargs,
+            cartesian_speed=cartesian_speed, finite_observation_bounds=finite_observation_bounds, **env_kwargs,
         )
         self.task = get_task(task)
         self.env = task_env_class(self.task)(
             task=self.task, success_tolerance=success_tolerance, render_mode=render_mode, observation_dtype=np.float32,
-            finite_observation_bounds=True, **env_kwargs,
+            finite_observation_bounds=finite_observation_bounds, **env_kwargs,
         )
         self.reward_type = reward_type
         self.start = start

@@ -1,9 +1,10 @@
-"""Gymnasium ids: one per robot and task, ``snac_gym/<Robot><Task>-v<version>``.
+"""Gymnasium ids: one per robot, task and version, ``snac_gym/<Robot><Task>-v<version>``.
 
 The robot part is :attr:`~snac_gym.robots.Robot.env_prefix` (``UR10``, ``Panda``, ``XArm7``),
 the task part :attr:`~snac_gym.tasks.Task.env_name` (``Reach``, ``EllipseTrack``); the goal
 variant appends ``Goal`` (``snac_gym/PandaReachGoal-v0``); :meth:`~snac_gym.tasks.Task.env_id_for` spells them. :func:`snac_gym.envs.register_envs`
-registers every pair and records each id's robot and task here, in :data:`REGISTERED_IDS`.
+registers every pair, as ``-v0`` (physical units) and ``-v1`` (the RL-ready defaults), and records each
+id's robot, task and version here, in :data:`REGISTERED_IDS`.
 
 An id drives the robot it names. ``robot=`` is still an argument of the env classes (that is how
 one class serves every arm), but passing another robot than the id's to ``gym.make`` is refused
@@ -28,6 +29,7 @@ class RegisteredId:
     robot: str
     task: str
     goal: bool = False
+    version: int = 0
 
 
 #: Every id :func:`snac_gym.envs.register_envs` registered, with its robot and task.
@@ -52,7 +54,7 @@ def check_id_robot(spec: Any, robot: str) -> None:
     driven = get_robot(robot)
     if driven.name == registered.robot:
         return
-    right = get_task(registered.task).env_id_for(driven.name, goal=registered.goal)
+    right = get_task(registered.task).env_id_for(driven.name, goal=registered.goal, version=registered.version)
     raise ValueError(
         f"{spec.id} is the id of the {get_robot(registered.robot).description or registered.robot}; "
         f"for robot={robot!r} use gym.make({right!r})"

@@ -107,7 +107,7 @@ class ReachEnv(URTaskEnv):
     | ``success_tolerance``  | ``1e-3``       | success threshold on the error norm, m             |
     | ``terminate_on_success`` | ``False``    | end the episode on success                         |
     | ``sample_space``       | the robot's cuboid | a :class:`~snac_gym.sampling.SampleSpace`      |
-    | ``render_mode``        | ``None``       | ``"rgb_array"`` (headless) or ``"human"`` (PyBullet's GUI; without a display, or with MuJoCo, it warns on the first frame) |
+    | ``render_mode``        | ``None``       | ``"rgb_array"`` (headless) or ``"human"`` (PyBullet's GUI; without a display, or with MuJoCo, it shows nothing and warns on the first step) |
     | ``render_width``, ``render_height`` | 480 | image size for ``"rgb_array"``, 1–8192 pixels |
     | ``render_distance``, ``render_yaw``, ``render_pitch``, ``render_target_position`` | fitted | the camera as panda-gym sets it (m, degrees as PyBullet's ``computeViewMatrixFromYawPitchRoll``, pitch in [−89, 89], negative looks down; world frame); each one not given is fitted so that the arm, its start poses and the cuboid fill the frame |
     | ``render_every``       | 25 images/s    | control steps between two new images; ``render_fps`` is 1/dt |

@@ -240,11 +240,14 @@ class KinematicEpisodes:
     def observations(self, rows: Any = slice(None)) -> np.ndarray:
         """The observations of episodes ``rows``, ``(len, d)``, in the template's observation dtype."""
         q = self.q[rows]
-        obs = np.empty((len(q), self.layout.size), dtype=self.template.observation_dtype)
+        clip = self.template.observation_clip  # finite_observation_bounds="clip": clipped in float64, as the single env
+        obs = np.empty((len(q), self.layout.size), dtype=np.float64 if clip is not None else self.template.observation_dtype)
         slices = self.layout.slices
         for name, value in (("q", q), ("qdot", self.qdot[rows]), ("x", self.x[rows]), ("x_d", self.x_d[rows]),
                             ("xdot_d", self.xdot_d[rows]), ("e", self.error[rows]), ("x_c", self.references.centre[rows])):
             obs[:, slices[name]] = value
+        if clip is not None:
+            return np.clip(obs, *clip).astype(self.template.observation_dtype)
         return obs
 
 

@@ -17,6 +17,8 @@ import importlib
 import importlib.metadata
 from typing import Any, Callable
 
+from snac_gym.policies.units import for_env
+
 ENTRY_POINT_GROUP = "snac_gym.policies"
 
 _BUILTIN: dict[str, str] = {
@@ -83,6 +85,12 @@ def _resolve(name: str) -> Callable[..., Any]:
 def make_policy(name: str, env: Any, **kwargs: Any) -> Any:
     """Build the policy registered as ``name`` for ``env``.
 
+    The controllers compute in physical units (float64 observations, u in rad/s). For an env that
+    scales them (a -v1 id: float32 observations, the normalized action a = u / ū) the policy comes
+    wrapped in :class:`~snac_gym.policies.units.EnvUnitsPolicy`, so that ``act(obs)`` takes the env's
+    observation and returns the env's action; its ``policy`` attribute is the controller itself.
+    A -v0 env or a :class:`~snac_gym.policies.base.PolicyContext` gets the controller unwrapped.
+
     Args:
         name: A name from :func:`available_policies`.
         env: The env the policy will drive (a snac-gym env, wrapped or not, or a
@@ -92,4 +100,4 @@ def make_policy(name: str, env: Any, **kwargs: Any) -> Any:
     Raises:
         ValueError: If no policy is registered under ``name``.
     """
-    return _resolve(name)(env, **kwargs)
+    return for_env(_resolve(name)(env, **kwargs), env)

@@ -46,7 +46,8 @@ class Task:
         option_key: The env ``reset`` option that pins its reference.
         env_name: The task's part of its Gymnasium ids: ``Reach`` in ``snac_gym/PandaReach-v0``
             (one id per registered robot, :meth:`env_id_for`).
-        env_version: The ids' version (``-v0``).
+        env_version: The version of :meth:`env_id_for`'s ids (``-v0``; every id also has a ``-v1``,
+            the RL-ready defaults, registered beside it).
         moving_reference: Whether x_d moves (tracking): the policies then see ẋ_d ≠ 0.
         success_tolerance: Success threshold on the error norm, m.
         success_measure: What the success rule reads: ``"final_error"`` (‖e_K‖) or
@@ -78,15 +79,18 @@ class Task:
     csv_columns: ClassVar[tuple[str, ...]] = ()
 
     # -- Gymnasium ids ---------------------------------------------------------------------
-    def env_id_for(self, robot: str = "ur10", goal: bool = False) -> str:
-        """The task's id on ``robot``: ``snac_gym/<Robot><env_name>[Goal]-v<env_version>``.
+    def env_id_for(self, robot: str = "ur10", goal: bool = False, version: int | None = None) -> str:
+        """The task's id on ``robot``: ``snac_gym/<Robot><env_name>[Goal]-v<version>``.
 
         Args:
             robot: A registered robot (its :attr:`~snac_gym.robots.Robot.env_prefix` names it).
             goal: The goal-conditioned variant (:mod:`snac_gym.envs.goal`).
+            version: The id's version (default :attr:`env_version`, 0: physical units, the id the evaluator,
+                the demo and the benchmarks use); 1 gives the RL-ready id (docs/environments.md, "v1 vs v0").
         """
         suffix = "Goal" if goal else ""
-        return f"snac_gym/{get_robot(robot).env_prefix}{self.env_name}{suffix}-v{self.env_version}"
+        version = self.env_version if version is None else int(version)
+        return f"snac_gym/{get_robot(robot).env_prefix}{self.env_name}{suffix}-v{version}"
 
     @property
     def env_id(self) -> str:
