@@ -19,7 +19,7 @@ from snac_gym.tasks.pose import POSE_TASKS
 
 
 class ReachEnv(URTaskEnv):
-    """``snac_gym/<Robot>Reach-v0``: optimal regulation, reach a fixed target point (Section III).
+    """``snac_gym/<Robot>Reach-v1`` (RL-ready) and ``-v0`` (physical units): optimal regulation, reach a fixed target point (Section III).
 
     ## Description
     An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or MuJoCo,
@@ -29,24 +29,26 @@ class ReachEnv(URTaskEnv):
     ``PandaReach-v0``, ``XArm7Reach-v0``; the id fixes ``robot``.
 
     ## Action Space
-    ``action_type="velocity"`` (default): ``Box(-v_max, v_max, (m,), float64)``, the commanded
+    ``action_type="velocity"`` (the -v0 default): ``Box(-v_max, v_max, (m,), float64)``, the commanded
     joint velocities u = θ̇ in rad/s of the m joints, applied by PyBullet ``VELOCITY_CONTROL``
     motors (each bounded by its URDF effort) and held for one control period ``dt``. ``v_max``
     are the URDF limits (UR10: 2.16, 2.16, 3.15, 3.2, 3.2, 3.2 rad/s).
-    ``action_type="normalized"`` (for learners): ``Box(-1, 1, (m,), float32)``, the command is
-    u = a·v_max per joint. An action outside the box is **clipped** to it (``info["command"]``
+    ``action_type="normalized"`` (the -v1 default, for learners): ``Box(-1, 1, (m,), float32)``, the
+    command is u = a·v_max per joint (a = u / v_max; ``make_policy`` maps a controller's u to it). An action outside the box is **clipped** to it (``info["command"]``
     holds the applied u in rad/s); an action with NaN/inf or of the wrong shape raises ``ValueError``.
 
     ## Observation Space
-    ``Box(low, high, (2m + 15,), observation_dtype)`` (UR10: 27 values), float64 by default,
-    float32 with ``observation_dtype=np.float32`` (the float64 values rounded). Positions are in
-    the robot's base frame (for a UR arm the frame the pendant shows). Bounds: ±inf by default
+    ``Box(low, high, (2m + 15,), observation_dtype)`` (UR10: 27 values), float64 by default on -v0,
+    float32 on -v1 and with ``observation_dtype=np.float32`` (the float64 values rounded). Positions are in
+    the robot's base frame (for a UR arm the frame the pendant shows). Bounds: ±inf on -v0
     (the space of the real-robot env); with ``finite_observation_bounds=True``
     (``env.unwrapped.observation_bounds()``): θ within the URDF joint limits widened by
-    :data:`JOINT_LIMIT_MARGIN` (the simulator's joint-limit constraint is soft); positions within
-    ±ρ per axis, ρ the sum of the arm's link offsets (UR10: 1.88 m); ẋ_d within ±3 m/s; e within
-    ±2ρ. θ̇ stays unbounded: the joint-limit constraint can push the measured velocity well past
-    the motor limits, so physics gives no bound there.
+    :data:`JOINT_LIMIT_MARGIN` (the simulator's joint-limit constraint is soft; ±2π for a joint
+    without limits); positions within ±ρ per axis, ρ the sum of the arm's link offsets (UR10: 1.88 m;
+    a pose task's rotation vectors within ±π); ẋ_d within ±3 m/s; e within ±2ρ. θ̇ stays unbounded
+    there: the joint-limit constraint can push the measured velocity past the motor limits.
+    ``finite_observation_bounds="clip"`` (the -v1 default) bounds θ̇ by ±v_max too and clips every
+    observation into the bounds (in float64, before the cast), so it always lies in the space.
 
     | Index (UR10) | Observation                                    | Unit  |
     |--------------|------------------------------------------------|-------|
@@ -98,9 +100,9 @@ class ReachEnv(URTaskEnv):
     | ``physics``            | ``"pybullet"`` | ``"pybullet"`` (velocity motors), ``"mujoco"`` (the same URDF in MuJoCo, velocity servos; the ``mujoco`` extra) or ``"kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; no rendering) |
     | ``dt``                 | ``1/125``      | control period, s, in (0, 1]                       |
     | ``n_substeps``         | ``3``          | physics steps per control period                   |
-    | ``action_type``        | ``"velocity"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
-    | ``observation_dtype``  | ``np.float64`` | ``np.float64`` or ``np.float32``                   |
-    | ``finite_observation_bounds`` | ``False`` | physical observation bounds instead of ±inf  |
+    | ``action_type``        | -v0 ``"velocity"``, -v1 ``"normalized"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
+    | ``observation_dtype``  | -v0 ``np.float64``, -v1 ``"float32"`` | ``np.float64`` or ``np.float32``      |
+    | ``finite_observation_bounds`` | -v0 ``False``, -v1 ``"clip"`` | ``False`` (±inf), ``True`` (physical bounds, θ̇ unbounded) or ``"clip"`` (every field bounded, the observation clipped into them) |
     | ``reward_type``        | ``"dense"``    | ``"dense"``, ``"sparse"``, ``"shaped"``, ``"cost"``|
     | ``cost``               | ``None``       | the ``CostConvention`` of ``reward_type="cost"``   |
     | ``Q``, ``R``           | identity       | cost weights (matrix or diagonal)                  |
@@ -120,13 +122,16 @@ class ReachEnv(URTaskEnv):
       id's is refused; ``physics=`` names the arm's model (``backend=`` is its deprecated alias);
       ``gym.make(id, max_steps=N)`` is deprecated for ``max_episode_steps=N`` and no longer
       lengthens the ``TimeLimit``.
+    * v1 (unreleased): RL-ready defaults, the same env otherwise: ``action_type="normalized"``,
+      ``observation_dtype="float32"``, ``finite_observation_bounds="clip"``. v0 keeps physical units
+      (rad/s, float64, ±inf bounds) and stays registered.
     """
 
     task_spec = get_task("reach")
 
 
 class EllipseTrackEnv(URTaskEnv):
-    """``snac_gym/<Robot>EllipseTrack-v0``: optimal tracking of a point moving on an ellipse (Section IV).
+    """``snac_gym/<Robot>EllipseTrack-v1`` (RL-ready) and ``-v0`` (physical units): optimal tracking of a point moving on an ellipse (Section IV).
 
     ## Description
     An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or MuJoCo,
@@ -137,18 +142,18 @@ class EllipseTrackEnv(URTaskEnv):
     ``UR3EllipseTrack-v0``, ``PandaEllipseTrack-v0``, ``XArm7EllipseTrack-v0``; the id fixes ``robot``.
 
     ## Action Space
-    ``action_type="velocity"`` (default): ``Box(-v_max, v_max, (m,), float64)``, the commanded
+    ``action_type="velocity"`` (the -v0 default): ``Box(-v_max, v_max, (m,), float64)``, the commanded
     joint velocities u = θ̇ in rad/s of the m joints, applied by PyBullet ``VELOCITY_CONTROL``
     motors and held for one control period ``dt``; ``v_max`` are the URDF limits (UR10: 2.16,
-    2.16, 3.15, 3.2, 3.2, 3.2 rad/s). ``action_type="normalized"``: ``Box(-1, 1, (m,), float32)``,
-    u = a·v_max. An action outside the box is **clipped** (``info["command"]`` holds the applied
+    2.16, 3.15, 3.2, 3.2, 3.2 rad/s). ``action_type="normalized"`` (the -v1 default):
+    ``Box(-1, 1, (m,), float32)``, u = a·v_max. An action outside the box is **clipped** (``info["command"]`` holds the applied
     u); NaN/inf or a wrong shape raises ``ValueError``.
 
     ## Observation Space
-    ``Box(low, high, (2m + 15,), observation_dtype)`` (UR10: 27 values), float64 by default or
-    float32, positions in the robot's base frame; bounds ±inf, or with
-    ``finite_observation_bounds=True`` those of :class:`ReachEnv` (ẋ_d within ±3 m/s, the
-    fastest ellipse :class:`~snac_gym.references.Ellipse` accepts).
+    ``Box(low, high, (2m + 15,), observation_dtype)`` (UR10: 27 values), float64 (-v0) or
+    float32 (-v1), positions in the robot's base frame; bounds ±inf (-v0), or with
+    ``finite_observation_bounds=True`` or ``"clip"`` (-v1) those of :class:`ReachEnv` (ẋ_d within
+    ±3 m/s, the fastest ellipse :class:`~snac_gym.references.Ellipse` accepts).
 
     | Index (UR10) | Observation                                    | Unit  |
     |--------------|------------------------------------------------|-------|
@@ -193,6 +198,9 @@ class EllipseTrackEnv(URTaskEnv):
       id's is refused; ``physics=`` names the arm's model (``backend=`` is its deprecated alias);
       ``gym.make(id, max_steps=N)`` is deprecated for ``max_episode_steps=N`` and no longer
       lengthens the ``TimeLimit``.
+    * v1 (unreleased): RL-ready defaults, the same env otherwise: ``action_type="normalized"``,
+      ``observation_dtype="float32"``, ``finite_observation_bounds="clip"``. v0 keeps physical units
+      (rad/s, float64, ±inf bounds) and stays registered.
     """
 
     task_spec = get_task("track")
@@ -232,7 +240,9 @@ class PoseReachEnv(URTaskEnv):
 
     ## Version History
     * v0 (snac-gym 0.1.0): initial version, as ``snac_gym/PoseReach-v0`` with ``robot=``.
-    * v0 (unreleased, same numbers): one id per robot (``snac_gym/UR10PoseReach-v0``, ...).
+    * v0 (unreleased, same numbers): one id per robot (``snac_gym/UR10PoseReach-v0``, ...); with
+      ``finite_observation_bounds=True`` the rotation vectors are bounded by ±π (they were by the reach ρ).
+    * v1 (unreleased): the RL-ready defaults of :class:`ReachEnv`'s v1.
     """
 
     task_spec = POSE_TASKS[0]
@@ -269,7 +279,9 @@ class PoseEllipseTrackEnv(URTaskEnv):
 
     ## Version History
     * v0 (snac-gym 0.1.0): initial version, as ``snac_gym/PoseEllipseTrack-v0`` with ``robot=``.
-    * v0 (unreleased, same numbers): one id per robot (``snac_gym/UR10PoseEllipseTrack-v0``, ...).
+    * v0 (unreleased, same numbers): one id per robot (``snac_gym/UR10PoseEllipseTrack-v0``, ...); with
+      ``finite_observation_bounds=True`` the rotation vectors are bounded by ±π (they were by the reach ρ).
+    * v1 (unreleased): the RL-ready defaults of :class:`ReachEnv`'s v1.
     """
 
     task_spec = POSE_TASKS[1]
