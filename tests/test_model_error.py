@@ -221,3 +221,29 @@ def test_a_controller_that_cannot_take_the_wrong_model_refuses_it():
     context = policy_context("ur10", 1 / 125, "reach", ELBOW)
     with pytest.raises(ValueError, match="mink builds its MuJoCo model from the URDF"):
         make_policy("mink", context)
+
+
+def test_the_identifiers_model_is_the_arm_at_zero_and_its_derivatives_are_exact(ur10, rng):
+    """x̂ and Ĵ at ĉ = 0 are the model's (Pinocchio); at a random ĉ, Ĵ = ∂x̂/∂θ and H = ∂x̂/∂c by central differences."""
+    identifier = GeometricIdentifier(ur10, (0.1, 0.05), 1e-4)
+    q = rng.uniform(-2.0, 2.0, (4, 6))
+    identifier.reset(4)
+    x, jacobian, _ = identifier._model(q)
+    np.testing.assert_allclose(x, ur10.forward_batch(q), atol=1e-12)
+    np.testing.assert_allclose(jacobian, ur10.jacobian_batch(q), atol=1e-12)
+    identifier.params = rng.normal(0.0, 0.05, (4, identifier.size))
+    x, jacobian, regressor = identifier._model(q)
+    step, params = 1e-6, identifier.params.copy()
+    for i in range(identifier.size):
+        shifted = []
+        for sign in (1.0, -1.0):
+            identifier.params = params.copy()
+            identifier.params[:, i] += sign * step
+            shifted.append(identifier._model(q)[0])
+        np.testing.assert_allclose(regressor[:, :, i], (shifted[0] - shifted[1]) / (2 * step), atol=1e-8)
+    identifier.params = params
+    for j in range(6):
+        dq = np.zeros(6)
+        dq[j] = step
+        numeric = (identifier._model(q + dq)[0] - identifier._model(q - dq)[0]) / (2 * step)
+        np.testing.assert_allclose(jacobian[:, :, j], numeric, atol=1e-8)
