@@ -199,11 +199,15 @@ def rollout_metrics(
     )
 
 
-def _diverged_column(flags: dict[str, np.ndarray] | None, count: int) -> Any:
-    """The nullable ``diverged`` column: True/False for a controller that watches itself, missing for the others."""
-    if not flags:
-        return pd.array([pd.NA] * count, dtype="boolean")
-    return pd.array(np.asarray(flags["diverged"], dtype=bool), dtype="boolean")
+def _diverged_column(flags: dict[str, np.ndarray] | None, count: int) -> np.ndarray:
+    """The ``diverged`` column: True/False for a controller that watches itself, None (missing) for the others.
+
+    Plain Python objects, not pandas' nullable boolean: rows rebuilt from records (the reference cache, a resumed
+    run's parts) give the same column, and CSV and Parquet keep True, False and the gap.
+    """
+    column = np.empty(count, dtype=object)
+    column[:] = None if not flags else [bool(flag) for flag in flags["diverged"]]
+    return column
 
 
 def limit_margins(rollouts: Rollouts, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
