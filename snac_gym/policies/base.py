@@ -71,6 +71,18 @@ def non_negative_float(name: str, value: Any) -> float:
     return _checked_float(name, value, "non-negative", lambda number: number >= 0)
 
 
+def scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """Each row of ``commands`` ``(B, m)`` divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1.
+
+    LQR's rule (:func:`snac_gym.baselines._common.scale_rows_into_box`): the direction of u, and of ė = J u, is
+    kept. The critics' copy, here so that the policies do not import the baselines.
+    """
+    scales = np.max(np.abs(commands) / limits, axis=-1, keepdims=True)
+    scaled = commands / np.maximum(scales, 1.0)
+    # u/scale can land one rounding step outside the limit it was scaled onto.
+    return np.minimum(np.maximum(scaled, -limits), limits)
+
+
 @runtime_checkable
 class Policy(Protocol):
     """What the envs, the evaluator and the real-robot loop need from a controller.

@@ -86,7 +86,7 @@ from snac_gym.optimality import (
     matrix_to_quadratic_weights,
     quadratic_weights_to_matrix,
 )
-from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 from snac_gym.policies.snac import CriticEpisode, QuadraticBasis
 
 
@@ -95,18 +95,6 @@ def _excitation_directions(dim: int) -> np.ndarray:
     eye = np.eye(dim)
     pairs = [(eye[i] + eye[j]) / math.sqrt(2.0) for i in range(dim) for j in range(i + 1, dim)]
     return np.vstack([eye, *pairs]) if pairs else eye
-
-
-def _scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
-    """Each row of ``commands`` ``(B, m)`` divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1.
-
-    :func:`snac_gym.baselines._common.scale_rows_into_box`, LQR's rule (module docstring), written out here
-    so that the core package does not import the baselines.
-    """
-    scales = np.max(np.abs(commands) / limits, axis=-1, keepdims=True)
-    scaled = commands / np.maximum(scales, 1.0)
-    # u/scale can land one rounding step outside the limit it was scaled onto.
-    return np.minimum(np.maximum(scaled, -limits), limits)
 
 
 #: Relative margin of :func:`_certainly_above`: far above the rounding error of a Cholesky
@@ -294,7 +282,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         command = feedback
         if self.tracking:  # J⁺_R ẋ_d: ė = J u_fb, the regulation problem
             command = feedback + (self.lqr.weighted_pseudoinverse(jacobians) @ velocities[..., None])[..., 0]
-        command = _scale_rows_into_limits(command, self.velocity_limits)
+        command = scale_rows_into_limits(command, self.velocity_limits)
 
         increment, residual = self._residual_step(weights, gram_matrix, current, self.learning_rate * self.dt)
         # eq. 19 as a stabilising term, while the feedback does not decrease J_s = ½eᵀe.

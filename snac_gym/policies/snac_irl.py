@@ -56,15 +56,7 @@ import numpy as np
 
 from snac_gym.irl import policy_iteration, windows_from_samples
 from snac_gym.optimality import FrozenJacobianLQR
-from snac_gym.policies.base import BasePolicy, positive_float
-
-
-def _scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
-    """Each row of ``commands`` ``(B, m)`` divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1
-    (LQR's and snac-hjb's rule: the direction of u, and of ė = J u, is kept)."""
-    scales = np.max(np.abs(commands) / limits, axis=-1, keepdims=True)
-    scaled = commands / np.maximum(scales, 1.0)
-    return np.minimum(np.maximum(scaled, -limits), limits)
+from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 
 
 def _whole(name: str, value: Any, low: int, high: int) -> int:
@@ -240,7 +232,7 @@ class SNACIRLPolicy(BasePolicy):
             command += (self.lqr.weighted_pseudoinverse(b["jacobian"]) @ velocities[..., None])[..., 0]
         if exploring:
             command += self._exploration(k * self.dt)
-        command = _scale_rows_into_limits(command, self.velocity_limits)
+        command = scale_rows_into_limits(command, self.velocity_limits)
         b["commands"].append(command)
         b["drifts"].append(-velocities)  # ė = J u − ẋ_d: w = −ẋ_d
         if not self.relearn_every and k >= L:  # learned once: the record is no longer needed
