@@ -28,23 +28,6 @@ from snac_gym.policies import EnvUnitsPolicy, PolicyContext, make_policy
 ROOT = Path(__file__).resolve().parents[1]
 V1_IDS = sorted(ENV_IDS_V1) + sorted(GOAL_ENV_IDS_V1)
 
-#: The README's usage snippet on the -v1 id (what the README shows once it names a -v1 id: then that is run).
-PROPOSED_USAGE = """\
-import gymnasium as gym
-import snac_gym  # registers the ids
-from snac_gym import make_policy
-
-env = gym.make("snac_gym/UR10Reach-v1")                 # PyBullet UR10, 1000 steps = 8 s
-policy = make_policy("snac", env)                       # or "snac-hjb", "lqr", "rnn", "svf", "dls", "ppo"
-obs, info = env.reset(seed=0)                           # random seed pose and target
-policy.reset(seed=0)
-terminated = truncated = False
-while not (terminated or truncated):
-    obs, reward, terminated, truncated, info = env.step(policy.act(obs))   # a = u / ū in [−1, 1]
-print(f"final error {info['error_norm'] * 1e3:.3f} mm, success: {info['is_success']}")
-"""
-
-
 def _checked_quietly(env_id: str) -> list[warnings.WarningMessage]:
     """Both checkers on ``env_id`` at its defaults; every warning they (or the env) raised."""
     with warnings.catch_warnings(record=True) as caught:
@@ -234,13 +217,12 @@ def test_the_wrapped_batch_protocol_is_scaled_too():
 
 # -- the README ------------------------------------------------------------------------------------------
 def _usage_snippet() -> str:
-    """The README's usage snippet once it names a -v1 id, else the proposed one (:data:`PROPOSED_USAGE`)."""
+    """The README's usage snippet (the first Python block under "## Usage")."""
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     usage = text.split("## Usage", 1)[-1]
     match = re.search(r"```python\n(.*?)```", usage, re.DOTALL)
-    if match and "-v1" in match.group(1):
-        return match.group(1)
-    return PROPOSED_USAGE
+    assert match, "README.md has no Python block under ## Usage"
+    return match.group(1)
 
 
 @pytest.mark.slow(seconds=3)
