@@ -28,6 +28,7 @@ from snac_gym.policies import EnvUnitsPolicy, PolicyContext, make_policy
 ROOT = Path(__file__).resolve().parents[1]
 V1_IDS = sorted(ENV_IDS_V1) + sorted(GOAL_ENV_IDS_V1)
 
+
 def _checked_quietly(env_id: str) -> list[warnings.WarningMessage]:
     """Both checkers on ``env_id`` at its defaults; every warning they (or the env) raised."""
     with warnings.catch_warnings(record=True) as caught:
