@@ -130,3 +130,17 @@ def test_a_bad_monitor_or_prior_argument_is_refused_naming_it(name, value, messa
     context = policy_context("ur10", DT, "reach", None)
     with pytest.raises(ValueError, match=message):
         make_policy("snac-adaptive", context, **{name: value})
+
+
+def test_the_demo_says_whether_the_controller_diverged():
+    from snac_gym.apps.demo import run_demo
+
+    forced = run_demo("reach", "snac-adaptive", None, steps=60, model_error=TURNED, policy_kwargs=FROZEN)
+    flagged = int(np.argmax(forced.log["diverged"].to_numpy() > 0))
+    assert f"diverged                    YES at step {flagged} " in forced.summary()
+    commands = forced.log[[f"u_{j}" for j in range(6)]].to_numpy()
+    assert flagged > 0 and np.any(commands[:flagged] != 0)
+    np.testing.assert_array_equal(commands[flagged:], 0.0)  # stopped from then on
+    healthy = run_demo("reach", "snac-adaptive", None, steps=30)
+    assert "diverged                    no (no divergence bound crossed)" in healthy.summary()
+    assert "diverged" not in run_demo("reach", "lqr", None, steps=5).summary()

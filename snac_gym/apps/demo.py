@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from snac_gym.envs import make_task_env
@@ -88,6 +89,12 @@ class DemoResult:
             lines.append(f"  HJB residual r/eᵀQe         median {m.hjb_ratio_median:.4f} (0 for the optimal critic)")
         if m.critic_error_final is not None:
             lines.append(f"  critic error ‖P̂−P*‖/‖P*‖    {m.critic_error_final:.4f} at the end")
+        flagged = self.log["diverged"].to_numpy() > 0 if "diverged" in self.log.columns else None
+        if flagged is not None:
+            step = int(np.argmax(flagged))
+            lines.append("  diverged                    " + (
+                f"YES at step {step} (t = {step * float(self.log.attrs.get('dt', 0.0)):.3f} s): the controller crossed "
+                "a divergence bound and stopped the arm" if flagged.any() else "no (no divergence bound crossed)"))
         if self.files:
             lines.append(f"  wrote {len(self.files)} files to {self.files[0].parent}")
         return "\n".join(lines)
