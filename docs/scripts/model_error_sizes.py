@@ -25,6 +25,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--robot", default="ur10")
     parser.add_argument("--configurations", type=int, default=1000)
     parser.add_argument("--model", action="append", help="another robot as the model (repeatable; default ur5)")
+    parser.add_argument("--spec", action="append", help="a --model-error text to measure instead of the default list")
     args = parser.parse_args(argv)
     true = Kinematics(args.robot)
     qs = np.random.default_rng(0).uniform(true.lower_limits, true.upper_limits, size=(args.configurations, true.n_joints))
@@ -33,6 +34,7 @@ def main(argv: list[str] | None = None) -> None:
     print("|---|---|---|")
     specs = [f"random={sigma},{seed}" for sigma in SIGMAS for seed in SEEDS]
     specs += [f"model={name}" for name in args.model or ["ur5"]]
+    specs = args.spec or specs
     for spec in specs:
         distance = 1000 * tool_displacement(true, true.with_model_error(spec), qs)
         print(f"| `{spec}` | {np.median(distance):.1f} | {np.percentile(distance, 95):.1f} |")
