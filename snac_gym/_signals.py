@@ -88,9 +88,12 @@ class SignalGuard:
     def __init__(self) -> None:
         self.received: list[int] = []
         self.deferred = False
+        self._in_hook = 0  # > 0 while the unraisable hook runs
 
     def handle(self, signum: int, frame: Any) -> None:
-        if cannot_raise_here(frame):  # raised there, it would be dropped (or a SystemError)
+        # Raised in a __del__, numba's code or the unraisable hook itself, it would be dropped (or a SystemError):
+        # the hook's own resend can arrive while the hook still runs (seen on Python 3.13 under load).
+        if self._in_hook or cannot_raise_here(frame):
             send_again(signum)
             return
         self.received.append(signum)
@@ -115,7 +118,15 @@ class SignalGuard:
         """Set the handlers of ``signals`` and the unraisable hook; return what they replaced."""
         handlers = {signum: signal.signal(signum, self.handle) for signum in signals}
         hook = sys.unraisablehook
-        sys.unraisablehook = lambda unraisable: self.unraisable(unraisable, hook)
+
+        def guarded_hook(unraisable: Any) -> None:
+            self._in_hook += 1
+            try:
+                self.unraisable(unraisable, hook)
+            finally:
+                self._in_hook -= 1
+
+        sys.unraisablehook = guarded_hook
         return handlers, hook
 
     def raise_pending(self) -> None:

@@ -327,3 +327,31 @@ def test_a_signal_handled_inside_a_weakref_callback_is_not_lost():
     second). The guard's unraisable hook sends the signal again, to be raised where it can be."""
     done = subprocess.run([sys.executable, "-c", WEAKREF_CALLBACK], capture_output=True, text=True, timeout=60)
     assert done.stdout.strip() == "interrupted SIGTERM" and "Exception ignored" not in done.stderr, (done.stdout, done.stderr)
+
+
+def test_a_signal_that_comes_while_the_unraisable_hook_runs_is_sent_again_not_raised_there(monkeypatch):
+    """The hook's own resend may land before the hook has returned (Python 3.13 under load): raised there, it
+    would be dropped as "Exception ignored in sys.unraisablehook"."""
+    from snac_gym import _signals
+
+    sent: list[int] = []
+    monkeypatch.setattr(_signals, "send_again", sent.append)
+    guard = _signals.SignalGuard()
+    handlers, previous = guard.install((signal.SIGTERM,))
+    try:
+        class Unraisable:
+            exc_value = _signals.TerminationSignal(signal.SIGTERM)
+
+        def landing_inside(unraisable, hook):  # the signal arrives while the hook is still running
+            guard.handle(signal.SIGTERM, None)
+            sent.append(-1)
+
+        monkeypatch.setattr(guard, "unraisable", landing_inside)
+        sys.unraisablehook(Unraisable())
+        assert sent == [signal.SIGTERM, -1] and guard.received == []  # sent again, nothing raised
+        with pytest.raises(_signals.TerminationSignal):
+            guard.handle(signal.SIGTERM, None)  # outside the hook it raises as before
+    finally:
+        sys.unraisablehook = previous
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
