@@ -27,6 +27,7 @@ _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 #: The modules that define the kinematics' and the controllers' kernels.
 POLICY_KERNEL_MODULES = (
     "snac_gym.kernels.chain", "snac_gym.kernels.small", "snac_gym.kernels.lqr", "snac_gym.kernels.hjb",
+    "snac_gym.kernels.identifier",
 )
 #: Every module that defines a kernel (the evaluator's metrics and optimum too).
 KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "snac_gym.kernels.metrics", "snac_gym.kernels.trajopt")

@@ -111,38 +111,6 @@ DIVERGENCE_RESIDUAL, DIVERGENCE_SETTLE = 0.01, 0.2
 FALLBACKS = ("stop", "none")
 
 
-def _skew_rows(vectors: np.ndarray) -> np.ndarray:
-    """``[v]ₓ`` of every row of ``(..., 3)`` vectors, ``(..., 3, 3)``."""
-    x, y, z = vectors[..., 0], vectors[..., 1], vectors[..., 2]
-    zero = np.zeros_like(x)
-    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
-
-
-def _rodrigues(axis: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> np.ndarray:
-    """Rot(a, θ) = cos θ I + sin θ [a]ₓ + (1 − cos θ) a aᵀ for one unit axis and ``(B,)`` angles, ``(B, 3, 3)``."""
-    skew = _skew_rows(axis)
-    return (cos[:, None, None] * np.eye(3) + sin[:, None, None] * skew
-            + (1.0 - cos)[:, None, None] * np.outer(axis, axis))  # fmt: skip
-
-
-def _exp_and_right_jacobian(rotation_vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Exp(ρ) and its right Jacobian J_r(ρ) for ``(B, 3)`` rotation vectors, each ``(B, 3, 3)``.
-
-    d/dρ [Exp(ρ) y] = −Exp(ρ) [y]ₓ J_r(ρ), with J_r(ρ) = I − (1 − cos φ)/φ² [ρ]ₓ + (φ − sin φ)/φ³ [ρ]ₓ².
-    """
-    angle = np.linalg.norm(rotation_vectors, axis=-1)
-    small = angle < 1e-6
-    safe = np.where(small, 1.0, angle)
-    # Taylor series below 1e-6 rad, where the closed forms lose their digits.
-    a = np.where(small, 1.0 - angle**2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
-    c = np.where(small, 1.0 / 6.0 - angle**2 / 120.0, (safe - np.sin(safe)) / safe**3)
-    skew = _skew_rows(rotation_vectors)
-    skew2 = skew @ skew
-    eye = np.eye(3)
-    return eye + a[:, None, None] * skew + b[:, None, None] * skew2, eye - b[:, None, None] * skew + c[:, None, None] * skew2
-
-
 class GeometricIdentifier:
     """The iterated EKF of the module docstring over the complete geometric correction, B episodes at once.
 
@@ -164,11 +132,14 @@ class GeometricIdentifier:
         steps = steps[::-1]  # base first
         if not all(revolute for _, _, _, revolute, _ in steps):
             raise ValueError("snac-adaptive's identifier needs an arm of revolute joints")
-        self._rotations = np.array([rotation for rotation, _, _, _, _ in steps])
-        self._translations = np.array([translation for _, translation, _, _, _ in steps])
-        self._axes = np.array([axis for _, _, axis, _, _ in steps])
-        self._columns = [column for _, _, _, _, column in steps]
-        self._offset = np.asarray(offset, dtype=float)
+        # The chain for the compiled model (snac_gym/kernels/identifier.py): placements, axes, columns, tool point.
+        self._chain = (
+            np.array([rotation for rotation, _, _, _, _ in steps], dtype=float).reshape(-1, 3, 3),
+            np.array([translation for _, translation, _, _, _ in steps], dtype=float).reshape(-1, 3),
+            np.array([axis for _, _, axis, _, _ in steps], dtype=float).reshape(-1, 3),
+            np.array([column for _, _, _, _, column in steps], dtype=np.int64),
+            np.asarray(offset, dtype=float).reshape(3),
+        )
         self.n_joints = kinematics.n_joints
         self.frames = len(steps) + 1  # the base and each joint's frame after its motion
         self.size = 6 * self.frames
@@ -187,44 +158,11 @@ class GeometricIdentifier:
 
     def _model(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """x̂, Ĵ and H at θ (rows) for the current ĉ: the chain with every frame's correction in it."""
-        count = len(q)
+        from snac_gym.kernels.identifier import corrected_chain  # numba: imported where first needed
+
         # One episode's estimate may serve many rows (a demo log's diagnostics, at the final ĉ).
-        params = np.broadcast_to(self.params, (count, self.size)).reshape(count, self.frames, 6)
-        rotations = np.empty((count, self.frames, 3, 3))
-        right = np.empty((count, self.frames, 3, 3))
-        for frame in range(self.frames):
-            rotations[:, frame], right[:, frame] = _exp_and_right_jacobian(params[:, frame, 3:])
-        translations = params[:, :, :3]
-        # Frame 0, the base: x = Exp(ρ₀)·(the chain) + τ₀.
-        R = rotations[:, 0].copy()
-        p = translations[:, 0].copy()
-        before = [np.broadcast_to(np.eye(3), (count, 3, 3))]  # each correction's frame before it
-        after = [(R, p)]  # and after it
-        axes, origins = [], []
-        cos_sin = np.cos(q), np.sin(q)
-        for j in range(self.frames - 1):
-            frame = R @ self._rotations[j]
-            p = p + R @ self._translations[j]
-            axis = frame @ self._axes[j]
-            axes.append(axis)
-            origins.append(p)
-            column = self._columns[j]
-            turn = _rodrigues(self._axes[j], cos_sin[0][:, column], cos_sin[1][:, column])
-            R = frame @ turn
-            before.append(R)
-            p = p + (R @ translations[:, j + 1, :, None])[..., 0]
-            R = R @ rotations[:, j + 1]
-            after.append((R, p))
-        x = p + R @ self._offset
-        jacobian = np.zeros((count, 3, self.n_joints))
-        for j, (axis, origin) in enumerate(zip(axes, origins, strict=True)):
-            jacobian[:, :, self._columns[j]] = np.cross(axis, x - origin)
-        regressor = np.empty((count, 3, self.size))
-        for frame in range(self.frames):
-            rotation, origin = after[frame]
-            regressor[:, :, 6 * frame : 6 * frame + 3] = before[frame]
-            regressor[:, :, 6 * frame + 3 : 6 * frame + 6] = -_skew_rows(x - origin) @ rotation @ right[:, frame]
-        return x, jacobian, regressor
+        params = np.ascontiguousarray(np.broadcast_to(self.params, (len(q), self.size)))
+        return corrected_chain(np.ascontiguousarray(q, dtype=float), params, *self._chain)
 
     def update(self, q: np.ndarray, x: np.ndarray) -> np.ndarray:
         """One iterated-EKF step on the measurements (θ, x) of every episode; returns Ĵ at θ after it.
