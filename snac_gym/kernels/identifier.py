@@ -11,9 +11,9 @@ joint j's motion) the correction is E_k = (Exp(ρ_k), τ_k), and the arithmetic 
 * x̂ = p + R p_tool; Ĵ's column j: zⱼ × (x̂ − oⱼ) (eq. 2 on the corrected chain);
 * H_k = [R_k⁻, −[x̂ − p_k⁺]ₓ R_k⁺ J_r(ρ_k)], J_r SO(3)'s right Jacobian.
 
-As NumPy array arithmetic over the batch the identifier took about 1 ms per control step for one episode (some
-300 small array operations, three Gauss–Newton passes); compiled, the model is a few µs
-(``python docs/scripts/kernel_speed.py``).
+Written as NumPy array arithmetic over the batch, the model is some 300 small array operations, called four times
+a control step (three Gauss–Newton passes and Ĵ after them): milliseconds for one episode, most of a 500 Hz period.
+Compiled, one ``act`` of ``snac-adaptive`` takes a fraction of a millisecond (docs/model-error.md, "Speed").
 """
 
 from __future__ import annotations
