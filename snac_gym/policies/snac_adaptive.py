@@ -95,11 +95,11 @@ PRIOR_TRANSLATION, PRIOR_ROTATION = 0.1, 0.05
 #: Default measurement noise of x, m.
 MEASUREMENT_NOISE = 1e-4
 #: Default random-walk standard deviation of every parameter per step: lets the filter forget the
-#: information it linearised at early, poor estimates (on a dithered pose, Ĵ's error after 1000
-#: steps: 8.5e-5 without, 1.1e-5 with 1e-4; the tracking results did not change).
+#: information it linearised at early, poor estimates (chosen with the earlier 10-parameter identifier,
+#: where on a dithered pose Ĵ's error after 1000 steps fell from 8.5e-5 to 1.1e-5; kept, not re-tuned).
 PROCESS_NOISE = 1e-4
-#: Gauss–Newton re-linearisations of each measurement update (1: the plain EKF, whose tracking
-#: succeeded on 9 of 10 ellipses where 3 succeeded on all 10; docs/model-error.md).
+#: Gauss–Newton re-linearisations of each measurement update (1: the plain EKF; with the earlier
+#: 10-parameter identifier it tracked 9 of 10 test ellipses where 3 tracked all 10; kept, not re-tuned).
 ITERATIONS = 3
 #: Divergence bounds (:class:`DivergenceMonitor`): growth past ‖e₀‖ (m); the floor below which nothing stalls (m);
 #: the window (s) and least shortfall (m) of the measured progress against the predicted one; the window (s) and
