@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from snac_gym.optimality import quadratic_weights_to_matrix
+
 
 def _upper(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Row and column indices of the upper triangle in the paper's order (row by row: 11, 12, …, 1n, 22, …)."""
@@ -51,28 +53,11 @@ def _upper(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def quadratic_features(x: np.ndarray) -> np.ndarray:
-    """x̄ = [x₁², x₁x₂, …, xₙ²] of the rows of ``x`` ``(…, n)``: ``xᵀPx = x̄ᵀP̂``."""
+    """x̄ = [x₁², x₁x₂, …, xₙ²] of the rows of ``x`` ``(…, n)``: ``xᵀPx = x̄ᵀP̂``, P̂ the weights of
+    :func:`~snac_gym.optimality.matrix_to_quadratic_weights` (SNAC's quadratic basis, the paper's vech order)."""
     x = np.asarray(x, dtype=float)
     rows, cols = _upper(x.shape[-1])
     return x[..., rows] * x[..., cols]
-
-
-def matrix_to_vech(P: np.ndarray) -> np.ndarray:
-    """P̂ of a symmetric ``P``: its upper triangle row by row, off-diagonal entries doubled."""
-    P = np.asarray(P, dtype=float)
-    rows, cols = _upper(P.shape[-1])
-    return np.where(rows == cols, 1.0, 2.0) * P[..., rows, cols]
-
-
-def vech_to_matrix(p_hat: np.ndarray, n: int) -> np.ndarray:
-    """The symmetric P of ``p_hat`` (inverse of :func:`matrix_to_vech`)."""
-    p_hat = np.asarray(p_hat, dtype=float)
-    rows, cols = _upper(n)
-    P = np.zeros((*p_hat.shape[:-1], n, n))
-    values = p_hat / np.where(rows == cols, 1.0, 2.0)
-    P[..., rows, cols] = values
-    P[..., cols, rows] = values
-    return P
 
 
 def _vech_to_vec(n: int) -> np.ndarray:
@@ -220,7 +205,7 @@ def policy_iteration(
         theta = np.hstack([p_columns, -2.0 * data.I_xx @ np.kron(eye_n, K.T @ R) + input_columns])  # Θ_k, eq. 11
         xi = -data.I_xx @ Q_k.reshape(-1, order="F")  # Ξ_k
         solution = np.linalg.lstsq(theta, xi, rcond=None)[0]  # eq. 12
-        P = vech_to_matrix(solution[: n * (n + 1) // 2], n)
+        P = quadratic_weights_to_matrix(solution[: n * (n + 1) // 2], n)  # P̂ is the critics' quadratic weights
         K = solution[n * (n + 1) // 2 :].reshape(m, n, order="F")
         result.P.append(P)
         result.K.append(K)

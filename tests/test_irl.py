@@ -10,13 +10,12 @@ from scipy.linalg import solve_continuous_are
 
 from snac_gym.irl import (
     IRLData,
-    matrix_to_vech,
     policy_iteration,
     quadratic_features,
     simulate_linear,
-    vech_to_matrix,
     windows_from_samples,
 )
+from snac_gym.optimality import matrix_to_quadratic_weights, quadratic_weights_to_matrix
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "docs" / "scripts" / "irl_example.py"
 
@@ -32,8 +31,8 @@ def test_vech_is_the_papers_and_inverts(rng):
     P = rng.normal(size=(4, 4))
     P = P + P.T
     x = rng.normal(size=4)
-    assert np.isclose(quadratic_features(x) @ matrix_to_vech(P), x @ P @ x)  # xᵀPx = x̄ᵀP̂
-    assert np.allclose(vech_to_matrix(matrix_to_vech(P), 4), P)
+    assert np.isclose(quadratic_features(x) @ matrix_to_quadratic_weights(P), x @ P @ x)  # xᵀPx = x̄ᵀP̂
+    assert np.allclose(quadratic_weights_to_matrix(matrix_to_quadratic_weights(P), 4), P)
 
 
 def test_the_papers_example_converges_to_the_are_solution():

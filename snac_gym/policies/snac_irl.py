@@ -57,13 +57,7 @@ import numpy as np
 from snac_gym.irl import policy_iteration, windows_from_samples
 from snac_gym.optimality import FrozenJacobianLQR
 from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
-
-
-def _whole(name: str, value: Any, low: int, high: int) -> int:
-    """``value`` as an int in [low, high] (``ValueError`` naming ``name`` otherwise)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (low <= value <= high):
-        raise ValueError(f"{name} must be a whole number in [{low}, {high}], got {value!r}")
-    return int(value)
+from snac_gym.validation import whole_number
 
 
 class SNACIRLPolicy(BasePolicy):
@@ -126,7 +120,7 @@ class SNACIRLPolicy(BasePolicy):
         self.Q, self.R = self.q_scale * unscaled.Q, unscaled.R
         self.lqr = FrozenJacobianLQR(self.Q, self.R, n, m)
         self.learning_time = positive_float("learning_time", learning_time)
-        self.window_steps = _whole("window_steps", window_steps, 1, 1000)
+        self.window_steps = whole_number("window_steps", window_steps, 1, 1000)
         self.learning_steps = max(1, round(self.learning_time / self.dt))
         needed = n * (n + 1) // 2 + m * n
         if self.learning_steps // self.window_steps < needed:
@@ -135,15 +129,15 @@ class SNACIRLPolicy(BasePolicy):
                 f"{self.window_steps} periods; eq. 13 needs at least {needed}"
             )
         self.exploration = positive_float("exploration", exploration)
-        self.sinusoids = _whole("sinusoids", sinusoids, 1, 1000)
+        self.sinusoids = whole_number("sinusoids", sinusoids, 1, 1000)
         low, high = map(float, frequency_range)
         if not (math.isfinite(low) and math.isfinite(high) and 0 <= low < high <= math.pi / self.dt):
             raise ValueError(f"frequency_range must be (low, high) with 0 <= low < high <= π/dt = {math.pi / self.dt:g}, got {frequency_range}")
         self.frequency_range = (low, high)
-        self.relearn_every = _whole("relearn_every", relearn_every, 0, 10**9)
+        self.relearn_every = whole_number("relearn_every", relearn_every, 0, 10**9)
         self.initial_gain_scale = positive_float("initial_gain_scale", initial_gain_scale)
         self.tolerance = positive_float("tolerance", tolerance)
-        self.max_iterations = _whole("max_iterations", max_iterations, 1, 1000)
+        self.max_iterations = whole_number("max_iterations", max_iterations, 1, 1000)
         slices = self.layout.slices
         self._q, self._e, self._xdot_d = slices["q"], slices["e"], slices["xdot_d"]
         self._seed = seed
@@ -165,7 +159,7 @@ class SNACIRLPolicy(BasePolicy):
             "phases": np.array([d[1] for d in draws]),
             "k": 0,
             "errors": [], "commands": [], "drifts": [],
-            "gain": None, "initial_gain": None, "jacobian": None, "model_jacobian": None,
+            "gain": None, "initial_gain": None, "jacobian": None,
             "learned": np.zeros(len(seeds), dtype=bool), "iterations": np.zeros(len(seeds), dtype=int),
         }  # fmt: skip
         self.internals = {}
@@ -180,14 +174,14 @@ class SNACIRLPolicy(BasePolicy):
         waves = np.sin(b["frequencies"] * t + b["phases"]).sum(axis=-1) / math.sqrt(self.sinusoids / 2.0)
         return self.exploration * self.velocity_limits * waves
 
-    def _learn(self, rows: np.ndarray | None = None) -> None:
+    def _learn(self) -> None:
         """Algorithm 1 on the last L periods of each episode; keeps the current gain where it fails."""
         b = self._batch
         L = self.learning_steps
         errors = np.array(b["errors"][-(L + 1) :])  # (L+1, B, n): e at the start of each period and after the last
         commands = np.array(b["commands"][-L:])  # (L, B, m)
         drifts = np.array(b["drifts"][-L:])
-        for i in range(errors.shape[1]) if rows is None else rows:
+        for i in range(errors.shape[1]):
             data = windows_from_samples(errors[:, i], commands[:, i], self.dt, self.window_steps, drifts[:, i])
             try:
                 result = policy_iteration(
@@ -219,7 +213,6 @@ class SNACIRLPolicy(BasePolicy):
             model_jacobian = self.kinematics.jacobian_batch(obs[:, self._q])
             b["initial_gain"] = self.initial_gain_scale * self.lqr.gain(model_jacobian)
             b["gain"] = b["initial_gain"].copy()
-            b["model_jacobian"] = model_jacobian
             b["jacobian"] = model_jacobian.copy()
         b["errors"].append(errors)
         L = self.learning_steps
