@@ -53,6 +53,8 @@ SOURCES = (
     "snac_gym.optimality",
     "snac_gym.baselines.lqr",
     "snac_gym.baselines.dls",
+    "snac_gym.baselines.joint_goal",
+    "snac_gym.joint_goal",
     "snac_gym.baselines._common",
 )
 #: Distributions whose version is part of the key (their numerics shape the rows).

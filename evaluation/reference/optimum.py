@@ -123,8 +123,10 @@ class ReplayPolicy:
 #: The reference's own starts besides rest: feedback laws of this project at fixed settings, rolled out
 #: on the true model (kept strictly inside the position limits by Ω(θ) where the reference keeps them:
 #: :func:`own_start_commands`). They are the reference's, not the run's: a sample gets the same starts
-#: whatever ``--controllers`` says.
-OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (("lqr", {"q_scale": 9.0}), ("dls", {}))
+#: whatever ``--controllers`` says. ``joint-goal`` goes straight in joint space to an in-limit IK solution
+#: of another branch or winding where one is nearer: the basin the resolved-rate starts, stalled against
+#: a limit, never reach (on the arm's whole reach, the solve from them could end 0.7 m off target).
+OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (("lqr", {"q_scale": 9.0}), ("dls", {}), ("joint-goal", {}))
 
 
 @dataclass(frozen=True)
@@ -219,7 +221,9 @@ def own_start_commands(
     """
     starts: list[dict[str, np.ndarray]] = [{} for _ in samples]
     for name, kwargs in OWN_STARTS:
-        make = functools.partial(make_policy, name, context, **{**kwargs, "joint_limits": joint_limits})
+        # joint-goal keeps the limits by construction (a straight joint path between in-limit configurations).
+        limit_kwargs = {} if name == "joint-goal" else {"joint_limits": joint_limits}
+        make = functools.partial(make_policy, name, context, **{**kwargs, **limit_kwargs})
         rollouts = simulate_kinematic(context, make, samples, steps, seeds, True, name, keep_states=False)
         for i in range(len(samples)):
             starts[i][name] = rollouts.commands[i]

@@ -27,6 +27,7 @@ _BUILTIN: dict[str, str] = {
     "snac-adaptive": "snac_gym.policies.snac_adaptive:SNACAdaptivePolicy",
     "snac-irl": "snac_gym.policies.snac_irl:SNACIRLPolicy",
     "dls": "snac_gym.baselines.dls:DLSPolicy",
+    "joint-goal": "snac_gym.baselines.joint_goal:JointGoalPolicy",
     "svf": "snac_gym.baselines.svf:SVFPolicy",
     "rnn": "snac_gym.baselines.rnn:RNNPolicy",
     "lqr": "snac_gym.baselines.lqr:LQRPolicy",
