@@ -160,22 +160,33 @@ class GoalArms:
         self.found = np.zeros(0, dtype=bool)
 
     def start(self, q0: np.ndarray, x_d: np.ndarray, rows: np.ndarray | None = None) -> None:
-        """Place the arms (all, or ``rows`` of them) at the goals for ``x_d`` ``(B, 3)`` nearest ``q0`` ``(B, m)``."""
+        """Place the arms (all, or ``rows`` of ``count`` allocated ones) at the goals for ``x_d`` ``(B, 3)`` nearest
+        ``q0`` ``(B, m)``."""
         goals, found = nearest_goals(self.kinematics, q0, x_d, self.margin, preferred_margin=self.preferred_margin)
         if rows is None:
             self.q, self.found = goals, found
         else:
             self.q[rows], self.found[rows] = goals, found
 
-    def step(self, x_d: np.ndarray, xdot_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Advance every arm one period; returns ``(θ*ₖ, θ̇*ₖ)``, the configuration and the velocity it moves with
-        (after the clip into the box: a controller that feeds it forward does not push past a limit)."""
-        x, jac = self.kinematics.forward_and_jacobian_batch(self.q)
+    def allocate(self, count: int) -> None:
+        """Room for ``count`` arms, to be started row by row (:meth:`start` with ``rows``)."""
+        self.q = np.zeros((count, self.kinematics.n_joints))
+        self.found = np.zeros(count, dtype=bool)
+
+    def step(self, x_d: np.ndarray, xdot_d: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Advance every arm (or ``rows`` of them) one period; returns ``(θ*ₖ, θ̇*ₖ)``, the configuration and the
+        velocity it moves with (after the clip into the box: a controller that feeds it forward does not push
+        past a limit)."""
+        current = self.q if rows is None else self.q[rows]
+        x, jac = self.kinematics.forward_and_jacobian_batch(current)
         velocity, _ = _pinv_step(jac, xdot_d + self.gain * (x_d - x))
         velocity = velocity / np.maximum(1.0, np.max(np.abs(velocity) / self.velocity_limits, axis=1, keepdims=True))
-        current = self.q
-        self.q = np.clip(current + self.dt * velocity, self.low, self.high)
-        return current, (self.q - current) / self.dt
+        moved = np.clip(current + self.dt * velocity, self.low, self.high)
+        if rows is None:
+            self.q = moved
+        else:
+            self.q[rows] = moved
+        return current, (moved - current) / self.dt
 
 
 __all__ = ["GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "goal_starts", "nearest_goals"]

@@ -70,15 +70,22 @@ def main() -> None:
     parser.add_argument("--work", default="runs/ppo_ws/validation", help="folder for the evaluator's runs")
     parser.add_argument("--out", default="docs/figures/ppo_workspace_curves.png")
     parser.add_argument("--table", default=None, help="also write the rows as CSV here")
+    parser.add_argument("--baseline", default=None, help="a controller drawn as a line on the same samples (e.g. joint-goal)")
     args = parser.parse_args()
     work = Path(args.work)
-    rows, periodic = [], {}
+    rows, periodic, baselines = [], {}, {}
     for item in args.run:
         task, folder = item.split("=", 1)
         folder = Path(folder)
         periodic[task] = pd.DataFrame(read_evaluations(folder))
-        optimum = evaluate(task, args, work / f"{task}-{args.sample_space}-{args.seed}-optimal", "optimal")
-        optimum = optimum[optimum.controller == "optimal"].set_index("sample")
+        names = "optimal" if args.baseline is None else f"optimal,{args.baseline}"
+        reference = evaluate(task, args, work / f"{task}-{args.sample_space}-{args.seed}-{names.replace(',', '-')}", names)
+        optimum = reference[reference.controller == "optimal"].set_index("sample")
+        if args.baseline is not None:
+            base = reference[reference.controller == args.baseline].set_index("sample")
+            baselines[task] = (float((base["cost_hjb"] / optimum.loc[base.index, "cost_hjb"]).median()),
+                               float(base["success"].astype(bool).mean()))
+            print(f"{task} {args.baseline}: median ratio {baselines[task][0]:.3f}, success {100 * baselines[task][1]:.0f} %")
         column, limit = ERROR_RULE[task]
         for checkpoint in checkpoints(folder, args.every, args.fine_every, args.fine_until):
             out = work / f"{folder.name}-{args.sample_space}-{args.seed}-{checkpoint.stem}"
@@ -101,10 +108,11 @@ def main() -> None:
     print(table[table.chosen][["task", "timesteps", "median_ratio", "success", "file"]].to_string(index=False))
     if args.table:
         table.to_csv(args.table, index=False)
-    plot(table, periodic, Path(args.out), args)
+    plot(table, periodic, Path(args.out), args, baselines)
 
 
-def plot(table: pd.DataFrame, periodic: dict[str, pd.DataFrame], out: Path, args: argparse.Namespace) -> None:
+def plot(table: pd.DataFrame, periodic: dict[str, pd.DataFrame], out: Path, args: argparse.Namespace,
+         baselines: dict[str, tuple[float, float]]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -121,6 +129,9 @@ def plot(table: pd.DataFrame, periodic: dict[str, pd.DataFrame], out: Path, args
         axes[1].plot(rows.timesteps / 1e6, 100 * rows.success, "o-", color=colour, label=f"{task}: success (evaluator)")
         axes[1].plot(rows.timesteps / 1e6, 100 * rows.on_target, "s--", color=colour, mfc="none",
                      label=f"{task}: on target (error rule alone)")
+        if task in baselines:
+            axes[0].axhline(baselines[task][0], color=colour, ls=":", lw=1.2, label=f"{task}: {args.baseline}")
+            axes[1].axhline(100 * baselines[task][1], color=colour, ls=":", lw=1.2)
         runs = periodic.get(task)
         if runs is not None and not runs.empty:
             axes[1].plot(runs.timesteps / 1e6, 100 * runs.success_rate, ":", color=colour, alpha=0.6,

@@ -35,6 +35,7 @@ _BUILTIN: dict[str, str] = {
     "pink": "snac_gym.baselines.pink_ik:PinkPolicy",
     "mink": "snac_gym.baselines.mink_ik:MinkPolicy",
     "ppo": "snac_gym.ppo.policy:PPOPolicy",
+    "ppo-workspace": "snac_gym.ppo.policy:WorkspacePPOPolicy",
 }
 _FACTORIES: dict[str, Callable[..., Any]] = {}
 

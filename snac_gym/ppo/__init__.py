@@ -7,12 +7,15 @@
 * :mod:`snac_gym.ppo.train`: :func:`~snac_gym.ppo.train.train_ppo` (needs ``snac-gym[rl]``).
 * :mod:`snac_gym.ppo.policy_file`: the frozen, NumPy-only policy file format.
 * :mod:`snac_gym.ppo.policy`: :class:`~snac_gym.ppo.policy.PPOPolicy`, registered as ``ppo``;
-  it loads the policy file shipped in ``models/`` for the env's task by default.
+  it loads the policy file shipped in ``models/`` for the env's task by default;
+  :class:`~snac_gym.ppo.policy.WorkspacePPOPolicy` (``ppo-workspace``) the one in ``models/workspace/``.
 
 Importing this package does not import torch or stable-baselines3.
 """
 
-from snac_gym.ppo.policy import PPOPolicy, shipped_model_path
+from snac_gym.ppo.policy import PPOPolicy, WorkspacePPOPolicy, shipped_model_path
 from snac_gym.ppo.policy_file import MissingPolicyFileError, PolicyFile, PolicyFileError
 
-__all__ = ["MissingPolicyFileError", "PPOPolicy", "PolicyFile", "PolicyFileError", "shipped_model_path"]
+__all__ = [
+    "MissingPolicyFileError", "PPOPolicy", "PolicyFile", "PolicyFileError", "WorkspacePPOPolicy", "shipped_model_path",
+]

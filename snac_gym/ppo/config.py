@@ -285,6 +285,7 @@ class FeaturesSection:
     action: str = spec(choice(*ACTION_KINDS), "task-relative")
     gain_max: float = spec(number(0, open_low=True), 4.0)
     damping: float = spec(number(0, open_low=True), 0.01)
+    joint_gain: float = spec(number(0, open_low=True), 2.0)
     version: int = spec(choice(*ACTION_KINDS.values()), FEATURE_VERSION)
 
     def __post_init__(self) -> None:
@@ -306,6 +307,7 @@ class RewardSection:
     cost: str = spec(choice("table1", "hjb"), "hjb")
     q_scale: float = spec(number(0, open_low=True), 1.0)
     udot_start: str = spec(choice("rest", "first"), "rest")
+    limit_penalty: float = spec(number(0), 0.0)
 
 
 @dataclass(frozen=True)

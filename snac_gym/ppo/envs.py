@@ -38,7 +38,7 @@ import numpy as np
 
 from snac_gym.cost import CostConvention
 from snac_gym.envs.core import shaped_reward
-from snac_gym.ppo.features import FeatureSpec, action_size, command, feature_size, observation_features
+from snac_gym.ppo.features import EpisodeGoals, FeatureSpec, action_size, command, feature_size, observation_features
 
 REWARD_TYPES = ("shaped", "env", "cost")
 
@@ -55,6 +55,9 @@ class RewardSpec:
         action_penalty: Weight of ‖a‖².
         smoothness_penalty: Weight of ‖a − a_prev‖².
         cost, q_scale, udot_start: The cost convention of ``type="cost"`` (:class:`~snac_gym.cost.CostConvention`).
+        limit_penalty: Weight of the joint-limit term, 1/(rad·s): each step subtracts
+            ``limit_penalty · Δt · Σⱼ (how far θⱼ is beyond its limit, rad)`` from the reward (0: none). The
+            trajectory cost does not charge a crossing; the success rule fails it.
     """
 
     type: str = "shaped"
@@ -66,6 +69,7 @@ class RewardSpec:
     cost: str = "hjb"
     q_scale: float = 1.0
     udot_start: str = "rest"
+    limit_penalty: float = 0.0
 
     def __post_init__(self) -> None:
         if self.type not in REWARD_TYPES:
@@ -73,6 +77,13 @@ class RewardSpec:
         self.convention()  # a bad cost, q_scale or udot_start is refused here, naming it
         if not self.precision_scale > 0:
             raise ValueError(f"reward precision_scale must be positive, got {self.precision_scale}")
+        if not (np.isfinite(self.limit_penalty) and self.limit_penalty >= 0):
+            raise ValueError(f"reward limit_penalty must be a finite number ≥ 0, got {self.limit_penalty}")
+
+    def limit_term(self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray, dt: float) -> np.ndarray:
+        """``limit_penalty · Δt · Σⱼ max(0, θ⁻ⱼ − θⱼ, θⱼ − θ⁺ⱼ)`` for ``q`` ``(m,)`` or ``(B, m)``."""
+        beyond = np.maximum(0.0, np.maximum(lower - q, q - upper))
+        return self.limit_penalty * dt * np.sum(beyond, axis=-1)
 
     def convention(self) -> CostConvention:
         """The cost convention of ``type="cost"``."""
@@ -132,6 +143,18 @@ class PPOTrainingWrapper(gym.Wrapper):
         self._last_obs: np.ndarray | None = None
         self._previous_action = np.zeros(m)
         self.action_scale = 1.0
+        self.dt = float(base.dt)
+        self._goals = (
+            EpisodeGoals(self.kinematics, self.velocity_limits, self.dt, base.task.moving_reference, 1)
+            if features.goal_relative else None
+        )
+        self._goal = None
+
+    def _features(self, obs: np.ndarray) -> np.ndarray:
+        if self._goals is not None:
+            state = self._goals.observe(np.asarray(obs, dtype=np.float64)[None], self.layout)
+            self._goal = type(state)(state.goal[0], state.velocity[0], state.lower, state.upper)
+        return observation_features(obs, self.layout, self.features, self.action_scale, self._goal)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -142,14 +165,16 @@ class PPOTrainingWrapper(gym.Wrapper):
         low, high = self.features.action_scale_range
         self.action_scale = float(np.exp(self.np_random.uniform(np.log(low), np.log(high)))) if high > low else low
         info["action_scale"] = self.action_scale
-        return observation_features(obs, self.layout, self.features, self.action_scale), info
+        if self._goals is not None:
+            self._goals.restart()
+        return self._features(obs), info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         before = self._last_obs
         jacobian = self.kinematics.jacobian(before[self.layout.slices["q"]]) if self.features.task_relative else None
         joint_velocities = command(
-            action, before, self.layout, self.velocity_limits, self.features, self.action_scale, jacobian
+            action, before, self.layout, self.velocity_limits, self.features, self.action_scale, jacobian, self._goal
         )
         obs, env_reward, terminated, truncated, info = self.env.step(joint_velocities)
         info["env_reward"] = env_reward
@@ -157,7 +182,9 @@ class PPOTrainingWrapper(gym.Wrapper):
             reward = self.reward_spec.shaped(info["error_norm"], action, self._previous_action)
         else:
             reward = float(env_reward)
+        if self.reward_spec.limit_penalty > 0:
+            q = np.asarray(obs, dtype=np.float64)[self.layout.slices["q"]]
+            reward -= float(self.reward_spec.limit_term(q, self.kinematics.lower_limits, self.kinematics.upper_limits, self.dt))
         self._previous_action = action
         self._last_obs = np.asarray(obs, dtype=np.float64)
-        observation = observation_features(obs, self.layout, self.features, self.action_scale)
-        return observation, reward, terminated, truncated, info
+        return self._features(obs), reward, terminated, truncated, info

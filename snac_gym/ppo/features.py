@@ -60,6 +60,27 @@ resolved-rate law of gain k at every scale, so what the network learns at centim
 micrometres, and the feed-forward ẋ_d is built in. What is learnt is the gain and direction of
 the feedback as functions of the error and the reference; the kinematics are the model's.
 
+``"goal-relative"`` (``FEATURE_VERSION`` 4, the workspace policies): the task-relative action plus one
+more output, a joint-space gain towards a goal configuration inside the joint limits
+(:mod:`snac_gym.joint_goal`: the in-limit IK solution nearest θ₀, carried along a moving reference by
+a virtual arm θ*(t) with velocity θ̇*):
+
+    u = sat(θ̇* + s·joint_gain·(1 + a₀)·(θ* − θ) + Jᵀ(JJᵀ + λ²I)⁻¹ (s·gain_max·(‖e‖ + ε_v)·a₁..ₙ))
+
+with ``sat`` the uniform scaling into ±ū and s the effort knob. At a = 0 this is the ``joint-goal``
+controller at gain s·joint_gain, which keeps the joint limits by construction (a straight joint path
+inside a convex box); the network learns when and how far to cut across in task space (a₁..ₙ) and how
+hard to pull towards the goal (a₀ ∈ [−1, 1]: no pull to twice the gain). The goal is the model's IK, not
+learned. Features: the task-relative table, then
+
+====================  ======  ==============================================================
+feature               size    meaning
+====================  ======  ==============================================================
+d / (‖d‖ + 1 mrad)    m       direction to the goal in joint space, d = θ* − θ
+log‖d‖                1       its magnitude, (log10(‖d‖ + 10⁻⁴ rad) + 2) / 2
+room / π              1       the smallest distance of a joint to its limit, rad / π
+====================  ======  ==============================================================
+
 ``"joint"`` (``FEATURE_VERSION`` 2 files): the table above this one, and the action map below.
 
 Action (``"joint"``): the network's output ``a`` is clipped to [−1, 1] per joint and mapped to
@@ -79,14 +100,15 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.joint_goal import TRACKING_ROOM, GoalArms
 from snac_gym.kinematics import damped_least_squares
 from snac_gym.observation import ObservationLayout
 
 #: Version of the feature definition above; stored in every policy file and checked on load:
-#: 2 is the joint-space policy, 3 the task-relative one.
+#: 2 is the joint-space policy, 3 the task-relative one, 4 the goal-relative one.
 FEATURE_VERSION = 3
 #: The feature version of each kind of policy.
-ACTION_KINDS = {"joint": 2, "task-relative": 3}
+ACTION_KINDS = {"joint": 2, "task-relative": 3, "goal-relative": 4}
 #: ε_v of the task-relative action (m): the feedback's floor, so an error of exactly zero is still corrected.
 RELATIVE_ERROR_FLOOR = 1e-4
 #: ε of the log-magnitude feature, m.
@@ -106,9 +128,10 @@ class FeatureSpec:
         action_fraction: Fraction of the velocity limits that ``a = ±1`` commands.
         action_scale_range: ``(low, high)`` of the per-episode ``action_scale`` drawn at
             training time (log-uniform); ``low == high`` trains at one scale.
-        action: ``"joint"`` or ``"task-relative"`` (the module docs).
-        gain_max: Task-relative: the feedback gain ``a = ±1`` commands, 1/s.
-        damping: Task-relative: λ of the damped pseudo-inverse, m.
+        action: ``"joint"``, ``"task-relative"`` or ``"goal-relative"`` (the module docs).
+        gain_max: Task- and goal-relative: the feedback gain ``a = ±1`` commands, 1/s.
+        damping: Task- and goal-relative: λ of the damped pseudo-inverse, m.
+        joint_gain: Goal-relative: the joint-space gain towards the goal at ``a₀ = 0``, 1/s.
         version: :data:`FEATURE_VERSION` of the definition these scales belong to.
     """
 
@@ -122,6 +145,7 @@ class FeatureSpec:
     action: str = "joint"
     gain_max: float = 4.0
     damping: float = 0.01
+    joint_gain: float = 2.0
     version: int = field(default=-1)
 
     def __post_init__(self) -> None:
@@ -129,7 +153,7 @@ class FeatureSpec:
             raise ValueError(f"feature spec: action must be one of {sorted(ACTION_KINDS)}, got {self.action!r}")
         if self.version == -1:
             object.__setattr__(self, "version", ACTION_KINDS[self.action])
-        for name in ("gain_max", "damping", "error_scale_coarse", "error_scale_fine", "velocity_scale", "position_scale", "action_fraction"):
+        for name in ("gain_max", "damping", "joint_gain", "error_scale_coarse", "error_scale_fine", "velocity_scale", "position_scale", "action_fraction"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"feature spec: {name} must be a positive number, got {value!r}")
@@ -178,31 +202,103 @@ class FeatureSpec:
 
     @property
     def task_relative(self) -> bool:
-        """Whether the network chooses a task-space velocity relative to the error (the module docs)."""
-        return self.action == "task-relative"
+        """Whether the network's command goes through the model's J(θ) (task- or goal-relative: the module docs)."""
+        return self.action in ("task-relative", "goal-relative")
+
+    @property
+    def goal_relative(self) -> bool:
+        """Whether the policy also pulls towards an in-limit goal configuration (needs the goal's state)."""
+        return self.action == "goal-relative"
 
 
 def feature_size(layout: ObservationLayout, spec: FeatureSpec | None = None) -> int:
-    """Number of features for ``layout``: 2m + 4n + 2 (joint), 4n + 1 (task-relative)."""
+    """Number of features for ``layout``: 2m + 4n + 2 (joint), 4n + 1 (task-relative), 4n + m + 3 (goal-relative)."""
+    if spec is not None and spec.goal_relative:
+        return 4 * layout.task_dim + layout.n_joints + 3
     if spec is not None and spec.task_relative:
         return 4 * layout.task_dim + 1
     return 2 * layout.n_joints + 4 * layout.task_dim + 2
 
 
 def action_size(layout: ObservationLayout, spec: FeatureSpec) -> int:
-    """Size of the network's action: m joints, or the task dimension n (task-relative)."""
+    """Size of the network's action: m joints, the task dimension n (task-relative) or n + 1 (goal-relative)."""
+    if spec.goal_relative:
+        return layout.task_dim + 1
     return layout.task_dim if spec.task_relative else layout.n_joints
 
 
+@dataclass(frozen=True)
+class GoalState:
+    """What a goal-relative policy needs beyond the observation, one row per observation.
+
+    Attributes:
+        goal: θ*(t), ``(m,)`` or ``(B, m)`` (:class:`snac_gym.joint_goal.GoalArms`).
+        velocity: θ̇*(t), the same shape.
+        lower, upper: The joint position limits ``(m,)`` (for the room feature).
+    """
+
+    goal: np.ndarray
+    velocity: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+class EpisodeGoals:
+    """The goal state of B goal-relative episodes, the same code at training and at run time.
+
+    An episode's goal is solved from its first observation (θ₀, x_d(0)); every observation then advances
+    its virtual arm one period (:class:`snac_gym.joint_goal.GoalArms`: a tracking episode's goal prefers
+    :data:`~snac_gym.joint_goal.TRACKING_ROOM`).
+
+    Args:
+        kinematics: The model's position kinematics.
+        velocity_limits: ū ``(m,)``.
+        dt: Control period, s.
+        tracking: Whether the reference moves.
+        count: Number of episodes.
+    """
+
+    def __init__(self, kinematics: Any, velocity_limits: np.ndarray, dt: float, tracking: bool, count: int) -> None:
+        self.arms = GoalArms(kinematics, velocity_limits, dt, preferred_margin=TRACKING_ROOM if tracking else 0.0)
+        self.arms.allocate(count)
+        self.lower, self.upper = kinematics.lower_limits, kinematics.upper_limits
+        self.pending = np.ones(count, dtype=bool)
+
+    def restart(self, rows: Any = slice(None)) -> None:
+        """The next observation of ``rows`` is an episode's first."""
+        self.pending[rows] = True
+
+    def observe(self, obs: np.ndarray, layout: ObservationLayout, rows: Any = slice(None)) -> GoalState:
+        """The goal state for observations ``(B_rows, d)`` of ``rows``, advancing their virtual arms one period."""
+        rows = np.arange(len(self.pending))[rows]
+        s = layout.slices
+        x_d = obs[:, s["x_d"]]
+        first = self.pending[rows]
+        if first.any():
+            self.arms.start(obs[first][:, s["q"]], x_d[first], rows[first])
+            self.pending[rows[first]] = False
+        goal, velocity = self.arms.step(x_d, obs[:, s["xdot_d"]], rows)
+        return GoalState(goal, velocity, self.lower, self.upper)
+
+
+def _goal_features(q: np.ndarray, state: GoalState) -> np.ndarray:
+    offset = np.asarray(state.goal, dtype=np.float64) - q
+    norm = np.sqrt(np.sum(offset * offset, axis=-1, keepdims=True))
+    room = np.min(np.minimum(q - state.lower, state.upper - q), axis=-1, keepdims=True)
+    return np.concatenate((offset / (norm + 1e-3), (np.log10(norm + 1e-4) + 2.0) / 2.0, room / np.pi), axis=-1)
+
+
 def observation_features(
-    obs: np.ndarray, layout: ObservationLayout, spec: FeatureSpec, action_scale: float = 1.0
+    obs: np.ndarray, layout: ObservationLayout, spec: FeatureSpec, action_scale: float = 1.0,
+    goal: GoalState | None = None,
 ) -> np.ndarray:
     """The network input for one observation ``(d,)`` or a batch ``(B, d)``, as float32.
 
-    ``action_scale`` is the effort knob the command will be scaled with (the last feature).
+    ``action_scale`` is the effort knob the command will be scaled with (the last feature of a joint
+    policy); ``goal`` the goal-relative policy's goal state.
 
     Raises:
-        ValueError: If the observations do not have the layout's size.
+        ValueError: If the observations do not have the layout's size, or a goal-relative spec gets no goal.
     """
     obs = np.asarray(obs, dtype=np.float64)
     if obs.shape[-1:] != (layout.size,) or obs.ndim not in (1, 2):
@@ -213,13 +309,18 @@ def observation_features(
     error_norm = np.sqrt(np.sum(e * e, axis=-1, keepdims=True))
     if spec.task_relative:
         xdot_d = obs[..., s["xdot_d"]]
-        return np.concatenate((
+        parts = [
             e / np.maximum(error_norm, 1e-12),
             (np.log10(error_norm + 1e-5) + 2.5) / 1.5,
             xdot_d / spec.velocity_scale,
             xdot_d / (error_norm + 1e-3) / 10.0,
             e / (2.0 * spec.error_scale_coarse),
-        ), axis=-1).astype(np.float32)
+        ]
+        if spec.goal_relative:
+            if goal is None:
+                raise ValueError("a goal-relative PPO policy needs its goal state (goal=)")
+            parts.append(_goal_features(q, goal))
+        return np.concatenate(parts, axis=-1).astype(np.float32)
     centre = np.asarray(spec.position_centre, dtype=np.float64)
     if centre.shape != (layout.task_dim,):
         raise ValueError(f"feature spec: position_centre needs {layout.task_dim} values, got {centre.shape}")
@@ -268,19 +369,53 @@ def task_relative_command(action: np.ndarray, obs: np.ndarray, layout: Observati
     return np.minimum(np.maximum(command, -limits), limits)
 
 
-def command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray,
-            spec: FeatureSpec, action_scale: float = 1.0, jacobians: np.ndarray | None = None) -> np.ndarray:
-    """Joint velocities (rad/s) of the network's actions for observations ``(d,)`` or ``(B, d)``, either kind.
+def goal_relative_command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, jacobians: np.ndarray,
+                          velocity_limits: np.ndarray, spec: FeatureSpec, goal: GoalState,
+                          action_scale: Any = 1.0) -> np.ndarray:
+    """Joint velocities (rad/s) of goal-relative actions ``(n + 1,)`` or ``(B, n + 1)`` (the module docs).
 
-    A task-relative spec also needs ``J(θ)`` of each observation (``(n, m)`` or ``(B, n, m)``).
+    ``u = sat(θ̇* + s·joint_gain·(1 + a₀)(θ* − θ) + Jᵀ(JJᵀ + λ²I)⁻¹ s·gain_max·(‖e‖ + ε_v)·a₁..ₙ)``, ``sat`` the
+    uniform scaling into ±ū, so a = 0 is the ``joint-goal`` controller.
+    """
+    action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+    obs = np.asarray(obs, dtype=np.float64)
+    s = layout.slices
+    e = obs[..., s["e"]]
+    error_norm = np.sqrt(np.sum(e * e, axis=-1, keepdims=True))
+    scale = np.asarray(action_scale, dtype=np.float64)
+    velocity = scale * spec.gain_max * (error_norm + RELATIVE_ERROR_FLOOR) * action[..., 1:]
+    jac = np.asarray(jacobians, dtype=np.float64)
+    damping = spec.damping**2 * np.eye(jac.shape[-2])
+    if jac.ndim == 2:
+        task = damped_least_squares(jac, velocity, damping)
+    else:
+        task = damped_least_squares(jac, velocity[..., None], damping)[..., 0]
+    pull = scale * spec.joint_gain * (1.0 + action[..., :1])
+    command = np.asarray(goal.velocity, dtype=np.float64) + pull * (goal.goal - obs[..., s["q"]]) + task
+    limits = np.asarray(velocity_limits, dtype=np.float64)
+    over = np.maximum(1.0, np.max(np.abs(command) / limits, axis=-1, keepdims=True))
+    return np.minimum(np.maximum(command / over, -limits), limits)
+
+
+def command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray,
+            spec: FeatureSpec, action_scale: float = 1.0, jacobians: np.ndarray | None = None,
+            goal: GoalState | None = None) -> np.ndarray:
+    """Joint velocities (rad/s) of the network's actions for observations ``(d,)`` or ``(B, d)``, any kind.
+
+    A task- or goal-relative spec also needs ``J(θ)`` of each observation (``(n, m)`` or ``(B, n, m)``); a
+    goal-relative one its goal state.
 
     Raises:
-        ValueError: If a task-relative spec is given no Jacobians.
+        ValueError: If a task-relative spec is given no Jacobians, or a goal-relative one no goal.
     """
     if not spec.task_relative:
         return action_to_command(action, velocity_limits, spec, action_scale)
     if jacobians is None:
         raise ValueError("a task-relative PPO policy needs J(θ) of each observation (jacobians=)")
+    if spec.goal_relative:
+        if goal is None:
+            raise ValueError("a goal-relative PPO policy needs its goal state (goal=)")
+        return goal_relative_command(action, obs, layout, jacobians, velocity_limits, spec, goal, action_scale)
     return task_relative_command(action, obs, layout, jacobians, velocity_limits, spec, action_scale)
 
 

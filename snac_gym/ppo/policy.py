@@ -16,15 +16,17 @@ from typing import Any, Sequence
 import numpy as np
 
 from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.ppo.features import EpisodeGoals
 from snac_gym.ppo.policy_file import PolicyFile, PolicyFileError
 
 #: Package whose ``models/`` folder holds the shipped policy files.
 PACKAGE = "snac_gym.ppo"
 
 
-def shipped_model_path(task: str) -> Path:
-    """Path of the policy file shipped for ``task`` (``reach`` or ``track``)."""
-    return Path(str(resources.files(PACKAGE).joinpath("models", f"{task}.npz")))
+def shipped_model_path(task: str, folder: str = "models") -> Path:
+    """Path of the policy file shipped for ``task`` (``reach`` or ``track``) in ``folder`` of the package
+    (``models``: ``ppo``'s; ``models/workspace``: ``ppo-workspace``'s)."""
+    return Path(str(resources.files(PACKAGE).joinpath(*folder.split("/"), f"{task}.npz")))
 
 
 class PPOPolicy(BasePolicy):
@@ -56,11 +58,13 @@ class PPOPolicy(BasePolicy):
     """
 
     effort_parameter = "action_scale"
+    #: Package folder of the default policy files.
+    models_folder = "models"
 
     def __init__(self, env: Any, model_path: str | Path | None = None, action_scale: float = 1.0) -> None:
         super().__init__(env)
         self.action_scale = positive_float("action_scale", action_scale)
-        self.model_path = Path(model_path) if model_path is not None else shipped_model_path(self.task)
+        self.model_path = Path(model_path) if model_path is not None else shipped_model_path(self.task, self.models_folder)
         self.model = PolicyFile.load(self.model_path)
         self.model.check_compatible(
             self.task, self.layout, self.context.arm_robot, source=f"PPO policy file {self.model_path}"
@@ -70,6 +74,8 @@ class PPOPolicy(BasePolicy):
         self._q = self.layout.slices["q"]
         # The task-relative policies map their task-space action through the model's J(θ).
         self._task_relative = self.model.features.task_relative
+        # The goal-relative ones also keep a goal configuration per episode (solved at its first step).
+        self._goals: EpisodeGoals | None = None
 
     @property
     def input_files(self) -> tuple[Path, ...]:
@@ -77,8 +83,17 @@ class PPOPolicy(BasePolicy):
         return (self.model_path,)
 
     def reset(self, seed: int | None = None) -> None:
-        """Start an episode (the policy is deterministic and stateless; ``seed`` is unused)."""
+        """Start an episode (the policy is deterministic; ``seed`` is unused; a goal-relative policy solves its
+        goal at the next step)."""
         self.internals = {}
+        self._goals = None
+
+    def _goal_state(self, obs_batch: np.ndarray) -> Any:
+        if not self.model.features.goal_relative:
+            return None
+        if self._goals is None or len(self._goals.pending) != len(obs_batch):
+            self._goals = EpisodeGoals(self.kinematics, self.velocity_limits, self.dt, self.tracking, len(obs_batch))
+        return self._goals.observe(obs_batch, self.layout)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s, shape ``(m,)``) for one observation.
@@ -90,11 +105,14 @@ class PPOPolicy(BasePolicy):
         if obs.shape != (self._obs_size,):
             raise ValueError(f"observation must have shape ({self._obs_size},), got {obs.shape}")
         jacobian = self.kinematics.jacobian(obs[self._q]) if self._task_relative else None
-        return self.model.command(obs, self.layout, self.velocity_limits, self.action_scale, jacobian)
+        goal = self._goal_state(obs[None])
+        if goal is not None:
+            goal = type(goal)(goal.goal[0], goal.velocity[0], goal.lower, goal.upper)
+        return self.model.command(obs, self.layout, self.velocity_limits, self.action_scale, jacobian, goal)
 
     # -- the evaluator's optional batch protocol (snac_gym.policies.base) ------------------------
     def reset_batch(self, seeds: Sequence[int]) -> None:
-        """Start B episodes (stateless: nothing to do beyond :meth:`reset`)."""
+        """Start B episodes (as :meth:`reset`)."""
         self.reset()
 
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
@@ -105,7 +123,20 @@ class PPOPolicy(BasePolicy):
         jacobians = (
             self.kinematics.jacobian_batch(np.ascontiguousarray(obs_batch[:, self._q])) if self._task_relative else None
         )
-        return self.model.command(obs_batch, self.layout, self.velocity_limits, self.action_scale, jacobians)
+        goal = self._goal_state(obs_batch)
+        return self.model.command(obs_batch, self.layout, self.velocity_limits, self.action_scale, jacobians, goal)
 
 
-__all__ = ["PPOPolicy", "PolicyFileError", "shipped_model_path"]
+class WorkspacePPOPolicy(PPOPolicy):
+    """``ppo-workspace``: :class:`PPOPolicy` with the files trained on the arm's whole reach by default.
+
+    Goal-relative policies (:mod:`snac_gym.ppo.features`): the network corrects the ``joint-goal``
+    controller (straight joint-space motion to the in-limit IK solution nearest the start), so it keeps
+    the joint limits where the task-relative ``ppo`` leaves them. Trained with
+    ``snac_gym/ppo/configs/goal/<task>.json``; the files are ``snac_gym/ppo/models/workspace/<task>.npz``.
+    """
+
+    models_folder = "models/workspace"
+
+
+__all__ = ["PPOPolicy", "PolicyFileError", "WorkspacePPOPolicy", "shipped_model_path"]

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.observation import ObservationLayout
-from snac_gym.ppo.features import FeatureSpec, action_size, command, feature_size, observation_features
+from snac_gym.ppo.features import FeatureSpec, GoalState, action_size, command, feature_size, observation_features
 
 FORMAT_NAME = "snac-gym-ppo-policy"
 FORMAT_VERSION = 1
@@ -123,24 +123,26 @@ class PolicyFile:
             hidden = _activation(self.activation, _rowwise(hidden, layer_weight_t) + layer_bias)
         return _rowwise(hidden, weight_t) + bias
 
-    def action(self, obs: np.ndarray, layout: ObservationLayout, action_scale: float = 1.0) -> np.ndarray:
+    def action(self, obs: np.ndarray, layout: ObservationLayout, action_scale: float = 1.0,
+               goal: GoalState | None = None) -> np.ndarray:
         """Normalised action in [−1, 1] for observations ``(d,)`` or ``(B, d)`` at effort ``action_scale``."""
-        features = observation_features(obs, layout, self.features, action_scale)
+        features = observation_features(obs, layout, self.features, action_scale, goal)
         return np.clip(self.network_action(self.normalise(features)), -1.0, 1.0)
 
     def command(
         self, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray, action_scale: float = 1.0,
-        jacobians: np.ndarray | None = None,
+        jacobians: np.ndarray | None = None, goal: GoalState | None = None,
     ) -> np.ndarray:
         """Joint velocities (rad/s) for observations ``(d,)`` or ``(B, d)`` (:func:`~snac_gym.ppo.features.command`).
 
-        A task-relative policy also needs ``J(θ)`` of each observation (``(n, m)`` or ``(B, n, m)``).
+        A task- or goal-relative policy also needs ``J(θ)`` of each observation (``(n, m)`` or ``(B, n, m)``);
+        a goal-relative one its goal state.
 
         Raises:
-            ValueError: If a task-relative policy is given no Jacobians.
+            ValueError: If a task-relative policy is given no Jacobians, or a goal-relative one no goal.
         """
-        action = self.action(obs, layout, action_scale)
-        return command(action, obs, layout, velocity_limits, self.features, action_scale, jacobians)
+        action = self.action(obs, layout, action_scale, goal)
+        return command(action, obs, layout, velocity_limits, self.features, action_scale, jacobians, goal)
 
     # -- checks ----------------------------------------------------------------------------
     @property

@@ -19,7 +19,9 @@ from snac_gym.envs.sb3 import SB3VectorEnv
 from snac_gym.ppo.config import env_arguments
 from snac_gym.ppo.envs import RewardSpec
 from snac_gym.ppo.features import (
+    EpisodeGoals,
     FeatureSpec,
+    goal_relative_command,
     action_size,
     feature_size,
     observation_features,
@@ -47,6 +49,13 @@ class PPOVecEnv(SB3VectorEnv):
         self.previous_actions = np.zeros((count, 1))
         super().__init__(get_task(config["task"]).env_id_for(config.get("robot", "ur10")), count, **env_kwargs)
         self.previous_actions = np.zeros((count, action_size(self.episodes.layout, self.features)))
+        episodes = self.episodes
+        kinematics = episodes.template.kinematics
+        self._goals = (
+            EpisodeGoals(kinematics, episodes.limits, episodes.dt, get_task(config["task"]).moving_reference, count)
+            if self.features.goal_relative else None
+        )
+        self._goal = None
 
     def _spaces(self) -> tuple[gym.spaces.Space, gym.spaces.Space]:
         layout = self.vector_env.episodes.layout
@@ -55,13 +64,22 @@ class PPOVecEnv(SB3VectorEnv):
 
     def _on_reset(self, indices: np.ndarray) -> None:
         self.previous_actions[indices] = 0.0
+        if getattr(self, "_goals", None) is not None:
+            self._goals.restart(indices)
         low, high = self.features.action_scale_range
         for index in indices:
             generator = self.episodes.generators[index]
             self.action_scales[index] = float(np.exp(generator.uniform(np.log(low), np.log(high)))) if high > low else low
 
     def _features(self, observations: np.ndarray, rows: Any) -> np.ndarray:
-        features = observation_features(observations, self.episodes.layout, self.features)
+        goal = None
+        if self._goals is not None:
+            goal = self._goals.observe(observations, self.episodes.layout, rows)
+            if self._goal is None:
+                self._goal = goal
+            else:  # keep every row's current goal state for the next command
+                self._goal.goal[rows], self._goal.velocity[rows] = goal.goal, goal.velocity
+        features = observation_features(observations, self.episodes.layout, self.features, goal=goal)
         if not self.features.task_relative:
             features[:, -1] = np.log(self.action_scales[rows])  # the per-episode effort feature
         return features
@@ -71,6 +89,11 @@ class PPOVecEnv(SB3VectorEnv):
         self._clipped = action
         limits = self.episodes.limits
         episodes = self.episodes
+        if self.features.goal_relative:
+            jacobians = episodes.template.kinematics.jacobian_batch(episodes.q)
+            command = goal_relative_command(action, episodes.observations(), episodes.layout, jacobians, limits,
+                                            self.features, self._goal, self.action_scales[:, None])
+            return episodes.commands(command)
         if self.features.task_relative:
             jacobians = episodes.template.kinematics.jacobian_batch(episodes.q)
             command = task_relative_command(action, episodes.observations(), episodes.layout, jacobians, limits,
@@ -81,6 +104,14 @@ class PPOVecEnv(SB3VectorEnv):
         return self.episodes.commands(np.minimum(np.maximum(command, -limits), limits))
 
     def _rewards(self, result: dict[str, np.ndarray], commands: np.ndarray) -> np.ndarray:
+        rewards = self._task_rewards(result)
+        if self.reward_spec.limit_penalty > 0:
+            kinematics = self.episodes.template.kinematics
+            rewards = rewards - self.reward_spec.limit_term(self.episodes.q, kinematics.lower_limits,
+                                                            kinematics.upper_limits, self.episodes.dt)
+        return rewards
+
+    def _task_rewards(self, result: dict[str, np.ndarray]) -> np.ndarray:
         action, previous = self._clipped, self.previous_actions
         self.previous_actions = action
         spec = self.reward_spec

@@ -1,0 +1,133 @@
+"""The in-limit goal configuration, the joint-goal controller, and the reference's start from it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
+from snac_gym.evaluation.samples import generate_samples
+from snac_gym.joint_goal import GOAL_MARGIN, GoalArms, nearest_goals
+from snac_gym.kinematics import Kinematics, PoseKinematics
+from snac_gym.policies import make_policy
+from snac_gym.rollout import simulate_kinematic
+from snac_gym.sampling import SampleSpace
+
+DT = 0.008
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    return Kinematics("ur10")
+
+
+def _rollouts(name, task, samples, steps, **kwargs):
+    context = policy_context("ur10", DT, task)
+    return simulate_kinematic(context, lambda: make_policy(name, context, **kwargs), samples, steps,
+                              [0] * len(samples), True, name)  # fmt: skip
+
+
+def _margins(ur10, rollouts):
+    q = np.concatenate([rollouts.q, rollouts.final_q[:, None]], axis=1)
+    return np.min(np.minimum(q - ur10.lower_limits, ur10.upper_limits - q), axis=(1, 2))
+
+
+def test_goals_reach_their_targets_inside_the_limits_and_are_no_farther_than_a_known_solution(ur10):
+    """Targets that are the end effector of a configuration q₁ near θ₀: the goal must reach the target, keep
+    δ from every limit, and be at most as far from θ₀ as q₁ (which is one in-limit solution)."""
+    rng = np.random.default_rng(7)
+    low, high = ur10.lower_limits + 0.3, ur10.upper_limits - 0.3
+    q0 = rng.uniform(low, high, size=(40, 6))
+    q1 = np.clip(q0 + rng.normal(scale=0.15, size=q0.shape), low, high)
+    targets = ur10.forward_batch(q1)
+    goals, found = nearest_goals(ur10, q0, targets)
+    assert found.all()
+    np.testing.assert_allclose(ur10.forward_batch(goals), targets, rtol=0, atol=1e-8)
+    assert np.all(goals >= ur10.lower_limits + GOAL_MARGIN - 1e-12) and np.all(goals <= ur10.upper_limits - GOAL_MARGIN + 1e-12)
+    assert np.all(np.sum((goals - q0) ** 2, axis=1) <= np.sum((q1 - q0) ** 2, axis=1) * (1 + 1e-6) + 1e-12)
+    # a target already reached: the goal is the start itself
+    same, _ = nearest_goals(ur10, q0[:5], ur10.forward_batch(q0[:5]))
+    np.testing.assert_allclose(same, q0[:5], atol=1e-6)
+
+
+def test_the_goal_is_a_local_minimum_of_the_distance_on_the_solution_set(ur10):
+    """Against SciPy's SLSQP started at the goal (min ‖θ − θ₀‖² s.t. f(θ) = x_d, the box): it finds nothing nearer."""
+    samples = generate_samples(ur10, SampleSpace.workspace(ur10), 5, "reach", range(8))
+    q0 = np.array([s.q0 for s in samples])
+    targets = np.array([s.reference.position(0.0) for s in samples])
+    goals, found = nearest_goals(ur10, q0, targets)
+    assert found.all()
+    bounds = list(zip(ur10.lower_limits + GOAL_MARGIN, ur10.upper_limits - GOAL_MARGIN, strict=True))
+    for start, target, goal in zip(q0, targets, goals, strict=True):
+        result = minimize(lambda q, s=start: np.sum((q - s) ** 2), goal, jac=lambda q, s=start: 2 * (q - s),
+                          method="SLSQP", bounds=bounds,
+                          constraints=[{"type": "eq", "fun": lambda q, t=target: ur10.forward(q) - t,
+                                        "jac": ur10.jacobian}], options={"ftol": 1e-12, "maxiter": 200})  # fmt: skip
+        assert np.sum((goal - start) ** 2) <= result.fun * (1 + 1e-4) + 1e-9
+
+
+def test_a_pose_task_or_bad_shapes_are_refused(ur10):
+    with pytest.raises(ValueError, match=r"q0 \(B, 6\) and targets \(B, 3\)"):
+        nearest_goals(ur10, np.zeros((2, 6)), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="3-D position tasks"):
+        nearest_goals(PoseKinematics("ur10"), np.zeros(6), np.zeros(3))
+
+
+def test_the_virtual_arm_follows_an_ellipse_inside_the_limits(ur10):
+    space = SampleSpace.workspace(ur10)
+    samples = generate_samples(ur10, space, 3, "track", range(6))
+    arms = GoalArms(ur10, ur10.velocity_limits, DT, preferred_margin=0.5)
+    times = np.arange(1250) * DT
+    paths = [s.reference.trajectory(times) for s in samples]
+    x_d = np.stack([p[0] for p in paths])
+    xdot_d = np.stack([p[1] for p in paths])
+    arms.start(np.array([s.q0 for s in samples]), x_d[:, 0])
+    worst = 0.0
+    for k in range(len(times)):
+        goal, velocity = arms.step(x_d[:, k], xdot_d[:, k])
+        assert np.all(goal >= arms.low - 1e-12) and np.all(goal <= arms.high + 1e-12)
+        assert np.all(np.abs(velocity) <= ur10.velocity_limits * (1 + 1e-12))
+        worst = max(worst, float(np.max(np.linalg.norm(ur10.forward_batch(goal) - x_d[:, k], axis=1))))
+    assert worst < 1e-3  # f(θ*(t)) stays on x_d(t): 10 s of a moving ellipse
+
+
+def test_joint_goal_keeps_the_limits_where_dls_crosses_them_and_succeeds(ur10):
+    """Samples of the arm's whole reach on which DLS leaves a joint's range: joint-goal keeps every limit
+    and ends on target."""
+    samples = generate_samples(ur10, SampleSpace.workspace(ur10), 31, "reach", range(40))
+    dls = _rollouts("dls", "reach", samples, 1500)
+    crossing = np.flatnonzero(_margins(ur10, dls) < 0)
+    assert len(crossing) >= 3  # the premise: DLS crosses on some of them
+    goal = _rollouts("joint-goal", "reach", samples, 1500)
+    assert np.all(_margins(ur10, goal) > 0)
+    assert np.all(np.linalg.norm(goal.final_errors, axis=1) < 1e-3)
+
+
+def test_act_and_act_batch_agree():
+    context = policy_context("ur10", DT, "track")
+    kin = context.kinematics
+    samples = generate_samples(kin, SampleSpace.workspace(kin), 4, "track", range(3))
+    batch = _rollouts("joint-goal", "track", samples, 60)
+    for i, sample in enumerate(samples):
+        one = simulate_kinematic(context, lambda: make_policy("joint-goal", context), [sample], 60, [0], False, "jg")
+        np.testing.assert_allclose(one.commands[0], batch.commands[i], rtol=0, atol=1e-12)
+
+
+def test_the_reference_starts_from_an_in_limit_goal_and_is_no_longer_stuck(ur10):
+    """Sample 35 of the whole reach, seed 11: from rest, DLS and lqr (both clamped at the limits) the solver
+    ended 0.74 m off target at a cost of 34.2, where joint-goal, keeping every limit, ends on target. The
+    reference must now reach the target and cost no more than joint-goal."""
+    from snac_gym.cost import CostConvention
+
+    samples = tuple(generate_samples(ur10, SampleSpace.workspace(ur10), 11, "reach", [35]))
+    convention = CostConvention("hjb", "rest", 4.0)
+    job = OptimalJob("reach", samples, (0,), 1500, DT, convention=convention)
+    row = run_optimal_job(job).metrics.iloc[0]
+    goal = _rollouts("joint-goal", "reach", list(samples), 1500)
+    error = goal.errors[0]
+    goal_cost = float(np.sum(4.0 * np.sum(error**2, axis=1) + np.sum(goal.commands[0] ** 2, axis=1)) * DT)
+    assert row["final_error"] < 1e-3
+    assert row["joint_limit_margin"] >= 0
+    assert row["cost_hjb"] <= goal_cost
