@@ -102,6 +102,7 @@ def test_act_and_act_batch_agree(tmp_path, workspace_samples):
     np.testing.assert_allclose(single.commands, batch.commands, rtol=0, atol=1e-8)
 
 
+@pytest.mark.rl
 @pytest.mark.parametrize("task", ["reach", "track"])
 def test_the_training_env_steps_what_the_policy_commands(tmp_path, task):
     """PPOVecEnv's goal-relative commands equal PPOPolicy's on the same episodes (the features too)."""
