@@ -220,7 +220,10 @@ def own_start_commands(
     position limits, whose better basins may lie beyond them.
     """
     starts: list[dict[str, np.ndarray]] = [{} for _ in samples]
+    position_task = getattr(context.kinematics, "task_error", None) is None
     for name, kwargs in OWN_STARTS:
+        if name == "joint-goal" and not position_task:
+            continue  # its goal is a 3-D position; a pose task has the other starts
         # joint-goal keeps the limits by construction (a straight joint path between in-limit configurations).
         limit_kwargs = {} if name == "joint-goal" else {"joint_limits": joint_limits}
         make = functools.partial(make_policy, name, context, **{**kwargs, **limit_kwargs})
