@@ -352,19 +352,22 @@ def task_velocity(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout
     return obs[..., s["xdot_d"]] + gain * (error_norm + RELATIVE_ERROR_FLOOR) * action
 
 
+def _resolve(jacobians: np.ndarray, velocity: np.ndarray, spec: FeatureSpec) -> np.ndarray:
+    """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for one ``J`` ``(n, m)`` and ``v`` ``(n,)``, or stacks ``(B, n, m)``, ``(B, n)``."""
+    jac = np.asarray(jacobians, dtype=np.float64)
+    damping = spec.damping**2 * np.eye(jac.shape[-2])
+    if jac.ndim == 2:
+        return damped_least_squares(jac, velocity, damping)
+    return damped_least_squares(jac, velocity[..., None], damping)[..., 0]
+
+
 def task_relative_command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, jacobians: np.ndarray,
                           velocity_limits: np.ndarray, spec: FeatureSpec, action_scale: Any = 1.0) -> np.ndarray:
     """Joint velocities (rad/s) of task-relative actions ``(n,)`` or ``(B, n)``: ``Jᵀ(JJᵀ + λ²I)⁻¹ v``, clipped to ±ū.
 
     ``jacobians`` is ``J(θ)`` ``(n, m)`` or one per row ``(B, n, m)``.
     """
-    velocity = task_velocity(action, obs, layout, spec, action_scale)
-    jac = np.asarray(jacobians, dtype=np.float64)
-    damping = spec.damping**2 * np.eye(jac.shape[-2])
-    if jac.ndim == 2:
-        command = damped_least_squares(jac, velocity, damping)
-    else:
-        command = damped_least_squares(jac, velocity[..., None], damping)[..., 0]
+    command = _resolve(jacobians, task_velocity(action, obs, layout, spec, action_scale), spec)
     limits = np.asarray(velocity_limits, dtype=np.float64)
     return np.minimum(np.maximum(command, -limits), limits)
 
@@ -384,12 +387,7 @@ def goal_relative_command(action: np.ndarray, obs: np.ndarray, layout: Observati
     error_norm = np.sqrt(np.sum(e * e, axis=-1, keepdims=True))
     scale = np.asarray(action_scale, dtype=np.float64)
     velocity = scale * spec.gain_max * (error_norm + RELATIVE_ERROR_FLOOR) * action[..., 1:]
-    jac = np.asarray(jacobians, dtype=np.float64)
-    damping = spec.damping**2 * np.eye(jac.shape[-2])
-    if jac.ndim == 2:
-        task = damped_least_squares(jac, velocity, damping)
-    else:
-        task = damped_least_squares(jac, velocity[..., None], damping)[..., 0]
+    task = _resolve(jacobians, velocity, spec)
     pull = scale * spec.joint_gain * (1.0 + action[..., :1])
     command = np.asarray(goal.velocity, dtype=np.float64) + pull * (goal.goal - obs[..., s["q"]]) + task
     limits = np.asarray(velocity_limits, dtype=np.float64)
