@@ -48,7 +48,7 @@ class JointGoalPolicy(BasePolicy):
         slices = self.layout.slices
         self._x_d, self._xdot_d = (Ellipsis, slices["x_d"]), (Ellipsis, slices["xdot_d"])
         self.arms = GoalArms(self.kinematics, self.velocity_limits, self.dt,
-                              preferred_margin=TRACKING_ROOM if self.tracking else 0.0)
+                             preferred_margin=TRACKING_ROOM if self.tracking else 0.0, moving=self.tracking)
         self._started = False
 
     def reset(self, seed: int | None = None) -> None:

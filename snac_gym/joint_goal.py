@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.kinematics import damped_least_squares
+
 #: δ, rad: the distance a goal keeps from every joint limit.
 GOAL_MARGIN = 0.05
 #: Spread starts besides θ₀ (each another IK branch or winding with some probability).
@@ -57,13 +59,9 @@ def goal_starts(lower: np.ndarray, upper: np.ndarray, count: int = GOAL_STARTS, 
     return np.random.default_rng(GOAL_STARTS_SEED).uniform(low, high, size=(count, len(low)))
 
 
-def _pinv_step(jac: np.ndarray, err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Damped pseudo-inverse step ``Jᵀ(JJᵀ + λ²I)⁻¹ err`` and ``Jᵀ(JJᵀ + λ²I)⁻¹`` for stacks ``(B, n, m)``, ``(B, n)``."""
-    n = jac.shape[1]
-    gram = jac @ jac.transpose(0, 2, 1) + _DAMPING**2 * np.eye(n)
-    inverse = np.linalg.inv(gram)
-    pinv = jac.transpose(0, 2, 1) @ inverse
-    return np.einsum("bmn,bn->bm", pinv, err), pinv
+def _resolve(jac: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for stacks ``(B, n, m)``, ``(B, n)`` (:func:`~snac_gym.kinematics.damped_least_squares`)."""
+    return damped_least_squares(jac, velocity[..., None], _DAMPING**2 * np.eye(jac.shape[1]))[..., 0]
 
 
 def nearest_goals(
@@ -109,13 +107,12 @@ def nearest_goals(
     goal = np.repeat(targets, per, axis=0)
     q = np.concatenate([q0[:, None, :], np.broadcast_to(spread, (count, len(spread), m))], axis=1).reshape(-1, m)
     q = np.clip(q, low, high)
-    eye = np.eye(m)
     for iteration in range(_ITERATIONS):
         x, jac = kinematics.forward_and_jacobian_batch(q)
-        step, pinv = _pinv_step(jac, goal - x)
-        if iteration < _ITERATIONS - _POLISH:
-            null = eye - pinv @ jac
-            step = step + _PULL * np.einsum("bij,bj->bi", null, anchor - q)
+        step = _resolve(jac, goal - x)
+        if iteration < _ITERATIONS - _POLISH:  # (I − J⁺J)·d: the part of d = θ₀ − θ that leaves f(θ) alone
+            towards = anchor - q
+            step = step + _PULL * (towards - _resolve(jac, np.einsum("bij,bj->bi", jac, towards)))
         norms = np.linalg.norm(step, axis=1, keepdims=True)
         q = np.clip(q + step * np.minimum(1.0, _TRUST / np.maximum(norms, 1e-300)), low, high)
     residual = np.linalg.norm(kinematics.forward_batch(q) - goal, axis=1).reshape(count, per)
@@ -135,7 +132,7 @@ class GoalArms:
 
     ``θ*ₖ₊₁ = clip(θ*ₖ + Δt·sat(J⁺(θ*ₖ)(ẋ_d(tₖ) + K(x_d(tₖ) − f(θ*ₖ)))))`` with the damped pseudo-inverse,
     ``sat`` the uniform scaling into the velocity limits and the clip into the box less δ. For a fixed
-    target (ẋ_d = 0) the arm stays at its goal.
+    target (``moving=False``) the arm stays at its goal and a step computes nothing.
 
     Args:
         kinematics: The position kinematics.
@@ -144,16 +141,18 @@ class GoalArms:
         margin: δ, rad.
         gain: K, 1/s.
         preferred_margin: Of :func:`nearest_goals` (rad).
+        moving: Whether the reference moves (tracking).
     """
 
     def __init__(self, kinematics: Any, velocity_limits: np.ndarray, dt: float, margin: float = GOAL_MARGIN,
-                 gain: float = VIRTUAL_ARM_GAIN, preferred_margin: float = 0.0) -> None:
+                 gain: float = VIRTUAL_ARM_GAIN, preferred_margin: float = 0.0, moving: bool = True) -> None:
         self.kinematics = kinematics
         self.velocity_limits = np.asarray(velocity_limits, dtype=float)
         self.dt = float(dt)
         self.margin = float(margin)
         self.gain = float(gain)
         self.preferred_margin = float(preferred_margin)
+        self.moving = bool(moving)
         self.low = kinematics.lower_limits + self.margin
         self.high = kinematics.upper_limits - self.margin
         self.q = np.zeros((0, kinematics.n_joints))
@@ -178,8 +177,10 @@ class GoalArms:
         velocity it moves with (after the clip into the box: a controller that feeds it forward does not push
         past a limit)."""
         current = self.q if rows is None else self.q[rows]
+        if not self.moving:
+            return current.copy(), np.zeros_like(current)
         x, jac = self.kinematics.forward_and_jacobian_batch(current)
-        velocity, _ = _pinv_step(jac, xdot_d + self.gain * (x_d - x))
+        velocity = _resolve(jac, xdot_d + self.gain * (x_d - x))
         velocity = velocity / np.maximum(1.0, np.max(np.abs(velocity) / self.velocity_limits, axis=1, keepdims=True))
         moved = np.clip(current + self.dt * velocity, self.low, self.high)
         if rows is None:

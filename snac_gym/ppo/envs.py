@@ -152,8 +152,7 @@ class PPOTrainingWrapper(gym.Wrapper):
 
     def _features(self, obs: np.ndarray) -> np.ndarray:
         if self._goals is not None:
-            state = self._goals.observe(np.asarray(obs, dtype=np.float64)[None], self.layout)
-            self._goal = type(state)(state.goal[0], state.velocity[0], state.lower, state.upper)
+            self._goal = self._goals.observe(np.asarray(obs, dtype=np.float64)[None], self.layout).row(0)
         return observation_features(obs, self.layout, self.features, self.action_scale, self._goal)
 
     def reset(

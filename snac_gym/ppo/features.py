@@ -103,6 +103,7 @@ import numpy as np
 from snac_gym.joint_goal import TRACKING_ROOM, GoalArms
 from snac_gym.kinematics import damped_least_squares
 from snac_gym.observation import ObservationLayout
+from snac_gym.policies.base import scale_rows_into_limits
 
 #: Version of the feature definition above; stored in every policy file and checked on load:
 #: 2 is the joint-space policy, 3 the task-relative one, 4 the goal-relative one.
@@ -242,6 +243,10 @@ class GoalState:
     lower: np.ndarray
     upper: np.ndarray
 
+    def row(self, index: int) -> "GoalState":
+        """The state of one observation, from a batch's."""
+        return GoalState(self.goal[index], self.velocity[index], self.lower, self.upper)
+
 
 class EpisodeGoals:
     """The goal state of B goal-relative episodes, the same code at training and at run time.
@@ -259,7 +264,8 @@ class EpisodeGoals:
     """
 
     def __init__(self, kinematics: Any, velocity_limits: np.ndarray, dt: float, tracking: bool, count: int) -> None:
-        self.arms = GoalArms(kinematics, velocity_limits, dt, preferred_margin=TRACKING_ROOM if tracking else 0.0)
+        self.arms = GoalArms(kinematics, velocity_limits, dt, preferred_margin=TRACKING_ROOM if tracking else 0.0,
+                             moving=tracking)
         self.arms.allocate(count)
         self.lower, self.upper = kinematics.lower_limits, kinematics.upper_limits
         self.pending = np.ones(count, dtype=bool)
@@ -390,9 +396,7 @@ def goal_relative_command(action: np.ndarray, obs: np.ndarray, layout: Observati
     task = _resolve(jacobians, velocity, spec)
     pull = scale * spec.joint_gain * (1.0 + action[..., :1])
     command = np.asarray(goal.velocity, dtype=np.float64) + pull * (goal.goal - obs[..., s["q"]]) + task
-    limits = np.asarray(velocity_limits, dtype=np.float64)
-    over = np.maximum(1.0, np.max(np.abs(command) / limits, axis=-1, keepdims=True))
-    return np.minimum(np.maximum(command / over, -limits), limits)
+    return scale_rows_into_limits(command, np.asarray(velocity_limits, dtype=np.float64))
 
 
 def command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray,

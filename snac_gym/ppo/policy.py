@@ -106,8 +106,7 @@ class PPOPolicy(BasePolicy):
             raise ValueError(f"observation must have shape ({self._obs_size},), got {obs.shape}")
         jacobian = self.kinematics.jacobian(obs[self._q]) if self._task_relative else None
         goal = self._goal_state(obs[None])
-        if goal is not None:
-            goal = type(goal)(goal.goal[0], goal.velocity[0], goal.lower, goal.upper)
+        goal = None if goal is None else goal.row(0)
         return self.model.command(obs, self.layout, self.velocity_limits, self.action_scale, jacobian, goal)
 
     # -- the evaluator's optional batch protocol (snac_gym.policies.base) ------------------------
