@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.joint_limits import make_limit_box
-from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 
 
 def clip_to_box(command: np.ndarray, limits: np.ndarray) -> np.ndarray:
@@ -51,17 +51,6 @@ def scale_into_box(command: np.ndarray, limits: np.ndarray) -> tuple[np.ndarray,
         # u/scale can land one rounding step outside the bound it was scaled onto.
         return clip_to_box(command, limits), scale
     return command, 1.0
-
-
-def scale_rows_into_box(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
-    """:func:`scale_into_box` applied to each row of ``commands`` ``(B, m)``, vectorised (a new array)."""
-    scales = np.max(np.abs(commands) / limits, axis=-1)
-    over = scales > 1.0
-    if not over.any():
-        return commands
-    commands = commands.copy()
-    commands[over] = clip_to_box(commands[over] / scales[over, None], limits)
-    return commands
 
 
 def transpose(matrices: np.ndarray) -> np.ndarray:
@@ -175,7 +164,7 @@ class ResolvedRatePolicy(BasePolicy):
         obs_batch = self._reader.read_batch(obs_batch)
         task_velocities = reference_velocity(obs_batch, self._reader, self.gain)
         jacobians = self.kinematics.jacobian_batch(obs_batch[:, self._reader.q])
-        commands = scale_rows_into_box(self.resolve_batch(jacobians, task_velocities), self.velocity_limits)
+        commands = scale_rows_into_limits(self.resolve_batch(jacobians, task_velocities), self.velocity_limits)
         return commands if self.limit_box is None else self.limit_box.clamp(obs_batch[:, self._reader.q], commands)
 
     def act(self, obs: np.ndarray) -> np.ndarray:

@@ -21,9 +21,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from snac_gym.baselines._common import ObservationReader, scale_into_box, scale_rows_into_box
+from snac_gym.baselines._common import ObservationReader, scale_into_box
 from snac_gym.joint_goal import TRACKING_ROOM, GoalArms
-from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 
 
 class JointGoalPolicy(BasePolicy):
@@ -78,4 +78,4 @@ class JointGoalPolicy(BasePolicy):
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
         """Commands ``(B, m)`` for observations ``(B, size)``: row i is :meth:`act` of row i."""
         obs_batch = self._reader.read_batch(obs_batch)
-        return scale_rows_into_box(self._commands(obs_batch), self.velocity_limits)
+        return scale_rows_into_limits(self._commands(obs_batch), self.velocity_limits)

@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.baselines._common import ObservationReader, scale_into_box, scale_rows_into_box
+from snac_gym.baselines._common import ObservationReader, scale_into_box
 from snac_gym.joint_limits import make_limit_box
 from snac_gym.optimality import FrozenJacobianLQR
-from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 
 
 class LQRPolicy(BasePolicy):
@@ -126,7 +126,7 @@ class LQRPolicy(BasePolicy):
         obs_batch = self._reader.read_batch(obs_batch)
         jacobians = self.kinematics.jacobian_batch(obs_batch[:, self._reader.q])
         commands, _ = self._commands(jacobians, obs_batch[self._reader.e], obs_batch[self._reader.xdot_d])
-        commands = scale_rows_into_box(commands, self.velocity_limits)
+        commands = scale_rows_into_limits(commands, self.velocity_limits)
         return commands if self.limit_box is None else self.limit_box.clamp(obs_batch[:, self._reader.q], commands)
 
     def act(self, obs: np.ndarray) -> np.ndarray:

@@ -177,7 +177,7 @@ def test_diagnostics_residual_is_the_are_residual_of_the_critic(ur10, rng):
 @pytest.mark.parametrize("task", ["reach", "track"])
 def test_a_command_beyond_the_limits_is_scaled_as_lqr_scales_it(ur10, rng, task):
     """The same saturation as lqr: the whole command divided by its largest |u_j|/ū_j, direction kept."""
-    from snac_gym.baselines._common import scale_rows_into_box
+    from snac_gym.policies.base import scale_rows_into_limits
 
     limits = np.array([2.16, 2.16, 3.15, 3.2, 3.2, 3.2])
     layout = ObservationLayout(ur10.n_joints, ur10.task_dim)
@@ -194,7 +194,7 @@ def test_a_command_beyond_the_limits_is_scaled_as_lqr_scales_it(ur10, rng, task)
     assert scale > 1.5  # well beyond the limits: clipping each joint would turn it
     np.testing.assert_allclose(saturated, unsaturated / scale, rtol=1e-12)
     assert np.max(np.abs(saturated) / limits) == pytest.approx(1.0)
-    np.testing.assert_array_equal(saturated, scale_rows_into_box(unsaturated[None], limits)[0])
+    np.testing.assert_array_equal(saturated, scale_rows_into_limits(unsaturated[None], limits)[0])
 
 
 def _numpy_residual_step(policy, weights, gram_matrix, current, step):

@@ -72,10 +72,11 @@ def non_negative_float(name: str, value: Any) -> float:
 
 
 def scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
-    """Each row of ``commands`` ``(B, m)`` divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1.
+    """Each row of ``commands`` ``(B, m)`` (or one ``(m,)``) divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1.
 
-    LQR's rule (:func:`snac_gym.baselines._common.scale_rows_into_box`): the direction of u, and of ė = J u, is
-    kept. The critics' copy, here so that the policies do not import the baselines.
+    The uniform scaling into the velocity limits that the resolved-rate baselines, LQR, the critics and the PPO
+    maps share: the direction of u, and of ė = J u, is kept (:func:`snac_gym.baselines._common.scale_into_box` is
+    the one-row form that also returns the factor).
     """
     scales = np.max(np.abs(commands) / limits, axis=-1, keepdims=True)
     scaled = commands / np.maximum(scales, 1.0)
