@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.irl import policy_iteration, windows_from_samples
-from snac_gym.optimality import FrozenJacobianLQR
+from snac_gym.optimality import FrozenJacobianLQR, positive_definite_weight
 from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 from snac_gym.validation import whole_number
 
@@ -116,8 +116,7 @@ class SNACIRLPolicy(BasePolicy):
         n, m = self.kinematics.task_dim, self.kinematics.n_joints
         self.task_dim, self.n_joints = n, m
         self.q_scale = positive_float("q_scale", q_scale)
-        unscaled = FrozenJacobianLQR(Q, R, n, m)  # validates Q and R
-        self.Q, self.R = self.q_scale * unscaled.Q, unscaled.R
+        self.Q, self.R = self.q_scale * positive_definite_weight(Q, n, "Q"), positive_definite_weight(R, m, "R")
         self.lqr = FrozenJacobianLQR(self.Q, self.R, n, m)
         self.learning_time = positive_float("learning_time", learning_time)
         self.window_steps = whole_number("window_steps", window_steps, 1, 1000)
