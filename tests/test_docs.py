@@ -13,6 +13,7 @@ import importlib.util
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -45,9 +46,12 @@ def code_blocks(path: Path) -> tuple[list[dict], list[dict]]:
         end = next(j for j in range(start, len(lines)) if lines[j].startswith("```"))
         previous = next((lines[j] for j in range(i - 1, -1, -1) if lines[j].strip()), "")
         opt_out = OPT_OUT.match(previous.strip())
-        block = {"file": path.relative_to(ROOT).as_posix(), "line": start + 1,
-                 "code": "\n".join(lines[start:end]) + "\n",
-                 "reason": opt_out.group("reason").strip(" :-") if opt_out else None}
+        block = {
+            "file": path.relative_to(ROOT).as_posix(),
+            "line": start + 1,
+            "code": "\n".join(lines[start:end]) + "\n",
+            "reason": opt_out.group("reason").strip(" :-") if opt_out else None,
+        }
         (skipped if opt_out else run).append(block)
         i = end + 1
     return run, skipped
@@ -74,37 +78,89 @@ def _doc_param(path: Path) -> object:
 
 
 @pytest.mark.slow(seconds=1.5)
-@pytest.mark.parametrize("path", [_doc_param(path) for path in FILES_WITH_CODE],
-                         ids=lambda path: path.relative_to(ROOT).as_posix())
+@pytest.mark.parametrize(
+    "path", [_doc_param(path) for path in FILES_WITH_CODE], ids=lambda path: path.relative_to(ROOT).as_posix()
+)
 def test_python_blocks_run(path: Path, tmp_path: Path):
     blocks, _ = code_blocks(path)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-           "MPLBACKEND": "Agg", "OMP_NUM_THREADS": "1"}
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+        "MPLBACKEND": "Agg",
+        "OMP_NUM_THREADS": "1",
+    }
     result = subprocess.run(
-        [sys.executable, "-c", RUNNER], input=json.dumps(blocks), text=True, capture_output=True,
-        cwd=tmp_path, env=env, timeout=300,
+        [sys.executable, "-c", RUNNER],
+        input=json.dumps(blocks),
+        text=True,
+        capture_output=True,
+        cwd=tmp_path,
+        env=env,
+        timeout=300,
     )
     assert result.returncode == 0, f"a python block of {path.name} failed:\n{result.stderr[-4000:]}"
 
 
-@pytest.mark.slow(seconds=4)
-def test_the_site_builds_in_strict_mode(tmp_path: Path):
+#: The docs build of README.md and CONTRIBUTING.md, run as written there (no ``--quiet``: with it, mkdocs
+#: logs no warning, so strict mode has none to abort on and a broken link or anchor passes).
+DOCS_BUILD = ["mkdocs", "build", "--strict"]
+#: A line mkdocs logs at WARNING level (after its colour codes are removed).
+WARNING_LINE = re.compile(r"^WARNING\b.*$", re.MULTILINE)
+ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _build_site(root: Path, site: Path) -> tuple[int, str, list[str]]:
+    """``mkdocs build --strict`` of ``root``'s mkdocs.yml into ``site``: exit code, output, WARNING lines."""
     missing = _missing_docs_packages()
     if missing:
-        pytest.skip(f"the docs extra is not installed (missing: {', '.join(missing)}); "
-                    "pip install -e '.[docs]' to build the site")
+        pytest.skip(
+            f"the docs extra is not installed (missing: {', '.join(missing)}); "
+            "pip install -e '.[docs]' to build the site"
+        )
     result = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "-d", str(tmp_path / "site")],
-        cwd=ROOT, text=True, capture_output=True, timeout=300,
+        [sys.executable, "-m", *DOCS_BUILD, "-d", str(site)],
+        cwd=root,
+        text=True,
+        capture_output=True,
+        timeout=300,
         env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
     )
-    assert result.returncode == 0, f"mkdocs build --strict failed:\n{result.stdout[-3000:]}{result.stderr[-4000:]}"
+    output = ANSI.sub("", result.stdout + result.stderr)
+    return result.returncode, output, WARNING_LINE.findall(output)
+
+
+@pytest.mark.slow(seconds=4)
+def test_the_site_builds_in_strict_mode(tmp_path: Path):
+    for guide in ("README.md", "CONTRIBUTING.md"):  # the command the test runs is the one they give
+        assert " ".join(DOCS_BUILD) in (ROOT / guide).read_text(encoding="utf-8"), guide
+    code, output, warnings = _build_site(ROOT, tmp_path / "site")
+    assert code == 0 and not warnings, f"mkdocs build --strict failed:\n{output[-6000:]}"
     assert (tmp_path / "site" / "index.html").is_file()
     assert (tmp_path / "site" / "api" / "envs" / "index.html").is_file()
 
 
+@pytest.mark.slow(seconds=4)
+def test_a_broken_anchor_fails_the_strict_build(tmp_path: Path):
+    """A copy of the site's sources with one link to an anchor no page has: the build aborts and names it."""
+    copy = tmp_path / "repo"
+    shutil.copytree(ROOT / "docs", copy / "docs", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "mkdocs.yml", copy / "mkdocs.yml")
+    for entry in ROOT.iterdir():  # what the build reads besides: the package (API pages), tools/, CHANGELOG.md
+        if not entry.name.startswith(".") and entry.name not in {"docs", "mkdocs.yml", "build", "site"}:
+            (copy / entry.name).symlink_to(entry)
+    page = copy / "docs" / "optimality.md"
+    page.write_text(page.read_text(encoding="utf-8") + "\n[x](optimal.md#no-such-anchor)\n", encoding="utf-8")
+    code, output, warnings = _build_site(copy, tmp_path / "site")
+    assert code != 0 and "Aborted with" in output, output[-6000:]
+    assert any("optimality.md" in line and "optimal.md#no-such-anchor" in line for line in warnings), output[-6000:]
+
+
 def _missing_docs_packages() -> list[str]:
     """The packages of the ``docs`` extra that are not installed."""
-    modules = {"mkdocs": "mkdocs", "mkdocs-material": "material", "mkdocstrings": "mkdocstrings",
-               "mkdocstrings-python": "mkdocstrings_handlers"}
+    modules = {
+        "mkdocs": "mkdocs",
+        "mkdocs-material": "material",
+        "mkdocstrings": "mkdocstrings",
+        "mkdocstrings-python": "mkdocstrings_handlers",
+    }
     return [package for package, module in modules.items() if importlib.util.find_spec(module) is None]
