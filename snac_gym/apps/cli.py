@@ -516,8 +516,59 @@ def train_ppo_command(
                    f"{result.best_policy}")
 
 
+#: Where the classes :func:`main` catches live: typer 0.29 and later carry their own copy of click
+#: (``typer._click``, and ``typer.Abort``) and raise its exceptions; older typers raise the standalone
+#: click's. Both are looked up, each where it imports, so that neither version's errors escape as a traceback.
+_CLICK_ERRORS = (("typer._click.exceptions", "ClickException"), ("click.exceptions", "ClickException"))
+_CLICK_ABORTS = (("typer.exceptions", "Abort"), ("typer._click.exceptions", "Abort"), ("click.exceptions", "Abort"))
+
+
+def _classes(places: tuple[tuple[str, str], ...]) -> tuple[type[BaseException], ...]:
+    """The exception classes at ``places`` ((module, name) pairs) that exist here, each once."""
+    import importlib
+
+    found: list[type[BaseException]] = []
+    for module, name in places:
+        try:
+            cls = getattr(importlib.import_module(module), name, None)
+        except ImportError:  # a typer without its own click, or no standalone click
+            continue
+        if isinstance(cls, type) and issubclass(cls, BaseException) and cls not in found:
+            found.append(cls)
+    return tuple(found)
+
+
+def _click_errors() -> tuple[type[BaseException], ...]:
+    """The ``ClickException`` classes of typer's own click and of the standalone click (those that import)."""
+    return _classes(_CLICK_ERRORS)
+
+
+def _click_aborts() -> tuple[type[BaseException], ...]:
+    """The ``Abort`` classes (end of input at a prompt) of typer and of the standalone click (those that import)."""
+    return _classes(_CLICK_ABORTS)
+
+
+def _error_line(exc: BaseException) -> str:
+    """A click error as one line: ``snac-gym COMMAND: error: MESSAGE (see 'snac-gym COMMAND --help')``.
+
+    Click's own form is its usage block, a hint and the message on three or more lines; a script
+    reading stderr gets one line here that names the command and, for a bad option, the option.
+    """
+    ctx = getattr(exc, "ctx", None)
+    command = getattr(ctx, "command_path", None) or "snac-gym"  # no context: an error raised outside a command
+    message = " ".join(part.strip() for part in exc.format_message().splitlines() if part.strip())
+    line = f"{command}: error: {message}"
+    help_names = getattr(ctx, "help_option_names", None)
+    if ctx is not None and help_names:
+        line += f" (see '{command} {help_names[0]}')"
+    return line
+
+
 def main() -> None:
     """Entry point of the ``snac-gym`` console script.
+
+    A usage error (a bad or unknown option, a value a command refuses with ``typer.BadParameter``)
+    is one line on stderr naming the command and the option, and exit 2; no traceback.
 
     SIGINT, SIGTERM, SIGHUP and SIGQUIT end every command the same way from its first line: one
     line on stderr saying what was interrupted and what was kept, and exit 128 + the signal's
@@ -526,7 +577,6 @@ def main() -> None:
     signal while the interpreter exits is recorded instead of killing it mid-exit.
     """
     global _main_guard
-    import click  # typer's own dependency
 
     guard = SignalGuard()
     guard.install(STOP_SIGNALS)  # not restored: a signal while the process exits must not kill it mid-exit
@@ -535,14 +585,17 @@ def main() -> None:
     interrupt: BaseException | None = None
     try:
         code = app(standalone_mode=False)
-    except click.ClickException as exc:  # a usage error: click's message, as in standalone mode
-        exc.show()
-        code = exc.exit_code
-    except click.exceptions.Abort:  # end of input at a prompt
-        typer.echo("Aborted!", err=True)
-        code = 1
     except KeyboardInterrupt as exc:  # while typer built the command, before click's main
         code, interrupt = 130, exc
+    except _click_errors() as exc:  # looked up only when an exception gets here (the standalone click too)
+        if type(exc).__name__ == "NoArgsIsHelpError":  # `snac-gym` alone: the help, as in standalone mode
+            exc.show()
+        else:  # a usage error: one line naming the command and the option, not click's usage block
+            typer.echo(_error_line(exc), err=True)
+        code = exc.exit_code
+    except _click_aborts():  # end of input at a prompt
+        typer.echo("Aborted!", err=True)
+        code = 1
     finally:
         guard.defer()  # the command has ended: a later signal is only recorded
         _main_guard = None

@@ -1,0 +1,146 @@
+"""Usage errors through the installed ``snac-gym`` console script: exit 2 and one line, never a traceback.
+
+The other CLI tests drive the commands through typer's in-process runner, which runs click's own
+standalone handling and never goes through :func:`snac_gym.apps.cli.main`. Here the script that pip
+installed runs in a subprocess, so ``main()``'s handling is what is tested: it must catch the click
+exceptions typer really raises (typer 0.29 and later raise those of their own copy of click,
+``typer._click``, not the standalone click's). Each command below fails while its options are
+parsed or checked, before it writes anything; they run two at a time, on a module fixture.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(sys.executable).parent / "snac-gym"
+
+#: (arguments, the option the one line must name). ``{out}`` is a folder under the test's tmp_path.
+USAGE_ERRORS = [
+    (["evaluate", "--samples", "0"], "--samples"),
+    (["evaluate", "--chunk-size", "0"], "--chunk-size"),
+    (["evaluate", "--bogus-option", "1"], "--bogus-option"),
+    (["demo", "--task", "orbit"], "--task"),  # _check_task: a typer.BadParameter in the command body
+    (["demo", "--steps", "0"], "--steps"),
+    (["demo", "--steps", "1", "--duration", "1"], "--steps"),  # raised in the body, after the demo's imports
+    (["demo", "--bogus-option", "1"], "--bogus-option"),
+    (["real", "--robot", "panda"], "--robot"),  # _check_ur_arm, in the body
+    (["real", "--rt-priority", "200"], "--rt-priority"),
+    (["real", "--backend", "rtde", "--connection", "sim"], "--connection"),  # the deprecated name's clash
+    (["real", "--bogus-option", "1"], "--bogus-option"),
+    (["bench", "--steps", "1e3"], "--steps"),
+    (["bench", "--act-calls", "many"], "--act-calls"),
+    (["bench", "--bogus-option", "1"], "--bogus-option"),
+    (["train-ppo", "--task", "orbit", "--out", "{out}"], "--task"),
+    (["train-ppo", "--task", "orbit"], "--out"),  # the required --out is missing
+    (["train-ppo", "--n-envs", "0"], "--n-envs"),
+    (["train-ppo", "--bogus-option", "1"], "--bogus-option"),
+    (["emulate-ur", "--rt-priority", "200"], "--rt-priority"),
+    (["emulate-ur", "--robot", "panda"], "--robot"),
+    (["emulate-ur", "--port-base", "http"], "--port-base"),
+    (["emulate-ur", "--bogus-option", "1"], "--bogus-option"),
+    (["--bogus-option"], "--bogus-option"),  # the root command's own options
+]
+
+#: ``main()`` with the app swapped for one raising ``sys.argv[1]``'s exception: as an older typer, which
+#: raises the standalone click's classes, would; and typer's own Abort (end of input at a prompt).
+DRIVER = """
+import sys
+import click
+import typer
+from snac_gym.apps import cli
+
+raised = {
+    "click-usage": lambda: click.BadParameter("must be positive", param_hint="'--knob'"),
+    "click-abort": lambda: click.exceptions.Abort(),
+    "typer-abort": lambda: typer.Abort(),
+}[sys.argv[1]]
+
+
+def app(**kwargs):
+    raise raised()
+
+
+cli.app = app
+cli.main()
+"""
+
+DRIVEN = {"click-usage": (2, "snac-gym: error: Invalid value for '--knob': must be positive"),
+          "click-abort": (1, "Aborted!"), "typer-abort": (1, "Aborted!")}  # fmt: skip
+
+
+def _command_line(key: str, out: Path) -> list[str]:
+    if key.startswith("driver:"):
+        return [sys.executable, "-c", DRIVER, key.removeprefix("driver:")]
+    return [str(SCRIPT), *(arg.format(out=out) for arg in key.split("\0"))]
+
+
+@pytest.fixture(scope="module")
+def outcomes(tmp_path_factory) -> dict[str, subprocess.CompletedProcess]:
+    """Every command of this file, run once, two at a time (the script's start-up is ~0.4 s each)."""
+    if not SCRIPT.exists():
+        pytest.skip(f"no installed console script at {SCRIPT} (install the package: pip install -e .)")
+    cwd = tmp_path_factory.mktemp("console")  # nothing may be written, but never into the checkout
+    out = cwd / "train"
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONWARNINGS"}
+    env["COLUMNS"] = "200"
+    keys = ["\0".join(args) for args, _ in USAGE_ERRORS] + [f"driver:{name}" for name in DRIVEN] + [""]
+
+    def run(key: str) -> subprocess.CompletedProcess:
+        command = _command_line(key, out) if key else [str(SCRIPT)]
+        return subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = dict(zip(keys, pool.map(run, keys)))
+    assert not out.exists(), "a refused command wrote its output folder"
+    return results
+
+
+@pytest.mark.parametrize(("args", "option"), USAGE_ERRORS, ids=[" ".join(args) for args, _ in USAGE_ERRORS])
+def test_a_usage_error_is_one_line_and_exit_2(outcomes, args, option):
+    done = outcomes["\0".join(args)]
+    assert "Traceback" not in done.stderr, done.stderr
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].strip(), done.stderr  # one line, not click's usage block
+    line = lines[0]
+    command = args[0] if not args[0].startswith("-") else ""
+    assert line.startswith(f"snac-gym{' ' + command if command else ''}: error: "), line
+    assert option in line, line
+    assert line.endswith(f"(see 'snac-gym{' ' + command if command else ''} --help')"), line
+    assert done.stdout == "", done.stdout
+
+
+@pytest.mark.parametrize("name", sorted(DRIVEN))
+def test_main_catches_the_standalone_clicks_exceptions_and_typers_abort(outcomes, name):
+    done = outcomes[f"driver:{name}"]
+    code, line = DRIVEN[name]
+    assert "Traceback" not in done.stderr, done.stderr
+    assert (done.returncode, done.stderr.splitlines()) == (code, [line])
+
+
+def test_no_command_prints_the_help(outcomes):
+    done = outcomes[""]
+    assert "Traceback" not in done.stderr, done.stderr
+    assert done.returncode == 2  # click's exit for no_args_is_help, as in its standalone mode
+    assert "Usage: snac-gym" in done.stdout + done.stderr and "evaluate" in done.stdout + done.stderr
+
+
+def test_the_exception_classes_of_both_clicks_are_caught():
+    import typer
+
+    from snac_gym.apps.cli import _click_aborts, _click_errors
+
+    errors, aborts = _click_errors(), _click_aborts()
+    assert issubclass(typer.BadParameter, errors)  # what the commands' own checks raise
+    assert typer.Abort in aborts
+    try:
+        import click
+    except ImportError:
+        return
+    assert click.ClickException in errors and click.exceptions.Abort in aborts
