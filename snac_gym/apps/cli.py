@@ -205,6 +205,7 @@ def real(
     ellipse_radius: Optional[float] = typer.Option(None, "--ellipse-radius", help="Track: the circle's radius in m (the paper's plane and speed)."),
     task_box: Optional[str] = typer.Option(None, "--task-box", help="The box the tool must stay in, x0,y0,z0,x1,y1,z1 in m; default the arm's sample cuboid grown by 0.15 m."),
     joint_margin: float = typer.Option(0.1, "--joint-margin", help="Distance (rad) from the joint limits that stops the arm, in [0, π/2]."),
+    deadline_stop: Optional[bool] = typer.Option(None, "--deadline-stop/--no-deadline-stop", help="Stop on missed deadlines (a late loop, a stall). Default: on for a real or emulated arm (always), off for --connection sim and --dry-run, where late periods are only counted and reported."),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim.
 
@@ -239,7 +240,7 @@ def real(
             seed=seed, steps=steps, safety=safety, csv=csv, plots=plots, echo=typer.echo if dry_run else None,
             model_error=model_error, recovery=recovery, tuning=LoopTuning.realtime(rt_priority), robot=robot,
             q0=None if q0 is None else _numbers("--q0", q0, 6),
-            reference=_real_reference(task, target, ellipse_centre, ellipse_radius),
+            reference=_real_reference(task, target, ellipse_centre, ellipse_radius), deadline_stop=deadline_stop,
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
         where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""

@@ -9,7 +9,7 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +67,8 @@ class RealRunResult:
     tuning_notes: list[str] = field(default_factory=list)
     #: The checked start pose, reference and limits (:func:`run_setup`).
     setup: dict[str, Any] = field(default_factory=dict)
+    #: Whether missed deadlines stopped the arm (:attr:`SafetyLimits.deadline_stop`); off in a rehearsal.
+    deadline_stop: bool = True
 
     @property
     def exit_code(self) -> int:
@@ -87,6 +89,11 @@ class RealRunResult:
                 f"  loop period                 mean {t['period_ms_mean']:.3f} ms, p99 {t['period_ms_p99']:.3f} ms, "
                 f"max jitter {t['jitter_ms_max']:.3f} ms, {t['late_periods']} late"
             )
+        if self.timing:
+            lines.append(
+                f"  late periods                {late_periods(self.timing)}"
+                + ("" if self.deadline_stop else ": counted only, a rehearsal has no deadline stop (--deadline-stop for one)")
+            )
         if self.timing and self.timing.get("speed_scaling_min", 1.0) < 1.0:
             lines.append(
                 f"  speed slider                at {self.timing['speed_scaling_min']:.0%} (lowest): the controller "
@@ -102,6 +109,39 @@ class RealRunResult:
             lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
         lines.append(f"  stopped by safety layer: {self.stop_reason}" if self.stop_reason else "  no safety stop")
         return "\n".join(lines)
+
+
+def late_periods(timing: dict[str, float]) -> str:
+    """``"N of M (worst X ms)"``: the late periods of a run's :meth:`~snac_gym.real.env.RealUREnv.timing`, with
+    the stalled ones (over ``max_period``) when there were any."""
+    stalled = timing.get("stalled_periods", 0)
+    worst = f"worst {timing['period_ms_max']:.1f} ms" + (f", {stalled} stalled" if stalled else "")
+    return f"{timing['late_periods']} of {timing['periods']} ({worst})"
+
+
+def is_rehearsal(connection: str, dry_run: bool) -> bool:
+    """Whether a run is a rehearsal: a simulated arm (``sim``) or a dry run, where nothing reaches an arm."""
+    return connection == "sim" or dry_run
+
+
+def resolve_deadline_stop(
+    safety: SafetyLimits, connection: str, dry_run: bool, deadline_stop: bool | None
+) -> SafetyLimits:
+    """``safety`` with the run's deadline stop: ``deadline_stop`` if given, else on for a real (or emulated) arm
+    and off for a rehearsal (:func:`is_rehearsal`: late periods are then only counted and reported).
+
+    Raises:
+        ValueError: If the deadline stop would be off for an arm that moves (``--connection rtde`` without
+            ``--dry-run``): a late loop there is a hazard, not a statistic.
+    """
+    rehearsal = is_rehearsal(connection, dry_run)
+    stop = (safety.deadline_stop and not rehearsal) if deadline_stop is None else bool(deadline_stop)
+    if not stop and not rehearsal:
+        raise ValueError(
+            "--no-deadline-stop is for a rehearsal (--connection sim or --dry-run): "
+            "on a real or emulated arm missed deadlines stop it"
+        )
+    return replace(safety, deadline_stop=stop)
 
 
 #: ``snac-gym real``'s exit codes, by how the run ended (``--help`` and docs/real-arm.md list them).
@@ -169,6 +209,7 @@ def run_setup(
         "series": series, "speed_limits": [float(v) for v in velocity_limits(robot, kinematics.velocity_limits)],
         "speed_limits_source": f"the URDF's, capped at the {model.source['speeds']}",
         "reach": model.reach,
+        "deadline_stop": safety.deadline_stop,
     }
 
 
@@ -230,6 +271,7 @@ def run_real_episode(
     robot: str = "ur10",
     q0: Sequence[float] | None = None,
     reference: Any = None,
+    deadline_stop: bool | None = None,
 ) -> RealRunResult:
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
@@ -277,10 +319,13 @@ def run_real_episode(
         robot: The UR arm (:data:`UR_ROBOTS`): its kinematics, limits and default task box.
         q0, reference: The start pose (rad) and the task's reference option (reach: the target, m); default
             the paper's (:func:`run_setup`, which checks them before anything connects).
+        deadline_stop: Whether missed deadlines stop the arm (:func:`resolve_deadline_stop`; ``None``: on for
+            ``rtde``, off for ``sim`` and a dry run, where late periods are counted and reported:
+            :meth:`RealRunResult.summary`, ``*_real.json``'s ``late_periods`` and ``setup``, the log's attrs).
 
     Raises:
-        ValueError: For ``model_error`` with another connection than ``"sim"``, or a dry run that
-            would unlock a protective stop.
+        ValueError: For ``model_error`` with another connection than ``"sim"``, a dry run that
+            would unlock a protective stop, or the deadline stop turned off for a real arm.
     """
     if connection == "sim" and host is not None:
         raise ValueError("--host is for --connection rtde (a real arm); --connection sim rehearses on PyBullet here")
@@ -291,7 +336,7 @@ def run_real_episode(
         raise ValueError("--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own")
     if dry_run and recovery is not None and recovery.unlock_protective_stop:
         raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
-    safety = safety if safety is not None else SafetyLimits()
+    safety = resolve_deadline_stop(safety if safety is not None else SafetyLimits(), connection, dry_run, deadline_stop)
     setup = run_setup(task, robot, q0, reference, safety, series)
     series = setup["series"]
     if echo is not None:
@@ -404,6 +449,10 @@ def _write_outputs(
     log.attrs["controller"] = controller
     log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
+    log.attrs["deadline_stop"] = env.safety_limits.deadline_stop
+    timing = env.timing()
+    if timing:
+        log.attrs["late_periods"] = late_periods(timing)
     limits = (env.kinematics.lower_limits, env.kinematics.upper_limits)
     demo = write_demo_outputs(
         log, task, controller, seed, env.success_tolerance, out, csv=csv, plots=plots, policy_kwargs=policy_kwargs,
@@ -412,11 +461,12 @@ def _write_outputs(
     arm = env.connection
     result = RealRunResult(
         demo=demo,
-        timing=env.timing(),
+        timing=timing,
         stop_reason=env.stop_reason,
         sent_commands=len(arm.sent) if isinstance(arm, DryRunConnection) else None,
         recoveries=[dict(r) for r in env.recoveries],
         setup=setup,
+        deadline_stop=env.safety_limits.deadline_stop,
     )
     if out is not None:
         result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
@@ -457,6 +507,7 @@ def _write_interrupted(
         "client_output": getattr(connection, "client_output", []),
         "steps_logged": 0 if log is None else len(log),
         "timing": env.timing(),
+        **({"late_periods": late_periods(env.timing())} if env.periods else {}),
         "dt_ms": env.dt * 1e3,
         "setup": setup,
     }
@@ -484,6 +535,7 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
         json.dumps(
             {
                 "timing": result.timing,
+                **({"late_periods": late_periods(result.timing)} if result.timing else {}),
                 "stop_reason": result.stop_reason,
                 "dt_ms": env.dt * 1e3,
                 "sent_commands": result.sent_commands,

@@ -32,7 +32,7 @@ class RealUREnv(TaskEnvCore):
     ur_rtde, which returns once the arm is at rest) on every way out of an episode:
 
     * a stopping rule of :class:`~snac_gym.real.safety.SafetyLimits` fires (non-finite or stale
-      state, task box, joint margin, late loop, the controller's TCP away from the model's f(θ)) or the controller reports a protective or
+      state, task box, joint margin, late loop (with ``deadline_stop``), the controller's TCP away from the model's f(θ)) or the controller reports a protective or
       emergency stop: the episode terminates, ``info["safety"]`` says why and
       ``info["safety_state"]`` what the controller reports;
     * any exception inside ``step`` (a bad action, Ctrl-C, a lost connection, a bug), before it
@@ -431,11 +431,14 @@ class RealUREnv(TaskEnvCore):
         return self._obs.copy(), -(costs[0] + costs[1]), terminated, truncated, info
 
     def timing(self) -> dict[str, float]:
-        """Loop period statistics of the episode so far (ms): mean, std, p50, p99, max, and late count."""
+        """Loop period statistics of the episode so far (ms): mean, std, p50, p99, max; the number of
+        periods, of late ones (over (1 + ``deadline_slack``) × dt) and of stalled ones (over ``max_period``),
+        counted whether or not the safety layer's ``deadline_stop`` stops the arm on them."""
         if not self.periods:
             return {}
         periods = np.asarray(self.periods) * 1e3
         return {
+            "periods": len(periods),
             "period_ms_mean": float(periods.mean()),
             "period_ms_std": float(periods.std()),
             "period_ms_p50": float(np.percentile(periods, 50)),
@@ -443,6 +446,7 @@ class RealUREnv(TaskEnvCore):
             "period_ms_max": float(periods.max()),
             "jitter_ms_max": float(np.abs(periods - self.dt * 1e3).max()),
             "late_periods": int(np.sum(periods > (1 + self.safety_limits.deadline_slack) * self.dt * 1e3)),
+            "stalled_periods": int(np.sum(periods > self.safety_limits.max_period * 1e3)),
             "speed_scaling_min": float(min(self.speed_scalings, default=1.0)),
         }
 

@@ -12,7 +12,9 @@ Two kinds of rule:
   - the end effector leaves the task box, or a joint comes within ``joint_limit_margin`` of its
     limit;
   - the loop is late too often (``max_missed_deadlines`` late periods within the last
-    ``deadline_window``), or once by a lot (a period longer than ``max_period``);
+    ``deadline_window``), or once by a lot (a period longer than ``max_period``): the deadline
+    stop, which ``deadline_stop=False`` turns into a count only (a rehearsal: a simulated arm or a
+    dry run has nothing for a late loop to harm);
   - the controller reports a protective or emergency stop (checked by the env);
   - the TCP position the controller reports differs from the model's f(θ) by more than
     ``max_tcp_mismatch`` (a wrong tool, base frame or arm model), where the connection reports one.
@@ -74,6 +76,9 @@ class SafetyLimits:
         rest_speed: Joint speed (rad/s) under which the arm counts as at rest after a stop.
         max_tcp_mismatch: Largest distance (m) between the controller's reported TCP position
             and the model's forward kinematics f(θ) of the same state, in (0, 1].
+        deadline_stop: Whether the deadline rules (``max_missed_deadlines``, ``max_period``) stop the
+            arm; ``False``: late periods are counted (``RealUREnv.timing()``) but stop nothing, for a
+            rehearsal on a simulated arm or a dry run (``snac-gym real`` turns it off there, and refuses to on a real arm).
     """
 
     speed_scale: float = 0.25
@@ -88,6 +93,7 @@ class SafetyLimits:
     max_stale_periods: int = 3
     rest_speed: float = 0.01
     max_tcp_mismatch: float = 0.005
+    deadline_stop: bool = True
 
     def __post_init__(self) -> None:
         check_finite_in("speed_scale", self.speed_scale, 0.0, 1.0, low_open=True)
@@ -100,6 +106,8 @@ class SafetyLimits:
         check_whole_in("deadline_window", self.deadline_window, 1, 100_000)
         check_whole_in("max_missed_deadlines", self.max_missed_deadlines, 1, self.deadline_window)
         check_whole_in("max_stale_periods", self.max_stale_periods, 1, 1000)
+        if not isinstance(self.deadline_stop, (bool, np.bool_)):
+            raise ValueError(f"deadline_stop must be True or False, got {self.deadline_stop!r}")
         if (self.box_low is None) != (self.box_high is None):
             raise ValueError(f"give both corners of the task box or neither, got {self.box_low} and {self.box_high}")
         if self.box_low is None:
@@ -203,19 +211,20 @@ class SafetyLayer:
         return None
 
     def stall(self, duration: float) -> str | None:
-        """A message when ``duration`` (s, a period so far or whole) is over ``max_period``."""
-        if duration > self.limits.max_period:
+        """A message when ``duration`` (s, a period so far or whole) is over ``max_period`` (and ``deadline_stop``)."""
+        if self.limits.deadline_stop and duration > self.limits.max_period:
             return f"control loop stalled: one period took {duration * 1e3:.1f} ms (limit {self.limits.max_period * 1e3:.1f} ms)"
         return None
 
     def record_period(self, duration: float) -> str | None:
-        """Count late periods; a message once one is over ``max_period`` or too many are late in the window."""
+        """Count late periods; a message once one is over ``max_period`` or too many are late in the window
+        (never without ``deadline_stop``: then they are only counted)."""
         stalled = self.stall(duration)
         if stalled is not None:
             return stalled
         self._late_flags.append(duration > (1.0 + self.limits.deadline_slack) * self.dt)
         late = sum(self._late_flags)
-        if late >= self.limits.max_missed_deadlines:
+        if self.limits.deadline_stop and late >= self.limits.max_missed_deadlines:
             return (
                 f"control loop missed its {self.dt * 1e3:.1f} ms deadline in {late} of the last "
                 f"{len(self._late_flags)} periods"
