@@ -214,6 +214,7 @@ def gauss_newton(
     max_iterations: int,
     convention: CostConvention,
     gap_rtol: float = GAP_RTOL,
+    until: Callable[[np.ndarray], bool] | None = None,
 ) -> tuple[np.ndarray, float, np.ndarray, int, int, bool]:
     """Unconstrained Gauss-Newton in θ₁..θ_K with a backtracking (Armijo) line search on the exact V.
 
@@ -222,6 +223,9 @@ def gauss_newton(
     positive definite (A is), so δθ is a descent direction. The Jacobians are those of the last
     accepted cost evaluation (:meth:`Kinematics.forward_and_jacobian_batch` remembers its last batch),
     so an iteration costs one FK+Jacobian pass when the full step is taken.
+
+    ``until``: called with the commands after each accepted step; the solve stops (not converged)
+    once it returns True (a multi-start's screen stops a start that has reached a known basin).
 
     Returns:
         (commands, V, ∂V/∂z flattened, iterations, cost evaluations, converged) with the stopping
@@ -254,6 +258,8 @@ def gauss_newton(
         commands, value, grad = commands + alpha * step, trial_value, trial_grad
         if predicted <= gap_rtol * abs(value) or decrease <= ftol:
             converged = True
+            break
+        if until is not None and until(commands):
             break
     grad_z = solve_banded((1, 0), lower, grad).ravel()
     converged = converged or float(np.abs(grad_z).max()) <= gtol

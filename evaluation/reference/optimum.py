@@ -59,6 +59,7 @@ from snac_gym.trajopt import (
     LIMIT_CLEARANCE,
     Limits,
     OptimalSolution,
+    angles,
     gauss_newton,
     position_bounds,
     single_threaded_blas,
@@ -86,6 +87,7 @@ SOLVER_COLUMNS = (
     "optimal_solver_cost",
     "optimal_solve_time",
     "optimal_starts",
+    "optimal_same_basin",
     "optimal_winner",
     "optimal_local_spread",
     "optimal_lower_bound",
@@ -96,6 +98,11 @@ SCREEN_ITERATIONS = 3
 #: A screened start is solved to the end when it then costs less than (1 + SCREEN_MARGIN) times the
 #: best optimum so far.
 SCREEN_MARGIN = 0.1
+#: A screened start whose joint path comes within this distance (max |Δθ| over the horizon, rad) of a local
+#: optimum already found is in that optimum's basin and is not solved again. Distinct local optima lie on
+#: other IK branches or windings, radians apart; starts that end in the same optimum come within 0.1 rad of it
+#: after one to three Gauss-Newton steps (measured on cuboid and workspace samples, docs/optimal.md).
+BASIN_RADIUS = 0.1
 #: Name of the start at rest (U = 0) in ``optimal_winner``.
 REST_START = "rest"
 
@@ -161,12 +168,14 @@ class MultiStart:
         winner: Its start: :data:`REST_START` or the name of one of :data:`OWN_STARTS`.
         starts: How many solves ran.
         spread: (worst − best) / best over the local optima found (0 with one start).
+        same_basin: Candidates whose screen reached the basin of an optimum already found (not solved again).
     """
 
     solution: OptimalSolution
     winner: str
     starts: int
     spread: float
+    same_basin: int = 0
 
 
 def multi_start_solve(
@@ -189,26 +198,39 @@ def multi_start_solve(
     basin (under Table I's cost a feedback law pays mostly for its first command's jump, which the first
     Gauss-Newton step removes), so each candidate is screened by :data:`SCREEN_ITERATIONS` Gauss-Newton
     steps, and solved to the end only where it then costs less than (1 + ``margin``) × the best optimum
-    so far. The candidates are the reference's own (:data:`OWN_STARTS`), never the contestants it judges.
+    so far. A screen stops early once the candidate's joint path comes within :data:`BASIN_RADIUS` of a
+    local optimum already found: it is then in that optimum's basin (counted in ``same_basin``), and a
+    solve from it would end there again. The candidates are the reference's own (:data:`OWN_STARTS`),
+    never the contestants it judges.
 
     ``first``: the solve from rest, when already made.
     """
     solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
                               position_limits=position_limits)  # fmt: skip
     best = first if first is not None else solve()
-    winner, optima = REST_START, [best.cost]
+    winner, optima, same_basin = REST_START, [best.cost], 0
+    paths = [angles(best.commands, q0, dt)]
+
+    def in_known_basin(commands: np.ndarray) -> bool:
+        path = angles(commands, q0, dt)
+        return any(float(np.abs(path - known).max()) < BASIN_RADIUS for known in paths)
+
     for name, commands in candidates.items():
         screened, screened_cost, *_ = gauss_newton(
-            q0, x_d, kinematics, float(dt), commands, GTOL, FTOL, SCREEN_ITERATIONS, convention
+            q0, x_d, kinematics, float(dt), commands, GTOL, FTOL, SCREEN_ITERATIONS, convention, until=in_known_basin
         )
+        if in_known_basin(screened):
+            same_basin += 1
+            continue
         if not screened_cost < (1.0 + margin) * best.cost:
             continue
         solution = solve(initial=screened, interior_start=commands)
         optima.append(solution.cost)
+        paths.append(angles(solution.commands, q0, dt))
         if solution.cost < best.cost:
             best, winner = solution, name
     spread = (max(optima) - min(optima)) / min(optima) if len(optima) > 1 and min(optima) > 0 else 0.0
-    return MultiStart(best, winner, len(optima), float(spread))
+    return MultiStart(best, winner, len(optima), float(spread), same_basin)
 
 
 def own_start_commands(
@@ -303,6 +325,7 @@ def _solve_job(job: OptimalJob) -> Any:
     metrics["optimal_solver_cost"] = [s.cost for s in solutions]
     metrics["optimal_solve_time"] = [s.seconds for s in solutions]
     metrics["optimal_starts"] = np.array([r.starts for r in results], dtype=np.int64)
+    metrics["optimal_same_basin"] = np.array([r.same_basin for r in results], dtype=np.int64)
     metrics["optimal_winner"] = [r.winner for r in results]
     metrics["optimal_local_spread"] = [r.spread for r in results]
     metrics["optimal_limits"] = REFERENCE_LIMITS[0] if job.position_limits else REFERENCE_LIMITS[1]
@@ -338,6 +361,7 @@ __all__ = [
     "REST_START",
     "SCREEN_ITERATIONS",
     "SCREEN_MARGIN",
+    "BASIN_RADIUS",
     "OWN_STARTS",
     "REFERENCE_LIMITS",
     "Limits",

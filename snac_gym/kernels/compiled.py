@@ -30,7 +30,12 @@ POLICY_KERNEL_MODULES = (
     "snac_gym.kernels.identifier",
 )
 #: Every module that defines a kernel (the evaluator's metrics and optimum too).
-KERNEL_MODULES = (*POLICY_KERNEL_MODULES, "snac_gym.kernels.metrics", "snac_gym.kernels.trajopt")
+KERNEL_MODULES = (
+    *POLICY_KERNEL_MODULES, "snac_gym.kernels.metrics", "snac_gym.kernels.trajopt", "snac_gym.kernels.relaxation",
+)
+#: A module may build a kernel on first use instead of with :func:`kernel` (the lower bound's, whose helpers are
+#: compiled into it): its ``lazy_kernels()`` returns (dispatcher, [example arguments, ...]) pairs for the warm-up.
+_LAZY_HOOK = "lazy_kernels"
 _KERNELS: list[Kernel] = []
 #: Longest wait (s) of :func:`warm_up_shared` for another process's compile of one module (a few s).
 _SHARED_COMPILE_WAIT_S = 60.0
@@ -83,14 +88,23 @@ def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     tenth of a second to load from the cache and seconds to compile, far beyond one control period.
     """
     started = time.perf_counter()
+    lazy = []
     for module in modules:
-        importlib.import_module(module)
+        lazy += _lazy_kernels(importlib.import_module(module))
     for compiled in _KERNELS:
         if compiled.__wrapped__.__module__ in modules:
             examples = compiled.example()
             for arguments in examples if isinstance(examples, list) else [examples]:
                 compiled(*arguments)
+    for dispatcher, examples in lazy:
+        for arguments in examples:
+            _with_stop_signals_held(dispatcher, arguments)
     return time.perf_counter() - started
+
+
+def _lazy_kernels(module: Any) -> list[tuple[Any, list[tuple[Any, ...]]]]:
+    hook = getattr(module, _LAZY_HOOK, None)
+    return list(hook()) if hook is not None else []
 
 
 def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
@@ -101,12 +115,12 @@ def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
     a cache this misjudges costs time only, as numba checks each index and compiles what is out of
     date. Says no where numba's cache layout is not the one known here.
     """
+    dispatchers = []
     for module in modules:
-        importlib.import_module(module)
-    for compiled in _KERNELS:
-        if compiled.__wrapped__.__module__ not in modules:
-            continue
-        cache = compiled.dispatcher._cache  # numba's FunctionCache (njit(cache=True))
+        dispatchers += [dispatcher for dispatcher, _ in _lazy_kernels(importlib.import_module(module))]
+    dispatchers += [compiled.dispatcher for compiled in _KERNELS if compiled.__wrapped__.__module__ in modules]
+    for dispatcher in dispatchers:
+        cache = dispatcher._cache  # numba's FunctionCache (njit(cache=True))
         try:
             index = Path(cache._cache_path) / f"{cache._impl.filename_base}.nbi"
             source = Path(cache._impl.locator._py_file)

@@ -353,3 +353,12 @@ def relaxation_kernel() -> Any:
         if not hasattr(namespace[name], "py_func"):
             namespace[name] = njit(cache=True, nogil=True, fastmath={"contract"})(namespace[name])
     return njit(cache=True, nogil=True)(_relaxation_bounds)
+
+
+def lazy_kernels() -> list[tuple[Any, list[tuple[Any, ...]]]]:
+    """The kernel built on first use, with arguments of the types the bound calls it with
+    (:func:`snac_gym.kernels.compiled.warm_up` compiles or loads it with the other modules' kernels, so that an
+    evaluator's workers share its compile instead of each making it at its first reference job)."""
+    out = np.empty((4, 1))
+    example = (np.ones(1), np.zeros((1, 2)), np.ones((1, 2)), 0.008, 1.0, 1.0, True, np.inf, 1e-3, 10, 16, out)
+    return [(relaxation_kernel(), [example])]
