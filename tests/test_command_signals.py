@@ -153,8 +153,16 @@ def test_the_emulator_ends_on_each_stop_signal_with_its_line(tmp_path, signame):
 
 
 # -- demo: a partial run is kept and marked ------------------------------------------------------------
+#: Two of the four signals for the interrupts mid-work (a child process each, seconds apiece): every signal
+#: goes through the one handler (snac_gym/_signals.py), each is sent to every command in its first second
+#: above, and SIGTERM and SIGQUIT mid-work below (demo's figures, bench's tables); SIGINT is Python's own
+#: KeyboardInterrupt, SIGHUP one the guard turns into one (its name must reach the line, where a lost name
+#: would read "SIGINT"), and its run is the one resumed.
+MID_RUN_SIGNALS = ["SIGINT", "SIGHUP"]
+
+
 @pytest.mark.slow(seconds=4)
-@pytest.mark.parametrize("signame", SIGNALS)
+@pytest.mark.parametrize("signame", MID_RUN_SIGNALS)
 def test_demo_interrupted_mid_rollout_keeps_the_steps_run_marked_partial(tmp_path, signame):
     out = tmp_path / "demo"
     hook = "snac_gym.rollout.episode:_Record.command@40"  # the 40th applied command
@@ -203,7 +211,7 @@ def _tiny_config(tmp_path: Path, timesteps: int = 96) -> Path:
 
 @pytest.mark.rl
 @pytest.mark.slow(seconds=8)
-@pytest.mark.parametrize("signame", SIGNALS)
+@pytest.mark.parametrize("signame", MID_RUN_SIGNALS)
 def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_path, signame):
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "run"
