@@ -57,6 +57,8 @@ class ObservationLayout:
             self.slices[name] = slice(start, start + size)
             start += size
         self.size = start
+        # pack's slices, looked up once (pack runs every env step)
+        self._pack_slices = tuple(self.slices[name] for name in self.FIELDS)
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, ObservationLayout) and (other.n_joints, other.task_dim) == (
@@ -79,20 +81,18 @@ class ObservationLayout:
     ) -> np.ndarray:
         """Build the observation; the error field is ``error``, by default ``x − x_d`` computed here
         (a pose task passes its logarithmic error, :meth:`~snac_gym.kinematics.PoseKinematics.task_error`)."""
-        n = self.task_dim
-        m = self.n_joints
+        q_, qdot_, x_, x_d_, xdot_d_, e_, x_c_ = self._pack_slices
         obs = np.empty(self.size, dtype=np.float64)
-        obs[:m] = q
-        obs[m : 2 * m] = qdot
-        base = 2 * m
-        obs[base : base + n] = x
-        obs[base + n : base + 2 * n] = x_d
-        obs[base + 2 * n : base + 3 * n] = xdot_d
+        obs[q_] = q
+        obs[qdot_] = qdot
+        obs[x_] = x
+        obs[x_d_] = x_d
+        obs[xdot_d_] = xdot_d
         if error is None:
-            obs[base + 3 * n : base + 4 * n] = obs[base : base + n] - obs[base + n : base + 2 * n]
+            np.subtract(obs[x_], obs[x_d_], out=obs[e_])
         else:
-            obs[base + 3 * n : base + 4 * n] = error
-        obs[base + 4 * n : base + 5 * n] = x_c
+            obs[e_] = error
+        obs[x_c_] = x_c
         return obs
 
     def unpack(self, obs: np.ndarray) -> Observation:

@@ -103,6 +103,34 @@ def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
     return np.minimum(np.maximum(u, -velocity_limits), velocity_limits)
 
 
+class ActionCheck:
+    """:func:`validate_action` for one env's limits, its constants set up once (at construction).
+
+    The common action, an exact ``ndarray`` of float64 or float32 of the right shape, is checked by
+    one ``isfinite`` test and clipped by two ufuncs into one new float64 array; the same values as
+    :func:`validate_action`, which every other input (and every refusal, with its message) goes through.
+
+    Args:
+        limits: The velocity limits (rad/s; ones for a normalized action), a read-only float64 array.
+    """
+
+    __slots__ = ("limits", "_low", "_shape")
+
+    def __init__(self, limits: np.ndarray) -> None:
+        self.limits = limits
+        self._low = -limits
+        self._shape = limits.shape
+
+    def __call__(self, action: Any) -> np.ndarray:
+        # float64 or float32 ('d', 'f'; either byte order): np.maximum with the float64 bounds gives what
+        # np.array(action, dtype=np.float64) would be before the clip, and a new array the env may keep.
+        if (type(action) is np.ndarray and action.dtype.char in "df" and action.shape == self._shape
+                and np.isfinite(action).all()):
+            u = np.maximum(action, self._low)
+            return np.minimum(u, self.limits, out=u)
+        return validate_action(action, self.limits)
+
+
 def resolve_reference(
     task: Task,
     kinematics: Kinematics,
@@ -310,10 +338,11 @@ class TaskEnvCore(gym.Env):
 
     def _step_info(self, costs: tuple[float, float, float], command: np.ndarray) -> dict[str, Any]:
         error = self._obs[self._error_slice]
+        squared = error.dot(error)  # ‖e‖² once, for the norm and the success rule (:meth:`_is_success`)
         return {
-            "error": error.copy(), "error_norm": math.sqrt(error @ error), "cost_error": costs[0],
+            "error": error.copy(), "error_norm": math.sqrt(squared), "cost_error": costs[0],
             "cost_effort": costs[1], "cost_smoothness": costs[2], "command": command.copy(), "t": self.time,
-            "is_success": self._is_success(error),
+            "is_success": bool(squared <= self.success_tolerance**2),
         }
 
 
@@ -410,7 +439,12 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         #: The arm's model: ``"pybullet"``, ``"kinematic"`` or ``"mujoco"`` (:data:`~snac_gym.physics.PHYSICS`).
         self.physics = physics
         self._build_arm(physics, n_substeps, render_every)
+        # The action's checks, set up once: the velocity limits are a constant of the env (read-only).
+        self.velocity_limits.setflags(write=False)
         self._unit_limits = np.ones(self.kinematics.n_joints)  # the bounds of a normalized action
+        self._unit_limits.setflags(write=False)
+        self._check_velocity = ActionCheck(self.velocity_limits)
+        self._check_normalized = ActionCheck(self._unit_limits)
         self._build_spaces(finite_observation_bounds)
 
     def _resolve_task(self, task: Task | str | None) -> Task:
@@ -531,19 +565,38 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             self.render()
         return self._output(self._obs), self._reset_info(q0)
 
+    def _step_costs(self, command: np.ndarray) -> tuple[float, float, float]:
+        """:meth:`TaskEnvCore._step_costs` for ``command`` from :class:`ActionCheck` (a float64 vector):
+        :func:`snac_gym.cost.step_costs` written out for the per-step path, the same products in the same
+        order (``v.dot(v)`` is ``v @ v``'s BLAS dot without the ufunc's overhead)."""
+        error = self._obs[self._error_slice]
+        rate = command - self._last_command
+        rate /= self.dt  # (uₖ − uₖ₋₁)/Δt, in the difference's array
+        Q, R = self.Q, self.R
+        return (
+            float(error.dot(error) if Q is None else error @ Q @ error),
+            float(command.dot(command) if R is None else command @ R @ command),
+            float(rate.dot(rate) if R is None else rate @ R @ rate),
+        )
+
     def _output(self, obs: np.ndarray) -> np.ndarray:
         """A copy of ``obs`` in the observation dtype, clipped into its bounds with ``finite_observation_bounds="clip"``."""
-        if self.observation_clip is not None:  # clipped in float64: rounding keeps it inside the float32 bounds
-            obs = np.clip(obs, *self.observation_clip)
-        return obs.astype(self.observation_dtype)  # astype copies, also for float64
+        clip = self.observation_clip
+        if clip is None:
+            return obs.astype(self.observation_dtype)  # astype copies, also for float64
+        # Clipped in float64 (rounding keeps it inside the float32 bounds), into a new array: np.clip's ufunc,
+        # without np.clip's dispatch; float64 needs no second copy.
+        clipped = obs.clip(clip[0], clip[1])
+        return clipped if self.observation_dtype == np.float64 else clipped.astype(self.observation_dtype)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._obs is None:
             raise RuntimeError("call reset() before step()")
         if self.action_type == "normalized":
-            u = validate_action(action, self._unit_limits) * self.velocity_limits
+            u = self._check_normalized(action)
+            u *= self.velocity_limits  # u is a new array (ActionCheck)
         else:
-            u = validate_action(action, self.velocity_limits)
+            u = self._check_velocity(action)
         costs = self._step_costs(u)
         self.arm.apply(u)
         self.steps += 1

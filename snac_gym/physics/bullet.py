@@ -198,9 +198,10 @@ class SimulatedArm:
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured ``(θ, θ̇)``."""
         states = p.getJointStates(self.body, self.joint_indices, physicsClientId=self.sim.client)
-        # Two flat arrays straight from the tuples: a third cheaper than one (m, 2) array and two
-        # column copies (14 -> 9.6 µs of a ~130 µs env step), and the same floats.
-        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
+        # Two flat arrays straight from the transposed tuples (position, velocity, reaction forces, torque
+        # per joint): the same floats as one (m, 2) array's columns, at a fraction of its cost.
+        positions, velocities, _, _ = zip(*states)
+        return np.array(positions), np.array(velocities)
 
     def ee_world_position(self) -> np.ndarray:
         """End-effector position (world frame) from PyBullet's own link state, for checking the kinematics."""
@@ -244,8 +245,11 @@ class PyBulletArm:
         self.body.set_joint_positions(q0)
 
     def apply(self, u: np.ndarray) -> None:
-        self.body.command_velocities(u)
-        self.sim.step()
+        # SimulatedArm.command_velocities and PyBulletSim.step in one call (the env's per-step path)
+        body, client = self.body, self.sim.client
+        p.setJointMotorControlArray(body.body, body.joint_indices, p.VELOCITY_CONTROL, targetVelocities=u.tolist(),
+                                    forces=body.max_forces, physicsClientId=client)
+        p.stepSimulation(physicsClientId=client)
 
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
         return self.body.joint_state()
