@@ -41,6 +41,7 @@ import pandas as pd
 from snac_gym.evaluation.controllers import ControllerSpec, resolve_controllers
 from snac_gym.evaluation.effort.cache import cache_enabled, calibration_folder, calibration_identity, read_records, write_records
 from snac_gym.evaluation.effort.matching import EffortRecord, Records, Results, controller_passes
+from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
 from snac_gym.evaluation.execution.passes import EvaluationRun
@@ -215,10 +216,13 @@ def _calibration_identities(
 def _cached_calibration(
     config: EvaluationConfig, identities: dict[tuple[str, str], dict[str, Any]]
 ) -> tuple[Records, dict[str, Any]] | None:
-    """The cached records of every (task, controller) and the stamp of the run that made them, or ``None``."""
+    """The cached records of every (task, controller) and the stamp of the run that made them, else the shipped
+    ones where the run is at the defaults they were matched for (:mod:`snac_gym.evaluation.effort.shipped`), or
+    ``None``."""
     if not identities or config.recalibrate or config.resume:
         return None
-    return read_records(calibration_folder(), identities)
+    cached = read_records(calibration_folder(), identities)
+    return cached if cached is not None else read_shipped(identities)
 
 
 def _passes_at_cached_knobs(
@@ -239,7 +243,7 @@ def _passes_at_cached_knobs(
     started = time.perf_counter()
     rows_of_passes = evaluation.run_passes(passes)
     evaluation.timings["passes at cached knobs"] = time.perf_counter() - started
-    where = f"the run in {stamp.get('run')} ({stamp.get('at')})"
+    where = stamp["origin"] if "origin" in stamp else f"the run in {stamp.get('run')} ({stamp.get('at')})"
     noted = {key: dataclasses.replace(r, calibrated_by=where) for key, r in records.items()}
     results = {(task, spec.name): rows for (task, spec, _), rows in zip(passes, rows_of_passes, strict=True)}
     return results, noted

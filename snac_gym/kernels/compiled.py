@@ -156,7 +156,9 @@ def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODUL
     if len(locks) != len(modules):
         raise ValueError(f"need one lock per module ({len(modules)}), got {len(locks)}")
     taken, waiting = [], []
-    for module, lock in zip(modules, locks, strict=True):
+    # The dearest compile first (the lower bound's, last in KERNEL_MODULES): the first worker takes it while the
+    # other compiles the rest, instead of both walking the modules in one order, each compile after the last.
+    for module, lock in reversed(list(zip(modules, locks, strict=True))):
         if lock.acquire(False):  # not blocking (multiprocessing and threading locks alike)
             try:
                 warm_up((module,))
