@@ -74,11 +74,15 @@ def test_a_job_done_before_its_callback_is_attached_does_not_deadlock_the_execut
         executor.close()
 
 
+#: memory.py loaded from its file: the function the workers call, without the evaluator's imports (half a
+#: second per process; the module needs only ctypes).
 _FAULTS = """
-import resource, sys
+import importlib.util, resource, sys
 import numpy as np
-from snac_gym.evaluation.execution.memory import keep_freed_memory
-kept = keep_freed_memory() if sys.argv[1] == "kept" else False
+spec = importlib.util.spec_from_file_location("memory", sys.argv[2])
+memory = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(memory)
+kept = memory.keep_freed_memory() if sys.argv[1] == "kept" else False
 np.ones((1000, 2500, 6))  # 120 MB, freed at once
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 np.ones((1000, 2500, 6))
@@ -90,9 +94,12 @@ print(kept, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 def test_a_worker_reuses_a_freed_rollout_log_instead_of_faulting_in_new_pages():
     """By default the second 120 MB array is faulted in afresh (at least one fault per 2 MB huge page, 30 000
     without huge pages); in a process set up as the workers are (evaluation/execution/memory.py) it reuses the first's."""
+    from snac_gym.evaluation.execution import memory
+
     faults = {}
     for mode in ("default", "kept"):
-        done = subprocess.run([sys.executable, "-c", _FAULTS, mode], capture_output=True, text=True, check=True)
+        command = [sys.executable, "-c", _FAULTS, mode, memory.__file__]
+        done = subprocess.run(command, capture_output=True, text=True, check=True)
         kept, faults[mode] = done.stdout.split()
         assert kept == ("True" if mode == "kept" else "False")
     assert int(faults["default"]) >= 60 and int(faults["kept"]) < 10, faults
