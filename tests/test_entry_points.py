@@ -69,7 +69,9 @@ def test_evaluate_runs_a_task_and_a_robot_registered_from_outside(outside, tmp_p
     out = tmp_path / "run"
     result = _snac_gym(
         "evaluate", "--task", "high-reach", "--robot", "ur10-limited-ext", "--controllers", "dls,snac",
-        "--samples", "4", "--workers", "2", "--out", str(out), env=outside, cwd=tmp_path,
+        # --effort-samples 0: the effort is matched on these 4 samples (the same matching, on the outside
+        # task's samples too), not on the default 1000 drawn for it
+        "--samples", "4", "--effort-samples", "0", "--workers", "2", "--out", str(out), env=outside, cwd=tmp_path,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
     results = pd.read_csv(out / "results.csv")
