@@ -29,7 +29,6 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.kinematics import damped_least_squares
 
 #: δ, rad: the distance a goal keeps from every joint limit.
 GOAL_MARGIN = 0.05
@@ -60,8 +59,11 @@ def goal_starts(lower: np.ndarray, upper: np.ndarray, count: int = GOAL_STARTS, 
 
 
 def _resolve(jac: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for stacks ``(B, n, m)``, ``(B, n)`` (:func:`~snac_gym.kinematics.damped_least_squares`)."""
-    return damped_least_squares(jac, velocity[..., None], _DAMPING**2 * np.eye(jac.shape[1]))[..., 0]
+    """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for stacks ``(B, n, m)``, ``(B, n)``: :func:`~snac_gym.kinematics.damped_least_squares`'s
+    map, compiled (:func:`~snac_gym.kernels.small.damped_resolve`; the same to rounding)."""
+    from snac_gym.kernels.small import damped_resolve  # numba: imported where first needed
+
+    return damped_resolve(jac, np.ascontiguousarray(velocity, dtype=float), _DAMPING**2)
 
 
 def nearest_goals(

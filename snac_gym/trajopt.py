@@ -215,6 +215,7 @@ def gauss_newton(
     convention: CostConvention,
     gap_rtol: float = GAP_RTOL,
     until: Callable[[np.ndarray], bool] | None = None,
+    gradient: bool = True,
 ) -> tuple[np.ndarray, float, np.ndarray, int, int, bool]:
     """Unconstrained Gauss-Newton in θ₁..θ_K with a backtracking (Armijo) line search on the exact V.
 
@@ -226,6 +227,7 @@ def gauss_newton(
 
     ``until``: called with the commands after each accepted step; the solve stops (not converged)
     once it returns True (a multi-start's screen stops a start that has reached a known basin).
+    ``gradient=False``: skip the final ∂V/∂z (returned empty) where only the commands and V are wanted.
 
     Returns:
         (commands, V, ∂V/∂z flattened, iterations, cost evaluations, converged) with the stopping
@@ -261,6 +263,8 @@ def gauss_newton(
             break
         if until is not None and until(commands):
             break
+    if not gradient:
+        return commands, value, np.empty(0), iterations, evaluations, converged
     grad_z = solve_banded((1, 0), lower, grad).ravel()
     converged = converged or float(np.abs(grad_z).max()) <= gtol
     return commands, value, grad_z, iterations, evaluations, converged

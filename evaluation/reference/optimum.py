@@ -217,7 +217,8 @@ def multi_start_solve(
 
     for name, commands in candidates.items():
         screened, screened_cost, *_ = gauss_newton(
-            q0, x_d, kinematics, float(dt), commands, GTOL, FTOL, SCREEN_ITERATIONS, convention, until=in_known_basin
+            q0, x_d, kinematics, float(dt), commands, GTOL, FTOL, SCREEN_ITERATIONS, convention, until=in_known_basin,
+            gradient=False,
         )
         if in_known_basin(screened):
             same_basin += 1
