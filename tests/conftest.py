@@ -100,7 +100,10 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     """
     if hasattr(session.config, "workerinput") or cached_on_disk():
         return  # a pytest-xdist worker (the controller did it), or nothing to compile
-    code = "from snac_gym.evaluation.execution.executors import ProcessExecutor; ProcessExecutor(2).close()"
+    code = (
+        "from snac_gym.evaluation.execution.executors import ProcessExecutor; ProcessExecutor(2).close(); "
+        "from snac_gym.kernels.compiled import warm_up; warm_up()"  # the modules the workers leave to their callers
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if done.returncode != 0:  # every test that calls a kernel would fail the same way
         raise pytest.UsageError(f"compiling the numba kernels failed:\n{done.stderr}")

@@ -39,7 +39,7 @@ from threadpoolctl import threadpool_limits
 
 from snac_gym._signals import STOP_SIGNALS
 from snac_gym.evaluation.execution.memory import keep_freed_memory
-from snac_gym.kernels.compiled import KERNEL_MODULES, load_if_cached, warm_up_shared
+from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, load_if_cached, warm_up_shared
 from snac_gym.policies import registry
 from snac_gym.robots import ROBOTS
 from snac_gym.tasks import TASKS
@@ -247,7 +247,7 @@ class ProcessExecutor:
         elif method == "fork":
             load_if_cached()  # once here, for every worker forked from here
         self.start_method = context.get_start_method()
-        compile_locks = tuple(context.Lock() for _ in KERNEL_MODULES)
+        compile_locks = tuple(context.Lock() for _ in EVALUATOR_KERNEL_MODULES)
         self._pool = ProcessPoolExecutor(
             max_workers=workers,
             mp_context=context,

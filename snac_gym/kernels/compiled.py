@@ -33,6 +33,12 @@ POLICY_KERNEL_MODULES = (
 KERNEL_MODULES = (
     *POLICY_KERNEL_MODULES, "snac_gym.kernels.metrics", "snac_gym.kernels.trajopt", "snac_gym.kernels.relaxation",
 )
+#: The modules an evaluator's workers compile or load when they start (:func:`warm_up_shared`): all but the
+#: identifier's (``snac-adaptive`` only, which a run seldom has: its workers load or compile it when called).
+EVALUATOR_KERNEL_MODULES = tuple(m for m in KERNEL_MODULES if m != "snac_gym.kernels.identifier")
+#: Modules the evaluator needs only in its last phase (the reference's): a worker that finds another compiling
+#: one goes to work instead of waiting, and loads it from the cache when its first reference job calls it.
+LATE_KERNEL_MODULES = ("snac_gym.kernels.trajopt", "snac_gym.kernels.relaxation")
 #: A module may build a kernel on first use instead of with :func:`kernel` (the lower bound's, whose helpers are
 #: compiled into it): its ``lazy_kernels()`` returns (dispatcher, [example arguments, ...]) pairs for the warm-up.
 _LAZY_HOOK = "lazy_kernels"
@@ -141,7 +147,7 @@ def load_if_cached(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
     return True
 
 
-def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODULES) -> list[str]:
+def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = EVALUATOR_KERNEL_MODULES) -> list[str]:
     """:func:`warm_up` of ``modules`` in processes that share the compiles; the modules whose lock this one took.
 
     ``locks`` holds one ``multiprocessing`` lock per module, the same for every process. A process
@@ -149,6 +155,9 @@ def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODUL
     it; it then waits for each module another process held, and loads that from the cache the
     other wrote. On a fresh install, where every kernel compiles, two evaluator workers made the
     same compiles at once (the run's first phase 5-8 s longer); now each compile happens once.
+    The dearest compile (the lower bound's) is taken first, and a module of :data:`LATE_KERNEL_MODULES`
+    held by another process is not waited for: the worker that compiles the rest starts the passes while
+    the other still compiles the reference's kernels.
 
     Raises:
         ValueError: If there is not one lock per module.
@@ -165,7 +174,7 @@ def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = KERNEL_MODUL
             finally:
                 lock.release()
             taken.append(module)
-        else:
+        elif module not in LATE_KERNEL_MODULES:
             waiting.append((module, lock))
     for module, lock in waiting:
         # Released once the process holding it has written the module's cache; a process that died
@@ -200,5 +209,5 @@ def _with_stop_signals_held(
 
 
 __all__ = [
-    "KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "cached_on_disk", "kernel", "load_if_cached", "read_only", "warm_up", "warm_up_shared",
+    "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "cached_on_disk", "kernel", "load_if_cached", "read_only", "warm_up", "warm_up_shared",
 ]  # fmt: skip
