@@ -13,8 +13,21 @@ from snac_gym.apps.cli import app
 from snac_gym.real import ConnectionFailure
 
 
-def _result(stop_reason: str | None) -> real_run.RealRunResult:
-    return real_run.RealRunResult(demo=types.SimpleNamespace(summary=lambda: "demo figures"), timing={}, stop_reason=stop_reason)
+def _result(stop_reason: str | None, rest: dict | None = None) -> real_run.RealRunResult:
+    return real_run.RealRunResult(
+        demo=types.SimpleNamespace(summary=lambda: "demo figures"), timing={}, stop_reason=stop_reason, rest=rest or {}
+    )
+
+
+STALE = "stale joint state: the controller's timestamp stayed at 6.464000 s for 3 periods running"
+UNCONFIRMED = {
+    "rest_confirmed": False, "stopped_by": "speedStop, then stopScript (host)",
+    "rest_not_confirmed": "nothing confirmed the arm at rest within 2 s: RTDE stale state; dashboard unreachable",
+}  # fmt: skip
+CONFIRMED = {
+    "rest_confirmed": True, "rest_confirmed_after_s": 0.19, "stopped_by": "speedStop, then stopScript (host)",
+    "rest_confirmed_by": "dashboard: programState STOPPED rtde_control, robotmode RUNNING, safetystatus NORMAL",
+}  # fmt: skip
 
 
 def _invoke(monkeypatch, outcome, tmp_path, *extra: str):
@@ -34,12 +47,16 @@ def _invoke(monkeypatch, outcome, tmp_path, *extra: str):
         (_result("tool left the task box: x = [0.1, 0.2, 0.3] m"), 4, "stopped by safety layer: tool left the task box"),
         (_result("controller reports protective_stop"), 5, "stopped by safety layer: controller reports protective_stop"),
         (_result("controller reports emergency_stop"), 6, "stopped by safety layer: controller reports emergency_stop"),
+        (_result(STALE, CONFIRMED), 4, "at rest                     confirmed after 0.19 s by dashboard: programState STOPPED"),
+        (_result(STALE, UNCONFIRMED), 7, "NOT confirmed at rest: nothing confirmed the arm at rest within 2 s"),
+        (_result(None, UNCONFIRMED), 7, "NOT confirmed at rest"),
         (ConnectionFailure("the link to 10.0.0.2 was lost"), 1, "error: the link to 10.0.0.2 was lost"),
         (OSError("disk full"), 3, "error: unexpected OSError: disk full"),
         (KeyboardInterrupt(), 130, "interrupted by SIGINT: the arm was stopped"),
         (real_run.TerminationSignal(signal.SIGTERM), 143, "interrupted by SIGTERM: the arm was stopped"),
     ],
-    ids=["finished", "safety-stop", "protective-stop", "emergency-stop", "link-lost", "unexpected", "sigint", "sigterm"],
+    ids=["finished", "safety-stop", "protective-stop", "emergency-stop", "stale-rest-confirmed", "stale-rest-not-confirmed",
+         "finished-rest-not-confirmed", "link-lost", "unexpected", "sigint", "sigterm"],
 )
 def test_each_way_a_run_ends_has_its_exit_code(monkeypatch, tmp_path, outcome, code, line):
     result = _invoke(monkeypatch, outcome, tmp_path)

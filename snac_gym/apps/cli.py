@@ -211,7 +211,8 @@ def real(
 
     Exit codes: 0 the episode ran to its end; 1 the link to the arm was lost; 2 a refused input; 3 an
     unexpected error; 4 the safety layer stopped the arm; 5 the controller reported a protective stop;
-    6 an emergency stop; 128 + n a signal n (SIGINT 130, SIGTERM 143).
+    6 an emergency stop; 7 the arm was stopped but nothing confirmed it at rest (its real.json says why);
+    128 + n a signal n (SIGINT 130, SIGTERM 143).
     """
     # start-up time (apps.real: pandas, numba); tests swap SafetyLimits
     from snac_gym.real import ConnectionFailure, SafetyLimits
@@ -258,7 +259,7 @@ def real(
         typer.echo(f"error: unexpected {type(exc).__name__}: {line}{where} (traceback in its real.json)", err=True)
         raise typer.Exit(code=3) from None
     typer.echo(result.summary())
-    if result.stop_reason:  # the episode did not run to its end: a script must see it
+    if result.exit_code:  # the episode did not run to its end, or its arm is not known at rest: a script must see it
         raise typer.Exit(code=result.exit_code)
 
 
@@ -299,6 +300,7 @@ def _real_reference(task: str, target: str | None, centre: str | None, radius: f
 
 @app.command("emulate-ur")
 def emulate_ur(
+    host: str = typer.Option("127.0.0.1", "--host", help="Loopback address to listen on (127.x.x.x): one per emulator, as ur_rtde's ports are fixed."),
     port_base: int = typer.Option(29999, "--port-base", help="Dashboard port; RTDE at +5, script at +3/+4. ur_rtde needs 29999; 0: free ports."),
     series: Optional[str] = typer.Option(None, "--series", help="cb (CB3, 125 Hz data) or e (e-Series, 500 Hz); default the arm's own."),
     robot: str = typer.Option("ur10", "--robot", help=f"Arm model: {_UR_ARMS} (the UR controller emulated)."),
@@ -311,6 +313,8 @@ def emulate_ur(
     drop_for: Optional[float] = typer.Option(None, "--drop-for", help="With --drop-at: the link comes back after this many seconds (default: never)."),
     stale_at: Optional[float] = typer.Option(None, "--stale-at", help="Freeze the reported timestamp and state, s after the first speedJ."),
     watchdog_expiry_at: Optional[float] = typer.Option(None, "--watchdog-expiry-at", help="Make the RTDE watchdog fire, s after the first speedJ."),
+    nonfinite_at: Optional[float] = typer.Option(None, "--nonfinite-at", help="Report NaN joint angles (a corrupted package), s after the first speedJ."),
+    q0: Optional[str] = typer.Option(None, "--q0", help="The arm's pose at start, 6 joint angles in rad (comma-separated); default the nominal elbow-up pose."),
     duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Exit after this many seconds (default: until Ctrl-C)."),
     rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="SCHED_FIFO priority of the control cycle (needs root/CAP_SYS_NICE); 0: off."),
 ) -> None:
@@ -326,11 +330,14 @@ def emulate_ur(
 
     try:
         offset = None if tcp_offset is None else parse_numbers(tcp_offset, "--tcp-offset", (3, 6))
+        start = None if q0 is None else _numbers("--q0", q0, 6)
         emulator = UREmulator(
-            robot=robot, series=series, port_base=port_base, speed_scaling=speed_scaling, bind_timeout=0.0, rt_priority=rt_priority,
-            tcp_offset=None if offset is None else (offset + [0.0, 0.0, 0.0])[:6],
+            robot=robot, series=series, host=host, port_base=port_base, speed_scaling=speed_scaling, bind_timeout=0.0, rt_priority=rt_priority,
+            tcp_offset=None if offset is None else (offset + [0.0, 0.0, 0.0])[:6], q0=start,
         )
-        plan = fault_plan(protective_stop_at, emergency_stop_at, latency_spike, drop_at, stale_at, watchdog_expiry_at, drop_for)
+        plan = fault_plan(
+            protective_stop_at, emergency_stop_at, latency_spike, drop_at, stale_at, watchdog_expiry_at, drop_for, nonfinite_at
+        )
         for at, fault, args in plan:
             emulator.schedule(at, fault, *args)
         stopped_by = serve(emulator, duration, typer.echo)

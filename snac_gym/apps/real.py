@@ -69,11 +69,16 @@ class RealRunResult:
     setup: dict[str, Any] = field(default_factory=dict)
     #: Whether missed deadlines stopped the arm (:attr:`SafetyLimits.deadline_stop`); off in a rehearsal.
     deadline_stop: bool = True
+    #: How the last stop ended on an arm (:func:`stop_record`): which source confirmed rest, or why none did.
+    rest: dict[str, Any] = field(default_factory=dict)
 
     @property
     def exit_code(self) -> int:
         """``snac-gym real``'s exit code for this end: 0 the episode ran to its end, 4 the safety layer stopped
-        the arm, 5 the controller reported a protective stop, 6 an emergency stop (:data:`EXIT_CODES`)."""
+        the arm, 5 the controller reported a protective stop, 6 an emergency stop, 7 the arm was stopped but
+        nothing confirmed it at rest (:data:`EXIT_CODES`; ``rest_not_confirmed`` in ``*_real.json`` says why)."""
+        if self.rest.get("rest_confirmed") is False:
+            return 7
         if not self.stop_reason:
             return 0
         for state, code in (("protective_stop", 5), ("emergency_stop", 6)):
@@ -108,6 +113,13 @@ class RealRunResult:
         if self.sent_commands is not None:
             lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
         lines.append(f"  stopped by safety layer: {self.stop_reason}" if self.stop_reason else "  no safety stop")
+        if self.rest.get("rest_confirmed"):
+            lines.append(
+                f"  at rest                     confirmed after {self.rest['rest_confirmed_after_s']:.2f} s by "
+                f"{self.rest['rest_confirmed_by']} ({self.rest['stopped_by']})"
+            )
+        elif self.rest.get("rest_confirmed") is False:
+            lines.append(f"  NOT confirmed at rest: {self.rest['rest_not_confirmed']} ({self.rest['stopped_by']})")
         return "\n".join(lines)
 
 
@@ -147,8 +159,16 @@ def resolve_deadline_stop(
 #: ``snac-gym real``'s exit codes, by how the run ended (``--help`` and docs/real-arm.md list them).
 EXIT_CODES = {
     "ran to its end (or a dry run)": 0, "link to the arm lost": 1, "input refused": 2, "unexpected error": 3,
-    "safety layer stopped the arm": 4, "protective stop": 5, "emergency stop": 6, "signal n": "128 + n",
+    "safety layer stopped the arm": 4, "protective stop": 5, "emergency stop": 6,
+    "stopped, but nothing confirmed the arm at rest": 7, "signal n": "128 + n",
 }
+
+
+def stop_record(connection: Any) -> dict[str, Any]:
+    """How the connection's last stop ended (:meth:`~snac_gym.real.connections.URRTDEConnection.stop_record`):
+    ``{}`` for a connection without one (simulated, dry run)."""
+    record = getattr(connection, "stop_record", None)
+    return {} if record is None else record()
 #: Longest episode ``snac-gym real`` runs, s (``--steps`` is bounded by it at 500 Hz): an hour of streaming.
 MAX_REAL_SECONDS = 3600.0
 #: The arms ``snac-gym real`` drives: the UR models of the registry (ur_rtde; ``snac-gym emulate-ur`` serves the same).
@@ -467,6 +487,7 @@ def _write_outputs(
         recoveries=[dict(r) for r in env.recoveries],
         setup=setup,
         deadline_stop=env.safety_limits.deadline_stop,
+        rest=stop_record(arm),
     )
     if out is not None:
         result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
@@ -504,6 +525,7 @@ def _write_interrupted(
         "stop_reason": env.stop_reason,
         "client_failure": getattr(connection, "failure", None),
         "last_stop": getattr(connection, "last_stop", None),
+        **stop_record(connection),
         "client_output": getattr(connection, "client_output", []),
         "steps_logged": 0 if log is None else len(log),
         "timing": env.timing(),
@@ -541,6 +563,8 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
                 "sent_commands": result.sent_commands,
                 # What the last stop command returned (``None``: none was sent, e.g. a dry run).
                 "last_stop": getattr(env.connection, "last_stop", None),
+                # Which source confirmed the arm at rest after the last stop, and when (or why none did).
+                **result.rest,
                 "setup": result.setup,
                 **({"recoveries": result.recoveries} if result.recoveries else {}),
             },

@@ -19,6 +19,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -113,6 +114,93 @@ def probe_port(host: str, port: int, timeout: float) -> None:
         raise ConnectionFailure(f"cannot reach {host}:{port}: {exc.strerror or exc}") from exc
 
 
+#: The dashboard server's port on a UR controller (PolyScope's, fixed).
+DASHBOARD_PORT = 29999
+#: Robot modes (the dashboard's ``robotmode``) in which an arm whose program is stopped is held at rest by the
+#: controller (position held, or brakes on). Not BACKDRIVE (the arm moves by hand), BOOTING, CONFIRM_SAFETY,
+#: NO_CONTROLLER, DISCONNECTED or UPDATING_FIRMWARE: there the answer says nothing of rest.
+HELD_ROBOT_MODES = frozenset({"RUNNING", "IDLE", "POWER_ON", "POWER_OFF"})
+#: What the dashboard is asked to confirm rest (UR dashboard server: ``programState`` answers ``STOPPED <program>``,
+#: ``PAUSED <program>`` or ``PLAYING <program>``; ``robotmode`` ``Robotmode: RUNNING``; ``safetystatus``
+#: ``Safetystatus: NORMAL`` (software 3.11 and 5.4 onwards; older ones do not understand it, which is kept as said).
+DASHBOARD_REST_REQUESTS = ("programState", "robotmode", "safetystatus")
+
+
+def ask_dashboard(host: str, requests: Sequence[str], timeout: float, port: int = DASHBOARD_PORT) -> dict[str, str]:
+    """One connection to the controller's dashboard server: each request's one-line answer.
+
+    A plain socket with ``timeout`` s per operation (not ur_rtde), so that it answers from the host's own
+    process whether or not the ur_rtde client still serves.
+
+    Raises:
+        OSError: Refused, unreachable, timed out, or closed before every answer came.
+    """
+    answers: dict[str, str] = {}
+    with socket.create_connection((host, port), timeout=timeout) as sock:
+        reader = sock.makefile("rb")
+        if not reader.readline():  # the welcome line
+            raise ConnectionError("the dashboard server closed the connection")
+        for request in requests:
+            sock.sendall(request.encode() + b"\n")
+            line = reader.readline()
+            if not line:
+                raise ConnectionError(f"the dashboard server closed the connection before answering {request!r}")
+            answers[request] = line.decode(errors="replace").strip()
+    return answers
+
+
+def _dashboard_word(answer: str, prefix: str) -> str:
+    """``Robotmode: RUNNING`` -> ``RUNNING``; an answer without ``prefix`` (not understood) as it came."""
+    head, sep, rest = answer.partition(":")
+    return rest.strip() if sep and head.strip().lower() == prefix else answer
+
+
+def confirm_rest_by_dashboard(
+    ask: Callable[[Sequence[str]], dict[str, str]],
+    within: float,
+    settle: float,
+    poll: float = 0.05,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> tuple[bool, str]:
+    """Whether the dashboard server confirms the arm at rest within ``within`` s, and what it said.
+
+    Rest is confirmed by two answers ``settle`` s apart (the controller's own stop ramp from the
+    arm's last known speed), each with the program not running (``programState`` ``STOPPED`` or
+    ``PAUSED``: nothing drives the arm) and the robot in a mode that holds it
+    (:data:`HELD_ROBOT_MODES`). ``ask(requests)`` returns the answers or raises ``OSError``
+    (unreachable); it is asked every ``poll`` s until then.
+
+    Returns:
+        ``(True, "dashboard: programState STOPPED …, robotmode RUNNING, safetystatus NORMAL")`` or
+        ``(False, the last thing that kept it from confirming)``.
+    """
+    start = clock()
+    stopped_since: float | None = None
+    problem = "not asked"
+    while True:
+        try:
+            answers = ask(DASHBOARD_REST_REQUESTS)
+        except OSError as exc:
+            problem, stopped_since = f"dashboard unreachable ({type(exc).__name__}: {exc})", None
+        else:
+            program = answers.get("programState", "")
+            mode = _dashboard_word(answers.get("robotmode", ""), "robotmode")
+            safety = _dashboard_word(answers.get("safetystatus", ""), "safetystatus")
+            said = f"programState {program}, robotmode {mode}, safetystatus {safety}"
+            if program.split(" ", 1)[0] in ("STOPPED", "PAUSED") and mode in HELD_ROBOT_MODES:
+                now = clock()
+                stopped_since = now if stopped_since is None else stopped_since
+                if now - stopped_since >= settle:
+                    return True, f"dashboard: {said}"
+                problem = f"dashboard: {said}, not yet {settle:.2f} s (the stop ramp) after it first said so"
+            else:
+                problem, stopped_since = f"dashboard: {said}: the program still runs or the arm is not held", None
+        if clock() - start >= within:
+            return False, problem
+        sleep(poll)
+
+
 class URRTDEConnection:
     """A real UR arm through ur_rtde, whose client runs in a child process: ``speedJ`` streamed at the control rate.
 
@@ -145,6 +233,8 @@ class URRTDEConnection:
         move_speed: Joint speed of ``move_to`` (``moveJ``), rad/s.
         stop_deceleration: Joint deceleration of ``speedStop``, rad/s².
         rest_timeout: Longest wait (s) for the arm to come to rest after ``speedStop``.
+        confirm_timeout: Longest wait (s) for the dashboard server to confirm the arm at rest when RTDE
+            cannot (a frozen state, a client gone): see :meth:`stop`.
         call_timeout: Deadline (s) of a ``speedJ`` or a state read (default: the watchdog's
             ``watchdog_periods`` periods: a client blocked longer has already let the
             controller's watchdog stop the arm, so waiting more gains nothing).
@@ -173,6 +263,7 @@ class URRTDEConnection:
         stop_deceleration: float = 2.0,
         rest_timeout: float = 3.0,
         call_timeout: float | None = None,
+        confirm_timeout: float = 2.0,
     ) -> None:
         if series not in SERIES_FREQUENCY:
             raise ValueError(f"series must be one of {sorted(SERIES_FREQUENCY)}, got {series!r}")
@@ -183,7 +274,11 @@ class URRTDEConnection:
         self.move_speed = float(move_speed)
         self.stop_deceleration = float(stop_deceleration)
         self.rest_timeout = float(rest_timeout)
+        self.confirm_timeout = float(confirm_timeout)
         self.watchdog_frequency = self.frequency / watchdog_periods
+        self.watchdog_periods = int(watchdog_periods)
+        #: The controller's watchdog period in force during a stream (s): no command for this long stops the program.
+        self.watchdog_period = watchdog_periods / self.frequency
         self.call_timeout = float(call_timeout) if call_timeout is not None else watchdog_periods * self.dt
         self.host = host
         self.control = control
@@ -192,6 +287,10 @@ class URRTDEConnection:
         self.lost_links: list[dict[str, Any]] = []
         self.stop_calls = 0
         self.last_stop: str | None = None
+        #: How the last stop ended (:meth:`stop_record`'s fields), or ``None`` before the first stop that followed a command.
+        self.rest: dict[str, Any] | None = None
+        self._sent = False  # a command or move sent since the last stop's record
+        self._watchdog_armed = False  # a stream armed the controller's watchdog (setWatchdog) since the last moveJ
         self._streaming = False
         self._snapshot: tuple[np.ndarray, np.ndarray, np.ndarray, float, float, str] | None = None
         self._fresh = False
@@ -270,6 +369,8 @@ class URRTDEConnection:
             raise RuntimeError("this connection was opened without the control interface (dry run)")
         # The first command of a stream may re-upload the control script: it gets the longer deadline.
         timeout = self.call_timeout if self._streaming else self.rest_timeout + self.call_timeout
+        self._sent = True
+        self._watchdog_armed = True
         accepted = self._call(
             "command", list(map(float, velocities)), self.acceleration, self.watchdog_frequency, self.rest_timeout,
             timeout=timeout,
@@ -285,32 +386,108 @@ class URRTDEConnection:
         return self._last_snapshot()[4]
 
     def stop(self) -> None:
-        """``speedStop`` and wait for rest, in the client, within ``rest_timeout`` + 1 s.
+        """``speedStop`` and wait for rest, in the client, within ``rest_timeout`` + 1 s; then, if RTDE could
+        not show the arm at rest, ``stopScript`` and the dashboard server's word for it.
 
-        With the client gone, or once it misses that deadline (and is killed), the controller's
-        watchdog, armed for every stream, stops the arm: a stop never blocks and never raises
-        :class:`ConnectionFailure`.
+        Rest is read from RTDE only from a package newer than the stop (a frozen state cannot show
+        it). Where RTDE cannot (its state frozen, the arm still moving after ``rest_timeout``, the
+        client gone), the host ends the control script (``stopScript``, if the client still serves)
+        and asks the dashboard server (port 29999, from this process, not through ur_rtde) within
+        ``confirm_timeout`` s (:func:`confirm_rest_by_dashboard`). Either way :attr:`rest` says which
+        source confirmed rest and when, or that none did and why (:meth:`stop_record`). With the
+        client gone the controller's watchdog, armed for every stream, stops the arm: a stop never
+        raises :class:`ConnectionFailure`. Once a stop has its record, a stop with nothing sent since
+        keeps it and sends nothing.
         """
         self._fresh = False
         if not self.control:
             return
         self._streaming = False
         self.stop_calls += 1
+        if not self._sent and self.rest is not None:  # nothing sent since that stop: its record holds
+            return
+        start = time.monotonic()
+        speed = float(np.max(np.abs(self._snapshot[1]))) if self._snapshot is not None else float("nan")
         if self._client.failure is not None:
             self.last_stop = "client gone: left to the controller's watchdog"
+        else:
+            try:
+                self.last_stop = self._call(
+                    "stop", self.stop_deceleration, self.rest_timeout, timeout=self.rest_timeout + 1.0
+                )
+            except ConnectionFailure:
+                self.last_stop = "client gone: left to the controller's watchdog"
+        self._sent = False
+        if self.last_stop == "at rest":
+            self.rest = self._record(start, True, "rtde: joint speeds under 0.001 rad/s in a package newer than speedStop")
             return
-        try:
-            self.last_stop = self._call(
-                "stop", self.stop_deceleration, self.rest_timeout, timeout=self.rest_timeout + 1.0
+        script = None
+        if self._client.failure is None:
+            try:
+                script = self._call("stop_script", timeout=self.rest_timeout + 1.0)
+            except ConnectionFailure:
+                script = None
+        # The controller's own stop ramp from the last speed read (a non-finite one: the arm's fastest joint).
+        if not np.isfinite(speed):
+            speed = float(np.max(self.kinematics.velocity_limits))
+        settle = speed / self.stop_deceleration
+        confirmed, said = confirm_rest_by_dashboard(
+            lambda requests: ask_dashboard(self.host, requests, timeout=min(0.5, self.confirm_timeout)),
+            self.confirm_timeout, settle,
+        )  # fmt: skip
+        how = said if confirmed else (
+            f"nothing confirmed the arm at rest within {self.confirm_timeout:g} s: RTDE {self.last_stop}; {said}"
+        )
+        self.rest = self._record(start, confirmed, how, script=script, settle=settle)
+
+    def _record(
+        self, start: float, confirmed: bool, how: str, script: str | None = None, settle: float | None = None
+    ) -> dict[str, Any]:
+        client_gone = self._client.failure is not None and script is None
+        watchdog = (
+            f"the controller's watchdog: no command for {self.watchdog_period * 1e3:.0f} ms "
+            f"({self.watchdog_periods} periods) stops the program and the arm"
+        )
+        if self.last_stop == "at rest":
+            stopped_by = "speedStop (host)"
+        elif script == "control script stopped":
+            stopped_by = "speedStop, then stopScript (host)" + (
+                f"; {watchdog}, which may have done it first" if self._watchdog_armed else ""
             )
-        except ConnectionFailure:
-            self.last_stop = "client gone: left to the controller's watchdog"
+        elif self._watchdog_armed:
+            stopped_by = watchdog
+        else:
+            stopped_by = "unknown: no stream armed the controller's watchdog since the last moveJ"
+        return {
+            "rest_confirmed": confirmed,
+            "rest_confirmed_by": how if confirmed else None,
+            "rest_not_confirmed": None if confirmed else how,
+            "rest_confirmed_after_s": round(time.monotonic() - start, 4) if confirmed else None,
+            "stop_took_s": round(time.monotonic() - start, 4),
+            "stopped_by": stopped_by,
+            "client_gone": client_gone,
+            "stop_script": script,
+            "stop_ramp_s": None if settle is None else round(settle, 4),
+            "watchdog_armed": self._watchdog_armed,
+            "watchdog_period_s": self.watchdog_period,
+        }
+
+    def stop_record(self) -> dict[str, Any]:
+        """How the last stop ended, for the run's record: ``rest_confirmed`` (``None``: no stop after a command),
+        ``rest_confirmed_by`` (the source: ``rtde: …`` or ``dashboard: programState STOPPED …``),
+        ``rest_confirmed_after_s`` (from the stop's start), ``rest_not_confirmed`` (why not), ``stopped_by``
+        (``speedStop``, ``stopScript`` or the controller's watchdog) and ``watchdog_period_s``."""
+        if self.rest is None:
+            return {"rest_confirmed": None, "watchdog_period_s": self.watchdog_period}
+        return dict(self.rest)
 
     def move_to(self, q: np.ndarray) -> None:
         if not self.control:
             raise RuntimeError("cannot move the arm in a dry run")
         q = np.asarray(q, dtype=float)
         self._fresh = False
+        self._sent = True
+        self._watchdog_armed = False  # the program may be new (re-uploaded): no stream has armed its watchdog
         current = self._last_snapshot()[0]
         travel = float(np.max(np.abs(q - current))) / self.move_speed if current.shape == q.shape else 60.0
         timeout = 2.0 * travel + 2.0 * self.rest_timeout + 2.0  # moveJ's ramps, and a script re-upload

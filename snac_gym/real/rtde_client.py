@@ -35,6 +35,9 @@ HEADER = struct.Struct(">I")
 #: A line of ur_rtde's output that says it is reconnecting by itself (lower-cased match).
 RECONNECT_MARKERS = ("reconnect",)
 NORMAL, PROTECTIVE_STOP, EMERGENCY_STOP = "normal", "protective_stop", "emergency_stop"
+#: Seconds without a new package, while waiting for rest after ``speedStop``, after which the state counts as
+#: stale (12 periods at 125 Hz, 50 at 500 Hz: beyond the stale rule's 3, margin for a busy host).
+STALE_WHILE_STOPPING_S = 0.1
 
 
 class LinkDown(Exception):
@@ -137,26 +140,54 @@ class Client:
         return bool(self.control.speedJ(velocities, acceleration, self.dt))
 
     def stop(self, deceleration: float, rest_timeout: float) -> str:
-        """``speedStop``, then wait for rest; never on a link seen down (ur_rtde would reconnect)."""
+        """``speedStop``, then wait for rest; never on a link seen down (ur_rtde would reconnect).
+
+        Rest counts only from a package newer than the one before ``speedStop``: a frozen state
+        (the controller's timestamp not advancing for :data:`STALE_WHILE_STOPPING_S`) cannot
+        show rest, and is said at once (``stale state: …``), so that the parent stops the script and
+        asks another source than RTDE.
+        """
         self.streaming = False
         if self.control is None:
             return "nothing sent"
         if not self.link_up():
             return "link down: left to the controller's watchdog"
         try:
+            before = float(self.receive.getTimestamp())
             with _helpers_above():
                 self.control.speedStop(deceleration)
         except RuntimeError:
             return "disconnected: left to the controller's watchdog"
         deadline = time.perf_counter() + rest_timeout
+        stamp, since = before, time.perf_counter()
         while time.perf_counter() < deadline:
             try:
-                if max(map(abs, self.receive.getActualQd())) < 1e-3:
-                    return "at rest"
+                now_stamp = float(self.receive.getTimestamp())
+                speed = max(map(abs, self.receive.getActualQd()))
             except RuntimeError:
                 return "disconnected while stopping"
+            if now_stamp != stamp:
+                stamp, since = now_stamp, time.perf_counter()
+            elif time.perf_counter() - since > STALE_WHILE_STOPPING_S:
+                return (
+                    f"stale state: the controller's timestamp stayed at {stamp:.6f} s for "
+                    f"{(time.perf_counter() - since) * 1e3:.0f} ms after speedStop, rest cannot be read from RTDE"
+                )
+            if stamp > before and speed < 1e-3:
+                return "at rest"
             time.sleep(self.dt)
         return f"still moving after {rest_timeout:g} s"
+
+    def stop_script(self) -> str:
+        """``stopScript``: the control script ends, and with it anything that could drive the arm."""
+        self.streaming = False
+        if self.control is None:
+            return "nothing sent"
+        if not self.link_up():
+            return "link down: not sent"
+        with _helpers_above():
+            self.control.stopScript()
+        return "control script stopped"
 
     def move_to(self, q: list[float], speed: float, program_timeout: float) -> bool:
         self._require_link()
@@ -262,7 +293,7 @@ def serve() -> None:
     sys.stdout = sys.stderr
     requests = sys.stdin.buffer
     client = Client()
-    names = {"connect", "state", "command", "stop", "move_to", "unlock_protective_stop", "close"}
+    names = {"connect", "state", "command", "stop", "stop_script", "move_to", "unlock_protective_stop", "close"}
     while True:
         message = read_frame(requests)
         if message is None:

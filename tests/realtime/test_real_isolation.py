@@ -46,6 +46,8 @@ LOST = (
     r"|the ur_rtde client was killed by SIG\w+)"
 )
 SWEEP = np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
+#: How the record names what stopped the arm when the host could not: the controller's watchdog, 5 periods at 125 Hz.
+WATCHDOG = "the controller's watchdog: no command for 40 ms (5 periods) stops the program and the arm"
 
 
 def _start_real(out: Path, steps: int = 625) -> subprocess.Popen[str]:
@@ -107,6 +109,7 @@ def _seen(out: Path) -> float:
     [
         pytest.param([(1.0, "latency_spike", 3.0)], id="3 s stall"),
         pytest.param([(1.0, "latency_spike", 0.2), (1.1, "drop_connection")], id="short stall then dropped link"),
+        pytest.param([(1.0, "drop_connection")], id="dropped link"),
     ],
 )
 def test_a_stalled_or_lost_controller_ends_the_run_by_itself_with_its_log(emu, tmp_path, faults):
@@ -123,6 +126,48 @@ def test_a_stalled_or_lost_controller_ends_the_run_by_itself_with_its_log(emu, t
     # At most the commands of the stale rule's 3 periods (a documented limit), none after the host saw it.
     assert len(emu.speed_commands_after(t_fault)) <= 4
     _assert_at_rest_and_silent_since(emu, _seen(tmp_path))
+    assert summary["watchdog_period_s"] == pytest.approx(0.04) and summary["rest_confirmed"] is not None
+    if faults[-1][1] == "drop_connection":  # the link stays down: the controller's watchdog stopped the arm, and the record says so
+        assert summary["stopped_by"] == WATCHDOG, summary
+        assert summary["rest_confirmed"] is False and "dashboard unreachable" in summary["rest_not_confirmed"], summary
+        # The controller's side: its watchdog stopped the program within the period and a cycle or two (during
+        # the stall, or after the link dropped: "watchdog expired after the link dropped: program stopped 0.044 s …").
+        expired = [e for e in emu.status()["events"] if e.startswith("watchdog expired")]
+        assert expired and float(re.search(r" ([\d.]+) s", expired[0]).group(1)) < 0.1, expired
+        assert len(faults) > 1 or expired[0].startswith("watchdog expired after the link dropped"), expired
+
+
+@pytest.mark.realtime(seconds=8)  # about this long here: run first (conftest.py)
+@pytest.mark.parametrize(
+    ("robot", "extra"),
+    [
+        ("ur10", []),
+        ("ur5", ["--q0=-0.51,-1.04,1.48,-1.82,-1.45,-1.62", "--target=-0.45,0.25,0.3"]),
+    ],
+)
+def test_a_frozen_state_stops_the_script_and_the_dashboard_confirms_the_arm_at_rest(tmp_path, robot, extra):
+    """``emulate-ur --stale-at 2``: the stale rule stops the arm (exit 4), RTDE cannot show rest (its state is
+    frozen), so the host stops the script and the dashboard server confirms rest; the record says how and when."""
+    host = HOST.replace("127.0.0.", "127.0.2.")  # an emulator of this arm's own: the module's (a UR10) keeps HOST
+    with EmulatorProcess(series="cb", host=host, bind_timeout=90.0, robot=robot) as arm:
+        arm.schedule(2.0, "stale_data")
+        command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", host, "--robot", robot, "--task", "reach",
+                   "--controller", "snac", "--out", str(tmp_path), "--steps", "500", "--no-plots", *extra]  # fmt: skip
+        run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        _first_command(arm, run)
+        code, output, _ = _ended(run)
+        status = arm.status()
+    summary = json.loads((tmp_path / "reach_snac_real.json").read_text())
+    assert code == 4 and summary["stop_reason"].startswith("stale joint state"), (output, summary)
+    assert summary["last_stop"].startswith("stale state: the controller's timestamp stayed at"), summary
+    assert summary["rest_confirmed"] is True, summary
+    assert summary["rest_confirmed_by"] == "dashboard: programState STOPPED rtde_control, robotmode RUNNING, safetystatus NORMAL"
+    assert 0.0 < summary["rest_confirmed_after_s"] < 3.0  # bounded: 0.1 s to see it frozen, the dashboard within 2 s
+    assert summary["stopped_by"].startswith("speedStop, then stopScript (host)") and summary["watchdog_period_s"] == 0.04
+    assert "at rest                     confirmed after" in output and "by dashboard: programState STOPPED" in output
+    # What the controller saw: the program stopped and the arm at rest.
+    assert not status["program_running"] and max(map(abs, status["qd"])) <= 1e-9, status
+    assert "stale data on" in status["events"], status["events"]
 
 
 # ---------------------------------------------------------------------------- the client itself

@@ -450,7 +450,13 @@ class UREmulator:
             return
         if now - self._watch_update > 1.0 / self._watchdog[0]:
             owner = self._input_owner.get(self._watchdog[1])
-            if owner is None or owner.closed:  # the usual end of a run: not a fault
+            if self._link_down:  # the controller's network went down (drop_connection): the watchdog stops the arm
+                self._end_program(
+                    f"watchdog expired after the link dropped: program stopped {now - self._watch_update:.3f} s "
+                    f"after its last command (watchdog period {1.0 / self._watchdog[0]:.3f} s)",
+                    logging.WARNING,
+                )
+            elif owner is None or owner.closed:  # the usual end of a run: not a fault
                 self._end_program(
                     f"watchdog expired after the client closed the link (the usual end of a run, not a fault): "
                     f"program stopped {now - self._watch_update:.3f} s after its last command"
@@ -476,6 +482,7 @@ class UREmulator:
                 "safetystatus": f"Safetystatus: {self._safety_name()}",
                 "safetymode": f"Safetymode: {self._safety_name()}",
                 "running": f"Program running: {str(self.runtime_state == p.RUNTIME_PLAYING).lower()}",
+                "programState": f"{self._program_state()} {self.programs[-1] if self.programs else '<unnamed>'}",
                 "close safety popup": "closing safety popup",
                 "quit": "Disconnected",
             }
@@ -488,6 +495,10 @@ class UREmulator:
             if request == "unlock protective stop":
                 return self._unlock_protective_stop()
         return f"could not understand: '{request}'"
+
+    def _program_state(self) -> str:
+        """The dashboard's ``programState`` word: ``PLAYING``, ``PAUSED`` or ``STOPPED`` (the RTDE runtime state)."""
+        return {p.RUNTIME_PLAYING: "PLAYING", p.RUNTIME_PAUSED: "PAUSED"}.get(self.runtime_state, "STOPPED")
 
     def _safety_name(self) -> str:
         if self.safety_bits & (1 << p.SAFETY_EMERGENCY_STOPPED):

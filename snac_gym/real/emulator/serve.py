@@ -37,6 +37,7 @@ def fault_plan(
     stale_at: float | None = None,
     watchdog_expiry_at: float | None = None,
     drop_for: float | None = None,
+    nonfinite_at: float | None = None,
 ) -> list[tuple[float, str, tuple[Any, ...]]]:
     """The faults to schedule, ``(seconds after the first speedJ, method, args)``.
 
@@ -51,13 +52,14 @@ def fault_plan(
     options = {
         "--protective-stop-at": protective_stop_at, "--emergency-stop-at": emergency_stop_at, "--drop-at": drop_at,
         "--stale-at": stale_at, "--watchdog-expiry-at": watchdog_expiry_at, "--drop-for": drop_for,
+        "--nonfinite-at": nonfinite_at,
     }  # fmt: skip
     for option, seconds in options.items():  # here, so that the message names the option
         if seconds is not None and not (math.isfinite(seconds) and seconds >= 0):
             raise ValueError(f"{option} must be a non-negative number of seconds, got {seconds!r}")
     singles = {
         "protective_stop": protective_stop_at, "emergency_stop": emergency_stop_at, "drop_connection": drop_at,
-        "stale_data": stale_at, "expire_watchdog": watchdog_expiry_at,
+        "stale_data": stale_at, "expire_watchdog": watchdog_expiry_at, "nonfinite_state": nonfinite_at,
     }  # fmt: skip
     plan += [(at, fault, ()) for fault, at in singles.items() if at is not None and fault != "drop_connection"]
     if drop_for is not None and drop_at is None:

@@ -2,7 +2,10 @@
 
 Sources in ur_rtde 1.6.5: ``src/rtde.cpp`` (RTDE packets), ``src/dashboard_client.cpp`` (one
 line per request and per answer, a welcome line on connect; ``PolyscopeVersion``, ``get serial
-number``, ``stop``, ``unlock protective stop``, ``close safety popup``, ``is in remote control``)
+number``, ``stop``, ``unlock protective stop``, ``close safety popup``, ``is in remote control``; and,
+as UR's dashboard server manual words them, ``robotmode`` (``Robotmode: RUNNING``), ``safetystatus``
+(``Safetystatus: NORMAL``), ``programState`` (``STOPPED <program>``, ``PAUSED …``, ``PLAYING …``) and
+``running`` (``Program running: true``), which the host asks to confirm the arm at rest)
 and ``src/script_client.cpp`` (the whole program, ``def rtde_control(): ... end``, written to the
 socket; nothing is read back).
 """
