@@ -117,6 +117,50 @@ METRIC_COLUMNS = (
 )
 
 
+#: Columns that are finite and non-negative in every row (costs, errors, command peaks, counts).
+_NON_NEGATIVE = (
+    "cost", "cost_error", "cost_effort", "cost_smoothness", "cost_smoothness_start", "cost_table1",
+    "cost_table1_first", "cost_hjb", "first_jump_cost", "first_jump_share", "final_error", "max_abs_u",
+    "max_abs_u_step", "max_norm_u", "peak_limit_fraction", "peak_step", "max_abs_udot", "steps_at_limit",
+    "mean_error_2nd_half", "median_error_2nd_half",
+)
+
+
+def check_metric_row(row: Any, task: Any) -> None:
+    """Check one row of :func:`rollout_metrics` (a mapping; a row read back from a cache or a file) as its own
+    arithmetic fixes it: every column there, costs, errors and peaks finite and ≥ 0, the relations between the
+    cost columns that :func:`rollout_metrics` computes (``cost_table1_first`` = ``cost_table1`` −
+    ``cost_smoothness_start``; ``first_jump_share`` = ``first_jump_cost``/``cost``), and ``success`` as ``task``'s
+    rule gives it from the row's errors and joint margin. An edited cost, a flipped success flag or a row scaled
+    as a whole fails one of them.
+
+    Raises:
+        ValueError: Naming the first column that does not hold.
+    """
+    missing = [name for name in METRIC_COLUMNS if name not in row]
+    if missing:
+        raise ValueError(f"columns missing: {', '.join(missing)}")
+    for name in _NON_NEGATIVE:
+        value = row[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(f"{name} = {value!r} is not a number")
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} = {value!r} is not finite and non-negative")
+    if row["cost_table1_first"] != row["cost_table1"] - row["cost_smoothness_start"]:
+        raise ValueError("cost_table1_first is not cost_table1 − cost_smoothness_start")
+    share = row["first_jump_cost"] / row["cost"] if row["first_jump_cost"] > 0 else 0.0
+    if row["first_jump_share"] != share:
+        raise ValueError("first_jump_share is not first_jump_cost / cost")
+    success = row["success"]
+    if not isinstance(success, (bool, np.bool_)):
+        raise ValueError(f"success = {success!r} is not a flag")
+    measures = {"final_error": row["final_error"], "mean_error_2nd_half": row["mean_error_2nd_half"]}
+    margin = row["joint_limit_margin"]
+    expected = bool(get_task(task).success(measures)) and not (margin is not None and margin < 0.0)
+    if bool(success) != expected:
+        raise ValueError(f"success = {success!r}, but the row's errors and joint margin give {expected}")
+
+
 def rollout_metrics(
     rollouts: Rollouts,
     task: str,

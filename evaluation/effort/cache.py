@@ -25,6 +25,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import math
 import os
 from collections.abc import Sequence
 from datetime import datetime, timezone
@@ -33,6 +34,7 @@ from typing import Any
 
 import snac_gym
 import snac_gym.baselines
+from snac_gym.evaluation.cache_entry import CacheWarnings, DamagedEntry, read_entry, write_entry
 from snac_gym.evaluation.effort.matching import EffortRecord
 from snac_gym.evaluation.reference.cache import add_versions, cache_root
 from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
@@ -127,23 +129,78 @@ def _key(identity: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
 
 
+#: The calibration cache's warnings: a damaged entry, an unwritable folder (one line each, on stderr).
+WARNINGS = CacheWarnings("the calibration cache", f"{SWITCH_ENV}=0 turns it off, or set SNAC_GYM_CACHE_DIR")
+#: The roles a record can have.
+ROLES = ("reference", "matched", "unmatched", "fixed")
+
+
+def check_record(record: EffortRecord, identity: dict[str, Any]) -> None:
+    """Check a record read back as a fresh one holds: the task and controller of its identity, a known role, a
+    finite effort, a positive finite knob where the controller has one (its own value where it is the effort
+    reference), and a matched effort within the identity's tolerance of its target.
+
+    Raises:
+        ValueError: Naming the first field that does not hold.
+    """
+    controller = identity["controller"]
+    if (record.task, record.controller) != (identity["task"], controller["name"]):
+        raise ValueError(f"it is the record of {record.task}/{record.controller}")
+    if record.role not in ROLES:
+        raise ValueError(f"role {record.role!r} is not one of {', '.join(ROLES)}")
+    if not (isinstance(record.effort, (int, float)) and math.isfinite(record.effort) and record.effort >= 0):
+        raise ValueError(f"effort {record.effort!r} is not finite and non-negative")
+    _check_knob(record, controller)
+    if record.role == "matched":
+        target = record.target
+        if not (isinstance(target, (int, float)) and math.isfinite(target) and target > 0):
+            raise ValueError(f"target {target!r} is not positive and finite")
+        if abs(record.effort - target) > identity["effort_tolerance"] * target * (1 + 1e-9):
+            raise ValueError(f"a matched effort {record.effort!r} is not within the tolerance of its target {target!r}")
+    if not (isinstance(record.passes, int) and record.passes >= 1):
+        raise ValueError(f"passes {record.passes!r} is not a whole number ≥ 1")
+
+
+def _check_knob(record: EffortRecord, controller: dict[str, Any]) -> None:
+    if record.knob != controller["knob"]:
+        raise ValueError(f"knob {record.knob!r} is not the controller's {controller['knob']!r}")
+    if record.knob is None:
+        return
+    value = record.knob_value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise ValueError(f"knob_value {value!r} is not positive and finite")
+    if record.role == "reference" and value != controller["knob_value"]:
+        raise ValueError(f"the effort reference's knob_value {value!r} is not its own {controller['knob_value']!r}")
+
+
 def read_records(
     folder: Path, identities: dict[tuple[str, str], dict[str, Any]]
 ) -> tuple[dict[tuple[str, str], EffortRecord], dict[str, Any]] | None:
     """The cached records of every (task, controller) of ``identities`` and the calibrating run's stamp, or
-    ``None`` unless all of them are cached (an unreadable or foreign entry counts as missing)."""
+    ``None`` unless all of them are cached. An entry is used only if it holds its identity, matches its checksum
+    and its record holds (:func:`check_record`); a damaged one is named on stderr and counts as missing (the run
+    matches anew and overwrites it)."""
+    if folder.exists() and not folder.is_dir():
+        WARNINGS.unwritable(folder, NotADirectoryError(20, "a file is in the way of the folder"))
+        return None
     records: dict[tuple[str, str], EffortRecord] = {}
     stamp: dict[str, Any] = {}
     for key, identity in identities.items():
         path = folder / f"{_key(identity)}.json"
         try:
-            entry = json.loads(path.read_text())
-            if entry["identity"] != json.loads(json.dumps(identity, default=str)):
+            entry = read_entry(path, identity)
+            if entry is None:
                 return None
-            records[key] = EffortRecord(**entry["record"])
-        except (OSError, ValueError, KeyError, TypeError):
+            try:
+                record = EffortRecord(**entry["record"])
+                check_record(record, json.loads(json.dumps(identity, default=str)))
+                stamp = dict(entry["calibrated_by"])
+            except (ValueError, KeyError, TypeError) as exc:
+                raise DamagedEntry(path, f"its record does not hold ({exc})") from None
+        except DamagedEntry as problem:
+            WARNINGS.damaged([problem])
             return None
-        stamp = entry["calibrated_by"]
+        records[key] = record
     return records, stamp
 
 
@@ -151,16 +208,16 @@ def write_records(
     folder: Path, identities: dict[tuple[str, str], dict[str, Any]], records: dict[tuple[str, str], EffortRecord],
     run: str,
 ) -> None:
-    """Store each record of ``records`` under its identity's key, stamped with ``run`` (the output folder) and
-    the time. Written to a temporary name and renamed, so that a reader never sees half a file."""
-    folder.mkdir(parents=True, exist_ok=True)
+    """Store each record of ``records`` under its identity, stamped with ``run`` (the output folder) and the time,
+    with its identity and checksum (:mod:`snac_gym.evaluation.cache_entry`), atomically. A folder that cannot be
+    written is named once on stderr, with how to turn the cache off, and the run goes on."""
     stamp = {"run": run, "at": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-    for key, identity in identities.items():
-        if key not in records:
-            continue
-        path = folder / f"{_key(identity)}.json"
-        partial = path.with_suffix(f".{os.getpid()}.tmp")
-        entry = {"identity": identity, "record": dataclasses.asdict(records[key]), "calibrated_by": stamp}
-        partial.write_text(json.dumps(entry, indent=1, sort_keys=True, default=str))
-        partial.replace(path)
-
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        for key, identity in identities.items():
+            if key not in records:
+                continue
+            payload = {"record": dataclasses.asdict(records[key]), "calibrated_by": stamp}
+            write_entry(folder / f"{_key(identity)}.json", json.loads(json.dumps(identity, default=str)), payload)
+    except OSError as exc:
+        WARNINGS.unwritable(folder, exc)

@@ -16,10 +16,12 @@ knob search with the current code, on the same effort set, and fails when a knob
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
 
+import snac_gym
 from snac_gym.evaluation.effort.matching import EffortRecord
 
 #: How a summary names the knobs' origin.
@@ -28,8 +30,6 @@ SHIPPED_ORIGIN = "the knobs shipped with snac-gym (tools/ship_calibration.py, ch
 
 def shipped_file() -> Path:
     """The shipped knobs: ``data/calibration/default_knobs.json`` of the installed ``snac_gym`` package."""
-    import snac_gym
-
     return Path(snac_gym.__file__).resolve().parent / "data" / "calibration" / "default_knobs.json"
 
 
@@ -72,8 +72,6 @@ def write_shipped(
 ) -> Path:
     """Write the shipped file: every record with its identity less the code, the knob searches that found them
     (from the calibrating run's ``calibration.json``) and ``stamp`` (the command, versions, time)."""
-    import dataclasses
-
     entries = [
         {"identity": without_code(identities[key]), "record": {**dataclasses.asdict(records[key]), "calibrated_by": ""}}
         for key in sorted(identities)

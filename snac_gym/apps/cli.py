@@ -533,7 +533,7 @@ _CLICK_ABORTS = (("typer.exceptions", "Abort"), ("typer._click.exceptions", "Abo
 
 def _classes(places: tuple[tuple[str, str], ...]) -> tuple[type[BaseException], ...]:
     """The exception classes at ``places`` ((module, name) pairs) that exist here, each once."""
-    import importlib
+    import importlib  # only when a usage error reaches main(): nothing for a command that runs
 
     found: list[type[BaseException]] = []
     for module, name in places:
