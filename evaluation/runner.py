@@ -51,6 +51,7 @@ from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
 from snac_gym.evaluation.store import RunStore
 from snac_gym.kinematics import Kinematics
+from snac_gym.outputs import write_whole
 from snac_gym.sampling import SampleSpace
 
 #: Samples drawn per sample-generation job.
@@ -306,8 +307,8 @@ def _write_outputs(
     executor: str,
 ) -> None:
     """``results.csv``/``.parquet``, ``timings.json`` (the time up to the reports), then the reports."""
-    table.to_csv(store.root / "results.csv", index=False, float_format="%.17g")
-    table.to_parquet(store.root / "results.parquet", index=False)
+    write_whole(store.root / "results.csv", lambda path: table.to_csv(path, index=False, float_format="%.17g"))
+    write_whole(store.root / "results.parquet", lambda path: table.to_parquet(path, index=False))
     timings["total"] = time.perf_counter() - started  # up to the reports
     store.write_text("timings.json", json.dumps({k: round(v, 3) for k, v in timings.items()}, indent=2))
     write_reports(store.root, table, efforts, config, skipped, config.statistic.description, timings, executor)

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from snac_gym.kinematics import Kinematics
+from snac_gym.outputs import written_whole
 from snac_gym.sampling import SampleSpace, check_reachable, sample_seed_pose
 from snac_gym.tasks import Sample, all_tasks, get_task, task_names
 
@@ -150,7 +151,7 @@ def write_samples_csv(samples: Sequence[EvaluationSample], path: str | Path, n_j
     """Write ``samples`` in the documented CSV format (floats round-trip exactly)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as handle:
+    with written_whole(path) as partial, partial.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=column_names(n_joints))
         writer.writeheader()
         for sample in samples:

@@ -41,7 +41,7 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None  # type: ignore[assignment]
 
-from snac_gym.outputs import OutputFolderError, usable_out_folder
+from snac_gym.outputs import OutputFolderError, usable_out_folder, write_text_whole, written_whole
 from snac_gym.evaluation.samples import SampleFileError
 from snac_gym.rollout import write_log
 
@@ -245,9 +245,7 @@ class RunStore:
 
     @staticmethod
     def _write_text(path: Path, text: str) -> None:
-        tmp = _tmp_path(path)
-        tmp.write_text(text)
-        os.replace(tmp, path)
+        write_text_whole(path, text)
 
     # -- parts --------------------------------------------------------------------------------
     def part_path(self, task: str, controller: str, key: str, chunk: int) -> Path:
@@ -294,10 +292,9 @@ class RunStore:
             _PART_SAMPLES_KEY: json.dumps([int(i) for i in rows["sample"]]).encode(),
         }
         table = table.replace_schema_metadata({**(table.schema.metadata or {}), **stamp})
-        tmp = _tmp_path(path)
-        pq.write_table(table, tmp)
-        self._write_text(checksum_path(path), _sha256(tmp) + "\n")  # before the part: a part on disk has its sum
-        os.replace(tmp, path)
+        with written_whole(path) as tmp:
+            pq.write_table(table, tmp)
+            self._write_text(checksum_path(path), _sha256(tmp) + "\n")  # before the part: a part on disk has its sum
 
     def read_part(self, path: Path) -> pd.DataFrame:
         """A stored part's rows, after its bytes are checked against their SHA-256.

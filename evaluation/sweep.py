@@ -44,6 +44,7 @@ from snac_gym.evaluation.runner import load_samples, run_evaluation
 from snac_gym.evaluation.store import RunStore
 from snac_gym.evaluation.reports.summary import controller_label
 from snac_gym.kinematics import Kinematics
+from snac_gym.outputs import write_whole
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
 
@@ -315,7 +316,7 @@ def plot_tradeoff(
         fontsize=11,
     )
     fig.tight_layout(rect=(0, 0.07 + 0.02 / len(tasks), 1, 0.97))
-    fig.savefig(path, dpi=110)
+    write_whole(path, lambda partial: fig.savefig(partial, dpi=110))
     return path
 
 

@@ -1,9 +1,19 @@
-"""The output folders of the commands (``evaluate``, ``demo``, ``train-ppo``, ``real``): one check, one message."""
+"""The outputs of the commands (``evaluate``, ``demo``, ``train-ppo``, ``real``): the folder checked in one place,
+and every file written whole.
+
+:func:`written_whole` is the one way a file is written: to a temporary name beside it, then renamed, so that a file
+under its final name is complete (a full disk, a crash or a stop leaves the old file or none, never a truncated
+one); a failure names the file and the space left on its disk.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
 import stat
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 
@@ -39,3 +49,62 @@ def usable_out_folder(root: Path) -> None:
         raise OutputFolderError(f"cannot create the output folder {root}: {exc.strerror or exc}") from None
     if not os.access(root, os.W_OK | os.X_OK):
         raise OutputFolderError(f"the output folder {root} is not writable; choose another --out")
+
+
+class OutputWriteError(OSError):
+    """A file that could not be written: the message names it and the free space of its disk."""
+
+
+def _free_space(folder: Path) -> str:
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return "free space unknown"
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if free < 1000 or unit == "TB":
+            return f"{free:.0f} {unit} free" if unit == "B" else f"{free:.1f} {unit} free"
+        free /= 1000
+    return ""
+
+
+@contextlib.contextmanager
+def written_whole(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` (with its suffix, so writers that read it pick the format) to write to;
+    renamed to ``path`` when the block ends without an error, removed otherwise.
+
+    Raises:
+        OutputWriteError: If writing or renaming fails with an ``OSError``: naming ``path`` and the free space.
+    """
+    path = Path(path)
+    temporary = path.with_name(f".{path.stem}.{os.getpid()}.{threading.get_ident()}.partial{path.suffix}")
+    try:
+        yield temporary
+        os.replace(temporary, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        if isinstance(exc, OutputWriteError):
+            raise
+        reason = exc.strerror or str(exc)
+        error = OutputWriteError(f"could not write {path}: {reason} ({_free_space(path.parent)})")
+        error.errno = exc.errno  # the cause's, for callers that test it; the message stays one plain line
+        raise error from exc
+    except BaseException:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise
+
+
+def write_whole(path: str | Path, write: Callable[[Path], object]) -> Path:
+    """``write(temporary)`` then the rename of :func:`written_whole`; returns ``path``."""
+    with written_whole(path) as temporary:
+        write(temporary)
+    return Path(path)
+
+
+def write_text_whole(path: str | Path, text: str) -> Path:
+    """``text`` written whole to ``path`` (:func:`written_whole`)."""
+    return write_whole(path, lambda temporary: temporary.write_text(text))
+
+
+__all__ = ["OutputFolderError", "OutputWriteError", "usable_out_folder", "write_text_whole", "write_whole", "written_whole"]

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from snac_gym.evaluation.reference.optimum import OPTIMAL
+from snac_gym.outputs import write_text_whole, write_whole
 
 from snac_gym.trajopt import FTOL, GAP_RTOL
 from snac_gym.evaluation.reports.summary import CONVENTION_COLUMNS, controller_label, summarise
@@ -556,7 +557,7 @@ def plot_cost_boxes(
         ax.set_ylabel("trajectory cost V per sample")
         ax.grid(True, axis="y", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_whole(path, lambda partial: fig.savefig(partial, dpi=110))
     plt.close(fig)
     return path
 
@@ -577,9 +578,9 @@ def write_reports(
     tasks = [t for t in config.tasks if (results["task"] == t).any()]
     threshold = getattr(config, "success_threshold", 0.95)
     summary = summarise(results, efforts, tasks, controllers, threshold, config.convention)
-    summary.to_csv(root / "summary.csv", index=False, float_format="%.10g")
-    (root / "summary.md").write_text(
-        summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results)
+    write_whole(root / "summary.csv", lambda path: summary.to_csv(path, index=False, float_format="%.10g"))
+    write_text_whole(
+        root / "summary.md", summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results)
     )
     if getattr(config, "plots", True):
         plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", threshold)

@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from snac_gym.envs import make_task_env
-from snac_gym.outputs import usable_out_folder
+from snac_gym.outputs import usable_out_folder, write_text_whole
 from snac_gym.metrics import DemoMetrics, demo_metrics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
@@ -232,7 +232,7 @@ def write_demo_outputs(
     finite = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(metrics).items()}
     summary = {"task": task, "controller": controller, "seed": seed, "policy_kwargs": policy_kwargs or {},
                **(status or {"complete": True}), **finite}
-    summary_path.write_text(json.dumps(summary, indent=2))
+    write_text_whole(summary_path, json.dumps(summary, indent=2))
     result.files.append(summary_path)
     if not plots:
         return result

@@ -17,6 +17,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator, SymmetricalLogLocator
 
+from snac_gym.outputs import write_whole
 from snac_gym.cost import cost_rates
 from snac_gym.references import Ellipse, FixedTarget
 from snac_gym.rollout import log_array
@@ -282,10 +283,4 @@ def save_figure(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
     """Write ``fig`` as PNG to ``path`` (folders created) and return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(path.name + ".partial")  # a run stopped mid-write leaves no truncated PNG
-    try:
-        fig.savefig(partial, dpi=dpi, format="png")
-        partial.replace(path)
-    finally:
-        partial.unlink(missing_ok=True)
-    return path
+    return write_whole(path, lambda partial: fig.savefig(partial, dpi=dpi, format="png"))  # never a truncated PNG

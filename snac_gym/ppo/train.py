@@ -58,7 +58,7 @@ import numpy as np
 
 from snac_gym import __version__
 from snac_gym.cost import trajectory_cost
-from snac_gym.outputs import usable_out_folder
+from snac_gym.outputs import usable_out_folder, write_whole
 from snac_gym.envs import make_task_env
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
@@ -714,7 +714,7 @@ def plot_training_curves(out: str | Path, path: str | Path | None = None, title:
     fig = training_curves_figure(out, title)
     target = Path(path) if path is not None else out / "training_curves.png"
     target.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(target, dpi=110)
+    write_whole(target, lambda partial: fig.savefig(partial, dpi=110))
     plt.close(fig)
     return target
 

@@ -44,6 +44,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from snac_gym.outputs import write_text_whole, write_whole
+
 
 def vector_columns(prefix: str, size: int) -> list[str]:
     """Column names ``prefix_0 .. prefix_{size-1}``."""
@@ -118,13 +120,13 @@ def write_log(log: pd.DataFrame, path: str | Path, csv: bool = False) -> list[Pa
     """
     path = Path(path).with_suffix(".parquet")
     path.parent.mkdir(parents=True, exist_ok=True)
-    log.to_parquet(path, index=False)
+    write_whole(path, lambda partial: log.to_parquet(partial, index=False))
     written = [path]
     if csv:
         csv_path = path.with_suffix(".csv")
-        log.to_csv(csv_path, index=False, float_format="%.17g")
+        write_whole(csv_path, lambda partial: log.to_csv(partial, index=False, float_format="%.17g"))
         meta_path = path.with_suffix(".json")
-        meta_path.write_text(json.dumps(log.attrs, indent=2, default=jsonable))
+        write_text_whole(meta_path, json.dumps(log.attrs, indent=2, default=jsonable))
         written += [csv_path, meta_path]
     return written
 
