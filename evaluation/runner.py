@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -39,10 +41,18 @@ from typing import Any
 import pandas as pd
 
 from snac_gym.evaluation.controllers import ControllerSpec, resolve_controllers
-from snac_gym.evaluation.effort.cache import cache_enabled, calibration_folder, calibration_identity, read_records, write_records
+from snac_gym.evaluation.effort.cache import (
+    SWITCH_ENV,
+    cache_enabled,
+    calibration_folder,
+    calibration_identity,
+    read_records,
+    write_records,
+)
 from snac_gym.evaluation.effort.matching import EffortRecord, Records, Results, controller_passes
 from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
+from snac_gym.evaluation.reference.cache import CACHE_ENV, cache_folder
 from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
 from snac_gym.evaluation.execution.passes import EvaluationRun
 from snac_gym.evaluation.reports.writer import prefetch_report_modules, write_reports
@@ -71,6 +81,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     """
     started = time.perf_counter()
     kinematics, space = _checked_setting(config)
+    config, store_knobs = _writable_caches(config)
     # 2. Controllers first: the run's manifest, which locks the output folder to it, names them.
     specs, skipped = resolve_controllers(config)
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
@@ -89,7 +100,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
                     results, records = _passes_at_cached_knobs(evaluation, specs, *cached)
                 else:  # 4. Equal effort
                     results, records = controller_passes(evaluation, specs)
-                    if identities:
+                    if identities and store_knobs:
                         write_records(calibration_folder(), identities, records, str(Path(config.out).resolve()))
                 if matched_on is not samples:  # the rows of the evaluated samples only
                     results = {key: _reported_rows(rows, samples[key[0]]) for key, rows in results.items()}
@@ -107,6 +118,32 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         executor_text = getattr(executor, "description", "serial")
         _write_outputs(store, config, table, efforts, skipped, timings, started, executor_text)  # 6. Reports
     return table
+
+
+def _writable_caches(config: EvaluationConfig) -> tuple[EvaluationConfig, bool]:
+    """``config`` and whether the matched knobs can be stored, after one check, here, that the cache folder can be
+    written. Where it cannot (a read-only folder, a file in the way, no home), one line on stderr says so and how
+    to run without the caches, and the run goes on without storing anything: the reference is solved, the knobs
+    matched (or the shipped ones read), with the same rows. Checked once, in this process, so that no worker or
+    late phase meets the fault alone."""
+    wants_knobs = config.match_effort and config.calibration_cache and cache_enabled()
+    if not (config.reference_cache or wants_knobs):
+        return config, True
+    folders = [cache_folder()] * config.reference_cache + [calibration_folder()] * wants_knobs
+    try:
+        for folder in folders:
+            folder.mkdir(parents=True, exist_ok=True)
+            probe = folder / f".write-probe.{os.getpid()}"
+            probe.write_text("")
+            probe.unlink()
+    except OSError as exc:
+        sys.stderr.write(
+            f"warning: the cache folder {folder} cannot be written ({exc.strerror or exc}): this run goes on without "
+            f"storing its reference rows and knobs ({CACHE_ENV} names another folder; --no-reference-cache and "
+            f"{SWITCH_ENV}=0 turn the caches off)\n"
+        )
+        return dataclasses.replace(config, reference_cache=False), False
+    return config, True
 
 
 def export_sample_set(config: EvaluationConfig) -> Path:
