@@ -180,8 +180,7 @@ def read_records(
     ``None`` unless all of them are cached. An entry is used only if it holds its identity, matches its checksum
     and its record holds (:func:`check_record`); a damaged one is named on stderr and counts as missing (the run
     matches anew and overwrites it)."""
-    if folder.exists() and not folder.is_dir():
-        WARNINGS.unwritable(folder, NotADirectoryError(20, "a file is in the way of the folder"))
+    if folder.exists() and not folder.is_dir():  # nothing cached there; the run says so where it stores the knobs
         return None
     records: dict[tuple[str, str], EffortRecord] = {}
     stamp: dict[str, Any] = {}
