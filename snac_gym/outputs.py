@@ -67,6 +67,16 @@ def _free_space(folder: Path) -> str:
     return ""
 
 
+def write_error(path: str | Path, error: OSError) -> OutputWriteError:
+    """The error to raise for a failed write of ``path``: naming it and the free space of its disk."""
+    if isinstance(error, OutputWriteError):
+        return error
+    path = Path(path)
+    written = OutputWriteError(f"could not write {path}: {error.strerror or error} ({_free_space(path.parent)})")
+    written.errno = error.errno  # the cause's, for callers that test it; the message stays one plain line
+    return written
+
+
 @contextlib.contextmanager
 def written_whole(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` (with its suffix, so writers that read it pick the format) to write to;
@@ -83,12 +93,7 @@ def written_whole(path: str | Path) -> Iterator[Path]:
     except OSError as exc:
         with contextlib.suppress(OSError):
             temporary.unlink()
-        if isinstance(exc, OutputWriteError):
-            raise
-        reason = exc.strerror or str(exc)
-        error = OutputWriteError(f"could not write {path}: {reason} ({_free_space(path.parent)})")
-        error.errno = exc.errno  # the cause's, for callers that test it; the message stays one plain line
-        raise error from exc
+        raise write_error(path, exc) from exc
     except BaseException:
         with contextlib.suppress(OSError):
             temporary.unlink()
@@ -107,4 +112,7 @@ def write_text_whole(path: str | Path, text: str) -> Path:
     return write_whole(path, lambda temporary: temporary.write_text(text))
 
 
-__all__ = ["OutputFolderError", "OutputWriteError", "usable_out_folder", "write_text_whole", "write_whole", "written_whole"]
+__all__ = [
+    "OutputFolderError", "OutputWriteError", "usable_out_folder", "write_error", "write_text_whole", "write_whole",
+    "written_whole",
+]  # fmt: skip

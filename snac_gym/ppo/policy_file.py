@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.outputs import write_whole
 from snac_gym.observation import ObservationLayout
 from snac_gym.ppo.features import FeatureSpec, GoalState, action_size, command, feature_size, observation_features
 
@@ -199,10 +200,7 @@ class PolicyFile:
         )
         buffer = io.BytesIO()
         np.savez_compressed(buffer, metadata=np.array(json.dumps(metadata, sort_keys=True)), **arrays)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_bytes(buffer.getvalue())
-        tmp.replace(path)  # atomic: an interrupted save never leaves half a file
-        return path
+        return write_whole(path, lambda partial: partial.write_bytes(buffer.getvalue()))  # never half a file
 
     @classmethod
     def load(cls, path: str | Path) -> "PolicyFile":

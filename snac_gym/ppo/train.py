@@ -58,7 +58,7 @@ import numpy as np
 
 from snac_gym import __version__
 from snac_gym.cost import trajectory_cost
-from snac_gym.outputs import usable_out_folder, write_whole
+from snac_gym.outputs import usable_out_folder, write_error, write_text_whole, write_whole
 from snac_gym.envs import make_task_env
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
@@ -325,16 +325,20 @@ class _Run:
         target = self.out / folder
         staging = self.out / f"{folder}.tmp"
         shutil.rmtree(staging, ignore_errors=True)
-        staging.mkdir(parents=True)
-        model.save(staging / MODEL_FILE)
-        venv.save(str(staging / NORMALIZE_FILE))
-        metadata = self.metadata(model)
-        metadata.update(extra_metadata or {})
-        features = FeatureSpec.from_dict(self.config["features"])
-        export_policy(model, venv, metadata, features).save(staging / POLICY_FILE)
-        checksums = {name: _sha256(staging / name) for name in (MODEL_FILE, NORMALIZE_FILE, POLICY_FILE)}
-        _write_json(staging / CHECKSUM_FILE, {"timesteps": int(model.num_timesteps), "sha256": checksums})
-        _replace_folder(staging, target)
+        try:
+            staging.mkdir(parents=True)
+            model.save(staging / MODEL_FILE)
+            venv.save(str(staging / NORMALIZE_FILE))
+            metadata = self.metadata(model)
+            metadata.update(extra_metadata or {})
+            features = FeatureSpec.from_dict(self.config["features"])
+            export_policy(model, venv, metadata, features).save(staging / POLICY_FILE)
+            checksums = {name: _sha256(staging / name) for name in (MODEL_FILE, NORMALIZE_FILE, POLICY_FILE)}
+            _write_json(staging / CHECKSUM_FILE, {"timesteps": int(model.num_timesteps), "sha256": checksums})
+            _replace_folder(staging, target)
+        except OSError as exc:  # the previous checkpoint stays; the half-written one goes
+            shutil.rmtree(staging, ignore_errors=True)
+            raise write_error(target, exc) from exc
         return target / POLICY_FILE
 
     def evaluated_timesteps(self) -> list[int]:
@@ -380,9 +384,7 @@ def _replace_folder(staging: Path, target: Path) -> None:
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
-    tmp.replace(path)
+    write_text_whole(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
 def _evaluate_checkpoint(run: _Run, model: Any, venv: Any, log: Callable[[str], None], lines: Any) -> dict[str, float]:
