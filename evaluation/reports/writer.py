@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym.evaluation.reference.optimum import OPTIMAL
+from snac_gym.evaluation.reference.optimum import OPTIMAL, OWN_STARTS
 from snac_gym.outputs import write_text_whole, write_whole
 
 from snac_gym.trajopt import FTOL, GAP_RTOL
@@ -37,9 +37,11 @@ def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Seq
             "inside the same joint position and velocity limits the success rule counts (unless the run says "
             "`--reference-limits velocity`), **an open-loop reference computed with knowledge of the whole "
             "reference** (not a controller; no effort knob). It is a function of the sample alone: Gauss–Newton in "
-            "the joint angles, a primal-dual interior point where a limit binds, started from rest and from two "
-            "feedback rollouts of its own at fixed settings (never the run's controllers), the best local optimum "
-            f"kept; stopped at a step predicting a gain ≤ {GAP_RTOL:g}·V or a relative decrease ≤ {FTOL:g} "
+            "the joint angles, a primal-dual interior point where a limit binds, started from rest and from "
+            f"{len(OWN_STARTS)} feedback rollouts of its own at fixed settings ({', '.join(n for n, _ in OWN_STARTS)}; "
+            "never the run's controllers; a start that reaches a known optimum's basin is not solved again), the "
+            "best local optimum kept (a local optimum: a basin no start leads into is not searched); "
+            f"stopped at a step predicting a gain ≤ {GAP_RTOL:g}·V or a relative decrease ≤ {FTOL:g} "
             "(docs/optimal.md). Ratio = a controller's cost / the optimum on the same sample. A rollout below the "
             "optimum that keeps the limits would be a failure of the reference; one that crosses a limit is "
             "counted apart (the optimum does not cross them)."
