@@ -33,6 +33,7 @@ from snac_gym.policies import available_policies
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import PAPER_TASKS, get_task, task_names
 from snac_gym.tasks.pose import POSE_TASK_NAMES, is_pose_task, register_pose_tasks
+from snac_gym.validation import boolean
 
 
 #: Default horizon per task, s (each task's ``horizon_s``: at least every controller's 95th-percentile
@@ -318,8 +319,7 @@ def _check_types(config: EvaluationConfig) -> None:
     if not 0 <= config.seed <= 2**32 - 1:
         raise ValueError(f"seed must be a whole number in [0, {2**32 - 1}] (a NumPy seed), got {config.seed}")
     for name in _SWITCHES:
-        if not isinstance(getattr(config, name), (bool, np.bool_)):
-            raise ValueError(f"{name} must be True or False, got {getattr(config, name)!r}")
+        boolean(name, getattr(config, name))
 def _check_selection(config: EvaluationConfig) -> None:
     """What is evaluated: tasks, controllers, samples."""
     tasks = config.tasks

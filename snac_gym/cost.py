@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snac_gym.validation import real_number
+from snac_gym.validation import real_array, real_number
 
 
 def weight_matrix(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray | None:
@@ -168,12 +168,45 @@ def cost_rates(
     real_number("dt", dt, 0.0, math.inf, low_open=True)
     Qm = weight_matrix(Q, errors.shape[-1], "Q")
     Rm = weight_matrix(R, commands.shape[-1], "R")
-    command_rates = command_differences(commands, initial_command) / dt
-    return CostTerms(
-        error=quadratic_form(errors, Qm),
-        effort=quadratic_form(commands, Rm),
-        smoothness=quadratic_form(command_rates, Rm),
-    )
+    if initial_command is not None:
+        initial_command = _initial_command(initial_command, commands.shape)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below, by name
+        command_rates = command_differences(commands, initial_command) / dt
+        terms = CostTerms(
+            error=quadratic_form(errors, Qm),
+            effort=quadratic_form(commands, Rm),
+            smoothness=quadratic_form(command_rates, Rm),
+        )
+    _refuse_overflow(terms)
+    return terms
+
+
+def _initial_command(value: np.ndarray, commands: tuple[int, ...]) -> np.ndarray:
+    """``initial_command`` u₋₁ checked: real, finite, ``(m,)`` or one per trajectory (``(..., m)`` of the commands' leading axes)."""
+    initial = real_array("initial_command", value)
+    first = commands[:-2] + commands[-1:]  # the shape of commands[..., 0, :]
+    try:
+        fits = initial.ndim >= 1 and initial.shape[-1] == commands[-1] and np.broadcast_shapes(initial.shape, first) == first
+    except ValueError:
+        fits = False
+    if not fits:
+        shapes = f"({commands[-1]},)" + ("" if len(first) == 1 else f" or {first}")
+        raise ValueError(
+            f"initial_command must be u₋₁ of length {commands[-1]} (the commands' m), shape {shapes}, got shape {initial.shape}"
+        )
+    return initial
+
+
+def _refuse_overflow(terms: CostTerms) -> None:
+    """Refuse a cost whose finite inputs overflow float64 (errors near 1e200 square to inf): it is not computed
+    in another way, as no controller's rollout comes near (its errors are metres, its commands rad/s)."""
+    for name in ("error", "effort", "smoothness"):
+        values = getattr(terms, name)
+        if not np.isfinite(values).all():
+            raise ValueError(
+                f"the {name} term of the trajectory cost overflows float64 (inf from finite errors and commands: a square "
+                f"above 1.8e308); refused, not computed another way: errors (m) and commands (rad/s) this large are no rollout's"
+            )
 
 
 def trajectory_cost(
@@ -189,11 +222,14 @@ def trajectory_cost(
     Same arguments as :func:`cost_rates`; returns the three summed terms, shape ``(...)``.
     """
     rates = cost_rates(errors, commands, dt, Q, R, initial_command)
-    return CostTerms(
-        error=rates.error.sum(axis=-1) * dt,
-        effort=rates.effort.sum(axis=-1) * dt,
-        smoothness=rates.smoothness.sum(axis=-1) * dt,
-    )
+    with np.errstate(over="ignore"):  # a sum past float64's range is refused below, by name
+        terms = CostTerms(
+            error=rates.error.sum(axis=-1) * dt,
+            effort=rates.effort.sum(axis=-1) * dt,
+            smoothness=rates.smoothness.sum(axis=-1) * dt,
+        )
+    _refuse_overflow(terms)
+    return terms
 
 
 #: Trajectory costs a comparison can use (``snac-gym evaluate --cost``).

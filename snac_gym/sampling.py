@@ -13,8 +13,9 @@ from functools import cached_property
 import numpy as np
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.references import Ellipse, FixedTarget
+from snac_gym.references import MAX_REFERENCE_SPEED, MIN_ANGULAR_SPEED, MIN_SEMI_AXIS, Ellipse, FixedTarget
 from snac_gym.robots import ROBOTS
+from snac_gym.validation import real_array, real_number, whole_number
 
 #: Where samples come from (:class:`SampleSpace` ``region``).
 REGIONS = ("cuboid", "workspace")
@@ -23,6 +24,10 @@ REGIONS = ("cuboid", "workspace")
 #: and circle, with every corner reachable with margin (see tests/test_sampling.py).
 UR10_CUBOID_LOW = (-0.95, -0.40, 0.20)
 UR10_CUBOID_HIGH = (-0.40, 0.70, 0.65)
+#: Fewest ``ellipse_points``: four points a quarter turn apart are the fewest that test both axes of an ellipse.
+MIN_ELLIPSE_POINTS = 4
+#: Most ``ellipse_points`` (each is an IK solve when an ellipse is drawn).
+MAX_ELLIPSE_POINTS = 100_000
 _UR10_REACH = 1.211738  # |f(0)| of the UR10 in its base frame (outstretched arm), m
 
 
@@ -43,6 +48,16 @@ class SampleSpace:
             elbow-up branch of the paper's θ0 (Table I's space); ``"workspace"``: seed poses and
             targets from configurations drawn uniformly within the joint limits (less the margin),
             so anywhere the arm reaches in the box, on every branch (:meth:`workspace`).
+
+    Every field is checked when the space is built (a bad one used to fail at the first ``reset``):
+    ``low``/``high`` three finite numbers with low < high; ``min_singular_value`` and ``joint_margin``
+    (at most π) finite and ≥ 0; ``semi_axis_range`` and ``speed_range`` two finite numbers, low ≤ high,
+    from the smallest ellipse and speed an :class:`~snac_gym.references.Ellipse` takes, with the fastest
+    point speed ω·a at most :data:`~snac_gym.references.MAX_REFERENCE_SPEED`; ``ellipse_points`` a whole
+    number in [:data:`MIN_ELLIPSE_POINTS`, :data:`MAX_ELLIPSE_POINTS`]; ``region`` one of :data:`REGIONS`.
+
+    Raises:
+        ValueError: Naming the field, what it must be and what it got.
     """
 
     low: tuple[float, float, float] = UR10_CUBOID_LOW
@@ -55,10 +70,20 @@ class SampleSpace:
     region: str = "cuboid"
 
     def __post_init__(self) -> None:
-        low, high = np.asarray(self.low, float), np.asarray(self.high, float)
-        if low.shape != (3,) or high.shape != (3,) or np.any(low >= high):
-            raise ValueError(f"sample cuboid needs low < high in 3-D, got low={self.low}, high={self.high}")
-        if self.region not in REGIONS:
+        low, high = real_array("low", self.low, (3,)), real_array("high", self.high, (3,))
+        if np.any(low >= high):
+            raise ValueError(f"sample cuboid needs low < high on every axis, got low={self.low}, high={self.high}")
+        real_number("min_singular_value (m/rad)", self.min_singular_value, 0.0)
+        real_number("joint_margin (rad)", self.joint_margin, 0.0, float(np.pi))
+        axes = _ordered_pair("semi_axis_range (m)", self.semi_axis_range, MIN_SEMI_AXIS)
+        speeds = _ordered_pair("speed_range (rad/s)", self.speed_range, MIN_ANGULAR_SPEED)
+        if axes[1] * speeds[1] > MAX_REFERENCE_SPEED:
+            raise ValueError(
+                f"speed_range and semi_axis_range allow an ellipse point speed of {axes[1] * speeds[1]:.3g} m/s; at most "
+                f"{MAX_REFERENCE_SPEED:g} m/s can be followed, got speed_range={self.speed_range}, semi_axis_range={self.semi_axis_range}"
+            )
+        whole_number("ellipse_points", self.ellipse_points, MIN_ELLIPSE_POINTS, MAX_ELLIPSE_POINTS)
+        if not isinstance(self.region, str) or self.region not in REGIONS:
             raise ValueError(f"region must be one of {REGIONS}, got {self.region!r}")
 
     @classmethod
@@ -97,6 +122,14 @@ class SampleSpace:
         point = np.asarray(point, float)
         low, high = self._corners
         return bool((point >= low - tol).all() and (point <= high + tol).all())
+
+
+def _ordered_pair(name: str, value: object, smallest: float) -> np.ndarray:
+    """``value`` as two finite numbers ``smallest ≤ low ≤ high``, or a ``ValueError`` naming ``name``."""
+    pair = real_array(name, value, (2,))
+    if not smallest <= pair[0] <= pair[1]:
+        raise ValueError(f"{name} must be (low, high) with {smallest:g} <= low <= high, got {value!r}")
+    return pair
 
 
 def nominal_configuration(kinematics: Kinematics) -> np.ndarray:

@@ -44,6 +44,18 @@ def whole_number(name: str, value: Any, low: int, high: int) -> int:
     return int(value)
 
 
+def boolean(name: str, value: Any) -> bool:
+    """``value`` as a bool: ``True`` or ``False`` (a NumPy bool too). A string is not a switch (``"no"`` is
+    truthy), nor is a number (``1`` or ``0.0``): each is refused rather than read by its truth value.
+
+    Raises:
+        ValueError: Naming ``name`` and the value.
+    """
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
 def real_array(name: str, value: Any, shape: tuple[int | None, ...] | None = None) -> np.ndarray:
     """``value`` as a float64 array of real, finite numbers, of ``shape`` when given (``None`` entries: any size).
 

@@ -106,9 +106,9 @@ def test_env_keywords_are_the_env_constructors():
 
 def test_command_line_overrides_are_checked_too(tmp_path):
     out = tmp_path / "run"
-    _one_line_error(_train("--out", str(out), "--seed", "-1"), f"seed must be an integer in [0, {MAX_SEED}], got -1")
+    _one_line_error(_train("--out", str(out), "--seed", "-1"), f"--seed must be an integer in [0, {MAX_SEED}], got -1")
     _one_line_error(_train("--out", str(out), "--vec-env", "threads"),
-                    "vec_env.kind must be 'dummy' or 'subproc' or 'batched', got 'threads'")
+                    "--vec-env must be 'dummy' or 'subproc' or 'batched', got 'threads'")
     assert not out.exists()
 
 

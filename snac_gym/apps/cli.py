@@ -5,6 +5,7 @@ Each subcommand parses its options and calls a function that can be used from Py
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -64,6 +65,16 @@ def _renamed_option(new: str, value: str, old: str, old_value: str | None, defau
     if value not in (default, old_value):
         raise typer.BadParameter(f"give {new} only ({old} is its deprecated name)", param_hint=new)
     return old_value
+
+
+def _option_message(message: str, fields: dict[str, str]) -> str:
+    """``message`` with the field it starts with (``field must ...``, ``field (--option) must ...``) named by
+    the option the user typed: ``clear_timeout must be ...`` is ``--recovery-timeout must be ...``."""
+    for field, option in fields.items():
+        for prefix in (f"{field} ({option}) ", f"{field} "):
+            if message.startswith(prefix):
+                return f"{option} {message[len(prefix):]}"
+    return message
 
 
 def _check_task(task: str) -> None:
@@ -225,7 +236,10 @@ def real(
     _check_ur_arm(robot)
     connection = _renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
-        recovery = RecoveryLimits(max_recoveries, unlock_protective_stop, recovery_timeout, reconnect_timeout)
+        try:
+            recovery = RecoveryLimits(max_recoveries, unlock_protective_stop, recovery_timeout, reconnect_timeout)
+        except ValueError as exc:  # the limits' own field names, told by their options'
+            raise ValueError(_option_message(str(exc), _REAL_OPTIONS)) from None
         box = None if task_box is None else _numbers("--task-box", task_box, 6)
         try:
             safety = SafetyLimits(
@@ -252,7 +266,7 @@ def real(
             typer.echo(f"error: {line}{where}", err=True)
             raise typer.Exit(code=1) from None
         if isinstance(exc, (ValueError, RuntimeError)):
-            typer.echo(f"error: {line}{where}", err=True)
+            typer.echo(f"error: {_option_message(line, _REAL_OPTIONS) if isinstance(exc, ValueError) else line}{where}", err=True)
             raise typer.Exit(code=2) from None
         if not isinstance(exc, Exception):
             raise
@@ -263,6 +277,8 @@ def real(
         raise typer.Exit(code=result.exit_code)
 
 
+#: The options of ``real`` whose refusals name a field of :class:`~snac_gym.real.recovery.RecoveryLimits` or an argument.
+_REAL_OPTIONS = {"clear_timeout": "--recovery-timeout", "reconnect_timeout": "--reconnect-timeout", "connection": "--connection"}
 #: The options of ``real`` that set a field of :class:`~snac_gym.real.SafetyLimits`.
 _SAFETY_OPTIONS = {
     "speed_scale": "--speed-scale", "max_joint_acceleration": "--max-acceleration", "joint_limit_margin": "--joint-margin",
@@ -342,7 +358,7 @@ def emulate_ur(
             emulator.schedule(at, fault, *args)
         stopped_by = serve(emulator, duration, typer.echo)
     except (ValueError, OSError) as exc:
-        typer.echo(f"error: {exc}", err=True)
+        typer.echo(f"error: {_option_message(str(exc), _EMULATOR_OPTIONS) if isinstance(exc, ValueError) else exc}", err=True)
         raise typer.Exit(code=2) from exc
     if stopped_by is not None and emulator.failure is None:
         raise _interrupted(TerminationSignal(stopped_by), "the emulator closed its connections; it keeps no files")
@@ -350,6 +366,10 @@ def emulate_ur(
         failure = emulator.failure
         typer.echo(f"error: the emulator stopped: {type(failure).__name__}: {failure}", err=True)
         raise typer.Exit(code=1)
+
+
+#: The options of ``emulate-ur`` whose refusals name the emulator's argument.
+_EMULATOR_OPTIONS = {"port_base": "--port-base", "speed scaling": "--speed-scaling"}
 
 
 #: The stop-signal guard :func:`main` holds for the whole command (``None`` where the app is called
@@ -441,6 +461,7 @@ def evaluate(
             effort_samples=effort_samples,
         )
         space = parse_sample_space(sample_space, cuboid, robot)
+        _check_export_folder(export_samples)
         config = EvaluationConfig(
             out=out_dir, tasks=tasks, controllers=names, samples=1000 if samples is None else samples, seed=seed,
             horizons=parse_horizons(horizon, tasks), engine=engine, match_effort=match_effort,
@@ -455,6 +476,7 @@ def evaluate(
             recalibrate=recalibrate,
             **({} if chunk_size is None else {"chunk_size": chunk_size}),
         )
+        _validate_naming_options(config)
         start = time.perf_counter()
         if export_only:
             typer.echo(f"samples written to {export_sample_set(config)}")
@@ -465,7 +487,7 @@ def evaluate(
         else:
             run_evaluation(config)
     except (ValueError, RuntimeError, OSError) as exc:  # bad options, samples file, controller, output folder: a clean message
-        typer.echo(f"error: {exc}", err=True)
+        typer.echo(f"error: {_with_option(str(exc)) if isinstance(exc, ValueError) else exc}", err=True)
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt as exc:  # a stop signal: the workers are stopped, finished jobs are kept
         if start is None:  # in the imports or the option checks
@@ -484,6 +506,52 @@ def evaluate(
         typer.echo(f"\ntrade-off sweep: {out_dir / 'sweep.csv'}{figure}")
     written = "results, summary and plots" if plots else "results and summary"
     typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; {written} in {out_dir}/")
+
+
+#: The fields of :class:`~snac_gym.evaluation.run_config.EvaluationConfig` set by an ``evaluate`` option of another name
+#: (the others are the field with dashes: ``effort_tolerance`` is ``--effort-tolerance``).
+_EVALUATE_RENAMED = {"ray_address": "--ray", "use_batch": "--batch", "horizons": "--horizon", "controller_kwargs": "--param"}
+
+
+def _evaluate_message(message: str) -> str:
+    """An :class:`EvaluationConfig` refusal naming the option: ``q_scale must be ...`` is ``--q-scale must be ...``;
+    a refusal that names no field (``unknown robot 'x'``) gets its option in front."""
+    from snac_gym.evaluation.run_config import EvaluationConfig
+
+    fields = {item.name: _EVALUATE_RENAMED.get(item.name, "--" + item.name.replace("_", "-"))
+              for item in dataclasses.fields(EvaluationConfig)}
+    named = _option_message(message, fields)
+    return named if named != message else _with_option(message)
+
+
+def _with_option(message: str) -> str:
+    """An ``evaluate`` refusal that names no option, with the option in front: ``--robot: unknown robot 'x'; ...``."""
+    for start, option in (("unknown robot", "--robot"), ("unknown controller", "--controllers"), ("the ", "--horizon")):
+        if message.startswith(start) and (option != "--horizon" or " horizon must be" in message):
+            return f"{option}: {message}"
+    return message
+
+
+def _validate_naming_options(config: Any) -> None:
+    """``config.validate()`` here, to name the options in a refusal (the run validates it again)."""
+    try:
+        config.validate()
+    except ValueError as exc:
+        raise ValueError(_evaluate_message(str(exc))) from None
+
+
+def _check_export_folder(path: Path | None) -> None:
+    """Refuse an ``--export-samples`` file whose folder cannot be made: a missing folder is created when the samples
+    are written, but one under a file (or a dangling link) would fail late with a bare ``[Errno 2]`` or ``[Errno 20]``."""
+    if path is None:
+        return
+    folder = Path(path).parent
+    for above in (folder, *folder.parents):
+        if above.is_dir():
+            return
+        if above.exists() or above.is_symlink():
+            raise ValueError(f"--export-samples {path}: its folder {folder} cannot be made, {above} is not a folder; "
+                             "choose another file")
 
 
 @app.command("train-ppo")
@@ -507,7 +575,9 @@ def train_ppo_command(
         result = train_ppo(task=task, out=out, timesteps=timesteps, seed=seed, config_path=config, resume=resume,
                            n_envs=n_envs, vec_env=vec_env, log=typer.echo, progress=lines)
     except (ValueError, ImportError) as exc:  # bad config, folder or checkpoint, missing [rl] extra: a clean message
-        typer.echo(f"error: {exc}", err=True)
+        given = {key: option for key, option, value in (("seed", "--seed", seed), ("vec_env.kind", "--vec-env", vec_env),
+                 ("vec_env.n_envs", "--n-envs", n_envs), ("timesteps", "--timesteps", timesteps)) if value is not None}
+        typer.echo(f"error: {_ppo_message(str(exc), given) if isinstance(exc, ValueError) else exc}", err=True)
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt as exc:  # before training started (or in the curves after it finished)
         kept = "the checkpoint is unchanged; run the command again" if resume else "nothing was trained; run the command again"
@@ -522,6 +592,14 @@ def train_ppo_command(
     if best is not None:
         typer.echo(f"best policy ({int(best['timesteps'])} timesteps, success {100 * best['success_rate']:.1f}%): "
                    f"{result.best_policy}")
+
+
+def _ppo_message(message: str, given: dict[str, str]) -> str:
+    """A config refusal (``CONFIG: seed must be ...``) of a value an option gave, naming the option instead
+    (``--seed must be ...``); a value from the config file keeps the file's name and key."""
+    path, sep, rest = message.partition(": ")
+    named = _option_message(rest, given) if sep else message
+    return named if named != rest else message
 
 
 #: Where the classes :func:`main` catches live: typer 0.29 and later carry their own copy of click

@@ -18,11 +18,11 @@ from snac_gym.physics import PHYSICS, Arm, check_physics, make_arm, scene_of
 from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.physics.scene import CameraOptions, default_render_every
 from snac_gym.physics.base import check_image_size, check_timing
-from snac_gym.validation import whole_number
+from snac_gym.validation import boolean, real_number, whole_number
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
-from snac_gym.sampling import SampleSpace, sample_seed_pose
+from snac_gym.sampling import REGIONS, SampleSpace, sample_seed_pose
 from snac_gym.robots import get_robot
 from snac_gym.tasks import Task, get_task
 
@@ -75,6 +75,29 @@ def shaped_reward(
     """
     bonus = precision_bonus * np.exp(-((error_norm / precision_scale) ** 2))
     return -distance_weight * error_norm + bonus - action_penalty * np.einsum("...i,...i->...", action, action)
+
+
+#: Largest ``success_tolerance``, m: a tolerance above a metre counts most of a UR arm's reach (0.5 m to 1.3 m) as
+#: reached, so no success rate would measure anything (1e9 used to be taken).
+MAX_SUCCESS_TOLERANCE = 1.0
+
+
+def check_sample_space(value: Any, kinematics: Kinematics) -> SampleSpace:
+    """``sample_space`` as a :class:`~snac_gym.sampling.SampleSpace`: one given, ``None`` (the robot's cuboid) or a
+    region's name, ``"cuboid"`` (the same) or ``"workspace"`` (:meth:`SampleSpace.workspace`).
+
+    Raises:
+        ValueError: Naming ``sample_space`` and the valid names, for anything else.
+    """
+    if value is None or (isinstance(value, str) and value == "cuboid"):
+        return SampleSpace.for_robot(kinematics)
+    if isinstance(value, str) and value == "workspace":
+        return SampleSpace.workspace(kinematics)
+    if not isinstance(value, SampleSpace):
+        raise ValueError(
+            f"sample_space must be a snac_gym.sampling.SampleSpace, None or one of {', '.join(map(repr, REGIONS))}, got {value!r}"
+        )
+    return value
 
 
 #: Longest episode an env accepts, control steps (about 22 hours at 125 Hz): a bound on what a typo can cost.
@@ -288,13 +311,9 @@ class TaskEnvCore(gym.Env):
         """Set the shared state; raises ``ValueError`` on a bad tolerance or weight matrix."""
         self.task: Task = get_task(task)
         self.task_name = self.task.name
-        try:
-            tolerance = float(self.task.success_tolerance if success_tolerance is None else success_tolerance)
-        except (TypeError, ValueError):
-            tolerance = math.nan
-        if not (math.isfinite(tolerance) and tolerance > 0):
-            raise ValueError(f"success_tolerance must be a positive finite distance (m), got {success_tolerance!r}")
-        self.success_tolerance = tolerance
+        tolerance = self.task.success_tolerance if success_tolerance is None else success_tolerance
+        #: Distance (m) under which the target counts as reached: in (0, :data:`MAX_SUCCESS_TOLERANCE`].
+        self.success_tolerance = real_number("success_tolerance (m)", tolerance, 0.0, MAX_SUCCESS_TOLERANCE, low_open=True)
         self.kinematics = kinematics
         # A pose task's error is a logarithm (PoseKinematics.task_error), not x − x_d (None).
         self._task_error = getattr(kinematics, "task_error", None)
@@ -302,7 +321,7 @@ class TaskEnvCore(gym.Env):
         m, n = kinematics.n_joints, kinematics.task_dim
         self.Q = weight_matrix(Q, n, "Q")
         self.R = weight_matrix(R, m, "R")
-        self.sample_space = sample_space if sample_space is not None else SampleSpace.for_robot(kinematics)
+        self.sample_space = check_sample_space(sample_space, kinematics)
         self.velocity_limits = kinematics.velocity_limits.copy()
         self.obs_layout = ObservationLayout(m, n)
         self._error_slice = self.obs_layout.slices["e"]
@@ -431,7 +450,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             Q = self.cost_convention.error_weight(kinematics.task_dim)
         self._init_task(task, kinematics, dt, Q, R, success_tolerance, sample_space)
         self.reward_type = reward_type
-        self.terminate_on_success = bool(terminate_on_success)
+        self.terminate_on_success = boolean("terminate_on_success", terminate_on_success)
         self.render_mode = render_mode
         self.render_width, self.render_height = check_image_size(render_width, render_height)
         self.camera_options = CameraOptions(render_distance, render_yaw, render_pitch, render_target_position)
@@ -555,6 +574,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        if self._closed:
+            self._refuse_closed("reset")
         super().reset(seed=seed)
         q0, reference = self._parse_options(options)
         self.arm.reset(q0)
@@ -592,8 +613,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         return clipped if self.observation_dtype == np.float64 else clipped.astype(self.observation_dtype)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        if self._obs is None:
-            raise RuntimeError("call reset() before step()")
+        if self._obs is None:  # not reset yet, or closed (close() drops the observation): no per-step test
+            self._no_episode()
         if self.action_type == "normalized":
             u = self._check_normalized(action)
             u *= self.velocity_limits  # u is a new array (ActionCheck)
@@ -656,7 +677,21 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         )
         self._warned_headless = True
 
+    #: Whether :meth:`close` was called: the arm's simulator is gone, ``step()`` and ``reset()`` are refused.
+    _closed = False
+
+    def _refuse_closed(self, method: str) -> None:
+        raise RuntimeError(f"{method}() after close(): the {self.physics} arm is closed; make a new env")
+
+    def _no_episode(self) -> None:
+        """Refuse a ``step()`` without an episode: after :meth:`close`, or before the first ``reset()``."""
+        if self._closed:
+            self._refuse_closed("step")
+        raise RuntimeError("call reset() before step()")
+
     def close(self) -> None:
+        self._closed = True
+        self._obs = None
         if getattr(self, "_scene", None) is not None and hasattr(self._scene, "close"):
             self._scene.close()  # MuJoCo's scene holds an OpenGL context
         if getattr(self, "arm", None) is not None:

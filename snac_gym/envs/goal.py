@@ -39,7 +39,7 @@ from snac_gym.kinematics import Kinematics, damped_least_squares
 from snac_gym.robots import get_robot
 from snac_gym.sampling import SampleSpace, nominal_configuration
 from snac_gym.tasks import Task, get_task
-from snac_gym.validation import real_array
+from snac_gym.validation import boolean, real_array
 
 #: Reward types of the goal envs.
 GOAL_REWARD_TYPES = ("sparse", "dense")
@@ -121,6 +121,7 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
             raise ValueError(f"action must be one of {GOAL_ACTIONS}, got {action!r}")
         if not (np.isfinite(cartesian_speed) and cartesian_speed > 0):
             raise ValueError(f"cartesian_speed must be a positive number (m/s), got {cartesian_speed!r}")
+        boolean("terminate_on_success", terminate_on_success)
         reserved = {"reward_type", "terminate_on_success", "observation_dtype"} & set(env_kwargs)
         if reserved:
             raise ValueError(f"the goal env sets {sorted(reserved)} itself")
@@ -243,6 +244,8 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
 
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict[str, Any]]:
         if self.action == "cartesian":
+            if self.env._obs is None:  # closed, or not reset: the task env says which
+                self.env._no_episode()
             action = self.joint_command(action)
         flat, _, _, truncated, info = self.env.step(action)
         obs = self._goal_observation(flat)

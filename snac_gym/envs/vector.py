@@ -329,6 +329,8 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every sub-env (or those of ``options["reset_mask"]``); seeds as SyncVectorEnv takes them."""
+        if self.closed:
+            raise RuntimeError("reset() after close(): the vector env is closed; make a new one")
         super().reset(seed=seed if isinstance(seed, int) else None)
         seeds = _seed_list(seed, self.num_envs)
         options = dict(options) if options is not None else None
@@ -346,6 +348,8 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every sub-env; those whose episode ended in the last step are reset instead."""
+        if self.closed:  # one attribute test: the episodes' arrays would go on stepping silently
+            raise RuntimeError("step() after close(): the vector env is closed; make a new one")
         episodes = self.episodes
         resetting = self._autoreset
         u = episodes.commands(actions, ignored=resetting)
