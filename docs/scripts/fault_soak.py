@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import queue
 import random
 import re
@@ -75,11 +76,27 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "snac_gym.apps.cli", *args]
 
 
+#: The episodes' processes read and write byte code in a folder of their own (``--out``/pycache): on a checkout
+#: others edit meanwhile, a shared ``__pycache__`` once gave ``EOFError: marshal data too short`` at import.
+ENV = dict(os.environ)
+
+
+def run_episode(episode: int, seed: int, host: str, out: Path, own_series: bool, tries: int = 3) -> dict:
+    """One episode; started again (at most ``tries`` times, same draw) when a process died before it began:
+    a Python traceback at import, or an emulator that never listened (``retries`` counts them)."""
+    for attempt in range(tries):
+        row = _episode(episode, seed, host, out, own_series)
+        if row["started"]:
+            break
+    row["retries"] = attempt
+    return row
+
+
 def _numbers(values: np.ndarray) -> str:
     return ",".join(f"{v:.6f}" for v in values)
 
 
-def run_episode(episode: int, seed: int, host: str, out: Path, own_series: bool) -> dict:
+def _episode(episode: int, seed: int, host: str, out: Path, own_series: bool) -> dict:
     rng = random.Random(seed * 100_003 + episode)
     robot, kind = rng.choice(ROBOTS), rng.choice(KINDS)
     flags = fault_flags(kind, rng)
@@ -92,7 +109,7 @@ def run_episode(episode: int, seed: int, host: str, out: Path, own_series: bool)
     with emulator_log.open("w") as sink:
         emulator = subprocess.Popen(
             _cli("emulate-ur", "--host", host, "--robot", robot, *series, "--q0", _numbers(sample.q0), "--duration", "120",
-                 *flags), stdout=sink, stderr=subprocess.STDOUT,
+                 *flags), stdout=sink, stderr=subprocess.STDOUT, env=ENV,
         )  # fmt: skip
     row = {"episode": episode, "robot": robot, "fault": kind, "flags": " ".join(flags)}
     try:
@@ -107,7 +124,7 @@ def run_episode(episode: int, seed: int, host: str, out: Path, own_series: bool)
                 _cli("real", "--host", host, "--robot", robot, *series, "--controller", "lqr", "--steps", str(STEPS),
                      "--q0", _numbers(sample.q0), "--target", _numbers(sample.reference.target), "--no-plots",
                      "--out", str(folder / "run")),
-                capture_output=True, text=True, timeout=120,
+                capture_output=True, text=True, timeout=120, env=ENV,
             )  # fmt: skip
             code, output = real.returncode, (real.stdout + real.stderr).strip()
         except subprocess.TimeoutExpired as exc:
@@ -137,6 +154,8 @@ def run_episode(episode: int, seed: int, host: str, out: Path, own_series: bool)
         line=output.splitlines()[-1] if output else "",
     )
     row["accounted"] = accounted(row, summary)
+    # `snac-gym real` prints one line and never a traceback: one means Python died before the command ran.
+    row["started"] = "listening on" in emulator_log.read_text() and "Traceback (most recent call last)" not in output
     return row
 
 
@@ -237,6 +256,7 @@ def main() -> int:
     parser.add_argument("--own-series", action="store_true", help="each arm at its own rate (e-Series: 500 Hz)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    ENV["PYTHONPYCACHEPREFIX"] = str((args.out / "pycache").resolve())
     hosts: queue.Queue[str] = queue.Queue()
     for k in range(args.jobs):
         hosts.put(f"127.0.3.{k + 1}")
@@ -259,7 +279,9 @@ def main() -> int:
         writer = csv.DictWriter(sink, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    print(f"{len(rows)} episodes, --jobs {args.jobs}, seed {args.seed}, {time.monotonic() - started:.0f} s\n")
+    retried = sum(r["retries"] > 0 for r in rows)
+    print(f"{len(rows)} episodes, --jobs {args.jobs}, seed {args.seed}, {time.monotonic() - started:.0f} s; "
+          f"{retried} started again after a process died before the episode began\n")  # fmt: skip
     print(tables(rows))
     return 0 if all(r["accounted"] for r in rows) else 1
 
