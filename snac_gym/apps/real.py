@@ -20,7 +20,7 @@ from snac_gym._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
 from snac_gym._signals import SignalGuard, TerminationSignal
 from snac_gym._signals import stop_signals_raise as _stop_signals_raise
 from snac_gym.apps.demo import write_demo_outputs
-from snac_gym.outputs import usable_out_folder
+from snac_gym.outputs import usable_out_folder, write_text_whole, write_whole
 from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
 from snac_gym.envs.core import resolve_reference, validate_q0
 from snac_gym.kinematics import Kinematics
@@ -515,7 +515,7 @@ def _write_interrupted(
         log.attrs["stop_reason"] = env.stop_reason
         _attempt(lambda: write_log(log, out / f"{prefix}log.parquet"))
     periods = pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3})
-    _attempt(lambda: periods.to_csv(out / f"{prefix}timing.csv", index_label="step"))
+    _attempt(lambda: write_whole(out / f"{prefix}timing.csv", lambda path: periods.to_csv(path, index_label="step")))
     connection = env.connection
     summary = {
         "ended": _ending(exc),
@@ -538,7 +538,7 @@ def _write_interrupted(
         summary["lost_links"] = getattr(connection, "lost_links", [])
     if _ending(exc) == "error":  # a bug: the CLI shows one line, the traceback is kept here
         summary["traceback"] = traceback.format_exception(exc)
-    (out / f"{prefix}real.json").write_text(json.dumps(summary, indent=2, default=str))
+    write_text_whole(out / f"{prefix}real.json", json.dumps(summary, indent=2, default=str))
 
 
 def _attempt(write: Callable[[], object]) -> None:
@@ -551,9 +551,10 @@ def _attempt(write: Callable[[], object]) -> None:
 def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult, plots: bool) -> list[Path]:
     periods = pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3})
     timing_csv = out / f"{prefix}timing.csv"
-    periods.to_csv(timing_csv, index_label="step")
+    write_whole(timing_csv, lambda path: periods.to_csv(path, index_label="step"))
     summary = out / f"{prefix}real.json"
-    summary.write_text(
+    write_text_whole(
+        summary,
         json.dumps(
             {
                 "timing": result.timing,
