@@ -375,10 +375,10 @@ def test_emulate_ur_command_serves_on_free_ports_and_refuses_bad_flags():
     for flags, message in [
         (["--tcp-offset", "0.1,0.2"], "--tcp-offset needs 3 or 6 numbers"),
         (["--latency-spike", "1"], "--latency-spike (AT,SECONDS) needs 2 numbers"),
-        (["--speed-scaling", "0"], "speed scaling must be in (0, 1]"),
+        (["--speed-scaling", "0"], "--speed-scaling must be in (0, 1]"),
         (["--series", "x"], "--series must be one of cb, e, got 'x'"),
         (["--series", "e"], "--series e is the e-Series' 500 Hz; the UR10 is a CB3 arm"),
-        (["--port-base", "80"], "port_base must be 0"),
+        (["--port-base", "80"], "--port-base must be 0"),
     ]:
         outcome = CliRunner().invoke(app, command + flags)
         assert outcome.exit_code == 2 and message in outcome.output, (flags, outcome.output)
