@@ -161,7 +161,7 @@ def test_missing_samples_file_and_corrupt_run_json_are_one_line_errors(tmp_path)
         (["--param", "dsl.gain=50"], "--param dsl.gain: no controller is registered as 'dsl'; did you mean 'dls'?"),
         (["--controllers", "svf", "--param", "dls.gain=2"], "'dls' is not among the evaluated controllers (svf)"),
         (["--param", "ppo.model_path=/nonexistent.npz"], "controller 'ppo' cannot be built"),
-        (["--effort-target", "inf"], "effort_target must be a positive finite number, got inf"),
+        (["--effort-target", "inf"], "--effort-target must be a positive finite number, got inf"),
         (["--effort-target", "5", "--effort-statistic", "max"], "the max statistic is at most 3.2"),
         (["--effort-target", "1.5", "--effort-statistic", "median-peak"], "statistic is at most 1"),
         (["--workers", "100000"], "workers must be between 1 and "),  # the bound: test_workers_are_bounded_by_the_cpus

@@ -516,7 +516,7 @@ _EVALUATE_RENAMED = {"ray_address": "--ray", "use_batch": "--batch", "horizons":
 def _evaluate_message(message: str) -> str:
     """An :class:`EvaluationConfig` refusal naming the option: ``q_scale must be ...`` is ``--q-scale must be ...``;
     a refusal that names no field (``unknown robot 'x'``) gets its option in front."""
-    from snac_gym.evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.run_config import EvaluationConfig  # start-up time: only when a refusal is shown
 
     fields = {item.name: _EVALUATE_RENAMED.get(item.name, "--" + item.name.replace("_", "-"))
               for item in dataclasses.fields(EvaluationConfig)}
