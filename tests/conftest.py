@@ -160,3 +160,32 @@ def timing_rules_off(monkeypatch) -> None:
 
     limits = partial(snac_gym.real.SafetyLimits, max_period=10.0, deadline_slack=10.0)
     monkeypatch.setattr(snac_gym.real, "SafetyLimits", limits)
+
+
+@pytest.fixture
+def reference_job(tmp_path):
+    """Three reach samples' reference over 150 steps, cached in a fresh folder (the reference cache's tests)."""
+    from snac_gym.evaluation.reference.optimum import OptimalJob  # the evaluator: only these tests need it
+    from snac_gym.evaluation.samples import generate_samples
+    from snac_gym.kinematics import shared_kinematics
+    from snac_gym.sampling import SampleSpace
+
+    ur10 = shared_kinematics("ur10")
+    samples = tuple(generate_samples(ur10, SampleSpace.for_robot(ur10), 0, "reach", [0, 1, 2]))
+    return OptimalJob("reach", samples, (0, 1, 2), steps=150, dt=1 / 125, cache_dir=str(tmp_path / "cache"))
+
+
+@pytest.fixture
+def counted_solves(monkeypatch) -> list[int]:
+    """The sizes of the reference jobs solved from here on (not read from the cache)."""
+    from snac_gym.evaluation.reference import optimum
+
+    solved: list[int] = []
+    original = optimum._solve_job
+
+    def solve(job):
+        solved.append(len(job.samples))
+        return original(job)
+
+    monkeypatch.setattr(optimum, "_solve_job", solve)
+    return solved

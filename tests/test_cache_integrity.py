@@ -17,11 +17,7 @@ from snac_gym.evaluation.cache_entry import DamagedEntry, entry_text, read_entry
 from snac_gym.evaluation.code_graph import module_closure
 from snac_gym.evaluation.effort import cache as calibration_cache
 from snac_gym.evaluation.reference import cache as reference_cache
-from snac_gym.evaluation.reference import optimum as optimal_reference
-from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
-from snac_gym.evaluation.samples import generate_samples
-from snac_gym.kinematics import shared_kinematics
-from snac_gym.sampling import SampleSpace
+from snac_gym.evaluation.reference.optimum import run_optimal_job
 
 FAULTS = ("flipped-bit", "empty-object", "wrong-key", "out-of-range", "directory-in-the-way")
 
@@ -48,22 +44,8 @@ def test_an_entry_round_trips_bit_for_bit_and_every_edit_is_caught(tmp_path):
 
 # -- the reference cache ------------------------------------------------------------------------------
 @pytest.fixture
-def job(tmp_path) -> OptimalJob:
-    ur10 = shared_kinematics("ur10")
-    samples = tuple(generate_samples(ur10, SampleSpace.for_robot(ur10), 0, "reach", [0, 1, 2]))
-    return OptimalJob("reach", samples, (0, 1, 2), steps=150, dt=1 / 125, cache_dir=str(tmp_path / "cache"))
-
-
-def _counting(monkeypatch) -> list[int]:
-    solved: list[int] = []
-    original = optimal_reference._solve_job
-
-    def solve(job):
-        solved.append(len(job.samples))
-        return original(job)
-
-    monkeypatch.setattr(optimal_reference, "_solve_job", solve)
-    return solved
+def job(reference_job):
+    return reference_job
 
 
 def _damage(path: Path, fault: str, other: Path) -> None:
@@ -88,7 +70,7 @@ def _fresh(job):
 
 
 @pytest.mark.parametrize("fault", FAULTS)
-def test_a_damaged_reference_entry_is_named_and_solved_again(job, monkeypatch, capsys, fault):
+def test_a_damaged_reference_entry_is_named_and_solved_again(job, counted_solves, capsys, fault):
     run_optimal_job(job)
     folder = Path(job.cache_dir)
     keys = [reference_cache.sample_key(job, s) for s in job.samples]
@@ -100,7 +82,8 @@ def test_a_damaged_reference_entry_is_named_and_solved_again(job, monkeypatch, c
     else:
         _damage(target, fault, other)
     capsys.readouterr()
-    solved = _counting(monkeypatch)
+    counted_solves.clear()
+    solved = counted_solves
     rows = run_optimal_job(job).metrics
     assert solved == [1]  # the damaged sample only
     pd.testing.assert_frame_equal(rows[_fresh(job).columns], _fresh(job), check_exact=True)
@@ -108,14 +91,15 @@ def test_a_damaged_reference_entry_is_named_and_solved_again(job, monkeypatch, c
     assert len(lines) == 1 and str(target) in lines[0] and "computing it again" in lines[0], lines
 
 
-def test_every_float_of_every_reference_entry_scaled_gives_the_fresh_rows(job, monkeypatch, capsys):
+def test_every_float_of_every_reference_entry_scaled_gives_the_fresh_rows(job, counted_solves, capsys):
     """The audit's own fault: every float of every entry ×1.5 (checksums left as they were)."""
     run_optimal_job(job)
     for path in Path(job.cache_dir).glob("*.json"):
         entry = json.loads(path.read_text())
         entry["payload"] = {k: v * 1.5 if isinstance(v, float) else v for k, v in entry["payload"].items()}
         path.write_text(json.dumps(entry))
-    solved = _counting(monkeypatch)
+    counted_solves.clear()
+    solved = counted_solves
     rows = run_optimal_job(job).metrics
     assert solved == [3]
     pd.testing.assert_frame_equal(rows[_fresh(job).columns], _fresh(job), check_exact=True)

@@ -10,37 +10,29 @@ import pandas as pd
 import pytest
 
 from snac_gym.evaluation.reference import cache as reference_cache
-from snac_gym.evaluation.reference import optimum as optimal_reference
 from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
-from snac_gym.evaluation.samples import generate_samples
 from snac_gym.cost import CostConvention
-from snac_gym.kinematics import shared_kinematics
-from snac_gym.sampling import SampleSpace
 
 
 @pytest.fixture
-def job(tmp_path) -> OptimalJob:
-    ur10 = shared_kinematics("ur10")
-    samples = tuple(generate_samples(ur10, SampleSpace.for_robot(ur10), 0, "reach", [0, 1, 2]))
-    return OptimalJob("reach", samples, (0, 1, 2), steps=150, dt=1 / 125, cache_dir=str(tmp_path / "cache"))
+def job(reference_job) -> OptimalJob:
+    return reference_job
 
 
-def _counting(monkeypatch) -> list[int]:
-    """Count the samples solved (not read from the cache)."""
-    solved: list[int] = []
-    original = optimal_reference._solve_job
+@pytest.fixture
+def _counting(counted_solves):
+    """Start counting the samples solved (not read from the cache) where the test calls it."""
 
-    def solve(job):
-        solved.append(len(job.samples))
-        return original(job)
+    def start(_monkeypatch=None) -> list[int]:
+        counted_solves.clear()
+        return counted_solves
 
-    monkeypatch.setattr(optimal_reference, "_solve_job", solve)
-    return solved
+    return start
 
 
-def test_cached_rows_are_the_solved_rows_bit_for_bit(job, monkeypatch):
+def test_cached_rows_are_the_solved_rows_bit_for_bit(job, _counting, monkeypatch):
     fresh = run_optimal_job(dataclasses.replace(job, cache_dir=None)).metrics
-    solved = _counting(monkeypatch)
+    solved = _counting()
     first = run_optimal_job(job).metrics
     again = run_optimal_job(job).metrics
     assert solved == [3]  # the second run solved nothing
@@ -49,9 +41,9 @@ def test_cached_rows_are_the_solved_rows_bit_for_bit(job, monkeypatch):
     pd.testing.assert_frame_equal(again, first, check_exact=True)
 
 
-def test_a_subset_with_other_ids_reuses_the_rows_of_the_same_samples(job, monkeypatch):
+def test_a_subset_with_other_ids_reuses_the_rows_of_the_same_samples(job, _counting, monkeypatch):
     first = run_optimal_job(job).metrics
-    solved = _counting(monkeypatch)
+    solved = _counting()
     renumbered = [dataclasses.replace(s, index=s.index + 100) for s in job.samples[1:]]
     subset = dataclasses.replace(job, samples=tuple(renumbered), seeds=(7, 8))
     rows = run_optimal_job(subset).metrics
@@ -71,7 +63,7 @@ def test_a_subset_with_other_ids_reuses_the_rows_of_the_same_samples(job, monkey
     ],
     ids=["cost", "horizon", "limits", "code", "sample"],
 )
-def test_any_other_input_is_solved_anew(job, monkeypatch, change):
+def test_any_other_input_is_solved_anew(job, _counting, monkeypatch, change):
     run_optimal_job(job)
     if change == "code":  # an edited solver, cost or model: another fingerprint
         monkeypatch.setattr(reference_cache, "code_fingerprint", lambda: "edited")
@@ -80,17 +72,17 @@ def test_any_other_input_is_solved_anew(job, monkeypatch, change):
         job = dataclasses.replace(job, samples=(moved, *job.samples[1:]))
     else:
         job = dataclasses.replace(job, **change)
-    solved = _counting(monkeypatch)
+    solved = _counting()
     run_optimal_job(job)
     assert solved == ([1] if change == "sample" else [3])
 
 
-def test_an_unreadable_entry_is_solved_again(job, monkeypatch):
+def test_an_unreadable_entry_is_solved_again(job, _counting, monkeypatch):
     run_optimal_job(job)
     for path in (reference_cache.Path(job.cache_dir)).glob("*.json"):
         path.write_text("{not json")
         break
-    solved = _counting(monkeypatch)
+    solved = _counting()
     run_optimal_job(job)
     assert solved == [1]
 
