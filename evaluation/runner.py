@@ -129,7 +129,8 @@ def _writable_caches(config: EvaluationConfig) -> tuple[EvaluationConfig, bool]:
     wants_knobs = config.match_effort and config.calibration_cache and cache_enabled()
     if not (config.reference_cache or wants_knobs):
         return config, True
-    folders = [cache_folder()] * config.reference_cache + [calibration_folder()] * wants_knobs
+    folders = [folder for folder, used in ((cache_folder(), config.reference_cache), (calibration_folder(), wants_knobs))
+               if used]
     try:
         for folder in folders:
             folder.mkdir(parents=True, exist_ok=True)

@@ -89,6 +89,16 @@ def step_costs(
     :func:`weight_matrix` (``None`` = identity): this runs every control step. One step gives
     floats; rows of a batch (``(B, n)``, ``(B, m)``, the vector env) give ``(B,)`` arrays.
     """
+    if type(error) is np.ndarray and error.ndim == 1 and type(command) is np.ndarray and command.dtype == np.float64:
+        # One step of an env (every control period): BLAS dots without quadratic_form's conversions and the
+        # ufunc's dispatch; the same products in the same order, so the same floats.
+        rate = command - previous_command
+        rate /= dt
+        return (
+            float(error.dot(error) if Q is None else error @ Q @ error),
+            float(command.dot(command) if R is None else command @ R @ command),
+            float(rate.dot(rate) if R is None else rate @ R @ rate),
+        )
     rates = (
         quadratic_form(error, Q),
         quadratic_form(command, R),

@@ -342,8 +342,9 @@ class TaskEnvCore(gym.Env):
         error = None if self._task_error is None else self._task_error(x, x_d)
         return self.obs_layout.pack(q, qdot, x, x_d, xdot_d, self.reference.centre, error)
 
-    def _is_success(self, error: np.ndarray) -> bool:
-        return bool(error @ error <= self.success_tolerance**2)
+    def _is_success(self, error: np.ndarray, squared: float | None = None) -> bool:
+        """‖e‖ within the tolerance (``squared``: ‖e‖², where the caller has it already)."""
+        return bool((error.dot(error) if squared is None else squared) <= self.success_tolerance**2)
 
     def _step_costs(self, command: np.ndarray) -> tuple[float, float, float]:
         """``(eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ)`` of the step about to apply ``command`` (eₖ: the error now)."""
@@ -363,7 +364,7 @@ class TaskEnvCore(gym.Env):
         return {
             "error": error.copy(), "error_norm": math.sqrt(squared), "cost_error": costs[0],
             "cost_effort": costs[1], "cost_smoothness": costs[2], "command": command.copy(), "t": self.time,
-            "is_success": bool(squared <= self.success_tolerance**2),
+            "is_success": self._is_success(error, squared),
         }
 
 
@@ -587,20 +588,6 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         if self.render_mode == "human":
             self.render()
         return self._output(self._obs), self._reset_info(q0)
-
-    def _step_costs(self, command: np.ndarray) -> tuple[float, float, float]:
-        """:meth:`TaskEnvCore._step_costs` for ``command`` from :class:`ActionCheck` (a float64 vector):
-        :func:`snac_gym.cost.step_costs` written out for the per-step path, the same products in the same
-        order (``v.dot(v)`` is ``v @ v``'s BLAS dot without the ufunc's overhead)."""
-        error = self._obs[self._error_slice]
-        rate = command - self._last_command
-        rate /= self.dt  # (uₖ − uₖ₋₁)/Δt, in the difference's array
-        Q, R = self.Q, self.R
-        return (
-            float(error.dot(error) if Q is None else error @ Q @ error),
-            float(command.dot(command) if R is None else command @ R @ command),
-            float(rate.dot(rate) if R is None else rate @ R @ rate),
-        )
 
     def _output(self, obs: np.ndarray) -> np.ndarray:
         """A copy of ``obs`` in the observation dtype, clipped into its bounds with ``finite_observation_bounds="clip"``."""

@@ -245,11 +245,8 @@ class PyBulletArm:
         self.body.set_joint_positions(q0)
 
     def apply(self, u: np.ndarray) -> None:
-        # SimulatedArm.command_velocities and PyBulletSim.step in one call (the env's per-step path)
-        body, client = self.body, self.sim.client
-        p.setJointMotorControlArray(body.body, body.joint_indices, p.VELOCITY_CONTROL, targetVelocities=u.tolist(),
-                                    forces=body.max_forces, physicsClientId=client)
-        p.stepSimulation(physicsClientId=client)
+        self.body.command_velocities(u)
+        self.sim.step()
 
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
         return self.body.joint_state()

@@ -16,7 +16,7 @@ import numpy as np
 from typing_extensions import Self
 
 from snac_gym.kinematics import Kinematics
-from snac_gym.real.connections import PROTECTIVE_STOP_LOCKOUT
+from snac_gym.real.connections import DASHBOARD_PORT, PROTECTIVE_STOP_LOCKOUT
 from snac_gym.real.emulator import protocol as p
 from snac_gym.real.emulator.arm import EmulatedArm
 from snac_gym.real.emulator.script import ControlScript
@@ -28,7 +28,7 @@ log = logging.getLogger("snac_gym.emulate_ur")
 
 #: Standard ports of a UR controller, as offsets from the dashboard port (29999).
 PORT_OFFSETS = {"dashboard": 0, "secondary": 3, "realtime": 4, "rtde": 5}
-STANDARD_PORT_BASE = 29999
+STANDARD_PORT_BASE = DASHBOARD_PORT
 #: Controller versions reported (``getControllerVersion``): CB3 runs 3.x, e-Series 5.x.
 VERSIONS = {"cb": (3, 15, 8, 106339), "e": (5, 11, 6, 108805)}
 #: The events that record a controller stop (``status()["safety_stop_at"]``).
