@@ -16,7 +16,10 @@ some code cannot take an exception:
   never raise;
 * numba's own Python code, which its compiled code and dispatchers call back (``_numba_unpickle``
   when a cached kernel first runs, the compiler): an exception raised there surfaces as a
-  ``SystemError`` with a traceback instead of the interrupt.
+  ``SystemError`` with a traceback instead of the interrupt;
+* an import made by a C extension's initialisation (mujoco's pybind11 modules import each other): the
+  extension turns the interrupt into ``ImportError("initialization failed")``, which a caller that
+  treats a failed import as a missing optional package would take for one, and the run would go on.
 
 So a handler that finds itself in such code sends the signal again, to be handled once that code
 has returned (numba's Python code runs only while a kernel is dispatched or compiled, never while
@@ -44,15 +47,37 @@ _CALLED_BACK = ("numba", "llvmlite")
 
 
 def cannot_raise_here(frame: types.FrameType | None) -> bool:
-    """Whether ``frame`` (a handler's second argument) runs inside a ``__del__`` or numba's own code."""
+    """Whether ``frame`` (a handler's second argument) runs inside a ``__del__``, numba's own code or a C
+    extension's initialisation."""
     while frame is not None:
-        if frame.f_code.co_name == "__del__":
+        if frame.f_code.co_name == "__del__" or _in_extension_init(frame):
             return True
         module = frame.f_globals.get("__name__") or ""
         if module.partition(".")[0] in _CALLED_BACK:
             return True
         frame = frame.f_back
     return False
+
+
+def _in_extension_init(frame: types.FrameType) -> bool:
+    # importlib runs an extension's init from the loader's own methods; only their frames name the loader
+    if frame.f_code.co_name not in ("exec_module", "create_module"):
+        return False
+    loader = frame.f_locals.get("self")
+    return type(loader).__name__ == "ExtensionFileLoader"
+
+
+def interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The interrupt ``exc`` was raised in place of (its cause or context, at any depth), if any: code that
+    converts every exception it meets (a C extension's init) hides one behind its own."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, KeyboardInterrupt):
+            return current
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return None
 
 
 def send_again(signum: int, delay: float = 0.001) -> None:

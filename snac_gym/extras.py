@@ -5,6 +5,8 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
+from snac_gym._signals import interrupt_behind
+
 
 class MissingExtraError(ImportError, ValueError):
     """An optional dependency is not installed. A ``ValueError`` too, so that every command that turns bad
@@ -16,8 +18,13 @@ def require(module: str, extra: str, what: str) -> ModuleType:
 
     Raises:
         MissingExtraError: If ``module`` (or one of its own dependencies) cannot be imported.
+        KeyboardInterrupt: If a stop signal came during the import, which an extension turned into an
+            ``ImportError``: an interrupted import is not a missing package.
     """
     try:
         return importlib.import_module(module)
     except ImportError as exc:
+        interrupt = interrupt_behind(exc)
+        if interrupt is not None:
+            raise interrupt from None
         raise MissingExtraError(f"{what} needs the '{extra}' extra: pip install -e \".[{extra}]\"") from exc
