@@ -102,6 +102,25 @@ def nearest_goals(
     m = kinematics.n_joints
     if q0.shape[1] != m or targets.shape != (len(q0), 3):
         raise ValueError(f"need q0 (B, {m}) and targets (B, 3), got {q0.shape} and {targets.shape}")
+    q, anchor, goal, count, per = _solve(kinematics, q0, targets, margin, starts)
+    residual = np.linalg.norm(kinematics.forward_batch(q) - goal, axis=1).reshape(count, per)
+    distance = np.sum((q - anchor) ** 2, axis=1).reshape(count, per)
+    converged = residual <= tol
+    room = np.min(np.minimum(q - kinematics.lower_limits, kinematics.upper_limits - q), axis=1).reshape(count, per)
+    roomy = converged & (room >= preferred_margin)
+    score = np.where(roomy, distance, np.where(converged, distance + 1e6, np.inf))
+    best = np.where(converged.any(axis=1), np.argmin(score, axis=1), np.argmin(residual, axis=1))
+    goals = q.reshape(count, per, m)[np.arange(count), best]
+    found = converged[np.arange(count), best]
+    return (goals[0], found[:1]) if single else (goals, found)
+
+
+def _solve(
+    kinematics: Any, q0: np.ndarray, targets: np.ndarray, margin: float, starts: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """The IK of every target from its ``q0`` and from every spread start: ``(q, anchor, goal, count, per)`` with
+    ``q``, ``anchor`` (θ₀ of each candidate) and ``goal`` stacked ``(count · per, ·)``, ``per`` = 1 + len(starts)."""
+    m = kinematics.n_joints
     low, high = kinematics.lower_limits + margin, kinematics.upper_limits - margin
     spread = goal_starts(kinematics.lower_limits, kinematics.upper_limits, margin=margin) if starts is None else starts
     count, per = len(q0), 1 + len(spread)
@@ -117,16 +136,39 @@ def nearest_goals(
             step = step + _PULL * (towards - _resolve(jac, np.einsum("bij,bj->bi", jac, towards)))
         norms = np.linalg.norm(step, axis=1, keepdims=True)
         q = np.clip(q + step * np.minimum(1.0, _TRUST / np.maximum(norms, 1e-300)), low, high)
-    residual = np.linalg.norm(kinematics.forward_batch(q) - goal, axis=1).reshape(count, per)
+    return q, anchor, goal, count, per
+
+
+def in_limit_goals(
+    kinematics: Any,
+    q0: np.ndarray,
+    targets: np.ndarray,
+    starts: np.ndarray,
+    margin: float = GOAL_MARGIN,
+    tol: float = GOAL_TOLERANCE,
+    separation: float = 0.5,
+) -> list[np.ndarray]:
+    """Per sample, every distinct in-limit configuration that reaches its target found from its ``q0`` and from
+    ``starts`` (S, m): one per IK branch and winding, each the one of its branch nearest ``q0`` (the null-space
+    pull), nearest first, ``(G, m)``. Two solutions closer than ``separation`` (max |Δθ|, rad) are one.
+
+    Args:
+        q0: ``(B, m)`` start configurations; targets: ``(B, 3)``.
+    """
+    q0 = np.atleast_2d(np.asarray(q0, dtype=float))
+    targets = np.atleast_2d(np.asarray(targets, dtype=float))
+    q, anchor, goal, count, per = _solve(kinematics, q0, targets, margin, starts)
+    converged = (np.linalg.norm(kinematics.forward_batch(q) - goal, axis=1) <= tol).reshape(count, per)
     distance = np.sum((q - anchor) ** 2, axis=1).reshape(count, per)
-    converged = residual <= tol
-    room = np.min(np.minimum(q - kinematics.lower_limits, kinematics.upper_limits - q), axis=1).reshape(count, per)
-    roomy = converged & (room >= preferred_margin)
-    score = np.where(roomy, distance, np.where(converged, distance + 1e6, np.inf))
-    best = np.where(converged.any(axis=1), np.argmin(score, axis=1), np.argmin(residual, axis=1))
-    goals = q.reshape(count, per, m)[np.arange(count), best]
-    found = converged[np.arange(count), best]
-    return (goals[0], found[:1]) if single else (goals, found)
+    q = q.reshape(count, per, -1)
+    goals = []
+    for i in range(count):
+        distinct: list[np.ndarray] = []
+        for j in np.argsort(np.where(converged[i], distance[i], np.inf), kind="stable")[: int(converged[i].sum())]:
+            if all(float(np.abs(q[i, j] - known).max()) >= separation for known in distinct):
+                distinct.append(q[i, j])
+        goals.append(np.array(distinct).reshape(-1, q.shape[2]))
+    return goals
 
 
 class GoalArms:
@@ -192,4 +234,4 @@ class GoalArms:
         return current, (moved - current) / self.dt
 
 
-__all__ = ["GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "goal_starts", "nearest_goals"]
+__all__ = ["GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "goal_starts", "in_limit_goals", "nearest_goals"]

@@ -169,18 +169,19 @@ def reference(summary: pd.DataFrame) -> str:
     optimal = summary.set_index("controller").loc["optimal"]
     starts = json.loads((DATA / "reference.json").read_text())
     counts = sorted({n for task in TASKS for n in starts[task]["starts_per_sample"]})
-    count = "–".join(map(str, (counts[0], counts[-1]))) if len(counts) > 1 else str(counts[0])
+    count = f"{counts[0]}–{counts[-1]}" if len(counts) > 1 else str(counts[0])
     one = [100 * starts[task]["one_optimum_share"] for task in TASKS]
     basins = (
-        "all of which ended in one local optimum on every sample"
+        "one local optimum on every sample"
         if min(one) == 100
-        else f"which ended in one local optimum on {one[0]:.0f} % / {one[1]:.0f} % of the samples"
+        else f"one local optimum on {one[0]:.1f} % / {one[1]:.1f} % of the samples"
     )
     median = "/".join(f"{optimal[f'{task}_optimal_bound_ratio_median']:.1f}" for task in TASKS)
     p95 = "/".join(f"{optimal[f'{task}_optimal_bound_ratio_p95']:.1f}" for task in TASKS)
     return (
-        f"the best of {count} contestant-free starts per sample ({basins}), within a median {median}×\n"
-        f"(95th percentile {p95}×, regulation/tracking) of a certified lower bound"
+        f"the best of {count} contestant-free starts per sample (rest, three feedback laws and the other IK branches "
+        f"that could win; {basins}), within a median {median}× (95th percentile {p95}×, regulation/tracking) of a "
+        "certified lower bound"
     )
 
 
@@ -224,7 +225,8 @@ def keep(run: Path) -> None:
         solved = rows["optimal_starts"].to_numpy()  # solved to the end; the others were screened into their basin
         starts[task] = {
             "starts_per_sample": sorted({int(n) for n in solved + rows["optimal_same_basin"].to_numpy()}),
-            "one_optimum_share": float((solved == 1).mean()),
+            # local optima within the solver's tolerance of each other are one
+            "one_optimum_share": float(((solved == 1) | (rows["optimal_local_spread"].to_numpy() <= 1e-6)).mean()),
             "spread_max": float(rows["optimal_local_spread"].max()),
         }
     (DATA / "reference.json").write_text(json.dumps(starts, indent=2) + "\n")

@@ -47,6 +47,7 @@ import pandas as pd
 
 from snac_gym.evaluation.execution.jobs import JobResult, kinematic_logs, policy_context
 from snac_gym.evaluation.reference import cache as reference_cache
+from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, branch_candidates, needs_branches
 from snac_gym.evaluation.samples import EvaluationSample
 from snac_gym.cost import CostConvention
 from snac_gym.metrics import check_metric_row, rollout_metrics
@@ -192,6 +193,7 @@ def multi_start_solve(
     margin: float = SCREEN_MARGIN,
     first: OptimalSolution | None = None,
     position_limits: tuple[np.ndarray, np.ndarray] | None = None,
+    branches: dict[str, np.ndarray] | None = None,
 ) -> MultiStart:
     """Solve from rest, then from every candidate command sequence whose basin could win.
 
@@ -206,7 +208,8 @@ def multi_start_solve(
     solve from it would end there again. The candidates are the reference's own (:data:`OWN_STARTS`),
     never the contestants it judges.
 
-    ``first``: the solve from rest, when already made.
+    ``first``: the solve from rest, when already made. ``branches``: starts on other IK branches
+    (:mod:`~snac_gym.evaluation.reference.branches`), screened as the candidates are.
     """
     solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
                               position_limits=position_limits)  # fmt: skip
@@ -218,7 +221,7 @@ def multi_start_solve(
         path = angles(commands, q0, dt)
         return any(float(np.abs(path - known).max()) < BASIN_RADIUS for known in paths)
 
-    for name, commands in candidates.items():
+    for name, commands in {**candidates, **(branches or {})}.items():
         screened, screened_cost, *_ = gauss_newton(
             q0, x_d, kinematics, float(dt), commands, GTOL, FTOL, SCREEN_ITERATIONS, convention, until=in_known_basin,
             gradient=False,
@@ -322,10 +325,49 @@ def check_reference_row(row: Any, task: str) -> None:
         value = row[name]
         if isinstance(value, bool) or not float(value).is_integer() or value < 0:
             raise ValueError(f"{name} = {value!r} is not a whole number ≥ 0")
-    if row["optimal_winner"] not in {REST_START, *(name for name, _ in OWN_STARTS)}:
+    winner = row["optimal_winner"]
+    if winner not in {REST_START, *(name for name, _ in OWN_STARTS)} and not (
+        isinstance(winner, str) and winner.startswith(BRANCH_PREFIX) and winner[len(BRANCH_PREFIX):].isdigit()
+    ):
         raise ValueError(f"optimal_winner = {row['optimal_winner']!r} is not a start of the reference")
     if row["optimal_limits"] not in REFERENCE_LIMITS:
         raise ValueError(f"optimal_limits = {row['optimal_limits']!r}")
+
+
+def solve_samples(
+    context: Any,
+    samples: Sequence[EvaluationSample],
+    seeds: Sequence[int],
+    x_d: np.ndarray,
+    dt: float,
+    convention: CostConvention,
+    position_limits: bool = True,
+    screen_margin: float = SCREEN_MARGIN,
+) -> list[MultiStart]:
+    """The reference of each sample (``x_d``: ``(B, K, n)``): the solve from rest, then every start of its own
+    (:data:`OWN_STARTS`, the other IK branches) whose basin could win (:func:`multi_start_solve`)."""
+    kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
+    q0s = [np.asarray(s.q0, dtype=float) for s in samples]
+    bounds = (kinematics.lower_limits, kinematics.upper_limits) if position_limits else None
+    steps = x_d.shape[1]
+    with single_threaded_blas():
+        rest = [solve_sample(q0, x_d[i], kinematics, dt, limits, convention=convention, position_limits=bounds)
+                for i, q0 in enumerate(q0s)]  # fmt: skip
+        candidates = own_start_commands(context, samples, steps, seeds, position_limits)
+        branches: list[dict[str, np.ndarray]] = [{} for _ in q0s]
+        if getattr(kinematics, "task_error", None) is None and context.layout.task_dim == 3:  # a 3-D target's branches
+            ends = [angles(r.commands, q0, dt)[-1] for r, q0 in zip(rest, q0s, strict=True)]
+            searched = [i for i, r in enumerate(rest) if needs_branches(kinematics, r, ends[i], x_d[i, -1])]
+            if searched:
+                found = branch_candidates(kinematics, [q0s[i] for i in searched], x_d[searched], dt, limits,
+                                          [ends[i] for i in searched], [rest[i].cost for i in searched])  # fmt: skip
+                for i, starts in zip(searched, found, strict=True):
+                    branches[i] = starts
+        return [
+            multi_start_solve(q0, x_d[i], kinematics, dt, limits, convention, candidates[i], screen_margin, rest[i],
+                              bounds, branches[i])
+            for i, q0 in enumerate(q0s)
+        ]  # fmt: skip
 
 
 def _solve_job(job: OptimalJob) -> Any:
@@ -334,17 +376,8 @@ def _solve_job(job: OptimalJob) -> Any:
     kinematics, limits = context.kinematics, np.asarray(context.velocity_limits, dtype=float)
     times = np.arange(job.steps) * job.dt
     x_d, _, _ = reference_trajectories([s.reference for s in job.samples], times, context.layout.task_dim)
-    q0s = [np.asarray(s.q0, dtype=float) for s in job.samples]
-    position_limits = (kinematics.lower_limits, kinematics.upper_limits) if job.position_limits else None
-    with single_threaded_blas():
-        rest = [solve_sample(q0, x_d[i], kinematics, job.dt, limits, convention=job.convention,
-                             position_limits=position_limits) for i, q0 in enumerate(q0s)]  # fmt: skip
-        candidates = own_start_commands(context, job.samples, job.steps, job.seeds, job.position_limits)
-        results = [
-            multi_start_solve(q0, x_d[i], kinematics, job.dt, limits, job.convention, candidates[i],
-                              job.screen_margin, rest[i], position_limits)
-            for i, q0 in enumerate(q0s)
-        ]  # fmt: skip
+    results = solve_samples(context, job.samples, job.seeds, x_d, job.dt, job.convention, job.position_limits,
+                            job.screen_margin)  # fmt: skip
     solutions = [result.solution for result in results]
     commands = np.stack([s.commands for s in solutions])
     rollouts = simulate_kinematic(
@@ -408,6 +441,7 @@ __all__ = [
     "add_optimality",
     "check_reference_row",
     "run_optimal_job",
+    "solve_samples",
     "multi_start_solve",
     "solve_sample",
     "trajectory_cost_and_gradient",

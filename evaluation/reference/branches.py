@@ -1,0 +1,121 @@
+"""The reference's starts on the other IK branches: one per distinct in-limit configuration that reaches the target.
+
+A local solve descends into the basin its start lies in, and on the arm's whole reach the cheapest basin can lie on
+another IK branch or the other way round a joint: on a held-out track sample (UR10, workspace, HJB cost) IPOPT's
+first long steps from rest flipped the elbow (Δθ₃ = 4.6 rad) and found an optimum 3.4 % below the one every start of
+the reference's own descended to, a KKT point that IPOPT started there confirms. So the reference also starts from
+each branch, drawn from the sample alone:
+
+* the goals (:func:`~snac_gym.joint_goal.in_limit_goals`): every distinct in-limit IK solution of the target (reach)
+  or of the ellipse's first point (track) found from θ₀ and from :data:`BRANCH_SPREAD` fixed configurations spread
+  over the joint box, each the one of its branch nearest θ₀;
+* a start per goal (:func:`branch_commands`): the ``joint-goal`` law towards it, u = sat(θ̇* + K(θ* − θ)), with the
+  virtual arm carrying θ* along a moving reference on that branch: a straight joint path, inside the limits.
+
+Most branches cannot win, and are dropped before any solve:
+
+* where the solve from rest stops short of the target (by more than :data:`REACHED`) with no limit active, the cost
+  prefers not to travel (Table I's Q = I): a farther branch, more travel, cannot win, and none is tried;
+* a goal within :data:`BRANCH_SEPARATION` of where an optimum already found ends is that optimum's branch;
+* a goal so far from θ₀ that the effort of getting there alone, (‖θ* − θ₀‖ − :data:`BRANCH_SEPARATION`)²/T
+  (Cauchy–Schwarz: ∫‖u‖² dt ≥ ‖∫u dt‖²/T over the horizon T, R = I), is above the best cost found cannot win.
+
+The rest are screened as the reference's other starts are (a few Gauss-Newton steps, stopped once in a known
+basin) and solved to the end only where they could win
+(:func:`snac_gym.evaluation.reference.optimum.multi_start_solve`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from snac_gym.joint_goal import GOAL_MARGIN, GoalArms, goal_starts, in_limit_goals
+
+#: Spread IK starts besides θ₀ (a fixed seed: a sample always gets the same goals).
+BRANCH_SPREAD = 23
+#: Two goals closer than this (max |Δθ|, rad) are one branch; a goal this close to an optimum's end is its branch.
+BRANCH_SEPARATION = 0.5
+#: K of the start's joint-space law, 1/s (the ``joint-goal`` controller's default).
+BRANCH_GAIN = 2.0
+#: The end-effector distance (m) from the reference's last point within which the solve from rest has travelled
+#: there: the cost pays for travel, and another branch might travel for less.
+REACHED = 0.01
+#: Name prefix of a branch start in ``optimal_winner``.
+BRANCH_PREFIX = "branch-"
+
+
+def branch_goals(kinematics: Any, q0s: np.ndarray, first_points: np.ndarray) -> list[np.ndarray]:
+    """Per sample, the distinct in-limit IK solutions of its first reference point, nearest θ₀ first ``(G, m)``."""
+    starts = goal_starts(kinematics.lower_limits, kinematics.upper_limits, count=BRANCH_SPREAD, margin=GOAL_MARGIN)
+    return in_limit_goals(kinematics, q0s, first_points, starts, separation=BRANCH_SEPARATION)
+
+
+def needs_branches(kinematics: Any, rest: Any, end: np.ndarray, last_point: np.ndarray) -> bool:
+    """Whether a sample's solve from rest (an :class:`~snac_gym.trajopt.OptimalSolution` ending at ``end``) leaves
+    room for another branch: it travelled to the target, or a limit stopped it (module docs)."""
+    return bool(rest.bounded) or float(np.linalg.norm(kinematics.forward(end) - last_point)) <= REACHED
+
+
+def worth_trying(goal: np.ndarray, q0: np.ndarray, horizon_s: float, ends: list[np.ndarray], best_cost: float) -> bool:
+    """Whether a branch's goal could hold a cheaper optimum (module docs): not a known optimum's branch, and not
+    so far that the effort of getting there alone costs more than ``best_cost``."""
+    if any(float(np.abs(goal - end).max()) < BRANCH_SEPARATION for end in ends):
+        return False
+    travel = max(0.0, float(np.linalg.norm(goal - q0)) - BRANCH_SEPARATION)
+    return travel**2 / horizon_s < best_cost
+
+
+def branch_commands(
+    kinematics: Any, q0s: np.ndarray, goals: np.ndarray, x_d: np.ndarray, dt: float, velocity_limits: np.ndarray
+) -> np.ndarray:
+    """The start towards each goal, batched: ``(B, K, m)`` for θ₀ ``(B, m)``, goals ``(B, m)`` and references
+    ``(B, K, 3)``. The virtual arm moves only where the reference does (a reach's target is fixed)."""
+    count, steps = x_d.shape[:2]
+    limits = np.asarray(velocity_limits, dtype=float)
+    moving = bool(np.any(x_d != x_d[:, :1]))
+    arms = GoalArms(kinematics, limits, dt, moving=moving)
+    arms.q, arms.found = np.array(goals, dtype=float), np.ones(count, dtype=bool)
+    xdot_d = np.gradient(x_d, dt, axis=1) if moving else np.zeros_like(x_d)
+    q = np.array(q0s, dtype=float)
+    commands = np.empty((count, steps, q.shape[1]))
+    for k in range(steps):
+        goal, velocity = arms.step(x_d[:, k], xdot_d[:, k])
+        u = velocity + BRANCH_GAIN * (goal - q)
+        u /= np.maximum(1.0, np.max(np.abs(u) / limits, axis=1, keepdims=True))
+        commands[:, k] = u
+        q = q + u * dt
+    return commands
+
+
+def branch_candidates(
+    kinematics: Any,
+    q0s: list[np.ndarray],
+    x_d: np.ndarray,
+    dt: float,
+    velocity_limits: np.ndarray,
+    rest_ends: list[np.ndarray],
+    rest_costs: list[float],
+) -> list[dict[str, np.ndarray]]:
+    """Per sample, the branch starts worth screening (:func:`worth_trying` against the solve from rest), by name."""
+    steps = x_d.shape[1]
+    horizon = steps * dt
+    goals = branch_goals(kinematics, np.array(q0s), x_d[:, 0])
+    kept = [(i, j, goal) for i, found in enumerate(goals) for j, goal in enumerate(found)
+            if worth_trying(goal, q0s[i], horizon, [rest_ends[i]], rest_costs[i])]  # fmt: skip
+    candidates: list[dict[str, np.ndarray]] = [{} for _ in q0s]
+    if not kept:
+        return candidates
+    rows = np.array([i for i, _, _ in kept])
+    commands = branch_commands(kinematics, np.array(q0s)[rows], np.array([g for _, _, g in kept]), x_d[rows], dt,
+                               velocity_limits)  # fmt: skip
+    for (i, j, _), start in zip(kept, commands, strict=True):
+        candidates[i][f"{BRANCH_PREFIX}{j}"] = start
+    return candidates
+
+
+__all__ = [
+    "BRANCH_PREFIX", "BRANCH_SEPARATION", "BRANCH_SPREAD", "REACHED", "branch_candidates", "branch_commands",
+    "branch_goals", "needs_branches", "worth_trying",
+]  # fmt: skip

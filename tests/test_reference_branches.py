@@ -1,0 +1,105 @@
+"""The reference's starts on the other IK branches (evaluation/reference/branches.py): the goals, the starts, what
+is dropped before a solve, and a held-out sample where every other start descended to a dearer optimum."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from snac_gym.cost import CostConvention
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference.branches import (
+    BRANCH_SEPARATION,
+    branch_commands,
+    branch_goals,
+    worth_trying,
+)
+from snac_gym.evaluation.reference.optimum import check_reference_row, solve_samples
+from snac_gym.evaluation.samples import generate_samples
+from snac_gym.joint_goal import nearest_goals
+from snac_gym.kinematics import shared_kinematics
+from snac_gym.rollout import reference_trajectories
+from snac_gym.sampling import SampleSpace
+from snac_gym.tasks import get_task
+
+DT = 1.0 / 125.0
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    return shared_kinematics("ur10")
+
+
+def _workspace(kinematics, task, seed, indices, steps=None):
+    samples = generate_samples(kinematics, SampleSpace.workspace(kinematics), seed, task, indices)
+    steps = steps or round(get_task(task).horizon_s / DT)
+    x_d = reference_trajectories([s.reference for s in samples], np.arange(steps) * DT, 3)[0]
+    return samples, x_d
+
+
+def test_the_goals_are_distinct_in_limit_solutions_nearest_first(ur10):
+    samples, x_d = _workspace(ur10, "reach", 5, range(12), steps=2)
+    q0s = np.array([s.q0 for s in samples])
+    goals = branch_goals(ur10, q0s, x_d[:, 0])
+    nearest, found = nearest_goals(ur10, q0s, x_d[:, 0])
+    assert sum(len(g) > 1 for g in goals) >= 10  # the arm's whole reach: most targets have several branches
+    for i, found_goals in enumerate(goals):
+        assert len(found_goals) >= 1
+        np.testing.assert_allclose(ur10.forward_batch(found_goals), np.repeat(x_d[i, :1], len(found_goals), 0), atol=1e-8)
+        assert (found_goals >= ur10.lower_limits).all() and (found_goals <= ur10.upper_limits).all()
+        distances = np.linalg.norm(found_goals - q0s[i], axis=1)
+        assert (np.diff(distances) >= 0).all()
+        for a in range(len(found_goals)):
+            for b in range(a):
+                assert np.abs(found_goals[a] - found_goals[b]).max() >= BRANCH_SEPARATION
+        if found[i]:  # the joint-goal controller's goal is one of them, or as near
+            assert distances[0] <= np.linalg.norm(nearest[i] - q0s[i]) + 1e-9
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_a_branch_start_keeps_every_limit_and_gets_there(ur10, task):
+    samples, x_d = _workspace(ur10, task, 5, range(4))
+    q0s = np.array([s.q0 for s in samples])
+    goals = np.array([g[-1] for g in branch_goals(ur10, q0s, x_d[:, 0])])  # the farthest branch of each
+    commands = branch_commands(ur10, q0s, goals, x_d, DT, ur10.velocity_limits)
+    assert (np.abs(commands) <= ur10.velocity_limits * (1 + 1e-12)).all()
+    paths = q0s[:, None] + np.cumsum(commands, axis=1) * DT
+    assert (paths >= ur10.lower_limits - 1e-9).all() and (paths <= ur10.upper_limits + 1e-9).all()
+    errors = np.linalg.norm(ur10.forward_batch(paths[:, -1]) - x_d[:, -1], axis=1)
+    assert errors.max() < 1e-3, errors
+
+
+def test_a_goal_on_a_known_branch_or_too_far_to_pay_for_is_dropped():
+    q0 = np.zeros(6)
+    goal = np.array([2.0, 0, 0, 0, 0, 0])
+    assert worth_trying(goal, q0, 10.0, [], best_cost=1.0)  # (2 − 0.5)²/10 = 0.225 < 1
+    assert not worth_trying(goal, q0, 10.0, [], best_cost=0.2)  # the travel alone costs more than the best
+    assert not worth_trying(goal, q0, 10.0, [goal + 0.4], best_cost=1.0)  # the branch an optimum already ends on
+
+
+def test_a_winning_branch_is_a_start_of_the_reference(reference_job):
+    from snac_gym.evaluation.reference.optimum import run_optimal_job
+
+    row = run_optimal_job(reference_job).metrics.iloc[0].to_dict()
+    check_reference_row({**row, "optimal_winner": "branch-3"}, "reach")
+    for name in ("branch-x", "branch-", "lqr2"):
+        with pytest.raises(ValueError, match=f"optimal_winner = '{name}' is not a start of the reference"):
+            check_reference_row({**row, "optimal_winner": name}, "reach")
+
+
+def test_the_elbow_flip_ipopt_found_from_rest_is_the_reference_now(ur10):
+    """UR10, whole workspace, HJB cost (Q = 4I), track seed 101 sample 7 (a held-out audit's seed): the solve from
+    rest and the three feedback starts all descend to 6.6798501, with wrist 2 against its limit; IPOPT from rest
+    flips the elbow (Δθ₃ = 4.6 rad) to 6.4559152, a KKT point of the project's solver too. The elbow's branch is a
+    start of the reference now."""
+    samples, x_d = _workspace(ur10, "track", 101, [7])
+    context = policy_context("ur10", DT, "track")
+    (reference,) = solve_samples(context, samples, [7], x_d, DT, CostConvention("hjb", "rest", 4.0))
+    assert reference.winner.startswith("branch-")
+    assert reference.solution.cost <= 6.4559152 * (1 + 1e-6), reference.solution.cost
+    ipopt = pytest.importorskip("snac_gym.evaluation.reference.ipopt", exc_type=ImportError)
+    pytest.importorskip("casadi")
+    rest = ipopt.solve_with_ipopt(samples[0].q0, x_d[0], ur10, DT, ur10.velocity_limits,
+                                  position_limits=(ur10.lower_limits, ur10.upper_limits),
+                                  convention=CostConvention("hjb", "rest", 4.0))  # fmt: skip
+    assert reference.solution.cost <= rest.cost * (1 + 1e-6)
