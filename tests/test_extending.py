@@ -74,7 +74,8 @@ def test_a_task_name_or_code_is_registered_once(hover):
     clash = type("Clash", (type(hover),), {"name": "clash"})
     with pytest.raises(ValueError, match="sample code 90 is already used by 'hover'"):
         register_task(clash())
-    bare = type("Bare", (Task,), {"name": "bare", "code": 91})
+    methods = {name: lambda self, *args: None for name in Task.__abstractmethods__}  # the methods, not the attributes
+    bare = type("Bare", (Task,), {"name": "bare", "code": 91, **methods})
     with pytest.raises(ValueError, match="Bare does not set \\['label', 'option_key'"):
         register_task(bare())
 
@@ -122,3 +123,16 @@ def test_a_new_controller_runs_in_the_env_and_the_kinematic_engine(resolved_rate
         for g in (1.0, 4.0)
     )
     assert np.abs(strong.commands).max() > np.abs(weak.commands).max()  # the knob scales effort
+
+
+def test_a_task_that_leaves_out_part_of_the_contract_cannot_be_made():
+    from snac_gym.tasks.base import Task
+
+    class Half(Task):
+        name = "half"
+
+        def sample(self, kinematics, rng, space):  # the other five are missing
+            raise AssertionError
+
+    with pytest.raises(TypeError, match="abstract methods csv_cells, option_value, paper, parse, read_csv_reference"):
+        Half()

@@ -20,7 +20,7 @@ from snac_gym._signals import STOP_SIGNALS, SignalGuard, TerminationSignal, exit
 from snac_gym.policies import available_policies
 from snac_gym.progress import wants_lines
 from snac_gym.robots import robot_names
-from snac_gym.tasks import task_names
+from snac_gym.tasks import get_task, task_names
 from snac_gym.ur_models import UR_MODELS
 
 # The help lists what is registered when the command starts (built-ins and the entry points of
@@ -298,8 +298,9 @@ def _numbers(option: str, text: str, count: int) -> list[float]:
 
 
 def _real_reference(task: str, target: str | None, centre: str | None, radius: float | None) -> Any:
-    """The reference option of ``real``'s task from its options (``None``: the paper's)."""
-    if task == "reach":
+    """The reference option of ``real``'s task from its options (``None``: the paper's): a fixed target or a circle,
+    as the task's reference moves or not."""
+    if not get_task(task).moving_reference:
         if centre is not None or radius is not None:
             raise ValueError("--ellipse-centre and --ellipse-radius are for --task track; reach takes --target")
         return None if target is None else _numbers("--target", target, 3)

@@ -111,8 +111,8 @@ class SNACIRLPolicy(BasePolicy):
         seed: int | None = None,
     ) -> None:
         super().__init__(env)
-        if self.task not in ("reach", "track"):
-            raise ValueError(f"snac-irl drives the position tasks (reach, track), not {self.task!r}")
+        if self.kinematics.task_dim != 3 or getattr(self.kinematics, "task_error", None) is not None:
+            raise ValueError(f"snac-irl drives the 3-D position tasks (reach, track), not {self.task!r}")
         n, m = self.kinematics.task_dim, self.kinematics.n_joints
         self.task_dim, self.n_joints = n, m
         self.q_scale = positive_float("q_scale", q_scale)

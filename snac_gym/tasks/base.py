@@ -9,6 +9,7 @@ subclasses :class:`Task` plus one :func:`snac_gym.tasks.register_task` call.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
@@ -35,8 +36,9 @@ class CellReader(Protocol):
         """An error naming the row and ``column``."""
 
 
-class Task:
-    """A named reference family (subclass it; see :mod:`snac_gym.tasks.reach` for a small one).
+class Task(ABC):
+    """A named reference family (subclass it; see :mod:`snac_gym.tasks.reach` for a small one): a subclass
+    implements the six abstract methods (references drawn, the paper's, parsed, written back, and the CSV's).
 
     Class attributes:
         name: The task's name (``--task``, the ``task`` column of every results file).
@@ -105,25 +107,25 @@ class Task:
         return Kinematics(robot)
 
     # -- references ------------------------------------------------------------------------
+    @abstractmethod
     def sample(self, kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> Reference:
         """A random reference from ``space``, drawn from ``rng`` (the envs' and the evaluator's)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def paper(self) -> Reference:
         """The paper's reference for this task."""
-        raise NotImplementedError
 
+    @abstractmethod
     def parse(self, value: Any, kinematics: Kinematics) -> Reference:
         """The reference of the reset option ``value``, checked to be reachable.
 
         Raises:
             ValueError: If it is malformed or unreachable.
         """
-        raise NotImplementedError
 
+    @abstractmethod
     def option_value(self, reference: Reference) -> Any:
         """The reset-option value (JSON types) that :meth:`parse` turns back into ``reference``."""
-        raise NotImplementedError
 
     def reset_options(self, q0: Sequence[float], reference: Reference) -> dict[str, Any]:
         """Env ``reset`` options that pin the start pose and the reference."""
@@ -151,17 +153,17 @@ class Task:
         return round(self.horizon_s / dt)
 
     # -- samples CSV -------------------------------------------------------------------------
+    @abstractmethod
     def csv_cells(self, reference: Reference) -> dict[str, float]:
         """The values of :attr:`csv_columns` for ``reference``."""
-        raise NotImplementedError
 
+    @abstractmethod
     def read_csv_reference(self, cells: CellReader) -> Reference:
         """The reference of one CSV row (unreachability is checked by the caller).
 
         Raises:
             ValueError: From ``cells.error`` naming the offending column.
         """
-        raise NotImplementedError
 
     def csv_reference_span(self) -> str:
         """The columns an unreachable reference is reported against, e.g. ``"target_0..target_2"``."""
