@@ -25,16 +25,10 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from snac_gym.errors import DamagedEntry
+
 #: Format of an entry; an entry of another format is damaged (computed again).
 ENTRY_FORMAT = 1
-
-
-class DamagedEntry(ValueError):
-    """A cache entry that is unreadable, of another key, or whose checksum or values do not hold."""
-
-    def __init__(self, path: Path, reason: str) -> None:
-        super().__init__(f"{path}: {reason}")
-        self.path, self.reason = Path(path), reason
 
 
 def _canonical(key: Any, payload: Any) -> str:

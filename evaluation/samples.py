@@ -48,6 +48,8 @@ from snac_gym.outputs import written_whole
 from snac_gym.sampling import SampleSpace, check_reachable, sample_seed_pose
 from snac_gym.tasks import Sample, all_tasks, get_task, task_names
 
+from snac_gym.errors import SampleFileError
+
 _POLICY_SEED_KEY = 1  # third spawn-key entry of a sample's policy seed
 
 
@@ -55,10 +57,6 @@ _POLICY_SEED_KEY = 1  # third spawn-key entry of a sample's policy seed
 MAX_SAMPLE_ID = np.iinfo(np.int64).max
 #: Longest cell accepted, characters: a number needs a few dozen; a longer cell is not a sample.
 MAX_CELL_CHARS = 1000
-
-
-class SampleFileError(ValueError):
-    """A samples CSV that cannot be used; the message names the file, row and column."""
 
 
 #: Largest samples file read, bytes: 64 MiB, about 250 000 rows (a row of Table I's file is about

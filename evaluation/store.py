@@ -45,9 +45,7 @@ from snac_gym.outputs import OutputFolderError, usable_out_folder, write_text_wh
 from snac_gym.evaluation.samples import SampleFileError
 from snac_gym.rollout import write_log
 
-
-class RunDirectoryError(RuntimeError):
-    """The output directory cannot be used: it holds another run, is in use, or does not belong to this run."""
+from snac_gym.errors import RunDirectoryError
 
 
 #: Parquet schema-metadata keys of a part file: the run it belongs to and the sample ids it holds.

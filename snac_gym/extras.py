@@ -7,10 +7,7 @@ from types import ModuleType
 
 from snac_gym._signals import interrupt_behind
 
-
-class MissingExtraError(ImportError, ValueError):
-    """An optional dependency is not installed. A ``ValueError`` too, so that every command that turns bad
-    input into one line (``snac-gym demo``, ``evaluate``, ``bench``) prints it as such, not as a traceback."""
+from snac_gym.errors import MissingExtraError
 
 
 def require(module: str, extra: str, what: str) -> ModuleType:

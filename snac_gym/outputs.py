@@ -16,9 +16,7 @@ import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-
-class OutputFolderError(ValueError):
-    """An ``--out`` that cannot be used: empty, a file, not creatable or not writable."""
+from snac_gym.errors import OutputFolderError, OutputWriteError
 
 
 def _kind(path: Path) -> str:
@@ -49,10 +47,6 @@ def usable_out_folder(root: Path) -> None:
         raise OutputFolderError(f"cannot create the output folder {root}: {exc.strerror or exc}") from None
     if not os.access(root, os.W_OK | os.X_OK):
         raise OutputFolderError(f"the output folder {root} is not writable; choose another --out")
-
-
-class OutputWriteError(OSError):
-    """A file that could not be written: the message names it and the free space of its disk."""
 
 
 def _free_space(folder: Path) -> str:

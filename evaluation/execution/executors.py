@@ -44,9 +44,7 @@ from snac_gym.policies import registry
 from snac_gym.robots import ROBOTS
 from snac_gym.tasks import TASKS
 
-
-class ExecutorStopped(RuntimeError):
-    """The executor was terminated (an interrupted or failed run) while a job was queued or running."""
+from snac_gym.errors import ExecutorStopped
 
 
 class SerialExecutor:

@@ -34,6 +34,8 @@ from snac_gym.evaluation.reference.cache import cache_folder
 from snac_gym.evaluation.samples import EvaluationSample, policy_seed
 from snac_gym.evaluation.store import RunStore, settings_key
 
+from snac_gym.errors import Cancelled
+
 if TYPE_CHECKING:
     from snac_gym.evaluation.controllers import ControllerSpec
     from snac_gym.evaluation.execution.progress import Progress
@@ -51,10 +53,6 @@ SEARCH_PRIORITY, PASS_PRIORITY = 0, 1
 
 #: One full pass: task, controller, and the constructor arguments (the knob value included).
 Pass = tuple[str, "ControllerSpec", dict[str, Any]]
-
-
-class Cancelled(RuntimeError):
-    """A pipeline stopped because another one failed or the run was interrupted."""
 
 
 class EvaluationRun:

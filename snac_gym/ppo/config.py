@@ -53,6 +53,8 @@ from snac_gym.sampling import REGIONS as SAMPLE_REGIONS
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task, task_names
 
+from snac_gym.errors import ConfigError
+
 CONFIG_VERSION = 1
 PACKAGE = "snac_gym.ppo"
 T = TypeVar("T")
@@ -133,10 +135,6 @@ def resolve_config(
 
 
 # -- the schema ----------------------------------------------------------------------------------
-class ConfigError(ValueError):
-    """A config value outside its schema; the message names the field by its dotted path."""
-
-
 #: SB3 seeds NumPy's global generator with the seed (``np.random.seed``: 0 to 2**32 − 1).
 MAX_SEED = 2**32 - 1
 #: Widest hidden layer accepted: 4096 units already make a 16 M-weight layer; wider is a typo.

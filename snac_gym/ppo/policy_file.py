@@ -37,17 +37,11 @@ from snac_gym.outputs import write_whole
 from snac_gym.observation import ObservationLayout
 from snac_gym.ppo.features import FeatureSpec, GoalState, action_size, command, feature_size, observation_features
 
+from snac_gym.errors import MissingPolicyFileError, PolicyFileError
+
 FORMAT_NAME = "snac-gym-ppo-policy"
 FORMAT_VERSION = 1
 ACTIVATIONS = ("tanh", "relu")
-
-
-class PolicyFileError(ValueError):
-    """A policy file that cannot be used: corrupt, of another format, task or observation layout."""
-
-
-class MissingPolicyFileError(PolicyFileError, FileNotFoundError):
-    """The policy file does not exist."""
 
 
 def _checksum(arrays: dict[str, np.ndarray]) -> str:

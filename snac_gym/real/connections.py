@@ -30,6 +30,8 @@ from snac_gym.real.rtde_client import HEADER, RECONNECT_MARKERS, as_arrays, writ
 from snac_gym.sampling import nominal_configuration
 from snac_gym.ur_models import SERIES_FREQUENCY  # the controller generations' rates, re-exported here
 
+from snac_gym.errors import ConnectionFailure
+
 #: Safety states a connection reports (``info["safety_state"]`` of the real env).
 NORMAL = "normal"
 PROTECTIVE_STOP = "protective_stop"
@@ -49,10 +51,6 @@ def wait_until(deadline: float, spin: float = 5e-4) -> None:
         time.sleep(remaining - spin)
     while time.perf_counter() < deadline:
         pass
-
-
-class ConnectionFailure(ConnectionError):
-    """The arm could not be reached, refused the connection, or dropped it mid-episode."""
 
 
 @runtime_checkable

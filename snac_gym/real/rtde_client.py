@@ -30,6 +30,8 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from snac_gym.errors import LinkDown
+
 #: Frame header: the length of the pickle that follows.
 HEADER = struct.Struct(">I")
 #: A line of ur_rtde's output that says it is reconnecting by itself (lower-cased match).
@@ -38,10 +40,6 @@ NORMAL, PROTECTIVE_STOP, EMERGENCY_STOP = "normal", "protective_stop", "emergenc
 #: Seconds without a new package, while waiting for rest after ``speedStop``, after which the state counts as
 #: stale (12 periods at 125 Hz, 50 at 500 Hz: beyond the stale rule's 3, margin for a busy host).
 STALE_WHILE_STOPPING_S = 0.1
-
-
-class LinkDown(Exception):
-    """The link to the controller is down: the parent ends the run (the controller's watchdog stops the arm)."""
 
 
 def write_frame(fd: int, message: Any) -> None:

@@ -18,9 +18,7 @@ import pandas as pd
 
 from snac_gym.rollout.log import log_array, log_columns
 
-
-class RolloutError(RuntimeError):
-    """A policy returned an unusable command, or an episode ended early; the message says where."""
+from snac_gym.errors import RolloutError  # noqa: F401  (its name here before snac_gym.errors)
 
 
 @dataclass

@@ -27,6 +27,8 @@ import re
 import struct
 from dataclasses import dataclass
 
+from snac_gym.errors import ProtocolError
+
 RTDE_REQUEST_PROTOCOL_VERSION = 86  # 'V'
 RTDE_GET_URCONTROL_VERSION = 118  # 'v'
 RTDE_TEXT_MESSAGE = 77  # 'M'
@@ -161,10 +163,6 @@ INPUT_TYPES: dict[str, str] = {
 }
 _REGISTER = re.compile(r"^(input|output)_(int|double|bit)_register_(\d+)$")
 _REGISTER_TYPES = {"int": "INT32", "double": "DOUBLE", "bit": "BOOL"}
-
-
-class ProtocolError(ValueError):
-    """The client sent something a UR controller would not accept."""
 
 
 def register_type(name: str, direction: str) -> str | None:

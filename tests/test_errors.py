@@ -1,0 +1,54 @@
+"""One exception base: every exception snac-gym raises on purpose is a SnacGymError (snac_gym/errors.py), and the
+built-in exception its meaning is closest to, under its old module names too."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+from snac_gym import errors
+
+ROOT = Path(__file__).resolve().parents[1]
+OLD_HOMES = {
+    "snac_gym.outputs": ["OutputFolderError", "OutputWriteError"],
+    "snac_gym.rollout.batch": ["RolloutError"],
+    "snac_gym.real.emulator.protocol": ["ProtocolError"],
+    "snac_gym.real.connections": ["ConnectionFailure"],
+    "snac_gym.ppo.config": ["ConfigError"],
+    "snac_gym.ppo.policy_file": ["PolicyFileError", "MissingPolicyFileError"],
+    "snac_gym.extras": ["MissingExtraError"],
+    "snac_gym.evaluation.samples": ["SampleFileError"],
+    "snac_gym.evaluation.cache_entry": ["DamagedEntry"],
+    "snac_gym.evaluation.store": ["RunDirectoryError"],
+    "snac_gym.evaluation.execution.executors": ["ExecutorStopped"],
+    "snac_gym.evaluation.execution.passes": ["Cancelled"],
+}
+
+
+@pytest.mark.parametrize("name", [n for n in errors.__all__ if n != "SnacGymError"])
+def test_every_exception_is_a_snac_gym_error(name):
+    assert issubclass(getattr(errors, name), errors.SnacGymError)
+
+
+@pytest.mark.parametrize("module", sorted(OLD_HOMES))
+def test_the_old_names_are_the_same_classes(module):
+    loaded = importlib.import_module(module)
+    for name in OLD_HOMES[module]:
+        assert getattr(loaded, name) is getattr(errors, name)
+
+
+def test_no_public_exception_class_is_defined_outside_errors_py():
+    found = []
+    for path in [*ROOT.joinpath("snac_gym").rglob("*.py"), *ROOT.joinpath("evaluation").rglob("*.py"),
+                 *ROOT.joinpath("baselines").rglob("*.py")]:  # fmt: skip
+        if path.name == "errors.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+                bases = {getattr(b, "id", getattr(b, "attr", "")) for b in node.bases}
+                if bases & {"Exception", "ValueError", "RuntimeError", "OSError", "ConnectionError", "ImportError"}:
+                    found.append(f"{path.relative_to(ROOT)}: {node.name}")
+    assert found == [], found
