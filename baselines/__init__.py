@@ -23,7 +23,9 @@ joint-velocity limits and name their effort knob in the class attribute
 ``effort_parameter`` (``"gain"``; ``"q_scale"`` for lqr and mpc). Equations, assumptions, default gains and
 measured figures: ``docs/baselines.md`` (``docs/qp-ik.md`` for pink and mink)."""
 
-if __name__ == "baselines":  # this folder imported as a top-level package (from the repository's root, or an old import)
+if (
+    __name__ == "baselines"
+):  # this folder imported as a top-level package (from the repository's root, or an old import)
     raise ImportError(
         "snac-gym's baselines package is imported as snac_gym.baselines since 0.2.0 "
         "(`from snac_gym.baselines import ...`); the top-level name `baselines` is no longer installed"

@@ -12,8 +12,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-
 from snac_gym.baselines._common import ResolvedRatePolicy, positive_float
+
 from snac_gym.kinematics import damped_least_squares
 
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 import numpy as np
-
 from snac_gym.baselines._common import ObservationReader, scale_into_box
+
 from snac_gym.joint_goal import TRACKING_ROOM, GoalArms
 from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 
@@ -47,8 +47,13 @@ class JointGoalPolicy(BasePolicy):
         self._reader = ObservationReader(self)
         slices = self.layout.slices
         self._x_d, self._xdot_d = (Ellipsis, slices["x_d"]), (Ellipsis, slices["xdot_d"])
-        self.arms = GoalArms(self.kinematics, self.velocity_limits, self.dt,
-                             preferred_margin=TRACKING_ROOM if self.tracking else 0.0, moving=self.tracking)
+        self.arms = GoalArms(
+            self.kinematics,
+            self.velocity_limits,
+            self.dt,
+            preferred_margin=TRACKING_ROOM if self.tracking else 0.0,
+            moving=self.tracking,
+        )
         self._started = False
 
     def reset(self, seed: int | None = None) -> None:

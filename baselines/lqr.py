@@ -12,8 +12,8 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-
 from snac_gym.baselines._common import ObservationReader, scale_into_box
+
 from snac_gym.joint_limits import make_limit_box
 from snac_gym.optimality import FrozenJacobianLQR
 from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits

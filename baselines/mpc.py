@@ -46,13 +46,24 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
 from snac_gym.baselines._common import ObservationReader, clip_to_box
-from snac_gym.trajopt import ARMIJO, BOUNDARY_FRACTION, Barrier, Limits, START_SHRINK, errors_and_jacobians, gauss_newton_direction, next_angles, position_bounds, theta_system_base
+
 from snac_gym.cost import COSTS, UDOT_STARTS, CostConvention, cost_and_gradient
 from snac_gym.joint_limits import make_limit_box
 from snac_gym.optimality import FrozenJacobianLQR
 from snac_gym.policies.base import BasePolicy, positive_float
+from snac_gym.trajopt import (
+    ARMIJO,
+    BOUNDARY_FRACTION,
+    START_SHRINK,
+    Barrier,
+    Limits,
+    errors_and_jacobians,
+    gauss_newton_direction,
+    next_angles,
+    position_bounds,
+    theta_system_base,
+)
 
 #: (horizon s, block) when not given, per cost: measured in docs/mpc.md. The u̇ term of ``table1`` makes the
 #: command itself a slow state (time scale ~1 s) that the terminal cost does not price, and a coarse grid
@@ -68,7 +79,6 @@ DECREMENT_TOLERANCE = 1e-12
 #: start's V, so the barrier shifts the plan by about that share of its cost (the reference drives its μ
 #: to 1e-7·V; a re-solve of two steps cannot, so it keeps one small μ).
 BARRIER_SHARE = 1e-3
-
 
 
 def _positive_int(name: str, value: Any) -> int:
@@ -280,7 +290,9 @@ class MPCPolicy(BasePolicy):
         tau = np.arange(self.steps + 1) * self.solver_dt
         phase = omega[:, None] * tau[None]  # (B, N+1)
         # Harmonic motion r̈ = −ω²r from (r, ṙ): exact for an ellipse; sin(ωτ)/ω = τ·sinc(ωτ/π) stays finite at ω = 0.
-        ahead = np.cos(phase)[..., None] * radius[:, None] + (tau * np.sinc(phase / np.pi))[..., None] * velocity[:, None]
+        ahead = (
+            np.cos(phase)[..., None] * radius[:, None] + (tau * np.sinc(phase / np.pi))[..., None] * velocity[:, None]
+        )
         end = phase[:, -1:]
         end_velocity = np.cos(end) * velocity - (omega[:, None] * np.sin(end)) * radius  # ṙ(τ) of the same motion
         return obs[:, None, self.layout.slices["x_c"]] + ahead, end_velocity
@@ -369,7 +381,9 @@ class MPCPolicy(BasePolicy):
         values, grads, every = np.empty(len(rows)), np.empty_like(plans), []
         for b, i in enumerate(rows):
             mu, limit = self._mu[i], limits[i]
-            slacks = np.stack(limit.slacks(plans[b], next_angles(plans[b], q0[i], self.solver_dt)))  # one array: fewer calls
+            slacks = np.stack(
+                limit.slacks(plans[b], next_angles(plans[b], q0[i], self.solver_dt))
+            )  # one array: fewer calls
             every.append(slacks)
             if slacks.min() <= 0.0:
                 values[b], grads[b] = np.inf, 0.0
@@ -421,7 +435,9 @@ class MPCPolicy(BasePolicy):
         values, grads = np.empty(count), np.empty((count, steps, m))
         smoothness = convention.smoothness_weight / self.solver_dt
         for b, i in enumerate(rows):
-            values[b], grads[b] = cost_and_gradient(errors[b, :steps], jacobians[b, :steps], plans[b], self.solver_dt, convention)
+            values[b], grads[b] = cost_and_gradient(
+                errors[b, :steps], jacobians[b, :steps], plans[b], self.solver_dt, convention
+            )
             if smoothness and convention.udot_start == "rest":
                 # cost_and_gradient takes u₋₁ = 0; the jump is from the last command: (w/Δt_s)(|u₀ − u₋₁|² − |u₀|²).
                 last = self._previous[i]
@@ -436,8 +452,15 @@ class MPCPolicy(BasePolicy):
         return values, grads, jacobians
 
     def _direction(
-        self, base: np.ndarray, jacobians: np.ndarray, grad: np.ndarray, terminal: Any, i: int,
-        q0: np.ndarray, plan: np.ndarray, limits: list[Limits] | None,
+        self,
+        base: np.ndarray,
+        jacobians: np.ndarray,
+        grad: np.ndarray,
+        terminal: Any,
+        i: int,
+        q0: np.ndarray,
+        plan: np.ndarray,
+        limits: list[Limits] | None,
     ) -> tuple[np.ndarray, float]:
         """The Gauss-Newton step of the block-banded θ-system, with the terminal Hessian 2J_NᵀP̄J_N in θ_N's block
         and, with the limits, the barrier's Σ = μ/s²; and the largest step fraction (≤ 1) that keeps every
@@ -485,7 +508,9 @@ class MPCPolicy(BasePolicy):
         pending = np.arange(len(rows))
         for _ in range(MAX_BACKTRACKS):
             trial = plan[rows[pending]] + alpha[pending, None, None] * steps[pending]
-            trial_value, trial_grad, trial_jacobians = self._evaluate(rows[pending], q0, x_d, trial, terminal, convention)
+            trial_value, trial_grad, trial_jacobians = self._evaluate(
+                rows[pending], q0, x_d, trial, terminal, convention
+            )
             if limits is not None:
                 barrier, barrier_grad, slacks = self._barrier(rows[pending], q0, trial, limits)
                 trial_value, trial_grad = trial_value + barrier, trial_grad + barrier_grad

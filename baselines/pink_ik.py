@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-
 from snac_gym.baselines.qp_ik import QPIKPolicy
 
 

@@ -67,8 +67,8 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-
 from snac_gym.baselines._common import ObservationReader, clip_to_box
+
 from snac_gym.extras import MissingExtraError, require
 from snac_gym.policies.base import BasePolicy, non_negative_float, positive_float
 
@@ -207,7 +207,12 @@ class QPIKPolicy(BasePolicy):
         self._configuration.update(q)
         self._task.error = error
         return self._solve_ik(
-            self._configuration, self._tasks, self.dt, solver=SOLVER, damping=self.regularisation, limits=self._limits,
+            self._configuration,
+            self._tasks,
+            self.dt,
+            solver=SOLVER,
+            damping=self.regularisation,
+            limits=self._limits,
             **SOLVER_SETTINGS,
         )
 

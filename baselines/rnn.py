@@ -11,13 +11,13 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-
 from snac_gym.baselines._common import (
     ObservationReader,
     positive_float,
     reference_velocity,
     transpose,
 )
+
 from snac_gym.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-
 from snac_gym.baselines._common import ResolvedRatePolicy, positive_float, transpose
 
 

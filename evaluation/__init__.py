@@ -5,7 +5,9 @@
 the shell. See docs/evaluation.md.
 """
 
-if __name__ == "evaluation":  # this folder imported as a top-level package (from the repository's root, or an old import)
+if (
+    __name__ == "evaluation"
+):  # this folder imported as a top-level package (from the repository's root, or an old import)
     raise ImportError(
         "snac-gym's evaluation package is imported as snac_gym.evaluation since 0.2.0 "
         "(`from snac_gym.evaluation import ...`); the top-level name `evaluation` is no longer installed"

@@ -108,7 +108,9 @@ class CacheWarnings:
 
     def damaged(self, problems: list[DamagedEntry]) -> None:
         for problem in problems[: self.SHOWN]:
-            _say(f"warning: {self.name}: ignored the damaged entry {problem.path} ({problem.reason}); computing it again")
+            _say(
+                f"warning: {self.name}: ignored the damaged entry {problem.path} ({problem.reason}); computing it again"
+            )
         if len(problems) > self.SHOWN:
             _say(f"warning: {self.name}: {len(problems) - self.SHOWN} more damaged entries in {problems[0].path.parent} "
                  "ignored and computed again")  # fmt: skip

@@ -17,11 +17,13 @@ from typing import Any
 
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.optimum import OPTIMAL
-from snac_gym.evaluation.store import file_sha1
 from snac_gym.evaluation.reports.summary import PAPER_TABLE_I
+from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
+from snac_gym.evaluation.store import file_sha1
+
 from snac_gym.extras import MissingExtraError
 from snac_gym.policies.registry import available_policies, make_policy, policy_factory
-from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
+
 
 class _LeftOut(Exception):
     """A registered controller that cannot be evaluated in this run.

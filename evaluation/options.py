@@ -35,8 +35,10 @@ def parse_tasks(text: str) -> tuple[str, ...]:
     if is_pose_task(text):
         register_pose_tasks()
         return (text,)
-    raise ValueError(f"--task must be both or a registered task ({', '.join(task_names())}), or a pose task "
-                     f"(pose-reach, pose-track), got {text!r}")
+    raise ValueError(
+        f"--task must be both or a registered task ({', '.join(task_names())}), or a pose task "
+        f"(pose-reach, pose-track), got {text!r}"
+    )
 
 
 def parse_controllers(text: str | None) -> tuple[str, ...] | None:
@@ -62,9 +64,13 @@ def parse_horizons(values: Sequence[str], run_tasks: Sequence[str] = PAPER_TASKS
         if tasks[0] not in task_names() and not is_pose_task(tasks[0]):
             raise ValueError(f"--horizon {text!r}: unknown task {task!r}; use reach=SECONDS or track=SECONDS")
         if task and tasks[0] not in run_tasks:
-            raise ValueError(f"--horizon {text!r}: the run does not evaluate {tasks[0]!r} (--task); drop this --horizon")
+            raise ValueError(
+                f"--horizon {text!r}: the run does not evaluate {tasks[0]!r} (--task); drop this --horizon"
+            )
         if any(name in horizons for name in tasks):
-            raise ValueError(f"--horizon {text!r}: a horizon for {', '.join(n for n in tasks if n in horizons)} is given twice")
+            raise ValueError(
+                f"--horizon {text!r}: a horizon for {', '.join(n for n in tasks if n in horizons)} is given twice"
+            )
         try:
             value = float(seconds)
         except ValueError:
@@ -156,7 +162,9 @@ def _check_with_samples_file(
 
 def _check_effort_samples(samples_file: Path | None, match_effort: bool) -> None:
     if samples_file is not None:
-        raise ValueError("--effort-samples has no effect with --samples-file (its rows are the set); drop --effort-samples")
+        raise ValueError(
+            "--effort-samples has no effect with --samples-file (its rows are the set); drop --effort-samples"
+        )
     if not match_effort:
         raise ValueError("--effort-samples has no effect with --no-match-effort; drop one")
 
@@ -189,7 +197,9 @@ def parse_sample_space(name: str, cuboid: str | None, robot: str) -> Any:
     corners = parse_cuboid(cuboid)
     if name == "workspace":
         if corners is not None:
-            raise ValueError("--cuboid has no effect with --sample-space workspace (the box is the arm's reach); drop one")
+            raise ValueError(
+                "--cuboid has no effect with --sample-space workspace (the box is the arm's reach); drop one"
+            )
         return SampleSpace.workspace(Kinematics(robot))
     if corners is None:
         return None

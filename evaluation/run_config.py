@@ -19,22 +19,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from snac_gym.physics.base import check_physics
 from snac_gym.evaluation.effort.statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
 from snac_gym.evaluation.execution.executors import MAX_WORKERS_PER_CPU, max_workers
 from snac_gym.evaluation.reference.optimum import OPTIMAL, REFERENCE_LIMITS
 from snac_gym.evaluation.samples import check_samples_file
 from snac_gym.evaluation.store import file_sha1
+
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics, shared_kinematics
 from snac_gym.model_error import ModelError, refuse_pose_tasks
+from snac_gym.physics.base import check_physics
 from snac_gym.policies import available_policies
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import PAPER_TASKS, get_task, task_names
 from snac_gym.tasks.pose import POSE_TASK_NAMES, is_pose_task, register_pose_tasks
 from snac_gym.validation import boolean
-
 
 #: Default horizon per task, s (each task's ``horizon_s``: at least every controller's 95th-percentile
 #: settling time at equal effort on 100 samples, docs/evaluation.md), as registered at import.
@@ -81,7 +80,6 @@ class ControllerSpec:
     knob: str | None
     knob_value: float | None
     inputs: dict[str, str] = field(default_factory=dict)
-
 
 
 @dataclass(frozen=True)
@@ -296,8 +294,17 @@ class EvaluationConfig:
 #: The options that are whole numbers, real numbers and switches (``None`` allowed where the default is).
 _WHOLE = ("samples", "seed", "effort_samples", "workers", "chunk_size", "calibration_samples")
 _REAL = ("effort_tolerance", "dt", "q_scale", "success_threshold", "effort_target")
-_SWITCHES = ("match_effort", "save_trajectories", "resume", "progress", "plots", "use_batch", "reference_cache",
-             "calibration_cache", "recalibrate")
+_SWITCHES = (
+    "match_effort",
+    "save_trajectories",
+    "resume",
+    "progress",
+    "plots",
+    "use_batch",
+    "reference_cache",
+    "calibration_cache",
+    "recalibrate",
+)
 
 
 def _check_types(config: EvaluationConfig) -> None:
@@ -320,6 +327,8 @@ def _check_types(config: EvaluationConfig) -> None:
         raise ValueError(f"seed must be a whole number in [0, {2**32 - 1}] (a NumPy seed), got {config.seed}")
     for name in _SWITCHES:
         boolean(name, getattr(config, name))
+
+
 def _check_selection(config: EvaluationConfig) -> None:
     """What is evaluated: tasks, controllers, samples."""
     tasks = config.tasks
@@ -408,8 +417,10 @@ def _check_execution(config: EvaluationConfig) -> None:
             f"got {config.workers}"
         )
     if not local and config.workers != 1:
-        raise ValueError(f"--workers {config.workers} has no effect on a Ray cluster ({config.ray_address}): its CPUs run "
-                         "the jobs; leave --workers out (with --ray local it sets the CPUs of the new instance)")
+        raise ValueError(
+            f"--workers {config.workers} has no effect on a Ray cluster ({config.ray_address}): its CPUs run "
+            "the jobs; leave --workers out (with --ray local it sets the CPUs of the new instance)"
+        )
     if config.chunk_size < 1:
         raise ValueError(f"chunk_size must be at least 1, got {config.chunk_size}")
 
@@ -434,7 +445,16 @@ def _check_scoring(config: EvaluationConfig) -> None:
     if not str(config.out).strip():
         raise ValueError("out (--out) must name a folder, got an empty path")
     if config.reference_limits not in REFERENCE_LIMITS:
-        raise ValueError(f"reference_limits (--reference-limits) must be one of {REFERENCE_LIMITS}, got {config.reference_limits!r}")
+        raise ValueError(
+            f"reference_limits (--reference-limits) must be one of {REFERENCE_LIMITS}, got {config.reference_limits!r}"
+        )
 
 
-__all__ = ["BYTES_PER_SAMPLE", "DEFAULT_CHUNK_SIZE", "DEFAULT_HORIZONS", "MAX_HORIZON_S", "EvaluationConfig", "max_samples"]
+__all__ = [
+    "BYTES_PER_SAMPLE",
+    "DEFAULT_CHUNK_SIZE",
+    "DEFAULT_HORIZONS",
+    "MAX_HORIZON_S",
+    "EvaluationConfig",
+    "max_samples",
+]

@@ -39,7 +39,6 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
-
 from snac_gym.evaluation.controllers import ControllerSpec, resolve_controllers
 from snac_gym.evaluation.effort.cache import (
     SWITCH_ENV,
@@ -52,14 +51,15 @@ from snac_gym.evaluation.effort.cache import (
 from snac_gym.evaluation.effort.matching import EffortRecord, Records, Results, controller_passes
 from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
+from snac_gym.evaluation.execution.passes import EvaluationRun
+from snac_gym.evaluation.execution.progress import Progress
 from snac_gym.evaluation.reference.cache import CACHE_ENV, cache_folder
 from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
-from snac_gym.evaluation.execution.passes import EvaluationRun
 from snac_gym.evaluation.reports.writer import prefetch_report_modules, write_reports
-from snac_gym.evaluation.execution.progress import Progress
 from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
 from snac_gym.evaluation.store import RunStore
+
 from snac_gym.kinematics import Kinematics
 from snac_gym.outputs import write_whole
 from snac_gym.sampling import SampleSpace
@@ -90,7 +90,9 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             identities = _calibration_identities(config, space, specs)
             cached = _cached_calibration(config, identities)
             matched_on = samples if cached is not None else _effort_set(config, space, executor, samples)
-            rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(map(len, samples.values()))
+            rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(
+                map(len, samples.values())
+            )
             progress = Progress(rollouts, config.progress)
             evaluation = EvaluationRun(config, store, executor, matched_on, progress)  # 3. Passes
             if matched_on is not samples:
@@ -129,8 +131,11 @@ def _writable_caches(config: EvaluationConfig) -> tuple[EvaluationConfig, bool]:
     wants_knobs = config.match_effort and config.calibration_cache and cache_enabled()
     if not (config.reference_cache or wants_knobs):
         return config, True
-    folders = [folder for folder, used in ((cache_folder(), config.reference_cache), (calibration_folder(), wants_knobs))
-               if used]
+    folders = [
+        folder
+        for folder, used in ((cache_folder(), config.reference_cache), (calibration_folder(), wants_knobs))
+        if used
+    ]
     try:
         for folder in folders:
             folder.mkdir(parents=True, exist_ok=True)

@@ -43,12 +43,11 @@ from pathlib import Path
 
 import numpy as np
 
+from snac_gym.errors import SampleFileError
 from snac_gym.kinematics import Kinematics
 from snac_gym.outputs import written_whole
 from snac_gym.sampling import SampleSpace, check_reachable, sample_seed_pose
 from snac_gym.tasks import Sample, all_tasks, get_task, task_names
-
-from snac_gym.errors import SampleFileError
 
 _POLICY_SEED_KEY = 1  # third spawn-key entry of a sample's policy seed
 
@@ -279,7 +278,9 @@ def _read_rows(
         row_reader = _RowReader(path, row_number, line, row)
         too_long = [column for column, cell in row.items() if cell is not None and len(cell) > MAX_CELL_CHARS]
         if too_long:
-            raise row_reader.error(too_long[0], f"a cell of {len(row[too_long[0]])} characters (at most {MAX_CELL_CHARS})")
+            raise row_reader.error(
+                too_long[0], f"a cell of {len(row[too_long[0]])} characters (at most {MAX_CELL_CHARS})"
+            )
         task = row_reader.text("task")
         if "sample" in header:
             index = _sample_id(row_reader)

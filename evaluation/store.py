@@ -41,12 +41,11 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None  # type: ignore[assignment]
 
-from snac_gym.outputs import OutputFolderError, usable_out_folder, write_text_whole, written_whole
 from snac_gym.evaluation.samples import SampleFileError
-from snac_gym.rollout import write_log
 
 from snac_gym.errors import RunDirectoryError
-
+from snac_gym.outputs import OutputFolderError, usable_out_folder, write_text_whole, written_whole
+from snac_gym.rollout import write_log
 
 #: Parquet schema-metadata keys of a part file: the run it belongs to and the sample ids it holds.
 _PART_RUN_KEY, _PART_SAMPLES_KEY = b"snac_gym.run", b"snac_gym.samples"
@@ -275,8 +274,10 @@ class RunStore:
         if not part_is_intact(path):  # damaged (or stored before checksums): never read, run again
             aside = path.with_name(path.name + ".corrupt")
             os.replace(path, aside)
-            sys.stderr.write(f"--resume: the part file {path.name} does not match its SHA-256 (or has none); "
-                             f"moved to {aside.name}, its job runs again\n")
+            sys.stderr.write(
+                f"--resume: the part file {path.name} does not match its SHA-256 (or has none); "
+                f"moved to {aside.name}, its job runs again\n"
+            )
             return False
         if metadata is None:
             raise RunDirectoryError(f"--resume: the part file {path} is unreadable ({unreadable}); remove it")

@@ -34,15 +34,15 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
 from snac_gym.evaluation.controllers import ControllerSpec, resolve_controllers
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.execution.passes import EvaluationRun
 from snac_gym.evaluation.execution.progress import Progress
+from snac_gym.evaluation.reports.summary import controller_label
 from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.runner import load_samples, run_evaluation
 from snac_gym.evaluation.store import RunStore
-from snac_gym.evaluation.reports.summary import controller_label
+
 from snac_gym.kinematics import Kinematics
 from snac_gym.outputs import write_whole
 from snac_gym.sampling import SampleSpace

@@ -16,12 +16,16 @@ from snac_gym.evaluation import EvaluationConfig, run_evaluation
 
 def main(samples: int = 20, out: str = "runs/compare") -> None:
     # effort_samples=0: equal effort matched on these few samples (quick); Table I matches on 1000.
-    config = EvaluationConfig(out=Path(out), controllers=("snac", "dls"), samples=samples,
-                              effort_samples=0, workers=1, progress=False)
+    config = EvaluationConfig(
+        out=Path(out), controllers=("snac", "dls"), samples=samples, effort_samples=0, workers=1, progress=False
+    )
     results = run_evaluation(config)
     table = results.groupby(["task", "controller"]).agg(
-        samples=("sample", "size"), success=("success", "mean"), V=("cost", "mean"),
-        final_error_mm=("final_error", lambda e: 1e3 * e.median()))
+        samples=("sample", "size"),
+        success=("success", "mean"),
+        V=("cost", "mean"),
+        final_error_mm=("final_error", lambda e: 1e3 * e.median()),
+    )
     table["verdict"] = ["" if rate >= config.success_threshold else "FAILS the task" for rate in table["success"]]
     print(table.reset_index().round(3).to_string(index=False))
     print(f"summary: {Path(out) / 'summary.md'}")

@@ -20,8 +20,7 @@ from snac_gym.apps.demo import demo_options
 def main(frames: int = 8, out: str = "videos/frames", every: int = 125, size: int = 320) -> None:
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    env = gym.make("snac_gym/UR10EllipseTrack-v0", render_mode="rgb_array",
-                   render_width=size, render_height=size)
+    env = gym.make("snac_gym/UR10EllipseTrack-v0", render_mode="rgb_array", render_width=size, render_height=size)
     policy = make_policy("snac", env)
     obs, _ = env.reset(seed=0, options=demo_options("track"))
     policy.reset(seed=0)

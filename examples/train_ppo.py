@@ -25,13 +25,23 @@ EPISODE_STEPS = 250
 def main(timesteps: int = 200_000, num_envs: int = 256) -> None:
     venv = SB3VectorEnv(ENV_ID, num_envs, max_steps=EPISODE_STEPS, **ENV_KWARGS)
     n_steps = max(2, min(64, timesteps // num_envs))
-    model = PPO("MlpPolicy", venv, n_steps=n_steps, batch_size=min(4096, n_steps * num_envs),
-                n_epochs=2, seed=0, device="cpu", verbose=0)
+    model = PPO(
+        "MlpPolicy",
+        venv,
+        n_steps=n_steps,
+        batch_size=min(4096, n_steps * num_envs),
+        n_epochs=2,
+        seed=0,
+        device="cpu",
+        verbose=0,
+    )
     start = time.perf_counter()
     model.learn(timesteps)
     wall = time.perf_counter() - start
-    print(f"trained {model.num_timesteps} steps on {num_envs} episodes in {wall:.1f} s "
-          f"({model.num_timesteps / wall:,.0f} steps/s)")
+    print(
+        f"trained {model.num_timesteps} steps on {num_envs} episodes in {wall:.1f} s "
+        f"({model.num_timesteps / wall:,.0f} steps/s)"
+    )
 
     env = gym.make(ENV_ID, physics="kinematic", max_episode_steps=EPISODE_STEPS, **ENV_KWARGS)
     errors = []
@@ -43,8 +53,10 @@ def main(timesteps: int = 200_000, num_envs: int = 256) -> None:
             obs, _, terminated, truncated, info = env.step(action)
             done = terminated or truncated
         errors.append(info["error_norm"])
-    print(f"final error on 3 episodes: {', '.join(f'{e * 1e3:.1f} mm' for e in errors)} "
-          f"(median {np.median(errors) * 1e3:.1f} mm)")
+    print(
+        f"final error on 3 episodes: {', '.join(f'{e * 1e3:.1f} mm' for e in errors)} "
+        f"(median {np.median(errors) * 1e3:.1f} mm)"
+    )
 
 
 if __name__ == "__main__":

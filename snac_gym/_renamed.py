@@ -17,7 +17,7 @@ class RenamedFinder(importlib.abc.MetaPathFinder):
     def find_spec(self, fullname, path=None, target=None):  # noqa: ANN001 - the importlib protocol
         top = fullname.partition(".")[0]
         if top in RENAMED:
-            new = RENAMED[top] + fullname[len(top):]
+            new = RENAMED[top] + fullname[len(top) :]
             raise ModuleNotFoundError(
                 f"No module named {fullname!r}: snac-gym's {top} package is imported as {RENAMED[top]} since "
                 f"0.2.0 (write `import {new}` or `from {new} import ...`)",

@@ -11,7 +11,6 @@ Q = I₃ and R = I₆ in the paper.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,7 +37,9 @@ def weight_matrix(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray 
             raise TypeError(f"dtype {np.asarray(matrix).dtype}")
         matrix = np.asarray(matrix, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a ({dim}, {dim}) matrix or a length-{dim} diagonal of numbers: {exc}") from None
+        raise ValueError(
+            f"{name} must be a ({dim}, {dim}) matrix or a length-{dim} diagonal of numbers: {exc}"
+        ) from None
     if matrix.ndim == 1:
         matrix = np.diag(matrix)
     if matrix.shape != (dim, dim):
@@ -79,8 +80,12 @@ def instantaneous_cost(
 
 
 def step_costs(
-    error: np.ndarray, command: np.ndarray, previous_command: np.ndarray, dt: float,
-    Q: np.ndarray | None = None, R: np.ndarray | None = None,
+    error: np.ndarray,
+    command: np.ndarray,
+    previous_command: np.ndarray,
+    dt: float,
+    Q: np.ndarray | None = None,
+    R: np.ndarray | None = None,
 ) -> tuple[float, float, float]:
     """One control step's cost rates as the envs report them: ``(eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ)``.
 
@@ -168,7 +173,9 @@ def cost_rates(
     commands = np.asarray(commands, dtype=float)
     for name, values in (("errors", errors), ("commands", commands)):
         if not np.isfinite(values).all():  # a NaN cost would rank as neither better nor worse
-            raise ValueError(f"{name} must be finite, got NaN or inf at {np.argwhere(~np.isfinite(values))[0].tolist()}")
+            raise ValueError(
+                f"{name} must be finite, got NaN or inf at {np.argwhere(~np.isfinite(values))[0].tolist()}"
+            )
     if errors.ndim < 2 or commands.ndim < 2 or errors.shape[:-1] != commands.shape[:-1]:
         raise ValueError(
             f"errors (..., K, n) and commands (..., K, m) must share leading axes, got {errors.shape} and {commands.shape}"
@@ -196,7 +203,11 @@ def _initial_command(value: np.ndarray, commands: tuple[int, ...]) -> np.ndarray
     initial = real_array("initial_command", value)
     first = commands[:-2] + commands[-1:]  # the shape of commands[..., 0, :]
     try:
-        fits = initial.ndim >= 1 and initial.shape[-1] == commands[-1] and np.broadcast_shapes(initial.shape, first) == first
+        fits = (
+            initial.ndim >= 1
+            and initial.shape[-1] == commands[-1]
+            and np.broadcast_shapes(initial.shape, first) == first
+        )
     except ValueError:
         fits = False
     if not fits:

@@ -6,7 +6,6 @@ import importlib
 from types import ModuleType
 
 from snac_gym._signals import interrupt_behind
-
 from snac_gym.errors import MissingExtraError
 
 

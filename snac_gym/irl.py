@@ -93,7 +93,9 @@ class IRLData:
         if n * n != self.I_xx.shape[1] or self.delta_xx.shape[1] != n * (n + 1) // 2:
             raise ValueError(f"delta_xx {self.delta_xx.shape} and I_xx {self.I_xx.shape} do not fit one state size")
         if self.I_xx.shape[0] != rows or self.I_xu.shape[0] != rows or self.I_xu.shape[1] % n:
-            raise ValueError(f"I_xx {self.I_xx.shape} and I_xu {self.I_xu.shape} need {rows} rows and n = {n} columns per input")
+            raise ValueError(
+                f"I_xx {self.I_xx.shape} and I_xu {self.I_xu.shape} need {rows} rows and n = {n} columns per input"
+            )
         if self.I_xw is not None and self.I_xw.shape != (rows, n * n):
             raise ValueError(f"I_xw must have shape {(rows, n * n)}, got {self.I_xw.shape}")
 
@@ -150,7 +152,9 @@ def _weight(name: str, value: np.ndarray, size: int) -> np.ndarray:
     if matrix.ndim == 1:
         matrix = np.diag(matrix)
     if matrix.shape != (size, size) or not np.all(np.isfinite(matrix)) or not np.allclose(matrix, matrix.T):
-        raise ValueError(f"{name} must be a finite symmetric ({size}, {size}) matrix or its diagonal, got shape {matrix.shape}")
+        raise ValueError(
+            f"{name} must be a finite symmetric ({size}, {size}) matrix or its diagonal, got shape {matrix.shape}"
+        )
     return matrix
 
 
@@ -192,7 +196,9 @@ def policy_iteration(
         raise ValueError(f"max_iterations must be a whole number >= 1, got {max_iterations!r}")
     needed = n * (n + 1) // 2 + m * n
     if data.rank() < needed:
-        raise ValueError(f"the data's rank [I_xx, I_xu] is {data.rank()}, eq. 13 needs {needed}: excite more or add windows")
+        raise ValueError(
+            f"the data's rank [I_xx, I_xu] is {data.rank()}, eq. 13 needs {needed}: excite more or add windows"
+        )
 
     p_columns = data.delta_xx
     if data.I_xw is not None:

@@ -29,7 +29,6 @@ from typing import Any
 
 import numpy as np
 
-
 #: δ, rad: the distance a goal keeps from every joint limit.
 GOAL_MARGIN = 0.05
 #: Spread starts besides θ₀ (each another IK branch or winding with some probability).
@@ -50,7 +49,9 @@ _ITERATIONS = 300
 _POLISH = 30  # last iterations without the pull: converge onto f(θ) = x_d exactly
 
 
-def goal_starts(lower: np.ndarray, upper: np.ndarray, count: int = GOAL_STARTS, margin: float = GOAL_MARGIN) -> np.ndarray:
+def goal_starts(
+    lower: np.ndarray, upper: np.ndarray, count: int = GOAL_STARTS, margin: float = GOAL_MARGIN
+) -> np.ndarray:
     """``count`` configurations spread uniformly over the box less ``margin`` (fixed seed), ``(count, m)``."""
     low, high = np.asarray(lower, float) + margin, np.asarray(upper, float) - margin
     if np.any(low >= high):
@@ -188,8 +189,16 @@ class GoalArms:
         moving: Whether the reference moves (tracking).
     """
 
-    def __init__(self, kinematics: Any, velocity_limits: np.ndarray, dt: float, margin: float = GOAL_MARGIN,
-                 gain: float = VIRTUAL_ARM_GAIN, preferred_margin: float = 0.0, moving: bool = True) -> None:
+    def __init__(
+        self,
+        kinematics: Any,
+        velocity_limits: np.ndarray,
+        dt: float,
+        margin: float = GOAL_MARGIN,
+        gain: float = VIRTUAL_ARM_GAIN,
+        preferred_margin: float = 0.0,
+        moving: bool = True,
+    ) -> None:
         self.kinematics = kinematics
         self.velocity_limits = np.asarray(velocity_limits, dtype=float)
         self.dt = float(dt)
@@ -216,7 +225,9 @@ class GoalArms:
         self.q = np.zeros((count, self.kinematics.n_joints))
         self.found = np.zeros(count, dtype=bool)
 
-    def step(self, x_d: np.ndarray, xdot_d: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def step(
+        self, x_d: np.ndarray, xdot_d: np.ndarray, rows: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Advance every arm (or ``rows`` of them) one period; returns ``(θ*ₖ, θ̇*ₖ)``, the configuration and the
         velocity it moves with (after the clip into the box: a controller that feeds it forward does not push
         past a limit)."""

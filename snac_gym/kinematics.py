@@ -536,8 +536,15 @@ def leaf_chain(kinematics: Kinematics) -> tuple[list[tuple[np.ndarray, np.ndarra
         if found is None:
             raise ValueError(f"joint {model.names[joint]!r} is not a 1-DoF revolute or prismatic joint")
         placement = model.jointPlacements[joint]
-        steps.append((placement.rotation.copy(), placement.translation.copy(), found[0], found[1],
-                      int(model.joints[joint].idx_q)))
+        steps.append(
+            (
+                placement.rotation.copy(),
+                placement.translation.copy(),
+                found[0],
+                found[1],
+                int(model.joints[joint].idx_q),
+            )
+        )
         joint = int(model.parents[joint])
     return steps, frame.placement.translation.copy()
 
@@ -600,7 +607,11 @@ class PositionChain:
             return turned
         a = self._steps[index][2]
         cross = [a[1] * v[2] - a[2] * v[1], a[2] * v[0] - a[0] * v[2], a[0] * v[1] - a[1] * v[0]]
-        double = [a[1] * cross[2] - a[2] * cross[1], a[2] * cross[0] - a[0] * cross[2], a[0] * cross[1] - a[1] * cross[0]]
+        double = [
+            a[1] * cross[2] - a[2] * cross[1],
+            a[2] * cross[0] - a[0] * cross[2],
+            a[0] * cross[1] - a[1] * cross[0],
+        ]
         return [v[i] + sin * cross[i] + (1.0 - cos) * double[i] for i in range(3)]
 
 

@@ -119,10 +119,26 @@ METRIC_COLUMNS = (
 
 #: Columns that are finite and non-negative in every row (costs, errors, command peaks, counts).
 _NON_NEGATIVE = (
-    "cost", "cost_error", "cost_effort", "cost_smoothness", "cost_smoothness_start", "cost_table1",
-    "cost_table1_first", "cost_hjb", "first_jump_cost", "first_jump_share", "final_error", "max_abs_u",
-    "max_abs_u_step", "max_norm_u", "peak_limit_fraction", "peak_step", "max_abs_udot", "steps_at_limit",
-    "mean_error_2nd_half", "median_error_2nd_half",
+    "cost",
+    "cost_error",
+    "cost_effort",
+    "cost_smoothness",
+    "cost_smoothness_start",
+    "cost_table1",
+    "cost_table1_first",
+    "cost_hjb",
+    "first_jump_cost",
+    "first_jump_share",
+    "final_error",
+    "max_abs_u",
+    "max_abs_u_step",
+    "max_norm_u",
+    "peak_limit_fraction",
+    "peak_step",
+    "max_abs_udot",
+    "steps_at_limit",
+    "mean_error_2nd_half",
+    "median_error_2nd_half",
 )
 
 
@@ -236,8 +252,9 @@ def rollout_metrics(
             "hjb_ratio_median": diagnostics.get("hjb_ratio_median", nan),
             "critic_error_final": diagnostics.get("critic_error_final", nan),
             "diverged": _diverged_column(rollouts.flags, len(commands)),
-            "diverged_time": nan if not rollouts.flags else np.where(
-                rollouts.flags["diverged"], rollouts.flags["diverged_step"] * dt, np.nan),
+            "diverged_time": nan
+            if not rollouts.flags
+            else np.where(rollouts.flags["diverged"], rollouts.flags["diverged_step"] * dt, np.nan),
             "joint_limit_margin": margins,
         }
     )
@@ -374,9 +391,9 @@ def demo_metrics(
         hjb_ratio_median=float(np.nanmedian(log["hjb_ratio"])) if "hjb_ratio" in log.columns else None,
         critic_error_final=float(log["critic_error"].iloc[-1]) if "critic_error" in log.columns else None,
         mean_error_2nd_half=float(norms[len(errors) // 2 : -1].mean()),  # ‖eₖ‖, k = ⌊K/2⌋..K−1, as the evaluator
-        joint_limit_margin=math.nan if position_limits is None else float(
-            joint_limit_margins(_states(log)[None], *position_limits)[0]
-        ),
+        joint_limit_margin=math.nan
+        if position_limits is None
+        else float(joint_limit_margins(_states(log)[None], *position_limits)[0]),
     )
 
 

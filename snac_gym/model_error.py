@@ -154,18 +154,31 @@ class ModelError:
             _numbers(name, getattr(self, name))
         offsets = tuple(real_number("model error joint_offset", a, -math.pi, math.pi) for a in self.joint_offset)
         if len(self.tool_offset) != 3:
-            raise ValueError(f"model error tool_offset must be 3 finite numbers (x,y,z in m), got {list(self.tool_offset)}")
-        tool = tuple(real_number("model error tool_offset (m)", t, -MAX_TOOL_OFFSET, MAX_TOOL_OFFSET) for t in self.tool_offset)
-        scale = real_number("model error link_scale", self.link_scale, -1.0, MAX_LINK_SCALE, low_open=True)
-        lengths = tuple(real_number("model error link_length (m)", d, -MAX_LINK_LENGTH, MAX_LINK_LENGTH) for d in self.link_length)
-        tilts = tuple(real_number("model error joint_axis_tilt (rad)", a, -MAX_AXIS_TILT, MAX_AXIS_TILT) for a in self.joint_axis_tilt)
-        if len(self.base) != 6:
-            raise ValueError(f"model error base must be 6 finite numbers (x,y,z in m, rx,ry,rz in rad), got {list(self.base)}")
-        base = tuple(real_number("model error base x,y,z (m)", b, -MAX_BASE_OFFSET, MAX_BASE_OFFSET) for b in self.base[:3]) + tuple(
-            real_number("model error base rx,ry,rz (rad)", b, -math.pi, math.pi) for b in self.base[3:]
+            raise ValueError(
+                f"model error tool_offset must be 3 finite numbers (x,y,z in m), got {list(self.tool_offset)}"
+            )
+        tool = tuple(
+            real_number("model error tool_offset (m)", t, -MAX_TOOL_OFFSET, MAX_TOOL_OFFSET) for t in self.tool_offset
         )
+        scale = real_number("model error link_scale", self.link_scale, -1.0, MAX_LINK_SCALE, low_open=True)
+        lengths = tuple(
+            real_number("model error link_length (m)", d, -MAX_LINK_LENGTH, MAX_LINK_LENGTH) for d in self.link_length
+        )
+        tilts = tuple(
+            real_number("model error joint_axis_tilt (rad)", a, -MAX_AXIS_TILT, MAX_AXIS_TILT)
+            for a in self.joint_axis_tilt
+        )
+        if len(self.base) != 6:
+            raise ValueError(
+                f"model error base must be 6 finite numbers (x,y,z in m, rx,ry,rz in rad), got {list(self.base)}"
+            )
+        base = tuple(
+            real_number("model error base x,y,z (m)", b, -MAX_BASE_OFFSET, MAX_BASE_OFFSET) for b in self.base[:3]
+        ) + tuple(real_number("model error base rx,ry,rz (rad)", b, -math.pi, math.pi) for b in self.base[3:])
         if np.linalg.norm(base[3:]) > math.pi:
-            raise ValueError(f"model error base rotation vector rx,ry,rz must have a norm of at most pi, got {list(base[3:])}")
+            raise ValueError(
+                f"model error base rotation vector rx,ry,rz must have a norm of at most pi, got {list(base[3:])}"
+            )
         object.__setattr__(self, "joint_offset", offsets)
         object.__setattr__(self, "tool_offset", tool)
         object.__setattr__(self, "link_scale", scale)
@@ -210,9 +223,7 @@ class ModelError:
             name, sep, value = part.partition("=")
             name = name.strip()
             if not sep or name not in PARTS:
-                raise ValueError(
-                    f"--model-error: {part!r} is not NAME=VALUES with NAME one of {', '.join(PARTS)}"
-                )
+                raise ValueError(f"--model-error: {part!r} is not NAME=VALUES with NAME one of {', '.join(PARTS)}")
             if name in values:
                 raise ValueError(f"--model-error: {name} is given twice")
             values[name] = _part_value(name, value)
@@ -284,7 +295,9 @@ class ModelError:
         base = pin.SE3(pin.exp3(np.asarray(self.base[3:])), np.asarray(self.base[:3])) if any(self.base) else None
         for joint in range(1, model.njoints):
             placement = self._placement(model, joint, draws[joint - 1], tilts)
-            model.jointPlacements[joint] = base * placement if base is not None and model.parents[joint] == 0 else placement
+            model.jointPlacements[joint] = (
+                base * placement if base is not None and model.parents[joint] == 0 else placement
+            )
         frame = model.frames[ee_frame_id]
         placement = frame.placement
         if self.link_scale:
@@ -351,7 +364,9 @@ def _lengthened(translation: np.ndarray, change: float, joint: str) -> np.ndarra
     """``translation`` with its length changed by ``change`` along its own direction."""
     length = float(np.linalg.norm(translation))
     if length < _ZERO_LENGTH:
-        raise ValueError(f"model error link_length: joint {joint!r} has a zero-length placement, so its change must be 0, got {change!r}")
+        raise ValueError(
+            f"model error link_length: joint {joint!r} has a zero-length placement, so its change must be 0, got {change!r}"
+        )
     if length + change <= 0.0:
         raise ValueError(
             f"model error link_length: {change!r} m leaves no length to the placement of joint {joint!r} ({length:.6g} m long)"
@@ -373,7 +388,9 @@ def tool_displacement(true_kinematics: Any, model_kinematics: Any, qs: np.ndarra
             f"tool_displacement needs the same joint count, got {true_kinematics.n_joints} and {model_kinematics.n_joints}"
         )
     qs = np.asarray(qs, dtype=float)
-    return np.linalg.norm(np.asarray(true_kinematics.forward_batch(qs)) - np.asarray(model_kinematics.forward_batch(qs)), axis=1)
+    return np.linalg.norm(
+        np.asarray(true_kinematics.forward_batch(qs)) - np.asarray(model_kinematics.forward_batch(qs)), axis=1
+    )
 
 
 def refuse_pose_tasks(pose_tasks: Sequence[str]) -> None:

@@ -357,7 +357,9 @@ def regulation_cost_lower_bound(
         q_scale: Q = q·I (R = I).
     """
     if not (steps >= 1 and dt > 0 and lipschitz > 0 and q_scale > 0):
-        raise ValueError(f"need steps ≥ 1, dt > 0, lipschitz > 0, q_scale > 0; got {steps}, {dt}, {lipschitz}, {q_scale}")
+        raise ValueError(
+            f"need steps ≥ 1, dt > 0, lipschitz > 0, q_scale > 0; got {steps}, {dt}, {lipschitz}, {q_scale}"
+        )
     b, value = lipschitz * dt, 0.0
     for _ in range(int(steps)):
         value = q_scale * dt + value - (b * value) ** 2 / (dt + b * b * value)
@@ -469,7 +471,9 @@ def solve_cost_relaxation(
         ValueError: On negative or non-finite errors or steps, a non-positive Lipschitz constant, Δt or limit.
     """
     convention = convention if convention is not None else CostConvention()
-    errors, steps, slopes, limit = _relaxation_inputs(initial_errors, reference_steps, dt, lipschitz, velocity_norm_limit)
+    errors, steps, slopes, limit = _relaxation_inputs(
+        initial_errors, reference_steps, dt, lipschitz, velocity_norm_limit
+    )
     out = np.empty((4, len(errors)))
     relaxation_kernel()(
         errors, steps, slopes, float(dt), float(convention.q_scale), float(convention.smoothness_weight),
@@ -485,7 +489,9 @@ def _relaxation_inputs(
     errors = np.array(np.atleast_1d(np.asarray(initial_errors, dtype=float)), order="C")
     steps = np.asarray(steps, dtype=float)
     if errors.ndim != 1 or steps.ndim not in (1, 2):
-        raise ValueError(f"initial_errors must be () or (B,), reference_steps (K−1,) or (B, K−1); got {errors.shape}, {steps.shape}")
+        raise ValueError(
+            f"initial_errors must be () or (B,), reference_steps (K−1,) or (B, K−1); got {errors.shape}, {steps.shape}"
+        )
     # Writable C copies: numba compiles a read-only array (a broadcast view) as a type of its own
     steps = np.array(np.broadcast_to(steps, (len(errors), steps.shape[-1])), order="C")
     if not (np.all(np.isfinite(errors)) and np.all(errors >= 0) and np.all(np.isfinite(steps)) and np.all(steps >= 0)):
@@ -527,7 +533,9 @@ def trajectory_cost_lower_bound(
     """
     if np.ndim(initial_error) != 0 or np.ndim(reference_steps) != 1:
         raise ValueError("one sample: initial_error is a scalar and reference_steps a (K−1,) array")
-    return float(trajectory_cost_lower_bounds(initial_error, reference_steps, dt, lipschitz, convention, velocity_norm_limit)[0])
+    return float(
+        trajectory_cost_lower_bounds(initial_error, reference_steps, dt, lipschitz, convention, velocity_norm_limit)[0]
+    )
 
 
 # -- A smaller Lipschitz constant per sample: where can a trajectory of bounded cost take the arm? ----------------------
@@ -565,12 +573,16 @@ def jacobian_variation_bound(kinematics: Any) -> float | None:
         joint = int(model.parents[joint])
     lengths = np.array(chain[::-1])  # base first
     count = len(lengths)
-    squares = [(a + 1) * lengths[a] ** 2 + float(np.sum(lengths[a + 1:] ** 2)) for a in range(count)]
+    squares = [(a + 1) * lengths[a] ** 2 + float(np.sum(lengths[a + 1 :] ** 2)) for a in range(count)]
     return float(np.sqrt(np.sum(squares[1:])))
 
 
 def reachable_lipschitz_bounds(
-    kinematics: Any, q0: np.ndarray, steps: int, dt: float, cost_limits: float | np.ndarray,
+    kinematics: Any,
+    q0: np.ndarray,
+    steps: int,
+    dt: float,
+    cost_limits: float | np.ndarray,
     velocity_limits: np.ndarray | None = None,
 ) -> np.ndarray:
     """Lₖ ≥ ‖J‖₂ on every step θₖ → θₖ₊₁ (k = 0..K−2) of every trajectory from θ₀ whose cost is at most V̄.

@@ -227,7 +227,11 @@ class Ellipse:
 
 #: The arrays of an :class:`Ellipse` and their shapes, in the order of its one packed array.
 _ELLIPSE_ARRAYS = (
-    ("centre", (3,)), ("semi_axes", (2,)), ("orientation", (3,)), ("_axes_matrix", (3, 2)), ("_major", (3,)),
+    ("centre", (3,)),
+    ("semi_axes", (2,)),
+    ("orientation", (3,)),
+    ("_axes_matrix", (3, 2)),
+    ("_major", (3,)),
     ("_minor", (3,)),
 )
 

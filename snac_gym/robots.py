@@ -89,7 +89,9 @@ def register_robot(robot: Robot) -> Robot:
         raise ValueError(f"robot {robot.name!r}: give both cuboid corners or neither")
     prefixes = {other.env_prefix: other.name for other in ROBOTS.values()}
     if robot.env_prefix in prefixes:
-        raise ValueError(f"robot {robot.name!r}: env_prefix {robot.env_prefix!r} is taken by {prefixes[robot.env_prefix]!r}")
+        raise ValueError(
+            f"robot {robot.name!r}: env_prefix {robot.env_prefix!r} is taken by {prefixes[robot.env_prefix]!r}"
+        )
     ROBOTS[robot.name] = robot
     return robot
 
@@ -146,8 +148,11 @@ for _model in UR_MODELS.values():
     register_robot(
         Robot(
             name=_model.name,
-            urdf=(f"ur_description/urdf/{_model.name}_robot.urdf" if _model.series == "cb"
-                  else str(E_SERIES_URDF_DIR / f"{_model.name}.urdf")),
+            urdf=(
+                f"ur_description/urdf/{_model.name}_robot.urdf"
+                if _model.series == "cb"
+                else str(E_SERIES_URDF_DIR / f"{_model.name}.urdf")
+            ),
             nominal_q=PAPER_Q0,
             description=f"Universal Robots {_model.label}",
             env_prefix=_model.label[:2] + _model.label[2:],

@@ -405,7 +405,9 @@ def solve_sample(
     )
 
 
-def _limits(velocity_limits: np.ndarray, position_limits: tuple[np.ndarray, np.ndarray] | None, q0: np.ndarray) -> Limits:
+def _limits(
+    velocity_limits: np.ndarray, position_limits: tuple[np.ndarray, np.ndarray] | None, q0: np.ndarray
+) -> Limits:
     velocity = np.asarray(velocity_limits, dtype=float)
     if position_limits is None:
         return Limits(velocity)
@@ -518,11 +520,13 @@ class Barrier:
         if self.limits.has_positions:
             diagonal += weights[2] + weights[3]
         band[0] += diagonal.ravel()
-        band[m, : -m] -= velocity[1:].ravel()
+        band[m, :-m] -= velocity[1:].ravel()
 
     def step_multipliers(self, slack_steps: list[np.ndarray]) -> list[np.ndarray]:
         """δz = μ/s − z − (z/s) δs of every constraint (the linearised complementarity)."""
-        return [self.mu / s - z - (z / s) * ds for z, s, ds in zip(self.multipliers, self.slacks, slack_steps, strict=True)]
+        return [
+            self.mu / s - z - (z / s) * ds for z, s, ds in zip(self.multipliers, self.slacks, slack_steps, strict=True)
+        ]
 
     def safeguard(self) -> None:
         for z, s in zip(self.multipliers, self.slacks, strict=True):

@@ -15,7 +15,9 @@ from typing import Any
 import numpy as np
 
 
-def real_number(name: str, value: Any, low: float = -math.inf, high: float = math.inf, *, low_open: bool = False) -> float:
+def real_number(
+    name: str, value: Any, low: float = -math.inf, high: float = math.inf, *, low_open: bool = False
+) -> float:
     """``value`` as a float: a real number (not a bool, a string or a complex), finite, in ``[low, high]``
     (``(low, high]`` with ``low_open``).
 
@@ -69,7 +71,9 @@ def real_array(name: str, value: Any, shape: tuple[int | None, ...] | None = Non
     if array.dtype.kind not in "iuf":
         raise ValueError(f"{name} must be real numbers, got dtype {array.dtype} ({_short(value)})")
     array = array.astype(np.float64, copy=False)
-    if shape is not None and (array.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, array.shape))):
+    if shape is not None and (
+        array.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, array.shape))
+    ):
         wanted = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
         raise ValueError(f"{name} must have shape {wanted}, got {array.shape}")
     if not np.isfinite(array).all():

@@ -12,7 +12,6 @@ import snac_gym  # noqa: F401  (registers the envs)
 from snac_gym.kernels.compiled import cached_on_disk
 from snac_gym.kinematics import Kinematics
 
-
 # The reference's row cache (evaluation/reference/cache.py) of this test process: a fresh folder, so that no
 # test reads rows another run left in the user's cache, and the suite writes nothing there.
 os.environ["SNAC_GYM_CACHE_DIR"] = tempfile.mkdtemp(prefix="snac-gym-test-cache-")
@@ -138,8 +137,8 @@ def track_env():
 @pytest.fixture(scope="module")
 def pose_tasks():
     """The pose tasks registered for the requesting module only: the other modules see the paper's two."""
-    from snac_gym.tasks import TASKS
     from snac_gym.envs import register_pose_envs
+    from snac_gym.tasks import TASKS
     from snac_gym.tasks.pose import POSE_TASKS
 
     register_pose_envs()
@@ -167,6 +166,7 @@ def reference_job(tmp_path):
     """Three reach samples' reference over 150 steps, cached in a fresh folder (the reference cache's tests)."""
     from snac_gym.evaluation.reference.optimum import OptimalJob  # the evaluator: only these tests need it
     from snac_gym.evaluation.samples import generate_samples
+
     from snac_gym.kinematics import shared_kinematics
     from snac_gym.sampling import SampleSpace
 

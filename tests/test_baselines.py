@@ -8,11 +8,11 @@ import pickle
 import numpy as np
 import pytest
 from scipy.optimize import minimize
-
-import snac_gym
 from snac_gym.baselines.dls import DLSPolicy
 from snac_gym.baselines.rnn import RNNPolicy
 from snac_gym.baselines.svf import SVFPolicy, filtered_singular_values
+
+import snac_gym
 from snac_gym import make_policy
 from snac_gym.policies.base import BasePolicy, Policy
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
@@ -26,8 +26,14 @@ UPRIGHT = np.array([0.0, -np.pi / 2, 0.0, -np.pi / 2, 0.0, 0.0])
 def _observation(env, q, x_d, xdot_d=(0.0, 0.0, 0.0)):
     base = env.unwrapped
     q = np.asarray(q, float)
-    return base.obs_layout.pack(q, np.zeros_like(q), base.kinematics.forward(q), np.asarray(x_d, float),
-                                np.asarray(xdot_d, float), np.asarray(x_d, float))
+    return base.obs_layout.pack(
+        q,
+        np.zeros_like(q),
+        base.kinematics.forward(q),
+        np.asarray(x_d, float),
+        np.asarray(xdot_d, float),
+        np.asarray(x_d, float),
+    )
 
 
 def _kinematic_rollout(env, policy, q0, reference, steps):
@@ -79,8 +85,16 @@ def test_effort_parameter_names_a_gain_that_scales_the_effort(name, reach_env):
 
 @pytest.mark.parametrize(
     "name, kwargs",
-    [("dls", {"gain": 0}), ("dls", {"damping": -1}), ("svf", {"gain": float("nan")}), ("svf", {"sigma0": 0.5}),
-     ("svf", {"nu": 0}), ("rnn", {"epsilon": 0}), ("rnn", {"integrator": "rk4"}), ("rnn", {"gain": 300.0})],
+    [
+        ("dls", {"gain": 0}),
+        ("dls", {"damping": -1}),
+        ("svf", {"gain": float("nan")}),
+        ("svf", {"sigma0": 0.5}),
+        ("svf", {"nu": 0}),
+        ("rnn", {"epsilon": 0}),
+        ("rnn", {"integrator": "rk4"}),
+        ("rnn", {"gain": 300.0}),
+    ],
 )
 def test_bad_parameters_raise(name, kwargs, reach_env):
     with pytest.raises(ValueError):
@@ -127,8 +141,9 @@ def test_svf_pseudoinverse_matches_an_explicit_svd_formula(reach_env, rng):
         filtered_inverse = np.zeros((6, 3))
         for i, s in enumerate(sigma):
             filtered_inverse[i, i] = (s**2 + 7.0 * s + 2) / (s**3 + 7.0 * s**2 + 2 * s + 2 * 0.01)
-        np.testing.assert_allclose(policy.filtered_pseudoinverse(jac), vt_full.T @ filtered_inverse @ u_full.T,
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            policy.filtered_pseudoinverse(jac), vt_full.T @ filtered_inverse @ u_full.T, atol=1e-12
+        )
 
 
 def test_svf_act_is_the_filtered_closed_loop_law(track_env):
@@ -206,8 +221,10 @@ def test_rnn_euler_steps_match_hand_written_updates(track_env):
     policy = RNNPolicy(track_env, gain=gain, epsilon=eps, integrator="euler")
     policy.reset()
     lam = np.zeros(3)
-    states = [(np.array(PAPER_Q0), [-0.7, 0.2, 0.5], [0.01, 0.0, -0.02]),
-              (np.array(PAPER_Q0) + 0.05, [-0.6, 0.3, 0.45], [0.0, 0.03, 0.0])]
+    states = [
+        (np.array(PAPER_Q0), [-0.7, 0.2, 0.5], [0.01, 0.0, -0.02]),
+        (np.array(PAPER_Q0) + 0.05, [-0.6, 0.3, 0.45], [0.0, 0.03, 0.0]),
+    ]
     for q, x_d, xdot_d in states:
         jac = kin.jacobian(q)
         assert dt * np.sum(jac**2) / eps <= 1.0  # one sub-step at this ε
@@ -275,10 +292,15 @@ def test_rnn_network_is_stable_where_plain_euler_is_not_and_solves_the_qp(integr
         u = policy.act(obs)
     assert np.all(np.abs(u) <= limits)
     np.testing.assert_allclose(jac @ u, r, atol=1e-8)
-    qp = minimize(lambda v: 0.5 * v @ v, np.zeros(6), jac=lambda v: v, method="SLSQP",
-                  bounds=list(zip(-limits, limits)), constraints=[{"type": "eq", "fun": lambda v: jac @ v - r,
-                                                                   "jac": lambda v: jac}],
-                  options={"ftol": 1e-14, "maxiter": 500})
+    qp = minimize(
+        lambda v: 0.5 * v @ v,
+        np.zeros(6),
+        jac=lambda v: v,
+        method="SLSQP",
+        bounds=list(zip(-limits, limits)),
+        constraints=[{"type": "eq", "fun": lambda v: jac @ v - r, "jac": lambda v: jac}],
+        options={"ftol": 1e-14, "maxiter": 500},
+    )
     assert qp.success
     np.testing.assert_allclose(u, qp.x, atol=1e-5)
 
@@ -369,7 +391,7 @@ def test_random_episodes_succeed(name, reach_env, track_env):
         reach = _env_episode(reach_env, make_policy(name, reach_env), seed=seed)
         assert reach[-1] <= 1e-3, f"reach seed {seed}"
         track = _env_episode(track_env, make_policy(name, track_env), seed=seed)
-        assert track[len(track) // 2:].mean() <= 5e-3, f"track seed {seed}"
+        assert track[len(track) // 2 :].mean() <= 5e-3, f"track seed {seed}"
 
 
 def test_baselines_are_listed_as_available_policies():

@@ -8,7 +8,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-
 from snac_gym.baselines.dls import DLSPolicy
 from snac_gym.baselines.lqr import LQRPolicy
 from snac_gym.baselines.rnn import RNNPolicy
@@ -16,6 +15,7 @@ from snac_gym.baselines.svf import SVFPolicy
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.policies.base import supports_batch
 from snac_gym.policies.snac import SNACPolicy
 from snac_gym.policies.snac_hjb import SNACHJBPolicy
@@ -151,4 +151,3 @@ def test_batch_and_per_sample_evaluations_agree(tmp_path):
     assert "cost" in numeric and "effort_value" in numeric
     for column in numeric:
         np.testing.assert_allclose(batched[column], looped[column], rtol=1e-9, atol=1e-12, err_msg=column)
-

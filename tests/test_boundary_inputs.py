@@ -11,10 +11,10 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from snac_gym.evaluation import EvaluationConfig
 
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.cost import trajectory_cost
-from snac_gym.evaluation import EvaluationConfig
 from snac_gym.model_error import ModelError
 from snac_gym.policies import make_policy
 from snac_gym.validation import real_array, real_number, whole_number
@@ -112,7 +112,9 @@ def test_act_refuses_a_nan_observation_instead_of_returning_a_nan_command(contro
     assert np.isfinite(policy.act(obs)).all()
     bad = obs.copy()
     bad[0] = np.nan
-    with pytest.raises(ValueError, match=rf"act needs a finite observation of shape \({obs.size},\), got float64 .* with NaN"):
+    with pytest.raises(
+        ValueError, match=rf"act needs a finite observation of shape \({obs.size},\), got float64 .* with NaN"
+    ):
         policy.act(bad)
     with pytest.raises(ValueError, match=r"act needs a finite observation of shape"):
         policy.act(obs[:-1])
@@ -162,11 +164,22 @@ def test_the_shared_checks():
     ("arguments", "message"),
     [
         (["real", "--connection", "sim", "--host", "10.0.0.1", "--dry-run"], "--host is for --connection rtde"),
-        (["real", "--connection", "sim", "--steps", "1000000000000", "--dry-run"],
-         "--steps must be a whole number in [1, 1800000], got 1000000000000"),
-        (["evaluate", "--seed", "-1", "--samples", "2"], "seed must be a whole number in [0, 4294967295] (a NumPy seed), got -1"),
-        (["real", "--connection", "sim", "--seed", "-1", "--dry-run"], "--seed must be a whole number in [0, 4294967295], got -1"),
-        (["evaluate", "--ray", "auto", "--workers", "2", "--samples", "2"], "--workers 2 has no effect on a Ray cluster"),
+        (
+            ["real", "--connection", "sim", "--steps", "1000000000000", "--dry-run"],
+            "--steps must be a whole number in [1, 1800000], got 1000000000000",
+        ),
+        (
+            ["evaluate", "--seed", "-1", "--samples", "2"],
+            "seed must be a whole number in [0, 4294967295] (a NumPy seed), got -1",
+        ),
+        (
+            ["real", "--connection", "sim", "--seed", "-1", "--dry-run"],
+            "--seed must be a whole number in [0, 4294967295], got -1",
+        ),
+        (
+            ["evaluate", "--ray", "auto", "--workers", "2", "--samples", "2"],
+            "--workers 2 has no effect on a Ray cluster",
+        ),
         (["train-ppo", "--task", "reach", "--n-envs", "100000000"], "Invalid value for '--n-envs'"),
         (["train-ppo", "--task", "reach", "--resume", "--seed", "3"], "--seed has no effect with --resume"),
     ],
@@ -227,7 +240,9 @@ def test_mujoco_refuses_a_billion_substeps_too():
         ("env", "dt", 1e-9, r"env.dt \(s\) must be a finite number in \[1e-06, 1\], got 1e-09"),
     ],
 )
-def test_a_ppo_config_with_an_env_argument_out_of_range_is_refused_before_training(tmp_path, section, key, value, message):
+def test_a_ppo_config_with_an_env_argument_out_of_range_is_refused_before_training(
+    tmp_path, section, key, value, message
+):
     from snac_gym.ppo.config import default_config_path, load_config
     from snac_gym.ppo.train import train_ppo
 
@@ -258,7 +273,9 @@ def test_real_refuses_an_out_that_is_a_pipe_or_a_file_before_it_connects(tmp_pat
 
     out = tmp_path / "out"
     os.mkfifo(out) if kind == "fifo" else out.write_text("")
-    result = CliRunner().invoke(app, ["real", "--connection", "sim", "--out", str(out), "--steps", "5"], terminal_width=200)
+    result = CliRunner().invoke(
+        app, ["real", "--connection", "sim", "--out", str(out), "--steps", "5"], terminal_width=200
+    )
     what = "a named pipe" if kind == "fifo" else "a file"
     assert result.exit_code == 2, result.output
     assert f"error: the output folder {out} is {what}, not a folder; choose another --out" in result.output
@@ -270,7 +287,8 @@ def test_evaluate_refuses_a_model_error_no_arm_can_have(tmp_path):
     from snac_gym.apps.cli import app
 
     result = CliRunner().invoke(
-        app, ["evaluate", "--out", str(tmp_path / "out"), "--samples", "2", "--model-error", "link_scale=1e6"],
+        app,
+        ["evaluate", "--out", str(tmp_path / "out"), "--samples", "2", "--model-error", "link_scale=1e6"],
         terminal_width=200,
     )
     assert result.exit_code == 2, result.output

@@ -8,10 +8,10 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from snac_gym.evaluation import EvaluationConfig
 
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.cost import trajectory_cost
-from snac_gym.evaluation import EvaluationConfig
 from snac_gym.sampling import SampleSpace
 from snac_gym.validation import boolean
 
@@ -68,8 +68,11 @@ def test_a_sample_space_is_checked_when_built(kwargs, message):
 
 
 def test_a_sample_space_by_an_unknown_name_is_refused():
-    with pytest.raises(ValueError, match=r"sample_space must be a snac_gym.sampling.SampleSpace, None or one of "
-                                         r"'cuboid', 'workspace', got 'cube'"):
+    with pytest.raises(
+        ValueError,
+        match=r"sample_space must be a snac_gym.sampling.SampleSpace, None or one of "
+        r"'cuboid', 'workspace', got 'cube'",
+    ):
         gym.make(ID, physics="kinematic", sample_space="cube")
     env = gym.make(ID, physics="kinematic", sample_space="workspace").unwrapped
     assert env.sample_space.region == "workspace"
@@ -100,8 +103,11 @@ def test_a_closed_vector_env_says_so():
 
 
 def test_an_initial_command_of_the_wrong_length_is_refused():
-    with pytest.raises(ValueError, match=r"initial_command must be u₋₁ of length 6 \(the commands' m\), shape \(6,\), "
-                                         r"got shape \(5,\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"initial_command must be u₋₁ of length 6 \(the commands' m\), shape \(6,\), "
+        r"got shape \(5,\)",
+    ):
         trajectory_cost(np.zeros((2, 3)), np.zeros((2, 6)), 0.008, initial_command=np.zeros(5))
     with pytest.raises(ValueError, match=r"initial_command must be finite"):
         trajectory_cost(np.zeros((2, 3)), np.zeros((2, 6)), 0.008, initial_command=np.full(6, np.nan))
@@ -112,33 +118,87 @@ def test_an_initial_command_of_the_wrong_length_is_refused():
 @pytest.mark.parametrize(
     ("arguments", "message"),
     [
-        (["real", "--connection", "sim", "--dry-run", "--recovery-timeout", "inf"],
-         "error: --recovery-timeout must be a finite number in (0, 3600], got inf"),
-        (["real", "--connection", "sim", "--dry-run", "--reconnect-timeout", "-1"],
-         "error: --reconnect-timeout must be a finite number in (0, 600], got -1.0"),
-        (["evaluate", "--samples", "2", "--effort-tolerance", "5"], "error: --effort-tolerance must be in (0, 1), got 5.0"),
-        (["evaluate", "--samples", "2", "--q-scale", "-1"], "error: --q-scale must be a positive finite number, got -1.0"),
-        (["evaluate", "--samples", "2", "--success-threshold", "2"], "error: --success-threshold must be in [0, 1], got 2.0"),
-        (["evaluate", "--samples", "2", "--effort-target", "-1"], "error: --effort-target must be a positive finite number"),
+        (
+            ["real", "--connection", "sim", "--dry-run", "--recovery-timeout", "inf"],
+            "error: --recovery-timeout must be a finite number in (0, 3600], got inf",
+        ),
+        (
+            ["real", "--connection", "sim", "--dry-run", "--reconnect-timeout", "-1"],
+            "error: --reconnect-timeout must be a finite number in (0, 600], got -1.0",
+        ),
+        (
+            ["evaluate", "--samples", "2", "--effort-tolerance", "5"],
+            "error: --effort-tolerance must be in (0, 1), got 5.0",
+        ),
+        (
+            ["evaluate", "--samples", "2", "--q-scale", "-1"],
+            "error: --q-scale must be a positive finite number, got -1.0",
+        ),
+        (
+            ["evaluate", "--samples", "2", "--success-threshold", "2"],
+            "error: --success-threshold must be in [0, 1], got 2.0",
+        ),
+        (
+            ["evaluate", "--samples", "2", "--effort-target", "-1"],
+            "error: --effort-target must be a positive finite number",
+        ),
         (["evaluate", "--samples", "2", "--workers", "100000"], "error: --workers must be between 1 and"),
         (["evaluate", "--samples", "100000000000"], "error: --samples must be between 1 and"),
-        (["evaluate", "--samples", "2", "--effort-samples", "100000000000"], "error: --effort-samples must be between 0 and"),
+        (
+            ["evaluate", "--samples", "2", "--effort-samples", "100000000000"],
+            "error: --effort-samples must be between 0 and",
+        ),
         (["evaluate", "--samples", "2", "--cost", "foo"], "error: --cost must be one of ('table1', 'hjb'), got 'foo'"),
         (["evaluate", "--samples", "2", "--udot-start", "foo"], "error: --udot-start must be one of ('rest', 'first')"),
         (["evaluate", "--samples", "2", "--engine", "foo"], "error: --engine must be one of"),
-        (["evaluate", "--samples", "2", "--seed", "99999999999"], "error: --seed must be a whole number in [0, 4294967295]"),
+        (
+            ["evaluate", "--samples", "2", "--seed", "99999999999"],
+            "error: --seed must be a whole number in [0, 4294967295]",
+        ),
         (["evaluate", "--samples", "2", "--reference-limits", "foo"], "error: --reference-limits must be one of"),
         (["evaluate", "--samples", "2", "--horizon", "1e9"], "error: --horizon: the reach horizon must be between"),
         (["evaluate", "--samples", "2", "--robot", "foo"], "error: --robot: unknown robot 'foo'"),
         (["evaluate", "--samples", "2", "--controllers", "foo"], "error: --controllers: unknown controller 'foo'"),
-        (["train-ppo", "--task", "reach", "--seed", "-1"], "error: --seed must be an integer in [0, 4294967295], got -1"),
-        (["train-ppo", "--task", "reach", "--vec-env", "foo"], "error: --vec-env must be 'dummy' or 'subproc' or 'batched'"),
-        (["emulate-ur", "--port-base", "-1", "--duration", "0.2"], "error: --port-base must be 0 (free ports) or in [1024, 65530]"),
-        (["emulate-ur", "--port-base", "0", "--duration", "0.2", "--speed-scaling", "5"], "error: --speed-scaling must be in (0, 1]"),
+        (
+            ["train-ppo", "--task", "reach", "--seed", "-1"],
+            "error: --seed must be an integer in [0, 4294967295], got -1",
+        ),
+        (
+            ["train-ppo", "--task", "reach", "--vec-env", "foo"],
+            "error: --vec-env must be 'dummy' or 'subproc' or 'batched'",
+        ),
+        (
+            ["emulate-ur", "--port-base", "-1", "--duration", "0.2"],
+            "error: --port-base must be 0 (free ports) or in [1024, 65530]",
+        ),
+        (
+            ["emulate-ur", "--port-base", "0", "--duration", "0.2", "--speed-scaling", "5"],
+            "error: --speed-scaling must be in (0, 1]",
+        ),
     ],
-    ids=["recovery-timeout", "reconnect-timeout", "effort-tolerance", "q-scale", "success-threshold", "effort-target",
-         "workers", "samples", "effort-samples", "cost", "udot-start", "engine", "seed", "reference-limits", "horizon",
-         "robot", "controllers", "ppo-seed", "ppo-vec-env", "port-base", "speed-scaling"],
+    ids=[
+        "recovery-timeout",
+        "reconnect-timeout",
+        "effort-tolerance",
+        "q-scale",
+        "success-threshold",
+        "effort-target",
+        "workers",
+        "samples",
+        "effort-samples",
+        "cost",
+        "udot-start",
+        "engine",
+        "seed",
+        "reference-limits",
+        "horizon",
+        "robot",
+        "controllers",
+        "ppo-seed",
+        "ppo-vec-env",
+        "port-base",
+        "speed-scaling",
+    ],
 )
 def test_cli_refusals_name_the_option_typed(tmp_path, arguments, message):
     from typer.testing import CliRunner
@@ -161,8 +221,21 @@ def test_export_samples_under_a_file_names_the_folder(tmp_path):
     blocker.write_text("")
     target = blocker / "sub" / "samples.csv"
     result = CliRunner().invoke(
-        app, ["evaluate", "--out", str(tmp_path / "out"), "--samples", "2", "--export-samples", str(target), "--export-only"],
+        app,
+        [
+            "evaluate",
+            "--out",
+            str(tmp_path / "out"),
+            "--samples",
+            "2",
+            "--export-samples",
+            str(target),
+            "--export-only",
+        ],
         terminal_width=300,
     )
     assert result.exit_code == 2, result.output
-    assert f"error: --export-samples {target}: its folder {target.parent} cannot be made, {blocker} is not a folder" in result.output
+    assert (
+        f"error: --export-samples {target}: its folder {target.parent} cannot be made, {blocker} is not a folder"
+        in result.output
+    )

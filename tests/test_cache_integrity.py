@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.cache_entry import DamagedEntry, entry_text, read_entry, write_entry
 from snac_gym.evaluation.code_graph import module_closure
@@ -107,7 +106,9 @@ def test_every_float_of_every_reference_entry_scaled_gives_the_fresh_rows(job, c
 
 
 @pytest.mark.parametrize("blocker", ["file-in-the-way", "unwritable"])
-def test_an_unusable_reference_cache_folder_warns_once_and_the_rows_are_solved(job, tmp_path, monkeypatch, capsys, blocker):
+def test_an_unusable_reference_cache_folder_warns_once_and_the_rows_are_solved(
+    job, tmp_path, monkeypatch, capsys, blocker
+):
     blocked = tmp_path / "blocked"
     blocked.write_text("a file where the cache folder should be")
     folder = blocked if blocker == "file-in-the-way" else blocked / "reference"  # under a file: cannot be made
@@ -127,7 +128,9 @@ def test_the_reference_key_covers_every_module_of_its_import_graph_and_moves_wit
     real_read = Path.read_bytes
     for module in sorted(modules):
         origin = Path(__import__("importlib").util.find_spec(module).origin)
-        monkeypatch.setattr(Path, "read_bytes", lambda self, _o=origin: real_read(self) + (b"\n# edited" if self == _o else b""))
+        monkeypatch.setattr(
+            Path, "read_bytes", lambda self, _o=origin: real_read(self) + (b"\n# edited" if self == _o else b"")
+        )
         reference_cache.code_fingerprint.cache_clear()
         assert reference_cache.sample_key(job, job.samples[0]) != before, module
     monkeypatch.setattr(Path, "read_bytes", real_read)

@@ -7,7 +7,6 @@ import json
 
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.effort import cache
 

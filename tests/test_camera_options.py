@@ -8,21 +8,27 @@ import pybullet as p
 import pytest
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.physics.scene import CameraOptions, fit_camera, project
 from snac_gym.kinematics import Kinematics
+from snac_gym.physics.scene import CameraOptions, fit_camera, project
 
 
 @pytest.mark.parametrize(("yaw", "pitch"), [(0.0, 0.0), (90.0, -30.0), (45.0, -25.0), (-120.0, 40.0)])
 def test_yaw_and_pitch_follow_pybullets_convention(yaw, pitch):
     """The camera's eye against PyBullet's own view matrix for the same yaw, pitch, distance and target."""
     target, distance = np.array([0.3, -0.2, 0.4]), 1.7
-    camera = fit_camera(np.zeros((2, 3)) + target, Kinematics("ur10"), 320, 240,
-                        CameraOptions(distance=distance, yaw=yaw, pitch=pitch, target=tuple(target)))
+    camera = fit_camera(
+        np.zeros((2, 3)) + target,
+        Kinematics("ur10"),
+        320,
+        240,
+        CameraOptions(distance=distance, yaw=yaw, pitch=pitch, target=tuple(target)),
+    )
     view = np.array(p.computeViewMatrixFromYawPitchRoll(target.tolist(), distance, yaw, pitch, 0.0, 2)).reshape(4, 4).T
     eye = -view[:3, :3].T @ view[:3, 3]
     np.testing.assert_allclose(camera.eye, eye, atol=1e-6)
-    np.testing.assert_allclose(np.array(camera.view), np.array(p.computeViewMatrix(eye.tolist(), target.tolist(), [0, 0, 1])),
-                               atol=1e-5)
+    np.testing.assert_allclose(
+        np.array(camera.view), np.array(p.computeViewMatrix(eye.tolist(), target.tolist(), [0, 0, 1])), atol=1e-5
+    )
 
 
 @pytest.mark.parametrize(
@@ -45,9 +51,18 @@ def test_camera_options_move_the_camera_in_both_engines(physics):
     if physics == "mujoco":
         pytest.importorskip("mujoco")
     frames = []
-    for options in ({}, {"render_distance": 2.6, "render_yaw": 20, "render_pitch": -35, "render_target_position": (0.4, 0.4, 0.4)}):
-        env = gym.make("snac_gym/UR10Reach-v0", physics=physics, render_mode="rgb_array", render_width=96,
-                       render_height=64, **options)
+    for options in (
+        {},
+        {"render_distance": 2.6, "render_yaw": 20, "render_pitch": -35, "render_target_position": (0.4, 0.4, 0.4)},
+    ):
+        env = gym.make(
+            "snac_gym/UR10Reach-v0",
+            physics=physics,
+            render_mode="rgb_array",
+            render_width=96,
+            render_height=64,
+            **options,
+        )
         env.reset(seed=0)
         frames.append(env.render())
         scene = env.unwrapped._scene
@@ -55,13 +70,23 @@ def test_camera_options_move_the_camera_in_both_engines(physics):
         if options:
             view = np.array(scene.view).reshape(4, 4).T
             eye = -view[:3, :3].T @ view[:3, 3]
-            expected = np.array(p.computeViewMatrixFromYawPitchRoll([0.4, 0.4, 0.4], 2.6, 20, -35, 0, 2)).reshape(4, 4).T
+            expected = (
+                np.array(p.computeViewMatrixFromYawPitchRoll([0.4, 0.4, 0.4], 2.6, 20, -35, 0, 2)).reshape(4, 4).T
+            )
             np.testing.assert_allclose(eye, -expected[:3, :3].T @ expected[:3, 3], atol=1e-6)
     assert frames[0].shape == frames[1].shape == (64, 96, 3) and np.abs(frames[0].astype(int) - frames[1]).mean() > 5
 
 
-@pytest.mark.parametrize("env_id", ["snac_gym/UR10Reach-v0", "snac_gym/UR3EllipseTrack-v0", "snac_gym/PandaReach-v0",
-                                    "snac_gym/XArm7Reach-v0", "snac_gym/PandaReachGoalCoarse-v0"])
+@pytest.mark.parametrize(
+    "env_id",
+    [
+        "snac_gym/UR10Reach-v0",
+        "snac_gym/UR3EllipseTrack-v0",
+        "snac_gym/PandaReach-v0",
+        "snac_gym/XArm7Reach-v0",
+        "snac_gym/PandaReachGoalCoarse-v0",
+    ],
+)
 def test_the_default_frame_shows_the_arm_and_the_target_on_unseen_episodes(env_id):
     """Every link origin and the target of episodes the framing did not use project inside the image."""
     env = gym.make(env_id, render_mode="rgb_array", render_width=160, render_height=120)
@@ -73,5 +98,8 @@ def test_the_default_frame_shows_the_arm_and_the_target_on_unseen_episodes(env_i
         target = scene.kinematics.base_to_world(np.asarray(base.reference.position(base.time), dtype=float))
         points = np.vstack([scene.link_origins(), [target]])
         pixels = project(points, scene.view, scene.projection, 160, 120)
-        assert np.all((pixels[:, 0] >= 0) & (pixels[:, 0] <= 160) & (pixels[:, 1] >= 0) & (pixels[:, 1] <= 120)), (seed, pixels)
+        assert np.all((pixels[:, 0] >= 0) & (pixels[:, 0] <= 160) & (pixels[:, 1] >= 0) & (pixels[:, 1] <= 120)), (
+            seed,
+            pixels,
+        )
     env.close()

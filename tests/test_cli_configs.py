@@ -107,15 +107,18 @@ def test_env_keywords_are_the_env_constructors():
 def test_command_line_overrides_are_checked_too(tmp_path):
     out = tmp_path / "run"
     _one_line_error(_train("--out", str(out), "--seed", "-1"), f"--seed must be an integer in [0, {MAX_SEED}], got -1")
-    _one_line_error(_train("--out", str(out), "--vec-env", "threads"),
-                    "--vec-env must be 'dummy' or 'subproc' or 'batched', got 'threads'")
+    _one_line_error(
+        _train("--out", str(out), "--vec-env", "threads"),
+        "--vec-env must be 'dummy' or 'subproc' or 'batched', got 'threads'",
+    )
     assert not out.exists()
 
 
 @pytest.mark.parametrize("source", ["/dev/zero", "folder", "missing.json", "not-json"])
 def test_a_config_file_that_cannot_be_read_is_one_line(tmp_path, source):
     path = {"folder": tmp_path, "missing.json": tmp_path / "missing.json", "not-json": tmp_path / "c.json"}.get(
-        source, source)
+        source, source
+    )
     (tmp_path / "c.json").write_text('{"config_version": 1,')
     _one_line_error(_train("--out", str(tmp_path / "run"), "--config", str(path)), f"cannot read PPO config {path}")
 
@@ -166,8 +169,10 @@ def _demo(tmp_path, *arguments: str):
 
 
 def test_demo_seed_must_be_a_numpy_seed(tmp_path):
-    _one_line_error(_demo(tmp_path, "--seed", "-1", "--out", str(tmp_path / "d")),
-                    "--seed must be an integer ≥ 0 (a NumPy seed), got -1")
+    _one_line_error(
+        _demo(tmp_path, "--seed", "-1", "--out", str(tmp_path / "d")),
+        "--seed must be an integer ≥ 0 (a NumPy seed), got -1",
+    )
     assert not (tmp_path / "d").exists()
 
 
@@ -185,8 +190,10 @@ def test_demo_out_must_be_a_usable_folder(tmp_path, kind):
     [
         (["--steps", str(10**12)], f"--steps must be between 100 and {MAX_BENCH_STEPS:,}, got {10**12}"),
         (["--steps", "99"], f"--steps must be between 100 and {MAX_BENCH_STEPS:,}, got 99"),
-        (["--act", "--act-calls", str(MAX_ACT_CALLS + 1)],
-         f"--act-calls must be between 100 and {MAX_ACT_CALLS:,}, got {MAX_ACT_CALLS + 1}"),
+        (
+            ["--act", "--act-calls", str(MAX_ACT_CALLS + 1)],
+            f"--act-calls must be between 100 and {MAX_ACT_CALLS:,}, got {MAX_ACT_CALLS + 1}",
+        ),
         (["--act-calls", "-5"], f"--act-calls must be between 100 and {MAX_ACT_CALLS:,}, got -5"),
     ],
 )

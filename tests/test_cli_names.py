@@ -26,8 +26,19 @@ def captured_config(monkeypatch):
 
 def _evaluate(tmp_path, *options):
     return CliRunner().invoke(
-        app, ["evaluate", "--out", str(tmp_path / "run"), "--samples", "2", "--export-samples", str(tmp_path / "s.csv"),
-              "--export-only", "--no-progress", *options],
+        app,
+        [
+            "evaluate",
+            "--out",
+            str(tmp_path / "run"),
+            "--samples",
+            "2",
+            "--export-samples",
+            str(tmp_path / "s.csv"),
+            "--export-only",
+            "--no-progress",
+            *options,
+        ],
     )
 
 
@@ -72,8 +83,12 @@ def test_real_names_its_connection(monkeypatch, tmp_path):
 def test_the_real_arm_connections_keep_their_former_names_with_a_warning():
     import snac_gym.real as real
 
-    for old, new in [("ArmBackend", "ArmConnection"), ("URRTDEBackend", "URRTDEConnection"),
-                     ("SimulatedBackend", "SimulatedConnection"), ("DryRunBackend", "DryRunConnection")]:
+    for old, new in [
+        ("ArmBackend", "ArmConnection"),
+        ("URRTDEBackend", "URRTDEConnection"),
+        ("SimulatedBackend", "SimulatedConnection"),
+        ("DryRunBackend", "DryRunConnection"),
+    ]:
         with pytest.warns(DeprecationWarning, match=f"snac_gym.real.{old} is deprecated; use snac_gym.real.{new}"):
             assert getattr(real, old) is getattr(real, new)
         assert old not in real.__all__

@@ -68,13 +68,24 @@ def _catches_stop_signals(pid: int) -> bool:
     return all(mask >> (int(getattr(signal, name)) - 1) & 1 for name in SIGNALS)
 
 
-def _run(args: list[str], signame: str, hook: str = "-", cwd: Path | None = None,
-         send_when: str | None = "handlers", timeout: float = 120.0, delay: float = 0.0) -> tuple[int, str, str]:
+def _run(
+    args: list[str],
+    signame: str,
+    hook: str = "-",
+    cwd: Path | None = None,
+    send_when: str | None = "handlers",
+    timeout: float = 120.0,
+    delay: float = 0.0,
+) -> tuple[int, str, str]:
     """Run the driver; without a hook, send ``signame`` once the handlers are in place (or once
     ``send_when`` appears on stdout). Returns (exit code, stderr, stdout)."""
     process = subprocess.Popen(
-        [sys.executable, "-c", DRIVER, hook, signame, *args], cwd=cwd, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        [sys.executable, "-c", DRIVER, hook, signame, *args],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     try:
         if hook == "-" and send_when == "handlers":
@@ -152,7 +163,10 @@ def test_a_stop_signal_in_a_commands_first_second_ends_it_with_one_line_and_noth
     assert code == 128 + int(getattr(signal, signame)), err
     line = _one_line(err)
     kept = ["while the command was starting: nothing was written", *EARLY_LINES[command]]
-    in_its_work = {"real": "the arm was stopped; the log so far is in", "demo": 'a summary marked "complete": false are in'}
+    in_its_work = {
+        "real": "the arm was stopped; the log so far is in",
+        "demo": 'a summary marked "complete": false are in',
+    }
     if command in in_its_work and in_its_work[command] in line:
         # On a quick host the command is already at work at the later delay: it keeps what it did and says where,
         # which is what it must do there (the mid-work tests check those files).
@@ -245,7 +259,11 @@ def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_
         f"{out / 'checkpoint'}/ with every evaluation so far; continue with --resume --out {out}"
     )
     manifest = json.loads((out / "checkpoint" / "sha256.json").read_text())
-    assert manifest["timesteps"] == state["timesteps"] and set(manifest["sha256"]) == {"model.zip", "vecnormalize.pkl", "policy.npz"}
+    assert manifest["timesteps"] == state["timesteps"] and set(manifest["sha256"]) == {
+        "model.zip",
+        "vecnormalize.pkl",
+        "policy.npz",
+    }
     assert not (out / "checkpoint.tmp").exists() and not (out / "checkpoint.old").exists()
     if signame == "SIGHUP":  # one resume (the others' checkpoints are the same kind of file)
         from snac_gym.ppo.train import train_ppo
@@ -300,7 +318,10 @@ def test_a_checkpoint_file_with_one_flipped_bit_is_refused_on_resume(tmp_path, n
     from snac_gym.ppo.train import train_ppo
 
     out = tmp_path / "run"
-    assert train_ppo("reach", out, timesteps=32, config_path=_tiny_config(tmp_path), log=lambda line: None).status == "finished"
+    assert (
+        train_ppo("reach", out, timesteps=32, config_path=_tiny_config(tmp_path), log=lambda line: None).status
+        == "finished"
+    )
     path = out / "checkpoint" / name
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0x10
@@ -353,7 +374,10 @@ def test_a_signal_handled_inside_a_weakref_callback_is_not_lost():
     went on to its end with exit 0 (seen twice in full test runs on a loaded machine, in a command's first
     second). The guard's unraisable hook sends the signal again, to be raised where it can be."""
     done = subprocess.run([sys.executable, "-c", WEAKREF_CALLBACK], capture_output=True, text=True, timeout=60)
-    assert done.stdout.strip() == "interrupted SIGTERM" and "Exception ignored" not in done.stderr, (done.stdout, done.stderr)
+    assert done.stdout.strip() == "interrupted SIGTERM" and "Exception ignored" not in done.stderr, (
+        done.stdout,
+        done.stderr,
+    )
 
 
 #: ``evaluate`` with mink, whose import loads mujoco's pybind11 modules, and a stop signal handled while one of
@@ -381,9 +405,25 @@ def test_a_signal_handled_while_a_c_extension_initialises_is_not_lost(tmp_path):
     in this file on a loaded machine). The handler sends it again, to be raised once the import returned."""
     pytest.importorskip("mink")
     out = tmp_path / "out"
-    args = ["evaluate", "--out", str(out), "--samples", "4", "--controllers", "mink", "--task", "reach", "--no-progress"]
-    done = subprocess.run([sys.executable, "-c", IN_EXTENSION_INIT, *args], capture_output=True, text=True,
-                          timeout=120, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    args = [
+        "evaluate",
+        "--out",
+        str(out),
+        "--samples",
+        "4",
+        "--controllers",
+        "mink",
+        "--task",
+        "reach",
+        "--no-progress",
+    ]
+    done = subprocess.run(
+        [sys.executable, "-c", IN_EXTENSION_INIT, *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     assert done.returncode == 128 + signal.SIGTERM, done.stderr
     assert _one_line(done.stderr).startswith("interrupted by SIGTERM"), done.stderr
 
@@ -415,6 +455,7 @@ def test_a_signal_that_comes_while_the_unraisable_hook_runs_is_sent_again_not_ra
     guard = _signals.SignalGuard()
     handlers, previous = guard.install((signal.SIGTERM,))
     try:
+
         class Unraisable:
             exc_value = _signals.TerminationSignal(signal.SIGTERM)
 

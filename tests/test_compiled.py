@@ -125,9 +125,9 @@ def test_after_the_warm_up_an_evaluation_compiles_nothing(tmp_path, monkeypatch)
     metrics and the optimum call each kernel with the types of one of its warm-up examples, read-only
     arrays too. Every call's types are recorded, so what other tests compiled earlier does not matter."""
     import numba
-
     from snac_gym.evaluation.run_config import EvaluationConfig
     from snac_gym.evaluation.runner import run_evaluation
+
     from snac_gym.kernels.compiled import _KERNELS, KERNEL_MODULES, Kernel
 
     for module in KERNEL_MODULES:
@@ -184,7 +184,9 @@ def test_processes_that_share_the_compile_locks_compile_each_kernel_module_once(
     import json
 
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}  # an empty cache: every kernel compiles
-    done = subprocess.run([sys.executable, "-c", SHARED_DRIVER, "fork"], capture_output=True, text=True, timeout=180, env=env)
+    done = subprocess.run(
+        [sys.executable, "-c", SHARED_DRIVER, "fork"], capture_output=True, text=True, timeout=180, env=env
+    )
     assert done.returncode == 0, done.stderr
     reports = json.loads(done.stdout)
     modules = {"snac_gym.kernels.trajopt", "snac_gym.kernels.metrics"}

@@ -11,10 +11,10 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
-
-import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import EvaluationSample
+
+import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.cost import CostConvention
 from snac_gym.metrics import rollout_metrics
 from snac_gym.policies import make_policy
@@ -83,8 +83,9 @@ def test_the_reward_is_the_step_share_of_the_cost_by_hand():
 def test_the_vector_env_gives_the_single_envs_rewards():
     convention = CostConvention("hjb", q_scale=4.0)
     single = gym.make(IDS["track"], physics="kinematic", reward_type="cost", cost=convention)
-    vector = gym.make_vec(IDS["track"], num_envs=2, vectorization_mode="vector_entry_point",
-                          reward_type="cost", cost=convention)
+    vector = gym.make_vec(
+        IDS["track"], num_envs=2, vectorization_mode="vector_entry_point", reward_type="cost", cost=convention
+    )
     obs, _ = single.reset(seed=4)
     batch, _ = vector.reset(seed=[4, 5])
     np.testing.assert_allclose(batch[0], obs, rtol=0, atol=1e-12)

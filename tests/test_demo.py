@@ -12,13 +12,13 @@ from typer.testing import CliRunner
 from snac_gym.apps.bench import format_act_bench, run_act_bench
 from snac_gym.apps.cli import app
 from snac_gym.apps.demo import demo_options, run_demo
+from snac_gym.apps.studies import discretisation_study, random_episode_study, summarise_random_study, summarise_study
 from snac_gym.metrics import demo_metrics
 from snac_gym.policies import register_policy, registry
 from snac_gym.policies.base import BasePolicy
 from snac_gym.policies.snac import SNACPolicy
 from snac_gym.references import PAPER_Q0, PAPER_TARGET
 from snac_gym.rollout import log_array, log_columns, read_log, rollout, write_log
-from snac_gym.apps.studies import discretisation_study, random_episode_study, summarise_random_study, summarise_study
 from snac_gym.tasks import TASKS
 
 PANELS = ("path", "error", "joint_velocities", "cost", "figure3", "critic_weights", "optimality")
@@ -78,8 +78,10 @@ def test_track_demo_settles_under_5_mm_and_stays(tmp_path):
 @pytest.mark.parametrize("task", ["reach", "track"])
 def test_same_seed_reproduces_the_log_bit_for_bit(tmp_path, task):
     random = {"initial_weights": "uniform"}  # the seed draws Ŵ₀
-    logs = [run_demo(task, "snac", tmp_path / str(i), seed=5, steps=250, plots=False, policy_kwargs=random).log
-            for i in range(2)]
+    logs = [
+        run_demo(task, "snac", tmp_path / str(i), seed=5, steps=250, plots=False, policy_kwargs=random).log
+        for i in range(2)
+    ]
     assert logs[0].to_numpy().tobytes() == logs[1].to_numpy().tobytes()
     assert logs[0].attrs == logs[1].attrs
     files = [tmp_path / str(i) / f"{task}_snac_log.parquet" for i in range(2)]
@@ -152,8 +154,13 @@ def test_log_columns_follow_the_robot():
 def test_metrics_on_a_hand_made_log():
     dt = 0.5
     errors = np.array([[3e-3, 0, 0], [2e-3, 0, 0], [4e-3, 0, 0], [0.5e-3, 0, 0]])
-    log = pd.DataFrame({"t": np.arange(4) * dt, **{f"e_{i}": errors[:, i] for i in range(3)},
-                        **{f"u_{j}": [2.0, 0.0, 0.0, 0.0] if j == 0 else [0.0] * 4 for j in range(2)}})
+    log = pd.DataFrame(
+        {
+            "t": np.arange(4) * dt,
+            **{f"e_{i}": errors[:, i] for i in range(3)},
+            **{f"u_{j}": [2.0, 0.0, 0.0, 0.0] if j == 0 else [0.0] * 4 for j in range(2)},
+        }
+    )
     log.attrs = {"dt": dt, "final_e": [0.2e-3, 0, 0], "final_t": 2.0, "velocity_limits": [2.0, 1.0]}
     m = demo_metrics(log, tolerance=1e-3)
     assert m.final_error == pytest.approx(0.2e-3)
@@ -167,9 +174,21 @@ def test_the_demo_success_rule_is_the_evaluators_joint_limits_included():
     """The reach rule by hand (final ‖e‖ ≤ 1 mm), and a run that ends on target after crossing a joint limit
     (θ_K past θ⁺, as the evaluator's success column counts it) does not succeed."""
     dt = 0.5
-    log = pd.DataFrame({"t": np.arange(2) * dt, **{f"e_{i}": [3e-3, 1e-3] if i == 0 else [0.0, 0.0] for i in range(3)},
-                        **{f"u_{j}": [0.0, 0.0] for j in range(2)}, **{f"q_{j}": [0.0, 0.5] for j in range(2)}})
-    log.attrs = {"dt": dt, "final_e": [0.2e-3, 0, 0], "final_t": 1.0, "velocity_limits": [2.0, 1.0], "final_q": [0.9, 0.5]}
+    log = pd.DataFrame(
+        {
+            "t": np.arange(2) * dt,
+            **{f"e_{i}": [3e-3, 1e-3] if i == 0 else [0.0, 0.0] for i in range(3)},
+            **{f"u_{j}": [0.0, 0.0] for j in range(2)},
+            **{f"q_{j}": [0.0, 0.5] for j in range(2)},
+        }
+    )
+    log.attrs = {
+        "dt": dt,
+        "final_e": [0.2e-3, 0, 0],
+        "final_t": 1.0,
+        "velocity_limits": [2.0, 1.0],
+        "final_q": [0.9, 0.5],
+    }
     assert demo_metrics(log, 1e-3).success("reach")  # limits not given: the error rule alone
     inside = demo_metrics(log, 1e-3, (np.full(2, -1.0), np.full(2, 1.0)))
     assert inside.joint_limit_margin == pytest.approx(0.1) and inside.success("reach")
@@ -223,16 +242,23 @@ def test_act_bench_reports_every_task_and_skips_what_does_not_build(isolated_reg
 
 def test_studies_report_every_option_and_the_success_criteria():
     assert {name: task.horizon_s for name, task in TASKS.items()} == {"reach": 12.0, "track": 20.0}
-    runs = discretisation_study(tasks=("reach",), seeds=(0, 1), weight_updates=("euler",),
-                                learning_rate_units=("per_second",), freeze_options=(False,),
-                                schedule_clocks=("seconds",), steps={"reach": 30},
-                                initial_weights=(("identity", 2.0), ("uniform", 3.0)))
+    runs = discretisation_study(
+        tasks=("reach",),
+        seeds=(0, 1),
+        weight_updates=("euler",),
+        learning_rate_units=("per_second",),
+        freeze_options=(False,),
+        schedule_clocks=("seconds",),
+        steps={"reach": 30},
+        initial_weights=(("identity", 2.0), ("uniform", 3.0)),
+    )
     assert list(runs.initial_weights) == ["identity", "uniform", "uniform"]  # identity Ŵ₀ ignores the seed
     assert list(runs.initial_weight_scale) == [2.0, 3.0, 3.0] and set(runs.steps) == {30}
     table = summarise_study(runs)
     assert list(table.seeds) == [1, 2] and "max_speed_ratio" in table.columns
-    random = random_episode_study({"default": {}}, tasks=("reach", "track"), episodes=2,
-                                  horizons={"reach": (0.1, 0.2), "track": (0.2,)})
+    random = random_episode_study(
+        {"default": {}}, tasks=("reach", "track"), episodes=2, horizons={"reach": (0.1, 0.2), "track": (0.2,)}
+    )
     assert len(random) == 2 * 2 + 2
     reach = random[random.task == "reach"]
     assert (reach.success == (reach.final_error <= 1e-3)).all()

@@ -8,9 +8,9 @@ horizontal plane. Without the monitor that episode runs away silently.
 
 import numpy as np
 import pytest
-
 from snac_gym.evaluation.execution.jobs import RolloutJob, policy_context, run_job, task_kinematics
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.kinematics import Kinematics
 from snac_gym.policies.registry import make_policy
 from snac_gym.policies.snac_adaptive import DivergenceMonitor
@@ -106,7 +106,6 @@ def test_the_results_carry_the_flag_and_its_time_and_leave_it_empty_for_controll
 
 def test_a_real_arm_is_stopped_through_its_safety_layer_when_the_controller_diverges(tmp_path):
     from snac_gym.apps.real import run_real_episode
-
     from snac_gym.real import SafetyLimits
 
     # a loaded CI machine may be late now and then: the deadline rule has its own tests (tests/test_real.py)

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-
 from snac_gym.evaluation.effort.search import EffortMatch, EffortSearch, match_effort, within
 
 TOLERANCE = 0.005

@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.effort.statistics import DEFAULT_EFFORT_STATISTIC, EFFORT_STATISTICS, PEAK_FLOOR
 
@@ -103,17 +102,26 @@ def test_the_matched_knob_does_not_move_with_the_sample_count(tmp_path, statisti
 
 def test_peak_ratio_without_matching_is_relative_to_the_reference_and_refuses_a_target(tmp_path):
     common = {"samples": 4, "tasks": ("reach",), "horizons": {"reach": 0.2}, "progress": False, "plots": False}
-    config = EvaluationConfig(out=tmp_path / "fixed", controllers=("snac", "dls"), match_effort=False,
-                              effort_statistic="peak-ratio", **common)
+    config = EvaluationConfig(
+        out=tmp_path / "fixed", controllers=("snac", "dls"), match_effort=False, effort_statistic="peak-ratio", **common
+    )
     results = run_evaluation(config)
     summary = pd.read_csv(tmp_path / "fixed" / "summary.csv").set_index("controller")
     by_controller = {name: rows for name, rows in results.groupby("controller")}
     expected = EFFORT_STATISTICS["peak-ratio"].of(by_controller["dls"], by_controller["snac"])
     assert summary.loc["dls", "reach_effort"] == pytest.approx(expected) and summary.loc["snac", "reach_effort"] == 1.0
-    alone = EvaluationConfig(out=tmp_path / "alone", controllers=("dls",), match_effort=False,
-                             effort_statistic="peak-ratio", **common)
+    alone = EvaluationConfig(
+        out=tmp_path / "alone", controllers=("dls",), match_effort=False, effort_statistic="peak-ratio", **common
+    )
     run_evaluation(alone)  # no reference evaluated: the effort is unknown, not an error
     assert np.isnan(pd.read_csv(tmp_path / "alone" / "summary.csv")["reach_effort"].iloc[0])
     with pytest.raises(ValueError, match="--effort-target has no meaning for the peak-ratio statistic"):
-        run_evaluation(EvaluationConfig(out=tmp_path / "target", controllers=("dls",), effort_target=1.0,
-                                        effort_statistic="peak-ratio", **common))
+        run_evaluation(
+            EvaluationConfig(
+                out=tmp_path / "target",
+                controllers=("dls",),
+                effort_target=1.0,
+                effort_statistic="peak-ratio",
+                **common,
+            )
+        )

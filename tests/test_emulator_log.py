@@ -23,10 +23,14 @@ def test_the_watchdog_after_a_closed_link_is_info_and_with_a_connected_client_a_
     with caplog.at_level(logging.INFO, logger="snac_gym.emulate_ur"):
         _expire(emulator, owner_closed=True)
         _expire(emulator, owner_closed=False)
-    (usual,), (stalled,) = ([r for r in caplog.records if "watchdog expired" in r.getMessage() and k in r.getMessage()]
-                            for k in ("closed the link", "stalled host"))
+    (usual,), (stalled,) = (
+        [r for r in caplog.records if "watchdog expired" in r.getMessage() and k in r.getMessage()]
+        for k in ("closed the link", "stalled host")
+    )
     assert usual.levelno == logging.INFO and "the usual end of a run, not a fault" in usual.getMessage()
-    assert stalled.levelno == logging.WARNING and "no update of input_int_register_0 for 0.046 s" in stalled.getMessage()
+    assert (
+        stalled.levelno == logging.WARNING and "no update of input_int_register_0 for 0.046 s" in stalled.getMessage()
+    )
     assert emulator.runtime_state == p.RUNTIME_STOPPED
 
 

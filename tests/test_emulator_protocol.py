@@ -14,8 +14,8 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from snac_gym.real.emulator import UREmulator
 from snac_gym.real.connections import PROTECTIVE_STOP_LOCKOUT
+from snac_gym.real.emulator import UREmulator
 from snac_gym.real.emulator import protocol as p
 from snac_gym.real.emulator.controller import UNLOCK_TOO_EARLY
 
@@ -137,7 +137,7 @@ def test_motion_commands_during_a_stop_or_before_a_fresh_state_are_recorded(emul
         time.sleep(0.05)
         sock.sendall(_speedj_package(1))
         _wait_for(lambda: emulator.unsafe_commands)
-    (_, text), = emulator.unsafe_commands
+    ((_, text),) = emulator.unsafe_commands
     assert text.startswith("speedJ during PROTECTIVE_STOP (") and "ms after it was reported" in text
     delay_ms = float(text.split("(")[1].split(" ms")[0])
     assert delay_ms >= 50.0

@@ -8,19 +8,23 @@ import importlib.util
 import numpy as np
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation.execution.jobs import RolloutJob, policy_context, run_job
 from snac_gym.evaluation.samples import generate_samples, policy_seed
-from snac_gym.physics.bullet import without_meshes
+
 from snac_gym.kinematics import Kinematics, resolved_urdf_text
+from snac_gym.physics.bullet import without_meshes
 from snac_gym.policies import make_policy
 from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_env
 from snac_gym.sampling import SampleSpace
 
 PHYSICS = [
     "pybullet",
-    pytest.param("mujoco", marks=pytest.mark.skipif(
-        importlib.util.find_spec("mujoco") is None, reason="the mujoco engine needs the mujoco extra")),
+    pytest.param(
+        "mujoco",
+        marks=pytest.mark.skipif(
+            importlib.util.find_spec("mujoco") is None, reason="the mujoco engine needs the mujoco extra"
+        ),
+    ),
 ]
 
 
@@ -65,7 +69,9 @@ def test_a_job_does_not_depend_on_how_samples_are_chunked(physics):
     samples, seeds = _samples("track", 5, 3)
 
     def job(part: slice, keep_logs: bool = False) -> RolloutJob:
-        return RolloutJob("track", "snac", {}, samples[part], seeds[part], 200, 0.008, engine=physics, keep_logs=keep_logs)
+        return RolloutJob(
+            "track", "snac", {}, samples[part], seeds[part], 200, 0.008, engine=physics, keep_logs=keep_logs
+        )
 
     whole = run_job(job(slice(0, 3), keep_logs=True))
     pieces = [run_job(job(slice(0, 2))), run_job(job(slice(2, 3)))]
@@ -75,7 +81,9 @@ def test_a_job_does_not_depend_on_how_samples_are_chunked(physics):
 
 
 def test_lockstep_arms_are_simulated_only():
-    with pytest.raises(ValueError, match=r"lockstep arms are simulated: physics must be one of \('pybullet', 'mujoco'\), got"):
+    with pytest.raises(
+        ValueError, match=r"lockstep arms are simulated: physics must be one of \('pybullet', 'mujoco'\), got"
+    ):
         lockstep_arms("ur10", "reach", 0.008, 10, "kinematic", 2)
 
 

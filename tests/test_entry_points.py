@@ -109,10 +109,16 @@ def test_the_gym_ids_of_an_outside_task_and_robot_exist(outside, tmp_path):
 @pytest.mark.parametrize(
     ("group", "lookup", "message"),
     [
-        ("snac_gym.robots", "from snac_gym.robots import get_robot; get_robot('bad')",
-         "entry point bad = 'badext:ARM' (snac_gym.robots) gives str, not a snac_gym.robots.Robot"),
-        ("snac_gym.tasks", "from snac_gym.tasks import get_task; get_task('bad')",
-         "entry point bad = 'badext:ARM' (snac_gym.tasks): task str does not set ['name', 'label', 'code'"),
+        (
+            "snac_gym.robots",
+            "from snac_gym.robots import get_robot; get_robot('bad')",
+            "entry point bad = 'badext:ARM' (snac_gym.robots) gives str, not a snac_gym.robots.Robot",
+        ),
+        (
+            "snac_gym.tasks",
+            "from snac_gym.tasks import get_task; get_task('bad')",
+            "entry point bad = 'badext:ARM' (snac_gym.tasks): task str does not set ['name', 'label', 'code'",
+        ),
     ],
 )
 def test_a_broken_entry_point_is_named(tmp_path, group, lookup, message):

@@ -24,18 +24,21 @@ from gymnasium.utils.env_checker import check_env
 
 import snac_gym
 from snac_gym.envs import GOAL_ENV_IDS, REGISTERED_IDS, V0_NOTICE, core, make_task_env, task_envs, vector
-from snac_gym.physics import KinematicArm
 from snac_gym.kinematics import Kinematics
+from snac_gym.physics import KinematicArm
 from snac_gym.robots import ROBOTS
 from snac_gym.tasks import TASKS
 
 DATA = Path(__file__).parent / "data"
 sys.path.insert(0, str(DATA))
 import record_ur10_trajectories as recorded  # noqa: E402
+
 from snac_gym.envs.goal import coarse_reach_id  # noqa: E402
 
 RECORDED = np.load(DATA / "ur10_trajectories.npz")
-NEW_IDS = [f"snac_gym/{prefix}{name}-v0" for prefix in ("UR3", "UR5", "Panda", "XArm7") for name in ("Reach", "EllipseTrack")]
+NEW_IDS = [
+    f"snac_gym/{prefix}{name}-v0" for prefix in ("UR3", "UR5", "Panda", "XArm7") for name in ("Reach", "EllipseTrack")
+]
 
 
 #: OpenBLAS's kernels that made the recording; NumPy's matrix products run through them.
@@ -60,8 +63,14 @@ def test_one_id_per_robot_and_task_from_the_registries():
     goal_ids = {task.env_id_for(robot, goal=True) for task in TASKS.values() for robot in ROBOTS}
     coarse = {coarse_reach_id(robot, action) for robot in ROBOTS for action in ("joint", "cartesian")}
     assert goal_ids | coarse == set(GOAL_ENV_IDS)
-    assert {"snac_gym/PandaReach-v0", "snac_gym/XArm7EllipseTrack-v0", "snac_gym/UR5Reach-v0",
-            "snac_gym/UR3EllipseTrack-v0", "snac_gym/PandaReachGoal-v0", "snac_gym/XArm7EllipseTrackGoal-v0"} <= set(gym.registry)
+    assert {
+        "snac_gym/PandaReach-v0",
+        "snac_gym/XArm7EllipseTrack-v0",
+        "snac_gym/UR5Reach-v0",
+        "snac_gym/UR3EllipseTrack-v0",
+        "snac_gym/PandaReachGoal-v0",
+        "snac_gym/XArm7EllipseTrackGoal-v0",
+    } <= set(gym.registry)
     # The UR10 ids keep their names and lengths.
     assert gym.spec("snac_gym/UR10Reach-v0").max_episode_steps == 1000
     assert gym.spec("snac_gym/UR10EllipseTrack-v0").max_episode_steps == 2500
@@ -97,11 +106,19 @@ def test_goal_ids_of_other_robots_pass_check_env():
     "make, right",
     [
         (lambda: gym.make("snac_gym/UR10Reach-v0", robot="panda"), "snac_gym/PandaReach-v0"),
-        (lambda: gym.make("snac_gym/PandaEllipseTrack-v0", robot="ur5", physics="kinematic"), "snac_gym/UR5EllipseTrack-v0"),
+        (
+            lambda: gym.make("snac_gym/PandaEllipseTrack-v0", robot="ur5", physics="kinematic"),
+            "snac_gym/UR5EllipseTrack-v0",
+        ),
         (lambda: gym.make("snac_gym/UR10ReachGoal-v0", robot="xarm7"), "snac_gym/XArm7ReachGoal-v0"),
-        (lambda: gym.make_vec("snac_gym/UR10Reach-v0", 2, vectorization_mode="vector_entry_point", robot="ur3"),
-         "snac_gym/UR3Reach-v0"),
-        (lambda: gym.make_vec("snac_gym/UR10Reach-v0", 2, vectorization_mode="sync", robot="ur3"), "snac_gym/UR3Reach-v0"),
+        (
+            lambda: gym.make_vec("snac_gym/UR10Reach-v0", 2, vectorization_mode="vector_entry_point", robot="ur3"),
+            "snac_gym/UR3Reach-v0",
+        ),
+        (
+            lambda: gym.make_vec("snac_gym/UR10Reach-v0", 2, vectorization_mode="sync", robot="ur3"),
+            "snac_gym/UR3Reach-v0",
+        ),
     ],
     ids=["single", "kinematic", "goal", "vector", "sync"],
 )
@@ -138,7 +155,9 @@ def test_trajectories_are_bit_identical_to_the_recorded_ones(name, env_id, seed,
     _assert_recorded(name, recorded.env_trajectory(env_id, seed, **kwargs))
 
 
-@pytest.mark.parametrize("name, env_id", [("reach_vector", "snac_gym/UR10Reach-v0"), ("track_vector", "snac_gym/UR10EllipseTrack-v0")])
+@pytest.mark.parametrize(
+    "name, env_id", [("reach_vector", "snac_gym/UR10Reach-v0"), ("track_vector", "snac_gym/UR10EllipseTrack-v0")]
+)
 def test_vector_env_is_bit_identical_to_the_recorded_one(name, env_id):
     _assert_recorded(name, recorded.vector_trajectory(env_id, 5))
 
@@ -169,8 +188,16 @@ def test_deprecated_backend_argument_warns_and_means_physics():
 
 # -- the env classes -----------------------------------------------------------------------------------------
 ENV_CLASSES = [task_envs.ReachEnv, task_envs.EllipseTrackEnv, task_envs.PoseReachEnv, task_envs.PoseEllipseTrackEnv]
-SECTIONS = ("## Description", "## Action Space", "## Observation Space", "## Rewards", "## Starting State",
-            "## Episode End", "## Arguments", "## Version History")
+SECTIONS = (
+    "## Description",
+    "## Action Space",
+    "## Observation Space",
+    "## Rewards",
+    "## Starting State",
+    "## Episode End",
+    "## Arguments",
+    "## Version History",
+)
 
 
 @pytest.mark.parametrize("cls", ENV_CLASSES, ids=lambda c: c.__name__)
@@ -183,7 +210,11 @@ def test_env_classes_are_written_out_with_gymnasium_docstrings(cls):
     history = cls.__doc__.split("## Version History", 1)[1]
     assert "* v0 (snac-gym 0.1.0)" in history and "issue" not in cls.__doc__.lower()
     three_argument_type = re.compile(r"\btype\([^()]*,\s*\(")  # type(name, bases, namespace): a class built at run time
-    assert not three_argument_type.search(Path(core.__file__).read_text()) and not three_argument_type.search(source) and not three_argument_type.search(Path(vector.__file__).read_text())
+    assert (
+        not three_argument_type.search(Path(core.__file__).read_text())
+        and not three_argument_type.search(source)
+        and not three_argument_type.search(Path(vector.__file__).read_text())
+    )
 
 
 def test_public_names_stay_importable():
@@ -232,8 +263,14 @@ def test_the_three_kinematic_steppers_match_an_independent_integration():
     env.close()
     # The evaluator's engine: the recorded run's θ log against the same integration of its commands.
     engine = RECORDED["engine_reach_q"][0]
-    np.testing.assert_array_equal(engine[1:], _python_steps(engine[0], recorded.actions(recorded.STEPS, 6, 3)[:-1].clip(
-        -kinematics.velocity_limits, kinematics.velocity_limits), dt)[:])
+    np.testing.assert_array_equal(
+        engine[1:],
+        _python_steps(
+            engine[0],
+            recorded.actions(recorded.STEPS, 6, 3)[:-1].clip(-kinematics.velocity_limits, kinematics.velocity_limits),
+            dt,
+        )[:],
+    )
 
 
 def test_one_implementation_of_the_kinematic_step():

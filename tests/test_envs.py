@@ -241,8 +241,16 @@ def test_bad_actions_raise_value_error(action, message):
         ("snac_gym/UR10Reach-v0", {"goal": [0, 0, 0]}, "unknown reset options"),
         ("snac_gym/UR10Reach-v0", {"q0": [0.0] * 5}, "6 finite joint angles"),
         ("snac_gym/UR10Reach-v0", {"q0": [0, 0, 4.0, 0, 0, 0]}, r"q0'\]\[2\] = 4.0 rad is outside the joint limits"),
-        ("snac_gym/UR10EllipseTrack-v0", {"ellipse": {"centre": [-0.7, 0, 0.5], "radius": 1.5}}, "outside the reachable"),
-        ("snac_gym/UR10EllipseTrack-v0", {"ellipse": {"center": [-0.7, 0, 0.5], "radius": 0.1}}, "unknown ellipse keys"),
+        (
+            "snac_gym/UR10EllipseTrack-v0",
+            {"ellipse": {"centre": [-0.7, 0, 0.5], "radius": 1.5}},
+            "outside the reachable",
+        ),
+        (
+            "snac_gym/UR10EllipseTrack-v0",
+            {"ellipse": {"center": [-0.7, 0, 0.5], "radius": 0.1}},
+            "unknown ellipse keys",
+        ),
     ],
 )
 def test_bad_reset_options_raise(env_id, options, message):
@@ -286,13 +294,21 @@ def test_env_docstrings_document_every_section():
     for env_id in ENV_IDS:
         doc = gym.spec(env_id).entry_point
         cls = gym.make(env_id).unwrapped.__class__
-        for section in ("## Observation Space", "## Action Space", "## Episode End", "## Arguments", "## Version History"):
+        for section in (
+            "## Observation Space",
+            "## Action Space",
+            "## Episode End",
+            "## Arguments",
+            "## Version History",
+        ):
             assert section in cls.__doc__, (doc, section)
 
 
 # -- issue 14: conventions and the learner options ------------------------------------------------
 
-LEARNER = dict(action_type="normalized", observation_dtype=np.float32, reward_type="shaped", finite_observation_bounds=True)
+LEARNER = dict(
+    action_type="normalized", observation_dtype=np.float32, reward_type="shaped", finite_observation_bounds=True
+)
 
 
 @pytest.mark.parametrize("kwargs", [{}, LEARNER], ids=["defaults", "learner"])
@@ -366,7 +382,10 @@ def test_float32_observations_are_the_float64_ones_rounded(env_id):
     actions = _actions(env, 30)
     obs64, rewards64, _ = _rollout(env_id, 4, actions)
     obs32, rewards32, _ = _rollout(env_id, 4, actions, observation_dtype=np.float32)
-    assert obs32.dtype == np.float32 and gym.make(env_id, observation_dtype="float32").observation_space.dtype == np.float32
+    assert (
+        obs32.dtype == np.float32
+        and gym.make(env_id, observation_dtype="float32").observation_space.dtype == np.float32
+    )
     np.testing.assert_array_equal(obs32, obs64.astype(np.float32))
     np.testing.assert_array_equal(rewards32, rewards64)
 

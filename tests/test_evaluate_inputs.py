@@ -7,11 +7,11 @@ import os
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
-
 from snac_gym.evaluation import EvaluationConfig
 from snac_gym.evaluation.run_config import BYTES_PER_SAMPLE, max_samples
 from snac_gym.evaluation.samples import MAX_SAMPLES_FILE_BYTES, SampleFileError, check_samples_file, read_samples_csv
+from typer.testing import CliRunner
+
 from snac_gym.apps.cli import app
 from snac_gym.kinematics import Kinematics
 
@@ -89,7 +89,10 @@ def test_a_regular_small_samples_file_passes_the_check(samples_csv):
         (["--effort-reference", "nosuch"], "--effort-reference 'nosuch' names no registered controller"),
         (["--effort-reference", "dls", "--controllers", "snac,rnn"], "'dls' is not among --controllers snac,rnn"),
         (["--effort-reference", "dls", "--no-match-effort"], "--effort-reference has no effect with --no-match-effort"),
-        (["--effort-reference", "dls", "--effort-target", "1"], "--effort-reference has no effect with --effort-target"),
+        (
+            ["--effort-reference", "dls", "--effort-target", "1"],
+            "--effort-reference has no effect with --effort-target",
+        ),
         (["--sweep-points", "5"], "--sweep-points has no effect without --sweep"),
         (["--sweep-span", "3"], "--sweep-span has no effect without --sweep"),
         (["--effort-samples", "500", "--no-match-effort"], "--effort-samples has no effect with --no-match-effort"),

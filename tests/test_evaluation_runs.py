@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from typer.testing import CliRunner
-
 import snac_gym.evaluation.execution.passes as passes_module
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
-from snac_gym.evaluation.store import RunDirectoryError
 from snac_gym.evaluation.reports.summary import PAPER_TABLE_I
+from snac_gym.evaluation.store import RunDirectoryError
+from typer.testing import CliRunner
+
 from snac_gym import register_policy
 from snac_gym.apps.cli import app
 from snac_gym.cost import trajectory_cost
@@ -144,7 +144,9 @@ def test_equal_effort_matched_on_more_samples_than_are_evaluated_is_the_larger_r
     assert set(few["sample"]) == {0, 1, 2}
     expected = full[full["sample"] < 3].reset_index(drop=True).drop(columns="optimal_solve_time", errors="ignore")
     pd.testing.assert_frame_equal(few.drop(columns="optimal_solve_time", errors="ignore"), expected, check_exact=True)
-    assert set(few.loc[few["controller"] == "rnn", "effort_value"]) == set(full.loc[full["controller"] == "rnn", "effort_value"])
+    assert set(few.loc[few["controller"] == "rnn", "effort_value"]) == set(
+        full.loc[full["controller"] == "rnn", "effort_value"]
+    )
     summary = pd.read_csv(tmp_path / "three" / "summary.csv").set_index("controller")
     assert summary.loc["dls", "reach_effort"] == pytest.approx(
         full[full["controller"] == "dls"]["peak_limit_fraction"].mean()
@@ -315,7 +317,10 @@ def test_cli_exports_reads_samples_and_reports(tmp_path):
         (["--controllers", "nope"], "unknown controller 'nope'"),
         (["--task", "wave"], "--task must be both or a registered task (reach, track)"),
         (["--param", "svf"], "use CONTROLLER.KEY=VALUE"),
-        (["--effort-statistic", "mean"], "--effort-statistic must be one of max, median-peak, mean-peak, peak-ratio, got 'mean'"),
+        (
+            ["--effort-statistic", "mean"],
+            "--effort-statistic must be one of max, median-peak, mean-peak, peak-ratio, got 'mean'",
+        ),
     ],
 )
 def test_cli_rejects_bad_options_with_a_message(tmp_path, arguments, message):

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation.effort.search import match_effort
 from snac_gym.evaluation.samples import (
     EvaluationSample,
@@ -21,12 +20,13 @@ from snac_gym.evaluation.samples import (
     read_samples_csv,
     write_samples_csv,
 )
+
 from snac_gym.cost import trajectory_cost
 from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import BasePolicy, LockstepPolicies, PolicyContext, supports_batch
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse, FixedTarget
-from snac_gym.rollout import RolloutError, Rollouts, reference_trajectories, simulate_kinematic, simulate_env
+from snac_gym.rollout import RolloutError, Rollouts, reference_trajectories, simulate_env, simulate_kinematic
 from snac_gym.sampling import SampleSpace, ellipse_is_feasible
 
 DT = 1.0 / 125.0
@@ -581,7 +581,6 @@ def test_knob_search_evaluations_are_spread_over_the_workers(tmp_path):
 
 def test_effort_statistics_reduce_their_columns_and_bad_names_are_refused(tmp_path):
     import pandas as pd
-
     from snac_gym.evaluation.effort.statistics import EFFORT_STATISTICS, effort_statistic_named
     from snac_gym.evaluation.run_config import EvaluationConfig
 

@@ -32,10 +32,20 @@ NEEDS_RL = {"train_ppo.py"}
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.rl) if n in NEEDS_RL else n for n in sorted(RUNS)])
 def test_example_runs(name: str, tmp_path: Path):
     args, expected = RUNS[name]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-           "MPLBACKEND": "Agg", "OMP_NUM_THREADS": "1"}
-    result = subprocess.run([sys.executable, str(EXAMPLES / name), *args], cwd=tmp_path, env=env,
-                            text=True, capture_output=True, timeout=300)
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+        "MPLBACKEND": "Agg",
+        "OMP_NUM_THREADS": "1",
+    }
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), *args],
+        cwd=tmp_path,
+        env=env,
+        text=True,
+        capture_output=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr[-4000:]
     assert expected in result.stdout, result.stdout
     if name == "record_frames.py":

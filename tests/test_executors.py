@@ -8,8 +8,8 @@ import sys
 import threading
 
 import pytest
-
 from snac_gym.evaluation.execution.executors import ProcessExecutor, start_method
+
 from snac_gym.policies import registry
 
 

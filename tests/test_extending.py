@@ -4,16 +4,16 @@ Each fixture runs its recipe's code block as the page writes it (read from the p
 drift), then the tests check what the page promises.
 """
 
-import gymnasium as gym
 import re
+from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from snac_gym.evaluation.samples import generate_samples, read_samples_csv, write_samples_csv
 
 import snac_gym
-from pathlib import Path
-from snac_gym.evaluation.samples import generate_samples, read_samples_csv, write_samples_csv
 from snac_gym.envs import core as env_core
 from snac_gym.kinematics import Kinematics
 from snac_gym.policies import available_policies, make_policy, registry
@@ -24,14 +24,13 @@ from snac_gym.rollout import rollout, simulate_kinematic
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import TASKS, Sample, Task, register_task
 
-
 PAGE = Path(__file__).resolve().parent.parent / "docs" / "extending.md"
 
 
 def recipe(heading: str) -> dict:
     """Run the first ``python`` block under ``## heading`` of docs/extending.md; its namespace."""
     text = PAGE.read_text()
-    section = text[text.index(f"## {heading}\n"):]
+    section = text[text.index(f"## {heading}\n") :]
     block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     namespace: dict = {"__name__": "extending_recipe"}
     exec(compile(block, f"{PAGE}:{heading}", "exec"), namespace)

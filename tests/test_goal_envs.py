@@ -59,8 +59,7 @@ def test_the_observation_holds_nothing_that_depends_on_the_goal():
 
 
 def test_terminate_on_success_reaches_and_ends_the_episode():
-    env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", terminate_on_success=True,
-                   success_tolerance=0.05)
+    env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", terminate_on_success=True, success_tolerance=0.05)
     obs, _ = env.reset(seed=0, options={"q0": [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62], "target": [-0.6, 0.5, 0.4]})
     base = env.unwrapped
     for step in range(500):  # resolved rate towards the goal
@@ -96,9 +95,15 @@ def test_sac_with_her_trains_on_the_goal_env():
 
     env = gym.make("snac_gym/UR10ReachGoal-v0", physics="kinematic", action_type="normalized", max_episode_steps=50)
     model = SAC(
-        "MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=HerReplayBuffer,
         replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
-        learning_starts=100, batch_size=32, buffer_size=1000, policy_kwargs={"net_arch": [32, 32]}, seed=0,
+        learning_starts=100,
+        batch_size=32,
+        buffer_size=1000,
+        policy_kwargs={"net_arch": [32, 32]},
+        seed=0,
         device="cpu",
     )
     model.learn(160)  # past learning_starts: 60 gradient steps on HER's relabelled batches

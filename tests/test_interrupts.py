@@ -264,7 +264,9 @@ except KeyboardInterrupt as exc:
 
 
 @pytest.mark.parametrize("where", ["__del__", "numba"])
-@pytest.mark.parametrize("handlers", ["command_signals_raise", "stop_signals_raise"])  # every command's, snac-gym real's
+@pytest.mark.parametrize(
+    "handlers", ["command_signals_raise", "stop_signals_raise"]
+)  # every command's, snac-gym real's
 def test_a_signal_that_comes_where_python_cannot_raise_interrupts_the_run_after_it(handlers, where):
     """A signal handled in a ``__del__`` or in numba's Python code is sent again for when that code has returned.
 

@@ -16,12 +16,13 @@ from snac_gym.evaluation.reference.ipopt import (  # noqa: E402  (after the skip
     ipopt_objective,
     solve_with_ipopt,
 )
-from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient  # noqa: E402
 from snac_gym.evaluation.samples import generate_samples  # noqa: E402
+
 from snac_gym.cost import CostConvention  # noqa: E402
 from snac_gym.kinematics import shared_kinematics  # noqa: E402
 from snac_gym.rollout import reference_trajectories  # noqa: E402
 from snac_gym.sampling import SampleSpace  # noqa: E402
+from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient  # noqa: E402
 
 DT = 1.0 / 125.0
 #: Steps of the solves here: 2.4 s, enough for the optimum to move well away from rest.

@@ -108,7 +108,9 @@ def test_sampled_windows_with_a_drift_are_exact_for_a_held_input(rng):
 
 
 def test_bad_arguments_are_refused(rng):
-    data, _, _ = simulate_linear(-np.eye(2), np.eye(2), [1.0, -1.0], lambda t, x: np.sin([3 * t, 7 * t]), window=0.1, windows=12)
+    data, _, _ = simulate_linear(
+        -np.eye(2), np.eye(2), [1.0, -1.0], lambda t, x: np.sin([3 * t, 7 * t]), window=0.1, windows=12
+    )
     with pytest.raises(ValueError, match="K0"):
         policy_iteration(data, np.eye(2), np.eye(2), np.zeros((3, 2)))
     with pytest.raises(ValueError, match="tolerance"):
@@ -116,7 +118,9 @@ def test_bad_arguments_are_refused(rng):
     with pytest.raises(ValueError, match="R must be"):
         policy_iteration(data, np.eye(2), -np.eye(2), np.zeros((2, 2)))
     with pytest.raises(ValueError, match="rank"):
-        policy_iteration(IRLData(data.delta_xx[:3], data.I_xx[:3], data.I_xu[:3]), np.eye(2), np.eye(2), np.zeros((2, 2)))
+        policy_iteration(
+            IRLData(data.delta_xx[:3], data.I_xx[:3], data.I_xu[:3]), np.eye(2), np.eye(2), np.zeros((2, 2))
+        )
     with pytest.raises(ValueError, match="window"):
         simulate_linear(-np.eye(2), np.eye(2), [1.0, 0.0], lambda t, x: x, window=0.0, windows=3)
     with pytest.raises(ValueError, match="steps_per_window"):
@@ -174,7 +178,9 @@ def test_the_batch_rows_are_the_single_episodes(ur10):
     for seed, single in enumerate(singles):
         single.reset(seed=seed)
     for _ in range(batch.learning_steps + 3):
-        obs = np.array([context.layout.pack(q[i], np.zeros(6), ur10.forward(q[i]), x_d[i], np.zeros(3), x_d[i]) for i in range(3)])
+        obs = np.array(
+            [context.layout.pack(q[i], np.zeros(6), ur10.forward(q[i]), x_d[i], np.zeros(3), x_d[i]) for i in range(3)]
+        )
         commands = batch.act_batch(obs)
         for i, single in enumerate(singles):
             assert np.allclose(single.act(obs[i]), commands[i], atol=1e-12)

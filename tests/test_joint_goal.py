@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.optimize import minimize
-
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.joint_goal import GOAL_MARGIN, GoalArms, nearest_goals
 from snac_gym.kinematics import Kinematics, PoseKinematics
 from snac_gym.policies import make_policy
@@ -45,7 +45,9 @@ def test_goals_reach_their_targets_inside_the_limits_and_are_no_farther_than_a_k
     goals, found = nearest_goals(ur10, q0, targets)
     assert found.all()
     np.testing.assert_allclose(ur10.forward_batch(goals), targets, rtol=0, atol=1e-8)
-    assert np.all(goals >= ur10.lower_limits + GOAL_MARGIN - 1e-12) and np.all(goals <= ur10.upper_limits - GOAL_MARGIN + 1e-12)
+    assert np.all(goals >= ur10.lower_limits + GOAL_MARGIN - 1e-12) and np.all(
+        goals <= ur10.upper_limits - GOAL_MARGIN + 1e-12
+    )
     assert np.all(np.sum((goals - q0) ** 2, axis=1) <= np.sum((q1 - q0) ** 2, axis=1) * (1 + 1e-6) + 1e-12)
     # a target already reached: the goal is the start itself
     same, _ = nearest_goals(ur10, q0[:5], ur10.forward_batch(q0[:5]))

@@ -5,9 +5,8 @@ import pickle
 import numpy as np
 import pytest
 
-from snac_gym.physics.bullet import SimulatedArm
-from snac_gym.physics.bullet import PyBulletSim, p
 from snac_gym.kinematics import Kinematics
+from snac_gym.physics.bullet import PyBulletSim, SimulatedArm, p
 from snac_gym.references import PAPER_Q0
 
 
@@ -38,14 +37,23 @@ def test_jacobian_matches_pybullet_and_finite_differences(ur10, rng):
             jac = ur10.jacobian(q)
             step = 1e-6
             finite = np.stack(
-                [(ur10.forward(q + step * np.eye(6)[j]) - ur10.forward(q - step * np.eye(6)[j])) / (2 * step) for j in range(6)],
+                [
+                    (ur10.forward(q + step * np.eye(6)[j]) - ur10.forward(q - step * np.eye(6)[j])) / (2 * step)
+                    for j in range(6)
+                ],
                 axis=1,
             )
             np.testing.assert_allclose(jac, finite, atol=1e-8)
             # PyBullet's own Jacobian (world frame, at the merged link's offset) rotated into the base frame.
             arm.set_joint_positions(q)
             lin, _ = p.calculateJacobian(
-                arm.body, arm.ee_link, arm.ee_offset.tolist(), q.tolist(), [0.0] * 6, [0.0] * 6, physicsClientId=sim.client
+                arm.body,
+                arm.ee_link,
+                arm.ee_offset.tolist(),
+                q.tolist(),
+                [0.0] * 6,
+                [0.0] * 6,
+                physicsClientId=sim.client,
             )
             base_from_world = ur10._base_from_world
             np.testing.assert_allclose(jac, base_from_world @ np.array(lin), atol=1e-6)

@@ -84,7 +84,11 @@ def _contract_modules() -> list[str]:
 
 def _modules() -> list[str]:
     """Every module of the installed package, read from the folders as pyproject.toml maps them."""
-    folders = {"snac_gym": ROOT / "snac_gym", "snac_gym.baselines": ROOT / "baselines", "snac_gym.evaluation": ROOT / "evaluation"}
+    folders = {
+        "snac_gym": ROOT / "snac_gym",
+        "snac_gym.baselines": ROOT / "baselines",
+        "snac_gym.evaluation": ROOT / "evaluation",
+    }
     found = []
     for package, folder in folders.items():
         for path in folder.rglob("*.py"):
@@ -98,14 +102,22 @@ def _modules() -> list[str]:
 def test_every_module_belongs_to_a_layer():
     """A new module cannot escape the contract by sitting outside every layer."""
     layers = _contract_modules()
-    outside = [m for m in _modules() if m != "snac_gym" and not any(m == layer or m.startswith(layer + ".") for layer in layers)]
+    outside = [
+        m
+        for m in _modules()
+        if m != "snac_gym" and not any(m == layer or m.startswith(layer + ".") for layer in layers)
+    ]
     assert outside == []
 
 
 def test_pyproject_lists_every_package():
     """pyproject.toml lists the packages by hand (package-dir maps two folders): none may be left out."""
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
-    folders = {"snac_gym": ROOT / "snac_gym", "snac_gym.baselines": ROOT / "baselines", "snac_gym.evaluation": ROOT / "evaluation"}
+    folders = {
+        "snac_gym": ROOT / "snac_gym",
+        "snac_gym.baselines": ROOT / "baselines",
+        "snac_gym.evaluation": ROOT / "evaluation",
+    }
     packages = {
         ".".join((package, *init.parent.relative_to(folder).parts))
         for package, folder in folders.items()
@@ -120,7 +132,9 @@ def test_the_generic_top_level_names_are_not_installed(tmp_path, name):
     missing = subprocess.run([sys.executable, "-c", f"import {name}"], cwd=tmp_path, capture_output=True, text=True)
     assert missing.returncode == 1
     assert f"No module named '{name}'" in missing.stderr
-    found = subprocess.run([sys.executable, "-c", f"import snac_gym.{name}"], cwd=tmp_path, capture_output=True, text=True)
+    found = subprocess.run(
+        [sys.executable, "-c", f"import snac_gym.{name}"], cwd=tmp_path, capture_output=True, text=True
+    )
     assert found.returncode == 0, found.stderr
 
 
@@ -146,7 +160,8 @@ def test_no_module_copies_a_registry_at_import():
             if isinstance(node, (ast.Assign, ast.AnnAssign)) and node.value is not None:
                 text = ast.unparse(node.value)
                 if any(f"{name}(" in text for name in ("task_names", "robot_names", "all_tasks", "all_robots")) or any(
-                    f"{wrap}({registry}" in text for wrap in ("tuple", "list", "dict", "set", "sorted")
+                    f"{wrap}({registry}" in text
+                    for wrap in ("tuple", "list", "dict", "set", "sorted")
                     for registry in ("TASKS", "ROBOTS", "TASK_REGISTRY")
                 ):
                     copies.append(f"{module}:{node.lineno}: {ast.unparse(node)[:80]}")
@@ -162,7 +177,9 @@ def _path_of(module: str) -> Path:
 
 
 def test_the_layers_drawing_of_the_docs_is_generated_from_the_code():
-    result = subprocess.run([sys.executable, str(ROOT / "tools" / "layers_doc.py"), "--check"], capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "tools" / "layers_doc.py"), "--check"], capture_output=True, text=True
+    )
     assert result.returncode == 0, result.stdout + result.stderr
 
 
@@ -170,7 +187,9 @@ def test_the_layers_drawing_of_the_docs_is_generated_from_the_code():
 def test_an_old_import_after_snac_gym_names_the_new_one(tmp_path, old):
     """For the 0.2 releases, 0.1.0's import names fail naming where they went (once snac_gym is imported)."""
     top = old.split(".")[0]  # Python imports the parent package first
-    result = subprocess.run([sys.executable, "-c", f"import snac_gym, {old}"], cwd=tmp_path, capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, "-c", f"import snac_gym, {old}"], cwd=tmp_path, capture_output=True, text=True
+    )
     assert result.returncode == 1
     assert f"ModuleNotFoundError: No module named {top!r}: snac-gym's {top} package is imported as" in result.stderr
     assert f"write `import snac_gym.{top}`" in result.stderr

@@ -16,26 +16,32 @@ FOLDERS = ("snac_gym", "baselines", "evaluation")
 
 def uncommented_function_imports(root: Path, folders: tuple[str, ...] = FOLDERS) -> list[str]:
     """``path:line: import`` for every import inside a function of the ``.py`` files under ``root/folder``
-    that has no comment on its line nor on the line above its block of consecutive imports."""
+    that has no comment on its lines nor on the line above its block of consecutive imports (blank lines, as
+    between import sections, do not end a block)."""
     found = []
     for folder in folders:
         for path in sorted((root / folder).rglob("*.py")):
             source = path.read_text()
             lines = source.splitlines()
-            seen: set[int] = set()
             for node in ast.walk(ast.parse(source, filename=str(path))):
                 if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                     continue
-                for sub in ast.walk(node):
-                    if not isinstance(sub, (ast.Import, ast.ImportFrom)) or sub.lineno in seen:
-                        continue
-                    seen.add(sub.lineno)
-                    first = sub.lineno - 1
-                    while first > 0 and lines[first - 1].strip().startswith(("import ", "from ")):
-                        first -= 1  # the first line of the block of consecutive imports
-                    above = lines[first - 1].strip() if first > 0 else ""
-                    if "#" not in lines[sub.lineno - 1] and not above.startswith("#"):
-                        found.append(f"{path.relative_to(root)}:{sub.lineno}: {lines[sub.lineno - 1].strip()}")
+                imports = sorted(
+                    {
+                        (sub.lineno, sub.end_lineno or sub.lineno)
+                        for sub in ast.walk(node)
+                        if isinstance(sub, (ast.Import, ast.ImportFrom))
+                    }  # fmt: skip
+                )
+                first = 0
+                for i, (start, end) in enumerate(imports):
+                    previous_end = imports[i - 1][1] if i else -1
+                    if not (i and all(not lines[k - 1].strip() for k in range(previous_end + 1, start))):
+                        first = start  # a new block of consecutive imports
+                    above = lines[first - 2].strip() if first > 1 else ""
+                    own = any("#" in lines[k - 1] for k in range(start, end + 1))
+                    if not own and not above.startswith("#"):
+                        found.append(f"{path.relative_to(root)}:{start}: {lines[start - 1].strip()}")
     return found
 
 

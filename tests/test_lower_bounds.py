@@ -8,9 +8,8 @@ import functools
 
 import numpy as np
 import pytest
-
-from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym import optimality
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
@@ -26,6 +25,7 @@ from snac_gym.optimality import (
 )
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
+from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient
 
 DT = 1.0 / 125.0
 CONVENTIONS = (
@@ -56,7 +56,9 @@ def relaxed_qp_optimum(r0, steps, dt, lipschitz, convention, limit):
     opti.subject_to(r >= errors[:-1] - lipschitz * dt * v[:-1] - steps)
     if limit is not None:
         opti.subject_to(v <= limit)
-    opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes", "tol": 1e-12, "bound_relax_factor": 0.0})
+    opti.solver(
+        "ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes", "tol": 1e-12, "bound_relax_factor": 0.0}
+    )
     return float(opti.solve().value(cost))
 
 
@@ -64,7 +66,9 @@ def relaxed_qp_optimum(r0, steps, dt, lipschitz, convention, limit):
 @pytest.mark.parametrize(("lipschitz", "q_scale", "dt"), [(2.52, 1.0, DT), (1.3, 4.0, 0.01), (0.7, 1e4, 0.002)])
 def test_without_the_udot_term_limits_and_motion_it_is_the_riccati_bound(steps, lipschitz, q_scale, dt):
     errors = np.array([0.0, 1e-3, 0.3, 1.7])
-    bounds = trajectory_cost_lower_bounds(errors, np.zeros(steps - 1), dt, lipschitz, CostConvention("hjb", q_scale=q_scale))
+    bounds = trajectory_cost_lower_bounds(
+        errors, np.zeros(steps - 1), dt, lipschitz, CostConvention("hjb", q_scale=q_scale)
+    )
     riccati = regulation_cost_lower_bound(errors, steps, dt, lipschitz, q_scale)
     assert bounds[0] == 0.0
     np.testing.assert_allclose(bounds[1:], riccati[1:], rtol=1e-8, atol=0)
@@ -112,19 +116,19 @@ def linear_optimum(matrix, e0, steps, dt, convention):
     for k in range(steps):  # √(qΔt) e_k
         row = np.zeros((n, steps * m))
         for j in range(k):
-            row[:, j * m:(j + 1) * m] = dt * matrix
+            row[:, j * m : (j + 1) * m] = dt * matrix
         rows.append(np.sqrt(q * dt) * row)
         targets.append(-np.sqrt(q * dt) * e0)
     for k in range(steps):  # √Δt u_k and √(w/Δt)(u_k − u_{k−1})
         row = np.zeros((m, steps * m))
-        row[:, k * m:(k + 1) * m] = np.sqrt(dt) * np.eye(m)
+        row[:, k * m : (k + 1) * m] = np.sqrt(dt) * np.eye(m)
         rows.append(row)
         targets.append(np.zeros(m))
         if w and (k > 0 or convention.udot_start == "rest"):
             jump = np.zeros((m, steps * m))
-            jump[:, k * m:(k + 1) * m] = np.sqrt(w / dt) * np.eye(m)
+            jump[:, k * m : (k + 1) * m] = np.sqrt(w / dt) * np.eye(m)
             if k > 0:
-                jump[:, (k - 1) * m:k * m] = -np.sqrt(w / dt) * np.eye(m)
+                jump[:, (k - 1) * m : k * m] = -np.sqrt(w / dt) * np.eye(m)
             rows.append(jump)
             targets.append(np.zeros(m))
     M, y = np.vstack(rows), np.concatenate(targets)
@@ -178,7 +182,9 @@ def random_commands(rng, steps, limits, kind):
     if kind == "smooth":
         return np.cumsum(rng.normal(scale=0.05, size=(steps, len(limits))), axis=0) * limits / 3.0
     if kind == "near-limits":
-        return limits * np.clip(rng.choice([-1.0, 1.0], size=len(limits)) * rng.uniform(0.9, 1.0, (steps, len(limits))), -1, 1)
+        return limits * np.clip(
+            rng.choice([-1.0, 1.0], size=len(limits)) * rng.uniform(0.9, 1.0, (steps, len(limits))), -1, 1
+        )
     return limits * rng.choice([-1.0, 1.0], size=(steps, len(limits)))
 
 
@@ -229,8 +235,10 @@ def test_the_jacobian_moves_no_faster_than_its_variation_bound(robot):
     q = rng.uniform(-np.pi, np.pi, (4000, kinematics.n_joints))
     step = rng.normal(size=q.shape) * rng.uniform(1e-3, 2.0, (len(q), 1))
     turned = q + step
-    rates = np.abs(np.linalg.norm(kinematics.jacobian_batch(turned), ord=2, axis=(1, 2))
-                   - np.linalg.norm(kinematics.jacobian_batch(q), ord=2, axis=(1, 2))) / np.linalg.norm(step, axis=1)
+    rates = np.abs(
+        np.linalg.norm(kinematics.jacobian_batch(turned), ord=2, axis=(1, 2))
+        - np.linalg.norm(kinematics.jacobian_batch(q), ord=2, axis=(1, 2))
+    ) / np.linalg.norm(step, axis=1)
     step[:, 0] = 0.0
     moved = np.linalg.norm(kinematics.jacobian_batch(q + step) - kinematics.jacobian_batch(q), ord=2, axis=(1, 2))
     rates = np.maximum(rates, moved / np.linalg.norm(step, axis=1))
@@ -256,6 +264,7 @@ def test_reachable_lipschitz_bounds_cover_the_jacobian_along_trajectories_of_bou
 @functools.lru_cache(maxsize=None)
 def controller_rollouts(task, controller):
     from snac_gym.evaluation.execution.jobs import policy_context
+
     from snac_gym.policies.registry import make_policy
     from snac_gym.rollout import simulate_kinematic
 
@@ -307,10 +316,14 @@ def test_batches_are_the_single_calls_and_inputs_are_checked():
     errors, steps = rng.uniform(0, 1, 5), rng.uniform(0, 0.01, (5, 30))
     slopes = rng.uniform(1, 3, 30)
     batch = trajectory_cost_lower_bounds(errors, steps, DT, slopes, CostConvention(), 2.0)
-    single = [trajectory_cost_lower_bound(e, s, DT, slopes, CostConvention(), 2.0) for e, s in zip(errors, steps, strict=True)]
+    single = [
+        trajectory_cost_lower_bound(e, s, DT, slopes, CostConvention(), 2.0) for e, s in zip(errors, steps, strict=True)
+    ]
     np.testing.assert_array_equal(batch, single)
     # One step: the first error is all that is paid.
-    assert trajectory_cost_lower_bound(0.5, np.zeros(0), 0.01, 3.0, CostConvention(q_scale=2.0)) == pytest.approx(2.0 * 0.01 * 0.25)
+    assert trajectory_cost_lower_bound(0.5, np.zeros(0), 0.01, 3.0, CostConvention(q_scale=2.0)) == pytest.approx(
+        2.0 * 0.01 * 0.25
+    )
     assert trajectory_cost_lower_bound(0.0, np.full(9, 0.01), DT, 2.0) == 0.0  # on the reference, which comes by itself
     for bad in ({"initial_error": -1.0}, {"reference_steps": np.full(9, np.nan)}, {"lipschitz": 0.0}, {"dt": 0.0},
                 {"velocity_norm_limit": 0.0}):  # fmt: skip

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are
-
-import snac_gym
 from snac_gym.baselines.lqr import LQRPolicy
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
+
+import snac_gym
 from snac_gym import make_policy
 from snac_gym.cost import trajectory_cost
 from snac_gym.policies.base import BasePolicy, Policy, PolicyContext
@@ -217,7 +217,11 @@ def test_wrong_observation_shape_raises(reach_env):
 
 def test_a_tiny_evaluation_calibrates_the_q_scale_knob(tmp_path):
     config = EvaluationConfig(
-        out=tmp_path, samples=3, effort_samples=0, horizons={"reach": 0.3, "track": 0.3}, progress=False,
+        out=tmp_path,
+        samples=3,
+        effort_samples=0,
+        horizons={"reach": 0.3, "track": 0.3},
+        progress=False,
         controllers=("snac", "lqr"),
         plots=False,
     )

@@ -15,12 +15,12 @@ import pandas as pd
 import pinocchio as pin
 import pytest
 from scipy.linalg import solve_continuous_are
-
 from snac_gym.evaluation.execution.jobs import RolloutJob, policy_context, run_job, task_kinematics
 from snac_gym.evaluation.reference.optimum import ReplayPolicy
 from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.runner import run_evaluation
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.kinematics import Kinematics
 from snac_gym.model_error import ModelError
 from snac_gym.observation import ObservationLayout
@@ -52,7 +52,9 @@ def test_each_part_of_the_error_is_the_true_kinematics_changed_as_documented(ur1
         np.testing.assert_allclose(shifted.forward_batch(q[None])[0], ur10.forward(q + offsets), atol=1e-12)
         np.testing.assert_allclose(scaled.forward(q), 1.05 * ur10.forward(q), atol=1e-12)
         frame = _true_frame(ur10, q)
-        np.testing.assert_allclose(tool.forward(q), frame.translation + frame.rotation @ [0.01, -0.02, 0.03], atol=1e-12)
+        np.testing.assert_allclose(
+            tool.forward(q), frame.translation + frame.rotation @ [0.01, -0.02, 0.03], atol=1e-12
+        )
         # the batched chain of the wrong model agrees with its own Pinocchio evaluation
         np.testing.assert_allclose(tool.jacobian_batch(q[None])[0], tool.jacobian(q), atol=1e-12)
 

@@ -212,7 +212,10 @@ def test_a_length_change_needs_a_length():
     [
         ("link_length=0.1,0,0", "link_length needs 6 values"),
         ("link_length=0.6,0,0,0,0,0", r"link_length \(m\) must be a finite number in \[-0.5, 0.5\], got 0.6"),
-        ("joint_axis_tilt=0.1,0,0,0", r"joint_axis_tilt needs 6 values \(one per joint\) or 12 \(two per joint\), got 4"),
+        (
+            "joint_axis_tilt=0.1,0,0,0",
+            r"joint_axis_tilt needs 6 values \(one per joint\) or 12 \(two per joint\), got 4",
+        ),
         ("joint_axis_tilt=0.1,0,0,0,0,inf", r"joint_axis_tilt \(rad\) must be a finite number in \[-0.5, 0.5\]"),
         ("base=0,0,0", "base must be 6 finite numbers"),
         ("base=2,0,0,0,0,0", r"base x,y,z \(m\) must be a finite number in \[-1, 1\], got 2.0"),
@@ -226,7 +229,10 @@ def test_a_length_change_needs_a_length():
         ("model=nosuch", "model error model: unknown robot 'nosuch'"),
         ("model=", "model error model must name a registered robot"),
         ("model=ur5;model=ur3", "model is given twice"),
-        ("tilt=0.1", "NAME one of joint_offset, link_scale, tool_offset, link_length, joint_axis_tilt, base, random, model"),
+        (
+            "tilt=0.1",
+            "NAME one of joint_offset, link_scale, tool_offset, link_length, joint_axis_tilt, base, random, model",
+        ),
     ],
 )
 def test_a_bad_part_is_refused_naming_it(spec, message):
@@ -263,6 +269,7 @@ def test_tool_displacement_is_the_distance_of_the_tool_points(ur10, qs):
 def test_another_robots_model_keeps_the_arms_velocity_limits_and_name_for_the_controllers():
     """Under model=ur5 the UR10 is still the arm: its limits clip the commands, and a policy trained on it runs."""
     from snac_gym.evaluation.execution.jobs import policy_context
+
     from snac_gym.policies.registry import make_policy
 
     context = policy_context("ur10", 1 / 125, "reach", "model=ur5")

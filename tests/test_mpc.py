@@ -4,17 +4,17 @@ predictor and its parameters."""
 
 import numpy as np
 import pytest
-
-import snac_gym
 from snac_gym.baselines.mpc import MPCPolicy
 from snac_gym.evaluation.execution.jobs import policy_context
-from snac_gym.trajopt import solve_sample
 from snac_gym.evaluation.samples import generate_samples
+
+import snac_gym
 from snac_gym.cost import CostConvention
 from snac_gym.policies.base import LockstepPolicies
 from snac_gym.references import Ellipse
 from snac_gym.rollout import simulate_kinematic
 from snac_gym.sampling import SampleSpace
+from snac_gym.trajopt import solve_sample
 
 DT = 1 / 125
 

@@ -96,8 +96,9 @@ def _pixels_like(image, colour, tolerance=40):
 
 
 def test_frames_show_the_pybullet_scene_through_the_same_camera():
-    env = gym.make("snac_gym/UR10EllipseTrack-v0", physics="mujoco", render_mode="rgb_array",
-                   render_width=SIZE, render_height=SIZE)
+    env = gym.make(
+        "snac_gym/UR10EllipseTrack-v0", physics="mujoco", render_mode="rgb_array", render_width=SIZE, render_height=SIZE
+    )
     peer = gym.make("snac_gym/UR10EllipseTrack-v0", render_mode="rgb_array", render_width=SIZE, render_height=SIZE)
     base = env.unwrapped
     options = base.task.demo_options()
@@ -107,20 +108,25 @@ def test_frames_show_the_pybullet_scene_through_the_same_camera():
     assert _pixels_like(first, TARGET_COLOUR) > 5 and _pixels_like(first, PATH_COLOUR) > 10
     np.testing.assert_allclose(base._scene.view, peer.unwrapped._scene.view, atol=1e-5)  # the same camera
     # The same target pixels (±2) in both engines' images: the same scene, drawn alike.
-    mine, theirs = (np.argwhere((np.abs(im.astype(int) - np.array(TARGET_COLOUR[:3]) * 255) <= 40).all(-1)).mean(0)
-                    for im in (first, peer.render()))
+    mine, theirs = (
+        np.argwhere((np.abs(im.astype(int) - np.array(TARGET_COLOUR[:3]) * 255) <= 40).all(-1)).mean(0)
+        for im in (first, peer.render())
+    )
     assert np.abs(mine - theirs).max() < 2
     frames = []
     for _ in range(10):
         env.step(np.full(6, 0.5))
         frames.append(env.render())
-    assert [not np.array_equal(a, b) for a, b in zip([first] + frames[:-1], frames)] == [False] * 4 + [True] + [False] * 4 + [True]
+    assert [not np.array_equal(a, b) for a, b in zip([first] + frames[:-1], frames)] == [False] * 4 + [True] + [
+        False
+    ] * 4 + [True]
     env.close(), peer.close()
 
 
 def test_every_link_stays_in_the_image_over_random_episodes():
-    env = gym.make("snac_gym/PandaEllipseTrack-v0", physics="mujoco", render_mode="rgb_array",
-                   render_width=200, render_height=120)
+    env = gym.make(
+        "snac_gym/PandaEllipseTrack-v0", physics="mujoco", render_mode="rgb_array", render_width=200, render_height=120
+    )
     base, rng = env.unwrapped, np.random.default_rng(0)
     env.reset(seed=0)
     env.render()
@@ -142,8 +148,11 @@ def test_no_headless_opengl_is_one_clear_error(monkeypatch):
 
     monkeypatch.delenv("MUJOCO_GL", raising=False)
     monkeypatch.setattr(mujoco_sim, "_context_class", no_platform)
-    with pytest.raises(RuntimeError, match=r"neither works here \(egl: ImportError: libraries of egl.*osmesa: "
-                                           r"ImportError.*install libegl1.*libosmesa6"):
+    with pytest.raises(
+        RuntimeError,
+        match=r"neither works here \(egl: ImportError: libraries of egl.*osmesa: "
+        r"ImportError.*install libegl1.*libosmesa6",
+    ):
         gym.make("snac_gym/UR10Reach-v0", physics="mujoco", render_mode="rgb_array")
 
 

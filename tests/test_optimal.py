@@ -7,19 +7,25 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-
-from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from scipy.linalg import solve_banded
 from scipy.optimize import minimize
-
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.reference.optimum import OPTIMAL
-
-from snac_gym.trajopt import FTOL, GAP_RTOL, GTOL, MAX_ITERATIONS, _preconditioner, solve_sample, trajectory_cost_and_gradient
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.cost import CostConvention, cost_and_gradient, trajectory_cost
 from snac_gym.kinematics import Kinematics
 from snac_gym.rollout import log_array, read_log, reference_trajectories
 from snac_gym.sampling import SampleSpace
+from snac_gym.trajopt import (
+    FTOL,
+    GAP_RTOL,
+    GTOL,
+    MAX_ITERATIONS,
+    _preconditioner,
+    solve_sample,
+    trajectory_cost_and_gradient,
+)
 
 DT = 1.0 / 125.0
 MEMORY = 20
@@ -130,6 +136,7 @@ def test_the_shared_cost_gradient_on_a_linear_model(convention):
 def test_the_hjb_optimum_is_below_the_frozen_jacobian_lqr(ur10, track_sample):
     """Without the u̇ term the optimum is close to, and never above, the LQR law's open-loop cost."""
     from snac_gym.evaluation.execution.jobs import policy_context
+
     from snac_gym.metrics import rollout_metrics
     from snac_gym.policies import make_policy
     from snac_gym.rollout import simulate_kinematic
@@ -220,8 +227,8 @@ def test_summary_reports_the_optimal_row_and_mean_ratios(optimal_run):
 
 
 def test_a_controller_below_the_optimum_is_reported(optimal_run):
-    from snac_gym.evaluation.reports.writer import optimality_markdown
     from snac_gym.evaluation.reports.summary import summarise
+    from snac_gym.evaluation.reports.writer import optimality_markdown
 
     config, results = optimal_run
     tampered = results.copy()
@@ -233,7 +240,9 @@ def test_a_controller_below_the_optimum_is_reported(optimal_run):
     # The same rollout crossing a joint limit is counted apart, with no warning: the optimum keeps the limits.
     tampered.loc[index, "joint_limit_margin"] = -0.1
     summary = summarise(tampered, [], config.tasks, list(dict.fromkeys(tampered["controller"])))
-    assert summary.set_index("controller").loc["snac", ["reach_below_optimal", "reach_below_optimal_crossing"]].tolist() == [0, 1]
+    assert summary.set_index("controller").loc[
+        "snac", ["reach_below_optimal", "reach_below_optimal_crossing"]
+    ].tolist() == [0, 1]
     assert "**Warning" not in "\n".join(optimality_markdown(summary, tampered, config.tasks))
 
 

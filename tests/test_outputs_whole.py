@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
+
 from snac_gym.outputs import OutputWriteError, write_text_whole, written_whole
 
 
@@ -64,7 +64,9 @@ def test_the_command_on_a_full_disk_says_which_file_in_one_line(tmp_path):
     # No bytecode written under the limit: CPython writes a .pyc with one unchecked write(), which the limit
     # would cut short, leaving a truncated .pyc that breaks every later import of that module.
     env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
-    done = subprocess.run(command, capture_output=True, text=True, timeout=120, preexec_fn=_file_size_limit(64), env=env)
+    done = subprocess.run(
+        command, capture_output=True, text=True, timeout=120, preexec_fn=_file_size_limit(64), env=env
+    )
     assert done.returncode != 0 and "Traceback" not in done.stderr, done.stderr
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "could not write" in lines[0] and str(out) in lines[0] and "free" in lines[0], lines

@@ -8,7 +8,6 @@ import numpy as np
 import pandas as pd
 import pytest
 from scipy import stats
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.reports.paired import compare, fraction_better, median_ratio_ci, wilcoxon_p
 
@@ -79,7 +78,8 @@ def test_the_summary_reports_paired_statistics_against_the_best_and_the_optimum(
         other = "rnn" if best == "dls" else "dls"
         assert summary.loc[other, f"{task}_vs_best"] == best
         assert summary.loc[other, f"{task}_vs_best_median_ratio"] == pytest.approx(
-            np.median(costs[other] / costs[best]))
+            np.median(costs[other] / costs[best])
+        )
         assert summary.loc[other, f"{task}_vs_optimal_fraction_better"] == 0.0  # nobody beats the optimum
         assert np.isnan(summary.loc[best, f"{task}_vs_best_median_ratio"])
     text = (tmp_path / "summary.md").read_text()

@@ -9,9 +9,8 @@ import pinocchio as pin
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from snac_gym.physics.bullet import SimulatedArm
-from snac_gym.physics.bullet import PyBulletSim, p
 from snac_gym.kinematics import Kinematics, robot_urdf_path
+from snac_gym.physics.bullet import PyBulletSim, SimulatedArm, p
 from snac_gym.robots import get_robot
 from snac_gym.sampling import (
     SampleSpace,
@@ -68,12 +67,16 @@ def _pybullet_jacobian(arm: SimulatedArm, q: np.ndarray) -> np.ndarray:
     """PyBullet's linear Jacobian at the end effector, columns of the kinematics' joints only
     (PyBullet counts every movable joint, the Panda's fingers too)."""
     client = arm.sim.client
-    movable = [i for i in range(p.getNumJoints(arm.body, physicsClientId=client))
-               if p.getJointInfo(arm.body, i, physicsClientId=client)[2] != p.JOINT_FIXED]
+    movable = [
+        i
+        for i in range(p.getNumJoints(arm.body, physicsClientId=client))
+        if p.getJointInfo(arm.body, i, physicsClientId=client)[2] != p.JOINT_FIXED
+    ]
     positions = [p.getJointState(arm.body, i, physicsClientId=client)[0] for i in movable]
     zeros = [0.0] * len(movable)
-    lin, _ = p.calculateJacobian(arm.body, arm.ee_link, arm.ee_offset.tolist(), positions, zeros, zeros,
-                                 physicsClientId=client)
+    lin, _ = p.calculateJacobian(
+        arm.body, arm.ee_link, arm.ee_offset.tolist(), positions, zeros, zeros, physicsClientId=client
+    )
     return np.array(lin)[:, [movable.index(i) for i in arm.joint_indices]]
 
 
@@ -84,7 +87,9 @@ def test_jacobian_matches_pybullet_and_finite_differences(kin):
         arm = SimulatedArm(sim, kin)
         for q in _configurations(kin, 10, seed=6):
             jac = kin.jacobian(q)
-            finite = np.stack([(kin.forward(q + step * e) - kin.forward(q - step * e)) / (2 * step) for e in eye], axis=1)
+            finite = np.stack(
+                [(kin.forward(q + step * e) - kin.forward(q - step * e)) / (2 * step) for e in eye], axis=1
+            )
             np.testing.assert_allclose(jac, finite, atol=1e-8)
             arm.set_joint_positions(q)
             np.testing.assert_allclose(jac, kin._base_from_world @ _pybullet_jacobian(arm, q), atol=1e-6)

@@ -3,9 +3,9 @@
 
 import numpy as np
 import pytest
-
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import EvaluationSample
+
 from snac_gym.joint_limits import POSITION_LIMIT_MARGIN, JointLimitBox, joint_limit_margins
 from snac_gym.kinematics import Kinematics
 from snac_gym.metrics import rollout_metrics
@@ -85,8 +85,9 @@ def test_the_margin_column_rebuilt_from_commands_equals_the_logged_states(panda)
     sample = _pushing_sample(panda)
     limits = (panda.lower_limits, panda.upper_limits)
     kept, rebuilt = (
-        simulate_kinematic(context, lambda: make_policy("dls", context, joint_limits=False), [sample], 300, [0],
-                           keep_states=keep)
+        simulate_kinematic(
+            context, lambda: make_policy("dls", context, joint_limits=False), [sample], 300, [0], keep_states=keep
+        )
         for keep in (True, False)
     )
     assert rebuilt.q is None and kept.q is not None

@@ -7,7 +7,6 @@ import dataclasses
 
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.store import RunDirectoryError, RunStore, checksum_path, part_is_intact
 

@@ -55,8 +55,9 @@ def test_snac_is_built_in_for_both_tasks(envs):
 
 def test_entry_point_group_registers_a_policy(monkeypatch, envs):
     entry = importlib.metadata.EntryPoint(name="ep-constant", value=f"{__name__}:_Constant", group=ENTRY_POINT_GROUP)
-    entry_snac = importlib.metadata.EntryPoint(name="ep-snac", value="snac_gym.policies.snac:SNACPolicy",
-                                               group=ENTRY_POINT_GROUP)
+    entry_snac = importlib.metadata.EntryPoint(
+        name="ep-snac", value="snac_gym.policies.snac:SNACPolicy", group=ENTRY_POINT_GROUP
+    )
     seen_groups = []
 
     def fake_entry_points(**selection):

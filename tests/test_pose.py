@@ -5,9 +5,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from snac_gym.physics.bullet import SimulatedArm
-from snac_gym.physics.bullet import PyBulletSim, p
 from snac_gym.kinematics import PoseKinematics
+from snac_gym.physics.bullet import PyBulletSim, SimulatedArm, p
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.sampling import SampleSpace, nominal_configuration
@@ -36,8 +35,11 @@ def test_pose_and_six_row_jacobian_match_pybullet_and_finite_differences(panda):
     try:
         arm = SimulatedArm(sim, panda.position)
         client = sim.client
-        movable = [i for i in range(p.getNumJoints(arm.body, physicsClientId=client))
-                   if p.getJointInfo(arm.body, i, physicsClientId=client)[2] != p.JOINT_FIXED]
+        movable = [
+            i
+            for i in range(p.getNumJoints(arm.body, physicsClientId=client))
+            if p.getJointInfo(arm.body, i, physicsClientId=client)[2] != p.JOINT_FIXED
+        ]
         columns = [movable.index(i) for i in arm.joint_indices]
         for q in _configurations(panda, 8, seed=2):
             arm.set_joint_positions(q)
@@ -47,16 +49,21 @@ def test_pose_and_six_row_jacobian_match_pybullet_and_finite_differences(panda):
             np.testing.assert_allclose(pin.exp3(panda.forward(q)[3:]), base @ tool_rotation, atol=1e-6)
             positions = [p.getJointState(arm.body, i, physicsClientId=client)[0] for i in movable]
             zeros = [0.0] * len(movable)
-            lin, ang = p.calculateJacobian(arm.body, arm.ee_link, arm.ee_offset.tolist(), positions, zeros, zeros,
-                                           physicsClientId=client)
+            lin, ang = p.calculateJacobian(
+                arm.body, arm.ee_link, arm.ee_offset.tolist(), positions, zeros, zeros, physicsClientId=client
+            )
             pybullet = np.vstack([base @ np.array(lin)[:, columns], base @ np.array(ang)[:, columns]])
             np.testing.assert_allclose(panda.jacobian(q), pybullet, atol=1e-6)
             h = 1e-6
             for j in range(panda.n_joints):
                 step = h * np.eye(panda.n_joints)[j]
                 plus, minus = panda.placement(q + step), panda.placement(q - step)
-                finite = np.concatenate([(plus.translation - minus.translation) / (2 * h),
-                                         pin.log3(plus.rotation @ minus.rotation.T) / (2 * h)])
+                finite = np.concatenate(
+                    [
+                        (plus.translation - minus.translation) / (2 * h),
+                        pin.log3(plus.rotation @ minus.rotation.T) / (2 * h),
+                    ]
+                )
                 np.testing.assert_allclose(panda.jacobian(q)[:, j], finite, atol=1e-7)
     finally:
         sim.close()

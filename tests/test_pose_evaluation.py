@@ -9,10 +9,16 @@ import gymnasium as gym
 import numpy as np
 import pinocchio as pin
 import pytest
+from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.samples import (
+    SampleFileError,
+    column_names,
+    generate_samples,
+    read_samples_csv,
+    write_samples_csv,
+)
 from typer.testing import CliRunner
 
-from snac_gym.evaluation import EvaluationConfig, run_evaluation
-from snac_gym.evaluation.samples import SampleFileError, column_names, generate_samples, read_samples_csv, write_samples_csv
 from snac_gym.apps.cli import app
 from snac_gym.kinematics import Kinematics, PoseKinematics
 from snac_gym.policies import make_policy
@@ -95,8 +101,10 @@ def test_position_tasks_keep_the_plain_difference(panda):
 
 def test_pose_samples_round_trip_through_the_csv(tmp_path, panda):
     space = SampleSpace.for_robot(panda)
-    samples = [*generate_samples(panda, space, 4, "pose-reach", range(3)),
-               *generate_samples(panda, space, 4, "pose-track", range(2))]
+    samples = [
+        *generate_samples(panda, space, 4, "pose-reach", range(3)),
+        *generate_samples(panda, space, 4, "pose-track", range(2)),
+    ]
     path = write_samples_csv(samples, tmp_path / "pose.csv", panda.n_joints)
     header = path.read_text().splitlines()[0].split(",")
     assert header == column_names(panda.n_joints) and set(ROTVEC_COLUMNS) <= set(header)
@@ -125,13 +133,19 @@ def test_a_bad_pose_row_is_named(tmp_path, panda):
 
 
 def test_a_tiny_evaluation_runs_and_reads_back_its_samples(tmp_path):
-    config = EvaluationConfig(out=tmp_path / "run", tasks=("pose-reach",), controllers=("dls", "snac"),
-                              export_samples=tmp_path / "samples.csv", **SMALL)
+    config = EvaluationConfig(
+        out=tmp_path / "run",
+        tasks=("pose-reach",),
+        controllers=("dls", "snac"),
+        export_samples=tmp_path / "samples.csv",
+        **SMALL,
+    )
     results = run_evaluation(config)
     assert set(results["task"]) == {"pose-reach"} and len(results) == 2 * 3
     assert np.isfinite(results["cost"]).all() and (results["cost"] > 0).all()
-    again = run_evaluation(dataclasses.replace(config, out=tmp_path / "again", export_samples=None,
-                                               samples_file=tmp_path / "samples.csv"))
+    again = run_evaluation(
+        dataclasses.replace(config, out=tmp_path / "again", export_samples=None, samples_file=tmp_path / "samples.csv")
+    )
     columns = ["controller", "sample", "cost", "final_error", "max_abs_u"]
     assert again[columns].equals(results[columns])
 
@@ -151,15 +165,22 @@ def test_pose_error_jacobian_is_the_derivative_of_the_log3_error():
     h = 1e-6
     for j in range(kin.n_joints):
         step = h * np.eye(kin.n_joints)[j]
-        plus, minus = pose_errors_and_jacobians(kin, qs + step, x_d)[0], pose_errors_and_jacobians(kin, qs - step, x_d)[0]
+        plus, minus = (
+            pose_errors_and_jacobians(kin, qs + step, x_d)[0],
+            pose_errors_and_jacobians(kin, qs - step, x_d)[0],
+        )
         np.testing.assert_allclose(jacobians[:, :, j], (plus - minus) / (2 * h), atol=1e-7)
     # Not the controllers' J: Jlog₃ matters away from the target.
     assert np.abs(jacobians[:, 3:] - kin.jacobian_batch(qs)[:, 3:]).max() > 0.1
 
 
 def test_the_optimum_of_a_pose_run_is_below_every_controller(tmp_path):
-    config = EvaluationConfig(out=tmp_path / "opt", tasks=("pose-reach",), controllers=("dls", "rnn", "optimal"),
-                              **{**SMALL, "horizons": {"pose-reach": 1.0}})
+    config = EvaluationConfig(
+        out=tmp_path / "opt",
+        tasks=("pose-reach",),
+        controllers=("dls", "rnn", "optimal"),
+        **{**SMALL, "horizons": {"pose-reach": 1.0}},
+    )
     results = run_evaluation(config)
     optimal = results[results["controller"] == "optimal"].set_index("sample")
     assert optimal["optimal_converged"].all()
@@ -169,9 +190,25 @@ def test_the_optimum_of_a_pose_run_is_below_every_controller(tmp_path):
 
 
 def test_cli_evaluates_a_pose_task(tmp_path):
-    result = CliRunner().invoke(app, [
-        "evaluate", "--out", str(tmp_path / "cli"), "--robot", "panda", "--task", "pose-reach", "--samples", "2",
-        "--horizon", "pose-reach=0.2", "--controllers", "dls", "--no-match-effort", "--no-progress",
-    ])
+    result = CliRunner().invoke(
+        app,
+        [
+            "evaluate",
+            "--out",
+            str(tmp_path / "cli"),
+            "--robot",
+            "panda",
+            "--task",
+            "pose-reach",
+            "--samples",
+            "2",
+            "--horizon",
+            "pose-reach=0.2",
+            "--controllers",
+            "dls",
+            "--no-match-effort",
+            "--no-progress",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert "Pose regulation" in result.output

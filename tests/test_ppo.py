@@ -80,8 +80,22 @@ def trained_run(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("ppo")
     config = _tiny_config(tmp_path)
     out = tmp_path / "run"
-    result = CliRunner().invoke(app, ["train-ppo", "--task", "reach", "--timesteps", "64", "--seed", "3",
-                                      "--out", str(out), "--config", str(config)])
+    result = CliRunner().invoke(
+        app,
+        [
+            "train-ppo",
+            "--task",
+            "reach",
+            "--timesteps",
+            "64",
+            "--seed",
+            "3",
+            "--out",
+            str(out),
+            "--config",
+            str(config),
+        ],
+    )
     assert result.exit_code == 0, result.output
     return out, config, result.output
 
@@ -260,7 +274,11 @@ def test_a_policy_of_another_task_robot_or_layout_is_refused(reach_env, tmp_path
     seven = PolicyFile(
         hidden=((rng.normal(size=(4, width)).astype(np.float32), np.zeros(4, np.float32)),),
         action_layer=(rng.normal(size=(7, 4)).astype(np.float32), np.zeros(7, np.float32)),
-        activation="tanh", obs_mean=np.zeros(width), obs_var=np.ones(width), obs_epsilon=1e-8, obs_clip=10.0,
+        activation="tanh",
+        obs_mean=np.zeros(width),
+        obs_var=np.ones(width),
+        obs_epsilon=1e-8,
+        obs_clip=10.0,
         features=FeatureSpec(),
         metadata={**shipped_reach_file.metadata, "layout": {"n_joints": 7, "task_dim": 3, "size": layout7.size}},
     )
@@ -336,8 +354,13 @@ def test_a_joint_space_policy_file_still_runs(reach_env, tmp_path, shipped_reach
     joint = PolicyFile(
         hidden=((rng.normal(size=(8, width)).astype(np.float32), rng.normal(size=8).astype(np.float32)),),
         action_layer=(rng.normal(size=(6, 8)).astype(np.float32), np.zeros(6, np.float32)),
-        activation="tanh", obs_mean=rng.normal(size=width), obs_var=np.ones(width), obs_epsilon=1e-8, obs_clip=10.0,
-        features=spec, metadata=dict(shipped_reach_file.metadata),
+        activation="tanh",
+        obs_mean=rng.normal(size=width),
+        obs_var=np.ones(width),
+        obs_epsilon=1e-8,
+        obs_clip=10.0,
+        features=spec,
+        metadata=dict(shipped_reach_file.metadata),
     )
     path = joint.save(tmp_path / "joint.npz")
     observations = _observations("reach", count=10)
@@ -356,6 +379,7 @@ def test_a_joint_space_policy_file_still_runs(reach_env, tmp_path, shipped_reach
 def _kinematic_peak_effort(task, action_scale, count=8, steps=150):
     """Median over ``count`` evaluator samples of each rollout's peak max_j |u_j|/ū_j (θ += uΔt)."""
     from snac_gym.evaluation.samples import generate_samples
+
     from snac_gym.rollout import reference_trajectories
     from snac_gym.sampling import SampleSpace
 
@@ -418,8 +442,11 @@ def test_configs_are_versioned_and_checked(tmp_path):
     with pytest.raises(ValueError, match="for task 'reach', not 'track'"):
         resolve_config("track", default_config_path("reach"))
     config = load_config(default_config_path("reach"))
-    for change, message in (({"config_version": 2}, "config_version"), ({"colour": 1}, "unknown key colour"),
-                            ({"ppo": {**config["ppo"], "lr": 1}}, "unknown key ppo.lr")):
+    for change, message in (
+        ({"config_version": 2}, "config_version"),
+        ({"colour": 1}, "unknown key colour"),
+        ({"ppo": {**config["ppo"], "lr": 1}}, "unknown key ppo.lr"),
+    ):
         path = tmp_path / "bad.json"
         path.write_text(json.dumps({**config, **change}))
         with pytest.raises(ValueError, match=message):
@@ -447,8 +474,10 @@ def _synthetic_run(folder, total=600_064, every=50_000):
     (folder / "logs" / "segment_0").mkdir(parents=True)
     (folder / "config.json").write_text(json.dumps(config))
     steps = list(range(every, total, every)) + [total]
-    rows = ["timesteps,wall_time_s,success_rate,success_rate_4s,success_rate_8s,mean_cost,mean_final_error_m,"
-            "median_final_error_m,mean_error_2nd_half_m,median_error_2nd_half_m,is_best"]
+    rows = [
+        "timesteps,wall_time_s,success_rate,success_rate_4s,success_rate_8s,mean_cost,mean_final_error_m,"
+        "median_final_error_m,mean_error_2nd_half_m,median_error_2nd_half_m,is_best"
+    ]
     for i, step in enumerate(steps):
         rate = min(1.0, i / 4)
         rows.append(f"{step},{i * 50.0},{rate},{rate},{rate},{30 + 20 * i},0.01,0.01,0.01,0.01,{int(i == 3)}")
@@ -491,6 +520,7 @@ def test_shipped_policies_beat_dls_on_the_cost_they_were_trained_on(task):
     every rollout ends within the task's tolerance."""
     from snac_gym.baselines.dls import DLSPolicy
     from snac_gym.evaluation.samples import generate_samples
+
     from snac_gym.rollout import reference_trajectories
     from snac_gym.sampling import SampleSpace
 
@@ -508,8 +538,14 @@ def test_shipped_policies_beat_dls_on_the_cost_they_were_trained_on(task):
         for k in range(steps):
             x = kinematics.forward_batch(q)
             obs = np.zeros((count, layout.size))  # layout.pack of each row, as arrays
-            for field, value in (("q", q), ("x", x), ("x_d", x_d[:, k]), ("xdot_d", xdot_d[:, k]),
-                                 ("e", x - x_d[:, k]), ("x_c", centres)):
+            for field, value in (
+                ("q", q),
+                ("x", x),
+                ("x_d", x_d[:, k]),
+                ("xdot_d", xdot_d[:, k]),
+                ("e", x - x_d[:, k]),
+                ("x_c", centres),
+            ):
                 obs[:, layout.slices[field]] = value
             u = policy.act_batch(obs)
             e = x - x_d[:, k]
@@ -518,7 +554,7 @@ def test_shipped_policies_beat_dls_on_the_cost_they_were_trained_on(task):
             q = q + u * dt
         costs[name] = cost
         errors = np.array(errors)
-        final_errors[name] = errors[-1] if task == "reach" else errors[steps // 2:].mean(axis=0)
+        final_errors[name] = errors[-1] if task == "reach" else errors[steps // 2 :].mean(axis=0)
     assert np.median(costs["ppo"] / costs["dls"]) < 1.0, costs
     assert np.all(final_errors["ppo"] <= (0.001 if task == "reach" else 0.005)), final_errors["ppo"]
 

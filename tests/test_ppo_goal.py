@@ -7,9 +7,9 @@ import json
 
 import numpy as np
 import pytest
-
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies import make_policy
 from snac_gym.ppo import PolicyFile
@@ -32,11 +32,18 @@ def _policy_file(tmp_path, task, action_bias=None, seed=0):
     rng = np.random.default_rng(seed)
     bias = np.zeros(outputs, np.float32) if action_bias is None else np.asarray(action_bias, np.float32)
     zero = action_bias is not None or seed == 0  # a constant action: the output layer's bias alone
-    weights = np.zeros((outputs, 8), np.float32) if zero else rng.normal(scale=0.5, size=(outputs, 8)).astype(np.float32)
+    weights = (
+        np.zeros((outputs, 8), np.float32) if zero else rng.normal(scale=0.5, size=(outputs, 8)).astype(np.float32)
+    )
     file = PolicyFile(
         hidden=((rng.normal(size=(8, width)).astype(np.float32), rng.normal(size=8).astype(np.float32)),),
-        action_layer=(weights, bias), activation="tanh", obs_mean=None, obs_var=None, obs_epsilon=1e-8,
-        obs_clip=10.0, features=spec,
+        action_layer=(weights, bias),
+        activation="tanh",
+        obs_mean=None,
+        obs_var=None,
+        obs_epsilon=1e-8,
+        obs_clip=10.0,
+        features=spec,
         metadata={"task": task, "robot": "ur10", "layout": {"n_joints": 6, "task_dim": 3, "size": layout.size}},
     )
     return file.save(tmp_path / f"{task}_{seed}.npz")
@@ -64,8 +71,12 @@ def test_a_zero_action_is_the_joint_goal_controller(tmp_path, workspace_samples,
     goal = _run("joint-goal", task, samples, 200)
     np.testing.assert_allclose(ppo.commands, goal.commands, rtol=0, atol=1e-12)
     # the effort knob scales the joint-space gain as joint-goal's gain does
-    np.testing.assert_allclose(_run("ppo", task, samples, 50, model_path=str(path), action_scale=1.5).commands,
-                               _run("joint-goal", task, samples, 50, gain=3.0).commands, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        _run("ppo", task, samples, 50, model_path=str(path), action_scale=1.5).commands,
+        _run("joint-goal", task, samples, 50, gain=3.0).commands,
+        rtol=0,
+        atol=1e-12,
+    )
 
 
 def test_the_action_map_against_an_independent_computation(tmp_path, workspace_samples):
@@ -180,4 +191,4 @@ def test_the_shipped_workspace_policies_load_by_default_and_keep_the_limits_wher
     if task == "reach":
         assert np.all(np.linalg.norm(ppo.final_errors, axis=1) < 1e-3)
     else:
-        assert np.all(errors[:, steps // 2:].mean(axis=1) < 5e-3)
+        assert np.all(errors[:, steps // 2 :].mean(axis=1) < 5e-3)

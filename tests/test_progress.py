@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from snac_gym.evaluation.execution.progress import Progress
+
 from snac_gym.progress import ProgressLines, wants_lines
 
 EVALUATE_LINE = re.compile(r"^evaluate: \d+/\d+ rollouts \(\d+ %\), \d+\.\d s")
@@ -92,15 +92,32 @@ def _cli(arguments: list[str], cwd: Path, in_process: bool = False) -> subproces
         result = CliRunner().invoke(app, arguments)
         return subprocess.CompletedProcess(arguments, result.exit_code, result.stdout, result.stderr)
     return subprocess.run(
-        [sys.executable, "-m", "snac_gym.apps.cli", *arguments], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True, cwd=cwd, timeout=300,
+        [sys.executable, "-m", "snac_gym.apps.cli", *arguments],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=cwd,
+        timeout=300,
     )
 
 
 @pytest.mark.parametrize("progress", [True, False])
 def test_evaluate_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progress):
-    arguments = ["evaluate", "--out", str(tmp_path / "run"), "--samples", "4", "--horizon", "0.3",
-                 "--controllers", "dls,lqr", "--effort-reference", "dls", "--effort-samples", "0"]
+    arguments = [
+        "evaluate",
+        "--out",
+        str(tmp_path / "run"),
+        "--samples",
+        "4",
+        "--horizon",
+        "0.3",
+        "--controllers",
+        "dls,lqr",
+        "--effort-reference",
+        "dls",
+        "--effort-samples",
+        "0",
+    ]
     result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path, in_process=not progress)
     assert result.returncode == 0, result.stderr
     assert "Trajectory cost V/N" in result.stdout
@@ -118,8 +135,19 @@ def test_train_ppo_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, prog
     pytest.importorskip("stable_baselines3")
     from test_ppo import _tiny_config
 
-    arguments = ["train-ppo", "--task", "reach", "--timesteps", "64", "--seed", "3", "--out", str(tmp_path / "run"),
-                 "--config", str(_tiny_config(tmp_path))]
+    arguments = [
+        "train-ppo",
+        "--task",
+        "reach",
+        "--timesteps",
+        "64",
+        "--seed",
+        "3",
+        "--out",
+        str(tmp_path / "run"),
+        "--config",
+        str(_tiny_config(tmp_path)),
+    ]
     result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path, in_process=True)
     assert result.returncode == 0, result.stderr
     assert "finished: " in result.stdout and "train-ppo:" not in result.stdout

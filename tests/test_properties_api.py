@@ -20,10 +20,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from snac_gym.evaluation import EvaluationConfig
 
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.cost import trajectory_cost
-from snac_gym.evaluation import EvaluationConfig
 from snac_gym.model_error import ModelError
 from snac_gym.policies import make_policy
 
@@ -32,7 +32,10 @@ ID = "snac_gym/UR10Reach-v0"
 EXAMPLE_BOUND_S = 10
 
 SETTINGS = settings(
-    max_examples=60, derandomize=True, database=None, deadline=timedelta(seconds=EXAMPLE_BOUND_S),
+    max_examples=60,
+    derandomize=True,
+    database=None,
+    deadline=timedelta(seconds=EXAMPLE_BOUND_S),
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
 )
 
@@ -56,8 +59,13 @@ def bounded(seconds: float = EXAMPLE_BOUND_S) -> Iterator[None]:
 # -- strategies ----------------------------------------------------------------------------------------
 HUGE = 10**12
 scalars = st.one_of(
-    st.none(), st.booleans(), st.integers(-HUGE, HUGE), st.floats(allow_nan=True, allow_infinity=True),
-    st.complex_numbers(max_magnitude=1e3), st.text(max_size=6), st.just(b"0.1"),
+    st.none(),
+    st.booleans(),
+    st.integers(-HUGE, HUGE),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.complex_numbers(max_magnitude=1e3),
+    st.text(max_size=6),
+    st.just(b"0.1"),
 )
 
 
@@ -65,8 +73,11 @@ def arrays_near(shape: tuple[int, ...]) -> st.SearchStrategy:
     """Arrays of ``shape`` or of a neighbouring shape, of real, complex, bool or string dtype, finite or not."""
     shapes = st.one_of(st.just(shape), hnp.array_shapes(min_dims=0, max_dims=3, min_side=0, max_side=7))
     dtypes = st.one_of(
-        hnp.floating_dtypes(sizes=(32, 64)), hnp.integer_dtypes(sizes=(8, 64)), hnp.complex_number_dtypes(sizes=(128,)),
-        hnp.boolean_dtypes(), st.just(np.dtype("<U3")),
+        hnp.floating_dtypes(sizes=(32, 64)),
+        hnp.integer_dtypes(sizes=(8, 64)),
+        hnp.complex_number_dtypes(sizes=(128,)),
+        hnp.boolean_dtypes(),
+        st.just(np.dtype("<U3")),
     )
     return st.one_of(
         hnp.arrays(dtypes, shapes),
@@ -184,7 +195,9 @@ def test_trajectory_cost_refuses_by_name_or_equals_the_sum_of_its_terms(errors, 
 @SETTINGS
 @given(
     field=st.sampled_from(["joint_offset", "link_scale", "tool_offset"]),
-    value=st.one_of(scalars, st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-9, 9)), max_size=7)),
+    value=st.one_of(
+        scalars, st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-9, 9)), max_size=7)
+    ),
 )
 def test_a_model_error_is_refused_by_name_or_lies_in_its_documented_range(field, value):
     try:
@@ -224,8 +237,19 @@ def test_act_refuses_an_observation_by_name_or_returns_a_finite_command(env, pol
 
 @SETTINGS
 @given(
-    field=st.sampled_from(["samples", "seed", "q_scale", "effort_tolerance", "success_threshold", "plots", "workers",
-                           "chunk_size", "progress"]),
+    field=st.sampled_from(
+        [
+            "samples",
+            "seed",
+            "q_scale",
+            "effort_tolerance",
+            "success_threshold",
+            "plots",
+            "workers",
+            "chunk_size",
+            "progress",
+        ]
+    ),
     value=scalars,
 )
 def test_evaluation_options_are_refused_by_name_or_validate(field, value):

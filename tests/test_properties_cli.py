@@ -12,18 +12,21 @@ from datetime import timedelta
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_properties_api import bounded
 from typer.testing import CliRunner
 
 from snac_gym.apps.cli import app
-from test_properties_api import bounded
 
 SETTINGS = settings(
-    max_examples=25, derandomize=True, database=None, deadline=timedelta(seconds=30),
+    max_examples=25,
+    derandomize=True,
+    database=None,
+    deadline=timedelta(seconds=30),
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
 
 numbers = st.one_of(
-    st.integers(-10**13, 10**13).map(str),
+    st.integers(-(10**13), 10**13).map(str),
     st.floats(allow_nan=True, allow_infinity=True).map(repr),
     st.sampled_from(["nan", "inf", "-inf", "1e308", "1e-320", "0", "-0", "True", "0x10", "1_000", " 3", "3 "]),
 )
@@ -49,8 +52,21 @@ def _invoke(arguments: list[str]):
         return CliRunner().invoke(app, arguments, terminal_width=200)
 
 
-EVALUATE_OPTIONS = ["--samples", "--seed", "--cuboid", "--q-scale", "--model-error", "--task", "--controllers",
-                    "--effort-tolerance", "--success-threshold", "--sample-space", "--robot", "--udot-start", "--cost"]
+EVALUATE_OPTIONS = [
+    "--samples",
+    "--seed",
+    "--cuboid",
+    "--q-scale",
+    "--model-error",
+    "--task",
+    "--controllers",
+    "--effort-tolerance",
+    "--success-threshold",
+    "--sample-space",
+    "--robot",
+    "--udot-start",
+    "--cost",
+]
 
 
 @SETTINGS
@@ -59,8 +75,17 @@ def test_evaluate_options(tmp_path_factory, option, value):
     out = tmp_path_factory.mktemp("evaluate")
     if option == "--samples" and value.strip().isdigit() and int(value) > 10_000:
         value = "-" + value  # a valid count this large is minutes of drawing: the refusal side only
-    arguments = ["evaluate", "--out", str(out / "run"), "--export-only", "--export-samples", str(out / "s.csv"),
-                 "--no-progress", *(["--samples", "3"] if option != "--samples" else []), f"{option}={value}"]
+    arguments = [
+        "evaluate",
+        "--out",
+        str(out / "run"),
+        "--export-only",
+        "--export-samples",
+        str(out / "s.csv"),
+        "--no-progress",
+        *(["--samples", "3"] if option != "--samples" else []),
+        f"{option}={value}",
+    ]
     _check(_invoke(arguments), option)
 
 
@@ -81,8 +106,20 @@ def test_demo_options(tmp_path_factory, option, value):
     _check(_invoke(["demo", "--out", str(out), "--no-plots", *steps, f"{option}={value}"]), option)
 
 
-REAL_OPTIONS = ["--speed-scale", "--max-acceleration", "--max-tcp-mismatch", "--joint-margin", "--q0", "--target",
-                "--task-box", "--series", "--robot", "--seed", "--steps", "--ellipse-radius"]
+REAL_OPTIONS = [
+    "--speed-scale",
+    "--max-acceleration",
+    "--max-tcp-mismatch",
+    "--joint-margin",
+    "--q0",
+    "--target",
+    "--task-box",
+    "--series",
+    "--robot",
+    "--seed",
+    "--steps",
+    "--ellipse-radius",
+]
 
 
 @SETTINGS
@@ -92,7 +129,17 @@ def test_real_options_on_a_dry_run(tmp_path_factory, option, value):
     if option == "--steps" and value.strip().isdigit() and int(value) > 50:
         value = "-" + value  # real time: the refusal side only
     steps = [] if option == "--steps" else ["--steps", "5"]
-    arguments = ["real", "--connection", "sim", "--dry-run", "--no-plots", "--out", str(out), *steps, f"{option}={value}"]
+    arguments = [
+        "real",
+        "--connection",
+        "sim",
+        "--dry-run",
+        "--no-plots",
+        "--out",
+        str(out),
+        *steps,
+        f"{option}={value}",
+    ]
     outcome = _invoke(arguments)
     if outcome.exit_code == 4:  # a valid but unsafe setting: the safety layer stopped the (simulated) arm
         assert "safety" in outcome.output.lower(), outcome.output
@@ -100,8 +147,17 @@ def test_real_options_on_a_dry_run(tmp_path_factory, option, value):
     _check(outcome, option)
 
 
-EMULATOR_OPTIONS = ["--speed-scaling", "--tcp-offset", "--latency-spike", "--protective-stop-at", "--drop-at",
-                    "--series", "--robot", "--stale-at", "--watchdog-expiry-at"]
+EMULATOR_OPTIONS = [
+    "--speed-scaling",
+    "--tcp-offset",
+    "--latency-spike",
+    "--protective-stop-at",
+    "--drop-at",
+    "--series",
+    "--robot",
+    "--stale-at",
+    "--watchdog-expiry-at",
+]
 
 
 @SETTINGS
@@ -113,7 +169,7 @@ def test_emulator_options(option, value):
 @SETTINGS
 @given(
     option=st.sampled_from(["--steps", "--act-calls"]),
-    value=st.one_of(st.integers(-10**13, 99).map(str), st.integers(1_000_001, 10**13).map(str), texts),
+    value=st.one_of(st.integers(-(10**13), 99).map(str), st.integers(1_000_001, 10**13).map(str), texts),
 )
 def test_bench_counts_outside_their_range(option, value):
     _check(_invoke(["bench", "--no-panda", f"{option}={value}"]), option)

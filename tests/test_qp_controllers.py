@@ -13,9 +13,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
-
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import EvaluationSample
+
 from snac_gym.extras import MissingExtraError
 from snac_gym.kinematics import Kinematics, PoseKinematics
 from snac_gym.metrics import rollout_metrics
@@ -53,7 +53,10 @@ def test_mujoco_site_matches_the_kinematics(robot):
     kinematics, pose = Kinematics(robot), PoseKinematics(robot)
     model = build_mujoco_model(kinematics)
     data, site = mujoco.MjData(model), model.site(EE_SITE).id
-    assert model.nq == kinematics.n_joints and tuple(model.joint(i).name for i in range(model.njnt)) == kinematics.joint_names
+    assert (
+        model.nq == kinematics.n_joints
+        and tuple(model.joint(i).name for i in range(model.njnt)) == kinematics.joint_names
+    )
     np.testing.assert_array_equal(model.jnt_range[:, 0], kinematics.lower_limits)
     np.testing.assert_array_equal(model.jnt_range[:, 1], kinematics.upper_limits)
     rng = np.random.default_rng(7)
@@ -113,9 +116,15 @@ def _random_observations(kinematics, layout, task_dim, rng, count):
 
 @pytest.mark.parametrize(
     "robot, task, kwargs",
-    [("ur10", "reach", {}), ("ur10", "track", {"lm_damping": 0.5}), ("panda", "reach", {"gain": 5.0}),
-     ("panda", "reach", {"gain": 5.0, "assembly": "library"}), ("ur10", "track", {"assembly": "library"}),
-     ("panda", "pose-reach", {"damping": 0.05}), ("ur10", "pose-track", {"limit_gain": 0.3})],
+    [
+        ("ur10", "reach", {}),
+        ("ur10", "track", {"lm_damping": 0.5}),
+        ("panda", "reach", {"gain": 5.0}),
+        ("panda", "reach", {"gain": 5.0, "assembly": "library"}),
+        ("ur10", "track", {"assembly": "library"}),
+        ("panda", "pose-reach", {"damping": 0.05}),
+        ("ur10", "pose-track", {"limit_gain": 0.3}),
+    ],
 )
 def test_command_is_the_optimum_of_the_qp(controller, robot, task, kwargs, pose_tasks):
     """The library's command equals the QP solved by SciPy (BVLS) to 1e-6 relative, and meets the KKT
@@ -125,8 +134,9 @@ def test_command_is_the_optimum_of_the_qp(controller, robot, task, kwargs, pose_
     policy = make_policy(controller, context, **kwargs)
     rng = np.random.default_rng(3)
     active = {"velocity": 0, "position": 0}
-    for obs in _random_observations(kinematics.position if task.startswith("pose") else kinematics,
-                                    context.layout, context.layout.task_dim, rng, 18):
+    for obs in _random_observations(
+        kinematics.position if task.startswith("pose") else kinematics, context.layout, context.layout.task_dim, rng, 18
+    ):
         command = policy.act(obs)
         expected, (lb, ub), _ = _independent_qp(policy, kinematics, obs)
         scale = max(1.0, np.abs(expected).max())
@@ -248,16 +258,19 @@ def test_next_to_a_limit_the_qp_stays_inside_and_still_reaches(controller):
     kinematics = context.kinematics
     sample = _pushing_sample(kinematics)
     rollouts = simulate_kinematic(context, lambda: make_policy(controller, context), [sample], 1500, [0])
-    metrics = rollout_metrics(rollouts, "reach", context.velocity_limits, None,
-                              (kinematics.lower_limits, kinematics.upper_limits))
+    metrics = rollout_metrics(
+        rollouts, "reach", context.velocity_limits, None, (kinematics.lower_limits, kinematics.upper_limits)
+    )
     assert metrics["joint_limit_margin"].iloc[0] >= 0
     assert metrics["final_error"].iloc[0] < 1e-3
 
 
 # -- the paper's tasks, the batch protocol --------------------------------------------------------
 def test_paper_reach_and_track_succeed(controller):
-    for env_id, check in (("snac_gym/UR10Reach-v0", lambda info, errors: info["error_norm"] < 1e-3),
-                          ("snac_gym/UR10EllipseTrack-v0", lambda info, errors: np.mean(errors[len(errors) // 2:]) < 5e-3)):
+    for env_id, check in (
+        ("snac_gym/UR10Reach-v0", lambda info, errors: info["error_norm"] < 1e-3),
+        ("snac_gym/UR10EllipseTrack-v0", lambda info, errors: np.mean(errors[len(errors) // 2 :]) < 5e-3),
+    ):
         env = gym.make(env_id, physics="kinematic")
         policy = make_policy(controller, env)
         obs, info = env.reset(options={"q0": list(nominal_configuration(env.unwrapped.kinematics))}, seed=0)
@@ -300,10 +313,17 @@ def test_missing_extra_is_one_line_from_the_cli(tmp_path, monkeypatch):
     from snac_gym.apps.cli import app
 
     monkeypatch.setitem(sys.modules, "mink", None)
-    result = CliRunner().invoke(app, ["demo", "--controller", "mink", "--steps", "5", "--no-plots", "--out", str(tmp_path)])
+    result = CliRunner().invoke(
+        app, ["demo", "--controller", "mink", "--steps", "5", "--no-plots", "--out", str(tmp_path)]
+    )
     assert result.exit_code == 2
     assert result.output.strip() == "error: mink needs the 'ik' extra: pip install -e \".[ik]\""
-    evaluate = CliRunner().invoke(app, ["evaluate", "--controllers", "mink,dls", "--samples", "2", "--no-progress",
-                                        "--out", str(tmp_path / "run")])
+    evaluate = CliRunner().invoke(
+        app,
+        ["evaluate", "--controllers", "mink,dls", "--samples", "2", "--no-progress", "--out", str(tmp_path / "run")],
+    )
     assert evaluate.exit_code == 2
-    assert evaluate.output.strip() == "error: controller 'mink' is not installed: mink needs the 'ik' extra: pip install -e \".[ik]\""
+    assert (
+        evaluate.output.strip()
+        == "error: controller 'mink' is not installed: mink needs the 'ik' extra: pip install -e \".[ik]\""
+    )

@@ -80,7 +80,9 @@ def _assert_stopped(env, connection, info, terminated, match):
 
 def test_leaving_the_task_box_stops_the_arm():
     x0 = SimulatedConnection(realtime=False).kinematics.forward(np.array(PAPER_Q0))
-    env, connection = _env(box_low=tuple(x0 - 0.01), box_high=tuple(x0 + 0.01), speed_scale=1.0, max_joint_acceleration=40.0)
+    env, connection = _env(
+        box_low=tuple(x0 - 0.01), box_high=tuple(x0 + 0.01), speed_scale=1.0, max_joint_acceleration=40.0
+    )
     env.reset(options={"q0": PAPER_Q0})
     for _ in range(200):
         _, _, terminated, _, info = env.step(np.array([0.5, 0, 0, 0, 0, 0]))
@@ -262,7 +264,9 @@ def test_dry_run_sends_nothing_and_records_what_it_would_send():
 
 
 def test_loop_period_and_jitter_are_measured_at_125_hz():
-    env, _ = _env(realtime=True, max_missed_deadlines=10**5, deadline_window=10**5, max_period=10.0)  # a loaded CI machine may be late
+    env, _ = _env(
+        realtime=True, max_missed_deadlines=10**5, deadline_window=10**5, max_period=10.0
+    )  # a loaded CI machine may be late
     env.reset(options={"q0": PAPER_Q0})
     for _ in range(63):  # half a second
         env.step(np.zeros(6))
@@ -296,7 +300,11 @@ def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
 
     # a loaded CI machine may be late now and then: the deadline rule has its own tests above
     result = run_real_episode(
-        task="reach", controller="dls", out_dir=tmp_path / "real", connection="sim", steps=60,
+        task="reach",
+        controller="dls",
+        out_dir=tmp_path / "real",
+        connection="sim",
+        steps=60,
         safety=SafetyLimits(max_missed_deadlines=10**5, deadline_window=10**5, max_period=10.0),
     )
     demo = run_demo(task="reach", controller="dls", out_dir=tmp_path / "demo", steps=60)
@@ -317,7 +325,9 @@ def test_real_command_with_nothing_listening_fails_in_one_line():
     start = time.monotonic()
     done = subprocess.run(
         [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", "127.0.0.2", "--out", "unused"],
-        capture_output=True, text=True, timeout=30,
+        capture_output=True,
+        text=True,
+        timeout=30,
     )
     assert time.monotonic() - start < 10.0
     assert done.returncode == 1
@@ -332,8 +342,19 @@ def test_dry_run_command_on_the_simulated_connection_prints_what_it_would_send(t
 
     outcome = CliRunner().invoke(
         app,
-        ["real", "--connection", "sim", "--dry-run", "--steps", "5", "--controller", "dls", "--no-plots",
-         "--out", str(tmp_path)],  # fmt: skip
+        [
+            "real",
+            "--connection",
+            "sim",
+            "--dry-run",
+            "--steps",
+            "5",
+            "--controller",
+            "dls",
+            "--no-plots",
+            "--out",
+            str(tmp_path),
+        ],  # fmt: skip
     )
     assert outcome.exit_code == 0, outcome.output
     assert outcome.output.count("would send speedJ") == 5
@@ -361,7 +382,9 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
     monkeypatch.setattr(real_run, "make_connection", lambda *args, **kwargs: connection)
     outcome = CliRunner().invoke(app, ["real", "--host", "10.0.0.2", "--controller", "dls", "--out", str(tmp_path)])
     assert outcome.exit_code == 1
-    assert outcome.output.strip() == f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/"
+    assert (
+        outcome.output.strip() == f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/"
+    )
     assert connection.stopped and connection.stop_calls >= 1
     # the log so far is written: a lost link is a way out like any other (issue 31)
     summary = json.loads((tmp_path / "reach_dls_real.json").read_text())

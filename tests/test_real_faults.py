@@ -108,7 +108,9 @@ def _assert_stopped_at_rest(env, connection, match=None):
     assert connection.inner.commands_sent == sent
 
 
-@pytest.mark.parametrize(("fault", "match"), [("nan_q", "non-finite joint state"), ("inf_qdot", "non-finite joint velocities")])
+@pytest.mark.parametrize(
+    ("fault", "match"), [("nan_q", "non-finite joint state"), ("inf_qdot", "non-finite joint velocities")]
+)
 def test_non_finite_state_from_the_controller_stops_the_arm(fault, match):
     env, connection = _env()
     _drive(env, 20)
@@ -234,8 +236,14 @@ def test_every_stop_signal_stops_the_arm_and_writes_the_log_so_far(signalling_ru
 
     previous = signal.getsignal(signum)
     with pytest.raises(TerminationSignal) as excinfo:
-        run_real_episode(controller="sends-signal", out_dir=tmp_path, connection="sim", steps=200,
-                         policy_kwargs={"signum": signum}, safety=SafetyLimits(max_period=10.0, deadline_slack=10.0))
+        run_real_episode(
+            controller="sends-signal",
+            out_dir=tmp_path,
+            connection="sim",
+            steps=200,
+            policy_kwargs={"signum": signum},
+            safety=SafetyLimits(max_period=10.0, deadline_slack=10.0),
+        )
     assert excinfo.value.signum == signum
     assert signal.getsignal(signum) is previous  # the handlers are put back
     connection, speeds_after_stop = signalling_run
@@ -255,7 +263,9 @@ def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path,
 
     from snac_gym.apps.cli import app
 
-    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "sends-signal", "--out", str(tmp_path)])
+    outcome = CliRunner().invoke(
+        app, ["real", "--connection", "sim", "--controller", "sends-signal", "--out", str(tmp_path)]
+    )
     assert outcome.exit_code == 128 + signal.SIGTERM
     assert outcome.output.strip() == f"interrupted by SIGTERM: the arm was stopped; the log so far is in {tmp_path}/"
     assert signalling_run[0].stopped
@@ -307,13 +317,17 @@ class Crashes(BasePolicy):
         return np.full(6, 0.05)
 
 
-def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept(signalling_run, tmp_path, timing_rules_off):
+def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept(
+    signalling_run, tmp_path, timing_rules_off
+):
     from typer.testing import CliRunner
 
     from snac_gym.apps.cli import app
 
     register_policy("crashes", Crashes, overwrite=True)
-    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--controller", "crashes", "--out", str(tmp_path)])
+    outcome = CliRunner().invoke(
+        app, ["real", "--connection", "sim", "--controller", "crashes", "--out", str(tmp_path)]
+    )
     assert outcome.exit_code == 3, outcome.output
     assert outcome.output.strip() == (
         f"error: unexpected ZeroDivisionError: integer division or modulo by zero; the log so far is in {tmp_path}/ "
@@ -414,7 +428,10 @@ def test_an_interrupted_run_keeps_the_stream_log_with_every_period(signalling_ru
         ({"deadline_slack": np.nan}, "deadline_slack"),
         ({"max_period": np.inf}, "max_period"),
         ({"max_missed_deadlines": 0}, "max_missed_deadlines"),
-        ({"max_missed_deadlines": 30, "deadline_window": 25}, "max_missed_deadlines must be a whole number in \\[1, 25\\]"),
+        (
+            {"max_missed_deadlines": 30, "deadline_window": 25},
+            "max_missed_deadlines must be a whole number in \\[1, 25\\]",
+        ),
         ({"max_stale_periods": 2.5}, "max_stale_periods"),
         ({"rest_speed": 0.0}, "rest_speed"),
     ],
@@ -430,7 +447,9 @@ def test_the_real_command_refuses_a_meaningless_acceleration_in_one_line(tmp_pat
 
     from snac_gym.apps.cli import app
 
-    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--max-acceleration", value, "--out", str(tmp_path)])
+    outcome = CliRunner().invoke(
+        app, ["real", "--connection", "sim", "--max-acceleration", value, "--out", str(tmp_path)]
+    )
     assert outcome.exit_code == 2
     assert "max_joint_acceleration must be a finite number" in outcome.output
     assert "Traceback" not in outcome.output and not any(tmp_path.iterdir())
@@ -506,7 +525,9 @@ def test_an_arm_that_moved_during_the_stop_is_not_resumed():
     threading.Timer(0.1, pushed_into_the_margin).start()
     _, _, terminated, _, info = env.step(np.full(6, 0.1))
     assert terminated and env.recoveries == []
-    assert info["safety"].startswith("controller reports protective_stop; not resumed after the protective stop: joint 5")
+    assert info["safety"].startswith(
+        "controller reports protective_stop; not resumed after the protective stop: joint 5"
+    )
 
 
 def test_a_lost_link_with_no_recoveries_left_or_no_reconnect_propagates_as_before():
@@ -540,7 +561,9 @@ def test_the_real_command_refuses_an_unlock_without_recoveries(tmp_path):
 
     from snac_gym.apps.cli import app
 
-    outcome = CliRunner().invoke(app, ["real", "--connection", "sim", "--unlock-protective-stop", "--out", str(tmp_path)])
+    outcome = CliRunner().invoke(
+        app, ["real", "--connection", "sim", "--unlock-protective-stop", "--out", str(tmp_path)]
+    )
     assert outcome.exit_code == 2 and "needs max_recoveries of at least 1 (--max-recoveries N)" in outcome.output
 
 

@@ -16,7 +16,11 @@ import snac_gym.real.connections as connections
 from snac_gym.real.connections import URRTDEConnection, ask_dashboard, confirm_rest_by_dashboard
 from snac_gym.real.emulator.controller import UREmulator
 
-STOPPED = {"programState": "STOPPED rtde_control", "robotmode": "Robotmode: RUNNING", "safetystatus": "Safetystatus: NORMAL"}
+STOPPED = {
+    "programState": "STOPPED rtde_control",
+    "robotmode": "Robotmode: RUNNING",
+    "safetystatus": "Safetystatus: NORMAL",
+}
 
 
 class Clock:
@@ -143,12 +147,17 @@ def test_rest_read_from_a_fresh_rtde_package_is_recorded_as_rtde_and_the_dashboa
 
 
 def test_a_frozen_state_stops_the_script_and_the_dashboard_confirms_rest(arm):
-    FakeClient.replies["stop"] = "stale state: the controller's timestamp stayed at 1.000000 s for 105 ms after speedStop"
+    FakeClient.replies["stop"] = (
+        "stale state: the controller's timestamp stayed at 1.000000 s for 105 ms after speedStop"
+    )
     arm.stop()
     record = arm.stop_record()
     assert arm._client.calls[-2:] == ["stop", "stop_script"]  # speedStop, then stopScript
     assert record["rest_confirmed"] is True and record["rest_not_confirmed"] is None
-    assert record["rest_confirmed_by"] == "dashboard: programState STOPPED rtde_control, robotmode RUNNING, safetystatus NORMAL"
+    assert (
+        record["rest_confirmed_by"]
+        == "dashboard: programState STOPPED rtde_control, robotmode RUNNING, safetystatus NORMAL"
+    )
     assert record["stopped_by"].startswith("speedStop, then stopScript (host)")
     assert record["stop_ramp_s"] == pytest.approx(0.15)  # 0.3 rad/s at 2 rad/s²
     assert 0.15 <= record["rest_confirmed_after_s"] < 0.3 + 0.2 and arm.asked[0] == "192.0.2.7"
@@ -158,7 +167,9 @@ def test_a_frozen_state_stops_the_script_and_the_dashboard_confirms_rest(arm):
 
 
 def test_when_nothing_confirms_rest_the_record_says_exactly_that(arm):
-    FakeClient.replies["stop"] = "stale state: the controller's timestamp stayed at 1.000000 s for 105 ms after speedStop"
+    FakeClient.replies["stop"] = (
+        "stale state: the controller's timestamp stayed at 1.000000 s for 105 ms after speedStop"
+    )
     arm.dashboard = ConnectionRefusedError(111, "Connection refused")
     arm.stop()
     record = arm.stop_record()
@@ -174,7 +185,10 @@ def test_a_client_gone_leaves_the_stop_to_the_controllers_watchdog_and_the_recor
     arm.stop()
     record = arm.stop_record()
     assert arm.last_stop == "client gone: left to the controller's watchdog"
-    assert record["stopped_by"] == "the controller's watchdog: no command for 40 ms (5 periods) stops the program and the arm"
+    assert (
+        record["stopped_by"]
+        == "the controller's watchdog: no command for 40 ms (5 periods) stops the program and the arm"
+    )
     assert record["watchdog_period_s"] == pytest.approx(0.04) and record["client_gone"] and record["watchdog_armed"]
     assert record["rest_confirmed"] is False and "dashboard unreachable" in record["rest_not_confirmed"]
     assert "stop" not in arm._client.calls and "stop_script" not in arm._client.calls

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from snac_gym.cost import CostConvention
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.branches import (
     BRANCH_SEPARATION,
@@ -16,6 +14,8 @@ from snac_gym.evaluation.reference.branches import (
 )
 from snac_gym.evaluation.reference.optimum import check_reference_row, solve_samples
 from snac_gym.evaluation.samples import generate_samples
+
+from snac_gym.cost import CostConvention
 from snac_gym.joint_goal import nearest_goals
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
@@ -45,7 +45,9 @@ def test_the_goals_are_distinct_in_limit_solutions_nearest_first(ur10):
     assert sum(len(g) > 1 for g in goals) >= 10  # the arm's whole reach: most targets have several branches
     for i, found_goals in enumerate(goals):
         assert len(found_goals) >= 1
-        np.testing.assert_allclose(ur10.forward_batch(found_goals), np.repeat(x_d[i, :1], len(found_goals), 0), atol=1e-8)
+        np.testing.assert_allclose(
+            ur10.forward_batch(found_goals), np.repeat(x_d[i, :1], len(found_goals), 0), atol=1e-8
+        )
         assert (found_goals >= ur10.lower_limits).all() and (found_goals <= ur10.upper_limits).all()
         distances = np.linalg.norm(found_goals - q0s[i], axis=1)
         assert (np.diff(distances) >= 0).all()

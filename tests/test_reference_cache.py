@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation.reference import cache as reference_cache
 from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
+
 from snac_gym.cost import CostConvention
 
 

@@ -110,7 +110,13 @@ def test_samplers_are_seeded_and_stay_in_the_space(ur10):
     draws = []
     for _ in range(2):
         rng = np.random.default_rng(7)
-        draws.append((sample_seed_pose(ur10, rng, space), sample_target(ur10, rng, space).target, sample_ellipse(ur10, rng, space)))
+        draws.append(
+            (
+                sample_seed_pose(ur10, rng, space),
+                sample_target(ur10, rng, space).target,
+                sample_ellipse(ur10, rng, space),
+            )
+        )
     np.testing.assert_array_equal(draws[0][0], draws[1][0])
     np.testing.assert_array_equal(draws[0][1], draws[1][1])
     assert draws[0][2].to_dict() == draws[1][2].to_dict()

@@ -31,7 +31,9 @@ def test_every_link_and_the_reference_stay_in_the_image_over_random_episodes(tas
         for step in range(400):
             obs, *_ = env.step(_resolved_rate(base, obs, rng))
             if step % 20 == 0:
-                points = np.vstack([scene.link_origins(), base.kinematics.base_to_world(base.reference.position(base.time))])
+                points = np.vstack(
+                    [scene.link_origins(), base.kinematics.base_to_world(base.reference.position(base.time))]
+                )
                 pixels = project(points, scene.view, scene.projection, width, height)
                 assert (pixels[:, 2] > 0).all()
                 margin = np.minimum(pixels[:, :2], np.array([width, height]) - pixels[:, :2]).min()

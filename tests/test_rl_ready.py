@@ -69,7 +69,11 @@ def test_v1_spaces_are_normalized_float32_and_finite(env_id):
     base = env.unwrapped
     action, observation = env.action_space, env.observation_space
     assert action.dtype == np.float32 and np.all(action.low == -1) and np.all(action.high == 1)
-    assert observation.dtype == np.float32 and np.all(np.isfinite(observation.low)) and np.all(np.isfinite(observation.high))
+    assert (
+        observation.dtype == np.float32
+        and np.all(np.isfinite(observation.low))
+        and np.all(np.isfinite(observation.high))
+    )
     slices = base.obs_layout.slices
     k = base.kinematics
     np.testing.assert_allclose(observation.high[slices["qdot"]], k.velocity_limits.astype(np.float32))
@@ -105,8 +109,9 @@ def test_a_v1_env_is_the_v0_env_with_its_arguments():
         runs.append(np.array(obs))
         env.close()
     np.testing.assert_array_equal(*runs)
-    env = gym.make("snac_gym/UR10Reach-v1", action_type="velocity", observation_dtype=np.float64,
-                   finite_observation_bounds=False)
+    env = gym.make(
+        "snac_gym/UR10Reach-v1", action_type="velocity", observation_dtype=np.float64, finite_observation_bounds=False
+    )
     assert env.action_space.dtype == np.float64 and np.all(np.isinf(env.observation_space.high))
     env.close()
 
@@ -183,8 +188,9 @@ def test_make_policy_maps_the_v1_scaling_both_ways(controller):
         a, u = wrapped.act(obs1), plain.act(obs0)
         assert a.dtype == np.float32 and v1.action_space.contains(a)
         # the same command, up to the float32 rounding of the observation and of a
-        np.testing.assert_allclose(wrapped.to_command(a), np.clip(u, -v0.unwrapped.velocity_limits,
-                                                                  v0.unwrapped.velocity_limits), atol=1e-4)
+        np.testing.assert_allclose(
+            wrapped.to_command(a), np.clip(u, -v0.unwrapped.velocity_limits, v0.unwrapped.velocity_limits), atol=1e-4
+        )
         obs1, *_, info1 = v1.step(a)
         obs0, *_, info0 = v0.step(u)
     np.testing.assert_allclose(info1["error"], info0["error"], atol=1e-5)

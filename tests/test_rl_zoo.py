@@ -31,8 +31,12 @@ def test_every_registered_goal_id_has_an_entry_and_the_file_is_generated_from_th
     assert len(goal_ids) >= 36 and sorted(entries) == sorted(goal_ids)
     for env_id in goal_ids:  # each entry resolves to a whole preset (the YAML merge keys included)
         assert entries[env_id]["replay_buffer_class"] == "HerReplayBuffer" and entries[env_id]["n_timesteps"] > 0
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "write_zoo_hyperparams.py"), "--check"],
-                          capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "tools" / "write_zoo_hyperparams.py"), "--check"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 0, done.stdout + done.stderr
 
 
@@ -53,9 +57,28 @@ def test_rl_zoo3_trains_on_a_snac_gym_id_and_the_model_acts(tmp_path):
     if importlib.util.find_spec("rl_zoo3") is None:
         pytest.skip("the 'zoo' extra (rl_zoo3) is not installed")
     command = [
-        sys.executable, "-m", "rl_zoo3.train", "--algo", "sac", "--env", ENV_ID, "--gym-packages", "snac_gym",
-        "-conf", str(HYPERPARAMS), "-n", "300", "--seed", "1", "--log-folder", str(tmp_path), "--eval-freq", "-1",
-        "--no-optim-plots", "-params", "buffer_size:1000",  # the file's 1e6 transitions take HER 2 s to allocate
+        sys.executable,
+        "-m",
+        "rl_zoo3.train",
+        "--algo",
+        "sac",
+        "--env",
+        ENV_ID,
+        "--gym-packages",
+        "snac_gym",
+        "-conf",
+        str(HYPERPARAMS),
+        "-n",
+        "300",
+        "--seed",
+        "1",
+        "--log-folder",
+        str(tmp_path),
+        "--eval-freq",
+        "-1",
+        "--no-optim-plots",
+        "-params",
+        "buffer_size:1000",  # the file's 1e6 transitions take HER 2 s to allocate
     ]
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
@@ -66,7 +89,9 @@ def test_rl_zoo3_trains_on_a_snac_gym_id_and_the_model_acts(tmp_path):
     from stable_baselines3 import SAC
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    env = VecNormalize.load(str(run / name / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(ENV_ID, physics="kinematic")]))
+    env = VecNormalize.load(
+        str(run / name / "vecnormalize.pkl"), DummyVecEnv([lambda: gym.make(ENV_ID, physics="kinematic")])
+    )
     env.training, env.norm_reward = False, False
     model = SAC.load(run / f"{name}.zip", env=env)  # HER needs the env to load
     env.seed(0)

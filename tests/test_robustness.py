@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from typer.testing import CliRunner
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.effort import matching as effort_matching
 from snac_gym.evaluation.execution.executors import ProcessExecutor, check_ray_reachable, max_workers
 from snac_gym.evaluation.store import RunDirectoryError, RunStore
+from typer.testing import CliRunner
+
 from snac_gym.apps.cli import app
 from snac_gym.ppo.policy import shipped_model_path
 from snac_gym.ppo.policy_file import PolicyFile, PolicyFileError
@@ -306,7 +306,9 @@ def _children(pid: int) -> set[int]:
     run's own forked children when there is no fork server."""
     direct = _direct_children(pid)
     grandchildren = set().union(*(_direct_children(child) for child in direct)) if direct else set()
-    return grandchildren or {c for c in direct if "forkserver" not in _cmdline(c) and "resource_tracker" not in _cmdline(c)}
+    return grandchildren or {
+        c for c in direct if "forkserver" not in _cmdline(c) and "resource_tracker" not in _cmdline(c)
+    }
 
 
 def _cmdline(pid: int) -> str:

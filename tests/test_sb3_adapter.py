@@ -34,7 +34,9 @@ def _run_side_by_side(batched, dummy, steps, seed=7):
         for info, info_w in zip(infos, infos_w, strict=True):
             assert ("terminal_observation" in info) == ("terminal_observation" in info_w)
             if "terminal_observation" in info:
-                np.testing.assert_allclose(info["terminal_observation"], info_w["terminal_observation"], rtol=1e-6, atol=1e-6)
+                np.testing.assert_allclose(
+                    info["terminal_observation"], info_w["terminal_observation"], rtol=1e-6, atol=1e-6
+                )
                 assert info["TimeLimit.truncated"] == info_w["TimeLimit.truncated"]
                 assert info["is_success"] == info_w["is_success"]
         dones_seen += int(dones.sum())
@@ -49,7 +51,9 @@ def test_sb3_vec_env_is_a_dummy_vec_env_of_single_kinematic_envs(env_id):
 
     kwargs = {"action_type": "normalized", "reward_type": "shaped", "observation_dtype": np.float32}
     batched = SB3VectorEnv(env_id, 3, max_steps=6, **kwargs)
-    dummy = DummyVecEnv([lambda: gym.make(env_id, physics="kinematic", max_episode_steps=6, **kwargs) for _ in range(3)])
+    dummy = DummyVecEnv(
+        [lambda: gym.make(env_id, physics="kinematic", max_episode_steps=6, **kwargs) for _ in range(3)]
+    )
     assert batched.observation_space == dummy.observation_space and batched.action_space == dummy.action_space
     _run_side_by_side(batched, dummy, 14)
     assert batched.get_attr("max_steps") == [6, 6, 6] and batched.env_is_wrapped(gym.Wrapper) == [False] * 3
@@ -87,8 +91,13 @@ def test_ppo_trains_on_thousands_of_episodes_at_once():
 def test_single_kinematic_env_passes_sb3_check_env():
     from stable_baselines3.common.env_checker import check_env
 
-    env = gym.make("snac_gym/UR10Reach-v0", physics="kinematic", action_type="normalized",
-                   observation_dtype=np.float32, max_episode_steps=20)
+    env = gym.make(
+        "snac_gym/UR10Reach-v0",
+        physics="kinematic",
+        action_type="normalized",
+        observation_dtype=np.float32,
+        max_episode_steps=20,
+    )
     check_env(env, warn=True)
 
 

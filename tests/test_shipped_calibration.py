@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 
 import pytest
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.controllers import resolve_controllers
 from snac_gym.evaluation.effort.matching import EffortMatcher
@@ -57,7 +56,9 @@ def _agree(found: float, shipped: float, exact: bool) -> bool:
 
 
 def test_the_shipped_knobs_are_the_ones_the_current_code_matches(tmp_path, cache_on):
-    config = EvaluationConfig(out=tmp_path / "run", controllers=MAIN_CONTROLLERS, workers=1, progress=False, plots=False)
+    config = EvaluationConfig(
+        out=tmp_path / "run", controllers=MAIN_CONTROLLERS, workers=1, progress=False, plots=False
+    )
     identities, specs = _identities(config)
     shipped = read_shipped(identities)
     assert shipped is not None, f"no shipped knobs for the default settings: {STALE}"
@@ -74,7 +75,9 @@ def test_the_shipped_knobs_are_the_ones_the_current_code_matches(tmp_path, cache
         exact = _same_numerics()
         for task in config.tasks:
             target = reference_records[(task, reference.name)].effort
-            assert _agree(target, records[(task, reference.name)].effort, exact), f"{task}: the effort target moved; {STALE}"
+            assert _agree(target, records[(task, reference.name)].effort, exact), (
+                f"{task}: the effort target moved; {STALE}"
+            )
             for spec in specs:
                 if spec is reference:
                     continue
@@ -82,7 +85,9 @@ def test_the_shipped_knobs_are_the_ones_the_current_code_matches(tmp_path, cache
                 assert shipped_record.passes == 1 and shipped_record.role == "matched"  # one search decides the knob
                 match = matcher.search_knob(task, spec, target, float(spec.knob_value), 1)
                 searched = searches[f"{task}/{spec.name}/search1"]
-                agree = _agree(match.value, shipped_record.knob_value, exact) and _agree(match.effort, searched["effort"], exact)
+                agree = _agree(match.value, shipped_record.knob_value, exact) and _agree(
+                    match.effort, searched["effort"], exact
+                )
                 assert agree and match.matched, (
                     f"{task}/{spec.name}: the search now gives {match.value!r} (effort {match.effort!r}), the file "
                     f"{shipped_record.knob_value!r} ({searched['effort']!r}); {STALE}"
@@ -116,13 +121,21 @@ def test_a_run_at_the_defaults_uses_the_shipped_knobs_and_another_setting_matche
 
 
 def test_a_shipped_entry_for_other_settings_is_not_used(tmp_path, cache_on):
-    config = EvaluationConfig(out=tmp_path / "run", controllers=MAIN_CONTROLLERS, workers=1, progress=False, plots=False)
+    config = EvaluationConfig(
+        out=tmp_path / "run", controllers=MAIN_CONTROLLERS, workers=1, progress=False, plots=False
+    )
     identities, _ = _identities(config)
     payload = json.loads(shipped_file().read_text())
     assert read_shipped(identities) is not None
-    for change in ({"effort_tolerance": 0.05}, {"steps": 1000}, {"controller": {"name": "lqr", "kwargs": {"q_scale": 2}}}):
+    for change in (
+        {"effort_tolerance": 0.05},
+        {"steps": 1000},
+        {"controller": {"name": "lqr", "kwargs": {"q_scale": 2}}},
+    ):
         edited = json.loads(json.dumps(payload))
-        entry = next(e for e in edited["entries"] if e["record"]["controller"] == "lqr" and e["record"]["task"] == "reach")
+        entry = next(
+            e for e in edited["entries"] if e["record"]["controller"] == "lqr" and e["record"]["task"] == "reach"
+        )
         entry["identity"] = {**entry["identity"], **change}
         path = tmp_path / "knobs.json"
         path.write_text(json.dumps(edited))

@@ -87,8 +87,27 @@ def _random_spd(rng, m):
 def test_basis_order_is_the_papers():
     assert QuadraticBasis(3).labels(["e1", "e2", "e3"]) == ["e1^2", "e1*e2", "e1*e3", "e2^2", "e2*e3", "e3^2"]
     paper_21 = [  # w1..w21 of Section V-C
-        "x1^2", "x1*x2", "x1*x3", "x1*x4", "x1*x5", "x1*x6", "x2^2", "x2*x3", "x2*x4", "x2*x5", "x2*x6",
-        "x3^2", "x3*x4", "x3*x5", "x3*x6", "x4^2", "x4*x5", "x4*x6", "x5^2", "x5*x6", "x6^2",
+        "x1^2",
+        "x1*x2",
+        "x1*x3",
+        "x1*x4",
+        "x1*x5",
+        "x1*x6",
+        "x2^2",
+        "x2*x3",
+        "x2*x4",
+        "x2*x5",
+        "x2*x6",
+        "x3^2",
+        "x3*x4",
+        "x3*x5",
+        "x3*x6",
+        "x4^2",
+        "x4*x5",
+        "x4*x6",
+        "x5^2",
+        "x5*x6",
+        "x6^2",
     ]
     assert QuadraticBasis(6).labels([f"x{i}" for i in range(1, 7)]) == paper_21
 
@@ -109,8 +128,10 @@ def test_basis_gradient_matches_finite_differences_and_loops(dim, rng):
         s = rng.normal(size=dim)
         grad = basis.gradient(s)
         step = 1e-6
-        finite = np.stack([(basis(s + step * np.eye(dim)[r]) - basis(s - step * np.eye(dim)[r])) / (2 * step)
-                           for r in range(dim)], axis=1)
+        finite = np.stack(
+            [(basis(s + step * np.eye(dim)[r]) - basis(s - step * np.eye(dim)[r])) / (2 * step) for r in range(dim)],
+            axis=1,
+        )
         np.testing.assert_allclose(grad, finite, atol=1e-8)
         np.testing.assert_array_equal(grad, np.array(_basis_gradient_loops(list(s))))
         out = np.full((basis.size, dim), np.nan)  # any previous content is overwritten
@@ -133,8 +154,15 @@ def test_command_and_weight_update_match_hand_expansion(ur10, rng, task, r_kind,
     n = ur10.task_dim
     size = QuadraticBasis(n if task == "reach" else 2 * n).size
     weights0 = rng.normal(size=size)
-    policy = SNACPolicy(ctx, R=R, initial_weights=weights0, learning_rate_unit=unit, weight_update="euler",
-                        schedule_clock=clock, tracking_state=tracking_state)
+    policy = SNACPolicy(
+        ctx,
+        R=R,
+        initial_weights=weights0,
+        learning_rate_unit=unit,
+        weight_update="euler",
+        schedule_clock=clock,
+        tracking_state=tracking_state,
+    )
     policy.reset(seed=0)
     weights = weights0.copy()
     alpha_i, alpha_f, shift = PAPER_SCHEDULES[task]
@@ -433,8 +461,12 @@ def test_hjb_residual_of_the_critic_matches_a_hand_expansion(ur10, rng, task, tr
         expected.append(grad @ rate + g.e @ Q @ g.e + command @ R @ command)
     xdot_d = np.array([f.xdot_d if task == "track" else np.zeros(n) for f in fields])
     out = policy.critic_diagnostics(
-        np.array([f.q for f in fields]), np.array([f.e for f in fields]), np.array([f.x_d for f in fields]), xdot_d,
-        x_c, weights,
+        np.array([f.q for f in fields]),
+        np.array([f.e for f in fields]),
+        np.array([f.x_d for f in fields]),
+        xdot_d,
+        x_c,
+        weights,
     )
     np.testing.assert_allclose(out["hjb_residual"], expected, rtol=1e-9)
     np.testing.assert_allclose(out["hjb_ratio"], np.array(expected) / [f.e @ Q @ f.e for f in fields], rtol=1e-9)
@@ -466,7 +498,9 @@ def test_the_papers_snac_trajectory_does_not_depend_on_q(task):
     """Eqs. 15/19 and 36/38 contain no Q: any Q gives the same commands and weights, bit for bit."""
     from snac_gym.apps.demo import run_demo
 
-    logs = [run_demo(task, "snac", None, seed=3, steps=150, policy_kwargs={"Q": Q}).log for Q in (None, [100.0, 0.01, 7.0])]
+    logs = [
+        run_demo(task, "snac", None, seed=3, steps=150, policy_kwargs={"Q": Q}).log for Q in (None, [100.0, 0.01, 7.0])
+    ]
     diagnostics = ["hjb_residual", "hjb_ratio", "critic_error"]  # these measure against the cost, so they do see Q
     trajectories = [log.drop(columns=[c for c in diagnostics if c in log.columns]) for log in logs]
     assert trajectories[0].equals(trajectories[1])

@@ -115,6 +115,7 @@ def test_weights_are_projected_onto_positive_definite_critics(ur10):
 def test_a_batch_reset_gives_each_episode_the_weights_of_its_own_reset(ur10, weight_range):
     """reset_batch projects all draws at once; each row must be the single reset's, bit for bit,
     whether the row needed the projection or not (with (-1, 1) most draws are indefinite)."""
+
     def fresh() -> SNACHJBPolicy:
         return SNACHJBPolicy(_context(ur10), initial_weight_range=weight_range, min_eigenvalue=0.2)
 
@@ -201,10 +202,13 @@ def _numpy_residual_step(policy, weights, gram_matrix, current, step):
     """The residual law as NumPy stacks (the policy's implementation before it was compiled)."""
     count = len(weights)
     P = quadratic_weights_to_matrix(weights, policy.task_dim)
-    directions = np.concatenate((np.broadcast_to(policy.directions, (count, *policy.directions.shape)), current[:, None]), axis=1)
+    directions = np.concatenate(
+        (np.broadcast_to(policy.directions, (count, *policy.directions.shape)), current[:, None]), axis=1
+    )
     fixed_gradients = policy.basis.gradient(policy.directions)
     gradients = np.concatenate(
-        (np.broadcast_to(fixed_gradients, (count, *fixed_gradients.shape)), policy.basis.gradient(current)[:, None]), axis=1
+        (np.broadcast_to(fixed_gradients, (count, *fixed_gradients.shape)), policy.basis.gradient(current)[:, None]),
+        axis=1,
     )
     closed_loop = -np.einsum("bij,bjk,bdk->bdi", gram_matrix, P, directions)
     omega = np.einsum("bdkn,bdn->bdk", gradients, closed_loop)

@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 import pytest
-
 from snac_gym.evaluation.reports.summary import mean_confidence_interval
 
 

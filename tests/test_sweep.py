@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from typer.testing import CliRunner
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.sweep import MAX_POINTS, SWEEP_COLUMNS, run_sweep
+from typer.testing import CliRunner
+
 from snac_gym.apps.cli import app
 from snac_gym.policies.registry import make_policy
 
@@ -126,7 +126,9 @@ def test_the_figure_is_written(swept):
 
 def test_same_sweep_with_one_worker_and_on_resume(swept, tmp_path):
     config, sweep = swept
-    serial = run_sweep(dataclasses.replace(config, out=tmp_path / "serial", workers=1, plots=False), points=POINTS, span=SPAN)
+    serial = run_sweep(
+        dataclasses.replace(config, out=tmp_path / "serial", workers=1, plots=False), points=POINTS, span=SPAN
+    )
     pd.testing.assert_frame_equal(serial, sweep, check_exact=True)
     assert not list((tmp_path / "serial").glob("*.png"))  # --no-plots: the tables only
     assert "cost_boxplot.png" not in (tmp_path / "serial" / "summary.md").read_text()

@@ -83,7 +83,9 @@ def test_a_real_arm_is_never_commanded_past_its_datasheet_speed():
 def test_every_ur_urdf_stays_inside_the_datasheet_joint_range():
     for name in UR_MODELS:
         kinematics = Kinematics(name)
-        assert np.all(kinematics.lower_limits >= -2 * math.pi - 1e-9) and np.all(kinematics.upper_limits <= 2 * math.pi + 1e-9)
+        assert np.all(kinematics.lower_limits >= -2 * math.pi - 1e-9) and np.all(
+            kinematics.upper_limits <= 2 * math.pi + 1e-9
+        )
 
 
 def test_the_series_defaults_to_the_arms_and_a_cb3_arm_refuses_500_hz():

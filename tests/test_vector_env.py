@@ -6,8 +6,7 @@ import pytest
 
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.envs.vector import URTaskVectorEnv
-from snac_gym.kinematics import PositionChain
-from snac_gym.kinematics import Kinematics
+from snac_gym.kinematics import Kinematics, PositionChain
 from snac_gym.physics.scene import PATH_COLOUR
 from snac_gym.tasks import TASKS
 
@@ -122,8 +121,14 @@ def test_registered_length_and_options_reach_every_sub_env():
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_batches_lie_in_the_batched_spaces(env_id):
-    env = gym.make_vec(env_id, num_envs=16, vectorization_mode="vector_entry_point", finite_observation_bounds=True,
-                       action_type="normalized", observation_dtype=np.float32)
+    env = gym.make_vec(
+        env_id,
+        num_envs=16,
+        vectorization_mode="vector_entry_point",
+        finite_observation_bounds=True,
+        action_type="normalized",
+        observation_dtype=np.float32,
+    )
     obs, _ = env.reset(seed=1)
     assert env.observation_space.contains(obs) and env.observation_space.shape == (16, 27)
     env.action_space.seed(0)
@@ -182,7 +187,9 @@ def test_the_vector_env_renders_its_first_episode_as_the_single_env_draws_it():
     same seed and given the same commands, draws the same image (its arm set to the same joint angles)."""
     env_id = "snac_gym/UR10EllipseTrack-v0"
     kwargs = {"render_width": 96, "render_height": 72}
-    vector = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", render_mode="rgb_array", **kwargs)
+    vector = gym.make_vec(
+        env_id, num_envs=3, vectorization_mode="vector_entry_point", render_mode="rgb_array", **kwargs
+    )
     single = gym.make(env_id, physics="kinematic", **kwargs)
     viewer = gym.make(env_id, render_mode="rgb_array", **kwargs)
     vector.reset(seed=4), single.reset(seed=4)

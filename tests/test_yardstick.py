@@ -9,19 +9,19 @@ import functools
 import numpy as np
 import pandas as pd
 import pytest
-
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.branches import BRANCH_PREFIX
 from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_start_solve
-from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 from snac_gym.optimality import regulation_cost_lower_bound
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import reference_trajectories, simulate_kinematic
 from snac_gym.sampling import SampleSpace
+from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient
 
 DT = 1.0 / 125.0
 HJB = CostConvention("hjb", "rest", 4.0)
@@ -77,7 +77,9 @@ def workspace_run(tmp_path_factory) -> pd.DataFrame:
 def velocity_only(tmp_path_factory) -> pd.DataFrame:
     """The same samples' reference with the velocity limits only (``--reference-limits velocity``)."""
     out = tmp_path_factory.mktemp("velocity") / "run"
-    rows = run_evaluation(_workspace_config(out, ("optimal",), reference_limits="velocity")).set_index(["task", "sample"])
+    rows = run_evaluation(_workspace_config(out, ("optimal",), reference_limits="velocity")).set_index(
+        ["task", "sample"]
+    )
     rows.attrs["summary"] = (out / "summary.md").read_text()
     return rows
 
@@ -145,7 +147,9 @@ def test_the_certified_lower_bound_is_below_every_cost_reach_and_track(workspace
 
 def test_the_lower_bound_is_the_scalar_riccati_value_and_tends_to_the_continuous_one():
     # Continuous-time limit of the relaxed scalar LQR (ṙ = −Lv, cost q r² + v²): V = √q r₀² / L.
-    assert regulation_cost_lower_bound(0.3, 200_000, 1e-4, 2.0, 4.0) == pytest.approx(np.sqrt(4.0) * 0.09 / 2.0, rel=1e-3)
+    assert regulation_cost_lower_bound(0.3, 200_000, 1e-4, 2.0, 4.0) == pytest.approx(
+        np.sqrt(4.0) * 0.09 / 2.0, rel=1e-3
+    )
     # One step: only the first error is paid for, P₀ = qΔt.
     assert regulation_cost_lower_bound(0.5, 1, 0.01, 3.0, 2.0) == pytest.approx(2.0 * 0.01 * 0.25)
     with pytest.raises(ValueError, match="lipschitz > 0"):
@@ -177,7 +181,9 @@ def test_workspace_samples_cover_the_reach_outside_the_cuboid(ur10):
     for sample in samples:
         q = np.asarray(sample.q0)
         assert ur10.singular_values(q)[-1] >= space.min_singular_value
-        assert np.all(q >= ur10.lower_limits + space.joint_margin) and np.all(q <= ur10.upper_limits - space.joint_margin)
+        assert np.all(q >= ur10.lower_limits + space.joint_margin) and np.all(
+            q <= ur10.upper_limits - space.joint_margin
+        )
     ellipses = generate_samples(ur10, space, 3, "track", range(20))
     speeds = [abs(s.reference.angular_speed) for s in ellipses]
     assert max(speeds) <= 0.4 and any(abs(s.reference.centre[0]) > 0.2 and s.reference.centre[0] > 0 for s in ellipses)

@@ -31,9 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "docs" / "data" / "table1"
 #: The files whose claims blocks are written here.
 TARGETS = (ROOT / "README.md", ROOT / "docs" / "table1.md")
-MAIN_COMMAND = (
-    "snac-gym evaluate --out runs/table1 --workers 2 --controllers snac,snac-hjb,lqr,rnn,svf,dls,ppo,optimal"
-)
+MAIN_COMMAND = "snac-gym evaluate --out runs/table1 --workers 2 --controllers snac,snac-hjb,lqr,rnn,svf,dls,ppo,optimal"
 TASKS = ("reach", "track")
 TASK_WORDS = {"reach": "regulation", "track": "tracking"}
 #: The README's row labels: the paper's names with their source.
@@ -84,10 +82,15 @@ def table1(summary: pd.DataFrame) -> str:
     header = ["Controller"]
     for task in TASKS:
         word = TASK_WORDS[task].capitalize()
-        header += [f"{word} V/N", "jump share", f"success ({threshold[task]})", f"vs best ({_label(best[task]).split(' (')[0]})"]
+        header += [
+            f"{word} V/N",
+            "jump share",
+            f"success ({threshold[task]})",
+            f"vs best ({_label(best[task]).split(' (')[0]})",
+        ]
     intro = (
         "The main command above (seed 0, kinematic engine, 12 s / 20 s horizons, every controller matched to SNAC's "
-        "mean peak |u|/limit; V/N: the paper's trajectory cost per sample, u̇ term included, u₋₁ = 0). \"vs best\": "
+        'mean peak |u|/limit; V/N: the paper\'s trajectory cost per sample, u̇ term included, u₋₁ = 0). "vs best": '
         "paired with the task's cheapest controller that does the task, the median cost ratio [bootstrap 95 % CI] "
         "and the share of samples where it costs less " + table1_p(summary)
     )
@@ -140,20 +143,26 @@ def table1_notes(summary: pd.DataFrame) -> str:
     rows = summary.set_index("controller")
     contestants = rows.drop(index="optimal")
     failing = [c for c in contestants.index if not all(contestants.loc[c, f"{t}_qualified"] for t in TASKS)]
-    jumps = [contestants.loc[c, f"{t}_first_jump_percent"] for c in contestants.index if c not in failing for t in TASKS]
+    jumps = [
+        contestants.loc[c, f"{t}_first_jump_percent"] for c in contestants.index if c not in failing for t in TASKS
+    ]
     above_90 = sum(j > 90 for j in jumps)
     below = int(sum(contestants[f"{t}_below_optimal"].sum() for t in TASKS))
     samples = int(sum(rows.loc["optimal", f"{t}_n"] for t in TASKS))
     fails = " and ".join(_label(c).split(" (")[0] for c in failing) or "No controller"
     verb = "fail" if len(failing) > 1 else "fails"
-    beats = f"no controller that keeps the limits beats it on any of the {samples} samples" if below == 0 else (
-        f"a controller that keeps the limits beats it on {below} of the {samples} samples")
+    beats = (
+        f"no controller that keeps the limits beats it on any of the {samples} samples"
+        if below == 0
+        else (f"a controller that keeps the limits beats it on {below} of the {samples} samples")
+    )
     text = (
         f"{fails} {verb} the task at its defaults and costs less only because of that; a failing controller is never\n"
         f"ranked. The first command's jump from rest is {min(jumps):.0f}–{max(jumps):.0f} % of a passing "
         f"controller's V/N\n(**jump share**; over 90 % in {above_90} of {len(jumps)} rows), so "
         "Table I ranks them by their first command ([docs/table1.md](docs/table1.md)). The optimum is\n"
-        + reference(summary) + ", solved inside the joint and velocity limits\n"
+        + reference(summary)
+        + ", solved inside the joint and velocity limits\n"
         "and checked against IPOPT; " + beats + "\n"
         "([docs/optimality.md](docs/optimality.md#the-reference-on-held-out-samples))."
     )
@@ -272,8 +281,12 @@ def main(argv: list[str] | None = None) -> int:
         else:
             path.write_text(new)
     if stale:
-        print("claims not generated from docs/data/table1/summary.csv: " + "; ".join(stale)
-              + " (run python tools/claims.py)", file=sys.stderr)
+        print(
+            "claims not generated from docs/data/table1/summary.csv: "
+            + "; ".join(stale)
+            + " (run python tools/claims.py)",
+            file=sys.stderr,
+        )
         return 1
     return 0
 

@@ -58,13 +58,17 @@ def section() -> str:
     # Imports between neighbouring layers' parts and within a layer; the longer ones are in the table below.
     for a, b in sorted(edges):
         if level[b] - level[a] <= 1:
-            lines.append(f'    {short[a].replace(".", "_")} --> {short[b].replace(".", "_")}')
+            lines.append(f"    {short[a].replace('.', '_')} --> {short[b].replace('.', '_')}")
     lines += ["```", "", "| layer | parts | imports from |", "|---|---|---|"]
     for i, layer in enumerate(stack):
-        uses = sorted({short[b] for a, b in edges if a in layer and b not in layer}, key=lambda p: (level["snac_gym." + p], p))
+        uses = sorted(
+            {short[b] for a, b in edges if a in layer and b not in layer}, key=lambda p: (level["snac_gym." + p], p)
+        )
         inside = sorted(f"{short[a]} → {short[b]}" for a, b in edges if a in layer and b in layer)
-        lines.append(f"| {i + 1} | {', '.join(f'`{short[p]}`' for p in layer)} | "
-                     f"{', '.join(f'`{p}`' for p in uses) or '—'}{'; within: ' + ', '.join(inside) if inside else ''} |")
+        lines.append(
+            f"| {i + 1} | {', '.join(f'`{short[p]}`' for p in layer)} | "
+            f"{', '.join(f'`{p}`' for p in uses) or '—'}{'; within: ' + ', '.join(inside) if inside else ''} |"
+        )
     lines += ["", END]
     return "\n".join(lines)
 

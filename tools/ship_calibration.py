@@ -59,7 +59,9 @@ def main() -> int:
         stamp = {
             "made_by": "python tools/ship_calibration.py",
             "made_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "versions": {name: version(name) for name in ("numpy", "scipy", "pin", "numba", "torch", "stable-baselines3")},
+            "versions": {
+                name: version(name) for name in ("numpy", "scipy", "pin", "numba", "torch", "stable-baselines3")
+            },
         }
         path = write_shipped(shipped_file(), identities, records, searches, stamp)
     print(f"wrote {path} ({len(records)} knobs)")

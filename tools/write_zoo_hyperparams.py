@@ -67,8 +67,10 @@ def render() -> str:
             lines.append(f"{env_id}:\n  <<: *coarse-reach\n")
         elif untuned is None:  # the first untuned id holds their preset: the coarse settings with 100 k steps
             untuned = env_id
-            lines.append(f"# Untuned: the coarse preset's settings with 100 k steps.\n{env_id}: &untuned\n"
-                         f"  n_timesteps: !!float 100000\n{PRESET}")
+            lines.append(
+                f"# Untuned: the coarse preset's settings with 100 k steps.\n{env_id}: &untuned\n"
+                f"  n_timesteps: !!float 100000\n{PRESET}"
+            )
         else:
             lines.append(f"{env_id}:\n  <<: *untuned\n")
     return "\n".join(lines)

@@ -19,9 +19,9 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-
 from snac_gym.evaluation.execution.jobs import policy_context, task_kinematics
 from snac_gym.evaluation.samples import generate_samples, policy_seed
+
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import simulate_kinematic
@@ -68,15 +68,19 @@ def run(task: str, count: int, model_error: str, seed: int) -> None:
     identifier = policy.identifier
     final_jacobian = identifier.jacobians(rollouts.final_q)
     true_jacobian = plant.jacobian_batch(rollouts.final_q)
-    jacobian_error = np.linalg.norm(final_jacobian - true_jacobian, axis=(1, 2)) / np.linalg.norm(true_jacobian, axis=(1, 2))
+    jacobian_error = np.linalg.norm(final_jacobian - true_jacobian, axis=(1, 2)) / np.linalg.norm(
+        true_jacobian, axis=(1, 2)
+    )
     eigenvalues = np.linalg.eigvalsh(identifier.information)
     rank = (eigenvalues > 1e-6 * eigenvalues[:, -1:]).sum(axis=1)
 
     def line(label: str, values: np.ndarray, unit: str = "s", fmt: str = ".3f") -> None:
         median, p95 = (np.quantile(values, level, method="inverted_cdf") for level in (0.5, 0.95))
         never = np.isinf(values).sum()
-        print(f"  {label:52s} median {median:{fmt}} {unit}, p95 {p95:{fmt}} {unit}"
-              + (f", never on {never} of {len(values)}" if never else ""))
+        print(
+            f"  {label:52s} median {median:{fmt}} {unit}, p95 {p95:{fmt}} {unit}"
+            + (f", never on {never} of {len(values)}" if never else "")
+        )
 
     print(f"{task}: {count} samples, model error {model_error!r}")
     line("model prediction error stays < 1 mm after", first_stays_below(residual, 1e-3, DT))

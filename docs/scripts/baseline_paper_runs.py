@@ -2,11 +2,13 @@
 
 usage: python docs/scripts/baseline_paper_runs.py [CONTROLLER [JSON constructor kwargs]]  (default: all three, default gains)
 """
+
 import json
 import sys
 
 import gymnasium as gym
 import numpy as np
+
 import snac_gym  # noqa: F401
 from snac_gym import make_policy
 from snac_gym.cost import trajectory_cost
@@ -33,8 +35,10 @@ for env_id in ("snac_gym/UR10Reach-v0", "snac_gym/UR10EllipseTrack-v0"):
         cost = trajectory_cost(np.array(errors_before[:-1]), commands, base.dt)
         t_1mm = (np.argmax(norms <= 1e-3) + 1) * base.dt
         half = len(norms) // 2
-        print(f"{base.task_name:5s} {name} {kwargs or ''}: final {norms[-1]*1e3:.4f} mm, 2nd-half mean {norms[half:].mean()*1e3:.4f} "
-              f"max {norms[half:].max()*1e3:.4f} mm, first <=1 mm at {t_1mm:.2f} s, peak ||u|| {np.linalg.norm(commands, axis=1).max():.3f} rad/s, "
-              f"peak |u_i|/limit {np.max(np.abs(commands) / base.velocity_limits):.3f}, V = {cost.total:.2f} "
-              f"(error {cost.error:.3f}, effort {cost.effort:.3f}, smoothness {cost.smoothness:.2f})")
+        print(
+            f"{base.task_name:5s} {name} {kwargs or ''}: final {norms[-1] * 1e3:.4f} mm, 2nd-half mean {norms[half:].mean() * 1e3:.4f} "
+            f"max {norms[half:].max() * 1e3:.4f} mm, first <=1 mm at {t_1mm:.2f} s, peak ||u|| {np.linalg.norm(commands, axis=1).max():.3f} rad/s, "
+            f"peak |u_i|/limit {np.max(np.abs(commands) / base.velocity_limits):.3f}, V = {cost.total:.2f} "
+            f"(error {cost.error:.3f}, effort {cost.effort:.3f}, smoothness {cost.smoothness:.2f})"
+        )
     env.close()

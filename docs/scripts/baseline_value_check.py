@@ -1,12 +1,13 @@
 """Realised cost of short reaches on θ ← θ + uΔt (Δt = 1 ms) against e₀ᵀP*e₀ at θ0."""
+
 import math
 import sys
 
 import gymnasium as gym
 import numpy as np
+from snac_gym.baselines.lqr import LQRPolicy
 
 import snac_gym  # noqa: F401
-from snac_gym.baselines.lqr import LQRPolicy
 from snac_gym.cost import trajectory_cost
 from snac_gym.optimality import lqr_gain, riccati_solution
 from snac_gym.policies.base import PolicyContext

@@ -17,11 +17,11 @@ import argparse
 
 import numpy as np
 import pandas as pd
-
-from snac_gym.cost import CostConvention
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.optimum import own_start_commands
 from snac_gym.evaluation.samples import generate_sample
+
+from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
@@ -66,7 +66,9 @@ def main() -> None:
     for radius in (0.05, 0.1, 0.2, 0.3):
         near = table[table.closest < radius]
         better = near[near.relative_cost < -1e-6]
-        print(f"radius {radius}: {len(near)} of {len(table)} starts came within it; {len(better)} of those ended better")
+        print(
+            f"radius {radius}: {len(near)} of {len(table)} starts came within it; {len(better)} of those ended better"
+        )
     elsewhere = table[table.relative_cost < -1e-6]
     if len(elsewhere):
         print(f"starts that ended in a better optimum came no closer than {elsewhere.closest.min():.2f} rad")

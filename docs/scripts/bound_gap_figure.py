@@ -26,9 +26,17 @@ bins = np.geomspace(1.0, 100.0, 70)
 for task, label in (("reach", "regulation"), ("track", "tracking")):
     part = rows[rows["task"] == task]
     ratio = (part["cost"] / part["optimal_lower_bound"]).to_numpy()
-    print(f"{task}: {len(ratio)} samples, optimum / bound median {np.median(ratio):.2f}, "
-          f"95th percentile {np.percentile(ratio, 95):.2f}, largest {ratio.max():.2f}, below 1: {(ratio < 1).sum()}")
-    ax.hist(ratio, bins=bins, histtype="step", linewidth=1.5, label=f"{label} (median {np.median(ratio):.1f}, largest {ratio.max():.0f})")
+    print(
+        f"{task}: {len(ratio)} samples, optimum / bound median {np.median(ratio):.2f}, "
+        f"95th percentile {np.percentile(ratio, 95):.2f}, largest {ratio.max():.2f}, below 1: {(ratio < 1).sum()}"
+    )
+    ax.hist(
+        ratio,
+        bins=bins,
+        histtype="step",
+        linewidth=1.5,
+        label=f"{label} (median {np.median(ratio):.1f}, largest {ratio.max():.0f})",
+    )
 ax.set_xscale("log")
 ax.set_xlabel("optimum / certified lower bound (1 = tight)")
 ax.set_ylabel("samples")

@@ -21,11 +21,17 @@ import matplotlib.pyplot as plt  # noqa: E402  (after the backend)
 import snac_gym  # noqa: E402,F401  (registers the ids)
 
 PANELS = [
-    ("snac_gym/UR3Reach-v0", {}), ("snac_gym/UR5Reach-v0", {}), ("snac_gym/UR10Reach-v0", {}),
-    ("snac_gym/UR16eReach-v0", {}), ("snac_gym/PandaReach-v0", {}), ("snac_gym/XArm7Reach-v0", {}),
+    ("snac_gym/UR3Reach-v0", {}),
+    ("snac_gym/UR5Reach-v0", {}),
+    ("snac_gym/UR10Reach-v0", {}),
+    ("snac_gym/UR16eReach-v0", {}),
+    ("snac_gym/PandaReach-v0", {}),
+    ("snac_gym/XArm7Reach-v0", {}),
     ("snac_gym/PandaReachGoalCoarse-v0", {}),
-    ("snac_gym/UR10Reach-v0", {"render_distance": 2.6, "render_yaw": 20, "render_pitch": -35,
-                               "render_target_position": (0.4, 0.4, 0.4)}),
+    (
+        "snac_gym/UR10Reach-v0",
+        {"render_distance": 2.6, "render_yaw": 20, "render_pitch": -35, "render_target_position": (0.4, 0.4, 0.4)},
+    ),
 ]
 
 

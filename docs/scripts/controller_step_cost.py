@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import time
 
-from threadpoolctl import threadpool_limits
-
 from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
 from snac_gym.evaluation.samples import generate_samples
+from threadpoolctl import threadpool_limits
+
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
 

@@ -28,7 +28,11 @@ def main(small: str, large: str) -> None:
         same = other[other["sample"].isin(indices)]
         knob_few, knob_many = rows["effort_value"].iloc[0], other["effort_value"].iloc[0]
         v_few, v_many, v_same = rows["cost"].mean(), other["cost"].mean(), same["cost"].mean()
-        knob = "—" if pd.isna(knob_few) else f"{knob_few:.6g} → {knob_many:.6g} ({100 * (knob_few / knob_many - 1):+.2f} %)"
+        knob = (
+            "—"
+            if pd.isna(knob_few)
+            else f"{knob_few:.6g} → {knob_many:.6g} ({100 * (knob_few / knob_many - 1):+.2f} %)"
+        )
         print(
             f"| {task} | {controller} | {knob} | {v_few:.1f} → {v_many:.1f} ({100 * (v_few / v_many - 1):+.1f} %) "
             f"| {v_same:.1f} | {100 * (v_few / v_same - 1):+.2f} % |"

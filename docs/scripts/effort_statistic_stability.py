@@ -22,24 +22,35 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-
 from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
 from snac_gym.evaluation.samples import generate_samples, policy_seed
+
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 
 DT, N, SUBSET, DRAWS = 1 / 125, 1000, 200, 300
 FULL_STEPS, STEPS = {"reach": 1500, "track": 2500}, 80
-KNOBS = {"snac-hjb": ("q_scale", 6.0), "lqr": ("q_scale", 6.0), "rnn": ("gain", 1.0), "svf": ("gain", 1.0),
-         "dls": ("gain", 1.0)}
+KNOBS = {
+    "snac-hjb": ("q_scale", 6.0),
+    "lqr": ("q_scale", 6.0),
+    "rnn": ("gain", 1.0),
+    "svf": ("gain", 1.0),
+    "dls": ("gain", 1.0),
+}
 FACTORS = {"q_scale": [1.1**i for i in range(-14, 30)], "gain": [1.04**i for i in range(-8, 30)]}
 
 
 def _peaks(args: tuple) -> pd.DataFrame:
     task, controller, kwargs, samples = args
-    job = RolloutJob(task=task, controller=controller, kwargs=kwargs, samples=tuple(samples),
-                     seeds=tuple(policy_seed(0, task, s.index) for s in samples),
-                     steps=FULL_STEPS[task] if controller == "snac" else STEPS, dt=DT)
+    job = RolloutJob(
+        task=task,
+        controller=controller,
+        kwargs=kwargs,
+        samples=tuple(samples),
+        seeds=tuple(policy_seed(0, task, s.index) for s in samples),
+        steps=FULL_STEPS[task] if controller == "snac" else STEPS,
+        dt=DT,
+    )
     metrics = run_job(job).metrics[["sample", "peak_limit_fraction", "max_abs_u"]]
     return metrics.assign(task=task, controller=controller, knob=next(iter(kwargs.values())))
 
@@ -100,9 +111,18 @@ def stability(peaks: pd.DataFrame) -> pd.DataFrame:
                 draws = np.array(
                     [_matched(knobs, *statistic(rng.choice(N, SUBSET, replace=False))) / full - 1 for _ in range(DRAWS)]
                 )
-                rows.append({"task": task, "controller": controller, "statistic": name, "knob_1000": full,
-                             "first_200_pct": 100 * first, "rms_pct": 100 * np.sqrt(np.nanmean(draws**2)),
-                             "p95_pct": 100 * np.nanquantile(np.abs(draws), 0.95), "unmatched": int(np.isnan(draws).sum())})
+                rows.append(
+                    {
+                        "task": task,
+                        "controller": controller,
+                        "statistic": name,
+                        "knob_1000": full,
+                        "first_200_pct": 100 * first,
+                        "rms_pct": 100 * np.sqrt(np.nanmean(draws**2)),
+                        "p95_pct": 100 * np.nanquantile(np.abs(draws), 0.95),
+                        "unmatched": int(np.isnan(draws).sum()),
+                    }
+                )
     return pd.DataFrame(rows)
 
 

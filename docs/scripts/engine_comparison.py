@@ -49,8 +49,10 @@ def main(kinematic: str, mujoco: str, pybullet: str) -> None:
     for name, run in runs.items():
         if not run.index.equals(base.index):
             raise SystemExit(f"{name}'s run does not hold the kinematic run's (task, controller, sample) rows")
-    print("| task | controller | V/N: kinematic / MuJoCo / PyBullet | success % | |ΔV|/V median, max: MuJoCo; PyBullet "
-          "| paired mean ΔV [95 % CI], Wilcoxon p: MuJoCo; PyBullet | success changes |")
+    print(
+        "| task | controller | V/N: kinematic / MuJoCo / PyBullet | success % | |ΔV|/V median, max: MuJoCo; PyBullet "
+        "| paired mean ΔV [95 % CI], Wilcoxon p: MuJoCo; PyBullet | success changes |"
+    )
     print("|---|---|---|---|---|---|---|")
     for task, controller in base.index.droplevel("sample").unique():
         rows = {name: run.loc[(task, controller)] for name, run in runs.items()}
@@ -58,7 +60,9 @@ def main(kinematic: str, mujoco: str, pybullet: str) -> None:
         success = " / ".join(f"{100 * rows[n]['success'].mean():.1f}" for n in runs)
         pairs = {n: _paired(rows["kinematic"], rows[n]) for n in ("MuJoCo", "PyBullet")}
         rel = "; ".join(f"{pairs[n]['median_rel']:.1e}, {pairs[n]['max_rel']:.1e}" for n in pairs)
-        paired = "; ".join(f"{pairs[n]['mean_diff']:+.3g} [±{pairs[n]['ci']:.2g}], p={pairs[n]['p']:.2g}" for n in pairs)
+        paired = "; ".join(
+            f"{pairs[n]['mean_diff']:+.3g} [±{pairs[n]['ci']:.2g}], p={pairs[n]['p']:.2g}" for n in pairs
+        )
         changes = " / ".join(str(pairs[n]["success_changes"]) for n in pairs)
         print(f"| {task} | {controller} | {means} | {success} | {rel} | {paired} | {changes} |")
 

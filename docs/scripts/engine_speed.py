@@ -17,6 +17,7 @@ import time
 
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import generate_samples, policy_seed
+
 from snac_gym.kinematics import Kinematics
 from snac_gym.policies import make_policy
 from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_env
@@ -36,17 +37,29 @@ def main(count: int = 50, steps: int = 500) -> None:
             context = policy_context("ur10", 0.008, task)
             for controller in ("dls", "snac"):
                 start = time.perf_counter()
-                simulate_env("ur10", task, 0.008, functools.partial(make_policy, controller), samples, steps, seeds,
-                             physics=physics)
+                simulate_env(
+                    "ur10",
+                    task,
+                    0.008,
+                    functools.partial(make_policy, controller),
+                    samples,
+                    steps,
+                    seeds,
+                    physics=physics,
+                )
                 env_time = time.perf_counter() - start
                 start = time.perf_counter()
                 arms, plant = lockstep_arms("ur10", task, 0.008, steps, physics, count)
-                simulate_arms(context, functools.partial(make_policy, controller, context), samples, steps, seeds,
-                              arms, plant)
+                simulate_arms(
+                    context, functools.partial(make_policy, controller, context), samples, steps, seeds, arms, plant
+                )
                 lockstep_time = time.perf_counter() - start
                 per = 1e6 / (count * steps)
-                print(f"{physics:9s} {task:6s} {controller:10s} {env_time * per:9.1f} {lockstep_time * per:9.1f}"
-                      f" {env_time / lockstep_time:8.1f}x", flush=True)
+                print(
+                    f"{physics:9s} {task:6s} {controller:10s} {env_time * per:9.1f} {lockstep_time * per:9.1f}"
+                    f" {env_time / lockstep_time:8.1f}x",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

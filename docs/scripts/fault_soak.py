@@ -39,8 +39,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 from snac_gym.ur_models import UR_MODELS
@@ -230,9 +230,15 @@ def tables(rows: list[dict]) -> str:
         rtde = sum(r["rest_source"] == "rtde" for r in runs)
         dash = sum(r["rest_source"] == "dashboard" for r in runs)
         stated = sum(r["rest_confirmed"] is False for r in runs)
-        refused = sum(r["rest_confirmed"] is not True and r["rest_confirmed"] is not False and r["accounted"] for r in runs)
+        refused = sum(
+            r["rest_confirmed"] is not True and r["rest_confirmed"] is not False and r["accounted"] for r in runs
+        )
         lines.append(f"| {kind} | {rtde} | {dash} | {stated} | {refused} | {sum(not r['accounted'] for r in runs)} |")
-    lines += ["", "| time to confirmed rest (s, from the stop's start) | runs | p50 | p90 | p99 | max |", "|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "| time to confirmed rest (s, from the stop's start) | runs | p50 | p90 | p99 | max |",
+        "|---|---|---|---|---|---|",
+    ]
     for source in ("rtde", "dashboard"):
         values = [r["rest_confirmed_after_s"] for r in rows if r["rest_source"] == source]
         lines.append(f"| confirmed by {source} | {len(values)} | {_quantiles(values)} |")
@@ -240,7 +246,9 @@ def tables(rows: list[dict]) -> str:
         values = [r["rest_confirmed_after_s"] for r in by_kind.get(kind, []) if r["rest_confirmed"]]
         if values:
             lines.append(f"| {kind} | {len(values)} | {_quantiles(values)} |")
-    reasons = Counter(re.sub(r"\(.*", "", r["rest_not_confirmed"]).strip() for r in rows if r["rest_confirmed"] is False)
+    reasons = Counter(
+        re.sub(r"\(.*", "", r["rest_not_confirmed"]).strip() for r in rows if r["rest_confirmed"] is False
+    )
     if reasons:
         lines += ["", "| not confirmed at rest: the stated reason | runs |", "|---|---|"]
         lines += [f"| {reason} | {n} |" for reason, n in reasons.most_common()]

@@ -29,26 +29,64 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from snac_gym.evaluation import EvaluationConfig
 
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.cost import trajectory_cost
-from snac_gym.evaluation import EvaluationConfig
 from snac_gym.model_error import ModelError
 from snac_gym.policies import make_policy
 
 BOUND_S = 20
 ID = "snac_gym/UR10Reach-v0"
 
-SCALARS: list[Any] = [None, True, False, "0.008", "", b"1", 0.5j, [], [[1], [2, 3]], {"a": 1}, float("nan"), float("inf"),
-                      -float("inf"), 1e300, -1e300, 10**18, -1, 0, 0.0, 2.5, 3, 1e-320, np.float32(0.5), np.int64(4)]
+SCALARS: list[Any] = [
+    None,
+    True,
+    False,
+    "0.008",
+    "",
+    b"1",
+    0.5j,
+    [],
+    [[1], [2, 3]],
+    {"a": 1},
+    float("nan"),
+    float("inf"),
+    -float("inf"),
+    1e300,
+    -1e300,
+    10**18,
+    -1,
+    0,
+    0.0,
+    2.5,
+    3,
+    1e-320,
+    np.float32(0.5),
+    np.int64(4),
+]
 
 
 def arrays(shape: tuple[int, ...]) -> list[Any]:
     good = np.linspace(-0.3, 0.3, int(np.prod(shape))).reshape(shape)
     return [
-        good, good.astype(np.float32), good[..., :-1], np.zeros(shape + (1,)), good.astype(complex) * 1j, good > 0,
-        good.astype(str), np.full(shape, np.nan), np.full(shape, np.inf), np.full(shape, 1e300), good.tolist(),
-        np.zeros(0), np.zeros(1), 0.1, None, "0.1", [0.1] * (shape[-1] + 1),
+        good,
+        good.astype(np.float32),
+        good[..., :-1],
+        np.zeros(shape + (1,)),
+        good.astype(complex) * 1j,
+        good > 0,
+        good.astype(str),
+        np.full(shape, np.nan),
+        np.full(shape, np.inf),
+        np.full(shape, 1e300),
+        good.tolist(),
+        np.zeros(0),
+        np.zeros(1),
+        0.1,
+        None,
+        "0.1",
+        [0.1] * (shape[-1] + 1),
     ]
 
 
@@ -110,19 +148,35 @@ Case = tuple[str, Callable[[], Any], tuple[str, ...], bool]
 def env_cases() -> list[Case]:
     env = gym.make(ID, physics="kinematic")
     env.reset(seed=0)
-    cases = [(f"env.step({_short(a)})", lambda a=a: env.step(a), ("action",), finite_array(a, (6,))) for a in arrays((6,))]
-    for name, low, high, whole in (("dt", 1e-6, 1, False), ("n_substeps", 1, 1000, True), ("max_steps", 1, 10**7, True),
-                                   ("render_width", 1, 8192, True)):
+    cases = [
+        (f"env.step({_short(a)})", lambda a=a: env.step(a), ("action",), finite_array(a, (6,))) for a in arrays((6,))
+    ]
+    for name, low, high, whole in (
+        ("dt", 1e-6, 1, False),
+        ("n_substeps", 1, 1000, True),
+        ("max_steps", 1, 10**7, True),
+        ("render_width", 1, 8192, True),
+    ):
         for value in SCALARS:
-            cases.append((f"gym.make({name}={_short(value)})",
-                          lambda n=name, v=value: gym.make(ID, physics="kinematic", **{n: v}).close(), (name,),
-                          value is None or real(value, low, high, whole)))
+            cases.append(
+                (
+                    f"gym.make({name}={_short(value)})",
+                    lambda n=name, v=value: gym.make(ID, physics="kinematic", **{n: v}).close(),
+                    (name,),
+                    value is None or real(value, low, high, whole),
+                )
+            )
     for count in SCALARS:
         if real(count, 65, 1 << 20, whole=True):
             continue  # a valid large count only measures memory
-        cases.append((f"gym.make_vec({_short(count)})",
-                      lambda n=count: gym.make_vec(ID, n, vectorization_mode="vector_entry_point").close(),
-                      ("num_envs",), real(count, 1, 1 << 20, whole=True)))
+        cases.append(
+            (
+                f"gym.make_vec({_short(count)})",
+                lambda n=count: gym.make_vec(ID, n, vectorization_mode="vector_entry_point").close(),
+                ("num_envs",),
+                real(count, 1, 1 << 20, whole=True),
+            )
+        )
     return cases
 
 
@@ -133,17 +187,36 @@ def goal_cases() -> list[Case]:
     for desired in arrays((3,)):
         for method in ("compute_reward", "compute_terminated", "compute_truncated"):
             call = getattr(goal.unwrapped, method)
-            cases.append((f"goal.{method}({_short(desired)})", lambda c=call, d=desired: c(np.zeros(3), d, {}),
-                          ("desired_goal", "one shape"), finite_array(desired, (3,))))
+            cases.append(
+                (
+                    f"goal.{method}({_short(desired)})",
+                    lambda c=call, d=desired: c(np.zeros(3), d, {}),
+                    ("desired_goal", "one shape"),
+                    finite_array(desired, (3,)),
+                )
+            )
     return cases
 
 
 def cost_cases() -> list[Case]:
-    cases = [(f"trajectory_cost(errors={_short(e)})", lambda e=e: trajectory_cost(e, np.zeros((4, 6)), 0.008),
-              ("error", "trajectory"), any(finite_array(e, (4, d)) for d in range(1, 7)))  # any task size
-             for e in arrays((4, 3))]
-    cases += [(f"trajectory_cost(dt={_short(dt)})", lambda d=dt: trajectory_cost(np.zeros((4, 3)), np.zeros((4, 6)), d),
-               ("dt",), real(dt) and dt > 0) for dt in SCALARS]
+    cases = [
+        (
+            f"trajectory_cost(errors={_short(e)})",
+            lambda e=e: trajectory_cost(e, np.zeros((4, 6)), 0.008),
+            ("error", "trajectory"),
+            any(finite_array(e, (4, d)) for d in range(1, 7)),
+        )  # any task size
+        for e in arrays((4, 3))
+    ]
+    cases += [
+        (
+            f"trajectory_cost(dt={_short(dt)})",
+            lambda d=dt: trajectory_cost(np.zeros((4, 3)), np.zeros((4, 6)), d),
+            ("dt",),
+            real(dt) and dt > 0,
+        )
+        for dt in SCALARS
+    ]
     return cases
 
 
@@ -154,23 +227,38 @@ def model_error_cases() -> list[Case]:
         "joint_offset": lambda v: isinstance(v, list) and all(real(a, -math.pi, math.pi) for a in v),
         "tool_offset": lambda v: isinstance(v, list) and len(v) == 3 and all(real(a, -1, 1) for a in v),
     }
-    return [(f"ModelError({field}={_short(value)})", lambda f=field, v=value: ModelError(**{f: v}), (field,), check(value))
-            for field, check in valid.items() for value in (SCALARS if field == "link_scale" else SCALARS + lists)]
+    return [
+        (f"ModelError({field}={_short(value)})", lambda f=field, v=value: ModelError(**{f: v}), (field,), check(value))
+        for field, check in valid.items()
+        for value in (SCALARS if field == "link_scale" else SCALARS + lists)
+    ]
 
 
 def config_and_policy_cases() -> list[Case]:
     cases = []
-    for field, low, high, whole in (("samples", 1, 10**5, True), ("seed", 0, 2**32 - 1, True),
-                                    ("q_scale", 5e-324, 1e308, False), ("workers", 1, 4, True)):
-        cases += [(f"EvaluationConfig({field}={_short(value)})",
-                   lambda f=field, v=value: EvaluationConfig(out=Path("unused"), **{f: v}).validate(), (field,),
-                   real(value, low, high, whole) and not (field == "q_scale" and value <= 0)) for value in SCALARS]
+    for field, low, high, whole in (
+        ("samples", 1, 10**5, True),
+        ("seed", 0, 2**32 - 1, True),
+        ("q_scale", 5e-324, 1e308, False),
+        ("workers", 1, 4, True),
+    ):
+        cases += [
+            (
+                f"EvaluationConfig({field}={_short(value)})",
+                lambda f=field, v=value: EvaluationConfig(out=Path("unused"), **{f: v}).validate(),
+                (field,),
+                real(value, low, high, whole) and not (field == "q_scale" and value <= 0),
+            )
+            for value in SCALARS
+        ]
     env = gym.make(ID, physics="kinematic")
     policy = make_policy("snac", env.unwrapped)
     policy.reset(seed=0)
     size = env.unwrapped.obs_layout.size
-    cases += [(f"policy.act({_short(o)})", lambda o=o: policy.act(o), ("observation",), finite_array(o, (size,)))
-              for o in arrays((size,))]
+    cases += [
+        (f"policy.act({_short(o)})", lambda o=o: policy.act(o), ("observation",), finite_array(o, (size,)))
+        for o in arrays((size,))
+    ]
     return cases
 
 
@@ -180,25 +268,64 @@ def api_cases() -> list[Case]:
 
 CLI_VALUES = ["nan", "inf", "-inf", "-1", "0", "0.5", "1e9", "1e300", "2.5", "abc", "", "1,2", "0x10", "True", "3", "7"]
 CLI_OPTIONS = {
-    "evaluate": (["--export-only", "--samples", "2"], {
-        "--seed": (0, 2**32 - 1, True), "--q-scale": (1e-300, 1e300, False), "--cuboid": None, "--horizon": None,
-        "--model-error": None, "--effort-tolerance": (1e-9, 1, False), "--success-threshold": (0, 1, False),
-        "--samples": (1, 10**5, True), "--workers": (1, 4, True), "--chunk-size": (1, 10**6, True),
-    }),
-    "demo": (["--no-plots", "--steps", "5"], {"--seed": (0, 2**32 - 1, True), "--model-error": None, "--robot": None,
-                                             "--controller": None, "--task": None}),
-    "real": (["--connection", "sim", "--dry-run", "--no-plots", "--steps", "3"], {
-        "--speed-scale": (1e-9, 1, False), "--max-acceleration": (1e-9, 40, False), "--joint-margin": (0, math.pi / 2, False),
-        "--max-tcp-mismatch": (1e-9, 1, False), "--seed": (0, 2**32 - 1, True), "--target": None, "--q0": None,
-        "--task-box": None, "--series": None, "--robot": None,
-    }),
-    "emulate-ur": (["--port-base", "0", "--duration", "0"], {
-        "--speed-scaling": (1e-9, 1, False), "--protective-stop-at": (0, 1e300, False), "--latency-spike": None,
-        "--tcp-offset": None, "--robot": None, "--series": None,
-    }),
-    "bench": (["--no-panda"], {"--steps": (100, 99, True), "--act-calls": (100, 99, True)}),  # valid counts skipped: minutes
-    "train-ppo": (["--task", "reach", "--resume"], {"--n-envs": (1, 1024, True), "--timesteps": (1, 10**12, True),
-                                                    "--seed": (0, 2**32 - 1, True), "--vec-env": None}),
+    "evaluate": (
+        ["--export-only", "--samples", "2"],
+        {
+            "--seed": (0, 2**32 - 1, True),
+            "--q-scale": (1e-300, 1e300, False),
+            "--cuboid": None,
+            "--horizon": None,
+            "--model-error": None,
+            "--effort-tolerance": (1e-9, 1, False),
+            "--success-threshold": (0, 1, False),
+            "--samples": (1, 10**5, True),
+            "--workers": (1, 4, True),
+            "--chunk-size": (1, 10**6, True),
+        },
+    ),
+    "demo": (
+        ["--no-plots", "--steps", "5"],
+        {"--seed": (0, 2**32 - 1, True), "--model-error": None, "--robot": None, "--controller": None, "--task": None},
+    ),
+    "real": (
+        ["--connection", "sim", "--dry-run", "--no-plots", "--steps", "3"],
+        {
+            "--speed-scale": (1e-9, 1, False),
+            "--max-acceleration": (1e-9, 40, False),
+            "--joint-margin": (0, math.pi / 2, False),
+            "--max-tcp-mismatch": (1e-9, 1, False),
+            "--seed": (0, 2**32 - 1, True),
+            "--target": None,
+            "--q0": None,
+            "--task-box": None,
+            "--series": None,
+            "--robot": None,
+        },
+    ),
+    "emulate-ur": (
+        ["--port-base", "0", "--duration", "0"],
+        {
+            "--speed-scaling": (1e-9, 1, False),
+            "--protective-stop-at": (0, 1e300, False),
+            "--latency-spike": None,
+            "--tcp-offset": None,
+            "--robot": None,
+            "--series": None,
+        },
+    ),
+    "bench": (
+        ["--no-panda"],
+        {"--steps": (100, 99, True), "--act-calls": (100, 99, True)},
+    ),  # valid counts skipped: minutes
+    "train-ppo": (
+        ["--task", "reach", "--resume"],
+        {
+            "--n-envs": (1, 1024, True),
+            "--timesteps": (1, 10**12, True),
+            "--seed": (0, 2**32 - 1, True),
+            "--vec-env": None,
+        },
+    ),
 }
 
 
@@ -235,7 +362,11 @@ def classify_cli(arguments: list[str], option: str, bounds: tuple | None) -> str
     if outcome.exit_code == 2:
         if "holds no checkpoint to continue" in text:  # train-ppo --resume on an empty folder: the options were taken
             return _taken(value, bounds)
-        named = option in text or option.lstrip("-").replace("-", "_") in text or option.lstrip("-").replace("-", " ") in text
+        named = (
+            option in text
+            or option.lstrip("-").replace("-", "_") in text
+            or option.lstrip("-").replace("-", " ") in text
+        )
         return "clear" if named else "unclear"
     if outcome.exit_code in (0, 4):  # 4: real's safety layer stopped the (simulated) arm, a documented end
         return _taken(value, bounds)

@@ -22,25 +22,37 @@ for path in sys.argv[1:]:
     others = rows[rows["controller"] != "optimal"]
     inside = others["joint_limit_margin"] >= 0.0
     below = others["below_optimal"].astype(bool)
-    print(f"{path}: {reference['task'].value_counts().to_dict()} samples, {others['controller'].nunique()} contestants "
-          f"{sorted(others['controller'].unique())}")
-    print(f"  pairs inside the limits: {int(inside.sum())}, below the reference: {int((inside & below).sum())}"
-          f" (min ratio {others.loc[inside, 'ratio_to_optimal'].min():.4f})")
-    print(f"  pairs crossing a limit: {int((~inside).sum())}, of which below the reference: {int((~inside & below).sum())}")
-    print(f"  reference: min limit margin {reference['joint_limit_margin'].min():.2e} rad, peak |u|/ū "
-          f"{reference['peak_limit_fraction'].max():.4f}, converged {reference['optimal_converged'].mean():.1%}, "
-          f"limit binding (margin < 1e-6) on {int((reference['joint_limit_margin'] < 1e-6).sum())}, winners "
-          f"{reference['optimal_winner'].value_counts().to_dict()}")
+    print(
+        f"{path}: {reference['task'].value_counts().to_dict()} samples, {others['controller'].nunique()} contestants "
+        f"{sorted(others['controller'].unique())}"
+    )
+    print(
+        f"  pairs inside the limits: {int(inside.sum())}, below the reference: {int((inside & below).sum())}"
+        f" (min ratio {others.loc[inside, 'ratio_to_optimal'].min():.4f})"
+    )
+    print(
+        f"  pairs crossing a limit: {int((~inside).sum())}, of which below the reference: {int((~inside & below).sum())}"
+    )
+    print(
+        f"  reference: min limit margin {reference['joint_limit_margin'].min():.2e} rad, peak |u|/ū "
+        f"{reference['peak_limit_fraction'].max():.4f}, converged {reference['optimal_converged'].mean():.1%}, "
+        f"limit binding (margin < 1e-6) on {int((reference['joint_limit_margin'] < 1e-6).sum())}, winners "
+        f"{reference['optimal_winner'].value_counts().to_dict()}"
+    )
     free_path = Path(path).parent.with_name(Path(path).parent.name + "-velocity") / "results.csv"
     if free_path.exists():
         free = pd.read_csv(free_path).set_index(["task", "sample"])
         crossing = others[~inside]
         bound = free["cost"].reindex(pd.MultiIndex.from_frame(crossing[["task", "sample"]])).to_numpy()
-        print(f"  velocity-only reference: crosses a joint limit on {int((free['joint_limit_margin'] < 0).sum())} "
-              f"of {len(free)} samples; pairs crossing a limit below it: {int((crossing['cost'].to_numpy() < bound).sum())}")
+        print(
+            f"  velocity-only reference: crosses a joint limit on {int((free['joint_limit_margin'] < 0).sum())} "
+            f"of {len(free)} samples; pairs crossing a limit below it: {int((crossing['cost'].to_numpy() < bound).sum())}"
+        )
     if "optimal_lower_bound" in reference and reference["optimal_lower_bound"].notna().any():
         gap = (reference["cost"] / reference["optimal_lower_bound"]).groupby(reference["task"])
-        print(f"  optimum / lower bound: median {gap.median().round(2).to_dict()}, p95 {gap.quantile(0.95).round(2).to_dict()}")
+        print(
+            f"  optimum / lower bound: median {gap.median().round(2).to_dict()}, p95 {gap.quantile(0.95).round(2).to_dict()}"
+        )
     if (inside & below).any():
         print(others.loc[inside & below, ["task", "controller", "sample", "ratio_to_optimal"]].to_string())
 
@@ -57,14 +69,18 @@ def markdown_row(path: str) -> str:
     if free_path.exists():
         free = pd.read_csv(free_path).set_index(["task", "sample"])
         bound = free["cost"].reindex(pd.MultiIndex.from_frame(crossing[["task", "sample"]])).to_numpy()
-        free_text = f"{int((free['joint_limit_margin'] < 0).sum())} / {int((crossing['cost'].to_numpy() < bound).sum())}"
+        free_text = (
+            f"{int((free['joint_limit_margin'] < 0).sum())} / {int((crossing['cost'].to_numpy() < bound).sum())}"
+        )
     gap = (reference["cost"] / reference["optimal_lower_bound"]).groupby(reference["task"])
-    return (f"| {Path(path).parent.name} | {len(reference)} | {others['controller'].nunique()} | {int(inside.sum())} | "
-            f"**{int((inside & below).sum())}** | {others.loc[inside, 'ratio_to_optimal'].min():.4f} | "
-            f"{int((~inside).sum())} / {int((~inside & below).sum())} | {free_text} | "
-            f"{int((reference['joint_limit_margin'] < 1e-6).sum())} | "
-            f"{gap.median().get('reach', float('nan')):.2f} / {gap.median().get('track', float('nan')):.2f} | "
-            f"{gap.quantile(0.95).get('reach', float('nan')):.2f} / {gap.quantile(0.95).get('track', float('nan')):.2f} |")
+    return (
+        f"| {Path(path).parent.name} | {len(reference)} | {others['controller'].nunique()} | {int(inside.sum())} | "
+        f"**{int((inside & below).sum())}** | {others.loc[inside, 'ratio_to_optimal'].min():.4f} | "
+        f"{int((~inside).sum())} / {int((~inside & below).sum())} | {free_text} | "
+        f"{int((reference['joint_limit_margin'] < 1e-6).sum())} | "
+        f"{gap.median().get('reach', float('nan')):.2f} / {gap.median().get('track', float('nan')):.2f} | "
+        f"{gap.quantile(0.95).get('reach', float('nan')):.2f} / {gap.quantile(0.95).get('track', float('nan')):.2f} |"
+    )
 
 
 if __name__ == "__main__" and "--markdown" in sys.argv:

@@ -17,15 +17,28 @@ import tempfile
 import time
 from pathlib import Path
 
-ARGS = ["--samples", "20", "--chunk-size", "2", "--workers", "2", "--controllers", "snac,dls,svf,rnn,lqr,optimal",
-        "--no-progress", "--effort-samples", "0"]
+ARGS = [
+    "--samples",
+    "20",
+    "--chunk-size",
+    "2",
+    "--workers",
+    "2",
+    "--controllers",
+    "snac,dls,svf,rnn,lqr,optimal",
+    "--no-progress",
+    "--effort-samples",
+    "0",
+]
 
 
 def interrupt(out: Path, signum: int, at: float, bound: float = 30.0) -> tuple[int | None, float | None, str]:
     """Exit code, seconds from the signal to the exit (``None``: still running after ``bound`` s), last stderr line."""
     process = subprocess.Popen(
         [sys.executable, "-m", "snac_gym.apps.cli", "evaluate", "--out", str(out), *ARGS],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
         # A background job of a non-interactive shell inherits SIGINT ignored; a terminal's Ctrl-C does not.
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )

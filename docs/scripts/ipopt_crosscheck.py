@@ -16,17 +16,17 @@ import sys
 import time
 
 import numpy as np
-
-from snac_gym.evaluation.reference.ipopt import solve_with_ipopt
 from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference.ipopt import solve_with_ipopt
 from snac_gym.evaluation.reference.optimum import multi_start_solve, own_start_commands
-from snac_gym.trajopt import next_angles, single_threaded_blas
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
+from snac_gym.trajopt import next_angles, single_threaded_blas
 
 robot, region, seed, count, cost = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
 kinematics = shared_kinematics(robot)
@@ -55,10 +55,15 @@ for task in ("reach", "track"):
         binding += binds
         gaps.append((ours.cost - rest.cost) / rest.cost)
         polish.append((ours.cost - near.cost) / near.cost)
-        print(f"{task} {sample.index}: ours {ours.cost:.8g} ({ours_s:.2f} s) ipopt from rest {rest.cost:.8g} "
-              f"({rest.seconds:.2f} s, {rest.status}) gap {gaps[-1]:+.2e}, from ours {polish[-1]:+.2e} "
-              f"({near.status}) binds {binds}", flush=True)
+        print(
+            f"{task} {sample.index}: ours {ours.cost:.8g} ({ours_s:.2f} s) ipopt from rest {rest.cost:.8g} "
+            f"({rest.seconds:.2f} s, {rest.status}) gap {gaps[-1]:+.2e}, from ours {polish[-1]:+.2e} "
+            f"({near.status}) binds {binds}",
+            flush=True,
+        )
 gaps, polish = np.array(gaps), np.array(polish)
-print(f"{robot} {region} seed {seed} {cost}: {len(gaps)} samples ({binding} with a binding joint limit); "
-      f"(ours − IPOPT from rest)/IPOPT: worst {gaps.max():+.2e}, above by more than 1e-4 on {(gaps > 1e-4).sum()}, "
-      f"below by more than 1e-4 on {(gaps < -1e-4).sum()}; IPOPT from ours lowers it by at most {polish.max():.2e}")
+print(
+    f"{robot} {region} seed {seed} {cost}: {len(gaps)} samples ({binding} with a binding joint limit); "
+    f"(ours − IPOPT from rest)/IPOPT: worst {gaps.max():+.2e}, above by more than 1e-4 on {(gaps > 1e-4).sum()}, "
+    f"below by more than 1e-4 on {(gaps < -1e-4).sum()}; IPOPT from ours lowers it by at most {polish.max():.2e}"
+)

@@ -21,14 +21,16 @@ from scipy.linalg import solve_continuous_are
 
 from snac_gym.irl import policy_iteration, simulate_linear
 
-A = np.array([
-    [-0.4125, -0.0248, 0.0741, 0.0089, 0.0, 0.0],
-    [101.5873, -7.2651, 2.7608, 2.8068, 0.0, 0.0],
-    [0.0704, 0.0085, -0.0741, -0.0089, 0.0, 0.0200],
-    [0.0878, 0.2672, 0.0, -0.3674, 0.0044, 0.3962],
-    [-1.8414, 0.0990, 0.0, 0.0, -0.0343, -0.0330],
-    [0.0, 0.0, 0.0, -359.0, 187.5364, -87.0316],
-])
+A = np.array(
+    [
+        [-0.4125, -0.0248, 0.0741, 0.0089, 0.0, 0.0],
+        [101.5873, -7.2651, 2.7608, 2.8068, 0.0, 0.0],
+        [0.0704, 0.0085, -0.0741, -0.0089, 0.0, 0.0200],
+        [0.0878, 0.2672, 0.0, -0.3674, 0.0044, 0.3962],
+        [-1.8414, 0.0990, 0.0, 0.0, -0.0343, -0.0330],
+        [0.0, 0.0, 0.0, -359.0, 187.5364, -87.0316],
+    ]
+)
 B = np.array([[-0.0042, 0.0064], [-1.0360, 1.5849], [0.0042, 0.0], [0.1261, 0.0], [0.0, -0.0168], [0.0, 0.0]])
 Q = np.diag([1.0, 1.0, 0.1, 0.1, 0.1, 0.1])
 R = np.eye(2)
@@ -37,10 +39,12 @@ WINDOW, WINDOWS, SUBSTEPS = 0.01, 200, 50
 #: The paper's stopping tolerance (Sec. 4) and the authors' code's (1e-10, at most 16 solves).
 TOLERANCE, CODE_TOLERANCE, CODE_MAX_ITERATIONS = 0.03, 1e-10, 16
 #: The learned gain the paper prints after learning (Sec. 4), four decimals.
-PAPER_K = np.array([
-    [-0.7952, -0.0684, -0.0725, 0.0242, -0.0488, -0.0002],
-    [1.6511, 0.1098, 0.0975, 0.0601, 0.0212, 0.0002],
-])
+PAPER_K = np.array(
+    [
+        [-0.7952, -0.0684, -0.0725, 0.0242, -0.0488, -0.0002],
+        [1.6511, 0.1098, 0.0975, 0.0601, 0.0212, 0.0002],
+    ]
+)
 SEED = 2012
 
 
@@ -72,10 +76,14 @@ def main() -> None:
     stop, _, _ = run(tolerance=TOLERANCE)
     p_errors = [np.linalg.norm(P - P_star, 2) for P in result.P]
     k_errors = [np.linalg.norm(K - K_star, 2) for K in result.K]
-    print(f"eps={TOLERANCE}: {stop.iterations} iterations, |P-P*|={np.linalg.norm(stop.P_final - P_star, 2):.3g}, "
-          f"|K-K*|={np.linalg.norm(stop.K_final - K_star, 2):.3g}, max|K-K_paper|={np.abs(stop.K_final - PAPER_K).max():.3g}")
-    print(f"eps={CODE_TOLERANCE}, at most {CODE_MAX_ITERATIONS}: {result.iterations} iterations, converged={result.converged}, "
-          f"|P_k-P*| = {', '.join(f'{e:.3g}' for e in p_errors)}")
+    print(
+        f"eps={TOLERANCE}: {stop.iterations} iterations, |P-P*|={np.linalg.norm(stop.P_final - P_star, 2):.3g}, "
+        f"|K-K*|={np.linalg.norm(stop.K_final - K_star, 2):.3g}, max|K-K_paper|={np.abs(stop.K_final - PAPER_K).max():.3g}"
+    )
+    print(
+        f"eps={CODE_TOLERANCE}, at most {CODE_MAX_ITERATIONS}: {result.iterations} iterations, converged={result.converged}, "
+        f"|P_k-P*| = {', '.join(f'{e:.3g}' for e in p_errors)}"
+    )
     print(f"|P_k-P_k-1| = {', '.join(f'{d:.3g}' for d in result.differences)}")
 
     fig, axes = plt.subplots(2, 1, figsize=(6.0, 5.0), sharex=True)

@@ -9,9 +9,9 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-
 from snac_gym.evaluation.execution.jobs import policy_context, task_kinematics
 from snac_gym.evaluation.samples import generate_samples, policy_seed
+
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import simulate_kinematic
@@ -47,8 +47,15 @@ def main() -> None:
     errors = np.linalg.norm(batch["gain"] - optimal, axis=(1, 2)) / np.linalg.norm(optimal, axis=(1, 2))
     print(f"learned on {int(learned.sum())} of {len(learned)} episodes (the others keep K0)")
     print("relative gain error ‖K − K*(J(θ_L))‖/‖K*‖ of the learned ones:", np.round(errors[learned], 3))
-    print("and of K0 (the model's gain at θ0) on the same episodes:", np.round(
-        (np.linalg.norm(batch["initial_gain"] - optimal, axis=(1, 2)) / np.linalg.norm(optimal, axis=(1, 2)))[learned], 3))
+    print(
+        "and of K0 (the model's gain at θ0) on the same episodes:",
+        np.round(
+            (np.linalg.norm(batch["initial_gain"] - optimal, axis=(1, 2)) / np.linalg.norm(optimal, axis=(1, 2)))[
+                learned
+            ],
+            3,
+        ),
+    )
 
 
 if __name__ == "__main__":

@@ -23,11 +23,11 @@ import numpy as np
 import pinocchio as pin
 from threadpoolctl import threadpool_limits
 
-from snac_gym.kernels.trajopt import add_jacobian_blocks
 from snac_gym.kernels.chain import chain_forward_and_jacobian
+from snac_gym.kernels.small import symmetric_eigh, thin_svd
+from snac_gym.kernels.trajopt import add_jacobian_blocks
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.optimality import SINGULAR_TOLERANCE, FrozenJacobianLQR
-from snac_gym.kernels.small import symmetric_eigh, thin_svd
 
 BATCH = 500
 
@@ -76,11 +76,25 @@ def main() -> None:
             pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL_WORLD_ALIGNED)
 
     arrays = kinematics._chain._kernel_arrays
-    rows = [("f(θ), J(θ) of a UR10", lambda: chain_forward_and_jacobian(qs, *arrays), pinocchio_loop, "Pinocchio per configuration")]
+    rows = [
+        (
+            "f(θ), J(θ) of a UR10",
+            lambda: chain_forward_and_jacobian(qs, *arrays),
+            pinocchio_loop,
+            "Pinocchio per configuration",
+        )
+    ]
     jacobians = kinematics.jacobian_batch(qs)
     grams = np.ascontiguousarray(jacobians @ jacobians.transpose(0, 2, 1))
     rows.append(("eigh, 3×3", lambda: symmetric_eigh(grams), lambda: np.linalg.eigh(grams), "np.linalg.eigh"))
-    rows.append(("SVD, 3×6", lambda: thin_svd(jacobians), lambda: np.linalg.svd(jacobians, full_matrices=False), "np.linalg.svd"))
+    rows.append(
+        (
+            "SVD, 3×6",
+            lambda: thin_svd(jacobians),
+            lambda: np.linalg.svd(jacobians, full_matrices=False),
+            "np.linalg.svd",
+        )
+    )
     lqr = FrozenJacobianLQR(9.0 * np.eye(3), None, 3, 6)  # the lqr controller's weights
     rows.append(("LQR factors", lambda: lqr.factors(jacobians), lambda: numpy_factors(lqr, jacobians),
                  "NumPy products around the compiled eigh"))  # fmt: skip
@@ -95,7 +109,9 @@ def main() -> None:
     np.testing.assert_array_equal(compiled_band(base, trajectory), numpy_band(c_base, trajectory, 0.016))  # same sums
     compiled = best_of(lambda: compiled_band(base, trajectory))
     peer = best_of(lambda: numpy_band(c_base, trajectory, 0.016))
-    print(f"{'Gauss-Newton band':24s} {compiled * 1e3:14.3f} ms {peer * 1e3:10.3f} ms  NumPy products and scattered += (2500 steps)")
+    print(
+        f"{'Gauss-Newton band':24s} {compiled * 1e3:14.3f} ms {peer * 1e3:10.3f} ms  NumPy products and scattered += (2500 steps)"
+    )
 
 
 def compiled_band(base: np.ndarray, trajectory: np.ndarray) -> np.ndarray:

@@ -47,7 +47,10 @@ CONFIGS = {
     "fifo": {"tuning": {"rt_priority": 20}, "journal_writer": "inline"},
     "all": {"tuning": {"rt_priority": 20, "lock_memory": True, "freeze_gc": True}, "journal_writer": "process"},
     # each measure off with the others on: what it adds next to real-time scheduling
-    "all-but-log-process": {"tuning": {"rt_priority": 20, "lock_memory": True, "freeze_gc": True}, "journal_writer": "inline"},
+    "all-but-log-process": {
+        "tuning": {"rt_priority": 20, "lock_memory": True, "freeze_gc": True},
+        "journal_writer": "inline",
+    },
     "all-but-gc-frozen": {"tuning": {"rt_priority": 20, "lock_memory": True}, "journal_writer": "process"},
     "all-but-mlockall": {"tuning": {"rt_priority": 20, "freeze_gc": True}, "journal_writer": "process"},
 }
@@ -58,9 +61,9 @@ def _one(config: str, seconds: float) -> None:
     import functools
 
     import snac_gym.apps.real as run_module
+    from snac_gym.apps.real import run_real_episode
     from snac_gym.real import SafetyLimits
     from snac_gym.real.loop_tuning import LoopTuning
-    from snac_gym.apps.real import run_real_episode
 
     spec = CONFIGS[config]
     run_module.URRTDEConnection = functools.partial(run_module.URRTDEConnection, watchdog_periods=25)
@@ -73,7 +76,9 @@ def _one(config: str, seconds: float) -> None:
                 journal_writer=spec["journal_writer"],
             )  # fmt: skip
         except Exception as exc:
-            summary = json.loads(next(Path(out).glob("*real.json")).read_text()) if list(Path(out).glob("*real.json")) else {}
+            summary = (
+                json.loads(next(Path(out).glob("*real.json")).read_text()) if list(Path(out).glob("*real.json")) else {}
+            )
             print(json.dumps({"config": config, "error": f"{type(exc).__name__}: {exc}",
                               "client_output": summary.get("client_output", [])}))  # fmt: skip
             return
@@ -114,8 +119,14 @@ def _command(repeats: int, seconds: float, hogs: int) -> None:
                                "--steps", str(round(seconds * 500)), "--out", out]  # fmt: skip
                     child = subprocess.run(command, capture_output=True, text=True, timeout=seconds + 120)
                 lines = (child.stdout + child.stderr).splitlines()
-                shown = [ln.strip() for ln in lines if ln.strip().startswith(("loop period", "stopped", "no safety", "error", "final error"))]
-                print(f"run {k + 1}, load average {load:.1f}, exit {child.returncode}: " + " | ".join(shown), flush=True)
+                shown = [
+                    ln.strip()
+                    for ln in lines
+                    if ln.strip().startswith(("loop period", "stopped", "no safety", "error", "final error"))
+                ]
+                print(
+                    f"run {k + 1}, load average {load:.1f}, exit {child.returncode}: " + " | ".join(shown), flush=True
+                )
     finally:
         for hog in hog_processes:
             hog.kill()
@@ -199,8 +210,10 @@ def _allocations(samples: int = 2000) -> None:
     tracemalloc.stop()
     print(f"allocated at the peak of one call, {samples} calls (snac, reach, simulated connection at 500 Hz):")
     print(f"  policy.act: median {np.median(act_bytes):.0f} B, max {max(act_bytes)} B")
-    print(f"  env step (safety layer, costs, observation; the arm's own step included): "
-          f"median {np.median(step_bytes):.0f} B, max {max(step_bytes)} B")
+    print(
+        f"  env step (safety layer, costs, observation; the arm's own step included): "
+        f"median {np.median(step_bytes):.0f} B, max {max(step_bytes)} B"
+    )
 
 
 def main() -> None:
@@ -211,8 +224,11 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--hogs", type=int, default=1, help="busy Python loops beside the run")
     parser.add_argument("--allocations", action="store_true", help="only count act's and step's allocations")
-    parser.add_argument("--command", action="store_true",
-                        help="run `snac-gym real --series e --rt-priority 20` as is (default safety and watchdog)")
+    parser.add_argument(
+        "--command",
+        action="store_true",
+        help="run `snac-gym real --series e --rt-priority 20` as is (default safety and watchdog)",
+    )
     args = parser.parse_args()
     if args.one:
         _one(args.one, args.seconds)
@@ -228,7 +244,9 @@ def main() -> None:
     if unknown:
         parser.error(f"unknown configuration(s) {unknown}; known: {', '.join(CONFIGS)}")
     print(f"{args.seconds:g} s reach at 500 Hz, {args.hogs} CPU hog(s), {os.cpu_count()} CPUs")
-    print("| config | load avg | periods | mean ms | p50 ms | p99 ms | max ms (after the first) | late | default rules stop at |")
+    print(
+        "| config | load avg | periods | mean ms | p50 ms | p99 ms | max ms (after the first) | late | default rules stop at |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     _measure(configs, args.repeats, args.seconds, args.hogs)
 

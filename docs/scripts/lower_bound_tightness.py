@@ -25,15 +25,15 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-
-from snac_gym.trajopt import single_threaded_blas, solve_sample
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.optimality import certified_cost_lower_bounds, regulation_cost_lower_bound
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
+from snac_gym.trajopt import single_threaded_blas, solve_sample
 
 DT = 1.0 / 125.0
 CONVENTIONS = {"table1": CostConvention(), "hjb": CostConvention("hjb")}
@@ -44,8 +44,10 @@ def row(task: str, cost: str, variant: str, optima: np.ndarray, compute: Callabl
     bounds = compute()
     per_sample = (time.perf_counter() - started) / len(optima) * 1e3
     ratios = optima / bounds
-    return (f"| {task} | {cost} | {variant} | {np.median(ratios):.2f} | {np.percentile(ratios, 95):.2f} "
-            f"| {ratios.max():.2f} | {int(np.sum(ratios < 1))} | {per_sample:.2f} |")
+    return (
+        f"| {task} | {cost} | {variant} | {np.median(ratios):.2f} | {np.percentile(ratios, 95):.2f} "
+        f"| {ratios.max():.2f} | {int(np.sum(ratios < 1))} | {per_sample:.2f} |"
+    )
 
 
 def main() -> None:

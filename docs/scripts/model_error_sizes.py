@@ -28,7 +28,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--spec", action="append", help="a --model-error text to measure instead of the default list")
     args = parser.parse_args(argv)
     true = Kinematics(args.robot)
-    qs = np.random.default_rng(0).uniform(true.lower_limits, true.upper_limits, size=(args.configurations, true.n_joints))
+    qs = np.random.default_rng(0).uniform(
+        true.lower_limits, true.upper_limits, size=(args.configurations, true.n_joints)
+    )
     print(f"{args.robot}, {args.configurations} configurations within the joint limits\n")
     print("| `--model-error` | median (mm) | 95th percentile (mm) |")
     print("|---|---|---|")

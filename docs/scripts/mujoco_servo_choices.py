@@ -55,19 +55,25 @@ def main() -> None:
     commands = random_command("smooth", np.random.default_rng(0), kinematics.velocity_limits, STEPS, DT)
 
     spec = build_physics_spec(kinematics, DT / SUBSTEPS)
-    print(f"as built (unbounded servos):          max |θ̇ − u| = {velocity_error(spec.compile(), q0, commands):.2e} rad/s")
+    print(
+        f"as built (unbounded servos):          max |θ̇ − u| = {velocity_error(spec.compile(), q0, commands):.2e} rad/s"
+    )
 
     clamped = spec.compile()
     clamped.actuator_forcelimited[:] = 1
     efforts = np.array([float(j.find("limit").get("effort")) for j in _urdf_joints(kinematics)])
     clamped.actuator_forcerange[:] = np.column_stack([-efforts, efforts])
-    print(f"servo forces clamped to the efforts {efforts.tolist()} N·m: max |θ̇ − u| = "
-          f"{velocity_error(clamped, q0, commands):.2e} rad/s")
+    print(
+        f"servo forces clamped to the efforts {efforts.tolist()} N·m: max |θ̇ − u| = "
+        f"{velocity_error(clamped, q0, commands):.2e} rad/s"
+    )
 
     soft_limits = spec.compile()
     soft_limits.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
-    print(f"MuJoCo's soft limit constraint, wrist 1 at full speed into it: overshoot "
-          f"{limit_overshoot(soft_limits, kinematics, q0, 3):.3f} rad past {kinematics.upper_limits[3]:.3f} rad")
+    print(
+        f"MuJoCo's soft limit constraint, wrist 1 at full speed into it: overshoot "
+        f"{limit_overshoot(soft_limits, kinematics, q0, 3):.3f} rad past {kinematics.upper_limits[3]:.3f} rad"
+    )
 
 
 def _urdf_joints(kinematics: Kinematics) -> list:

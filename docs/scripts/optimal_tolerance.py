@@ -15,12 +15,12 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+from snac_gym.evaluation.samples import generate_samples
 from threadpoolctl import threadpool_limits
 
-from snac_gym.trajopt import GAP_RTOL, solve_sample
-from snac_gym.evaluation.samples import generate_samples
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
+from snac_gym.trajopt import GAP_RTOL, solve_sample
 
 STEPS = {"reach": 1500, "track": 2500}
 DT = 0.008
@@ -28,7 +28,9 @@ DT = 0.008
 
 def main(task: str, seed: int, count: int, region: str = "cuboid") -> None:
     kinematics = shared_kinematics("ur10")
-    space = SampleSpace.for_robot(kinematics) if region == "cuboid" else SampleSpace.for_robot(kinematics, region=region)
+    space = (
+        SampleSpace.for_robot(kinematics) if region == "cuboid" else SampleSpace.for_robot(kinematics, region=region)
+    )
     times = np.arange(STEPS[task]) * DT
     excess, iterations, tight_iterations = [], [], []
     for sample in generate_samples(kinematics, space, seed, task, range(count)):

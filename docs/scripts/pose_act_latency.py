@@ -34,13 +34,17 @@ def observations(kinematics, reference, count: int) -> list[np.ndarray]:
     layout = ObservationLayout(kinematics.n_joints, n)
     error = getattr(kinematics, "task_error", None)
     task = {3: "reach", 6: "pose-reach"}[n] if not isinstance(reference, PoseEllipse) else "pose-track"
-    driver = make_policy("dls", PolicyContext(kinematics, DT, kinematics.velocity_limits.copy(), layout, task), gain=0.5)
+    driver = make_policy(
+        "dls", PolicyContext(kinematics, DT, kinematics.velocity_limits.copy(), layout, task), gain=0.5
+    )
     q = nominal_configuration(getattr(kinematics, "position", kinematics))
     out = []
     for k in range(count):
         x_d, xdot_d = reference.position_and_velocity(k * DT)
         x = kinematics.forward(q)
-        obs = layout.pack(q, np.zeros_like(q), x, x_d, xdot_d, reference.centre, None if error is None else error(x, x_d))
+        obs = layout.pack(
+            q, np.zeros_like(q), x, x_d, xdot_d, reference.centre, None if error is None else error(x, x_d)
+        )
         out.append(obs)
         q = q + driver.act(obs) * DT
     return out
@@ -67,7 +71,12 @@ def main() -> None:
     cases = [
         ("position reach (3-D e)", panda, FixedTarget([0.45, 0.2, 0.3]), "reach"),
         ("pose reach (6-D e)", pose, PoseTarget([0.45, 0.2, 0.3], [np.pi, 0.0, 0.0]), "pose-reach"),
-        ("pose track (12-D ξ)", pose, PoseEllipse(Ellipse((0.45, 0.0, 0.4), (0.1, 0.1)), (np.pi, 0.0, 0.0)), "pose-track"),
+        (
+            "pose track (12-D ξ)",
+            pose,
+            PoseEllipse(Ellipse((0.45, 0.0, 0.4), (0.1, 0.1)), (np.pi, 0.0, 0.0)),
+            "pose-track",
+        ),
     ]
     print(f"python {sys.version.split()[0]}, {CALLS} calls each, median of act():")
     for label, kinematics, reference, task in cases:

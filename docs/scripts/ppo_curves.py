@@ -35,9 +35,28 @@ ERROR_RULE = {"reach": ("final_error", 1e-3), "track": ("mean_error_2nd_half", 5
 
 def evaluate(task: str, args: argparse.Namespace, out: Path, controllers: str, *params: str) -> pd.DataFrame:
     if not (out / "results.csv").exists():
-        command = [sys.executable, "-m", "snac_gym.apps.cli", "evaluate", "--task", task, "--seed", str(args.seed),
-                   "--samples", str(args.samples), "--sample-space", args.sample_space, "--workers", str(args.workers),
-                   "--controllers", controllers, "--out", str(out), *COST, *params]
+        command = [
+            sys.executable,
+            "-m",
+            "snac_gym.apps.cli",
+            "evaluate",
+            "--task",
+            task,
+            "--seed",
+            str(args.seed),
+            "--samples",
+            str(args.samples),
+            "--sample-space",
+            args.sample_space,
+            "--workers",
+            str(args.workers),
+            "--controllers",
+            controllers,
+            "--out",
+            str(out),
+            *COST,
+            *params,
+        ]
         subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return pd.read_csv(out / "results.csv")
 
@@ -71,7 +90,9 @@ def main() -> None:
     parser.add_argument("--out", default="docs/figures/ppo_workspace_curves.png")
     parser.add_argument("--table", default=None, help="also write the rows as CSV here")
     parser.add_argument("--success-floor", type=float, default=-2, help="lower end of the success axis, %%")
-    parser.add_argument("--baseline", default=None, help="a controller drawn as a line on the same samples (e.g. joint-goal)")
+    parser.add_argument(
+        "--baseline", default=None, help="a controller drawn as a line on the same samples (e.g. joint-goal)"
+    )
     args = parser.parse_args()
     work = Path(args.work)
     rows, periodic, baselines = [], {}, {}
@@ -80,27 +101,44 @@ def main() -> None:
         folder = Path(folder)
         periodic[task] = pd.DataFrame(read_evaluations(folder))
         names = "optimal" if args.baseline is None else f"optimal,{args.baseline}"
-        reference = evaluate(task, args, work / f"{task}-{args.sample_space}-{args.seed}-{names.replace(',', '-')}", names)
+        reference = evaluate(
+            task, args, work / f"{task}-{args.sample_space}-{args.seed}-{names.replace(',', '-')}", names
+        )
         optimum = reference[reference.controller == "optimal"].set_index("sample")
         if args.baseline is not None:
             base = reference[reference.controller == args.baseline].set_index("sample")
-            baselines[task] = (float((base["cost_hjb"] / optimum.loc[base.index, "cost_hjb"]).median()),
-                               float(base["success"].astype(bool).mean()))
-            print(f"{task} {args.baseline}: median ratio {baselines[task][0]:.3f}, success {100 * baselines[task][1]:.0f} %")
+            baselines[task] = (
+                float((base["cost_hjb"] / optimum.loc[base.index, "cost_hjb"]).median()),
+                float(base["success"].astype(bool).mean()),
+            )
+            print(
+                f"{task} {args.baseline}: median ratio {baselines[task][0]:.3f}, success {100 * baselines[task][1]:.0f} %"
+            )
         column, limit = ERROR_RULE[task]
         for checkpoint in checkpoints(folder, args.every, args.fine_every, args.fine_until):
             out = work / f"{folder.name}-{args.sample_space}-{args.seed}-{checkpoint.stem}"
             result = evaluate(task, args, out, "ppo", "--param", f"ppo.model_path={checkpoint.resolve()}")
             result = result[result.controller == "ppo"].set_index("sample")
             ratio = result["cost_hjb"] / optimum.loc[result.index, "cost_hjb"]
-            rows.append({"task": task, "run": str(folder), "timesteps": int(checkpoint.stem),
-                         "median_ratio": float(ratio.median()), "p90_ratio": float(ratio.quantile(0.9)),
-                         "success": float(result["success"].astype(bool).mean()),
-                         "on_target": float((result[column] <= limit).mean()),
-                         "limit_crossed": float((result["joint_limit_margin"] < 0).mean()), "file": str(checkpoint)})
-            print(f"{task} {rows[-1]['timesteps']:>9d} steps: median ratio {rows[-1]['median_ratio']:.3f}, "
-                  f"success {100 * rows[-1]['success']:.0f} %, on target {100 * rows[-1]['on_target']:.0f} %, "
-                  f"limit crossed {100 * rows[-1]['limit_crossed']:.0f} %", flush=True)
+            rows.append(
+                {
+                    "task": task,
+                    "run": str(folder),
+                    "timesteps": int(checkpoint.stem),
+                    "median_ratio": float(ratio.median()),
+                    "p90_ratio": float(ratio.quantile(0.9)),
+                    "success": float(result["success"].astype(bool).mean()),
+                    "on_target": float((result[column] <= limit).mean()),
+                    "limit_crossed": float((result["joint_limit_margin"] < 0).mean()),
+                    "file": str(checkpoint),
+                }
+            )
+            print(
+                f"{task} {rows[-1]['timesteps']:>9d} steps: median ratio {rows[-1]['median_ratio']:.3f}, "
+                f"success {100 * rows[-1]['success']:.0f} %, on target {100 * rows[-1]['on_target']:.0f} %, "
+                f"limit crossed {100 * rows[-1]['limit_crossed']:.0f} %",
+                flush=True,
+            )
     table = pd.DataFrame(rows)
     table["chosen"] = False
     for task, group in table.groupby("task"):
@@ -112,8 +150,13 @@ def main() -> None:
     plot(table, periodic, Path(args.out), args, baselines)
 
 
-def plot(table: pd.DataFrame, periodic: dict[str, pd.DataFrame], out: Path, args: argparse.Namespace,
-         baselines: dict[str, tuple[float, float]]) -> None:
+def plot(
+    table: pd.DataFrame,
+    periodic: dict[str, pd.DataFrame],
+    out: Path,
+    args: argparse.Namespace,
+    baselines: dict[str, tuple[float, float]],
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,15 +171,27 @@ def plot(table: pd.DataFrame, periodic: dict[str, pd.DataFrame], out: Path, args
         chosen = rows[rows.chosen]
         axes[0].plot(chosen.timesteps / 1e6, chosen.median_ratio, "*", ms=16, color=colour, mec="k")
         axes[1].plot(rows.timesteps / 1e6, 100 * rows.success, "o-", color=colour, label=f"{task}: success (evaluator)")
-        axes[1].plot(rows.timesteps / 1e6, 100 * rows.on_target, "s--", color=colour, mfc="none",
-                     label=f"{task}: on target (error rule alone)")
+        axes[1].plot(
+            rows.timesteps / 1e6,
+            100 * rows.on_target,
+            "s--",
+            color=colour,
+            mfc="none",
+            label=f"{task}: on target (error rule alone)",
+        )
         if task in baselines:
             axes[0].axhline(baselines[task][0], color=colour, ls=":", lw=1.2, label=f"{task}: {args.baseline}")
             axes[1].axhline(100 * baselines[task][1], color=colour, ls=":", lw=1.2)
         runs = periodic.get(task)
         if runs is not None and not runs.empty:
-            axes[1].plot(runs.timesteps / 1e6, 100 * runs.success_rate, ":", color=colour, alpha=0.6,
-                         label=f"{task}: periodic evaluation (10 episodes)")
+            axes[1].plot(
+                runs.timesteps / 1e6,
+                100 * runs.success_rate,
+                ":",
+                color=colour,
+                alpha=0.6,
+                label=f"{task}: periodic evaluation (10 episodes)",
+            )
     axes[0].axhline(1.5, color="grey", ls="--", lw=1)
     axes[0].text(0.02, 1.53, "goal ≤ 1.5", color="grey", va="bottom", transform=axes[0].get_yaxis_transform())
     axes[0].set_yscale("log")
@@ -148,8 +203,14 @@ def plot(table: pd.DataFrame, periodic: dict[str, pd.DataFrame], out: Path, args
     axes[0].set_ylabel("median HJB cost / optimum")
     axes[1].axhline(95, color="grey", ls="--", lw=1)
     low = args.success_floor
-    axes[1].text(0.02, 95 + 0.01 * (102 - low), "dashed: goal ≥ 95 %", color="grey", va="bottom",
-                 transform=axes[1].get_yaxis_transform())
+    axes[1].text(
+        0.02,
+        95 + 0.01 * (102 - low),
+        "dashed: goal ≥ 95 %",
+        color="grey",
+        va="bottom",
+        transform=axes[1].get_yaxis_transform(),
+    )
     axes[1].set_ylabel("% of validation samples")
     axes[1].set_ylim(low, 102)
     axes[1].legend(fontsize=7, loc="lower right")
@@ -157,8 +218,11 @@ def plot(table: pd.DataFrame, periodic: dict[str, pd.DataFrame], out: Path, args
         ax.set_xlabel("env steps (millions)")
         ax.grid(alpha=0.3)
     axes[0].legend()
-    fig.suptitle(f"PPO trained on the whole workspace: checkpoints on {args.samples} {args.sample_space} validation "
-                 f"samples of seed {args.seed} (HJB cost, Q = 4I; ★ chosen)", fontsize=10)
+    fig.suptitle(
+        f"PPO trained on the whole workspace: checkpoints on {args.samples} {args.sample_space} validation "
+        f"samples of seed {args.seed} (HJB cost, Q = 4I; ★ chosen)",
+        fontsize=10,
+    )
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)

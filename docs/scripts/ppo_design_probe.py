@@ -56,7 +56,11 @@ class ProbeEnv(SB3VectorEnv):
     def _parts(self, observations):
         s = self.episodes.layout.slices
         q = np.ascontiguousarray(observations[:, s["q"]])
-        return np.asarray(self.episodes.template.kinematics.jacobian_batch(q)), observations[:, s["e"]], observations[:, s["xdot_d"]]
+        return (
+            np.asarray(self.episodes.template.kinematics.jacobian_batch(q)),
+            observations[:, s["e"]],
+            observations[:, s["xdot_d"]],
+        )
 
     def _spaces(self):
         size = {"joint": 30, "task": 30, "relative": 13}[args.action]
@@ -132,10 +136,23 @@ def main() -> None:
     train = make(512, 500)
     train.seed(0)
     venv = VecNormalize(train, norm_obs=False, norm_reward=True, gamma=0.995)
-    model = PPO(OddPolicy if args.action == "joint" else "MlpPolicy", venv, n_steps=32, batch_size=4096, n_epochs=5,
-                gamma=0.995, gae_lambda=0.95, learning_rate=lambda f: 3e-4 * f, seed=0, device="cpu",
-                policy_kwargs={"net_arch": {"pi": [64, 64], "vf": [128, 128]}, "log_std_init": args.log_std,
-                               "activation_fn": nn.Tanh})
+    model = PPO(
+        OddPolicy if args.action == "joint" else "MlpPolicy",
+        venv,
+        n_steps=32,
+        batch_size=4096,
+        n_epochs=5,
+        gamma=0.995,
+        gae_lambda=0.95,
+        learning_rate=lambda f: 3e-4 * f,
+        seed=0,
+        device="cpu",
+        policy_kwargs={
+            "net_arch": {"pi": [64, 64], "vf": [128, 128]},
+            "log_std_init": args.log_std,
+            "activation_fn": nn.Tanh,
+        },
+    )
     dls_cost, dls_error = validation(dls)
     print(f"DLS: final error median {1e3 * np.median(dls_error):.3f} mm", flush=True)
     start, done = time.time(), 0
@@ -144,9 +161,11 @@ def main() -> None:
         done += 500_000
         cost, error = validation(lambda env, obs: model.predict(obs, deterministic=True)[0])
         ratio = cost / dls_cost
-        print(f"{done / 1e6:.1f} M steps, {time.time() - start:.0f} s: cost / DLS's median {np.median(ratio):.3f}; "
-              f"final error median {1e3 * np.median(error):.3f} mm, within 1 mm {100 * np.mean(error < 1e-3):.1f} %",
-              flush=True)
+        print(
+            f"{done / 1e6:.1f} M steps, {time.time() - start:.0f} s: cost / DLS's median {np.median(ratio):.3f}; "
+            f"final error median {1e3 * np.median(error):.3f} mm, within 1 mm {100 * np.mean(error < 1e-3):.1f} %",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -25,14 +25,20 @@ def summarise(folder: Path) -> list[dict]:
         column, limit = THRESHOLD[task]
         crossed = group.joint_limit_margin < 0
         off = ~(group[column] <= limit)
-        rows.append({
-            "run": folder.name, "task": task, "controller": controller, "n": len(group),
-            "success": group.success.astype(bool).mean(),
-            "ratio_median": group.ratio_to_optimal.median() if "ratio_to_optimal" in group else float("nan"),
-            "fail": int((~group.success.astype(bool)).sum()),
-            "limit_only": int((crossed & ~off).sum()), "off_only": int((off & ~crossed).sum()),
-            "both": int((off & crossed).sum()),
-        })
+        rows.append(
+            {
+                "run": folder.name,
+                "task": task,
+                "controller": controller,
+                "n": len(group),
+                "success": group.success.astype(bool).mean(),
+                "ratio_median": group.ratio_to_optimal.median() if "ratio_to_optimal" in group else float("nan"),
+                "fail": int((~group.success.astype(bool)).sum()),
+                "limit_only": int((crossed & ~off).sum()),
+                "off_only": int((off & ~crossed).sum()),
+                "both": int((off & crossed).sum()),
+            }
+        )
     return rows
 
 

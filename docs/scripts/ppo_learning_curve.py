@@ -30,8 +30,24 @@ COST = ["--cost", "hjb", "--q-scale", "4", "--no-match-effort", "--no-progress",
 
 def evaluate(task: str, seed: int, samples: int, out: Path, controllers: str, *params: str) -> pd.DataFrame:
     if not (out / "results.csv").exists():
-        command = [sys.executable, "-m", "snac_gym.apps.cli", "evaluate", "--task", task, "--seed", str(seed),
-                   "--samples", str(samples), "--controllers", controllers, "--out", str(out), *COST, *params]
+        command = [
+            sys.executable,
+            "-m",
+            "snac_gym.apps.cli",
+            "evaluate",
+            "--task",
+            task,
+            "--seed",
+            str(seed),
+            "--samples",
+            str(samples),
+            "--controllers",
+            controllers,
+            "--out",
+            str(out),
+            *COST,
+            *params,
+        ]
         subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
     return pd.read_csv(out / "results.csv")
 
@@ -55,15 +71,33 @@ def main() -> None:
         walls = {int(r["timesteps"]): float(r["wall_time_s"]) for r in csv.DictReader(open(folder / "evaluations.csv"))}
         for checkpoint in sorted((folder / "checkpoints").glob("*.npz")):
             steps = int(checkpoint.stem)
-            result = evaluate(task, args.seed, args.samples, work / f"{task}-{checkpoint.stem}", "ppo",
-                              "--param", f"ppo.model_path={checkpoint.resolve()}")
+            result = evaluate(
+                task,
+                args.seed,
+                args.samples,
+                work / f"{task}-{checkpoint.stem}",
+                "ppo",
+                "--param",
+                f"ppo.model_path={checkpoint.resolve()}",
+            )
             result = result[result.controller == "ppo"].set_index("sample")
             ratio = result["cost_hjb"] / optimum.loc[result.index, "cost_hjb"]
-            rows.append({"task": task, "timesteps": steps, "wall_time_s": walls.get(steps, np.nan),
-                         "median_ratio": float(ratio.median()), "p90_ratio": float(ratio.quantile(0.9)),
-                         "success": float(result["success"].mean()), "file": str(checkpoint)})
-            print(f"{task} {steps:>9d} steps: median ratio {rows[-1]['median_ratio']:.3f}, "
-                  f"success {100 * rows[-1]['success']:.1f} %", flush=True)
+            rows.append(
+                {
+                    "task": task,
+                    "timesteps": steps,
+                    "wall_time_s": walls.get(steps, np.nan),
+                    "median_ratio": float(ratio.median()),
+                    "p90_ratio": float(ratio.quantile(0.9)),
+                    "success": float(result["success"].mean()),
+                    "file": str(checkpoint),
+                }
+            )
+            print(
+                f"{task} {steps:>9d} steps: median ratio {rows[-1]['median_ratio']:.3f}, "
+                f"success {100 * rows[-1]['success']:.1f} %",
+                flush=True,
+            )
     table = pd.DataFrame(rows)
     if args.table:
         table.to_csv(args.table, index=False)
@@ -97,8 +131,10 @@ def plot(table: pd.DataFrame, out: Path, samples: int, seed: int) -> None:
     axes[1].set_xlabel("wall-clock training time (min),\nperiodic PyBullet evaluations included")
     axes[0].set_ylabel("median optimality gap (cost / optimum − 1)")
     axes[0].legend()
-    fig.suptitle(f"PPO checkpoints against the per-sample optimum ({samples} validation samples, seed {seed}, HJB cost, Q = 4I)",
-                 fontsize=10)
+    fig.suptitle(
+        f"PPO checkpoints against the per-sample optimum ({samples} validation samples, seed {seed}, HJB cost, Q = 4I)",
+        fontsize=10,
+    )
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)

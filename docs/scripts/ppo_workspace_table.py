@@ -30,15 +30,22 @@ def rows(folder: Path) -> list[dict]:
     for controller, group in frame.groupby("controller", sort=False):
         if controller == "optimal":
             continue
-        row = {"task": task, "space": space, "seed": int(seed), "controller": controller,
-               "success": group.success.astype(bool).mean(), "ratio_median": group.ratio_to_optimal.median(),
-               "limit": int((group.joint_limit_margin < 0).sum()),
-               # below the optimum while keeping every limit: a failure of the reference
-               "below_optimum_in_limits": int((group.below_optimal.astype(bool) & (group.joint_limit_margin >= 0)).sum())}
+        row = {
+            "task": task,
+            "space": space,
+            "seed": int(seed),
+            "controller": controller,
+            "success": group.success.astype(bool).mean(),
+            "ratio_median": group.ratio_to_optimal.median(),
+            "limit": int((group.joint_limit_margin < 0).sum()),
+            # below the optimum while keeping every limit: a failure of the reference
+            "below_optimum_in_limits": int((group.below_optimal.astype(bool) & (group.joint_limit_margin >= 0)).sum()),
+        }
         if controller == "ppo-workspace" and "joint-goal" in costs:
             paired = costs["ppo-workspace"] / costs["joint-goal"]
-            row.update(vs_joint_goal=paired.median(), cheaper=(paired < 1).mean(),
-                       wilcoxon_p=wilcoxon(np.log(paired)).pvalue)
+            row.update(
+                vs_joint_goal=paired.median(), cheaper=(paired < 1).mean(), wilcoxon_p=wilcoxon(np.log(paired)).pvalue
+            )
         out.append(row)
     return out
 

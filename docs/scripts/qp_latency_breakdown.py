@@ -19,9 +19,9 @@ from ctypes import c_int
 
 import gymnasium as gym
 import numpy as np
+from snac_gym.baselines.qp_ik import SOLVER, SOLVER_SETTINGS
 
 import snac_gym  # noqa: F401  (registers the envs)
-from snac_gym.baselines.qp_ik import SOLVER, SOLVER_SETTINGS
 from snac_gym.policies import make_policy
 
 
@@ -61,9 +61,11 @@ def main() -> None:
             "ConfigurationLimit rows": lambda: limits[0].compute_qp_inequalities(configuration, policy.dt),
             "VelocityLimit rows": lambda: limits[1].compute_qp_inequalities(configuration, policy.dt),
             "build_ik (objective + all rows, stacked)": lambda: library.build_ik(
-                configuration, [task], policy.dt, damping=policy.regularisation, limits=limits),
+                configuration, [task], policy.dt, damping=policy.regularisation, limits=limits
+            ),
             "qpsolvers.solve_problem(..., 'daqp')": lambda: qpsolvers.solve_problem(
-                problem, solver=SOLVER, **SOLVER_SETTINGS),
+                problem, solver=SOLVER, **SOLVER_SETTINGS
+            ),
             "daqp.solve alone": lambda: daqp.solve(H, f, G, h, lower, sense, **SOLVER_SETTINGS),
             "the whole act(obs), library solve_ik": lambda: policy.act(obs),
         }
@@ -71,14 +73,17 @@ def main() -> None:
         jacobian = fast.task_jacobian(q)
         hessian, gradient = jacobian.T @ jacobian, fast._task.gain * fast.task_error(obs) @ jacobian
         lower_box, upper_box = fast.box(q)
-        parts.update({
-            "direct: kinematics and the task's Jacobian": lambda: fast.task_jacobian(q),
-            "direct: H = JᵀJ + (λ² + ε) I": lambda: jacobian.T @ jacobian + fast._regularisation_eye,
-            "direct: the box (both limits)": lambda: fast.box(q),
-            "direct: daqp.solve with the box as bounds": lambda: daqp.solve(
-                hessian, gradient, fast._no_rows, upper_box, lower_box, fast._sense, **SOLVER_SETTINGS),
-            "the whole act(obs), direct (the default)": lambda: fast.act(obs),
-        })
+        parts.update(
+            {
+                "direct: kinematics and the task's Jacobian": lambda: fast.task_jacobian(q),
+                "direct: H = JᵀJ + (λ² + ε) I": lambda: jacobian.T @ jacobian + fast._regularisation_eye,
+                "direct: the box (both limits)": lambda: fast.box(q),
+                "direct: daqp.solve with the box as bounds": lambda: daqp.solve(
+                    hessian, gradient, fast._no_rows, upper_box, lower_box, fast._sense, **SOLVER_SETTINGS
+                ),
+                "the whole act(obs), direct (the default)": lambda: fast.act(obs),
+            }
+        )
         for label, call in parts.items():
             rows.setdefault(label, []).append(_time(call))
     for label, (pink, mink) in rows.items():

@@ -21,9 +21,9 @@ import sys
 import time
 
 import numpy as np
-
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import EvaluationSample
+
 from snac_gym.metrics import rollout_metrics
 from snac_gym.policies import make_policy
 from snac_gym.references import FixedTarget
@@ -39,7 +39,9 @@ def near_limit_samples(kinematics, count: int, seed: int = 0) -> list[Evaluation
     lower, upper = kinematics.lower_limits, kinematics.upper_limits
     samples: list[EvaluationSample] = []
     while len(samples) < count:
-        q0 = np.clip(nominal_configuration(kinematics) + rng.uniform(-0.3, 0.3, kinematics.n_joints), lower + 0.2, upper - 0.2)
+        q0 = np.clip(
+            nominal_configuration(kinematics) + rng.uniform(-0.3, 0.3, kinematics.n_joints), lower + 0.2, upper - 0.2
+        )
         joint, gap, up = rng.integers(kinematics.n_joints), rng.uniform(0.02, 0.15), rng.random() < 0.5
         q0[joint] = upper[joint] - gap if up else lower[joint] + gap
         beyond = q0.copy()
@@ -59,19 +61,32 @@ def main(argv: list[str]) -> None:
     kinematics = context.kinematics
     samples = near_limit_samples(kinematics, count)
     print(f"{robot}: {count} reach samples next to a position limit, {STEPS} steps of {DT} s, default settings")
-    print(f"{'controller':14s} {'success':>8s} {'median final (mm)':>18s} {'margin min (rad)':>17s} "
-          f"{'crossing':>9s} {'median peak |u|/ū':>18s} {'wall s':>7s}")
+    print(
+        f"{'controller':14s} {'success':>8s} {'median final (mm)':>18s} {'margin min (rad)':>17s} "
+        f"{'crossing':>9s} {'median peak |u|/ū':>18s} {'wall s':>7s}"
+    )
     for name in names:
-        base, kwargs = (name.removesuffix("-unguarded"), {"joint_limits": False}) if name.endswith("-unguarded") else (name, {})
+        base, kwargs = (
+            (name.removesuffix("-unguarded"), {"joint_limits": False}) if name.endswith("-unguarded") else (name, {})
+        )
         started = time.perf_counter()
-        rollouts = simulate_kinematic(context, lambda b=base, k=kwargs: make_policy(b, context, **k), samples, STEPS,
-                                      list(range(count)), keep_states=True)
-        metrics = rollout_metrics(rollouts, "reach", context.velocity_limits, None,
-                                  (kinematics.lower_limits, kinematics.upper_limits))
+        rollouts = simulate_kinematic(
+            context,
+            lambda b=base, k=kwargs: make_policy(b, context, **k),
+            samples,
+            STEPS,
+            list(range(count)),
+            keep_states=True,
+        )
+        metrics = rollout_metrics(
+            rollouts, "reach", context.velocity_limits, None, (kinematics.lower_limits, kinematics.upper_limits)
+        )
         margin = metrics["joint_limit_margin"]
-        print(f"{name:14s} {metrics['success'].mean():8.1%} {metrics['final_error'].median() * 1e3:18.3f} "
-              f"{margin.min():17.4f} {int((margin < 0).sum()):9d} {metrics['peak_limit_fraction'].median():18.3f} "
-              f"{time.perf_counter() - started:7.1f}")
+        print(
+            f"{name:14s} {metrics['success'].mean():8.1%} {metrics['final_error'].median() * 1e3:18.3f} "
+            f"{margin.min():17.4f} {int((margin < 0).sum()):9d} {metrics['peak_limit_fraction'].median():18.3f} "
+            f"{time.perf_counter() - started:7.1f}"
+        )
 
 
 if __name__ == "__main__":

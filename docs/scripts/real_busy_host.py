@@ -24,8 +24,21 @@ HOG = "while True: pass"
 
 
 def run(rt_priority: int, hogs: int, out: Path) -> str:
-    command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", "127.0.0.1", "--task", "reach",
-               "--controller", "snac", "--no-plots", "--out", str(out)]
+    command = [
+        sys.executable,
+        "-m",
+        "snac_gym.apps.cli",
+        "real",
+        "--host",
+        "127.0.0.1",
+        "--task",
+        "reach",
+        "--controller",
+        "snac",
+        "--no-plots",
+        "--out",
+        str(out),
+    ]
     if rt_priority:
         command += ["--rt-priority", str(rt_priority)]
     spinners = [subprocess.Popen([sys.executable, "-c", HOG]) for _ in range(hogs)]
@@ -43,9 +56,11 @@ def run(rt_priority: int, hogs: int, out: Path) -> str:
     values = [float(row.split(",")[1]) for row in rows]
     longest = max(range(periods), key=values.__getitem__) if periods else -1
     ended = "ran to its end" if done.returncode == 0 else f"exit {done.returncode}: {stop or done.stderr.strip()[:80]}"
-    return (f"| {rt_priority or 'off'} | {hogs} | {load:.2f} | {timing.get('period_ms_p50', float('nan')):.3f} | "
-            f"{timing.get('period_ms_p99', float('nan')):.3f} | {timing.get('period_ms_max', float('nan')):.3f} (step {longest}) | "
-            f"{timing.get('late_periods', '?')} | {periods} | {ended} |")
+    return (
+        f"| {rt_priority or 'off'} | {hogs} | {load:.2f} | {timing.get('period_ms_p50', float('nan')):.3f} | "
+        f"{timing.get('period_ms_p99', float('nan')):.3f} | {timing.get('period_ms_max', float('nan')):.3f} (step {longest}) | "
+        f"{timing.get('late_periods', '?')} | {periods} | {ended} |"
+    )
 
 
 def main() -> None:
@@ -54,7 +69,9 @@ def main() -> None:
     parser.add_argument("--hogs", type=int, default=os.cpu_count() or 2, help="busy processes beside the loop")
     parser.add_argument("--rt-priority", type=int, default=20)
     args = parser.parse_args()
-    print("| --rt-priority | busy processes | load average | p50 ms | p99 ms | max ms (at step) | late periods | periods | end |")
+    print(
+        "| --rt-priority | busy processes | load average | p50 ms | p99 ms | max ms (at step) | late periods | periods | end |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for k in range(args.runs):
         for priority in (0, args.rt_priority):

@@ -33,8 +33,10 @@ def main(task: str, folder: str) -> None:
         steps, done = steps + 1, terminated or truncated
     env.close()
     fps = env.unwrapped.metadata["render_fps"]
-    print(f"{task}: {steps} steps recorded in {time.perf_counter() - start:.1f} s; the video plays "
-          f"{steps / fps:.1f} s at {fps} fps")
+    print(
+        f"{task}: {steps} steps recorded in {time.perf_counter() - start:.1f} s; the video plays "
+        f"{steps / fps:.1f} s at {fps} fps"
+    )
 
 
 if __name__ == "__main__":

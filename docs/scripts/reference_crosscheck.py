@@ -18,13 +18,13 @@ import sys
 import time
 
 import numpy as np
-
-from snac_gym.cost import CostConvention
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.branches import branch_commands, branch_goals
 from snac_gym.evaluation.reference.ipopt import solve_with_ipopt
 from snac_gym.evaluation.reference.optimum import solve_samples
 from snac_gym.evaluation.samples import generate_samples
+
+from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
@@ -56,9 +56,15 @@ for i, sample in enumerate(samples):
     box = rng.uniform(kinematics.lower_limits + 0.05, kinematics.upper_limits - 0.05, size=(random_starts, len(q0)))
     targets = np.concatenate([goals, box])
     # a random configuration's start: straight to it (the branch law towards a point that reaches nothing)
-    starts = branch_commands(kinematics, np.repeat(q0[None], len(targets), axis=0), targets,
-                             np.repeat(x_d[i : i + 1, :1], len(targets), axis=0).repeat(steps, axis=1), dt, velocity)
-    starts[len(goals):, steps // 2 :] = 0.0  # then hold
+    starts = branch_commands(
+        kinematics,
+        np.repeat(q0[None], len(targets), axis=0),
+        targets,
+        np.repeat(x_d[i : i + 1, :1], len(targets), axis=0).repeat(steps, axis=1),
+        dt,
+        velocity,
+    )
+    starts[len(goals) :, steps // 2 :] = 0.0  # then hold
     started = time.perf_counter()
     with single_threaded_blas():
         solutions = [solve_with_ipopt(q0, x_d[i], kinematics, dt, velocity, position_limits=limits,
@@ -71,10 +77,15 @@ for i, sample in enumerate(samples):
     gaps.append(gap)
     if gap > worst[0]:
         worst = (gap, sample.index)
-    print(f"{task} {sample.index}: reference {ours.solution.cost:.8g} ({ours.winner}, {ours.starts} solves, "
-          f"{ours_s:.2f} s); IPOPT best {best.cost:.8g} of {len(solutions)} starts ({len(goals)} branches, "
-          f"{sum(s.success for s in solutions)} converged, {ipopt_s:.1f} s); gap {gap:+.2e}", flush=True)
+    print(
+        f"{task} {sample.index}: reference {ours.solution.cost:.8g} ({ours.winner}, {ours.starts} solves, "
+        f"{ours_s:.2f} s); IPOPT best {best.cost:.8g} of {len(solutions)} starts ({len(goals)} branches, "
+        f"{sum(s.success for s in solutions)} converged, {ipopt_s:.1f} s); gap {gap:+.2e}",
+        flush=True,
+    )
 gaps = np.array(gaps)
-print(f"{robot} {region} seed {seed} {cost} {task}: {len(gaps)} samples; (reference − best IPOPT)/best IPOPT: worst "
-      f"{gaps.max():+.2e} (sample {worst[1]}), above 0.1 % on {(gaps > 1e-3).sum()}, above 1e-6 on "
-      f"{(gaps > 1e-6).sum()}, below −1e-6 on {(gaps < -1e-6).sum()}")
+print(
+    f"{robot} {region} seed {seed} {cost} {task}: {len(gaps)} samples; (reference − best IPOPT)/best IPOPT: worst "
+    f"{gaps.max():+.2e} (sample {worst[1]}), above 0.1 % on {(gaps > 1e-3).sum()}, above 1e-6 on "
+    f"{(gaps > 1e-6).sum()}, below −1e-6 on {(gaps < -1e-6).sum()}"
+)

@@ -17,8 +17,14 @@ import snac_gym  # noqa: F401  (registers the ids)
 
 
 def frame_ms(physics: str, frames: int = 40) -> float:
-    env = gym.make("snac_gym/UR10EllipseTrack-v0", physics=physics, render_mode="rgb_array",
-                   render_width=480, render_height=360, render_every=1)
+    env = gym.make(
+        "snac_gym/UR10EllipseTrack-v0",
+        physics=physics,
+        render_mode="rgb_array",
+        render_width=480,
+        render_height=360,
+        render_every=1,
+    )
     env.reset(seed=0)
     env.render()  # the first frame builds the renderer's buffers
     times = []

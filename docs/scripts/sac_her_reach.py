@@ -40,21 +40,36 @@ def main() -> None:
     parser.add_argument("--episode-steps", type=int, default=250)
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--action", default="joint", choices=("joint", "cartesian"),
-                        help="the goal env's action: joint velocities, or the tool's velocity through J+")
+    parser.add_argument(
+        "--action",
+        default="joint",
+        choices=("joint", "cartesian"),
+        help="the goal env's action: joint velocities, or the tool's velocity through J+",
+    )
     parser.add_argument("--cartesian-speed", type=float, default=1.25, help="m/s at |a| = 1 (--action cartesian)")
     parser.add_argument("--dt", type=float, default=0.008, help="control period, s (a multiple of 8 ms)")
     parser.add_argument("--gamma", type=float, default=0.98)
     parser.add_argument("--reward", default="sparse", choices=("sparse", "dense"), help="the goal env's reward_type")
-    parser.add_argument("--goal-features", action="store_true",
-                        help="give the networks the goal error at three scales (snac_gym.goal_features)")
+    parser.add_argument(
+        "--goal-features",
+        action="store_true",
+        help="give the networks the goal error at three scales (snac_gym.goal_features)",
+    )
     parser.add_argument("--save", default=None, help="save the trained model to this path (.zip)")
     parser.add_argument("--load", default=None, help="evaluate this saved model (.zip) instead of training one")
-    parser.add_argument("--physics", default="kinematic", choices=("kinematic", "pybullet", "mujoco"),
-                        help="the env's engine (training and evaluation)")
+    parser.add_argument(
+        "--physics",
+        default="kinematic",
+        choices=("kinematic", "pybullet", "mujoco"),
+        help="the env's engine (training and evaluation)",
+    )
     parser.add_argument("--eval-seed", type=int, default=10_000, help="reset seed of the first evaluation episode")
-    parser.add_argument("--checkpoint-every", type=int, default=0,
-                        help="also save the model every this many steps, beside --save (name_<steps>_steps.zip)")
+    parser.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=0,
+        help="also save the model every this many steps, beside --save (name_<steps>_steps.zip)",
+    )
     args = parser.parse_args()
     if args.checkpoint_every and not args.save:
         parser.error("--checkpoint-every writes beside --save: give --save too")
@@ -63,8 +78,14 @@ def main() -> None:
     from stable_baselines3 import SAC, HerReplayBuffer
 
     torch.set_num_threads(1)
-    kwargs = dict(physics=args.physics, action_type="normalized", success_tolerance=args.tolerance, reward_type=args.reward,
-                  max_episode_steps=args.episode_steps, dt=args.dt)
+    kwargs = dict(
+        physics=args.physics,
+        action_type="normalized",
+        success_tolerance=args.tolerance,
+        reward_type=args.reward,
+        max_episode_steps=args.episode_steps,
+        dt=args.dt,
+    )
     if args.action == "cartesian":
         kwargs.update(action="cartesian", cartesian_speed=args.cartesian_speed)
     env = gym.make("snac_gym/UR10ReachGoal-v0", **kwargs)
@@ -76,9 +97,18 @@ def main() -> None:
         from snac_gym.goal_features import GoalErrorExtractor
 
         policy_kwargs["features_extractor_class"] = GoalErrorExtractor
-    model = SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer, policy_kwargs=policy_kwargs,
-                replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
-                learning_starts=1000, gamma=args.gamma, seed=args.seed, device="cpu", verbose=0)
+    model = SAC(
+        "MultiInputPolicy",
+        env,
+        replay_buffer_class=HerReplayBuffer,
+        policy_kwargs=policy_kwargs,
+        replay_buffer_kwargs={"n_sampled_goal": 4, "goal_selection_strategy": "future"},
+        learning_starts=1000,
+        gamma=args.gamma,
+        seed=args.seed,
+        device="cpu",
+        verbose=0,
+    )
     start = time.perf_counter()
     callback = None
     if args.checkpoint_every:
@@ -109,9 +139,11 @@ def evaluate(model, env, args, train_s) -> None:
     print(f"command: {' '.join(sys.argv)}")
     if train_s is not None:
         print(f"SAC+HER, {args.timesteps} steps in {train_s:.0f} s ({args.timesteps / train_s:.0f} steps/s)")
-    print(f"success (final distance <= {args.tolerance * 1e3:g} mm) on {args.eval_episodes} unseen episodes "
-          f"(reset seeds {args.eval_seed}+): {100 * np.mean(finals_a <= args.tolerance):.1f} %; median final distance "
-          f"{1e3 * np.median(finals_a):.2f} mm, p90 {1e3 * np.quantile(finals_a, 0.9):.2f} mm")
+    print(
+        f"success (final distance <= {args.tolerance * 1e3:g} mm) on {args.eval_episodes} unseen episodes "
+        f"(reset seeds {args.eval_seed}+): {100 * np.mean(finals_a <= args.tolerance):.1f} %; median final distance "
+        f"{1e3 * np.median(finals_a):.2f} mm, p90 {1e3 * np.quantile(finals_a, 0.9):.2f} mm"
+    )
 
 
 if __name__ == "__main__":

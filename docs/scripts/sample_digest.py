@@ -14,8 +14,8 @@ import sys
 import time
 
 import numpy as np
-
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
 
@@ -28,7 +28,9 @@ def main(seed: int, count: int, region: str = "cuboid", robot: str = "ur10") -> 
         for sample in generate_samples(kinematics, space, seed, task, range(count)):
             digest.update(np.asarray(sample.q0, dtype=float).tobytes())
             digest.update(repr(vars(sample.reference)).encode())
-    print(f"seed {seed}, {count} per task, {region}, {robot}: {digest.hexdigest()[:16]} ({time.perf_counter() - started:.1f} s)")
+    print(
+        f"seed {seed}, {count} per task, {region}, {robot}: {digest.hexdigest()[:16]} ({time.perf_counter() - started:.1f} s)"
+    )
 
 
 if __name__ == "__main__":

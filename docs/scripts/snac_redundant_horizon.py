@@ -12,9 +12,9 @@ directions converge more slowly.
 from __future__ import annotations
 
 import numpy as np
-
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import EvaluationSample
+
 from snac_gym.metrics import rollout_metrics
 from snac_gym.policies import make_policy
 from snac_gym.rollout import simulate_kinematic
@@ -35,11 +35,17 @@ def study(robot: str) -> str:
     parts = []
     for seconds in (12, 30, 60):
         rollouts = simulate_kinematic(
-            context, lambda: make_policy("snac", context), samples, round(seconds * 125), list(range(SAMPLES)),
+            context,
+            lambda: make_policy("snac", context),
+            samples,
+            round(seconds * 125),
+            list(range(SAMPLES)),
             keep_states=False,
         )
         metrics = rollout_metrics(rollouts, "reach", context.velocity_limits)
-        parts.append(f"{seconds} s: {100 * metrics.success.mean():.1f} % (median final {1e3 * metrics.final_error.median():.2f} mm)")
+        parts.append(
+            f"{seconds} s: {100 * metrics.success.mean():.1f} % (median final {1e3 * metrics.final_error.median():.2f} mm)"
+        )
     return f"{robot}: median σ_min(J(θ0)) {sigma_min:.3f} m/rad; SNAC success " + "; ".join(parts)
 
 

@@ -72,8 +72,18 @@ def folder(name: str) -> str:
 def command(out: Path, controller: str, params: Sequence[str], samples: int, workers: int) -> list[str]:
     """The ``snac-gym evaluate`` command line of one configuration."""
     args = [
-        "snac-gym", "evaluate", "--out", str(out), "--controllers", controller, "--samples", str(samples),
-        "--workers", str(workers), "--no-match-effort", "--no-progress",
+        "snac-gym",
+        "evaluate",
+        "--out",
+        str(out),
+        "--controllers",
+        controller,
+        "--samples",
+        str(samples),
+        "--workers",
+        str(workers),
+        "--no-match-effort",
+        "--no-progress",
     ]
     for param in params:
         args += ["--param", f"{controller}.{param}"]
@@ -90,7 +100,9 @@ def run(out: Path, controller: str, params: Sequence[str], samples: int, workers
         print("$", shlex.join(args), file=sys.stderr, flush=True)
         # `python -m snac_gym.apps.cli` from the repository root: the code of this checkout runs,
         # whatever copy of the package the interpreter has installed.
-        subprocess.run([sys.executable, "-m", "snac_gym.apps.cli", *args[1:]], check=True, cwd=REPO, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [sys.executable, "-m", "snac_gym.apps.cli", *args[1:]], check=True, cwd=REPO, stdout=subprocess.DEVNULL
+        )
     return pd.read_csv(results)
 
 

@@ -28,14 +28,14 @@ import time
 from pathlib import Path
 
 import pandas as pd
-from threadpoolctl import threadpool_limits
-
 from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
 from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
 from snac_gym.evaluation.samples import read_samples_csv
+from threadpoolctl import threadpool_limits
+
+from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
-from snac_gym.cost import CostConvention
 
 CHUNK = 250  # samples per timed job (the evaluator's chunks are 500)
 PROBE = 20
@@ -118,13 +118,19 @@ def main() -> None:
         search_seconds += steps / per_second[(task, controller)]
     timings = json.loads((args.run / "timings.json").read_text())
     cold_floor = (pass_seconds + search_seconds + reference) / args.workers
-    print(f"passes {pass_seconds / args.workers:.1f} s, searches {search_seconds / args.workers:.1f} s, "
-          f"reference {reference / args.workers:.1f} s on {args.workers} workers")
-    print(f"cold: floor {cold_floor:.1f} s, measured {timings['total']:.1f} s (ratio {timings['total'] / cold_floor:.2f})")
+    print(
+        f"passes {pass_seconds / args.workers:.1f} s, searches {search_seconds / args.workers:.1f} s, "
+        f"reference {reference / args.workers:.1f} s on {args.workers} workers"
+    )
+    print(
+        f"cold: floor {cold_floor:.1f} s, measured {timings['total']:.1f} s (ratio {timings['total'] / cold_floor:.2f})"
+    )
     if args.warm is not None:
         warm = json.loads((args.warm / "timings.json").read_text())
         warm_floor = pass_seconds / args.workers  # the knobs and the reference rows are read, not made
-        print(f"warm: floor {warm_floor:.1f} s, measured {warm['total']:.1f} s (ratio {warm['total'] / warm_floor:.2f})")
+        print(
+            f"warm: floor {warm_floor:.1f} s, measured {warm['total']:.1f} s (ratio {warm['total'] / warm_floor:.2f})"
+        )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """``snac-adaptive``'s cost over ``lqr``'s on every sample of an evaluation (both at the same weights).
 
-    python docs/scripts/versus_lqr.py runs/me_none_s41
+python docs/scripts/versus_lqr.py runs/me_none_s41
 """
 
 from __future__ import annotations

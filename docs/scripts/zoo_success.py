@@ -56,9 +56,11 @@ def main() -> None:
             successes.append(bool(info["is_success"]))
             distances.append(float(info["error_norm"]))  # the last step's distance (not normalised)
         venv.close()
-        print(f"{env_id} physics={physics} model={args.model}: success {np.mean(successes):.1%} of {args.episodes} "
-              f"unseen goals, median final distance {np.median(distances) * 100:.2f} cm, "
-              f"{time.perf_counter() - start:.1f} s")
+        print(
+            f"{env_id} physics={physics} model={args.model}: success {np.mean(successes):.1%} of {args.episodes} "
+            f"unseen goals, median final distance {np.median(distances) * 100:.2f} cm, "
+            f"{time.perf_counter() - start:.1f} s"
+        )
 
 
 if __name__ == "__main__":

@@ -32,12 +32,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-import snac_gym
 import snac_gym.baselines
 from snac_gym.evaluation.cache_entry import CacheWarnings, DamagedEntry, read_entry, write_entry
 from snac_gym.evaluation.effort.matching import EffortRecord
 from snac_gym.evaluation.reference.cache import add_versions, cache_root
 from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
+
+import snac_gym
 
 #: Environment variable that turns the cache off (``0``, ``off``, ``false`` or ``no``) whatever the options say.
 SWITCH_ENV = "SNAC_GYM_CALIBRATION_CACHE"
@@ -61,8 +62,11 @@ def package_folders() -> tuple[tuple[str, Path], ...]:
     """The folders the installed package reads its code and shipped files from: ``snac_gym`` and the folders
     its ``baselines`` and ``evaluation`` install from."""
     evaluation = Path(__file__).resolve().parents[1]  # this package's own folder (its __init__ imports the runner)
-    return (("snac_gym", Path(snac_gym.__file__).parent), ("snac_gym.baselines", Path(snac_gym.baselines.__file__).parent),
-            ("snac_gym.evaluation", evaluation))
+    return (
+        ("snac_gym", Path(snac_gym.__file__).parent),
+        ("snac_gym.baselines", Path(snac_gym.baselines.__file__).parent),
+        ("snac_gym.evaluation", evaluation),
+    )
 
 
 #: Sub-folders no knob depends on: the command line (its options are in the key), the real arm, the reports.
@@ -75,7 +79,8 @@ def folders_fingerprint(folders: Sequence[tuple[str, Path]]) -> str:
     digest = hashlib.sha256()
     for name, root in folders:
         files = sorted(
-            f for f in {f for pattern in DATA_PATTERNS for f in root.rglob(pattern)}
+            f
+            for f in {f for pattern in DATA_PATTERNS for f in root.rglob(pattern)}
             if "__pycache__" not in f.parts and (name, f.relative_to(root).parts[0]) not in UNUSED_BY_MATCHING
         )
         for path in files:
@@ -94,12 +99,21 @@ def code_fingerprint() -> str:
 
 
 def _controller(spec: ControllerSpec) -> dict[str, Any]:
-    return {"name": spec.name, "kwargs": spec.kwargs, "knob": spec.knob, "knob_value": spec.knob_value,
-            "files": dict(spec.inputs)}
+    return {
+        "name": spec.name,
+        "kwargs": spec.kwargs,
+        "knob": spec.knob,
+        "knob_value": spec.knob_value,
+        "files": dict(spec.inputs),
+    }
 
 
 def calibration_identity(
-    config: EvaluationConfig, manifest: dict[str, Any], task: str, spec: ControllerSpec, reference: ControllerSpec | None
+    config: EvaluationConfig,
+    manifest: dict[str, Any],
+    task: str,
+    spec: ControllerSpec,
+    reference: ControllerSpec | None,
 ) -> dict[str, Any]:
     """Everything the matched knob of ``spec`` on ``task`` depends on (the module docstring), as plain values.
 
@@ -111,8 +125,21 @@ def calibration_identity(
         if config.samples_file is not None
         else {"seed": config.seed, "space": manifest["space"], "size": max(config.samples, config.effort_samples)}
     )
-    shared = ("robot", "dt", "engine", "effort_statistic", "effort_target", "effort_tolerance", "calibration_samples",
-              "cost", "udot_start", "q_scale", "use_batch", "chunk_size", "reference_limits")
+    shared = (
+        "robot",
+        "dt",
+        "engine",
+        "effort_statistic",
+        "effort_target",
+        "effort_tolerance",
+        "calibration_samples",
+        "cost",
+        "udot_start",
+        "q_scale",
+        "use_batch",
+        "chunk_size",
+        "reference_limits",
+    )
     return {
         **{name: manifest[name] for name in shared},
         "model_error": manifest.get("model_error"),
@@ -204,7 +231,9 @@ def read_records(
 
 
 def write_records(
-    folder: Path, identities: dict[tuple[str, str], dict[str, Any]], records: dict[tuple[str, str], EffortRecord],
+    folder: Path,
+    identities: dict[tuple[str, str], dict[str, Any]],
+    records: dict[tuple[str, str], EffortRecord],
     run: str,
 ) -> None:
     """Store each record of ``records`` under its identity, stamped with ``run`` (the output folder) and the time,

@@ -41,7 +41,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
 from snac_gym.evaluation.controllers import ControllerSpec
 from snac_gym.evaluation.effort.search import EffortMatch, match_effort, within
 from snac_gym.evaluation.execution.passes import EvaluationRun

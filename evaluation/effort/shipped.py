@@ -21,8 +21,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-import snac_gym
 from snac_gym.evaluation.effort.matching import EffortRecord
+
+import snac_gym
 
 #: How a summary names the knobs' origin.
 SHIPPED_ORIGIN = "the knobs shipped with snac-gym (tools/ship_calibration.py, checked by the test suite)"

@@ -16,9 +16,9 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import generate_samples
+
 from snac_gym.policies.base import supports_batch
 from snac_gym.policies.registry import available_policies, make_policy
 from snac_gym.rollout import simulate_kinematic

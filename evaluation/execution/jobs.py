@@ -14,18 +14,19 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
-from snac_gym.physics.base import SIMULATED
 from snac_gym.evaluation.samples import EvaluationSample
+
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics, shared_kinematics, shared_pose_kinematics
 from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
+from snac_gym.physics.base import SIMULATED
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_kinematic
 from snac_gym.tasks import task_names
 from snac_gym.tasks.pose import is_pose_task, register_pose_tasks
+
 
 @dataclass(frozen=True)
 class RolloutJob:
@@ -111,8 +112,9 @@ def policy_context(robot: str, dt: float, task: str, model_error: str | None = N
     )
 
 
-def kinematic_logs(rollouts: Any, samples: Sequence[Any], seeds: Sequence[int], attrs: dict[str, Any],
-                   limits: np.ndarray) -> list[Any]:
+def kinematic_logs(
+    rollouts: Any, samples: Sequence[Any], seeds: Sequence[int], attrs: dict[str, Any], limits: np.ndarray
+) -> list[Any]:
     """The per-step logs of kinematic-engine rollouts, with the demo's columns and metadata."""
     return [
         rollouts.log(

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import snac_gym.evaluation.execution.jobs  # noqa: F401  (what the workers run)
 import snac_gym.evaluation.reference.optimum  # noqa: F401
+
 from snac_gym.kernels.compiled import load_if_cached
 
 try:

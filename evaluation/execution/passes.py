@@ -26,11 +26,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
-
 from snac_gym.evaluation.execution.executors import ExecutorStopped
 from snac_gym.evaluation.execution.jobs import JobResult, RolloutJob, run_job
-from snac_gym.evaluation.reference.optimum import OPTIMAL, OptimalJob, run_optimal_job
 from snac_gym.evaluation.reference.cache import cache_folder
+from snac_gym.evaluation.reference.optimum import OPTIMAL, OptimalJob, run_optimal_job
 from snac_gym.evaluation.samples import EvaluationSample, policy_seed
 from snac_gym.evaluation.store import RunStore, settings_key
 
@@ -185,7 +184,9 @@ class EvaluationRun:
         """The optimal reference's jobs of ``task``: at most :data:`OPTIMAL_CHUNK_SIZE` samples each."""
         config, samples = self.config, self.samples[task]
         # At least one job per worker on a small set (a few solves each), at most OPTIMAL_CHUNK_SIZE.
-        size = min(config.chunk_size, OPTIMAL_CHUNK_SIZE, max(OPTIMAL_MIN_CHUNK, math.ceil(len(samples) / config.workers)))
+        size = min(
+            config.chunk_size, OPTIMAL_CHUNK_SIZE, max(OPTIMAL_MIN_CHUNK, math.ceil(len(samples) / config.workers))
+        )
         return [
             OptimalJob(
                 task=task,

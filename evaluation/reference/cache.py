@@ -28,7 +28,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
 from snac_gym.evaluation.cache_entry import CacheWarnings, DamagedEntry, read_entry, write_entry
 from snac_gym.evaluation.code_graph import module_closure, sources_fingerprint
 
@@ -45,6 +44,8 @@ def add_roots(modules: Sequence[str]) -> None:
         if module not in ROOTS:
             ROOTS.append(module)
     code_fingerprint.cache_clear()
+
+
 #: Distributions whose version is part of the key (their numerics shape the rows).
 DISTRIBUTIONS = ("numpy", "scipy", "pin", "example-robot-data", "numba")
 
@@ -156,4 +157,15 @@ def _plain(value: Any) -> Any:
     return value.item() if isinstance(value, np.generic) else value
 
 
-__all__ = ["CACHE_ENV", "ROOTS", "WARNINGS", "add_roots", "cache_folder", "code_fingerprint", "code_modules", "read_rows", "sample_key", "write_rows"]
+__all__ = [
+    "CACHE_ENV",
+    "ROOTS",
+    "WARNINGS",
+    "add_roots",
+    "cache_folder",
+    "code_fingerprint",
+    "code_modules",
+    "read_rows",
+    "sample_key",
+    "write_rows",
+]

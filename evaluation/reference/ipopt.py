@@ -35,9 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.trajopt import next_angles, trajectory_cost_and_gradient
 from snac_gym.cost import CostConvention
 from snac_gym.kinematics import Kinematics, leaf_chain
+from snac_gym.trajopt import next_angles, trajectory_cost_and_gradient
 
 #: What a missing CasADi says.
 MISSING_CASADI = 'the IPOPT cross-check needs CasADi: pip install "snac-gym[check]"'

@@ -44,11 +44,11 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
 from snac_gym.evaluation.execution.jobs import JobResult, kinematic_logs, policy_context
 from snac_gym.evaluation.reference import cache as reference_cache
 from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, branch_candidates, needs_branches
 from snac_gym.evaluation.samples import EvaluationSample
+
 from snac_gym.cost import CostConvention
 from snac_gym.metrics import check_metric_row, rollout_metrics
 from snac_gym.optimality import certified_cost_lower_bounds
@@ -223,7 +223,16 @@ def multi_start_solve(
 
     for name, commands in {**candidates, **(branches or {})}.items():
         screened, screened_cost, *_ = gauss_newton(
-            q0, x_d, kinematics, float(dt), commands, GTOL, FTOL, SCREEN_ITERATIONS, convention, until=in_known_basin,
+            q0,
+            x_d,
+            kinematics,
+            float(dt),
+            commands,
+            GTOL,
+            FTOL,
+            SCREEN_ITERATIONS,
+            convention,
+            until=in_known_basin,
             gradient=False,
         )
         if in_known_basin(screened):
@@ -262,7 +271,9 @@ def own_start_commands(
     return starts
 
 
-def _lower_bounds(job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.ndarray, costs: np.ndarray) -> np.ndarray:
+def _lower_bounds(
+    job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.ndarray, costs: np.ndarray
+) -> np.ndarray:
     """:func:`snac_gym.optimality.certified_cost_lower_bounds` per sample of a position task (reach or track,
     under the run's cost), else NaN: certified for every command sequence within the velocity limits. The
     optimum's cost is its V̄ (the reachable set's size, which tightens the Lipschitz constant): the bound
@@ -316,7 +327,11 @@ def check_reference_row(row: Any, task: str) -> None:
     """
     check_metric_row(row, task)
     cost, solver = row["cost"], row["optimal_solver_cost"]
-    if not (isinstance(solver, (float, np.floating)) and math.isfinite(solver) and abs(solver - cost) <= SOLVER_AGREEMENT * max(cost, 1e-300)):
+    if not (
+        isinstance(solver, (float, np.floating))
+        and math.isfinite(solver)
+        and abs(solver - cost) <= SOLVER_AGREEMENT * max(cost, 1e-300)
+    ):
         raise ValueError(f"cost {cost!r} is not the solver's value {solver!r}")
     bound = row["optimal_lower_bound"]
     if isinstance(bound, (float, np.floating)) and math.isfinite(bound) and bound > cost * (1.0 + SOLVER_AGREEMENT):
@@ -327,7 +342,7 @@ def check_reference_row(row: Any, task: str) -> None:
             raise ValueError(f"{name} = {value!r} is not a whole number ≥ 0")
     winner = row["optimal_winner"]
     if winner not in {REST_START, *(name for name, _ in OWN_STARTS)} and not (
-        isinstance(winner, str) and winner.startswith(BRANCH_PREFIX) and winner[len(BRANCH_PREFIX):].isdigit()
+        isinstance(winner, str) and winner.startswith(BRANCH_PREFIX) and winner[len(BRANCH_PREFIX) :].isdigit()
     ):
         raise ValueError(f"optimal_winner = {row['optimal_winner']!r} is not a start of the reference")
     if row["optimal_limits"] not in REFERENCE_LIMITS:
@@ -383,7 +398,9 @@ def _solve_job(job: OptimalJob) -> Any:
     rollouts = simulate_kinematic(
         context, lambda: ReplayPolicy(commands), job.samples, job.steps, job.seeds, True, OPTIMAL
     )
-    metrics = rollout_metrics(rollouts, job.task, limits, job.convention, (kinematics.lower_limits, kinematics.upper_limits))
+    metrics = rollout_metrics(
+        rollouts, job.task, limits, job.convention, (kinematics.lower_limits, kinematics.upper_limits)
+    )
     metrics.insert(0, "sample", [s.index for s in job.samples])
     metrics["optimal_iterations"] = np.array([s.iterations for s in solutions], dtype=np.int64)
     metrics["optimal_evaluations"] = np.array([s.evaluations for s in solutions], dtype=np.int64)

@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
 from snac_gym.evaluation.reference.optimum import OPTIMAL, OPTIMAL_LABEL, OPTIMAL_VELOCITY_ONLY_LABEL
 from snac_gym.evaluation.reports.paired import compare
+
 from snac_gym.cost import CostConvention
 
 #: Table I of the paper, rows in the paper's order: controller name in snac-gym → {task: V/N}.
@@ -58,6 +58,7 @@ PAPER_LABELS: dict[str, str] = {
     "ppo": "PPO",
     OPTIMAL: OPTIMAL_LABEL,
 }
+
 
 def paper_value(controller: str, task: str) -> float | None:
     """Table I's V/N for ``controller`` on ``task``, or ``None`` if the paper has no such entry."""
@@ -238,7 +239,9 @@ def _optimality_columns(part: pd.DataFrame, controller: str) -> dict[str, Any]:
         columns["ratio_to_optimal_mean"] = float(part["ratio_to_optimal"].mean())
         columns["ratio_to_optimal_median"] = float(part["ratio_to_optimal"].median())
         below = part["below_optimal"].astype(bool)
-        crossing = part["joint_limit_margin"] < 0.0 if "joint_limit_margin" in part else pd.Series(False, index=part.index)
+        crossing = (
+            part["joint_limit_margin"] < 0.0 if "joint_limit_margin" in part else pd.Series(False, index=part.index)
+        )
         # Below the optimum inside the limits would be a failure of the reference; across a limit it is not.
         columns["below_optimal"] = int((below & ~crossing).sum())
         columns["below_optimal_crossing"] = int((below & crossing).sum())

@@ -15,13 +15,12 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
 from snac_gym.evaluation.reference.optimum import OPTIMAL, OWN_STARTS
-from snac_gym.outputs import write_text_whole, write_whole
-
-from snac_gym.trajopt import FTOL, GAP_RTOL
 from snac_gym.evaluation.reports.summary import CONVENTION_COLUMNS, controller_label, summarise
+
+from snac_gym.outputs import write_text_whole, write_whole
 from snac_gym.tasks import get_task
+from snac_gym.trajopt import FTOL, GAP_RTOL
 
 
 def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
@@ -243,8 +242,16 @@ def _introduction_lines(summary: pd.DataFrame, config: Any, tasks: Sequence[str]
 
 
 #: The overview's columns (at most 8: a table a person reads).
-OVERVIEW_COLUMNS = ("Controller", "V/N [95 % CI]", "success", "accuracy (mm)", "rank (ratio to best)",
-                    "cost / optimum (median)", "vs the best: median ratio [95 % CI]", "cheaper than the best on")
+OVERVIEW_COLUMNS = (
+    "Controller",
+    "V/N [95 % CI]",
+    "success",
+    "accuracy (mm)",
+    "rank (ratio to best)",
+    "cost / optimum (median)",
+    "vs the best: median ratio [95 % CI]",
+    "cheaper than the best on",
+)
 
 
 def overview_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
@@ -582,7 +589,8 @@ def write_reports(
     summary = summarise(results, efforts, tasks, controllers, threshold, config.convention)
     write_whole(root / "summary.csv", lambda path: summary.to_csv(path, index=False, float_format="%.10g"))
     write_text_whole(
-        root / "summary.md", summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results)
+        root / "summary.md",
+        summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results),
     )
     if getattr(config, "plots", True):
         plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", threshold)

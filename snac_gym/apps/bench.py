@@ -119,17 +119,23 @@ def run_env_bench(
 def format_env_bench(results: dict[str, dict[str, float]]) -> str:
     lines = [f"{'env':42s} {'steps/s':>10s} {'control dt':>11s} {'real-time factor':>17s}"]
     for name, row in results.items():
-        lines.append(f"{name:42s} {row['steps_per_s']:10.0f} {row['control_dt']*1e3:9.1f}ms {row['real_time_factor']:17.1f}")
+        lines.append(
+            f"{name:42s} {row['steps_per_s']:10.0f} {row['control_dt'] * 1e3:9.1f}ms {row['real_time_factor']:17.1f}"
+        )
     panda = next((r for n, r in results.items() if "panda" in n), None)
     if panda:
         for name, row in results.items():
             if row is not panda:
-                lines.append(f"{name}: {row['real_time_factor'] / panda['real_time_factor']:.2f}x panda-gym's real-time factor")
+                lines.append(
+                    f"{name}: {row['real_time_factor'] / panda['real_time_factor']:.2f}x panda-gym's real-time factor"
+                )
     return "\n".join(lines)
 
 
 @_one_core()
-def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 1000, seed: int = 0) -> list[dict[str, float]]:
+def run_substep_study(
+    substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 1000, seed: int = 0
+) -> list[dict[str, float]]:
     """How far PyBullet's joint motion departs from the ideal ``θₖ₊₁ = θₖ + uₖ Δt`` per substep count.
 
     Drives the reach env from seeded random poses with a smooth random velocity profile
@@ -158,8 +164,15 @@ def run_substep_study(substeps: tuple[int, ...] = (1, 2, 3, 4, 8), steps: int = 
             max_pos = max(max_pos, float(np.abs(obs[: len(u)] - q_ideal).max()))
             max_vel = max(max_vel, float(np.abs(obs[len(u) : 2 * len(u)] - u).max()))
         elapsed = time.perf_counter() - start
-        rows.append({"n_substeps": n_sub, "physics_dt_ms": env.dt / n_sub * 1e3, "max_joint_position_error_rad": max_pos,
-                     "max_joint_velocity_error_rad_s": max_vel, "steps_per_s": steps / elapsed})
+        rows.append(
+            {
+                "n_substeps": n_sub,
+                "physics_dt_ms": env.dt / n_sub * 1e3,
+                "max_joint_position_error_rad": max_pos,
+                "max_joint_velocity_error_rad_s": max_vel,
+                "steps_per_s": steps / elapsed,
+            }
+        )
         env.close()
     return rows
 
@@ -171,7 +184,9 @@ TRACKING_COMMANDS = ("smooth", "steps")
 SMOOTH_EXCURSION = 0.15
 
 
-def random_command(kind: str, rng: np.random.Generator, velocity_limits: np.ndarray, steps: int, dt: float) -> np.ndarray:
+def random_command(
+    kind: str, rng: np.random.Generator, velocity_limits: np.ndarray, steps: int, dt: float
+) -> np.ndarray:
     """``(steps, m)`` random joint-velocity commands, rad/s, of :data:`TRACKING_COMMANDS`.
 
     ``"smooth"``: the derivative of a random joint motion of three sinusoids per joint (0.2-1 Hz,
@@ -241,18 +256,29 @@ def run_tracking_study(
         for kind in commands:
             for engine in physics:
                 runs = [tracking_errors(env_id, engine, kind, seed, steps) for seed in range(episodes)]
-                rows.append({"env_id": env_id, "physics": engine, "command": kind, "episodes": episodes,
-                             **{key: max(run[key] for run in runs) for key in runs[0]}})
+                rows.append(
+                    {
+                        "env_id": env_id,
+                        "physics": engine,
+                        "command": kind,
+                        "episodes": episodes,
+                        **{key: max(run[key] for run in runs) for key in runs[0]},
+                    }
+                )
     return rows
 
 
 def format_tracking_study(rows: list[dict[str, Any]]) -> str:
     """Table of :func:`run_tracking_study` rows."""
-    lines = [f"{'env':26s} {'command':8s} {'physics':9s} {'max |θ̇ − u| rad/s':>19s} {'max |θ − θ_kin| rad':>20s}"
-             f" {'ee drift mm':>12s}"]
+    lines = [
+        f"{'env':26s} {'command':8s} {'physics':9s} {'max |θ̇ − u| rad/s':>19s} {'max |θ − θ_kin| rad':>20s}"
+        f" {'ee drift mm':>12s}"
+    ]
     for row in rows:
-        lines.append(f"{row['env_id']:26s} {row['command']:8s} {row['physics']:9s} {row['max_velocity_error']:19.2e}"
-                     f" {row['max_joint_drift']:20.2e} {row['ee_drift'] * 1e3:12.3f}")
+        lines.append(
+            f"{row['env_id']:26s} {row['command']:8s} {row['physics']:9s} {row['max_velocity_error']:19.2e}"
+            f" {row['max_joint_drift']:20.2e} {row['ee_drift'] * 1e3:12.3f}"
+        )
     return "\n".join(lines)
 
 
@@ -418,8 +444,16 @@ def run_vector_bench(
                 env.reset(seed=0)
                 rate = _time_vector_steps(env, seconds)
                 with_resets = size * horizon / (size * horizon / rate + size * reset_s)
-                rows.append({"env_id": env_id, "num_envs": size, "steps_per_s": rate, "with_resets_per_s": with_resets,
-                             "reset_ms": reset_s * 1e3, "episode_steps": horizon})
+                rows.append(
+                    {
+                        "env_id": env_id,
+                        "num_envs": size,
+                        "steps_per_s": rate,
+                        "with_resets_per_s": with_resets,
+                        "reset_ms": reset_s * 1e3,
+                        "episode_steps": horizon,
+                    }
+                )
             held, peak = _memory_per_env(env_id, max(sizes))
             rows[-1].update(bytes_per_env=held, step_peak_bytes_per_env=peak)
     return rows
@@ -432,7 +466,9 @@ def format_vector_bench(rows: list[dict[str, float | str]]) -> str:
         memory = ""
         if "bytes_per_env" in row:
             memory = f"{row['bytes_per_env']:.0f} B held, {row['step_peak_bytes_per_env']:.0f} B step peak"
-        lines.append(f"{row['env_id']:32s} {row['num_envs']:5d} {row['steps_per_s']:13,.0f} {row['with_resets_per_s']:13,.0f}  {memory}")
+        lines.append(
+            f"{row['env_id']:32s} {row['num_envs']:5d} {row['steps_per_s']:13,.0f} {row['with_resets_per_s']:13,.0f}  {memory}"
+        )
     resets = {row["env_id"]: (row["reset_ms"], row["episode_steps"]) for row in rows}
     for env_id, (reset_ms, steps) in resets.items():
         lines.append(f"{env_id}: one episode reset {reset_ms:.2f} ms (per {steps}-step episode)")

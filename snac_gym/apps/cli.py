@@ -48,7 +48,9 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def root(
-    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit."),
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
 ) -> None:
     """SNAC kinematic control of UR arms: demos, the paper's evaluation, benchmarks."""
 
@@ -73,7 +75,7 @@ def _option_message(message: str, fields: dict[str, str]) -> str:
     for field, option in fields.items():
         for prefix in (f"{field} ({option}) ", f"{field} "):
             if message.startswith(prefix):
-                return f"{option} {message[len(prefix):]}"
+                return f"{option} {message[len(prefix) :]}"
     return message
 
 
@@ -92,19 +94,36 @@ def _check_ur_arm(robot: str) -> None:
 def _check_controller(controller: str) -> None:
     """Refuse a ``--controller`` that names no registered policy (before any env is built for it)."""
     if controller not in available_policies():
-        raise typer.BadParameter(f"unknown policy {controller!r}; available: {', '.join(available_policies())}",
-                                 param_hint="--controller")
+        raise typer.BadParameter(
+            f"unknown policy {controller!r}; available: {', '.join(available_policies())}", param_hint="--controller"
+        )
 
 
 @app.command()
 def bench(
-    steps: int = typer.Option(5000, "--steps", help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two ids in both engines at the bound)."),
-    panda: bool = typer.Option(True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."),
+    steps: int = typer.Option(
+        5000,
+        "--steps",
+        help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two ids in both engines at the bound).",
+    ),
+    panda: bool = typer.Option(
+        True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."
+    ),
     substeps: bool = typer.Option(False, "--substeps", help="Also run the physics-substep accuracy study."),
-    tracking: bool = typer.Option(False, "--tracking", help="Also measure how closely PyBullet and MuJoCo follow the exact kinematic model under random commands (UR10 and Panda, 5 episodes each)."),
+    tracking: bool = typer.Option(
+        False,
+        "--tracking",
+        help="Also measure how closely PyBullet and MuJoCo follow the exact kinematic model under random commands (UR10 and Panda, 5 episodes each).",
+    ),
     act: bool = typer.Option(False, "--act", help="Also time one act() call of every available policy that imports."),
-    act_calls: int = typer.Option(5000, "--act-calls", help="Timed act() calls per policy and task, 100 to 1,000,000 (timings kept in memory, 8 B each; ~100 s per policy and task at the bound)."),
-    vector: bool = typer.Option(False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."),
+    act_calls: int = typer.Option(
+        5000,
+        "--act-calls",
+        help="Timed act() calls per policy and task, 100 to 1,000,000 (timings kept in memory, 8 B each; ~100 s per policy and task at the bound).",
+    ),
+    vector: bool = typer.Option(
+        False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."
+    ),
 ) -> None:
     """Env steps per second and real-time factor of both ids, in PyBullet and MuJoCo, on one core (and, with --act, act latency)."""
     # start-up time: only bench needs bench.py (threadpoolctl)
@@ -130,7 +149,9 @@ def _bench(steps: int, panda: bool, substeps: bool, tracking: bool, act: bool, a
         # start-up time: only bench needs bench.py
         from snac_gym.apps.bench import format_vector_bench, run_vector_bench
 
-        typer.echo("\nbatched kinematic vector env (gym.make_vec(..., vectorization_mode='vector_entry_point')), one core")
+        typer.echo(
+            "\nbatched kinematic vector env (gym.make_vec(..., vectorization_mode='vector_entry_point')), one core"
+        )
         typer.echo(format_vector_bench(run_vector_bench()))
     if tracking:
         # start-up time: only bench needs bench.py
@@ -156,16 +177,26 @@ def _bench(steps: int, panda: bool, substeps: bool, tracking: bool, act: bool, a
 
 @app.command()
 def demo(
-    task: str = typer.Option("reach", "--task", help=f"A registered task ({_TASKS}): reach is a fixed target, track the paper's circle."),
+    task: str = typer.Option(
+        "reach", "--task", help=f"A registered task ({_TASKS}): reach is a fixed target, track the paper's circle."
+    ),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
     out: Path = typer.Option(Path("demo_out"), "--out", help="Folder for the PNG panels, the log and summary.json."),
     seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets (a NumPy seed)."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control steps (default: 1500 reach = 12 s, 2500 track = 20 s)."),
-    duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."),
+    steps: Optional[int] = typer.Option(
+        None, "--steps", min=1, help="Control steps (default: 1500 reach = 12 s, 2500 track = 20 s)."
+    ),
+    duration: Optional[float] = typer.Option(
+        None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."
+    ),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),
     robot: str = typer.Option("ur10", "--robot", help=f"A registered robot: {_ROBOTS} (docs/robots.md)."),
-    model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controller a wrong arm model (as for evaluate); the simulated arm keeps the true one."),
+    model_error: Optional[str] = typer.Option(
+        None,
+        "--model-error",
+        help="Give the controller a wrong arm model (as for evaluate); the simulated arm keeps the true one.",
+    ),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
     # start-up time: the demo loads numba, scipy and pandas
@@ -176,8 +207,18 @@ def demo(
     if steps is not None and duration is not None:
         raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
     try:
-        result = run_demo(task=task, controller=controller, out_dir=out, seed=seed, steps=steps, duration=duration,
-                          csv=csv, plots=plots, robot=robot, model_error=model_error)
+        result = run_demo(
+            task=task,
+            controller=controller,
+            out_dir=out,
+            seed=seed,
+            steps=steps,
+            duration=duration,
+            csv=csv,
+            plots=plots,
+            robot=robot,
+            model_error=model_error,
+        )
     except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
@@ -189,34 +230,96 @@ def demo(
 @app.command()
 def real(
     host: Optional[str] = typer.Option(None, "--host", help="IP of the UR controller (--connection rtde)."),
-    task: str = typer.Option("reach", "--task", help=f"A registered task ({_TASKS}): the demo's start pose and reference."),
+    task: str = typer.Option(
+        "reach", "--task", help=f"A registered task ({_TASKS}): the demo's start pose and reference."
+    ),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
     out: Path = typer.Option(Path("real_out"), "--out", help="Folder for the log, the panels and the loop timing."),
-    connection: str = typer.Option("rtde", "--connection", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."),
+    connection: str = typer.Option(
+        "rtde", "--connection", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."
+    ),
     backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --connection."),
-    series: Optional[str] = typer.Option(None, "--series", help="cb (CB3, 125 Hz) or e (e-Series, 500 Hz); default the arm's own."),
-    dry_run: bool = typer.Option(False, "--dry-run", help="Connect and read state, send nothing; print what would be sent."),
-    speed_scale: float = typer.Option(0.25, "--speed-scale", help="Fraction of the velocity limits allowed, in (0, 1]."),
-    max_acceleration: float = typer.Option(2.0, "--max-acceleration", help="Bound on joint acceleration, rad/s², in (0, 40]."),
+    series: Optional[str] = typer.Option(
+        None, "--series", help="cb (CB3, 125 Hz) or e (e-Series, 500 Hz); default the arm's own."
+    ),
+    dry_run: bool = typer.Option(
+        False, "--dry-run", help="Connect and read state, send nothing; print what would be sent."
+    ),
+    speed_scale: float = typer.Option(
+        0.25, "--speed-scale", help="Fraction of the velocity limits allowed, in (0, 1]."
+    ),
+    max_acceleration: float = typer.Option(
+        2.0, "--max-acceleration", help="Bound on joint acceleration, rad/s², in (0, 40]."
+    ),
     seed: int = typer.Option(0, "--seed", help="Seed of the policy reset."),
-    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Control periods (default: 15 s reach, 30 s track)."),
+    steps: Optional[int] = typer.Option(
+        None, "--steps", min=1, help="Control periods (default: 15 s reach, 30 s track)."
+    ),
     csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels (after the arm is stopped)."),
-    max_tcp_mismatch: float = typer.Option(0.005, "--max-tcp-mismatch", help="Largest distance (m) between the controller's TCP position and the model's f(q), in (0, 1]."),
-    model_error: Optional[str] = typer.Option(None, "--model-error", help="With --connection sim: give the controller a wrong arm model (as for evaluate)."),
-    max_recoveries: int = typer.Option(0, "--max-recoveries", min=0, max=100, help="Resume the episode after up to N protective stops or lost links (0: each ends the run)."),
-    unlock_protective_stop: bool = typer.Option(False, "--unlock-protective-stop", help="With --max-recoveries: unlock a protective stop from the dashboard after UR's 5 s lockout (else the operator clears it on the pendant)."),
-    recovery_timeout: float = typer.Option(60.0, "--recovery-timeout", help="Longest wait (s) for a protective stop to be cleared, in (0, 3600]."),
-    reconnect_timeout: float = typer.Option(10.0, "--reconnect-timeout", help="Longest time (s) for a lost link to come back, in (0, 600]."),
-    rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off."),
-    robot: str = typer.Option("ur10", "--robot", help=f"The UR arm: {_UR_ARMS} (its kinematics, datasheet limits and default task box)."),
-    q0: Optional[str] = typer.Option(None, "--q0", help="Start pose, 6 joint angles in rad (comma-separated); default the paper's (the UR10's). The arm moveJs there first."),
-    target: Optional[str] = typer.Option(None, "--target", help="Reach: the target x,y,z in m (base frame); default the paper's (the UR10's)."),
-    ellipse_centre: Optional[str] = typer.Option(None, "--ellipse-centre", help="Track: the ellipse's centre x,y,z in m; with --ellipse-radius."),
-    ellipse_radius: Optional[float] = typer.Option(None, "--ellipse-radius", help="Track: the circle's radius in m (the paper's plane and speed)."),
-    task_box: Optional[str] = typer.Option(None, "--task-box", help="The box the tool must stay in, x0,y0,z0,x1,y1,z1 in m; default the arm's sample cuboid grown by 0.15 m."),
-    joint_margin: float = typer.Option(0.1, "--joint-margin", help="Distance (rad) from the joint limits that stops the arm, in [0, π/2]."),
-    deadline_stop: Optional[bool] = typer.Option(None, "--deadline-stop/--no-deadline-stop", help="Stop on missed deadlines (a late loop, a stall). Default: on for a real or emulated arm (always), off for --connection sim and --dry-run, where late periods are only counted and reported."),
+    max_tcp_mismatch: float = typer.Option(
+        0.005,
+        "--max-tcp-mismatch",
+        help="Largest distance (m) between the controller's TCP position and the model's f(q), in (0, 1].",
+    ),
+    model_error: Optional[str] = typer.Option(
+        None, "--model-error", help="With --connection sim: give the controller a wrong arm model (as for evaluate)."
+    ),
+    max_recoveries: int = typer.Option(
+        0,
+        "--max-recoveries",
+        min=0,
+        max=100,
+        help="Resume the episode after up to N protective stops or lost links (0: each ends the run).",
+    ),
+    unlock_protective_stop: bool = typer.Option(
+        False,
+        "--unlock-protective-stop",
+        help="With --max-recoveries: unlock a protective stop from the dashboard after UR's 5 s lockout (else the operator clears it on the pendant).",
+    ),
+    recovery_timeout: float = typer.Option(
+        60.0, "--recovery-timeout", help="Longest wait (s) for a protective stop to be cleared, in (0, 3600]."
+    ),
+    reconnect_timeout: float = typer.Option(
+        10.0, "--reconnect-timeout", help="Longest time (s) for a lost link to come back, in (0, 600]."
+    ),
+    rt_priority: int = typer.Option(
+        0,
+        "--rt-priority",
+        min=0,
+        max=99,
+        help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off.",
+    ),
+    robot: str = typer.Option(
+        "ur10", "--robot", help=f"The UR arm: {_UR_ARMS} (its kinematics, datasheet limits and default task box)."
+    ),
+    q0: Optional[str] = typer.Option(
+        None,
+        "--q0",
+        help="Start pose, 6 joint angles in rad (comma-separated); default the paper's (the UR10's). The arm moveJs there first.",
+    ),
+    target: Optional[str] = typer.Option(
+        None, "--target", help="Reach: the target x,y,z in m (base frame); default the paper's (the UR10's)."
+    ),
+    ellipse_centre: Optional[str] = typer.Option(
+        None, "--ellipse-centre", help="Track: the ellipse's centre x,y,z in m; with --ellipse-radius."
+    ),
+    ellipse_radius: Optional[float] = typer.Option(
+        None, "--ellipse-radius", help="Track: the circle's radius in m (the paper's plane and speed)."
+    ),
+    task_box: Optional[str] = typer.Option(
+        None,
+        "--task-box",
+        help="The box the tool must stay in, x0,y0,z0,x1,y1,z1 in m; default the arm's sample cuboid grown by 0.15 m.",
+    ),
+    joint_margin: float = typer.Option(
+        0.1, "--joint-margin", help="Distance (rad) from the joint limits that stops the arm, in [0, π/2]."
+    ),
+    deadline_stop: Optional[bool] = typer.Option(
+        None,
+        "--deadline-stop/--no-deadline-stop",
+        help="Stop on missed deadlines (a late loop, a stall). Default: on for a real or emulated arm (always), off for --connection sim and --dry-run, where late periods are only counted and reported.",
+    ),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim.
 
@@ -226,10 +329,10 @@ def real(
     128 + n a signal n (SIGINT 130, SIGTERM 143).
     """
     # start-up time (apps.real: pandas, numba); tests swap SafetyLimits
+    from snac_gym.apps.real import run_real_episode
     from snac_gym.real import ConnectionFailure, SafetyLimits
     from snac_gym.real.loop_tuning import LoopTuning
     from snac_gym.real.recovery import RecoveryLimits
-    from snac_gym.apps.real import run_real_episode
 
     _check_task(task)
     _check_controller(controller)
@@ -243,19 +346,37 @@ def real(
         box = None if task_box is None else _numbers("--task-box", task_box, 6)
         try:
             safety = SafetyLimits(
-                speed_scale=speed_scale, max_joint_acceleration=max_acceleration, max_tcp_mismatch=max_tcp_mismatch,
-                joint_limit_margin=joint_margin, box_low=None if box is None else tuple(box[:3]),
+                speed_scale=speed_scale,
+                max_joint_acceleration=max_acceleration,
+                max_tcp_mismatch=max_tcp_mismatch,
+                joint_limit_margin=joint_margin,
+                box_low=None if box is None else tuple(box[:3]),
                 box_high=None if box is None else tuple(box[3:]),
             )
         except ValueError as exc:  # the limits' own names, told by their options'
             field = next((name for name in _SAFETY_OPTIONS if str(exc).startswith(name)), None)
             raise ValueError(str(exc) if field is None else f"{_SAFETY_OPTIONS[field]} ({exc})") from None
         result = run_real_episode(
-            task=task, controller=controller, out_dir=out, connection=connection, host=host, series=series, dry_run=dry_run,
-            seed=seed, steps=steps, safety=safety, csv=csv, plots=plots, echo=typer.echo if dry_run else None,
-            model_error=model_error, recovery=recovery, tuning=LoopTuning.realtime(rt_priority), robot=robot,
+            task=task,
+            controller=controller,
+            out_dir=out,
+            connection=connection,
+            host=host,
+            series=series,
+            dry_run=dry_run,
+            seed=seed,
+            steps=steps,
+            safety=safety,
+            csv=csv,
+            plots=plots,
+            echo=typer.echo if dry_run else None,
+            model_error=model_error,
+            recovery=recovery,
+            tuning=LoopTuning.realtime(rt_priority),
+            robot=robot,
             q0=None if q0 is None else _numbers("--q0", q0, 6),
-            reference=_real_reference(task, target, ellipse_centre, ellipse_radius), deadline_stop=deadline_stop,
+            reference=_real_reference(task, target, ellipse_centre, ellipse_radius),
+            deadline_stop=deadline_stop,
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
         where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""
@@ -266,7 +387,10 @@ def real(
             typer.echo(f"error: {line}{where}", err=True)
             raise typer.Exit(code=1) from None
         if isinstance(exc, (ValueError, RuntimeError)):
-            typer.echo(f"error: {_option_message(line, _REAL_OPTIONS) if isinstance(exc, ValueError) else line}{where}", err=True)
+            typer.echo(
+                f"error: {_option_message(line, _REAL_OPTIONS) if isinstance(exc, ValueError) else line}{where}",
+                err=True,
+            )
             raise typer.Exit(code=2) from None
         if not isinstance(exc, Exception):
             raise
@@ -278,11 +402,19 @@ def real(
 
 
 #: The options of ``real`` whose refusals name a field of :class:`~snac_gym.real.recovery.RecoveryLimits` or an argument.
-_REAL_OPTIONS = {"clear_timeout": "--recovery-timeout", "reconnect_timeout": "--reconnect-timeout", "connection": "--connection"}
+_REAL_OPTIONS = {
+    "clear_timeout": "--recovery-timeout",
+    "reconnect_timeout": "--reconnect-timeout",
+    "connection": "--connection",
+}
 #: The options of ``real`` that set a field of :class:`~snac_gym.real.SafetyLimits`.
 _SAFETY_OPTIONS = {
-    "speed_scale": "--speed-scale", "max_joint_acceleration": "--max-acceleration", "joint_limit_margin": "--joint-margin",
-    "max_tcp_mismatch": "--max-tcp-mismatch", "task box": "--task-box", "give both corners of the task box": "--task-box",
+    "speed_scale": "--speed-scale",
+    "max_joint_acceleration": "--max-acceleration",
+    "joint_limit_margin": "--joint-margin",
+    "max_tcp_mismatch": "--max-tcp-mismatch",
+    "task box": "--task-box",
+    "give both corners of the task box": "--task-box",
 }
 
 
@@ -317,23 +449,61 @@ def _real_reference(task: str, target: str | None, centre: str | None, radius: f
 
 @app.command("emulate-ur")
 def emulate_ur(
-    host: str = typer.Option("127.0.0.1", "--host", help="Loopback address to listen on (127.x.x.x): one per emulator, as ur_rtde's ports are fixed."),
-    port_base: int = typer.Option(29999, "--port-base", help="Dashboard port; RTDE at +5, script at +3/+4. ur_rtde needs 29999; 0: free ports."),
-    series: Optional[str] = typer.Option(None, "--series", help="cb (CB3, 125 Hz data) or e (e-Series, 500 Hz); default the arm's own."),
+    host: str = typer.Option(
+        "127.0.0.1",
+        "--host",
+        help="Loopback address to listen on (127.x.x.x): one per emulator, as ur_rtde's ports are fixed.",
+    ),
+    port_base: int = typer.Option(
+        29999, "--port-base", help="Dashboard port; RTDE at +5, script at +3/+4. ur_rtde needs 29999; 0: free ports."
+    ),
+    series: Optional[str] = typer.Option(
+        None, "--series", help="cb (CB3, 125 Hz data) or e (e-Series, 500 Hz); default the arm's own."
+    ),
     robot: str = typer.Option("ur10", "--robot", help=f"Arm model: {_UR_ARMS} (the UR controller emulated)."),
     speed_scaling: float = typer.Option(1.0, "--speed-scaling", help="Speed slider fraction in (0, 1]."),
-    tcp_offset: Optional[str] = typer.Option(None, "--tcp-offset", help="TCP offset x,y,z[,rx,ry,rz] (m, rad) in reported poses: a wrong tool."),
-    protective_stop_at: Optional[float] = typer.Option(None, "--protective-stop-at", help="Protective stop, s after the first speedJ."),
-    emergency_stop_at: Optional[float] = typer.Option(None, "--emergency-stop-at", help="Emergency stop, s after the first speedJ."),
-    latency_spike: Optional[str] = typer.Option(None, "--latency-spike", help="AT,SECONDS: the controller stalls that long, AT s after the first speedJ."),
-    drop_at: Optional[float] = typer.Option(None, "--drop-at", help="Cut every connection (and refuse new ones), s after the first speedJ."),
-    drop_for: Optional[float] = typer.Option(None, "--drop-for", help="With --drop-at: the link comes back after this many seconds (default: never)."),
-    stale_at: Optional[float] = typer.Option(None, "--stale-at", help="Freeze the reported timestamp and state, s after the first speedJ."),
-    watchdog_expiry_at: Optional[float] = typer.Option(None, "--watchdog-expiry-at", help="Make the RTDE watchdog fire, s after the first speedJ."),
-    nonfinite_at: Optional[float] = typer.Option(None, "--nonfinite-at", help="Report NaN joint angles (a corrupted package), s after the first speedJ."),
-    q0: Optional[str] = typer.Option(None, "--q0", help="The arm's pose at start, 6 joint angles in rad (comma-separated); default the nominal elbow-up pose."),
-    duration: Optional[float] = typer.Option(None, "--duration", min=0.0, help="Exit after this many seconds (default: until Ctrl-C)."),
-    rt_priority: int = typer.Option(0, "--rt-priority", min=0, max=99, help="SCHED_FIFO priority of the control cycle (needs root/CAP_SYS_NICE); 0: off."),
+    tcp_offset: Optional[str] = typer.Option(
+        None, "--tcp-offset", help="TCP offset x,y,z[,rx,ry,rz] (m, rad) in reported poses: a wrong tool."
+    ),
+    protective_stop_at: Optional[float] = typer.Option(
+        None, "--protective-stop-at", help="Protective stop, s after the first speedJ."
+    ),
+    emergency_stop_at: Optional[float] = typer.Option(
+        None, "--emergency-stop-at", help="Emergency stop, s after the first speedJ."
+    ),
+    latency_spike: Optional[str] = typer.Option(
+        None, "--latency-spike", help="AT,SECONDS: the controller stalls that long, AT s after the first speedJ."
+    ),
+    drop_at: Optional[float] = typer.Option(
+        None, "--drop-at", help="Cut every connection (and refuse new ones), s after the first speedJ."
+    ),
+    drop_for: Optional[float] = typer.Option(
+        None, "--drop-for", help="With --drop-at: the link comes back after this many seconds (default: never)."
+    ),
+    stale_at: Optional[float] = typer.Option(
+        None, "--stale-at", help="Freeze the reported timestamp and state, s after the first speedJ."
+    ),
+    watchdog_expiry_at: Optional[float] = typer.Option(
+        None, "--watchdog-expiry-at", help="Make the RTDE watchdog fire, s after the first speedJ."
+    ),
+    nonfinite_at: Optional[float] = typer.Option(
+        None, "--nonfinite-at", help="Report NaN joint angles (a corrupted package), s after the first speedJ."
+    ),
+    q0: Optional[str] = typer.Option(
+        None,
+        "--q0",
+        help="The arm's pose at start, 6 joint angles in rad (comma-separated); default the nominal elbow-up pose.",
+    ),
+    duration: Optional[float] = typer.Option(
+        None, "--duration", min=0.0, help="Exit after this many seconds (default: until Ctrl-C)."
+    ),
+    rt_priority: int = typer.Option(
+        0,
+        "--rt-priority",
+        min=0,
+        max=99,
+        help="SCHED_FIFO priority of the control cycle (needs root/CAP_SYS_NICE); 0: off.",
+    ),
 ) -> None:
     """Emulate a UR controller on 127.0.0.1 for ur_rtde (RTDE, dashboard, script upload), with faults on demand.
 
@@ -349,17 +519,33 @@ def emulate_ur(
         offset = None if tcp_offset is None else parse_numbers(tcp_offset, "--tcp-offset", (3, 6))
         start = None if q0 is None else _numbers("--q0", q0, 6)
         emulator = UREmulator(
-            robot=robot, series=series, host=host, port_base=port_base, speed_scaling=speed_scaling, bind_timeout=0.0, rt_priority=rt_priority,
-            tcp_offset=None if offset is None else (offset + [0.0, 0.0, 0.0])[:6], q0=start,
+            robot=robot,
+            series=series,
+            host=host,
+            port_base=port_base,
+            speed_scaling=speed_scaling,
+            bind_timeout=0.0,
+            rt_priority=rt_priority,
+            tcp_offset=None if offset is None else (offset + [0.0, 0.0, 0.0])[:6],
+            q0=start,
         )
         plan = fault_plan(
-            protective_stop_at, emergency_stop_at, latency_spike, drop_at, stale_at, watchdog_expiry_at, drop_for, nonfinite_at
+            protective_stop_at,
+            emergency_stop_at,
+            latency_spike,
+            drop_at,
+            stale_at,
+            watchdog_expiry_at,
+            drop_for,
+            nonfinite_at,
         )
         for at, fault, args in plan:
             emulator.schedule(at, fault, *args)
         stopped_by = serve(emulator, duration, typer.echo)
     except (ValueError, OSError) as exc:
-        typer.echo(f"error: {_option_message(str(exc), _EMULATOR_OPTIONS) if isinstance(exc, ValueError) else exc}", err=True)
+        typer.echo(
+            f"error: {_option_message(str(exc), _EMULATOR_OPTIONS) if isinstance(exc, ValueError) else exc}", err=True
+        )
         raise typer.Exit(code=2) from exc
     if stopped_by is not None and emulator.failure is None:
         raise _interrupted(TerminationSignal(stopped_by), "the emulator closed its connections; it keeps no files")
@@ -393,46 +579,157 @@ def _interrupted(exc: BaseException, kept: str, during: str = "") -> typer.Exit:
 @app.command()
 def evaluate(
     out: str = typer.Option("runs/evaluation", "--out", help="Output folder (results, summary, plots, parts)."),
-    task: str = typer.Option("both", "--task", help=f"both (reach and track, Table I), a registered task ({_TASKS}), or a pose task, pose-reach or pose-track (docs/robots.md)."),
-    controllers: Optional[str] = typer.Option(None, "--controllers", help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md)."),
-    samples: Optional[int] = typer.Option(None, "--samples", min=1, help="Random samples per task (default 1000, the paper's; at most what half the memory holds)."),
+    task: str = typer.Option(
+        "both",
+        "--task",
+        help=f"both (reach and track, Table I), a registered task ({_TASKS}), or a pose task, pose-reach or pose-track (docs/robots.md).",
+    ),
+    controllers: Optional[str] = typer.Option(
+        None,
+        "--controllers",
+        help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md).",
+    ),
+    samples: Optional[int] = typer.Option(
+        None,
+        "--samples",
+        min=1,
+        help="Random samples per task (default 1000, the paper's; at most what half the memory holds).",
+    ),
     seed: int = typer.Option(0, "--seed", help="Seed of the sample set and of every policy reset."),
-    horizon: list[str] = typer.Option([], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."),
-    engine: str = typer.Option("kinematic", "--engine", help="kinematic (exact θ += uΔt, all samples in lockstep, fast), mujoco or pybullet (one simulated arm per sample with that physics, in lockstep; mujoco needs the mujoco extra)."),
+    horizon: list[str] = typer.Option(
+        [], "--horizon", help="SECONDS for every task, or TASK=SECONDS (repeatable). Default reach=12, track=20."
+    ),
+    engine: str = typer.Option(
+        "kinematic",
+        "--engine",
+        help="kinematic (exact θ += uΔt, all samples in lockstep, fast), mujoco or pybullet (one simulated arm per sample with that physics, in lockstep; mujoco needs the mujoco extra).",
+    ),
     backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --engine."),
-    match_effort: bool = typer.Option(True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."),
-    effort_reference: Optional[str] = typer.Option(None, "--effort-reference", help="Controller whose effort the others are matched to (default: snac if evaluated, else the first controller)."),
-    effort_statistic: str = typer.Option("mean-peak", "--effort-statistic", help="What equal effort equalises: mean-peak (the mean over the samples of each rollout's peak |u|/limit; the default), max (the maximum |u| over the sample set, rad/s), median-peak (the median rollout's peak |u|/limit) or peak-ratio (each rollout's peak over the reference's on the same sample, geometric mean)."),
-    effort_target: Optional[float] = typer.Option(None, "--effort-target", help="Explicit effort target in the statistic's unit (rad/s for max, a fraction for mean-peak and median-peak; not for peak-ratio); then every controller is matched."),
+    match_effort: bool = typer.Option(
+        True, "--match-effort/--no-match-effort", help="Calibrate every controller to equal control effort."
+    ),
+    effort_reference: Optional[str] = typer.Option(
+        None,
+        "--effort-reference",
+        help="Controller whose effort the others are matched to (default: snac if evaluated, else the first controller).",
+    ),
+    effort_statistic: str = typer.Option(
+        "mean-peak",
+        "--effort-statistic",
+        help="What equal effort equalises: mean-peak (the mean over the samples of each rollout's peak |u|/limit; the default), max (the maximum |u| over the sample set, rad/s), median-peak (the median rollout's peak |u|/limit) or peak-ratio (each rollout's peak over the reference's on the same sample, geometric mean).",
+    ),
+    effort_target: Optional[float] = typer.Option(
+        None,
+        "--effort-target",
+        help="Explicit effort target in the statistic's unit (rad/s for max, a fraction for mean-peak and median-peak; not for peak-ratio); then every controller is matched.",
+    ),
     effort_tolerance: float = typer.Option(0.02, "--effort-tolerance", help="Relative tolerance of the effort match."),
-    effort_samples: Optional[int] = typer.Option(None, "--effort-samples", min=0, help="Match equal effort on the first N samples of the seed's stream even when fewer are evaluated, so the matched knobs do not depend on --samples (default 1000; 0: on the evaluated samples)."),
-    calibration_samples: Optional[int] = typer.Option(None, "--calibration-samples", min=1, help="Samples the knob search runs on (default: all, fewer for controllers whose effort peaks late)."),
-    samples_file: Optional[Path] = typer.Option(None, "--samples-file", help="Read the samples from this CSV (docs/evaluation.md)."),
-    export_samples: Optional[Path] = typer.Option(None, "--export-samples", help="Also write the sample set to this CSV."),
+    effort_samples: Optional[int] = typer.Option(
+        None,
+        "--effort-samples",
+        min=0,
+        help="Match equal effort on the first N samples of the seed's stream even when fewer are evaluated, so the matched knobs do not depend on --samples (default 1000; 0: on the evaluated samples).",
+    ),
+    calibration_samples: Optional[int] = typer.Option(
+        None,
+        "--calibration-samples",
+        min=1,
+        help="Samples the knob search runs on (default: all, fewer for controllers whose effort peaks late).",
+    ),
+    samples_file: Optional[Path] = typer.Option(
+        None, "--samples-file", help="Read the samples from this CSV (docs/evaluation.md)."
+    ),
+    export_samples: Optional[Path] = typer.Option(
+        None, "--export-samples", help="Also write the sample set to this CSV."
+    ),
     export_only: bool = typer.Option(False, "--export-only", help="Only write --export-samples, run nothing."),
-    save_trajectories: bool = typer.Option(False, "--save-trajectories", help="Write every rollout's per-step log under OUT/trajectories."),
+    save_trajectories: bool = typer.Option(
+        False, "--save-trajectories", help="Write every rollout's per-step log under OUT/trajectories."
+    ),
     workers: int = typer.Option(1, "--workers", min=1, help="Local worker processes."),
-    ray: Optional[str] = typer.Option(None, "--ray", help="Run on Ray: 'local' (a new instance here) or a cluster address ('auto', 'ray://host:10001')."),
+    ray: Optional[str] = typer.Option(
+        None,
+        "--ray",
+        help="Run on Ray: 'local' (a new instance here) or a cluster address ('auto', 'ray://host:10001').",
+    ),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run in OUT."),
-    chunk_size: Optional[int] = typer.Option(None, "--chunk-size", min=1, help="Samples per job of a full pass (default 500; results do not depend on it)."),
-    cuboid: Optional[str] = typer.Option(None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."),
-    sample_space: str = typer.Option("cuboid", "--sample-space", help="cuboid (Table I's box in front of the arm, or --cuboid) or workspace (anywhere the arm reaches, every IK branch)."),
+    chunk_size: Optional[int] = typer.Option(
+        None, "--chunk-size", min=1, help="Samples per job of a full pass (default 500; results do not depend on it)."
+    ),
+    cuboid: Optional[str] = typer.Option(
+        None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."
+    ),
+    sample_space: str = typer.Option(
+        "cuboid",
+        "--sample-space",
+        help="cuboid (Table I's box in front of the arm, or --cuboid) or workspace (anywhere the arm reaches, every IK branch).",
+    ),
     robot: str = typer.Option("ur10", "--robot", help=f"A registered robot: {_ROBOTS} (docs/robots.md)."),
-    param: list[str] = typer.Option([], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."),
+    param: list[str] = typer.Option(
+        [], "--param", help="Controller argument CONTROLLER.KEY=VALUE (repeatable), e.g. svf.nu=5."
+    ),
     batch: bool = typer.Option(True, "--batch/--no-batch", help="Use a policy's act_batch protocol when it has one."),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress on stderr: a bar on a terminal, else a line every 10 % or 10 s."),
-    plots: bool = typer.Option(True, "--plots/--no-plots", help="Draw cost_boxplot.png (and a sweep's tradeoff.png); --no-plots: the tables and summary only."),
-    cost: str = typer.Option("table1", "--cost", help="table1 (Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt, the paper's Table I) or hjb (Σ (eᵀQe + uᵀRu) Δt, the cost of eqs. 6/32); `optimal` solves for it."),
-    udot_start: str = typer.Option("rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."),
-    q_scale: float = typer.Option(1.0, "--q-scale", help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q."),
-    success_threshold: float = typer.Option(0.95, "--success-threshold", help="Success rate a controller needs to be ranked in the summary."),
-    model_error: Optional[str] = typer.Option(None, "--model-error", help="Give the controllers a wrong arm model, parts joined by ';': 'joint_offset=a0,...,a5' (rad), 'link_scale=s' (relative), 'link_length=d0,...,d5' (m, per placement), 'joint_axis_tilt=a0,...,a5[,b0,...,b5]' (rad), 'base=x,y,z,rx,ry,rz' (m, rad), 'tool_offset=x,y,z' (m, tool frame), 'random=sigma,seed' (a random rigid error of every placement and the tool), 'model=NAME' (another robot's kinematics, e.g. ur5; same joint count). The plant, the cost, the success rule and the optimum keep the true model."),
-    reference_limits: str = typer.Option("joints", "--reference-limits", help="Constraints of the `optimal` reference: joints (joint position and velocity limits, as the success rule counts) or velocity (velocity limits only; its label says so)."),
-    reference_cache: bool = typer.Option(True, "--reference-cache/--no-reference-cache", help="Reuse the `optimal` rows cached by sample content (~/.cache/snac-gym/reference, or $SNAC_GYM_CACHE_DIR), keyed by everything they depend on, the code included; --no-reference-cache solves every sample anew."),
-    recalibrate: bool = typer.Option(False, "--recalibrate", help="Match the effort anew even where an earlier run with the same effort set, settings and code cached its knobs (~/.cache/snac-gym/calibration, or $SNAC_GYM_CACHE_DIR), and overwrite them."),
-    sweep: bool = typer.Option(False, "--sweep/--no-sweep", help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against success, error and peak effort; docs/evaluation.md)."),
-    sweep_points: Optional[int] = typer.Option(None, "--sweep-points", help="Knob values per controller and task in the sweep (2 to 25; default 7), plus the equal-effort point."),
-    sweep_span: Optional[float] = typer.Option(None, "--sweep-span", help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4)."),
+    progress: bool = typer.Option(
+        True,
+        "--progress/--no-progress",
+        help="Show progress on stderr: a bar on a terminal, else a line every 10 % or 10 s.",
+    ),
+    plots: bool = typer.Option(
+        True,
+        "--plots/--no-plots",
+        help="Draw cost_boxplot.png (and a sweep's tradeoff.png); --no-plots: the tables and summary only.",
+    ),
+    cost: str = typer.Option(
+        "table1",
+        "--cost",
+        help="table1 (Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt, the paper's Table I) or hjb (Σ (eᵀQe + uᵀRu) Δt, the cost of eqs. 6/32); `optimal` solves for it.",
+    ),
+    udot_start: str = typer.Option(
+        "rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."
+    ),
+    q_scale: float = typer.Option(
+        1.0,
+        "--q-scale",
+        help="Q = q·I in the cost (1e6 prices the error in mm²); given to the controllers that take Q.",
+    ),
+    success_threshold: float = typer.Option(
+        0.95, "--success-threshold", help="Success rate a controller needs to be ranked in the summary."
+    ),
+    model_error: Optional[str] = typer.Option(
+        None,
+        "--model-error",
+        help="Give the controllers a wrong arm model, parts joined by ';': 'joint_offset=a0,...,a5' (rad), 'link_scale=s' (relative), 'link_length=d0,...,d5' (m, per placement), 'joint_axis_tilt=a0,...,a5[,b0,...,b5]' (rad), 'base=x,y,z,rx,ry,rz' (m, rad), 'tool_offset=x,y,z' (m, tool frame), 'random=sigma,seed' (a random rigid error of every placement and the tool), 'model=NAME' (another robot's kinematics, e.g. ur5; same joint count). The plant, the cost, the success rule and the optimum keep the true model.",
+    ),
+    reference_limits: str = typer.Option(
+        "joints",
+        "--reference-limits",
+        help="Constraints of the `optimal` reference: joints (joint position and velocity limits, as the success rule counts) or velocity (velocity limits only; its label says so).",
+    ),
+    reference_cache: bool = typer.Option(
+        True,
+        "--reference-cache/--no-reference-cache",
+        help="Reuse the `optimal` rows cached by sample content (~/.cache/snac-gym/reference, or $SNAC_GYM_CACHE_DIR), keyed by everything they depend on, the code included; --no-reference-cache solves every sample anew.",
+    ),
+    recalibrate: bool = typer.Option(
+        False,
+        "--recalibrate",
+        help="Match the effort anew even where an earlier run with the same effort set, settings and code cached its knobs (~/.cache/snac-gym/calibration, or $SNAC_GYM_CACHE_DIR), and overwrite them.",
+    ),
+    sweep: bool = typer.Option(
+        False,
+        "--sweep/--no-sweep",
+        help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against success, error and peak effort; docs/evaluation.md).",
+    ),
+    sweep_points: Optional[int] = typer.Option(
+        None,
+        "--sweep-points",
+        help="Knob values per controller and task in the sweep (2 to 25; default 7), plus the equal-effort point.",
+    ),
+    sweep_span: Optional[float] = typer.Option(
+        None,
+        "--sweep-span",
+        help="The sweep's knob grid reaches default/SPAN to default*SPAN, geometrically (default 4).",
+    ),
 ) -> None:
     """The paper's quantitative test (Table I): trajectory cost V/N of every controller on random samples."""
     engine = _renamed_option("--engine", engine, "--backend", backend, "kinematic")
@@ -440,9 +737,6 @@ def evaluate(
     start: float | None = None
     try:
         # start-up time: the evaluation loads numba, scipy and pandas
-        from snac_gym.evaluation.run_config import EvaluationConfig
-        from snac_gym.evaluation.runner import export_sample_set, run_evaluation
-        from snac_gym.evaluation.sweep import run_sweep
         from snac_gym.evaluation.options import (
             check_option_combinations,
             parse_controllers,
@@ -452,27 +746,62 @@ def evaluate(
             parse_sample_space,
             parse_tasks,
         )
+        from snac_gym.evaluation.run_config import EvaluationConfig
+        from snac_gym.evaluation.runner import export_sample_set, run_evaluation
+        from snac_gym.evaluation.sweep import run_sweep
 
         out_dir = parse_out(out)
         tasks, names = parse_tasks(task), parse_controllers(controllers)
         check_option_combinations(
-            samples=samples, cuboid=cuboid, samples_file=samples_file, export_samples=export_samples, sweep=sweep,
-            sweep_points=sweep_points, sweep_span=sweep_span, effort_reference=effort_reference,
-            match_effort=match_effort, effort_target=effort_target, controllers=names, sample_space=sample_space,
+            samples=samples,
+            cuboid=cuboid,
+            samples_file=samples_file,
+            export_samples=export_samples,
+            sweep=sweep,
+            sweep_points=sweep_points,
+            sweep_span=sweep_span,
+            effort_reference=effort_reference,
+            match_effort=match_effort,
+            effort_target=effort_target,
+            controllers=names,
+            sample_space=sample_space,
             effort_samples=effort_samples,
         )
         space = parse_sample_space(sample_space, cuboid, robot)
         _check_export_folder(export_samples)
         config = EvaluationConfig(
-            out=out_dir, tasks=tasks, controllers=names, samples=1000 if samples is None else samples, seed=seed,
-            horizons=parse_horizons(horizon, tasks), engine=engine, match_effort=match_effort,
-            effort_reference=effort_reference or "snac", effort_statistic=effort_statistic, effort_target=effort_target, effort_tolerance=effort_tolerance,
-            calibration_samples=calibration_samples, samples_file=samples_file,
-            **({} if effort_samples is None else {"effort_samples": effort_samples}), export_samples=export_samples,
-            save_trajectories=save_trajectories, workers=workers, ray_address=ray, resume=resume,
-            robot=robot, space=space, controller_kwargs=parse_params(param), progress=progress, plots=plots, use_batch=batch,
-            cost=cost, udot_start=udot_start, q_scale=q_scale, success_threshold=success_threshold,
-            model_error=model_error, reference_limits=reference_limits,
+            out=out_dir,
+            tasks=tasks,
+            controllers=names,
+            samples=1000 if samples is None else samples,
+            seed=seed,
+            horizons=parse_horizons(horizon, tasks),
+            engine=engine,
+            match_effort=match_effort,
+            effort_reference=effort_reference or "snac",
+            effort_statistic=effort_statistic,
+            effort_target=effort_target,
+            effort_tolerance=effort_tolerance,
+            calibration_samples=calibration_samples,
+            samples_file=samples_file,
+            **({} if effort_samples is None else {"effort_samples": effort_samples}),
+            export_samples=export_samples,
+            save_trajectories=save_trajectories,
+            workers=workers,
+            ray_address=ray,
+            resume=resume,
+            robot=robot,
+            space=space,
+            controller_kwargs=parse_params(param),
+            progress=progress,
+            plots=plots,
+            use_batch=batch,
+            cost=cost,
+            udot_start=udot_start,
+            q_scale=q_scale,
+            success_threshold=success_threshold,
+            model_error=model_error,
+            reference_limits=reference_limits,
             reference_cache=reference_cache,
             recalibrate=recalibrate,
             **({} if chunk_size is None else {"chunk_size": chunk_size}),
@@ -483,11 +812,18 @@ def evaluate(
             typer.echo(f"samples written to {export_sample_set(config)}")
             return
         if sweep:
-            run_sweep(config, points=7 if sweep_points is None else sweep_points,
-                      span=4.0 if sweep_span is None else sweep_span)
+            run_sweep(
+                config,
+                points=7 if sweep_points is None else sweep_points,
+                span=4.0 if sweep_span is None else sweep_span,
+            )
         else:
             run_evaluation(config)
-    except (ValueError, RuntimeError, OSError) as exc:  # bad options, samples file, controller, output folder: a clean message
+    except (
+        ValueError,
+        RuntimeError,
+        OSError,
+    ) as exc:  # bad options, samples file, controller, output folder: a clean message
         typer.echo(f"error: {_with_option(str(exc)) if isinstance(exc, ValueError) else exc}", err=True)
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt as exc:  # a stop signal: the workers are stopped, finished jobs are kept
@@ -511,7 +847,12 @@ def evaluate(
 
 #: The fields of :class:`~snac_gym.evaluation.run_config.EvaluationConfig` set by an ``evaluate`` option of another name
 #: (the others are the field with dashes: ``effort_tolerance`` is ``--effort-tolerance``).
-_EVALUATE_RENAMED = {"ray_address": "--ray", "use_batch": "--batch", "horizons": "--horizon", "controller_kwargs": "--param"}
+_EVALUATE_RENAMED = {
+    "ray_address": "--ray",
+    "use_batch": "--batch",
+    "horizons": "--horizon",
+    "controller_kwargs": "--param",
+}
 
 
 def _evaluate_message(message: str) -> str:
@@ -519,8 +860,10 @@ def _evaluate_message(message: str) -> str:
     a refusal that names no field (``unknown robot 'x'``) gets its option in front."""
     from snac_gym.evaluation.run_config import EvaluationConfig  # start-up time: only when a refusal is shown
 
-    fields = {item.name: _EVALUATE_RENAMED.get(item.name, "--" + item.name.replace("_", "-"))
-              for item in dataclasses.fields(EvaluationConfig)}
+    fields = {
+        item.name: _EVALUATE_RENAMED.get(item.name, "--" + item.name.replace("_", "-"))
+        for item in dataclasses.fields(EvaluationConfig)
+    }
     named = _option_message(message, fields)
     return named if named != message else _with_option(message)
 
@@ -551,21 +894,39 @@ def _check_export_folder(path: Path | None) -> None:
         if above.is_dir():
             return
         if above.exists() or above.is_symlink():
-            raise ValueError(f"--export-samples {path}: its folder {folder} cannot be made, {above} is not a folder; "
-                             "choose another file")
+            raise ValueError(
+                f"--export-samples {path}: its folder {folder} cannot be made, {above} is not a folder; "
+                "choose another file"
+            )
 
 
 @app.command("train-ppo")
 def train_ppo_command(
     task: str = typer.Option(..., "--task", help=f"A registered task ({_TASKS})."),
-    timesteps: Optional[int] = typer.Option(None, "--timesteps", min=1, help="Total env steps (default: the config's)."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Seed of PPO and the training envs (default: the config's)."),
+    timesteps: Optional[int] = typer.Option(
+        None, "--timesteps", min=1, help="Total env steps (default: the config's)."
+    ),
+    seed: Optional[int] = typer.Option(
+        None, "--seed", help="Seed of PPO and the training envs (default: the config's)."
+    ),
     out: Path = typer.Option(..., "--out", help="Output folder: checkpoint/, best/, logs, evaluations.csv, curves."),
-    config: Optional[Path] = typer.Option(None, "--config", help="Hyperparameter file (default: snac_gym/ppo/configs/TASK.json)."),
+    config: Optional[Path] = typer.Option(
+        None, "--config", help="Hyperparameter file (default: snac_gym/ppo/configs/TASK.json)."
+    ),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
-    n_envs: Optional[int] = typer.Option(None, "--n-envs", min=1, max=1024, help="Parallel training envs (default: the config's)."),
-    vec_env: Optional[str] = typer.Option(None, "--vec-env", help="dummy (one process), subproc (one process per env) or batched (all episodes at once on the kinematic model)."),
-    progress: bool = typer.Option(True, "--progress/--no-progress", help="Progress lines on stderr (timesteps, time, success) where stderr is not a terminal."),
+    n_envs: Optional[int] = typer.Option(
+        None, "--n-envs", min=1, max=1024, help="Parallel training envs (default: the config's)."
+    ),
+    vec_env: Optional[str] = typer.Option(
+        None,
+        "--vec-env",
+        help="dummy (one process), subproc (one process per env) or batched (all episodes at once on the kinematic model).",
+    ),
+    progress: bool = typer.Option(
+        True,
+        "--progress/--no-progress",
+        help="Progress lines on stderr (timesteps, time, success) where stderr is not a terminal.",
+    ),
 ) -> None:
     """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""
     _check_task(task)
@@ -573,26 +934,52 @@ def train_ppo_command(
         from snac_gym.ppo.train import train_ppo  # start-up time: the trainer loads pandas
 
         lines = (lambda text: typer.echo(text, err=True)) if progress and wants_lines() else None
-        result = train_ppo(task=task, out=out, timesteps=timesteps, seed=seed, config_path=config, resume=resume,
-                           n_envs=n_envs, vec_env=vec_env, log=typer.echo, progress=lines)
+        result = train_ppo(
+            task=task,
+            out=out,
+            timesteps=timesteps,
+            seed=seed,
+            config_path=config,
+            resume=resume,
+            n_envs=n_envs,
+            vec_env=vec_env,
+            log=typer.echo,
+            progress=lines,
+        )
     except (ValueError, ImportError) as exc:  # bad config, folder or checkpoint, missing [rl] extra: a clean message
-        given = {key: option for key, option, value in (("seed", "--seed", seed), ("vec_env.kind", "--vec-env", vec_env),
-                 ("vec_env.n_envs", "--n-envs", n_envs), ("timesteps", "--timesteps", timesteps)) if value is not None}
+        given = {
+            key: option
+            for key, option, value in (
+                ("seed", "--seed", seed),
+                ("vec_env.kind", "--vec-env", vec_env),
+                ("vec_env.n_envs", "--n-envs", n_envs),
+                ("timesteps", "--timesteps", timesteps),
+            )
+            if value is not None
+        }
         typer.echo(f"error: {_ppo_message(str(exc), given) if isinstance(exc, ValueError) else exc}", err=True)
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt as exc:  # before training started (or in the curves after it finished)
-        kept = "the checkpoint is unchanged; run the command again" if resume else "nothing was trained; run the command again"
+        kept = (
+            "the checkpoint is unchanged; run the command again"
+            if resume
+            else "nothing was trained; run the command again"
+        )
         raise _interrupted(exc, getattr(exc, "kept", kept)) from None
     if result.status == "interrupted":
         raise _interrupted(
-            KeyboardInterrupt(), f"checkpoint of {result.timesteps} timesteps saved in {out / 'checkpoint'}/ with every "
-            f"evaluation so far; continue with --resume --out {out}", "during training",
+            KeyboardInterrupt(),
+            f"checkpoint of {result.timesteps} timesteps saved in {out / 'checkpoint'}/ with every "
+            f"evaluation so far; continue with --resume --out {out}",
+            "during training",
         )
     best = result.best
     typer.echo(f"{result.status}: {result.timesteps} timesteps, wall time {result.wall_time_s / 60:.1f} min")
     if best is not None:
-        typer.echo(f"best policy ({int(best['timesteps'])} timesteps, success {100 * best['success_rate']:.1f}%): "
-                   f"{result.best_policy}")
+        typer.echo(
+            f"best policy ({int(best['timesteps'])} timesteps, success {100 * best['success_rate']:.1f}%): "
+            f"{result.best_policy}"
+        )
 
 
 def _ppo_message(message: str, given: dict[str, str]) -> str:

@@ -25,8 +25,8 @@ import numpy as np
 import pandas as pd
 
 from snac_gym.envs import make_task_env
-from snac_gym.outputs import usable_out_folder, write_text_whole
 from snac_gym.metrics import DemoMetrics, demo_metrics
+from snac_gym.outputs import usable_out_folder, write_text_whole
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
@@ -72,15 +72,25 @@ class DemoResult:
             f"  final error                 {m.final_error * 1e3:.4f} mm",
             f"  time to first reach 1 mm    {seconds(m.time_to_1mm)}",
             f"  fraction of steps eᵀė ≤ 0   {m.descent_fraction:.4f}"
-            + (f" ({m.descent_fraction_above_tolerance:.4f} while ‖e‖ > {m.tolerance * 1e3:g} mm)"
-               if m.descent_fraction_above_tolerance is not None else ""),
+            + (
+                f" ({m.descent_fraction_above_tolerance:.4f} while ‖e‖ > {m.tolerance * 1e3:g} mm)"
+                if m.descent_fraction_above_tolerance is not None
+                else ""
+            ),
             f"  {f'settled under {m.tolerance * 1e3:g} mm from':28s}{seconds(m.settling_time)}"
-            + (f" (max after: {m.max_error_after_settling * 1e3:.3f} mm)"
-               if m.max_error_after_settling is not None else ""),
-            (f"  clipped steps               {m.clipped_steps} ({100 * m.clip_fraction:.2f} %),"
-             f" max |u|/limit {m.max_speed_ratio:.3f}"),
-            (f"  trajectory cost V           {m.cost_total:.4f} (error {m.cost_error:.4f},"
-             f" effort {m.cost_effort:.4f}, smoothness {m.cost_smoothness:.4f})"),
+            + (
+                f" (max after: {m.max_error_after_settling * 1e3:.3f} mm)"
+                if m.max_error_after_settling is not None
+                else ""
+            ),
+            (
+                f"  clipped steps               {m.clipped_steps} ({100 * m.clip_fraction:.2f} %),"
+                f" max |u|/limit {m.max_speed_ratio:.3f}"
+            ),
+            (
+                f"  trajectory cost V           {m.cost_total:.4f} (error {m.cost_error:.4f},"
+                f" effort {m.cost_effort:.4f}, smoothness {m.cost_smoothness:.4f})"
+            ),
             # A cost is only comparable between runs that do the task: say whether this one did.
             f"  task success                {'yes' if m.success(self.task) else 'NO, it fails the task'}"
             f" ({get_task(self.task).success_text()})",
@@ -92,9 +102,15 @@ class DemoResult:
         flagged = self.log["diverged"].to_numpy() > 0 if "diverged" in self.log.columns else None
         if flagged is not None:
             step = int(np.argmax(flagged))
-            lines.append("  diverged                    " + (
-                f"YES at step {step} (t = {step * float(self.log.attrs.get('dt', 0.0)):.3f} s): the controller crossed "
-                "a divergence bound and stopped the arm" if flagged.any() else "no (no divergence bound crossed)"))
+            lines.append(
+                "  diverged                    "
+                + (
+                    f"YES at step {step} (t = {step * float(self.log.attrs.get('dt', 0.0)):.3f} s): the controller crossed "
+                    "a divergence bound and stopped the arm"
+                    if flagged.any()
+                    else "no (no divergence bound crossed)"
+                )
+            )
         if self.files:
             lines.append(f"  wrote {len(self.files)} files to {self.files[0].parent}")
         return "\n".join(lines)
@@ -159,9 +175,7 @@ def run_demo(
     max_steps = round(MAX_DEMO_DURATION_S / dt)
     if not 1 <= steps <= max_steps:
         env.close()
-        raise ValueError(
-            f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}"
-        )
+        raise ValueError(f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}")
     if steps > env.spec.max_episode_steps:
         env.close()
         env = make_task_env(spec, robot, max_episode_steps=steps)
@@ -175,11 +189,28 @@ def run_demo(
         exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
         if out_dir is not None and partial is not None and len(partial):
             partial.attrs["controller"] = controller
-            status = {"complete": False, "interrupted_by": getattr(exc, "signal_name", "SIGINT"), "steps_planned": steps}
-            write_demo_outputs(partial, spec.name, controller, seed, spec.success_tolerance, out_dir, csv=csv,
-                               plots=False, policy_kwargs=policy_kwargs, position_limits=limits, status=status)
-            exc.kept = (f"the log of the {len(partial)} of {steps} steps run and a summary marked "  # type: ignore[attr-defined]
-                        f'"complete": false are in {out_dir}/ (no figures)')
+            status = {
+                "complete": False,
+                "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
+                "steps_planned": steps,
+            }
+            write_demo_outputs(
+                partial,
+                spec.name,
+                controller,
+                seed,
+                spec.success_tolerance,
+                out_dir,
+                csv=csv,
+                plots=False,
+                policy_kwargs=policy_kwargs,
+                position_limits=limits,
+                status=status,
+            )
+            exc.kept = (
+                f"the log of the {len(partial)} of {steps} steps run and a summary marked "  # type: ignore[attr-defined]
+                f'"complete": false are in {out_dir}/ (no figures)'
+            )
         raise
     finally:
         env.close()
@@ -187,8 +218,16 @@ def run_demo(
     if model_error is not None:
         log.attrs["model_error"] = model_error
     return write_demo_outputs(
-        log, spec.name, controller, seed, spec.success_tolerance, out_dir,
-        csv=csv, plots=plots, policy_kwargs=policy_kwargs, position_limits=limits,
+        log,
+        spec.name,
+        controller,
+        seed,
+        spec.success_tolerance,
+        out_dir,
+        csv=csv,
+        plots=plots,
+        policy_kwargs=policy_kwargs,
+        position_limits=limits,
     )
 
 
@@ -230,8 +269,14 @@ def write_demo_outputs(
     result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)
     summary_path = out / f"{prefix}summary.json"
     finite = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(metrics).items()}
-    summary = {"task": task, "controller": controller, "seed": seed, "policy_kwargs": policy_kwargs or {},
-               **(status or {"complete": True}), **finite}
+    summary = {
+        "task": task,
+        "controller": controller,
+        "seed": seed,
+        "policy_kwargs": policy_kwargs or {},
+        **(status or {"complete": True}),
+        **finite,
+    }
     write_text_whole(summary_path, json.dumps(summary, indent=2))
     result.files.append(summary_path)
     if not plots:
@@ -257,9 +302,9 @@ def write_demo_outputs(
             result.files.append(panels.save_figure(draw(), out / f"{prefix}{name}.png"))
             drawn += 1
     except KeyboardInterrupt as exc:
-        exc.kept = (f"the log and summary are complete in {out}/; {drawn} of {len(drawers)} figures "  # type: ignore[attr-defined]
-                    "were drawn (each whole)")
+        exc.kept = (
+            f"the log and summary are complete in {out}/; {drawn} of {len(drawers)} figures "  # type: ignore[attr-defined]
+            "were drawn (each whole)"
+        )
         raise
     return result
-
-

@@ -17,8 +17,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator, SymmetricalLogLocator
 
-from snac_gym.outputs import write_whole
 from snac_gym.cost import cost_rates
+from snac_gym.outputs import write_whole
 from snac_gym.references import Ellipse, FixedTarget
 from snac_gym.rollout import log_array
 from snac_gym.tasks import TASKS
@@ -154,8 +154,15 @@ def plot_cost(log: pd.DataFrame, axes: Any = None, Q: np.ndarray | None = None, 
     # The total is drawn thin and dashed on top of the terms: where one term dominates (the
     # smoothness term's jump from rest, often) its wide line still shows between the dashes.
     total = np.cumsum(rates.error + rates.effort + rates.smoothness) * dt
-    bottom.plot(t, total, color="k", lw=1.2, ls=(0, (4, 3)), zorder=3,
-                label=f"total V = {total[-1]:.4g}" if len(total) else "total")
+    bottom.plot(
+        t,
+        total,
+        color="k",
+        lw=1.2,
+        ls=(0, (4, 3)),
+        zorder=3,
+        label=f"total V = {total[-1]:.4g}" if len(total) else "total",
+    )
     bottom.set_yscale("symlog", linthresh=1e-2)
     bottom.set_xlabel("time (s)")
     bottom.set_ylabel("running cost")

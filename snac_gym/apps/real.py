@@ -20,13 +20,19 @@ from snac_gym._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
 from snac_gym._signals import SignalGuard, TerminationSignal
 from snac_gym._signals import stop_signals_raise as _stop_signals_raise
 from snac_gym.apps.demo import write_demo_outputs
-from snac_gym.outputs import usable_out_folder, write_text_whole, write_whole
-from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
 from snac_gym.envs.core import resolve_reference, validate_q0
+from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
 from snac_gym.kinematics import Kinematics
+from snac_gym.outputs import usable_out_folder, write_text_whole, write_whole
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
-from snac_gym.real.connections import SERIES_FREQUENCY, ConnectionFailure, DryRunConnection, SimulatedConnection, URRTDEConnection
+from snac_gym.real.connections import (
+    SERIES_FREQUENCY,
+    ConnectionFailure,
+    DryRunConnection,
+    SimulatedConnection,
+    URRTDEConnection,
+)
 from snac_gym.real.env import RealUREnv
 from snac_gym.real.journal import StepJournal
 from snac_gym.real.loop_tuning import LoopTuning, frozen_gc, tuned_process
@@ -97,7 +103,11 @@ class RealRunResult:
         if self.timing:
             lines.append(
                 f"  late periods                {late_periods(self.timing)}"
-                + ("" if self.deadline_stop else ": counted only, a rehearsal has no deadline stop (--deadline-stop for one)")
+                + (
+                    ""
+                    if self.deadline_stop
+                    else ": counted only, a rehearsal has no deadline stop (--deadline-stop for one)"
+                )
             )
         if self.timing and self.timing.get("speed_scaling_min", 1.0) < 1.0:
             lines.append(
@@ -158,9 +168,15 @@ def resolve_deadline_stop(
 
 #: ``snac-gym real``'s exit codes, by how the run ended (``--help`` and docs/real-arm.md list them).
 EXIT_CODES = {
-    "ran to its end (or a dry run)": 0, "link to the arm lost": 1, "input refused": 2, "unexpected error": 3,
-    "safety layer stopped the arm": 4, "protective stop": 5, "emergency stop": 6,
-    "stopped, but nothing confirmed the arm at rest": 7, "signal n": "128 + n",
+    "ran to its end (or a dry run)": 0,
+    "link to the arm lost": 1,
+    "input refused": 2,
+    "unexpected error": 3,
+    "safety layer stopped the arm": 4,
+    "protective stop": 5,
+    "emergency stop": 6,
+    "stopped, but nothing confirmed the arm at rest": 7,
+    "signal n": "128 + n",
 }
 
 
@@ -169,6 +185,8 @@ def stop_record(connection: Any) -> dict[str, Any]:
     ``{}`` for a connection without one (simulated, dry run)."""
     record = getattr(connection, "stop_record", None)
     return {} if record is None else record()
+
+
 #: Longest episode ``snac-gym real`` runs, s (``--steps`` is bounded by it at 500 Hz): an hour of streaming.
 MAX_REAL_SECONDS = 3600.0
 #: The arms ``snac-gym real`` drives: the UR models of the registry (ur_rtde; ``snac-gym emulate-ur`` serves the same).
@@ -198,11 +216,16 @@ def run_setup(
         options["q0"] = [float(v) for v in q0]
     if reference is not None:
         options[spec.option_key] = reference
-    hint = "" if robot == "ur10" or (q0 is not None and reference is not None) else (
-        f" (the paper's start pose and reference are the UR10's: give --q0 and the reference for {robot})")
+    hint = (
+        ""
+        if robot == "ur10" or (q0 is not None and reference is not None)
+        else (f" (the paper's start pose and reference are the UR10's: give --q0 and the reference for {robot})")
+    )
     try:
         start = validate_q0(kinematics, options["q0"])
-        resolved = resolve_reference(spec, kinematics, np.random.default_rng(0), SampleSpace.for_robot(kinematics), options)
+        resolved = resolve_reference(
+            spec, kinematics, np.random.default_rng(0), SampleSpace.for_robot(kinematics), options
+        )
     except ValueError as exc:
         raise ValueError(re.sub(r"options\['(\w+)'\]", r"--\1", str(exc)) + hint) from None
     layer = SafetyLayer(kinematics, safety, 1.0)
@@ -215,18 +238,28 @@ def run_setup(
     distances = np.linalg.norm(points - shoulder, axis=1)
     farthest = int(np.argmax(distances))
     if distances[farthest] > model.reach:
-        raise ValueError(f"the {task} reference reaches [{_fmt(points[farthest])}] m, {distances[farthest]:.3f} m from "
-                         f"the shoulder: beyond the {model.label}'s datasheet reach of {model.reach:.3f} m{hint}")
+        raise ValueError(
+            f"the {task} reference reaches [{_fmt(points[farthest])}] m, {distances[farthest]:.3f} m from "
+            f"the shoulder: beyond the {model.label}'s datasheet reach of {model.reach:.3f} m{hint}"
+        )
     low, high = safety.task_box(kinematics)
     outside = [p for p in points if np.any(p < low) or np.any(p > high)]
     if outside:
-        raise ValueError(f"the {task} reference leaves the task box [{_fmt(low)}] .. [{_fmt(high)}] m at "
-                         f"[{_fmt(outside[0])}]: choose another reference, or --task-box{hint}")
+        raise ValueError(
+            f"the {task} reference leaves the task box [{_fmt(low)}] .. [{_fmt(high)}] m at "
+            f"[{_fmt(outside[0])}]: choose another reference, or --task-box{hint}"
+        )
     return {
-        "robot": robot, "task": task, "q0": [float(v) for v in start], spec.option_key: options[spec.option_key],
-        "task_box": [low.tolist(), high.tolist()], "joint_limit_margin": safety.joint_limit_margin,
-        "speed_scale": safety.speed_scale, "max_joint_acceleration": safety.max_joint_acceleration,
-        "series": series, "speed_limits": [float(v) for v in velocity_limits(robot, kinematics.velocity_limits)],
+        "robot": robot,
+        "task": task,
+        "q0": [float(v) for v in start],
+        spec.option_key: options[spec.option_key],
+        "task_box": [low.tolist(), high.tolist()],
+        "joint_limit_margin": safety.joint_limit_margin,
+        "speed_scale": safety.speed_scale,
+        "max_joint_acceleration": safety.max_joint_acceleration,
+        "series": series,
+        "speed_limits": [float(v) for v in velocity_limits(robot, kinematics.velocity_limits)],
         "speed_limits_source": f"the URDF's, capped at the {model.source['speeds']}",
         "reach": model.reach,
         "deadline_stop": safety.deadline_stop,
@@ -353,7 +386,9 @@ def run_real_episode(
         whole_number("--steps", steps, 1, round(MAX_REAL_SECONDS * SERIES_FREQUENCY["e"]))
     whole_number("--seed", seed, 0, 2**32 - 1)
     if model_error is not None and connection != "sim":
-        raise ValueError("--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own")
+        raise ValueError(
+            "--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own"
+        )
     if dry_run and recovery is not None and recovery.unlock_protective_stop:
         raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
     safety = resolve_deadline_stop(safety if safety is not None else SafetyLimits(), connection, dry_run, deadline_stop)
@@ -475,7 +510,15 @@ def _write_outputs(
         log.attrs["late_periods"] = late_periods(timing)
     limits = (env.kinematics.lower_limits, env.kinematics.upper_limits)
     demo = write_demo_outputs(
-        log, task, controller, seed, env.success_tolerance, out, csv=csv, plots=plots, policy_kwargs=policy_kwargs,
+        log,
+        task,
+        controller,
+        seed,
+        env.success_tolerance,
+        out,
+        csv=csv,
+        plots=plots,
+        policy_kwargs=policy_kwargs,
         position_limits=limits,
     )
     arm = env.connection
@@ -570,7 +613,7 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
                 **({"recoveries": result.recoveries} if result.recoveries else {}),
             },
             indent=2,
-        )
+        ),
     )
     files = [timing_csv, summary]
     if plots and len(periods):

@@ -91,21 +91,39 @@ def discretisation_study(
             env.close()
             env = gym.make(spec.env_id, max_episode_steps=horizon)
         combos = itertools.product(
-            initial_weights, weight_updates or WEIGHT_UPDATES, learning_rate_units or LEARNING_RATE_UNITS,
-            freeze_options, schedule_clocks or SCHEDULE_CLOCKS,
+            initial_weights,
+            weight_updates or WEIGHT_UPDATES,
+            learning_rate_units or LEARNING_RATE_UNITS,
+            freeze_options,
+            schedule_clocks or SCHEDULE_CLOCKS,
         )
         for (kind, scale), update, unit, freeze, clock in combos:
             if kind == "identity" and scale is None:
                 scale = INITIAL_WEIGHT_SCALES[task]
             weight_kwargs, resolved = _initial_weight_kwargs(kind, scale)
             for seed in seeds[:1] if kind == "identity" else seeds:
-                policy = SNACPolicy(env, weight_update=update, learning_rate_unit=unit, freeze_when_saturated=freeze,
-                                    schedule_clock=clock, **weight_kwargs)
+                policy = SNACPolicy(
+                    env,
+                    weight_update=update,
+                    learning_rate_unit=unit,
+                    freeze_when_saturated=freeze,
+                    schedule_clock=clock,
+                    **weight_kwargs,
+                )
                 log = rollout(env, policy, options=spec.demo_options(), seed=seed, steps=horizon)
-                rows.append({"task": task, "initial_weights": kind, "initial_weight_scale": resolved,
-                             "learning_rate_unit": unit, "freeze_when_saturated": freeze,
-                             "weight_update": update, "schedule_clock": clock, "seed": seed,
-                             **asdict(demo_metrics(log, spec.success_tolerance))})
+                rows.append(
+                    {
+                        "task": task,
+                        "initial_weights": kind,
+                        "initial_weight_scale": resolved,
+                        "learning_rate_unit": unit,
+                        "freeze_when_saturated": freeze,
+                        "weight_update": update,
+                        "schedule_clock": clock,
+                        "seed": seed,
+                        **asdict(demo_metrics(log, spec.success_tolerance)),
+                    }
+                )
         env.close()
     return pd.DataFrame(rows)
 
@@ -117,8 +135,19 @@ def summarise_study(runs: pd.DataFrame) -> pd.DataFrame:
     threshold for any seed shows ``inf``. ``max_speed_ratio`` is the largest |u_j|/limit_j
     (1: the command touched a limit, where it is clipped).
     """
-    keys = [k for k in ("task", "initial_weights", "initial_weight_scale", "learning_rate_unit",
-                        "freeze_when_saturated", "weight_update", "schedule_clock") if k in runs.columns]
+    keys = [
+        k
+        for k in (
+            "task",
+            "initial_weights",
+            "initial_weight_scale",
+            "learning_rate_unit",
+            "freeze_when_saturated",
+            "weight_update",
+            "schedule_clock",
+        )
+        if k in runs.columns
+    ]
     runs = runs.copy()
     for column in ("time_to_1mm", "settling_time"):
         runs[column] = runs[column].astype(float).fillna(np.inf)
@@ -193,15 +222,27 @@ def random_episode_study(
         env.close()
         for name, kwargs in configs.items():
             batch = simulate_kinematic(
-                context, functools.partial(SNACPolicy, context, **kwargs), samples, max(counts),
-                seeds=[s.index for s in samples], label=name, keep_states=False,
+                context,
+                functools.partial(SNACPolicy, context, **kwargs),
+                samples,
+                max(counts),
+                seeds=[s.index for s in samples],
+                label=name,
+                keep_states=False,
             )
             for episode, sample in enumerate(samples):
                 errors = np.vstack([batch.errors[episode], batch.final_errors[episode][None]])
                 commands = batch.commands[episode]
                 for horizon, count in zip(times, counts):
-                    rows.append({"task": task, "config": name, "episode": sample.index, "horizon_s": float(horizon),
-                                 **_prefix_figures(spec, errors[: count + 1], commands[:count], limits, dt)})
+                    rows.append(
+                        {
+                            "task": task,
+                            "config": name,
+                            "episode": sample.index,
+                            "horizon_s": float(horizon),
+                            **_prefix_figures(spec, errors[: count + 1], commands[:count], limits, dt),
+                        }
+                    )
     return pd.DataFrame(rows)
 
 
@@ -213,15 +254,19 @@ def _prefix_figures(
     cost = trajectory_cost(errors[:-1], commands, dt)
     count = len(commands)
     # The study's own second half, k = ⌈K/2⌉..K (the final error included), as published in docs/snac.md.
-    second_half = float(norms[(count + 1) // 2:].mean())
+    second_half = float(norms[(count + 1) // 2 :].mean())
     final = float(norms[-1])
     success = spec.success({"final_error": final, "mean_error_2nd_half": second_half})
     return {
-        "final_error": final, "mean_error_second_half": second_half, "success": bool(success),
+        "final_error": final,
+        "mean_error_second_half": second_half,
+        "success": bool(success),
         "max_speed_ratio": float((np.abs(commands) / limits).max()),
         "first_command_jump": float(commands[0] @ commands[0] / dt),
-        "cost_error": float(cost.error), "cost_effort": float(cost.effort),
-        "cost_smoothness": float(cost.smoothness), "cost_total": float(cost.total),
+        "cost_error": float(cost.error),
+        "cost_effort": float(cost.effort),
+        "cost_smoothness": float(cost.smoothness),
+        "cost_total": float(cost.total),
     }
 
 
@@ -263,14 +308,23 @@ def effort_study(
     for task in tasks:
         spec = get_task(task)
         env = gym.make(spec.env_id)
-        episodes = [("paper", spec.demo_options(), 0)] + [(f"random{s}", None, s) for s in range(1, random_episodes + 1)]
+        episodes = [("paper", spec.demo_options(), 0)] + [
+            (f"random{s}", None, s) for s in range(1, random_episodes + 1)
+        ]
         for name, options, seed in episodes:
             for scale in scales:
                 log = rollout(env, SNACPolicy(env, command_scale=scale), options=options, seed=seed)
                 commands = log_array(log, "u")
                 metrics = demo_metrics(log, spec.success_tolerance)
-                rows.append({"task": task, "episode": name, "command_scale": scale,
-                             "peak_command_norm": float(np.linalg.norm(commands, axis=1).max()),
-                             "cost_effort": metrics.cost_effort, "final_error": metrics.final_error})
+                rows.append(
+                    {
+                        "task": task,
+                        "episode": name,
+                        "command_scale": scale,
+                        "peak_command_norm": float(np.linalg.norm(commands, axis=1).max()),
+                        "cost_effort": metrics.cost_effort,
+                        "final_error": metrics.final_error,
+                    }
+                )
         env.close()
     return pd.DataFrame(rows)

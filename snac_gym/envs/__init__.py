@@ -5,7 +5,17 @@ from typing import Any
 
 import gymnasium as gym
 
-from snac_gym.envs.core import ACTION_TYPES, OBSERVATION_BOUNDS, REWARD_TYPES, SHAPED_REWARD, V1_DEFAULTS, URTaskEnv, shaped_reward
+from snac_gym.envs.core import (
+    ACTION_TYPES,
+    OBSERVATION_BOUNDS,
+    REWARD_TYPES,
+    SHAPED_REWARD,
+    V1_DEFAULTS,
+    URTaskEnv,
+    shaped_reward,
+)
+from snac_gym.envs.goal import COARSE_REACH, coarse_reach_id
+from snac_gym.envs.ids import REGISTERED_IDS, RegisteredId
 from snac_gym.envs.task_envs import (
     TASK_ENV_CLASSES,
     EllipseTrackEnv,
@@ -16,8 +26,6 @@ from snac_gym.envs.task_envs import (
     UR10ReachEnv,
     task_env_class,
 )
-from snac_gym.envs.goal import COARSE_REACH, coarse_reach_id
-from snac_gym.envs.ids import REGISTERED_IDS, RegisteredId
 from snac_gym.envs.vector import task_vector_env_class, vector_env_supports
 from snac_gym.robots import all_robots
 from snac_gym.tasks import Task, all_tasks, get_task
@@ -96,8 +104,12 @@ def _register(task: Task, robot: str, goal: bool, version: int = 0) -> None:
     if env_id in gym.registry:
         return
     gym.register(
-        id=env_id, entry_point=entry_point, kwargs=kwargs, disable_env_checker=False,
-        max_episode_steps=task.episode_steps, vector_entry_point=vector_entry_point,
+        id=env_id,
+        entry_point=entry_point,
+        kwargs=kwargs,
+        disable_env_checker=False,
+        max_episode_steps=task.episode_steps,
+        vector_entry_point=vector_entry_point,
     )
 
 
@@ -114,8 +126,13 @@ def _register_coarse_reach(robot: str, version: int = 0) -> None:
         kwargs = {"robot": robot} if action == "joint" else {"robot": robot, "action": action}
         if version == 1:
             kwargs["finite_observation_bounds"] = "clip"
-        gym.register(id=env_id, entry_point=table[env_id], kwargs=kwargs,
-                     disable_env_checker=False, max_episode_steps=COARSE_REACH["episode_steps"])
+        gym.register(
+            id=env_id,
+            entry_point=table[env_id],
+            kwargs=kwargs,
+            disable_env_checker=False,
+            max_episode_steps=COARSE_REACH["episode_steps"],
+        )
 
 
 def make_task_env(task: Task | str, robot: str = "ur10", version: int = 0, **kwargs: Any) -> Any:
@@ -145,7 +162,8 @@ def unregister_envs(task: str | None = None, robot: str | None = None) -> list[s
         The ids removed.
     """
     removed = [
-        env_id for env_id, entry in REGISTERED_IDS.items()
+        env_id
+        for env_id, entry in REGISTERED_IDS.items()
         if (task is None or entry.task == task) and (robot is None or entry.robot == robot)
     ]
     for env_id in removed:

@@ -14,17 +14,17 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym.cost import CostConvention, step_costs, weight_matrix
-from snac_gym.physics import PHYSICS, Arm, check_physics, make_arm, scene_of
 from snac_gym.envs.ids import IdRobotCheck
-from snac_gym.physics.scene import CameraOptions, default_render_every
-from snac_gym.physics.base import check_image_size, check_timing
-from snac_gym.validation import boolean, real_number, whole_number
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
+from snac_gym.physics import PHYSICS, Arm, check_physics, make_arm, scene_of
+from snac_gym.physics.base import check_image_size, check_timing
+from snac_gym.physics.scene import CameraOptions, default_render_every
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
-from snac_gym.sampling import REGIONS, SampleSpace, sample_seed_pose
 from snac_gym.robots import get_robot
+from snac_gym.sampling import REGIONS, SampleSpace, sample_seed_pose
 from snac_gym.tasks import Task, get_task
+from snac_gym.validation import boolean, real_number, whole_number
 
 #: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
 ACTION_TYPES = ("velocity", "normalized")
@@ -118,7 +118,9 @@ def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
             raise TypeError(raw.dtype)
         u = np.array(raw, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"action must be {len(velocity_limits)} joint velocities in rad/s (real numbers), got {action!r}") from exc
+        raise ValueError(
+            f"action must be {len(velocity_limits)} joint velocities in rad/s (real numbers), got {action!r}"
+        ) from exc
     if u.shape != velocity_limits.shape:
         raise ValueError(f"action must have shape {velocity_limits.shape} (joint velocities, rad/s), got {u.shape}")
     if not np.isfinite(u).all():
@@ -149,8 +151,12 @@ class ActionCheck:
         # float64 or float32 ('d', 'f'; either byte order): np.maximum with the float64 bounds gives what
         # np.array(action, dtype=np.float64) would be before the clip, and a new array the env may keep.
         # Every value finite: counted (count_nonzero is a C call, ndarray.all a Python wrapper at twice the cost).
-        if (type(action) is np.ndarray and action.dtype.char in "df" and action.shape == self._shape
-                and np.count_nonzero(np.isfinite(action)) == self._size):
+        if (
+            type(action) is np.ndarray
+            and action.dtype.char in "df"
+            and action.shape == self._shape
+            and np.count_nonzero(np.isfinite(action)) == self._size
+        ):
             u = np.maximum(action, self._low)
             return np.minimum(u, self.limits, out=u)
         return validate_action(action, self.limits)
@@ -230,10 +236,13 @@ def physics_argument(physics: str, backend: str | None = None) -> str:
     if backend is not None:
         warnings.warn(
             f"backend={backend!r} is deprecated; use physics={backend!r} (the arm's model: one of {PHYSICS})",
-            DeprecationWarning, stacklevel=3,
+            DeprecationWarning,
+            stacklevel=3,
         )
         if physics not in (backend, PHYSICS[0]):
-            raise ValueError(f"give physics= only (backend= is its deprecated name), got physics={physics!r}, backend={backend!r}")
+            raise ValueError(
+                f"give physics= only (backend= is its deprecated name), got physics={physics!r}, backend={backend!r}"
+            )
         physics = backend
     return check_physics(physics)
 
@@ -305,15 +314,23 @@ class TaskEnvCore(gym.Env):
     """
 
     def _init_task(
-        self, task: Task | str, kinematics: Kinematics, dt: float, Q: Any, R: Any,
-        success_tolerance: float | None, sample_space: SampleSpace | None,
+        self,
+        task: Task | str,
+        kinematics: Kinematics,
+        dt: float,
+        Q: Any,
+        R: Any,
+        success_tolerance: float | None,
+        sample_space: SampleSpace | None,
     ) -> None:
         """Set the shared state; raises ``ValueError`` on a bad tolerance or weight matrix."""
         self.task: Task = get_task(task)
         self.task_name = self.task.name
         tolerance = self.task.success_tolerance if success_tolerance is None else success_tolerance
         #: Distance (m) under which the target counts as reached: in (0, :data:`MAX_SUCCESS_TOLERANCE`].
-        self.success_tolerance = real_number("success_tolerance (m)", tolerance, 0.0, MAX_SUCCESS_TOLERANCE, low_open=True)
+        self.success_tolerance = real_number(
+            "success_tolerance (m)", tolerance, 0.0, MAX_SUCCESS_TOLERANCE, low_open=True
+        )
         self.kinematics = kinematics
         # A pose task's error is a logarithm (PoseKinematics.task_error), not x − x_d (None).
         self._task_error = getattr(kinematics, "task_error", None)
@@ -352,8 +369,13 @@ class TaskEnvCore(gym.Env):
 
     def _reset_info(self, q0: np.ndarray | None) -> dict[str, Any]:
         error = self._obs[self._error_slice]
-        info = {"error": error.copy(), "error_norm": float(np.linalg.norm(error)), "t": 0.0,
-                "is_success": self._is_success(error), "reference": self.reference.to_dict()}
+        info = {
+            "error": error.copy(),
+            "error_norm": float(np.linalg.norm(error)),
+            "t": 0.0,
+            "is_success": self._is_success(error),
+            "reference": self.reference.to_dict(),
+        }
         if q0 is not None:
             info["q0"] = np.array(q0, dtype=float)
         return info
@@ -362,8 +384,13 @@ class TaskEnvCore(gym.Env):
         error = self._obs[self._error_slice]
         squared = error.dot(error)  # ‖e‖² once, for the norm and the success rule (:meth:`_is_success`)
         return {
-            "error": error.copy(), "error_norm": math.sqrt(squared), "cost_error": costs[0],
-            "cost_effort": costs[1], "cost_smoothness": costs[2], "command": command.copy(), "t": self.time,
+            "error": error.copy(),
+            "error_norm": math.sqrt(squared),
+            "cost_error": costs[0],
+            "cost_effort": costs[1],
+            "cost_smoothness": costs[2],
+            "command": command.copy(),
+            "t": self.time,
             "is_success": self._is_success(error, squared),
         }
 
@@ -421,15 +448,31 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         if max_steps is not None:
             max_steps = whole_number("max_steps", max_steps, 1, MAX_EPISODE_STEPS)
         self.cost_convention = _cost_reward(reward_type, cost, Q, R)
-        self._init_kwargs = dict(physics=physics, render_every=render_every,
-            robot=robot, dt=dt, n_substeps=n_substeps, max_steps=max_steps, reward_type=reward_type, Q=Q, R=R,
-            success_tolerance=success_tolerance, terminate_on_success=terminate_on_success,
-            sample_space=sample_space, render_mode=render_mode, render_width=render_width, render_height=render_height,
-            render_distance=render_distance, render_yaw=render_yaw, render_pitch=render_pitch,
+        self._init_kwargs = dict(
+            physics=physics,
+            render_every=render_every,
+            robot=robot,
+            dt=dt,
+            n_substeps=n_substeps,
+            max_steps=max_steps,
+            reward_type=reward_type,
+            Q=Q,
+            R=R,
+            success_tolerance=success_tolerance,
+            terminate_on_success=terminate_on_success,
+            sample_space=sample_space,
+            render_mode=render_mode,
+            render_width=render_width,
+            render_height=render_height,
+            render_distance=render_distance,
+            render_yaw=render_yaw,
+            render_pitch=render_pitch,
             render_target_position=render_target_position,
-            action_type=action_type, observation_dtype=observation_dtype,
+            action_type=action_type,
+            observation_dtype=observation_dtype,
             finite_observation_bounds=finite_observation_bounds,
-            task=None if self.task_spec is not None else task.name, cost=cost,
+            task=None if self.task_spec is not None else task.name,
+            cost=cost,
         )
         obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
         finite_observation_bounds = check_observation_bounds(finite_observation_bounds)
@@ -514,8 +557,9 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self._scene: Any = None
         if self.render_mode is not None and not self._headless_human:
             # Built before the first reset: PyBullet restores a saved state only into the same bodies.
-            self._scene = scene_of(self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height,
-                                   self.camera_options)
+            self._scene = scene_of(
+                self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height, self.camera_options
+            )
             self.arm.save_initial_state()
         self._frame: tuple[int, np.ndarray] | None = None  # (step, image) of the last rendered image
         self._shown_reference: Reference | None = None
@@ -558,8 +602,15 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         upper = np.where(np.isfinite(k.upper_limits), k.upper_limits + JOINT_LIMIT_MARGIN, CONTINUOUS_JOINT_BOUND)
         lower = np.where(np.isfinite(k.lower_limits), k.lower_limits - JOINT_LIMIT_MARGIN, -CONTINUOUS_JOINT_BOUND)
         high = np.empty(self.obs_layout.size)
-        for name, value in (("q", upper), ("qdot", qdot), ("x", box), ("x_d", box),
-                            ("xdot_d", speed), ("e", error), ("x_c", box)):
+        for name, value in (
+            ("q", upper),
+            ("qdot", qdot),
+            ("x", box),
+            ("x_d", box),
+            ("xdot_d", speed),
+            ("e", error),
+            ("x_c", box),
+        ):
             high[self.obs_layout.slices[name]] = value
         low = -high
         low[self.obs_layout.slices["q"]] = lower
@@ -658,8 +709,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         gym.logger.warn(
             "render_mode='human' with physics='mujoco' shows nothing (MuJoCo renders headless here); use "
             "render_mode='rgb_array' (gymnasium.wrappers.HumanRendering shows those frames in a window)"
-            if self.physics == "mujoco" else
-            "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set: "
+            if self.physics == "mujoco"
+            else "render_mode='human' opens the PyBullet GUI and needs a display, but DISPLAY is not set: "
             "nothing is shown; use render_mode='rgb_array' to render headless"
         )
         self._warned_headless = True

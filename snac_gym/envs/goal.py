@@ -126,14 +126,25 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         if reserved:
             raise ValueError(f"the goal env sets {sorted(reserved)} itself")
         self._init_kwargs = dict(
-            task=task, reward_type=reward_type, success_tolerance=success_tolerance,
-            terminate_on_success=terminate_on_success, render_mode=render_mode, start=start, action=action,
-            cartesian_speed=cartesian_speed, finite_observation_bounds=finite_observation_bounds, **env_kwargs,
+            task=task,
+            reward_type=reward_type,
+            success_tolerance=success_tolerance,
+            terminate_on_success=terminate_on_success,
+            render_mode=render_mode,
+            start=start,
+            action=action,
+            cartesian_speed=cartesian_speed,
+            finite_observation_bounds=finite_observation_bounds,
+            **env_kwargs,
         )
         self.task = get_task(task)
         self.env = task_env_class(self.task)(
-            task=self.task, success_tolerance=success_tolerance, render_mode=render_mode, observation_dtype=np.float32,
-            finite_observation_bounds=finite_observation_bounds, **env_kwargs,
+            task=self.task,
+            success_tolerance=success_tolerance,
+            render_mode=render_mode,
+            observation_dtype=np.float32,
+            finite_observation_bounds=finite_observation_bounds,
+            **env_kwargs,
         )
         self.reward_type = reward_type
         self.start = start
@@ -159,11 +170,13 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         low = np.concatenate([inner.low[layout.slices[name]] for name in self._observation_fields()])
         high = np.concatenate([inner.high[layout.slices[name]] for name in self._observation_fields()])
         goal_low, goal_high = inner.low[layout.slices["x"]], inner.high[layout.slices["x"]]
-        return gym.spaces.Dict({
-            "observation": gym.spaces.Box(low, high, dtype=np.float32),
-            "achieved_goal": gym.spaces.Box(goal_low, goal_high, dtype=np.float32),
-            "desired_goal": gym.spaces.Box(goal_low, goal_high, dtype=np.float32),
-        })
+        return gym.spaces.Dict(
+            {
+                "observation": gym.spaces.Box(low, high, dtype=np.float32),
+                "achieved_goal": gym.spaces.Box(goal_low, goal_high, dtype=np.float32),
+                "desired_goal": gym.spaces.Box(goal_low, goal_high, dtype=np.float32),
+            }
+        )
 
     def _goal_observation(self, flat: np.ndarray) -> dict[str, np.ndarray]:
         slices = self.env.obs_layout.slices
@@ -188,7 +201,9 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
             if goal.ndim == 0 or goal.shape[-1] != size:
                 raise ValueError(f"{name} must have shape (..., {size}), got {goal.shape}")
         if achieved.shape != desired.shape:
-            raise ValueError(f"achieved_goal and desired_goal must have one shape, got {achieved.shape} and {desired.shape}")
+            raise ValueError(
+                f"achieved_goal and desired_goal must have one shape, got {achieved.shape} and {desired.shape}"
+            )
         return np.linalg.norm(achieved - desired, axis=-1)
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
@@ -239,7 +254,9 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         q = self.env._obs[self.env.obs_layout.slices["q"]]
         velocity = self.cartesian_speed * np.clip(a, -1.0, 1.0)
         limits = self.env.velocity_limits
-        u = np.clip(damped_least_squares(self.env.kinematics.jacobian(q), velocity, self._damping_matrix), -limits, limits)
+        u = np.clip(
+            damped_least_squares(self.env.kinematics.jacobian(q), velocity, self._damping_matrix), -limits, limits
+        )
         return u / limits if self.env.action_type == "normalized" else u
 
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict[str, Any]]:
@@ -292,7 +309,6 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         self._np_random = state["np_random"]
 
 
-
 class CoarseReachGoalEnv(GoalTaskEnv):
     """The coarse reach preset, ``snac_gym/<Robot>ReachGoalCoarse-v0``: a goal reach sized as panda-gym's PandaReach.
 
@@ -316,8 +332,13 @@ class CoarseReachGoalEnv(GoalTaskEnv):
         centre = kinematics.forward(nominal_configuration(kinematics))
         half = COARSE_REACH["box"] / 2
         preset = {
-            "task": "reach", "robot": robot, "success_tolerance": COARSE_REACH["tolerance"], "dt": COARSE_REACH["dt"],
-            "n_substeps": COARSE_REACH["n_substeps"], "action_type": "normalized", "start": "nominal",
+            "task": "reach",
+            "robot": robot,
+            "success_tolerance": COARSE_REACH["tolerance"],
+            "dt": COARSE_REACH["dt"],
+            "n_substeps": COARSE_REACH["n_substeps"],
+            "action_type": "normalized",
+            "start": "nominal",
             "sample_space": SampleSpace(low=tuple(centre - half), high=tuple(centre + half)),
         }
         super().__init__(**{**preset, **overrides})

@@ -88,7 +88,8 @@ class IdRobotCheck:
             warnings.warn(
                 f"gym.make({value.id!r}, max_steps={requested}) is deprecated: pass max_episode_steps={requested} "
                 "(the registration's TimeLimit also truncates, at its own length)",
-                DeprecationWarning, stacklevel=3,
+                DeprecationWarning,
+                stacklevel=3,
             )
         self._spec = value
 

@@ -69,15 +69,19 @@ class SB3VectorEnv(VecEnv):
         """Called after episodes ``indices`` were reset (their generators have drawn the episode)."""
 
     # -- VecEnv --------------------------------------------------------------------------------
-    def _reset_episodes(self, indices: Iterable[int], seeds: Sequence[int | None], options: Sequence[dict[str, Any]]) -> None:
+    def _reset_episodes(
+        self, indices: Iterable[int], seeds: Sequence[int | None], options: Sequence[dict[str, Any]]
+    ) -> None:
         indices = np.asarray(list(indices), dtype=np.intp)
         # An empty dict is no options, as DummyVecEnv passes it (an env given options={} would
         # start from the paper's reference). Without options all episodes reset in one batch.
         if not any(options):
             infos = self.episodes.reset(indices, seeds, None)
         else:
-            infos = [self.episodes.reset([int(i)], [seed], option or None)[0]
-                     for i, seed, option in zip(indices, seeds, options, strict=True)]
+            infos = [
+                self.episodes.reset([int(i)], [seed], option or None)[0]
+                for i, seed, option in zip(indices, seeds, options, strict=True)
+            ]
         for index, info in zip(indices, infos, strict=True):
             self.reset_infos[index] = info
         self._on_reset(indices)
@@ -108,7 +112,8 @@ class SB3VectorEnv(VecEnv):
                 infos[i] = {
                     "terminal_observation": observations[i].copy(),
                     "TimeLimit.truncated": bool(truncated[i] and not terminated[i]),
-                    "is_success": bool(result["is_success"][i]), "error_norm": float(result["error_norm"][i]),
+                    "is_success": bool(result["is_success"][i]),
+                    "error_norm": float(result["error_norm"][i]),
                 }
             self._reset_episodes(ended, [None] * len(ended), [{}] * len(ended))
             observations[ended] = self._features(self.episodes.observations(ended), ended)
@@ -133,7 +138,9 @@ class SB3VectorEnv(VecEnv):
             raise ValueError("the sub-envs share one configuration: set_attr applies to all of them (indices=None)")
         setattr(self.vector_env.single_env, attr_name, value)
 
-    def env_method(self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any) -> list[Any]:
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
         method = getattr(self.vector_env.single_env, method_name)
         return [method(*method_args, **method_kwargs) for _ in self._indices(indices)]
 

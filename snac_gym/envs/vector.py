@@ -35,8 +35,8 @@ from gymnasium.vector.utils import batch_space
 
 from snac_gym.cost import step_costs
 from snac_gym.envs.core import URTaskEnv, draw_episode, physics_argument, shaped_reward
-from snac_gym.envs.task_envs import task_env_class
 from snac_gym.envs.ids import IdRobotCheck
+from snac_gym.envs.task_envs import task_env_class
 from snac_gym.kinematics import Kinematics, PositionChain, joint_step
 from snac_gym.references import Ellipse, FixedTarget, Reference
 from snac_gym.tasks import Task, get_task
@@ -135,7 +135,9 @@ class KinematicEpisodes:
         self.generators: list[np.random.Generator | None] = [None] * count
 
     # -- resets ----------------------------------------------------------------------------------
-    def reset(self, indices: Sequence[int], seeds: Sequence[int | None], options: Mapping[str, Any] | None) -> list[dict[str, Any]]:
+    def reset(
+        self, indices: Sequence[int], seeds: Sequence[int | None], options: Mapping[str, Any] | None
+    ) -> list[dict[str, Any]]:
         """Start a new episode in each of ``indices`` (seeding its generator when a seed is given).
 
         Returns:
@@ -146,7 +148,9 @@ class KinematicEpisodes:
         for index, seed in zip(indices, seeds, strict=True):
             if seed is not None or self.generators[index] is None:
                 self.generators[index] = seeding.np_random(seed)[0]
-            q0, reference = draw_episode(template.task, template.kinematics, self.generators[index], template.sample_space, options)
+            q0, reference = draw_episode(
+                template.task, template.kinematics, self.generators[index], template.sample_space, options
+            )
             self.q[index] = q0
             self.references.set(index, reference)
             q0s.append(q0)
@@ -159,9 +163,14 @@ class KinematicEpisodes:
 
     def _reset_info(self, index: int, q0: np.ndarray) -> dict[str, Any]:
         error = self.error[index].copy()
-        return {"error": error, "error_norm": float(np.linalg.norm(error)), "t": 0.0,
-                "is_success": bool(error @ error <= self.template.success_tolerance**2),
-                "reference": self.references.references[index].to_dict(), "q0": q0.copy()}
+        return {
+            "error": error,
+            "error_norm": float(np.linalg.norm(error)),
+            "t": 0.0,
+            "is_success": bool(error @ error <= self.template.success_tolerance**2),
+            "reference": self.references.references[index].to_dict(),
+            "q0": q0.copy(),
+        }
 
     def _observe(self, rows: Any = slice(None)) -> None:
         """Update x, x_d, ẋ_d and e of episodes ``rows`` from θ and the step count."""
@@ -232,19 +241,33 @@ class KinematicEpisodes:
         else:
             reward = np.where(success, 0.0, -1.0)
         return {
-            "reward": reward, "terminated": success & template.terminate_on_success, "truncated": self.steps >= self.horizon,
-            "cost_error": cost_error, "cost_effort": cost_effort, "cost_smoothness": cost_smoothness,
-            "error_norm": error_norm, "is_success": success,
+            "reward": reward,
+            "terminated": success & template.terminate_on_success,
+            "truncated": self.steps >= self.horizon,
+            "cost_error": cost_error,
+            "cost_effort": cost_effort,
+            "cost_smoothness": cost_smoothness,
+            "error_norm": error_norm,
+            "is_success": success,
         }
 
     def observations(self, rows: Any = slice(None)) -> np.ndarray:
         """The observations of episodes ``rows``, ``(len, d)``, in the template's observation dtype."""
         q = self.q[rows]
         clip = self.template.observation_clip  # finite_observation_bounds="clip": clipped in float64, as the single env
-        obs = np.empty((len(q), self.layout.size), dtype=np.float64 if clip is not None else self.template.observation_dtype)
+        obs = np.empty(
+            (len(q), self.layout.size), dtype=np.float64 if clip is not None else self.template.observation_dtype
+        )
         slices = self.layout.slices
-        for name, value in (("q", q), ("qdot", self.qdot[rows]), ("x", self.x[rows]), ("x_d", self.x_d[rows]),
-                            ("xdot_d", self.xdot_d[rows]), ("e", self.error[rows]), ("x_c", self.references.centre[rows])):
+        for name, value in (
+            ("q", q),
+            ("qdot", self.qdot[rows]),
+            ("x", self.x[rows]),
+            ("x_d", self.x_d[rows]),
+            ("xdot_d", self.xdot_d[rows]),
+            ("e", self.error[rows]),
+            ("x_c", self.references.centre[rows]),
+        ):
             obs[:, slices[name]] = value
         if clip is not None:
             return np.clip(obs, *clip).astype(self.template.observation_dtype)
@@ -304,10 +327,14 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         whole_number("num_envs", num_envs, 1, MAX_NUM_ENVS)
         task = get_task(task if task is not None else self.task_spec)
         if not vector_env_supports(task):
-            raise ValueError(f"the vector env steps end-effector positions only; task {task.name!r} has its own kinematics")
+            raise ValueError(
+                f"the vector env steps end-effector positions only; task {task.name!r} has its own kinematics"
+            )
         template = task_env_class(task)(physics="kinematic", task=task, **kwargs)
         if type(template.kinematics) is not Kinematics or template.kinematics.task_dim != 3:
-            raise ValueError(f"the vector env steps end-effector positions only, got {type(template.kinematics).__name__}")
+            raise ValueError(
+                f"the vector env steps end-effector positions only, got {type(template.kinematics).__name__}"
+            )
         horizon = template.requested_max_steps or max_episode_steps or template.default_max_steps
         if horizon < 1:
             raise ValueError(f"max_episode_steps must be at least 1, got {max_episode_steps}")
@@ -340,7 +367,9 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         self._autoreset[indices] = False
         return self.episodes.observations(), infos
 
-    def _reset_infos(self, indices: np.ndarray, seeds: Sequence[int | None], options: Mapping[str, Any] | None) -> dict[str, Any]:
+    def _reset_infos(
+        self, indices: np.ndarray, seeds: Sequence[int | None], options: Mapping[str, Any] | None
+    ) -> dict[str, Any]:
         infos: dict[str, Any] = {}
         for index, info in zip(indices, self.episodes.reset(indices, seeds, options), strict=True):
             infos = self._add_info(infos, info, int(index))
@@ -366,9 +395,14 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
     def _step_infos(self, result: Mapping[str, np.ndarray], u: np.ndarray) -> dict[str, Any]:
         episodes = self.episodes
         values = {
-            "error": episodes.error.copy(), "error_norm": result["error_norm"], "cost_error": result["cost_error"],
-            "cost_effort": result["cost_effort"], "cost_smoothness": result["cost_smoothness"], "command": u.copy(),
-            "t": episodes.steps * episodes.dt, "is_success": result["is_success"],
+            "error": episodes.error.copy(),
+            "error_norm": result["error_norm"],
+            "cost_error": result["cost_error"],
+            "cost_effort": result["cost_effort"],
+            "cost_smoothness": result["cost_smoothness"],
+            "command": u.copy(),
+            "t": episodes.steps * episodes.dt,
+            "is_success": result["is_success"],
         }
         infos: dict[str, Any] = {}
         for key, value in values.items():
@@ -415,7 +449,9 @@ def _seed_list(seed: int | Sequence[int | None] | None, count: int) -> list[int 
         return [int(seed) + i for i in range(count)]
     seeds = list(seed)
     if len(seeds) != count:
-        raise ValueError(f"If seeds are passed as a list the length must match num_envs={count} but got length={len(seeds)}.")
+        raise ValueError(
+            f"If seeds are passed as a list the length must match num_envs={count} but got length={len(seeds)}."
+        )
     return seeds
 
 

@@ -19,6 +19,7 @@ The arithmetic, per configuration and joint i of the chain (base first):
 from __future__ import annotations
 
 import numpy as np
+
 from snac_gym.kernels.compiled import kernel
 
 

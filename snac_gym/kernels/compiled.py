@@ -26,12 +26,18 @@ _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 #: The modules that define the kinematics' and the controllers' kernels.
 POLICY_KERNEL_MODULES = (
-    "snac_gym.kernels.chain", "snac_gym.kernels.small", "snac_gym.kernels.lqr", "snac_gym.kernels.hjb",
+    "snac_gym.kernels.chain",
+    "snac_gym.kernels.small",
+    "snac_gym.kernels.lqr",
+    "snac_gym.kernels.hjb",
     "snac_gym.kernels.identifier",
 )
 #: Every module that defines a kernel (the evaluator's metrics and optimum too).
 KERNEL_MODULES = (
-    *POLICY_KERNEL_MODULES, "snac_gym.kernels.metrics", "snac_gym.kernels.trajopt", "snac_gym.kernels.relaxation",
+    *POLICY_KERNEL_MODULES,
+    "snac_gym.kernels.metrics",
+    "snac_gym.kernels.trajopt",
+    "snac_gym.kernels.relaxation",
 )
 #: The modules an evaluator's workers compile or load when they start (:func:`warm_up_shared`): all but the
 #: identifier's (``snac-adaptive`` only, which a run seldom has: its workers load or compile it when called).
@@ -196,7 +202,9 @@ def _with_stop_signals_held(
     if threading.current_thread() is not threading.main_thread():  # handlers run, and are set, in the main thread only
         return function(*args, **kwargs)
     received: list[int] = []
-    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in _STOP_SIGNALS}
+    previous = {
+        signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in _STOP_SIGNALS
+    }
     try:
         return function(*args, **kwargs)
     finally:

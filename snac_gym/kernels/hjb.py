@@ -11,6 +11,7 @@ step in the evaluator. Written out, for the directions d ∈ {d₁…d_N, e/‖e
 from __future__ import annotations
 
 import numpy as np
+
 from snac_gym.kernels.compiled import kernel
 
 

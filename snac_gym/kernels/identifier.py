@@ -95,7 +95,12 @@ def corrected_chain(  # noqa: C901 - one compiled loop nest, kept inline for spe
             origin_after[0, i] = params[b, i]
         for s in range(chain):
             for i in range(3):
-                o[s, i] = origin_after[s, i] + R[i, 0] * translations[s, 0] + R[i, 1] * translations[s, 1] + R[i, 2] * translations[s, 2]
+                o[s, i] = (
+                    origin_after[s, i]
+                    + R[i, 0] * translations[s, 0]
+                    + R[i, 1] * translations[s, 1]
+                    + R[i, 2] * translations[s, 2]
+                )
                 for j in range(3):
                     F[i, j] = R[i, 0] * rotations[s, 0, j] + R[i, 1] * rotations[s, 1, j] + R[i, 2] * rotations[s, 2, j]
             a0, a1, a2 = axes[s, 0], axes[s, 1], axes[s, 2]

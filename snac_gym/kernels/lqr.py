@@ -19,7 +19,10 @@ from snac_gym.kernels.small import jacobi_eigh
 
 def _examples() -> list[tuple]:
     """A writable stack, and a read-only one (the kinematics' cached Jacobians are read-only)."""
-    return [(np.ones((1, 3, 6)), np.eye(3), np.eye(6), 1e-12), (read_only(np.ones((1, 3, 6))), np.eye(3), np.eye(6), 1e-12)]
+    return [
+        (np.ones((1, 3, 6)), np.eye(3), np.eye(6), 1e-12),
+        (read_only(np.ones((1, 3, 6))), np.eye(3), np.eye(6), 1e-12),
+    ]
 
 
 @njit(cache=True, nogil=True)

@@ -148,8 +148,9 @@ def _max_step(value, step):  # pragma: no cover - compiled
     return alpha
 
 
-def _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
-                      rhs, dx, ds, dz, image):  # pragma: no cover - compiled
+def _newton_direction(
+    steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity, rhs, dx, ds, dz, image
+):  # pragma: no cover - compiled
     """The Newton direction of the perturbed KKT system  H x + Gᵀz = 0,  Gx + s = h,  s∘z = target, from its
     residuals (``complementarity`` = s∘z − target), through the normal equations (H + GᵀS⁻¹ZG)Δx = −r_d +
     GᵀS⁻¹(r_c − Z r_p) (factored in ``band``/``pivots``), then Δs = −r_p − GΔx and Δz = −S⁻¹(r_c + ZΔs)."""
@@ -165,7 +166,9 @@ def _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, prima
         dz[i] = -(complementarity[i] + z[i] * ds[i]) / s[i]
 
 
-def _residuals(steps, dt, q, w, rest, terminal, b, capped, h, x, s, z, dual_residual, primal_residual, work):  # pragma: no cover - compiled
+def _residuals(
+    steps, dt, q, w, rest, terminal, b, capped, h, x, s, z, dual_residual, primal_residual, work
+):  # pragma: no cover - compiled
     """r_d = Hx + Gᵀz and r_p = Gx + s − h; returns the mean complementarity sᵀz/m."""
     _apply_hessian(steps, dt, q, w, rest, terminal, x, dual_residual)
     _apply_constraints_transposed(steps, b, z, capped, work)
@@ -175,18 +178,21 @@ def _residuals(steps, dt, q, w, rest, terminal, b, capped, h, x, s, z, dual_resi
     return np.dot(s, z) / s.shape[0]
 
 
-def _predictor_corrector_step(steps, b, capped, band, pivots, s, z, x, dual_residual, primal_residual, mu,
-                              work_n, dx, work_m, ds, dz, image):  # pragma: no cover - compiled
+def _predictor_corrector_step(
+    steps, b, capped, band, pivots, s, z, x, dual_residual, primal_residual, mu, work_n, dx, work_m, ds, dz, image
+):  # pragma: no cover - compiled
     """One Mehrotra predictor-corrector step (the factor of the normal matrix is in ``band``/``pivots``)."""
     complementarity = s * z
-    _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
-                      work_n, dx, ds, dz, image)
+    _newton_direction(
+        steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity, work_n, dx, ds, dz, image
+    )
     alpha = min(_max_step(s, ds), _max_step(z, dz))
     predicted = np.dot(s + alpha * ds, z + alpha * dz) / s.shape[0]
     centring = (predicted / mu) ** 3 * mu
     complementarity += ds * dz - centring
-    _newton_direction(steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity,
-                      work_n, dx, ds, dz, image)
+    _newton_direction(
+        steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity, work_n, dx, ds, dz, image
+    )
     alpha = min(1.0, 0.99 * min(_max_step(s, ds), _max_step(z, dz)))
     x += alpha * dx
     s += alpha * ds
@@ -199,11 +205,13 @@ def _constraint_bounds(r0, d, vmax, steps, capped):  # pragma: no cover - compil
     h[: steps - 1] = d[: steps - 1]
     if steps > 1:
         h[0] -= r0
-    h[steps - 1:] = vmax
+    h[steps - 1 :] = vmax
     return h
 
 
-def _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
+def _relaxation_solve(
+    r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z
+):  # pragma: no cover - compiled
     """The relaxed problem over the first ``steps`` steps (plus ``terminal``·v²_last, see _terminal_weight), from
     rest (v = 0, r = r₀: feasible) by the predictor-corrector interior point method. Fills x (primal) and z
     (multipliers of the constraints).
@@ -232,8 +240,9 @@ def _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max
     band, pivots = np.empty((3, n)), np.empty(n)
     iterations = 0
     while True:
-        mu = _residuals(steps, dt, q, w, rest, terminal, b, capped, h, x[:n], s, z[:m], dual_residual, primal_residual,
-                        image_n)
+        mu = _residuals(
+            steps, dt, q, w, rest, terminal, b, capped, h, x[:n], s, z[:m], dual_residual, primal_residual, image_n
+        )
         # The certificates cost a solve and a pass: worth it once the complementarity gap m·μ is down to the tolerance.
         if m * mu <= rtol * value or iterations >= max_iterations:
             trial, r_end, v_end, peak = _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x)
@@ -248,8 +257,25 @@ def _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max
         _relaxed_hessian_band(steps, dt, q, w, rest, terminal, band)
         _add_constraint_curvature(steps, b, weight, capped, band)
         _ldl_factor(band, pivots)
-        _predictor_corrector_step(steps, b, capped, band, pivots, s, z[:m], x[:n], dual_residual, primal_residual,
-                                  mu, work_n, dx, work_m, ds, dz, image_n)
+        _predictor_corrector_step(
+            steps,
+            b,
+            capped,
+            band,
+            pivots,
+            s,
+            z[:m],
+            x[:n],
+            dual_residual,
+            primal_residual,
+            mu,
+            work_n,
+            dx,
+            work_m,
+            ds,
+            dz,
+            image_n,
+        )
 
 
 def _terminal_weight(w, dt, remaining):  # pragma: no cover - compiled
@@ -278,17 +304,21 @@ def _next_horizon(x, steps, total, q, dt, tail, target):  # pragma: no cover - c
     return min(more, total)
 
 
-def _capped_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z):  # pragma: no cover - compiled
+def _capped_solve(
+    r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z
+):  # pragma: no cover - compiled
     """:func:`_relaxation_solve` without the velocity caps first (half the constraints), and with them only where
     its solution breaks one. Dropping constraints only lowers the dual values, so the bound stays certified; and a
     solution within the caps is feasible with them, so its value still bounds the capped optimum from above.
     Returns (bound, value, iterations, r_last, v_last)."""
-    bound, value, used, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, np.inf, steps,
-                                                                   rtol, max_iterations, x, z)
+    bound, value, used, r_last, v_last, v_peak = _relaxation_solve(
+        r0, d, b, dt, q, w, rest, terminal, np.inf, steps, rtol, max_iterations, x, z
+    )
     if v_peak <= vmax:
         return bound, value, used, r_last, v_last
-    bound, value, more, r_last, v_last, v_peak = _relaxation_solve(r0, d, b, dt, q, w, rest, terminal, vmax, steps,
-                                                                   rtol, max_iterations, x, z)
+    bound, value, more, r_last, v_last, v_peak = _relaxation_solve(
+        r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z
+    )
     return bound, value, used + more, r_last, v_last
 
 
@@ -302,7 +332,9 @@ def _first_horizon(q, dt, b, rtol, total):  # pragma: no cover - compiled
     return min(total, max(int(1.25 * steps), 0) + 16)
 
 
-def _relaxation_bounds(r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, first_steps, out):  # pragma: no cover - compiled
+def _relaxation_bounds(
+    r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, first_steps, out
+):  # pragma: no cover - compiled
     """Per sample: the relaxed problem over a horizon that grows from ``first_steps`` until the part left out is
     provably within rtol, or the whole horizon. Rows of out: bound, upper bound on the relaxed optimum, iterations,
     horizon solved (steps)."""
@@ -315,12 +347,15 @@ def _relaxation_bounds(r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, 
             out[:, i] = 0.0
             continue
         d, r0 = ds[i] / unit, r0s[i] / unit
-        steps = first_steps if first_steps > 0 else _first_horizon(q, dt, np.max(bs[i]) if total > 1 else 1.0, rtol, total)
+        steps = (
+            first_steps if first_steps > 0 else _first_horizon(q, dt, np.max(bs[i]) if total > 1 else 1.0, rtol, total)
+        )
         steps, iterations = min(steps, total), 0
         while True:
             terminal = _terminal_weight(w, dt, total - steps)
-            bound, value, used, r_last, v_last = _capped_solve(r0, d, bs[i], dt, q, w, rest, terminal, vmax / unit, steps,
-                                                               rtol, max_iterations, x, z)
+            bound, value, used, r_last, v_last = _capped_solve(
+                r0, d, bs[i], dt, q, w, rest, terminal, vmax / unit, steps, rtol, max_iterations, x, z
+            )
             iterations += used
             # Continued by the commands that cost terminal·v²_last (already in value), along which r never rises,
             # the truncated solution is feasible for the whole horizon: the relaxed optimum is in [bound, value + tail].
@@ -328,14 +363,34 @@ def _relaxation_bounds(r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, 
             if steps == total or value + tail - bound <= rtol * (value + tail):
                 break
             steps = _next_horizon(x, steps, total, q, dt, tail, 0.5 * rtol * bound)
-        out[0, i], out[1, i], out[2, i], out[3, i] = bound * unit * unit, (value + tail) * unit * unit, iterations, steps
+        out[0, i], out[1, i], out[2, i], out[3, i] = (
+            bound * unit * unit,
+            (value + tail) * unit * unit,
+            iterations,
+            steps,
+        )
 
 
 _RELAXATION_HELPERS = (
-    "_relaxed_hessian_band", "_add_constraint_curvature", "_ldl_factor", "_ldl_solve", "_apply_constraints",
-    "_apply_constraints_transposed", "_apply_hessian", "_feasible_value", "_dual_value", "_max_step",
-    "_newton_direction", "_residuals", "_predictor_corrector_step", "_constraint_bounds", "_relaxation_solve",
-    "_terminal_weight", "_next_horizon", "_first_horizon", "_capped_solve",
+    "_relaxed_hessian_band",
+    "_add_constraint_curvature",
+    "_ldl_factor",
+    "_ldl_solve",
+    "_apply_constraints",
+    "_apply_constraints_transposed",
+    "_apply_hessian",
+    "_feasible_value",
+    "_dual_value",
+    "_max_step",
+    "_newton_direction",
+    "_residuals",
+    "_predictor_corrector_step",
+    "_constraint_bounds",
+    "_relaxation_solve",
+    "_terminal_weight",
+    "_next_horizon",
+    "_first_horizon",
+    "_capped_solve",
 )
 
 

@@ -9,6 +9,7 @@ order, so the band is the same bit for bit (tests/test_optimal.py).
 from __future__ import annotations
 
 import numpy as np
+
 from snac_gym.kernels.compiled import kernel, read_only
 
 

@@ -12,7 +12,19 @@ from snac_gym.physics.base import PHYSICS, SIMULATED, Arm, ArmBatch, ArmList, ch
 from snac_gym.physics.bullet import PyBulletArm, PyBulletArmBatch
 from snac_gym.physics.kinematic import KinematicArm
 
-__all__ = ["PHYSICS", "SIMULATED", "Arm", "ArmBatch", "ArmList", "KinematicArm", "PyBulletArm", "PyBulletArmBatch", "check_physics", "make_arm", "scene_of"]
+__all__ = [
+    "PHYSICS",
+    "SIMULATED",
+    "Arm",
+    "ArmBatch",
+    "ArmList",
+    "KinematicArm",
+    "PyBulletArm",
+    "PyBulletArmBatch",
+    "check_physics",
+    "make_arm",
+    "scene_of",
+]
 
 
 def make_arm(

@@ -68,9 +68,7 @@ def check_timing(dt: Any, n_substeps: Any) -> tuple[float, int]:
     Raises:
         ValueError: Naming the bad one.
     """
-    return (real_number("dt (s)", dt, MIN_DT, MAX_DT),
-            whole_number("n_substeps", n_substeps, 1, MAX_SUBSTEPS))
-
+    return (real_number("dt (s)", dt, MIN_DT, MAX_DT), whole_number("n_substeps", n_substeps, 1, MAX_SUBSTEPS))
 
 
 @runtime_checkable
@@ -143,8 +141,6 @@ class ArmList:
     def close(self) -> None:
         for arm in self.arms:
             arm.close()
-
-
 
 
 def scene_of(arm: Any, kinematics: Any, space: Any, width: int, height: int, camera: Any = None) -> Any:

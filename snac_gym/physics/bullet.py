@@ -13,7 +13,7 @@ import numpy as np
 
 from snac_gym._quiet import quiet_output
 from snac_gym.kinematics import Kinematics, resolved_urdf_text
-from snac_gym.physics.base import check_image_size, check_timing, _stacked
+from snac_gym.physics.base import _stacked, check_image_size, check_timing
 from snac_gym.physics.scene import (
     CUBOID_COLOUR,
     FLOOR_COLOUR,
@@ -25,9 +25,9 @@ from snac_gym.physics.scene import (
     PATH_RADIUS,
     TARGET_COLOUR,
     TARGET_RADIUS,
+    CameraOptions,
     base_yaw,
     cuboid_edges,
-    CameraOptions,
     fit_camera,
     framing_configurations,
     framing_corners,
@@ -40,6 +40,7 @@ with quiet_output():
     import pybullet as _pybullet
 
 p: Any = _pybullet
+
 
 class PyBulletSim:
     """One PyBullet client that advances by a control period split into physics substeps.
@@ -67,10 +68,13 @@ class PyBulletSim:
             p.configureDebugVisualizer(p.COV_ENABLE_GUI, 0, physicsClientId=self.client)
         # One stepSimulation call advances dt in n_substeps fixed steps: one Python call per control step.
         p.setPhysicsEngineParameter(
-            fixedTimeStep=self.dt, numSubSteps=self.n_substeps,
+            fixedTimeStep=self.dt,
+            numSubSteps=self.n_substeps,
             # The arm touches nothing (see SimulatedArm), so there are no contact pairs to order and no
             # friction cones to solve; both settings only cost time here.
-            deterministicOverlappingPairs=0, enableConeFriction=0, physicsClientId=self.client,
+            deterministicOverlappingPairs=0,
+            enableConeFriction=0,
+            physicsClientId=self.client,
         )
         p.setGravity(0.0, 0.0, -gravity, physicsClientId=self.client)
 
@@ -102,12 +106,24 @@ class PyBulletSim:
         """
         width, height = check_image_size(width, height)
         view = p.computeViewMatrixFromYawPitchRoll(
-            cameraTargetPosition=list(target), distance=distance, yaw=45.0, pitch=-25.0, roll=0.0, upAxisIndex=2,
+            cameraTargetPosition=list(target),
+            distance=distance,
+            yaw=45.0,
+            pitch=-25.0,
+            roll=0.0,
+            upAxisIndex=2,
             physicsClientId=self.client,
         )
-        proj = p.computeProjectionMatrixFOV(fov=50.0, aspect=width / height, nearVal=0.05, farVal=10.0, physicsClientId=self.client)
+        proj = p.computeProjectionMatrixFOV(
+            fov=50.0, aspect=width / height, nearVal=0.05, farVal=10.0, physicsClientId=self.client
+        )
         _, _, rgba, _, _ = p.getCameraImage(
-            width, height, viewMatrix=view, projectionMatrix=proj, renderer=p.ER_TINY_RENDERER, physicsClientId=self.client
+            width,
+            height,
+            viewMatrix=view,
+            projectionMatrix=proj,
+            renderer=p.ER_TINY_RENDERER,
+            physicsClientId=self.client,
         )
         return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3].copy()
 
@@ -222,7 +238,9 @@ class PyBulletArm:
             (:func:`~snac_gym.physics.bullet.without_meshes`) and loads in milliseconds instead of 0.3 s.
     """
 
-    def __init__(self, kinematics: Kinematics, dt: float, n_substeps: int, gui: bool = False, meshes: bool = True) -> None:
+    def __init__(
+        self, kinematics: Kinematics, dt: float, n_substeps: int, gui: bool = False, meshes: bool = True
+    ) -> None:
         self.sim = PyBulletSim(dt, n_substeps, gui=gui)
         self.dt = self.sim.dt
         self.body = SimulatedArm(self.sim, kinematics, meshes=meshes or gui)
@@ -233,8 +251,9 @@ class PyBulletArm:
         called again after visual-only bodies (the rendered scene) are added."""
         self._initial_state = self.sim.save_state()
 
-    def scene(self, kinematics: Kinematics, space: SampleSpace, width: int, height: int,
-              camera: CameraOptions | None = None) -> PyBulletScene:
+    def scene(
+        self, kinematics: Kinematics, space: SampleSpace, width: int, height: int, camera: CameraOptions | None = None
+    ) -> PyBulletScene:
         """What a frame of this arm shows (drawn by PyBullet's TinyRenderer)."""
         return PyBulletScene(self.sim.client, self.body.body, kinematics, space, width, height, camera)
 
@@ -282,7 +301,9 @@ class PyBulletArmBatch:
     #: Bodies per world (``docs/physics.md``: the lockstep PyBullet engine).
     WORLD_SIZE = 10
 
-    def __init__(self, kinematics: Kinematics, dt: float, n_substeps: int, count: int, world_size: int = WORLD_SIZE) -> None:
+    def __init__(
+        self, kinematics: Kinematics, dt: float, n_substeps: int, count: int, world_size: int = WORLD_SIZE
+    ) -> None:
         if count < 1 or world_size < 1:
             raise ValueError(f"count and world_size must be at least 1, got {count} and {world_size}")
         self.sims = [PyBulletSim(dt, n_substeps) for _ in range(0, count, world_size)]
@@ -314,7 +335,6 @@ class PyBulletArmBatch:
             sim.close()
 
 
-
 class PyBulletScene:
     """The rendered world of one env: floor, colours, markers and the camera.
 
@@ -326,8 +346,16 @@ class PyBulletScene:
         width, height: Image size, pixels.
     """
 
-    def __init__(self, client: int, body: int, kinematics: Kinematics, space: SampleSpace, width: int, height: int,
-                 camera: CameraOptions | None = None) -> None:
+    def __init__(
+        self,
+        client: int,
+        body: int,
+        kinematics: Kinematics,
+        space: SampleSpace,
+        width: int,
+        height: int,
+        camera: CameraOptions | None = None,
+    ) -> None:
         self.client, self.body, self.kinematics = client, body, kinematics
         self.width, self.height = width, height
         self.camera_options = camera
@@ -345,24 +373,35 @@ class PyBulletScene:
             p.changeVisualShape(self.body, link, rgbaColor=colour, physicsClientId=self.client)
 
     def _add_floor(self) -> None:
-        shape = p.createVisualShape(p.GEOM_BOX, halfExtents=list(FLOOR_HALF_EXTENTS), rgbaColor=FLOOR_COLOUR,
-                                    physicsClientId=self.client)
-        p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, basePosition=[0, 0, -FLOOR_HALF_EXTENTS[2]],
-                          physicsClientId=self.client)
+        shape = p.createVisualShape(
+            p.GEOM_BOX, halfExtents=list(FLOOR_HALF_EXTENTS), rgbaColor=FLOOR_COLOUR, physicsClientId=self.client
+        )
+        p.createMultiBody(
+            baseMass=0.0,
+            baseVisualShapeIndex=shape,
+            basePosition=[0, 0, -FLOOR_HALF_EXTENTS[2]],
+            physicsClientId=self.client,
+        )
 
     def _add_cuboid_edges(self, space: SampleSpace) -> None:
         orientation = list(p.getQuaternionFromEuler([0.0, 0.0, base_yaw(self.kinematics)]))
         for corner, extents in cuboid_edges(space):
-            shape = p.createVisualShape(p.GEOM_BOX, halfExtents=extents.tolist(), rgbaColor=CUBOID_COLOUR,
-                                        physicsClientId=self.client)
-            p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape,
-                              basePosition=self.kinematics.base_to_world(corner).tolist(),
-                              baseOrientation=orientation, physicsClientId=self.client)
+            shape = p.createVisualShape(
+                p.GEOM_BOX, halfExtents=extents.tolist(), rgbaColor=CUBOID_COLOUR, physicsClientId=self.client
+            )
+            p.createMultiBody(
+                baseMass=0.0,
+                baseVisualShapeIndex=shape,
+                basePosition=self.kinematics.base_to_world(corner).tolist(),
+                baseOrientation=orientation,
+                physicsClientId=self.client,
+            )
 
     def _sphere(self, radius: float, colour: tuple[float, ...], position: tuple[float, ...] = PARKED) -> int:
         shape = p.createVisualShape(p.GEOM_SPHERE, radius=radius, rgbaColor=colour, physicsClientId=self.client)
-        return p.createMultiBody(baseMass=0.0, baseVisualShapeIndex=shape, basePosition=list(position),
-                                 physicsClientId=self.client)
+        return p.createMultiBody(
+            baseMass=0.0, baseVisualShapeIndex=shape, basePosition=list(position), physicsClientId=self.client
+        )
 
     def framed_points(self, space: SampleSpace) -> np.ndarray:
         """World points the camera must show: the cuboid's corners, the base, and the link origins at the
@@ -378,8 +417,11 @@ class PyBulletScene:
 
     def _links_at(self, poses: list[np.ndarray]) -> np.ndarray:
         """The link origins of the arm at each of ``poses``, stacked; the arm is put back where it was."""
-        joints = [i for i in range(p.getNumJoints(self.body, physicsClientId=self.client))
-                  if p.getJointInfo(self.body, i, physicsClientId=self.client)[2] != p.JOINT_FIXED]
+        joints = [
+            i
+            for i in range(p.getNumJoints(self.body, physicsClientId=self.client))
+            if p.getJointInfo(self.body, i, physicsClientId=self.client)[2] != p.JOINT_FIXED
+        ]
         load_pose = [p.getJointState(self.body, i, physicsClientId=self.client)[0] for i in joints]
         links = []
         for pose in poses:
@@ -395,14 +437,22 @@ class PyBulletScene:
     def link_origins(self) -> np.ndarray:
         """World positions of every link frame of the arm."""
         count = p.getNumJoints(self.body, physicsClientId=self.client)
-        states = [p.getLinkState(self.body, i, computeForwardKinematics=True, physicsClientId=self.client)
-                  for i in range(count)]
+        states = [
+            p.getLinkState(self.body, i, computeForwardKinematics=True, physicsClientId=self.client)
+            for i in range(count)
+        ]
         return np.array([state[4] for state in states])
 
     def _camera(self, space: SampleSpace) -> tuple[list[float], list[float]]:
         """View and projection matrices that fit :meth:`framed_points` in the image (:func:`fit_camera`)."""
-        camera = fit_camera(self.framed_points(space), self.kinematics, self.width, self.height, self.camera_options,
-                            self.start_points(space))
+        camera = fit_camera(
+            self.framed_points(space),
+            self.kinematics,
+            self.width,
+            self.height,
+            self.camera_options,
+            self.start_points(space),
+        )
         return camera.view, camera.projection
 
     # -- per episode and per frame ---------------------------------------------------------------
@@ -413,12 +463,17 @@ class PyBulletScene:
 
     def image(self, reference_point: np.ndarray) -> np.ndarray:
         """An RGB image ``(height, width, 3)`` with the target marker at ``reference_point`` (base frame)."""
-        p.resetBasePositionAndOrientation(self.target, list(self.kinematics.base_to_world(reference_point)),
-                                          [0, 0, 0, 1], physicsClientId=self.client)
+        p.resetBasePositionAndOrientation(
+            self.target, list(self.kinematics.base_to_world(reference_point)), [0, 0, 0, 1], physicsClientId=self.client
+        )
         _, _, rgba, _, _ = p.getCameraImage(
-            self.width, self.height, viewMatrix=self.view, projectionMatrix=self.projection,
-            renderer=p.ER_TINY_RENDERER, lightDirection=[1.0, -1.0, 2.0], shadow=0, physicsClientId=self.client,
+            self.width,
+            self.height,
+            viewMatrix=self.view,
+            projectionMatrix=self.projection,
+            renderer=p.ER_TINY_RENDERER,
+            lightDirection=[1.0, -1.0, 2.0],
+            shadow=0,
+            physicsClientId=self.client,
         )
         return np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[:, :, :3].copy()
-
-

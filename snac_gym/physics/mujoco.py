@@ -20,6 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.extras import require
+from snac_gym.kinematics import Kinematics
+from snac_gym.physics.base import check_image_size, check_timing
+from snac_gym.physics.mujoco_model import EE_SITE, build_physics_spec
 from snac_gym.physics.scene import (
     CUBOID_COLOUR,
     FIELD_OF_VIEW,
@@ -32,18 +36,14 @@ from snac_gym.physics.scene import (
     PATH_RADIUS,
     TARGET_COLOUR,
     TARGET_RADIUS,
+    CameraOptions,
     base_yaw,
     cuboid_edges,
-    CameraOptions,
     fit_camera,
     framing_configurations,
     framing_corners,
     path_positions,
 )
-from snac_gym.physics.base import check_image_size, check_timing
-from snac_gym.extras import require
-from snac_gym.kinematics import Kinematics
-from snac_gym.physics.mujoco_model import EE_SITE, build_physics_spec
 from snac_gym.references import Reference
 from snac_gym.sampling import SampleSpace, nominal_configuration
 
@@ -124,8 +124,9 @@ class MuJoCoArm:
     def close(self) -> None:
         pass
 
-    def scene(self, kinematics: Kinematics, space: SampleSpace, width: int, height: int,
-              camera: CameraOptions | None = None) -> MuJoCoScene:
+    def scene(
+        self, kinematics: Kinematics, space: SampleSpace, width: int, height: int, camera: CameraOptions | None = None
+    ) -> MuJoCoScene:
         """What a frame of this arm shows (drawn by MuJoCo's renderer)."""
         return MuJoCoScene(self, kinematics, space, width, height, camera)
 
@@ -176,13 +177,21 @@ class MuJoCoScene:
         RuntimeError: If no headless OpenGL platform works (:func:`gl_context`).
     """
 
-    def __init__(self, arm: MuJoCoArm, kinematics: Kinematics, space: SampleSpace, width: int, height: int,
-                 camera: CameraOptions | None = None) -> None:
+    def __init__(
+        self,
+        arm: MuJoCoArm,
+        kinematics: Kinematics,
+        space: SampleSpace,
+        width: int,
+        height: int,
+        camera: CameraOptions | None = None,
+    ) -> None:
         self.arm, self.kinematics = arm, kinematics
         self.width, self.height = check_image_size(width, height)
         self._arm_bodies = list(range(1, arm.model.nbody))  # the world body is 0; the scene's come after
-        self.camera = fit_camera(self.framed_points(space), kinematics, self.width, self.height, camera,
-                                 self.start_points(space))
+        self.camera = fit_camera(
+            self.framed_points(space), kinematics, self.width, self.height, camera, self.start_points(space)
+        )
         self.view, self.projection = self.camera.view, self.camera.projection
         arm.add_to_world(lambda spec: self._build(spec, space))
         model = arm.model
@@ -207,8 +216,15 @@ class MuJoCoScene:
         for index, body in enumerate(spec.bodies):  # the world body (holding the base's mesh), then the links
             for geom in body.geoms:
                 geom.rgba = LINK_COLOURS[index % len(LINK_COLOURS)]
-        spec.add_texture(name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_FLAT,
-                         rgb1=[1.0, 1.0, 1.0], rgb2=[1.0, 1.0, 1.0], width=8, height=8)
+        spec.add_texture(
+            name="sky",
+            type=mujoco.mjtTexture.mjTEXTURE_SKYBOX,
+            builtin=mujoco.mjtBuiltin.mjBUILTIN_FLAT,
+            rgb1=[1.0, 1.0, 1.0],
+            rgb2=[1.0, 1.0, 1.0],
+            width=8,
+            height=8,
+        )
         world = spec.worldbody
         world.add_light(pos=[0.0, 0.0, 4.0], dir=[-0.4, 0.4, -1.0], diffuse=[0.5, 0.5, 0.5], castshadow=False)
         box, sphere = mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE
@@ -216,8 +232,13 @@ class MuJoCoScene:
         yaw = base_yaw(self.kinematics)
         orientation = [math.cos(yaw / 2.0), 0.0, 0.0, math.sin(yaw / 2.0)]
         for corner, extents in cuboid_edges(space):
-            world.add_geom(type=box, size=extents.tolist(), pos=self.kinematics.base_to_world(corner).tolist(),
-                           quat=orientation, rgba=CUBOID_COLOUR)
+            world.add_geom(
+                type=box,
+                size=extents.tolist(),
+                pos=self.kinematics.base_to_world(corner).tolist(),
+                quat=orientation,
+                rgba=CUBOID_COLOUR,
+            )
         markers = [("target", TARGET_RADIUS, TARGET_COLOUR)]
         markers += [(f"path{i}", PATH_RADIUS, PATH_COLOUR) for i in range(PATH_POINTS)]
         for name, radius, colour in markers:
@@ -228,8 +249,9 @@ class MuJoCoScene:
         right /= np.linalg.norm(right)
         up = np.cross(right, forward)
         up /= np.linalg.norm(up)
-        world.add_camera(name=CAMERA, pos=self.camera.eye.tolist(), fovy=FIELD_OF_VIEW,
-                         xyaxes=[*right.tolist(), *up.tolist()])
+        world.add_camera(
+            name=CAMERA, pos=self.camera.eye.tolist(), fovy=FIELD_OF_VIEW, xyaxes=[*right.tolist(), *up.tolist()]
+        )
 
     def framed_points(self, space: SampleSpace) -> np.ndarray:
         """World points the camera must show: the cuboid's corners, the base, and the body origins at the
@@ -256,7 +278,9 @@ class MuJoCoScene:
     # -- per episode and per frame ---------------------------------------------------------------
     def show_reference(self, reference: Reference) -> None:
         """Draw the episode's reference path (the ellipse; nothing for a fixed target)."""
-        for mocap, position in zip(self._path, path_positions(reference, self.kinematics, len(self._path)), strict=True):
+        for mocap, position in zip(
+            self._path, path_positions(reference, self.kinematics, len(self._path)), strict=True
+        ):
             self.arm.data.mocap_pos[mocap] = position
 
     def image(self, reference_point: np.ndarray) -> np.ndarray:

@@ -120,7 +120,9 @@ class CameraOptions:
 
     def __post_init__(self) -> None:
         if self.distance is not None:
-            object.__setattr__(self, "distance", real_number("render_distance (m)", self.distance, 0.0, FAR, low_open=True))
+            object.__setattr__(
+                self, "distance", real_number("render_distance (m)", self.distance, 0.0, FAR, low_open=True)
+            )
         if self.yaw is not None:
             object.__setattr__(self, "yaw", real_number("render_yaw (degrees)", self.yaw, -360.0, 360.0))
         if self.pitch is not None:
@@ -128,7 +130,9 @@ class CameraOptions:
         if self.target is not None:
             target = real_array("render_target_position (m)", self.target, (3,))
             if np.abs(target).max() > FAR:
-                raise ValueError(f"render_target_position (m) must lie within {FAR:g} m of the origin, got {self.target}")
+                raise ValueError(
+                    f"render_target_position (m) must lie within {FAR:g} m of the origin, got {self.target}"
+                )
             object.__setattr__(self, "target", tuple(float(t) for t in target))
 
     def direction(self, fitted: np.ndarray) -> np.ndarray:
@@ -141,7 +145,11 @@ class CameraOptions:
 
 
 def fit_camera(
-    points: np.ndarray, kinematics: Kinematics, width: int, height: int, options: CameraOptions | None = None,
+    points: np.ndarray,
+    kinematics: Kinematics,
+    width: int,
+    height: int,
+    options: CameraOptions | None = None,
     also: np.ndarray | None = None,
 ) -> Camera:
     """The camera of every engine's scene: it sees ``points`` (world frame) from the arm's front, a
@@ -228,8 +236,14 @@ def framing_configurations(kinematics: Kinematics, space: SampleSpace) -> list[n
 
 def framing_corners(space: SampleSpace) -> np.ndarray:
     """The sample cuboid's eight corners (base frame), which every frame shows."""
-    return np.array([[x, y, z] for x in (space.low[0], space.high[0]) for y in (space.low[1], space.high[1])
-                     for z in (space.low[2], space.high[2])])
+    return np.array(
+        [
+            [x, y, z]
+            for x in (space.low[0], space.high[0])
+            for y in (space.low[1], space.high[1])
+            for z in (space.low[2], space.high[2])
+        ]
+    )
 
 
 def path_positions(reference: Reference, kinematics: Kinematics, markers: int) -> list[Any]:

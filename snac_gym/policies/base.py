@@ -35,17 +35,16 @@ controller in under 30 lines is in docs/extending.md.
 
 from __future__ import annotations
 
-import functools
-
-from collections.abc import Callable, Sequence
 import dataclasses
+import functools
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from snac_gym.model_error import refuse_pose_tasks
 from snac_gym.kinematics import Kinematics
+from snac_gym.model_error import refuse_pose_tasks
 from snac_gym.observation import ObservationLayout
 from snac_gym.tasks import Task, get_task
 
@@ -162,10 +161,14 @@ class PolicyContext:
         if isinstance(env, PolicyContext):
             return env
         base = getattr(env, "unwrapped", env)
-        missing = [a for a in ("kinematics", "dt", "velocity_limits", "obs_layout", "task_name") if not hasattr(base, a)]
+        missing = [
+            a for a in ("kinematics", "dt", "velocity_limits", "obs_layout", "task_name") if not hasattr(base, a)
+        ]
         if missing:
             raise TypeError(f"{type(base).__name__} is not a snac-gym env: it lacks {missing}")
-        return cls(base.kinematics, float(base.dt), np.asarray(base.velocity_limits, float), base.obs_layout, base.task_name)
+        return cls(
+            base.kinematics, float(base.dt), np.asarray(base.velocity_limits, float), base.obs_layout, base.task_name
+        )
 
 
 class BasePolicy:
@@ -186,11 +189,19 @@ class BasePolicy:
         def checked_act(self: Any, obs: Any) -> Any:
             observation = np.asarray(obs)
             size = self.layout.size
-            if observation.dtype.kind not in "iuf" or observation.shape != (size,) or not np.isfinite(observation).all():
+            if (
+                observation.dtype.kind not in "iuf"
+                or observation.shape != (size,)
+                or not np.isfinite(observation).all()
+            ):
                 raise ValueError(
                     f"{type(self).__name__}.act needs a finite observation of shape ({size},), got "
                     f"{observation.dtype} {observation.shape}"
-                    + ("" if observation.dtype.kind not in "iuf" or np.isfinite(observation).all() else " with NaN or inf")
+                    + (
+                        ""
+                        if observation.dtype.kind not in "iuf" or np.isfinite(observation).all()
+                        else " with NaN or inf"
+                    )
                 )
             return act(self, observation)
 

@@ -435,7 +435,9 @@ class SNACPolicy(CriticEpisode, BasePolicy):
         e, xdot_d = np.asarray(e, dtype=float), np.asarray(xdot_d, dtype=float)
         state = e
         if self.tracking:
-            reference = np.asarray(x_d, dtype=float) - (np.asarray(x_c, dtype=float) if self.tracking_state == "centred" else 0.0)
+            reference = np.asarray(x_d, dtype=float) - (
+                np.asarray(x_c, dtype=float) if self.tracking_state == "centred" else 0.0
+            )
             state = np.concatenate((e, reference), axis=1)
         value_gradient = np.einsum("kc,kcd->kd", np.asarray(weights, dtype=float), self.basis.gradient(state))
         jacobians = self.kinematics.jacobian_batch(np.asarray(q, dtype=float))

@@ -123,7 +123,11 @@ class GeometricIdentifier:
     """
 
     def __init__(
-        self, kinematics: Any, prior: tuple[float, float], noise: float, iterations: int = ITERATIONS,
+        self,
+        kinematics: Any,
+        prior: tuple[float, float],
+        noise: float,
+        iterations: int = ITERATIONS,
         process_noise: float = PROCESS_NOISE,
     ) -> None:
         self.kinematics = kinematics
@@ -214,10 +218,16 @@ class DivergenceMonitor:
     """
 
     def __init__(
-        self, dt: float, growth: float = DIVERGENCE_GROWTH, floor: float = DIVERGENCE_FLOOR,
-        window: float = DIVERGENCE_WINDOW, shortfall: float = DIVERGENCE_SHORTFALL,
-        patience: float = DIVERGENCE_PATIENCE, least_progress: float = DIVERGENCE_LEAST_PROGRESS,
-        residual: float = DIVERGENCE_RESIDUAL, settle: float = DIVERGENCE_SETTLE,
+        self,
+        dt: float,
+        growth: float = DIVERGENCE_GROWTH,
+        floor: float = DIVERGENCE_FLOOR,
+        window: float = DIVERGENCE_WINDOW,
+        shortfall: float = DIVERGENCE_SHORTFALL,
+        patience: float = DIVERGENCE_PATIENCE,
+        least_progress: float = DIVERGENCE_LEAST_PROGRESS,
+        residual: float = DIVERGENCE_RESIDUAL,
+        settle: float = DIVERGENCE_SETTLE,
     ) -> None:
         self.growth, self.floor, self.shortfall, self.least_progress = growth, floor, shortfall, least_progress
         self.residual_bound = residual
@@ -257,9 +267,11 @@ class DivergenceMonitor:
         rules = {
             "error grew": error_norms > self.initial + self.growth,
             # Slow progress the controller predicted (a velocity limit, a singular direction) is not a divergence.
-            "progress fell short of the prediction": (k >= self.window) & above
+            "progress fell short of the prediction": (k >= self.window)
+            & above
             & (predicted - measured > np.maximum(self.shortfall, 0.5 * predicted)),
-            "no progress": (k >= self.patience) & above
+            "no progress": (k >= self.patience)
+            & above
             & (self.history[k % self.patience] - error_norms < self.least_progress),
             "prediction residual": (k >= self.settle) & (residuals > self.residual_bound),
         }
@@ -330,8 +342,13 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         if fallback not in FALLBACKS:
             raise ValueError(f"fallback must be one of {', '.join(FALLBACKS)}, got {fallback!r}")
         self.fallback = fallback
-        prior = (positive_float("prior_translation", prior_translation), positive_float("prior_rotation", prior_rotation))
-        self.identifier = GeometricIdentifier(self.kinematics, prior, positive_float("measurement_noise", measurement_noise))
+        prior = (
+            positive_float("prior_translation", prior_translation),
+            positive_float("prior_rotation", prior_rotation),
+        )
+        self.identifier = GeometricIdentifier(
+            self.kinematics, prior, positive_float("measurement_noise", measurement_noise)
+        )
         self.monitor = DivergenceMonitor(
             self.dt, **{name: positive_float(f"divergence_{name}", value) for name, value in (
                 ("growth", divergence_growth), ("floor", divergence_floor), ("window", divergence_window),

@@ -185,14 +185,20 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         self.stabilising_rate = positive_float("stabilising_rate", stabilising_rate)
         self.regularisation = positive_float("regularisation", regularisation)
         self.min_eigenvalue = positive_float("min_eigenvalue", min_eigenvalue)
-        if isinstance(warm_start_iterations, bool) or not isinstance(warm_start_iterations, (int, np.integer)) or not (
-            0 <= warm_start_iterations <= 1000
+        if (
+            isinstance(warm_start_iterations, bool)
+            or not isinstance(warm_start_iterations, (int, np.integer))
+            or not (0 <= warm_start_iterations <= 1000)
         ):
-            raise ValueError(f"warm_start_iterations must be a whole number in [0, 1000], got {warm_start_iterations!r}")
+            raise ValueError(
+                f"warm_start_iterations must be a whole number in [0, 1000], got {warm_start_iterations!r}"
+            )
         self.warm_start_iterations = int(warm_start_iterations)
         low, high = map(float, initial_weight_range)
         if not (math.isfinite(low) and math.isfinite(high) and low <= high):
-            raise ValueError(f"initial_weight_range must be finite (low, high) with low <= high, got {initial_weight_range}")
+            raise ValueError(
+                f"initial_weight_range must be finite (low, high) with low <= high, got {initial_weight_range}"
+            )
         self.initial_weight_range = (low, high)
         self.basis = QuadraticBasis(n)
         self.directions = _excitation_directions(n)
@@ -228,7 +234,9 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         low = values[:, 0] < self.min_eigenvalue
         if not low.any():
             return weights
-        raised = (vectors[low] * np.maximum(values[low], self.min_eigenvalue)[:, None, :]) @ np.swapaxes(vectors[low], -1, -2)
+        raised = (vectors[low] * np.maximum(values[low], self.min_eigenvalue)[:, None, :]) @ np.swapaxes(
+            vectors[low], -1, -2
+        )
         weights = weights.copy()
         weights[unclear[low]] = matrix_to_quadratic_weights(raised)
         return weights
@@ -259,8 +267,14 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         from snac_gym.kernels.hjb import residual_steps  # numba: imported where first needed
 
         return residual_steps(
-            np.ascontiguousarray(weights), np.ascontiguousarray(gram_matrix), np.ascontiguousarray(current),
-            float(step), self.directions, self.basis.first, self.basis.second, np.ascontiguousarray(self.Q),
+            np.ascontiguousarray(weights),
+            np.ascontiguousarray(gram_matrix),
+            np.ascontiguousarray(current),
+            float(step),
+            self.directions,
+            self.basis.first,
+            self.basis.second,
+            np.ascontiguousarray(self.Q),
             self.regularisation,
         )
 

@@ -131,7 +131,9 @@ class SNACIRLPolicy(BasePolicy):
         self.sinusoids = whole_number("sinusoids", sinusoids, 1, 1000)
         low, high = map(float, frequency_range)
         if not (math.isfinite(low) and math.isfinite(high) and 0 <= low < high <= math.pi / self.dt):
-            raise ValueError(f"frequency_range must be (low, high) with 0 <= low < high <= π/dt = {math.pi / self.dt:g}, got {frequency_range}")
+            raise ValueError(
+                f"frequency_range must be (low, high) with 0 <= low < high <= π/dt = {math.pi / self.dt:g}, got {frequency_range}"
+            )
         self.frequency_range = (low, high)
         self.relearn_every = whole_number("relearn_every", relearn_every, 0, 10**9)
         self.initial_gain_scale = positive_float("initial_gain_scale", initial_gain_scale)
@@ -244,5 +246,7 @@ class SNACIRLPolicy(BasePolicy):
         if self._batch is None:
             raise RuntimeError("call reset() before act()")
         command = self.act_batch(np.asarray(obs, dtype=float)[None])[0]
-        self.internals = {key: (value[0] if isinstance(value, np.ndarray) else value) for key, value in self.internals.items()}
+        self.internals = {
+            key: (value[0] if isinstance(value, np.ndarray) else value) for key, value in self.internals.items()
+        }
         return command

@@ -36,8 +36,9 @@ class EnvUnitsPolicy:
             ``internals``, ``critic_weights``, ...).
     """
 
-    def __init__(self, policy: Any, velocity_limits: np.ndarray, action_dtype: Any = np.float32,
-                 normalized: bool = True) -> None:
+    def __init__(
+        self, policy: Any, velocity_limits: np.ndarray, action_dtype: Any = np.float32, normalized: bool = True
+    ) -> None:
         self.policy = policy
         self.velocity_limits = np.asarray(velocity_limits, dtype=np.float64).copy()
         self.action_dtype = np.dtype(action_dtype)

@@ -17,5 +17,10 @@ from snac_gym.ppo.policy import PPOPolicy, WorkspacePPOPolicy, shipped_model_pat
 from snac_gym.ppo.policy_file import MissingPolicyFileError, PolicyFile, PolicyFileError
 
 __all__ = [
-    "MissingPolicyFileError", "PPOPolicy", "PolicyFile", "PolicyFileError", "WorkspacePPOPolicy", "shipped_model_path",
+    "MissingPolicyFileError",
+    "PPOPolicy",
+    "PolicyFile",
+    "PolicyFileError",
+    "WorkspacePPOPolicy",
+    "shipped_model_path",
 ]

@@ -44,16 +44,15 @@ from typing import Any, TypeVar
 
 import gymnasium as gym
 
+from snac_gym.errors import ConfigError
+from snac_gym.kinematics import Kinematics
 from snac_gym.physics.base import check_timing
 from snac_gym.ppo.envs import REWARD_TYPES
 from snac_gym.ppo.features import ACTION_KINDS, FEATURE_VERSION, FeatureSpec
 from snac_gym.robots import robot_names
-from snac_gym.kinematics import Kinematics
 from snac_gym.sampling import REGIONS as SAMPLE_REGIONS
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task, task_names
-
-from snac_gym.errors import ConfigError
 
 CONFIG_VERSION = 1
 PACKAGE = "snac_gym.ppo"
@@ -161,7 +160,9 @@ def integer(low: int, high: int | None = None) -> Check:
     """An integer (not a bool, not 2.0) in ``[low, high]``."""
 
     def check(value: Any, path: str) -> int:
-        if not (isinstance(value, int) and not isinstance(value, bool) and low <= value and (high is None or value <= high)):
+        if not (
+            isinstance(value, int) and not isinstance(value, bool) and low <= value and (high is None or value <= high)
+        ):
             bounds = f"≥ {low}" if high is None else f"in [{low}, {high}]"
             raise ConfigError(f"{path} must be an integer {bounds}, got {value!r}")
         return value
@@ -173,8 +174,10 @@ def number(low: float | None, high: float | None = None, open_low: bool = False)
     """A finite number in ``[low, high]`` (``(low, high]`` with ``open_low``; any with ``low=None``)."""
 
     def check(value: Any, path: str) -> float:
-        inside = _is_number(value) and (low is None or (value > low if open_low else value >= low)) and (
-            high is None or value <= high
+        inside = (
+            _is_number(value)
+            and (low is None or (value > low if open_low else value >= low))
+            and (high is None or value <= high)
         )
         if not inside:
             raise ConfigError(f"{path} must be a number {_interval(low, high, open_low)}, got {value!r}")
@@ -260,8 +263,11 @@ def read_section(cls: type[T], data: Any, path: str = "") -> T:
                 raise ConfigError(f"missing key {_join(path, name)}")
             continue
         kind = item.metadata["check"]
-        values[name] = read_section(kind, data[name], _join(path, name)) if is_dataclass(kind) else kind(
-            data[name], _join(path, name))
+        values[name] = (
+            read_section(kind, data[name], _join(path, name))
+            if is_dataclass(kind)
+            else kind(data[name], _join(path, name))
+        )
     return cls(**values)
 
 
@@ -390,7 +396,10 @@ class TrainingConfig:
 #: Checks of the env constructor's arguments by annotation; every numeric one (dt, n_substeps,
 #: max_steps, success_tolerance, render sizes) is a positive quantity. Others are the env's to check.
 _ANNOTATION_CHECKS: dict[str, Check] = {
-    "int": integer(1), "float": number(0, open_low=True), "bool": boolean, "str": text,
+    "int": integer(1),
+    "float": number(0, open_low=True),
+    "bool": boolean,
+    "str": text,
 }
 
 

@@ -146,7 +146,8 @@ class PPOTrainingWrapper(gym.Wrapper):
         self.dt = float(base.dt)
         self._goals = (
             EpisodeGoals(self.kinematics, self.velocity_limits, self.dt, base.task.moving_reference, 1)
-            if features.goal_relative else None
+            if features.goal_relative
+            else None
         )
         self._goal = None
 
@@ -183,7 +184,9 @@ class PPOTrainingWrapper(gym.Wrapper):
             reward = float(env_reward)
         if self.reward_spec.limit_penalty > 0:
             q = np.asarray(obs, dtype=np.float64)[self.layout.slices["q"]]
-            reward -= float(self.reward_spec.limit_term(q, self.kinematics.lower_limits, self.kinematics.upper_limits, self.dt))
+            reward -= float(
+                self.reward_spec.limit_term(q, self.kinematics.lower_limits, self.kinematics.upper_limits, self.dt)
+            )
         self._previous_action = action
         self._last_obs = np.asarray(obs, dtype=np.float64)
         return self._features(obs), reward, terminated, truncated, info

@@ -154,7 +154,16 @@ class FeatureSpec:
             raise ValueError(f"feature spec: action must be one of {sorted(ACTION_KINDS)}, got {self.action!r}")
         if self.version == -1:
             object.__setattr__(self, "version", ACTION_KINDS[self.action])
-        for name in ("gain_max", "damping", "joint_gain", "error_scale_coarse", "error_scale_fine", "velocity_scale", "position_scale", "action_fraction"):
+        for name in (
+            "gain_max",
+            "damping",
+            "joint_gain",
+            "error_scale_coarse",
+            "error_scale_fine",
+            "velocity_scale",
+            "position_scale",
+            "action_fraction",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"feature spec: {name} must be a positive number, got {value!r}")
@@ -264,8 +273,9 @@ class EpisodeGoals:
     """
 
     def __init__(self, kinematics: Any, velocity_limits: np.ndarray, dt: float, tracking: bool, count: int) -> None:
-        self.arms = GoalArms(kinematics, velocity_limits, dt, preferred_margin=TRACKING_ROOM if tracking else 0.0,
-                             moving=tracking)
+        self.arms = GoalArms(
+            kinematics, velocity_limits, dt, preferred_margin=TRACKING_ROOM if tracking else 0.0, moving=tracking
+        )
         self.arms.allocate(count)
         self.lower, self.upper = kinematics.lower_limits, kinematics.upper_limits
         self.pending = np.ones(count, dtype=bool)
@@ -295,7 +305,10 @@ def _goal_features(q: np.ndarray, state: GoalState) -> np.ndarray:
 
 
 def observation_features(
-    obs: np.ndarray, layout: ObservationLayout, spec: FeatureSpec, action_scale: float = 1.0,
+    obs: np.ndarray,
+    layout: ObservationLayout,
+    spec: FeatureSpec,
+    action_scale: float = 1.0,
     goal: GoalState | None = None,
 ) -> np.ndarray:
     """The network input for one observation ``(d,)`` or a batch ``(B, d)``, as float32.
@@ -343,8 +356,9 @@ def observation_features(
     return np.concatenate(parts, axis=-1).astype(np.float32)
 
 
-def task_velocity(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, spec: FeatureSpec,
-                  action_scale: Any = 1.0) -> np.ndarray:
+def task_velocity(
+    action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, spec: FeatureSpec, action_scale: Any = 1.0
+) -> np.ndarray:
     """The task-relative action's end-effector velocity ``v = ẋ_d + s·gain_max·(‖e‖ + ε_v)·clip(a)``.
 
     ``action_scale`` is a number or one per row ``(B, 1)``.
@@ -367,8 +381,15 @@ def _resolve(jacobians: np.ndarray, velocity: np.ndarray, spec: FeatureSpec) -> 
     return damped_least_squares(jac, velocity[..., None], damping)[..., 0]
 
 
-def task_relative_command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, jacobians: np.ndarray,
-                          velocity_limits: np.ndarray, spec: FeatureSpec, action_scale: Any = 1.0) -> np.ndarray:
+def task_relative_command(
+    action: np.ndarray,
+    obs: np.ndarray,
+    layout: ObservationLayout,
+    jacobians: np.ndarray,
+    velocity_limits: np.ndarray,
+    spec: FeatureSpec,
+    action_scale: Any = 1.0,
+) -> np.ndarray:
     """Joint velocities (rad/s) of task-relative actions ``(n,)`` or ``(B, n)``: ``Jᵀ(JJᵀ + λ²I)⁻¹ v``, clipped to ±ū.
 
     ``jacobians`` is ``J(θ)`` ``(n, m)`` or one per row ``(B, n, m)``.
@@ -378,9 +399,16 @@ def task_relative_command(action: np.ndarray, obs: np.ndarray, layout: Observati
     return np.minimum(np.maximum(command, -limits), limits)
 
 
-def goal_relative_command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, jacobians: np.ndarray,
-                          velocity_limits: np.ndarray, spec: FeatureSpec, goal: GoalState,
-                          action_scale: Any = 1.0) -> np.ndarray:
+def goal_relative_command(
+    action: np.ndarray,
+    obs: np.ndarray,
+    layout: ObservationLayout,
+    jacobians: np.ndarray,
+    velocity_limits: np.ndarray,
+    spec: FeatureSpec,
+    goal: GoalState,
+    action_scale: Any = 1.0,
+) -> np.ndarray:
     """Joint velocities (rad/s) of goal-relative actions ``(n + 1,)`` or ``(B, n + 1)`` (the module docs).
 
     ``u = sat(θ̇* + s·joint_gain·(1 + a₀)(θ* − θ) + Jᵀ(JJᵀ + λ²I)⁻¹ s·gain_max·(‖e‖ + ε_v)·a₁..ₙ)``, ``sat`` the
@@ -399,9 +427,16 @@ def goal_relative_command(action: np.ndarray, obs: np.ndarray, layout: Observati
     return scale_rows_into_limits(command, np.asarray(velocity_limits, dtype=np.float64))
 
 
-def command(action: np.ndarray, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray,
-            spec: FeatureSpec, action_scale: float = 1.0, jacobians: np.ndarray | None = None,
-            goal: GoalState | None = None) -> np.ndarray:
+def command(
+    action: np.ndarray,
+    obs: np.ndarray,
+    layout: ObservationLayout,
+    velocity_limits: np.ndarray,
+    spec: FeatureSpec,
+    action_scale: float = 1.0,
+    jacobians: np.ndarray | None = None,
+    goal: GoalState | None = None,
+) -> np.ndarray:
     """Joint velocities (rad/s) of the network's actions for observations ``(d,)`` or ``(B, d)``, any kind.
 
     A task- or goal-relative spec also needs ``J(θ)`` of each observation (``(n, m)`` or ``(B, n, m)``); a

@@ -64,7 +64,9 @@ class PPOPolicy(BasePolicy):
     def __init__(self, env: Any, model_path: str | Path | None = None, action_scale: float = 1.0) -> None:
         super().__init__(env)
         self.action_scale = positive_float("action_scale", action_scale)
-        self.model_path = Path(model_path) if model_path is not None else shipped_model_path(self.task, self.models_folder)
+        self.model_path = (
+            Path(model_path) if model_path is not None else shipped_model_path(self.task, self.models_folder)
+        )
         self.model = PolicyFile.load(self.model_path)
         self.model.check_compatible(
             self.task, self.layout, self.context.arm_robot, source=f"PPO policy file {self.model_path}"

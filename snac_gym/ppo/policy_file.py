@@ -33,11 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.outputs import write_whole
-from snac_gym.observation import ObservationLayout
-from snac_gym.ppo.features import FeatureSpec, GoalState, action_size, command, feature_size, observation_features
-
 from snac_gym.errors import MissingPolicyFileError, PolicyFileError
+from snac_gym.observation import ObservationLayout
+from snac_gym.outputs import write_whole
+from snac_gym.ppo.features import FeatureSpec, GoalState, action_size, command, feature_size, observation_features
 
 FORMAT_NAME = "snac-gym-ppo-policy"
 FORMAT_VERSION = 1
@@ -118,15 +117,21 @@ class PolicyFile:
             hidden = _activation(self.activation, _rowwise(hidden, layer_weight_t) + layer_bias)
         return _rowwise(hidden, weight_t) + bias
 
-    def action(self, obs: np.ndarray, layout: ObservationLayout, action_scale: float = 1.0,
-               goal: GoalState | None = None) -> np.ndarray:
+    def action(
+        self, obs: np.ndarray, layout: ObservationLayout, action_scale: float = 1.0, goal: GoalState | None = None
+    ) -> np.ndarray:
         """Normalised action in [−1, 1] for observations ``(d,)`` or ``(B, d)`` at effort ``action_scale``."""
         features = observation_features(obs, layout, self.features, action_scale, goal)
         return np.clip(self.network_action(self.normalise(features)), -1.0, 1.0)
 
     def command(
-        self, obs: np.ndarray, layout: ObservationLayout, velocity_limits: np.ndarray, action_scale: float = 1.0,
-        jacobians: np.ndarray | None = None, goal: GoalState | None = None,
+        self,
+        obs: np.ndarray,
+        layout: ObservationLayout,
+        velocity_limits: np.ndarray,
+        action_scale: float = 1.0,
+        jacobians: np.ndarray | None = None,
+        goal: GoalState | None = None,
     ) -> np.ndarray:
         """Joint velocities (rad/s) for observations ``(d,)`` or ``(B, d)`` (:func:`~snac_gym.ppo.features.command`).
 
@@ -188,9 +193,15 @@ class PolicyFile:
         arrays = self.arrays()
         metadata = dict(self.metadata)
         metadata.update(
-            format=FORMAT_NAME, format_version=FORMAT_VERSION, activation=self.activation,
-            obs_epsilon=self.obs_epsilon, obs_clip=self.obs_clip, features=self.features.to_dict(),
-            hidden_layers=len(self.hidden), normalize_obs=self.obs_mean is not None, checksum=_checksum(arrays),
+            format=FORMAT_NAME,
+            format_version=FORMAT_VERSION,
+            activation=self.activation,
+            obs_epsilon=self.obs_epsilon,
+            obs_clip=self.obs_clip,
+            features=self.features.to_dict(),
+            hidden_layers=len(self.hidden),
+            normalize_obs=self.obs_mean is not None,
+            checksum=_checksum(arrays),
         )
         buffer = io.BytesIO()
         np.savez_compressed(buffer, metadata=np.array(json.dumps(metadata, sort_keys=True)), **arrays)
@@ -243,11 +254,15 @@ class PolicyFile:
             action_layer = (contents["action_weight"], contents["action_bias"])
             normalised = bool(metadata["normalize_obs"])
             policy = cls(
-                hidden=hidden, action_layer=action_layer, activation=str(metadata["activation"]),
+                hidden=hidden,
+                action_layer=action_layer,
+                activation=str(metadata["activation"]),
                 obs_mean=contents["obs_mean"] if normalised else None,
                 obs_var=contents["obs_var"] if normalised else None,
-                obs_epsilon=float(metadata["obs_epsilon"]), obs_clip=float(metadata["obs_clip"]),
-                features=features, metadata=metadata,
+                obs_epsilon=float(metadata["obs_epsilon"]),
+                obs_clip=float(metadata["obs_clip"]),
+                features=features,
+                metadata=metadata,
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise PolicyFileError(f"PPO policy file {path} is incomplete or inconsistent: {exc}") from exc
@@ -282,11 +297,12 @@ class PolicyFile:
             "sha256": hashlib.sha256(data).hexdigest(),
             "task": self.task,
         }
-        wrong = [f"{key} {card.get(key)!r}, the file's {value!r}" for key, value in actual.items() if card.get(key) != value]
+        wrong = [
+            f"{key} {card.get(key)!r}, the file's {value!r}" for key, value in actual.items() if card.get(key) != value
+        ]
         if wrong:
             raise PolicyFileError(
-                f"PPO model card {card_path} does not describe {path.name}: {'; '.join(wrong)}; "
-                "fix or remove the card"
+                f"PPO model card {card_path} does not describe {path.name}: {'; '.join(wrong)}; fix or remove the card"
             )
 
     def validate(self, source: str = "policy file") -> None:
@@ -339,8 +355,12 @@ def export_policy(model: Any, vec_normalize: Any | None, metadata: dict[str, Any
     activation = None
     for module in policy.mlp_extractor.policy_net:
         if isinstance(module, torch.nn.Linear):
-            hidden.append((module.weight.detach().cpu().numpy().astype(np.float32).copy(),
-                           module.bias.detach().cpu().numpy().astype(np.float32).copy()))
+            hidden.append(
+                (
+                    module.weight.detach().cpu().numpy().astype(np.float32).copy(),
+                    module.bias.detach().cpu().numpy().astype(np.float32).copy(),
+                )
+            )
         elif isinstance(module, torch.nn.Tanh):
             activation = "tanh"
         elif isinstance(module, torch.nn.ReLU):
@@ -352,8 +372,10 @@ def export_policy(model: Any, vec_normalize: Any | None, metadata: dict[str, Any
     features_extractor = getattr(policy, "pi_features_extractor", policy.features_extractor)
     if type(features_extractor).__name__ != "FlattenExtractor":
         raise ValueError(f"cannot export a policy with a {type(features_extractor).__name__}")
-    action_layer = (policy.action_net.weight.detach().cpu().numpy().astype(np.float32).copy(),
-                    policy.action_net.bias.detach().cpu().numpy().astype(np.float32).copy())
+    action_layer = (
+        policy.action_net.weight.detach().cpu().numpy().astype(np.float32).copy(),
+        policy.action_net.bias.detach().cpu().numpy().astype(np.float32).copy(),
+    )
     normalise = vec_normalize is not None and bool(getattr(vec_normalize, "norm_obs", False))
     exported = PolicyFile(
         hidden=tuple(hidden),

@@ -58,10 +58,10 @@ import numpy as np
 
 from snac_gym import __version__
 from snac_gym.cost import trajectory_cost
-from snac_gym.outputs import usable_out_folder, write_error, write_text_whole, write_whole
 from snac_gym.envs import make_task_env
 from snac_gym.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
+from snac_gym.outputs import usable_out_folder, write_error, write_text_whole, write_whole
 from snac_gym.ppo.config import env_arguments, resolve_config, validate_config
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec
 from snac_gym.ppo.features import FeatureSpec
@@ -74,8 +74,15 @@ from snac_gym.tasks import get_task
 #: Env id of each task.
 #: Columns of evaluations.csv (``success_rate_<h>s`` follows ``success_rate`` for each horizon h).
 EVALUATION_COLUMNS = (
-    "timesteps", "wall_time_s", "success_rate", "mean_cost", "mean_final_error_m", "median_final_error_m",
-    "mean_error_2nd_half_m", "median_error_2nd_half_m", "is_best",
+    "timesteps",
+    "wall_time_s",
+    "success_rate",
+    "mean_cost",
+    "mean_final_error_m",
+    "median_final_error_m",
+    "mean_error_2nd_half_m",
+    "median_error_2nd_half_m",
+    "is_best",
 )
 MODEL_FILE = "model.zip"
 NORMALIZE_FILE = "vecnormalize.pkl"
@@ -113,9 +120,7 @@ def _require_sb3() -> None:
         import stable_baselines3  # noqa: F401
         import torch  # noqa: F401
     except ImportError as exc:  # pragma: no cover - depends on the install
-        raise ImportError(
-            "train-ppo needs stable-baselines3 and torch: pip install 'snac-gym[rl]'"
-        ) from exc
+        raise ImportError("train-ppo needs stable-baselines3 and torch: pip install 'snac-gym[rl]'") from exc
 
 
 def package_versions() -> dict[str, str]:
@@ -125,8 +130,12 @@ def package_versions() -> dict[str, str]:
     import torch
 
     return {
-        "snac_gym": __version__, "stable_baselines3": stable_baselines3.__version__, "torch": torch.__version__,
-        "gymnasium": gym.__version__, "numpy": np.__version__, "python": platform.python_version(),
+        "snac_gym": __version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "torch": torch.__version__,
+        "gymnasium": gym.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
     }
 
 
@@ -172,16 +181,20 @@ def build_vec_env(config: dict[str, Any]) -> Any:
     kind = vec.get("kind", "dummy")
     if kind == "batched":
         # the rl extra (PPOVecEnv is a stable_baselines3 VecEnv)
-        from snac_gym.ppo.vec_env import PPOVecEnv
         from stable_baselines3.common.vec_env import VecMonitor
+
+        from snac_gym.ppo.vec_env import PPOVecEnv
 
         venv = PPOVecEnv(config)
         venv.seed(int(config["seed"]))
         return VecMonitor(venv)  # episode returns and lengths for SB3's log (make_vec_env's Monitor does it otherwise)
     kwargs: dict[str, Any] = {"start_method": "spawn"} if kind == "subproc" else {}
     return make_vec_env(
-        _EnvFactory(config), n_envs=int(vec.get("n_envs", 1)), seed=int(config["seed"]),
-        vec_env_cls=SubprocVecEnv if kind == "subproc" else DummyVecEnv, vec_env_kwargs=kwargs,
+        _EnvFactory(config),
+        n_envs=int(vec.get("n_envs", 1)),
+        seed=int(config["seed"]),
+        vec_env_cls=SubprocVecEnv if kind == "subproc" else DummyVecEnv,
+        vec_env_kwargs=kwargs,
     )
 
 
@@ -190,8 +203,11 @@ def _normalized(venv: Any, config: dict[str, Any]) -> Any:
 
     normalize = config["normalize"]
     return VecNormalize(
-        venv, norm_obs=bool(normalize.get("obs", True)), norm_reward=bool(normalize.get("reward", True)),
-        clip_obs=float(normalize.get("clip_obs", 10.0)), gamma=float(config["ppo"]["gamma"]),
+        venv,
+        norm_obs=bool(normalize.get("obs", True)),
+        norm_reward=bool(normalize.get("reward", True)),
+        clip_obs=float(normalize.get("clip_obs", 10.0)),
+        gamma=float(config["ppo"]["gamma"]),
     )
 
 
@@ -208,9 +224,14 @@ def build_model(config: dict[str, Any], venv: Any) -> Any:
     activation = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[ppo.pop("activation", "tanh")]
     log_std_init = float(ppo.pop("log_std_init", 0.0))
     return PPO(
-        "MlpPolicy", venv, learning_rate=LinearSchedule(rate) if schedule == "linear" else rate,
+        "MlpPolicy",
+        venv,
+        learning_rate=LinearSchedule(rate) if schedule == "linear" else rate,
         policy_kwargs={"net_arch": net_arch, "activation_fn": activation, "log_std_init": log_std_init},
-        seed=int(config["seed"]), device="cpu", verbose=0, **ppo,
+        seed=int(config["seed"]),
+        device="cpu",
+        verbose=0,
+        **ppo,
     )
 
 
@@ -236,7 +257,9 @@ def evaluate_policy_file(
     threshold = float(evaluation["success_error_m"])
     # the episodes of the region trained on (the sample cuboid unless env.sample_space says otherwise)
     space = env_arguments(config).get("sample_space")
-    env = make_task_env(task, config.get("robot", "ur10"), max_steps=10**9, **({} if space is None else {"sample_space": space}))
+    env = make_task_env(
+        task, config.get("robot", "ur10"), max_steps=10**9, **({} if space is None else {"sample_space": space})
+    )
     try:
         policy = PPOPolicy(env, model_path=policy_path, action_scale=action_scale)
         dt = env.unwrapped.dt
@@ -251,10 +274,12 @@ def evaluate_policy_file(
             costs.append(float(trajectory_cost(errors[:first], log_array(log, "u")[:first], dt).total))
             finals_i = [float(norms[k]) for k in horizon_steps]
             halves_i = [float(norms[k // 2 : k].mean()) for k in horizon_steps]
-            successes.append([
-                bool(task.success({"final_error": final, "mean_error_2nd_half": half}, threshold))
-                for final, half in zip(finals_i, halves_i, strict=True)
-            ])
+            successes.append(
+                [
+                    bool(task.success({"final_error": final, "mean_error_2nd_half": half}, threshold))
+                    for final, half in zip(finals_i, halves_i, strict=True)
+                ]
+            )
             finals.append(finals_i[-1])
             second_halves.append(halves_i[-1])
     finally:
@@ -265,8 +290,10 @@ def evaluate_policy_file(
     for j, horizon in enumerate(horizons):
         scores[f"success_rate_{horizon:g}s"] = float(success[:, j].mean())
     scores.update(
-        mean_cost=float(np.mean(costs)), mean_final_error_m=float(finals_a.mean()),
-        median_final_error_m=float(np.median(finals_a)), mean_error_2nd_half_m=float(halves_a.mean()),
+        mean_cost=float(np.mean(costs)),
+        mean_final_error_m=float(finals_a.mean()),
+        median_final_error_m=float(np.median(finals_a)),
+        mean_error_2nd_half_m=float(halves_a.mean()),
         median_error_2nd_half_m=float(np.median(halves_a)),
     )
     return scores
@@ -307,10 +334,13 @@ class _Run:
         kinematics = Kinematics(robot)
         layout = ObservationLayout(kinematics.n_joints, kinematics.task_dim)
         return {
-            "task": self.config["task"], "robot": robot,
+            "task": self.config["task"],
+            "robot": robot,
             "layout": {"n_joints": layout.n_joints, "task_dim": layout.task_dim, "size": layout.size},
-            "timesteps": int(model.num_timesteps), "seed": int(self.config["seed"]),
-            "versions": package_versions(), "config": self.config,
+            "timesteps": int(model.num_timesteps),
+            "seed": int(self.config["seed"]),
+            "versions": package_versions(),
+            "config": self.config,
             "exported_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "training_wall_time_s": round(self.wall_time(), 1),
         }
@@ -527,7 +557,9 @@ def _check_checkpoint(checkpoint: Path) -> None:
         try:
             expected = json.loads(manifest.read_text())["sha256"]
         except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise ValueError(f"--resume: the checksum file {manifest} is unreadable ({type(exc).__name__}: {exc})") from None
+            raise ValueError(
+                f"--resume: the checksum file {manifest} is unreadable ({type(exc).__name__}: {exc})"
+            ) from None
         for name, digest in expected.items():
             path = checkpoint / name
             if not path.is_file() or _sha256(path) != digest:
@@ -635,8 +667,10 @@ def train_ppo(
     run.state["segments"].append({"start_timesteps": start_timesteps, "started_at": started_at})
     run.state.pop("interrupted_by", None)
     run.write_state(start_timesteps, "running")
-    log(f"training PPO on {config['task']} for {config['timesteps']} timesteps ({config['vec_env']['n_envs']} "
-        f"{config['vec_env'].get('kind', 'dummy')} envs, seed {config['seed']}) into {out}")
+    log(
+        f"training PPO on {config['task']} for {config['timesteps']} timesteps ({config['vec_env']['n_envs']} "
+        f"{config['vec_env'].get('kind', 'dummy')} envs, seed {config['seed']}) into {out}"
+    )
     callback = _make_callback(run, venv, log, progress)
     status = "finished"
     try:
@@ -651,7 +685,9 @@ def train_ppo(
         venv.close()
     except (EOFError, BrokenPipeError, ConnectionResetError):  # pragma: no cover - workers gone after Ctrl-C
         pass
-    if status == "interrupted":  # the caller says so (status, timesteps, checkpoint); the curves wait for the finished run
+    if (
+        status == "interrupted"
+    ):  # the caller says so (status, timesteps, checkpoint); the curves wait for the finished run
         return _result(run, status, timesteps_done)
     try:
         plot_training_curves(out)
@@ -666,8 +702,12 @@ def train_ppo(
 def _result(run: _Run, status: str, timesteps: int) -> TrainingResult:
     best_policy = run.out / "best" / POLICY_FILE
     return TrainingResult(
-        out=run.out, status=status, timesteps=timesteps, wall_time_s=float(run.state["wall_time_s"]),
-        best=run.state["best"], best_policy=best_policy if best_policy.is_file() else None,
+        out=run.out,
+        status=status,
+        timesteps=timesteps,
+        wall_time_s=float(run.state["wall_time_s"]),
+        best=run.state["best"],
+        best_policy=best_policy if best_policy.is_file() else None,
         checkpoint_policy=run.out / "checkpoint" / POLICY_FILE,
     )
 
@@ -751,15 +791,27 @@ def training_curves_figure(out: str | Path, title: str | None = None) -> Any:
     if evaluations:
         steps = [row["timesteps"] for row in evaluations]
         for key in [k for k in evaluations[0] if k.startswith("success_rate_")]:
-            axes[0].plot(steps, [100 * row[key] for row in evaluations], lw=1, alpha=0.7,
-                         label=f"at {key.removeprefix('success_rate_')}")
-        axes[0].plot(steps, [100 * row["success_rate"] for row in evaluations], marker="o", ms=3, color="k",
-                     label="at every horizon")
+            axes[0].plot(
+                steps,
+                [100 * row[key] for row in evaluations],
+                lw=1,
+                alpha=0.7,
+                label=f"at {key.removeprefix('success_rate_')}",
+            )
+        axes[0].plot(
+            steps,
+            [100 * row["success_rate"] for row in evaluations],
+            marker="o",
+            ms=3,
+            color="k",
+            label="at every horizon",
+        )
         best_rows = [row for row in evaluations if row.get("is_best")]
         if best_rows:  # the model kept in best/: the last row that improved
             best = best_rows[-1]
-            axes[0].plot([best["timesteps"]], [100 * best["success_rate"]], "*", ms=12, color="C3",
-                         label="kept (best/)")
+            axes[0].plot(
+                [best["timesteps"]], [100 * best["success_rate"]], "*", ms=12, color="C3", label="kept (best/)"
+            )
             axes[1].plot([best["timesteps"]], [best["mean_cost"]], "*", ms=12, color="C3")
         axes[0].legend(fontsize=8, loc="lower right")
         axes[1].plot(steps, [row["mean_cost"] for row in evaluations], marker="o", ms=3)
@@ -767,12 +819,16 @@ def training_curves_figure(out: str | Path, title: str | None = None) -> Any:
     threshold_mm = 1000 * float(config["evaluation"]["success_error_m"])
     spec = get_task(config["task"])
     criterion = "final ‖e‖ ≤" if spec.success_measure == "final_error" else "mean ‖e‖, 2nd half ≤"
-    axes[0].set(xlabel="timesteps", ylabel="success rate, %", ylim=(-2, 102),
-                title=f"success ({criterion} {threshold_mm:g} mm)")
+    axes[0].set(
+        xlabel="timesteps", ylabel="success rate, %", ylim=(-2, 102), title=f"success ({criterion} {threshold_mm:g} mm)"
+    )
     first_horizon = float(config["evaluation"]["horizons_s"][0])
     axes[1].set(xlabel="timesteps", ylabel="mean trajectory cost V", title=f"Table I cost V over {first_horizon:g} s")
-    rewards = [(row["time/total_timesteps"], row["rollout/ep_rew_mean"]) for row in progress
-               if "rollout/ep_rew_mean" in row and "time/total_timesteps" in row]
+    rewards = [
+        (row["time/total_timesteps"], row["rollout/ep_rew_mean"])
+        for row in progress
+        if "rollout/ep_rew_mean" in row and "time/total_timesteps" in row
+    ]
     if rewards:
         axes[2].plot(*zip(*rewards))
     else:  # runs made before the batched env was wrapped in VecMonitor logged no episode returns

@@ -21,9 +21,9 @@ from snac_gym.ppo.envs import RewardSpec
 from snac_gym.ppo.features import (
     EpisodeGoals,
     FeatureSpec,
-    goal_relative_command,
     action_size,
     feature_size,
+    goal_relative_command,
     observation_features,
     task_relative_command,
 )
@@ -53,7 +53,8 @@ class PPOVecEnv(SB3VectorEnv):
         kinematics = episodes.template.kinematics
         self._goals = (
             EpisodeGoals(kinematics, episodes.limits, episodes.dt, get_task(config["task"]).moving_reference, count)
-            if self.features.goal_relative else None
+            if self.features.goal_relative
+            else None
         )
         self._goal = None
 
@@ -69,7 +70,9 @@ class PPOVecEnv(SB3VectorEnv):
         low, high = self.features.action_scale_range
         for index in indices:
             generator = self.episodes.generators[index]
-            self.action_scales[index] = float(np.exp(generator.uniform(np.log(low), np.log(high)))) if high > low else low
+            self.action_scales[index] = (
+                float(np.exp(generator.uniform(np.log(low), np.log(high)))) if high > low else low
+            )
 
     def _features(self, observations: np.ndarray, rows: Any) -> np.ndarray:
         goal = None
@@ -91,13 +94,28 @@ class PPOVecEnv(SB3VectorEnv):
         episodes = self.episodes
         if self.features.goal_relative:
             jacobians = episodes.template.kinematics.jacobian_batch(episodes.q)
-            command = goal_relative_command(action, episodes.observations(), episodes.layout, jacobians, limits,
-                                            self.features, self._goal, self.action_scales[:, None])
+            command = goal_relative_command(
+                action,
+                episodes.observations(),
+                episodes.layout,
+                jacobians,
+                limits,
+                self.features,
+                self._goal,
+                self.action_scales[:, None],
+            )
             return episodes.commands(command)
         if self.features.task_relative:
             jacobians = episodes.template.kinematics.jacobian_batch(episodes.q)
-            command = task_relative_command(action, episodes.observations(), episodes.layout, jacobians, limits,
-                                            self.features, self.action_scales[:, None])
+            command = task_relative_command(
+                action,
+                episodes.observations(),
+                episodes.layout,
+                jacobians,
+                limits,
+                self.features,
+                self.action_scales[:, None],
+            )
             return episodes.commands(command)
         # action_to_command with one action_scale per row, in the same order of operations.
         command = action * (limits * (self.features.action_fraction * self.action_scales[:, None]))
@@ -107,8 +125,9 @@ class PPOVecEnv(SB3VectorEnv):
         rewards = self._task_rewards(result)
         if self.reward_spec.limit_penalty > 0:
             kinematics = self.episodes.template.kinematics
-            rewards = rewards - self.reward_spec.limit_term(self.episodes.q, kinematics.lower_limits,
-                                                            kinematics.upper_limits, self.episodes.dt)
+            rewards = rewards - self.reward_spec.limit_term(
+                self.episodes.q, kinematics.lower_limits, kinematics.upper_limits, self.episodes.dt
+            )
         return rewards
 
     def _task_rewards(self, result: dict[str, np.ndarray]) -> np.ndarray:

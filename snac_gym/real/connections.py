@@ -24,13 +24,12 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from snac_gym.errors import ConnectionFailure
 from snac_gym.kinematics import Kinematics
 from snac_gym.physics.bullet import PyBulletSim, SimulatedArm
 from snac_gym.real.rtde_client import HEADER, RECONNECT_MARKERS, as_arrays, write_frame
 from snac_gym.sampling import nominal_configuration
 from snac_gym.ur_models import SERIES_FREQUENCY  # the controller generations' rates, re-exported here
-
-from snac_gym.errors import ConnectionFailure
 
 #: Safety states a connection reports (``info["safety_state"]`` of the real env).
 NORMAL = "normal"
@@ -417,7 +416,9 @@ class URRTDEConnection:
                 self.last_stop = "client gone: left to the controller's watchdog"
         self._sent = False
         if self.last_stop == "at rest":
-            self.rest = self._record(start, True, "rtde: joint speeds under 0.001 rad/s in a package newer than speedStop")
+            self.rest = self._record(
+                start, True, "rtde: joint speeds under 0.001 rad/s in a package newer than speedStop"
+            )
             return
         script = None
         if self._client.failure is None:
@@ -433,8 +434,10 @@ class URRTDEConnection:
             lambda requests: ask_dashboard(self.host, requests, timeout=min(0.5, self.confirm_timeout)),
             self.confirm_timeout, settle,
         )  # fmt: skip
-        how = said if confirmed else (
-            f"nothing confirmed the arm at rest within {self.confirm_timeout:g} s: RTDE {self.last_stop}; {said}"
+        how = (
+            said
+            if confirmed
+            else (f"nothing confirmed the arm at rest within {self.confirm_timeout:g} s: RTDE {self.last_stop}; {said}")
         )
         self.rest = self._record(start, confirmed, how, script=script, settle=settle)
 

@@ -411,7 +411,11 @@ class RealUREnv(TaskEnvCore):
             self.connection.end_period(self.connection.start_period())  # one period, nothing sent
 
     def _finish(
-        self, costs: tuple[float, float, float], command: np.ndarray, safety: str | None, safety_state: str = NORMAL,
+        self,
+        costs: tuple[float, float, float],
+        command: np.ndarray,
+        safety: str | None,
+        safety_state: str = NORMAL,
         recovery: dict[str, Any] | None = None,
     ) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         info = self._step_info(costs, command)

@@ -33,8 +33,15 @@ def row_numbers(n_joints: int) -> struct.Struct:
 
 
 def format_row(
-    step: int, t: float, monotonic: float, period: float | None, numbers: Any, n_joints: int, command: Any,
-    state: str, safety: Any,
+    step: int,
+    t: float,
+    monotonic: float,
+    period: float | None,
+    numbers: Any,
+    n_joints: int,
+    command: Any,
+    state: str,
+    safety: Any,
 ) -> str:
     u = "," * (n_joints - 1) if command is None else ",".join(f"{v:.9g}" for v in command)
     reason = "" if safety is None else '"' + str(safety).replace('"', "'") + '"'

@@ -16,9 +16,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym.rollout.log import log_array, log_columns
-
 from snac_gym.errors import RolloutError  # noqa: F401  (its name here before snac_gym.errors)
+from snac_gym.rollout.log import log_array, log_columns
 
 
 @dataclass
@@ -121,7 +120,10 @@ def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
     flags = None
     if all("diverged" in log.columns for log in logs):
         flagged = np.stack([log["diverged"].to_numpy() > 0 for log in logs])
-        flags = {"diverged": flagged.any(axis=1), "diverged_step": np.where(flagged.any(axis=1), flagged.argmax(axis=1), -1)}
+        flags = {
+            "diverged": flagged.any(axis=1),
+            "diverged_step": np.where(flagged.any(axis=1), flagged.argmax(axis=1), -1),
+        }
     return Rollouts(
         dt=float(logs[0].attrs["dt"]),
         times=logs[0]["t"].to_numpy(),

@@ -118,7 +118,7 @@ class _Record:
         self.times[self.count] = getattr(self.base, "time", self.count * float(self.base.dt))
         self.observations[self.count] = obs
         if self.weights is not None:
-            del self.weights[self.count:]  # a row whose command never came
+            del self.weights[self.count :]  # a row whose command never came
             self.weights.append(np.array(policy.internals["critic_weights"], dtype=float))
 
     def scalars(self, policy: Any) -> None:
@@ -130,8 +130,14 @@ class _Record:
         self.count += 1
 
     def log(
-        self, policy: Any, obs: np.ndarray, options: Mapping[str, Any] | None, seed: int | None, limits: np.ndarray,
-        terminated: bool, truncated: bool,
+        self,
+        policy: Any,
+        obs: np.ndarray,
+        options: Mapping[str, Any] | None,
+        seed: int | None,
+        limits: np.ndarray,
+        terminated: bool,
+        truncated: bool,
     ) -> pd.DataFrame:
         layout, base, count, s = self.layout, self.base, self.count, self.layout.slices
         m, n, dt = layout.n_joints, layout.task_dim, float(base.dt)
@@ -166,8 +172,6 @@ class _Record:
             "truncated": bool(truncated),
         }
         return log
-
-
 
 
 @functools.lru_cache(maxsize=2)
@@ -222,7 +226,9 @@ def simulate_env(
     logs = []
     for sample, seed in zip(samples, seeds, strict=True):
         policy = make_policy(env)
-        log = add_critic_diagnostics(rollout(env, policy, options=sample.reset_options(), seed=int(seed), steps=steps), policy)
+        log = add_critic_diagnostics(
+            rollout(env, policy, options=sample.reset_options(), seed=int(seed), steps=steps), policy
+        )
         if len(log) != steps:
             raise RolloutError(f"{task} sample {sample.index}: the env ended after {len(log)} of {steps} steps")
         logs.append(log)

@@ -251,7 +251,8 @@ def _stack_diagnostics(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarra
         return None
     critic_error = np.stack([row["critic_error"] for row in rows], axis=1) if "critic_error" in rows[0] else None
     return summarise_critic_diagnostics(
-        np.stack([row["hjb_residual"] for row in rows], axis=1), np.stack([row["hjb_ratio"] for row in rows], axis=1),
+        np.stack([row["hjb_residual"] for row in rows], axis=1),
+        np.stack([row["hjb_ratio"] for row in rows], axis=1),
         critic_error,
     )
 
@@ -265,5 +266,3 @@ def _sample_major(log: np.ndarray) -> np.ndarray:
     steps, count, width = log.shape
     records = np.ascontiguousarray(log).view(np.dtype((np.void, width * log.itemsize))).reshape(steps, count)
     return np.ascontiguousarray(records.T).view(log.dtype).reshape(count, steps, width)
-
-

@@ -100,8 +100,12 @@ def add_critic_diagnostics(log: pd.DataFrame, policy: Any) -> pd.DataFrame:
     centre = reference.get("centre", reference.get("target"))
     task_dim = int(log.attrs["task_dim"])
     out = diagnose(
-        log_array(log, "q"), log_array(log, "e"), log_array(log, "x_d"), log_array(log, "xdot_d"),
-        np.zeros(task_dim) if centre is None else np.asarray(centre, dtype=float), log_array(log, "w"),
+        log_array(log, "q"),
+        log_array(log, "e"),
+        log_array(log, "x_d"),
+        log_array(log, "xdot_d"),
+        np.zeros(task_dim) if centre is None else np.asarray(centre, dtype=float),
+        log_array(log, "w"),
     )
     attrs = log.attrs
     log = log.assign(**out)

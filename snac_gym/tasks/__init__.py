@@ -17,5 +17,16 @@ PAPER_TASKS = ("reach", "track")
 register_task(ReachTask())
 register_task(EllipseTrackTask())
 
-__all__ = ["PAPER_TASKS", "REQUIRED_ATTRIBUTES", "TASKS", "EllipseTrackTask", "ReachTask", "Sample", "Task", "all_tasks",
-           "get_task", "register_task", "task_names"]
+__all__ = [
+    "PAPER_TASKS",
+    "REQUIRED_ATTRIBUTES",
+    "TASKS",
+    "EllipseTrackTask",
+    "ReachTask",
+    "Sample",
+    "Task",
+    "all_tasks",
+    "get_task",
+    "register_task",
+    "task_names",
+]

@@ -33,8 +33,8 @@ from snac_gym.kinematics import PoseKinematics, shared_pose_kinematics
 from snac_gym.references import PAPER_TARGET, Ellipse
 from snac_gym.sampling import SampleSpace, nominal_configuration, sample_ellipse, sample_seed_pose
 from snac_gym.tasks.base import CellReader, Task
-from snac_gym.tasks.registry import TASKS, register_task
 from snac_gym.tasks.reach import TARGET_COLUMNS
+from snac_gym.tasks.registry import TASKS, register_task
 from snac_gym.tasks.track import ELLIPSE_COLUMNS, EllipseTrackTask
 
 #: The tool pointing down (π about x), the orientation of the placeholder reference.
@@ -130,7 +130,9 @@ def check_pose_reachable(kinematics: PoseKinematics, poses: np.ndarray, what: st
     for pose in poses:
         q, ok = kinematics.inverse_pose(pose, q)
         if not ok:
-            raise ValueError(f"{what}: pose {np.round(pose, 4).tolist()} (m, rad) is not reachable by {kinematics.robot}")
+            raise ValueError(
+                f"{what}: pose {np.round(pose, 4).tolist()} (m, rad) is not reachable by {kinematics.robot}"
+            )
 
 
 def pose_errors_and_jacobians(
@@ -279,5 +281,16 @@ def register_pose_tasks() -> None:
             register_task(task)
 
 
-__all__ = ["POSE_TASKS", "POSE_TASK_NAMES", "ROTVEC_COLUMNS", "PoseEllipse", "PoseReachTask", "PoseTarget", "PoseTrackTask", "check_pose_reachable", "is_pose_task", "pose_errors_and_jacobians",
-           "register_pose_tasks"]
+__all__ = [
+    "POSE_TASKS",
+    "POSE_TASK_NAMES",
+    "ROTVEC_COLUMNS",
+    "PoseEllipse",
+    "PoseReachTask",
+    "PoseTarget",
+    "PoseTrackTask",
+    "check_pose_reachable",
+    "is_pose_task",
+    "pose_errors_and_jacobians",
+    "register_pose_tasks",
+]

@@ -20,8 +20,15 @@ from snac_gym.entry_points import EntryPointGroup
 ENTRY_POINT_GROUP = "snac_gym.tasks"
 #: What a task class must set (the rest has defaults in :class:`~snac_gym.tasks.base.Task`).
 REQUIRED_ATTRIBUTES = (
-    "name", "label", "code", "option_key", "env_name", "success_tolerance",
-    "episode_steps", "horizon_s", "real_horizon_s",
+    "name",
+    "label",
+    "code",
+    "option_key",
+    "env_name",
+    "success_tolerance",
+    "episode_steps",
+    "horizon_s",
+    "real_horizon_s",
 )
 #: Registered tasks by name, in registration order (the order of reports and CSV columns). Read it through
 #: :func:`task_names`, :func:`all_tasks` or :func:`get_task`, which load the entry points first.

@@ -12,12 +12,24 @@ from snac_gym.sampling import SampleSpace, check_reachable, sample_ellipse
 from snac_gym.tasks.base import CellReader, Task
 
 ELLIPSE_COLUMNS = (
-    "centre_0", "centre_1", "centre_2", "semi_axis_0", "semi_axis_1",
-    "orientation_0", "orientation_1", "orientation_2", "angular_speed", "phase",
+    "centre_0",
+    "centre_1",
+    "centre_2",
+    "semi_axis_0",
+    "semi_axis_1",
+    "orientation_0",
+    "orientation_1",
+    "orientation_2",
+    "angular_speed",
+    "phase",
 )
 #: Defaults of the optional ellipse columns: a horizontal ellipse at the paper's speed, phase 0.
 OPTIONAL_ELLIPSE_DEFAULTS = {
-    "orientation_0": 0.0, "orientation_1": 0.0, "orientation_2": 0.0, "angular_speed": PAPER_CIRCLE_SPEED, "phase": 0.0,
+    "orientation_0": 0.0,
+    "orientation_1": 0.0,
+    "orientation_2": 0.0,
+    "angular_speed": PAPER_CIRCLE_SPEED,
+    "phase": 0.0,
 }
 
 
@@ -54,7 +66,13 @@ class EllipseTrackTask(Task):
         return reference.to_dict()
 
     def csv_cells(self, reference: Ellipse) -> dict[str, float]:
-        values = [*reference.centre, *reference.semi_axes, *reference.orientation, reference.angular_speed, reference.phase]
+        values = [
+            *reference.centre,
+            *reference.semi_axes,
+            *reference.orientation,
+            reference.angular_speed,
+            reference.phase,
+        ]
         return dict(zip(ELLIPSE_COLUMNS, (float(v) for v in values), strict=True))
 
     def read_csv_reference(self, cells: CellReader) -> Ellipse:

@@ -127,7 +127,9 @@ def test_a_stalled_or_lost_controller_ends_the_run_by_itself_with_its_log(emu, t
     assert len(emu.speed_commands_after(t_fault)) <= 4
     _assert_at_rest_and_silent_since(emu, _seen(tmp_path))
     assert summary["watchdog_period_s"] == pytest.approx(0.04) and summary["rest_confirmed"] is not None
-    if faults[-1][1] == "drop_connection":  # the link stays down: the controller's watchdog stopped the arm, and the record says so
+    if (
+        faults[-1][1] == "drop_connection"
+    ):  # the link stays down: the controller's watchdog stopped the arm, and the record says so
         assert summary["stopped_by"] == WATCHDOG, summary
         assert summary["rest_confirmed"] is False and "dashboard unreachable" in summary["rest_not_confirmed"], summary
         # The controller's side: its watchdog stopped the program within the period and a cycle or two (during
@@ -161,9 +163,14 @@ def test_a_frozen_state_stops_the_script_and_the_dashboard_confirms_the_arm_at_r
     assert code == 4 and summary["stop_reason"].startswith("stale joint state"), (output, summary)
     assert summary["last_stop"].startswith("stale state: the controller's timestamp stayed at"), summary
     assert summary["rest_confirmed"] is True, summary
-    assert summary["rest_confirmed_by"] == "dashboard: programState STOPPED rtde_control, robotmode RUNNING, safetystatus NORMAL"
+    assert (
+        summary["rest_confirmed_by"]
+        == "dashboard: programState STOPPED rtde_control, robotmode RUNNING, safetystatus NORMAL"
+    )
     assert 0.0 < summary["rest_confirmed_after_s"] < 3.0  # bounded: 0.1 s to see it frozen, the dashboard within 2 s
-    assert summary["stopped_by"].startswith("speedStop, then stopScript (host)") and summary["watchdog_period_s"] == 0.04
+    assert (
+        summary["stopped_by"].startswith("speedStop, then stopScript (host)") and summary["watchdog_period_s"] == 0.04
+    )
     assert "at rest                     confirmed after" in output and "by dashboard: programState STOPPED" in output
     # What the controller saw: the program stopped and the arm at rest.
     assert not status["program_running"] and max(map(abs, status["qd"])) <= 1e-9, status
@@ -196,7 +203,9 @@ def test_a_client_that_crashes_or_blocks_is_a_lost_link_seen_within_a_few_period
     with pytest.raises(ConnectionFailure, match=match):
         for _ in range(10):
             env.step(SWEEP)
-    assert time.monotonic() - t_fault < 0.5  # the deadline is the watchdog's 5 periods (40 ms); margin for a loaded host
+    assert (
+        time.monotonic() - t_fault < 0.5
+    )  # the deadline is the watchdog's 5 periods (40 ms); margin for a loaded host
     assert match in connection.failure and "ConnectionFailure" in env.stop_reason
     assert connection.last_stop == "client gone: left to the controller's watchdog"
     _assert_at_rest_and_silent_since(emu, t_fault)

@@ -14,10 +14,10 @@ import pytest
 pytest.importorskip("rtde_control", reason="needs the real extra (ur-rtde)")
 
 from _loopback import emulator_host  # noqa: E402
+from snac_gym.evaluation.samples import generate_samples  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
 from snac_gym.apps.cli import app  # noqa: E402
-from snac_gym.evaluation.samples import generate_samples  # noqa: E402
 from snac_gym.kinematics import Kinematics  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 from snac_gym.references import PAPER_Q0 as PAPER_POSE  # noqa: E402
@@ -130,6 +130,10 @@ def test_real_tracks_a_command_line_ellipse(model, tmp_path):
     assert result.exit_code == 0, result.output
     log = pd.read_parquet(out / "track_lqr_log.parquet")
     error = np.linalg.norm(log[["e_0", "e_1", "e_2"]].to_numpy(), axis=1)
-    assert error[len(error) // 2:].mean() < 5e-3, error[len(error) // 2:].mean()
+    assert error[len(error) // 2 :].mean() < 5e-3, error[len(error) // 2 :].mean()
     setup = pd.read_json(out / "track_lqr_real.json", typ="series")["setup"]
-    assert setup["robot"] == robot and np.allclose(setup["ellipse"]["centre"], centre) and setup["ellipse"]["radius"] == 0.05
+    assert (
+        setup["robot"] == robot
+        and np.allclose(setup["ellipse"]["centre"], centre)
+        and setup["ellipse"]["radius"] == 0.05
+    )

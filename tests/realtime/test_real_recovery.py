@@ -19,11 +19,11 @@ from _loopback import emulator_host
 pytest.importorskip("rtde_control")
 pytestmark = pytest.mark.realtime
 
+from snac_gym.apps.real import run_real_episode  # noqa: E402
 from snac_gym.real import ConnectionFailure, SafetyLimits  # noqa: E402
 from snac_gym.real.connections import PROTECTIVE_STOP_LOCKOUT  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 from snac_gym.real.recovery import RecoveryLimits  # noqa: E402
-from snac_gym.apps.real import run_real_episode  # noqa: E402
 
 HOST = emulator_host()
 #: Timing rules loosened: these tests are about resuming, and the host may be shared.

@@ -230,7 +230,9 @@ class UREmulator:
             target(*args)
         except BaseException as exc:  # a dead thread would leave a controller that looks alive: stop it all
             self.failure = exc
-            log.exception("emulate-ur: %s ended by %s: %s; the emulator stops", target.__name__, type(exc).__name__, exc)
+            log.exception(
+                "emulate-ur: %s ended by %s: %s; the emulator stops", target.__name__, type(exc).__name__, exc
+            )
             self._stop.set()
 
     def close(self) -> None:
@@ -318,8 +320,10 @@ class UREmulator:
         """
         name = "speedJ" if command == p.SPEEDJ else "moveJ"
         if self.safety_bits != 1 << p.SAFETY_NORMAL:
-            since = "before it was reported" if self._stopped_since is None else (
-                f"{(now - self._stopped_since) * 1e3:.1f} ms after it was reported"
+            since = (
+                "before it was reported"
+                if self._stopped_since is None
+                else (f"{(now - self._stopped_since) * 1e3:.1f} ms after it was reported")
             )
             self.unsafe_commands.append((now, f"{name} during {self._safety_name()} ({since})"))
         elif self._awaiting_fresh_state:

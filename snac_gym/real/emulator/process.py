@@ -53,6 +53,7 @@ def _plain(value: Any) -> Any:
 
 def _serve(stdin: Any, stdout: Any) -> None:
     """Child side: build the emulator from the first line, then answer one call per line."""
+
     def reply(status: str, payload: Any) -> None:
         stdout.write(json.dumps([status, payload], default=_plain) + "\n")
         stdout.flush()

@@ -69,7 +69,9 @@ def fault_plan(
     if latency_spike is not None:
         at, length = parse_numbers(latency_spike, "--latency-spike (AT,SECONDS)", (2,))
         if not all(math.isfinite(v) and v >= 0 for v in (at, length)):
-            raise ValueError(f"--latency-spike (AT,SECONDS) must be two non-negative numbers of seconds, got {latency_spike!r}")
+            raise ValueError(
+                f"--latency-spike (AT,SECONDS) must be two non-negative numbers of seconds, got {latency_spike!r}"
+            )
         plan.append((at, "latency_spike", (length,)))
     return plan
 
