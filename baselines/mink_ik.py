@@ -19,7 +19,8 @@ def _task_class(mink: Any, mujoco: Any) -> type:
     """A mink ``Task`` with the project's task error (set before each solve) and the site's Jacobian."""
 
     class ProjectTask(mink.Task):
-        """``e`` given, ``J`` = [jacp; jacr] of the end-effector site (its first ``dim`` rows, world = base frame), W = I."""
+        """``e`` given, ``J`` = [jacp; jacr] of the end-effector site (its first ``dim`` rows,
+        world = base frame), W = I."""
 
         def __init__(self, site_id: int, nv: int, dim: int, gain: float, lm_damping: float) -> None:
             super().__init__(cost=np.ones(dim), gain=gain, lm_damping=lm_damping)
@@ -44,8 +45,8 @@ def _task_class(mink: Any, mujoco: Any) -> type:
 class MinkPolicy(QPIKPolicy):
     """QP differential IK with mink: the project's task on a MuJoCo model of the same URDF
     (:mod:`snac_gym.physics.mujoco_model`: base frame as world, a site at the end-effector frame), mink's
-    damping (``solve_ik(damping=λ²)``), ``ConfigurationLimit`` (gain 0.95, mink's default) and ``VelocityLimit`` (the env's
-    velocity limits), ``mink.solve_ik`` with daqp. Arguments: :class:`~snac_gym.baselines.qp_ik.QPIKPolicy`.
+    damping (``solve_ik(damping=λ²)``), ``ConfigurationLimit`` (gain 0.95, mink's default) and ``VelocityLimit`` (the
+    env's velocity limits), ``mink.solve_ik`` with daqp. Arguments: :class:`~snac_gym.baselines.qp_ik.QPIKPolicy`.
     """
 
     module = "mink"

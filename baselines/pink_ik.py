@@ -51,11 +51,13 @@ def _task_class(pink: Any) -> type:
 
 
 class PinkPolicy(QPIKPolicy):
-    """QP differential IK with pink: the project's task, pink's damping (``solve_ik(damping=λ²)``), ``ConfigurationLimit``
-    (gain 0.5, pink's default) and ``VelocityLimit`` (the env's velocity limits), ``pink.solve_ik`` with daqp.
+    """QP differential IK with pink: the project's task, pink's damping (``solve_ik(damping=λ²)``),
+    ``ConfigurationLimit`` (gain 0.5, pink's default) and ``VelocityLimit`` (the env's velocity limits),
+    ``pink.solve_ik`` with daqp.
 
     The Pinocchio model is a copy of the project's (:class:`~snac_gym.kinematics.Kinematics`: the same
-    URDF, frames and base frame), so J is the project's Jacobian. Arguments: :class:`~snac_gym.baselines.qp_ik.QPIKPolicy`.
+    URDF, frames and base frame), so J is the project's Jacobian. Arguments:
+    :class:`~snac_gym.baselines.qp_ik.QPIKPolicy`.
     """
 
     module = "pink"

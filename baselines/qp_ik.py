@@ -177,7 +177,8 @@ class QPIKPolicy(BasePolicy):
         raise NotImplementedError
 
     def task_jacobian(self, q: np.ndarray) -> np.ndarray:
-        """The task Jacobian ``J`` at ``q`` from the library's kinematics (its ``Configuration.update``, then the task's)."""
+        """The task Jacobian ``J`` at ``q`` from the library's kinematics (its ``Configuration.update``, then the
+        task's)."""
         self._configuration.update(q)
         return self._task.compute_jacobian(self._configuration)
 

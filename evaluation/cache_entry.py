@@ -112,8 +112,8 @@ class CacheWarnings:
                 f"warning: {self.name}: ignored the damaged entry {problem.path} ({problem.reason}); computing it again"
             )
         if len(problems) > self.SHOWN:
-            _say(f"warning: {self.name}: {len(problems) - self.SHOWN} more damaged entries in {problems[0].path.parent} "
-                 "ignored and computed again")  # fmt: skip
+            _say(f"warning: {self.name}: {len(problems) - self.SHOWN} more damaged entries in "
+                 f"{problems[0].path.parent} ignored and computed again")  # fmt: skip
 
     def unwritable(self, folder: Path, error: OSError) -> None:
         with self._lock:

@@ -1,4 +1,5 @@
-"""Parsing the text options of ``snac-gym evaluate`` into :class:`~snac_gym.evaluation.run_config.EvaluationConfig` fields.
+"""Parsing the text options of ``snac-gym evaluate`` into :class:`~snac_gym.evaluation.run_config.EvaluationConfig`
+fields.
 
 Each parser raises ``ValueError`` with a message naming the option and what was wrong.
 """

@@ -1,9 +1,9 @@
 """The options of one evaluation, validated: :class:`EvaluationConfig`.
 
 ``snac-gym evaluate`` builds one from its command line (the text options are parsed by
-:mod:`snac_gym.evaluation.options`); :func:`snac_gym.evaluation.runner.run_evaluation` runs it. :meth:`EvaluationConfig.validate`
-checks the options by theme (one small validator each, in the order the error names the first bad
-option), :meth:`EvaluationConfig.validate_for` the ones that need the robot, and
+:mod:`snac_gym.evaluation.options`); :func:`snac_gym.evaluation.runner.run_evaluation` runs it.
+:meth:`EvaluationConfig.validate` checks the options by theme (one small validator each, in the order the error names
+the first bad option), :meth:`EvaluationConfig.validate_for` the ones that need the robot, and
 :meth:`EvaluationConfig.manifest` lists every input that shapes the results (``run.json``).
 """
 
@@ -357,7 +357,8 @@ def _check_pose_tasks(config: EvaluationConfig) -> None:
     register_pose_tasks()
     if len(named) != len(config.tasks):
         raise ValueError(
-            f"tasks {tuple(config.tasks)} mix pose tasks {POSE_TASK_NAMES} with position tasks: evaluate them in separate runs"
+            f"tasks {tuple(config.tasks)} mix pose tasks {POSE_TASK_NAMES} with position tasks: evaluate "
+            "them in separate runs"
         )
 
 

@@ -10,7 +10,8 @@ Steps (each documented in docs/evaluation.md):
    matching, declares an ``effort_parameter``); those left out are listed in the summary.
 3. **Passes** (:mod:`snac_gym.evaluation.execution.passes`): a *pass* rolls one controller with one knob value over
    every sample of a task, in jobs of ``chunk_size`` samples (:mod:`snac_gym.evaluation.execution.jobs`) run by the
-   executor (:mod:`snac_gym.evaluation.execution.executors`); each finished job is stored at once (:mod:`snac_gym.evaluation.store`).
+   executor (:mod:`snac_gym.evaluation.execution.executors`); each finished job is stored at once
+   (:mod:`snac_gym.evaluation.store`).
 4. **Equal effort** (``match_effort``, :mod:`snac_gym.evaluation.effort.matching`): the reference controller
    (``effort_reference``, default ``snac``, at its own settings) is run first; its effort statistic
    (:mod:`snac_gym.evaluation.effort.statistics`) is the target, unless ``effort_target`` is given (then
@@ -22,7 +23,8 @@ Steps (each documented in docs/evaluation.md):
    the same cost (:mod:`snac_gym.evaluation.reference.optimum`, docs/optimal.md), an open-loop row with no effort
    knob; every row gains ``ratio_to_optimal`` and ``below_optimal``.
 6. **Reports**: ``results.csv``/``.parquet`` (one row per task, controller and sample),
-   ``summary.csv`` (:mod:`snac_gym.evaluation.reports.summary`), ``summary.md`` and box plots (:mod:`snac_gym.evaluation.reports.writer`).
+   ``summary.csv`` (:mod:`snac_gym.evaluation.reports.summary`), ``summary.md`` and box plots
+   (:mod:`snac_gym.evaluation.reports.writer`).
 
 The options and their checks are :mod:`snac_gym.evaluation.run_config`.
 """

@@ -28,7 +28,8 @@ CSV format (one row per sample; see docs/evaluation.md)::
   unchanged.
 
 Every reference point (the target, or ``ellipse_points`` points around the ellipse) must be
-reachable (a pose by the pose IK, with its orientation); a row that is not gives a :class:`SampleFileError` naming its row and column.
+reachable (a pose by the pose IK, with its orientation); a row that is not gives a :class:`SampleFileError` naming its
+row and column.
 """
 
 from __future__ import annotations

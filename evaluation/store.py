@@ -284,7 +284,8 @@ class RunStore:
         return True
 
     def write_part(self, path: Path, rows: pd.DataFrame) -> None:
-        """Store a completed job's rows, stamped with the run id and sample ids (atomically: a part on disk is complete)."""
+        """Store a completed job's rows, stamped with the run id and sample ids (atomically: a part on disk is
+        complete)."""
         table = pa.Table.from_pandas(rows, preserve_index=False)
         stamp = {
             _PART_RUN_KEY: self.run_id.encode(),
@@ -303,7 +304,8 @@ class RunStore:
         """
         if not part_is_intact(path):
             raise RunDirectoryError(
-                f"the part file {path} changed after it was written (its SHA-256 does not match {checksum_path(path).name}); "
+                f"the part file {path} changed after it was written (its SHA-256 does not match "
+                f"{checksum_path(path).name}); "
                 "remove it and run again with --resume to recompute that job"
             )
         return pd.read_parquet(path)

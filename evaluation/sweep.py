@@ -55,7 +55,8 @@ DEFAULT_POINTS, DEFAULT_SPAN = 7, 4.0
 MAX_POINTS = 25
 #: Largest span accepted: beyond it the knob reaches values no controller was built for.
 MAX_SPAN = 1e3
-#: Roles of the main run's point that make it an equal-effort point (``snac_gym.evaluation.effort.matching.EffortRecord.role``).
+#: Roles of the main run's point that make it an equal-effort point
+#: (``snac_gym.evaluation.effort.matching.EffortRecord.role``).
 EQUAL_EFFORT_ROLES = ("reference", "matched")
 
 #: Columns of ``sweep.csv``.

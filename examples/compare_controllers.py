@@ -4,8 +4,8 @@
 
 The evaluator matches every controller's effort to SNAC's (the mean over samples of each rollout's peak
 |u|/limit), runs each sample on the exact kinematic model and writes results.csv, summary.md and box plots
-into OUT. A controller below the success threshold is marked: its cost is no merit if it does not do the task. The full Table I is
-``snac-gym evaluate --out runs/table1`` (1000 samples per task, every controller; docs/table1.md).
+into OUT. A controller below the success threshold is marked: its cost is no merit if it does not do the task. The full
+Table I is ``snac-gym evaluate --out runs/table1`` (1000 samples per task, every controller; docs/table1.md).
 """
 
 import sys

@@ -170,7 +170,8 @@ class SignalGuard:
 
 @contextmanager
 def stop_signals_raise(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[SignalGuard]:
-    """Within the block, the first of ``signals`` raises :class:`TerminationSignal`; the handlers before are restored after.
+    """Within the block, the first of ``signals`` raises :class:`TerminationSignal`; the handlers before are restored
+    after.
 
     SIGINT is included because a process started from a background shell inherits it ignored.
     Handlers can only be set from the main thread; elsewhere the block runs unchanged.

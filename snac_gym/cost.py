@@ -178,7 +178,8 @@ def cost_rates(
             )
     if errors.ndim < 2 or commands.ndim < 2 or errors.shape[:-1] != commands.shape[:-1]:
         raise ValueError(
-            f"errors (..., K, n) and commands (..., K, m) must share leading axes, got {errors.shape} and {commands.shape}"
+            f"errors (..., K, n) and commands (..., K, m) must share leading axes, got {errors.shape} and "
+            f"{commands.shape}"
         )
     if errors.shape[-2] == 0:
         raise ValueError(f"a trajectory cost needs at least one step, got K = 0 (errors {errors.shape})")
@@ -199,7 +200,8 @@ def cost_rates(
 
 
 def _initial_command(value: np.ndarray, commands: tuple[int, ...]) -> np.ndarray:
-    """``initial_command`` u₋₁ checked: real, finite, ``(m,)`` or one per trajectory (``(..., m)`` of the commands' leading axes)."""
+    """``initial_command`` u₋₁ checked: real, finite, ``(m,)`` or one per trajectory (``(..., m)`` of the commands'
+    leading axes)."""
     initial = real_array("initial_command", value)
     first = commands[:-2] + commands[-1:]  # the shape of commands[..., 0, :]
     try:
@@ -213,7 +215,8 @@ def _initial_command(value: np.ndarray, commands: tuple[int, ...]) -> np.ndarray
     if not fits:
         shapes = f"({commands[-1]},)" + ("" if len(first) == 1 else f" or {first}")
         raise ValueError(
-            f"initial_command must be u₋₁ of length {commands[-1]} (the commands' m), shape {shapes}, got shape {initial.shape}"
+            f"initial_command must be u₋₁ of length {commands[-1]} (the commands' m), shape {shapes}, got "
+            f"shape {initial.shape}"
         )
     return initial
 
@@ -225,8 +228,9 @@ def _refuse_overflow(terms: CostTerms) -> None:
         values = getattr(terms, name)
         if not np.isfinite(values).all():
             raise ValueError(
-                f"the {name} term of the trajectory cost overflows float64 (inf from finite errors and commands: a square "
-                f"above 1.8e308); refused, not computed another way: errors (m) and commands (rad/s) this large are no rollout's"
+                f"the {name} term of the trajectory cost overflows float64 (inf from finite errors and "
+                "commands: a square above 1.8e308); refused, not computed another way: errors (m) and "
+                "commands (rad/s) this large are no rollout's"
             )
 
 

@@ -156,7 +156,8 @@ class Kinematics:
         self.model = _locked(pin.buildModelFromUrdf(str(self.urdf_path)), spec.locked_joints if spec else ())
         if self.model.nq != self.model.nv:
             raise ValueError(
-                f"{self.urdf_path.name}: only revolute/prismatic joints are supported (nq={self.model.nq}, nv={self.model.nv})"
+                f"{self.urdf_path.name}: only revolute/prismatic joints are supported (nq={self.model.nq}, "
+                f"nv={self.model.nv})"
             )
         self.data = self.model.createData()
         self._ee_id = self._frame_id(ee_frame)
@@ -491,7 +492,8 @@ class BatchChain:
 
     @classmethod
     def from_model(cls, model: Any, ee_frame_id: int) -> BatchChain | None:
-        """The chain of ``model`` up to frame ``ee_frame_id``, or ``None`` if a joint is not a 1-DoF revolute/prismatic."""
+        """The chain of ``model`` up to frame ``ee_frame_id``, or ``None`` if a joint is not a 1-DoF
+        revolute/prismatic."""
         parents, placements, axes, revolute, q_index = [], [], [], [], []
         for joint in range(1, model.njoints):
             joint_model = model.joints[joint]

@@ -77,7 +77,8 @@ _ALIGNED_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0
 
 
 def joint_axis(joint_model: Any) -> tuple[np.ndarray, bool] | None:
-    """The unit axis of a 1-DoF revolute or prismatic Pinocchio joint model and whether it is revolute (``None`` otherwise)."""
+    """The unit axis of a 1-DoF revolute or prismatic Pinocchio joint model and whether it is revolute (``None``
+    otherwise)."""
     kind = joint_model.shortname().removeprefix("JointModel")
     if kind in ("RX", "RY", "RZ", "PX", "PY", "PZ"):
         return np.array(_ALIGNED_AXES[kind[1]], dtype=float), kind[0] == "R"
@@ -253,7 +254,8 @@ class ModelError:
         count = len(self.joint_axis_tilt)
         if count and count not in (n_joints, 2 * n_joints):
             raise ValueError(
-                f"--model-error: joint_axis_tilt needs {n_joints} values (one per joint) or {2 * n_joints} (two per joint), got {count}"
+                f"--model-error: joint_axis_tilt needs {n_joints} values (one per joint) or {2 * n_joints} "
+                f"(two per joint), got {count}"
             )
 
     def spec(self) -> str:
@@ -273,7 +275,8 @@ class ModelError:
         return ";".join(parts)
 
     def random_draws(self, n_placements: int) -> np.ndarray:
-        """The random error's rows ``(τ, ρ)``, shape ``(n_placements + 1, 6)`` (the tool frame's last; zeros without one)."""
+        """The random error's rows ``(τ, ρ)``, shape ``(n_placements + 1, 6)`` (the tool frame's last; zeros without
+        one)."""
         if self.random is None or not self.random[0]:
             return np.zeros((n_placements + 1, 6))
         sigma, seed = self.random
@@ -338,7 +341,8 @@ class ModelError:
 
 
 def _part_value(name: str, value: str) -> Any:
-    """The value of one ``NAME=VALUES`` part: a robot name for ``model``, a number for ``link_scale``, numbers otherwise."""
+    """The value of one ``NAME=VALUES`` part: a robot name for ``model``, a number for ``link_scale``, numbers
+    otherwise."""
     if name == "model":
         return value.strip()
     try:
@@ -365,11 +369,13 @@ def _lengthened(translation: np.ndarray, change: float, joint: str) -> np.ndarra
     length = float(np.linalg.norm(translation))
     if length < _ZERO_LENGTH:
         raise ValueError(
-            f"model error link_length: joint {joint!r} has a zero-length placement, so its change must be 0, got {change!r}"
+            f"model error link_length: joint {joint!r} has a zero-length placement, so its change must be 0, "
+            f"got {change!r}"
         )
     if length + change <= 0.0:
         raise ValueError(
-            f"model error link_length: {change!r} m leaves no length to the placement of joint {joint!r} ({length:.6g} m long)"
+            f"model error link_length: {change!r} m leaves no length to the placement of joint {joint!r} "
+            f"({length:.6g} m long)"
         )
     return translation * ((length + change) / length)
 
@@ -385,7 +391,8 @@ def tool_displacement(true_kinematics: Any, model_kinematics: Any, qs: np.ndarra
     """
     if true_kinematics.n_joints != model_kinematics.n_joints:
         raise ValueError(
-            f"tool_displacement needs the same joint count, got {true_kinematics.n_joints} and {model_kinematics.n_joints}"
+            f"tool_displacement needs the same joint count, got {true_kinematics.n_joints} and "
+            f"{model_kinematics.n_joints}"
         )
     qs = np.asarray(qs, dtype=float)
     return np.linalg.norm(

@@ -385,7 +385,8 @@ RELAXATION_FIRST_STEPS = 0
 
 
 def reference_steps(x_d: np.ndarray) -> np.ndarray:
-    """dₖ = ‖x_d(tₖ₊₁) − x_d(tₖ)‖, k = 0..K−2, of desired positions ``(…, K, n)``: ``(…, K−1)`` (zeros for a fixed target)."""
+    """dₖ = ‖x_d(tₖ₊₁) − x_d(tₖ)‖, k = 0..K−2, of desired positions ``(…, K, n)``: ``(…, K−1)`` (zeros for a fixed
+    target)."""
     x_d = np.asarray(x_d, dtype=float)
     return np.linalg.norm(np.diff(x_d, axis=-2), axis=-1)
 
@@ -519,6 +520,64 @@ def trajectory_cost_lower_bounds(
     return solve_cost_relaxation(initial_errors, reference_steps, dt, lipschitz, convention, velocity_norm_limit).bound
 
 
+def following_cost_lower_bounds(
+    start_points: np.ndarray, x_d: np.ndarray, dt: float, lipschitz: float | np.ndarray, q_scale: float = 1.0
+) -> np.ndarray:
+    """A certified lower bound that sees where the reference goes: the end effector must *follow* it, per sample.
+
+    The scalar relaxation (:func:`solve_cost_relaxation`) keeps only ‖eₖ‖, and a moving reference can carry itself
+    towards the arm there for free. Here the end-effector positions pₖ = f(θₖ) stay 3-D vectors: with
+    ‖pₖ₊₁ − pₖ‖ ≤ LₖΔt‖uₖ‖ (Lₖ ≥ ‖J‖₂ along the step), every trajectory has
+
+        V ≥ Σ_{k<K} q‖pₖ − x_d(tₖ)‖²Δt + Σ_{k<K−1} ‖pₖ₊₁ − pₖ‖² / (Lₖ²Δt),   p₀ = f(θ₀),
+
+    (the error terms equal, the effort terms by the Lipschitz bound, the jump terms and the velocity limits dropped:
+    both only raise V), so the minimum over all point paths p is a lower bound. It is a linear-quadratic tracking
+    problem, decoupled per axis: one tridiagonal positive definite system each, solved by the Thomas algorithm,
+    batched over samples.
+
+    Args:
+        start_points: f(θ₀), ``(B, n)``.
+        x_d: ``(B, K, n)`` desired positions.
+        dt: Δt, s.
+        lipschitz: L (scalar), or Lₖ ``(K−1,)`` or ``(B, K−1)``.
+        q_scale: Q = q·I.
+
+    Returns:
+        ``(B,)`` bounds.
+    """
+    x_d = np.asarray(x_d, dtype=float)
+    count, steps, _ = x_d.shape
+    if steps < 2:
+        return q_scale * dt * np.sum((np.asarray(start_points, dtype=float) - x_d[:, 0]) ** 2, axis=-1)
+    weights = 1.0 / (np.broadcast_to(np.asarray(lipschitz, dtype=float), (count, steps - 1)) ** 2 * dt)  # cₖ
+    a = q_scale * dt
+    # unknowns p₁..p_{K−1}: (a + c_{j−1} + c_j) p_j − c_{j−1} p_{j−1} − c_j p_{j+1} = a x_j (c_{K−1} = 0)
+    diagonal = a + weights + np.concatenate([weights[:, 1:], np.zeros((count, 1))], axis=1)  # (B, K−1)
+    upper = -weights[:, 1:]  # couples p_j and p_{j+1}
+    rhs = a * x_d[:, 1:].copy()  # (B, K−1, n)
+    rhs[:, 0] += weights[:, :1] * np.asarray(start_points, dtype=float)
+    # Thomas algorithm over j, every sample and axis at once
+    size = steps - 1
+    c_prime = np.empty((count, size))
+    d_prime = np.empty_like(rhs)
+    c_prime[:, 0] = (upper[:, 0] / diagonal[:, 0]) if size > 1 else 0.0
+    d_prime[:, 0] = rhs[:, 0] / diagonal[:, :1]
+    for j in range(1, size):
+        denominator = diagonal[:, j] - upper[:, j - 1] * c_prime[:, j - 1]
+        if j < size - 1:
+            c_prime[:, j] = upper[:, j] / denominator
+        d_prime[:, j] = (rhs[:, j] - upper[:, j - 1, None] * d_prime[:, j - 1]) / denominator[:, None]
+    points = np.empty_like(rhs)
+    points[:, -1] = d_prime[:, -1]
+    for j in range(size - 2, -1, -1):
+        points[:, j] = d_prime[:, j] - c_prime[:, j, None] * points[:, j + 1]
+    path = np.concatenate([np.asarray(start_points, dtype=float)[:, None], points], axis=1)  # (B, K, n)
+    error = a * np.sum((path - x_d) ** 2, axis=(1, 2))
+    effort = np.sum(weights * np.sum(np.diff(path, axis=1) ** 2, axis=2), axis=1)
+    return error + effort
+
+
 def trajectory_cost_lower_bound(
     initial_error: float,
     reference_steps: np.ndarray,
@@ -538,7 +597,7 @@ def trajectory_cost_lower_bound(
     )
 
 
-# -- A smaller Lipschitz constant per sample: where can a trajectory of bounded cost take the arm? ----------------------
+# -- A smaller Lipschitz constant per sample: where can a trajectory of bounded cost take the arm? -------------------
 
 #: Joint models whose Jacobian column is zⱼ × (p − oⱼ) with a fixed unit axis (one coordinate each).
 _REVOLUTE_JOINTS = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
@@ -661,12 +720,15 @@ def certified_cost_lower_bounds(
     q0 = np.atleast_2d(np.asarray(q0, dtype=float))
     x_d = np.asarray(x_d, dtype=float)
     x_d = np.broadcast_to(x_d, (len(q0), *x_d.shape[-2:]))
-    errors = np.linalg.norm(kinematics.forward_batch(q0) - x_d[:, 0], axis=-1)
+    starts = kinematics.forward_batch(q0)
+    errors = np.linalg.norm(starts - x_d[:, 0], axis=-1)
     steps = reference_steps(x_d)
     limit = None if velocity_limits is None else float(np.linalg.norm(velocity_limits))
+    q_scale = (convention or CostConvention()).q_scale
 
-    def bound_at(lipschitz: Any) -> np.ndarray:
-        return trajectory_cost_lower_bounds(errors, steps, dt, lipschitz, convention, limit)
+    def bound_at(lipschitz: Any) -> np.ndarray:  # both relaxations hold: the larger
+        scalar = trajectory_cost_lower_bounds(errors, steps, dt, lipschitz, convention, limit)
+        return np.maximum(scalar, following_cost_lower_bounds(starts, x_d, dt, lipschitz, q_scale))
 
     def reachable(limits: np.ndarray) -> np.ndarray:  # B(V̄)
         return bound_at(reachable_lipschitz_bounds(kinematics, q0, x_d.shape[1], dt, limits, velocity_limits))

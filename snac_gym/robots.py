@@ -9,8 +9,8 @@ default does not fit, its sample cuboid. Another package adds its robots through
     [project.entry-points."snac_gym.robots"]
     myarm = "mypackage.robots:MYARM"
 
-``urdf`` is a path relative to example-robot-data's ``robots`` folder, or an absolute path. Joint position and velocity limits come from the
-URDF. Everything else (the envs, the controllers, the evaluator, the real-robot run) reaches
+``urdf`` is a path relative to example-robot-data's ``robots`` folder, or an absolute path. Joint position and velocity
+limits come from the URDF. Everything else (the envs, the controllers, the evaluator, the real-robot run) reaches
 the robot through :class:`~snac_gym.kinematics.Kinematics` built from this entry.
 """
 

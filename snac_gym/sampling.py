@@ -79,8 +79,10 @@ class SampleSpace:
         speeds = _ordered_pair("speed_range (rad/s)", self.speed_range, MIN_ANGULAR_SPEED)
         if axes[1] * speeds[1] > MAX_REFERENCE_SPEED:
             raise ValueError(
-                f"speed_range and semi_axis_range allow an ellipse point speed of {axes[1] * speeds[1]:.3g} m/s; at most "
-                f"{MAX_REFERENCE_SPEED:g} m/s can be followed, got speed_range={self.speed_range}, semi_axis_range={self.semi_axis_range}"
+                "speed_range and semi_axis_range allow an ellipse point speed of "
+                f"{axes[1] * speeds[1]:.3g} m/s; at most "
+                f"{MAX_REFERENCE_SPEED:g} m/s can be followed, got speed_range={self.speed_range}, "
+                f"semi_axis_range={self.semi_axis_range}"
             )
         whole_number("ellipse_points", self.ellipse_points, MIN_ELLIPSE_POINTS, MAX_ELLIPSE_POINTS)
         if not isinstance(self.region, str) or self.region not in REGIONS:
@@ -198,7 +200,8 @@ def sample_seed_pose(kinematics: Kinematics, rng: np.random.Generator, space: Sa
 
 
 def _workspace_configuration(kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> np.ndarray:
-    """A configuration drawn uniformly within the joint limits less the margin, well-conditioned, end effector in the box.
+    """A configuration drawn uniformly within the joint limits less the margin, well-conditioned, end effector in the
+    box.
 
     Uniform in joint space rather than IK of a point: every branch (elbow up or down, wrist
     flipped, the base turned either way) comes out as often as the limits allow it.
@@ -212,7 +215,8 @@ def _workspace_configuration(kinematics: Kinematics, rng: np.random.Generator, s
 
 
 def sample_target(kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> FixedTarget:
-    """A random reachable, well-conditioned target in the cuboid (workspace: the end effector of a random configuration)."""
+    """A random reachable, well-conditioned target in the cuboid (workspace: the end effector of a random
+    configuration)."""
     if space.region == "workspace":
         return FixedTarget(kinematics.forward(_workspace_configuration(kinematics, rng, space)))
     for _ in range(1000):

@@ -16,8 +16,8 @@ are compared with; this is the whole trajectory's, over a finite horizon.)
 
 **Method** (direct single shooting in U, Gauss-Newton steps in θ). θ is linear in U, so V and its
 exact gradient cost one batched FK+Jacobian pass (:func:`trajectory_cost_and_gradient`; the cost and
-its gradient are written in :func:`snac_gym.cost.cost_and_gradient`). The quadratic effort + smoothness part has the fixed Hessian
-``H₀ = 2Δt I + (2w/Δt) DᵀD`` in u (:func:`_effort_hessian_band`). In the variables θ₁..θ_K the
+its gradient are written in :func:`snac_gym.cost.cost_and_gradient`). The quadratic effort + smoothness part has the
+fixed Hessian ``H₀ = 2Δt I + (2w/Δt) DᵀD`` in u (:func:`_effort_hessian_band`). In the variables θ₁..θ_K the
 error term depends on θₖ alone and u = Mθ + c (first differences), so the Gauss-Newton matrix
 ``MᵀH₀M ⊗ I + blockdiag(2Δt q JₖᵀJₖ)`` is block-banded (bandwidth 12 scalars, 6 without the u̇
 term) and each step is one banded Cholesky solve (:func:`gauss_newton`), followed by a

@@ -300,7 +300,8 @@ def urdf_text(name: str) -> str:
         parts.append(
             f'  <joint name="{joint}_joint" type="revolute"><parent link="{parent}"/><child link="{link}"/>'
             f'<origin xyz="{_fmt(xyz)}" rpy="{_fmt(rpy)}"/><axis xyz="0 0 1"/>'
-            f'<limit lower="{lower:.17g}" upper="{upper:.17g}" effort="{model.effort[i]:g}" velocity="{speeds[i]:.17g}"/>'
+            f'<limit lower="{lower:.17g}" upper="{upper:.17g}" effort="{model.effort[i]:g}" '
+            f'velocity="{speeds[i]:.17g}"/>'
             "</joint>\n"
         )
         parent = link

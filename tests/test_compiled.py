@@ -245,13 +245,15 @@ from snac_gym.kernels import compiled
 for module in compiled.KERNEL_MODULES:
     importlib.import_module(module)
 before = sorted(k.__name__ for k in compiled._KERNELS if k.dispatcher.overloads)
-import snac_gym.evaluation.execution.kernel_preload  # what the evaluator's fork server imports before it forks any worker
+import snac_gym.evaluation.execution.kernel_preload  # what the evaluator's fork server imports before it forks
+# any worker
 misses = []
 for k in compiled._KERNELS:
     k.dispatcher._compile_for_args = lambda *args, _name=k.__name__, **kwargs: misses.append(_name)
 compiled.warm_up()  # what each worker's start-up calls
 after = sorted(k.__name__ for k in compiled._KERNELS if k.dispatcher.overloads)
-print(json.dumps({"before": before, "after": after, "misses": sorted(set(misses)), "all": sorted(k.__name__ for k in compiled._KERNELS)}))
+print(json.dumps({"before": before, "after": after, "misses": sorted(set(misses)),
+                  "all": sorted(k.__name__ for k in compiled._KERNELS)}))
 """
 
 

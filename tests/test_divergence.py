@@ -1,8 +1,8 @@
 """``snac-adaptive`` watching itself: its divergence bounds, the flag in the results, the fallback, the real arm told.
 
 A divergence is forced by an error the identifier is not allowed to correct (a prior of 1e-9 m and
-rad and a measurement noise of 1 km: Ĵ stays the model's) and that turns the command away from the error: the model reads the base
-joint 2 rad off, so Ĵ = Rz(2)·J and the loop ė = −J R⁻¹JᵀRz(−2)P̂e turns the error by 115° in the
+rad and a measurement noise of 1 km: Ĵ stays the model's) and that turns the command away from the error: the model
+reads the base joint 2 rad off, so Ĵ = Rz(2)·J and the loop ė = −J R⁻¹JᵀRz(−2)P̂e turns the error by 115° in the
 horizontal plane. Without the monitor that episode runs away silently.
 """
 

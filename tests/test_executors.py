@@ -93,7 +93,8 @@ print(kept, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
 def test_a_worker_reuses_a_freed_rollout_log_instead_of_faulting_in_new_pages():
     """By default the second 120 MB array is faulted in afresh (at least one fault per 2 MB huge page, 30 000
-    without huge pages); in a process set up as the workers are (evaluation/execution/memory.py) it reuses the first's."""
+    without huge pages); in a process set up as the workers are (evaluation/execution/memory.py) it reuses the
+    first's."""
     from snac_gym.evaluation.execution import memory
 
     faults = {}

@@ -254,7 +254,8 @@ exec(SPOT, numba_code)
 try:
     with {handlers}():
         Finaliser() if "{where}" == "__del__" else numba_code["spot"]()
-        for _ in range(500):  # 5 s; not a loop of a bare condition, where Python 3.13 loses the exception (cpython#130279)
+        for _ in range(500):  # 5 s; not a loop of a bare condition, where Python 3.13 loses the exception
+            # (cpython#130279)
             time.sleep(0.01)
     print("not interrupted", ignored)
 except KeyboardInterrupt as exc:

@@ -15,6 +15,7 @@ from snac_gym.cost import CostConvention
 from snac_gym.kinematics import shared_kinematics
 from snac_gym.optimality import (
     certified_cost_lower_bounds,
+    following_cost_lower_bounds,
     jacobian_variation_bound,
     reachable_lipschitz_bounds,
     reference_steps,
@@ -220,7 +221,13 @@ def test_it_is_below_the_numerical_optimum_on_ur10_samples(ur10, task, conventio
         optimum = solve_sample(q0, x_d, ur10, DT, limits, convention=convention).cost
         bound = certified_bound(ur10, q0, x_d, convention)
         assert 0.1 * optimum < bound <= optimum
-        assert certified_cost_lower_bounds(ur10, q0, x_d, DT, convention, limits)[0] == pytest.approx(bound, rel=1e-12)
+        following = following_cost_lower_bounds(
+            ur10.forward(q0)[None], x_d[None], DT, ur10.position_lipschitz_bound(), convention.q_scale
+        )[0]
+        assert following <= optimum  # each relaxation holds; the entry point takes the larger
+        entry = certified_cost_lower_bounds(ur10, q0, x_d, DT, convention, limits)[0]
+        assert entry == pytest.approx(max(bound, following), rel=1e-12)
+        bound = entry
         reachable = certified_cost_lower_bounds(ur10, q0, x_d, DT, convention, limits, optimum)[0]
         refined = certified_cost_lower_bounds(ur10, q0, x_d, DT, convention, limits, optimum, refinements=3)[0]
         assert bound < reachable <= refined <= optimum
@@ -330,3 +337,37 @@ def test_batches_are_the_single_calls_and_inputs_are_checked():
         arguments = {"initial_error": 0.1, "reference_steps": np.zeros(9), "dt": DT, "lipschitz": 2.0} | bad
         with pytest.raises(ValueError):
             trajectory_cost_lower_bound(**arguments)
+
+
+def test_the_following_bound_is_the_exact_optimum_of_an_isotropic_linear_arm():
+    """f(θ) = L·Rθ (R a rotation: every direction moves at gain L, each relaxation step an equality), the HJB
+    cost: the point-path problem is the arm's, so the bound is the optimum itself, solved here as one dense
+    least-squares problem in the commands (an independent computation)."""
+    rng = np.random.default_rng(4)
+    gain, q, steps, dt = 0.8, 4.0, 40, 0.05
+    rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    theta0 = rng.normal(size=3)
+    times = np.arange(steps) * dt
+    x_d = np.stack([0.3 * np.cos(times), 0.3 * np.sin(times), 0.1 * times], axis=1) + 0.2
+    # θₖ = θ₀ + Δt Σ_{j<k} uⱼ; cost Σ_k q‖L R θₖ − x_k‖²Δt + Σ_k ‖uₖ‖²Δt (k = 0..K−1; u_{K−1} is effort only)
+    lower = np.tril(np.ones((steps, steps)), -1) * dt  # θₖ − θ₀ = Σ_j lower[k, j] uⱼ, per axis
+    A = np.kron(lower, gain * rotation)  # (3K, 3K): the stacked errors' dependence on the stacked commands
+    b = (x_d - gain * rotation @ theta0).ravel()
+    system = np.vstack([np.sqrt(q * dt) * A, np.sqrt(dt) * np.eye(3 * steps)])
+    target = np.concatenate([np.sqrt(q * dt) * b, np.zeros(3 * steps)])
+    commands = np.linalg.lstsq(system, target, rcond=None)[0]
+    optimum = float(np.sum((system @ commands - target) ** 2))
+    bound = following_cost_lower_bounds((gain * rotation @ theta0)[None], x_d[None], dt, gain, q)[0]
+    assert bound == pytest.approx(optimum, rel=1e-9)
+
+
+def test_the_following_bound_sees_the_motion_the_scalar_one_gives_for_free(ur10):
+    """A track sample whose ellipse starts at the tool: the scalar relaxation lets the reference carry itself
+    along (its bound is near 0), the following one prices keeping up with it."""
+    q0, x_d = sample_problem(ur10, "track", 0, 375)
+    x_d = x_d - x_d[0] + ur10.forward(q0)  # the ellipse starts at the tool: e₀ = 0
+    convention = CostConvention("hjb", "rest", 4.0)
+    scalar = certified_bound(ur10, q0, x_d, convention)
+    following = following_cost_lower_bounds(ur10.forward(q0)[None], x_d[None], DT, ur10.position_lipschitz_bound(), 4.0)
+    optimum = solve_sample(q0, x_d, ur10, DT, ur10.velocity_limits, convention=convention).cost
+    assert scalar < 1e-3 * optimum < following[0] <= optimum

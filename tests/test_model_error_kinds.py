@@ -123,7 +123,8 @@ def test_the_edited_urdf_without_an_error_is_the_true_model(ur10, qs):
 KINDS = {
     "link_length": {"link_length": (0.05, -0.03, 0.1, -0.2, 0.02, 0.01)},
     "joint_axis_tilt (m)": {"joint_axis_tilt": (0.02, -0.05, 0.1, 0.03, -0.04, 0.2)},
-    "joint_axis_tilt (2m)": {"joint_axis_tilt": (0.02, -0.05, 0.1, 0.03, -0.04, 0.2, -0.1, 0.3, 0.05, -0.02, 0.01, 0.4)},
+    "joint_axis_tilt (2m)": {"joint_axis_tilt": (0.02, -0.05, 0.1, 0.03, -0.04, 0.2,
+                                                 -0.1, 0.3, 0.05, -0.02, 0.01, 0.4)},
     "base": {"base": (0.1, -0.05, 0.2, 0.1, -0.2, 0.3)},
     "random": {"random": (0.01, 7)},
     "every part": {

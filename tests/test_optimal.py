@@ -322,7 +322,8 @@ def test_the_interior_point_and_lbfgs_b_agree_when_a_velocity_limit_binds(ur10, 
 
 
 def test_the_gauss_newton_band_holds_the_blocks_jk_t_jk_on_its_diagonal(rng):
-    """``add_jacobian_blocks`` against a dense assembly: block k−1 of θ₁..θ_K gets scale·JₖᵀJₖ (k = 1..K−1), the last none."""
+    """``add_jacobian_blocks`` against a dense assembly: block k−1 of θ₁..θ_K gets scale·JₖᵀJₖ (k = 1..K−1), the last
+    none."""
     from snac_gym.kernels.trajopt import add_jacobian_blocks
 
     steps, n, m, scale = 7, 3, 6, 0.037

@@ -35,8 +35,8 @@ from snac_gym.tasks.pose import (
 )
 
 POSE_ENV_IDS = ["snac_gym/PandaPoseReach-v0", "snac_gym/PandaPoseEllipseTrack-v0"]
-SMALL = {"robot": "panda", "samples": 3, "effort_samples": 0, "horizons": {"pose-reach": 0.4}, "chunk_size": 2, "progress": False,
-         "plots": False}  # fmt: skip
+SMALL = {"robot": "panda", "samples": 3, "effort_samples": 0, "horizons": {"pose-reach": 0.4}, "chunk_size": 2,
+         "progress": False, "plots": False}  # fmt: skip
 
 
 #: The pose tasks are registered for this module only (conftest.py): the others see the paper's two.

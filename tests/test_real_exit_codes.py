@@ -92,7 +92,8 @@ def test_each_way_a_run_ends_has_its_exit_code(monkeypatch, tmp_path, outcome, c
     [
         (
             ["--robot", "panda"],
-            "Invalid value for --robot: 'panda' is not a UR model; choose one of ur3, ur5, ur10, ur3e, ur5e, ur10e, ur16e",
+            "Invalid value for --robot: 'panda' is not a UR model; choose one of ur3, ur5, ur10, ur3e, ur5e, "
+            "ur10e, ur16e",
         ),
         (["--robot", "ur10", "--series", "e"], "--series e is the e-Series' 500 Hz; the UR10 is a CB3 arm (125 Hz)"),
         (["--robot", "ur5e", "--series", "x"], "--series must be one of cb, e, got 'x'"),
@@ -107,7 +108,8 @@ def test_each_way_a_run_ends_has_its_exit_code(monkeypatch, tmp_path, outcome, c
         (["--task-box", "0,0,0,1,1"], "--task-box needs 6 finite numbers"),
         (
             ["--task-box", "-1,0.2,0.2,-0.5,0.5,0.5"],
-            "the reach reference leaves the task box [-1.000, 0.200, 0.200] .. [-0.500, 0.500, 0.500] m at [-0.658, 0.626, 0.407]",
+            "the reach reference leaves the task box [-1.000, 0.200, 0.200] .. [-0.500, 0.500, 0.500] m at "
+            "[-0.658, 0.626, 0.407]",
         ),
         (["--joint-margin", "2"], "joint_limit_margin must be a finite number in [0, 1.5708], got 2.0"),
         (["--q0", "0,0,0,0,0,0"], "--q0 is outside the safety limits"),
@@ -131,8 +133,8 @@ def test_a_dry_run_prints_and_records_the_setup(tmp_path):
     ])  # fmt: skip
     assert result.exit_code == 0, result.output
     assert (
-        'setup: {"robot": "ur10", "task": "reach", "q0": [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62], "target": [-0.6, 0.5, 0.45]'
-        in result.output
+        'setup: {"robot": "ur10", "task": "reach", "q0": [-0.51, -1.04, 1.48, -1.82, -1.45, -1.62], '
+        '"target": [-0.6, 0.5, 0.45]' in result.output
     )
     import json
 

@@ -48,7 +48,8 @@ def test_a_subset_with_other_ids_reuses_the_rows_of_the_same_samples(job, _count
     subset = dataclasses.replace(job, samples=tuple(renumbered), seeds=(7, 8))
     rows = run_optimal_job(subset).metrics
     assert solved == [] and list(rows["sample"]) == [101, 102]
-    pd.testing.assert_frame_equal(rows.drop(columns="sample"), first.iloc[1:].drop(columns="sample").reset_index(drop=True),
+    pd.testing.assert_frame_equal(rows.drop(columns="sample"),
+                                  first.iloc[1:].drop(columns="sample").reset_index(drop=True),
                                   check_exact=True)  # fmt: skip
 
 

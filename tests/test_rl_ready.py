@@ -148,7 +148,8 @@ def test_the_vector_env_of_a_v1_id_has_its_spaces_and_bounds():
 
 
 def test_the_pose_tasks_v1_bounds_hold_their_orientations():
-    """A pose task's rotation vectors (norm ≤ π) fit their bounds although the arm's reach is shorter (the UR10: 1.88 m)."""
+    """A pose task's rotation vectors (norm ≤ π) fit their bounds although the arm's reach is shorter
+    (the UR10: 1.88 m)."""
     env = PoseReachEnv(robot="ur10", physics="kinematic", **V1_DEFAULTS)
     check_env(env, skip_render_check=True)
     rng = np.random.default_rng(1)

@@ -25,8 +25,8 @@ from snac_gym.apps.cli import app
 from snac_gym.ppo.policy import shipped_model_path
 from snac_gym.ppo.policy_file import PolicyFile, PolicyFileError
 
-SMALL = {"samples": 2, "effort_samples": 0, "horizons": {"reach": 0.2, "track": 0.2}, "chunk_size": 1, "progress": False,
-         "plots": False}  # fmt: skip
+SMALL = {"samples": 2, "effort_samples": 0, "horizons": {"reach": 0.2, "track": 0.2}, "chunk_size": 1,
+         "progress": False, "plots": False}  # fmt: skip
 HEADER = "task,q0_0,q0_1,q0_2,q0_3,q0_4,q0_5,target_0,target_1,target_2"
 PAPER_ROW = "reach,-0.51,-1.04,1.48,-1.82,-1.45,-1.62,-0.658,0.626,0.407"
 

@@ -244,7 +244,8 @@ def keep(run: Path) -> None:
         "command": MAIN_COMMAND,
         "commit": commit,
         "versions": {name: version(name) for name in ("snac-gym", "numpy", "scipy", "pin", "numba")},
-        "note": "written by tools/claims.py --from RUN; the README's and docs' claims blocks are rendered from summary.csv",
+        "note": "written by tools/claims.py --from RUN; the README's and docs' claims blocks are rendered from "
+        "summary.csv",
     }
     (DATA / "source.json").write_text(json.dumps(source, indent=2) + "\n")
 

@@ -16,5 +16,5 @@ for name, kwargs in [("dls", {}), ("svf", {}), ("rnn", {}), ("rnn", {"integrator
     print(f"{name} {kwargs or ''}: {best * 1e6:.1f} µs per act")
 print(
     "shared kinematics.jacobian alone:",
-    f"{min(timeit.repeat(lambda: env.unwrapped.kinematics.jacobian(obs[:6]), number=20_000, repeat=5)) / 20_000 * 1e6:.1f} µs",
+    f"{min(timeit.repeat(lambda: env.unwrapped.kinematics.jacobian(obs[:6]), number=20_000, repeat=5)) / 20_000 * 1e6:.1f} µs",  # noqa: E501
 )

@@ -1,6 +1,7 @@
 """The paper's two tasks from θ0 in the PyBullet env.
 
-usage: python docs/scripts/baseline_paper_runs.py [CONTROLLER [JSON constructor kwargs]]  (default: all three, default gains)
+usage: python docs/scripts/baseline_paper_runs.py [CONTROLLER [JSON constructor kwargs]]
+(default: all three, default gains)
 """
 
 import json
@@ -36,8 +37,10 @@ for env_id in ("snac_gym/UR10Reach-v0", "snac_gym/UR10EllipseTrack-v0"):
         t_1mm = (np.argmax(norms <= 1e-3) + 1) * base.dt
         half = len(norms) // 2
         print(
-            f"{base.task_name:5s} {name} {kwargs or ''}: final {norms[-1] * 1e3:.4f} mm, 2nd-half mean {norms[half:].mean() * 1e3:.4f} "
-            f"max {norms[half:].max() * 1e3:.4f} mm, first <=1 mm at {t_1mm:.2f} s, peak ||u|| {np.linalg.norm(commands, axis=1).max():.3f} rad/s, "
+            f"{base.task_name:5s} {name} {kwargs or ''}: final {norms[-1] * 1e3:.4f} mm, "
+            f"2nd-half mean {norms[half:].mean() * 1e3:.4f} "
+            f"max {norms[half:].max() * 1e3:.4f} mm, first <=1 mm at {t_1mm:.2f} s, "
+            f"peak ||u|| {np.linalg.norm(commands, axis=1).max():.3f} rad/s, "
             f"peak |u_i|/limit {np.max(np.abs(commands) / base.velocity_limits):.3f}, V = {cost.total:.2f} "
             f"(error {cost.error:.3f}, effort {cost.effort:.3f}, smoothness {cost.smoothness:.2f})"
         )

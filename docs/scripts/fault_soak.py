@@ -108,8 +108,8 @@ def _episode(episode: int, seed: int, host: str, out: Path, own_series: bool) ->
     emulator_log = folder / "emulator.log"
     with emulator_log.open("w") as sink:
         emulator = subprocess.Popen(
-            _cli("emulate-ur", "--host", host, "--robot", robot, *series, "--q0", _numbers(sample.q0), "--duration", "120",
-                 *flags), stdout=sink, stderr=subprocess.STDOUT, env=ENV,
+            _cli("emulate-ur", "--host", host, "--robot", robot, *series, "--q0", _numbers(sample.q0),
+                 "--duration", "120", *flags), stdout=sink, stderr=subprocess.STDOUT, env=ENV,
         )  # fmt: skip
     row = {"episode": episode, "robot": robot, "fault": kind, "flags": " ".join(flags)}
     try:
@@ -221,7 +221,8 @@ def tables(rows: list[dict]) -> str:
         lines.append(f"| {kind} | {len(runs)} | {cells} |")
     codes = Counter(str(r["exit_code"]) for r in rows)
     lines.append(f"| all | {len(rows)} | " + ", ".join(f"exit {c}: {n}" for c, n in sorted(codes.items())) + " |")
-    lines += ["", "| fault | confirmed by RTDE | confirmed by the dashboard | not confirmed (reason stated) | refused before moving | unaccounted |",
+    lines += ["", "| fault | confirmed by RTDE | confirmed by the dashboard | not confirmed (reason stated) "
+                  "| refused before moving | unaccounted |",
               "|---|---|---|---|---|---|"]  # fmt: skip
     for kind in KINDS:
         runs = by_kind.get(kind, [])

@@ -31,7 +31,8 @@ for path in sys.argv[1:]:
         f" (min ratio {others.loc[inside, 'ratio_to_optimal'].min():.4f})"
     )
     print(
-        f"  pairs crossing a limit: {int((~inside).sum())}, of which below the reference: {int((~inside & below).sum())}"
+        f"  pairs crossing a limit: {int((~inside).sum())}, of which below the reference: "
+        f"{int((~inside & below).sum())}"
     )
     print(
         f"  reference: min limit margin {reference['joint_limit_margin'].min():.2e} rad, peak |u|/ū "
@@ -46,12 +47,14 @@ for path in sys.argv[1:]:
         bound = free["cost"].reindex(pd.MultiIndex.from_frame(crossing[["task", "sample"]])).to_numpy()
         print(
             f"  velocity-only reference: crosses a joint limit on {int((free['joint_limit_margin'] < 0).sum())} "
-            f"of {len(free)} samples; pairs crossing a limit below it: {int((crossing['cost'].to_numpy() < bound).sum())}"
+            f"of {len(free)} samples; pairs crossing a limit below it: "
+            f"{int((crossing['cost'].to_numpy() < bound).sum())}"
         )
     if "optimal_lower_bound" in reference and reference["optimal_lower_bound"].notna().any():
         gap = (reference["cost"] / reference["optimal_lower_bound"]).groupby(reference["task"])
         print(
-            f"  optimum / lower bound: median {gap.median().round(2).to_dict()}, p95 {gap.quantile(0.95).round(2).to_dict()}"
+            f"  optimum / lower bound: median {gap.median().round(2).to_dict()}, p95 "
+            f"{gap.quantile(0.95).round(2).to_dict()}"
         )
     if (inside & below).any():
         print(others.loc[inside & below, ["task", "controller", "sample", "ratio_to_optimal"]].to_string())

@@ -1,4 +1,5 @@
-"""How fast an interrupted ``snac-gym evaluate`` ends: send SIGINT or SIGTERM at given times, report exit code and delay.
+"""How fast an interrupted ``snac-gym evaluate`` ends: send SIGINT or SIGTERM at given times, report exit code and
+delay.
 
     python docs/scripts/interrupt_timing.py --at 7 9 11 21.5
 

@@ -78,10 +78,12 @@ def main() -> None:
     k_errors = [np.linalg.norm(K - K_star, 2) for K in result.K]
     print(
         f"eps={TOLERANCE}: {stop.iterations} iterations, |P-P*|={np.linalg.norm(stop.P_final - P_star, 2):.3g}, "
-        f"|K-K*|={np.linalg.norm(stop.K_final - K_star, 2):.3g}, max|K-K_paper|={np.abs(stop.K_final - PAPER_K).max():.3g}"
+        f"|K-K*|={np.linalg.norm(stop.K_final - K_star, 2):.3g}, "
+        f"max|K-K_paper|={np.abs(stop.K_final - PAPER_K).max():.3g}"
     )
     print(
-        f"eps={CODE_TOLERANCE}, at most {CODE_MAX_ITERATIONS}: {result.iterations} iterations, converged={result.converged}, "
+        f"eps={CODE_TOLERANCE}, at most {CODE_MAX_ITERATIONS}: {result.iterations} iterations, "
+        f"converged={result.converged}, "
         f"|P_k-P*| = {', '.join(f'{e:.3g}' for e in p_errors)}"
     )
     print(f"|P_k-P_k-1| = {', '.join(f'{d:.3g}' for d in result.differences)}")

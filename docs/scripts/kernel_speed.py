@@ -110,7 +110,8 @@ def main() -> None:
     compiled = best_of(lambda: compiled_band(base, trajectory))
     peer = best_of(lambda: numpy_band(c_base, trajectory, 0.016))
     print(
-        f"{'Gauss-Newton band':24s} {compiled * 1e3:14.3f} ms {peer * 1e3:10.3f} ms  NumPy products and scattered += (2500 steps)"
+        f"{'Gauss-Newton band':24s} {compiled * 1e3:14.3f} ms {peer * 1e3:10.3f} ms  NumPy products and "
+        "scattered += (2500 steps)"
     )
 
 

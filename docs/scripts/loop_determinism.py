@@ -92,7 +92,8 @@ def _one(config: str, seconds: float) -> None:
 
 
 def _default_rules_stop(periods: np.ndarray) -> int | None:
-    """The period at which the default late-loop and stall rules would have stopped the run (the first is not counted)."""
+    """The period at which the default late-loop and stall rules would have stopped the run (the first is not
+    counted)."""
     from snac_gym.kinematics import Kinematics
     from snac_gym.real import SafetyLayer, SafetyLimits
 
@@ -114,8 +115,8 @@ def _command(repeats: int, seconds: float, hogs: int) -> None:
                 emu.reset()
                 load = os.getloadavg()[0]
                 with tempfile.TemporaryDirectory() as out:
-                    command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", "127.0.0.1", "--series", "e",
-                               "--rt-priority", "20", "--task", "reach", "--controller", "snac",
+                    command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", "127.0.0.1",
+                               "--series", "e", "--rt-priority", "20", "--task", "reach", "--controller", "snac",
                                "--steps", str(round(seconds * 500)), "--out", out]  # fmt: skip
                     child = subprocess.run(command, capture_output=True, text=True, timeout=seconds + 120)
                 lines = (child.stdout + child.stderr).splitlines()
@@ -245,7 +246,8 @@ def main() -> None:
         parser.error(f"unknown configuration(s) {unknown}; known: {', '.join(CONFIGS)}")
     print(f"{args.seconds:g} s reach at 500 Hz, {args.hogs} CPU hog(s), {os.cpu_count()} CPUs")
     print(
-        "| config | load avg | periods | mean ms | p50 ms | p99 ms | max ms (after the first) | late | default rules stop at |"
+        "| config | load avg | periods | mean ms | p50 ms | p99 ms | max ms (after the first) | late | "
+        "default rules stop at |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     _measure(configs, args.repeats, args.seconds, args.hogs)

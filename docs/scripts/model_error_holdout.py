@@ -16,7 +16,8 @@ TOLERANCE = {"reach": ("final_error", 1e-3), "track": ("mean_error_2nd_half", 5e
 
 def main() -> None:
     print(
-        "| error | task | controller | on target | past a joint limit | success | median ratio | flagged | end > 5 cm off (unflagged) |"
+        "| error | task | controller | on target | past a joint limit | success | median ratio | flagged | "
+        "end > 5 cm off (unflagged) |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for argument in sys.argv[1:]:

@@ -41,7 +41,10 @@ def watch_cells(folder: Path) -> str:
         return "—"
     flagged = watched["diverged"].astype(str).str.lower() == "true"
     far = watched["final_error"] > 0.05
-    return f"{int(flagged.sum())} flagged, {int(far.sum())} end > 5 cm off, {int((far & ~flagged).sum())} of them unflagged"
+    return (
+        f"{int(flagged.sum())} flagged, {int(far.sum())} end > 5 cm off, {int((far & ~flagged).sum())} of them "
+        "unflagged"
+    )
 
 
 def main() -> None:

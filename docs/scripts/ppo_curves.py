@@ -2,15 +2,16 @@
 optimum on validation samples, with the run's own periodic evaluations, and the checkpoint chosen.
 
     python docs/scripts/ppo_curves.py --run reach=runs/ppo_ws/reach10m --run track=runs/ppo_ws/track10m \
-        --every 1000000 --fine-until 3200000 --out docs/figures/ppo_workspace_curves.png --table runs/ppo_ws/validation.csv
+        --every 1000000 --fine-until 3200000 --out docs/figures/ppo_workspace_curves.png \
+        --table runs/ppo_ws/validation.csv
 
 Validation samples: ``--samples`` workspace samples (``--sample-space``) of evaluator seed ``--seed``
 (default 1 000 000, the range the training pipeline's own evaluation uses; never the seeds results
 are reported on). The optimum (``optimal``) is solved once per task; the checkpoints in
-``RUN/checkpoints/`` every ``--fine-every`` steps up to ``--fine-until``, every ``--every`` steps after (and the last) are run by the evaluator as ``ppo`` with
-``--param ppo.model_path=...`` under the cost PPO was trained on (``--cost hjb --q-scale 4``, no
-effort matching). Plotted against env steps: the median over samples of the checkpoint's HJB cost
-over the optimum's, the evaluator's success rate (joint-limit rule included) and the share ending on
+``RUN/checkpoints/`` every ``--fine-every`` steps up to ``--fine-until``, every ``--every`` steps after (and the last)
+are run by the evaluator as ``ppo`` with ``--param ppo.model_path=...`` under the cost PPO was trained on
+(``--cost hjb --q-scale 4``, no effort matching). Plotted against env steps: the median over samples of the checkpoint's
+HJB cost over the optimum's, the evaluator's success rate (joint-limit rule included) and the share ending on
 target (the error rule alone), and the periodic evaluation's success rate from ``RUN/evaluations.csv``
 (``snac_gym.ppo.train.read_evaluations``; 10 PyBullet episodes, error rule only).
 
@@ -62,7 +63,8 @@ def evaluate(task: str, args: argparse.Namespace, out: Path, controllers: str, *
 
 
 def checkpoints(folder: Path, every: int, fine_every: int, fine_until: int) -> list[Path]:
-    """Every ``fine_every`` steps up to ``fine_until`` (the early checkpoints, where the best ones were), then every ``every``."""
+    """Every ``fine_every`` steps up to ``fine_until`` (the early checkpoints, where the best ones were), then every
+    ``every``."""
     files = sorted((folder / "checkpoints").glob("*.npz"), key=lambda p: int(p.stem))
     chosen, next_mark = [], 0
     for path in files:
@@ -112,7 +114,8 @@ def main() -> None:
                 float(base["success"].astype(bool).mean()),
             )
             print(
-                f"{task} {args.baseline}: median ratio {baselines[task][0]:.3f}, success {100 * baselines[task][1]:.0f} %"
+                f"{task} {args.baseline}: median ratio {baselines[task][0]:.3f}, success "
+                f"{100 * baselines[task][1]:.0f} %"
             )
         column, limit = ERROR_RULE[task]
         for checkpoint in checkpoints(folder, args.every, args.fine_every, args.fine_until):

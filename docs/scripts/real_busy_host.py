@@ -58,7 +58,8 @@ def run(rt_priority: int, hogs: int, out: Path) -> str:
     ended = "ran to its end" if done.returncode == 0 else f"exit {done.returncode}: {stop or done.stderr.strip()[:80]}"
     return (
         f"| {rt_priority or 'off'} | {hogs} | {load:.2f} | {timing.get('period_ms_p50', float('nan')):.3f} | "
-        f"{timing.get('period_ms_p99', float('nan')):.3f} | {timing.get('period_ms_max', float('nan')):.3f} (step {longest}) | "
+        f"{timing.get('period_ms_p99', float('nan')):.3f} | {timing.get('period_ms_max', float('nan')):.3f} "
+        f"(step {longest}) | "
         f"{timing.get('late_periods', '?')} | {periods} | {ended} |"
     )
 
@@ -70,7 +71,8 @@ def main() -> None:
     parser.add_argument("--rt-priority", type=int, default=20)
     args = parser.parse_args()
     print(
-        "| --rt-priority | busy processes | load average | p50 ms | p99 ms | max ms (at step) | late periods | periods | end |"
+        "| --rt-priority | busy processes | load average | p50 ms | p99 ms | max ms (at step) | late periods "
+        "| periods | end |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for k in range(args.runs):

@@ -16,8 +16,8 @@ The env runs on the exact kinematic model by default (``--physics kinematic``, t
 ``pybullet`` or ``mujoco`` otherwise), with normalised actions, sparse rewards (or ``--reward dense``)
 and episodes of ``--episode-steps`` control steps of ``--dt`` (default 8 ms).
 After training (or loading ``--load``), the deterministic policy runs ``--eval-episodes`` unseen
-random episodes (reset seeds ``--eval-seed``, default 10 000, 10 001, ...) and the script prints the fraction that end within ``--tolerance`` of
-the goal, the median final distance, the wall time, and the command.
+random episodes (reset seeds ``--eval-seed``, default 10 000, 10 001, ...) and the script prints the fraction that end
+within ``--tolerance`` of the goal, the median final distance, the wall time, and the command.
 """
 
 from __future__ import annotations

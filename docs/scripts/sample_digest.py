@@ -29,7 +29,8 @@ def main(seed: int, count: int, region: str = "cuboid", robot: str = "ur10") -> 
             digest.update(np.asarray(sample.q0, dtype=float).tobytes())
             digest.update(repr(vars(sample.reference)).encode())
     print(
-        f"seed {seed}, {count} per task, {region}, {robot}: {digest.hexdigest()[:16]} ({time.perf_counter() - started:.1f} s)"
+        f"seed {seed}, {count} per task, {region}, {robot}: {digest.hexdigest()[:16]} "
+        f"({time.perf_counter() - started:.1f} s)"
     )
 
 

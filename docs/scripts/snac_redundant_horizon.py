@@ -44,7 +44,8 @@ def study(robot: str) -> str:
         )
         metrics = rollout_metrics(rollouts, "reach", context.velocity_limits)
         parts.append(
-            f"{seconds} s: {100 * metrics.success.mean():.1f} % (median final {1e3 * metrics.final_error.median():.2f} mm)"
+            f"{seconds} s: {100 * metrics.success.mean():.1f} % (median final "
+            f"{1e3 * metrics.final_error.median():.2f} mm)"
         )
     return f"{robot}: median σ_min(J(θ0)) {sigma_min:.3f} m/rad; SNAC success " + "; ".join(parts)
 

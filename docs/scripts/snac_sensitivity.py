@@ -135,7 +135,8 @@ def markdown(rows: list[tuple[str, dict[str, dict[str, float]]]], task: str) -> 
         f = table[task]
         lines.append(
             f"| {name} | {f['V/N']:.2f} | {f['V/N no jump']:.2f} | {100 * f['jump'] / f['V/N']:.0f} % | "
-            f"{f['HJB cost']:.3f} | {100 * f['success']:.1f} % | {f['median error mm']:.3g} | {f['median max|u|']:.3f} |"
+            f"{f['HJB cost']:.3f} | {100 * f['success']:.1f} % | {f['median error mm']:.3g} | "
+            f"{f['median max|u|']:.3f} |"
         )
     return "\n".join(lines)
 

@@ -3,9 +3,9 @@
     python docs/scripts/table1_floor.py RUN [RUN_WARM] [--workers 2]
 
 RUN is the folder of a finished ``snac-gym evaluate`` of the README's main command with empty caches (its
-``calibration.json`` holds the searches where it matched the knobs; at the shipped knobs it searched nothing), RUN_WARM (optional) one run with the
-calibration and reference caches warm. The floor is the work such a run cannot avoid, at the rate this
-machine does it:
+``calibration.json`` holds the searches where it matched the knobs; at the shipped knobs it searched nothing), RUN_WARM
+(optional) one run with the calibration and reference caches warm. The floor is the work such a run cannot avoid, at the
+rate this machine does it:
 
 * **passes**: every controller on every sample once at full horizon, timed as ``run_job`` (the evaluator's
   lockstep rollout and the metrics of its rows) on one core, in process, on a chunk of the run's own samples

@@ -183,7 +183,8 @@ class EffortMatcher:
 
     # -- one controller on one task -----------------------------------------------------------
     def match_one(self, task: str, spec: ControllerSpec, target: float) -> tuple[pd.DataFrame, EffortRecord]:
-        """Search one controller's knob for ``target`` on one task, then check it with a full pass (rounds: module docstring).
+        """Search one controller's knob for ``target`` on one task, then check it with a full pass (rounds: module
+        docstring).
 
         Returns:
             The last full pass's rows and the record of how the effort was set.

@@ -168,7 +168,8 @@ class EffortSearch:
         return None
 
     def _bracket_factor(self, effort: float, upward: bool) -> float:
-        """The factor of the next bracketing step: target/effort (effort is roughly proportional to the knob), 3 % past the target."""
+        """The factor of the next bracketing step: target/effort (effort is roughly proportional to the knob), 3 % past
+        the target."""
         step = self.target / effort if effort > 0 else MAX_BRACKET_STEP
         step = min(max(step * (1.03 if upward else 1 / 1.03), 1 / MAX_BRACKET_STEP), MAX_BRACKET_STEP)
         if len(self.evaluations) > 1 or within(effort, self.target, self.tolerance):

@@ -485,9 +485,9 @@ class RayExecutor:
                     ray.init(address=address, log_to_driver=False)
                 except (ConnectionError, TimeoutError) as exc:
                     raise RuntimeError(
-                        f"--ray {address}: no Ray cluster answered within {RAY_CONNECT_TIMEOUT_S:g} s ({exc})".splitlines()[
-                            0
-                        ]
+                        (
+                            f"--ray {address}: no Ray cluster answered within {RAY_CONNECT_TIMEOUT_S:g} s ({exc})"
+                        ).splitlines()[0]
                     ) from None
 
     def run(self, function: Callable[[Any], Any], items: Sequence[Any], priority: int = 0) -> Iterator[tuple[int, Any]]:
@@ -516,7 +516,8 @@ class RayExecutor:
     POLL_S = 0.2
 
     def terminate(self) -> None:
-        """Stop now: every :meth:`run` ends within :attr:`POLL_S` and cancels its tasks; :meth:`close` stops a local instance."""
+        """Stop now: every :meth:`run` ends within :attr:`POLL_S` and cancels its tasks; :meth:`close` stops a local
+        instance."""
         self._stopped.set()
 
     def close(self) -> None:

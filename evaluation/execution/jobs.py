@@ -152,7 +152,8 @@ def run_job(job: RolloutJob) -> JobResult:
         try:
             rollouts = simulate_arms(
                 context, make, job.samples, job.steps, job.seeds, arms, plant, job.use_batch, job.controller,
-                keep_states=True,  # the joint-limit margin needs the measured θₖ (limit_margins rebuilds exact-model ones only)
+                keep_states=True,  # the joint-limit margin needs the measured θₖ (limit_margins rebuilds
+                # exact-model ones only)
             )  # fmt: skip
         finally:
             arms.close()  # a job's PyBullet worlds are physics servers: not left to the garbage collector

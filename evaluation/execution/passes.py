@@ -55,7 +55,8 @@ Pass = tuple[str, "ControllerSpec", dict[str, Any]]
 
 
 class EvaluationRun:
-    """The passes of one run over its samples (state shared by :func:`~snac_gym.evaluation.runner.run_evaluation`'s steps).
+    """The passes of one run over its samples (state shared by :func:`~snac_gym.evaluation.runner.run_evaluation`'s
+    steps).
 
     Args:
         config: The run's options.
@@ -263,7 +264,8 @@ class EvaluationRun:
         return self._read_passes(paths)
 
     def run_optimal(self) -> list[pd.DataFrame]:
-        """The ``optimal`` rows of every task (jobs of :data:`OPTIMAL_CHUNK_SIZE` samples at most, stored as they arrive).
+        """The ``optimal`` rows of every task (jobs of :data:`OPTIMAL_CHUNK_SIZE` samples at most, stored as they
+        arrive).
 
         They depend on the samples, the cost and the arm alone, not on the run's controllers.
         """
@@ -278,7 +280,8 @@ class EvaluationRun:
             task_paths, task_todo = self._parts_to_run(OPTIMAL, key, jobs)
             paths.append(task_paths)
             todo += task_todo
-        # The longest jobs first (rows do not depend on the order), so that no worker is left with a long one at the end.
+        # The longest jobs first (rows do not depend on the order), so that no worker is left with a long one at
+        # the end.
         todo.sort(key=lambda job_path: -job_path[0].steps * len(job_path[0].samples))
         for index, result in self.executor.run(run_optimal_job, [job for job, _ in todo]):
             job, path = todo[index]

@@ -7,8 +7,8 @@ and column labels the reports print.
 
 ``summary.csv`` has one row per controller and, per task (prefix ``reach_`` / ``track_``):
 ``cost`` (V/N, the mean over samples), ``cost_std``, ``cost_ci95_low``/``_high`` (the 95 % bootstrap
-percentile interval of the mean, seeded: :func:`mean_confidence_interval`), ``n``, the mean of each cost term, ``paper`` (Table I),
-``ratio_to_snac`` and ``paper_ratio_to_snac``, ``success_rate``, ``final_error_median``,
+percentile interval of the mean, seeded: :func:`mean_confidence_interval`), ``n``, the mean of each cost term, ``paper``
+(Table I), ``ratio_to_snac`` and ``paper_ratio_to_snac``, ``success_rate``, ``final_error_median``,
 ``time_to_1mm_median``, ``settled_fraction``, ``settle_time_median`` and ``settle_time_p95``
 (order statistics; inf when too few rollouts settled within the horizon), the effort
 statistic matched (``effort``), its knob (``effort_parameter``, ``effort_value``,

@@ -46,7 +46,8 @@ def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Seq
             "counted apart (the optimum does not cross them)."
         ),
         "",
-        "| Task | Controller | V/N | mean ratio | median ratio | V/N ratio | below the optimum, inside the limits | below it, crossing a limit |",
+        "| Task | Controller | V/N | mean ratio | median ratio | V/N ratio | below the optimum, inside the limits "
+        "| below it, crossing a limit |",
         "|---|---|---|---|---|---|---|---|",
     ]
     violations: list[tuple[str, str, int]] = []
@@ -102,7 +103,8 @@ def _bound_text(row: pd.Series, p: str) -> str:
 
 
 def _below_optimum_lines(results: pd.DataFrame, violations: Sequence[tuple[str, str, int]]) -> list[str]:
-    """A warning naming the samples where a controller that keeps the limits beat the optimum (a failure of the reference)."""
+    """A warning naming the samples where a controller that keeps the limits beat the optimum (a failure of the
+    reference)."""
     if not violations:
         return ["No controller that keeps the limits has a cost below the optimum on any sample.", ""]
     below = results[results["below_optimal"].astype(bool) & (results["joint_limit_margin"] >= 0.0)]
@@ -160,7 +162,8 @@ def paired_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
             "",
             f"**{get_task(t).label}**",
             "",
-            f"| Controller | {header}: median ratio [95 % CI] | cheaper on | p | vs the optimum: median ratio [95 % CI] "
+            f"| Controller | {header}: median ratio [95 % CI] | cheaper on | p "
+            "| vs the optimum: median ratio [95 % CI] "
             "| cheaper on | p |",
             "|---|---|---|---|---|---|---|",
         ]
@@ -286,7 +289,8 @@ def overview_lines(summary: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
                 versus, cheaper = "(the best)", "—"
             lines.append("| " + " | ".join([
                 row["label"],
-                f"{_number(row[p + 'cost'])} [{_number(row[p + 'cost_ci95_low'])}, {_number(row[p + 'cost_ci95_high'])}]",
+                f"{_number(row[p + 'cost'])} "
+                f"[{_number(row[p + 'cost_ci95_low'])}, {_number(row[p + 'cost_ci95_high'])}]",
                 f"{row[p + 'success_rate']:.1%}", _number(accuracy, 3), standing, to_optimum, versus, cheaper,
             ]) + " |")  # fmt: skip
         lines.append("")

@@ -467,7 +467,8 @@ def format_vector_bench(rows: list[dict[str, float | str]]) -> str:
         if "bytes_per_env" in row:
             memory = f"{row['bytes_per_env']:.0f} B held, {row['step_peak_bytes_per_env']:.0f} B step peak"
         lines.append(
-            f"{row['env_id']:32s} {row['num_envs']:5d} {row['steps_per_s']:13,.0f} {row['with_resets_per_s']:13,.0f}  {memory}"
+            f"{row['env_id']:32s} {row['num_envs']:5d} {row['steps_per_s']:13,.0f} "
+            f"{row['with_resets_per_s']:13,.0f}  {memory}"
         )
     resets = {row["env_id"]: (row["reset_ms"], row["episode_steps"]) for row in rows}
     for env_id, (reset_ms, steps) in resets.items():

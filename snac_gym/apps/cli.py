@@ -104,7 +104,8 @@ def bench(
     steps: int = typer.Option(
         5000,
         "--steps",
-        help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two ids in both engines at the bound).",
+        help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two "
+        "ids in both engines at the bound).",
     ),
     panda: bool = typer.Option(
         True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."
@@ -113,19 +114,22 @@ def bench(
     tracking: bool = typer.Option(
         False,
         "--tracking",
-        help="Also measure how closely PyBullet and MuJoCo follow the exact kinematic model under random commands (UR10 and Panda, 5 episodes each).",
+        help="Also measure how closely PyBullet and MuJoCo follow the exact kinematic model under random commands "
+        "(UR10 and Panda, 5 episodes each).",
     ),
     act: bool = typer.Option(False, "--act", help="Also time one act() call of every available policy that imports."),
     act_calls: int = typer.Option(
         5000,
         "--act-calls",
-        help="Timed act() calls per policy and task, 100 to 1,000,000 (timings kept in memory, 8 B each; ~100 s per policy and task at the bound).",
+        help="Timed act() calls per policy and task, 100 to 1,000,000 (timings kept in memory, 8 B each; ~100 s "
+        "per policy and task at the bound).",
     ),
     vector: bool = typer.Option(
         False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."
     ),
 ) -> None:
-    """Env steps per second and real-time factor of both ids, in PyBullet and MuJoCo, on one core (and, with --act, act latency)."""
+    """Env steps per second and real-time factor of both ids, in PyBullet and MuJoCo, on one core (and, with --act, act
+    latency)."""
     # start-up time: only bench needs bench.py (threadpoolctl)
     from snac_gym.apps.bench import check_bench_counts
 
@@ -275,7 +279,8 @@ def real(
     unlock_protective_stop: bool = typer.Option(
         False,
         "--unlock-protective-stop",
-        help="With --max-recoveries: unlock a protective stop from the dashboard after UR's 5 s lockout (else the operator clears it on the pendant).",
+        help="With --max-recoveries: unlock a protective stop from the dashboard after UR's 5 s lockout (else the "
+        "operator clears it on the pendant).",
     ),
     recovery_timeout: float = typer.Option(
         60.0, "--recovery-timeout", help="Longest wait (s) for a protective stop to be cleared, in (0, 3600]."
@@ -288,7 +293,8 @@ def real(
         "--rt-priority",
         min=0,
         max=99,
-        help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage collector frozen for the episode; 0: off.",
+        help="Real-time loop: SCHED_FIFO at this priority (the ur_rtde client too), memory locked, garbage "
+        "collector frozen for the episode; 0: off.",
     ),
     robot: str = typer.Option(
         "ur10", "--robot", help=f"The UR arm: {_UR_ARMS} (its kinematics, datasheet limits and default task box)."
@@ -296,7 +302,8 @@ def real(
     q0: Optional[str] = typer.Option(
         None,
         "--q0",
-        help="Start pose, 6 joint angles in rad (comma-separated); default the paper's (the UR10's). The arm moveJs there first.",
+        help="Start pose, 6 joint angles in rad (comma-separated); default the paper's (the UR10's). The arm "
+        "moveJs there first.",
     ),
     target: Optional[str] = typer.Option(
         None, "--target", help="Reach: the target x,y,z in m (base frame); default the paper's (the UR10's)."
@@ -318,7 +325,8 @@ def real(
     deadline_stop: Optional[bool] = typer.Option(
         None,
         "--deadline-stop/--no-deadline-stop",
-        help="Stop on missed deadlines (a late loop, a stall). Default: on for a real or emulated arm (always), off for --connection sim and --dry-run, where late periods are only counted and reported.",
+        help="Stop on missed deadlines (a late loop, a stall). Default: on for a real or emulated arm (always), "
+        "off for --connection sim and --dry-run, where late periods are only counted and reported.",
     ),
 ) -> None:
     """Run one episode on a real UR arm (ur_rtde) behind the safety layer, or rehearse it with --connection sim.
@@ -401,7 +409,8 @@ def real(
         raise typer.Exit(code=result.exit_code)
 
 
-#: The options of ``real`` whose refusals name a field of :class:`~snac_gym.real.recovery.RecoveryLimits` or an argument.
+#: The options of ``real`` whose refusals name a field of :class:`~snac_gym.real.recovery.RecoveryLimits` or an
+#: argument.
 _REAL_OPTIONS = {
     "clear_timeout": "--recovery-timeout",
     "reconnect_timeout": "--reconnect-timeout",
@@ -569,7 +578,8 @@ _reported: list[str] = []
 
 
 def _interrupted(exc: BaseException, kept: str, during: str = "") -> typer.Exit:
-    """Say in one line which signal ended the command (and ``during`` what) and what it kept; return the exit to raise (128 + n)."""
+    """Say in one line which signal ended the command (and ``during`` what) and what it kept; return the exit to raise
+    (128 + n)."""
     name = (_main_guard or SignalGuard()).signal_name(exc)
     _reported.append(name)
     typer.echo(f"interrupted by {name}{' ' + during if during else ''}: {kept}", err=True)
@@ -582,12 +592,14 @@ def evaluate(
     task: str = typer.Option(
         "both",
         "--task",
-        help=f"both (reach and track, Table I), a registered task ({_TASKS}), or a pose task, pose-reach or pose-track (docs/robots.md).",
+        help=f"both (reach and track, Table I), a registered task ({_TASKS}), or a pose task, pose-reach or "
+        "pose-track (docs/robots.md).",
     ),
     controllers: Optional[str] = typer.Option(
         None,
         "--controllers",
-        help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum as a reference row (docs/optimal.md).",
+        help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum "
+        "as a reference row (docs/optimal.md).",
     ),
     samples: Optional[int] = typer.Option(
         None,
@@ -602,7 +614,8 @@ def evaluate(
     engine: str = typer.Option(
         "kinematic",
         "--engine",
-        help="kinematic (exact θ += uΔt, all samples in lockstep, fast), mujoco or pybullet (one simulated arm per sample with that physics, in lockstep; mujoco needs the mujoco extra).",
+        help="kinematic (exact θ += uΔt, all samples in lockstep, fast), mujoco or pybullet (one simulated arm "
+        "per sample with that physics, in lockstep; mujoco needs the mujoco extra).",
     ),
     backend: Optional[str] = typer.Option(None, "--backend", hidden=True, help="Deprecated name of --engine."),
     match_effort: bool = typer.Option(
@@ -611,24 +624,30 @@ def evaluate(
     effort_reference: Optional[str] = typer.Option(
         None,
         "--effort-reference",
-        help="Controller whose effort the others are matched to (default: snac if evaluated, else the first controller).",
+        help="Controller whose effort the others are matched to (default: snac if evaluated, else the first "
+        "controller).",
     ),
     effort_statistic: str = typer.Option(
         "mean-peak",
         "--effort-statistic",
-        help="What equal effort equalises: mean-peak (the mean over the samples of each rollout's peak |u|/limit; the default), max (the maximum |u| over the sample set, rad/s), median-peak (the median rollout's peak |u|/limit) or peak-ratio (each rollout's peak over the reference's on the same sample, geometric mean).",
+        help="What equal effort equalises: mean-peak (the mean over the samples of each rollout's peak |u|/limit; "
+        "the default), max (the maximum |u| over the sample set, rad/s), median-peak (the median rollout's "
+        "peak |u|/limit) or peak-ratio (each rollout's peak over the reference's on the same sample, "
+        "geometric mean).",
     ),
     effort_target: Optional[float] = typer.Option(
         None,
         "--effort-target",
-        help="Explicit effort target in the statistic's unit (rad/s for max, a fraction for mean-peak and median-peak; not for peak-ratio); then every controller is matched.",
+        help="Explicit effort target in the statistic's unit (rad/s for max, a fraction for mean-peak and "
+        "median-peak; not for peak-ratio); then every controller is matched.",
     ),
     effort_tolerance: float = typer.Option(0.02, "--effort-tolerance", help="Relative tolerance of the effort match."),
     effort_samples: Optional[int] = typer.Option(
         None,
         "--effort-samples",
         min=0,
-        help="Match equal effort on the first N samples of the seed's stream even when fewer are evaluated, so the matched knobs do not depend on --samples (default 1000; 0: on the evaluated samples).",
+        help="Match equal effort on the first N samples of the seed's stream even when fewer are evaluated, so "
+        "the matched knobs do not depend on --samples (default 1000; 0: on the evaluated samples).",
     ),
     calibration_samples: Optional[int] = typer.Option(
         None,
@@ -662,7 +681,8 @@ def evaluate(
     sample_space: str = typer.Option(
         "cuboid",
         "--sample-space",
-        help="cuboid (Table I's box in front of the arm, or --cuboid) or workspace (anywhere the arm reaches, every IK branch).",
+        help="cuboid (Table I's box in front of the arm, or --cuboid) or workspace (anywhere the arm reaches, "
+        "every IK branch).",
     ),
     robot: str = typer.Option("ur10", "--robot", help=f"A registered robot: {_ROBOTS} (docs/robots.md)."),
     param: list[str] = typer.Option(
@@ -682,7 +702,8 @@ def evaluate(
     cost: str = typer.Option(
         "table1",
         "--cost",
-        help="table1 (Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt, the paper's Table I) or hjb (Σ (eᵀQe + uᵀRu) Δt, the cost of eqs. 6/32); `optimal` solves for it.",
+        help="table1 (Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt, the paper's Table I) or hjb (Σ (eᵀQe + uᵀRu) Δt, the cost of "
+        "eqs. 6/32); `optimal` solves for it.",
     ),
     udot_start: str = typer.Option(
         "rest", "--udot-start", help="u₋₁ of the u̇ term: rest (0: the jump from rest counts) or first (u₀)."
@@ -698,27 +719,37 @@ def evaluate(
     model_error: Optional[str] = typer.Option(
         None,
         "--model-error",
-        help="Give the controllers a wrong arm model, parts joined by ';': 'joint_offset=a0,...,a5' (rad), 'link_scale=s' (relative), 'link_length=d0,...,d5' (m, per placement), 'joint_axis_tilt=a0,...,a5[,b0,...,b5]' (rad), 'base=x,y,z,rx,ry,rz' (m, rad), 'tool_offset=x,y,z' (m, tool frame), 'random=sigma,seed' (a random rigid error of every placement and the tool), 'model=NAME' (another robot's kinematics, e.g. ur5; same joint count). The plant, the cost, the success rule and the optimum keep the true model.",
+        help="Give the controllers a wrong arm model, parts joined by ';': 'joint_offset=a0,...,a5' (rad), "
+        "'link_scale=s' (relative), 'link_length=d0,...,d5' (m, per placement), "
+        "'joint_axis_tilt=a0,...,a5[,b0,...,b5]' (rad), 'base=x,y,z,rx,ry,rz' (m, rad), 'tool_offset=x,y,z' "
+        "(m, tool frame), 'random=sigma,seed' (a random rigid error of every placement and the tool), "
+        "'model=NAME' (another robot's kinematics, e.g. ur5; same joint count). The plant, the cost, the "
+        "success rule and the optimum keep the true model.",
     ),
     reference_limits: str = typer.Option(
         "joints",
         "--reference-limits",
-        help="Constraints of the `optimal` reference: joints (joint position and velocity limits, as the success rule counts) or velocity (velocity limits only; its label says so).",
+        help="Constraints of the `optimal` reference: joints (joint position and velocity limits, as the success "
+        "rule counts) or velocity (velocity limits only; its label says so).",
     ),
     reference_cache: bool = typer.Option(
         True,
         "--reference-cache/--no-reference-cache",
-        help="Reuse the `optimal` rows cached by sample content (~/.cache/snac-gym/reference, or $SNAC_GYM_CACHE_DIR), keyed by everything they depend on, the code included; --no-reference-cache solves every sample anew.",
+        help="Reuse the `optimal` rows cached by sample content (~/.cache/snac-gym/reference, or "
+        "$SNAC_GYM_CACHE_DIR), keyed by everything they depend on, the code included; --no-reference-cache "
+        "solves every sample anew.",
     ),
     recalibrate: bool = typer.Option(
         False,
         "--recalibrate",
-        help="Match the effort anew even where an earlier run with the same effort set, settings and code cached its knobs (~/.cache/snac-gym/calibration, or $SNAC_GYM_CACHE_DIR), and overwrite them.",
+        help="Match the effort anew even where an earlier run with the same effort set, settings and code cached "
+        "its knobs (~/.cache/snac-gym/calibration, or $SNAC_GYM_CACHE_DIR), and overwrite them.",
     ),
     sweep: bool = typer.Option(
         False,
         "--sweep/--no-sweep",
-        help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against success, error and peak effort; docs/evaluation.md).",
+        help="Also run each controller over its effort knob: OUT/sweep.csv and OUT/tradeoff.png (cost against "
+        "success, error and peak effort; docs/evaluation.md).",
     ),
     sweep_points: Optional[int] = typer.Option(
         None,
@@ -886,7 +917,8 @@ def _validate_naming_options(config: Any) -> None:
 
 def _check_export_folder(path: Path | None) -> None:
     """Refuse an ``--export-samples`` file whose folder cannot be made: a missing folder is created when the samples
-    are written, but one under a file (or a dangling link) would fail late with a bare ``[Errno 2]`` or ``[Errno 20]``."""
+    are written, but one under a file (or a dangling link) would fail late with a bare ``[Errno 2]`` or
+    ``[Errno 20]``."""
     if path is None:
         return
     folder = Path(path).parent
@@ -920,7 +952,8 @@ def train_ppo_command(
     vec_env: Optional[str] = typer.Option(
         None,
         "--vec-env",
-        help="dummy (one process), subproc (one process per env) or batched (all episodes at once on the kinematic model).",
+        help="dummy (one process), subproc (one process per env) or batched (all episodes at once on the "
+        "kinematic model).",
     ),
     progress: bool = typer.Option(
         True,
@@ -928,7 +961,8 @@ def train_ppo_command(
         help="Progress lines on stderr (timesteps, time, success) where stderr is not a terminal.",
     ),
 ) -> None:
-    """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and torch (the rl extra)."""
+    """Train the PPO baseline (stable-baselines3) on a snac-gym env; keeps the best model. Needs stable-baselines3 and
+    torch (the rl extra)."""
     _check_task(task)
     try:
         from snac_gym.ppo.train import train_ppo  # start-up time: the trainer loads pandas

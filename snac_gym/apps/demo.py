@@ -105,7 +105,8 @@ class DemoResult:
             lines.append(
                 "  diverged                    "
                 + (
-                    f"YES at step {step} (t = {step * float(self.log.attrs.get('dt', 0.0)):.3f} s): the controller crossed "
+                    f"YES at step {step} (t = {step * float(self.log.attrs.get('dt', 0.0)):.3f} s): "
+                    "the controller crossed "
                     "a divergence bound and stopped the arm"
                     if flagged.any()
                     else "no (no divergence bound crossed)"

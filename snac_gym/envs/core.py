@@ -95,7 +95,8 @@ def check_sample_space(value: Any, kinematics: Kinematics) -> SampleSpace:
         return SampleSpace.workspace(kinematics)
     if not isinstance(value, SampleSpace):
         raise ValueError(
-            f"sample_space must be a snac_gym.sampling.SampleSpace, None or one of {', '.join(map(repr, REGIONS))}, got {value!r}"
+            "sample_space must be a snac_gym.sampling.SampleSpace, None or one of "
+            f"{', '.join(map(repr, REGIONS))}, got {value!r}"
         )
     return value
 
@@ -538,7 +539,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
     def _build_arm(self, physics: str, n_substeps: int, render_every: int | None) -> None:
         """The arm, and the rendered scene when there is a render mode."""
         # "human" without a display (or in MuJoCo, which renders headless only) shows nothing and warns on
-        # the first step (construction, reset and render stay quiet: Gymnasium's checker builds, resets and renders every declared mode).
+        # the first step (construction, reset and render stay quiet: Gymnasium's checker builds, resets and renders
+        # every declared mode).
         no_display = sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
         self._headless_human = self.render_mode == "human" and (no_display or physics == "mujoco")
         gui = self.render_mode == "human" and not self._headless_human
@@ -574,7 +576,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self.finite_observation_bounds = finite_observation_bounds
         clip = finite_observation_bounds == "clip"
         low, high = self.observation_bounds(bounded_velocities=clip)
-        #: The float64 ``(low, high)`` each observation is clipped into (``finite_observation_bounds="clip"``), else ``None``.
+        #: The float64 ``(low, high)`` each observation is clipped into (``finite_observation_bounds="clip"``), else
+        #: ``None``.
         self.observation_clip = (low, high) if clip else None
         if not finite_observation_bounds:  # the -v0 default: ±inf, the real-robot env's space
             low, high = np.full_like(low, -np.inf), np.full_like(high, np.inf)
@@ -641,7 +644,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         return self._output(self._obs), self._reset_info(q0)
 
     def _output(self, obs: np.ndarray) -> np.ndarray:
-        """A copy of ``obs`` in the observation dtype, clipped into its bounds with ``finite_observation_bounds="clip"``."""
+        """A copy of ``obs`` in the observation dtype, clipped into its bounds with
+        ``finite_observation_bounds="clip"``."""
         clip = self.observation_clip
         if clip is None:
             return obs.astype(self.observation_dtype)  # astype copies, also for float64

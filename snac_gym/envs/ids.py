@@ -2,9 +2,9 @@
 
 The robot part is :attr:`~snac_gym.robots.Robot.env_prefix` (``UR10``, ``Panda``, ``XArm7``),
 the task part :attr:`~snac_gym.tasks.Task.env_name` (``Reach``, ``EllipseTrack``); the goal
-variant appends ``Goal`` (``snac_gym/PandaReachGoal-v0``); :meth:`~snac_gym.tasks.Task.env_id_for` spells them. :func:`snac_gym.envs.register_envs`
-registers every pair, as ``-v0`` (physical units) and ``-v1`` (the RL-ready defaults), and records each
-id's robot, task and version here, in :data:`REGISTERED_IDS`.
+variant appends ``Goal`` (``snac_gym/PandaReachGoal-v0``); :meth:`~snac_gym.tasks.Task.env_id_for` spells them.
+:func:`snac_gym.envs.register_envs` registers every pair, as ``-v0`` (physical units) and ``-v1`` (the RL-ready
+defaults), and records each id's robot, task and version here, in :data:`REGISTERED_IDS`.
 
 An id drives the robot it names. ``robot=`` is still an argument of the env classes (that is how
 one class serves every arm), but passing another robot than the id's to ``gym.make`` is refused

@@ -19,12 +19,13 @@ from snac_gym.tasks.pose import POSE_TASKS
 
 
 class ReachEnv(URTaskEnv):
-    """``snac_gym/<Robot>Reach-v1`` (RL-ready) and ``-v0`` (physical units): optimal regulation, reach a fixed target point (Section III).
+    """``snac_gym/<Robot>Reach-v1`` (RL-ready) and ``-v0`` (physical units): optimal regulation, reach a fixed target
+    point (Section III).
 
     ## Description
     An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or MuJoCo,
-    ``physics="mujoco"``, or on the exact kinematic model, ``physics="kinematic"``). The end effector must reach a fixed target
-    x_d and stay there (x_d constant, ẋ_d = 0). One id per registered robot:
+    ``physics="mujoco"``, or on the exact kinematic model, ``physics="kinematic"``). The end effector must reach a fixed
+    target x_d and stay there (x_d constant, ẋ_d = 0). One id per registered robot:
     ``snac_gym/UR10Reach-v0`` (the paper's arm), ``UR5Reach-v0``, ``UR3Reach-v0``,
     ``PandaReach-v0``, ``XArm7Reach-v0``; the id fixes ``robot``.
 
@@ -34,8 +35,9 @@ class ReachEnv(URTaskEnv):
     motors (each bounded by its URDF effort) and held for one control period ``dt``. ``v_max``
     are the URDF limits (UR10: 2.16, 2.16, 3.15, 3.2, 3.2, 3.2 rad/s).
     ``action_type="normalized"`` (the -v1 default, for learners): ``Box(-1, 1, (m,), float32)``, the
-    command is u = a·v_max per joint (a = u / v_max; ``make_policy`` maps a controller's u to it). An action outside the box is **clipped** to it (``info["command"]``
-    holds the applied u in rad/s); an action with NaN/inf or of the wrong shape raises ``ValueError``.
+    command is u = a·v_max per joint (a = u / v_max; ``make_policy`` maps a controller's u to it). An action outside the
+    box is **clipped** to it (``info["command"]`` holds the applied u in rad/s); an action with NaN/inf or of the wrong
+    shape raises ``ValueError``.
 
     ## Observation Space
     ``Box(low, high, (2m + 15,), observation_dtype)`` (UR10: 27 values), float64 by default on -v0,
@@ -72,8 +74,8 @@ class ReachEnv(URTaskEnv):
     (:data:`SHAPED_REWARD`). ``reward_type="cost"``: minus the step's share of the evaluator's
     trajectory cost under ``cost`` (a :class:`~snac_gym.cost.CostConvention`, default the paper's
     Table I cost), ``−Δt (eₖᵀQeₖ + uₖᵀRuₖ [+ u̇ₖᵀRu̇ₖ])``, so the return is −V exactly
-    (``tests/test_cost_reward.py``); its Q = q_scale·I and R = I are the env's. ``info`` carries ``error`` (after the step), ``error_norm``,
-    ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇, u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),
+    (``tests/test_cost_reward.py``); its Q = q_scale·I and R = I are the env's. ``info`` carries ``error`` (after the
+    step), ``error_norm``, ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇, u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),
     ``command``, ``t`` and ``is_success`` (‖e‖ ≤ ``success_tolerance``, default 1 mm).
 
     ## Starting State
@@ -125,18 +127,19 @@ class ReachEnv(URTaskEnv):
     * v1 (unreleased): RL-ready defaults, the same env otherwise: ``action_type="normalized"``,
       ``observation_dtype="float32"``, ``finite_observation_bounds="clip"``. v0 keeps physical units
       (rad/s, float64, ±inf bounds) and stays registered.
-    """
+    """  # noqa: E501
 
     task_spec = get_task("reach")
 
 
 class EllipseTrackEnv(URTaskEnv):
-    """``snac_gym/<Robot>EllipseTrack-v1`` (RL-ready) and ``-v0`` (physical units): optimal tracking of a point moving on an ellipse (Section IV).
+    """``snac_gym/<Robot>EllipseTrack-v1`` (RL-ready) and ``-v0`` (physical units): optimal tracking of a point moving
+    on an ellipse (Section IV).
 
     ## Description
     An arm under joint-velocity control (``ẋ = J u``, eq. 3), simulated in PyBullet (or MuJoCo,
-    ``physics="mujoco"``, or on the exact kinematic model, ``physics="kinematic"``). The end effector must follow x_d(t) moving
-    on an ellipse (centre, semi-axes, plane orientation, angular speed, phase), with ẋ_d(t)
+    ``physics="mujoco"``, or on the exact kinematic model, ``physics="kinematic"``). The end effector must follow x_d(t)
+    moving on an ellipse (centre, semi-axes, plane orientation, angular speed, phase), with ẋ_d(t)
     known; see :class:`~snac_gym.references.Ellipse`. One id per registered robot:
     ``snac_gym/UR10EllipseTrack-v0`` (the paper's arm), ``UR5EllipseTrack-v0``,
     ``UR3EllipseTrack-v0``, ``PandaEllipseTrack-v0``, ``XArm7EllipseTrack-v0``; the id fixes ``robot``.
@@ -146,8 +149,8 @@ class EllipseTrackEnv(URTaskEnv):
     joint velocities u = θ̇ in rad/s of the m joints, applied by PyBullet ``VELOCITY_CONTROL``
     motors and held for one control period ``dt``; ``v_max`` are the URDF limits (UR10: 2.16,
     2.16, 3.15, 3.2, 3.2, 3.2 rad/s). ``action_type="normalized"`` (the -v1 default):
-    ``Box(-1, 1, (m,), float32)``, u = a·v_max. An action outside the box is **clipped** (``info["command"]`` holds the applied
-    u); NaN/inf or a wrong shape raises ``ValueError``.
+    ``Box(-1, 1, (m,), float32)``, u = a·v_max. An action outside the box is **clipped** (``info["command"]`` holds the
+    applied u); NaN/inf or a wrong shape raises ``ValueError``.
 
     ## Observation Space
     ``Box(low, high, (2m + 15,), observation_dtype)`` (UR10: 27 values), float64 (-v0) or

@@ -502,7 +502,8 @@ def vector_env_supports(task: Task) -> bool:
 
 
 class ReachVectorEnv(URTaskVectorEnv):
-    """``snac_gym/<Robot>Reach-v0`` (:class:`~snac_gym.envs.task_envs.ReachEnv`), N episodes at once on the kinematic model."""
+    """``snac_gym/<Robot>Reach-v0`` (:class:`~snac_gym.envs.task_envs.ReachEnv`), N episodes at once on the kinematic
+    model."""
 
     task_spec = get_task("reach")
 

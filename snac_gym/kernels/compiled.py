@@ -5,8 +5,8 @@ runs load it from numba's cache in ``__pycache__``). Numba calls back into Pytho
 it compiles, and an exception raised there, such as the ``KeyboardInterrupt`` that ``snac-gym
 evaluate`` turns a Ctrl-C or a SIGTERM into, is printed and dropped by ``ctypes``: the run would go
 on as if the signal had never come. So every compile (numba's dispatcher calls
-``_compile_for_args`` when no compiled version fits the arguments) runs with the stop signals (SIGINT, SIGTERM, SIGHUP, SIGQUIT)
-recorded instead of handled, and a signal that came meanwhile is raised again, to the handler
+``_compile_for_args`` when no compiled version fits the arguments) runs with the stop signals (SIGINT, SIGTERM, SIGHUP,
+SIGQUIT) recorded instead of handled, and a signal that came meanwhile is raised again, to the handler
 that was in place, as soon as the compile returns. Calls that find a compiled version pay nothing.
 """
 
@@ -217,5 +217,6 @@ def _with_stop_signals_held(
 
 
 __all__ = [
-    "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel", "cached_on_disk", "kernel", "load_if_cached", "read_only", "warm_up", "warm_up_shared",
+    "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel",
+    "cached_on_disk", "kernel", "load_if_cached", "read_only", "warm_up", "warm_up_shared",
 ]  # fmt: skip

@@ -1,4 +1,5 @@
-"""Compiled factors of the frozen-Jacobian LQR for a stack of Jacobians (:meth:`~snac_gym.optimality.FrozenJacobianLQR.factors`).
+"""Compiled factors of the frozen-Jacobian LQR for a stack of Jacobians
+(:meth:`~snac_gym.optimality.FrozenJacobianLQR.factors`).
 
 Per sample and control step the LQR controller, SNAC-HJB's weighted pseudo-inverse and the MPC's
 terminal cost need ``S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2} = W diag(λ) Wᵀ`` and the products
@@ -40,7 +41,8 @@ def _product(x: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:  # pragma: 
 def frozen_lqr_factors(
     jacobians: np.ndarray, q_half: np.ndarray, r_inverse: np.ndarray, tolerance: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled; tested against NumPy
-    """``(A, λ, C, singular)`` of each J of a stack ``(B, n, m)``: shapes ``(B, m, n)``, ``(B, n)``, ``(B, n, n)``, ``(B, n)``.
+    """``(A, λ, C, singular)`` of each J of a stack ``(B, n, m)``: shapes ``(B, m, n)``, ``(B, n)``, ``(B, n, n)``,
+    ``(B, n)``.
 
     With ``G = Q^{1/2} J`` (``q_half`` = Q^{1/2}, ``r_inverse`` = R⁻¹): ``G R⁻¹ Gᵀ = W diag(λ) Wᵀ``
     (λ ascending), ``A = R⁻¹ Gᵀ W``, ``C = Wᵀ Q^{1/2}``; an eigenvalue ≤ ``tolerance``·λ_max is

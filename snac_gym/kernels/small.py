@@ -37,7 +37,8 @@ def _rotation(alpha: float, beta: float, gamma: float) -> tuple[float, float]:  
 
 @njit(cache=True, nogil=True)
 def _sort_indices(keys: np.ndarray, order: np.ndarray, direction: float) -> None:  # pragma: no cover - compiled
-    """``order`` ← the indices of ``keys`` ascending (``direction`` 1) or descending (−1); a stable insertion sort, n ≤ 6."""
+    """``order`` ← the indices of ``keys`` ascending (``direction`` 1) or descending (−1); a stable insertion
+    sort, n ≤ 6."""
     for i in range(len(keys)):
         order[i] = i
     for i in range(1, len(keys)):
@@ -230,7 +231,8 @@ def eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``np.linalg.svd(A, full_matrices=False)`` of one ``(n, m)`` matrix, n ≤ m, or a stack ``(…, n, m)``, by :func:`thin_svd`."""
+    """``np.linalg.svd(A, full_matrices=False)`` of one ``(n, m)`` matrix, n ≤ m, or a stack ``(…, n, m)``, by
+    :func:`thin_svd`."""
     matrices = np.asarray(matrices, dtype=float)
     shape = matrices.shape
     if shape[-2] > shape[-1]:

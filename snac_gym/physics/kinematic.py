@@ -1,4 +1,5 @@
-"""The exact kinematic engine: the paper's model θₖ₊₁ = θₖ + uₖΔt (eq. 3), thousands of times faster than a simulator."""
+"""The exact kinematic engine: the paper's model θₖ₊₁ = θₖ + uₖΔt (eq. 3), thousands of times faster than a
+simulator."""
 
 from __future__ import annotations
 

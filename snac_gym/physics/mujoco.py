@@ -255,7 +255,8 @@ class MuJoCoScene:
 
     def framed_points(self, space: SampleSpace) -> np.ndarray:
         """World points the camera must show: the cuboid's corners, the base, and the body origins at the
-        robot's nominal (elbow-up) pose, as :meth:`PyBulletScene.framed_points <snac_gym.physics.bullet.PyBulletScene.framed_points>`."""
+        robot's nominal (elbow-up) pose, as
+        :meth:`PyBulletScene.framed_points <snac_gym.physics.bullet.PyBulletScene.framed_points>`."""
         corners = [self.kinematics.base_to_world(c) for c in framing_corners(space)]
         self.arm.reset(nominal_configuration(self.kinematics))
         return np.vstack([corners, [[0.0, 0.0, 0.0]], self.link_origins()])

@@ -157,8 +157,8 @@ def build_physics_spec(kinematics: Kinematics, timestep: float, site: str = EE_S
     * the URDF's joint damping and friction left out (a real arm's velocity loop cancels them; here
       they would leave a steady error of b·u/k_v);
     * MuJoCo's joint-limit constraint off: it is soft, and the stiff servo would push a joint tenths of
-      a radian through it (``docs/scripts/mujoco_servo_choices.py``). :class:`~snac_gym.physics.mujoco.MuJoCoArm` stops each joint at its
-      limit by cutting the command instead;
+      a radian through it (``docs/scripts/mujoco_servo_choices.py``). :class:`~snac_gym.physics.mujoco.MuJoCoArm` stops
+      each joint at its limit by cutting the command instead;
     * the implicit-fast integrator at ``timestep`` and a site ``site`` at the end-effector frame.
 
     Raises:

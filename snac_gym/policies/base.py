@@ -71,7 +71,8 @@ def non_negative_float(name: str, value: Any) -> float:
 
 
 def scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
-    """Each row of ``commands`` ``(B, m)`` (or one ``(m,)``) divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1.
+    """Each row of ``commands`` ``(B, m)`` (or one ``(m,)``) divided by its largest ``|uⱼ|/limitⱼ`` where that
+    exceeds 1.
 
     The uniform scaling into the velocity limits that the resolved-rate baselines, LQR, the critics and the PPO
     maps share: the direction of u, and of ė = J u, is kept (:func:`snac_gym.baselines._common.scale_into_box` is

@@ -132,7 +132,8 @@ class SNACIRLPolicy(BasePolicy):
         low, high = map(float, frequency_range)
         if not (math.isfinite(low) and math.isfinite(high) and 0 <= low < high <= math.pi / self.dt):
             raise ValueError(
-                f"frequency_range must be (low, high) with 0 <= low < high <= π/dt = {math.pi / self.dt:g}, got {frequency_range}"
+                f"frequency_range must be (low, high) with 0 <= low < high <= π/dt = {math.pi / self.dt:g}, "
+                f"got {frequency_range}"
             )
         self.frequency_range = (low, high)
         self.relearn_every = whole_number("relearn_every", relearn_every, 0, 10**9)

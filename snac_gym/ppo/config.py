@@ -365,7 +365,8 @@ class EvaluationSection:
 
 @dataclass(frozen=True)
 class TrainingConfig:
-    """A training config read and checked (see the module docstring); ``env`` is checked against the env's constructor."""
+    """A training config read and checked (see the module docstring); ``env`` is checked against the env's
+    constructor."""
 
     config_version: int = spec(choice(CONFIG_VERSION))
     task: str = spec(text)
@@ -417,7 +418,8 @@ def env_keywords(task: str) -> dict[str, inspect.Parameter]:
 def env_arguments(config: dict[str, Any]) -> dict[str, Any]:
     """The env keyword arguments of a resolved ``config``: its ``env`` section, with ``sample_space``
     (``"cuboid"``: the robot's sample cuboid, the default; ``"workspace"``: anywhere the arm reaches,
-    every IK branch, as ``snac-gym evaluate --sample-space workspace``) made a :class:`~snac_gym.sampling.SampleSpace`."""
+    every IK branch, as ``snac-gym evaluate --sample-space workspace``) made a
+    :class:`~snac_gym.sampling.SampleSpace`."""
     arguments = dict(config["env"])
     region = arguments.pop("sample_space", None)
     if region == "workspace":

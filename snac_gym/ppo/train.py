@@ -172,7 +172,8 @@ class _EnvFactory:
 
 
 def build_vec_env(config: dict[str, Any]) -> Any:
-    """The vectorised training env (``n_envs`` copies, ``dummy``, ``subproc`` or ``batched``), seeded with ``seed + i``."""
+    """The vectorised training env (``n_envs`` copies, ``dummy``, ``subproc`` or ``batched``), seeded
+    with ``seed + i``."""
     # the rl extra
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -404,7 +405,8 @@ def _sha256(path: Path) -> str:
 
 
 def _replace_folder(staging: Path, target: Path) -> None:
-    """Put the complete folder ``staging`` in the place of ``target`` (two renames: at every moment one of them is whole)."""
+    """Put the complete folder ``staging`` in the place of ``target`` (two renames: at every moment one of them is
+    whole)."""
     previous = target.with_name(target.name + ".old")
     shutil.rmtree(previous, ignore_errors=True)
     if target.exists():

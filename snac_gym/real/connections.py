@@ -284,7 +284,8 @@ class URRTDEConnection:
         self.lost_links: list[dict[str, Any]] = []
         self.stop_calls = 0
         self.last_stop: str | None = None
-        #: How the last stop ended (:meth:`stop_record`'s fields), or ``None`` before the first stop that followed a command.
+        #: How the last stop ended (:meth:`stop_record`'s fields), or ``None`` before the first stop that followed a
+        #: command.
         self.rest: dict[str, Any] | None = None
         self._sent = False  # a command or move sent since the last stop's record
         self._watchdog_armed = False  # a stream armed the controller's watchdog (setWatchdog) since the last moveJ

@@ -32,9 +32,9 @@ class RealUREnv(TaskEnvCore):
     ur_rtde, which returns once the arm is at rest) on every way out of an episode:
 
     * a stopping rule of :class:`~snac_gym.real.safety.SafetyLimits` fires (non-finite or stale
-      state, task box, joint margin, late loop (with ``deadline_stop``), the controller's TCP away from the model's f(θ)) or the controller reports a protective or
-      emergency stop: the episode terminates, ``info["safety"]`` says why and
-      ``info["safety_state"]`` what the controller reports;
+      state, task box, joint margin, late loop (with ``deadline_stop``), the controller's TCP away from the model's
+      f(θ)) or the controller reports a protective or emergency stop: the episode terminates, ``info["safety"]`` says
+      why and ``info["safety_state"]`` what the controller reports;
     * any exception inside ``step`` (a bad action, Ctrl-C, a lost connection, a bug), before it
       propagates; the reason is kept in :attr:`stop_reason`;
     * the episode is truncated (``max_steps``);

@@ -78,7 +78,8 @@ class SafetyLimits:
             and the model's forward kinematics f(θ) of the same state, in (0, 1].
         deadline_stop: Whether the deadline rules (``max_missed_deadlines``, ``max_period``) stop the
             arm; ``False``: late periods are counted (``RealUREnv.timing()``) but stop nothing, for a
-            rehearsal on a simulated arm or a dry run (``snac-gym real`` turns it off there, and refuses to on a real arm).
+            rehearsal on a simulated arm or a dry run (``snac-gym real`` turns it off there, and refuses to on a real
+            arm).
     """
 
     speed_scale: float = 0.25
@@ -173,7 +174,10 @@ class SafetyLayer:
                 f"{self.limits.joint_limit_margin} rad of its limit"
             )
         if np.any(x < self._box_low) or np.any(x > self._box_high):
-            return f"end effector {np.round(x, 3).tolist()} m left the task box {self.limits.box_low}–{self.limits.box_high}"
+            return (
+                f"end effector {np.round(x, 3).tolist()} m left the task box "
+                f"{self.limits.box_low}–{self.limits.box_high}"
+            )
         return None
 
     def violation(self, q: np.ndarray, qdot: np.ndarray, x: np.ndarray, timestamp: float) -> str | None:
@@ -213,7 +217,10 @@ class SafetyLayer:
     def stall(self, duration: float) -> str | None:
         """A message when ``duration`` (s, a period so far or whole) is over ``max_period`` (and ``deadline_stop``)."""
         if self.limits.deadline_stop and duration > self.limits.max_period:
-            return f"control loop stalled: one period took {duration * 1e3:.1f} ms (limit {self.limits.max_period * 1e3:.1f} ms)"
+            return (
+                f"control loop stalled: one period took {duration * 1e3:.1f} ms (limit "
+                f"{self.limits.max_period * 1e3:.1f} ms)"
+            )
         return None
 
     def record_period(self, duration: float) -> str | None:

@@ -100,7 +100,8 @@ class Rollouts:
 
 
 def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
-    """Stack per-step logs of equal length (e.g. from :func:`snac_gym.rollout.episode.rollout`) into :class:`Rollouts`."""
+    """Stack per-step logs of equal length (e.g. from :func:`snac_gym.rollout.episode.rollout`) into
+    :class:`Rollouts`."""
     if not logs:
         raise ValueError("no logs to stack")
     lengths = {len(log) for log in logs}

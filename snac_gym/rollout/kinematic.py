@@ -1,13 +1,13 @@
 """The lockstep rollout engine: B samples stepped together on the exact kinematic model, or on one simulated arm each.
 
-:func:`simulate_kinematic` (the evaluator's default engine, ``--engine kinematic``): θ is integrated exactly from the command, θₖ₊₁ = θₖ + uₖΔt, with the
-shared :class:`~snac_gym.kinematics.Kinematics`, the paper's kinematic model. All samples of a
-chunk advance in lockstep: one observation array ``(B, d)`` per step, built field by field
+:func:`simulate_kinematic` (the evaluator's default engine, ``--engine kinematic``): θ is integrated exactly from the
+command, θₖ₊₁ = θₖ + uₖΔt, with the shared :class:`~snac_gym.kinematics.Kinematics`, the paper's kinematic model. All
+samples of a chunk advance in lockstep: one observation array ``(B, d)`` per step, built field by field
 with the env's :class:`~snac_gym.observation.ObservationLayout` (e = x − x_d, or the task's own
-error for a pose task, see below; x_c = the reference centre, and the measured joint-velocity field = the command held over the previous
-step, zero at the start). Policies are driven through :class:`~snac_gym.policies.base.LockstepPolicies`
-(the optional batch protocol, or one object per sample). Commands are clipped to the velocity
-limits, as the env clips its actions; joint position limits are not enforced (nor are they
+error for a pose task, see below; x_c = the reference centre, and the measured joint-velocity field = the command held
+over the previous step, zero at the start). Policies are driven through
+:class:`~snac_gym.policies.base.LockstepPolicies` (the optional batch protocol, or one object per sample). Commands are
+clipped to the velocity limits, as the env clips its actions; joint position limits are not enforced (nor are they
 by the paper's model).
 
 Any task dimension n (the layout's ``task_dim``): the 3-D position tasks use the position

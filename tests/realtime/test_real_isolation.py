@@ -153,8 +153,9 @@ def test_a_frozen_state_stops_the_script_and_the_dashboard_confirms_the_arm_at_r
     host = HOST.replace("127.0.0.", "127.0.2.")  # an emulator of this arm's own: the module's (a UR10) keeps HOST
     with EmulatorProcess(series="cb", host=host, bind_timeout=90.0, robot=robot) as arm:
         arm.schedule(2.0, "stale_data")
-        command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", host, "--robot", robot, "--task", "reach",
-                   "--controller", "snac", "--out", str(tmp_path), "--steps", "500", "--no-plots", *extra]  # fmt: skip
+        command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", host, "--robot", robot,
+                   "--task", "reach", "--controller", "snac", "--out", str(tmp_path), "--steps", "500", "--no-plots",
+                   *extra]  # fmt: skip
         run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         _first_command(arm, run)
         code, output, _ = _ended(run)

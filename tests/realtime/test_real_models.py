@@ -61,7 +61,8 @@ def test_real_reaches_a_command_line_target_on_each_ur_model(model, tmp_path):
     (sample,) = generate_samples(kinematics, SampleSpace.for_robot(kinematics), 7, "reach", range(1))
     out = tmp_path / robot
     result = CliRunner().invoke(app, [
-        "real", "--connection", "rtde", "--host", HOST, "--robot", robot, "--controller", "dls", "--steps", _steps(robot, 4.0), *_loop(robot),
+        "real", "--connection", "rtde", "--host", HOST, "--robot", robot, "--controller", "dls",
+        "--steps", _steps(robot, 4.0), *_loop(robot),
         "--q0", _numbers(sample.q0), "--target", _numbers(sample.reference.target), "--no-plots", "--out", str(out),
     ])  # fmt: skip
     assert result.exit_code == 0, result.output
@@ -93,7 +94,8 @@ def test_a_controller_stop_mid_run_exits_with_its_code_and_no_speedj_follows(mod
 
     threading.Thread(target=stop_later, daemon=True).start()
     result = CliRunner().invoke(app, [
-        "real", "--connection", "rtde", "--host", HOST, "--robot", robot, "--controller", "lqr", "--steps", _steps(robot, 6.0), *_loop(robot),
+        "real", "--connection", "rtde", "--host", HOST, "--robot", robot, "--controller", "lqr",
+        "--steps", _steps(robot, 6.0), *_loop(robot),
         "--q0", _numbers(PAPER_Q0), "--target", _numbers(Kinematics(robot).forward(PAPER_Q0) + 0.02),
         "--no-plots", "--out", str(tmp_path / robot),
     ])  # fmt: skip

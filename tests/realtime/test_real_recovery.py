@@ -115,8 +115,8 @@ def test_a_link_that_never_comes_back_ends_the_run_with_its_log(emu, tmp_path):
     emu.schedule(1.0, "drop_connection")
     with pytest.raises(ConnectionFailure, match="did not come back within 2 s") as raised:
         run_real_episode(
-            task="reach", controller=CONTROLLER, out_dir=tmp_path, connection="rtde", host=HOST, steps=STEPS, plots=False,
-            safety=LOOSE_TIMING, recovery=RecoveryLimits(max_recoveries=2, reconnect_timeout=2.0),
+            task="reach", controller=CONTROLLER, out_dir=tmp_path, connection="rtde", host=HOST, steps=STEPS,
+            plots=False, safety=LOOSE_TIMING, recovery=RecoveryLimits(max_recoveries=2, reconnect_timeout=2.0),
         )  # fmt: skip
     assert raised.value.log_dir == tmp_path
     summary = json.loads((tmp_path / f"reach_{CONTROLLER}_real.json").read_text())
