@@ -105,3 +105,24 @@ def test_the_elbow_flip_ipopt_found_from_rest_is_the_reference_now(ur10):
                                   position_limits=(ur10.lower_limits, ur10.upper_limits),
                                   convention=CostConvention("hjb", "rest", 4.0))  # fmt: skip
     assert reference.solution.cost <= rest.cost * (1 + 1e-6)
+
+
+def test_random_starts_are_the_samples_own_and_inside_the_box(ur10):
+    from snac_gym.evaluation.reference.branches import RANDOM_STARTS, random_configurations
+
+    samples, x_d = _workspace(ur10, "reach", 5, range(2), steps=2)
+    first = random_configurations(ur10, samples[0].q0, x_d[0, 0])
+    assert first.shape == (RANDOM_STARTS, 6)
+    np.testing.assert_array_equal(first, random_configurations(ur10, np.array(samples[0].q0), x_d[0, 0].copy()))
+    assert not np.allclose(first, random_configurations(ur10, samples[1].q0, x_d[1, 0]))  # another sample, others
+    assert (first > ur10.lower_limits).all() and (first < ur10.upper_limits).all()
+
+
+def test_a_tracking_optimum_on_a_later_points_branch_is_found_from_a_random_start(ur10):
+    """Workspace track sample 26 of seed 223, HJB cost: rest, the feedback starts and every branch of the ellipse's
+    first point end at 13.151469; IPOPT from a random in-limit start reached 10.045906 (a held-out cross-check)."""
+    samples, x_d = _workspace(ur10, "track", 223, [26])
+    context = policy_context("ur10", DT, "track")
+    (reference,) = solve_samples(context, samples, [26], x_d, DT, CostConvention("hjb", "rest", 4.0))
+    assert reference.winner.startswith("random-")
+    assert reference.solution.cost <= 10.045906 * (1 + 1e-6), reference.solution.cost

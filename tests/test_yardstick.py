@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.execution.jobs import policy_context
-from snac_gym.evaluation.reference.branches import BRANCH_PREFIX
+from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, RANDOM_PREFIX
 from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_start_solve
 from snac_gym.evaluation.samples import generate_samples
 
@@ -97,7 +97,7 @@ def test_no_controller_inside_the_limits_is_below_the_reference(workspace_run):
     rows = workspace_run[workspace_run.controller == "optimal"]
     assert (rows["optimal_starts"] >= 1).all() and rows["optimal_local_spread"].ge(0).all()
     starts = {REST_START, *(name for name, _ in OWN_STARTS)}
-    assert all(w in starts or (w.startswith(BRANCH_PREFIX) and w[len(BRANCH_PREFIX):].isdigit())
+    assert all(w in starts or any(w.startswith(p) and w[len(p):].isdigit() for p in (BRANCH_PREFIX, RANDOM_PREFIX))
                for w in rows["optimal_winner"])  # fmt: skip
 
 

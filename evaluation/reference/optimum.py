@@ -46,7 +46,7 @@ import numpy as np
 import pandas as pd
 from snac_gym.evaluation.execution.jobs import JobResult, kinematic_logs, policy_context
 from snac_gym.evaluation.reference import cache as reference_cache
-from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, branch_candidates, needs_branches
+from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, RANDOM_PREFIX, branch_candidates, needs_branches
 from snac_gym.evaluation.samples import EvaluationSample
 
 from snac_gym.cost import CostConvention
@@ -342,7 +342,8 @@ def check_reference_row(row: Any, task: str) -> None:
             raise ValueError(f"{name} = {value!r} is not a whole number ≥ 0")
     winner = row["optimal_winner"]
     if winner not in {REST_START, *(name for name, _ in OWN_STARTS)} and not (
-        isinstance(winner, str) and winner.startswith(BRANCH_PREFIX) and winner[len(BRANCH_PREFIX) :].isdigit()
+        isinstance(winner, str)
+        and any(winner.startswith(p) and winner[len(p) :].isdigit() for p in (BRANCH_PREFIX, RANDOM_PREFIX))
     ):
         raise ValueError(f"optimal_winner = {row['optimal_winner']!r} is not a start of the reference")
     if row["optimal_limits"] not in REFERENCE_LIMITS:
