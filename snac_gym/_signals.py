@@ -36,7 +36,7 @@ import time
 import types
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, cast
 
 #: The signals every command ends on: Ctrl-C, a scheduler's or ``kill``'s SIGTERM, a closed
 #: terminal's SIGHUP and Ctrl-\\'s SIGQUIT (whose default would dump core). SIGKILL cannot be caught.
@@ -165,7 +165,7 @@ class SignalGuard:
         name = getattr(exc, "signal_name", None)
         if name is None and self.received:
             name = signal.Signals(self.received[0]).name
-        return name if name in signal.Signals.__members__ else "SIGINT"
+        return cast(str, name) if name in signal.Signals.__members__ else "SIGINT"  # a member's name: a str
 
 
 @contextmanager

@@ -86,7 +86,7 @@ def step_costs(
     dt: float,
     Q: np.ndarray | None = None,
     R: np.ndarray | None = None,
-) -> tuple[float, float, float]:
+) -> tuple[float, float, float] | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One control step's cost rates as the envs report them: ``(eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ)``.
 
     The first two are the integrand of eq. 6; the third is the smoothness term of the paper's
@@ -311,8 +311,12 @@ class CostConvention:
         return terms.error + terms.effort + self.smoothness_weight * terms.smoothness
 
     def step_rate(
-        self, error: np.ndarray, effort: np.ndarray, smoothness: np.ndarray, first_step: np.ndarray | bool
-    ) -> np.ndarray:
+        self,
+        error: np.ndarray | float,
+        effort: np.ndarray | float,
+        smoothness: np.ndarray | float,
+        first_step: np.ndarray | bool,
+    ) -> np.ndarray | float:
         """The integrand of V for one control step from its three terms (eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ with
         u₋₁ = 0): the u̇ term weighed in or out, and dropped on the first step when u₋₁ = u₀. Σₖ of it
         times Δt is :meth:`total` of the trajectory (the envs' ``reward_type="cost"`` is minus it times Δt)."""

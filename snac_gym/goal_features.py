@@ -17,6 +17,8 @@ Needs the ``rl`` extra (torch, stable-baselines3).
 
 from __future__ import annotations
 
+from typing import cast
+
 import gymnasium as gym
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
@@ -46,8 +48,8 @@ class GoalErrorExtractor(BaseFeaturesExtractor):
             raise ValueError(
                 f"achieved_goal {spaces['achieved_goal'].shape} and desired_goal {spaces['desired_goal'].shape} differ"
             )
-        goal = int(spaces["desired_goal"].shape[0])
-        size = int(spaces["observation"].shape[0]) + 2 * goal + len(SCALES) * goal
+        goal = int(cast(gym.spaces.Box, spaces["desired_goal"]).shape[0])  # Box spaces (a Box's shape is set)
+        size = int(cast(gym.spaces.Box, spaces["observation"]).shape[0]) + 2 * goal + len(SCALES) * goal
         super().__init__(observation_space, features_dim=size)
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:

@@ -146,7 +146,7 @@ class FrozenJacobianLQR:
                 the lost direction is infinite.
         """
         _, values, right, singular = self.factors(jacobian)
-        lost = singular.any(axis=-1)
+        lost: np.ndarray = np.asarray(singular.any(axis=-1))
         if lost.any() and at_singular != "nan":
             raise ValueError("J R⁻¹ Jᵀ is singular (J has lost rank): the Riccati equation has no stabilising solution")
         solution = np.swapaxes(right, -1, -2) @ (values[..., :, None] ** -0.5 * right)  # Cᵀ diag(λ^{-1/2}) C

@@ -51,7 +51,7 @@ def usable_out_folder(root: Path) -> None:
 
 def _free_space(folder: Path) -> str:
     try:
-        free = shutil.disk_usage(folder).free
+        free: float = shutil.disk_usage(folder).free
     except OSError:
         return "free space unknown"
     for unit in ("B", "kB", "MB", "GB", "TB"):

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 #: The paper's seed pose θ0 (Section V), rad.
 PAPER_Q0 = (-0.51, -1.04, 1.48, -1.82, -1.45, -1.62)
@@ -65,6 +68,10 @@ class FixedTarget:
     """Regulation reference: ``x_d(t) = target``, ``ẋ_d(t) = 0`` (Section III)."""
 
     target: np.ndarray
+
+    if TYPE_CHECKING:  # any 3 numbers are taken (__post_init__ makes the read-only array)
+
+        def __init__(self, target: ArrayLike) -> None: ...
 
     def __post_init__(self) -> None:
         target = _vector(self.target, 3, "target")
@@ -125,6 +132,21 @@ class Ellipse:
     orientation: np.ndarray = field(default_factory=lambda: np.zeros(3))
     angular_speed: float = PAPER_CIRCLE_SPEED
     phase: float = 0.0
+
+    if TYPE_CHECKING:  # any numbers are taken (__post_init__ makes the arrays); the derived arrays of _bind_arrays
+        _packed: np.ndarray = field(init=False, repr=False, compare=False)
+        _axes_matrix: np.ndarray = field(init=False, repr=False, compare=False)
+        _major: np.ndarray = field(init=False, repr=False, compare=False)
+        _minor: np.ndarray = field(init=False, repr=False, compare=False)
+
+        def __init__(
+            self,
+            centre: ArrayLike,
+            semi_axes: ArrayLike,
+            orientation: ArrayLike = ...,
+            angular_speed: float = PAPER_CIRCLE_SPEED,
+            phase: float = 0.0,
+        ) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "centre", _vector(self.centre, 3, "centre"))

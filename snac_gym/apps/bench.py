@@ -8,7 +8,7 @@ import os
 import time
 import tracemalloc
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -20,6 +20,9 @@ from snac_gym.physics.base import SIMULATED
 from snac_gym.policies import make_policy
 from snac_gym.references import PAPER_Q0
 from snac_gym.tasks import TASKS, get_task
+
+if TYPE_CHECKING:
+    from snac_gym.envs.core import URTaskEnv
 
 #: Upper bound of ``--steps``: each env is timed 5 times over ``steps`` steps, so 1,000,000 steps
 #: take ~20 min for the UR10's two ids in PyBullet and MuJoCo at the ~18,000 steps/s measured here
@@ -101,7 +104,7 @@ def run_env_bench(
             except MissingExtraError:
                 break
             # timed unwrapped: no TimeLimit, and the env sets no length of its own
-            results[f"{env_id} ({engine})"] = _time_env(env.unwrapped, steps, env.unwrapped.dt)
+            results[f"{env_id} ({engine})"] = _time_env(env.unwrapped, steps, cast("URTaskEnv", env.unwrapped).dt)
             env.close()
     if include_panda:
         try:
@@ -109,7 +112,7 @@ def run_env_bench(
         except ImportError:
             return results
         env = gym.make("PandaReachJoints-v3")
-        base = env.unwrapped
+        base: Any = env.unwrapped  # panda-gym's env (its sim)
         control_dt = base.sim.timestep * base.sim.n_substeps
         results["PandaReachJoints-v3 (panda-gym)"] = _time_env(env, steps, control_dt)
         env.close()
@@ -148,7 +151,7 @@ def run_substep_study(
 
     rows = []
     for n_sub in substeps:
-        env = gym.make("snac_gym/UR10Reach-v0", n_substeps=n_sub).unwrapped
+        env = cast("URTaskEnv", gym.make("snac_gym/UR10Reach-v0", n_substeps=n_sub).unwrapped)
         obs, _ = env.reset(seed=seed)
         rng = np.random.default_rng(seed)
         freqs = rng.uniform(0.1, 1.0, size=(3, env.kinematics.n_joints))
@@ -221,7 +224,7 @@ def tracking_errors(env_id: str, physics: str, kind: str, seed: int, steps: int 
     """
     import snac_gym  # noqa: F401  (registers the envs)
 
-    env = gym.make(env_id, physics=physics).unwrapped
+    env = cast("URTaskEnv", gym.make(env_id, physics=physics).unwrapped)
     try:
         obs, _ = env.reset(seed=seed)
         m = env.kinematics.n_joints

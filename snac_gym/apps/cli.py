@@ -11,7 +11,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional, cast
 
 import typer
 
@@ -22,6 +22,9 @@ from snac_gym.progress import wants_lines
 from snac_gym.robots import robot_names
 from snac_gym.tasks import get_task, task_names
 from snac_gym.ur_models import UR_MODELS
+
+if TYPE_CHECKING:
+    from click import ClickException
 
 # The help lists what is registered when the command starts (built-ins and the entry points of
 # snac_gym.robots and snac_gym.tasks), not a copy written here.
@@ -358,8 +361,8 @@ def real(
                 max_joint_acceleration=max_acceleration,
                 max_tcp_mismatch=max_tcp_mismatch,
                 joint_limit_margin=joint_margin,
-                box_low=None if box is None else tuple(box[:3]),
-                box_high=None if box is None else tuple(box[3:]),
+                box_low=None if box is None else cast("tuple[float, float, float]", tuple(box[:3])),  # 3 of 6
+                box_high=None if box is None else cast("tuple[float, float, float]", tuple(box[3:])),
             )
         except ValueError as exc:  # the limits' own names, told by their options'
             field = next((name for name in _SAFETY_OPTIONS if str(exc).startswith(name)), None)
@@ -387,7 +390,7 @@ def real(
             deadline_stop=deadline_stop,
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
-        where = f"; the log so far is in {exc.log_dir}/" if getattr(exc, "log_dir", None) else ""
+        where = f"; the log so far is in {cast(Any, exc).log_dir}/" if getattr(exc, "log_dir", None) else ""
         line = str(exc).splitlines()[0] if str(exc) else ""
         if isinstance(exc, KeyboardInterrupt):  # Ctrl-C and the other stop signals: the arm was stopped
             raise _interrupted(exc, f"the arm was stopped{where or ' (before the episode: nothing logged)'}") from None
@@ -451,6 +454,7 @@ def _real_reference(task: str, target: str | None, centre: str | None, radius: f
         raise ValueError("give --ellipse-centre and --ellipse-radius together")
     if centre is None:
         return None
+    assert radius is not None  # given with centre (checked above)
     if not (math.isfinite(radius) and radius > 0):
         raise ValueError(f"--ellipse-radius must be a positive number of metres, got {radius!r}")
     return {"centre": _numbers("--ellipse-centre", centre, 3), "radius": float(radius)}
@@ -1046,9 +1050,9 @@ def _classes(places: tuple[tuple[str, str], ...]) -> tuple[type[BaseException], 
     return tuple(found)
 
 
-def _click_errors() -> tuple[type[BaseException], ...]:
+def _click_errors() -> tuple[type[ClickException], ...]:
     """The ``ClickException`` classes of typer's own click and of the standalone click (those that import)."""
-    return _classes(_CLICK_ERRORS)
+    return cast("tuple[type[ClickException], ...]", _classes(_CLICK_ERRORS))  # typer._click: a copy of it
 
 
 def _click_aborts() -> tuple[type[BaseException], ...]:
@@ -1056,7 +1060,7 @@ def _click_aborts() -> tuple[type[BaseException], ...]:
     return _classes(_CLICK_ABORTS)
 
 
-def _error_line(exc: BaseException) -> str:
+def _error_line(exc: ClickException) -> str:
     """A click error as one line: ``snac-gym COMMAND: error: MESSAGE (see 'snac-gym COMMAND --help')``.
 
     Click's own form is its usage block, a hint and the message on three or more lines; a script

@@ -208,8 +208,8 @@ def run_demo(
                 position_limits=limits,
                 status=status,
             )
-            exc.kept = (
-                f"the log of the {len(partial)} of {steps} steps run and a summary marked "  # type: ignore[attr-defined]
+            exc.kept = (  # type: ignore[attr-defined]
+                f"the log of the {len(partial)} of {steps} steps run and a summary marked "
                 f'"complete": false are in {out_dir}/ (no figures)'
             )
         raise
@@ -303,9 +303,8 @@ def write_demo_outputs(
             result.files.append(panels.save_figure(draw(), out / f"{prefix}{name}.png"))
             drawn += 1
     except KeyboardInterrupt as exc:
-        exc.kept = (
-            f"the log and summary are complete in {out}/; {drawn} of {len(drawers)} figures "  # type: ignore[attr-defined]
-            "were drawn (each whole)"
+        exc.kept = (  # type: ignore[attr-defined]
+            f"the log and summary are complete in {out}/; {drawn} of {len(drawers)} figures were drawn (each whole)"
         )
         raise
     return result

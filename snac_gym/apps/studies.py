@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import itertools
 from dataclasses import asdict
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -30,6 +30,9 @@ from snac_gym.policies.snac import (
 )
 from snac_gym.rollout import log_array, rollout, simulate_kinematic
 from snac_gym.tasks import Sample, Task, get_task
+
+if TYPE_CHECKING:
+    from snac_gym.envs.core import URTaskEnv
 
 
 def _initial_weight_kwargs(kind: str, scale: float | None) -> tuple[dict[str, Any], float]:
@@ -86,7 +89,8 @@ def discretisation_study(
     for task in tasks:
         spec = get_task(task)
         env = gym.make(spec.env_id)
-        horizon = (steps or {}).get(task) or spec.horizon_steps(env.unwrapped.dt)
+        horizon = (steps or {}).get(task) or spec.horizon_steps(cast("URTaskEnv", env.unwrapped).dt)
+        assert env.spec is not None and env.spec.max_episode_steps is not None  # a registered id's TimeLimit
         if horizon > env.spec.max_episode_steps:
             env.close()
             env = gym.make(spec.env_id, max_episode_steps=horizon)

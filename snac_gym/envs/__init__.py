@@ -1,7 +1,7 @@
 """Gymnasium environments: a PyBullet UR arm under joint-velocity control, and its batched kinematic vector env."""
 
 import warnings
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 
@@ -131,7 +131,7 @@ def _register_coarse_reach(robot: str, version: int = 0) -> None:
             entry_point=table[env_id],
             kwargs=kwargs,
             disable_env_checker=False,
-            max_episode_steps=COARSE_REACH["episode_steps"],
+            max_episode_steps=cast(int, COARSE_REACH["episode_steps"]),  # an int in the dict of floats
         )
 
 

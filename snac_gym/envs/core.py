@@ -8,7 +8,7 @@ import sys
 import warnings
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -314,6 +314,9 @@ class TaskEnvCore(gym.Env):
     the safety layer).
     """
 
+    observation_space: gym.spaces.Box
+    action_space: gym.spaces.Box
+
     def _init_task(
         self,
         task: Task | str,
@@ -366,9 +369,15 @@ class TaskEnvCore(gym.Env):
 
     def _step_costs(self, command: np.ndarray) -> tuple[float, float, float]:
         """``(eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ)`` of the step about to apply ``command`` (eₖ: the error now)."""
-        return step_costs(self._obs[self._error_slice], command, self._last_command, self.dt, self.Q, self.R)
+        assert self._obs is not None  # within an episode
+        # one env's 1-D error and command: floats
+        return cast(
+            "tuple[float, float, float]",
+            step_costs(self._obs[self._error_slice], command, self._last_command, self.dt, self.Q, self.R),
+        )
 
     def _reset_info(self, q0: np.ndarray | None) -> dict[str, Any]:
+        assert self._obs is not None  # reset() has observed
         error = self._obs[self._error_slice]
         info = {
             "error": error.copy(),
@@ -382,6 +391,7 @@ class TaskEnvCore(gym.Env):
         return info
 
     def _step_info(self, costs: tuple[float, float, float], command: np.ndarray) -> dict[str, Any]:
+        assert self._obs is not None  # within an episode
         error = self._obs[self._error_slice]
         squared = error.dot(error)  # ‖e‖² once, for the norm and the success rule (:meth:`_is_success`)
         return {
@@ -490,7 +500,8 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self.max_steps = self.default_max_steps if max_steps is None else int(max_steps)
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be at least 1, got {max_steps}")
-        kinematics = task.make_kinematics(robot)
+        # a pose task's PoseKinematics stands in for Kinematics (it forwards the rest to its position Kinematics)
+        kinematics = cast(Kinematics, task.make_kinematics(robot))
         if self.cost_convention is not None:
             Q = self.cost_convention.error_weight(kinematics.task_dim)
         self._init_task(task, kinematics, dt, Q, R, success_tolerance, sample_space)
@@ -520,7 +531,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             if own is None:
                 raise TypeError(f"{type(self).__name__} needs task=<a registered task's name>")
             return own
-        task = get_task(task)
+        task = cast(Task, get_task(task))  # a registered task (get_task returns Any)
         if own is not None and task is not own:
             raise ValueError(f"{type(self).__name__} runs the task {own.name!r}, got task={task.name!r}")
         return task
@@ -562,7 +573,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             self._scene = scene_of(
                 self.arm, self.kinematics, self.sample_space, self.render_width, self.render_height, self.camera_options
             )
-            self.arm.save_initial_state()
+            cast(Any, self.arm).save_initial_state()  # a drawn arm (PyBullet, MuJoCo): not in the Arm protocol
         self._frame: tuple[int, np.ndarray] | None = None  # (step, image) of the last rendered image
         self._shown_reference: Reference | None = None
 
@@ -669,10 +680,11 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self._obs = self._observe()
         info = self._step_info(costs, u)
         if self.reward_type == "dense":
-            reward = -(costs[0] + costs[1])
+            reward: float | np.ndarray = -(costs[0] + costs[1])
         elif self.reward_type == "shaped":
             reward = shaped_reward(info["error_norm"], u / self.velocity_limits)
         elif self.reward_type == "cost":  # minus the step's share of V: the return is −V
+            assert self.cost_convention is not None  # set for reward_type="cost" (_cost_reward)
             reward = -self.dt * self.cost_convention.step_rate(*costs, first_step=self.steps == 1)
         else:
             reward = 0.0 if info["is_success"] else -1.0

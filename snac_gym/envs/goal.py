@@ -28,7 +28,7 @@ registration's ``TimeLimit`` truncates).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -99,6 +99,8 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
+    observation_space: gym.spaces.Dict
+    action_space: gym.spaces.Box
 
     def __init__(
         self,
@@ -194,7 +196,7 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
             ValueError: Naming the goal that is not (a NaN goal must not score as reached, nor a goal of another
                 size broadcast against the other).
         """
-        size = self.observation_space["desired_goal"].shape[-1]
+        size = cast(gym.spaces.Box, self.observation_space["desired_goal"]).shape[-1]  # a Box (_spaces)
         achieved = real_array("achieved_goal", achieved_goal)
         desired = real_array("desired_goal", desired_goal)
         for name, goal in (("achieved_goal", achieved), ("desired_goal", desired)):
@@ -251,7 +253,7 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         if a.shape != self.action_space.shape or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be {self.action_space.shape[0]} finite values, got {action!r}")
         # θ at full precision (the observation is float32): the task env's own last observation.
-        q = self.env._obs[self.env.obs_layout.slices["q"]]
+        q = cast(np.ndarray, self.env._obs)[self.env.obs_layout.slices["q"]]  # within an episode (step() checks)
         velocity = self.cartesian_speed * np.clip(a, -1.0, 1.0)
         limits = self.env.velocity_limits
         u = np.clip(

@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from snac_gym.robots import get_robot
 from snac_gym.tasks import get_task
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 
 @dataclass(frozen=True)
@@ -48,7 +51,7 @@ def check_id_robot(spec: Any, robot: str) -> None:
     Raises:
         ValueError: If the id names another robot; the message names the id to use.
     """
-    registered = REGISTERED_IDS.get(getattr(spec, "id", None))
+    registered = REGISTERED_IDS.get(getattr(spec, "id", None))  # type: ignore[arg-type]  # dict.get takes any key
     if registered is None:
         return
     driven = get_robot(robot)
@@ -70,6 +73,9 @@ class IdRobotCheck:
     """
 
     _spec: Any = None
+
+    if TYPE_CHECKING:
+        close: Callable[..., None]  # the env's, of the class it is mixed into
 
     @property
     def spec(self) -> Any:

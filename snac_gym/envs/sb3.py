@@ -22,7 +22,7 @@ is the PPO training view built that way.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -42,7 +42,7 @@ class SB3VectorEnv(VecEnv):
 
     def __init__(self, env_id: str, num_envs: int, **env_kwargs: Any) -> None:
         vector = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **env_kwargs)
-        self.vector_env: URTaskVectorEnv = vector.unwrapped
+        self.vector_env: URTaskVectorEnv = cast(URTaskVectorEnv, vector.unwrapped)  # the ids' vector_entry_point
         self.episodes = self.vector_env.episodes
         self._actions: np.ndarray | None = None
         observation_space, action_space = self._spaces()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from types import MappingProxyType
+from typing import cast
 
 from snac_gym.envs.core import JOINT_LIMIT_MARGIN, SHAPED_REWARD, URTaskEnv  # noqa: F401  (the docstrings' :data: links)
 from snac_gym.tasks import Task, get_task
@@ -307,6 +308,6 @@ def task_env_class(task: Task | str) -> type[URTaskEnv]:
     A task registered later (docs/extending.md) has no class of its own: :class:`URTaskEnv`
     runs it, given ``task=<its name>`` (its registered ids pass that).
     """
-    task = get_task(task)
+    task = cast(Task, get_task(task))  # a registered task (get_task returns Any)
     own = TASK_ENV_CLASSES.get(task.name)
     return own if own is not None and own.task_spec is task else URTaskEnv

@@ -25,7 +25,7 @@ single env's rejection sampling and IK), once per episode.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -136,7 +136,7 @@ class KinematicEpisodes:
 
     # -- resets ----------------------------------------------------------------------------------
     def reset(
-        self, indices: Sequence[int], seeds: Sequence[int | None], options: Mapping[str, Any] | None
+        self, indices: Sequence[int] | np.ndarray, seeds: Sequence[int | None], options: Mapping[str, Any] | None
     ) -> list[dict[str, Any]]:
         """Start a new episode in each of ``indices`` (seeding its generator when a seed is given).
 
@@ -148,8 +148,12 @@ class KinematicEpisodes:
         for index, seed in zip(indices, seeds, strict=True):
             if seed is not None or self.generators[index] is None:
                 self.generators[index] = seeding.np_random(seed)[0]
-            q0, reference = draw_episode(
-                template.task, template.kinematics, self.generators[index], template.sample_space, options
+            q0, reference = draw_episode(  # the episode's generator: set just above when it was None
+                template.task,
+                template.kinematics,
+                cast(np.random.Generator, self.generators[index]),
+                template.sample_space,
+                options,
             )
             self.q[index] = q0
             self.references.set(index, reference)
@@ -168,7 +172,7 @@ class KinematicEpisodes:
             "error_norm": float(np.linalg.norm(error)),
             "t": 0.0,
             "is_success": bool(error @ error <= self.template.success_tolerance**2),
-            "reference": self.references.references[index].to_dict(),
+            "reference": cast(Reference, self.references.references[index]).to_dict(),  # reset() set it
             "q0": q0.copy(),
         }
 
@@ -235,6 +239,7 @@ class KinematicEpisodes:
         elif template.reward_type == "shaped":
             reward = shaped_reward(error_norm, u / self.limits)
         elif template.reward_type == "cost":  # minus the step's share of V, as the single env
+            assert template.cost_convention is not None  # set for reward_type="cost"
             reward = -self.dt * template.cost_convention.step_rate(
                 cost_error, cost_effort, cost_smoothness, first_step=self.steps == 1
             )
@@ -325,7 +330,7 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
             )
         # the bound keeps a typo (10**9) from asking for terabytes
         whole_number("num_envs", num_envs, 1, MAX_NUM_ENVS)
-        task = get_task(task if task is not None else self.task_spec)
+        task = cast(Task, get_task(task if task is not None else self.task_spec))  # a registered task
         if not vector_env_supports(task):
             raise ValueError(
                 f"the vector env steps end-effector positions only; task {task.name!r} has its own kinematics"
@@ -414,7 +419,8 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         """The registered name of the robot the episodes drive."""
         return self.single_env.robot
 
-    def render(self) -> np.ndarray | None:
+    # gymnasium's VectorEnv.render returns a tuple of frames; this one returns episode 0's frame
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
         """The frame of the first episode (sub-env 0), as ``gym.make(id, render_mode="rgb_array")`` draws it.
 
         The episodes step the exact kinematic model; the frame is drawn by PyBullet's scene with the
@@ -429,7 +435,7 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
             )
             self._viewer.reset(seed=0)
         viewer, episodes = self._viewer, self.episodes
-        viewer.reference = episodes.references.references[0]
+        viewer.reference = cast(Reference, episodes.references.references[0])  # episode 0's, set by reset()
         viewer.steps = int(episodes.steps[0])
         viewer.arm.restore(episodes.q[0], episodes.qdot[0], episodes.last_command[0])  # markers parked too
         viewer._frame, viewer._shown_reference = None, None  # draw episode 0's state and path anew

@@ -66,8 +66,9 @@ class Kernel:
         self.dispatcher = njit(cache=True, nogil=True)(function)
         self.__doc__, self.__name__, self.__wrapped__ = function.__doc__, function.__name__, function
         self.example = example
-        compile_for_args = self.dispatcher._compile_for_args  # what the dispatcher calls on a miss (numba ≥ 0.50)
-        self.dispatcher._compile_for_args = lambda *args, **kwargs: _with_stop_signals_held(
+        # what the dispatcher calls on a miss (numba ≥ 0.50); private, so not in numba's types
+        compile_for_args = self.dispatcher._compile_for_args  # type: ignore[attr-defined]
+        self.dispatcher._compile_for_args = lambda *args, **kwargs: _with_stop_signals_held(  # type: ignore[attr-defined]
             compile_for_args, args, kwargs
         )
         _KERNELS.append(self)
@@ -202,6 +203,7 @@ def _with_stop_signals_held(
     if threading.current_thread() is not threading.main_thread():  # handlers run, and are set, in the main thread only
         return function(*args, **kwargs)
     received: list[int] = []
+    signum: int  # the loops' variable below: a Signals member, then a received signal's number
     previous = {
         signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in _STOP_SIGNALS
     }

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from functools import lru_cache
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pinocchio as pin
@@ -71,7 +71,8 @@ def _urdf_without_geometry(
             limit = joint.find("limit")
             low = float(limit.get("lower", 0.0)) if limit is not None else 0.0
             high = float(limit.get("upper", 0.0)) if limit is not None else 0.0
-            values[joint.get("name")] = float(np.clip(0.0, low, high)) if high > low else 0.0
+            # the name is set: it is one of the locked joints'
+            values[cast(str, joint.get("name"))] = float(np.clip(0.0, low, high)) if high > low else 0.0
     return ET.tostring(root, encoding="unicode"), values
 
 

@@ -249,7 +249,7 @@ def framing_corners(space: SampleSpace) -> np.ndarray:
 def path_positions(reference: Reference, kinematics: Kinematics, markers: int) -> list[Any]:
     """World positions of the ``markers`` path markers for ``reference``: its path's points (the ellipse),
     the rest parked out of view (all of them for a fixed target, which has no path)."""
-    points = reference.points(PATH_POINTS)
+    points: np.ndarray | list[np.ndarray] = reference.points(PATH_POINTS)
     if len(points) < 2:
         points = []
     return [kinematics.base_to_world(points[i]) if i < len(points) else PARKED for i in range(markers)]

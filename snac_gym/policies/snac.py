@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -136,6 +136,7 @@ class CriticEpisode:
     drawn by the class's ``_initial_weights(rng)`` from ``seed`` (when given)."""
 
     _rng: np.random.Generator
+    internals: dict[str, Any]
 
     def reset(self, seed: int | None = None) -> None:
         """Start an episode: step counter to 0, critic weights to Ŵ₀ (drawn from ``seed`` where random)."""
@@ -262,7 +263,8 @@ class SNACPolicy(CriticEpisode, BasePolicy):
         self.R_inverse = np.linalg.inv(self.R)
         diagonal = np.allclose(self.R_inverse, np.diag(np.diag(self.R_inverse)))
         self._R_inverse_diagonal = np.diag(self.R_inverse).copy() if diagonal else None
-        self._R_is_identity = diagonal and np.array_equal(self._R_inverse_diagonal, np.ones(m))
+        # evaluated only when diagonal: the diagonal is set
+        self._R_is_identity = diagonal and np.array_equal(cast(np.ndarray, self._R_inverse_diagonal), np.ones(m))
 
         for name, value, allowed in (
             ("schedule_clock", schedule_clock, SCHEDULE_CLOCKS),
@@ -359,7 +361,7 @@ class SNACPolicy(CriticEpisode, BasePolicy):
 
     # -- internals, evaluated on access ---------------------------------------------------------
     @property
-    def internals(self) -> dict[str, Any]:  # type: ignore[override]
+    def internals(self) -> dict[str, Any]:
         """See the class docstring; computed from the last ``act`` when first read."""
         if self._last is not None:
             weights_used, new_weights, alpha, saturated, k = self._last

@@ -173,12 +173,14 @@ class SNACIRLPolicy(BasePolicy):
     def _exploration(self, t: float) -> np.ndarray:
         """ε(t) of every episode, ``(B, m)``: RMS ``exploration``·v_max per joint."""
         b = self._batch
+        assert b is not None  # act_batch() checked it
         waves = np.sin(b["frequencies"] * t + b["phases"]).sum(axis=-1) / math.sqrt(self.sinusoids / 2.0)
         return self.exploration * self.velocity_limits * waves
 
     def _learn(self) -> None:
         """Algorithm 1 on the last L periods of each episode; keeps the current gain where it fails."""
         b = self._batch
+        assert b is not None  # act_batch() checked it
         L = self.learning_steps
         errors = np.array(b["errors"][-(L + 1) :])  # (L+1, B, n): e at the start of each period and after the last
         commands = np.array(b["commands"][-L:])  # (L, B, m)

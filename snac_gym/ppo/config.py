@@ -40,7 +40,7 @@ from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import gymnasium as gym
 
@@ -264,7 +264,7 @@ def read_section(cls: type[T], data: Any, path: str = "") -> T:
             continue
         kind = item.metadata["check"]
         values[name] = (
-            read_section(kind, data[name], _join(path, name))
+            read_section(cast("type[Any]", kind), data[name], _join(path, name))  # a section's dataclass: a class
             if is_dataclass(kind)
             else kind(data[name], _join(path, name))
         )
@@ -410,7 +410,7 @@ def env_keywords(task: str) -> dict[str, inspect.Parameter]:
 
     entry = gym.spec(get_task(task).env_id).entry_point
     creator = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
-    parameters = inspect.signature(creator).parameters
+    parameters = inspect.signature(cast("Callable[..., Any]", creator)).parameters  # snac-gym ids have one
     named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     return {name: p for name, p in parameters.items() if p.kind in named and name not in ("robot", "task")}
 

@@ -31,14 +31,22 @@ of the trajectory cost PPO is scored by, so the return is −V. The env's reward
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
 
 from snac_gym.cost import CostConvention
-from snac_gym.envs.core import shaped_reward
-from snac_gym.ppo.features import EpisodeGoals, FeatureSpec, action_size, command, feature_size, observation_features
+from snac_gym.envs.core import TaskEnvCore, shaped_reward
+from snac_gym.ppo.features import (
+    EpisodeGoals,
+    FeatureSpec,
+    GoalState,
+    action_size,
+    command,
+    feature_size,
+    observation_features,
+)
 
 REWARD_TYPES = ("shaped", "env", "cost")
 
@@ -129,7 +137,7 @@ class PPOTrainingWrapper(gym.Wrapper):
 
     def __init__(self, env: gym.Env, features: FeatureSpec, reward: RewardSpec) -> None:
         super().__init__(env)
-        base = env.unwrapped
+        base = cast(TaskEnvCore, env.unwrapped)  # a snac-gym env
         self.layout = base.obs_layout
         self.velocity_limits = np.asarray(base.velocity_limits, dtype=np.float64)
         self.features = features
@@ -149,7 +157,7 @@ class PPOTrainingWrapper(gym.Wrapper):
             if features.goal_relative
             else None
         )
-        self._goal = None
+        self._goal: GoalState | None = None
 
     def _features(self, obs: np.ndarray) -> np.ndarray:
         if self._goals is not None:
@@ -160,7 +168,7 @@ class PPOTrainingWrapper(gym.Wrapper):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
-        self._previous_action = np.zeros(self.action_space.shape[0])
+        self._previous_action = np.zeros(cast(gym.spaces.Box, self.action_space).shape[0])  # the Box of __init__
         self._last_obs = np.asarray(obs, dtype=np.float64)
         low, high = self.features.action_scale_range
         self.action_scale = float(np.exp(self.np_random.uniform(np.log(low), np.log(high)))) if high > low else low
@@ -171,7 +179,7 @@ class PPOTrainingWrapper(gym.Wrapper):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         action = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
-        before = self._last_obs
+        before = cast(np.ndarray, self._last_obs)  # set by reset()
         jacobian = self.kinematics.jacobian(before[self.layout.slices["q"]]) if self.features.task_relative else None
         joint_velocities = command(
             action, before, self.layout, self.velocity_limits, self.features, self.action_scale, jacobian, self._goal

@@ -328,6 +328,7 @@ def observation_features(
     error_norm = np.sqrt(np.sum(e * e, axis=-1, keepdims=True))
     if spec.task_relative:
         xdot_d = obs[..., s["xdot_d"]]
+        parts: list[np.ndarray] | tuple[np.ndarray, ...]  # a list here, a tuple below
         parts = [
             e / np.maximum(error_norm, 1e-12),
             (np.log10(error_norm + 1e-5) + 2.5) / 1.5,

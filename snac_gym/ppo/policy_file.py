@@ -29,7 +29,7 @@ import zipfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -94,7 +94,8 @@ class PolicyFile:
         """Frozen ``VecNormalize.normalize_obs`` of float32 features, rounded to float32 as SB3 feeds torch."""
         if self.obs_mean is None:
             return features
-        normalised = (features - self.obs_mean) / np.sqrt(self.obs_var + self.obs_epsilon)
+        # the variance is given with the mean
+        normalised = (features - self.obs_mean) / np.sqrt(cast(np.ndarray, self.obs_var) + self.obs_epsilon)
         return np.clip(normalised, -self.obs_clip, self.obs_clip).astype(np.float32)
 
     @cached_property
@@ -183,7 +184,7 @@ class PolicyFile:
         arrays["action_weight"], arrays["action_bias"] = self.action_layer
         if self.obs_mean is not None:
             arrays["obs_mean"] = self.obs_mean
-            arrays["obs_var"] = self.obs_var
+            arrays["obs_var"] = cast(np.ndarray, self.obs_var)  # given with the mean
         return arrays
 
     def save(self, path: str | Path) -> Path:
@@ -204,7 +205,8 @@ class PolicyFile:
             checksum=_checksum(arrays),
         )
         buffer = io.BytesIO()
-        np.savez_compressed(buffer, metadata=np.array(json.dumps(metadata, sort_keys=True)), **arrays)
+        # numpy's stub lets a ** dict fill allow_pickle (a bool): every key here is an array's name
+        np.savez_compressed(buffer, metadata=np.array(json.dumps(metadata, sort_keys=True)), **arrays)  # type: ignore[arg-type]
         return write_whole(path, lambda partial: partial.write_bytes(buffer.getvalue()))  # never half a file
 
     @classmethod
@@ -320,7 +322,10 @@ class PolicyFile:
             outputs = action_size(observation_layout, self.features)
         except (KeyError, TypeError, ValueError) as exc:
             raise PolicyFileError(f"{source}: metadata has no valid observation layout ({layout!r})") from exc
-        if self.obs_mean is not None and (self.obs_mean.shape != (width,) or self.obs_var.shape != (width,)):
+        # the variance is given with the mean
+        if self.obs_mean is not None and (
+            self.obs_mean.shape != (width,) or cast(np.ndarray, self.obs_var).shape != (width,)
+        ):
             raise PolicyFileError(f"{source}: normalisation statistics have the wrong shape for {width} features")
         for i, (weight, bias) in enumerate((*self.hidden, self.action_layer)):
             if weight.ndim != 2 or weight.shape[1] != width or bias.shape != (weight.shape[0],):
@@ -334,7 +339,7 @@ class PolicyFile:
             )
 
 
-def export_policy(model: Any, vec_normalize: Any | None, metadata: dict[str, Any], features: FeatureSpec) -> PolicyFile:
+def export_policy(model: Any, vec_normalize: Any, metadata: dict[str, Any], features: FeatureSpec) -> PolicyFile:
     """Freeze a trained SB3 PPO ``MlpPolicy`` (and its ``VecNormalize``) into a :class:`PolicyFile`.
 
     Args:

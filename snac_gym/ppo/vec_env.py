@@ -10,7 +10,7 @@ generator right after its reset, as the wrapper draws it from its env's ``np_ran
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -21,6 +21,7 @@ from snac_gym.ppo.envs import RewardSpec
 from snac_gym.ppo.features import (
     EpisodeGoals,
     FeatureSpec,
+    GoalState,
     action_size,
     feature_size,
     goal_relative_command,
@@ -56,7 +57,7 @@ class PPOVecEnv(SB3VectorEnv):
             if self.features.goal_relative
             else None
         )
-        self._goal = None
+        self._goal: GoalState | None = None
 
     def _spaces(self) -> tuple[gym.spaces.Space, gym.spaces.Space]:
         layout = self.vector_env.episodes.layout
@@ -66,7 +67,7 @@ class PPOVecEnv(SB3VectorEnv):
     def _on_reset(self, indices: np.ndarray) -> None:
         self.previous_actions[indices] = 0.0
         if getattr(self, "_goals", None) is not None:
-            self._goals.restart(indices)
+            cast(EpisodeGoals, self._goals).restart(indices)  # set (it is not while SB3VectorEnv.__init__ resets)
         low, high = self.features.action_scale_range
         for index in indices:
             generator = self.episodes.generators[index]
@@ -101,7 +102,7 @@ class PPOVecEnv(SB3VectorEnv):
                 jacobians,
                 limits,
                 self.features,
-                self._goal,
+                cast(GoalState, self._goal),  # goal_relative: set by the reset's features
                 self.action_scales[:, None],
             )
             return episodes.commands(command)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -13,6 +13,9 @@ from snac_gym.real.connections import NORMAL, PROTECTIVE_STOP, PROTECTIVE_STOP_L
 from snac_gym.real.recovery import LINK_RECOVERY, PROTECTIVE_STOP_RECOVERY, RecoveryLimits
 from snac_gym.real.safety import SafetyLayer, SafetyLimits
 from snac_gym.sampling import SampleSpace
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 #: Seconds between two reads of the controller's state while waiting for a protective stop to clear.
 _CLEAR_POLL = 0.05
@@ -224,6 +227,7 @@ class RealUREnv(TaskEnvCore):
         self._stop_request = str(reason)
 
     def _step(self, u: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        reason: str | None  # why the arm stops this step (None: it does not)
         command = self.safety.shape(u, self._last_command)
         costs = self._step_costs(command)
         if self._stop_request is not None:
@@ -321,7 +325,7 @@ class RealUREnv(TaskEnvCore):
         else:
             self.connection.stop()  # the client is gone: this only records that the controller's watchdog stops the arm
             try:
-                attempts = reconnect(self.recovery.reconnect_timeout)
+                attempts = cast("Callable[[float], int]", reconnect)(self.recovery.reconnect_timeout)  # recoverable
             except ConnectionFailure as again:
                 raise ConnectionFailure(f"{exc}; {again}") from exc
             kind, cause, cleared_by = LINK_RECOVERY, str(exc), f"reconnected ({attempts} attempts)"
@@ -432,6 +436,7 @@ class RealUREnv(TaskEnvCore):
         truncated = not terminated and self.steps >= self.max_steps
         if truncated:
             self._end_episode()
+        assert self._obs is not None  # within an episode (step() checks)
         return self._obs.copy(), -(costs[0] + costs[1]), terminated, truncated, info
 
     def timing(self) -> dict[str, float]:

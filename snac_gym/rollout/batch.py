@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -122,7 +122,7 @@ def rollouts_from_logs(logs: list[pd.DataFrame]) -> Rollouts:
     if all("diverged" in log.columns for log in logs):
         flagged = np.stack([log["diverged"].to_numpy() > 0 for log in logs])
         flags = {
-            "diverged": flagged.any(axis=1),
+            "diverged": cast(np.ndarray, flagged.any(axis=1)),  # along an axis: an array
             "diverged_step": np.where(flagged.any(axis=1), flagged.argmax(axis=1), -1),
         }
     return Rollouts(

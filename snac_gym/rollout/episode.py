@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -90,7 +90,7 @@ def rollout(
                 break
     except BaseException as exc:
         exc.rollout_log = record.log(policy, obs, options, seed, limits, terminated, truncated)  # type: ignore[attr-defined]
-        exc.rollout_log.attrs["interrupted"] = type(exc).__name__
+        cast(Any, exc).rollout_log.attrs["interrupted"] = type(exc).__name__  # the attribute set just above
         raise
     return record.log(policy, obs, options, seed, limits, terminated, truncated)
 

@@ -23,7 +23,7 @@ bodies in PyBullet worlds of ten; each rollout is the env's own (``tests/test_en
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -197,9 +197,9 @@ def simulate_kinematic(
     return Rollouts(
         dt=dt,
         times=times[:steps],
-        q=_sample_major(q_log) if keep_states else None,
+        q=_sample_major(cast(np.ndarray, q_log)) if keep_states else None,  # kept: logged
         commands=_sample_major(u_log),
-        x=_sample_major(x_log) if keep_states else None,
+        x=_sample_major(cast(np.ndarray, x_log)) if keep_states else None,
         x_d=x_d[:, :steps],
         xdot_d=xdot_d[:, :steps],
         errors=_sample_major(e_log),

@@ -62,7 +62,7 @@ def log_columns(n_joints: int, task_dim: int, n_weights: int = 0) -> list[str]:
 
 def log_array(log: pd.DataFrame, prefix: str) -> np.ndarray:
     """The ``(K, d)`` array of the columns ``prefix_0, prefix_1, …`` of a log (``x`` never matches ``x_d``)."""
-    names = []
+    names: list[str] = []
     while f"{prefix}_{len(names)}" in log.columns:
         names.append(f"{prefix}_{len(names)}")
     if not names:

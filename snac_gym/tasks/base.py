@@ -12,15 +12,18 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.kinematics import Kinematics, PoseKinematics
 from snac_gym.references import PAPER_Q0, Reference
 from snac_gym.robots import get_robot
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks.registry import get_task
+
+#: The type of a task's references (a :class:`Task` subclass names its own: ``Task[FixedTarget]``).
+_ReferenceT = TypeVar("_ReferenceT")
 
 
 class CellReader(Protocol):
@@ -36,7 +39,7 @@ class CellReader(Protocol):
         """An error naming the row and ``column``."""
 
 
-class Task(ABC):
+class Task(ABC, Generic[_ReferenceT]):
     """A named reference family (subclass it; see :mod:`snac_gym.tasks.reach` for a small one): a subclass
     implements the six abstract methods (references drawn, the paper's, parsed, written back, and the CSV's).
 
@@ -100,7 +103,7 @@ class Task(ABC):
         return self.env_id_for("ur10")
 
     # -- kinematics --------------------------------------------------------------------------
-    def make_kinematics(self, robot: str) -> Kinematics:
+    def make_kinematics(self, robot: str) -> Kinematics | PoseKinematics:
         """The kinematics of the task's coordinates on ``robot`` (the envs build theirs here): the
         end-effector position (:class:`Kinematics`, task_dim 3); a pose task returns a
         :class:`~snac_gym.kinematics.PoseKinematics` (task_dim 6, its own ``task_error``)."""
@@ -108,15 +111,15 @@ class Task(ABC):
 
     # -- references ------------------------------------------------------------------------
     @abstractmethod
-    def sample(self, kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> Reference:
+    def sample(self, kinematics: Kinematics, rng: np.random.Generator, space: SampleSpace) -> _ReferenceT:
         """A random reference from ``space``, drawn from ``rng`` (the envs' and the evaluator's)."""
 
     @abstractmethod
-    def paper(self) -> Reference:
+    def paper(self) -> _ReferenceT:
         """The paper's reference for this task."""
 
     @abstractmethod
-    def parse(self, value: Any, kinematics: Kinematics) -> Reference:
+    def parse(self, value: Any, kinematics: Kinematics) -> _ReferenceT:
         """The reference of the reset option ``value``, checked to be reachable.
 
         Raises:
@@ -124,10 +127,10 @@ class Task(ABC):
         """
 
     @abstractmethod
-    def option_value(self, reference: Reference) -> Any:
+    def option_value(self, reference: _ReferenceT) -> Any:
         """The reset-option value (JSON types) that :meth:`parse` turns back into ``reference``."""
 
-    def reset_options(self, q0: Sequence[float], reference: Reference) -> dict[str, Any]:
+    def reset_options(self, q0: Sequence[float] | np.ndarray, reference: _ReferenceT) -> dict[str, Any]:
         """Env ``reset`` options that pin the start pose and the reference."""
         return {"q0": [float(v) for v in q0], self.option_key: self.option_value(reference)}
 
@@ -154,11 +157,11 @@ class Task(ABC):
 
     # -- samples CSV -------------------------------------------------------------------------
     @abstractmethod
-    def csv_cells(self, reference: Reference) -> dict[str, float]:
+    def csv_cells(self, reference: _ReferenceT) -> dict[str, float]:
         """The values of :attr:`csv_columns` for ``reference``."""
 
     @abstractmethod
-    def read_csv_reference(self, cells: CellReader) -> Reference:
+    def read_csv_reference(self, cells: CellReader) -> _ReferenceT:
         """The reference of one CSV row (unreachability is checked by the caller).
 
         Raises:

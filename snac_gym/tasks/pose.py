@@ -24,7 +24,7 @@ target orientation in :data:`ROTVEC_COLUMNS` ``rotvec_0..2``: the rotation vecto
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 import numpy as np
 import pinocchio as pin
@@ -36,6 +36,9 @@ from snac_gym.tasks.base import CellReader, Task
 from snac_gym.tasks.reach import TARGET_COLUMNS
 from snac_gym.tasks.registry import TASKS, register_task
 from snac_gym.tasks.track import ELLIPSE_COLUMNS, EllipseTrackTask
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 #: The tool pointing down (π about x), the orientation of the placeholder reference.
 _DOWN = (np.pi, 0.0, 0.0)
@@ -71,6 +74,10 @@ class PoseTarget:
     position: np.ndarray
     rotation: np.ndarray
 
+    if TYPE_CHECKING:  # any 3 numbers each are taken (__post_init__ makes the arrays)
+
+        def __init__(self, position: ArrayLike, rotation: ArrayLike) -> None: ...
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "position", _rotation_vector(self.position, "position"))
         object.__setattr__(self, "rotation", _principal(self.rotation))
@@ -99,6 +106,10 @@ class PoseEllipse:
 
     ellipse: Ellipse
     rotation: np.ndarray
+
+    if TYPE_CHECKING:  # any 3 numbers are taken for the rotation (__post_init__ makes the array)
+
+        def __init__(self, ellipse: Ellipse, rotation: ArrayLike) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rotation", _principal(self.rotation))
@@ -176,13 +187,13 @@ def _pose(kinematics: Any) -> PoseKinematics:
     return kinematics if isinstance(kinematics, PoseKinematics) else shared_pose_kinematics(kinematics.robot)
 
 
-class PoseReachTask(Task):
+class PoseReachTask(Task[PoseTarget | PoseEllipse]):
     """Reach a fixed pose (position and orientation); success ``‖e‖ ≤ 1e-3`` (1 mm, 1 mrad)."""
 
     name, label, code = "pose-reach", "Pose regulation", 10
     option_key = "pose"
     env_name = "PoseReach"
-    csv_columns = (*TARGET_COLUMNS, *ROTVEC_COLUMNS)
+    csv_columns: ClassVar[tuple[str, ...]] = (*TARGET_COLUMNS, *ROTVEC_COLUMNS)
     success_tolerance = 1e-3
     episode_steps = 1500
     horizon_s = 12.0
@@ -191,27 +202,28 @@ class PoseReachTask(Task):
     def make_kinematics(self, robot: str) -> PoseKinematics:
         return PoseKinematics(robot)
 
-    def sample(self, kinematics: Any, rng: np.random.Generator, space: SampleSpace) -> PoseTarget:
+    def sample(self, kinematics: Any, rng: np.random.Generator, space: SampleSpace) -> PoseTarget | PoseEllipse:
         pose = _pose(kinematics)
         x = pose.forward(sample_seed_pose(pose.position, rng, space))
         return PoseTarget(x[:3], x[3:])
 
-    def paper(self) -> PoseTarget:
+    def paper(self) -> PoseTarget | PoseEllipse:
         return PoseTarget(PAPER_TARGET, _DOWN)
 
-    def parse(self, value: Any, kinematics: Any) -> PoseTarget:
+    def parse(self, value: Any, kinematics: Any) -> PoseTarget | PoseEllipse:
         target = value if isinstance(value, PoseTarget) else PoseTarget(value["position"], value["rotation"])
         check_pose_reachable(_pose(kinematics), target.points(), f"options[{self.option_key!r}]")
         return target
 
-    def option_value(self, reference: PoseTarget) -> dict[str, Any]:
+    def option_value(self, reference: PoseTarget | PoseEllipse) -> dict[str, Any]:
         return reference.to_dict()
 
-    def csv_cells(self, reference: PoseTarget) -> dict[str, float]:
-        values = [*reference.position.tolist(), *reference.rotation.tolist()]
+    def csv_cells(self, reference: PoseTarget | PoseEllipse) -> dict[str, float]:
+        # the task's own reference, a PoseTarget (the subclass PoseTrackTask has its own csv_cells)
+        values = [*cast(PoseTarget, reference).position.tolist(), *reference.rotation.tolist()]
         return dict(zip(self.csv_columns, values, strict=True))
 
-    def read_csv_reference(self, cells: CellReader) -> PoseTarget:
+    def read_csv_reference(self, cells: CellReader) -> PoseTarget | PoseEllipse:
         return PoseTarget(cells.numbers(TARGET_COLUMNS), cells.numbers(ROTVEC_COLUMNS))
 
     def check_reference(self, kinematics: Any, reference: PoseTarget | PoseEllipse, points: int, what: str) -> None:
@@ -262,9 +274,10 @@ class PoseTrackTask(PoseReachTask):
         check_pose_reachable(_pose(kinematics), value.points(64), f"options[{self.option_key!r}]")
         return value
 
-    def csv_cells(self, reference: PoseEllipse) -> dict[str, float]:
+    def csv_cells(self, reference: PoseTarget | PoseEllipse) -> dict[str, float]:
         rotation = dict(zip(ROTVEC_COLUMNS, reference.rotation.tolist(), strict=True))
-        return {**_ELLIPSE_CODEC.csv_cells(reference.ellipse), **rotation}
+        # the task's own reference, a PoseEllipse (PoseTarget in the signature: the base class's, PoseReachTask)
+        return {**_ELLIPSE_CODEC.csv_cells(cast(PoseEllipse, reference).ellipse), **rotation}
 
     def read_csv_reference(self, cells: CellReader) -> PoseEllipse:
         return PoseEllipse(_ELLIPSE_CODEC.read_csv_reference(cells), cells.numbers(ROTVEC_COLUMNS))

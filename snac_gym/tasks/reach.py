@@ -14,7 +14,7 @@ from snac_gym.tasks.base import CellReader, Task
 TARGET_COLUMNS = ("target_0", "target_1", "target_2")
 
 
-class ReachTask(Task):
+class ReachTask(Task[FixedTarget]):
     """Reach a fixed target x_d (ẋ_d = 0); success is a final error within 1 mm."""
 
     name = "reach"

@@ -33,7 +33,7 @@ OPTIONAL_ELLIPSE_DEFAULTS = {
 }
 
 
-class EllipseTrackTask(Task):
+class EllipseTrackTask(Task[Ellipse]):
     """Follow x_d(t) on an ellipse; success is a mean error over the second half within 5 mm."""
 
     name = "track"

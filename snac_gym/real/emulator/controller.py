@@ -9,6 +9,7 @@ import socket
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -90,9 +91,9 @@ class UREmulator:
         series: str | None = None,
         host: str = "127.0.0.1",
         port_base: int = STANDARD_PORT_BASE,
-        q0: np.ndarray | None = None,
+        q0: np.ndarray | Sequence[float] | None = None,
         speed_scaling: float = 1.0,
-        tcp_offset: np.ndarray | None = None,
+        tcp_offset: np.ndarray | Sequence[float] | None = None,
         bind_timeout: float = 30.0,
         rt_priority: int = 0,
     ) -> None:
@@ -306,9 +307,9 @@ class UREmulator:
                 self._watch_update = now
             for name, value in values.items():
                 if name.startswith("input_int_register_") and name.endswith(("_0", "_24")):
-                    self.commands.append(ReceivedCommand(now, int(value), dict(values)))  # type: ignore[arg-type]
-                    if int(value) in MOTION_COMMANDS:  # type: ignore[call-overload]
-                        self._check_motion_command(now, int(value))  # type: ignore[call-overload]
+                    self.commands.append(ReceivedCommand(now, int(value), dict(values)))
+                    if int(value) in MOTION_COMMANDS:
+                        self._check_motion_command(now, int(value))
                     break
 
     def _check_motion_command(self, now: float, command: int) -> None:

@@ -103,7 +103,7 @@ class EmulatorProcess:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def start(self) -> EmulatorProcess:
+    def start(self) -> Self:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self._child = subprocess.Popen(
             [sys.executable, "-m", "snac_gym.real.emulator.process"],
