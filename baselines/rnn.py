@@ -53,7 +53,7 @@ class RNNPolicy(BasePolicy):
 
     **Assumptions** (the paper's text was not available to check equation by equation):
 
-    * The equations above follow the issue's description, the dual neural network of
+    * The equations above follow the project's specification of the baseline, the dual neural network of
       Zhang, Wang and Xia (IEEE TNN 14(3), 2003) that the paper modifies, and the paper's
       published summary (position feedback in the network input so that position error does
       not accumulate; a velocity-compensated variant for tracking; a static output

@@ -150,7 +150,7 @@ class ModelError:
 
     def __post_init__(self) -> None:
         # Bounded to what a wrong model can be: a joint offset beyond ±π wraps round, a model link more than
-        # twice its length or a tool a metre away is another arm (link_scale=1e6 used to be taken).
+        # twice its length or a tool a metre away is another arm.
         for name in ("joint_offset", "tool_offset", "link_length", "joint_axis_tilt", "base"):
             _numbers(name, getattr(self, name))
         offsets = tuple(real_number("model error joint_offset", a, -math.pi, math.pi) for a in self.joint_offset)

@@ -49,7 +49,7 @@ class SampleSpace:
             targets from configurations drawn uniformly within the joint limits (less the margin),
             so anywhere the arm reaches in the box, on every branch (:meth:`workspace`).
 
-    Every field is checked when the space is built (a bad one used to fail at the first ``reset``):
+    Every field is checked when the space is built, not at the first ``reset`` that uses it:
     ``low``/``high`` three finite numbers with low < high; ``min_singular_value`` and ``joint_margin``
     (at most π) finite and ≥ 0; ``semi_axis_range`` and ``speed_range`` two finite numbers, low ≤ high,
     from the smallest ellipse and speed an :class:`~snac_gym.references.Ellipse` takes, with the fastest

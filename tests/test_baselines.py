@@ -1,5 +1,5 @@
 """The baseline controllers (RNN, SVF, DLS): each update against an independent computation,
-the bounds they promise, and the issue's acceptance runs in the PyBullet env."""
+the bounds they promise, and their acceptance runs in the PyBullet env."""
 
 import inspect
 import math

@@ -22,7 +22,7 @@ from snac_gym.rollout import simulate_kinematic
 
 CONVENTIONS = [
     CostConvention(),  # the paper's Table I cost, u₋₁ = 0
-    CostConvention("hjb", q_scale=4.0),  # the issue's comparison: HJB cost, Q = 4I
+    CostConvention("hjb", q_scale=4.0),  # the critics' comparison: HJB cost, Q = 4I
     CostConvention("table1", udot_start="first", q_scale=1e6),  # no jump from rest, error in mm²
 ]
 IDS = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}

@@ -1,4 +1,4 @@
-"""The paper's demonstrations, the rollout log and the act benchmark (issue 3 acceptance)."""
+"""The paper's demonstrations, the rollout log and the act benchmark."""
 
 import hashlib
 import os
@@ -305,7 +305,7 @@ def test_cost_panel_shows_a_dominant_term_under_the_total():
         top, bottom = fig.axes[:2]
         lines = {line.get_label().split(" ")[0]: line for line in bottom.get_lines()}
         smooth, total = lines["smoothness"].get_ydata(), lines["total"].get_ydata()
-        assert smooth[-1] / total[-1] > 0.99  # the case of the issue: the term is nearly all of the total
+        assert smooth[-1] / total[-1] > 0.99  # the case in point: the term is nearly all of the total
         assert lines["total"].get_zorder() > lines["smoothness"].get_zorder()
         assert lines["total"].get_linestyle() != "-"
         assert lines["total"].get_linewidth() < lines["smoothness"].get_linewidth()

@@ -1,4 +1,4 @@
-"""Equal effort as a property of the controller (issue 22): the effort statistics against independent
+"""Equal effort as a property of the controller: the effort statistics against independent
 computations on hand-made rollouts, and a matched knob that does not move with the sample count."""
 
 from __future__ import annotations

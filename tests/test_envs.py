@@ -304,7 +304,7 @@ def test_env_docstrings_document_every_section():
             assert section in cls.__doc__, (doc, section)
 
 
-# -- issue 14: conventions and the learner options ------------------------------------------------
+# -- conventions and the learner options ---------------------------------------------------------
 
 LEARNER = dict(
     action_type="normalized", observation_dtype=np.float32, reward_type="shaped", finite_observation_bounds=True

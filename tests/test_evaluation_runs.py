@@ -409,7 +409,7 @@ def test_a_failed_knob_search_is_labelled_unmatched_even_when_the_full_pass_land
 
 
 def test_hjb_cost_runs_give_the_same_numbers_with_one_or_two_workers(tmp_path):
-    """The issue-12 controllers, the HJB cost, Q = 4I and the optimum: bit-identical with 1 or 2 workers."""
+    """snac, snac-hjb, lqr and the optimum under the HJB cost, Q = 4I: bit-identical with 1 or 2 workers."""
     common = {
         "controllers": ("snac", "snac-hjb", "lqr", "optimal"),
         "match_effort": False,

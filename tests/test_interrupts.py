@@ -20,7 +20,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-#: Seconds an interrupted run may take to exit (the issue's bound; it exits in well under one).
+#: Seconds an interrupted run may take to exit (the documented bound; it exits in well under one).
 EXIT_BOUND_S = 10.0
 
 #: The phase hooks: (module, attribute) of a function the main process calls when the phase begins.

@@ -1,4 +1,4 @@
-"""Long runs say where they are: plain progress lines on stderr where it is not a terminal (issue 14).
+"""Long runs say where they are: plain progress lines on stderr where it is not a terminal.
 
 ``snac-gym evaluate`` runs in a subprocess with stdout and stderr on pipes, as under a log file or
 CI. The other runs (``train-ppo``, whose lines come from the same :class:`ProgressLines`, and the

@@ -386,7 +386,7 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
         outcome.output.strip() == f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/"
     )
     assert connection.stopped and connection.stop_calls >= 1
-    # the log so far is written: a lost link is a way out like any other (issue 31)
+    # the log so far is written: a lost link is a way out like any other
     summary = json.loads((tmp_path / "reach_dls_real.json").read_text())
     assert summary["ended"] == "link lost" and "was lost" in summary["reason"]
     assert len(pd.read_parquet(tmp_path / "reach_dls_log.parquet")) >= 15

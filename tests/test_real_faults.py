@@ -1,4 +1,4 @@
-"""The real-robot env under faults: every way out of an episode stops the arm (issue 18).
+"""The real-robot env under faults: every way out of an episode stops the arm.
 
 The faults are injected by :class:`FaultyConnection`, a wrapper around the simulated connection that
 corrupts the state, freezes its timestamp, delays periods or keeps the arm moving, while

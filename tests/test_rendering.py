@@ -1,4 +1,4 @@
-"""Frames people watch: framing, what is drawn, and real-time playback (issue 14, videos)."""
+"""Frames people watch: framing, what is drawn, and real-time playback (videos)."""
 
 import gymnasium as gym
 import numpy as np

@@ -435,7 +435,7 @@ def test_a_copied_policy_continues_identically(ur10, rng, copier):
         np.testing.assert_array_equal(twin.internals["critic_weights"], policy.internals["critic_weights"])
 
 
-# -- optimality diagnostics (issue 12) ----------------------------------------------------------
+# -- optimality diagnostics -------------------------------------------------------------------
 @pytest.mark.parametrize("task", ["reach", "track"])
 @pytest.mark.parametrize("tracking_state", ["paper", "centred"])
 def test_hjb_residual_of_the_critic_matches_a_hand_expansion(ur10, rng, task, tracking_state):

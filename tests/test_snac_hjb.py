@@ -1,4 +1,4 @@
-"""snac-hjb (issue 12): the critic law against an independent Kleinman step (scipy's Lyapunov
+"""snac-hjb: the critic law against an independent Kleinman step (scipy's Lyapunov
 solver), convergence to the ARE's P*, the projection, and the reach demo's critic error."""
 
 import numpy as np

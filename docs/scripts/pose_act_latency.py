@@ -1,4 +1,4 @@
-"""Act latency of SNAC on the 7-DOF pose tasks (the issue's goal: median ≤ 30 µs on one core).
+"""Act latency of SNAC on the 7-DOF pose tasks (the goal: median ≤ 30 µs on one core).
 
 Run single-threaded on one core:
 

@@ -1,4 +1,4 @@
-"""How `snac-gym real` ends under each controller fault of issue 31, measured command against command.
+"""How `snac-gym real` ends under each controller fault, measured command against command.
 
 For each case it starts ``snac-gym emulate-ur`` with the fault flags, then
 ``snac-gym real --host 127.0.0.1 --task reach --controller snac --out OUT``, and reports the exit

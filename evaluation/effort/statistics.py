@@ -13,7 +13,7 @@ maximum control effort". Four statistics of the per-rollout commands are offered
     drawn. Of the four statistics measured on random 200-sample subsets of 1000 it moved the
     matched knobs least (docs/evaluation.md, "Equal effort: the statistic").
 
-``max`` (the issue's literal rule)
+``max`` (the rule as first specified: the peak command)
     the maximum of |u| over the whole sample set: max over samples, steps and joints of
     |uₖⱼ|, rad/s. Commands are clipped at the velocity limits, so wherever some rollout of the
     set drives a joint to its limit the maximum *is* that limit; it is a worst case, set by

@@ -522,7 +522,7 @@ def prefetch_report_modules() -> threading.Thread:
     """Import what the reports need (scipy.stats, matplotlib's pyplot: 1-2 s) in a daemon thread and return it.
 
     A run calls this when its last phase starts: its main process then mostly waits for the workers,
-    and the reports, written by it alone after the last job, no longer begin with these imports.
+    and the reports, written by it alone after the last job, do not begin with these imports.
     """
 
     def load() -> None:

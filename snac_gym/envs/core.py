@@ -78,7 +78,7 @@ def shaped_reward(
 
 
 #: Largest ``success_tolerance``, m: a tolerance above a metre counts most of a UR arm's reach (0.5 m to 1.3 m) as
-#: reached, so no success rate would measure anything (1e9 used to be taken).
+#: reached, so no success rate would measure anything.
 MAX_SUCCESS_TOLERANCE = 1.0
 
 

@@ -57,7 +57,7 @@ MAX_DT = 1.0
 #: control loop, and their step counts overflow (dt = 1e-320 made 1/dt infinite).
 MIN_DT = 1e-6
 #: Most physics steps per control period: 1000 (an 8 µs physics step at the paper's 8 ms). More would only
-#: make every step take seconds (10⁹ hung the first step).
+#: make every step take seconds (10⁹ would hang the first step).
 MAX_SUBSTEPS = 1000
 
 

@@ -327,7 +327,7 @@ class SNACPolicy(CriticEpisode, BasePolicy):
         self._internals: dict[str, Any] = {}
 
     def _set_initial_weights(self, initial_weights: np.ndarray | str, scale: float) -> None:
-        """Check and store Ŵ₀: a kind (``None`` was the earlier spelling of ``"uniform"``) or an array."""
+        """Check and store Ŵ₀: a kind (``None`` means ``"uniform"``) or an array."""
         if isinstance(initial_weights, str):
             if initial_weights not in INITIAL_WEIGHTS:
                 raise ValueError(

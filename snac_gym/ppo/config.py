@@ -442,7 +442,7 @@ def _check_env_keywords(task: str, env: dict[str, Any]) -> None:
         check = _ANNOTATION_CHECKS.get(annotation.removesuffix("|None"))
         if check is not None and not (optional and value is None):
             check(value, f"env.{key}")
-    # The engines' own timing check, with its bounds (n_substeps ≤ 1000: 10⁹ hung the first step)
+    # The engines' own timing check, with its bounds (n_substeps ≤ 1000: 10⁹ would hang the first step)
     timing = {key: env[key] for key in ("dt", "n_substeps") if env.get(key) is not None}
     try:
         check_timing(timing.get("dt", 0.008), timing.get("n_substeps", 1))

@@ -1,7 +1,7 @@
 """What makes the host's control loop as deterministic as CPython allows, each part switchable.
 
 * ``rt_priority``: the loop's thread (and the ur_rtde client process started after it, which
-  inherits it) under ``SCHED_FIFO``: a CPU hog beside it no longer delays the loop's wake-ups.
+  inherits it) under ``SCHED_FIFO``: a CPU hog beside it does not delay the loop's wake-ups.
   Needs root or ``CAP_SYS_NICE`` (or an ``rtprio`` limit in ``/etc/security/limits.conf``);
   where it is not permitted the run goes on at normal priority and says so.
 * ``lock_memory``: ``mlockall(MCL_CURRENT | MCL_FUTURE)``: no page of the process is paged out

@@ -171,7 +171,7 @@ def test_a_dropped_link_is_seen_within_one_period_and_the_watchdog_stops_the_arm
         env.step(SWEEP)
     t_drop = time.monotonic()
     emu.drop_connection()
-    # Seen as a closed link, or as ur_rtde's own reconnect starting, which ends the client (issue 31).
+    # Seen as a closed link, or as ur_rtde's own reconnect starting, which ends the client.
     with pytest.raises(ConnectionFailure, match="was lost|began to reconnect by itself"):
         for _ in range(3):
             env.step(SWEEP)

@@ -1,4 +1,4 @@
-"""A real-arm run always ends by itself, stops the arm and writes its log (issue 31).
+"""A real-arm run always ends by itself, stops the arm and writes its log.
 
 Through the real ur_rtde client against the emulated controller
 (:class:`~snac_gym.real.emulator.process.EmulatorProcess`): each fault that used to crash or
