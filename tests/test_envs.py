@@ -468,3 +468,18 @@ def test_kinematic_physics_is_the_evaluators_engine_episode_for_episode(env_id):
         gym.make(env_id, physics="kinematic", render_mode="rgb_array")
     with pytest.raises(ValueError, match="physics must be one of"):
         gym.make(env_id, physics="bullet")
+
+
+def test_pickling_records_every_constructor_keyword():
+    import inspect
+    import pickle
+
+    from snac_gym.envs.core import URTaskEnv
+
+    env = URTaskEnv(task="reach", physics="kinematic", max_steps=7, render_width=320)
+    keywords = set(inspect.signature(URTaskEnv.__init__).parameters) - {"self", "backend"}
+    assert set(env._init_kwargs) == keywords
+    clone = pickle.loads(pickle.dumps(env))
+    assert clone._init_kwargs == env._init_kwargs and clone.max_steps == 7 and clone._init_kwargs["render_width"] == 320
+    env.close()
+    clone.close()

@@ -453,38 +453,20 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         backend: str | None = None,
         cost: CostConvention | None = None,
     ) -> None:
+        arguments = {name: value for name, value in locals().items() if name != "self" and not name.startswith("__")}
         task = self._resolve_task(task)
         physics = physics_argument(physics, backend)
         dt, n_substeps = check_timing(dt, n_substeps)  # every engine, the kinematic one too
         if max_steps is not None:
             max_steps = whole_number("max_steps", max_steps, 1, MAX_EPISODE_STEPS)
         self.cost_convention = _cost_reward(reward_type, cost, Q, R)
-        self._init_kwargs = dict(
-            physics=physics,
-            render_every=render_every,
-            robot=robot,
-            dt=dt,
-            n_substeps=n_substeps,
-            max_steps=max_steps,
-            reward_type=reward_type,
-            Q=Q,
-            R=R,
-            success_tolerance=success_tolerance,
-            terminate_on_success=terminate_on_success,
-            sample_space=sample_space,
-            render_mode=render_mode,
-            render_width=render_width,
-            render_height=render_height,
-            render_distance=render_distance,
-            render_yaw=render_yaw,
-            render_pitch=render_pitch,
-            render_target_position=render_target_position,
-            action_type=action_type,
-            observation_dtype=observation_dtype,
-            finite_observation_bounds=finite_observation_bounds,
-            task=None if self.task_spec is not None else task.name,
-            cost=cost,
-        )
+        # What pickling rebuilds the env from: every argument as given, read from the call itself so that a new
+        # keyword cannot be left out; the engine and the task as resolved (``backend`` is ``physics``'s old name).
+        self._init_kwargs = {
+            **{name: value for name, value in arguments.items() if name != "backend"},
+            "physics": physics,
+            "task": None if self.task_spec is not None else task.name,
+        }
         obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
         finite_observation_bounds = check_observation_bounds(finite_observation_bounds)
         if physics == "kinematic" and render_mode is not None:

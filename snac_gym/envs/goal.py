@@ -115,6 +115,7 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         finite_observation_bounds: bool | str = True,
         **env_kwargs: Any,
     ) -> None:
+        arguments = {name: value for name, value in locals().items() if name != "self" and not name.startswith("__")}
         if reward_type not in GOAL_REWARD_TYPES:
             raise ValueError(f"reward_type must be one of {GOAL_REWARD_TYPES}, got {reward_type!r}")
         if start not in GOAL_STARTS:
@@ -127,18 +128,9 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         reserved = {"reward_type", "terminate_on_success", "observation_dtype"} & set(env_kwargs)
         if reserved:
             raise ValueError(f"the goal env sets {sorted(reserved)} itself")
-        self._init_kwargs = dict(
-            task=task,
-            reward_type=reward_type,
-            success_tolerance=success_tolerance,
-            terminate_on_success=terminate_on_success,
-            render_mode=render_mode,
-            start=start,
-            action=action,
-            cartesian_speed=cartesian_speed,
-            finite_observation_bounds=finite_observation_bounds,
-            **env_kwargs,
-        )
+        # every argument as given, read from the call itself (pickling rebuilds the env from them)
+        self._init_kwargs = {name: value for name, value in arguments.items() if name != "env_kwargs"}
+        self._init_kwargs.update(env_kwargs)
         self.task = get_task(task)
         self.env = task_env_class(self.task)(
             task=self.task,
