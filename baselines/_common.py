@@ -167,7 +167,7 @@ class ResolvedRatePolicy(BasePolicy):
         commands = scale_rows_into_limits(self.resolve_batch(jacobians, task_velocities), self.velocity_limits)
         return commands if self.limit_box is None else self.limit_box.clamp(obs_batch[:, self._reader.q], commands)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity limits."""
         obs = self._reader.read(obs)
         task_velocity = reference_velocity(obs, self._reader, self.gain)

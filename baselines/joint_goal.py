@@ -69,7 +69,7 @@ class JointGoalPolicy(BasePolicy):
         goal, velocity = self.arms.step(obs[self._x_d], obs[self._xdot_d])
         return velocity + self.gain * (goal - q)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for one observation, inside the velocity limits."""
         obs = self._reader.read(obs)
         command, scale = scale_into_box(self._commands(obs[None])[0], self.velocity_limits)

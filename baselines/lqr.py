@@ -129,7 +129,7 @@ class LQRPolicy(BasePolicy):
         commands = scale_rows_into_limits(commands, self.velocity_limits)
         return commands if self.limit_box is None else self.limit_box.clamp(obs_batch[:, self._reader.q], commands)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity limits."""
         obs = self._reader.read(obs)
         jacobian = self.kinematics.jacobian(obs[self._reader.q])

@@ -238,7 +238,7 @@ class MPCPolicy(BasePolicy):
         self._start(len(seeds))
         self.internals = {}
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity limits."""
         obs = self._reader.read(obs)
         command, value = self._control(obs[None])

@@ -226,7 +226,7 @@ class QPIKPolicy(BasePolicy):
         configuration, mink warns; the QP then allows no further motion outwards)."""
         return np.minimum(np.maximum(obs[self._q], self._lower), self._upper)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``, inside the velocity and position limits."""
         obs = self._reader.read(obs)
         command = self._solve(self.measured_q(obs), self.task_error(obs))

@@ -205,7 +205,7 @@ class RNNPolicy(BasePolicy):
         lower, upper = self.limit_box.bounds(qs)
         return lower[..., None], upper[..., None]
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``; advances the network by one period."""
         obs = self._reader.read(obs)
         network_input = reference_velocity(obs, self._reader, self.gain, feedforward=self.velocity_compensation)

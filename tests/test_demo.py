@@ -123,7 +123,7 @@ def test_rollout_rows_hold_the_state_at_the_start_of_each_step():
 class _HoldStill(BasePolicy):
     """A policy with no internals: commands zero."""
 
-    def act(self, obs):
+    def _act(self, obs):
         return np.zeros(self.kinematics.n_joints)
 
 

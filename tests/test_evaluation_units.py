@@ -46,7 +46,7 @@ class PseudoInversePolicy(BasePolicy):
         self.seen = []
         self.internals = {}
 
-    def act(self, obs):
+    def _act(self, obs):
         self.seen.append(np.array(obs))
         fields = self.layout.unpack(obs)
         jacobian = self.kinematics.jacobian(fields.q)
@@ -71,8 +71,8 @@ class BatchPseudoInversePolicy(PseudoInversePolicy):
 class NaNPolicy(PseudoInversePolicy):
     """Returns NaN from its fourth step (k = 3) on."""
 
-    def act(self, obs):
-        command = super().act(obs)
+    def _act(self, obs):
+        command = super()._act(obs)
         return np.full(6, np.nan) if len(self.seen) > 3 else command
 
 
@@ -265,7 +265,7 @@ def test_commands_beyond_the_limits_are_clipped_like_the_env(ur10, context_of, r
     context = context_of("reach")
 
     class Overdrive(PseudoInversePolicy):
-        def act(self, obs):
+        def _act(self, obs):
             return 10.0 * self.velocity_limits * np.array([1, -1, 1, -1, 1, -1])
 
     out = simulate_kinematic(context, lambda: Overdrive(context), reach_samples[:1], 3, [0])

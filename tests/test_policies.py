@@ -37,7 +37,7 @@ class _Constant(BasePolicy):
         super().__init__(env)
         self.speed = speed
 
-    def act(self, obs):
+    def _act(self, obs):
         return np.full(self.kinematics.n_joints, self.speed)
 
 

@@ -25,7 +25,7 @@ from snac_gym.references import PAPER_Q0, PAPER_TARGET
 class ResolvedRate(BasePolicy):
     """u = J⁺(ẋ_d − k e): enough to drive the loop in these tests."""
 
-    def act(self, obs):
+    def _act(self, obs):
         fields = self.layout.unpack(obs)
         jac = self.kinematics.jacobian(fields.q)
         return np.linalg.pinv(jac) @ (fields.xdot_d - 2.0 * fields.e)

@@ -202,7 +202,7 @@ class SendsSignal(BasePolicy):
         super().__init__(env)
         self.signum, self.at, self.count = signum, at, 0
 
-    def act(self, obs):
+    def _act(self, obs):
         self.count += 1
         if self.count == self.at:
             os.kill(os.getpid(), self.signum)
@@ -276,9 +276,9 @@ class SignalsTwice(SendsSignal):
 
     sent = False
 
-    def act(self, obs):
+    def _act(self, obs):
         SignalsTwice.sent = self.count + 1 >= self.at
-        return super().act(obs)
+        return super()._act(obs)
 
 
 def test_a_second_signal_does_not_cut_the_stop_path_or_the_log(signalling_run, tmp_path, monkeypatch):
@@ -310,7 +310,7 @@ class Crashes(BasePolicy):
         super().__init__(env)
         self.at, self.count = at, 0
 
-    def act(self, obs):
+    def _act(self, obs):
         self.count += 1
         if self.count == self.at:
             return 1 // 0

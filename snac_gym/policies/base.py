@@ -36,7 +36,6 @@ controller in under 30 lines is in docs/extending.md.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
@@ -173,41 +172,13 @@ class PolicyContext:
 
 
 class BasePolicy:
-    """Convenience base class: stores the context and gives ``internals`` a default.
+    """Convenience base class: stores the context, gives ``internals`` a default, and checks what ``act`` is given.
 
-    A subclass's ``act`` is wrapped so that it only ever sees a real, finite observation of the layout's
-    size: a NaN observation (a failed sensor read, a diverged state) is refused with a ``ValueError``
-    instead of turning into a NaN command. (About 2 µs a call; the batch protocol is not wrapped.)
+    A subclass implements :meth:`_act`; :meth:`act` (a template method) refuses anything but a real, finite
+    observation of the layout's size with a ``ValueError`` naming the class, then calls it: a NaN observation (a
+    failed sensor read, a diverged state) never turns into a NaN command. (About 2 µs a call; the batch protocol is
+    not checked.) A subclass that overrides ``act`` itself does its own checks.
     """
-
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        super().__init_subclass__(**kwargs)
-        act = cls.__dict__.get("act")
-        if act is None or getattr(act, "checks_observation", False):
-            return
-
-        @functools.wraps(act)
-        def checked_act(self: Any, obs: Any) -> Any:
-            observation = np.asarray(obs)
-            size = self.layout.size
-            if (
-                observation.dtype.kind not in "iuf"
-                or observation.shape != (size,)
-                or not np.isfinite(observation).all()
-            ):
-                raise ValueError(
-                    f"{type(self).__name__}.act needs a finite observation of shape ({size},), got "
-                    f"{observation.dtype} {observation.shape}"
-                    + (
-                        ""
-                        if observation.dtype.kind not in "iuf" or np.isfinite(observation).all()
-                        else " with NaN or inf"
-                    )
-                )
-            return act(self, observation)
-
-        checked_act.checks_observation = True  # type: ignore[attr-defined]
-        cls.act = checked_act  # type: ignore[method-assign]
 
     def __init__(self, env: Any) -> None:
         self.context = PolicyContext.from_env(env)
@@ -223,8 +194,21 @@ class BasePolicy:
     def reset(self, seed: int | None = None) -> None:
         self.internals = {}
 
-    def act(self, obs: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Joint-velocity command u (rad/s) for one observation: :meth:`_act` of the checked observation."""
+        observation = np.asarray(obs)
+        size = self.layout.size
+        if observation.dtype.kind not in "iuf" or observation.shape != (size,) or not np.isfinite(observation).all():
+            finite = observation.dtype.kind not in "iuf" or np.isfinite(observation).all()
+            raise ValueError(
+                f"{type(self).__name__}.act needs a finite observation of shape ({size},), got "
+                f"{observation.dtype} {observation.shape}" + ("" if finite else " with NaN or inf")
+            )
+        return self._act(observation)
+
+    def _act(self, obs: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        """The command for a checked observation (a subclass's control law)."""
+        raise NotImplementedError(f"{type(self).__name__} implements no _act")
 
 
 def supports_batch(policy: Any) -> bool:

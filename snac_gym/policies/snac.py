@@ -481,7 +481,7 @@ class SNACPolicy(CriticEpisode, BasePolicy):
     def _is_saturated(self, command: np.ndarray) -> bool:
         return any(abs(value) > limit for value, limit in zip(command.tolist(), self._upper_list))
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command for ``obs`` (clipped to the limits); advances the critic one period.
 
         Raises:

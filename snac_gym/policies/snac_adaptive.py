@@ -388,8 +388,8 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         obs_batch = np.asarray(obs_batch, dtype=float)
         return self._watched(obs_batch, super().act_batch(obs_batch))
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        command = self._watched(np.asarray(obs, dtype=float)[None], super().act(obs)[None])[0]
+    def _act(self, obs: np.ndarray) -> np.ndarray:
+        command = self._watched(np.asarray(obs, dtype=float)[None], super()._act(obs)[None])[0]
         self.internals.update(
             {
                 "model_residual": float(self.identifier.residual[0]),

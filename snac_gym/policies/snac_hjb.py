@@ -329,7 +329,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         self._batch_k += 1
         return command
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``; advances the critic one period.
 
         Raises:

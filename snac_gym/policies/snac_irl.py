@@ -240,7 +240,7 @@ class SNACIRLPolicy(BasePolicy):
         self.internals = {"learned": b["learned"].copy(), "iterations": b["iterations"].copy(), "exploring": exploring}
         return command
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s) for ``obs``; records the data and learns at step L.
 
         Raises:

@@ -97,7 +97,7 @@ class PPOPolicy(BasePolicy):
             self._goals = EpisodeGoals(self.kinematics, self.velocity_limits, self.dt, self.tracking, len(obs_batch))
         return self._goals.observe(obs_batch, self.layout)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
+    def _act(self, obs: np.ndarray) -> np.ndarray:
         """Joint-velocity command (rad/s, shape ``(m,)``) for one observation.
 
         Raises:
