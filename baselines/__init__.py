@@ -10,9 +10,9 @@ registered with :func:`snac_gym.make_policy` under its short name. This folder i
 * ``dls`` — :class:`snac_gym.baselines.dls.DLSPolicy`: damped least squares,
   ``u = Jᵀ(JJᵀ + λ²I)⁻¹(ẋ_d + K(x_d − x))``.
 * ``lqr`` — :class:`snac_gym.baselines.lqr.LQRPolicy`: the infinite-horizon LQR of ``ė = J u`` at the
-  Jacobian frozen at the current θ (closed form, :mod:`snac_gym.optimality`), for the paper's cost.
+  Jacobian frozen at the current θ (closed form, :mod:`snac_gym.control.optimality`), for the paper's cost.
 * ``mpc`` — :class:`snac_gym.baselines.mpc.MPCPolicy`: receding-horizon Gauss-Newton on the evaluator's
-  trajectory cost, the limits as barrier constraints (the trajectory optimiser, :mod:`snac_gym.trajopt`).
+  trajectory cost, the limits as barrier constraints (the trajectory optimiser, :mod:`snac_gym.control.trajopt`).
 * ``pink``, ``mink`` — :class:`snac_gym.baselines.pink_ik.PinkPolicy`, :class:`snac_gym.baselines.mink_ik.MinkPolicy`:
   QP differential IK through the pink (Pinocchio) and mink (MuJoCo) libraries, joint position and
   velocity limits as QP constraints (:mod:`snac_gym.baselines.qp_ik`; the ``ik`` extra).

@@ -10,7 +10,7 @@ i.e. the task-space velocity that makes ``ė = −K e`` when ``J u = v`` holds e
 regulation ``ẋ_d = 0`` (the reach env's observation carries zeros there), so one formula
 serves both tasks. The controllers differ in how they map ``v`` to ``u``.
 
-The Jacobian comes from the env's shared :class:`~snac_gym.kinematics.Kinematics`; the
+The Jacobian comes from the env's shared :class:`~snac_gym.model.kinematics.Kinematics`; the
 baselines have no kinematics of their own.
 """
 
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.joint_limits import make_limit_box
+from snac_gym.model.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 
 
@@ -126,7 +126,7 @@ class ResolvedRatePolicy(BasePolicy):
         gain: Task-space feedback gain ``K`` (1/s); the effort knob: the command at the start
             of a regulation episode is about ``K‖e₀‖`` in task space.
         joint_limits: Clamp the command into the position-limit box Ω(θ)
-            (:mod:`snac_gym.joint_limits`; these controllers have no mechanism of their own);
+            (:mod:`snac_gym.model.joint_limits`; these controllers have no mechanism of their own);
             ``None`` (default): on for the 7-DOF arms only.
 
     Attributes:

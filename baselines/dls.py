@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from snac_gym.baselines._common import ResolvedRatePolicy, positive_float
 
-from snac_gym.kinematics import damped_least_squares
+from snac_gym.model.kinematics import damped_least_squares
 
 
 class DLSPolicy(ResolvedRatePolicy):

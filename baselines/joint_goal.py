@@ -1,11 +1,11 @@
 """Joint-space motion to a goal configuration inside the joint limits (``joint-goal``), a model-based controller.
 
 At the first step of an episode it solves for the configuration θ* nearest θ₀ that puts the end
-effector on x_d(0) inside the joint limits (:func:`snac_gym.joint_goal.nearest_goals`: IK from θ₀ and
+effector on x_d(0) inside the joint limits (:func:`snac_gym.model.joint_goal.nearest_goals`: IK from θ₀ and
 from fixed spread starts, so other branches and the other way round a joint are found; for a moving
-reference, preferably one with :data:`~snac_gym.joint_goal.TRACKING_ROOM` to every limit), then drives
+reference, preferably one with :data:`~snac_gym.model.joint_goal.TRACKING_ROOM` to every limit), then drives
 the joints straight at it, following the virtual arm θ*(t) that carries the goal along a moving
-reference (:class:`snac_gym.joint_goal.GoalArms`):
+reference (:class:`snac_gym.model.joint_goal.GoalArms`):
 
     u = sat(θ̇*(t) + K (θ*(t) − θ))
 
@@ -22,7 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 from snac_gym.baselines._common import ObservationReader, scale_into_box
 
-from snac_gym.joint_goal import TRACKING_ROOM, GoalArms
+from snac_gym.model.joint_goal import TRACKING_ROOM, GoalArms
 from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 
 

@@ -2,7 +2,7 @@
 
 At every control step the Jacobian is frozen at the current θ and the infinite-horizon LQR of
 ``ė = J u`` with the paper's cost ``∫ eᵀQe + uᵀRu dt`` is solved in closed form
-(:mod:`snac_gym.optimality`); the command is its optimal feedback. This is what an ideal
+(:mod:`snac_gym.control.optimality`); the command is its optimal feedback. This is what an ideal
 critic converges to when J changes slowly, so it is the reference for SNAC's learnt critic.
 """
 
@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from snac_gym.baselines._common import ObservationReader, scale_into_box
 
-from snac_gym.joint_limits import make_limit_box
-from snac_gym.optimality import FrozenJacobianLQR
+from snac_gym.control.optimality import FrozenJacobianLQR
+from snac_gym.model.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
 
 
@@ -72,7 +72,7 @@ class LQRPolicy(BasePolicy):
             q_scale = 1, the paper's weights, the slowest direction at the paper's θ0 (σ_min = 0.40)
             decays at 0.4 1/s and the paper's reach first gets within 1 mm at 7.95 s of its 8 s; at 9
             all of 100 random reach episodes end within 1 mm (docs/baselines.md has the measurements).
-        joint_limits: Clamp the command into the position-limit box Ω(θ) (:mod:`snac_gym.joint_limits`;
+        joint_limits: Clamp the command into the position-limit box Ω(θ) (:mod:`snac_gym.model.joint_limits`;
             the frozen-Jacobian LQR has no mechanism of its own); ``None``: on for the 7-DOF arms only.
 
     Raises:
@@ -81,7 +81,7 @@ class LQRPolicy(BasePolicy):
 
     Attributes:
         effort_parameter: ``"q_scale"``, for the evaluator's effort matching.
-        lqr: The :class:`~snac_gym.optimality.FrozenJacobianLQR` of ``(q_scale·Q, R)``.
+        lqr: The :class:`~snac_gym.control.optimality.FrozenJacobianLQR` of ``(q_scale·Q, R)``.
         internals: After :meth:`act`: ``saturation_scale`` (the factor the command was divided
             by, 1 when inside the limits) and ``value`` (``eᵀP*e``, the frozen-Jacobian optimal
             cost-to-go of the error, with the weights the law uses).

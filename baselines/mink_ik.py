@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from snac_gym.baselines.qp_ik import QPIKPolicy
 
-from snac_gym.extras import require
+from snac_gym.common.extras import require
 from snac_gym.physics.mujoco_model import EE_SITE, shared_mujoco_model
 
 

@@ -14,12 +14,12 @@ steps later. Details and measurements: docs/mpc.md.
   periods, N = horizon/Δt_s solver steps. The effort and u̇ terms are exact for such piecewise-constant
   commands (w = ``block`` on the grid Δt_s; w = 0 for the HJB cost); the error term is sampled at the
   start of each block.
-* **Solver.** The Gauss-Newton step of the trajectory optimiser (snac_gym/trajopt.py: the block-banded system in
-  θ₁..θ_N, :func:`~snac_gym.trajopt.gauss_newton_direction`), with the terminal block
+* **Solver.** The Gauss-Newton step of the trajectory optimiser (snac_gym/control/trajopt.py: the block-banded system in
+  θ₁..θ_N, :func:`~snac_gym.control.trajopt.gauss_newton_direction`), with the terminal block
   2J_NᵀP̄J_N added, and an Armijo backtracking on the exact cost, at most ``iterations`` steps per
   re-solve, warm-started from the previous plan shifted by ``period`` control periods.
 * **Terminal cost.** e_NᵀP̄e_N + 2p̄ᵀe_N with P̄ = P*(J(θ_N)), the frozen-Jacobian LQR cost-to-go
-  (:mod:`snac_gym.optimality`), and p̄ = −(JJᵀ)⁻¹ẋ_d(t_N), the price of making up a lag behind a moving
+  (:mod:`snac_gym.control.optimality`), and p̄ = −(JJᵀ)⁻¹ẋ_d(t_N), the price of making up a lag behind a moving
   reference (:meth:`MPCPolicy._terminal_cost`); both at the end of the warm start, held fixed during a
   re-solve so that the line search sees one function. Without it (``terminal=False``) a short horizon
   is myopic: for ė = σu the finite-horizon gain is tanh(σ√q T)·√q instead of √q. It leaves out the u̇
@@ -28,7 +28,7 @@ steps later. Details and measurements: docs/mpc.md.
   position limits (the limits of the success rule and of the ``optimal`` reference) are constraints
   of every re-solve: a log barrier μ Σ log s over the plan (slacks ū ± uᵢ and θᵢ − θ⁻, θ⁺ − θᵢ on the
   solver grid, where θ is piecewise linear), added to the Gauss-Newton matrix as the reference's
-  interior point adds it (:class:`~snac_gym.trajopt.Barrier`), with the fraction-to-the-
+  interior point adds it (:class:`~snac_gym.control.trajopt.Barrier`), with the fraction-to-the-
   boundary step; μ is fixed per re-solve at :data:`BARRIER_SHARE` of its V over the constraints. The
   warm start is shrunk into the open limits first, so every plan, and every applied command, keeps
   them strictly. ``constraints=False``: the first version, unconstrained, its command clipped into ±ū.
@@ -48,11 +48,9 @@ from typing import Any
 import numpy as np
 from snac_gym.baselines._common import ObservationReader, clip_to_box
 
-from snac_gym.cost import COSTS, UDOT_STARTS, CostConvention, cost_and_gradient
-from snac_gym.joint_limits import make_limit_box
-from snac_gym.optimality import FrozenJacobianLQR
-from snac_gym.policies.base import BasePolicy, positive_float
-from snac_gym.trajopt import (
+from snac_gym.control.cost import COSTS, UDOT_STARTS, CostConvention, cost_and_gradient
+from snac_gym.control.optimality import FrozenJacobianLQR
+from snac_gym.control.trajopt import (
     ARMIJO,
     BOUNDARY_FRACTION,
     START_SHRINK,
@@ -64,6 +62,8 @@ from snac_gym.trajopt import (
     position_bounds,
     theta_system_base,
 )
+from snac_gym.model.joint_limits import make_limit_box
+from snac_gym.policies.base import BasePolicy, positive_float
 
 #: (horizon s, block) when not given, per cost: measured in docs/mpc.md. The u̇ term of ``table1`` makes the
 #: command itself a slow state (time scale ~1 s) that the terminal cost does not price, and a coarse grid
@@ -152,7 +152,7 @@ class MPCPolicy(BasePolicy):
         reference: ``"predict"`` (harmonic prediction of a tracking reference) or ``"hold"``.
         constraints: Keep the velocity and joint position limits as barrier constraints of each
             re-solve (module docstring); ``False``: unconstrained, the command clipped into ±ū.
-        joint_limits: Clamp the command into the position-limit box Ω(θ) (:mod:`snac_gym.joint_limits`);
+        joint_limits: Clamp the command into the position-limit box Ω(θ) (:mod:`snac_gym.model.joint_limits`);
             ``None``: on for the 7-DOF arms only, as for the other baselines.
 
     Raises:
@@ -352,7 +352,8 @@ class MPCPolicy(BasePolicy):
         return base
 
     def _limits(self, q0: np.ndarray) -> list[Limits]:
-        """Each episode's limits: ū, and the reference's position bounds (:func:`~snac_gym.trajopt.position_bounds`:
+        """Each episode's limits: ū, and the reference's position bounds
+        (:func:`~snac_gym.control.trajopt.position_bounds`:
         a clearance from θ⁻ and θ⁺ against rounding, each moved just past a measured θ on or beyond it, which
         could not be brought back inside a barrier's domain otherwise)."""
         lower = getattr(self.kinematics, "lower_limits", None)
@@ -500,7 +501,7 @@ class MPCPolicy(BasePolicy):
         first: np.ndarray | None = None,
         limits: list[Limits] | None = None,
     ) -> None:
-        """Armijo backtracking (snac_gym/trajopt.py's test) from step fraction ``first``, every
+        """Armijo backtracking (snac_gym/control/trajopt.py's test) from step fraction ``first``, every
         pending sample in one FK pass; updates ``plan`` and ``state`` = (V, ∂V/∂U, J) in place where a step
         is accepted. With the limits, V includes the barrier (inf outside them)."""
         value, grad, jacobians = state

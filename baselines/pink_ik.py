@@ -55,7 +55,7 @@ class PinkPolicy(QPIKPolicy):
     ``ConfigurationLimit`` (gain 0.5, pink's default) and ``VelocityLimit`` (the env's velocity limits),
     ``pink.solve_ik`` with daqp.
 
-    The Pinocchio model is a copy of the project's (:class:`~snac_gym.kinematics.Kinematics`: the same
+    The Pinocchio model is a copy of the project's (:class:`~snac_gym.model.kinematics.Kinematics`: the same
     URDF, frames and base frame), so J is the project's Jacobian. Arguments:
     :class:`~snac_gym.baselines.qp_ik.QPIKPolicy`.
     """

@@ -24,7 +24,7 @@ with, in this project's terms,
   ``μ = lm_damping ‖α ẽ‖²`` the task's optional Levenberg-Marquardt term (default 0, the libraries'
   default);
 * ``ū`` the env's velocity limits, ``θ⁻, θ⁺`` the URDF's position limits (those of
-  :class:`~snac_gym.kinematics.Kinematics`), ``κ`` the ConfigurationLimit's gain (pink's default 0.5,
+  :class:`~snac_gym.model.kinematics.Kinematics`), ``κ`` the ConfigurationLimit's gain (pink's default 0.5,
   mink's 0.95).
 
 Both constraints are bounds on each joint's Δq, so the feasible set is one box
@@ -46,7 +46,7 @@ Two ways to solve it, the ``assembly`` argument:
 Without active bounds the minimiser is ``u = Jᵀ(JJᵀ + λ²I)⁻¹ v``: DLS (:mod:`snac_gym.baselines.dls`) with the
 same λ. The two differ only in how they stay inside the limits: DLS scales the whole command
 into the velocity box (keeping its direction) and has no position limits of its own (on the
-7-DOF arms it is clamped into the box Ω(θ) of :mod:`snac_gym.joint_limits`); the QP bounds each
+7-DOF arms it is clamped into the box Ω(θ) of :mod:`snac_gym.model.joint_limits`); the QP bounds each
 joint and lets the others take over the task motion a bounded joint cannot make, and keeps
 every joint inside its position limits by construction (a joint closes at most a fraction κ of
 its distance to a limit per step).
@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 from snac_gym.baselines._common import ObservationReader, clip_to_box
 
-from snac_gym.extras import MissingExtraError, require
+from snac_gym.common.extras import MissingExtraError, require
 from snac_gym.policies.base import BasePolicy, non_negative_float, positive_float
 
 #: The QP solver: daqp, installed by the ``ik`` extra (``qpsolvers[daqp]``).

@@ -18,7 +18,7 @@ from snac_gym.baselines._common import (
     transpose,
 )
 
-from snac_gym.joint_limits import make_limit_box
+from snac_gym.model.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy
 
 #: Integration schemes of the network dynamics (see :class:`RNNPolicy`).
@@ -61,7 +61,7 @@ class RNNPolicy(BasePolicy):
       the convex case.
     * **Joint position limits** enter Ω as in Li et al., through θ-dependent speed bounds
       ``Ω(θ) = {max(−ū, κ(θ⁻ + δ − θ)) ≤ u ≤ min(ū, κ(θ⁺ − δ − θ))}``
-      (:mod:`snac_gym.joint_limits`), the network's own mechanism: at its equilibrium the
+      (:mod:`snac_gym.model.joint_limits`), the network's own mechanism: at its equilibrium the
       other joints make the task motion a bounded joint cannot. On by default on the 7-DOF
       arms (``joint_limits=None``); on the UR arms Ω is the velocity box ``|uᵢ| ≤ ūᵢ``.
     * The feedback gain k is a scalar (the same for every task axis), λ(0) = 0 at every

@@ -25,7 +25,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from snac_gym.errors import DamagedEntry
+from snac_gym.common.errors import DamagedEntry
 
 #: Format of an entry; an entry of another format is damaged (computed again).
 ENTRY_FORMAT = 1

@@ -3,7 +3,8 @@ compute its values, not from a list kept by hand (which had left out the robots'
 
 :func:`module_closure` follows every ``import``/``from ... import`` of the package's own modules (at module level
 and inside functions alike) from the given roots, statically, by parsing the sources; :func:`sources_fingerprint`
-is the SHA-256 of their text. A name imported from a module (``from snac_gym.kinematics import Kinematics``) counts
+is the SHA-256 of their text. A name imported from a module (``from snac_gym.model.kinematics import Kinematics``)
+counts
 as that module; a package's ``__init__`` counts only where it is imported as such. Code reached by name at run time
 (a policy made by its registered name) is not in the graph: its module is given as a root
 (:func:`snac_gym.policies.registry.policy_factory`).

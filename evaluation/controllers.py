@@ -21,7 +21,7 @@ from snac_gym.evaluation.reports.summary import PAPER_TABLE_I
 from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
 from snac_gym.evaluation.store import file_sha1
 
-from snac_gym.extras import MissingExtraError
+from snac_gym.common.extras import MissingExtraError
 from snac_gym.policies.registry import available_policies, make_policy, policy_factory
 
 

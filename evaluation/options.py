@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.policies import available_policies
 from snac_gym.sampling import REGIONS, SampleSpace
 from snac_gym.tasks import PAPER_TASKS, task_names

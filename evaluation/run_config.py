@@ -25,15 +25,15 @@ from snac_gym.evaluation.reference.optimum import OPTIMAL, REFERENCE_LIMITS
 from snac_gym.evaluation.samples import check_samples_file
 from snac_gym.evaluation.store import file_sha1
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics, shared_kinematics
-from snac_gym.model_error import ModelError, refuse_pose_tasks
+from snac_gym.common.validation import boolean
+from snac_gym.control.cost import CostConvention
+from snac_gym.model.kinematics import Kinematics, shared_kinematics
+from snac_gym.model.model_error import ModelError, refuse_pose_tasks
 from snac_gym.physics.base import check_physics
 from snac_gym.policies import available_policies
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import PAPER_TASKS, get_task, task_names
 from snac_gym.tasks.pose import POSE_TASK_NAMES, is_pose_task, register_pose_tasks
-from snac_gym.validation import boolean
 
 #: Default horizon per task, s (each task's ``horizon_s``: at least every controller's 95th-percentile
 #: settling time at equal effort on 100 samples, docs/evaluation.md), as registered at import.
@@ -128,14 +128,14 @@ class EvaluationConfig:
         plots: Draw the figures (``cost_boxplot.png``; ``tradeoff.png`` of a sweep); ``False``: the
             tables and the summary only, and a figure of an earlier run in ``out`` is removed.
         use_batch: Let policies that offer the batch protocol run in lockstep batches.
-        cost: The trajectory cost of the comparison (:data:`snac_gym.cost.COSTS`): ``"table1"``
+        cost: The trajectory cost of the comparison (:data:`snac_gym.control.cost.COSTS`): ``"table1"``
             (with the u̇ term) or ``"hjb"`` (``Σ (eᵀQe + uᵀRu) Δt``); ``optimal`` solves for it.
         udot_start: u₋₁ of the u̇ term: ``"rest"`` (0) or ``"first"`` (u₀).
         q_scale: Q = q_scale·I in the cost; controllers whose constructor takes ``Q`` (``snac``,
             ``lqr``, ``snac-hjb``) get the same Q unless ``controller_kwargs`` sets it.
         success_threshold: Success rate a controller must reach to be ranked in the summary.
         model_error: The controllers' arm model differs from the plant's by this
-            (:class:`snac_gym.model_error.ModelError` text, ``--model-error``); the plant, the cost,
+            (:class:`snac_gym.model.model_error.ModelError` text, ``--model-error``); the plant, the cost,
             the success rule and the ``optimal`` reference keep the true model. ``None``: none.
         reference_limits: The constraints of the ``optimal`` reference (:data:`REFERENCE_LIMITS`):
             ``"joints"`` (joint position and velocity limits, the limits the success rule counts) or
@@ -187,7 +187,7 @@ class EvaluationConfig:
 
     @property
     def convention(self) -> CostConvention:
-        """The :class:`~snac_gym.cost.CostConvention` of ``cost``, ``udot_start`` and ``q_scale``."""
+        """The :class:`~snac_gym.control.cost.CostConvention` of ``cost``, ``udot_start`` and ``q_scale``."""
         return CostConvention(self.cost, self.udot_start, self.q_scale)
 
     def validate(self) -> None:

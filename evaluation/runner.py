@@ -62,8 +62,8 @@ from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
 from snac_gym.evaluation.store import RunStore
 
-from snac_gym.kinematics import Kinematics
-from snac_gym.outputs import write_whole
+from snac_gym.common.outputs import write_whole
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 
 #: Samples drawn per sample-generation job.

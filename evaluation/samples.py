@@ -44,9 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
-from snac_gym.errors import SampleFileError
-from snac_gym.kinematics import Kinematics
-from snac_gym.outputs import written_whole
+from snac_gym.common.errors import SampleFileError
+from snac_gym.common.outputs import written_whole
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace, check_reachable, sample_seed_pose
 from snac_gym.tasks import Sample, all_tasks, get_task, task_names
 

@@ -43,8 +43,8 @@ except ImportError:  # pragma: no cover - not POSIX
 
 from snac_gym.evaluation.samples import SampleFileError
 
-from snac_gym.errors import RunDirectoryError
-from snac_gym.outputs import OutputFolderError, usable_out_folder, write_text_whole, written_whole
+from snac_gym.common.errors import RunDirectoryError
+from snac_gym.common.outputs import OutputFolderError, usable_out_folder, write_text_whole, written_whole
 from snac_gym.rollout import write_log
 
 #: Parquet schema-metadata keys of a part file: the run it belongs to and the sample ids it holds.

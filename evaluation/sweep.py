@@ -43,8 +43,8 @@ from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.runner import load_samples, run_evaluation
 from snac_gym.evaluation.store import RunStore
 
-from snac_gym.kinematics import Kinematics
-from snac_gym.outputs import write_whole
+from snac_gym.common.outputs import write_whole
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
 

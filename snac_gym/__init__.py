@@ -6,10 +6,10 @@ Importing the package registers one environment id per robot and task, ``snac_gy
 with its goal-conditioned variant ``snac_gym/UR10ReachGoal-v0``, ... (:mod:`snac_gym.envs.goal`).
 """
 
-from snac_gym import _renamed
-from snac_gym.cost import CostTerms, instantaneous_cost, trajectory_cost
+from snac_gym.common import _renamed
+from snac_gym.control.cost import CostTerms, instantaneous_cost, trajectory_cost
 from snac_gym.envs import ENV_IDS, register_envs
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies import Policy, PolicyContext, available_policies, make_policy, register_policy
 from snac_gym.references import Ellipse, FixedTarget

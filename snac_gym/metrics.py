@@ -3,10 +3,10 @@
 Two views of the same quantities: :func:`rollout_metrics` (one row per rollout of a batch,
 the evaluator's results) and :func:`demo_metrics` (one run's :class:`DemoMetrics`, what
 ``snac-gym demo`` and ``snac-gym real`` print). Both take the cost from
-:func:`snac_gym.cost.trajectory_cost`.
+:func:`snac_gym.control.cost.trajectory_cost`.
 
-The cost is :func:`snac_gym.cost.trajectory_cost` (the one function the env reward and the
-plots use) under a :class:`snac_gym.cost.CostConvention` (``--cost``, ``--udot-start``,
+The cost is :func:`snac_gym.control.cost.trajectory_cost` (the one function the env reward and the
+plots use) under a :class:`snac_gym.control.cost.CostConvention` (``--cost``, ``--udot-start``,
 ``--q-scale``); by default the paper's Table I cost
 ``V = Σₖ (eₖᵀQeₖ + uₖᵀRuₖ + u̇ₖᵀRu̇ₖ) Δt`` over the K steps, Q = I₃, R = I₆,
 u̇ₖ = (uₖ − uₖ₋₁)/Δt with u₋₁ = 0.
@@ -49,7 +49,7 @@ success                –       reach: final_error ≤ 1 mm; track: mean_error_
 hjb_residual_median    –       critic-based controllers: median over the sampled steps of the
                                critic's HJB residual r = ∇V̂ᵀξ̇ + eᵀQe + ûᵀRû; NaN for the others
 hjb_ratio_median       –       critic-based controllers: median over the sampled steps of the
-                               critic's HJB residual r/eᵀQe (:mod:`snac_gym.optimality`; 0 for
+                               critic's HJB residual r/eᵀQe (:mod:`snac_gym.control.optimality`; 0 for
                                the optimal critic); NaN for the others
 critic_error_final     –       regulation critics: ‖P̂ − P*(J)‖_F/‖P*‖_F at the last step; NaN
                                otherwise
@@ -72,9 +72,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym.cost import CostConvention, CostTerms, cost_rates, trajectory_cost
-from snac_gym.joint_limits import joint_limit_margins, joint_limit_margins_of_extremes
+from snac_gym.control.cost import CostConvention, CostTerms, cost_rates, trajectory_cost
 from snac_gym.kernels.metrics import command_extremes, reverse_sum_extremes
+from snac_gym.model.joint_limits import joint_limit_margins, joint_limit_margins_of_extremes
 from snac_gym.rollout.batch import Rollouts
 from snac_gym.rollout.log import log_array
 from snac_gym.tasks import get_task

@@ -80,7 +80,7 @@ class ObservationLayout:
         error: np.ndarray | None = None,
     ) -> np.ndarray:
         """Build the observation; the error field is ``error``, by default ``x − x_d`` computed here
-        (a pose task passes its logarithmic error, :meth:`~snac_gym.kinematics.PoseKinematics.task_error`)."""
+        (a pose task passes its logarithmic error, :meth:`~snac_gym.model.kinematics.PoseKinematics.task_error`)."""
         q_, qdot_, x_, x_d_, xdot_d_, e_, x_c_ = self._pack_slices
         obs = np.empty(self.size, dtype=np.float64)
         obs[q_] = q

@@ -12,10 +12,10 @@ from functools import cached_property
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.common.validation import real_array, real_number, whole_number
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.robots import ROBOTS
 from snac_gym.references import MAX_REFERENCE_SPEED, MIN_ANGULAR_SPEED, MIN_SEMI_AXIS, Ellipse, FixedTarget
-from snac_gym.robots import ROBOTS
-from snac_gym.validation import real_array, real_number, whole_number
 
 #: Where samples come from (:class:`SampleSpace` ``region``).
 REGIONS = ("cuboid", "workspace")

@@ -10,7 +10,7 @@ import pytest
 
 import snac_gym  # noqa: F401  (registers the envs)
 from snac_gym.kernels.compiled import cached_on_disk
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 
 # The reference's row cache (evaluation/reference/cache.py) of this test process: a fresh folder, so that no
 # test reads rows another run left in the user's cache, and the suite writes nothing there.
@@ -167,7 +167,7 @@ def reference_job(tmp_path):
     from snac_gym.evaluation.reference.optimum import OptimalJob  # the evaluator: only these tests need it
     from snac_gym.evaluation.samples import generate_samples
 
-    from snac_gym.kinematics import shared_kinematics
+    from snac_gym.model.kinematics import shared_kinematics
     from snac_gym.sampling import SampleSpace
 
     ur10 = shared_kinematics("ur10")

@@ -14,10 +14,10 @@ import pytest
 from snac_gym.evaluation import EvaluationConfig
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.cost import trajectory_cost
-from snac_gym.model_error import ModelError
+from snac_gym.common.validation import real_array, real_number, whole_number
+from snac_gym.control.cost import trajectory_cost
+from snac_gym.model.model_error import ModelError
 from snac_gym.policies import make_policy
-from snac_gym.validation import real_array, real_number, whole_number
 
 ID = "snac_gym/UR10Reach-v0"
 

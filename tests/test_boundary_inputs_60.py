@@ -11,9 +11,9 @@ import pytest
 from snac_gym.evaluation import EvaluationConfig
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.cost import trajectory_cost
+from snac_gym.common.validation import boolean
+from snac_gym.control.cost import trajectory_cost
 from snac_gym.sampling import SampleSpace
-from snac_gym.validation import boolean
 
 ID = "snac_gym/UR10Reach-v0"
 

@@ -122,8 +122,9 @@ def test_the_reference_key_covers_every_module_of_its_import_graph_and_moves_wit
     """The modules are read off the import graph (tests/test_reference_cache.py compares them with grimp's), the
     robots' tables included; an edit of any one of them is another key."""
     modules = set(reference_cache.code_modules())
-    assert {"snac_gym.robots", "snac_gym.ur_models", "snac_gym.kinematics", "snac_gym.trajopt",
-            "snac_gym.kernels.relaxation", "snac_gym.baselines.lqr", "snac_gym.joint_goal"} <= modules  # fmt: skip
+    assert {"snac_gym.model.robots", "snac_gym.model.ur_models", "snac_gym.model.kinematics",
+            "snac_gym.control.trajopt", "snac_gym.kernels.relaxation", "snac_gym.baselines.lqr",
+            "snac_gym.model.joint_goal"} <= modules  # fmt: skip
     before = reference_cache.sample_key(job, job.samples[0])
     real_read = Path.read_bytes
     for module in sorted(modules):
@@ -139,7 +140,7 @@ def test_the_reference_key_covers_every_module_of_its_import_graph_and_moves_wit
 
 
 def test_the_import_graph_follows_relative_and_in_function_imports():
-    closure = module_closure(["snac_gym.joint_goal"])
+    closure = module_closure(["snac_gym.model.joint_goal"])
     assert "snac_gym.kernels.small" in closure  # imported inside a function
     assert "snac_gym.kernels.compiled" in closure  # ... and what that module imports
     assert closure == tuple(sorted(closure)) and "snac_gym.evaluation.runner" not in closure

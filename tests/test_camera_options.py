@@ -8,7 +8,7 @@ import pybullet as p
 import pytest
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.physics.scene import CameraOptions, fit_camera, project
 
 

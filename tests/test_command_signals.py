@@ -140,7 +140,7 @@ DELAYS = {"SIGINT": 0.0, "SIGTERM": 0.4, "SIGHUP": 0.0, "SIGQUIT": 0.4}
 
 
 #: Two signals per command, one sent at once (typer's start) and one later (the command's body): all four
-#: go through the one handler (snac_gym/_signals.py), and _run asserts that the command caught all four
+#: go through the one handler (snac_gym/common/_signals.py), and _run asserts that the command caught all four
 #: before any is sent; each signal is still sent to two commands or more, at its delay.
 FIRST_SECOND_CASES = [
     ("bench", "SIGINT"), ("bench", "SIGTERM"),
@@ -187,7 +187,7 @@ def test_the_emulator_ends_on_each_stop_signal_with_its_line(tmp_path, signame):
 
 # -- demo: a partial run is kept and marked ------------------------------------------------------------
 #: Two of the four signals for the interrupts mid-work (a child process each, seconds apiece): every signal
-#: goes through the one handler (snac_gym/_signals.py), each is sent to every command in its first second
+#: goes through the one handler (snac_gym/common/_signals.py), each is sent to every command in its first second
 #: above, and SIGTERM and SIGQUIT mid-work below (demo's figures, bench's tables); SIGINT is Python's own
 #: KeyboardInterrupt, SIGHUP one the guard turns into one (its name must reach the line, where a lost name
 #: would read "SIGINT"), and its run is the one resumed.
@@ -341,7 +341,7 @@ def test_bench_interrupted_after_a_table_says_the_printed_tables_are_complete(tm
 
 
 def test_the_compiled_kernels_hold_the_same_stop_signals_as_the_commands():
-    from snac_gym._signals import STOP_SIGNALS
+    from snac_gym.common._signals import STOP_SIGNALS
     from snac_gym.kernels import compiled
 
     assert tuple(compiled._STOP_SIGNALS) == tuple(STOP_SIGNALS)
@@ -349,7 +349,7 @@ def test_the_compiled_kernels_hold_the_same_stop_signals_as_the_commands():
 
 WEAKREF_CALLBACK = r"""
 import gc, os, signal, sys, time, weakref
-from snac_gym._signals import stop_signals_raise
+from snac_gym.common._signals import stop_signals_raise
 class Thing:
     pass
 def callback():
@@ -429,7 +429,7 @@ def test_a_signal_handled_while_a_c_extension_initialises_is_not_lost(tmp_path):
 
 
 def test_an_interrupt_behind_an_import_error_is_raised_as_the_interrupt(monkeypatch):
-    from snac_gym import extras
+    from snac_gym.common import extras
 
     def converted(module):  # what a C extension's init makes of an interrupt
         try:
@@ -448,7 +448,7 @@ def test_an_interrupt_behind_an_import_error_is_raised_as_the_interrupt(monkeypa
 def test_a_signal_that_comes_while_the_unraisable_hook_runs_is_sent_again_not_raised_there(monkeypatch):
     """The hook's own resend may land before the hook has returned (Python 3.13 under load): raised there, it
     would be dropped as "Exception ignored in sys.unraisablehook"."""
-    from snac_gym import _signals
+    from snac_gym.common import _signals
 
     sent: list[int] = []
     monkeypatch.setattr(_signals, "send_again", sent.append)

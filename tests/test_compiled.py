@@ -69,7 +69,7 @@ def interrupt(signum, frame):
 
 signal.signal(signal.SIGTERM, interrupt)
 import snac_gym.kernels.chain  # numba imported and the kernel defined, not compiled yet
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 chain = Kinematics("ur10")._chain
 configurations = np.zeros((2, 6))
 if sys.argv[1] == "read-only":  # compile once now, then again for read-only arrays: a second signature

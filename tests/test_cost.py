@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from snac_gym.cost import cost_rates, instantaneous_cost, trajectory_cost
+from snac_gym.control.cost import cost_rates, instantaneous_cost, trajectory_cost
 
 
 def _loop_cost(errors, commands, dt, Q, R):

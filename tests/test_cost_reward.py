@@ -15,7 +15,7 @@ from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import EvaluationSample
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.cost import CostConvention
+from snac_gym.control.cost import CostConvention
 from snac_gym.metrics import rollout_metrics
 from snac_gym.policies import make_policy
 from snac_gym.rollout import simulate_kinematic
@@ -110,7 +110,7 @@ def test_q_or_r_beside_the_cost_reward_is_refused():
 
 
 def test_a_cost_that_is_not_a_convention_is_refused():
-    with pytest.raises(ValueError, match="cost must be a snac_gym.cost.CostConvention, got 'hjb'"):
+    with pytest.raises(ValueError, match="cost must be a snac_gym.control.cost.CostConvention, got 'hjb'"):
         gym.make(IDS["reach"], physics="kinematic", reward_type="cost", cost="hjb")
 
 
@@ -131,7 +131,7 @@ def _ppo_config(task: str, **reward) -> dict:
 def test_ppo_trains_on_minus_the_cost_in_the_single_and_the_batched_env():
     """reward.type 'cost': the training wrapper's and the batched env's rewards are the env's cost reward,
     and their sum over an episode's first steps is −V of the same commands (the convention's)."""
-    from snac_gym.cost import trajectory_cost
+    from snac_gym.control.cost import trajectory_cost
     from snac_gym.ppo.train import make_training_env
     from snac_gym.ppo.vec_env import PPOVecEnv
 

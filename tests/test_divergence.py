@@ -11,7 +11,7 @@ import pytest
 from snac_gym.evaluation.execution.jobs import RolloutJob, policy_context, run_job, task_kinematics
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.policies.registry import make_policy
 from snac_gym.policies.snac_adaptive import DivergenceMonitor
 from snac_gym.rollout import simulate_kinematic

@@ -11,7 +11,7 @@ import pytest
 from snac_gym.evaluation.execution.jobs import RolloutJob, policy_context, run_job
 from snac_gym.evaluation.samples import generate_samples, policy_seed
 
-from snac_gym.kinematics import Kinematics, resolved_urdf_text
+from snac_gym.model.kinematics import Kinematics, resolved_urdf_text
 from snac_gym.physics.bullet import without_meshes
 from snac_gym.policies import make_policy
 from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_env

@@ -14,7 +14,7 @@ import pytest
 
 PACKAGE = '''
 """A package outside snac-gym that adds a task and a robot through entry points."""
-from snac_gym.robots import ROBOTS, Robot
+from snac_gym.model.robots import ROBOTS, Robot
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import ReachTask
 
@@ -80,7 +80,7 @@ def test_evaluate_runs_a_task_and_a_robot_registered_from_outside(outside, tmp_p
     assert results["success"].notna().all()
     # The samples obey the outside task's own sampling rule (10 cm above the default cuboid's floor).
     samples = pd.read_csv(out / "samples.csv")
-    from snac_gym.kinematics import Kinematics
+    from snac_gym.model.kinematics import Kinematics
     from snac_gym.sampling import SampleSpace
 
     floor = SampleSpace.for_robot(Kinematics("ur10")).low[2]
@@ -111,8 +111,8 @@ def test_the_gym_ids_of_an_outside_task_and_robot_exist(outside, tmp_path):
     [
         (
             "snac_gym.robots",
-            "from snac_gym.robots import get_robot; get_robot('bad')",
-            "entry point bad = 'badext:ARM' (snac_gym.robots) gives str, not a snac_gym.robots.Robot",
+            "from snac_gym.model.robots import get_robot; get_robot('bad')",
+            "entry point bad = 'badext:ARM' (snac_gym.robots) gives str, not a snac_gym.model.robots.Robot",
         ),
         (
             "snac_gym.tasks",

@@ -24,9 +24,9 @@ from gymnasium.utils.env_checker import check_env
 
 import snac_gym
 from snac_gym.envs import GOAL_ENV_IDS, REGISTERED_IDS, V0_NOTICE, core, make_task_env, task_envs, vector
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.robots import ROBOTS
 from snac_gym.physics import KinematicArm
-from snac_gym.robots import ROBOTS
 from snac_gym.tasks import TASKS
 
 DATA = Path(__file__).parent / "data"
@@ -285,7 +285,7 @@ def test_one_implementation_of_the_kinematic_step():
         if by_hand.search(line)
     ]
     assert found == []
-    assert "return np.add(q, u * dt, out=out)" in Path(root / "kinematics.py").read_text()
+    assert "return np.add(q, u * dt, out=out)" in Path(root / "model" / "kinematics.py").read_text()
     for module in ("physics/kinematic.py", "envs/vector.py", "rollout/kinematic.py", "real/emulator/arm.py"):
         assert "joint_step(" in (root / module).read_text(), module
 

@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.utils.passive_env_checker import env_render_passive_checker
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.cost import cost_rates
+from snac_gym.control.cost import cost_rates
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
 from snac_gym.rollout.episode import episode_length
 from snac_gym.tasks import TASKS

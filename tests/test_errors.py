@@ -1,4 +1,4 @@
-"""One exception base: every exception snac-gym raises on purpose is a SnacGymError (snac_gym/errors.py), and the
+"""One exception base: every exception snac-gym raises on purpose is a SnacGymError (snac_gym/common/errors.py), and the
 built-in exception its meaning is closest to, under its old module names too."""
 
 from __future__ import annotations
@@ -9,17 +9,17 @@ from pathlib import Path
 
 import pytest
 
-from snac_gym import errors
+from snac_gym.common import errors
 
 ROOT = Path(__file__).resolve().parents[1]
 OLD_HOMES = {
-    "snac_gym.outputs": ["OutputFolderError", "OutputWriteError"],
+    "snac_gym.common.outputs": ["OutputFolderError", "OutputWriteError"],
     "snac_gym.rollout.batch": ["RolloutError"],
     "snac_gym.real.emulator.protocol": ["ProtocolError"],
     "snac_gym.real.connections": ["ConnectionFailure"],
     "snac_gym.ppo.config": ["ConfigError"],
     "snac_gym.ppo.policy_file": ["PolicyFileError", "MissingPolicyFileError"],
-    "snac_gym.extras": ["MissingExtraError"],
+    "snac_gym.common.extras": ["MissingExtraError"],
     "snac_gym.evaluation.samples": ["SampleFileError"],
     "snac_gym.evaluation.cache_entry": ["DamagedEntry"],
     "snac_gym.evaluation.store": ["RunDirectoryError"],

@@ -13,7 +13,7 @@ from snac_gym.evaluation.samples import MAX_SAMPLES_FILE_BYTES, SampleFileError,
 from typer.testing import CliRunner
 
 from snac_gym.apps.cli import app
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 
 
 def _evaluate(*arguments: str):

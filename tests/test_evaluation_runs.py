@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 
 from snac_gym import register_policy
 from snac_gym.apps.cli import app
-from snac_gym.cost import trajectory_cost
+from snac_gym.control.cost import trajectory_cost
 from snac_gym.rollout import log_array, read_log
 
 SMALL = {"samples": 6, "effort_samples": 0, "horizons": {"reach": 0.3, "track": 0.4}, "chunk_size": 2,

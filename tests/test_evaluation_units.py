@@ -21,7 +21,7 @@ from snac_gym.evaluation.samples import (
     write_samples_csv,
 )
 
-from snac_gym.cost import trajectory_cost
+from snac_gym.control.cost import trajectory_cost
 from snac_gym.metrics import rollout_metrics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import BasePolicy, LockstepPolicies, PolicyContext, supports_batch
@@ -359,7 +359,7 @@ def test_metrics_of_a_hand_made_rollout():
 )
 def test_cost_conventions_score_the_same_rollout_by_hand(cost, udot_start, q_scale):
     """cost, cost_table1, cost_table1_first and cost_hjb against sums written out step by step."""
-    from snac_gym.cost import CostConvention
+    from snac_gym.control.cost import CostConvention
 
     rng = np.random.default_rng(3)
     errors, commands = rng.normal(scale=0.05, size=(2, 5, 3)), rng.normal(size=(2, 5, 6))

@@ -15,11 +15,11 @@ from snac_gym.evaluation.samples import generate_samples, read_samples_csv, writ
 
 import snac_gym
 from snac_gym.envs import core as env_core
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.robots import ROBOTS
 from snac_gym.policies import available_policies, make_policy, registry
 from snac_gym.policies.base import PolicyContext, supports_batch
 from snac_gym.references import FixedTarget
-from snac_gym.robots import ROBOTS
 from snac_gym.rollout import rollout, simulate_kinematic
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import TASKS, Sample, Task, register_task

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 
-from snac_gym.cost import CostConvention, trajectory_cost
+from snac_gym.control.cost import CostConvention, trajectory_cost
 from snac_gym.metrics import METRIC_COLUMNS, rollout_metrics
 from snac_gym.rollout import Rollouts
 

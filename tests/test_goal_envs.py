@@ -120,7 +120,7 @@ def test_the_coarse_reach_preset_has_panda_gyms_sizes(robot):
     from gymnasium.utils.env_checker import check_env
 
     from snac_gym.envs.goal import coarse_reach_id
-    from snac_gym.kinematics import Kinematics
+    from snac_gym.model.kinematics import Kinematics
     from snac_gym.sampling import nominal_configuration
 
     env = gym.make(coarse_reach_id(robot), physics="kinematic")
@@ -164,7 +164,7 @@ def test_the_cartesian_preset_moves_the_tool_by_the_damped_least_squares_command
     velocities equal to ``argmin ‖J u − 1.25·a‖² + λ²‖u‖²`` solved by the normal equations (not the
     package's ``Jᵀ(JJᵀ + λ²I)⁻¹`` form), clipped to the limits; a straight-line command reaches the goal."""
     from snac_gym.envs.goal import coarse_reach_id
-    from snac_gym.kinematics import Kinematics
+    from snac_gym.model.kinematics import Kinematics
 
     env = gym.make(coarse_reach_id(robot, "cartesian"), physics="kinematic")
     check_env(env.unwrapped, skip_render_check=True)

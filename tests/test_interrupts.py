@@ -279,7 +279,7 @@ def test_a_signal_that_comes_where_python_cannot_raise_interrupts_the_run_after_
     """
     # Only the module under test is imported (snac_gym.apps.real's imports take half a second).
     imports = {
-        "command_signals_raise": "from snac_gym._signals import stop_signals_raise as command_signals_raise",
+        "command_signals_raise": "from snac_gym.common._signals import stop_signals_raise as command_signals_raise",
         "stop_signals_raise": "from snac_gym.apps.real import stop_signals_raise",
     }[handlers]
     script = UNRAISABLE.replace("{imports}", imports).replace("{handlers}", handlers).replace("{where}", where)

@@ -18,11 +18,11 @@ from snac_gym.evaluation.reference.ipopt import (  # noqa: E402  (after the skip
 )
 from snac_gym.evaluation.samples import generate_samples  # noqa: E402
 
-from snac_gym.cost import CostConvention  # noqa: E402
-from snac_gym.kinematics import shared_kinematics  # noqa: E402
+from snac_gym.control.cost import CostConvention  # noqa: E402
+from snac_gym.control.trajopt import solve_sample, trajectory_cost_and_gradient  # noqa: E402
+from snac_gym.model.kinematics import shared_kinematics  # noqa: E402
 from snac_gym.rollout import reference_trajectories  # noqa: E402
 from snac_gym.sampling import SampleSpace  # noqa: E402
-from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient  # noqa: E402
 
 DT = 1.0 / 125.0
 #: Steps of the solves here: 2.4 s, enough for the optimum to move well away from rest.
@@ -145,7 +145,7 @@ WORKSPACE_CASES = [
 
 @pytest.mark.parametrize(("cost", "task", "index", "binds"), WORKSPACE_CASES)
 def test_the_constrained_reference_matches_ipopt_or_is_cheaper(ur10, cost, task, index, binds):
-    from snac_gym.trajopt import next_angles
+    from snac_gym.control.trajopt import next_angles
 
     convention = CostConvention(cost, "rest", 4.0 if cost == "hjb" else 1.0)
     sample = generate_samples(ur10, SampleSpace.workspace(ur10), 2024, task, [index])[0]

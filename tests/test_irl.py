@@ -1,4 +1,4 @@
-"""Off-policy integral RL (snac_gym.irl, Jiang & Jiang 2012): the paper's example, a random system
+"""Off-policy integral RL (snac_gym.control.irl, Jiang & Jiang 2012): the paper's example, a random system
 against the ARE, the data matrices against their definitions, and the ``snac-irl`` arm controller."""
 
 import importlib.util
@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are
 
-from snac_gym.irl import (
+from snac_gym.control.irl import (
     IRLData,
     policy_iteration,
     quadratic_features,
     simulate_linear,
     windows_from_samples,
 )
-from snac_gym.optimality import matrix_to_quadratic_weights, quadratic_weights_to_matrix
+from snac_gym.control.optimality import matrix_to_quadratic_weights, quadratic_weights_to_matrix
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "docs" / "scripts" / "irl_example.py"
 
@@ -148,7 +148,7 @@ def test_registered():
 def test_on_a_frozen_jacobian_the_arm_learner_finds_the_are_gain_from_data(ur10):
     """ė = J₀u with J₀ frozen (the learner's assumption): the gain learned from the measured (e, u)
     is the ARE's R⁻¹J₀ᵀP*(J₀), although the policy never evaluates J after its K₀."""
-    from snac_gym.optimality import FrozenJacobianLQR
+    from snac_gym.control.optimality import FrozenJacobianLQR
     from snac_gym.policies import make_policy
 
     context = _arm_context(ur10)

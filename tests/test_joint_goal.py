@@ -9,8 +9,8 @@ from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.joint_goal import GOAL_MARGIN, GoalArms, nearest_goals
-from snac_gym.kinematics import Kinematics, PoseKinematics
+from snac_gym.model.joint_goal import GOAL_MARGIN, GoalArms, nearest_goals
+from snac_gym.model.kinematics import Kinematics, PoseKinematics
 from snac_gym.policies import make_policy
 from snac_gym.rollout import simulate_kinematic
 from snac_gym.sampling import SampleSpace
@@ -121,7 +121,7 @@ def test_the_reference_starts_from_an_in_limit_goal_and_is_no_longer_stuck(ur10)
     """Sample 35 of the whole reach, seed 11: from rest, DLS and lqr (both clamped at the limits) the solver
     ended 0.74 m off target at a cost of 34.2, where joint-goal, keeping every limit, ends on target. The
     reference must now reach the target and cost no more than joint-goal."""
-    from snac_gym.cost import CostConvention
+    from snac_gym.control.cost import CostConvention
 
     samples = tuple(generate_samples(ur10, SampleSpace.workspace(ur10), 11, "reach", [35]))
     convention = CostConvention("hjb", "rest", 4.0)

@@ -5,7 +5,7 @@ import pickle
 import numpy as np
 import pytest
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.physics.bullet import PyBulletSim, SimulatedArm, p
 from snac_gym.references import PAPER_Q0
 

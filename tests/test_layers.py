@@ -50,11 +50,11 @@ def test_the_package_keeps_its_layers_and_has_no_import_cycle():
 
 def test_a_core_module_importing_the_harness_breaks_the_layers_contract(tmp_path):
     tree = lay_out(ROOT, tmp_path / "tree")
-    _plant(tree, "snac_gym.cost", "import snac_gym.evaluation.runner  # planted")
+    _plant(tree, "snac_gym.control.cost", "import snac_gym.evaluation.runner  # planted")
     result = _check(tree)
     assert result.returncode == 1
     assert "BROKEN" in result.stdout
-    assert "snac_gym.cost -> snac_gym.evaluation.runner" in result.stdout
+    assert "snac_gym.control.cost -> snac_gym.evaluation.runner" in result.stdout
 
 
 def test_an_import_inside_a_function_counts(tmp_path):
@@ -68,11 +68,11 @@ def test_an_import_inside_a_function_counts(tmp_path):
 def test_a_cycle_inside_one_layer_is_found(tmp_path):
     """robots and references share the core layer, so only the cycle check can catch this one."""
     tree = lay_out(ROOT, tmp_path / "tree")
-    _plant(tree, "snac_gym.references", "import snac_gym.robots  # planted")
+    _plant(tree, "snac_gym.references", "import snac_gym.model.robots  # planted")
     result = _check(tree)
     assert result.returncode == 1
     assert "3 kept, 0 broken" in result.stdout
-    assert "import cycle: snac_gym.references -> snac_gym.robots -> snac_gym.references" in result.stdout
+    assert "import cycle: snac_gym.model.robots -> snac_gym.references -> snac_gym.model.robots" in result.stdout
     assert "import cycles: 1" in result.stdout
 
 

@@ -1,4 +1,4 @@
-"""snac_gym.optimality.trajectory_cost_lower_bound: the scalar relaxation of the trajectory cost against the
+"""snac_gym.control.optimality.trajectory_cost_lower_bound: the scalar relaxation of the trajectory cost against the
 Riccati value, an established QP solver and exact linear optima, its validity on the UR10, certified when the
 solve is cut short, and how much tighter it is than regulation_cost_lower_bound (docs/lower-bounds.md)."""
 
@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym import optimality
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import shared_kinematics
-from snac_gym.optimality import (
+from snac_gym.control import optimality
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.optimality import (
     certified_cost_lower_bounds,
     following_cost_lower_bounds,
     jacobian_variation_bound,
@@ -24,9 +23,10 @@ from snac_gym.optimality import (
     trajectory_cost_lower_bound,
     trajectory_cost_lower_bounds,
 )
+from snac_gym.control.trajopt import solve_sample, trajectory_cost_and_gradient
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
-from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient
 
 DT = 1.0 / 125.0
 CONVENTIONS = (

@@ -13,7 +13,7 @@ from snac_gym.evaluation import EvaluationConfig, run_evaluation
 
 import snac_gym
 from snac_gym import make_policy
-from snac_gym.cost import trajectory_cost
+from snac_gym.control.cost import trajectory_cost
 from snac_gym.policies.base import BasePolicy, Policy, PolicyContext
 from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
 

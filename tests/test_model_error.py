@@ -21,10 +21,10 @@ from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.runner import run_evaluation
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.kinematics import Kinematics
-from snac_gym.model_error import ModelError
+from snac_gym.control.optimality import quadratic_weights_to_matrix
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.model_error import ModelError
 from snac_gym.observation import ObservationLayout
-from snac_gym.optimality import quadratic_weights_to_matrix
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.snac_adaptive import GeometricIdentifier, SNACAdaptivePolicy
 from snac_gym.rollout import simulate_kinematic

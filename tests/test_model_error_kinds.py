@@ -4,7 +4,7 @@ error of every placement, and another robot's model.
 Each wrong model is checked against an independent computation: the URDF text itself edited as the
 error says (each joint's ``<origin xyz rpy>`` changed, rotations from scipy), built with
 ``pinocchio.buildModelFromXML`` and read as the tool0 position in the ``base`` frame, against
-:class:`~snac_gym.kinematics.Kinematics`' Pinocchio path, its compiled batch chain and the position
+:class:`~snac_gym.model.kinematics.Kinematics`' Pinocchio path, its compiled batch chain and the position
 chain, positions and Jacobians.
 """
 
@@ -16,8 +16,8 @@ import pinocchio as pin
 import pytest
 from scipy.spatial.transform import Rotation
 
-from snac_gym.kinematics import Kinematics, PositionChain, resolved_urdf_text, robot_urdf_path
-from snac_gym.model_error import ModelError, tilt_directions, tool_displacement
+from snac_gym.model.kinematics import Kinematics, PositionChain, resolved_urdf_text, robot_urdf_path
+from snac_gym.model.model_error import ModelError, tilt_directions, tool_displacement
 
 JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint")
 TOOL_JOINT = "wrist_3_link-tool0_fixed_joint"

@@ -9,12 +9,12 @@ from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import generate_samples
 
 import snac_gym
-from snac_gym.cost import CostConvention
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.trajopt import solve_sample
 from snac_gym.policies.base import LockstepPolicies
 from snac_gym.references import Ellipse
 from snac_gym.rollout import simulate_kinematic
 from snac_gym.sampling import SampleSpace
-from snac_gym.trajopt import solve_sample
 
 DT = 1 / 125
 
@@ -126,7 +126,7 @@ def test_the_limits_are_constraints_of_the_re_solve():
     """Workspace reach sample 2 of seed 11 (HJB cost, q = 4): unconstrained, the MPC turns joint 2 past its
     limit by 2.9 rad; with the limits in its re-solve (the default) it keeps every position and velocity
     limit on every step."""
-    from snac_gym.cost import CostConvention
+    from snac_gym.control.cost import CostConvention
     from snac_gym.metrics import rollout_metrics
 
     context = policy_context("ur10", DT, "reach")

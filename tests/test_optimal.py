@@ -13,11 +13,8 @@ from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.reference.optimum import OPTIMAL
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.cost import CostConvention, cost_and_gradient, trajectory_cost
-from snac_gym.kinematics import Kinematics
-from snac_gym.rollout import log_array, read_log, reference_trajectories
-from snac_gym.sampling import SampleSpace
-from snac_gym.trajopt import (
+from snac_gym.control.cost import CostConvention, cost_and_gradient, trajectory_cost
+from snac_gym.control.trajopt import (
     FTOL,
     GAP_RTOL,
     GTOL,
@@ -26,6 +23,9 @@ from snac_gym.trajopt import (
     solve_sample,
     trajectory_cost_and_gradient,
 )
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.rollout import log_array, read_log, reference_trajectories
+from snac_gym.sampling import SampleSpace
 
 DT = 1.0 / 125.0
 MEMORY = 20
@@ -107,7 +107,7 @@ def test_cost_and_gradient_match_the_shared_cost_and_finite_differences(ur10, tr
     "convention", [CostConvention(), CostConvention("table1", "first", 3.0), CostConvention("hjb")]
 )
 def test_the_shared_cost_gradient_on_a_linear_model(convention):
-    """snac_gym.cost.cost_and_gradient alone, on e = Aθ + b (constant Jacobian A): V and ∂V/∂U."""
+    """snac_gym.control.cost.cost_and_gradient alone, on e = Aθ + b (constant Jacobian A): V and ∂V/∂U."""
     rng = np.random.default_rng(1)
     steps, m, n, dt = 7, 4, 3, 0.05
     matrix, offset, q0 = rng.normal(size=(n, m)), rng.normal(size=n), rng.normal(size=m)

@@ -1,4 +1,4 @@
-"""snac_gym.optimality: the frozen-Jacobian optimum against SciPy's Riccati solver and hand
+"""snac_gym.control.optimality: the frozen-Jacobian optimum against SciPy's Riccati solver and hand
 expansions, the HJB residual, stacks against single calls, and the map between SNAC's quadratic
 basis weights and P̂ against the basis evaluated numerically."""
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.linalg import fractional_matrix_power, solve_continuous_are, sqrtm
 
-from snac_gym.optimality import (
+from snac_gym.control.optimality import (
     SINGULAR_TOLERANCE,
     FrozenJacobianLQR,
     critic_error,

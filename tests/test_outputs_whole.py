@@ -1,4 +1,5 @@
-"""Every file the commands write is written whole (snac_gym/outputs.py): a failed write leaves the old file or none
+"""Every file the commands write is written whole (snac_gym/common/outputs.py): a failed write leaves the old file
+or none
 under the final name, never a truncated one, and the error names the file and the free space."""
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import pandas as pd
 import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 
-from snac_gym.outputs import OutputWriteError, write_text_whole, written_whole
+from snac_gym.common.outputs import OutputWriteError, write_text_whole, written_whole
 
 
 def test_a_failed_write_leaves_the_old_file_and_names_the_file_and_the_free_space(tmp_path):

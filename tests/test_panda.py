@@ -9,9 +9,9 @@ import pinocchio as pin
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from snac_gym.kinematics import Kinematics, robot_urdf_path
+from snac_gym.model.kinematics import Kinematics, robot_urdf_path
+from snac_gym.model.robots import get_robot
 from snac_gym.physics.bullet import PyBulletSim, SimulatedArm, p
-from snac_gym.robots import get_robot
 from snac_gym.sampling import (
     SampleSpace,
     sample_ellipse,

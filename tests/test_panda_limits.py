@@ -6,9 +6,9 @@ import pytest
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import EvaluationSample
 
-from snac_gym.joint_limits import POSITION_LIMIT_MARGIN, JointLimitBox, joint_limit_margins
-from snac_gym.kinematics import Kinematics
 from snac_gym.metrics import rollout_metrics
+from snac_gym.model.joint_limits import POSITION_LIMIT_MARGIN, JointLimitBox, joint_limit_margins
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.policies import make_policy
 from snac_gym.references import FixedTarget
 from snac_gym.rollout import simulate_kinematic

@@ -5,7 +5,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from snac_gym.kinematics import PoseKinematics
+from snac_gym.model.kinematics import PoseKinematics
 from snac_gym.physics.bullet import PyBulletSim, SimulatedArm, p
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext

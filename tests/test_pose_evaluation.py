@@ -20,7 +20,7 @@ from snac_gym.evaluation.samples import (
 from typer.testing import CliRunner
 
 from snac_gym.apps.cli import app
-from snac_gym.kinematics import Kinematics, PoseKinematics
+from snac_gym.model.kinematics import Kinematics, PoseKinematics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.rollout import rollout, simulate_kinematic

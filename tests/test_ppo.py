@@ -15,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from snac_gym.apps.cli import app
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext

@@ -83,7 +83,7 @@ def test_the_action_map_against_an_independent_computation(tmp_path, workspace_s
     """A constant a = (a₀, a₁..₃): u = sat(θ̇* + 2(1 + a₀)(θ* − θ) + argmin ‖Ju − v‖² + λ²‖u‖²), v = 4(‖e‖ + 10⁻⁴)a₁..₃,
     the last term by the normal equations (not the package's Jᵀ(JJᵀ + λ²I)⁻¹ form); θ* from nearest_goals
     (a reach goal stays put: θ̇* = 0)."""
-    from snac_gym.joint_goal import nearest_goals
+    from snac_gym.model.joint_goal import nearest_goals
 
     a = np.array([-0.5, 0.3, -0.2, 0.4], dtype=np.float32).astype(float)  # as the file stores it
     path = _policy_file(tmp_path, "reach", action_bias=a)

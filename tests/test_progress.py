@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from snac_gym.evaluation.execution.progress import Progress
 
-from snac_gym.progress import ProgressLines, wants_lines
+from snac_gym.common.progress import ProgressLines, wants_lines
 
 EVALUATE_LINE = re.compile(r"^evaluate: \d+/\d+ rollouts \(\d+ %\), \d+\.\d s")
 TRAIN_LINE = re.compile(r"^train-ppo: reach \d+/64 timesteps \(\d+ %\), \d+\.\d s")

@@ -23,8 +23,8 @@ from hypothesis.extra import numpy as hnp
 from snac_gym.evaluation import EvaluationConfig
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.cost import trajectory_cost
-from snac_gym.model_error import ModelError
+from snac_gym.control.cost import trajectory_cost
+from snac_gym.model.model_error import ModelError
 from snac_gym.policies import make_policy
 
 ID = "snac_gym/UR10Reach-v0"

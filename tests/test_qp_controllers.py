@@ -16,9 +16,9 @@ from scipy.optimize import lsq_linear
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import EvaluationSample
 
-from snac_gym.extras import MissingExtraError
-from snac_gym.kinematics import Kinematics, PoseKinematics
+from snac_gym.common.extras import MissingExtraError
 from snac_gym.metrics import rollout_metrics
+from snac_gym.model.kinematics import Kinematics, PoseKinematics
 from snac_gym.policies import make_policy
 from snac_gym.references import FixedTarget
 from snac_gym.rollout import simulate_kinematic

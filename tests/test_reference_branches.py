@@ -15,9 +15,9 @@ from snac_gym.evaluation.reference.branches import (
 from snac_gym.evaluation.reference.optimum import check_reference_row, solve_samples
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.cost import CostConvention
-from snac_gym.joint_goal import nearest_goals
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.control.cost import CostConvention
+from snac_gym.model.joint_goal import nearest_goals
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task

@@ -11,7 +11,7 @@ import pytest
 from snac_gym.evaluation.reference import cache as reference_cache
 from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
 
-from snac_gym.cost import CostConvention
+from snac_gym.control.cost import CostConvention
 
 
 @pytest.fixture
@@ -107,5 +107,8 @@ def test_the_key_covers_every_module_the_reference_reaches():
     result = subprocess.run([sys.executable, "-c", script, str(root)], capture_output=True, text=True, cwd=root)
     assert result.returncode == 0, result.stderr
     reached = set(result.stdout.split())
-    assert len(reached) >= 40 and {"snac_gym.robots", "snac_gym.ur_models", "snac_gym.trajopt"} <= reached
+    assert (
+        len(reached) >= 40
+        and {"snac_gym.model.robots", "snac_gym.model.ur_models", "snac_gym.control.trajopt"} <= reached
+    )
     assert reached - set(reference_cache.code_modules()) == set()

@@ -464,7 +464,7 @@ def test_meaningless_env_arguments_are_refused_in_the_constructor(kwargs, messag
 
 
 def test_trajectory_cost_refuses_infinite_dt_and_negative_weights():
-    from snac_gym.cost import trajectory_cost
+    from snac_gym.control.cost import trajectory_cost
 
     errors, commands = np.ones((3, 3)), np.ones((3, 6))
     with pytest.raises(ValueError, match=r"dt must be a finite number in \(0, inf\], got inf"):

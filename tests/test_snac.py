@@ -476,7 +476,7 @@ def test_hjb_residual_of_the_critic_matches_a_hand_expansion(ur10, rng, task, tr
 def test_the_optimal_critic_has_zero_residual_and_zero_critic_error(ur10, rng):
     from scipy.linalg import solve_continuous_are
 
-    from snac_gym.optimality import matrix_to_quadratic_weights
+    from snac_gym.control.optimality import matrix_to_quadratic_weights
 
     ctx = _context(ur10, "reach")
     Q, R = _random_spd(rng, 3), _random_spd(rng, 6)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are, solve_continuous_lyapunov
 
+from snac_gym.control.optimality import matrix_to_quadratic_weights, quadratic_weights_to_matrix
 from snac_gym.observation import ObservationLayout
-from snac_gym.optimality import matrix_to_quadratic_weights, quadratic_weights_to_matrix
 from snac_gym.policies import available_policies, make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.snac_hjb import SNACHJBPolicy

@@ -8,10 +8,9 @@ import pinocchio as pin
 import pytest
 
 from snac_gym.apps.real import UR_ROBOTS, run_setup
-from snac_gym.kinematics import Kinematics
-from snac_gym.real.safety import SafetyLayer, SafetyLimits
-from snac_gym.robots import robot_names
-from snac_gym.ur_models import (
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.robots import robot_names
+from snac_gym.model.ur_models import (
     E_SERIES_URDF_DIR,
     UR_MODELS,
     datasheet_velocity_limits,
@@ -20,6 +19,7 @@ from snac_gym.ur_models import (
     urdf_text,
     velocity_limits,
 )
+from snac_gym.real.safety import SafetyLayer, SafetyLimits
 
 
 def _tool_pose(kinematics: Kinematics, q: np.ndarray) -> np.ndarray:

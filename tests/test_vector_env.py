@@ -6,7 +6,7 @@ import pytest
 
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.envs.vector import URTaskVectorEnv
-from snac_gym.kinematics import Kinematics, PositionChain
+from snac_gym.model.kinematics import Kinematics, PositionChain
 from snac_gym.physics.scene import PATH_COLOUR
 from snac_gym.tasks import TASKS
 

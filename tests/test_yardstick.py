@@ -15,13 +15,13 @@ from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, RANDOM_PREFIX
 from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_start_solve
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics
-from snac_gym.optimality import regulation_cost_lower_bound
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.optimality import regulation_cost_lower_bound
+from snac_gym.control.trajopt import solve_sample, trajectory_cost_and_gradient
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import reference_trajectories, simulate_kinematic
 from snac_gym.sampling import SampleSpace
-from snac_gym.trajopt import solve_sample, trajectory_cost_and_gradient
 
 DT = 1.0 / 125.0
 HJB = CostConvention("hjb", "rest", 4.0)

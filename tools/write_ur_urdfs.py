@@ -1,4 +1,4 @@
-"""Write the e-series URDFs that snac_gym ships (snac_gym/data/urdf/), from snac_gym.ur_models.
+"""Write the e-series URDFs that snac_gym ships (snac_gym/data/urdf/), from snac_gym.model.ur_models.
 
 example-robot-data ships the CB3 arms only; the e-series arms' URDFs are written from Universal Robots'
 published DH parameters and datasheet limits. tests/test_ur_models.py fails when a shipped file differs
@@ -9,7 +9,7 @@ from what this writes.
 
 from pathlib import Path
 
-from snac_gym.ur_models import E_SERIES_URDF_DIR, UR_MODELS, urdf_text
+from snac_gym.model.ur_models import E_SERIES_URDF_DIR, UR_MODELS, urdf_text
 
 
 def main() -> None:

@@ -12,7 +12,7 @@ import numpy as np
 
 import snac_gym  # noqa: F401
 from snac_gym import make_policy
-from snac_gym.cost import trajectory_cost
+from snac_gym.control.cost import trajectory_cost
 from snac_gym.references import PAPER_Q0
 
 for env_id in ("snac_gym/UR10Reach-v0", "snac_gym/UR10EllipseTrack-v0"):

@@ -14,7 +14,7 @@ import numpy as np
 
 import snac_gym  # noqa: F401
 from snac_gym import make_policy
-from snac_gym.kinematics import joint_step
+from snac_gym.model.kinematics import joint_step
 
 physics, name, count = sys.argv[1], sys.argv[2], int(sys.argv[3])
 kwargs = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}

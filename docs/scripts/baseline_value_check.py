@@ -8,8 +8,8 @@ import numpy as np
 from snac_gym.baselines.lqr import LQRPolicy
 
 import snac_gym  # noqa: F401
-from snac_gym.cost import trajectory_cost
-from snac_gym.optimality import lqr_gain, riccati_solution
+from snac_gym.control.cost import trajectory_cost
+from snac_gym.control.optimality import lqr_gain, riccati_solution
 from snac_gym.policies.base import PolicyContext
 from snac_gym.references import PAPER_Q0
 

@@ -21,11 +21,11 @@ from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.optimum import own_start_commands
 from snac_gym.evaluation.samples import generate_sample
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.trajopt import FTOL, GTOL, angles, gauss_newton, solve_sample
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
-from snac_gym.trajopt import FTOL, GTOL, angles, gauss_newton, solve_sample
 
 HORIZONS = {"reach": 1500, "track": 2500}
 DT = 0.008

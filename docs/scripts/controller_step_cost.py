@@ -15,7 +15,7 @@ from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
 from snac_gym.evaluation.samples import generate_samples
 from threadpoolctl import threadpool_limits
 
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
 
 CONTROLLERS = ("snac", "snac-hjb", "lqr", "rnn", "svf", "dls", "ppo")

@@ -25,7 +25,7 @@ import pandas as pd
 from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
 from snac_gym.evaluation.samples import generate_samples, policy_seed
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 
 DT, N, SUBSET, DRAWS = 1 / 125, 1000, 200, 300

@@ -18,7 +18,7 @@ import time
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.samples import generate_samples, policy_seed
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.policies import make_policy
 from snac_gym.rollout import lockstep_arms, simulate_arms, simulate_env
 from snac_gym.sampling import SampleSpace

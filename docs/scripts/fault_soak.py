@@ -41,9 +41,9 @@ from pathlib import Path
 import numpy as np
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.ur_models import UR_MODELS
 from snac_gym.sampling import SampleSpace
-from snac_gym.ur_models import UR_MODELS
 
 #: The faults ``snac-gym emulate-ur`` injects, and ``none`` (a fault-free control run).
 KINDS = (

@@ -21,12 +21,12 @@ from snac_gym.evaluation.reference.ipopt import solve_with_ipopt
 from snac_gym.evaluation.reference.optimum import multi_start_solve, own_start_commands
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.trajopt import next_angles, single_threaded_blas
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
-from snac_gym.trajopt import next_angles, single_threaded_blas
 
 robot, region, seed, count, cost = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
 kinematics = shared_kinematics(robot)

@@ -1,4 +1,4 @@
-"""The simulation example of Jiang & Jiang (Automatica 2012, Sec. 4) with :mod:`snac_gym.irl`: the
+"""The simulation example of Jiang & Jiang (Automatica 2012, Sec. 4) with :mod:`snac_gym.control.irl`: the
 convergence figure docs/figures/irl_example.png (‖P_k − P*‖ and ‖K_k − K*‖ over the iterations) and
 the numbers docs/irl.md quotes.
 
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from snac_gym.irl import policy_iteration, simulate_linear
+from snac_gym.control.irl import policy_iteration, simulate_linear
 
 A = np.array(
     [
@@ -96,7 +96,7 @@ def main() -> None:
         ax.legend()
         ax.grid(True, which="both", alpha=0.3)
     axes[1].set_xlabel("iteration k")
-    axes[0].set_title("Jiang & Jiang (2012), Sec. 4 example: snac_gym.irl", fontsize=10)
+    axes[0].set_title("Jiang & Jiang (2012), Sec. 4 example: snac_gym.control.irl", fontsize=10)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110)

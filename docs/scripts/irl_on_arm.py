@@ -12,7 +12,7 @@ import numpy as np
 from snac_gym.evaluation.execution.jobs import policy_context, task_kinematics
 from snac_gym.evaluation.samples import generate_samples, policy_seed
 
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.policies.registry import make_policy
 from snac_gym.rollout import simulate_kinematic
 from snac_gym.sampling import SampleSpace

@@ -23,11 +23,11 @@ import numpy as np
 import pinocchio as pin
 from threadpoolctl import threadpool_limits
 
+from snac_gym.control.optimality import SINGULAR_TOLERANCE, FrozenJacobianLQR
 from snac_gym.kernels.chain import chain_forward_and_jacobian
 from snac_gym.kernels.small import symmetric_eigh, thin_svd
 from snac_gym.kernels.trajopt import add_jacobian_blocks
-from snac_gym.kinematics import shared_kinematics
-from snac_gym.optimality import SINGULAR_TOLERANCE, FrozenJacobianLQR
+from snac_gym.model.kinematics import shared_kinematics
 
 BATCH = 500
 

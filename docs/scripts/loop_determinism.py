@@ -94,7 +94,7 @@ def _one(config: str, seconds: float) -> None:
 def _default_rules_stop(periods: np.ndarray) -> int | None:
     """The period at which the default late-loop and stall rules would have stopped the run (the first is not
     counted)."""
-    from snac_gym.kinematics import Kinematics
+    from snac_gym.model.kinematics import Kinematics
     from snac_gym.real import SafetyLayer, SafetyLimits
 
     layer = SafetyLayer(Kinematics("ur10"), SafetyLimits(), 1.0 / 500.0)

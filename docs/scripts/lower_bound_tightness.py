@@ -3,13 +3,13 @@
 On the evaluator's default samples (seed 0, the UR10 cuboid, its horizons: reach 12 s, track 20 s,
 Δt = 8 ms), per task and cost convention: the numerical optimum of each sample
 (:func:`snac_gym.evaluation.reference.optimum.solve_sample` from rest, the evaluator's tolerances) against the bounds of
-:func:`snac_gym.optimality.certified_cost_lower_bounds` (‖ū‖₂ as the velocity limit):
+:func:`snac_gym.control.optimality.certified_cost_lower_bounds` (‖ū‖₂ as the velocity limit):
 
 * ``global L``: the global Lipschitz bound of ``Kinematics.position_lipschitz_bound`` (one relaxation);
 * ``V̄ = optimum``: the per-step Lipschitz bounds of the joint ball a trajectory costing at most the optimum
   can reach (one relaxation);
 * ``V̄ = optimum, 3 bisections``: three more relaxations towards the crossing B(V̄) = V̄;
-* ``regulation`` (reach only): the older :func:`snac_gym.optimality.regulation_cost_lower_bound`.
+* ``regulation`` (reach only): the older :func:`snac_gym.control.optimality.regulation_cost_lower_bound`.
 
 Prints the ratio optimum / bound (median, 95th percentile, largest; a bound above an optimum would be a
 failure and is counted) and the bound's time per sample, in one batched call over the samples after a warm-up
@@ -27,13 +27,13 @@ from collections.abc import Callable
 import numpy as np
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import shared_kinematics
-from snac_gym.optimality import certified_cost_lower_bounds, regulation_cost_lower_bound
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.optimality import certified_cost_lower_bounds, regulation_cost_lower_bound
+from snac_gym.control.trajopt import single_threaded_blas, solve_sample
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
-from snac_gym.trajopt import single_threaded_blas, solve_sample
 
 DT = 1.0 / 125.0
 CONVENTIONS = {"table1": CostConvention(), "hjb": CostConvention("hjb")}

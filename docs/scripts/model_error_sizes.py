@@ -2,7 +2,7 @@
 
 Over ``--configurations`` joint configurations drawn uniformly within the arm's joint limits
 (``default_rng(0)``), for ``random=σ,seed`` at each σ and seed, and for ``model=NAME`` (another
-robot's kinematics), through :func:`snac_gym.model_error.tool_displacement`. Prints a Markdown table.
+robot's kinematics), through :func:`snac_gym.model.model_error.tool_displacement`. Prints a Markdown table.
 
     python docs/scripts/model_error_sizes.py [--robot ur10] [--configurations 1000] [--model ur5]
 """
@@ -13,8 +13,8 @@ import argparse
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics
-from snac_gym.model_error import tool_displacement
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.model_error import tool_displacement
 
 SIGMAS = (0.001, 0.002, 0.005, 0.01)
 SEEDS = (0, 1, 2)

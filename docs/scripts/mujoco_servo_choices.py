@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from snac_gym.apps.bench import random_command
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.physics.mujoco_model import build_physics_spec
 from snac_gym.sampling import SampleSpace, sample_seed_pose
 

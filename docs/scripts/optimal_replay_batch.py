@@ -18,7 +18,7 @@ from snac_gym.evaluation.reference.optimum import ReplayPolicy
 from snac_gym.evaluation.samples import generate_samples
 from threadpoolctl import threadpool_limits
 
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.rollout import simulate_kinematic
 from snac_gym.sampling import SampleSpace
 

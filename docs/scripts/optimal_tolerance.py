@@ -18,9 +18,9 @@ import numpy as np
 from snac_gym.evaluation.samples import generate_samples
 from threadpoolctl import threadpool_limits
 
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.control.trajopt import GAP_RTOL, solve_sample
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
-from snac_gym.trajopt import GAP_RTOL, solve_sample
 
 STEPS = {"reach": 1500, "track": 2500}
 DT = 0.008

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics, PoseKinematics
+from snac_gym.model.kinematics import Kinematics, PoseKinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext

@@ -32,7 +32,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.vec_env import VecNormalize
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.cost import CostConvention
+from snac_gym.control.cost import CostConvention
 from snac_gym.envs.sb3 import SB3VectorEnv
 
 parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

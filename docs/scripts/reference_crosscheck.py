@@ -24,12 +24,12 @@ from snac_gym.evaluation.reference.ipopt import solve_with_ipopt
 from snac_gym.evaluation.reference.optimum import solve_samples
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.trajopt import single_threaded_blas
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
-from snac_gym.trajopt import single_threaded_blas
 
 robot, region, seed, count, cost, task = sys.argv[1:7]
 seed, count = int(seed), int(count)

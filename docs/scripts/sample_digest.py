@@ -16,7 +16,7 @@ import time
 import numpy as np
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.kinematics import shared_kinematics
+from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.sampling import SampleSpace
 
 

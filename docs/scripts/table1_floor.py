@@ -33,8 +33,8 @@ from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
 from snac_gym.evaluation.samples import read_samples_csv
 from threadpoolctl import threadpool_limits
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics
+from snac_gym.control.cost import CostConvention
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 
 CHUNK = 250  # samples per timed job (the evaluator's chunks are 500)

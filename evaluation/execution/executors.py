@@ -38,11 +38,11 @@ from typing import Any
 from snac_gym.evaluation.execution.memory import keep_freed_memory
 from threadpoolctl import threadpool_limits
 
-from snac_gym._signals import STOP_SIGNALS
-from snac_gym.errors import ExecutorStopped
+from snac_gym.common._signals import STOP_SIGNALS
+from snac_gym.common.errors import ExecutorStopped
 from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, load_if_cached, warm_up_shared
+from snac_gym.model.robots import ROBOTS
 from snac_gym.policies import registry
-from snac_gym.robots import ROBOTS
 from snac_gym.tasks import TASKS
 
 

@@ -16,9 +16,9 @@ import numpy as np
 import pandas as pd
 from snac_gym.evaluation.samples import EvaluationSample
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics, shared_kinematics, shared_pose_kinematics
+from snac_gym.control.cost import CostConvention
 from snac_gym.metrics import rollout_metrics
+from snac_gym.model.kinematics import Kinematics, shared_kinematics, shared_pose_kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.physics.base import SIMULATED
 from snac_gym.policies.base import PolicyContext
@@ -46,7 +46,7 @@ class RolloutJob:
         use_batch: Let the kinematic engine use a policy's batch protocol.
         convention: The cost the rollouts are scored by.
         model_error: The controller's arm model differs from the plant's by this
-            (:mod:`snac_gym.model_error` text; ``None``: the true model).
+            (:mod:`snac_gym.model.model_error` text; ``None``: the true model).
     """
 
     task: str

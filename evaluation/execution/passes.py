@@ -33,7 +33,7 @@ from snac_gym.evaluation.reference.optimum import OPTIMAL, OptimalJob, run_optim
 from snac_gym.evaluation.samples import EvaluationSample, policy_seed
 from snac_gym.evaluation.store import RunStore, settings_key
 
-from snac_gym.errors import Cancelled
+from snac_gym.common.errors import Cancelled
 
 if TYPE_CHECKING:
     from snac_gym.evaluation.controllers import ControllerSpec

@@ -1,6 +1,6 @@
 """Progress of a run over its rollouts, on stderr: :class:`Progress`.
 
-The counting and the plain lines are :mod:`snac_gym.progress`'s (shared with ``train-ppo``);
+The counting and the plain lines are :mod:`snac_gym.common.progress`'s (shared with ``train-ppo``);
 this wraps them with a tqdm bar for a terminal and the status text of the evaluator's steps.
 """
 
@@ -9,14 +9,14 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable
 
-from snac_gym.progress import ProgressLines, wants_lines
+from snac_gym.common.progress import ProgressLines, wants_lines
 
 
 class Progress:
     """Progress over rollouts: a tqdm bar on a terminal, plain lines elsewhere, nothing when disabled.
 
     Where stderr is a terminal the bar is drawn there; where it is not (a log file, CI) tqdm
-    stays off and :class:`~snac_gym.progress.ProgressLines` writes lines such as
+    stays off and :class:`~snac_gym.common.progress.ProgressLines` writes lines such as
     ``evaluate: 500/1000 rollouts (50 %), 12.3 s, matching effort: lqr`` to stderr, every 10 %
     of the rollouts or 10 s, whichever comes first. ``enabled=False`` (``--no-progress``) writes
     neither.

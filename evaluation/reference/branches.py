@@ -6,7 +6,8 @@ first long steps from rest flipped the elbow (Δθ₃ = 4.6 rad) and found an op
 the reference's own descended to, a KKT point that IPOPT started there confirms. So the reference also starts from
 each branch, drawn from the sample alone:
 
-* the goals (:func:`~snac_gym.joint_goal.in_limit_goals`): every distinct in-limit IK solution of the target (reach)
+* the goals (:func:`~snac_gym.model.joint_goal.in_limit_goals`): every distinct in-limit IK solution of the target
+(reach)
   or of the ellipse's first point (track) found from θ₀ and from :data:`BRANCH_SPREAD` fixed configurations spread
   over the joint box, each the one of its branch nearest θ₀;
 * a start per goal (:func:`branch_commands`): the ``joint-goal`` law towards it, u = sat(θ̇* + K(θ* − θ)), with the
@@ -36,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.joint_goal import GOAL_MARGIN, GoalArms, goal_starts, in_limit_goals
+from snac_gym.model.joint_goal import GOAL_MARGIN, GoalArms, goal_starts, in_limit_goals
 
 #: Spread IK starts besides θ₀ (a fixed seed: a sample always gets the same goals).
 BRANCH_SPREAD = 23
@@ -71,7 +72,8 @@ def branch_goals(kinematics: Any, q0s: np.ndarray, first_points: np.ndarray) -> 
 
 
 def needs_branches(kinematics: Any, rest: Any, end: np.ndarray, last_point: np.ndarray) -> bool:
-    """Whether a sample's solve from rest (an :class:`~snac_gym.trajopt.OptimalSolution` ending at ``end``) leaves
+    """Whether a sample's solve from rest (an :class:`~snac_gym.control.trajopt.OptimalSolution` ending at ``end``)
+    leaves
     room for another branch: it travelled to the target, or a limit stopped it (module docs)."""
     return bool(rest.bounded) or float(np.linalg.norm(kinematics.forward(end) - last_point)) <= REACHED
 

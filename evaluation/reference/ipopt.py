@@ -7,9 +7,9 @@ handed to an established NLP solver, so that the tests can check that solver's o
     min  V = Σₖ (q‖eₖ‖² + ‖uₖ‖² + w‖uₖ − uₖ₋₁‖²/Δt²) Δt,   k = 0..K−1
     s.t. θₖ₊₁ = θₖ + uₖΔt,  eₖ = f(θₖ) − x_d[k],  |uₖⱼ| ≤ ūⱼ,  θ⁻ ≤ θₖ ≤ θ⁺ (k = 1..K, optional)
 
-with the cost convention of :class:`snac_gym.cost.CostConvention` (q = ``q_scale``, w = ``smoothness_weight``,
+with the cost convention of :class:`snac_gym.control.cost.CostConvention` (q = ``q_scale``, w = ``smoothness_weight``,
 u₋₁ = 0 for ``udot_start="rest"``, no k = 0 smoothness term for ``"first"``), as
-:func:`snac_gym.cost.cost_and_gradient` writes it.
+:func:`snac_gym.control.cost.cost_and_gradient` writes it.
 
 **Formulation.** The decision variables are the angles θ₁..θ_K *and* the commands u₀..u_{K−1}, tied by the
 linear equalities θₖ₊₁ − θₖ − uₖΔt = 0 (θ₀ is given). Each eₖ depends on θₖ alone and the effort and
@@ -21,7 +21,7 @@ floors IPOPT's dual infeasibility at about 10⁻⁸ at Δt = 8 ms, above the def
 with ``Search_Direction_Becomes_Too_Small`` instead of converging.)
 
 The forward kinematics is written in CasADi from the Pinocchio model of the
-:class:`~snac_gym.kinematics.Kinematics` (:func:`casadi_forward_kinematics`): one function of one
+:class:`~snac_gym.model.kinematics.Kinematics` (:func:`casadi_forward_kinematics`): one function of one
 configuration, mapped over the horizon, so the expression graph stays small.
 
 CasADi is an optional dependency (``pip install "snac-gym[check]"``), imported only when called.
@@ -35,9 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.cost import CostConvention
-from snac_gym.kinematics import Kinematics, leaf_chain
-from snac_gym.trajopt import next_angles, trajectory_cost_and_gradient
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.trajopt import next_angles, trajectory_cost_and_gradient
+from snac_gym.model.kinematics import Kinematics, leaf_chain
 
 #: What a missing CasADi says.
 MISSING_CASADI = 'the IPOPT cross-check needs CasADi: pip install "snac-gym[check]"'
@@ -211,7 +211,7 @@ def solve_with_ipopt(
     Args:
         q0: ``(m,)`` seed pose θ₀.
         x_d: ``(K, 3)`` desired positions at the start of each step (reach, track).
-        kinematics: The arm (:func:`snac_gym.kinematics.shared_kinematics`).
+        kinematics: The arm (:func:`snac_gym.model.kinematics.shared_kinematics`).
         dt: Control period Δt, s.
         velocity_limits: ``(m,)`` limits ū (``np.inf`` entries: none).
         position_limits: ``(θ⁻, θ⁺)`` kept at θ₁..θ_K, or ``None`` for no position limits.

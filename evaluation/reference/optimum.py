@@ -9,13 +9,13 @@ For one sample (seed pose θ₀, reference x_d known over the whole horizon) it 
 (on a pose task, x = [p; log₃ R] and eₖ = [p − p_d; log₃(R R_dᵀ)] with Q = I₆, differentiated exactly:
 :func:`snac_gym.tasks.pose.pose_errors_and_jacobians`) over the evaluator's horizon, Δt and
 discretisation (docs/optimal.md), for the run's cost
-convention (:class:`snac_gym.cost.CostConvention`: without the u̇ term for ``--cost hjb``, u₋₁ = u₀
+convention (:class:`snac_gym.control.cost.CostConvention`: without the u̇ term for ``--cost hjb``, u₋₁ = u₀
 for ``--udot-start first``, Q = q·I for ``--q-scale``). It is an *open-loop*
 reference computed with knowledge of the whole reference, not a controller.
-(Not :mod:`snac_gym.optimality`: that is the frozen-Jacobian, infinite-horizon optimum the critics
+(Not :mod:`snac_gym.control.optimality`: that is the frozen-Jacobian, infinite-horizon optimum the critics
 are compared with; this is the whole trajectory's, over the evaluator's finite horizon.)
 
-**Method**: :func:`snac_gym.trajopt.solve_sample` (Gauss-Newton in θ, a primal-dual interior point where
+**Method**: :func:`snac_gym.control.trajopt.solve_sample` (Gauss-Newton in θ, a primal-dual interior point where
 the unconstrained optimum breaks a joint position or velocity limit: column ``optimal_bounded``; the
 limits are those the success rule counts, ``--reference-limits velocity`` keeps the velocity limits
 only). **Starts** (:func:`multi_start_solve`): U = 0 (the robot at rest), then the reference's own
@@ -25,7 +25,7 @@ Gauss-Newton steps; the best local optimum is kept (``optimal_starts``, ``optima
 controllers it judges, and can be beaten: a controller that keeps the limits and costs less is a
 failure of the reference, reported as such. ``optimal_gradient`` records the final max-norm gradient
 in the preconditioned variables, ``optimal_gap_estimate`` the solver's estimate of V − V*
-(:mod:`snac_gym.trajopt`: tolerance).
+(:mod:`snac_gym.control.trajopt`: tolerance).
 
 The reported cost of the solution is *not* the solver's value: the command sequence is rolled
 out by :func:`snac_gym.rollout.simulate_kinematic` (an open-loop replay policy) and measured by
@@ -49,12 +49,9 @@ from snac_gym.evaluation.reference import cache as reference_cache
 from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, RANDOM_PREFIX, branch_candidates, needs_branches
 from snac_gym.evaluation.samples import EvaluationSample
 
-from snac_gym.cost import CostConvention
-from snac_gym.metrics import check_metric_row, rollout_metrics
-from snac_gym.optimality import certified_cost_lower_bounds
-from snac_gym.policies.registry import make_policy, policy_factory
-from snac_gym.rollout import reference_trajectories, simulate_kinematic
-from snac_gym.trajopt import (
+from snac_gym.control.cost import CostConvention
+from snac_gym.control.optimality import certified_cost_lower_bounds
+from snac_gym.control.trajopt import (
     FTOL,
     GAP_RTOL,
     GTOL,
@@ -68,6 +65,9 @@ from snac_gym.trajopt import (
     solve_sample,
     trajectory_cost_and_gradient,
 )
+from snac_gym.metrics import check_metric_row, rollout_metrics
+from snac_gym.policies.registry import make_policy, policy_factory
+from snac_gym.rollout import reference_trajectories, simulate_kinematic
 
 #: Name of the reference row in the results (selectable with ``--controllers optimal,...``).
 OPTIMAL = "optimal"
@@ -274,7 +274,7 @@ def own_start_commands(
 def _lower_bounds(
     job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.ndarray, costs: np.ndarray
 ) -> np.ndarray:
-    """:func:`snac_gym.optimality.certified_cost_lower_bounds` per sample of a position task (reach or track,
+    """:func:`snac_gym.control.optimality.certified_cost_lower_bounds` per sample of a position task (reach or track,
     under the run's cost), else NaN: certified for every command sequence within the velocity limits. The
     optimum's cost is its V̄ (the reachable set's size, which tightens the Lipschitz constant): the bound
     holds for any V̄, so the reference does not certify itself."""

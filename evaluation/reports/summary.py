@@ -40,7 +40,7 @@ import pandas as pd
 from snac_gym.evaluation.reference.optimum import OPTIMAL, OPTIMAL_LABEL, OPTIMAL_VELOCITY_ONLY_LABEL
 from snac_gym.evaluation.reports.paired import compare
 
-from snac_gym.cost import CostConvention
+from snac_gym.control.cost import CostConvention
 
 #: Table I of the paper, rows in the paper's order: controller name in snac-gym → {task: V/N}.
 PAPER_TABLE_I: dict[str, dict[str, float]] = {

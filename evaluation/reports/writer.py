@@ -18,9 +18,9 @@ import pandas as pd
 from snac_gym.evaluation.reference.optimum import OPTIMAL, OWN_STARTS
 from snac_gym.evaluation.reports.summary import CONVENTION_COLUMNS, controller_label, summarise
 
-from snac_gym.outputs import write_text_whole, write_whole
+from snac_gym.common.outputs import write_text_whole, write_whole
+from snac_gym.control.trajopt import FTOL, GAP_RTOL
 from snac_gym.tasks import get_task
-from snac_gym.trajopt import FTOL, GAP_RTOL
 
 
 def optimality_markdown(summary: pd.DataFrame, results: pd.DataFrame, tasks: Sequence[str]) -> list[str]:

@@ -14,8 +14,8 @@ import gymnasium as gym
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from snac_gym.extras import MissingExtraError
-from snac_gym.kinematics import joint_step
+from snac_gym.common.extras import MissingExtraError
+from snac_gym.model.kinematics import joint_step
 from snac_gym.physics.base import SIMULATED
 from snac_gym.policies import make_policy
 from snac_gym.references import PAPER_Q0
@@ -215,7 +215,7 @@ def tracking_errors(env_id: str, physics: str, kind: str, seed: int, steps: int 
     """How far one episode of ``physics`` departs from the exact kinematic model under a random command.
 
     The env starts from its seeded random pose; the same commands are integrated exactly
-    (θₖ₊₁ = θₖ + uₖΔt, :func:`~snac_gym.kinematics.joint_step`) from the same pose.
+    (θₖ₊₁ = θₖ + uₖΔt, :func:`~snac_gym.model.kinematics.joint_step`) from the same pose.
 
     Returns:
         ``max_velocity_error`` (max over steps and joints of |θ̇ − u| after each step, rad/s),

@@ -16,12 +16,12 @@ from typing import TYPE_CHECKING, Any, Optional, cast
 import typer
 
 from snac_gym import __version__
-from snac_gym._signals import STOP_SIGNALS, SignalGuard, TerminationSignal, exit_code
+from snac_gym.common._signals import STOP_SIGNALS, SignalGuard, TerminationSignal, exit_code
+from snac_gym.common.progress import wants_lines
+from snac_gym.model.robots import robot_names
+from snac_gym.model.ur_models import UR_MODELS
 from snac_gym.policies import available_policies
-from snac_gym.progress import wants_lines
-from snac_gym.robots import robot_names
 from snac_gym.tasks import get_task, task_names
-from snac_gym.ur_models import UR_MODELS
 
 if TYPE_CHECKING:
     from click import ClickException

@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from snac_gym.common.outputs import usable_out_folder, write_text_whole
 from snac_gym.envs import make_task_env
 from snac_gym.metrics import DemoMetrics, demo_metrics
-from snac_gym.outputs import usable_out_folder, write_text_whole
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
@@ -155,7 +155,7 @@ def run_demo(
         policy_kwargs: Constructor arguments of the policy.
         robot: A registered robot; one that cannot reach the paper's θ₀ and references (the
             7-DOF arms) runs its own start pose and reference (``Robot.demo_options``).
-        model_error: Give the controller a wrong arm model (:mod:`snac_gym.model_error` text);
+        model_error: Give the controller a wrong arm model (:mod:`snac_gym.model.model_error` text);
             the simulated arm keeps the true one.
 
     Returns:

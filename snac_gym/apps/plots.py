@@ -17,8 +17,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator, SymmetricalLogLocator
 
-from snac_gym.cost import cost_rates
-from snac_gym.outputs import write_whole
+from snac_gym.common.outputs import write_whole
+from snac_gym.control.cost import cost_rates
 from snac_gym.references import Ellipse, FixedTarget
 from snac_gym.rollout import log_array
 from snac_gym.tasks import TASKS
@@ -124,7 +124,7 @@ def plot_cost(log: pd.DataFrame, axes: Any = None, Q: np.ndarray | None = None, 
 
     Top: ``eₖᵀQeₖ + uₖᵀRuₖ`` (integrand of eq. 6). Bottom: the running sums of the three terms
     of the evaluator's trajectory cost ``V = Σ (eᵀQe + uᵀRu + u̇ᵀRu̇) Δt`` (u₋₁ = 0), both
-    from :mod:`snac_gym.cost`. The total is a thin dashed line over the terms, so that a term that
+    from :mod:`snac_gym.control.cost`. The total is a thin dashed line over the terms, so that a term that
     makes up nearly all of it stays visible under it.
 
     Args:

@@ -16,14 +16,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
-from snac_gym._signals import SignalGuard, TerminationSignal
-from snac_gym._signals import stop_signals_raise as _stop_signals_raise
 from snac_gym.apps.demo import write_demo_outputs
+from snac_gym.common._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
+from snac_gym.common._signals import SignalGuard, TerminationSignal
+from snac_gym.common._signals import stop_signals_raise as _stop_signals_raise
+from snac_gym.common.outputs import usable_out_folder, write_text_whole, write_whole
+from snac_gym.common.validation import whole_number
 from snac_gym.envs.core import resolve_reference, validate_q0
 from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
-from snac_gym.kinematics import Kinematics
-from snac_gym.outputs import usable_out_folder, write_text_whole, write_whole
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.ur_models import UR_MODELS, get_ur_model, series_of, velocity_limits
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.real.connections import (
@@ -41,8 +43,6 @@ from snac_gym.real.safety import SafetyLayer, SafetyLimits
 from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
-from snac_gym.ur_models import UR_MODELS, get_ur_model, series_of, velocity_limits
-from snac_gym.validation import whole_number
 
 #: The streamed log (:class:`~snac_gym.real.journal.StepJournal`): kept only when the run could not write the full one.
 STREAM_SUFFIX = "stream.csv"
@@ -56,7 +56,7 @@ STOP_SIGNALS = (*COMMAND_STOP_SIGNALS, signal.SIGUSR1, signal.SIGUSR2)
 
 def stop_signals_raise() -> AbstractContextManager[SignalGuard]:
     """Within the block, the first signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal`
-    (:func:`snac_gym._signals.stop_signals_raise` with the real run's wider set)."""
+    (:func:`snac_gym.common._signals.stop_signals_raise` with the real run's wider set)."""
     return _stop_signals_raise(STOP_SIGNALS)
 
 
@@ -350,7 +350,8 @@ def run_real_episode(
         out_dir: Folder for the log, figures, timing and summary (``None``: write nothing).
         connection: ``"rtde"`` (a real arm at ``host``) or ``"sim"`` (PyBullet in wall-clock time).
         host: IP of the UR controller (``rtde`` only).
-        series: ``"cb"`` (125 Hz) or ``"e"`` (500 Hz); ``None``: the arm's own (:func:`~snac_gym.ur_models.series_of`).
+        series: ``"cb"`` (125 Hz) or ``"e"`` (500 Hz); ``None``: the arm's own
+        (:func:`~snac_gym.model.ur_models.series_of`).
         dry_run: Connect and read state, send nothing; ``echo`` gets each command it would send.
         seed: Seed of the policy (and env) reset.
         steps: Control periods (default: the task's ``real_horizon_s``, 15 s reach, 30 s track).
@@ -358,7 +359,7 @@ def run_real_episode(
         policy_kwargs: Constructor arguments of the policy.
         csv, plots: As for ``snac-gym demo``.
         echo: Where dry-run lines go (e.g. ``print``).
-        model_error: Rehearse the controller with a wrong arm model (:mod:`snac_gym.model_error`),
+        model_error: Rehearse the controller with a wrong arm model (:mod:`snac_gym.model.model_error`),
             ``connection="sim"`` only: on a real arm the model's error is the arm's own.
         recovery: Whether the episode resumes after a protective stop or a lost link
             (:class:`~snac_gym.real.recovery.RecoveryLimits`; default: never). Each resumption is

@@ -18,7 +18,7 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from snac_gym.cost import trajectory_cost
+from snac_gym.control.cost import trajectory_cost
 from snac_gym.metrics import demo_metrics
 from snac_gym.policies.base import PolicyContext
 from snac_gym.policies.snac import (

@@ -27,7 +27,7 @@ from snac_gym.envs.task_envs import (
     task_env_class,
 )
 from snac_gym.envs.vector import task_vector_env_class, vector_env_supports
-from snac_gym.robots import all_robots
+from snac_gym.model.robots import all_robots
 from snac_gym.tasks import Task, all_tasks, get_task
 from snac_gym.tasks.pose import register_pose_tasks
 
@@ -53,7 +53,7 @@ warnings.filterwarnings("ignore", message=V0_NOTICE, category=DeprecationWarning
 
 
 def register_envs() -> None:
-    """Register the ids of every robot of :data:`snac_gym.robots.ROBOTS` and task of
+    """Register the ids of every robot of :data:`snac_gym.model.robots.ROBOTS` and task of
     :data:`snac_gym.tasks.TASKS`, each with its goal variant (idempotent).
 
     ``snac_gym/<Robot><Task>-v0`` (:mod:`snac_gym.envs.ids`) runs the task's env class with

@@ -13,18 +13,18 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
-from snac_gym.cost import CostConvention, step_costs, weight_matrix
+from snac_gym.common.validation import boolean, real_number, whole_number
+from snac_gym.control.cost import CostConvention, step_costs, weight_matrix
 from snac_gym.envs.ids import IdRobotCheck
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.robots import get_robot
 from snac_gym.observation import ObservationLayout
 from snac_gym.physics import PHYSICS, Arm, check_physics, make_arm, scene_of
 from snac_gym.physics.base import check_image_size, check_timing
 from snac_gym.physics.scene import CameraOptions, default_render_every
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
-from snac_gym.robots import get_robot
 from snac_gym.sampling import REGIONS, SampleSpace, sample_seed_pose
 from snac_gym.tasks import Task, get_task
-from snac_gym.validation import boolean, real_number, whole_number
 
 #: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
 ACTION_TYPES = ("velocity", "normalized")
@@ -262,7 +262,7 @@ def _cost_reward(reward_type: str, cost: CostConvention | None, Q: Any, R: Any) 
         return None
     convention = CostConvention() if cost is None else cost
     if not isinstance(convention, CostConvention):
-        raise ValueError(f"cost must be a snac_gym.cost.CostConvention, got {cost!r}")
+        raise ValueError(f"cost must be a snac_gym.control.cost.CostConvention, got {cost!r}")
     if Q is not None or R is not None:
         raise ValueError("reward_type='cost' takes Q and R from cost= (Q = q_scale·I, R = I); do not pass Q or R")
     return convention
@@ -309,7 +309,7 @@ class TaskEnvCore(gym.Env):
 
     The task, the kinematics, the observation layout and its packing, the episode's start from
     ``reset`` options, the per-step cost terms (eq. 6 and the smoothness term, from
-    :func:`snac_gym.cost.step_costs`), the info dicts and the success rule. Subclasses add the
+    :func:`snac_gym.control.cost.step_costs`), the info dicts and the success rule. Subclasses add the
     arm: :class:`URTaskEnv` (simulated) and :class:`snac_gym.real.RealUREnv` (a real arm behind
     the safety layer).
     """

@@ -33,13 +33,13 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
+from snac_gym.common.validation import boolean, real_array
 from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.envs.task_envs import task_env_class
-from snac_gym.kinematics import Kinematics, damped_least_squares
-from snac_gym.robots import get_robot
+from snac_gym.model.kinematics import Kinematics, damped_least_squares
+from snac_gym.model.robots import get_robot
 from snac_gym.sampling import SampleSpace, nominal_configuration
 from snac_gym.tasks import Task, get_task
-from snac_gym.validation import boolean, real_array
 
 #: Reward types of the goal envs.
 GOAL_REWARD_TYPES = ("sparse", "dense")

@@ -1,6 +1,6 @@
 """Gymnasium ids: one per robot, task and version, ``snac_gym/<Robot><Task>-v<version>``.
 
-The robot part is :attr:`~snac_gym.robots.Robot.env_prefix` (``UR10``, ``Panda``, ``XArm7``),
+The robot part is :attr:`~snac_gym.model.robots.Robot.env_prefix` (``UR10``, ``Panda``, ``XArm7``),
 the task part :attr:`~snac_gym.tasks.Task.env_name` (``Reach``, ``EllipseTrack``); the goal
 variant appends ``Goal`` (``snac_gym/PandaReachGoal-v0``); :meth:`~snac_gym.tasks.Task.env_id_for` spells them.
 :func:`snac_gym.envs.register_envs` registers every pair, as ``-v0`` (physical units) and ``-v1`` (the RL-ready
@@ -18,7 +18,7 @@ import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from snac_gym.robots import get_robot
+from snac_gym.model.robots import get_robot
 from snac_gym.tasks import get_task
 
 if TYPE_CHECKING:

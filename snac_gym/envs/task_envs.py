@@ -73,7 +73,7 @@ class ReachEnv(URTaskEnv):
     −1 otherwise. ``reward_type="shaped"`` (for learners, the reward PPO trains on), with
     d = ‖e‖ after the step and a = u / v_max: ``r = −10·d + exp(−(d / 0.01)²) − 0.01·‖a‖²``
     (:data:`SHAPED_REWARD`). ``reward_type="cost"``: minus the step's share of the evaluator's
-    trajectory cost under ``cost`` (a :class:`~snac_gym.cost.CostConvention`, default the paper's
+    trajectory cost under ``cost`` (a :class:`~snac_gym.control.cost.CostConvention`, default the paper's
     Table I cost), ``−Δt (eₖᵀQeₖ + uₖᵀRuₖ [+ u̇ₖᵀRu̇ₖ])``, so the return is −V exactly
     (``tests/test_cost_reward.py``); its Q = q_scale·I and R = I are the env's. ``info`` carries ``error`` (after the
     step), ``error_norm``, ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇, u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),

@@ -14,7 +14,7 @@ and autoreset follows Gymnasium's default ``AutoresetMode.NEXT_STEP``: the step 
 ends returns that sub-env's reset observation and reset info, reward 0 and no termination or
 truncation, and ignores its action. Values agree to rounding (≤ 1e-12), not bit for bit: the
 single env evaluates f(θ) with Pinocchio and the reference with scalar ``math`` calls, this env
-with :class:`~snac_gym.kinematics.PositionChain` and NumPy's vectorised ``cos``/``sin``.
+with :class:`~snac_gym.model.kinematics.PositionChain` and NumPy's vectorised ``cos``/``sin``.
 
 Speed comes from keeping everything per step in arrays: forward kinematics of positions only
 (:class:`PositionChain`, no Jacobian), references as stacked ellipse parameters
@@ -33,14 +33,14 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from snac_gym.cost import step_costs
+from snac_gym.common.validation import whole_number
+from snac_gym.control.cost import step_costs
 from snac_gym.envs.core import URTaskEnv, draw_episode, physics_argument, shaped_reward
 from snac_gym.envs.ids import IdRobotCheck
 from snac_gym.envs.task_envs import task_env_class
-from snac_gym.kinematics import Kinematics, PositionChain, joint_step
+from snac_gym.model.kinematics import Kinematics, PositionChain, joint_step
 from snac_gym.references import Ellipse, FixedTarget, Reference
 from snac_gym.tasks import Task, get_task
-from snac_gym.validation import whole_number
 
 #: The most episodes one vector env steps (2**20: about 3.3 GB of state at 3.2 kB each; the benchmarks use 4096).
 MAX_NUM_ENVS = 1 << 20

@@ -1,6 +1,6 @@
 """Compiled forward kinematics and position Jacobian of a serial chain, one configuration per loop pass.
 
-:class:`~snac_gym.kinematics.BatchChain` reads the chain from the Pinocchio model (placements,
+:class:`~snac_gym.model.kinematics.BatchChain` reads the chain from the Pinocchio model (placements,
 axes, joint types) and hands it here as arrays; this module knows nothing about any arm. Every
 lockstep step of the evaluator and every cost evaluation of the optimal-control solver needs
 ``f(θ)`` and ``J(θ)`` of hundreds to thousands of configurations; as NumPy array arithmetic over

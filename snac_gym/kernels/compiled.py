@@ -20,7 +20,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-#: The stop signals of every command (snac_gym._signals.STOP_SIGNALS, written again: kernels import no higher layer).
+#: The stop signals of every command (snac_gym.common._signals.STOP_SIGNALS, written again: kernels import no
+#: higher layer).
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 

@@ -1,5 +1,5 @@
 """Compiled factors of the frozen-Jacobian LQR for a stack of Jacobians
-(:meth:`~snac_gym.optimality.FrozenJacobianLQR.factors`).
+(:meth:`~snac_gym.control.optimality.FrozenJacobianLQR.factors`).
 
 Per sample and control step the LQR controller, SNAC-HJB's weighted pseudo-inverse and the MPC's
 terminal cost need ``S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2} = W diag(λ) Wᵀ`` and the products

@@ -1,8 +1,9 @@
-"""The compiled kernels of the certified lower bound (:func:`snac_gym.optimality.solve_cost_relaxation`): a primal-dual
+"""The compiled kernels of the certified lower bound (:func:`snac_gym.control.optimality.solve_cost_relaxation`): a
+primal-dual
 interior point on the relaxed problem, whose Newton systems are banded (docs/lower-bounds.md).
 
 They are plain Python functions compiled by numba on first use (:func:`relaxation_kernel`), so that importing
-:mod:`snac_gym.optimality` does not import numba.
+:mod:`snac_gym.control.optimality` does not import numba.
 """
 
 from __future__ import annotations

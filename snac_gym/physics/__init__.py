@@ -7,7 +7,7 @@ default), :mod:`~snac_gym.physics.kinematic` (the paper's exact model) and :mod:
 
 from __future__ import annotations
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.physics.base import PHYSICS, SIMULATED, Arm, ArmBatch, ArmList, check_physics, scene_of
 from snac_gym.physics.bullet import PyBulletArm, PyBulletArmBatch
 from snac_gym.physics.kinematic import KinematicArm

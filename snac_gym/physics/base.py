@@ -7,7 +7,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from snac_gym.validation import real_number, whole_number
+from snac_gym.common.validation import real_number, whole_number
 
 #: The arm models: ``physics=`` of ``gym.make``, ``--engine`` of ``snac-gym evaluate`` (the one vocabulary).
 PHYSICS = ("pybullet", "kinematic", "mujoco")
@@ -63,7 +63,7 @@ MAX_SUBSTEPS = 1000
 
 def check_timing(dt: Any, n_substeps: Any) -> tuple[float, int]:
     """``(dt, n_substeps)`` of a physics engine, checked: a real :data:`MIN_DT` ≤ dt ≤ :data:`MAX_DT` s and a whole
-    1 ≤ n_substeps ≤ :data:`MAX_SUBSTEPS` (no bools, strings or complex numbers: :mod:`snac_gym.validation`).
+    1 ≤ n_substeps ≤ :data:`MAX_SUBSTEPS` (no bools, strings or complex numbers: :mod:`snac_gym.common.validation`).
 
     Raises:
         ValueError: Naming the bad one.

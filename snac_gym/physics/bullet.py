@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym._quiet import quiet_output
-from snac_gym.kinematics import Kinematics, resolved_urdf_text
+from snac_gym.common._quiet import quiet_output
+from snac_gym.model.kinematics import Kinematics, resolved_urdf_text
 from snac_gym.physics.base import _stacked, check_image_size, check_timing
 from snac_gym.physics.scene import (
     CUBOID_COLOUR,

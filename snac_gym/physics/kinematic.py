@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics, joint_step
+from snac_gym.model.kinematics import Kinematics, joint_step
 from snac_gym.physics.base import MAX_DT
 
 

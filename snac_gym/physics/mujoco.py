@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.extras import require
-from snac_gym.kinematics import Kinematics
+from snac_gym.common.extras import require
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.physics.base import check_image_size, check_timing
 from snac_gym.physics.mujoco_model import EE_SITE, build_physics_spec
 from snac_gym.physics.scene import (

@@ -1,4 +1,5 @@
-"""A MuJoCo model of a registered robot, built in memory from the same URDF as :class:`~snac_gym.kinematics.Kinematics`.
+"""A MuJoCo model of a registered robot, built in memory from the same URDF as
+:class:`~snac_gym.model.kinematics.Kinematics`.
 
 The model is for kinematics (the ``mink`` controller reads its Jacobians from it): it has the
 URDF's joints, in the same order and with the same position limits, and no geometry (visual and
@@ -15,10 +16,10 @@ rounding:
   placed on the body of the joint that carries it, at the frame's placement in that joint's frame
   (Pinocchio's ``frame.placement``): a body's frame is its URDF link frame, the joint's frame.
 
-Joints that the robot locks (the Panda's fingers, :attr:`~snac_gym.robots.Robot.locked_joints`)
+Joints that the robot locks (the Panda's fingers, :attr:`~snac_gym.model.robots.Robot.locked_joints`)
 are removed and their bodies welded at the value :class:`Kinematics` holds them at (the neutral
 value clipped to the joint's limits). ``tests/test_qp_controllers.py`` checks the site's position,
-orientation and Jacobian against :class:`Kinematics` and :class:`~snac_gym.kinematics.PoseKinematics`
+orientation and Jacobian against :class:`Kinematics` and :class:`~snac_gym.model.kinematics.PoseKinematics`
 at random configurations of every registered robot.
 
 :func:`build_physics_spec` builds the arm the ``physics="mujoco"`` env simulates from the same
@@ -37,9 +38,9 @@ from typing import Any, cast
 import numpy as np
 import pinocchio as pin
 
-from snac_gym.extras import require
-from snac_gym.kinematics import Kinematics, resolved_urdf_text
-from snac_gym.robots import get_robot
+from snac_gym.common.extras import require
+from snac_gym.model.kinematics import Kinematics, resolved_urdf_text
+from snac_gym.model.robots import get_robot
 from snac_gym.sampling import nominal_configuration
 
 #: Name of the site at the controlled frame.
@@ -59,7 +60,7 @@ def _urdf_without_geometry(
 ) -> tuple[str, dict[str, float]]:
     """The URDF with every ``<visual>`` removed, and every ``<collision>`` unless ``keep_collision``, and
     the value of each locked joint (its neutral value 0 clipped to its URDF limits, as
-    :func:`snac_gym.kinematics._locked` holds it)."""
+    :func:`snac_gym.model.kinematics._locked` holds it)."""
     root = ET.fromstring(text)
     for link in root.findall("link"):
         for tag in ("visual",) if keep_collision else ("visual", "collision"):

@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.common.validation import real_array, real_number
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.references import Reference
 from snac_gym.sampling import SampleSpace, sample_seed_pose
-from snac_gym.validation import real_array, real_number
 
 #: Vertical field of view of the camera, degrees.
 FIELD_OF_VIEW = 45.0

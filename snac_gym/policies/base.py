@@ -42,8 +42,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics
-from snac_gym.model_error import refuse_pose_tasks
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.model_error import refuse_pose_tasks
 from snac_gym.observation import ObservationLayout
 from snac_gym.tasks import Task, get_task
 
@@ -107,7 +107,7 @@ class PolicyContext:
     """What a policy takes from the env it drives.
 
     Attributes:
-        kinematics: The shared :class:`~snac_gym.kinematics.Kinematics`.
+        kinematics: The shared :class:`~snac_gym.model.kinematics.Kinematics`.
         dt: Control period, s.
         velocity_limits: Joint speed limits, rad/s (the action bounds).
         layout: The observation layout.
@@ -139,7 +139,7 @@ class PolicyContext:
         return get_task(self.task)
 
     def with_model_error(self, model_error: Any) -> PolicyContext:
-        """This context with the arm model a wrong one (:class:`~snac_gym.model_error.ModelError` or its text).
+        """This context with the arm model a wrong one (:class:`~snac_gym.model.model_error.ModelError` or its text).
 
         Only the controller's kinematics change; whatever it drives keeps the true arm.
 

@@ -29,7 +29,7 @@ leaves a choice open, the other readings are constructor arguments: ``initial_we
 The weight law contains neither Q nor any HJB residual: the trajectory does not depend on Q at
 all (tested). :meth:`SNACPolicy.critic_diagnostics` measures how far the critic is from the HJB
 equation and, for regulation, from the frozen-Jacobian optimum P*(J)
-(:mod:`snac_gym.optimality`).
+(:mod:`snac_gym.control.optimality`).
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ from typing import Any, cast
 
 import numpy as np
 
-from snac_gym.cost import weight_matrix
-from snac_gym.joint_limits import make_limit_box
-from snac_gym.optimality import FrozenJacobianLQR, critic_error, hjb_residual, quadratic_weights_to_matrix
+from snac_gym.control.cost import weight_matrix
+from snac_gym.control.optimality import FrozenJacobianLQR, critic_error, hjb_residual, quadratic_weights_to_matrix
+from snac_gym.model.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy
 
 #: The paper's learning-rate schedules (Section V): task -> (α_initial, α_final, n).
@@ -204,7 +204,7 @@ class SNACPolicy(CriticEpisode, BasePolicy):
             ``"paper"`` (default) ξ = [e; x_d], ``"centred"`` ξ = [e; x_d − x_c].
         seed: Seed of the initial-weight generator used by ``reset(seed=None)``.
         joint_limits: Clamp the command into the position-limit box Ω(θ) after the velocity
-            clipping (:mod:`snac_gym.joint_limits`; the paper's law has no position limits);
+            clipping (:mod:`snac_gym.model.joint_limits`; the paper's law has no position limits);
             ``None`` (default): on for the 7-DOF arms only. The critic learns from its own
             command (eqs. 19, 38), as without the box.
 
@@ -421,7 +421,7 @@ class SNACPolicy(CriticEpisode, BasePolicy):
             r = ∇V̂ᵀ ξ̇ + eᵀQe + ûᵀRû
 
         is 0 for the optimal value function; ``r / eᵀQe`` makes it comparable across error
-        sizes. For regulation V̂ = eᵀP̂e (:func:`~snac_gym.optimality.quadratic_weights_to_matrix`)
+        sizes. For regulation V̂ = eᵀP̂e (:func:`~snac_gym.control.optimality.quadratic_weights_to_matrix`)
         is also compared with the frozen-Jacobian optimum P*(J) at each θ.
 
         Args:

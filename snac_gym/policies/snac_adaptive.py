@@ -86,7 +86,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.kinematics import leaf_chain
+from snac_gym.model.kinematics import leaf_chain
 from snac_gym.policies.base import positive_float
 from snac_gym.policies.snac_hjb import SNACHJBPolicy
 

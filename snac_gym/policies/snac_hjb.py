@@ -6,7 +6,7 @@ equation: it contains no Q and its critic does not approach the optimal value fu
 quadratic basis, the command from ``∇V̂`` (eq. 15), eq. 19 as a stabilising term, and tunes Ŵ
 by the HJB residual instead.
 
-**Critic and command.** ``V̂(e) = Ŵᵀσ(e) = eᵀP̂e`` (:func:`~snac_gym.optimality.quadratic_weights_to_matrix`)::
+**Critic and command.** ``V̂(e) = Ŵᵀσ(e) = eᵀP̂e`` (:func:`~snac_gym.control.optimality.quadratic_weights_to_matrix`)::
 
     u_fb = −½ R⁻¹ Jᵀ ∇V̂(e) = −R⁻¹ Jᵀ P̂ e                  (eq. 15)
     u    = sat(J⁺_R ẋ_d + u_fb)
@@ -79,7 +79,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.optimality import (
+from snac_gym.control.optimality import (
     FrozenJacobianLQR,
     critic_error,
     hjb_residual,
@@ -356,7 +356,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
     def critic_diagnostics(
         self, q: np.ndarray, e: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, x_c: np.ndarray, weights: np.ndarray
     ) -> dict[str, np.ndarray]:
-        """HJB residual δ(e) (eq. 9, :func:`~snac_gym.optimality.hjb_residual` with û = −R⁻¹JᵀP̂e, the
+        """HJB residual δ(e) (eq. 9, :func:`~snac_gym.control.optimality.hjb_residual` with û = −R⁻¹JᵀP̂e, the
         feedback the critic commands), δ/eᵀQe and ‖P̂ − P*(J)‖/‖P*‖ at K logged rows.
 
         The critic is of the feedback problem ė = J u_fb for both tasks, so the same three hold

@@ -3,7 +3,7 @@
 ``snac-hjb`` (:mod:`snac_gym.policies.snac_hjb`) learns its critic P̂ by policy iteration on the
 arm *model*'s frozen-Jacobian problem ė = J u: its critic is as right as the model. This
 controller learns P and the gain from the *measured* error and command alone, by the data-driven
-policy iteration of :mod:`snac_gym.irl`: for the arm A = 0 and B = J, and J is unknown to the
+policy iteration of :mod:`snac_gym.control.irl`: for the arm A = 0 and B = J, and J is unknown to the
 learner.
 
 **Episode.** Each episode runs in two phases:
@@ -20,8 +20,8 @@ learner.
    are drawn from the reset seed. The measured errors e₀…e_L, the applied commands u₀…u_{L−1}
    (after the scaling into the limits, what the arm was given) and the drift w = −ẋ_d are kept.
 2. *Learned* (from step L on): the windows of ``window_steps`` periods
-   (:func:`~snac_gym.irl.windows_from_samples`, ė = J u + w with w = −ẋ_d the measured drift)
-   go to Algorithm 1 (:func:`~snac_gym.irl.policy_iteration`) from K₀, which returns P and K with
+   (:func:`~snac_gym.control.irl.windows_from_samples`, ė = J u + w with w = −ẋ_d the measured drift)
+   go to Algorithm 1 (:func:`~snac_gym.control.irl.policy_iteration`) from K₀, which returns P and K with
    K ≈ R⁻¹ JᵀP (eq. 7) and no use of J. Then::
 
        u = sat(Ĵ⁺_R ẋ_d − K e),   Ĵ = P⁻¹ Kᵀ R   (eq. 7 read backwards: Jᵀ = R K P⁻¹)
@@ -54,10 +54,10 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.irl import policy_iteration, windows_from_samples
-from snac_gym.optimality import FrozenJacobianLQR, positive_definite_weight
+from snac_gym.common.validation import whole_number
+from snac_gym.control.irl import policy_iteration, windows_from_samples
+from snac_gym.control.optimality import FrozenJacobianLQR, positive_definite_weight
 from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
-from snac_gym.validation import whole_number
 
 
 class SNACIRLPolicy(BasePolicy):

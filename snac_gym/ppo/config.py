@@ -44,12 +44,12 @@ from typing import Any, TypeVar, cast
 
 import gymnasium as gym
 
-from snac_gym.errors import ConfigError
-from snac_gym.kinematics import Kinematics
+from snac_gym.common.errors import ConfigError
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.robots import robot_names
 from snac_gym.physics.base import check_timing
 from snac_gym.ppo.envs import REWARD_TYPES
 from snac_gym.ppo.features import ACTION_KINDS, FEATURE_VERSION, FeatureSpec
-from snac_gym.robots import robot_names
 from snac_gym.sampling import REGIONS as SAMPLE_REGIONS
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task, task_names

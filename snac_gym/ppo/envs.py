@@ -36,7 +36,7 @@ from typing import Any, cast
 import gymnasium as gym
 import numpy as np
 
-from snac_gym.cost import CostConvention
+from snac_gym.control.cost import CostConvention
 from snac_gym.envs.core import TaskEnvCore, shaped_reward
 from snac_gym.ppo.features import (
     EpisodeGoals,
@@ -62,7 +62,8 @@ class RewardSpec:
         precision_scale: Width of the bonus, m.
         action_penalty: Weight of ‖a‖².
         smoothness_penalty: Weight of ‖a − a_prev‖².
-        cost, q_scale, udot_start: The cost convention of ``type="cost"`` (:class:`~snac_gym.cost.CostConvention`).
+        cost, q_scale, udot_start: The cost convention of ``type="cost"``
+        (:class:`~snac_gym.control.cost.CostConvention`).
         limit_penalty: Weight of the joint-limit term, 1/(rad·s): each step subtracts
             ``limit_penalty · Δt · Σⱼ (how far θⱼ is beyond its limit, rad)`` from the reward (0: none). The
             trajectory cost does not charge a crossing; the success rule fails it.

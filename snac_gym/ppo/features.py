@@ -62,7 +62,7 @@ the feedback as functions of the error and the reference; the kinematics are the
 
 ``"goal-relative"`` (``FEATURE_VERSION`` 4, the workspace policies): the task-relative action plus one
 more output, a joint-space gain towards a goal configuration inside the joint limits
-(:mod:`snac_gym.joint_goal`: the in-limit IK solution nearest θ₀, carried along a moving reference by
+(:mod:`snac_gym.model.joint_goal`: the in-limit IK solution nearest θ₀, carried along a moving reference by
 a virtual arm θ*(t) with velocity θ̇*):
 
     u = sat(θ̇* + s·joint_gain·(1 + a₀)·(θ* − θ) + Jᵀ(JJᵀ + λ²I)⁻¹ (s·gain_max·(‖e‖ + ε_v)·a₁..ₙ))
@@ -100,8 +100,8 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.joint_goal import TRACKING_ROOM, GoalArms
-from snac_gym.kinematics import damped_least_squares
+from snac_gym.model.joint_goal import TRACKING_ROOM, GoalArms
+from snac_gym.model.kinematics import damped_least_squares
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import scale_rows_into_limits
 
@@ -242,7 +242,7 @@ class GoalState:
     """What a goal-relative policy needs beyond the observation, one row per observation.
 
     Attributes:
-        goal: θ*(t), ``(m,)`` or ``(B, m)`` (:class:`snac_gym.joint_goal.GoalArms`).
+        goal: θ*(t), ``(m,)`` or ``(B, m)`` (:class:`snac_gym.model.joint_goal.GoalArms`).
         velocity: θ̇*(t), the same shape.
         lower, upper: The joint position limits ``(m,)`` (for the room feature).
     """
@@ -261,8 +261,8 @@ class EpisodeGoals:
     """The goal state of B goal-relative episodes, the same code at training and at run time.
 
     An episode's goal is solved from its first observation (θ₀, x_d(0)); every observation then advances
-    its virtual arm one period (:class:`snac_gym.joint_goal.GoalArms`: a tracking episode's goal prefers
-    :data:`~snac_gym.joint_goal.TRACKING_ROOM`).
+    its virtual arm one period (:class:`snac_gym.model.joint_goal.GoalArms`: a tracking episode's goal prefers
+    :data:`~snac_gym.model.joint_goal.TRACKING_ROOM`).
 
     Args:
         kinematics: The model's position kinematics.

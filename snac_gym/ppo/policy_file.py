@@ -33,9 +33,9 @@ from typing import Any, cast
 
 import numpy as np
 
-from snac_gym.errors import MissingPolicyFileError, PolicyFileError
+from snac_gym.common.errors import MissingPolicyFileError, PolicyFileError
+from snac_gym.common.outputs import write_whole
 from snac_gym.observation import ObservationLayout
-from snac_gym.outputs import write_whole
 from snac_gym.ppo.features import FeatureSpec, GoalState, action_size, command, feature_size, observation_features
 
 FORMAT_NAME = "snac-gym-ppo-policy"

@@ -21,7 +21,7 @@ run by :class:`~snac_gym.ppo.policy.PPOPolicy` (the code path of ``make_policy("
 and scored at each of ``evaluation.horizons_s`` (the evaluator's horizons: 4 s and 8 s for
 reach, 10 s and 20 s for track). Success at a horizon: reach, final ‖e‖ ≤ ``success_error_m``;
 track, mean ‖e‖ over the second half of the horizon < ``success_error_m``; an episode succeeds
-if it does at every horizon. The trajectory cost is :func:`snac_gym.cost.trajectory_cost` over
+if it does at every horizon. The trajectory cost is :func:`snac_gym.control.cost.trajectory_cost` over
 the first horizon. The best model is the one with the highest success rate, ties broken by
 the lower mean cost.
 
@@ -57,17 +57,17 @@ import gymnasium as gym
 import numpy as np
 
 from snac_gym import __version__
-from snac_gym.cost import trajectory_cost
+from snac_gym.common.outputs import usable_out_folder, write_error, write_text_whole, write_whole
+from snac_gym.common.progress import ProgressLines
+from snac_gym.control.cost import trajectory_cost
 from snac_gym.envs import make_task_env
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
-from snac_gym.outputs import usable_out_folder, write_error, write_text_whole, write_whole
 from snac_gym.ppo.config import env_arguments, resolve_config, validate_config
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec
 from snac_gym.ppo.features import FeatureSpec
 from snac_gym.ppo.policy import PPOPolicy
 from snac_gym.ppo.policy_file import export_policy
-from snac_gym.progress import ProgressLines
 from snac_gym.rollout import log_array, rollout
 from snac_gym.tasks import get_task
 

@@ -24,12 +24,12 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from snac_gym.errors import ConnectionFailure
-from snac_gym.kinematics import Kinematics
+from snac_gym.common.errors import ConnectionFailure
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.ur_models import SERIES_FREQUENCY  # the controller generations' rates, re-exported here
 from snac_gym.physics.bullet import PyBulletSim, SimulatedArm
 from snac_gym.real.rtde_client import HEADER, RECONNECT_MARKERS, as_arrays, write_frame
 from snac_gym.sampling import nominal_configuration
-from snac_gym.ur_models import SERIES_FREQUENCY  # the controller generations' rates, re-exported here
 
 #: Safety states a connection reports (``info["safety_state"]`` of the real env).
 NORMAL = "normal"
@@ -345,7 +345,7 @@ class URRTDEConnection:
         """The controller's TCP position (``actual_TCP_pose[:3]``, m, UR base frame) of the last read.
 
         With no TCP offset set on the pendant it is the flange (``tool0``) in the ``base`` frame,
-        the point and frame of :class:`~snac_gym.kinematics.Kinematics`' defaults.
+        the point and frame of :class:`~snac_gym.model.kinematics.Kinematics`' defaults.
         """
         return self._last_snapshot()[2][:3].copy()
 

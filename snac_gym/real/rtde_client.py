@@ -30,7 +30,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from snac_gym.errors import LinkDown
+from snac_gym.common.errors import LinkDown
 
 #: Frame header: the length of the pickle that follows.
 HEADER = struct.Struct(">I")

@@ -3,7 +3,7 @@
 Two kinds of rule:
 
 * **Shaping** (every command): clip to ``speed_scale`` × the joint speed limits (the URDF's, and on a UR
-  arm no more than its datasheet's: :func:`snac_gym.ur_models.velocity_limits`), then bound the
+  arm no more than its datasheet's: :func:`snac_gym.model.ur_models.velocity_limits`), then bound the
   change from the previous command by ``max_joint_acceleration`` × dt.
 * **Stopping** (the arm is stopped and the episode ends):
 
@@ -31,9 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.ur_models import velocity_limits
 from snac_gym.sampling import SampleSpace
-from snac_gym.ur_models import velocity_limits
 
 _BOX_MARGIN = 0.15  # m around the sample cuboid: room for overshoot, not for the table
 

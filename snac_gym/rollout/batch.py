@@ -16,7 +16,7 @@ from typing import Any, cast
 import numpy as np
 import pandas as pd
 
-from snac_gym.errors import RolloutError  # noqa: F401  (its name here before snac_gym.errors)
+from snac_gym.common.errors import RolloutError  # noqa: F401  (its name here before snac_gym.common.errors)
 from snac_gym.rollout.log import log_array, log_columns
 
 

@@ -1,7 +1,8 @@
 """The lockstep rollout engine: B samples stepped together on the exact kinematic model, or on one simulated arm each.
 
 :func:`simulate_kinematic` (the evaluator's default engine, ``--engine kinematic``): θ is integrated exactly from the
-command, θₖ₊₁ = θₖ + uₖΔt, with the shared :class:`~snac_gym.kinematics.Kinematics`, the paper's kinematic model. All
+command, θₖ₊₁ = θₖ + uₖΔt, with the shared :class:`~snac_gym.model.kinematics.Kinematics`, the paper's kinematic
+model. All
 samples of a chunk advance in lockstep: one observation array ``(B, d)`` per step, built field by field
 with the env's :class:`~snac_gym.observation.ObservationLayout` (e = x − x_d, or the task's own
 error for a pose task, see below; x_c = the reference centre, and the measured joint-velocity field = the command held
@@ -11,7 +12,7 @@ clipped to the velocity limits, as the env clips its actions; joint position lim
 by the paper's model).
 
 Any task dimension n (the layout's ``task_dim``): the 3-D position tasks use the position
-kinematics and ``e = x − x_d``; a pose task's kinematics (:class:`~snac_gym.kinematics.PoseKinematics`,
+kinematics and ``e = x − x_d``; a pose task's kinematics (:class:`~snac_gym.model.kinematics.PoseKinematics`,
 x = [p; log₃ R]) has its own ``task_error`` (e = [p − p_d; log₃(R R_dᵀ)]), which the engine applies
 row by row exactly as the env does (:func:`task_error_function`), so both give the same numbers.
 
@@ -27,7 +28,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from snac_gym.kinematics import joint_step
+from snac_gym.model.kinematics import joint_step
 from snac_gym.policies.base import LockstepPolicies, PolicyContext
 from snac_gym.references import Reference
 from snac_gym.rollout.batch import RolloutError, Rollouts, summarise_critic_diagnostics

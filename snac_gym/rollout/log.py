@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym.outputs import write_text_whole, write_whole
+from snac_gym.common.outputs import write_text_whole, write_whole
 
 
 def vector_columns(prefix: str, size: int) -> list[str]:

@@ -16,9 +16,9 @@ from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics, PoseKinematics
+from snac_gym.model.kinematics import Kinematics, PoseKinematics
+from snac_gym.model.robots import get_robot
 from snac_gym.references import PAPER_Q0, Reference
-from snac_gym.robots import get_robot
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks.registry import get_task
 
@@ -88,7 +88,7 @@ class Task(ABC, Generic[_ReferenceT]):
         """The task's id on ``robot``: ``snac_gym/<Robot><env_name>[Goal]-v<version>``.
 
         Args:
-            robot: A registered robot (its :attr:`~snac_gym.robots.Robot.env_prefix` names it).
+            robot: A registered robot (its :attr:`~snac_gym.model.robots.Robot.env_prefix` names it).
             goal: The goal-conditioned variant (:mod:`snac_gym.envs.goal`).
             version: The id's version (default :attr:`env_version`, 0: physical units, the id the evaluator,
                 the demo and the benchmarks use); 1 gives the RL-ready id (docs/environments.md, "v1 vs v0").
@@ -106,7 +106,7 @@ class Task(ABC, Generic[_ReferenceT]):
     def make_kinematics(self, robot: str) -> Kinematics | PoseKinematics:
         """The kinematics of the task's coordinates on ``robot`` (the envs build theirs here): the
         end-effector position (:class:`Kinematics`, task_dim 3); a pose task returns a
-        :class:`~snac_gym.kinematics.PoseKinematics` (task_dim 6, its own ``task_error``)."""
+        :class:`~snac_gym.model.kinematics.PoseKinematics` (task_dim 6, its own ``task_error``)."""
         return Kinematics(robot)
 
     # -- references ------------------------------------------------------------------------
@@ -138,7 +138,7 @@ class Task(ABC, Generic[_ReferenceT]):
         """Reset options of the demonstration on ``robot``.
 
         The paper's θ₀ of Section V and the paper's reference (the UR arms, ``robot=None``), or the
-        start pose and reference of the robot's registered ``demo_options`` (:mod:`snac_gym.robots`),
+        start pose and reference of the robot's registered ``demo_options`` (:mod:`snac_gym.model.robots`),
         for an arm that cannot reach the paper's numbers.
 
         Raises:

@@ -1,7 +1,7 @@
 """Pose tasks: reach a full end-effector pose, or follow an ellipse at a fixed orientation.
 
 Task coordinates are ``x = [p; log₃ R]`` (m, rad) and the error is ``e = [p − p_d; log₃(R R_dᵀ)]``
-(:class:`~snac_gym.kinematics.PoseKinematics`): position in metres, orientation in radians, both in
+(:class:`~snac_gym.model.kinematics.PoseKinematics`): position in metres, orientation in radians, both in
 the base frame, with the 6-row ``LOCAL_WORLD_ALIGNED`` Jacobian. The cost ``eᵀQe + uᵀRu`` weighs
 both blocks with Q = I₆ by default, so 1 mrad of orientation error costs as much as 1 mm of
 position error; pass ``Q=np.diag([1, 1, 1, w², w², w²])`` to price a radian as ``w`` metres.
@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, cast
 import numpy as np
 import pinocchio as pin
 
-from snac_gym.kinematics import PoseKinematics, shared_pose_kinematics
+from snac_gym.model.kinematics import PoseKinematics, shared_pose_kinematics
 from snac_gym.references import PAPER_TARGET, Ellipse
 from snac_gym.sampling import SampleSpace, nominal_configuration, sample_ellipse, sample_seed_pose
 from snac_gym.tasks.base import CellReader, Task

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from snac_gym.entry_points import EntryPointGroup
+from snac_gym.common.entry_points import EntryPointGroup
 
 #: The entry-point group of tasks from other packages.
 ENTRY_POINT_GROUP = "snac_gym.tasks"

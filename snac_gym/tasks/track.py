@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.references import MIN_SEMI_AXIS, PAPER_CIRCLE_SPEED, Ellipse
 from snac_gym.sampling import SampleSpace, check_reachable, sample_ellipse
 from snac_gym.tasks.base import CellReader, Task

@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 import snac_gym  # noqa: F401  (registers the ids)
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import PolicyContext
 from snac_gym.references import PAPER_Q0, Ellipse, FixedTarget

@@ -24,12 +24,12 @@ pytest.importorskip("rtde_control")
 #: runs them on their own, after the parallel run, so that no other test competes for the CPU.
 pytestmark = pytest.mark.realtime
 
-from snac_gym.kinematics import Kinematics  # noqa: E402
+from snac_gym.model.kinematics import Kinematics  # noqa: E402
+from snac_gym.model.ur_models import flange_transform  # noqa: E402
 from snac_gym.real import ConnectionFailure, RealUREnv, SafetyLimits, URRTDEConnection  # noqa: E402
 from snac_gym.real.emulator.arm import matrix_to_pose  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 from snac_gym.sampling import nominal_configuration  # noqa: E402
-from snac_gym.ur_models import flange_transform  # noqa: E402
 
 HOST = emulator_host()
 #: Timing rules loosened for the tests that are not about timing: the host may be shared.

@@ -18,7 +18,7 @@ from snac_gym.evaluation.samples import generate_samples  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
 from snac_gym.apps.cli import app  # noqa: E402
-from snac_gym.kinematics import Kinematics  # noqa: E402
+from snac_gym.model.kinematics import Kinematics  # noqa: E402
 from snac_gym.real.emulator.process import EmulatorProcess  # noqa: E402
 from snac_gym.references import PAPER_Q0 as PAPER_POSE  # noqa: E402
 from snac_gym.sampling import SampleSpace  # noqa: E402

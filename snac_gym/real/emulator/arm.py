@@ -4,7 +4,7 @@ The controller reports ``actual_TCP_pose`` in its **base frame** (the frame the 
 ``base`` frame of the URDF, rotated π about z from ``base_link``) as ``[x, y, z, rx, ry, rz]``:
 the position of the TCP, i.e. the flange (``tool0``) moved by the TCP offset, and its orientation
 as a rotation vector. The emulator computes it from Universal Robots' published DH parameters
-(:func:`snac_gym.ur_models.flange_transform`), not from the URDF: for the CB3 arms (example-robot-data's
+(:func:`snac_gym.model.ur_models.flange_transform`), not from the URDF: for the CB3 arms (example-robot-data's
 URDFs) the connection's FK check compares two independent models; the e-series URDFs are written from the
 same DH rows, so for them it checks the frames and the tool offset, not the DH numbers.
 
@@ -21,8 +21,8 @@ import math
 
 import numpy as np
 
-from snac_gym.kinematics import joint_step
-from snac_gym.ur_models import UR_MODELS, flange_transform
+from snac_gym.model.kinematics import joint_step
+from snac_gym.model.ur_models import UR_MODELS, flange_transform
 
 
 def pose_to_matrix(pose: np.ndarray) -> np.ndarray:
@@ -62,7 +62,7 @@ class EmulatedArm:
     """Joint state of the emulated arm, integrated exactly each controller cycle.
 
     Args:
-        robot: A UR model of :data:`~snac_gym.ur_models.UR_MODELS` (its DH rows give the TCP pose).
+        robot: A UR model of :data:`~snac_gym.model.ur_models.UR_MODELS` (its DH rows give the TCP pose).
         q: Initial joint angles, rad.
         velocity_limits: Joint speed limits, rad/s (the controller never exceeds them).
     """

@@ -16,14 +16,14 @@ from typing import Any
 import numpy as np
 from typing_extensions import Self
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.ur_models import SERIES_FREQUENCY, series_of, velocity_limits
 from snac_gym.real.connections import DASHBOARD_PORT, PROTECTIVE_STOP_LOCKOUT
 from snac_gym.real.emulator import protocol as p
 from snac_gym.real.emulator.arm import EmulatedArm
 from snac_gym.real.emulator.script import ControlScript
 from snac_gym.real.emulator.servers import RTDEConnection, serve_dashboard, serve_script
 from snac_gym.sampling import nominal_configuration
-from snac_gym.ur_models import SERIES_FREQUENCY, series_of, velocity_limits
 
 log = logging.getLogger("snac_gym.emulate_ur")
 

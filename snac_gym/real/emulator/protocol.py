@@ -27,7 +27,7 @@ import re
 import struct
 from dataclasses import dataclass
 
-from snac_gym.errors import ProtocolError
+from snac_gym.common.errors import ProtocolError
 
 RTDE_REQUEST_PROTOCOL_VERSION = 86  # 'V'
 RTDE_GET_URCONTROL_VERSION = 118  # 'v'

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from snac_gym._signals import STOP_SIGNALS
+from snac_gym.common._signals import STOP_SIGNALS
 from snac_gym.real.emulator.controller import UREmulator
 
 

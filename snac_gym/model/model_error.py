@@ -5,7 +5,7 @@ longer than its drawing, a joint axis is tilted, the base stands a few millimetr
 believed to, the tool is mounted off its frame. :class:`ModelError` describes such an error in
 parts, any of them combined (m joints; "placement j" is joint j's fixed placement M_j = (R_j, t_j)
 in its parent's frame, in configuration order, in the model that
-:class:`~snac_gym.kinematics.Kinematics` has re-rooted at the base frame, so a root joint's
+:class:`~snac_gym.model.kinematics.Kinematics` has re-rooted at the base frame, so a root joint's
 translation is measured from the base frame's origin):
 
 * ``joint_offset = a₀, …, a_{m−1}`` (rad): the model reads joint j at θⱼ + aⱼ, i.e.
@@ -34,9 +34,9 @@ translation is measured from the base frame's origin):
   draw depends on σ, the seed and n only, and scales with σ (the same seed at 2σ is twice the
   error). 0 ≤ σ ≤ 0.1; the seed is a non-negative integer;
 * ``model = NAME``: the controllers get another registered robot's kinematics
-  (:mod:`snac_gym.robots`, e.g. ``model=ur5`` for a UR10), with the same joint count; the other
+  (:mod:`snac_gym.model.robots`, e.g. ``model=ur5`` for a UR10), with the same joint count; the other
   parts apply on top of that robot. :meth:`Kinematics.with_model_error
-  <snac_gym.kinematics.Kinematics.with_model_error>` is the builder that honours it;
+  <snac_gym.model.kinematics.Kinematics.with_model_error>` is the builder that honours it;
   :meth:`ModelError.apply` ignores it.
 
 What the family represents: ``random`` perturbs every fixed transform of a serial chain (each joint
@@ -52,7 +52,7 @@ Per placement the parts compose as M_j ← T_base · (R_j, t̃_j) · E_j · exp(
 random draw), and for the tool frame as M ← (R, (1 + s) t) · E_tool · (I, tool offset). A joint offset
 enters last, next to the joint's motion: rotations about one axis commute, so
 M_j exp(aⱼ ωⱼ) exp(θⱼ ωⱼ) = M_j exp((θⱼ + aⱼ) ωⱼ). :meth:`ModelError.apply` writes the error into a
-Pinocchio model, so the erroneous kinematics is an ordinary :class:`~snac_gym.kinematics.Kinematics`
+Pinocchio model, so the erroneous kinematics is an ordinary :class:`~snac_gym.model.kinematics.Kinematics`
 with the same batched paths.
 
 The evaluator's ``--model-error SPEC`` gives the wrong model to the controllers, while the plant,
@@ -69,8 +69,8 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from snac_gym.robots import get_robot
-from snac_gym.validation import real_number, whole_number
+from snac_gym.common.validation import real_number, whole_number
+from snac_gym.model.robots import get_robot
 
 #: Pinocchio's joint-model letters → their axis.
 _ALIGNED_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
@@ -136,7 +136,7 @@ class ModelError:
         base: The model's base displacement (x, y, z, rx, ry, rz), m and rad (rotation vector).
         random: ``(σ, seed)`` of the random rigid error of every placement and the tool frame (``None``: none).
         model: A registered robot whose kinematics the model is (``None``: the arm's own); honoured by
-            :meth:`Kinematics.with_model_error <snac_gym.kinematics.Kinematics.with_model_error>`.
+            :meth:`Kinematics.with_model_error <snac_gym.model.kinematics.Kinematics.with_model_error>`.
     """
 
     joint_offset: tuple[float, ...] = ()
@@ -285,7 +285,7 @@ class ModelError:
     def apply(self, model: Any, ee_frame_id: int) -> None:
         """Write the error into the Pinocchio ``model`` (in place; a model already rooted at its base), as the
         module docstring composes it. ``model`` (another robot) is not applied here:
-        :meth:`Kinematics.with_model_error <snac_gym.kinematics.Kinematics.with_model_error>` builds that robot.
+        :meth:`Kinematics.with_model_error <snac_gym.model.kinematics.Kinematics.with_model_error>` builds that robot.
 
         Raises:
             ValueError: For a per-joint part of the wrong count, a joint offset of a joint that is not revolute, a
@@ -383,7 +383,7 @@ def _lengthened(translation: np.ndarray, change: float, joint: str) -> np.ndarra
 def tool_displacement(true_kinematics: Any, model_kinematics: Any, qs: np.ndarray) -> np.ndarray:
     """‖f_true(θ) − f_model(θ)‖ for each row θ of ``qs`` ``(B, m)``, m: how far the model puts the tool point.
 
-    Both are :class:`~snac_gym.kinematics.Kinematics` (anything with ``n_joints`` and ``forward_batch``) of the
+    Both are :class:`~snac_gym.model.kinematics.Kinematics` (anything with ``n_joints`` and ``forward_batch``) of the
     same joint count, e.g. a robot's and its ``with_model_error(...)``.
 
     Raises:
@@ -402,7 +402,7 @@ def tool_displacement(true_kinematics: Any, model_kinematics: Any, qs: np.ndarra
 
 def refuse_pose_tasks(pose_tasks: Sequence[str]) -> None:
     """Refuse a model error on the pose tasks (the one refusal): the error family is written into the position
-    kinematics (:class:`~snac_gym.kinematics.Kinematics`), not into the pose kinematics.
+    kinematics (:class:`~snac_gym.model.kinematics.Kinematics`), not into the pose kinematics.
 
     Raises:
         ValueError: Naming the pose tasks, if any.

@@ -60,7 +60,8 @@ def goal_starts(
 
 
 def _resolve(jac: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for stacks ``(B, n, m)``, ``(B, n)``: :func:`~snac_gym.kinematics.damped_least_squares`'s
+    """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for stacks ``(B, n, m)``, ``(B, n)``:
+    :func:`~snac_gym.model.kinematics.damped_least_squares`'s
     map, compiled (:func:`~snac_gym.kernels.small.damped_resolve`; the same to rounding)."""
     from snac_gym.kernels.small import damped_resolve  # numba: imported where first needed
 
@@ -79,7 +80,7 @@ def nearest_goals(
     """The configuration nearest ``q0`` that reaches each target inside the joint limits (module docs).
 
     Args:
-        kinematics: A position :class:`~snac_gym.kinematics.Kinematics` (``forward_and_jacobian_batch``).
+        kinematics: A position :class:`~snac_gym.model.kinematics.Kinematics` (``forward_and_jacobian_batch``).
         q0: Start configurations ``(B, m)`` (or one ``(m,)``).
         targets: End-effector targets ``(B, 3)`` (or one ``(3,)``), base frame, m.
         margin: δ, rad.

@@ -150,7 +150,7 @@ UR_MODELS: dict[str, URModel] = {
     )
 }
 #: Where the e-series URDFs written by :func:`urdf_text` are shipped.
-E_SERIES_URDF_DIR = Path(__file__).parent / "data" / "urdf"
+E_SERIES_URDF_DIR = Path(__file__).parents[1] / "data" / "urdf"
 #: Datasheet joint range of every UR joint: ±360°. The URDFs hold the elbow to ±180°, the range its
 #: construction allows (the shoulder is in the way beyond it).
 DATASHEET_RANGE = 2 * math.pi
@@ -282,7 +282,7 @@ def urdf_text(name: str) -> str:
     speeds = datasheet_velocity_limits(name)
     parts = [
         '<?xml version="1.0"?>\n',
-        f"<!-- {model.label}: written by snac_gym.ur_models.urdf_text from {model.source['dh']} and the\n"
+        f"<!-- {model.label}: written by snac_gym.model.ur_models.urdf_text from {model.source['dh']} and the\n"
         f"     {model.source['speeds']}. Kinematics and velocity limits are the published ones; the links are\n"
         "     cylinders and their masses an estimate. Do not edit: run tools/write_ur_urdfs.py. -->\n",
         f'<robot name="{model.name}">\n',

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from snac_gym.optimality import quadratic_weights_to_matrix
+from snac_gym.control.optimality import quadratic_weights_to_matrix
 
 
 def _upper(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -54,7 +54,8 @@ def _upper(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def quadratic_features(x: np.ndarray) -> np.ndarray:
     """x̄ = [x₁², x₁x₂, …, xₙ²] of the rows of ``x`` ``(…, n)``: ``xᵀPx = x̄ᵀP̂``, P̂ the weights of
-    :func:`~snac_gym.optimality.matrix_to_quadratic_weights` (SNAC's quadratic basis, the paper's vech order)."""
+    :func:`~snac_gym.control.optimality.matrix_to_quadratic_weights` (SNAC's quadratic basis, the paper's vech
+    order)."""
     x = np.asarray(x, dtype=float)
     rows, cols = _upper(x.shape[-1])
     return x[..., rows] * x[..., cols]

@@ -8,15 +8,16 @@ For one sample (seed pose θ₀, reference x_d known over the whole horizon) :fu
 
 (on a pose task, x = [p; log₃ R] and eₖ = [p − p_d; log₃(R R_dᵀ)] with Q = I₆, differentiated exactly:
 :func:`snac_gym.tasks.pose.pose_errors_and_jacobians`), for a cost convention
-(:class:`snac_gym.cost.CostConvention`). It is the core that the evaluator's ``optimal`` reference
+(:class:`snac_gym.control.cost.CostConvention`). It is the core that the evaluator's ``optimal`` reference
 (:mod:`snac_gym.evaluation.reference.optimum`, which adds the starts, the rollout and the report) and the
 ``mpc`` controller (:mod:`snac_gym.baselines.mpc`, which re-solves a short horizon each step) share.
-(Not :mod:`snac_gym.optimality`: that is the frozen-Jacobian, infinite-horizon optimum the critics
+(Not :mod:`snac_gym.control.optimality`: that is the frozen-Jacobian, infinite-horizon optimum the critics
 are compared with; this is the whole trajectory's, over a finite horizon.)
 
 **Method** (direct single shooting in U, Gauss-Newton steps in θ). θ is linear in U, so V and its
 exact gradient cost one batched FK+Jacobian pass (:func:`trajectory_cost_and_gradient`; the cost and
-its gradient are written in :func:`snac_gym.cost.cost_and_gradient`). The quadratic effort + smoothness part has the
+its gradient are written in :func:`snac_gym.control.cost.cost_and_gradient`). The quadratic effort + smoothness
+part has the
 fixed Hessian ``H₀ = 2Δt I + (2w/Δt) DᵀD`` in u (:func:`_effort_hessian_band`). In the variables θ₁..θ_K the
 error term depends on θₖ alone and u = Mθ + c (first differences), so the Gauss-Newton matrix
 ``MᵀH₀M ⊗ I + blockdiag(2Δt q JₖᵀJₖ)`` is block-banded (bandwidth 12 scalars, 6 without the u̇
@@ -49,8 +50,8 @@ from scipy.linalg import cholesky_banded, solve_banded
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 from threadpoolctl import threadpool_limits
 
-from snac_gym.cost import CostConvention, cost_and_gradient
-from snac_gym.kinematics import Kinematics, joint_path
+from snac_gym.control.cost import CostConvention, cost_and_gradient
+from snac_gym.model.kinematics import Kinematics, joint_path
 from snac_gym.tasks.pose import pose_errors_and_jacobians
 
 #: Stop Gauss-Newton once the step just taken was predicted to remove at most GAP_RTOL·V: V − V*
@@ -95,7 +96,7 @@ def trajectory_cost_and_gradient(
     """V(U) and its exact gradient ∂V/∂U under ``convention`` (default: Q = I, R = I, u₋₁ = 0).
 
     Rolls U out from θ₀ (one batched FK+Jacobian pass) and scores it with
-    :func:`snac_gym.cost.cost_and_gradient`, where the cost and its gradient are written.
+    :func:`snac_gym.control.cost.cost_and_gradient`, where the cost and its gradient are written.
 
     Args:
         commands: ``(K, m)`` commands U.
@@ -103,7 +104,7 @@ def trajectory_cost_and_gradient(
         x_d: ``(K, n)`` desired positions x_d(tₖ), k = 0..K−1.
         kinematics: The shared kinematic model.
         dt: Control period Δt, s.
-        convention: The cost (:class:`snac_gym.cost.CostConvention`).
+        convention: The cost (:class:`snac_gym.control.cost.CostConvention`).
     """
     errors, jacobians = errors_and_jacobians(kinematics, angles(commands, q0, dt), x_d)
     return cost_and_gradient(errors, jacobians, commands, dt, convention)

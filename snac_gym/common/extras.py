@@ -5,8 +5,8 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-from snac_gym._signals import interrupt_behind
-from snac_gym.errors import MissingExtraError
+from snac_gym.common._signals import interrupt_behind
+from snac_gym.common.errors import MissingExtraError
 
 
 def require(module: str, extra: str, what: str) -> ModuleType:

@@ -16,7 +16,7 @@ import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from snac_gym.errors import OutputFolderError, OutputWriteError
+from snac_gym.common.errors import OutputFolderError, OutputWriteError
 
 
 def _kind(path: Path) -> str:

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from snac_gym.model_error import ModelError, joint_axis, parse_model_error
-from snac_gym.robots import get_robot, robot_names
+from snac_gym.model.model_error import ModelError, joint_axis, parse_model_error
+from snac_gym.model.robots import get_robot, robot_names
 
 _PACKAGE_PREFIX = "package://example-robot-data/robots/"
 
@@ -48,7 +48,7 @@ def robots_directory() -> Path:
 
 
 def robot_urdf_path(robot: str) -> Path:
-    """Path of the URDF shipped by ``example-robot-data`` for a registered ``robot`` (:mod:`snac_gym.robots`).
+    """Path of the URDF shipped by ``example-robot-data`` for a registered ``robot`` (:mod:`snac_gym.model.robots`).
 
     Raises:
         ValueError: If ``robot`` is not registered.
@@ -90,7 +90,7 @@ def joint_step(q: np.ndarray, u: np.ndarray, dt: float, out: np.ndarray | None =
 def joint_path(q0: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
     """θ₁..θ_K of the same model over a command sequence ``(K, m)`` at once: θₖ₊₁ = θ₀ + Δt Σᵢ≤ₖ uᵢ (eq. 3).
 
-    The trajectory optimiser's form (:mod:`snac_gym.trajopt`): a cumulative sum, which rounds differently
+    The trajectory optimiser's form (:mod:`snac_gym.control.trajopt`): a cumulative sum, which rounds differently
     from K calls of :func:`joint_step` (about 1e-13 rad over 2500 steps; hence its limit clearance).
     """
     return np.add(q0, np.cumsum(commands, axis=0) * dt)
@@ -111,14 +111,14 @@ class Kinematics:
     """Forward kinematics and position Jacobian of a serial arm, ``ẋ = J(θ) θ̇`` (eqs. 1–3).
 
     Args:
-        robot: Name of a registered robot (:mod:`snac_gym.robots`; default ``"ur10"``). With
+        robot: Name of a registered robot (:mod:`snac_gym.model.robots`; default ``"ur10"``). With
             ``urdf_path`` it only names the arm and supplies the default frames.
         ee_frame: URDF frame whose origin is the controlled point (default: the robot's,
             ``"tool0"`` for the UR arms).
         base_frame: URDF frame in which positions, velocities and Jacobians are expressed
             (default: the robot's, ``"base"`` for the UR arms).
         urdf_path: Optional path of another URDF with revolute joints only.
-        model_error: A :class:`~snac_gym.model_error.ModelError` (or its ``--model-error`` text)
+        model_error: A :class:`~snac_gym.model.model_error.ModelError` (or its ``--model-error`` text)
             written into the model: the kinematics a controller with a wrong arm model uses.
             ``None`` or a zero error: the true model. Its ``model`` part may only name this robot
             itself (another robot is refused: :meth:`with_model_error` builds that one).
@@ -198,7 +198,7 @@ class Kinematics:
 
     def with_model_error(self, model_error: Any) -> Kinematics:
         """The same arm (URDF, frames) with ``model_error`` written into its model: the one builder of the
-        wrong model a controller is given under ``--model-error`` (:mod:`snac_gym.model_error`).
+        wrong model a controller is given under ``--model-error`` (:mod:`snac_gym.model.model_error`).
 
         With a ``model=NAME`` part the result is robot ``NAME``'s kinematics (its URDF) with the other parts
         written into it, expressed in this arm's end-effector and base frames where ``NAME`` has frames of those
@@ -554,7 +554,7 @@ def leaf_chain(kinematics: Kinematics) -> tuple[list[tuple[np.ndarray, np.ndarra
 class PositionChain:
     """Batched forward kinematics of the end-effector position only, f(θ) for B configurations.
 
-    The env needs x = f(θ) each step but never J, and :class:`~snac_gym.kinematics.BatchChain`
+    The env needs x = f(θ) each step but never J, and :class:`~snac_gym.model.kinematics.BatchChain`
     builds every joint frame (3×3 rotations) to get J. This evaluates the same chain of joint
     placements read from the Pinocchio model from the leaf inwards on one point,
     ``v ← tᵢ + Mᵢ · Rᵢ(θᵢ) · v`` (starting from the end-effector offset), with the batch as

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.cost import CostConvention, quadratic_form, weight_matrix
+from snac_gym.control.cost import CostConvention, quadratic_form, weight_matrix
 from snac_gym.kernels.relaxation import relaxation_kernel
 
 #: Eigenvalues of ``S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2}`` below this fraction of the largest are taken as
@@ -337,7 +337,7 @@ def regulation_cost_lower_bound(
 ) -> np.ndarray:
     """A certified lower bound on the regulation cost Σₖ₌₀^{K−1} (q‖eₖ‖² + ‖uₖ‖²) Δt of *any* command sequence.
 
-    With L a Lipschitz constant of f (:meth:`snac_gym.kinematics.Kinematics.position_lipschitz_bound`),
+    With L a Lipschitz constant of f (:meth:`snac_gym.model.kinematics.Kinematics.position_lipschitz_bound`),
     a fixed target and θₖ₊₁ = θₖ + uₖΔt, the error norm rₖ = ‖eₖ‖ can fall by at most LΔt‖uₖ‖ per
     step: rₖ₊₁ ≥ rₖ − LΔt vₖ with vₖ = ‖uₖ‖. Relaxing the arm to this scalar system (any direction
     at the best gain L) leaves a scalar finite-horizon LQR, 1 = a, b = LΔt, whose value is P₀r₀²:
@@ -420,7 +420,7 @@ def solve_cost_relaxation(
 ) -> CostRelaxation:
     """A certified lower bound on the trajectory cost of *any* command sequence, per sample, with diagnostics.
 
-    **Problem bounded.** θₖ₊₁ = θₖ + uₖΔt, eₖ = f(θₖ) − x_d(tₖ) and (:class:`snac_gym.cost.CostConvention`;
+    **Problem bounded.** θₖ₊₁ = θₖ + uₖΔt, eₖ = f(θₖ) − x_d(tₖ) and (:class:`snac_gym.control.cost.CostConvention`;
     Q = qI, R = I, w = 1 for ``table1``, 0 for ``hjb``)
 
         V = Σₖ₌₀^{K−1} (q‖eₖ‖² + ‖uₖ‖² + w‖uₖ − uₖ₋₁‖²/Δt²) Δt,    u₋₁ = 0 (``rest``) or u₀ (``first``),
@@ -462,7 +462,7 @@ def solve_cost_relaxation(
         initial_errors: r₀ = ‖e₀‖ (m), ``()`` or ``(B,)``.
         reference_steps: dₖ, ``(K−1,)`` or ``(B, K−1)`` (:func:`reference_steps` of x_d; zeros for a fixed target).
         dt: Δt, s.
-        lipschitz: Lₖ, m/rad: a scalar (e.g. :meth:`snac_gym.kinematics.Kinematics.position_lipschitz_bound`),
+        lipschitz: Lₖ, m/rad: a scalar (e.g. :meth:`snac_gym.model.kinematics.Kinematics.position_lipschitz_bound`),
             or per step ``(K−1,)`` or ``(B, K−1)`` (each a bound on ‖J‖₂ along that step's segment).
         convention: The cost (default: Table I's, q = 1, u₋₁ = 0).
         velocity_norm_limit: ‖ū‖₂ (rad/s), or ``None`` for no limit.
@@ -609,7 +609,7 @@ def jacobian_variation_bound(kinematics: Any) -> float | None:
     Column b of J is J_b = z_b × (p − o_b). Differentiating (rotating about joint a moves everything after it):
     ∂J_b/∂θ_a = z_a × J_b if joint a comes before joint b, z_b × J_a otherwise, so ‖∂J_b/∂θ_a‖ ≤ c_max(a,b) with
     c_b ≥ sup ‖J_b‖: c_b = the summed lengths of the fixed offsets from joint b to the end effector (as in
-    :meth:`~snac_gym.kinematics.Kinematics.position_lipschitz_bound`), and for the joint carrying the end effector
+    :meth:`~snac_gym.model.kinematics.Kinematics.position_lipschitz_bound`), and for the joint carrying the end effector
     exactly ‖axis × offset‖ (the distance of p from its axis never changes). Hence ‖∂J/∂θ_a‖_F ≤ M_a =
     (Σ_b c_max(a,b)²)^½ and, along the segment, ‖J(θ') − J(θ)‖₂ ≤ ‖J(θ') − J(θ)‖_F ≤ Σ_a |δ_a| M_a ≤ ‖δ‖ (Σ_a M_a²)^½
     (Weyl: σ_max moves by at most ‖ΔJ‖₂). The first joint of the chain turns the whole arm about an axis fixed in the
@@ -652,7 +652,7 @@ def reachable_lipschitz_bounds(
     global L of ``position_lipschitz_bound``; that L alone where M is not available.
 
     Args:
-        kinematics: The arm (a :class:`~snac_gym.kinematics.Kinematics`).
+        kinematics: The arm (a :class:`~snac_gym.model.kinematics.Kinematics`).
         q0: θ₀, ``(m,)`` or ``(B, m)``.
         steps: K.
         dt: Δt, s.
@@ -705,7 +705,7 @@ def certified_cost_lower_bounds(
       or from the global bound B₀ (B(B₀) ≥ B₀, as Lₖ ≤ L).
 
     Args:
-        kinematics: The arm (:class:`~snac_gym.kinematics.Kinematics`).
+        kinematics: The arm (:class:`~snac_gym.model.kinematics.Kinematics`).
         q0: θ₀, ``(m,)`` or ``(B, m)``.
         x_d: Desired positions x_d(tₖ), ``(K, n)`` or ``(B, K, n)``.
         dt: Δt, s.

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from snac_gym.validation import real_array, real_number
+from snac_gym.common.validation import real_array, real_number
 
 
 def weight_matrix(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray | None:

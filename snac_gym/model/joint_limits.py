@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from snac_gym.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics
 
 #: κ, 1/s: Ω(θ) starts to narrow ū/κ + δ from a limit (0.2-0.3 rad for the 7-DOF arms).
 POSITION_LIMIT_GAIN = 10.0

@@ -2,7 +2,7 @@
 
 Each one is also the built-in exception its meaning is closest to (an unusable input is a ``ValueError``, a failed
 write an ``OSError``), so code written against those keeps working. The modules that raise them import them from
-here, and still offer them under their old names (``snac_gym.outputs.OutputFolderError``, ...).
+here, and still offer them under their old names (``snac_gym.common.outputs.OutputFolderError``, ...).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Each :class:`Robot` names a URDF of ``example-robot-data``, the controlled frame and the base
 frame its positions are expressed in, the start pose the samplers seed IK from, and, if the
 default does not fit, its sample cuboid. Another package adds its robots through the entry-point group
-``snac_gym.robots`` (as ``snac_gym.policies`` and ``snac_gym.tasks``): an entry point names a :class:`Robot`
+``snac_gym.model.robots`` (as ``snac_gym.policies`` and ``snac_gym.tasks``): an entry point names a :class:`Robot`
 (or a callable returning one), loaded and registered the first time the registry is read::
 
     [project.entry-points."snac_gym.robots"]
@@ -11,7 +11,7 @@ default does not fit, its sample cuboid. Another package adds its robots through
 
 ``urdf`` is a path relative to example-robot-data's ``robots`` folder, or an absolute path. Joint position and velocity
 limits come from the URDF. Everything else (the envs, the controllers, the evaluator, the real-robot run) reaches
-the robot through :class:`~snac_gym.kinematics.Kinematics` built from this entry.
+the robot through :class:`~snac_gym.model.kinematics.Kinematics` built from this entry.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from snac_gym.entry_points import EntryPointGroup
+from snac_gym.common.entry_points import EntryPointGroup
+from snac_gym.model.ur_models import E_SERIES_URDF_DIR, UR_MODELS
 from snac_gym.references import PAPER_Q0
-from snac_gym.ur_models import E_SERIES_URDF_DIR, UR_MODELS
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ class Robot:
 
 
 #: The entry-point group of robots from other packages.
-ENTRY_POINT_GROUP = "snac_gym.robots"
+ENTRY_POINT_GROUP = "snac_gym.robots"  # the group keeps the name it was published under
 #: Registered robots by name. Read it through :func:`robot_names`, :func:`all_robots` or :func:`get_robot`,
 #: which load the entry points first.
 ROBOTS: dict[str, Robot] = {}
@@ -106,7 +106,9 @@ def load_entry_points(rescan: bool = False) -> None:
     for entry, loaded in _ENTRY_POINTS.new(rescan):
         robot = loaded() if callable(loaded) and not isinstance(loaded, Robot) else loaded
         if not isinstance(robot, Robot):
-            raise ValueError(f"{_ENTRY_POINTS.name(entry)} gives {type(robot).__name__}, not a snac_gym.robots.Robot")
+            raise ValueError(
+                f"{_ENTRY_POINTS.name(entry)} gives {type(robot).__name__}, not a snac_gym.model.robots.Robot"
+            )
         try:
             if ROBOTS.get(robot.name) is not robot:
                 register_robot(robot)
@@ -143,7 +145,7 @@ def get_robot(name: str) -> Robot:
 # The UR arms: tool0 in the frame the UR pendant shows ("base", π about z from base_link), so the
 # paper's numbers work unchanged; the paper's θ₀ is elbow-up, wrist-down on all of them. The CB3 arms'
 # URDFs are example-robot-data's; the e-series arms' are written from UR's DH parameters and datasheet
-# (snac_gym.ur_models, tools/write_ur_urdfs.py), as example-robot-data has none.
+# (snac_gym.model.ur_models, tools/write_ur_urdfs.py), as example-robot-data has none.
 for _model in UR_MODELS.values():
     register_robot(
         Robot(
