@@ -193,3 +193,19 @@ def test_an_old_import_after_snac_gym_names_the_new_one(tmp_path, old):
     assert result.returncode == 1
     assert f"ModuleNotFoundError: No module named {top!r}: snac-gym's {top} package is imported as" in result.stderr
     assert f"write `import snac_gym.{top}`" in result.stderr
+
+
+def test_every_moved_root_module_still_imports_as_the_same_module_with_a_warning():
+    script = (
+        "import importlib, warnings, snac_gym\n"
+        "from snac_gym.common._renamed import MOVED\n"
+        "for old, new in MOVED.items():\n"
+        "    with warnings.catch_warnings(record=True) as seen:\n"
+        "        warnings.simplefilter('always')\n"
+        "        module = importlib.import_module(old)\n"
+        "    assert module is importlib.import_module(new), (old, new)\n"
+        "    assert any(issubclass(w.category, DeprecationWarning) and new in str(w.message) for w in seen), old\n"
+        "print(len(MOVED))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "18", done.stderr
