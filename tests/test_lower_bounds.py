@@ -1,4 +1,4 @@
-"""snac_gym.control.optimality.trajectory_cost_lower_bound: the scalar relaxation of the trajectory cost against the
+"""snac_gym.control.lower_bounds.trajectory_cost_lower_bound: the scalar relaxation of the trajectory cost against the
 Riccati value, an established QP solver and exact linear optima, its validity on the UR10, certified when the
 solve is cut short, and how much tighter it is than regulation_cost_lower_bound (docs/lower-bounds.md)."""
 
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.control import optimality
+from snac_gym.control import lower_bounds
 from snac_gym.control.cost import CostConvention
-from snac_gym.control.optimality import (
+from snac_gym.control.lower_bounds import (
     certified_cost_lower_bounds,
     following_cost_lower_bounds,
     jacobian_variation_bound,
@@ -102,7 +102,7 @@ def test_a_solve_cut_short_still_reports_a_certified_bound(monkeypatch, iteratio
     relaxed_upper diagnostic above it; both close in on it as the solve runs."""
     steps, limit = np.full(39, 0.004), 1.5
     exact = relaxed_qp_optimum(0.4, steps, DT, 2.0, convention, limit)
-    monkeypatch.setattr(optimality, "RELAXATION_MAX_ITERATIONS", iterations)
+    monkeypatch.setattr(lower_bounds, "RELAXATION_MAX_ITERATIONS", iterations)
     cut = solve_cost_relaxation(0.4, steps, DT, 2.0, convention, limit)
     assert 0.0 < cut.bound[0] <= exact * (1 + 1e-9) and cut.relaxed_upper[0] >= exact * (1 - 1e-9)
     assert cut.iterations[0] <= 2 * iterations  # once without the limit, once with it

@@ -16,7 +16,7 @@ from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_
 from snac_gym.evaluation.samples import generate_samples
 
 from snac_gym.control.cost import CostConvention
-from snac_gym.control.optimality import regulation_cost_lower_bound
+from snac_gym.control.lower_bounds import regulation_cost_lower_bound
 from snac_gym.control.trajopt import solve_sample, trajectory_cost_and_gradient
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.policies.registry import make_policy

@@ -28,7 +28,7 @@ import numpy as np
 from snac_gym.evaluation.samples import generate_samples
 
 from snac_gym.control.cost import CostConvention
-from snac_gym.control.optimality import certified_cost_lower_bounds, regulation_cost_lower_bound
+from snac_gym.control.lower_bounds import certified_cost_lower_bounds, regulation_cost_lower_bound
 from snac_gym.control.trajopt import single_threaded_blas, solve_sample
 from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories

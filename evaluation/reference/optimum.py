@@ -50,7 +50,7 @@ from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, RANDOM_PREFIX,
 from snac_gym.evaluation.samples import EvaluationSample
 
 from snac_gym.control.cost import CostConvention
-from snac_gym.control.optimality import certified_cost_lower_bounds
+from snac_gym.control.lower_bounds import certified_cost_lower_bounds
 from snac_gym.control.trajopt import (
     FTOL,
     GAP_RTOL,
