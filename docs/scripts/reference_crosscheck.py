@@ -6,9 +6,10 @@ other IK branches), and IPOPT from rest, from a start on every in-limit IK branc
 :func:`branch_goals` finds) and from RANDOM starts that go straight, inside the limits, to a random configuration of the
 joint box. The cheapest IPOPT solution, re-scored by the project's cost, is compared with the reference.
 
-Usage: python docs/scripts/reference_crosscheck.py ROBOT SPACE SEED COUNT COST TASK [RANDOM [BRANCHES]]
+Usage: python docs/scripts/reference_crosscheck.py ROBOT SPACE SEED COUNT COST TASK [RANDOM [BRANCHES [FIRST]]]
   e.g. python docs/scripts/reference_crosscheck.py ur10 workspace 211 100 hjb track 2 8
-(BRANCHES: at most that many branch starts, the nearest θ₀ first; all by default.)
+(BRANCHES: at most that many branch starts, the nearest θ₀ first; all by default. FIRST: the first sample index,
+to continue a run that was stopped: samples FIRST..COUNT−1.)
 Prints one line per sample and a summary line: (reference − best IPOPT)/best IPOPT, the count above 0.1 %.
 """
 
@@ -35,6 +36,7 @@ robot, region, seed, count, cost, task = sys.argv[1:7]
 seed, count = int(seed), int(count)
 random_starts = int(sys.argv[7]) if len(sys.argv) > 7 else 3
 most_branches = int(sys.argv[8]) if len(sys.argv) > 8 else None
+first = int(sys.argv[9]) if len(sys.argv) > 9 else 0
 kinematics = shared_kinematics(robot)
 space = SampleSpace.workspace(kinematics) if region == "workspace" else SampleSpace.for_robot(kinematics)
 convention = CostConvention(cost, "rest", 4.0 if cost == "hjb" else 1.0)
@@ -43,7 +45,7 @@ dt = 1 / 125
 steps = round(get_task(task).horizon_s / dt)
 context = policy_context(robot, dt, task)
 velocity = np.asarray(context.velocity_limits, dtype=float)
-samples = generate_samples(kinematics, space, seed, task, range(count))
+samples = generate_samples(kinematics, space, seed, task, range(first, count))
 x_d = reference_trajectories([s.reference for s in samples], np.arange(steps) * dt, 3)[0]
 rng = np.random.default_rng(seed + 7919)
 gaps, worst = [], (0.0, None)
