@@ -38,6 +38,8 @@ from typing import Any
 import numpy as np
 
 from snac_gym.model.joint_goal import GOAL_MARGIN, GoalArms, goal_starts, in_limit_goals
+from snac_gym.model.kinematics import joint_step
+from snac_gym.policies.base import scale_rows_into_limits
 
 #: Spread IK starts besides θ₀ (a fixed seed: a sample always gets the same goals).
 BRANCH_SPREAD = 23
@@ -73,8 +75,7 @@ def branch_goals(kinematics: Any, q0s: np.ndarray, first_points: np.ndarray) -> 
 
 def needs_branches(kinematics: Any, rest: Any, end: np.ndarray, last_point: np.ndarray) -> bool:
     """Whether a sample's solve from rest (an :class:`~snac_gym.control.trajopt.OptimalSolution` ending at ``end``)
-    leaves
-    room for another branch: it travelled to the target, or a limit stopped it (module docs)."""
+    leaves room for another branch: it travelled to the target, or a limit stopped it (module docs)."""
     return bool(rest.bounded) or float(np.linalg.norm(kinematics.forward(end) - last_point)) <= REACHED
 
 
@@ -100,12 +101,10 @@ def branch_commands(
     xdot_d = np.gradient(x_d, dt, axis=1) if moving else np.zeros_like(x_d)
     q = np.array(q0s, dtype=float)
     commands = np.empty((count, steps, q.shape[1]))
-    for k in range(steps):
+    for k in range(steps):  # the joint-goal law (baselines/joint_goal.py) towards a goal given here
         goal, velocity = arms.step(x_d[:, k], xdot_d[:, k])
-        u = velocity + BRANCH_GAIN * (goal - q)
-        u /= np.maximum(1.0, np.max(np.abs(u) / limits, axis=1, keepdims=True))
-        commands[:, k] = u
-        q = q + u * dt
+        commands[:, k] = scale_rows_into_limits(velocity + BRANCH_GAIN * (goal - q), limits)
+        q = joint_step(q, commands[:, k], dt)
     return commands
 
 

@@ -193,7 +193,6 @@ def multi_start_solve(
     margin: float = SCREEN_MARGIN,
     first: OptimalSolution | None = None,
     position_limits: tuple[np.ndarray, np.ndarray] | None = None,
-    branches: dict[str, np.ndarray] | None = None,
 ) -> MultiStart:
     """Solve from rest, then from every candidate command sequence whose basin could win.
 
@@ -206,10 +205,10 @@ def multi_start_solve(
     so far. A screen stops early once the candidate's joint path comes within :data:`BASIN_RADIUS` of a
     local optimum already found: it is then in that optimum's basin (counted in ``same_basin``), and a
     solve from it would end there again. The candidates are the reference's own (:data:`OWN_STARTS`),
-    never the contestants it judges.
+    never the contestants it judges (with the IK-branch and random starts of
+    :mod:`~snac_gym.evaluation.reference.branches`, which the caller adds).
 
-    ``first``: the solve from rest, when already made. ``branches``: starts on other IK branches
-    (:mod:`~snac_gym.evaluation.reference.branches`), screened as the candidates are.
+    ``first``: the solve from rest, when already made.
     """
     solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
                               position_limits=position_limits)  # fmt: skip
@@ -221,7 +220,7 @@ def multi_start_solve(
         path = angles(commands, q0, dt)
         return any(float(np.abs(path - known).max()) < BASIN_RADIUS for known in paths)
 
-    for name, commands in {**candidates, **(branches or {})}.items():
+    for name, commands in candidates.items():
         screened, screened_cost, *_ = gauss_newton(
             q0,
             x_d,
@@ -274,7 +273,7 @@ def own_start_commands(
 def _lower_bounds(
     job: OptimalJob, kinematics: Any, x_d: np.ndarray, limits: np.ndarray, costs: np.ndarray
 ) -> np.ndarray:
-    """:func:`snac_gym.control.optimality.certified_cost_lower_bounds` per sample of a position task (reach or track,
+    """:func:`snac_gym.control.lower_bounds.certified_cost_lower_bounds` per sample of a position task (reach or track,
     under the run's cost), else NaN: certified for every command sequence within the velocity limits. The
     optimum's cost is its V̄ (the reachable set's size, which tightens the Lipschitz constant): the bound
     holds for any V̄, so the reference does not certify itself."""
@@ -380,8 +379,8 @@ def solve_samples(
                 for i, starts in zip(searched, found, strict=True):
                     branches[i] = starts
         return [
-            multi_start_solve(q0, x_d[i], kinematics, dt, limits, convention, candidates[i], screen_margin, rest[i],
-                              bounds, branches[i])
+            multi_start_solve(q0, x_d[i], kinematics, dt, limits, convention, {**candidates[i], **branches[i]},
+                              screen_margin, rest[i], bounds)
             for i, q0 in enumerate(q0s)
         ]  # fmt: skip
 

@@ -219,8 +219,8 @@ def following_cost_lower_bounds(
 
     (the error terms equal, the effort terms by the Lipschitz bound, the jump terms and the velocity limits dropped:
     both only raise V), so the minimum over all point paths p is a lower bound. It is a linear-quadratic tracking
-    problem, decoupled per axis: one tridiagonal positive definite system each, solved by the Thomas algorithm,
-    batched over samples.
+    problem, decoupled per axis: one tridiagonal positive definite system per sample, the three axes its right-hand
+    sides (scipy's ``solveh_banded``).
 
     Args:
         start_points: f(θ₀), ``(B, n)``.
@@ -243,21 +243,12 @@ def following_cost_lower_bounds(
     upper = -weights[:, 1:]  # couples p_j and p_{j+1}
     rhs = a * x_d[:, 1:].copy()  # (B, K−1, n)
     rhs[:, 0] += weights[:, :1] * np.asarray(start_points, dtype=float)
-    # Thomas algorithm over j, every sample and axis at once
-    size = steps - 1
-    c_prime = np.empty((count, size))
-    d_prime = np.empty_like(rhs)
-    c_prime[:, 0] = (upper[:, 0] / diagonal[:, 0]) if size > 1 else 0.0
-    d_prime[:, 0] = rhs[:, 0] / diagonal[:, :1]
-    for j in range(1, size):
-        denominator = diagonal[:, j] - upper[:, j - 1] * c_prime[:, j - 1]
-        if j < size - 1:
-            c_prime[:, j] = upper[:, j] / denominator
-        d_prime[:, j] = (rhs[:, j] - upper[:, j - 1, None] * d_prime[:, j - 1]) / denominator[:, None]
+    from scipy.linalg import solveh_banded  # start-up time: only where a bound is computed
+
     points = np.empty_like(rhs)
-    points[:, -1] = d_prime[:, -1]
-    for j in range(size - 2, -1, -1):
-        points[:, j] = d_prime[:, j] - c_prime[:, j, None] * points[:, j + 1]
+    for i in range(count):  # LAPACK's banded Cholesky, the three axes as right-hand sides
+        band = np.stack([np.concatenate([[0.0], upper[i]]), diagonal[i]])
+        points[i] = solveh_banded(band, rhs[i])
     path = np.concatenate([np.asarray(start_points, dtype=float)[:, None], points], axis=1)  # (B, K, n)
     error = a * np.sum((path - x_d) ** 2, axis=(1, 2))
     effort = np.sum(weights * np.sum(np.diff(path, axis=1) ** 2, axis=2), axis=1)
