@@ -52,17 +52,13 @@ def _percent(share: float) -> str:
 
 
 def _ratio(values: tuple[float, float, float]) -> str:
-    """``median [low, high]`` with as many decimals as it takes to tell the three apart from each other or
-    from 1 (2 at least; 2 significant digits below 0.1)."""
+    """``median [low, high]``: 2 decimals; 3 within 2 % of 1, where the third is the difference; 2 significant
+    digits below 0.1."""
     median, low, high = values
     if median < 0.1:
         digits = max(2, 1 - math.floor(math.log10(median)))
     else:
-        digits = 2
-        while digits < 4 and len({f"{v:.{digits}f}" for v in values}) == 1 and f"{median:.{digits}f}" != "1.00":
-            digits += 1
-        if f"{median:.2f}" == "1.01" and len({f"{v:.2f}" for v in values}) == 1:
-            digits = 3
+        digits = 3 if abs(median - 1.0) < 0.02 else 2
     return f"{median:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
