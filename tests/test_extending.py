@@ -133,5 +133,8 @@ def test_a_task_that_leaves_out_part_of_the_contract_cannot_be_made():
         def sample(self, kinematics, rng, space):  # the other five are missing
             raise AssertionError
 
-    with pytest.raises(TypeError, match="abstract methods csv_cells, option_value, paper, parse, read_csv_reference"):
+    with pytest.raises(TypeError, match="abstract methods") as refused:
         Half()
+    # Python 3.12 quotes the names; 3.11 does not, so the names are checked one by one.
+    missing = re.findall(r"\w+", str(refused.value).split("abstract methods", 1)[1])
+    assert missing == ["csv_cells", "option_value", "paper", "parse", "read_csv_reference"]
