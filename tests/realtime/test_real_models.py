@@ -92,13 +92,15 @@ def test_a_controller_stop_mid_run_exits_with_its_code_and_no_speedj_follows(mod
         time.sleep(1.5)
         getattr(emulator, fault)()
 
-    threading.Thread(target=stop_later, daemon=True).start()
+    stopper = threading.Thread(target=stop_later, daemon=True)
+    stopper.start()
     result = CliRunner().invoke(app, [
         "real", "--connection", "rtde", "--host", HOST, "--robot", robot, "--controller", "lqr",
         "--steps", _steps(robot, 6.0), *_loop(robot),
         "--q0", _numbers(PAPER_Q0), "--target", _numbers(Kinematics(robot).forward(PAPER_Q0) + 0.02),
         "--no-plots", "--out", str(tmp_path / robot),
     ])  # fmt: skip
+    stopper.join()  # a stop still pending would fire into the next test's run on the shared emulator
     assert result.exit_code == code, result.output
     assert line in result.output
     status = emulator.status()
