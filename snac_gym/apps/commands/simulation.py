@@ -1,0 +1,151 @@
+"""The commands that run the simulated arm on this machine: ``demo`` (the paper's Figure 3) and ``bench``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from snac_gym.apps.commands.common import (
+    check_controller,
+    check_task,
+    interrupted,
+    registered_robots,
+    registered_tasks,
+)
+from snac_gym.policies import available_policies
+
+__all__ = ["bench", "demo"]
+
+
+def bench(
+    steps: int = typer.Option(
+        5000,
+        "--steps",
+        help="Env steps per measurement, 100 to 1,000,000 (each env is timed 5 times: ~20 min for the UR10's two "
+        "ids in both engines at the bound).",
+    ),
+    panda: bool = typer.Option(
+        True, help="Also measure panda-gym's PandaReachJoints-v3 (if installed) for comparison."
+    ),
+    substeps: bool = typer.Option(False, "--substeps", help="Also run the physics-substep accuracy study."),
+    tracking: bool = typer.Option(
+        False,
+        "--tracking",
+        help="Also measure how closely PyBullet and MuJoCo follow the exact kinematic model under random commands "
+        "(UR10 and Panda, 5 episodes each).",
+    ),
+    act: bool = typer.Option(False, "--act", help="Also time one act() call of every available policy that imports."),
+    act_calls: int = typer.Option(
+        5000,
+        "--act-calls",
+        help="Timed act() calls per policy and task, 100 to 1,000,000 (timings kept in memory, 8 B each; ~100 s "
+        "per policy and task at the bound).",
+    ),
+    vector: bool = typer.Option(
+        False, "--vector", help="Also measure the batched kinematic vector env (N = 1, 64, 1024, 4096)."
+    ),
+) -> None:
+    """Env steps per second and real-time factor of both ids, in PyBullet and MuJoCo, on one core (and, with --act, act
+    latency)."""
+    # start-up time: only bench needs bench.py (threadpoolctl)
+    from snac_gym.apps.bench import check_bench_counts
+
+    try:  # both before the first measurement, which a bad --act-calls would otherwise follow by minutes
+        check_bench_counts(steps, act_calls)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+    try:
+        _bench(steps, panda, substeps, tracking, act, act_calls, vector)
+    except KeyboardInterrupt as exc:  # bench writes no file: the tables printed so far are whole
+        raise interrupted(exc, "bench writes no files; the tables printed above are complete") from None
+
+
+def _bench(steps: int, panda: bool, substeps: bool, tracking: bool, act: bool, act_calls: int, vector: bool) -> None:
+    # start-up time: only bench needs bench.py (threadpoolctl)
+    from snac_gym.apps.bench import format_env_bench, run_env_bench, run_substep_study
+
+    typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
+    if vector:
+        # start-up time: only bench needs bench.py
+        from snac_gym.apps.bench import format_vector_bench, run_vector_bench
+
+        typer.echo(
+            "\nbatched kinematic vector env (gym.make_vec(..., vectorization_mode='vector_entry_point')), one core"
+        )
+        typer.echo(format_vector_bench(run_vector_bench()))
+    if tracking:
+        # start-up time: only bench needs bench.py
+        from snac_gym.apps.bench import format_tracking_study, run_tracking_study
+
+        typer.echo("\nfollowing the exact kinematic model θₖ₊₁ = θₖ + uₖΔt over 1000 steps, worst of 5 episodes")
+        typer.echo(format_tracking_study(run_tracking_study()))
+    if substeps:
+        typer.echo("\nphysics substeps: deviation from exact integration θ += u·dt over 1000 steps")
+        for row in run_substep_study():
+            typer.echo(
+                f"  n_substeps={row['n_substeps']} ({row['physics_dt_ms']:.1f} ms): max |Δθ| = "
+                f"{row['max_joint_position_error_rad']:.2e} rad, max |θ̇ − u| = "
+                f"{row['max_joint_velocity_error_rad_s']:.2e} rad/s, {row['steps_per_s']:.0f} steps/s"
+            )
+    if act:
+        # start-up time: only bench needs bench.py
+        from snac_gym.apps.bench import format_act_bench, run_act_bench
+
+        typer.echo("\nact latency on one core, closed loop from the paper's θ0 (goal: median ≤ 20 µs, p99 ≤ 100 µs)")
+        typer.echo(format_act_bench(run_act_bench(names=available_policies(), calls=act_calls)))
+
+
+def demo(
+    task: str = typer.Option(
+        "reach",
+        "--task",
+        help=f"A registered task ({registered_tasks()}): reach is a fixed target, track the paper's circle.",
+    ),
+    controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
+    out: Path = typer.Option(Path("demo_out"), "--out", help="Folder for the PNG panels, the log and summary.json."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets (a NumPy seed)."),
+    steps: Optional[int] = typer.Option(
+        None, "--steps", min=1, help="Control steps (default: 1500 reach = 12 s, 2500 track = 20 s)."
+    ),
+    duration: Optional[float] = typer.Option(
+        None, "--duration", min=0.0, help="Horizon in seconds instead of --steps."
+    ),
+    csv: bool = typer.Option(False, "--csv", help="Also write the trajectory log as CSV."),
+    plots: bool = typer.Option(True, "--plots/--no-plots", help="Write the PNG panels."),
+    robot: str = typer.Option("ur10", "--robot", help=f"A registered robot: {registered_robots()} (docs/robots.md)."),
+    model_error: Optional[str] = typer.Option(
+        None,
+        "--model-error",
+        help="Give the controller a wrong arm model (as for evaluate); the simulated arm keeps the true one.",
+    ),
+) -> None:
+    """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
+    # start-up time: the demo loads numba, scipy and pandas
+    from snac_gym.apps.demo import run_demo
+
+    check_task(task)
+    check_controller(controller)
+    if steps is not None and duration is not None:
+        raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
+    try:
+        result = run_demo(
+            task=task,
+            controller=controller,
+            out_dir=out,
+            seed=seed,
+            steps=steps,
+            duration=duration,
+            csv=csv,
+            plots=plots,
+            robot=robot,
+            model_error=model_error,
+        )
+    except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+    except KeyboardInterrupt as exc:  # a stop signal: run_demo says what it wrote (a partial run is marked so)
+        raise interrupted(exc, getattr(exc, "kept", "nothing was written")) from None
+    typer.echo(result.summary())
