@@ -1,4 +1,4 @@
-"""Issue 18, evaluator and CLI: bad inputs give one-line errors, resumes never mix runs, workers
+"""The evaluator and the CLI under misuse: bad inputs give one-line errors, resumes never mix runs, workers
 never outlive the run. Each test names the input it tries (docs/robustness.md lists them)."""
 
 from __future__ import annotations
