@@ -115,7 +115,8 @@ def _register(task: Task, robot: str, goal: bool, version: int = 0) -> None:
 
 def _register_coarse_reach(robot: str, version: int = 0) -> None:
     """Register the coarse reach preset on ``robot`` (:data:`snac_gym.envs.goal.COARSE_REACH`) in ``version``
-    unless it exists (its actions are normalized in both; -v1 bounds θ̇ and clips the observation)."""
+    unless it exists (its actions are normalized in both; -v1 bounds θ̇, clips the observation and, as
+    panda-gym's PandaReach, ends the episode on success)."""
     table = GOAL_ENV_IDS if version == 0 else GOAL_ENV_IDS_V1
     for action in ("joint", "cartesian"):
         env_id = coarse_reach_id(robot, action, version)
@@ -123,9 +124,9 @@ def _register_coarse_reach(robot: str, version: int = 0) -> None:
             continue
         table[env_id] = "snac_gym.envs.goal:CoarseReachGoalEnv"
         REGISTERED_IDS[env_id] = RegisteredId(robot, "reach", True, version)
-        kwargs = {"robot": robot} if action == "joint" else {"robot": robot, "action": action}
+        kwargs: dict[str, Any] = {"robot": robot} if action == "joint" else {"robot": robot, "action": action}
         if version == 1:
-            kwargs["finite_observation_bounds"] = "clip"
+            kwargs.update(finite_observation_bounds="clip", terminate_on_success=True)
         gym.register(
             id=env_id,
             entry_point=table[env_id],
