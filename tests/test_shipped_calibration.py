@@ -13,7 +13,8 @@ import json
 import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.controllers import resolve_controllers
-from snac_gym.evaluation.effort.matching import EffortMatcher
+from snac_gym.evaluation.effort.matching import EffortMatcher, _ScreenedEffort
+from snac_gym.evaluation.effort.search import match_effort
 from snac_gym.evaluation.effort.shipped import SHIPPED_ORIGIN, read_shipped, shipped_file, without_code
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.execution.passes import EvaluationRun
@@ -83,15 +84,46 @@ def test_the_shipped_knobs_are_the_ones_the_current_code_matches(tmp_path, cache
                     continue
                 shipped_record = records[(task, spec.name)]
                 assert shipped_record.passes == 1 and shipped_record.role == "matched"  # one search decides the knob
-                match = matcher.search_knob(task, spec, target, float(spec.knob_value), 1)
                 searched = searches[f"{task}/{spec.name}/search1"]
-                agree = _agree(match.value, shipped_record.knob_value, exact) and _agree(
-                    match.effort, searched["effort"], exact
-                )
-                assert agree and match.matched, (
-                    f"{task}/{spec.name}: the search now gives {match.value!r} (effort {match.effort!r}), the file "
-                    f"{shipped_record.knob_value!r} ({searched['effort']!r}); {STALE}"
-                )
+                _check_search(matcher, task, spec, target, searched, shipped_record.knob_value, exact)
+
+
+def _check_search(matcher, task, spec, target, searched, shipped_knob, exact):
+    """The search as the current code runs it, at the cost of about two of its evaluations instead of eleven.
+
+    The search is a deterministic function of the effort at the knobs it asks for, so: it is replayed on the
+    efforts the file recorded (asking for any knob the file did not record means the search changed), and the
+    effort the current code measures is checked where it decides, at the knob it settles on, with the rollout
+    horizon and the screening samples the file recorded. The probe that sets the horizon runs too: its horizon
+    must give the recorded number of screening samples. A change to a controller, the rollout, the samples or
+    the statistic moves that effort at least by a bit; a change to the search moves the knobs it asks for."""
+    recorded = {float(knob): float(effort) for knob, effort in searched["evaluations"]}
+    asked: list[float] = []
+
+    def replayed(knob: float) -> float:
+        asked.append(knob)
+        assert knob in recorded, f"{task}/{spec.name}: the search now asks for the knob {knob!r}; {STALE}"
+        return recorded[knob]
+
+    assert _agree(target, searched["target"], exact), f"{task}/{spec.name}: another target; {STALE}"
+    replay = match_effort(replayed, searched["target"], searched["start"], matcher.config.effort_tolerance / 4)
+    assert replay.value == searched["value"] == shipped_knob and replay.matched, (
+        f"{task}/{spec.name}: the search replayed gives {replay.value!r}, the file {shipped_knob!r}; {STALE}"
+    )
+    samples = matcher.evaluation.samples[task]
+    horizon = matcher._probe_horizon(task, spec, float(spec.knob_value), samples)
+    if horizon == searched["search_steps"]:  # not lengthened during the search: the count follows from the probe
+        assert matcher.screening_count(task, spec, horizon, 1) == searched["screening_samples"], (
+            f"{task}/{spec.name}: another number of screening samples; {STALE}"
+        )
+    screened = _ScreenedEffort(
+        matcher, task, spec, samples[: searched["screening_samples"]], searched["search_steps"], 1
+    )
+    effort = screened.effort_at(searched["value"])
+    assert _agree(effort, searched["effort"], exact), (
+        f"{task}/{spec.name}: at the shipped knob {shipped_knob!r} the effort is now {effort!r}, the file "
+        f"{searched['effort']!r}; {STALE}"
+    )
 
 
 def test_a_run_at_the_defaults_uses_the_shipped_knobs_and_another_setting_matches_its_own(tmp_path, cache_on):
