@@ -17,8 +17,8 @@ from stable_baselines3 import PPO
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.envs.sb3 import SB3VectorEnv
 
-ENV_ID = "snac_gym/UR10Reach-v0"
-ENV_KWARGS = {"action_type": "normalized", "reward_type": "shaped"}
+ENV_ID = "snac_gym/UR10Reach-v1"  # normalized float32 actions and observations
+ENV_KWARGS = {"reward_type": "shaped"}
 EPISODE_STEPS = 250
 
 
