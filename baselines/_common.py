@@ -1,5 +1,6 @@
 """What the baseline controllers (rnn, svf, dls, lqr, mpc) share: reading the observation, the task-space
-feedback term, staying inside the joint-velocity limits, and the resolved-rate skeleton.
+feedback term, staying inside the joint-velocity limits, the resolved-rate skeleton and the checks of their
+parameters.
 
 Every baseline commands the joint velocities ``u`` of ``ẋ = J u`` (eq. 3 of the paper) from
 the *reference velocity*
@@ -175,3 +176,29 @@ class ResolvedRatePolicy(BasePolicy):
         command, scale = scale_into_box(self.resolve(jacobian, task_velocity), self.velocity_limits)
         self.internals = {"saturation_scale": scale}
         return command if self.limit_box is None else self.limit_box.clamp(obs[self._reader.q], command)
+
+
+def positive_int(name: str, value: Any) -> int:
+    """``value`` as an int ≥ 1 (a whole float like 2.0 is accepted).
+
+    Raises:
+        ValueError: If it is not one.
+    """
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}") from exc
+    if not (np.isfinite(number) and number >= 1 and number == int(number)):
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(number)
+
+
+def one_of(name: str, value: Any, choices: Sequence[str]) -> str:
+    """``value`` if it is one of ``choices``.
+
+    Raises:
+        ValueError: If it is not, naming ``name`` and the choices.
+    """
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
+    return str(value)

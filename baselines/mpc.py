@@ -14,9 +14,9 @@ steps later. Details and measurements: docs/mpc.md.
   periods, N = horizon/Δt_s solver steps. The effort and u̇ terms are exact for such piecewise-constant
   commands (w = ``block`` on the grid Δt_s; w = 0 for the HJB cost); the error term is sampled at the
   start of each block.
-* **Solver.** The Gauss-Newton step of the trajectory optimiser (snac_gym/control/trajopt.py: the block-banded system in
-  θ₁..θ_N, :func:`~snac_gym.control.trajopt.gauss_newton_direction`), with the terminal block
-  2J_NᵀP̄J_N added, and an Armijo backtracking on the exact cost, at most ``iterations`` steps per
+* **Solver.** The trajectory optimiser's :class:`~snac_gym.control.trajopt.GaussNewtonSolver`: its Gauss-Newton
+  step (the block-banded system in θ₁..θ_N) with the terminal block 2J_NᵀP̄J_N added, and its Armijo
+  backtracking on the exact cost, every sample of the batch at once; at most ``iterations`` steps per
   re-solve, warm-started from the previous plan shifted by ``period`` control periods.
 * **Terminal cost.** e_NᵀP̄e_N + 2p̄ᵀe_N with P̄ = P*(J(θ_N)), the frozen-Jacobian LQR cost-to-go
   (:mod:`snac_gym.control.optimality`), and p̄ = −(JJᵀ)⁻¹ẋ_d(t_N), the price of making up a lag behind a moving
@@ -46,21 +46,19 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from snac_gym.baselines._common import ObservationReader, clip_to_box
+from snac_gym.baselines._common import ObservationReader, clip_to_box, one_of, positive_int
 
 from snac_gym.control.cost import COSTS, UDOT_STARTS, CostConvention, cost_and_gradient
 from snac_gym.control.optimality import FrozenJacobianLQR
 from snac_gym.control.trajopt import (
-    ARMIJO,
     BOUNDARY_FRACTION,
     START_SHRINK,
     Barrier,
+    GaussNewtonSolver,
     Limits,
     errors_and_jacobians,
-    gauss_newton_direction,
     next_angles,
     position_bounds,
-    theta_system_base,
 )
 from snac_gym.model.joint_limits import make_limit_box
 from snac_gym.policies.base import BasePolicy, positive_float
@@ -71,7 +69,7 @@ from snac_gym.policies.base import BasePolicy, positive_float
 DEFAULT_GRID = {"hjb": (0.4, 5), "table1": (1.0, 1)}
 #: How the reference ahead is obtained (``reference=``).
 REFERENCES = ("predict", "hold")
-#: Step halvings of the Armijo backtracking before a sample keeps its plan for this iteration.
+#: Trials of the Armijo backtracking before a sample keeps its plan for this iteration.
 MAX_BACKTRACKS = 20
 #: A sample stops iterating when the Gauss-Newton decrement −∇Vᵀδ is below this fraction of V.
 DECREMENT_TOLERANCE = 1e-12
@@ -79,27 +77,6 @@ DECREMENT_TOLERANCE = 1e-12
 #: start's V, so the barrier shifts the plan by about that share of its cost (the reference drives its μ
 #: to 1e-7·V; a re-solve of two steps cannot, so it keeps one small μ).
 BARRIER_SHARE = 1e-3
-
-
-def _positive_int(name: str, value: Any) -> int:
-    """``value`` as an int ≥ 1 (a whole float like 2.0 is accepted).
-
-    Raises:
-        ValueError: If it is not one.
-    """
-    try:
-        number = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}") from exc
-    if not (np.isfinite(number) and number >= 1 and number == int(number)):
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(number)
-
-
-def _choice(name: str, value: Any, choices: Sequence[str]) -> str:
-    if value not in choices:
-        raise ValueError(f"{name} must be one of {tuple(choices)}, got {value!r}")
-    return str(value)
 
 
 def _identity_multiple(Q: Any, dim: int) -> float:
@@ -183,14 +160,14 @@ class MPCPolicy(BasePolicy):
         constraints: bool = True,
     ) -> None:
         super().__init__(env)
-        self.cost = _choice("cost", cost, COSTS)
+        self.cost = one_of("cost", cost, COSTS)
         self.horizon = positive_float("horizon", DEFAULT_GRID[self.cost][0] if horizon is None else horizon)
-        self.block = _positive_int("block", DEFAULT_GRID[self.cost][1] if block is None else block)
-        self.iterations = _positive_int("iterations", iterations)
-        self.period = _positive_int("period", period)
+        self.block = positive_int("block", DEFAULT_GRID[self.cost][1] if block is None else block)
+        self.iterations = positive_int("iterations", iterations)
+        self.period = positive_int("period", period)
         self.q_scale = positive_float("q_scale", q_scale)
-        self.udot_start = _choice("udot_start", udot_start, UDOT_STARTS)
-        self.reference = _choice("reference", reference, REFERENCES)
+        self.udot_start = one_of("udot_start", udot_start, UDOT_STARTS)
+        self.reference = one_of("reference", reference, REFERENCES)
         if not isinstance(terminal, (bool, np.bool_)):
             raise ValueError(f"terminal must be true or false, got {terminal!r}")
         self.terminal = bool(terminal)
@@ -215,7 +192,10 @@ class MPCPolicy(BasePolicy):
         self._conventions = {
             start: _BlockedConvention(self.cost, start, self.weight, self.block) for start in UDOT_STARTS
         }
-        self._bases = {start: self._base(c) for start, c in self._conventions.items()}
+        self._solvers = {
+            start: GaussNewtonSolver(self.steps, m, self.solver_dt, c, barrier=self.constraints)
+            for start, c in self._conventions.items()
+        }
         self._predicts = self.reference == "predict" and self.tracking and n == 3
         self._start(1)
 
@@ -316,7 +296,7 @@ class MPCPolicy(BasePolicy):
         self, q0: np.ndarray, x_d: np.ndarray, end_velocity: np.ndarray, plan: np.ndarray, start: str
     ) -> tuple[np.ndarray, np.ndarray]:
         """At most ``iterations`` Gauss-Newton steps from ``plan`` for every sample; the plans and their V."""
-        convention, base = self._conventions[start], self._bases[start]
+        convention, solver = self._conventions[start], self._solvers[start]
         limits = self._limits(q0) if self.constraints else None
         plan = self._inside(q0, plan, limits) if limits is not None else plan.copy()
         everyone = np.arange(len(plan))
@@ -333,24 +313,16 @@ class MPCPolicy(BasePolicy):
             rows = np.flatnonzero(active)
             if not len(rows):
                 break
-            directions = [self._direction(base, jacobians[i], grad[i], terminal, i, q0, plan, limits) for i in rows]
+            directions = [self._direction(solver, jacobians[i], grad[i], terminal, i, limits) for i in rows]
             steps = np.stack([step for step, _ in directions])
             slopes = np.einsum("bkj,bkj->b", grad[rows], steps)
             active[rows] = -slopes > DECREMENT_TOLERANCE * np.maximum(value[rows], 1.0)
             first = np.array([alpha for _, alpha in directions])
-            self._line_search(rows, q0, x_d, plan, steps, slopes, terminal, convention, (value, grad, jacobians),
-                              first, limits)  # fmt: skip
+            self._line_search(solver, rows, q0, x_d, plan, steps, slopes, terminal, convention,
+                              (value, grad, jacobians), first, limits)  # fmt: skip
         return plan, value
 
     # -- the limits as constraints of the re-solve ----------------------------------------------------
-    def _base(self, convention: CostConvention) -> np.ndarray:
-        """The fixed band of the θ-system, with room for the barrier's MᵀΣM (one off-diagonal block)."""
-        m = self.kinematics.n_joints
-        base = theta_system_base(self.steps, m, self.solver_dt, convention)
-        if self.constraints and base.shape[0] <= m:
-            base = np.vstack([base, np.zeros((m + 1 - base.shape[0], base.shape[1]))])
-        return base
-
     def _limits(self, q0: np.ndarray) -> list[Limits]:
         """Each episode's limits: ū, and the reference's position bounds
         (:func:`~snac_gym.control.trajopt.position_bounds`:
@@ -454,31 +426,24 @@ class MPCPolicy(BasePolicy):
 
     def _direction(
         self,
-        base: np.ndarray,
+        solver: GaussNewtonSolver,
         jacobians: np.ndarray,
         grad: np.ndarray,
         terminal: Any,
         i: int,
-        q0: np.ndarray,
-        plan: np.ndarray,
         limits: list[Limits] | None,
     ) -> tuple[np.ndarray, float]:
-        """The Gauss-Newton step of the block-banded θ-system, with the terminal Hessian 2J_NᵀP̄J_N in θ_N's block
-        and, with the limits, the barrier's Σ = μ/s²; and the largest step fraction (≤ 1) that keeps every
-        slack at least 1 − τ of its value."""
-        steps, m = grad.shape
-        if terminal is not None or limits is not None:
-            base = base.copy()
-        if terminal is not None:
-            block = 2.0 * jacobians[steps].T @ terminal[0][i] @ jacobians[steps]
-            rows, cols = np.tril_indices(m)
-            base[rows - cols, (steps - 1) * m + cols] += block[rows, cols]  # lower band: [a − b, k·m + b] ← H_ab
+        """The solver's Gauss-Newton step, with the terminal Hessian 2J_NᵀP̄J_N in θ_N's block and, with the limits,
+        the barrier's Σ = μ/s²; and the largest step fraction (≤ 1) that keeps every slack at least 1 − τ of its
+        value."""
+        steps = grad.shape[0]
+        block = None if terminal is None else 2.0 * jacobians[steps].T @ terminal[0][i] @ jacobians[steps]
         if limits is None:
-            return gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight), 1.0
+            return solver.direction(jacobians[:steps], grad, terminal=block), 1.0
         slacks = self._slacks[i]  # the plan's (stacked), kept from its last evaluation
+        # primal barrier: z = μ/s, so Σ = z/s = μ/s²
         barrier = Barrier(limits[i], self.solver_dt, float(self._mu[i]), list(slacks), list(self._mu[i] / slacks))
-        barrier.add_to_band(base, m)  # primal barrier: z = μ/s, so Σ = z/s = μ/s²
-        step = gauss_newton_direction(base, jacobians[:steps], grad, self.solver_dt, self.weight)
+        step = solver.direction(jacobians[:steps], grad, terminal=block, barrier=barrier)
         step_angles = self.solver_dt * np.cumsum(step, axis=0)
         slack_steps = np.stack([step, -step] + ([step_angles, -step_angles] if limits[i].has_positions else []))
         # Fraction to the boundary: the largest α ≤ 1 keeping every slack ≥ (1 − τ) of its value.
@@ -489,6 +454,7 @@ class MPCPolicy(BasePolicy):
 
     def _line_search(
         self,
+        solver: GaussNewtonSolver,
         rows: np.ndarray,
         q0: np.ndarray,
         x_d: np.ndarray,
@@ -498,31 +464,32 @@ class MPCPolicy(BasePolicy):
         terminal: tuple[np.ndarray, np.ndarray] | None,
         convention: CostConvention,
         state: tuple[np.ndarray, np.ndarray, np.ndarray],
-        first: np.ndarray | None = None,
+        first: np.ndarray,
         limits: list[Limits] | None = None,
     ) -> None:
-        """Armijo backtracking (snac_gym/control/trajopt.py's test) from step fraction ``first``, every
-        pending sample in one FK pass; updates ``plan`` and ``state`` = (V, ∂V/∂U, J) in place where a step
-        is accepted. With the limits, V includes the barrier (inf outside them)."""
+        """The solver's Armijo backtracking of the samples ``rows`` from step fractions ``first``, at most
+        :data:`MAX_BACKTRACKS` halvings, every pending sample in one FK pass; updates ``plan`` and ``state`` =
+        (V, ∂V/∂U, J) in place where a step is accepted. With the limits, V includes the barrier (inf outside them)."""
         value, grad, jacobians = state
-        alpha = np.ones(len(rows)) if first is None else first.astype(float).copy()
-        pending = np.arange(len(rows))
-        for _ in range(MAX_BACKTRACKS):
-            trial = plan[rows[pending]] + alpha[pending, None, None] * steps[pending]
+        trials: dict[str, Any] = {}
+
+        def merit(pending: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+            trial = plan[rows[pending]] + alpha[:, None, None] * steps[pending]
             trial_value, trial_grad, trial_jacobians = self._evaluate(
                 rows[pending], q0, x_d, trial, terminal, convention
             )
             if limits is not None:
-                barrier, barrier_grad, slacks = self._barrier(rows[pending], q0, trial, limits)
+                barrier, barrier_grad, trials["slacks"] = self._barrier(rows[pending], q0, trial, limits)
                 trial_value, trial_grad = trial_value + barrier, trial_grad + barrier_grad
-            accepted = trial_value <= value[rows[pending]] + ARMIJO * alpha[pending] * slopes[pending]
+            trials.update(plan=trial, value=trial_value, grad=trial_grad, jacobians=trial_jacobians)
+            return trial_value
+
+        def accept(pending: np.ndarray, accepted: np.ndarray) -> None:
             done = rows[pending[accepted]]
-            plan[done], value[done], grad[done] = trial[accepted], trial_value[accepted], trial_grad[accepted]
-            jacobians[done] = trial_jacobians[accepted]
+            plan[done], value[done] = trials["plan"][accepted], trials["value"][accepted]
+            grad[done], jacobians[done] = trials["grad"][accepted], trials["jacobians"][accepted]
             if limits is not None:
                 for b in np.flatnonzero(accepted):
-                    self._slacks[rows[pending[b]]] = slacks[b]
-            pending = pending[~accepted]
-            if not len(pending):
-                return
-            alpha[pending] *= 0.5
+                    self._slacks[rows[pending[b]]] = trials["slacks"][b]
+
+        solver.line_search(merit, value[rows], slopes, first, accept, max_tries=MAX_BACKTRACKS, min_step=0.0)
