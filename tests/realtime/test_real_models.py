@@ -53,12 +53,13 @@ def _numbers(values: np.ndarray) -> str:
 @pytest.mark.realtime(seconds=6)
 def test_real_reaches_a_command_line_target_on_each_ur_model(model, tmp_path):
     robot, emulator = model
-    emulator.reset()
     kinematics = Kinematics(robot)
     # A start pose and a target the arm's own samplers draw (seed 7: not the paper's numbers, which only the
     # UR10 reaches), as a user picks them in the arm's sample cuboid. dls is within 1 mm for good after 2.3-2.8 s
     # on the four arms (`snac-gym real --connection sim` with the same options), lqr only after 4.1-7.5 s.
     (sample,) = generate_samples(kinematics, SampleSpace.for_robot(kinematics), 7, "reach", range(1))
+    # The arm already at the start pose: the move there (moveJ, about 2 s of robot time) is the track test's.
+    emulator.reset(list(map(float, sample.q0)))
     out = tmp_path / robot
     result = CliRunner().invoke(app, [
         "real", "--connection", "rtde", "--host", HOST, "--robot", robot, "--controller", "dls",
@@ -86,7 +87,7 @@ def test_a_controller_stop_mid_run_exits_with_its_code_and_no_speedj_follows(mod
     (loopback and the host's read); the ones computed from an earlier state and crossing that package on the
     wire, at most one per period, are counted (docs/real-arm.md, "After a controller stop")."""
     robot, emulator = model
-    emulator.reset()
+    emulator.reset(list(map(float, PAPER_Q0)))  # at the start pose already: the run, not the move there, is tested
 
     def stop_later() -> None:
         time.sleep(1.5)
