@@ -1,5 +1,7 @@
-"""Connections to the arm for the real-robot env: a small protocol, the ur_rtde connection, a wall-clock
-simulated arm for rehearsal, and a dry-run wrapper that reads state but sends nothing.
+"""Connections to the arm for the real-robot env: the ur_rtde connection here; the protocol they follow
+(:mod:`~snac_gym.real.protocol`), the ur_rtde client's process (:mod:`~snac_gym.real.client_process`), the
+dashboard's confirmation of rest (:mod:`~snac_gym.real.dashboard`), and the wall-clock simulated arm for rehearsal
+and the dry-run wrapper that reads state but sends nothing (:mod:`~snac_gym.real.simulated`), all importable from here.
 
 A connection owns the link to the arm and the timing of one control period: the env calls
 ``start_period`` and ``command`` when it sends u, then ``end_period`` (which blocks until the
@@ -9,82 +11,54 @@ time, any number of times, and returns once the arm is at rest (or cannot be rea
 
 from __future__ import annotations
 
-import collections
-import os
-import pickle
-import select
-import signal
 import socket
-import subprocess
-import sys
-import threading
 import time
-from collections.abc import Callable, Sequence
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
 from snac_gym.common.errors import ConnectionFailure
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.model.ur_models import SERIES_FREQUENCY  # the controller generations' rates, re-exported here
-from snac_gym.physics.bullet import PyBulletSim, SimulatedArm
-from snac_gym.real.rtde_client import HEADER, RECONNECT_MARKERS, as_arrays, write_frame
-from snac_gym.sampling import nominal_configuration
+from snac_gym.real.client_process import ClientProcess
+from snac_gym.real.dashboard import (
+    DASHBOARD_PORT,
+    DASHBOARD_REST_REQUESTS,
+    HELD_ROBOT_MODES,
+    ask_dashboard,
+    confirm_rest_by_dashboard,
+)
+from snac_gym.real.protocol import (
+    EMERGENCY_STOP,
+    NORMAL,
+    PROTECTIVE_STOP,
+    PROTECTIVE_STOP_LOCKOUT,
+    ArmConnection,
+    wait_until,
+)
+from snac_gym.real.rtde_client import as_arrays
+from snac_gym.real.simulated import DryRunConnection, SimulatedConnection
 
-#: Safety states a connection reports (``info["safety_state"]`` of the real env).
-NORMAL = "normal"
-PROTECTIVE_STOP = "protective_stop"
-EMERGENCY_STOP = "emergency_stop"
-#: Seconds after a protective stop before PolyScope lets it be unlocked (pendant or dashboard).
-PROTECTIVE_STOP_LOCKOUT = 5.0
-
-
-def wait_until(deadline: float, spin: float = 5e-4) -> None:
-    """Block until ``time.perf_counter()`` reaches ``deadline``: sleep, then spin the last ``spin`` s.
-
-    A plain ``sleep`` overshoots by a few hundred µs on a general-purpose kernel, which would make
-    a rehearsed 8 ms loop run 2 % slow; ur_rtde's ``waitPeriod`` spins for the same reason.
-    """
-    remaining = deadline - time.perf_counter()
-    if remaining > spin:
-        time.sleep(remaining - spin)
-    while time.perf_counter() < deadline:
-        pass
-
-
-@runtime_checkable
-class ArmConnection(Protocol):
-    """What the real-robot env needs from an arm."""
-
-    kinematics: Kinematics
-    dt: float
-
-    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """Measured joint positions (rad) and velocities (rad/s)."""
-
-    def start_period(self) -> float:
-        """Mark the start of a control period; returns its start time (connection clock, s)."""
-
-    def command(self, velocities: np.ndarray) -> None:
-        """Send joint-velocity command u (rad/s) for this period (which also feeds the watchdog)."""
-
-    def end_period(self, period_start: float) -> None:
-        """Block until the period that began at ``period_start`` is over."""
-
-    def state_timestamp(self) -> float:
-        """The controller's time stamp (s) of the state last read: a stale state repeats it."""
-
-    def stop(self) -> None:
-        """Decelerate the arm and return once it is at rest; safe to call repeatedly."""
-
-    def move_to(self, q: np.ndarray) -> None:
-        """Bring the arm to ``q`` at rest before an episode (slow joint move on hardware)."""
-
-    def safety_state(self) -> str:
-        """One of :data:`NORMAL`, :data:`PROTECTIVE_STOP`, :data:`EMERGENCY_STOP`."""
-
-    def close(self) -> None:
-        """Stop the arm and release the connection."""
+__all__ = [
+    "DASHBOARD_PORT",
+    "DASHBOARD_REST_REQUESTS",
+    "EMERGENCY_STOP",
+    "HELD_ROBOT_MODES",
+    "NORMAL",
+    "PROTECTIVE_STOP",
+    "PROTECTIVE_STOP_LOCKOUT",
+    "SERIES_FREQUENCY",
+    "ArmConnection",
+    "ClientProcess",
+    "ConnectionFailure",
+    "DryRunConnection",
+    "SimulatedConnection",
+    "URRTDEConnection",
+    "ask_dashboard",
+    "confirm_rest_by_dashboard",
+    "probe_port",
+    "wait_until",
+]
 
 
 def probe_port(host: str, port: int, timeout: float) -> None:
@@ -109,93 +83,6 @@ def probe_port(host: str, port: int, timeout: float) -> None:
         ) from exc
     except OSError as exc:
         raise ConnectionFailure(f"cannot reach {host}:{port}: {exc.strerror or exc}") from exc
-
-
-#: The dashboard server's port on a UR controller (PolyScope's, fixed).
-DASHBOARD_PORT = 29999
-#: Robot modes (the dashboard's ``robotmode``) in which an arm whose program is stopped is held at rest by the
-#: controller (position held, or brakes on). Not BACKDRIVE (the arm moves by hand), BOOTING, CONFIRM_SAFETY,
-#: NO_CONTROLLER, DISCONNECTED or UPDATING_FIRMWARE: there the answer says nothing of rest.
-HELD_ROBOT_MODES = frozenset({"RUNNING", "IDLE", "POWER_ON", "POWER_OFF"})
-#: What the dashboard is asked to confirm rest (UR dashboard server: ``programState`` answers ``STOPPED <program>``,
-#: ``PAUSED <program>`` or ``PLAYING <program>``; ``robotmode`` ``Robotmode: RUNNING``; ``safetystatus``
-#: ``Safetystatus: NORMAL`` (software 3.11 and 5.4 onwards; older ones do not understand it, which is kept as said).
-DASHBOARD_REST_REQUESTS = ("programState", "robotmode", "safetystatus")
-
-
-def ask_dashboard(host: str, requests: Sequence[str], timeout: float, port: int = DASHBOARD_PORT) -> dict[str, str]:
-    """One connection to the controller's dashboard server: each request's one-line answer.
-
-    A plain socket with ``timeout`` s per operation (not ur_rtde), so that it answers from the host's own
-    process whether or not the ur_rtde client still serves.
-
-    Raises:
-        OSError: Refused, unreachable, timed out, or closed before every answer came.
-    """
-    answers: dict[str, str] = {}
-    with socket.create_connection((host, port), timeout=timeout) as sock:
-        reader = sock.makefile("rb")
-        if not reader.readline():  # the welcome line
-            raise ConnectionError("the dashboard server closed the connection")
-        for request in requests:
-            sock.sendall(request.encode() + b"\n")
-            line = reader.readline()
-            if not line:
-                raise ConnectionError(f"the dashboard server closed the connection before answering {request!r}")
-            answers[request] = line.decode(errors="replace").strip()
-    return answers
-
-
-def _dashboard_word(answer: str, prefix: str) -> str:
-    """``Robotmode: RUNNING`` -> ``RUNNING``; an answer without ``prefix`` (not understood) as it came."""
-    head, sep, rest = answer.partition(":")
-    return rest.strip() if sep and head.strip().lower() == prefix else answer
-
-
-def confirm_rest_by_dashboard(
-    ask: Callable[[Sequence[str]], dict[str, str]],
-    within: float,
-    settle: float,
-    poll: float = 0.05,
-    clock: Callable[[], float] = time.monotonic,
-    sleep: Callable[[float], None] = time.sleep,
-) -> tuple[bool, str]:
-    """Whether the dashboard server confirms the arm at rest within ``within`` s, and what it said.
-
-    Rest is confirmed by two answers ``settle`` s apart (the controller's own stop ramp from the
-    arm's last known speed), each with the program not running (``programState`` ``STOPPED`` or
-    ``PAUSED``: nothing drives the arm) and the robot in a mode that holds it
-    (:data:`HELD_ROBOT_MODES`). ``ask(requests)`` returns the answers or raises ``OSError``
-    (unreachable); it is asked every ``poll`` s until then.
-
-    Returns:
-        ``(True, "dashboard: programState STOPPED …, robotmode RUNNING, safetystatus NORMAL")`` or
-        ``(False, the last thing that kept it from confirming)``.
-    """
-    start = clock()
-    stopped_since: float | None = None
-    problem = "not asked"
-    while True:
-        try:
-            answers = ask(DASHBOARD_REST_REQUESTS)
-        except OSError as exc:
-            problem, stopped_since = f"dashboard unreachable ({type(exc).__name__}: {exc})", None
-        else:
-            program = answers.get("programState", "")
-            mode = _dashboard_word(answers.get("robotmode", ""), "robotmode")
-            safety = _dashboard_word(answers.get("safetystatus", ""), "safetystatus")
-            said = f"programState {program}, robotmode {mode}, safetystatus {safety}"
-            if program.split(" ", 1)[0] in ("STOPPED", "PAUSED") and mode in HELD_ROBOT_MODES:
-                now = clock()
-                stopped_since = now if stopped_since is None else stopped_since
-                if now - stopped_since >= settle:
-                    return True, f"dashboard: {said}"
-                problem = f"dashboard: {said}, not yet {settle:.2f} s (the stop ramp) after it first said so"
-            else:
-                problem, stopped_since = f"dashboard: {said}: the program still runs or the arm is not held", None
-        if clock() - start >= within:
-            return False, problem
-        sleep(poll)
 
 
 class URRTDEConnection:
@@ -549,291 +436,3 @@ class URRTDEConnection:
     def close(self) -> None:
         self.stop()
         self._client.close(2.0)
-
-
-class ClientProcess:
-    """The ur_rtde client's process, seen from the parent: requests with deadlines, and its output.
-
-    :meth:`abandon` (from any thread) records why and kills it; the first reason is kept.
-    """
-
-    def __init__(self) -> None:
-        self.failure: str | None = None
-        self.output: collections.deque[str] = collections.deque(maxlen=50)
-        self._lock = threading.Lock()
-        self._seq = 0
-        self._buffer = b""
-        self._process = subprocess.Popen(
-            [sys.executable, "-c", "from snac_gym.real.rtde_client import serve; serve()"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            bufsize=0,
-            start_new_session=True,  # a Ctrl-C at the terminal reaches the parent only, which stops the arm
-        )
-        self._reader = threading.Thread(target=self._watch_output, name="ur_rtde-output", daemon=True)
-        self._reader.start()
-
-    @property
-    def pid(self) -> int:
-        return self._process.pid
-
-    def _watch_output(self) -> None:
-        for raw in self._process.stderr:  # type: ignore[union-attr]
-            line = raw.decode(errors="replace").rstrip()
-            if not line:
-                continue
-            self.output.append(line)
-            if any(marker in line.lower() for marker in RECONNECT_MARKERS):
-                self.abandon(
-                    f"link to the arm lost: ur_rtde began to reconnect by itself ({line.strip()!r}), client ended"
-                )
-
-    def abandon(self, reason: str) -> None:
-        with self._lock:
-            if self.failure is None:
-                self.failure = reason
-            if self._process.returncode is None:
-                try:
-                    self._process.kill()
-                except OSError:
-                    pass
-
-    def call(self, name: str, args: tuple[object, ...], timeout: float) -> tuple[str, Any]:
-        """Send one request and wait for its reply, at most ``timeout`` s.
-
-        Raises:
-            ConnectionFailure: With the reason, if the client is gone, crashes, or misses the deadline.
-        """
-        if self.failure is not None:
-            raise ConnectionFailure(self.failure)
-        self._seq += 1
-        seq = self._seq
-        try:
-            write_frame(self._process.stdin.fileno(), (seq, name, args))  # type: ignore[union-attr]
-        except (BrokenPipeError, ValueError, OSError):
-            self._ended(name)
-        deadline = time.perf_counter() + timeout
-        while True:
-            frame = self._next_frame(deadline, name, timeout)
-            if frame[0] == seq:  # a reply to a request a signal interrupted is dropped
-                return frame[1], frame[2]
-
-    def _next_frame(self, deadline: float, name: str, timeout: float) -> tuple[int, str, Any]:
-        fd = self._process.stdout.fileno()  # type: ignore[union-attr]
-        while True:
-            if len(self._buffer) >= HEADER.size:
-                size = HEADER.unpack_from(self._buffer)[0] + HEADER.size
-                if len(self._buffer) >= size:
-                    frame, self._buffer = self._buffer[HEADER.size : size], self._buffer[size:]
-                    return pickle.loads(frame)
-            remaining = deadline - time.perf_counter()
-            if remaining <= 0 or not select.select([fd], [], [], remaining)[0]:
-                if self._process.poll() is not None:
-                    self._ended(name)
-                self.abandon(
-                    f"ur_rtde did not return from {name} within {timeout * 1e3:.0f} ms (client killed; "
-                    "the controller's watchdog stops the arm)"
-                )
-                raise ConnectionFailure(self.failure)
-            data = os.read(fd, 65536)
-            if not data:
-                self._ended(name)
-            self._buffer += data
-
-    def _ended(self, name: str) -> None:
-        """The client's pipe closed: it crashed or was killed. Raises :class:`ConnectionFailure`."""
-        try:
-            code = self._process.wait(timeout=1.0)
-        except Exception:  # noqa: BLE001 - still not gone: kill it below
-            code = None
-        if code is not None and code < 0:
-            how = f"was killed by {signal.Signals(-code).name}"
-        else:
-            how = f"exited with code {code}"
-        last = f" after printing {self.output[-1]!r}" if self.output else ""
-        self.abandon(f"the ur_rtde client {how} during {name}{last}")
-        raise ConnectionFailure(self.failure)
-
-    def close(self, timeout: float) -> None:
-        """Ask the client to disconnect and leave; kill it if it does not within ``timeout`` s."""
-        if self.failure is None and timeout > 0:
-            try:
-                self.call("close", (), timeout)
-            except ConnectionFailure:
-                pass
-        process = self._process
-        for stream in (process.stdin, process.stdout):
-            try:
-                stream.close()  # type: ignore[union-attr]
-            except OSError:
-                pass
-        try:
-            process.wait(timeout=max(timeout, 0.1))
-        except Exception:  # noqa: BLE001 - it would not leave: kill it
-            process.kill()
-            process.wait()
-        self._reader.join(timeout=1.0)
-
-
-class SimulatedConnection:
-    """The PyBullet UR arm behind the connection protocol, run in wall-clock time.
-
-    ``end_period`` steps the physics by one period and then sleeps until the period's end, so a
-    whole real-robot loop (policy, safety layer, timing, deadlines) is rehearsed without hardware.
-    ``realtime=False`` skips the sleep (tests). ``inject_fault`` makes the next reads report a
-    protective or emergency stop, as the controller would.
-
-    Args:
-        kinematics: Model of the arm (UR10 by default).
-        frequency: Control rate, Hz.
-        n_substeps: Physics steps per period.
-        realtime: Sleep to hold the wall-clock period.
-        home: Where the simulated arm is parked when the connection starts (default: the
-            nominal elbow-up pose, the paper's θ0 for a 6-joint UR arm), as a real arm would be.
-    """
-
-    def __init__(
-        self,
-        kinematics: Kinematics | None = None,
-        frequency: float = 125.0,
-        n_substeps: int = 3,
-        realtime: bool = True,
-        home: np.ndarray | None = None,
-    ) -> None:
-        self.kinematics = kinematics if kinematics is not None else Kinematics("ur10")
-        self.frequency = float(frequency)
-        self.dt = 1.0 / self.frequency
-        self.realtime = realtime
-        self.sim = PyBulletSim(self.dt, n_substeps)
-        self.arm = SimulatedArm(self.sim, self.kinematics, meshes=False)  # never drawn: loads in ms, not 0.3 s
-        self._initial_state = self.sim.save_state()
-        self.arm.set_joint_positions(
-            nominal_configuration(self.kinematics) if home is None else np.asarray(home, float)
-        )
-        self._fault = NORMAL
-        self._periods = 0
-        self.commands_sent = 0
-        self.stop_calls = 0
-        self.stopped = False
-
-    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.arm.joint_state()
-
-    def start_period(self) -> float:
-        return time.perf_counter()
-
-    def command(self, velocities: np.ndarray) -> None:
-        if self._fault != NORMAL:
-            return  # a stopped controller ignores commands, as the real one does
-        self.arm.command_velocities(np.asarray(velocities, dtype=float))
-        self.commands_sent += 1
-        self.stopped = False
-
-    def end_period(self, period_start: float) -> None:
-        self.sim.step()
-        self._periods += 1
-        if self.realtime:
-            wait_until(period_start + self.dt)
-
-    def state_timestamp(self) -> float:
-        return self._periods * self.dt
-
-    def stop(self) -> None:
-        """Command zero velocity and run the physics until the arm is at rest, as ``speedStop`` does."""
-        self.stop_calls += 1
-        self.stopped = True
-        if self.sim.client < 0:
-            return
-        self.arm.command_velocities(np.zeros(self.kinematics.n_joints))
-        for _ in range(int(self.frequency)):  # at most 1 s of simulated deceleration
-            if np.max(np.abs(self.arm.joint_state()[1])) < 1e-3:
-                return
-            self.end_period(time.perf_counter())
-
-    def move_to(self, q: np.ndarray) -> None:
-        self.sim.restore_state(self._initial_state)
-        self.arm.set_joint_positions(np.asarray(q, dtype=float))
-        self._fault = NORMAL
-        self.stopped = True
-
-    def safety_state(self) -> str:
-        return self._fault
-
-    def reported_tcp_position(self) -> np.ndarray:
-        """The TCP position a controller would report: the model's f(q) (the simulator has no other)."""
-        return self.kinematics.forward(self.arm.joint_state()[0])
-
-    def speed_scaling(self) -> float:
-        """Speed slider of the rehearsal: always 100 %."""
-        return 1.0
-
-    def unlock_protective_stop(self) -> str | None:
-        """The dashboard's unlock: releases a protective stop (``None``), else the controller's refusal."""
-        if self._fault != PROTECTIVE_STOP:
-            return "Cannot unlock protective stop"
-        self._fault = NORMAL
-        return None
-
-    def inject_fault(self, state: str) -> None:
-        """Make the controller report ``state`` (``protective_stop`` or ``emergency_stop``) from now on."""
-        if state not in (PROTECTIVE_STOP, EMERGENCY_STOP, NORMAL):
-            raise ValueError(f"unknown safety state {state!r}")
-        self._fault = state
-        if state != NORMAL:
-            self.arm.command_velocities(np.zeros(self.kinematics.n_joints))
-
-    def close(self) -> None:
-        if self.sim.client >= 0:
-            self.stop()
-            self.sim.close()
-
-
-class DryRunConnection:
-    """Wraps a connection: reads its state and keeps its timing, but sends nothing.
-
-    Every command that would have been sent is kept in :attr:`sent` (and printed through
-    ``echo`` when given), so a dry run shows exactly what a real run would stream.
-    """
-
-    def __init__(self, inner: ArmConnection, echo: object = None) -> None:
-        self.inner = inner
-        self.kinematics = inner.kinematics
-        self.dt = inner.dt
-        self.sent: list[np.ndarray] = []
-        self._echo = echo
-
-    def read_state(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.inner.read_state()
-
-    def start_period(self) -> float:
-        return self.inner.start_period()
-
-    def command(self, velocities: np.ndarray) -> None:
-        self.sent.append(np.array(velocities, dtype=float))
-        if callable(self._echo):
-            self._echo(f"would send speedJ {np.array2string(np.asarray(velocities), precision=4, separator=', ')}")
-
-    def end_period(self, period_start: float) -> None:
-        self.inner.end_period(period_start)  # no command was sent: the arm holds still meanwhile
-
-    def stop(self) -> None:
-        pass  # nothing was sent, so nothing moves
-
-    def move_to(self, q: np.ndarray) -> None:
-        if callable(self._echo):
-            self._echo(f"would moveJ to {np.round(np.asarray(q), 4).tolist()}")
-
-    def state_timestamp(self) -> float:
-        return self.inner.state_timestamp()
-
-    def safety_state(self) -> str:
-        return self.inner.safety_state()
-
-    def __getattr__(self, name: str) -> object:
-        if name in ("reported_tcp_position", "speed_scaling"):  # optional reads of the inner connection
-            return getattr(self.inner, name)
-        raise AttributeError(name)
-
-    def close(self) -> None:
-        self.inner.close()
