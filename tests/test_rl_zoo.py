@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib.util
 import inspect
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -105,8 +106,6 @@ def test_rl_zoo3_trains_each_learner_from_outside_the_repository_and_the_model_a
     # Not imported here: rl_zoo3 replaces gymnasium's TimeLimit on import (rl_zoo3.gym_patches), for every later test.
     if importlib.util.find_spec("rl_zoo3") is None:
         pytest.skip("the 'zoo' extra (rl_zoo3) is not installed")
-    import json
-
     done = subprocess.run(
         [sys.executable, "-c", DRIVER, json.dumps(RUNS), str(STEPS)],
         cwd=tmp_path,  # not the repository: the files come from the package
