@@ -18,7 +18,11 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, TypeVar
+
+if TYPE_CHECKING:
+    import numpy as np
 
 #: The stop signals of every command (snac_gym.common._signals.STOP_SIGNALS, written again: kernels import no
 #: higher layer).
@@ -49,6 +53,9 @@ LATE_KERNEL_MODULES = ("snac_gym.kernels.trajopt", "snac_gym.kernels.relaxation"
 #: A module may build a kernel on first use instead of with :func:`kernel` (the lower bound's, whose helpers are
 #: compiled into it): its ``lazy_kernels()`` returns (dispatcher, [example arguments, ...]) pairs for the warm-up.
 _LAZY_HOOK = "lazy_kernels"
+#: A kernel's example arguments (arrays, floats, ints, bools): what :func:`warm_up` calls it with.
+Example = tuple[object, ...]
+_Array = TypeVar("_Array", bound="np.ndarray")
 _KERNELS: list[Kernel] = []
 #: Longest wait (s) of :func:`warm_up_shared` for another process's compile of one module (a few s).
 _SHARED_COMPILE_WAIT_S = 60.0
@@ -61,7 +68,7 @@ class Kernel:
     tuple, or a list of tuples when it is called with several (a read-only array is a type of its own).
     """
 
-    def __init__(self, function: Callable[..., Any], example: Callable[[], Any]) -> None:
+    def __init__(self, function: Callable[..., Any], example: Callable[[], Example | list[Example]]) -> None:
         from numba import njit  # numba is imported by the first module that defines a kernel
 
         self.dispatcher = njit(cache=True, nogil=True)(function)
@@ -78,7 +85,7 @@ class Kernel:
         return self.dispatcher(*args)
 
 
-def kernel(example: Callable[[], Any]) -> Callable[[Callable[..., Any]], Kernel]:
+def kernel(example: Callable[[], Example | list[Example]]) -> Callable[[Callable[..., Any]], Kernel]:
     """Decorator: the function compiled by numba (``nopython``, cached, releasing the GIL), see the module docstring.
 
     Args:
@@ -88,7 +95,7 @@ def kernel(example: Callable[[], Any]) -> Callable[[Callable[..., Any]], Kernel]
     return lambda function: Kernel(function, example)
 
 
-def read_only(array: Any) -> Any:
+def read_only(array: _Array) -> _Array:
     """``array`` marked read-only, for an ``example``: numba compiles a read-only array as a type of its own
     (the kinematics' cached Jacobians are read-only), so a kernel called with both needs both examples."""
     array.setflags(write=False)
@@ -116,7 +123,7 @@ def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     return time.perf_counter() - started
 
 
-def _lazy_kernels(module: Any) -> list[tuple[Any, list[tuple[Any, ...]]]]:
+def _lazy_kernels(module: ModuleType) -> list[tuple[Any, list[Example]]]:  # Any: a numba dispatcher
     hook = getattr(module, _LAZY_HOOK, None)
     return list(hook()) if hook is not None else []
 
@@ -220,6 +227,6 @@ def _with_stop_signals_held(
 
 
 __all__ = [
-    "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Kernel",
+    "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Example", "Kernel",
     "cached_on_disk", "kernel", "load_if_cached", "read_only", "warm_up", "warm_up_shared",
 ]  # fmt: skip

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from snac_gym.kernels.compiled import kernel
+from snac_gym.kernels.compiled import Example, kernel
 
 
-def _example() -> tuple:
+def _example() -> Example:
     """A 3-D critic, one episode: the argument types of every call."""
     first, second = np.triu_indices(3)
     return (np.ones((1, 6)), np.eye(3)[None].copy(), np.ones((1, 3)), 0.1, np.eye(3), first, second, np.eye(3), 1e-9)

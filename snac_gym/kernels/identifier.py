@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from snac_gym.kernels.compiled import kernel
+from snac_gym.kernels.compiled import Example, kernel
 
 
-def _example() -> tuple:
+def _example() -> Example:
     """A one-joint chain, two rows: the argument types of every call."""
     return (np.zeros((2, 1)), np.zeros((2, 12)), np.eye(3)[None].copy(), np.zeros((1, 3)),
             np.array([[0.0, 0.0, 1.0]]), np.array([0], dtype=np.int64), np.ones(3))  # fmt: skip

@@ -14,11 +14,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from snac_gym.kernels.compiled import kernel, read_only
+from snac_gym.kernels.compiled import Example, kernel, read_only
 from snac_gym.kernels.small import jacobi_eigh
 
 
-def _examples() -> list[tuple]:
+def _examples() -> list[Example]:
     """A writable stack, and a read-only one (the kinematics' cached Jacobians are read-only)."""
     return [
         (np.ones((1, 3, 6)), np.eye(3), np.eye(6), 1e-12),

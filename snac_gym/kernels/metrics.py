@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from snac_gym.kernels.compiled import kernel
+from snac_gym.kernels.compiled import Example, kernel
 
 
 @njit(cache=True, nogil=True)
@@ -24,12 +24,14 @@ def _above(value: float, best: float) -> bool:  # pragma: no cover - compiled
     return value > best or (value != value and best == best)
 
 
-def _examples() -> tuple:
+def _examples() -> Example:
     return (np.ones((1, 2, 6)), np.ones(6), np.ones(6), 0.01)
 
 
 @njit(cache=True, nogil=True)
-def _rollout_extremes(commands, b, limits, at_limit, dt, nan_aware):  # pragma: no cover - compiled
+def _rollout_extremes(
+    commands: np.ndarray, b: int, limits: np.ndarray, at_limit: np.ndarray, dt: float, nan_aware: bool
+) -> tuple[float, int, float, int, float, int, bool]:  # pragma: no cover - compiled
     """:func:`command_extremes` of rollout ``b``, and whether a NaN came up. Without ``nan_aware`` the
     maxima are plain ones, which skip a NaN; the caller then computes the rollout again with it."""
     steps, m = commands.shape[1], commands.shape[2]

@@ -9,12 +9,21 @@ They are plain Python functions compiled by numba on first use (:func:`relaxatio
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from snac_gym.kernels.compiled import Example
+
+#: The kernels' float arrays (numba ignores the annotations: it types the arguments it is called with).
+_Floats = npt.NDArray[np.float64]
 
 
-def _relaxed_hessian_band(steps, dt, q, w, rest, terminal, band):  # pragma: no cover - compiled
+def _relaxed_hessian_band(
+    steps: int, dt: float, q: float, w: float, rest: bool, terminal: float, band: _Floats
+) -> None:  # pragma: no cover - compiled
     """Lower band of H, the Hessian of the relaxed cost in the interleaved variables (rows: diagonal, first and
     second subdiagonal, at the row's index): 2qΔt on each r, 2Δt + (2w/Δt)·(jumps vₖ is in) on each v (and
     2·terminal on the last), −2w/Δt between consecutive v (two places apart)."""
@@ -29,7 +38,9 @@ def _relaxed_hessian_band(steps, dt, q, w, rest, terminal, band):  # pragma: no 
     band[0, 2 * steps - 2] += 2.0 * terminal
 
 
-def _add_constraint_curvature(steps, b, weight, capped, band):  # pragma: no cover - compiled
+def _add_constraint_curvature(
+    steps: int, b: _Floats, weight: _Floats, capped: bool, band: _Floats
+) -> None:  # pragma: no cover - compiled
     """band += Gᵀ diag(weight) G: constraint k, rₖ − bₖvₖ − rₖ₊₁ ≤ dₖ, couples rₖ, vₖ, rₖ₊₁ (places 2k−1, 2k, 2k+1)."""
     for k in range(steps - 1):
         wk, bk = weight[k], b[k]
@@ -45,7 +56,7 @@ def _add_constraint_curvature(steps, b, weight, capped, band):  # pragma: no cov
             band[0, 2 * k] += weight[steps - 1 + k]
 
 
-def _ldl_factor(band, inverse_pivots):  # pragma: no cover - compiled
+def _ldl_factor(band: _Floats, inverse_pivots: _Floats) -> None:  # pragma: no cover - compiled
     """In place: the band's subdiagonals become those of the unit lower L of LDLᵀ, ``inverse_pivots`` 1/D.
 
     Lᵢ,ᵢ₋₂ = Aᵢ,ᵢ₋₂/Dᵢ₋₂,  Lᵢ,ᵢ₋₁ = (Aᵢ,ᵢ₋₁ − Lᵢ,ᵢ₋₂Lᵢ₋₁,ᵢ₋₂Dᵢ₋₂)/Dᵢ₋₁,  Dᵢ = Aᵢᵢ − Lᵢ,ᵢ₋₁²Dᵢ₋₁ − Lᵢ,ᵢ₋₂²Dᵢ₋₂
@@ -64,7 +75,7 @@ def _ldl_factor(band, inverse_pivots):  # pragma: no cover - compiled
         pivot2, inverse2, pivot1, inverse1, previous_first = pivot1, inverse1, pivot, inverse, first
 
 
-def _ldl_solve(band, inverse_pivots, rhs):  # pragma: no cover - compiled
+def _ldl_solve(band: _Floats, inverse_pivots: _Floats, rhs: _Floats) -> _Floats:  # pragma: no cover - compiled
     """rhs ← (LDLᵀ)⁻¹ rhs with the factor of :func:`_ldl_factor` (the last two values carried in scalars)."""
     n = band.shape[1]
     previous2, previous1 = 0.0, 0.0
@@ -82,7 +93,9 @@ def _ldl_solve(band, inverse_pivots, rhs):  # pragma: no cover - compiled
     return rhs
 
 
-def _apply_constraints(steps, b, x, capped, out):  # pragma: no cover - compiled
+def _apply_constraints(
+    steps: int, b: _Floats, x: _Floats, capped: bool, out: _Floats
+) -> None:  # pragma: no cover - compiled
     """out ← G x: rₖ − bₖvₖ − rₖ₊₁ (r₀ is data, in h), then vₖ for the velocity caps."""
     for k in range(steps - 1):
         out[k] = (x[2 * k - 1] if k > 0 else 0.0) - b[k] * x[2 * k] - x[2 * k + 1]
@@ -91,7 +104,9 @@ def _apply_constraints(steps, b, x, capped, out):  # pragma: no cover - compiled
             out[steps - 1 + k] = x[2 * k]
 
 
-def _apply_constraints_transposed(steps, b, z, capped, out):  # pragma: no cover - compiled
+def _apply_constraints_transposed(
+    steps: int, b: _Floats, z: _Floats, capped: bool, out: _Floats
+) -> None:  # pragma: no cover - compiled
     """out ← Gᵀ z."""
     for k in range(steps):
         out[2 * k] = (z[steps - 1 + k] if capped else 0.0) - (b[k] * z[k] if k < steps - 1 else 0.0)
@@ -99,7 +114,9 @@ def _apply_constraints_transposed(steps, b, z, capped, out):  # pragma: no cover
             out[2 * k - 1] = (z[k] if k < steps - 1 else 0.0) - z[k - 1]
 
 
-def _apply_hessian(steps, dt, q, w, rest, terminal, x, out):  # pragma: no cover - compiled
+def _apply_hessian(
+    steps: int, dt: float, q: float, w: float, rest: bool, terminal: float, x: _Floats, out: _Floats
+) -> None:  # pragma: no cover - compiled
     """out ← H x (:func:`_relaxed_hessian_band`)."""
     c = w / dt
     for k in range(steps):
@@ -117,7 +134,19 @@ def _apply_hessian(steps, dt, q, w, rest, terminal, x, out):  # pragma: no cover
         out[2 * k] = value
 
 
-def _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x):  # pragma: no cover - compiled
+def _feasible_value(
+    r0: float,
+    d: _Floats,
+    b: _Floats,
+    dt: float,
+    q: float,
+    w: float,
+    rest: bool,
+    terminal: float,
+    vmax: float,
+    steps: int,
+    x: _Floats,
+) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
     """The relaxed cost of a feasible point built from x: vₖ clipped to [0, v̄], each rₖ₊₁ the least the
     constraints allow, max(rₖ − bₖvₖ − dₖ, 0). Returns (value, r_{K−1}, v_{K−1}, max v)."""
     r, previous, value, v, peak = r0, 0.0, 0.0, 0.0, 0.0
@@ -131,16 +160,30 @@ def _feasible_value(r0, d, b, dt, q, w, rest, terminal, vmax, steps, x):  # prag
     return value + terminal * v * v, r, v, peak
 
 
-def _dual_value(r0, q, dt, steps, b, capped, h, hessian, hessian_pivots, z, work, image):  # pragma: no cover - compiled
+def _dual_value(
+    r0: float,
+    q: float,
+    dt: float,
+    steps: int,
+    b: _Floats,
+    capped: bool,
+    h: _Floats,
+    hessian: _Floats,
+    hessian_pivots: _Floats,
+    z: _Floats,
+    work: _Floats,
+    image: _Floats,
+) -> float:  # pragma: no cover - compiled
     """The Lagrangian dual function at z ≥ 0: g(z) = min_x F(x) + zᵀ(Gx − h) = qΔt r₀² − ½ yᵀH⁻¹y − zᵀh with
     y = Gᵀz (F = ½xᵀHx + qΔt r₀² has no linear term). A lower bound on the relaxed optimum for every z ≥ 0."""
     _apply_constraints_transposed(steps, b, z, capped, image)
     work[:] = image
     _ldl_solve(hessian, hessian_pivots, work)
-    return q * dt * r0 * r0 - 0.5 * np.dot(image, work) - np.dot(z, h)
+    dual: float = q * dt * r0 * r0 - 0.5 * np.dot(image, work) - np.dot(z, h)  # np.dot's stub: Any
+    return dual
 
 
-def _max_step(value, step):  # pragma: no cover - compiled
+def _max_step(value: _Floats, step: _Floats) -> float:  # pragma: no cover - compiled
     """The largest α ≤ 1 with value + α·step ≥ 0 (value > 0)."""
     alpha = 1.0
     for i in range(value.shape[0]):
@@ -150,8 +193,22 @@ def _max_step(value, step):  # pragma: no cover - compiled
 
 
 def _newton_direction(
-    steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity, rhs, dx, ds, dz, image
-):  # pragma: no cover - compiled
+    steps: int,
+    b: _Floats,
+    capped: bool,
+    band: _Floats,
+    pivots: _Floats,
+    s: _Floats,
+    z: _Floats,
+    dual_residual: _Floats,
+    primal_residual: _Floats,
+    complementarity: _Floats,
+    rhs: _Floats,
+    dx: _Floats,
+    ds: _Floats,
+    dz: _Floats,
+    image: _Floats,
+) -> None:  # pragma: no cover - compiled
     """The Newton direction of the perturbed KKT system  H x + Gᵀz = 0,  Gx + s = h,  s∘z = target, from its
     residuals (``complementarity`` = s∘z − target), through the normal equations (H + GᵀS⁻¹ZG)Δx = −r_d +
     GᵀS⁻¹(r_c − Z r_p) (factored in ``band``/``pivots``), then Δs = −r_p − GΔx and Δz = −S⁻¹(r_c + ZΔs)."""
@@ -168,20 +225,51 @@ def _newton_direction(
 
 
 def _residuals(
-    steps, dt, q, w, rest, terminal, b, capped, h, x, s, z, dual_residual, primal_residual, work
-):  # pragma: no cover - compiled
+    steps: int,
+    dt: float,
+    q: float,
+    w: float,
+    rest: bool,
+    terminal: float,
+    b: _Floats,
+    capped: bool,
+    h: _Floats,
+    x: _Floats,
+    s: _Floats,
+    z: _Floats,
+    dual_residual: _Floats,
+    primal_residual: _Floats,
+    work: _Floats,
+) -> float:  # pragma: no cover - compiled
     """r_d = Hx + Gᵀz and r_p = Gx + s − h; returns the mean complementarity sᵀz/m."""
     _apply_hessian(steps, dt, q, w, rest, terminal, x, dual_residual)
     _apply_constraints_transposed(steps, b, z, capped, work)
     dual_residual += work
     _apply_constraints(steps, b, x, capped, primal_residual)
     primal_residual += s - h
-    return np.dot(s, z) / s.shape[0]
+    mean: float = np.dot(s, z) / s.shape[0]  # np.dot's stub: Any
+    return mean
 
 
 def _predictor_corrector_step(
-    steps, b, capped, band, pivots, s, z, x, dual_residual, primal_residual, mu, work_n, dx, work_m, ds, dz, image
-):  # pragma: no cover - compiled
+    steps: int,
+    b: _Floats,
+    capped: bool,
+    band: _Floats,
+    pivots: _Floats,
+    s: _Floats,
+    z: _Floats,
+    x: _Floats,
+    dual_residual: _Floats,
+    primal_residual: _Floats,
+    mu: float,
+    work_n: _Floats,
+    dx: _Floats,
+    work_m: _Floats,
+    ds: _Floats,
+    dz: _Floats,
+    image: _Floats,
+) -> None:  # pragma: no cover - compiled
     """One Mehrotra predictor-corrector step (the factor of the normal matrix is in ``band``/``pivots``)."""
     complementarity = s * z
     _newton_direction(
@@ -200,7 +288,9 @@ def _predictor_corrector_step(
     z += alpha * dz
 
 
-def _constraint_bounds(r0, d, vmax, steps, capped):  # pragma: no cover - compiled
+def _constraint_bounds(
+    r0: float, d: _Floats, vmax: float, steps: int, capped: bool
+) -> _Floats:  # pragma: no cover - compiled
     """h of Gx ≤ h: dₖ (less r₀ for k = 0, where r₀ is data), then v̄ for the caps."""
     h = np.empty(steps - 1 + (steps if capped else 0))
     h[: steps - 1] = d[: steps - 1]
@@ -211,8 +301,21 @@ def _constraint_bounds(r0, d, vmax, steps, capped):  # pragma: no cover - compil
 
 
 def _relaxation_solve(
-    r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z
-):  # pragma: no cover - compiled
+    r0: float,
+    d: _Floats,
+    b: _Floats,
+    dt: float,
+    q: float,
+    w: float,
+    rest: bool,
+    terminal: float,
+    vmax: float,
+    steps: int,
+    rtol: float,
+    max_iterations: int,
+    x: _Floats,
+    z: _Floats,
+) -> tuple[float, float, int, float, float, float]:  # pragma: no cover - compiled
     """The relaxed problem over the first ``steps`` steps (plus ``terminal``·v²_last, see _terminal_weight), from
     rest (v = 0, r = r₀: feasible) by the predictor-corrector interior point method. Fills x (primal) and z
     (multipliers of the constraints).
@@ -279,7 +382,7 @@ def _relaxation_solve(
         )
 
 
-def _terminal_weight(w, dt, remaining):  # pragma: no cover - compiled
+def _terminal_weight(w: float, dt: float, remaining: int) -> float:  # pragma: no cover - compiled
     """P_N with P_N v² the least Σ_{j<N} (Δt vⱼ² + (w/Δt)(vⱼ − vⱼ₋₁)²) over N = ``remaining`` steps from v₋₁ = v:
     the scalar Riccati recursion P₀ = 0, Pₙ = c(Δt + Pₙ₋₁)/(c + Δt + Pₙ₋₁), c = w/Δt (0 without the u̇ term).
 
@@ -293,7 +396,9 @@ def _terminal_weight(w, dt, remaining):  # pragma: no cover - compiled
     return value
 
 
-def _next_horizon(x, steps, total, q, dt, tail, target):  # pragma: no cover - compiled
+def _next_horizon(
+    x: _Floats, steps: int, total: int, q: float, dt: float, tail: float, target: float
+) -> int:  # pragma: no cover - compiled
     """The horizon to try after ``steps`` left a tail above ``target``: where the tail, decaying at the rate it
     did over the second half of this solve, would be below it (with a margin), at least double, at most K."""
     half = steps // 2
@@ -306,8 +411,21 @@ def _next_horizon(x, steps, total, q, dt, tail, target):  # pragma: no cover - c
 
 
 def _capped_solve(
-    r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z
-):  # pragma: no cover - compiled
+    r0: float,
+    d: _Floats,
+    b: _Floats,
+    dt: float,
+    q: float,
+    w: float,
+    rest: bool,
+    terminal: float,
+    vmax: float,
+    steps: int,
+    rtol: float,
+    max_iterations: int,
+    x: _Floats,
+    z: _Floats,
+) -> tuple[float, float, int, float, float]:  # pragma: no cover - compiled
     """:func:`_relaxation_solve` without the velocity caps first (half the constraints), and with them only where
     its solution breaks one. Dropping constraints only lowers the dual values, so the bound stays certified; and a
     solution within the caps is feasible with them, so its value still bounds the capped optimum from above.
@@ -323,7 +441,7 @@ def _capped_solve(
     return bound, value, used + more, r_last, v_last
 
 
-def _first_horizon(q, dt, b, rtol, total):  # pragma: no cover - compiled
+def _first_horizon(q: float, dt: float, b: float, rtol: float, total: int) -> int:  # pragma: no cover - compiled
     """A horizon long enough for the relaxed regulation problem's error to fall below rtol: the steps it takes in
     the scalar Riccati closed loop rₖ₊₁ = ρ rₖ, ρ = Δt/(Δt + b²P) (without the u̇ term; with it the error stops at
     0 sooner), with a margin. A guess only: a horizon found short is extended, one found long is merely slower."""
@@ -334,8 +452,19 @@ def _first_horizon(q, dt, b, rtol, total):  # pragma: no cover - compiled
 
 
 def _relaxation_bounds(
-    r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations, first_steps, out
-):  # pragma: no cover - compiled
+    r0s: _Floats,
+    ds: _Floats,
+    bs: _Floats,
+    dt: float,
+    q: float,
+    w: float,
+    rest: bool,
+    vmax: float,
+    rtol: float,
+    max_iterations: int,
+    first_steps: int,
+    out: _Floats,
+) -> None:  # pragma: no cover - compiled
     """Per sample: the relaxed problem over a horizon that grows from ``first_steps`` until the part left out is
     provably within rtol, or the whole horizon. Rows of out: bound, upper bound on the relaxed optimum, iterations,
     horizon solved (steps)."""
@@ -396,7 +525,7 @@ _RELAXATION_HELPERS = (
 
 
 @functools.lru_cache(maxsize=1)
-def relaxation_kernel() -> Any:
+def relaxation_kernel() -> Any:  # a numba dispatcher (numba has no type hints)
     """:func:`_relaxation_bounds` compiled (numba, cached on disk: a few seconds once, then a fraction of one).
 
     The helpers are compiled first and bound in place of their Python versions in this module's namespace,
@@ -411,7 +540,7 @@ def relaxation_kernel() -> Any:
     return njit(cache=True, nogil=True)(_relaxation_bounds)
 
 
-def lazy_kernels() -> list[tuple[Any, list[tuple[Any, ...]]]]:
+def lazy_kernels() -> list[tuple[Any, list[Example]]]:  # Any: a numba dispatcher
     """The kernel built on first use, with arguments of the types the bound calls it with
     (:func:`snac_gym.kernels.compiled.warm_up` compiles or loads it with the other modules' kernels, so that an
     evaluator's workers share its compile instead of each making it at its first reference job)."""
