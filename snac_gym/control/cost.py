@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
+import numpy.typing as npt
 
 from snac_gym.common.validation import real_array, real_number
 
@@ -58,14 +60,24 @@ def weight_matrix(matrix: np.ndarray | None, dim: int, name: str) -> np.ndarray 
     return matrix
 
 
-def quadratic_form(vectors: np.ndarray, matrix: np.ndarray | None) -> np.ndarray:
-    """``vᵀMv`` over the last axis of ``vectors``; ``matrix=None`` is the identity."""
+def quadratic_form(vectors: np.ndarray, matrix: np.ndarray | None) -> npt.NDArray[np.float64] | np.float64:
+    """``vᵀMv`` over the last axis of ``vectors``; ``matrix=None`` is the identity. A vector ``(n,)`` gives a
+    NumPy scalar, a stack ``(..., n)`` an array ``(...)``."""
     vectors = np.asarray(vectors, dtype=float)
     if vectors.ndim == 1:  # the per-step path of the env: plain dot products are ~5x faster than einsum
-        return vectors @ vectors if matrix is None else vectors @ matrix @ vectors
-    if matrix is None:
-        return np.einsum("...i,...i->...", vectors, vectors)
-    return np.einsum("...i,ij,...j->...", vectors, matrix, vectors)
+        scalar: np.float64 = vectors @ vectors if matrix is None else vectors @ matrix @ vectors  # stub: Any
+        return scalar
+    return _stacked_quadratic_form(vectors, matrix)
+
+
+def _stacked_quadratic_form(vectors: np.ndarray, matrix: np.ndarray | None) -> npt.NDArray[np.float64]:
+    """:func:`quadratic_form` of a float stack ``(..., n)`` with at least two axes: an array ``(...)``."""
+    stacked: npt.NDArray[np.float64] = (  # np.einsum's stub: Any
+        np.einsum("...i,...i->...", vectors, vectors)
+        if matrix is None
+        else np.einsum("...i,ij,...j->...", vectors, matrix, vectors)
+    )
+    return stacked
 
 
 def instantaneous_cost(
@@ -111,12 +123,13 @@ def step_costs(
     )
     if np.ndim(rates[0]) == 0:
         return float(rates[0]), float(rates[1]), float(rates[2])
-    return rates
+    return cast("tuple[np.ndarray, np.ndarray, np.ndarray]", rates)  # not scalars: arrays
 
 
 @dataclass(frozen=True)
 class CostTerms:
-    """The trajectory cost split into its three terms (arrays broadcast over leading axes).
+    """The trajectory cost split into its three terms (arrays broadcast over leading axes; NumPy scalars for one
+    trajectory).
 
     Attributes:
         error: Σ eₖᵀQeₖ Δt.
@@ -124,12 +137,12 @@ class CostTerms:
         smoothness: Σ u̇ₖᵀRu̇ₖ Δt.
     """
 
-    error: np.ndarray
-    effort: np.ndarray
-    smoothness: np.ndarray
+    error: npt.NDArray[np.float64]
+    effort: npt.NDArray[np.float64]
+    smoothness: npt.NDArray[np.float64]
 
     @property
-    def total(self) -> np.ndarray:
+    def total(self) -> npt.NDArray[np.float64]:
         """V, the sum of the three terms."""
         return self.error + self.effort + self.smoothness
 
@@ -191,9 +204,9 @@ def cost_rates(
     with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below, by name
         command_rates = command_differences(commands, initial_command) / dt
         terms = CostTerms(
-            error=quadratic_form(errors, Qm),
-            effort=quadratic_form(commands, Rm),
-            smoothness=quadratic_form(command_rates, Rm),
+            error=_stacked_quadratic_form(errors, Qm),
+            effort=_stacked_quadratic_form(commands, Rm),
+            smoothness=_stacked_quadratic_form(command_rates, Rm),
         )
     _refuse_overflow(terms)
     return terms
