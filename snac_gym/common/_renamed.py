@@ -15,6 +15,9 @@ import importlib.abc
 import importlib.util
 import sys
 import warnings
+from collections.abc import Sequence
+from importlib.machinery import ModuleSpec
+from types import ModuleType
 
 #: Old top-level import name → its import name since 0.2.0.
 RENAMED = {"baselines": "snac_gym.baselines", "evaluation": "snac_gym.evaluation"}
@@ -36,10 +39,10 @@ class _Alias(importlib.abc.Loader):
     def __init__(self, target: str) -> None:
         self.target = target
 
-    def create_module(self, spec):  # noqa: ANN001, ANN201 - the importlib protocol
+    def create_module(self, spec: ModuleSpec) -> ModuleType:
         return importlib.import_module(self.target)
 
-    def exec_module(self, module):  # noqa: ANN001, ANN201 - the importlib protocol
+    def exec_module(self, module: ModuleType) -> None:
         return None
 
 
@@ -47,7 +50,9 @@ class RenamedFinder(importlib.abc.MetaPathFinder):
     """Last on ``sys.meta_path``: reached only when no installed package has the old name (OpenAI Baselines,
     if installed, is still found as ``baselines``)."""
 
-    def find_spec(self, fullname, path=None, target=None):  # noqa: ANN001 - the importlib protocol
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None = None, target: ModuleType | None = None
+    ) -> ModuleSpec | None:
         if fullname in MOVED:
             warnings.warn(
                 f"{fullname} is {MOVED[fullname]} since snac-gym 0.2.0; the old name goes in 0.3.0",

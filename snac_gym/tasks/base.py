@@ -215,4 +215,5 @@ class Sample:
 
     def reset_options(self) -> dict[str, Any]:
         """The env ``reset`` options that pin this sample (``q0`` and the task's reference key)."""
-        return get_task(self.task).reset_options(self.q0, self.reference)
+        task: Task[Any] = get_task(self.task)  # Any: the registry holds tasks of every reference type
+        return task.reset_options(self.q0, self.reference)

@@ -271,8 +271,9 @@ class PoseTrackTask(PoseReachTask):
             spec = dict(value)
             rotation = spec.pop("rotation")
             value = PoseEllipse(Ellipse.from_dict(spec), rotation)
-        check_pose_reachable(_pose(kinematics), value.points(64), f"options[{self.option_key!r}]")
-        return value
+        reference: PoseEllipse = value
+        check_pose_reachable(_pose(kinematics), reference.points(64), f"options[{self.option_key!r}]")
+        return reference
 
     def csv_cells(self, reference: PoseTarget | PoseEllipse) -> dict[str, float]:
         rotation = dict(zip(ROTVEC_COLUMNS, reference.rotation.tolist(), strict=True))
@@ -284,7 +285,7 @@ class PoseTrackTask(PoseReachTask):
 
 
 #: The two pose tasks, one instance each (registering them again reuses their env classes).
-POSE_TASKS: tuple[Task, ...] = (PoseReachTask(), PoseTrackTask())
+POSE_TASKS: tuple[PoseReachTask, PoseTrackTask] = (PoseReachTask(), PoseTrackTask())
 
 
 def register_pose_tasks() -> None:

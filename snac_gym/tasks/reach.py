@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -43,7 +43,7 @@ class ReachTask(Task[FixedTarget]):
         return target
 
     def option_value(self, reference: FixedTarget) -> list[float]:
-        return reference.target.tolist()
+        return cast("list[float]", reference.target.tolist())  # a (3,) float array
 
     def csv_cells(self, reference: FixedTarget) -> dict[str, float]:
         return dict(zip(TARGET_COLUMNS, reference.target.tolist(), strict=True))
