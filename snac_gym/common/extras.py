@@ -24,3 +24,7 @@ def require(module: str, extra: str, what: str) -> ModuleType:
         if interrupt is not None:
             raise interrupt from None
         raise MissingExtraError(f"{what} needs the '{extra}' extra: pip install -e \".[{extra}]\"") from exc
+
+
+#: MissingExtraError is re-exported: the error of :func:`require`, caught where it is called.
+__all__ = ["MissingExtraError", "require"]
