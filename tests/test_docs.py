@@ -1,5 +1,5 @@
-"""The documentation: the site builds in strict mode, and every ```python block of README.md and
-docs/*.md runs.
+"""The documentation: the site builds in strict mode and renders in headless Chromium, and every ```python block
+of README.md and docs/*.md runs.
 
 A block opts out with an HTML comment on the line before its fence, giving the reason:
 ``<!-- no-test: needs the video extra (moviepy) -->``. The blocks of one file run in order in one
@@ -129,14 +129,68 @@ def _build_site(root: Path, site: Path) -> tuple[int, str, list[str]]:
     return result.returncode, output, WARNING_LINE.findall(output)
 
 
-@pytest.mark.slow(seconds=4)
-def test_the_site_builds_in_strict_mode(tmp_path: Path):
+@pytest.fixture(scope="module")
+def built_site(tmp_path_factory) -> tuple[int, str, list[str], Path]:
+    """The site built once for this module's tests, as README.md says: exit code, output, WARNING lines, folder."""
+    site = tmp_path_factory.mktemp("docs") / "site"
+    return (*_build_site(ROOT, site), site)
+
+
+@pytest.mark.slow(seconds=30)
+def test_the_site_builds_in_strict_mode(built_site):
     for guide in ("README.md", "CONTRIBUTING.md"):  # the command the test runs is the one they give
         assert " ".join(DOCS_BUILD) in (ROOT / guide).read_text(encoding="utf-8"), guide
-    code, output, warnings = _build_site(ROOT, tmp_path / "site")
+    code, output, warnings, site = built_site
     assert code == 0 and not warnings, f"mkdocs build --strict failed:\n{output[-6000:]}"
-    assert (tmp_path / "site" / "index.html").is_file()
-    assert (tmp_path / "site" / "api" / "envs" / "index.html").is_file()
+    assert (site / "index.html").is_file()
+    assert (site / "api" / "envs" / "index.html").is_file()
+
+
+# The built site opened in headless Chromium (tools/site_check.py): the maths typeset by the site's own KaTeX, no
+# maths source left as text, every image loaded, no error in the console. Skipped where Chromium is missing
+# (.ci/run installs Debian's ``chromium``). ``python tools/site_check.py SITE --screenshots DIR`` saves a PNG of
+# each page to look at.
+
+
+@pytest.fixture(scope="module")
+def site_check():
+    spec = importlib.util.spec_from_file_location("site_check", ROOT / "tools" / "site_check.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def checked(site_check, built_site):
+    binary = site_check.chromium()
+    if binary is None:
+        pytest.skip("no Chromium on the PATH (.ci/run installs Debian's chromium)")
+    code, output, _, site = built_site
+    assert code == 0, output[-4000:]
+    results, errors = site_check.check(site, binary)
+    return site, results, errors
+
+
+def test_every_page_renders_with_its_maths_typeset_and_its_images(site_check, checked):
+    site, results, _ = checked
+    assert len(results) == len(site_check.pages(site)) >= 30
+    assert not site_check.problems(results)
+    by_path = {"/" + page["url"].split("/", 3)[-1]: page for page in results}
+    for page in ("/mpc/", "/evaluation/", "/rl/", "/environments/"):  # the pages with maths: all of it typeset
+        assert by_path[page]["maths"] > 0 and by_path[page]["typeset"] == by_path[page]["maths"], page
+    assert "/irl/" in by_path and any(page["images"] for page in results)
+
+
+def test_no_page_logs_a_console_error(checked):
+    _, _, errors = checked
+    assert not errors, "\n".join(errors)
+
+
+def test_the_maths_and_fonts_come_from_the_site_not_a_cdn():
+    config = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    assert "javascripts/katex/katex.min.js" in config and "font: false" in config and "://" not in config
+    assert (ROOT / "docs" / "javascripts" / "katex" / "fonts" / "KaTeX_Main-Regular.woff2").is_file()
 
 
 def test_a_broken_anchor_fails_the_strict_build(tmp_path: Path):
