@@ -37,7 +37,7 @@ Two ways to solve it, the ``assembly`` argument:
   Jacobian; for pink, Pinocchio's frame Jacobian in one call, what pink's ``Configuration.update``
   computes in two) and the program above written down here, ``H = JᵀJ + (λ² + ε + μ) I``,
   ``c = α Jᵀẽ``, the box handed to daqp as simple bounds. It is the program the library's
-  ``solve_ik`` builds, row for row (``tests/test_qp_controllers.py`` checks the bounds against the
+  ``solve_ik`` builds, row for row (``tests/baselines/test_qp_ik.py`` checks the bounds against the
   library's limit rows and the command against ``solve_ik``'s); it skips the library's per-step
   generic assembly in Python (each limit stacking ±I rows, a joint-by-joint limit check, qpsolvers'
   problem and solution objects), which costs 3–5× the solve (docs/qp-ik.md).
@@ -76,7 +76,7 @@ from snac_gym.policies.base import BasePolicy, non_negative_float, positive_floa
 SOLVER = "daqp"
 #: daqp's settings. Its default primal tolerance, 1e-6 on Δq (rad), lets a joint pressed against a
 #: position limit cross it by up to 1e-6 rad per step (6.2e-5 rad beyond it after 1500 steps on the Panda
-#: sample of tests/test_qp_controllers.py); at 1e-15 the bound holds to the last bit (margin ≥ 0).
+#: sample of tests/baselines/test_qp_ik.py); at 1e-15 the bound holds to the last bit (margin ≥ 0).
 SOLVER_SETTINGS = {"primal_tol": 1e-15}
 #: The ways to assemble and solve the QP (module docs).
 ASSEMBLIES = ("direct", "library")

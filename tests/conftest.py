@@ -16,7 +16,7 @@ from snac_gym.model.kinematics import Kinematics
 # test reads rows another run left in the user's cache, and the suite writes nothing there.
 os.environ["SNAC_GYM_CACHE_DIR"] = tempfile.mkdtemp(prefix="snac-gym-test-cache-")
 # The calibration cache off: a test that compares two runs' knobs (other workers, fewer samples) must match
-# them anew, or it would compare a knob with itself. tests/test_calibration_cache.py turns it on.
+# them anew, or it would compare a knob with itself. tests/evaluation/effort/test_effort_cache.py turns it on.
 os.environ["SNAC_GYM_CALIBRATION_CACHE"] = "0"
 
 

@@ -7,7 +7,7 @@ the evaluator's defaults, shipped so that a first run at those settings does not
 It runs ``snac-gym evaluate --controllers snac,snac-hjb,lqr,rnn,svf,dls,ppo --recalibrate`` (the README's main
 command without the reference, which no knob depends on) with the calibration cache in a fresh folder, and
 stores each (task, controller)'s record with the identity it was matched for, less the code fingerprint
-(:mod:`snac_gym.evaluation.effort.shipped`). tests/test_shipped_calibration.py recomputes the knob searches and
+(:mod:`snac_gym.evaluation.effort.shipped`). tests/evaluation/effort/test_shipped.py recomputes the knob searches and
 fails when the file is stale: rerun this script then, and commit the file.
 """
 

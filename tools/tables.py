@@ -9,7 +9,7 @@ the tables and nothing unregistered is listed.
 
 Usage:
     python tools/tables.py            # write every block
-    python tools/tables.py --check    # exit 1 naming each block that differs (tests/test_tables.py)
+    python tools/tables.py --check    # exit 1 naming each block that differs (tests/integration/test_tables.py)
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Write the e-series URDFs that snac_gym ships (snac_gym/data/urdf/), from snac_gym.model.ur_models.
 
 example-robot-data ships the CB3 arms only; the e-series arms' URDFs are written from Universal Robots'
-published DH parameters and datasheet limits. tests/test_ur_models.py fails when a shipped file differs
+published DH parameters and datasheet limits. tests/model/test_ur_models.py fails when a shipped file differs
 from what this writes.
 
     python tools/write_ur_urdfs.py

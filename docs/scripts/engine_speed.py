@@ -3,7 +3,7 @@
 On the same samples, each controller is rolled out by ``simulate_env`` (one env episode per sample,
 the demo's loop: what ``--engine mujoco|pybullet`` ran before the lockstep path) and by
 ``simulate_arms`` (one arm per sample in lockstep), in the same process, one after the other, on one
-core; the two give the same rollouts (``tests/test_engines.py``).
+core; the two give the same rollouts (``tests/rollout/test_batch.py``).
 
     python docs/scripts/engine_speed.py [SAMPLES] [STEPS]
 """

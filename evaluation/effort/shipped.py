@@ -10,7 +10,7 @@ the package changes. A run uses a shipped record only where its own identity, le
 same (the same controller settings and files, the same effort set and options, the same effort reference);
 otherwise it matches, or reads the calibration cache, as before. ``--recalibrate`` matches anew.
 
-What stands in for the fingerprint is a test: ``tests/test_shipped_calibration.py`` recomputes every shipped
+What stands in for the fingerprint is a test: ``tests/evaluation/effort/test_shipped.py`` recomputes every shipped
 knob search with the current code, on the same effort set, and fails when a knob or its effort moves by a bit.
 """
 

@@ -34,9 +34,9 @@ import sys
 import threading
 import time
 import types
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any, cast
+from typing import TYPE_CHECKING, cast
 
 #: The signals every command ends on: Ctrl-C, a scheduler's or ``kill``'s SIGTERM, a closed
 #: terminal's SIGHUP and Ctrl-\\'s SIGQUIT (whose default would dump core). SIGKILL cannot be caught.
@@ -44,6 +44,11 @@ STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signa
 
 #: Packages whose Python code is called back from compiled code, where an exception cannot propagate.
 _CALLED_BACK = ("numba", "llvmlite")
+if TYPE_CHECKING:  # sys.UnraisableHookArgs is the stubs' name only
+    #: What ``signal.signal`` returns: the handler it replaced (a function, SIG_DFL/SIG_IGN, None: set outside Python).
+    Handler = Callable[[int, types.FrameType | None], object] | int | signal.Handlers | None
+    #: A ``sys.unraisablehook``.
+    UnraisableHook = Callable[[sys.UnraisableHookArgs], object]
 
 
 def cannot_raise_here(frame: types.FrameType | None) -> bool:
@@ -115,7 +120,7 @@ class SignalGuard:
         self.deferred = False
         self._in_hook = 0  # > 0 while the unraisable hook runs
 
-    def handle(self, signum: int, frame: Any) -> None:
+    def handle(self, signum: int, frame: types.FrameType | None) -> None:
         # Raised in a __del__, numba's code or the unraisable hook itself, it would be dropped (or a SystemError):
         # the hook's own resend can arrive while the hook still runs (seen on Python 3.13 under load).
         if self._in_hook or cannot_raise_here(frame):
@@ -128,7 +133,7 @@ class SignalGuard:
     def defer(self) -> None:
         self.deferred = True
 
-    def unraisable(self, unraisable: Any, previous: Any) -> None:
+    def unraisable(self, unraisable: sys.UnraisableHookArgs, previous: UnraisableHook) -> None:
         """``sys.unraisablehook`` while the guard holds: an interrupt raised where Python drops exceptions
         (a weakref or garbage-collector callback, code called back from C, none of which
         :func:`cannot_raise_here` sees) is sent again instead of being lost."""
@@ -139,12 +144,12 @@ class SignalGuard:
             return
         previous(unraisable)
 
-    def install(self, signals: Sequence[int] = STOP_SIGNALS) -> tuple[dict[int, Any], Any]:
+    def install(self, signals: Sequence[int] = STOP_SIGNALS) -> tuple[dict[int, Handler], UnraisableHook]:
         """Set the handlers of ``signals`` and the unraisable hook; return what they replaced."""
         handlers = {signum: signal.signal(signum, self.handle) for signum in signals}
         hook = sys.unraisablehook
 
-        def guarded_hook(unraisable: Any) -> None:
+        def guarded_hook(unraisable: sys.UnraisableHookArgs) -> None:
             self._in_hook += 1
             try:
                 self.unraisable(unraisable, hook)

@@ -8,7 +8,7 @@ It follows SB3's conventions, not Gymnasium's: autoreset happens in the same ste
 sub-env is reset at once and its last observation is in ``infos[i]["terminal_observation"]``,
 ``infos[i]["TimeLimit.truncated"]`` says whether it was cut by the episode length), rewards are
 float32, ``seed(s)`` seeds sub-env i with ``s + i`` at the next ``reset()``. Episode for episode
-it is a ``DummyVecEnv`` of single envs with ``physics="kinematic"`` (tests/test_sb3_adapter.py).
+it is a ``DummyVecEnv`` of single envs with ``physics="kinematic"`` (tests/envs/test_sb3.py).
 To keep a step at array speed, ``infos[i]`` is empty except in the step where sub-env i's
 episode ends: then it holds ``terminal_observation``, ``TimeLimit.truncated``, ``is_success`` and
 ``error_norm``. ``get_attr``/``set_attr``/``env_method`` reach the single env the vector env

@@ -75,7 +75,7 @@ class ReachEnv(URTaskEnv):
     (:data:`SHAPED_REWARD`). ``reward_type="cost"``: minus the step's share of the evaluator's
     trajectory cost under ``cost`` (a :class:`~snac_gym.control.cost.CostConvention`, default the paper's
     Table I cost), ``−Δt (eₖᵀQeₖ + uₖᵀRuₖ [+ u̇ₖᵀRu̇ₖ])``, so the return is −V exactly
-    (``tests/test_cost_reward.py``); its Q = q_scale·I and R = I are the env's. ``info`` carries ``error`` (after the
+    (``tests/envs/test_core_cost_reward.py``); its Q = q_scale·I and R = I are the env's. ``info`` carries ``error`` (after the
     step), ``error_norm``, ``cost_error``, ``cost_effort``, ``cost_smoothness`` (u̇ᵀRu̇, u̇ = (uₖ − uₖ₋₁)/dt, u₋₁ = 0),
     ``command``, ``t`` and ``is_success`` (‖e‖ ≤ ``success_tolerance``, default 1 mm).
 

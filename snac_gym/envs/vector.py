@@ -8,7 +8,7 @@ but one array operation per quantity per step instead of N Python calls.
 
 Episode for episode it matches ``gym.make_vec(id, N, vectorization_mode="sync",
 physics="kinematic")``, i.e. a :class:`gymnasium.vector.SyncVectorEnv` of single kinematic envs
-(tests/test_vector_env.py): ``reset(seed=s)`` seeds sub-env i with ``s + i``, each sub-env draws
+(tests/envs/test_vector.py): ``reset(seed=s)`` seeds sub-env i with ``s + i``, each sub-env draws
 its episodes from its own generator with the single env's code (:func:`~snac_gym.envs.core.draw_episode`),
 and autoreset follows Gymnasium's default ``AutoresetMode.NEXT_STEP``: the step after an episode
 ends returns that sub-env's reset observation and reset info, reward 0 and no termination or

@@ -6,7 +6,7 @@ backwards from θ_K. As NumPy operations that was a dozen passes over the array,
 reductions over its last axis of m = 6 or 7 values, where NumPy's per-row overhead dominates: more
 time than the rollout's cost itself. Here each is one pass. Every figure is a maximum, a minimum, a
 count or a sequential running sum, computed with the same floating-point operations as the NumPy
-expressions, so the results are the same bit for bit (``tests/test_metrics_kernel.py``), a NaN
+expressions, so the results are the same bit for bit (``tests/kernels/test_metrics_kernel.py``), a NaN
 included: as in NumPy, a maximum or minimum over values with a NaN is NaN, and a NaN is the peak.
 """
 

@@ -34,7 +34,7 @@ class BatchChain:
     (:func:`~snac_gym.kernels.chain.chain_forward_and_jacobian`). The position Jacobian column of a
     revolute joint is ``zᵢ × (x − pᵢ)`` and of a prismatic joint ``zᵢ`` (eq. 2); joints that do not
     carry the end effector have zero columns. Results match Pinocchio to rounding
-    (tests/test_kinematics.py, 1e-12).
+    (tests/model/test_kinematics.py, 1e-12).
 
     Build one with :meth:`from_model`, which returns ``None`` for a model with other joint types.
     """
@@ -140,7 +140,7 @@ class PositionChain:
     placements read from the Pinocchio model from the leaf inwards on one point,
     ``v ← tᵢ + Mᵢ · Rᵢ(θᵢ) · v`` (starting from the end-effector offset), with the batch as
     rows of length B (structure of arrays), about 4x fewer operations. Matches Pinocchio to
-    1e-15 m (tests/test_vector_env.py).
+    1e-15 m (tests/envs/test_vector.py).
 
     Args:
         steps: Leaf-to-root joints, each ``(rotation M, translation t, axis, revolute, q column)``.

@@ -165,7 +165,7 @@ for _model in UR_MODELS.values():
 # The 7-DOF arms (docs/robots.md). Positions are of the tool centre point in the arm's base link;
 # with 7 joints and a 3-D task the arm keeps a 4-D self-motion, so the seed pose and the cuboid
 # are chosen where the samplers' IK stays on one elbow-up, wrist-down branch inside the joint
-# limits. Each cuboid's corners are reachable with margin (tests/test_panda.py).
+# limits. Each cuboid's corners are reachable with margin (tests/model/test_kinematics_7dof.py).
 register_robot(
     Robot(
         name="panda",

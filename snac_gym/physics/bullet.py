@@ -284,7 +284,7 @@ class PyBulletArmBatch:
     one ``stepSimulation`` per period.
 
     Each body is a :class:`~snac_gym.physics.bullet.SimulatedArm` with collisions off, so the bodies never
-    interact and each moves as the env's single arm does (to 1e-12 in ``tests/test_engines.py``);
+    interact and each moves as the env's single arm does (to 1e-12 in ``tests/rollout/test_batch.py``);
     they are loaded without meshes (:func:`~snac_gym.physics.bullet.without_meshes`), as nothing here is
     drawn: a few ms per body instead of a physics server of its own (0.6 s, 65 MB). A world's step
     costs more per body as it fills: a rollout step took 160, 136, 164, 187 and 309 µs per sample with

@@ -18,7 +18,7 @@ rounding:
 
 Joints that the robot locks (the Panda's fingers, :attr:`~snac_gym.model.robots.Robot.locked_joints`)
 are removed and their bodies welded at the value :class:`Kinematics` holds them at (the neutral
-value clipped to the joint's limits). ``tests/test_qp_controllers.py`` checks the site's position,
+value clipped to the joint's limits). ``tests/baselines/test_qp_ik.py`` checks the site's position,
 orientation and Jacobian against :class:`Kinematics` and :class:`~snac_gym.model.kinematics.PoseKinematics`
 at random configurations of every registered robot.
 

@@ -1,7 +1,7 @@
 """What a rendered frame shows: a floor, a coloured arm, the reference and its path, framed by one camera.
 
 The camera is placed once per env so that the arm's base, its links at the seed pose and the
-whole sample cuboid fit in the image with a margin (``tests/test_rendering.py`` projects every
+whole sample cuboid fit in the image with a margin (``tests/physics/test_scene_rendering.py`` projects every
 link origin over random episodes and finds them inside). The target is a red sphere; for a
 tracking task the ellipse is drawn as a ring of small yellow spheres. PyBullet's TinyRenderer
 draws on the CPU, so a frame costs tens of milliseconds: the env renders a new image every

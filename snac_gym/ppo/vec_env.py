@@ -4,7 +4,7 @@ The same features, normalised actions, per-episode effort level and shaped rewar
 :class:`~snac_gym.ppo.envs.PPOTrainingWrapper` around one env, computed for all N episodes at
 once on :class:`~snac_gym.envs.sb3.SB3VectorEnv`. Episode for episode it is a ``DummyVecEnv``
 of ``PPOTrainingWrapper``\\ s around single envs with ``physics="kinematic"``
-(tests/test_sb3_adapter.py): each episode's ``action_scale`` is drawn from that episode's own
+(tests/envs/test_sb3.py): each episode's ``action_scale`` is drawn from that episode's own
 generator right after its reset, as the wrapper draws it from its env's ``np_random``.
 """
 

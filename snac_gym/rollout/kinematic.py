@@ -18,7 +18,7 @@ row by row exactly as the env does (:func:`task_error_function`), so both give t
 
 The physics engines, ``mujoco`` and ``pybullet``, step one simulated arm per sample in the same
 lockstep loop (:func:`simulate_arms`): MuJoCo replicas sharing one compiled model, or mesh-less
-bodies in PyBullet worlds of ten; each rollout is the env's own (``tests/test_engines.py``).
+bodies in PyBullet worlds of ten; each rollout is the env's own (``tests/rollout/test_batch.py``).
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, cast
 import numpy as np
 import pinocchio as pin
 
-from snac_gym.model.kinematics import PoseKinematics, shared_pose_kinematics
+from snac_gym.model.kinematics import Kinematics, PoseKinematics, shared_pose_kinematics
 from snac_gym.references import PAPER_TARGET, Ellipse
 from snac_gym.sampling import SampleSpace, nominal_configuration, sample_ellipse, sample_seed_pose
 from snac_gym.tasks.base import CellReader, Task
@@ -182,7 +182,7 @@ def _nominal(kinematics: PoseKinematics) -> np.ndarray:
     return nominal_configuration(kinematics.position)
 
 
-def _pose(kinematics: Any) -> PoseKinematics:
+def _pose(kinematics: Kinematics | PoseKinematics) -> PoseKinematics:
     """The pose kinematics of the robot behind ``kinematics`` (position or pose)."""
     return kinematics if isinstance(kinematics, PoseKinematics) else shared_pose_kinematics(kinematics.robot)
 
@@ -202,7 +202,9 @@ class PoseReachTask(Task[PoseTarget | PoseEllipse]):
     def make_kinematics(self, robot: str) -> PoseKinematics:
         return PoseKinematics(robot)
 
-    def sample(self, kinematics: Any, rng: np.random.Generator, space: SampleSpace) -> PoseTarget | PoseEllipse:
+    def sample(
+        self, kinematics: Kinematics | PoseKinematics, rng: np.random.Generator, space: SampleSpace
+    ) -> PoseTarget | PoseEllipse:
         pose = _pose(kinematics)
         x = pose.forward(sample_seed_pose(pose.position, rng, space))
         return PoseTarget(x[:3], x[3:])
@@ -210,7 +212,7 @@ class PoseReachTask(Task[PoseTarget | PoseEllipse]):
     def paper(self) -> PoseTarget | PoseEllipse:
         return PoseTarget(PAPER_TARGET, _DOWN)
 
-    def parse(self, value: Any, kinematics: Any) -> PoseTarget | PoseEllipse:
+    def parse(self, value: Any, kinematics: Kinematics | PoseKinematics) -> PoseTarget | PoseEllipse:
         target = value if isinstance(value, PoseTarget) else PoseTarget(value["position"], value["rotation"])
         check_pose_reachable(_pose(kinematics), target.points(), f"options[{self.option_key!r}]")
         return target
@@ -226,7 +228,9 @@ class PoseReachTask(Task[PoseTarget | PoseEllipse]):
     def read_csv_reference(self, cells: CellReader) -> PoseTarget | PoseEllipse:
         return PoseTarget(cells.numbers(TARGET_COLUMNS), cells.numbers(ROTVEC_COLUMNS))
 
-    def check_reference(self, kinematics: Any, reference: PoseTarget | PoseEllipse, points: int, what: str) -> None:
+    def check_reference(
+        self, kinematics: Kinematics | PoseKinematics, reference: PoseTarget | PoseEllipse, points: int, what: str
+    ) -> None:
         """Raise ``ValueError`` unless pose IK reaches ``reference`` (``points`` poses of an ellipse).
 
         The samples CSV reader calls this instead of the position check, which cannot read a pose.
@@ -250,7 +254,9 @@ class PoseTrackTask(PoseReachTask):
     horizon_s = 20.0
     real_horizon_s = 30.0
 
-    def sample(self, kinematics: Any, rng: np.random.Generator, space: SampleSpace) -> PoseEllipse:
+    def sample(
+        self, kinematics: Kinematics | PoseKinematics, rng: np.random.Generator, space: SampleSpace
+    ) -> PoseEllipse:
         pose = _pose(kinematics)
         for _ in range(200):
             ellipse = sample_ellipse(pose.position, rng, space)
@@ -266,7 +272,7 @@ class PoseTrackTask(PoseReachTask):
     def paper(self) -> PoseEllipse:
         return PoseEllipse(Ellipse.paper_circle(), _DOWN)
 
-    def parse(self, value: Any, kinematics: Any) -> PoseEllipse:
+    def parse(self, value: Any, kinematics: Kinematics | PoseKinematics) -> PoseEllipse:
         if not isinstance(value, PoseEllipse):
             spec = dict(value)
             rotation = spec.pop("rotation")

@@ -1,4 +1,4 @@
-"""Record the UR10 trajectories that tests/test_env_ids.py compares bit for bit (``ur10_trajectories.npz``).
+"""Record the UR10 trajectories that tests/envs/test_ids.py compares bit for bit (``ur10_trajectories.npz``).
 
 Run once, at commit 089c544 (before the per-robot ids, the explicit env classes and the shared
 kinematic step), on x86-64 Linux: ``python tests/data/record_ur10_trajectories.py``. The test

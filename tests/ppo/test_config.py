@@ -8,7 +8,7 @@ import pytest
 
 from snac_gym.ppo.config import default_config_path, env_arguments, resolve_config
 
-FOLDER = Path(__file__).resolve().parents[1] / "snac_gym" / "ppo" / "configs" / "workspace"
+FOLDER = Path(__file__).resolve().parents[2] / "snac_gym" / "ppo" / "configs" / "workspace"
 
 
 @pytest.mark.parametrize("task", ["reach", "track"])

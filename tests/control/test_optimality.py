@@ -20,7 +20,7 @@ from snac_gym.control.optimality import (
 )
 from snac_gym.policies.snac import QuadraticBasis
 
-#: Outstretched-upwards UR10: the position Jacobian loses rank (as in tests/test_baselines.py).
+#: Outstretched-upwards UR10: the position Jacobian loses rank (as in tests/baselines/test_rnn_svf_dls.py).
 UPRIGHT = np.array([0.0, -np.pi / 2, 0.0, -np.pi / 2, 0.0, 0.0])
 
 

@@ -24,7 +24,7 @@ from snac_gym.rollout import rollout, simulate_kinematic
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import TASKS, Sample, Task, register_task
 
-PAGE = Path(__file__).resolve().parent.parent / "docs" / "extending.md"
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "extending.md"
 
 
 def recipe(heading: str) -> dict:

@@ -242,7 +242,7 @@ def test_random_episodes_stay_inside_the_position_and_velocity_limits(controller
 
 def _pushing_sample(kinematics: Kinematics) -> EvaluationSample:
     """The Panda's ready pose with the shoulder 0.12 rad from its upper limit and a target that leaning
-    0.3 rad further would reach (tests/test_panda_limits.py: the least-norm motion crosses the limit)."""
+    0.3 rad further would reach (tests/model/test_joint_limits.py: the least-norm motion crosses the limit)."""
     q0 = nominal_configuration(kinematics)
     q0[1] = kinematics.upper_limits[1] - 0.12
     beyond = q0.copy()

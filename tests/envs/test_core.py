@@ -15,7 +15,7 @@ from snac_gym.references import PAPER_Q0, PAPER_TARGET, Ellipse
 from snac_gym.rollout.episode import episode_length
 from snac_gym.tasks import TASKS
 
-#: The UR10's ids, the paper's arm (tests/test_env_ids.py checks every robot's).
+#: The UR10's ids, the paper's arm (tests/envs/test_ids.py checks every robot's).
 ENV_IDS = [task.env_id for task in TASKS.values()]
 
 

@@ -25,7 +25,7 @@ from snac_gym.envs import ENV_IDS, ENV_IDS_V1, GOAL_ENV_IDS, GOAL_ENV_IDS_V1, RE
 from snac_gym.envs.task_envs import PoseReachEnv
 from snac_gym.policies import EnvUnitsPolicy, PolicyContext, make_policy
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 V1_IDS = sorted(ENV_IDS_V1) + sorted(GOAL_ENV_IDS_V1)
 
 

@@ -16,7 +16,7 @@ import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym.model.robots import robot_names
 from snac_gym.policies import available_policies
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 
 

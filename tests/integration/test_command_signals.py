@@ -5,8 +5,8 @@ can be resumed, or one marked partial).
 Each test runs ``snac-gym`` in a child process, as a user's terminal or a scheduler would, and sends the
 signal to it either as soon as its handlers are in place (the command's first second, before it wrote
 anything) or from inside one phase of its work (a small driver hooks the function that phase calls).
-The mid-run interrupts of ``evaluate`` and ``real`` are in tests/test_interrupts.py and
-tests/test_real_faults.py.
+The mid-run interrupts of ``evaluate`` and ``real`` are in tests/integration/test_interrupts.py and
+tests/real/test_env_faults.py.
 """
 
 from __future__ import annotations

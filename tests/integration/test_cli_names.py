@@ -1,6 +1,6 @@
 """The three meanings of "backend", named apart on the command line: --engine (evaluate), --connection (real).
 
-``--backend`` stays as a hidden, deprecated name of each; the env's is ``physics=`` (tests/test_env_ids.py).
+``--backend`` stays as a hidden, deprecated name of each; the env's is ``physics=`` (tests/envs/test_ids.py).
 """
 
 import pytest

@@ -96,7 +96,7 @@ def test_the_key_covers_every_module_the_reference_reaches():
     import sys
     from pathlib import Path
 
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[3]
     script = (
         "import sys, tempfile; from pathlib import Path; sys.path.insert(0, sys.argv[1] + '/tools');"
         "from lint_imports import lay_out, ROOT; tree = lay_out(ROOT, Path(tempfile.mkdtemp()) / 't');"

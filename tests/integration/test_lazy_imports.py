@@ -9,7 +9,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 #: The package's folders (baselines/ and evaluation/ install as snac_gym.baselines and snac_gym.evaluation).
 FOLDERS = ("snac_gym", "baselines", "evaluation")
 

@@ -11,7 +11,7 @@ import pytest
 
 from snac_gym.common import errors
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 OLD_HOMES = {
     "snac_gym.common.outputs": ["OutputFolderError", "OutputWriteError"],
     "snac_gym.rollout.batch": ["RolloutError"],

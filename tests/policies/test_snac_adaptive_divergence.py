@@ -108,7 +108,7 @@ def test_a_real_arm_is_stopped_through_its_safety_layer_when_the_controller_dive
     from snac_gym.apps.real import run_real_episode
     from snac_gym.real import SafetyLimits
 
-    # a loaded CI machine may be late now and then: the deadline rule has its own tests (tests/test_real.py)
+    # a loaded CI machine may be late now and then: the deadline rule has its own tests (tests/real/test_env.py)
     lenient = SafetyLimits(max_missed_deadlines=10**5, deadline_window=10**5, max_period=10.0)
     result = run_real_episode(
         task="reach", controller="snac-adaptive", out_dir=tmp_path, connection="sim", steps=80, plots=False,

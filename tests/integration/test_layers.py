@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 TOOL = ROOT / "tools" / "lint_imports.py"
 sys.path.insert(0, str(TOOL.parent))
 from lint_imports import lay_out  # noqa: E402

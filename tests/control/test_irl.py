@@ -17,7 +17,7 @@ from snac_gym.control.irl import (
 )
 from snac_gym.control.optimality import matrix_to_quadratic_weights, quadratic_weights_to_matrix
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "docs" / "scripts" / "irl_example.py"
+EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "scripts" / "irl_example.py"
 
 
 def _example():
