@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 if TYPE_CHECKING:
     import numpy as np
@@ -56,6 +56,17 @@ _LAZY_HOOK = "lazy_kernels"
 #: A kernel's example arguments (arrays, floats, ints, bools): what :func:`warm_up` calls it with.
 Example = tuple[object, ...]
 _Array = TypeVar("_Array", bound="np.ndarray")
+_Result = TypeVar("_Result")
+
+
+class Lock(Protocol):
+    """A lock of :func:`warm_up_shared`: ``multiprocessing``'s, a manager's, or ``threading``'s."""
+
+    def acquire(self, block: bool = ..., /, timeout: float = ...) -> bool: ...
+
+    def release(self) -> None: ...
+
+
 _KERNELS: list[Kernel] = []
 #: Longest wait (s) of :func:`warm_up_shared` for another process's compile of one module (a few s).
 _SHARED_COMPILE_WAIT_S = 60.0
@@ -162,7 +173,7 @@ def load_if_cached(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
     return True
 
 
-def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = EVALUATOR_KERNEL_MODULES) -> list[str]:
+def warm_up_shared(locks: Sequence[Lock], modules: tuple[str, ...] = EVALUATOR_KERNEL_MODULES) -> list[str]:
     """:func:`warm_up` of ``modules`` in processes that share the compiles; the modules whose lock this one took.
 
     ``locks`` holds one ``multiprocessing`` lock per module, the same for every process. A process
@@ -204,8 +215,8 @@ def warm_up_shared(locks: Sequence[Any], modules: tuple[str, ...] = EVALUATOR_KE
 
 
 def _with_stop_signals_held(
-    function: Callable[..., Any], args: tuple[Any, ...], kwargs: dict[str, Any] | None = None
-) -> Any:
+    function: Callable[..., _Result], args: tuple[object, ...], kwargs: dict[str, object] | None = None
+) -> _Result:
     """``function(*args, **kwargs)`` with the stop signals recorded, then each one received raised again."""
     kwargs = kwargs or {}
     if threading.current_thread() is not threading.main_thread():  # handlers run, and are set, in the main thread only
