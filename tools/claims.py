@@ -8,7 +8,8 @@ shares, the Wilcoxon p-values) and the sentence saying what the reference is.
 Usage:
     python tools/claims.py --from runs/table1   # keep that run's summary, then write every block
     python tools/claims.py                      # write every block from the kept summary
-    python tools/claims.py --check              # exit 1 naming each block that differs (tests/integration/test_claims.py)
+    python tools/claims.py --check              # exit 1 naming each block that differs
+                                                # (tests/integration/test_claims.py)
 """
 
 from __future__ import annotations

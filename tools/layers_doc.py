@@ -2,7 +2,8 @@
 import what) and the imports grimp finds between the package's parts (what does).
 
     python tools/layers_doc.py          # rewrite the section
-    python tools/layers_doc.py --check  # exit 1 if the section is not what the code gives (tests/integration/test_layers.py)
+    python tools/layers_doc.py --check  # exit 1 if the section is not what the code gives
+                                        # (tests/integration/test_layers.py)
 """
 
 from __future__ import annotations

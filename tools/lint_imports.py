@@ -7,7 +7,8 @@ out ``snac_gym`` as the install does (links in a temporary folder) and analyses 
 counts every import, those inside functions and under ``TYPE_CHECKING`` included.
 
     python tools/lint_imports.py              # the repository's package
-    python tools/lint_imports.py --tree DIR   # a tree laid out already (tests/integration/test_layers.py plants violations)
+    python tools/lint_imports.py --tree DIR   # a tree laid out already
+                                              # (tests/integration/test_layers.py plants violations)
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Each Gauss-Newton iteration adds the blocks 2Δt·q·JₖᵀJₖ (k = 1..K−1) to the fixed band A ⊗ I_m.
 As NumPy array arithmetic (a stack of products, then a scattered ``+=``) that took about a fifth
 of a 2500-step iteration; this is one pass over the Jacobians with the same sums in the same
-order, so the band is the same bit for bit (tests/test_optimal.py).
+order, so the band is the same bit for bit (tests/evaluation/reference/test_optimum.py).
 """
 
 from __future__ import annotations

@@ -119,8 +119,8 @@ def test_an_unusable_reference_cache_folder_warns_once_and_the_rows_are_solved(
 
 
 def test_the_reference_key_covers_every_module_of_its_import_graph_and_moves_with_each(job, monkeypatch):
-    """The modules are read off the import graph (tests/evaluation/reference/test_reference_cache.py compares them with grimp's), the
-    robots' tables included; an edit of any one of them is another key."""
+    """The modules are read off the import graph (tests/evaluation/reference/test_reference_cache.py compares them
+    with grimp's), the robots' tables included; an edit of any one of them is another key."""
     modules = set(reference_cache.code_modules())
     assert {"snac_gym.model.robots", "snac_gym.model.ur_models", "snac_gym.model.kinematics",
             "snac_gym.control.trajopt", "snac_gym.kernels.relaxation", "snac_gym.baselines.lqr",

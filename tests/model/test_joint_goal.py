@@ -122,7 +122,7 @@ def test_the_reference_starts_from_an_in_limit_goal_and_is_no_longer_stuck(ur10,
     ended 0.74 m off target at a cost of 34.2, where joint-goal, keeping every limit, ends on target. The
     reference must now reach the target and cost no more than joint-goal, from its own in-limit goal start
     alone: the other IK branches' starts, which find a cheaper optimum here after a long solve, are left out
-    (tests/test_reference_branches.py checks those)."""
+    (tests/evaluation/reference/test_branches.py checks those)."""
     from snac_gym.evaluation.reference import optimum
 
     from snac_gym.control.cost import CostConvention
