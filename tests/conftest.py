@@ -72,7 +72,7 @@ def _seconds(item: pytest.Item, name: str) -> float:
 
 def pytest_configure(config: pytest.Config) -> None:
     """One torch thread for the tests that train networks, as ``train-ppo`` uses: with two OpenMP
-    threads on two busy cores, SAC's 200 updates of a 32×32 network in test_goal_envs.py took 52 s
+    threads on two busy cores, SAC's 200 updates of a 32×32 network in tests/envs/test_goal.py took 52 s
     instead of 4.6 s (both threads spin while the other test process or a worker holds a core).
     Set through OpenMP's variable, read when torch loads, so that a test process imports torch (1.4 s)
     only if one of its tests needs it; NumPy's BLAS, loaded already, keeps its threads.
