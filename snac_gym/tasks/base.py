@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 
 from snac_gym.model.kinematics import Kinematics, PoseKinematics
 from snac_gym.model.robots import get_robot
@@ -127,7 +128,7 @@ class Task(ABC, Generic[_ReferenceT]):
         """
 
     @abstractmethod
-    def option_value(self, reference: _ReferenceT) -> Any:
+    def option_value(self, reference: _ReferenceT) -> object:
         """The reset-option value (JSON types) that :meth:`parse` turns back into ``reference``."""
 
     def reset_options(self, q0: Sequence[float] | np.ndarray, reference: _ReferenceT) -> dict[str, Any]:
@@ -173,7 +174,9 @@ class Task(ABC, Generic[_ReferenceT]):
         return f"{self.csv_columns[0]}..{self.csv_columns[-1]}"
 
     # -- success -----------------------------------------------------------------------------
-    def success(self, measures: Mapping[str, Any], tolerance: float | None = None) -> Any:
+    def success(
+        self, measures: Mapping[str, Any], tolerance: float | None = None
+    ) -> bool | np.bool_ | npt.NDArray[np.bool_]:
         """Whether each rollout succeeded: ``measures[success_measure] <= tolerance``.
 
         Args:
@@ -181,7 +184,8 @@ class Task(ABC, Generic[_ReferenceT]):
             tolerance: The threshold (default :attr:`success_tolerance`), m.
         """
         threshold = self.success_tolerance if tolerance is None else tolerance
-        return measures[self.success_measure] <= threshold
+        passed: bool | np.bool_ | npt.NDArray[np.bool_] = measures[self.success_measure] <= threshold
+        return passed
 
     def success_text(self, tolerance: float | None = None) -> str:
         """The success rule in words, for reports and figure titles."""
