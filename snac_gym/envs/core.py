@@ -1,4 +1,9 @@
-"""The Gymnasium env that joins the PyBullet arm, the shared kinematics and a task."""
+"""The Gymnasium env that joins the PyBullet arm, the shared kinematics and a task.
+
+The env's parts live beside it, each re-exported here (the names' old home): :mod:`~snac_gym.envs.arguments` (the
+checks of its arguments and ``reset`` options, the episode's draw), :mod:`~snac_gym.envs.rewards` (the shaped and
+cost rewards) and :mod:`~snac_gym.envs.task_core` (:class:`TaskEnvCore`, what the real-arm env shares).
+"""
 
 from __future__ import annotations
 
@@ -7,403 +12,71 @@ import os
 import sys
 import warnings
 from collections.abc import Mapping
-from types import MappingProxyType
 from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
 
-from snac_gym.common.validation import boolean, real_number, whole_number
-from snac_gym.control.cost import CostConvention, step_costs, weight_matrix
+from snac_gym.common.validation import boolean, whole_number
+from snac_gym.control.cost import CostConvention
+from snac_gym.envs.arguments import (
+    ACTION_TYPES,
+    MAX_EPISODE_STEPS,
+    MAX_SUCCESS_TOLERANCE,
+    OBSERVATION_BOUNDS,
+    OBSERVATION_DTYPES,
+    V1_DEFAULTS,
+    ActionCheck,
+    check_choices,
+    check_observation_bounds,
+    check_sample_space,
+    draw_episode,
+    physics_argument,
+    resolve_reference,
+    validate_action,
+    validate_q0,
+)
 from snac_gym.envs.ids import IdRobotCheck
+from snac_gym.envs.rewards import REWARD_TYPES, SHAPED_REWARD, cost_reward_convention, shaped_reward
+from snac_gym.envs.task_core import TaskEnvCore
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.model.robots import get_robot
-from snac_gym.observation import ObservationLayout
-from snac_gym.physics import PHYSICS, Arm, check_physics, make_arm, scene_of
+from snac_gym.physics import Arm, make_arm, scene_of
 from snac_gym.physics.base import check_image_size, check_timing
 from snac_gym.physics.scene import CameraOptions, default_render_every
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
-from snac_gym.sampling import REGIONS, SampleSpace, sample_seed_pose
+from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import Task, get_task
 
-#: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
-ACTION_TYPES = ("velocity", "normalized")
-#: Reward types (see the env docstrings, "Rewards").
-REWARD_TYPES = ("dense", "sparse", "shaped", "cost")
-#: Weights of ``reward_type="shaped"``: r = −distance_weight·d + precision_bonus·exp(−(d/precision_scale)²)
-#: − action_penalty·‖a‖², the defaults of :class:`snac_gym.ppo.envs.RewardSpec`.
-SHAPED_REWARD: Mapping[str, float] = MappingProxyType(
-    {"distance_weight": 10.0, "precision_bonus": 1.0, "precision_scale": 0.01, "action_penalty": 0.01}
-)
+__all__ = [
+    "ACTION_TYPES",
+    "CONTINUOUS_JOINT_BOUND",
+    "JOINT_LIMIT_MARGIN",
+    "MAX_EPISODE_STEPS",
+    "MAX_SUCCESS_TOLERANCE",
+    "OBSERVATION_BOUNDS",
+    "OBSERVATION_DTYPES",
+    "REWARD_TYPES",
+    "SHAPED_REWARD",
+    "V1_DEFAULTS",
+    "ActionCheck",
+    "TaskEnvCore",
+    "URTaskEnv",
+    "check_observation_bounds",
+    "check_sample_space",
+    "draw_episode",
+    "physics_argument",
+    "resolve_reference",
+    "shaped_reward",
+    "validate_action",
+    "validate_q0",
+]
+
 #: How far past its URDF limit the observation bounds allow a joint, rad (the simulator's joint
 #: limits are soft constraints: a joint driven into one at full speed overshoots it by ~0.01 rad).
 JOINT_LIMIT_MARGIN = 0.1
-#: Observation dtypes.
-OBSERVATION_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))
-#: Values of ``finite_observation_bounds``: ±inf (``False``), the physical bounds with θ̇ unbounded
-#: (``True``), or every field bounded and the observation clipped into the bounds (``"clip"``, the -v1 default).
-OBSERVATION_BOUNDS = (False, True, "clip")
 #: The bound of a joint angle whose URDF gives it no finite limit (a continuous joint), rad.
 CONTINUOUS_JOINT_BOUND = 2 * math.pi
-#: The defaults of the -v1 ids (:func:`snac_gym.envs.register_envs`): normalized float32 actions,
-#: float32 observations with finite bounds on every field. The -v0 ids keep the constructor's defaults.
-V1_DEFAULTS: Mapping[str, Any] = MappingProxyType(
-    {"action_type": "normalized", "observation_dtype": "float32", "finite_observation_bounds": "clip"}
-)
-
-
-def shaped_reward(
-    error_norm: Any,
-    action: np.ndarray,
-    distance_weight: float = SHAPED_REWARD["distance_weight"],
-    precision_bonus: float = SHAPED_REWARD["precision_bonus"],
-    precision_scale: float = SHAPED_REWARD["precision_scale"],
-    action_penalty: float = SHAPED_REWARD["action_penalty"],
-) -> float:
-    """The ``reward_type="shaped"`` reward; the PPO training wrapper uses the same function.
-
-    One step, or the rows of a batch (the vector env): ``error_norm`` ``(B,)`` and ``action`` ``(B, m)``.
-
-    Args:
-        error_norm: d = ‖e‖ after the step, m.
-        action: The applied command normalised to [−1, 1] (u / v_max).
-        distance_weight, precision_bonus, precision_scale, action_penalty: The weights
-            (default :data:`SHAPED_REWARD`).
-
-    Returns:
-        −distance_weight·d + precision_bonus·exp(−(d / precision_scale)²) − action_penalty·‖a‖².
-    """
-    bonus = precision_bonus * np.exp(-((error_norm / precision_scale) ** 2))
-    return -distance_weight * error_norm + bonus - action_penalty * np.einsum("...i,...i->...", action, action)
-
-
-#: Largest ``success_tolerance``, m: a tolerance above a metre counts most of a UR arm's reach (0.5 m to 1.3 m) as
-#: reached, so no success rate would measure anything.
-MAX_SUCCESS_TOLERANCE = 1.0
-
-
-def check_sample_space(value: Any, kinematics: Kinematics) -> SampleSpace:
-    """``sample_space`` as a :class:`~snac_gym.sampling.SampleSpace`: one given, ``None`` (the robot's cuboid) or a
-    region's name, ``"cuboid"`` (the same) or ``"workspace"`` (:meth:`SampleSpace.workspace`).
-
-    Raises:
-        ValueError: Naming ``sample_space`` and the valid names, for anything else.
-    """
-    if value is None or (isinstance(value, str) and value == "cuboid"):
-        return SampleSpace.for_robot(kinematics)
-    if isinstance(value, str) and value == "workspace":
-        return SampleSpace.workspace(kinematics)
-    if not isinstance(value, SampleSpace):
-        raise ValueError(
-            "sample_space must be a snac_gym.sampling.SampleSpace, None or one of "
-            f"{', '.join(map(repr, REGIONS))}, got {value!r}"
-        )
-    return value
-
-
-#: Longest episode an env accepts, control steps (about 22 hours at 125 Hz): a bound on what a typo can cost.
-MAX_EPISODE_STEPS = 10_000_000
-
-
-def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
-    """The joint-velocity command an env applies: checked, then clipped to ``±velocity_limits``.
-
-    Shared by the simulated and the real-robot envs so both treat bad input alike.
-
-    Raises:
-        ValueError: If ``action`` is not numeric, has the wrong shape, or holds NaN/inf.
-    """
-    try:
-        raw = np.asarray(action)
-        if raw.dtype.kind not in "iuf":  # a complex, bool or string action is refused, not cast
-            raise TypeError(raw.dtype)
-        u = np.array(raw, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"action must be {len(velocity_limits)} joint velocities in rad/s (real numbers), got {action!r}"
-        ) from exc
-    if u.shape != velocity_limits.shape:
-        raise ValueError(f"action must have shape {velocity_limits.shape} (joint velocities, rad/s), got {u.shape}")
-    if not np.isfinite(u).all():
-        raise ValueError(f"action contains NaN or inf: {u.tolist()}")
-    return np.minimum(np.maximum(u, -velocity_limits), velocity_limits)
-
-
-class ActionCheck:
-    """:func:`validate_action` for one env's limits, its constants set up once (at construction).
-
-    The common action, an exact ``ndarray`` of float64 or float32 of the right shape, is checked by
-    one ``isfinite`` count and clipped by two ufuncs into one new float64 array; the same values as
-    :func:`validate_action`, which every other input (and every refusal, with its message) goes through.
-
-    Args:
-        limits: The velocity limits (rad/s; ones for a normalized action), a read-only float64 array.
-    """
-
-    __slots__ = ("limits", "_low", "_shape", "_size")
-
-    def __init__(self, limits: np.ndarray) -> None:
-        self.limits = limits
-        self._low = -limits
-        self._shape = limits.shape
-        self._size = limits.size
-
-    def __call__(self, action: Any) -> np.ndarray:
-        # float64 or float32 ('d', 'f'; either byte order): np.maximum with the float64 bounds gives what
-        # np.array(action, dtype=np.float64) would be before the clip, and a new array the env may keep.
-        # Every value finite: counted (count_nonzero is a C call, ndarray.all a Python wrapper at twice the cost).
-        if (
-            type(action) is np.ndarray
-            and action.dtype.char in "df"
-            and action.shape == self._shape
-            and np.count_nonzero(np.isfinite(action)) == self._size
-        ):
-            u = np.maximum(action, self._low)
-            return np.minimum(u, self.limits, out=u)
-        return validate_action(action, self.limits)
-
-
-def resolve_reference(
-    task: Task,
-    kinematics: Kinematics,
-    rng: np.random.Generator,
-    space: SampleSpace,
-    options: Mapping[str, Any] | None,
-) -> Reference:
-    """The episode's reference from ``reset`` options (shared by the simulated and real envs).
-
-    No options: a random reference from ``space``. Options without the task's key: the paper's
-    reference. Otherwise the given one, checked to be reachable.
-
-    Raises:
-        ValueError: On unknown keys, a malformed or an unreachable reference.
-    """
-    if options is None:
-        return task.sample(kinematics, rng, space)
-    if not isinstance(options, Mapping):
-        raise ValueError(f"options must be a dict, got {type(options).__name__}")
-    unknown = set(options) - {"q0", task.option_key}
-    if unknown:
-        raise ValueError(f"unknown reset options {sorted(unknown)}; allowed: ['q0', '{task.option_key}']")
-    if task.option_key in options:
-        return task.parse(options[task.option_key], kinematics)
-    return task.paper()
-
-
-def validate_q0(kinematics: Kinematics, value: Any) -> np.ndarray:
-    """``options["q0"]`` as an array, checked against the joint count and limits."""
-    q0 = np.array(value, dtype=float)
-    if q0.shape != (kinematics.n_joints,) or not np.all(np.isfinite(q0)):
-        raise ValueError(f"options['q0'] must be {kinematics.n_joints} finite joint angles, got {value!r}")
-    outside = np.flatnonzero((q0 < kinematics.lower_limits) | (q0 > kinematics.upper_limits))
-    if outside.size:
-        j = int(outside[0])
-        raise ValueError(
-            f"options['q0'][{j}] = {q0[j]} rad is outside the joint limits "
-            f"[{kinematics.lower_limits[j]}, {kinematics.upper_limits[j]}]"
-        )
-    return q0
-
-
-def draw_episode(
-    task: Task,
-    kinematics: Kinematics,
-    rng: np.random.Generator,
-    space: SampleSpace,
-    options: Mapping[str, Any] | None,
-) -> tuple[np.ndarray, Reference]:
-    """The start pose and the reference of one episode, as ``reset`` draws them.
-
-    The reference is drawn (or read from ``options``) first, then the seed pose, both from
-    ``rng``: the single env and the batched vector env (:mod:`snac_gym.envs.vector`) call this
-    with each episode's generator, so the same seed gives the same episode in both.
-
-    Raises:
-        ValueError: On bad options (see :func:`resolve_reference` and :func:`validate_q0`).
-    """
-    reference = resolve_reference(task, kinematics, rng, space, options)
-    q0 = None if options is None else options.get("q0")
-    if q0 is None:
-        return sample_seed_pose(kinematics, rng, space), reference
-    return validate_q0(kinematics, q0), reference
-
-
-def physics_argument(physics: str, backend: str | None = None) -> str:
-    """The ``physics=`` argument, or the deprecated ``backend=`` one (with a ``DeprecationWarning``).
-
-    Raises:
-        ValueError: If it is not one of :data:`~snac_gym.physics.PHYSICS`, or both are given and differ.
-    """
-    if backend is not None:
-        warnings.warn(
-            f"backend={backend!r} is deprecated; use physics={backend!r} (the arm's model: one of {PHYSICS})",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-        if physics not in (backend, PHYSICS[0]):
-            raise ValueError(
-                f"give physics= only (backend= is its deprecated name), got physics={physics!r}, backend={backend!r}"
-            )
-        physics = backend
-    return check_physics(physics)
-
-
-def _cost_reward(reward_type: str, cost: CostConvention | None, Q: Any, R: Any) -> CostConvention | None:
-    """The cost convention of ``reward_type="cost"`` (``None`` for the other rewards); its Q and R (Q = q_scale·I,
-    R = I) become the env's, so the infos' cost terms and the reward price the same cost.
-
-    Raises:
-        ValueError: If ``cost`` is given without ``reward_type="cost"``, is not a ``CostConvention``, or
-            comes with ``Q``/``R`` (the convention sets them).
-    """
-    if reward_type != "cost":
-        if cost is not None:
-            raise ValueError(f"cost= sets the reward of reward_type='cost', got reward_type={reward_type!r}")
-        return None
-    convention = CostConvention() if cost is None else cost
-    if not isinstance(convention, CostConvention):
-        raise ValueError(f"cost must be a snac_gym.control.cost.CostConvention, got {cost!r}")
-    if Q is not None or R is not None:
-        raise ValueError("reward_type='cost' takes Q and R from cost= (Q = q_scale·I, R = I); do not pass Q or R")
-    return convention
-
-
-def check_observation_bounds(value: Any) -> bool | str:
-    """``finite_observation_bounds`` checked: ``False``, ``True`` or ``"clip"`` (:data:`OBSERVATION_BOUNDS`).
-
-    Raises:
-        ValueError: For any other value.
-    """
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if value == "clip":
-        return "clip"
-    raise ValueError(f"finite_observation_bounds must be False, True or 'clip', got {value!r}")
-
-
-def _check_choices(
-    reward_type: str, action_type: str, observation_dtype: Any, render_mode: str | None, metadata: Mapping[str, Any]
-) -> np.dtype:
-    """Check the env's enumerated arguments; returns the observation dtype.
-
-    Raises:
-        ValueError: Naming the argument and its allowed values.
-    """
-    if reward_type not in REWARD_TYPES:
-        raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
-    if action_type not in ACTION_TYPES:
-        raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
-    try:
-        obs_dtype = np.dtype(observation_dtype)
-    except TypeError:
-        obs_dtype = None
-    if obs_dtype not in OBSERVATION_DTYPES:
-        raise ValueError(f"observation_dtype must be np.float64 or np.float32, got {observation_dtype!r}")
-    if render_mode is not None and render_mode not in metadata["render_modes"]:
-        raise ValueError(f"render_mode must be one of {metadata['render_modes']} or None, got {render_mode!r}")
-    return obs_dtype
-
-
-class TaskEnvCore(gym.Env):
-    """What every snac-gym env shares, whatever arm it drives (PyBullet, the kinematic model, a real UR).
-
-    The task, the kinematics, the observation layout and its packing, the episode's start from
-    ``reset`` options, the per-step cost terms (eq. 6 and the smoothness term, from
-    :func:`snac_gym.control.cost.step_costs`), the info dicts and the success rule. Subclasses add the
-    arm: :class:`URTaskEnv` (simulated) and :class:`snac_gym.real.RealUREnv` (a real arm behind
-    the safety layer).
-    """
-
-    observation_space: gym.spaces.Box
-    action_space: gym.spaces.Box
-
-    def _init_task(
-        self,
-        task: Task | str,
-        kinematics: Kinematics,
-        dt: float,
-        Q: Any,
-        R: Any,
-        success_tolerance: float | None,
-        sample_space: SampleSpace | None,
-    ) -> None:
-        """Set the shared state; raises ``ValueError`` on a bad tolerance or weight matrix."""
-        self.task: Task = get_task(task)
-        self.task_name = self.task.name
-        tolerance = self.task.success_tolerance if success_tolerance is None else success_tolerance
-        #: Distance (m) under which the target counts as reached: in (0, :data:`MAX_SUCCESS_TOLERANCE`].
-        self.success_tolerance = real_number(
-            "success_tolerance (m)", tolerance, 0.0, MAX_SUCCESS_TOLERANCE, low_open=True
-        )
-        self.kinematics = kinematics
-        # A pose task's error is a logarithm (PoseKinematics.task_error), not x − x_d (None).
-        self._task_error = getattr(kinematics, "task_error", None)
-        self.dt = float(dt)
-        m, n = kinematics.n_joints, kinematics.task_dim
-        self.Q = weight_matrix(Q, n, "Q")
-        self.R = weight_matrix(R, m, "R")
-        self.sample_space = check_sample_space(sample_space, kinematics)
-        self.velocity_limits = kinematics.velocity_limits.copy()
-        self.obs_layout = ObservationLayout(m, n)
-        self._error_slice = self.obs_layout.slices["e"]
-        self.reference: Reference = self.task.paper()
-        self.steps = 0
-        self._last_command = np.zeros(m)
-        self._obs: np.ndarray | None = None
-
-    @property
-    def time(self) -> float:
-        """Time since reset, s."""
-        return self.steps * self.dt
-
-    def _pack(self, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
-        """The observation of the measured state, with the reference at the current time."""
-        x_d, xdot_d = self.reference.position_and_velocity(self.time)
-        x = self.kinematics.forward(q)
-        error = None if self._task_error is None else self._task_error(x, x_d)
-        return self.obs_layout.pack(q, qdot, x, x_d, xdot_d, self.reference.centre, error)
-
-    def _is_success(self, error: np.ndarray, squared: float | None = None) -> bool:
-        """‖e‖ within the tolerance (``squared``: ‖e‖², where the caller has it already)."""
-        return bool((error.dot(error) if squared is None else squared) <= self.success_tolerance**2)
-
-    def _step_costs(self, command: np.ndarray) -> tuple[float, float, float]:
-        """``(eₖᵀQeₖ, uₖᵀRuₖ, u̇ₖᵀRu̇ₖ)`` of the step about to apply ``command`` (eₖ: the error now)."""
-        assert self._obs is not None  # within an episode
-        # one env's 1-D error and command: floats
-        return cast(
-            "tuple[float, float, float]",
-            step_costs(self._obs[self._error_slice], command, self._last_command, self.dt, self.Q, self.R),
-        )
-
-    def _reset_info(self, q0: np.ndarray | None) -> dict[str, Any]:
-        assert self._obs is not None  # reset() has observed
-        error = self._obs[self._error_slice]
-        info = {
-            "error": error.copy(),
-            "error_norm": float(np.linalg.norm(error)),
-            "t": 0.0,
-            "is_success": self._is_success(error),
-            "reference": self.reference.to_dict(),
-        }
-        if q0 is not None:
-            info["q0"] = np.array(q0, dtype=float)
-        return info
-
-    def _step_info(self, costs: tuple[float, float, float], command: np.ndarray) -> dict[str, Any]:
-        assert self._obs is not None  # within an episode
-        error = self._obs[self._error_slice]
-        squared = error.dot(error)  # ‖e‖² once, for the norm and the success rule (:meth:`_is_success`)
-        return {
-            "error": error.copy(),
-            "error_norm": math.sqrt(squared),
-            "cost_error": costs[0],
-            "cost_effort": costs[1],
-            "cost_smoothness": costs[2],
-            "command": command.copy(),
-            "t": self.time,
-            "is_success": self._is_success(error, squared),
-        }
 
 
 class URTaskEnv(IdRobotCheck, TaskEnvCore):
@@ -459,7 +132,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         dt, n_substeps = check_timing(dt, n_substeps)  # every engine, the kinematic one too
         if max_steps is not None:
             max_steps = whole_number("max_steps", max_steps, 1, MAX_EPISODE_STEPS)
-        self.cost_convention = _cost_reward(reward_type, cost, Q, R)
+        self.cost_convention = cost_reward_convention(reward_type, cost, Q, R)
         # What pickling rebuilds the env from: every argument as given, read from the call itself so that a new
         # keyword cannot be left out; the engine and the task as resolved (``backend`` is ``physics``'s old name).
         self._init_kwargs = {
@@ -467,7 +140,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
             "physics": physics,
             "task": None if self.task_spec is not None else task.name,
         }
-        obs_dtype = _check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
+        obs_dtype = check_choices(reward_type, action_type, observation_dtype, render_mode, self.metadata)
         finite_observation_bounds = check_observation_bounds(finite_observation_bounds)
         if physics == "kinematic" and render_mode is not None:
             raise ValueError(
@@ -666,7 +339,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         elif self.reward_type == "shaped":
             reward = shaped_reward(info["error_norm"], u / self.velocity_limits)
         elif self.reward_type == "cost":  # minus the step's share of V: the return is −V
-            assert self.cost_convention is not None  # set for reward_type="cost" (_cost_reward)
+            assert self.cost_convention is not None  # set for reward_type="cost" (cost_reward_convention)
             reward = -self.dt * self.cost_convention.step_rate(*costs, first_step=self.steps == 1)
         else:
             reward = 0.0 if info["is_success"] else -1.0
