@@ -37,69 +37,27 @@ from snac_gym.common.validation import whole_number
 from snac_gym.control.cost import step_costs
 from snac_gym.envs.core import URTaskEnv, draw_episode, physics_argument, shaped_reward
 from snac_gym.envs.ids import IdRobotCheck
+from snac_gym.envs.reference_batch import ReferenceBatch
 from snac_gym.envs.task_envs import task_env_class
+from snac_gym.envs.vector_autoreset import merge_reset_infos, reset_mask, seed_list
 from snac_gym.model.kinematics import Kinematics, PositionChain, joint_step
-from snac_gym.references import Ellipse, FixedTarget, Reference
+from snac_gym.references import Reference
 from snac_gym.tasks import Task, get_task
+
+__all__ = [
+    "MAX_NUM_ENVS",
+    "EllipseTrackVectorEnv",
+    "KinematicEpisodes",
+    "ReachVectorEnv",
+    "ReferenceBatch",
+    "URTaskVectorEnv",
+    "task_vector_env_class",
+    "vector_env_supports",
+]
+
 
 #: The most episodes one vector env steps (2**20: about 3.3 GB of state at 3.2 kB each; the benchmarks use 4096).
 MAX_NUM_ENVS = 1 << 20
-
-
-class ReferenceBatch:
-    """The references of N episodes as arrays, evaluated for all at once each step.
-
-    Fixed targets are their centre with ẋ_d = 0; ellipses are stacked as centre, scaled axes,
-    ω and φ and evaluated with the formula of :meth:`Ellipse.position_and_velocity`; any other
-    reference type (a task registered later) is asked per episode.
-
-    Args:
-        count: Number of episodes N.
-        dim: Task dimension n.
-    """
-
-    def __init__(self, count: int, dim: int = 3) -> None:
-        self.centre = np.zeros((count, dim))
-        self._major = np.zeros((count, dim))
-        self._minor = np.zeros((count, dim))
-        self._speed = np.zeros(count)
-        self._phase = np.zeros(count)
-        self._ellipse = np.zeros(count, dtype=bool)
-        self._other: dict[int, Reference] = {}
-        self.references: list[Reference | None] = [None] * count
-
-    def set(self, index: int, reference: Reference) -> None:
-        """Make ``reference`` episode ``index``'s."""
-        self.references[index] = reference
-        self._other.pop(index, None)
-        self._ellipse[index] = isinstance(reference, Ellipse)
-        self.centre[index] = reference.centre
-        if isinstance(reference, Ellipse):
-            self._major[index] = reference._major
-            self._minor[index] = reference._minor
-            self._speed[index], self._phase[index] = reference.angular_speed, reference.phase
-        elif not isinstance(reference, FixedTarget):
-            self._other[index] = reference
-
-    def evaluate(self, times: np.ndarray, rows: Any = slice(None)) -> tuple[np.ndarray, np.ndarray]:
-        """``(x_d, ẋ_d)`` of the episodes ``rows`` at their times ``times``, each ``(len(times), n)``."""
-        centre = self.centre[rows]
-        x_d, xdot_d = centre.copy(), np.zeros_like(centre)
-        ellipse = self._ellipse[rows]
-        if ellipse.any():
-            picked = slice(None) if ellipse.all() else np.flatnonzero(ellipse)
-            speed, phase = self._speed[rows][picked], self._phase[rows][picked]
-            major, minor = self._major[rows][picked], self._minor[rows][picked]
-            angle = speed * times[picked] + phase
-            cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
-            x_d[picked] = centre[picked] + cos * major + sin * minor
-            xdot_d[picked] = (speed[:, None] * cos) * minor - (speed[:, None] * sin) * major
-        if self._other:
-            indices = np.arange(len(self.centre))[rows]
-            for row, index in enumerate(indices):
-                if int(index) in self._other:
-                    x_d[row], xdot_d[row] = self._other[int(index)].position_and_velocity(float(times[row]))
-        return x_d, xdot_d
 
 
 class KinematicEpisodes:
@@ -364,9 +322,9 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         if self.closed:
             raise RuntimeError("reset() after close(): the vector env is closed; make a new one")
         super().reset(seed=seed if isinstance(seed, int) else None)
-        seeds = _seed_list(seed, self.num_envs)
+        seeds = seed_list(seed, self.num_envs)
         options = dict(options) if options is not None else None
-        mask = _reset_mask(options, self.num_envs)
+        mask = reset_mask(options, self.num_envs)
         indices = np.flatnonzero(mask)
         infos = self._reset_infos(indices, [seeds[i] for i in indices], options)
         self._autoreset[indices] = False
@@ -393,7 +351,7 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         if resetting.any():
             indices = np.flatnonzero(resetting)
             reward[indices], terminated[indices], truncated[indices] = 0.0, False, False
-            infos = _merge_reset_infos(infos, self._reset_infos(indices, [None] * len(indices), None), resetting)
+            infos = merge_reset_infos(infos, self._reset_infos(indices, [None] * len(indices), None), resetting)
         self._autoreset = terminated | truncated
         return episodes.observations(), reward, terminated, truncated, infos
 
@@ -445,56 +403,6 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         self.single_env.close()
         if self._viewer is not None:
             self._viewer.close()
-
-
-def _seed_list(seed: int | Sequence[int | None] | None, count: int) -> list[int | None]:
-    """Per-sub-env seeds as :class:`~gymnasium.vector.SyncVectorEnv` derives them: ``seed + i``."""
-    if seed is None:
-        return [None] * count
-    if isinstance(seed, (int, np.integer)):
-        return [int(seed) + i for i in range(count)]
-    seeds = list(seed)
-    if len(seeds) != count:
-        raise ValueError(
-            f"If seeds are passed as a list the length must match num_envs={count} but got length={len(seeds)}."
-        )
-    return seeds
-
-
-def _reset_mask(options: dict[str, Any] | None, count: int) -> np.ndarray:
-    """``options.pop("reset_mask")`` checked as SyncVectorEnv checks it (all True without one)."""
-    if options is None or "reset_mask" not in options:
-        return np.ones(count, dtype=bool)
-    mask = options.pop("reset_mask")
-    if not isinstance(mask, np.ndarray) or mask.shape != (count,) or mask.dtype != np.bool_:
-        raise ValueError(f"options['reset_mask'] must be a bool numpy array of shape ({count},), got {mask!r}")
-    if not mask.any():
-        raise ValueError("options['reset_mask'] must contain at least one True value")
-    return mask
-
-
-def _merge_reset_infos(step: dict[str, Any], reset: dict[str, Any], resetting: np.ndarray) -> dict[str, Any]:
-    """The step infos with the autoreset sub-envs' rows replaced by their reset infos.
-
-    As in SyncVectorEnv: a key only a step gives is masked off for those rows (and dropped if
-    no row has it); a key both give takes the reset value; reset-only keys are added.
-    """
-    merged: dict[str, Any] = {}
-    for key, value in step.items():
-        if key.startswith("_"):
-            continue
-        if key in reset:
-            value[resetting] = reset[key][resetting]
-            merged[key], merged[f"_{key}"] = value, step[f"_{key}"]
-        else:
-            mask = step[f"_{key}"] & ~resetting
-            if mask.any():
-                value[resetting] = 0  # SyncVectorEnv's filler where a sub-env lacks the key
-                merged[key], merged[f"_{key}"] = value, mask
-    for key, value in reset.items():
-        if not key.startswith("_") and key not in merged:
-            merged[key], merged[f"_{key}"] = value, reset[f"_{key}"]
-    return merged
 
 
 def vector_env_supports(task: Task) -> bool:
