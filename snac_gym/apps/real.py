@@ -1,31 +1,39 @@
-"""One episode on a real UR arm (or its rehearsal): what ``snac-gym real`` does, importable."""
+"""One episode on a real UR arm (or its rehearsal): what ``snac-gym real`` does, importable.
+
+The run's parts, each importable from here: :mod:`~snac_gym.apps.real_setup` (the checks before anything connects)
+and :mod:`~snac_gym.apps.real_outputs` (the result and the files). :func:`run_real_episode` calls
+:func:`make_connection` through this module, where tests replace it.
+"""
 
 from __future__ import annotations
 
 import json
-import re
 import signal
-import sys
-import traceback
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
-from snac_gym.apps.demo import write_demo_outputs
+from snac_gym.apps.real_outputs import (
+    EXIT_CODES,
+    STREAM_SUFFIX,
+    RealRunResult,
+    late_periods,
+    mark_gaps,
+    stop_record,
+    write_interrupted,
+    write_outputs,
+)
+from snac_gym.apps.real_setup import MAX_REAL_SECONDS, UR_ROBOTS, is_rehearsal, resolve_deadline_stop, run_setup
 from snac_gym.common._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
 from snac_gym.common._signals import SignalGuard, TerminationSignal
 from snac_gym.common._signals import stop_signals_raise as _stop_signals_raise
-from snac_gym.common.outputs import usable_out_folder, write_text_whole, write_whole
+from snac_gym.common.outputs import usable_out_folder
 from snac_gym.common.validation import whole_number
-from snac_gym.envs.core import resolve_reference, validate_q0
 from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
 from snac_gym.model.kinematics import Kinematics
-from snac_gym.model.ur_models import UR_MODELS, get_ur_model, series_of, velocity_limits
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.real.connections import (
@@ -39,13 +47,27 @@ from snac_gym.real.env import RealUREnv
 from snac_gym.real.journal import StepJournal
 from snac_gym.real.loop_tuning import LoopTuning, frozen_gc, tuned_process
 from snac_gym.real.recovery import RecoveryLimits
-from snac_gym.real.safety import SafetyLayer, SafetyLimits
-from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
-from snac_gym.sampling import SampleSpace
+from snac_gym.real.safety import SafetyLimits
+from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout
 from snac_gym.tasks import get_task
 
-#: The streamed log (:class:`~snac_gym.real.journal.StepJournal`): kept only when the run could not write the full one.
-STREAM_SUFFIX = "stream.csv"
+__all__ = [
+    "EXIT_CODES",
+    "MAX_REAL_SECONDS",
+    "STOP_SIGNALS",
+    "STREAM_SUFFIX",
+    "UR_ROBOTS",
+    "RealRunResult",
+    "TerminationSignal",
+    "is_rehearsal",
+    "late_periods",
+    "make_connection",
+    "resolve_deadline_stop",
+    "run_real_episode",
+    "run_setup",
+    "stop_record",
+    "stop_signals_raise",
+]
 
 #: Signals that end a real run through the same stop path as Ctrl-C: every catchable one whose
 #: default action ends the process (SIGPIPE aside: Python ignores it). SIGKILL cannot be caught:
@@ -58,216 +80,6 @@ def stop_signals_raise() -> AbstractContextManager[SignalGuard]:
     """Within the block, the first signal of :data:`STOP_SIGNALS` raises :class:`TerminationSignal`
     (:func:`snac_gym.common._signals.stop_signals_raise` with the real run's wider set)."""
     return _stop_signals_raise(STOP_SIGNALS)
-
-
-@dataclass
-class RealRunResult:
-    """What :func:`run_real_episode` produced: the demo figures plus loop timing and stop reason."""
-
-    demo: Any
-    timing: dict[str, float]
-    stop_reason: str | None
-    sent_commands: int | None = None
-    files: list[Path] = field(default_factory=list)
-    recoveries: list[dict[str, Any]] = field(default_factory=list)
-    tuning_notes: list[str] = field(default_factory=list)
-    #: The checked start pose, reference and limits (:func:`run_setup`).
-    setup: dict[str, Any] = field(default_factory=dict)
-    #: Whether missed deadlines stopped the arm (:attr:`SafetyLimits.deadline_stop`); off in a rehearsal.
-    deadline_stop: bool = True
-    #: How the last stop ended on an arm (:func:`stop_record`): which source confirmed rest, or why none did.
-    rest: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def exit_code(self) -> int:
-        """``snac-gym real``'s exit code for this end: 0 the episode ran to its end, 4 the safety layer stopped
-        the arm, 5 the controller reported a protective stop, 6 an emergency stop, 7 the arm was stopped but
-        nothing confirmed it at rest (:data:`EXIT_CODES`; ``rest_not_confirmed`` in ``*_real.json`` says why)."""
-        if self.rest.get("rest_confirmed") is False:
-            return 7
-        if not self.stop_reason:
-            return 0
-        for state, code in (("protective_stop", 5), ("emergency_stop", 6)):
-            if self.stop_reason == f"controller reports {state}":
-                return code
-        return 4
-
-    def summary(self) -> str:
-        lines = [self.demo.summary()]
-        if self.timing:
-            t = self.timing
-            lines.append(
-                f"  loop period                 mean {t['period_ms_mean']:.3f} ms, p99 {t['period_ms_p99']:.3f} ms, "
-                f"max jitter {t['jitter_ms_max']:.3f} ms, {t['late_periods']} late"
-            )
-        if self.timing:
-            lines.append(
-                f"  late periods                {late_periods(self.timing)}"
-                + (
-                    ""
-                    if self.deadline_stop
-                    else ": counted only, a rehearsal has no deadline stop (--deadline-stop for one)"
-                )
-            )
-        if self.timing and self.timing.get("speed_scaling_min", 1.0) < 1.0:
-            lines.append(
-                f"  speed slider                at {self.timing['speed_scaling_min']:.0%} (lowest): the controller "
-                "scaled every command down, the arm was slower by design, not lagging"
-            )
-        for k, r in enumerate(self.recoveries, 1):
-            lines.append(
-                f"  recovery {k}                  {r['kind']} before step {r['step']}, {r['cleared_by']}, "
-                f"resumed after a {r['gap_s']:.2f} s gap"
-            )
-        lines += [f"  loop tuning                 {note}" for note in self.tuning_notes]
-        if self.sent_commands is not None:
-            lines.append(f"  dry run: {self.sent_commands} commands computed, none sent")
-        lines.append(f"  stopped by safety layer: {self.stop_reason}" if self.stop_reason else "  no safety stop")
-        if self.rest.get("rest_confirmed"):
-            lines.append(
-                f"  at rest                     confirmed after {self.rest['rest_confirmed_after_s']:.2f} s by "
-                f"{self.rest['rest_confirmed_by']} ({self.rest['stopped_by']})"
-            )
-        elif self.rest.get("rest_confirmed") is False:
-            lines.append(f"  NOT confirmed at rest: {self.rest['rest_not_confirmed']} ({self.rest['stopped_by']})")
-        return "\n".join(lines)
-
-
-def late_periods(timing: dict[str, float]) -> str:
-    """``"N of M (worst X ms)"``: the late periods of a run's :meth:`~snac_gym.real.env.RealUREnv.timing`, with
-    the stalled ones (over ``max_period``) when there were any."""
-    stalled = timing.get("stalled_periods", 0)
-    worst = f"worst {timing['period_ms_max']:.1f} ms" + (f", {stalled} stalled" if stalled else "")
-    return f"{timing['late_periods']} of {timing['periods']} ({worst})"
-
-
-def is_rehearsal(connection: str, dry_run: bool) -> bool:
-    """Whether a run is a rehearsal: a simulated arm (``sim``) or a dry run, where nothing reaches an arm."""
-    return connection == "sim" or dry_run
-
-
-def resolve_deadline_stop(
-    safety: SafetyLimits, connection: str, dry_run: bool, deadline_stop: bool | None
-) -> SafetyLimits:
-    """``safety`` with the run's deadline stop: ``deadline_stop`` if given, else on for a real (or emulated) arm
-    and off for a rehearsal (:func:`is_rehearsal`: late periods are then only counted and reported).
-
-    Raises:
-        ValueError: If the deadline stop would be off for an arm that moves (``--connection rtde`` without
-            ``--dry-run``): a late loop there is a hazard, not a statistic.
-    """
-    rehearsal = is_rehearsal(connection, dry_run)
-    stop = (safety.deadline_stop and not rehearsal) if deadline_stop is None else bool(deadline_stop)
-    if not stop and not rehearsal:
-        raise ValueError(
-            "--no-deadline-stop is for a rehearsal (--connection sim or --dry-run): "
-            "on a real or emulated arm missed deadlines stop it"
-        )
-    return replace(safety, deadline_stop=stop)
-
-
-#: ``snac-gym real``'s exit codes, by how the run ended (``--help`` and docs/real-arm.md list them).
-EXIT_CODES = {
-    "ran to its end (or a dry run)": 0,
-    "link to the arm lost": 1,
-    "input refused": 2,
-    "unexpected error": 3,
-    "safety layer stopped the arm": 4,
-    "protective stop": 5,
-    "emergency stop": 6,
-    "stopped, but nothing confirmed the arm at rest": 7,
-    "signal n": "128 + n",
-}
-
-
-def stop_record(connection: Any) -> dict[str, Any]:
-    """How the connection's last stop ended (:meth:`~snac_gym.real.connections.URRTDEConnection.stop_record`):
-    ``{}`` for a connection without one (simulated, dry run)."""
-    record = getattr(connection, "stop_record", None)
-    return {} if record is None else record()
-
-
-#: Longest episode ``snac-gym real`` runs, s (``--steps`` is bounded by it at 500 Hz): an hour of streaming.
-MAX_REAL_SECONDS = 3600.0
-#: The arms ``snac-gym real`` drives: the UR models of the registry (ur_rtde; ``snac-gym emulate-ur`` serves the same).
-UR_ROBOTS = tuple(UR_MODELS)
-
-
-def run_setup(
-    task: str, robot: str, q0: Sequence[float] | None, reference: Any, safety: SafetyLimits, series: str | None = None
-) -> dict[str, Any]:
-    """The checked start pose, reference and limits of a real run, before anything connects; ``*_real.json``
-    records it and the dry run prints it.
-
-    ``q0`` and ``reference`` (the task's reset-option value, e.g. the target ``[x, y, z]`` of reach) default to
-    the paper's (``snac-gym demo``'s), which the UR10 reaches; the smaller arms need their own.
-
-    Raises:
-        ValueError: Naming what is wrong: a robot that is not a UR arm, a series it does not run at, a start pose
-            outside the joint limits or the safety margins, an unreachable reference or one beyond the
-            datasheet's reach (from the shoulder), or a start or reference outside the task box.
-    """
-    if robot not in UR_ROBOTS:
-        raise ValueError(f"--robot must be one of {', '.join(UR_ROBOTS)} (the UR arms ur_rtde drives), got {robot!r}")
-    series = series_of(robot, series)
-    spec, kinematics = get_task(task), Kinematics(robot)
-    options = spec.demo_options()
-    if q0 is not None:
-        options["q0"] = [float(v) for v in q0]
-    if reference is not None:
-        options[spec.option_key] = reference
-    hint = (
-        ""
-        if robot == "ur10" or (q0 is not None and reference is not None)
-        else (f" (the paper's start pose and reference are the UR10's: give --q0 and the reference for {robot})")
-    )
-    try:
-        start = validate_q0(kinematics, options["q0"])
-        resolved = resolve_reference(
-            spec, kinematics, np.random.default_rng(0), SampleSpace.for_robot(kinematics), options
-        )
-    except ValueError as exc:
-        raise ValueError(re.sub(r"options\['(\w+)'\]", r"--\1", str(exc)) + hint) from None
-    layer = SafetyLayer(kinematics, safety, 1.0)
-    violation = layer.pose_violation(start, kinematics.forward(start))
-    if violation is not None:
-        raise ValueError(f"--q0 is outside the safety limits: {violation}{hint}")
-    points = np.atleast_2d(resolved.points(64))
-    model = get_ur_model(robot)
-    shoulder = np.array([0.0, 0.0, model.dh[0]])
-    distances = np.linalg.norm(points - shoulder, axis=1)
-    farthest = int(np.argmax(distances))
-    if distances[farthest] > model.reach:
-        raise ValueError(
-            f"the {task} reference reaches [{_fmt(points[farthest])}] m, {distances[farthest]:.3f} m from "
-            f"the shoulder: beyond the {model.label}'s datasheet reach of {model.reach:.3f} m{hint}"
-        )
-    low, high = safety.task_box(kinematics)
-    outside = [p for p in points if np.any(p < low) or np.any(p > high)]
-    if outside:
-        raise ValueError(
-            f"the {task} reference leaves the task box [{_fmt(low)}] .. [{_fmt(high)}] m at "
-            f"[{_fmt(outside[0])}]: choose another reference, or --task-box{hint}"
-        )
-    return {
-        "robot": robot,
-        "task": task,
-        "q0": [float(v) for v in start],
-        spec.option_key: options[spec.option_key],
-        "task_box": [low.tolist(), high.tolist()],
-        "joint_limit_margin": safety.joint_limit_margin,
-        "speed_scale": safety.speed_scale,
-        "max_joint_acceleration": safety.max_joint_acceleration,
-        "series": series,
-        "speed_limits": [float(v) for v in velocity_limits(robot, kinematics.velocity_limits)],
-        "speed_limits_source": f"the URDF's, capped at the {model.source['speeds']}",
-        "reach": model.reach,
-        "deadline_stop": safety.deadline_stop,
-    }
-
-
-def _fmt(values: Any) -> str:
-    return ", ".join(f"{v:.3f}" for v in np.asarray(values, dtype=float))
 
 
 def make_connection(
@@ -419,7 +231,7 @@ def run_real_episode(
         with frozen_gc(tuning.freeze_gc):
             log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error)
         guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
-        result = _write_outputs(
+        result = write_outputs(
             env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs, setup
         )
         result.tuning_notes = list(notes)
@@ -456,7 +268,7 @@ def _run_and_stop(
             options = {"q0": setup["q0"], env.task.option_key: setup[env.task.option_key]}
             log = rollout(env, policy, options=options, seed=seed, steps=env.max_steps)
             log = add_critic_diagnostics(log, policy)
-            _mark_gaps(log, env)
+            mark_gaps(log, env)
         finally:
             env.close()
         failure = getattr(env.connection, "failure", None)
@@ -466,161 +278,10 @@ def _run_and_stop(
     except BaseException as exc:
         guard.defer()
         if out is not None:
-            _write_interrupted(env, partial_log(exc) if log is None else log, out, prefix, exc, setup)
+            write_interrupted(env, partial_log(exc) if log is None else log, out, prefix, exc, setup)
             exc.log_dir = out  # type: ignore[attr-defined]
         raise
     finally:
         if env.journal is not None:
             env.journal.close()
     return log
-
-
-def _mark_gaps(log: pd.DataFrame, env: RealUREnv) -> None:
-    """The ``resumed_after_s`` column: each resumption's gap (s) on the first row after it (only when there was one)."""
-    if not env.recoveries:
-        return
-    gaps = np.full(len(log), np.nan)
-    for r in env.recoveries:
-        if r["step"] < len(log):
-            gaps[r["step"]] = r["gap_s"]
-    log["resumed_after_s"] = gaps
-    log.attrs["recoveries"] = [dict(r) for r in env.recoveries]
-
-
-def _write_outputs(
-    env: RealUREnv,
-    log: pd.DataFrame,
-    task: str,
-    controller: str,
-    connection: str,
-    dry_run: bool,
-    seed: int,
-    out: Path | None,
-    prefix: str,
-    csv: bool,
-    plots: bool,
-    policy_kwargs: dict[str, Any] | None,
-    setup: dict[str, Any],
-) -> RealRunResult:
-    log.attrs["controller"] = controller
-    log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
-    log.attrs["stop_reason"] = env.stop_reason
-    log.attrs["deadline_stop"] = env.safety_limits.deadline_stop
-    timing = env.timing()
-    if timing:
-        log.attrs["late_periods"] = late_periods(timing)
-    limits = (env.kinematics.lower_limits, env.kinematics.upper_limits)
-    demo = write_demo_outputs(
-        log,
-        task,
-        controller,
-        seed,
-        env.success_tolerance,
-        out,
-        csv=csv,
-        plots=plots,
-        policy_kwargs=policy_kwargs,
-        position_limits=limits,
-    )
-    arm = env.connection
-    result = RealRunResult(
-        demo=demo,
-        timing=timing,
-        stop_reason=env.stop_reason,
-        sent_commands=len(arm.sent) if isinstance(arm, DryRunConnection) else None,
-        recoveries=[dict(r) for r in env.recoveries],
-        setup=setup,
-        deadline_stop=env.safety_limits.deadline_stop,
-        rest=stop_record(arm),
-    )
-    if out is not None:
-        result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
-        (out / f"{prefix}{STREAM_SUFFIX}").unlink(missing_ok=True)  # the full log is written: the stream is a subset
-    return result
-
-
-def _ending(exc: BaseException) -> str:
-    if isinstance(exc, KeyboardInterrupt):
-        return "interrupted"
-    if isinstance(exc, ConnectionFailure):
-        return "link lost"
-    return "error"
-
-
-def _write_interrupted(
-    env: RealUREnv, log: pd.DataFrame | None, out: Path, prefix: str, exc: BaseException, setup: dict[str, Any]
-) -> None:
-    """Save what a failed run logged: the trajectory so far, the loop timing and why it ended.
-
-    Each file is written on its own, so that one that fails (a full disk) does not cost the others.
-    """
-    out.mkdir(parents=True, exist_ok=True)
-    if log is not None:
-        log.attrs["stop_reason"] = env.stop_reason
-        _attempt(lambda: write_log(log, out / f"{prefix}log.parquet"))
-    periods = pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3})
-    _attempt(lambda: write_whole(out / f"{prefix}timing.csv", lambda path: periods.to_csv(path, index_label="step")))
-    connection = env.connection
-    summary = {
-        "ended": _ending(exc),
-        "reason": f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__,
-        "interrupted": type(exc).__name__,
-        "signal": getattr(exc, "signal_name", None),
-        "stop_reason": env.stop_reason,
-        "client_failure": getattr(connection, "failure", None),
-        "last_stop": getattr(connection, "last_stop", None),
-        **stop_record(connection),
-        "client_output": getattr(connection, "client_output", []),
-        "steps_logged": 0 if log is None else len(log),
-        "timing": env.timing(),
-        **({"late_periods": late_periods(env.timing())} if env.periods else {}),
-        "dt_ms": env.dt * 1e3,
-        "setup": setup,
-    }
-    if env.recovery.max_recoveries:  # only a run that could resume says how it went
-        summary["recoveries"] = env.recoveries
-        summary["lost_links"] = getattr(connection, "lost_links", [])
-    if _ending(exc) == "error":  # a bug: the CLI shows one line, the traceback is kept here
-        summary["traceback"] = traceback.format_exception(exc)
-    write_text_whole(out / f"{prefix}real.json", json.dumps(summary, indent=2, default=str))
-
-
-def _attempt(write: Callable[[], object]) -> None:
-    try:
-        write()
-    except Exception as exc:  # noqa: BLE001 - the other files are still written; the failure is shown
-        print(f"warning: could not write part of the log: {type(exc).__name__}: {exc}", file=sys.stderr)
-
-
-def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult, plots: bool) -> list[Path]:
-    periods = pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3})
-    timing_csv = out / f"{prefix}timing.csv"
-    write_whole(timing_csv, lambda path: periods.to_csv(path, index_label="step"))
-    summary = out / f"{prefix}real.json"
-    write_text_whole(
-        summary,
-        json.dumps(
-            {
-                "timing": result.timing,
-                **({"late_periods": late_periods(result.timing)} if result.timing else {}),
-                "stop_reason": result.stop_reason,
-                "dt_ms": env.dt * 1e3,
-                "sent_commands": result.sent_commands,
-                # What the last stop command returned (``None``: none was sent, e.g. a dry run).
-                "last_stop": getattr(env.connection, "last_stop", None),
-                # Which source confirmed the arm at rest after the last stop, and when (or why none did).
-                **result.rest,
-                "setup": result.setup,
-                **({"recoveries": result.recoveries} if result.recoveries else {}),
-            },
-            indent=2,
-        ),
-    )
-    files = [timing_csv, summary]
-    if plots and len(periods):
-        from snac_gym.apps.plots import plot_loop_timing, save_figure  # matplotlib only when plotting
-
-        files.append(
-            save_figure(plot_loop_timing(periods["period_ms"].to_numpy(), env.dt), out / f"{prefix}timing.png")
-        )
-    return files
