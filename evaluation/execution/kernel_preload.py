@@ -1,5 +1,5 @@
 """Imported by the evaluator's fork server (``multiprocessing``'s preload,
-:data:`snac_gym.evaluation.execution.executors._PRELOAD`).
+:data:`snac_gym.evaluation.execution.worker_setup.PRELOAD`).
 
 Besides the modules the workers run, it loads every compiled kernel from numba's cache, once, in
 the server: each worker forked from it then starts with them loaded, instead of loading them
