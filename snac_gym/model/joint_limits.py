@@ -86,7 +86,8 @@ class JointLimitBox:
     def clamp(self, q: np.ndarray, command: np.ndarray) -> np.ndarray:
         """``command`` clamped into Ω(θ) component-wise (one command or a batch, a new array)."""
         lower, upper = self.bounds(q)
-        return np.minimum(np.maximum(command, lower), upper)
+        clamped: np.ndarray = np.minimum(np.maximum(command, lower), upper)
+        return clamped
 
 
 def make_limit_box(policy: object, enabled: bool | None) -> JointLimitBox | None:
@@ -115,4 +116,5 @@ def joint_limit_margins_of_extremes(
     The same number bit for bit: rounding is monotone, so ``min_k(θₖⱼ − θ⁻ⱼ) = (min_k θₖⱼ) − θ⁻ⱼ``
     exactly, and two reductions replace four passes over the ``(B, K, m)`` array.
     """
-    return np.minimum(q_min - lower, upper - q_max).min(axis=1)
+    margins: np.ndarray = np.minimum(q_min - lower, upper - q_max).min(axis=1)
+    return margins

@@ -395,9 +395,10 @@ def tool_displacement(true_kinematics: Any, model_kinematics: Any, qs: np.ndarra
             f"{model_kinematics.n_joints}"
         )
     qs = np.asarray(qs, dtype=float)
-    return np.linalg.norm(
+    displacement: np.ndarray = np.linalg.norm(
         np.asarray(true_kinematics.forward_batch(qs)) - np.asarray(model_kinematics.forward_batch(qs)), axis=1
     )
+    return displacement
 
 
 def refuse_pose_tasks(pose_tasks: Sequence[str]) -> None:

@@ -68,7 +68,8 @@ class PoseKinematics:
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """The 6-row ``LOCAL_WORLD_ALIGNED`` Jacobian ``[J_v; J_ω]``, shape ``(6, n_joints)``."""
         k = self.position
-        return pin.computeFrameJacobian(k.model, k.data, k._check_q(q), self._ee_id, self._frame).copy()
+        jac: np.ndarray = pin.computeFrameJacobian(k.model, k.data, k._check_q(q), self._ee_id, self._frame).copy()
+        return jac
 
     def forward_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(x, J)`` from one kinematics pass."""

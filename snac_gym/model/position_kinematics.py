@@ -38,7 +38,8 @@ def joint_step(q: np.ndarray, u: np.ndarray, dt: float, out: np.ndarray | None =
     Returns:
         θₖ₊₁ (``out`` when given).
     """
-    return np.add(q, u * dt, out=out)
+    q_next: np.ndarray = np.add(q, u * dt, out=out)
+    return q_next
 
 
 def joint_path(q0: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
@@ -47,7 +48,8 @@ def joint_path(q0: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
     The trajectory optimiser's form (:mod:`snac_gym.control.trajopt`): a cumulative sum, which rounds differently
     from K calls of :func:`joint_step` (about 1e-13 rad over 2500 steps; hence its limit clearance).
     """
-    return np.add(q0, np.cumsum(commands, axis=0) * dt)
+    path: np.ndarray = np.add(q0, np.cumsum(commands, axis=0) * dt)
+    return path
 
 
 def damped_least_squares(jacobian: np.ndarray, task_velocity: np.ndarray, damping_matrix: np.ndarray) -> np.ndarray:
@@ -231,16 +233,19 @@ class Kinematics:
         """End-effector position ``x = f(θ)`` in the base frame, metres (eq. 1)."""
         q = self._check_q(q)
         pin.forwardKinematics(self.model, self.data, q)
-        return pin.updateFramePlacement(self.model, self.data, self._ee_id).translation.copy()
+        x: np.ndarray = pin.updateFramePlacement(self.model, self.data, self._ee_id).translation.copy()
+        return x
 
     def base_to_world(self, x: np.ndarray) -> np.ndarray:
         """Map a base-frame position to the URDF world frame (the simulator's frame)."""
-        return self._base_from_world.T @ np.asarray(x, dtype=float) + self._base_origin
+        x_world: np.ndarray = self._base_from_world.T @ np.asarray(x, dtype=float) + self._base_origin
+        return x_world
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """Position Jacobian ``J = ∂f/∂θ`` in the base frame, shape ``(task_dim, n_joints)`` (eq. 2)."""
         q = self._check_q(q)
-        return pin.computeFrameJacobian(self.model, self.data, q, self._ee_id, pin.LOCAL_WORLD_ALIGNED)[:3]
+        jac: np.ndarray = pin.computeFrameJacobian(self.model, self.data, q, self._ee_id, pin.LOCAL_WORLD_ALIGNED)[:3]
+        return jac
 
     def forward_and_jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(f(θ), J(θ))`` from one kinematics pass; the form controllers call each step."""

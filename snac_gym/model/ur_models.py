@@ -23,6 +23,7 @@ against 180 °/s): :func:`datasheet_velocity_limits` is the bound a real arm is 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +36,10 @@ SERIES_FREQUENCY = {"cb": 125.0, "e": 500.0}
 _CB3_MANUAL = "Universal Robots {model} User Manual (CB3, version 3.13), technical specifications"
 _E_MANUAL = "Universal Robots e-Series User Manual, {model} (version 5.8), technical specifications"
 _DH_SOURCE = "Universal Robots, 'DH parameters for calculations of kinematics and dynamics'"
+
+
+#: Six numbers, one per joint (base first).
+_Six = tuple[float, float, float, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -76,7 +81,7 @@ class URModel:
         return SERIES_FREQUENCY[self.series]
 
 
-def _model(name, series, dh, speeds, reach, effort, mass) -> URModel:
+def _model(name: str, series: str, dh: _Six, speeds: _Six, reach: float, effort: _Six, mass: float) -> URModel:
     return URModel(name, series, dh, speeds, reach, effort, mass)
 
 
@@ -190,7 +195,8 @@ def series_of(robot: str, series: str | None = None) -> str:
 
 def datasheet_velocity_limits(name: str) -> np.ndarray:
     """The datasheet's maximum joint speeds of model ``name``, rad/s."""
-    return np.radians(np.array(get_ur_model(name).max_speed_deg, dtype=float))
+    limits: np.ndarray = np.radians(np.array(get_ur_model(name).max_speed_deg, dtype=float))
+    return limits
 
 
 def velocity_limits(robot: str, urdf_limits: np.ndarray) -> np.ndarray:
@@ -199,7 +205,8 @@ def velocity_limits(robot: str, urdf_limits: np.ndarray) -> np.ndarray:
     urdf_limits = np.asarray(urdf_limits, dtype=float)
     if not isinstance(robot, str) or robot.lower() not in UR_MODELS:
         return urdf_limits.copy()
-    return np.minimum(urdf_limits, datasheet_velocity_limits(robot))
+    bounded: np.ndarray = np.minimum(urdf_limits, datasheet_velocity_limits(robot))
+    return bounded
 
 
 def _dh(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
@@ -242,7 +249,7 @@ def _origins(dh: tuple[float, ...]) -> list[tuple[tuple[float, float, float], tu
     ]
 
 
-def _fmt(values) -> str:
+def _fmt(values: Iterable[float]) -> str:
     return " ".join(f"{float(v):.17g}" for v in values)
 
 
