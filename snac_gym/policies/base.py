@@ -80,7 +80,8 @@ def scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarr
     scales = np.max(np.abs(commands) / limits, axis=-1, keepdims=True)
     scaled = commands / np.maximum(scales, 1.0)
     # u/scale can land one rounding step outside the limit it was scaled onto.
-    return np.minimum(np.maximum(scaled, -limits), limits)
+    within: np.ndarray = np.minimum(np.maximum(scaled, -limits), limits)
+    return within
 
 
 @runtime_checkable
@@ -134,9 +135,10 @@ class PolicyContext:
             raise ValueError(f"dt must be positive, got {self.dt}")
 
     @property
-    def task_spec(self) -> Task:
+    def task_spec(self) -> Task[Any]:
         """The :class:`~snac_gym.tasks.Task` (its success rule, whether x_d moves, ...)."""
-        return get_task(self.task)
+        task: Task[Any] = get_task(self.task)
+        return task
 
     def with_model_error(self, model_error: Any) -> PolicyContext:
         """This context with the arm model a wrong one (:class:`~snac_gym.model.model_error.ModelError` or its text).

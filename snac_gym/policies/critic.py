@@ -16,7 +16,8 @@ __all__ = ["CriticEpisode", "QuadraticBasis", "matvec", "transpose"]
 
 def matvec(matrices: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     """``A @ x`` for one matrix and vector; row by row for stacks ``(B, r, c)``, ``(B, c)``."""
-    return matrices @ vectors if vectors.ndim == 1 else (matrices @ vectors[..., None])[..., 0]
+    product: np.ndarray = matrices @ vectors if vectors.ndim == 1 else (matrices @ vectors[..., None])[..., 0]
+    return product
 
 
 def transpose(matrices: np.ndarray) -> np.ndarray:
@@ -61,7 +62,8 @@ class QuadraticBasis:
     def __call__(self, s: np.ndarray) -> np.ndarray:
         """``σ(s)``, shape ``(size,)``."""
         s = np.asarray(s, dtype=float)
-        return s[self.first] * s[self.second]
+        features: np.ndarray = s[self.first] * s[self.second]
+        return features
 
     def gradient(self, s: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """``∇σ(s) = ∂σ/∂s``, shape ``(size, dim)``; for a stack of points ``(B, dim)``, ``(B, size, dim)``.

@@ -77,10 +77,12 @@ def _resolve(name: str) -> Callable[..., Any]:
         return _FACTORIES[name]
     if name in _BUILTIN:
         module, _, attr = _BUILTIN[name].partition(":")
-        return getattr(importlib.import_module(module), attr)
+        builtin: Callable[..., Any] = getattr(importlib.import_module(module), attr)
+        return builtin
     eps = _entry_points()
     if name in eps:
-        return eps[name].load()
+        plugin: Callable[..., Any] = eps[name].load()
+        return plugin
     raise ValueError(f"unknown policy {name!r}; available: {', '.join(available_policies()) or 'none'}")
 
 

@@ -215,7 +215,8 @@ class SNACPolicy(SNACCore):
 
     def _batch_saturated(self, commands: np.ndarray) -> np.ndarray:
         """Which rows have a component beyond the velocity limits, ``(B,)`` bool."""
-        return (np.abs(commands) > self._upper).any(axis=1)
+        saturated: np.ndarray = (np.abs(commands) > self._upper).any(axis=1)
+        return saturated
 
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
         """Commands ``(B, m)`` for observations ``(B, size)``, row i as :meth:`act` of episode i.

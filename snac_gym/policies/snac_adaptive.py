@@ -389,7 +389,7 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         return self._watched(obs_batch, super().act_batch(obs_batch))
 
     def _act(self, obs: np.ndarray) -> np.ndarray:
-        command = self._watched(np.asarray(obs, dtype=float)[None], super()._act(obs)[None])[0]
+        command: np.ndarray = self._watched(np.asarray(obs, dtype=float)[None], super()._act(obs)[None])[0]
         self.internals.update(
             {
                 "model_residual": float(self.identifier.residual[0]),

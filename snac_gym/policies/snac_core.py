@@ -232,7 +232,7 @@ class SNACCore(CriticEpisode, BasePolicy):
         n = self.task_dim
         value_gradient = np.dot(weights, self._gradient)  # ∇σᵀŴ (np.dot: less overhead than @ on tiny arrays)
         np.multiply(value_gradient[:n], self._half_scale, out=self._pair[0])  # Gᵀ keeps the error part
-        rows = np.dot(self._pair, jacobian)  # (Jᵀ·)ᵀ for both rows
+        rows: np.ndarray = np.dot(self._pair, jacobian)  # (Jᵀ·)ᵀ for both rows
         if not self._R_is_identity:
             rows = self._apply_r_inverse(rows)
         return rows  # rows[0] = −½c R⁻¹Jᵀ∇σᵀŴ = c·û,  rows[1] = h αₖ R⁻¹Jᵀe
@@ -242,7 +242,8 @@ class SNACCore(CriticEpisode, BasePolicy):
 
         ``scaled_r_inverse_jt_error`` is ``h αₖ R⁻¹Jᵀe`` (row 1 of :meth:`_products`).
         """
-        return np.dot(self._gradient_e, np.dot(jacobian, scaled_r_inverse_jt_error))
+        step: np.ndarray = np.dot(self._gradient_e, np.dot(jacobian, scaled_r_inverse_jt_error))
+        return step
 
     def _is_saturated(self, command: np.ndarray) -> bool:
         return any(abs(value) > limit for value, limit in zip(command.tolist(), self._upper_list))
@@ -330,7 +331,7 @@ class SNACCore(CriticEpisode, BasePolicy):
         v = matvec(jr, matvec(jacobian_t, state[..., :n]))
         v_rate = matvec(jr, matvec(jacobian_t, rate[..., :n]))
         g0, g1 = gradient_e, gradient_rate_e
-        integral = (
+        integral: np.ndarray = (
             dt * matvec(g0, v) + 0.5 * dt**2 * (matvec(g0, v_rate) + matvec(g1, v)) + dt**3 / 3.0 * matvec(g1, v_rate)
         )
         return (step_gain / dt) * integral

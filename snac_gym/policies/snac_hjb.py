@@ -213,7 +213,8 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
 
     # -- episodes -------------------------------------------------------------------------------
     def _initial_weights(self, rng: np.random.Generator) -> np.ndarray:
-        return self._project(self._initial_draw(rng)[None])[0]
+        weights: np.ndarray = self._project(self._initial_draw(rng)[None])[0]
+        return weights
 
     def _initial_draw(self, rng: np.random.Generator) -> np.ndarray:
         """Ŵ₀ before its projection: uniform in :attr:`initial_weight_range`, ``(size,)``."""
@@ -350,7 +351,8 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
             "critic_value": float(self.basis(error) @ used),
             "hjb_residual": float(residual[0]),
         }
-        return command[0]
+        row: np.ndarray = command[0]
+        return row
 
     # -- diagnostics ------------------------------------------------------------------------------
     def critic_diagnostics(

@@ -175,7 +175,8 @@ class SNACIRLPolicy(BasePolicy):
         b = self._batch
         assert b is not None  # act_batch() checked it
         waves = np.sin(b["frequencies"] * t + b["phases"]).sum(axis=-1) / math.sqrt(self.sinusoids / 2.0)
-        return self.exploration * self.velocity_limits * waves
+        noise: np.ndarray = self.exploration * self.velocity_limits * waves
+        return noise
 
     def _learn(self) -> None:
         """Algorithm 1 on the last L periods of each episode; keeps the current gain where it fails."""
@@ -248,7 +249,7 @@ class SNACIRLPolicy(BasePolicy):
         """
         if self._batch is None:
             raise RuntimeError("call reset() before act()")
-        command = self.act_batch(np.asarray(obs, dtype=float)[None])[0]
+        command: np.ndarray = self.act_batch(np.asarray(obs, dtype=float)[None])[0]
         self.internals = {
             key: (value[0] if isinstance(value, np.ndarray) else value) for key, value in self.internals.items()
         }

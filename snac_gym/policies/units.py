@@ -17,9 +17,12 @@ The evaluator, the demo and the real arm build their controllers from a :class:`
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # the annotation only: base imports the kinematics, which this module does not need
+    from snac_gym.policies.base import Policy
 
 
 class EnvUnitsPolicy:
@@ -37,7 +40,7 @@ class EnvUnitsPolicy:
     """
 
     def __init__(
-        self, policy: Any, velocity_limits: np.ndarray, action_dtype: Any = np.float32, normalized: bool = True
+        self, policy: Policy, velocity_limits: np.ndarray, action_dtype: Any = np.float32, normalized: bool = True
     ) -> None:
         self.policy = policy
         self.velocity_limits = np.asarray(velocity_limits, dtype=np.float64).copy()
