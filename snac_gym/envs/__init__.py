@@ -83,7 +83,7 @@ def register_pose_envs() -> None:
     register_envs()
 
 
-def _register(task: Task, robot: str, goal: bool, version: int = 0) -> None:
+def _register(task: Task[Any], robot: str, goal: bool, version: int = 0) -> None:
     """Register the id of ``task`` on ``robot`` (its goal variant if ``goal``) in ``version`` unless it exists."""
     env_id = task.env_id_for(robot, goal=goal, version=version)
     env_class = task_env_class(task)
@@ -136,7 +136,7 @@ def _register_coarse_reach(robot: str, version: int = 0) -> None:
         )
 
 
-def make_task_env(task: Task | str, robot: str = "ur10", version: int = 0, **kwargs: Any) -> Any:
+def make_task_env(task: Task[Any] | str, robot: str = "ur10", version: int = 0, **kwargs: Any) -> Any:
     """``gym.make`` of ``task``'s id on ``robot`` (registering the ids of a robot or task added since).
 
     Args:

@@ -10,14 +10,13 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
 from snac_gym.envs.rewards import REWARD_TYPES
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.physics import PHYSICS, check_physics
-from snac_gym.references import Reference
 from snac_gym.sampling import REGIONS, SampleSpace, sample_seed_pose
 from snac_gym.tasks import Task
 
@@ -39,6 +38,8 @@ __all__ = [
     "validate_q0",
 ]
 
+#: The reference type of the episode's task (a target, an ellipse, a pose target, ...).
+_ReferenceT = TypeVar("_ReferenceT")
 #: Action types: joint velocities in rad/s, or [−1, 1] per joint scaled to the velocity limits.
 ACTION_TYPES = ("velocity", "normalized")
 #: Observation dtypes.
@@ -102,7 +103,8 @@ def validate_action(action: Any, velocity_limits: np.ndarray) -> np.ndarray:
         raise ValueError(f"action must have shape {velocity_limits.shape} (joint velocities, rad/s), got {u.shape}")
     if not np.isfinite(u).all():
         raise ValueError(f"action contains NaN or inf: {u.tolist()}")
-    return np.minimum(np.maximum(u, -velocity_limits), velocity_limits)
+    clipped: np.ndarray = np.minimum(np.maximum(u, -velocity_limits), velocity_limits)
+    return clipped
 
 
 class ActionCheck:
@@ -135,17 +137,18 @@ class ActionCheck:
             and np.count_nonzero(np.isfinite(action)) == self._size
         ):
             u = np.maximum(action, self._low)
-            return np.minimum(u, self.limits, out=u)
+            clipped: np.ndarray = np.minimum(u, self.limits, out=u)
+            return clipped
         return validate_action(action, self.limits)
 
 
 def resolve_reference(
-    task: Task,
+    task: Task[_ReferenceT],
     kinematics: Kinematics,
     rng: np.random.Generator,
     space: SampleSpace,
     options: Mapping[str, Any] | None,
-) -> Reference:
+) -> _ReferenceT:
     """The episode's reference from ``reset`` options (shared by the simulated and real envs).
 
     No options: a random reference from ``space``. Options without the task's key: the paper's
@@ -182,12 +185,12 @@ def validate_q0(kinematics: Kinematics, value: Any) -> np.ndarray:
 
 
 def draw_episode(
-    task: Task,
+    task: Task[_ReferenceT],
     kinematics: Kinematics,
     rng: np.random.Generator,
     space: SampleSpace,
     options: Mapping[str, Any] | None,
-) -> tuple[np.ndarray, Reference]:
+) -> tuple[np.ndarray, _ReferenceT]:
     """The start pose and the reference of one episode, as ``reset`` draws them.
 
     The reference is drawn (or read from ``options``) first, then the seed pose, both from
@@ -249,6 +252,7 @@ def check_choices(
         raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
     if action_type not in ACTION_TYPES:
         raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
+    obs_dtype: np.dtype | None
     try:
         obs_dtype = np.dtype(observation_dtype)
     except TypeError:

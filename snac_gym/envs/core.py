@@ -96,7 +96,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 25}
     #: The task of a subclass (``None``: given by ``task=``).
-    task_spec: Task | None = None
+    task_spec: Task[Any] | None = None
 
     def __init__(
         self,
@@ -122,7 +122,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         finite_observation_bounds: bool | str = False,
         physics: str = "pybullet",
         render_every: int | None = None,
-        task: Task | str | None = None,
+        task: Task[Any] | str | None = None,
         backend: str | None = None,
         cost: CostConvention | None = None,
     ) -> None:
@@ -179,14 +179,14 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self._check_normalized = ActionCheck(self._unit_limits)
         self._build_spaces(finite_observation_bounds)
 
-    def _resolve_task(self, task: Task | str | None) -> Task:
+    def _resolve_task(self, task: Task[Any] | str | None) -> Task[Any]:
         """The class's task, or ``task=`` for :class:`URTaskEnv` itself."""
         own = type(self).task_spec
         if task is None:
             if own is None:
                 raise TypeError(f"{type(self).__name__} needs task=<a registered task's name>")
             return own
-        task = cast(Task, get_task(task))  # a registered task (get_task returns Any)
+        task = cast("Task[Any]", get_task(task))  # a registered task (get_task returns Any)
         if own is not None and task is not own:
             raise ValueError(f"{type(self).__name__} runs the task {own.name!r}, got task={task.name!r}")
         return task

@@ -70,7 +70,7 @@ def coarse_reach_id(robot: str, action: str = "joint", version: int = 0) -> str:
     return f"snac_gym/{get_robot(robot).env_prefix}ReachGoalCoarse{suffix}-v{version}"
 
 
-def goal_env_id(task: Task, robot: str = "ur10") -> str:
+def goal_env_id(task: Task[Any], robot: str = "ur10") -> str:
     """The goal variant's id of ``task`` on ``robot``: ``snac_gym/UR10ReachGoal-v0``."""
     return task.env_id_for(robot, goal=True)
 
@@ -198,7 +198,8 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
             raise ValueError(
                 f"achieved_goal and desired_goal must have one shape, got {achieved.shape} and {desired.shape}"
             )
-        return np.linalg.norm(achieved - desired, axis=-1)
+        distance: np.ndarray = np.linalg.norm(achieved - desired, axis=-1)
+        return distance
 
     def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any) -> np.ndarray:
         """Reward of each ``(achieved, desired)`` pair (batched over leading axes); ``info`` is unused.
@@ -229,7 +230,9 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         return np.zeros(self._goal_distance(achieved_goal, desired_goal).shape, dtype=bool)
 
     # -- episode ---------------------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         if self._start_q is not None and not (options and "q0" in options):
             if not (options and self.task.option_key in options):  # a random goal, as without the preset start
@@ -251,9 +254,10 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         u = np.clip(
             damped_least_squares(self.env.kinematics.jacobian(q), velocity, self._damping_matrix), -limits, limits
         )
-        return u / limits if self.env.action_type == "normalized" else u
+        command: np.ndarray = u / limits if self.env.action_type == "normalized" else u
+        return command
 
-    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict[str, Any]]:
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         if self.action == "cartesian":
             if self.env._obs is None:  # closed, or not reset: the task env says which
                 self.env._no_episode()

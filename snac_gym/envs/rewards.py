@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -26,17 +26,40 @@ SHAPED_REWARD: Mapping[str, float] = MappingProxyType(
 )
 
 
+@overload
 def shaped_reward(
-    error_norm: Any,
+    error_norm: float,
+    action: np.ndarray,
+    distance_weight: float = ...,
+    precision_bonus: float = ...,
+    precision_scale: float = ...,
+    action_penalty: float = ...,
+) -> float: ...
+
+
+@overload
+def shaped_reward(
+    error_norm: np.ndarray,
+    action: np.ndarray,
+    distance_weight: float = ...,
+    precision_bonus: float = ...,
+    precision_scale: float = ...,
+    action_penalty: float = ...,
+) -> np.ndarray: ...
+
+
+def shaped_reward(
+    error_norm: float | np.ndarray,
     action: np.ndarray,
     distance_weight: float = SHAPED_REWARD["distance_weight"],
     precision_bonus: float = SHAPED_REWARD["precision_bonus"],
     precision_scale: float = SHAPED_REWARD["precision_scale"],
     action_penalty: float = SHAPED_REWARD["action_penalty"],
-) -> float:
+) -> float | np.ndarray:
     """The ``reward_type="shaped"`` reward; the PPO training wrapper uses the same function.
 
-    One step, or the rows of a batch (the vector env): ``error_norm`` ``(B,)`` and ``action`` ``(B, m)``.
+    One step (a float), or the rows of a batch (the vector env): ``error_norm`` ``(B,)`` and ``action`` ``(B, m)``
+    (an array ``(B,)``).
 
     Args:
         error_norm: d = ‖e‖ after the step, m.
@@ -48,7 +71,10 @@ def shaped_reward(
         −distance_weight·d + precision_bonus·exp(−(d / precision_scale)²) − action_penalty·‖a‖².
     """
     bonus = precision_bonus * np.exp(-((error_norm / precision_scale) ** 2))
-    return -distance_weight * error_norm + bonus - action_penalty * np.einsum("...i,...i->...", action, action)
+    reward: float | np.ndarray = (
+        -distance_weight * error_norm + bonus - action_penalty * np.einsum("...i,...i->...", action, action)
+    )
+    return reward
 
 
 def cost_reward_convention(reward_type: str, cost: CostConvention | None, Q: Any, R: Any) -> CostConvention | None:

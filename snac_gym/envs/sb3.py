@@ -49,7 +49,7 @@ class SB3VectorEnv(VecEnv):
         super().__init__(self.vector_env.num_envs, observation_space, action_space)
 
     # -- hooks ---------------------------------------------------------------------------------
-    def _spaces(self) -> tuple[gym.spaces.Space, gym.spaces.Space]:
+    def _spaces(self) -> tuple[gym.spaces.Space[Any], gym.spaces.Space[Any]]:
         """The observation and action spaces the learner sees (the single env's)."""
         return self.vector_env.single_observation_space, self.vector_env.single_action_space
 

@@ -39,7 +39,7 @@ class TaskEnvCore(gym.Env):
 
     def _init_task(
         self,
-        task: Task | str,
+        task: Task[Any] | str,
         kinematics: Kinematics,
         dt: float,
         Q: Any,
@@ -48,7 +48,7 @@ class TaskEnvCore(gym.Env):
         sample_space: SampleSpace | None,
     ) -> None:
         """Set the shared state; raises ``ValueError`` on a bad tolerance or weight matrix."""
-        self.task: Task = get_task(task)
+        self.task: Task[Any] = get_task(task)
         self.task_name = self.task.name
         tolerance = self.task.success_tolerance if success_tolerance is None else success_tolerance
         #: Distance (m) under which the target counts as reached: in (0, :data:`MAX_SUCCESS_TOLERANCE`].

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import cast
+from typing import Any, cast
 
 from snac_gym.envs.core import JOINT_LIMIT_MARGIN, SHAPED_REWARD, URTaskEnv  # noqa: F401  (the docstrings' :data: links)
 from snac_gym.tasks import Task, get_task
@@ -302,12 +302,12 @@ UR10ReachEnv = ReachEnv
 UR10EllipseTrackEnv = EllipseTrackEnv
 
 
-def task_env_class(task: Task | str) -> type[URTaskEnv]:
+def task_env_class(task: Task[Any] | str) -> type[URTaskEnv]:
     """The env class of ``task``: its own (:data:`TASK_ENV_CLASSES`) or :class:`URTaskEnv`.
 
     A task registered later (docs/extending.md) has no class of its own: :class:`URTaskEnv`
     runs it, given ``task=<its name>`` (its registered ids pass that).
     """
-    task = cast(Task, get_task(task))  # a registered task (get_task returns Any)
+    task = cast("Task[Any]", get_task(task))  # a registered task (get_task returns Any)
     own = TASK_ENV_CLASSES.get(task.name)
     return own if own is not None and own.task_spec is task else URTaskEnv

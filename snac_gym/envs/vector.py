@@ -169,9 +169,12 @@ class KinematicEpisodes:
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
             raise ValueError(f"action of sub-env {row} contains NaN or inf: {u[row].tolist()}")
+        commands: np.ndarray
         if self.template.action_type == "normalized":
-            return np.minimum(np.maximum(u, -1.0), 1.0) * self.limits
-        return np.minimum(np.maximum(u, -self.limits), self.limits)
+            commands = np.minimum(np.maximum(u, -1.0), 1.0) * self.limits
+        else:
+            commands = np.minimum(np.maximum(u, -self.limits), self.limits)
+        return commands
 
     def step(self, u: np.ndarray) -> dict[str, np.ndarray]:
         """Hold the commands ``u`` ``(N, m)`` for one period in every episode.
@@ -263,7 +266,7 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"]}
     #: The task of a subclass (``None``: given by ``task=``).
-    task_spec: Task | None = None
+    task_spec: Task[Any] | None = None
 
     def __init__(
         self,
@@ -272,7 +275,7 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
         max_episode_steps: int | None = None,
         physics: str = "kinematic",
         render_mode: str | None = None,
-        task: Task | str | None = None,
+        task: Task[Any] | str | None = None,
         backend: str | None = None,
         **kwargs: Any,
     ) -> None:
@@ -288,7 +291,7 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
             )
         # the bound keeps a typo (10**9) from asking for terabytes
         whole_number("num_envs", num_envs, 1, MAX_NUM_ENVS)
-        task = cast(Task, get_task(task if task is not None else self.task_spec))  # a registered task
+        task = cast("Task[Any]", get_task(task if task is not None else self.task_spec))  # a registered task
         if not vector_env_supports(task):
             raise ValueError(
                 f"the vector env steps end-effector positions only; task {task.name!r} has its own kinematics"
@@ -405,7 +408,7 @@ class URTaskVectorEnv(IdRobotCheck, gym.vector.VectorEnv):
             self._viewer.close()
 
 
-def vector_env_supports(task: Task) -> bool:
+def vector_env_supports(task: Task[Any]) -> bool:
     """Whether the batched env can run ``task``: its coordinates are the end-effector position.
 
     A task that overrides :meth:`Task.make_kinematics` (the pose tasks: orientation error by
@@ -428,7 +431,7 @@ class EllipseTrackVectorEnv(URTaskVectorEnv):
     task_spec = get_task("track")
 
 
-def task_vector_env_class(task: Task | str) -> type[URTaskVectorEnv]:
+def task_vector_env_class(task: Task[Any] | str) -> type[URTaskVectorEnv]:
     """The vector env class of ``task`` (the ``vector_entry_point`` of its ids): its own, or
     :class:`URTaskVectorEnv` for a task registered later (its ids pass ``task=``)."""
     task = get_task(task)

@@ -287,7 +287,7 @@ def test_one_implementation_of_the_kinematic_step():
     assert found == []
     from snac_gym.model import kinematics  # the module itself, whose joint_step the grep above allows
 
-    assert "return np.add(q, u * dt, out=out)" in inspect.getsource(kinematics.joint_step)
+    assert "np.add(q, u * dt, out=out)" in inspect.getsource(kinematics.joint_step)
     for module in ("physics/kinematic.py", "envs/vector.py", "rollout/kinematic.py", "real/emulator/arm.py"):
         assert "joint_step(" in (root / module).read_text(), module
 
