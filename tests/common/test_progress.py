@@ -131,9 +131,8 @@ def test_evaluate_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progr
 
 
 @pytest.mark.parametrize("progress", [True, False])
-def test_train_ppo_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progress):
+def test_train_ppo_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progress, tiny_ppo):
     pytest.importorskip("stable_baselines3")
-    from test_ppo import _tiny_config
 
     arguments = [
         "train-ppo",
@@ -146,7 +145,7 @@ def test_train_ppo_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, prog
         "--out",
         str(tmp_path / "run"),
         "--config",
-        str(_tiny_config(tmp_path)),
+        str(tiny_ppo(tmp_path)),
     ]
     result = _cli(arguments + ([] if progress else ["--no-progress"]), tmp_path, in_process=True)
     assert result.returncode == 0, result.stderr

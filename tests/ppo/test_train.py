@@ -27,19 +27,6 @@ from snac_gym.references import PAPER_Q0
 ENV_OF_TASK = {"reach": "snac_gym/UR10Reach-v0", "track": "snac_gym/UR10EllipseTrack-v0"}
 
 
-def _tiny_config(tmp_path, task="reach", timesteps=64):
-    """The task's shipped config shrunk to a run of a few seconds."""
-    config = load_config(default_config_path(task))
-    config.update(timesteps=timesteps)
-    config["vec_env"].update(n_envs=2, kind="dummy")
-    config["ppo"].update(n_steps=16, batch_size=32, n_epochs=1, net_arch={"pi": [8, 8], "vf": [8, 8]})
-    config["evaluation"].update(every_timesteps=32, episodes=1, horizons_s=[0.024, 0.04])
-    config["normalize"].update(obs=True)  # the frozen-normalisation path of the policy file too
-    path = tmp_path / f"tiny_{task}.json"
-    path.write_text(json.dumps(config))
-    return path
-
-
 def _independent_task_relative_command(policy, observations, action, scale):
     """``u = argmin ‖J u − v‖² + λ²‖u‖²`` by the normal equations ``(JᵀJ + λ²I) u = Jᵀv`` (not the
     ``Jᵀ(JJᵀ + λ²I)⁻¹`` form the package uses), with ``v = ẋ_d + s·k_max·(‖e‖ + 10⁻⁴)·a``, clipped to ±ū."""
@@ -75,10 +62,10 @@ def reach_env():
 
 
 @pytest.fixture(scope="module")
-def trained_run(tmp_path_factory):
+def trained_run(tmp_path_factory, tiny_ppo):
     """One tiny reach training run made by the CLI command."""
     tmp_path = tmp_path_factory.mktemp("ppo")
-    config = _tiny_config(tmp_path)
+    config = tiny_ppo(tmp_path)
     out = tmp_path / "run"
     result = CliRunner().invoke(
         app,
@@ -176,7 +163,9 @@ def terminal_sigint():
 
 
 @pytest.mark.rl
-def test_ctrl_c_leaves_a_usable_checkpoint_and_resume_continues(tmp_path, monkeypatch, reach_env, terminal_sigint):
+def test_ctrl_c_leaves_a_usable_checkpoint_and_resume_continues(
+    tmp_path, monkeypatch, reach_env, terminal_sigint, tiny_ppo
+):
     import snac_gym.ppo.train as train_module
 
     original = train_module.make_training_env
@@ -194,7 +183,7 @@ def test_ctrl_c_leaves_a_usable_checkpoint_and_resume_continues(tmp_path, monkey
     monkeypatch.setattr(train_module, "make_training_env", lambda config: PressCtrlC(original(config)))
     out = tmp_path / "run"
     result = train_module.train_ppo(
-        "reach", out, timesteps=96, seed=1, config_path=_tiny_config(tmp_path), log=lambda s: None
+        "reach", out, timesteps=96, seed=1, config_path=tiny_ppo(tmp_path), log=lambda s: None
     )
     assert result.status == "interrupted" and result.timesteps < 96
     assert json.loads((out / "state.json").read_text())["status"] == "interrupted"
