@@ -213,3 +213,16 @@ def tiny_ppo():
     """:func:`tiny_ppo_config`, for tests in any folder."""
     return tiny_ppo_config
 
+
+@pytest.fixture(autouse=True)
+def _policy_registry_restored():
+    """The controller registry as each test found it: a controller a test registers is gone after it, so the
+    tests that read the registry (the README's controller table) see the package's own, whatever ran before."""
+    from snac_gym.policies import registry  # the registry's own dicts, restored in place
+
+    builtin, factories = dict(registry._BUILTIN), dict(registry._FACTORIES)
+    yield
+    registry._BUILTIN.clear()
+    registry._BUILTIN.update(builtin)
+    registry._FACTORIES.clear()
+    registry._FACTORIES.update(factories)

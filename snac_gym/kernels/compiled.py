@@ -13,6 +13,7 @@ that was in place, as soon as the compile returns. Calls that find a compiled ve
 from __future__ import annotations
 
 import importlib
+import pickle
 import signal
 import threading
 import time
@@ -152,7 +153,7 @@ def _lazy_kernels(module: ModuleType) -> list[tuple[Any, list[Example]]]:  # Any
 
 
 def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
-    """Whether every kernel of ``modules`` has a numba cache index newer than its source.
+    """Whether every kernel of ``modules`` has a numba cache index that numba takes as up to date.
 
     Then :func:`warm_up` only loads (a tenth of a second a module) instead of compiling (seconds).
     The index is the one numba itself reads (its cache folder and file name, for this Python);
@@ -170,9 +171,30 @@ def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
             source = Path(cache._impl.locator._py_file)
         except AttributeError:  # another numba's internals
             return False
-        if not index.is_file() or index.stat().st_mtime < source.stat().st_mtime:
+        if not index.is_file():
+            return False
+        stamp = _index_stamp(index)
+        if stamp is not None:
+            # numba's own test: the index's source stamp against the source's now (a hash of the source in numba
+            # 0.68), so that a file touched but not changed (a checkout there and back) still counts as cached
+            if stamp != cache._impl.locator.get_source_stamp():
+                return False
+        elif index.stat().st_mtime < source.stat().st_mtime:
             return False
     return True
+
+
+def _index_stamp(index: Path) -> object | None:
+    """The source stamp a numba cache index was written for (numba's format: a pickled version, then the pickled
+    ``(stamp, overloads)``), or None where it cannot be read so."""
+    try:
+        with index.open("rb") as file:
+            pickle.load(file)  # numba's version
+            stamp, _ = pickle.loads(file.read())
+    except Exception:  # noqa: BLE001 - another numba's format: the caller falls back to the files' times
+        return None
+    stamp_read: object = stamp
+    return stamp_read
 
 
 def load_if_cached(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:

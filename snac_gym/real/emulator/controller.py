@@ -116,7 +116,7 @@ class UREmulator(DashboardAnswers):
             if stalled:
                 return
             values = self.state_values()
-            due = [c for c in self._connections if c.started and c.output is not None and self._due(c)]
+            due = [c for c in self._connections if c.started and not c.closed and c.output is not None and self._due(c)]
             if due:
                 self._awaiting_fresh_state = False
                 if self._stopped_since is None and self.safety_bits != 1 << p.SAFETY_NORMAL:

@@ -152,8 +152,8 @@ class Listeners(ControllerState):
         except OSError as exc:  # taken meanwhile: retried next cycle
             self.event(f"link not restored yet: {exc}")
             return
+        self._awaiting_fresh_state = True  # first: a client that sees the link back must find it set
         self._link_down = False
-        self._awaiting_fresh_state = True
         for name, listener in zip(PORT_OFFSETS, self._listeners):
             self._spawn(self._accept_loop, listener, name)
         self.event("link restored")
