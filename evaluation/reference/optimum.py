@@ -287,8 +287,9 @@ def solve_samples(
         candidates = own_start_commands(context, samples, steps, seeds, position_limits)
         branches: list[dict[str, np.ndarray]] = [{} for _ in q0s]
         if getattr(kinematics, "task_error", None) is None and context.layout.task_dim == 3:  # a 3-D target's branches
-            ends = [angles(r.commands, q0, dt)[-1] for r, q0 in zip(rest, q0s, strict=True)]
-            searched = [i for i, r in enumerate(rest) if needs_branches(kinematics, r, ends[i], x_d[i, -1])]
+            paths = [angles(r.commands, q0, dt) for r, q0 in zip(rest, q0s, strict=True)]
+            ends = [path[-1] for path in paths]
+            searched = [i for i, r in enumerate(rest) if needs_branches(kinematics, r, paths[i], x_d[i])]
             if searched:
                 found = branch_candidates(kinematics, [q0s[i] for i in searched], x_d[searched], dt, limits,
                                           [ends[i] for i in searched], [rest[i].cost for i in searched])  # fmt: skip

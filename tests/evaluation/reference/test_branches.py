@@ -9,8 +9,10 @@ import pytest
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.branches import (
     BRANCH_SEPARATION,
+    NEAR_SINGULAR,
     branch_commands,
     branch_goals,
+    needs_branches,
     worth_trying,
 )
 from snac_gym.evaluation.reference.optimum import check_reference_row, coarse_commands, solve_samples
@@ -160,3 +162,35 @@ def test_a_reach_optimum_past_a_limit_is_found_by_the_coarse_screen(ur10):
     context = policy_context("ur10", DT, "reach")
     (reference,) = solve_samples(context, samples, [51], x_d, DT, CostConvention("hjb", "rest", 4.0))
     assert reference.solution.cost <= 13.359014, reference.solution.cost
+
+
+class _Rest:
+    bounded = False
+
+
+def test_a_moving_reference_followed_near_a_singular_arm_opens_the_branch_search(ur10):
+    """The gate on the branch search: a fixed target the path stops short of stays closed; a moving one opens it
+    only where the path comes near a singular arm (the smallest singular value of J below NEAR_SINGULAR)."""
+    singular = np.array([0.0, -1.57, 0.0, -1.57, 0.0, 0.0])  # the elbow stretched out: J loses a rank
+    bent = np.array([0.0, -1.2, 1.5, -1.8, -1.57, 0.0])
+    assert np.linalg.svd(ur10.jacobian(singular), compute_uv=False)[-1] < NEAR_SINGULAR
+    assert np.linalg.svd(ur10.jacobian(bent), compute_uv=False)[-1] > 2 * NEAR_SINGULAR
+    far = ur10.forward(bent) + np.array([0.0, 0.0, 0.3])  # 30 cm beyond the path's end: not reached
+    fixed = np.repeat(far[None], 10, axis=0)
+    moving = fixed + np.linspace(0.0, 0.05, 10)[:, None] * np.array([1.0, 0.0, 0.0])
+    for q in (singular, bent):
+        assert not needs_branches(ur10, _Rest(), np.repeat(q[None], 11, axis=0), fixed)
+    assert needs_branches(ur10, _Rest(), np.repeat(singular[None], 11, axis=0), moving)
+    assert not needs_branches(ur10, _Rest(), np.repeat(bent[None], 11, axis=0), moving)
+
+
+def test_a_tracking_optimum_on_another_branch_past_a_near_singular_path_is_found(ur10):
+    """Workspace track sample 25 of seed 409, HJB cost (q = 4): the solve from rest lags the ellipse's end by 2.8 cm,
+    so the branch search stayed closed and the reference was 3.9554; IPOPT reached 3.7903 from another branch (a
+    held-out cross-check). The solve from rest's path passes within 0.13 of a singular arm: the search opens, and
+    the start towards the third branch descends to IPOPT's optimum."""
+    samples, x_d = _workspace(ur10, "track", 409, [25])
+    context = policy_context("ur10", DT, "track")
+    (reference,) = solve_samples(context, samples, [25], x_d, DT, CostConvention("hjb", "rest", 4.0))
+    assert reference.solution.cost <= 3.790325, reference.solution.cost
+    assert reference.winner.startswith("branch-")

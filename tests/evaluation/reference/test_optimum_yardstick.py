@@ -107,10 +107,11 @@ def test_the_reference_keeps_every_limit_and_the_limits_bind(workspace_run, velo
     binding = rows["joint_limit_margin"] < 1e-6
     assert binding.sum() >= 4  # the limits are active constraints here, not idle ones
     assert rows["optimal_converged"].all()
-    # Without the position limits the optimum crosses them exactly where they bind, and costs less there.
+    # Without the position limits the optimum crosses them wherever they bind, and costs less there. (Not only
+    # there: where the free optimum crosses a limit, the limited one may lie on another branch, inside them.)
     free = velocity_only.reindex(pd.MultiIndex.from_frame(rows[["task", "sample"]]))
     crossed = free["joint_limit_margin"].to_numpy() < 0.0
-    np.testing.assert_array_equal(crossed, binding.to_numpy())
+    assert crossed[binding.to_numpy()].all()
     assert np.all(free["cost"].to_numpy()[crossed] < rows["cost"].to_numpy()[crossed])
     assert np.all(free["cost"].to_numpy() <= rows["cost"].to_numpy() * (1 + 1e-9))
     assert set(free["optimal_limits"]) == {"velocity"} and set(rows["optimal_limits"]) == {"joints"}
