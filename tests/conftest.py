@@ -191,8 +191,9 @@ def counted_solves(monkeypatch) -> list[int]:
     return solved
 
 
-def tiny_ppo_config(tmp_path, task="reach", timesteps=64):
-    """The task's shipped PPO config shrunk to a run of a few seconds, written under ``tmp_path`` (its path)."""
+def tiny_ppo_config(tmp_path, task="reach", timesteps=64, normalize_obs=True):
+    """The task's shipped PPO config shrunk to a run of a few seconds, written under ``tmp_path`` (its path);
+    ``normalize_obs``: the frozen-normalisation path of the policy file too."""
     import json
 
     from snac_gym.ppo.config import default_config_path, load_config  # the rl side: only the PPO tests need it
@@ -202,7 +203,8 @@ def tiny_ppo_config(tmp_path, task="reach", timesteps=64):
     config["vec_env"].update(n_envs=2, kind="dummy")
     config["ppo"].update(n_steps=16, batch_size=32, n_epochs=1, net_arch={"pi": [8, 8], "vf": [8, 8]})
     config["evaluation"].update(every_timesteps=32, episodes=1, horizons_s=[0.024, 0.04])
-    config["normalize"].update(obs=True)  # the frozen-normalisation path of the policy file too
+    if normalize_obs:
+        config["normalize"].update(obs=True)
     path = tmp_path / f"tiny_{task}.json"
     path.write_text(json.dumps(config))
     return path

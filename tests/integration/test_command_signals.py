@@ -229,27 +229,15 @@ def test_demo_interrupted_while_drawing_keeps_log_summary_and_whole_figures(tmp_
 
 
 # -- train-ppo: a checkpoint to resume, every evaluation row kept ----------------------------------------
-def _tiny_config(tmp_path: Path, timesteps: int = 96) -> Path:
-    from snac_gym.ppo.config import default_config_path, load_config
-
-    config = load_config(default_config_path("reach"))
-    config.update(timesteps=timesteps)
-    config["vec_env"].update(n_envs=2, kind="dummy")
-    config["ppo"].update(n_steps=16, batch_size=32, n_epochs=1, net_arch={"pi": [8, 8], "vf": [8, 8]})
-    config["evaluation"].update(every_timesteps=32, episodes=1, horizons_s=[0.024, 0.04])
-    path = tmp_path / "tiny_reach.json"
-    path.write_text(json.dumps(config))
-    return path
-
-
 @pytest.mark.rl
 @pytest.mark.slow(seconds=8)
 @pytest.mark.parametrize("signame", MID_RUN_SIGNALS)
-def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_path, signame):
+def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_path, signame, tiny_ppo):
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "run"
     hook = "snac_gym.ppo.envs:PPOTrainingWrapper.step@50"  # the 50th env step (of two envs): mid-training
-    args = ["train-ppo", "--task", "reach", "--out", str(out), "--config", str(_tiny_config(tmp_path)), "--no-progress"]
+    config = tiny_ppo(tmp_path, timesteps=96, normalize_obs=False)
+    args = ["train-ppo", "--task", "reach", "--out", str(out), "--config", str(config), "--no-progress"]
     code, err, _ = _run(args, signame, hook=hook)
     assert code == 128 + int(getattr(signal, signame)), err
     state = json.loads((out / "state.json").read_text())
@@ -274,14 +262,14 @@ def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_
 
 @pytest.mark.rl
 @pytest.mark.slow(seconds=8)
-def test_a_resumed_training_keeps_the_evaluation_row_the_interrupt_cut(tmp_path, monkeypatch):
+def test_a_resumed_training_keeps_the_evaluation_row_the_interrupt_cut(tmp_path, monkeypatch, tiny_ppo):
     """Interrupted inside its second evaluation, then resumed: the evaluation rows are at the timesteps of an
     uninterrupted run's, and those before the interrupt are the same rows (the resumed segment is not
     bit-identical: SB3 saves neither the random generators nor the rollout in flight, docs/ppo.md)."""
     pytest.importorskip("stable_baselines3")
     import snac_gym.ppo.train as train
 
-    config = _tiny_config(tmp_path, timesteps=128)
+    config = tiny_ppo(tmp_path, timesteps=128, normalize_obs=False)
     whole = train.train_ppo("reach", tmp_path / "whole", seed=5, config_path=config, log=lambda line: None)
     assert whole.status == "finished"
     expected, _ = train.read_training_log(tmp_path / "whole")
@@ -313,15 +301,13 @@ def test_a_resumed_training_keeps_the_evaluation_row_the_interrupt_cut(tmp_path,
 
 @pytest.mark.rl
 @pytest.mark.parametrize("name", ["model.zip", "vecnormalize.pkl", "policy.npz"])
-def test_a_checkpoint_file_with_one_flipped_bit_is_refused_on_resume(tmp_path, name):
+def test_a_checkpoint_file_with_one_flipped_bit_is_refused_on_resume(tmp_path, name, tiny_ppo):
     pytest.importorskip("stable_baselines3")
     from snac_gym.ppo.train import train_ppo
 
     out = tmp_path / "run"
-    assert (
-        train_ppo("reach", out, timesteps=32, config_path=_tiny_config(tmp_path), log=lambda line: None).status
-        == "finished"
-    )
+    config = tiny_ppo(tmp_path, timesteps=96, normalize_obs=False)
+    assert train_ppo("reach", out, timesteps=32, config_path=config, log=lambda line: None).status == "finished"
     path = out / "checkpoint" / name
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0x10
