@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.model.joint_goal import GOAL_MARGIN, GoalArms, goal_starts, in_limit_goals
+from snac_gym.model.joint_goal import GOAL_MARGIN, GoalArms, distinct_configurations, goal_starts, in_limit_goals
 from snac_gym.model.kinematics import joint_step
 from snac_gym.policies.base import scale_rows_into_limits
 
@@ -108,11 +108,8 @@ def branch_goals(kinematics: Any, q0s: np.ndarray, first_points: np.ndarray) -> 
     goals = []
     for i in range(count):
         found = [*spread[i], *(g for j in range(LOCAL_STARTS) for g in local[i * LOCAL_STARTS + j])]
-        distinct: list[np.ndarray] = []
-        for goal in sorted(found, key=lambda g: float(np.linalg.norm(g - q0s[i]))):
-            if all(float(np.abs(goal - known).max()) >= BRANCH_SEPARATION for known in distinct):
-                distinct.append(goal)
-        goals.append(np.array(distinct).reshape(-1, m))
+        nearest_first = sorted(found, key=lambda g: float(np.linalg.norm(g - q0s[i])))
+        goals.append(distinct_configurations(np.array(nearest_first).reshape(-1, m), BRANCH_SEPARATION))
     return goals
 
 

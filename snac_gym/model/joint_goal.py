@@ -163,14 +163,20 @@ def in_limit_goals(
     converged = (np.linalg.norm(kinematics.forward_batch(q) - goal, axis=1) <= tol).reshape(count, per)
     distance = np.sum((q - anchor) ** 2, axis=1).reshape(count, per)
     q = q.reshape(count, per, -1)
-    goals = []
-    for i in range(count):
-        distinct: list[np.ndarray] = []
-        for j in np.argsort(np.where(converged[i], distance[i], np.inf), kind="stable")[: int(converged[i].sum())]:
-            if all(float(np.abs(q[i, j] - known).max()) >= separation for known in distinct):
-                distinct.append(q[i, j])
-        goals.append(np.array(distinct).reshape(-1, q.shape[2]))
-    return goals
+    order = [np.argsort(np.where(converged[i], distance[i], np.inf), kind="stable")[: int(converged[i].sum())]
+             for i in range(count)]  # fmt: skip
+    return [distinct_configurations(q[i, order[i]], separation) for i in range(count)]
+
+
+def distinct_configurations(configurations: np.ndarray, separation: float) -> np.ndarray:
+    """``configurations`` ``(N, m)`` without those within ``separation`` (max |Δθ|, rad) of an earlier one kept: one
+    per branch, the first of each in the given order, ``(G, m)``."""
+    configurations = np.asarray(configurations, dtype=float)
+    distinct: list[np.ndarray] = []
+    for q in configurations:
+        if all(float(np.abs(q - known).max()) >= separation for known in distinct):
+            distinct.append(q)
+    return np.array(distinct).reshape(-1, configurations.shape[-1])
 
 
 class GoalArms:
@@ -246,4 +252,7 @@ class GoalArms:
         return current, (moved - current) / self.dt
 
 
-__all__ = ["GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "goal_starts", "in_limit_goals", "nearest_goals"]
+__all__ = [
+    "GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "distinct_configurations", "goal_starts", "in_limit_goals",
+    "nearest_goals",
+]  # fmt: skip
