@@ -173,13 +173,14 @@ def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
             return False
         if not index.is_file():
             return False
+        # numba's own test where its index can be read: the stamp it was written for against the source's now (a
+        # hash of the source in numba 0.68: a file touched but not changed, a checkout there and back, stays cached)
         stamp = _index_stamp(index)
-        if stamp is not None:
-            # numba's own test: the index's source stamp against the source's now (a hash of the source in numba
-            # 0.68), so that a file touched but not changed (a checkout there and back) still counts as cached
-            if stamp != cache._impl.locator.get_source_stamp():
-                return False
-        elif index.stat().st_mtime < source.stat().st_mtime:
+        if stamp is None:
+            stale = index.stat().st_mtime < source.stat().st_mtime
+        else:
+            stale = stamp != cache._impl.locator.get_source_stamp()
+        if stale:
             return False
     return True
 
@@ -187,14 +188,14 @@ def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
 def _index_stamp(index: Path) -> object | None:
     """The source stamp a numba cache index was written for (numba's format: a pickled version, then the pickled
     ``(stamp, overloads)``), or None where it cannot be read so."""
+    stamp: object
     try:
         with index.open("rb") as file:
             pickle.load(file)  # numba's version
             stamp, _ = pickle.loads(file.read())
     except Exception:  # noqa: BLE001 - another numba's format: the caller falls back to the files' times
         return None
-    stamp_read: object = stamp
-    return stamp_read
+    return stamp
 
 
 def load_if_cached(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
