@@ -65,6 +65,10 @@ An episode *diverges* when, at some step k,
 * the model failed: the prediction residual ‖xₖ − x̂(θₖ; ĉ)‖ > 1 cm after the first 0.2 s (the
   complete family fits any rigid error to the measurement noise, so a residual this size means a
   fault of the measurement or of the model class).
+* too slow: ‖eₖ‖ > 5 cm and, at the rate ‖e‖ fell over the last 2 s, closing it would take more
+  than 6 s (half a reach's horizon): progress the controller may well have predicted (a pose near a
+  singularity, where the LQR's slowest mode is 2σ_min(J)), but an episode that would end centimetres off,
+  and that must say so.
 
 From that step the episode's command is the fallback, a stop (u = 0, ``fallback="stop"``), and
 its ``diverged`` flag is raised: a log column, ``diverged`` and ``diverged_time`` in the
@@ -90,8 +94,10 @@ from snac_gym.model.kinematics import leaf_chain
 from snac_gym.policies.base import positive_float
 from snac_gym.policies.snac_hjb import SNACHJBPolicy
 
-#: Default prior standard deviations of every frame's correction: translation (m), rotation (rad).
-PRIOR_TRANSLATION, PRIOR_ROTATION = 0.1, 0.05
+#: Default prior standard deviations of every frame's correction: translation (m), rotation (rad). 0.5 m: another
+#: arm's links (the UR3's are 0.37 m shorter than the UR10's); 0.1 m held a UR3 model's correction 3.7σ out, and
+#: the filter tracked 37 of 50 ellipses where 0.5 m tracks 50 (docs/model-error.md, "Another arm's model").
+PRIOR_TRANSLATION, PRIOR_ROTATION = 0.5, 0.05
 #: Default measurement noise of x, m.
 MEASUREMENT_NOISE = 1e-4
 #: Default random-walk standard deviation of every parameter per step: lets the filter forget the
@@ -103,10 +109,12 @@ PROCESS_NOISE = 1e-4
 ITERATIONS = 3
 #: Divergence bounds (:class:`DivergenceMonitor`): growth past ‖e₀‖ (m); the floor below which nothing stalls (m);
 #: the window (s) and least shortfall (m) of the measured progress against the predicted one; the window (s) and
-#: least progress (m) of the no-progress rule; the prediction residual (m) after a settling time (s).
+#: least progress (m) of the no-progress rule; the prediction residual (m) after a settling time (s); the error (m)
+#: above which the progress over the no-progress window must close the error within the longest time to go (s).
 DIVERGENCE_GROWTH, DIVERGENCE_FLOOR = 0.05, 0.02
 DIVERGENCE_WINDOW, DIVERGENCE_SHORTFALL, DIVERGENCE_PATIENCE, DIVERGENCE_LEAST_PROGRESS = 0.5, 0.01, 2.0, 0.001
 DIVERGENCE_RESIDUAL, DIVERGENCE_SETTLE = 0.01, 0.2
+DIVERGENCE_SLOW_FLOOR, DIVERGENCE_TIME_TO_GO = 0.05, 6.0
 #: What a diverged episode commands.
 FALLBACKS = ("stop", "none")
 
@@ -215,6 +223,9 @@ class DivergenceMonitor:
         residual: An episode diverges when the model's prediction residual exceeds this, m, once the
             identifier has had ``settle`` s to correct the first error of the model.
         settle: Time before the residual bound applies, s.
+        slow_floor: Above this error, m, an episode must be closing it fast enough:
+        time_to_go: the longest time, s, the error above ``slow_floor`` may take to close at the rate it fell over
+            the last ``patience`` s (‖eₖ‖·patience > time_to_go·(‖eₖ₋ₚ‖ − ‖eₖ‖): too slow).
     """
 
     def __init__(
@@ -228,8 +239,11 @@ class DivergenceMonitor:
         least_progress: float = DIVERGENCE_LEAST_PROGRESS,
         residual: float = DIVERGENCE_RESIDUAL,
         settle: float = DIVERGENCE_SETTLE,
+        slow_floor: float = DIVERGENCE_SLOW_FLOOR,
+        time_to_go: float = DIVERGENCE_TIME_TO_GO,
     ) -> None:
         self.growth, self.floor, self.shortfall, self.least_progress = growth, floor, shortfall, least_progress
+        self.slow_floor, self.time_to_go, self.patience_time = slow_floor, time_to_go, patience
         self.residual_bound = residual
         self.window = max(1, round(window / dt))
         self.patience = max(1, round(patience / dt))
@@ -274,6 +288,10 @@ class DivergenceMonitor:
             & above
             & (self.history[k % self.patience] - error_norms < self.least_progress),
             "prediction residual": (k >= self.settle) & (residuals > self.residual_bound),
+            # Progress, but too slow to close a large error within the time to go (however well predicted).
+            "too slow": (k >= self.patience)
+            & (error_norms > self.slow_floor)
+            & (error_norms * self.patience_time > self.time_to_go * (self.history[k % self.patience] - error_norms)),
         }
         for reason, fired in rules.items():
             new = fired & ~self.diverged
@@ -301,8 +319,8 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         fallback: What a diverged episode commands from then on: ``"stop"`` (zero velocity, the
             default) or ``"none"`` (keep the adaptive command; the flag is still raised).
         divergence_growth, divergence_floor, divergence_window, divergence_shortfall, divergence_patience,
-        divergence_least_progress, divergence_residual: The bounds of :class:`DivergenceMonitor`
-            (m, m, s, m, s, m, m).
+        divergence_least_progress, divergence_residual, divergence_slow_floor, divergence_time_to_go: The bounds of
+            :class:`DivergenceMonitor` (m, m, s, m, s, m, m, m, s).
         **kwargs: The other arguments of :class:`~snac_gym.policies.snac_hjb.SNACHJBPolicy`.
 
     Attributes:
@@ -334,6 +352,8 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
         divergence_patience: float = DIVERGENCE_PATIENCE,
         divergence_least_progress: float = DIVERGENCE_LEAST_PROGRESS,
         divergence_residual: float = DIVERGENCE_RESIDUAL,
+        divergence_slow_floor: float = DIVERGENCE_SLOW_FLOOR,
+        divergence_time_to_go: float = DIVERGENCE_TIME_TO_GO,
         **kwargs: Any,
     ) -> None:
         super().__init__(env, Q=Q, R=R, q_scale=q_scale, **kwargs)
@@ -353,7 +373,8 @@ class SNACAdaptivePolicy(SNACHJBPolicy):
             self.dt, **{name: positive_float(f"divergence_{name}", value) for name, value in (
                 ("growth", divergence_growth), ("floor", divergence_floor), ("window", divergence_window),
                 ("shortfall", divergence_shortfall), ("patience", divergence_patience),
-                ("least_progress", divergence_least_progress), ("residual", divergence_residual))},
+                ("least_progress", divergence_least_progress), ("residual", divergence_residual),
+                ("slow_floor", divergence_slow_floor), ("time_to_go", divergence_time_to_go))},
         )  # fmt: skip
         self._x = self.layout.slices["x"]
 

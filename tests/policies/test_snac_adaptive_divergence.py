@@ -42,30 +42,43 @@ def _rollouts(task, model_error, steps=250, **kwargs):
 
 def test_a_monitor_passes_a_decaying_error_and_flags_each_bound_at_its_step():
     monitor = DivergenceMonitor(DT)
-    count = 6
+    count = 7
     monitor.reset(count)
     window, patience, settle = monitor.window, monitor.patience, monitor.settle
     for k in range(400):
         decaying = 0.5 * np.exp(-2.0 * k * DT)  # a converging reach: 0.5 m at 2/s, as predicted
-        slow = 0.3 - 0.0001 * k  # 1.25 cm/s, as predicted (a velocity limit, a singular direction)
+        slow = 0.3 - 0.0004 * k  # 5 cm/s, as predicted (a velocity limit): 0.2 m left at 2 s, 4 s to go
         growing = 0.3 + 0.0011 * k  # more than 5 cm past its start from k = 46
         short = 0.10  # 10 cm and not moving, where the controller predicts 0.5 mm a step
         stuck = 0.10  # 10 cm and not moving, as the controller predicts (Ĵᵀe = 0)
-        norms = np.array([decaying, slow, growing, short, stuck, 0.0])
-        predicted = np.array([0.5 * np.exp(-2.0 * (k + 1) * DT), slow - 0.0001, growing - 0.0005, short - 0.0005,
-                              stuck, 0.0])  # fmt: skip
-        residual = np.array([0, 0, 0, 0, 0, 0.02 if k >= 10 else 0.0])  # 2 cm from step 10, before the settling time
+        crawling = 0.3 - 0.0001 * k  # 1.25 cm/s, as predicted (a singular direction): 22 s to go at 2 s
+        norms = np.array([decaying, slow, growing, short, stuck, 0.0, crawling])
+        predicted = np.array([0.5 * np.exp(-2.0 * (k + 1) * DT), slow - 0.0004, growing - 0.0005, short - 0.0005,
+                              stuck, 0.0, crawling - 0.0001])  # fmt: skip
+        residual = np.array([0, 0, 0, 0, 0, 0.02 if k >= 10 else 0.0, 0])  # 2 cm from step 10, before the settling time
         monitor.check(norms, residual, predicted)
-    assert monitor.diverged.tolist() == [False, False, True, True, True, True]
+    assert monitor.diverged.tolist() == [False, False, True, True, True, True, True]
     assert monitor.reason[2:].tolist() == ["error grew", "progress fell short of the prediction", "no progress",
-                                           "prediction residual"]  # fmt: skip
+                                           "prediction residual", "too slow"]  # fmt: skip
     assert monitor.step[2] == 46  # the first step more than 5 cm above ‖e₀‖
     # 0.5 mm a step predicted, none measured: a shortfall of 1 cm (and half the prediction) after 20 steps, once
     # a whole window of measurements is in
     assert monitor.step[3] == window
     assert monitor.step[4] == patience  # no progress needs the whole 2 s
     assert monitor.step[5] == settle  # the residual bound waits for the identifier's first correction
+    assert monitor.step[6] == patience  # too slow: judged on the same 2 s
     assert monitor.describe(0) == "" and monitor.describe(4) == f"no progress at step {patience}"
+
+
+@pytest.mark.parametrize("time_to_go, flagged", [(6.0, True), (30.0, False)])
+def test_too_slow_is_the_time_the_recent_progress_needs_to_close_the_error(time_to_go, flagged):
+    """25 cm left after 2 s at 2.5 cm/s: 10 s to go, more than 6 s and less than 30 s."""
+    monitor = DivergenceMonitor(DT, time_to_go=time_to_go)
+    monitor.reset(1)
+    for k in range(monitor.patience + 1):
+        norm = np.array([0.3 - 0.0002 * k])
+        monitor.check(norm, np.zeros(1), norm - 0.0002)
+    assert monitor.diverged[0] == flagged
 
 
 @pytest.mark.parametrize("task", ["reach", "track"])
