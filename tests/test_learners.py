@@ -65,7 +65,8 @@ def test_a_failed_episode_is_never_within_tau_however_cheap(report):
             "ratio": [1.0, 2.0, 0.5, 5.0],  # the failure is the cheapest
         }
     )
-    ratios = report.episode_ratios(scores, "sac", "reach")
+    assert np.array_equal(report.episode_ratios(scores, "sac", "reach"), [[1.0, 2.0, 0.5, 5.0]])  # at its cost
+    ratios = report.episode_ratios(scores, "sac", "reach", failures="never")
     assert np.array_equal(ratios, [[1.0, 2.0, np.inf, 5.0]])
     fractions = report.within(ratios[None], np.array([0.9, 1.0, 2.0, 1e4]))[0]
     assert np.allclose(fractions, [0.0, 0.25, 0.5, 0.75])

@@ -318,6 +318,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--workers", type=int, default=1, help="local processes (one job each)")
     parser.add_argument("--ray", default=None, metavar="ADDRESS", help="run the jobs on Ray: 'local' or an address")
     parser.add_argument("--figure", type=Path, default=None, help="the profile figure (default OUT/profile.png)")
+    parser.add_argument("--data", type=Path, default=None, help="also write the report's tables to this folder")
     parser.add_argument("--report-only", action="store_true", help="aggregate the finished jobs, train nothing")
     args = parser.parse_args(argv)
     args.learners = _names(args.learners, LEARNERS, "learner")
@@ -362,7 +363,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import learners_report  # the report beside this script (matplotlib, rliable): after the runs
 
-    return learners_report.report(args.out, [job.folder for job in jobs], args.figure)
+    return learners_report.report(args.out, [job.folder for job in jobs], args.figure, args.data)
 
 
 if __name__ == "__main__":

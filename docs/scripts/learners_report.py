@@ -7,15 +7,19 @@ rate, and the median over all the samples of cost / reference (a failed sample c
 Across the runs of a learner, per task and over both tasks: rliable's interquartile mean (IQM, the 25 % trimmed
 mean over runs × tasks; of three runs of one task it trims nothing, so it is their mean) with a 95 %
 stratified-bootstrap percentile interval (runs resampled within each task). The performance profile counts
-episodes: the fraction of a learner's (run, sample) episodes that succeed at a cost ≤ τ × the reference's, a failure
-never (Dolan and Moré's convention), with a 95 % stratified-bootstrap band over the runs.
+episodes, with a 95 % stratified-bootstrap band over the runs: solid, the fraction of a learner's (run, sample)
+episodes at a cost ≤ τ × the reference's, each at the cost it had (the table's measure); dashed, those that also
+succeed (a failure is never within τ, Dolan and Moré's convention); the legend gives the success rate.
 
-Writes ``OUT/scores.csv`` (every sample), ``OUT/runs.csv``, ``OUT/summary.csv``, ``OUT/table.md`` and the figure.
+Writes ``OUT/scores.csv`` (every sample), ``OUT/runs.csv``, ``OUT/summary.csv``, ``OUT/table.md`` and the figure;
+``--data DIR`` also writes the four files to DIR, with ``source.json`` (the command and the commit).
 """
 
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -126,10 +130,11 @@ def summary(runs: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def episode_ratios(scores: pd.DataFrame, learner: str, task: str) -> np.ndarray:
-    """(seeds × samples): cost / reference per episode, ``inf`` where the episode failed."""
+def episode_ratios(scores: pd.DataFrame, learner: str, task: str, failures: str = "cost") -> np.ndarray:
+    """(seeds × samples): cost / reference per episode; a failed episode at its cost (``failures="cost"``) or
+    ``inf`` (``"never"``: never within any τ)."""
     rows = scores[(scores.learner == learner) & (scores.task == task)]
-    ratios = rows.ratio.where(rows.success.astype(bool), np.inf)
+    ratios = rows.ratio if failures == "cost" else rows.ratio.where(rows.success.astype(bool), np.inf)
     table = rows.assign(value=ratios).pivot(index="seed", columns="sample", values="value").dropna()
     return table.to_numpy(dtype=float)
 
@@ -141,18 +146,26 @@ def within(samples: np.ndarray, taus: np.ndarray = TAUS) -> np.ndarray:
     return np.asarray(counts / flat.shape[1], dtype=float)
 
 
-def profiles(scores: pd.DataFrame, reps: int = REPS // 10) -> dict[str, dict[str, tuple[np.ndarray, ...]]]:
-    """Per task and learner: the fraction of episodes within τ × the reference, and its bootstrap band."""
+#: A profile: per task, learner and way of counting failures (``"cost"``, ``"never"``), the fraction and its band.
+Profiles = dict[str, dict[str, dict[str, tuple[np.ndarray, ...]]]]
+
+
+def profiles(scores: pd.DataFrame, reps: int = REPS // 10) -> Profiles:
+    """Per task and learner: the fraction of episodes within τ × the reference, and its bootstrap band, with the
+    failures at their cost and with the failures never within τ."""
     return {
         task: {
-            learner: stratified_bootstrap(episode_ratios(scores, learner, task), within, reps)
+            learner: {
+                failures: stratified_bootstrap(episode_ratios(scores, learner, task, failures), within, reps)
+                for failures in ("cost", "never")
+            }
             for learner in dict.fromkeys(scores.learner)
         }
         for task in dict.fromkeys(scores.task)
     }
 
 
-def draw(curves: dict[str, dict[str, tuple[np.ndarray, ...]]], path: Path, note: str) -> None:
+def draw(curves: Profiles, success: dict[tuple[str, str], float], path: Path, note: str) -> None:
     """The performance profile, one panel per task."""
     # matplotlib without a display
     import matplotlib
@@ -162,18 +175,23 @@ def draw(curves: dict[str, dict[str, tuple[np.ndarray, ...]]], path: Path, note:
 
     fig, axes = plt.subplots(1, len(curves), figsize=(5.2 * len(curves), 3.8), sharey=True, squeeze=False)
     for ax, (task, learners) in zip(axes[0], curves.items(), strict=True):
-        for learner, (fraction, low, high) in learners.items():
+        for learner, kinds in learners.items():
             colour = COLOURS.get(learner)
-            ax.plot(TAUS, fraction, color=colour, label=learner.upper(), drawstyle="steps-post")
-            ax.fill_between(TAUS, low, high, color=colour, alpha=0.2, step="post")
+            label = f"{learner.upper()} ({100 * success[task, learner]:.0f} % succeed)"
+            for failures, style in (("cost", "-"), ("never", "--")):
+                fraction, low, high = kinds[failures]
+                ax.plot(
+                    TAUS, fraction, style, color=colour, label=label if style == "-" else None, drawstyle="steps-post"
+                )
+                ax.fill_between(TAUS, low, high, color=colour, alpha=0.15, step="post")
         ax.set_xscale("log")
         ax.set_xlim(TAUS[0], TAUS[-1])
         ax.set_ylim(-0.02, 1.02)
         ax.set_title(task)
         ax.set_xlabel("τ: cost ≤ τ × the reference's (HJB cost, Q = 4·I)")
         ax.grid(alpha=0.3, which="both")
-    axes[0][0].set_ylabel("fraction of episodes, succeeded and within τ")
-    axes[0][-1].legend(loc="upper left")
+        ax.legend(loc="upper left", fontsize=8)
+    axes[0][0].set_ylabel("fraction of episodes within τ")
     fig.suptitle(note, fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -201,19 +219,29 @@ def markdown(table: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def report(out: Path, folders: Sequence[Path], figure: Path | None = None) -> int:
-    """Aggregate the finished jobs among ``folders`` into ``out`` (and the figure); print the table."""
+def report(out: Path, folders: Sequence[Path], figure: Path | None = None, data: Path | None = None) -> int:
+    """Aggregate the finished jobs among ``folders`` into ``out`` (and ``data``, with the command that made them, and
+    the figure); print the table."""
     scores = read_scores(folders)
     runs = run_table(scores, out)
     table = summary(runs)
-    out.mkdir(parents=True, exist_ok=True)
-    scores.to_csv(out / "scores.csv", index=False, float_format="%.6g")
-    runs.to_csv(out / "runs.csv", index=False, float_format="%.6g")
-    table.to_csv(out / "summary.csv", index=False, float_format="%.6g")
     text = markdown(table)
-    (out / "table.md").write_text(text)
+    for folder in [out] + ([data] if data is not None else []):
+        folder.mkdir(parents=True, exist_ok=True)
+        scores.to_csv(folder / "scores.csv", index=False, float_format="%.6g")
+        runs.to_csv(folder / "runs.csv", index=False, float_format="%.6g")
+        table.to_csv(folder / "summary.csv", index=False, float_format="%.6g")
+        (folder / "table.md").write_text(text)
+    if data is not None:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=False).stdout
+        source = {"command": "python " + " ".join(sys.argv), "commit": commit.strip()}
+        (data / "source.json").write_text(json.dumps(source, indent=1) + "\n")
     steps = ", ".join(f"{int(s):,}" for s in sorted(runs.steps.dropna().unique()))
-    note = f"{len(runs)} runs, {steps} steps each; {int(runs.samples.max())} held-out samples per run and task"
-    draw(profiles(scores), figure or out / "profile.png", note)
+    note = (
+        f"{len(runs)} runs, {steps} steps each; {int(runs.samples.max())} held-out samples per run and task. "
+        "Solid: every episode at its cost; dashed: succeeded episodes only. Bands: 95 % stratified bootstrap over seeds"
+    )
+    success = scores.groupby(["task", "learner"]).success.mean().to_dict()
+    draw(profiles(scores), success, figure or out / "profile.png", note)
     print(text, end="")
     return 0
