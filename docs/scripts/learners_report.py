@@ -39,9 +39,30 @@ BOTH = "both"
 COLOURS = {"ppo": "tab:blue", "sac": "tab:orange", "td3": "tab:green", "tqc": "tab:red"}
 
 
+#: The error the success rule of each task reads (the evaluator's results): reach, the final error (≤ 1 mm);
+#: track, the mean error over the second half (≤ 5 mm).
+ERRORS = {"reach": "final_error", "track": "mean_error_2nd_half"}
+
+
+def with_errors(scores: pd.DataFrame, folder: Path) -> pd.DataFrame:
+    """A job's scores with ``error_m``, the error its task's success rule reads, from the evaluator's results of the
+    job (``evaluation/results.csv``), where they are."""
+    path = folder / "evaluation" / "results.csv"
+    if not path.exists():
+        return scores
+    results = pd.read_csv(path)
+    learned = results[results.controller != "optimal"].set_index("sample")
+    column = ERRORS[str(scores.task.iloc[0])]
+    return scores.assign(error_m=learned.loc[scores["sample"], column].to_numpy())
+
+
 def read_scores(folders: Sequence[Path]) -> pd.DataFrame:
-    """The ``scores.csv`` of every folder that has one, in one table."""
-    frames = [pd.read_csv(folder / "scores.csv") for folder in folders if (folder / "scores.csv").exists()]
+    """The ``scores.csv`` of every folder that has one, in one table (with ``error_m``, :func:`with_errors`)."""
+    frames = [
+        with_errors(pd.read_csv(folder / "scores.csv"), folder)
+        for folder in folders
+        if (folder / "scores.csv").exists()
+    ]
     if not frames:
         raise FileNotFoundError(f"no scores.csv in {len(folders)} job folders (run the jobs first)")
     return pd.concat(frames, ignore_index=True)
@@ -57,6 +78,7 @@ def run_table(scores: pd.DataFrame, out: Path) -> pd.DataFrame:
             median_ratio=("ratio", "median"),
             mean_ratio=("ratio", "mean"),
             reference_success=("reference_success", "mean"),
+            median_error_m=("error_m", "median"),
         )
         .reset_index()
     )
@@ -126,6 +148,8 @@ def summary(runs: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
                 point, low, high = stratified_bootstrap(scores, lambda x: iqm_rows(x)[:, None], reps)
                 row["runs"] = scores.shape[0]
                 row[f"{column}_iqm"], row[f"{column}_low"], row[f"{column}_high"] = point[0], low[0], high[0]
+            if "median_error_m" in runs and len(group) == 1:  # the tasks' errors are different measures
+                row["median_error_m_iqm"] = iqm(matrix(runs, learner, group, "median_error_m"))
             rows.append(row)
     return pd.DataFrame(rows)
 
@@ -208,14 +232,23 @@ def _cell(point: float, low: float, high: float, percent: bool = False) -> str:
 
 def markdown(table: pd.DataFrame) -> str:
     """The summary as the Markdown table of docs/rl.md."""
+    errors = "median_error_m_iqm" in table
     lines = [
-        "| task | learner | seeds | success, IQM [95 % CI] | median cost / reference, IQM [95 % CI] |",
-        "|---|---|---|---|---|",
+        "| task | learner | seeds | success, IQM [95 % CI] | median cost / reference, IQM [95 % CI] |"
+        + (" median error, IQM |" if errors else ""),
+        "|---|---|---|---|---|" + ("---|" if errors else ""),
     ]
     for row in table.itertuples():
         success = _cell(row.success_iqm, row.success_low, row.success_high, percent=True)
         ratio = _cell(row.median_ratio_iqm, row.median_ratio_low, row.median_ratio_high)
-        lines.append(f"| {row.task} | {row.learner.upper()} | {row.runs} | {success} | {ratio} |")
+        error = (
+            ""
+            if not errors
+            else " – |"
+            if np.isnan(row.median_error_m_iqm)
+            else f" {1000 * row.median_error_m_iqm:.0f} mm |"
+        )
+        lines.append(f"| {row.task} | {row.learner.upper()} | {row.runs} | {success} | {ratio} |{error}")
     return "\n".join(lines) + "\n"
 
 
