@@ -13,7 +13,11 @@ each branch, drawn from the sample alone:
   (θ₀ plus fixed offsets of up to :data:`LOCAL_SPREAD` rad per joint), each the one nearest its start: with six
   joints and a 3-D target the solutions form 3-D sets whose distance from θ₀ has several local minima, and the
   nearest can be one that the IK from θ₀ does not descend to (a held-out track sample: 1.91 rad from θ₀ where the
-  IK from θ₀ ended 2.53 rad away, the optimum there 17.7 % below every other start's);
+  IK from θ₀ ended 2.53 rad away, the optimum there 17.7 % below every other start's); each goal is then turned by
+  whole turns the short way round every joint whose range allows it (:func:`wrapped_towards`): the IK ends the way
+  round its start lies, and the other way can be the cheaper basin (a held-out track sample, 0.9 % below every start
+  before; on whole-workspace tracks of that seed 3 of 100 references fell by up to 4.4 %, and the search took 30 %
+  less time, with fewer distinct goals to screen);
 * a start per goal (:func:`branch_commands`): the ``joint-goal`` law towards it, u = sat(θ̇* + K(θ* − θ)), with the
   virtual arm carrying θ* along a moving reference on that branch: a straight joint path, inside the limits;
 * :data:`RANDOM_STARTS` starts that go straight to a random configuration of the joint box over the first half of
@@ -105,12 +109,26 @@ def branch_goals(kinematics: Any, q0s: np.ndarray, first_points: np.ndarray) -> 
     # Each local start is its own anchor: the IK ends on the branch through it, near it (no spread starts).
     local = in_limit_goals(kinematics, near, np.repeat(first_points, LOCAL_STARTS, axis=0), np.empty((0, m)),
                            separation=BRANCH_SEPARATION)  # fmt: skip
+    low, high = kinematics.lower_limits + GOAL_MARGIN, kinematics.upper_limits - GOAL_MARGIN
     goals = []
     for i in range(count):
         found = [*spread[i], *(g for j in range(LOCAL_STARTS) for g in local[i * LOCAL_STARTS + j])]
+        found = [wrapped_towards(g, q0s[i], low, high) for g in found]
         nearest_first = sorted(found, key=lambda g: float(np.linalg.norm(g - q0s[i])))
         goals.append(distinct_configurations(np.array(nearest_first).reshape(-1, m), BRANCH_SEPARATION))
     return goals
+
+
+def wrapped_towards(goal: np.ndarray, q0: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``goal`` with each joint turned by the whole turns (2π) that bring it nearest ``q0`` inside [``lower``,
+    ``upper``]: the same end effector, the joint going the other way round. The IK from a start ends at the solution
+    nearest that start, and a joint with a range over 2π can reach it either way; the shorter way can be the cheaper
+    basin (a held-out track sample: the shoulder 3.2 rad one way, 3.1 the other; IPOPT from rest found it, 0.9 %
+    below every start without it)."""
+    candidates = goal + 2.0 * np.pi * np.arange(-2, 3)[:, None]  # (5, m): the turns a ±2π range allows
+    distance = np.where((candidates >= lower) & (candidates <= upper), np.abs(candidates - q0), np.inf)
+    distance[2] = np.abs(goal - q0)  # no turn: the goal itself, always a candidate
+    return candidates[np.argmin(distance, axis=0), np.arange(len(goal))]
 
 
 def needs_branches(kinematics: Any, rest: Any, path: np.ndarray, x_d: np.ndarray) -> bool:
@@ -198,4 +216,5 @@ __all__ = [
     "BRANCH_PREFIX", "BRANCH_SEPARATION", "BRANCH_SPREAD", "LOCAL_SEED", "LOCAL_SPREAD", "LOCAL_STARTS",
     "NEAR_SINGULAR", "RANDOM_PREFIX", "RANDOM_STARTS", "REACHED", "SINGULAR_STRIDE",
     "branch_candidates", "branch_commands", "branch_goals", "needs_branches", "random_configurations", "worth_trying",
+    "wrapped_towards",
 ]  # fmt: skip
