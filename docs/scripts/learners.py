@@ -1,7 +1,7 @@
 """The learners table of docs/rl.md: PPO, SAC, TD3 and TQC trained on the UR10's reach and ellipse-tracking -v1 ids
 with the shipped rl-zoo3 hyperparameters, then scored by the evaluator against the per-sample optimum.
 
-    python docs/scripts/learners.py --out runs/learners --steps 20000 --seeds 0,1,2
+    python docs/scripts/learners.py --out runs/learners --steps 15000 --seeds 0,1,2
 
 One job per (learner, task, seed): train for ``--steps`` environment steps, save the model under
 ``OUT/LEARNER_TASK_SEED/``, then score it with :func:`snac_gym.evaluation.runner.run_evaluation` (the evaluator's
@@ -312,7 +312,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--learners", default=",".join(LEARNERS), help=f"comma-separated, of {', '.join(LEARNERS)}")
     parser.add_argument("--tasks", default=",".join(TASKS), help=f"comma-separated, of {', '.join(TASKS)}")
     parser.add_argument("--seeds", default="0,1,2", help="training seeds, comma-separated")
-    parser.add_argument("--steps", type=int, default=25_000, help="environment steps of every run")
+    parser.add_argument("--steps", type=int, default=15_000, help="environment steps of every run (docs/rl.md: why)")
     parser.add_argument("--samples", type=int, default=100, help="held-out evaluator samples per task")
     parser.add_argument("--eval-seed", type=int, default=EVAL_SEED, help="seed of the held-out samples")
     parser.add_argument("--workers", type=int, default=1, help="local processes (one job each)")
