@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# snac-adaptive's rows of docs/model-error.md, rerun after its prior and monitor changed (issue 62): the same samples,
+# seeds and settings as the runs those tables came from, with snac-adaptive and the optimum only (no other
+# controller's code changed, so their rows stand). One worker, so that it can share a busy machine.
+#   bash docs/scripts/adaptive_reruns.sh [OUT]
+#   then: python docs/scripts/model_error_table.py none=OUT/me_none_s41 ... (the names below)
+#         python docs/scripts/model_error_holdout.py none=OUT/me_none_ws model=ur5=OUT/me_ur5_ws combined=OUT/me_comb_ws
+set -euo pipefail
+out=${1:-runs/adaptive}
+mkdir -p "$out"
+combined="joint_offset=0,0.3,0.5,0,0.3,0;link_scale=-0.1;tool_offset=0.05,0.05,0.07"
+common=(--samples 100 --workers 1 --no-match-effort --cost hjb --q-scale 4 --controllers snac-adaptive,optimal
+        --no-plots --no-progress)
+run() {  # NAME SEED [evaluate arguments...]
+  local name=$1 seed=$2
+  shift 2
+  local start
+  start=$(date +%s)
+  snac-gym evaluate --out "$out/$name" --seed "$seed" "${common[@]}" "$@" > "$out/$name.log"
+  echo "$name: $(( $(date +%s) - start )) s"
+}
+# The first table (docs/scripts/model_error_runs.sh's errors, seed 41, the cuboid).
+run me_none_s41 41
+run me_ur5_s41 41 --model-error model=ur5
+run me_ur3_s41 41 --model-error model=ur3
+for i in 0 1 2; do run "me_random${i}_s41" 41 --model-error "random=0.005,$i"; done
+run me_combined_s41 41 --model-error "$combined"
+# The held-out checks: the combined error on seed 3; random errors twice as large on seed 42; the workspace, seed 43.
+run me_comb_s3 3 --model-error "$combined"
+for i in 3 4 5; do run "me_random${i}_s42" 42 --model-error "random=0.01,$i"; done
+run me_none_ws 43 --sample-space workspace
+run me_ur5_ws 43 --sample-space workspace --model-error model=ur5
+run me_comb_ws 43 --sample-space workspace --model-error "$combined"
