@@ -132,7 +132,7 @@ def train(job: Job, overrides: dict[str, Any] | None = None) -> dict[str, float]
     """Train ``job``'s model for ``job.steps`` steps and save ``model.zip`` (and ``vecnormalize.pkl``) in its folder.
 
     Returns:
-        The training's wall and CPU seconds (also written to ``train.json``).
+        The training's wall and CPU seconds and the steps it took (also written to ``train.json``).
     """
     import torch  # with stable-baselines3 (see algorithm)
 
@@ -142,6 +142,7 @@ def train(job: Job, overrides: dict[str, Any] | None = None) -> dict[str, float]
     wall, cpu = time.perf_counter(), time.process_time()
     model.learn(total_timesteps=job.steps)
     timing = {"train_wall_s": time.perf_counter() - wall, "train_cpu_s": time.process_time() - cpu}
+    timing["timesteps"] = int(model.num_timesteps)  # PPO rounds up to whole rollouts (n_envs × n_steps)
     if hasattr(venv, "obs_rms"):
         venv.save(str(job.folder / "vecnormalize.pkl"))
     model.save(job.folder / "model.zip")  # last: its presence marks a finished training
