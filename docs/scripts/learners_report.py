@@ -132,7 +132,7 @@ def stratified_bootstrap(
 def matrix(runs: pd.DataFrame, learner: str, tasks: Sequence[str], column: str) -> np.ndarray:
     """``column`` of ``learner``'s runs as a (seeds × tasks) matrix (the seeds every task has)."""
     rows = runs[(runs.learner == learner) & runs.task.isin(tasks)]
-    table = rows.pivot(index="seed", columns="task", values=column)[list(tasks)].dropna()
+    table = rows.pivot(index="seed", columns="task", values=column).reindex(columns=list(tasks)).dropna()
     return table.to_numpy(dtype=float)
 
 
@@ -142,6 +142,8 @@ def summary(runs: pd.DataFrame, reps: int = REPS) -> pd.DataFrame:
     rows = []
     for group in [[task] for task in tasks] + ([tasks] if len(tasks) > 1 else []):
         for learner in dict.fromkeys(runs.learner):
+            if not matrix(runs, learner, group, "success").size:  # no finished run of every task of the group yet
+                continue
             row: dict[str, Any] = {"task": group[0] if len(group) == 1 else BOTH, "learner": learner}
             for column in ("success", "median_ratio"):
                 scores = matrix(runs, learner, group, column)
@@ -184,6 +186,7 @@ def profiles(scores: pd.DataFrame, reps: int = REPS // 10) -> Profiles:
                 for failures in ("cost", "never")
             }
             for learner in dict.fromkeys(scores.learner)
+            if ((scores.learner == learner) & (scores.task == task)).any()
         }
         for task in dict.fromkeys(scores.task)
     }
