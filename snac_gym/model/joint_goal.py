@@ -157,15 +157,38 @@ def in_limit_goals(
     Args:
         q0: ``(B, m)`` start configurations; targets: ``(B, 3)``.
     """
+    return goals_and_limit_stops(kinematics, q0, targets, starts, margin, tol, separation)[0]
+
+
+def goals_and_limit_stops(
+    kinematics: Any,
+    q0: np.ndarray,
+    targets: np.ndarray,
+    starts: np.ndarray,
+    margin: float = GOAL_MARGIN,
+    tol: float = GOAL_TOLERANCE,
+    separation: float = 0.5,
+    stop_residual: float = 0.0,
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`in_limit_goals`, and per sample the distinct IK ends that a joint limit stopped within ``stop_residual``
+    (m) of the target, nearest ``q0`` first, ``(S, m)``: a branch that reaches the target only past a limit, whose
+    nearest in-limit configuration presses against it (none with the default 0)."""
     q0 = np.atleast_2d(np.asarray(q0, dtype=float))
     targets = np.atleast_2d(np.asarray(targets, dtype=float))
     q, anchor, goal, count, per = _solve(kinematics, q0, targets, margin, starts)
-    converged = (np.linalg.norm(kinematics.forward_batch(q) - goal, axis=1) <= tol).reshape(count, per)
+    residual = np.linalg.norm(kinematics.forward_batch(q) - goal, axis=1).reshape(count, per)
+    converged = residual <= tol
+    low, high = kinematics.lower_limits + margin, kinematics.upper_limits - margin
+    pressed = ((q <= low) | (q >= high)).any(axis=1).reshape(count, per)  # the IK's clip holds a joint there
+    stopped = ~converged & pressed & (residual <= stop_residual)
     distance = np.sum((q - anchor) ** 2, axis=1).reshape(count, per)
     q = q.reshape(count, per, -1)
-    order = [np.argsort(np.where(converged[i], distance[i], np.inf), kind="stable")[: int(converged[i].sum())]
-             for i in range(count)]  # fmt: skip
-    return [distinct_configurations(q[i, order[i]], separation) for i in range(count)]
+
+    def nearest_first(kept: np.ndarray, i: int) -> np.ndarray:
+        order = np.argsort(np.where(kept[i], distance[i], np.inf), kind="stable")[: int(kept[i].sum())]
+        return distinct_configurations(q[i, order], separation)
+
+    return [nearest_first(converged, i) for i in range(count)], [nearest_first(stopped, i) for i in range(count)]
 
 
 def distinct_configurations(configurations: np.ndarray, separation: float) -> np.ndarray:
@@ -253,6 +276,7 @@ class GoalArms:
 
 
 __all__ = [
-    "GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "distinct_configurations", "goal_starts", "in_limit_goals",
+    "GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "distinct_configurations", "goal_starts", "goals_and_limit_stops",
+    "in_limit_goals",
     "nearest_goals",
 ]  # fmt: skip

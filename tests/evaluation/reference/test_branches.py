@@ -9,6 +9,7 @@ import pytest
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.branches import (
     BRANCH_SEPARATION,
+    LIMIT_STOP_RESIDUAL,
     NEAR_SINGULAR,
     branch_commands,
     branch_goals,
@@ -20,7 +21,7 @@ from snac_gym.evaluation.samples import generate_samples
 
 from snac_gym.control.cost import CostConvention
 from snac_gym.control.trajopt import angles
-from snac_gym.model.joint_goal import nearest_goals
+from snac_gym.model.joint_goal import GOAL_MARGIN, nearest_goals
 from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace
@@ -47,26 +48,36 @@ def test_the_goals_are_distinct_in_limit_solutions_nearest_first(ur10):
     goals = branch_goals(ur10, q0s, x_d[:, 0])
     nearest, found = nearest_goals(ur10, q0s, x_d[:, 0])
     assert sum(len(g) > 1 for g in goals) >= 10  # the arm's whole reach: most targets have several branches
-    for i, found_goals in enumerate(goals):
-        assert len(found_goals) >= 1
-        np.testing.assert_allclose(
-            ur10.forward_batch(found_goals), np.repeat(x_d[i, :1], len(found_goals), 0), atol=1e-8
-        )
-        assert (found_goals >= ur10.lower_limits).all() and (found_goals <= ur10.upper_limits).all()
+    low, high = ur10.lower_limits + GOAL_MARGIN, ur10.upper_limits - GOAL_MARGIN
+    stops_seen = 0
+    for i, all_goals in enumerate(goals):
+        assert (all_goals >= ur10.lower_limits).all() and (all_goals <= ur10.upper_limits).all()
+        for a in range(len(all_goals)):
+            for b in range(a):
+                assert np.abs(all_goals[a] - all_goals[b]).max() >= BRANCH_SEPARATION
+        # The goals that reach the target first, nearest θ₀ first; then the IK ends a limit stopped short of it.
+        residuals = np.linalg.norm(ur10.forward_batch(all_goals) - x_d[i, :1], axis=1)
+        reaching = int(np.sum(residuals <= 1e-8))
+        assert reaching >= 1 and (residuals[:reaching] <= 1e-8).all()
+        stops = all_goals[reaching:]
+        stops_seen += len(stops)
+        assert (residuals[reaching:] <= LIMIT_STOP_RESIDUAL).all()
+        assert ((stops <= low + 1e-12) | (stops >= high - 1e-12)).any(axis=1).all()  # each pressed against a limit
+        found_goals = all_goals[:reaching]
         distances = np.linalg.norm(found_goals - q0s[i], axis=1)
         assert (np.diff(distances) >= 0).all()
-        for a in range(len(found_goals)):
-            for b in range(a):
-                assert np.abs(found_goals[a] - found_goals[b]).max() >= BRANCH_SEPARATION
         if found[i]:  # the joint-goal controller's goal is one of them, or as near
             assert distances[0] <= np.linalg.norm(nearest[i] - q0s[i]) + 1e-9
+    assert stops_seen >= 1, "no IK end stopped by a limit on the whole workspace: the case is not exercised"
 
 
 @pytest.mark.parametrize("task", ["reach", "track"])
 def test_a_branch_start_keeps_every_limit_and_gets_there(ur10, task):
     samples, x_d = _workspace(ur10, task, 5, range(4))
     q0s = np.array([s.q0 for s in samples])
-    goals = np.array([g[-1] for g in branch_goals(ur10, q0s, x_d[:, 0])])  # the farthest branch of each
+    reaching = [g[np.linalg.norm(ur10.forward_batch(g) - x_d[i, 0], axis=1) <= 1e-8]
+                for i, g in enumerate(branch_goals(ur10, q0s, x_d[:, 0]))]  # fmt: skip
+    goals = np.array([g[-1] for g in reaching])  # the farthest branch of each
     commands = branch_commands(ur10, q0s, goals, x_d, DT, ur10.velocity_limits)
     assert (np.abs(commands) <= ur10.velocity_limits * (1 + 1e-12)).all()
     paths = q0s[:, None] + np.cumsum(commands, axis=1) * DT
@@ -217,4 +228,16 @@ def test_a_tracking_optimum_the_other_way_round_the_shoulder_is_found(ur10):
     context = policy_context("ur10", DT, "track")
     (reference,) = solve_samples(context, samples, [31], x_d, DT, CostConvention("hjb", "rest", 4.0))
     assert reference.solution.cost <= 6.003372, reference.solution.cost
+    assert reference.winner.startswith("branch-")
+
+
+def test_a_reach_optimum_against_a_limit_short_of_the_target_is_found(ur10):
+    """Workspace reach sample 32 of seed 431, HJB cost (q = 4): every start, IPOPT's from the IK goals included, ended
+    at 10.029696 with the base turned 2.35 rad; IPOPT from rest reached 9.3220208 with the base against its limit and
+    the shoulder swung back, 6 mm short of the target (a held-out cross-check). That branch reaches the target only
+    past the base's limit; the IK end the limit stopped 5.4 cm short is a start now, and descends there."""
+    samples, x_d = _workspace(ur10, "reach", 431, [32])
+    context = policy_context("ur10", DT, "reach")
+    (reference,) = solve_samples(context, samples, [32], x_d, DT, CostConvention("hjb", "rest", 4.0))
+    assert reference.solution.cost <= 9.3220209, reference.solution.cost
     assert reference.winner.startswith("branch-")
