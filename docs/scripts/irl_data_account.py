@@ -97,7 +97,8 @@ def main() -> None:
             difference = batch["gain"][i] - optimal[i]
             main_error = np.linalg.norm(difference @ u[:, 0]) / np.linalg.norm(optimal[i] @ u[:, 0])
             across_error = np.linalg.norm(difference @ u[:, 2]) / np.linalg.norm(optimal[i] @ u[:, 2])
-        rows.append((s[1] / s[0], s[2] / s[0], sv[-1] / sv[0], drift, learned, main_error, across_error))
+        rank_met = data.rank() >= n * (n + 1) // 2 + data.input_dim * n
+        rows.append((s[1] / s[0], s[2] / s[0], sv[-1] / sv[0], drift, learned, main_error, across_error, rank_met))
     table = np.array(rows, dtype=float)
     print(f"{args.task}, {len(samples)} samples, seed {args.seed}, L = {L} windows, {kwargs or 'defaults'}")
     for label, column in (("σ2/σ1 of [e]", 0), ("σ3/σ1 of [e]", 1), ("[I_xx, I_xu]: σmin/σmax (columns normed)", 2),
@@ -105,7 +106,12 @@ def main() -> None:
         values = table[:, column]
         print(f"  {label:42s} median {np.median(values):.3g}  (min {values.min():.3g}, max {values.max():.3g})")
     accepted = table[:, 4] > 0
-    print(f"  learned (accepted by Algorithm 1): {int(accepted.sum())} of {len(samples)}")
+    rank_met = table[:, 7] > 0
+    print(
+        f"  learned (accepted by Algorithm 1): {int(accepted.sum())} of {len(samples)}; of the others, "
+        f"{int((~accepted & ~rank_met).sum())} below eq. 13's rank, {int((~accepted & rank_met).sum())} with a P not "
+        "positive definite (or not finite)"
+    )
     if accepted.any():
         for label, column in (("gain error along d1 (main direction of e)", 5), ("gain error across (d3)", 6)):
             values = table[accepted, column]
