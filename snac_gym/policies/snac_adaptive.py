@@ -27,7 +27,7 @@ before and after its correction::
     H_k     = ∂x̂/∂c_k = [R_k⁻,  −[x̂ − p_k⁺]ₓ R_k⁺ J_r(ρ_k)]     (3 × 6 per frame; J_r: SO(3)'s right Jacobian)
 
 Position measurements see only a part of c (a translation along a joint's axis and the next
-joint's offset trade against each other): the prior c ~ N(0, Σ₀), Σ₀ = diag(0.1 m, 0.05 rad)² per
+joint's offset trade against each other): the prior c ~ N(0, Σ₀), Σ₀ = diag(0.5 m, 0.05 rad)² per
 frame, holds the directions the data do not reach, and the estimate is the most probable c given
 the prior and the data, not c*. c is estimated by an iterated extended Kalman filter on the
 measurement xₖ = x̂(θₖ; c*) (a recursive Gauss–Newton): each control step
