@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# snac-adaptive's rows of docs/model-error.md, rerun after its prior and monitor changed (issue 62): the same samples,
+# snac-adaptive's rows of docs/model-error.md, rerun (resumable: a finished run is kept) after its prior and monitor changed (issue 62): the same samples,
 # seeds and settings as the runs those tables came from, with snac-adaptive and the optimum only (no other
 # controller's code changed, so their rows stand). One worker, so that it can share a busy machine.
 #   bash docs/scripts/adaptive_reruns.sh [OUT]
@@ -15,19 +15,20 @@ run() {  # NAME SEED [evaluate arguments...]
   local name=$1 seed=$2
   shift 2
   local start
+  [ -f "$out/$name/results.csv" ] && { echo "$name: done before"; return; }
   start=$(date +%s)
   snac-gym evaluate --out "$out/$name" --seed "$seed" "${common[@]}" "$@" > "$out/$name.log"
   echo "$name: $(( $(date +%s) - start )) s"
 }
-# The first table (docs/scripts/model_error_runs.sh's errors, seed 41, the cuboid).
+# The first table (docs/scripts/model_error_runs.sh's errors, seed 41, the cuboid) and the workspace (seed 43) first,
+# then the held-out checks: the combined error on seed 3 and random errors twice as large on seed 42.
 run me_none_s41 41
 run me_ur5_s41 41 --model-error model=ur5
+run me_combined_s41 41 --model-error "$combined"
+run me_comb_ws 43 --sample-space workspace --model-error "$combined"
+run me_ur5_ws 43 --sample-space workspace --model-error model=ur5
+run me_none_ws 43 --sample-space workspace
 run me_ur3_s41 41 --model-error model=ur3
 for i in 0 1 2; do run "me_random${i}_s41" 41 --model-error "random=0.005,$i"; done
-run me_combined_s41 41 --model-error "$combined"
-# The held-out checks: the combined error on seed 3; random errors twice as large on seed 42; the workspace, seed 43.
 run me_comb_s3 3 --model-error "$combined"
 for i in 3 4 5; do run "me_random${i}_s42" 42 --model-error "random=0.01,$i"; done
-run me_none_ws 43 --sample-space workspace
-run me_ur5_ws 43 --sample-space workspace --model-error model=ur5
-run me_comb_ws 43 --sample-space workspace --model-error "$combined"
