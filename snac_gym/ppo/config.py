@@ -17,6 +17,9 @@ The shipped configs live in ``snac_gym/ppo/configs/<task>.json``. Their keys:
   ``constant`` or ``linear``, ``n_steps``, ``batch_size``, ``n_epochs``, ``gamma``,
   ``gae_lambda``, ``clip_range``, ``ent_coef``, ``vf_coef``, ``max_grad_norm``, ``net_arch``
   (``{"pi": [...], "vf": [...]}``), ``activation`` (``tanh``/``relu``), ``log_std_init``).
+* ``init_from`` (optional): a policy file whose actor the new model starts from (its hidden and output
+  layers; the critic starts fresh), e.g. a behaviour clone (:mod:`snac_gym.ppo.cloning`); a path relative to
+  the working directory. Ignored on ``--resume``.
 * ``evaluation``: ``every_timesteps``, ``episodes``, ``horizons_s`` (the horizons each
   episode is scored at: the evaluator's, 4 s and 8 s reach, 10 s and 20 s track), ``seed``
   (first reset seed of the evaluation episodes), ``success_error_m`` (reach: final ‖e‖ at
@@ -381,6 +384,7 @@ class TrainingConfig:
     evaluation: EvaluationSection = spec(EvaluationSection)
     robot: str = spec(text, "ur10")
     description: str = spec(text, "")
+    init_from: str = spec(text, "")
 
     def __post_init__(self) -> None:
         if self.task not in task_names():

@@ -51,11 +51,13 @@ import gymnasium as gym
 from snac_gym.common.outputs import usable_out_folder
 from snac_gym.common.progress import ProgressLines
 from snac_gym.envs import make_task_env
+from snac_gym.ppo.cloning import load_actor
 from snac_gym.ppo.config import env_arguments
 from snac_gym.ppo.curves import plot_training_curves, read_evaluations, read_training_log, training_curves_figure
 from snac_gym.ppo.envs import PPOTrainingWrapper, RewardSpec
 from snac_gym.ppo.evaluation import better, evaluate_policy_file
 from snac_gym.ppo.features import FeatureSpec
+from snac_gym.ppo.policy_file import PolicyFile
 from snac_gym.ppo.run_folder import (
     CHECKSUM_FILE,
     EVALUATION_COLUMNS,
@@ -197,7 +199,7 @@ def _normalized(venv: Any, config: dict[str, Any]) -> Any:
 
 
 def build_model(config: dict[str, Any], venv: Any) -> Any:
-    """A fresh SB3 PPO for ``config`` on ``venv``."""
+    """A fresh SB3 PPO for ``config`` on ``venv`` (its actor from ``config["init_from"]`` when that is set)."""
     # the rl extra
     import torch
     from stable_baselines3 import PPO
@@ -208,7 +210,7 @@ def build_model(config: dict[str, Any], venv: Any) -> Any:
     net_arch = ppo.pop("net_arch")
     activation = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}[ppo.pop("activation", "tanh")]
     log_std_init = float(ppo.pop("log_std_init", 0.0))
-    return PPO(
+    model = PPO(
         "MlpPolicy",
         venv,
         learning_rate=LinearSchedule(rate) if schedule == "linear" else rate,
@@ -218,6 +220,9 @@ def build_model(config: dict[str, Any], venv: Any) -> Any:
         verbose=0,
         **ppo,
     )
+    if config.get("init_from"):  # the actor of a policy file, e.g. a behaviour clone (snac_gym.ppo.cloning)
+        load_actor(model, PolicyFile.load(config["init_from"]))
+    return model
 
 
 def _evaluate_checkpoint(

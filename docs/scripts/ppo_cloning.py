@@ -1,0 +1,173 @@
+"""Behaviour cloning of the reference into ``ppo-workspace``'s goal-relative actor (docs/ppo.md).
+
+Two steps:
+
+``data``: for whole-workspace samples of the given seeds (the evaluator's samples, its horizon), solve the
+reference (the evaluator's constrained optimum, HJB cost, Q = 4I, the same solve as ``optimal``), roll its commands
+out on the kinematic engine while recording the observation at each step, run the policy's goal arms
+(``EpisodeGoals``) along them, and store per step the observation, the goal state, the reference's command and
+the goal-relative action nearest it (``snac_gym.ppo.cloning.target_actions``). Chunks of ``--chunk`` samples, one
+file each; a file already there is kept (the step resumes).
+
+``fit``: features of every stored step, the actor of the config's architecture fitted to the target actions
+(weighted MSE), written as a policy file.
+
+    python docs/scripts/ppo_cloning.py data --task reach --seed 8101 --samples 100 --out runs/ppo_clone/data
+    python docs/scripts/ppo_cloning.py fit --task reach --data runs/ppo_clone/data --out runs/ppo_clone/reach.npz
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference.optimum import solve_samples
+from snac_gym.evaluation.samples import generate_samples
+
+from snac_gym.control.cost import CostConvention
+from snac_gym.ppo.cloning import cloned_policy_file, fit_actor, target_actions
+from snac_gym.ppo.features import EpisodeGoals, FeatureSpec, GoalState, observation_features
+from snac_gym.rollout import reference_trajectories
+from snac_gym.rollout.kinematic import simulate_kinematic
+from snac_gym.sampling import SampleSpace
+from snac_gym.tasks import get_task
+
+DT = 1.0 / 125.0
+CONFIGS = Path(__file__).resolve().parents[2] / "snac_gym" / "ppo" / "configs" / "goal"
+
+
+class RecordingReplay:
+    """Replays command sequences ``(B, K, m)`` (batch protocol) and keeps every observation it is given."""
+
+    def __init__(self, commands: np.ndarray) -> None:
+        self.commands = commands
+        self.seen: list[np.ndarray] = []
+
+    def reset_batch(self, seeds: list[int]) -> None:
+        self.seen = []
+
+    def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
+        self.seen.append(np.array(obs_batch, dtype=np.float64))
+        return self.commands[:, len(self.seen) - 1].copy()
+
+
+def record_chunk(task: str, seed: int, indices: list[int], spec: FeatureSpec) -> dict[str, np.ndarray]:
+    """Reference, observations, goal states and target actions of samples ``indices`` of ``seed``."""
+    context = policy_context("ur10", DT, task)
+    kinematics, layout = context.kinematics, context.layout
+    samples = generate_samples(kinematics, SampleSpace.workspace(kinematics), seed, task, indices)
+    steps = round(get_task(task).horizon_s / DT)
+    x_d = reference_trajectories([s.reference for s in samples], np.arange(steps) * DT, 3)[0]
+    references = solve_samples(context, samples, indices, x_d, DT, CostConvention("hjb", "rest", 4.0))
+    commands = np.stack([r.solution.commands for r in references])
+    replay = RecordingReplay(commands)
+    simulate_kinematic(context, lambda: replay, samples, steps, [seed] * len(samples), True, "optimal", False)
+    obs = np.stack(replay.seen, axis=1)  # (B, K, d)
+    goals = EpisodeGoals(kinematics, context.velocity_limits, DT, task == "track", len(samples))
+    goal, velocity = np.empty(obs.shape[:2] + (6,)), np.empty(obs.shape[:2] + (6,))
+    for k in range(steps):
+        state = goals.observe(obs[:, k], layout)
+        goal[:, k], velocity[:, k] = state.goal, state.velocity
+    flat = obs.reshape(-1, obs.shape[-1])
+    state = GoalState(goal.reshape(-1, 6), velocity.reshape(-1, 6), kinematics.lower_limits, kinematics.upper_limits)
+    jacobians = kinematics.jacobian_batch(np.ascontiguousarray(flat[:, layout.slices["q"]]))
+    actions, residual = target_actions(flat, commands.reshape(-1, 6), layout, jacobians, spec, state)
+    return {
+        "obs": obs,
+        "goal": goal,
+        "goal_velocity": velocity,
+        "commands": commands,
+        "actions": actions.reshape(len(samples), steps, -1),
+        "residual": residual.reshape(len(samples), steps),
+        "reference_cost": np.array([r.solution.cost for r in references]),
+        "indices": np.array(indices),
+    }
+
+
+def data(args: argparse.Namespace) -> None:
+    config = json.loads((CONFIGS / f"{args.task}.json").read_text())
+    spec = FeatureSpec.from_dict(config["features"])
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for start in range(0, args.samples, args.chunk):
+        path = out / f"{args.task}_{args.seed}_{start:04d}.npz"
+        if path.exists():
+            continue
+        began = time.perf_counter()
+        chunk = record_chunk(args.task, args.seed, list(range(start, min(start + args.chunk, args.samples))), spec)
+        np.savez(path, **chunk)
+        print(
+            f"{path.name}: {time.perf_counter() - began:.0f} s, relative residual median "
+            f"{np.median(chunk['residual']):.3f} (first second {np.median(chunk['residual'][:, :125]):.3f}), "
+            f"|a| median {np.median(np.abs(chunk['actions'])):.3f}",
+            flush=True,
+        )
+
+
+def fit(args: argparse.Namespace) -> None:
+    config = json.loads((CONFIGS / f"{args.task}.json").read_text())
+    spec = FeatureSpec.from_dict(config["features"])
+    context = policy_context("ur10", DT, args.task)
+    layout = context.layout
+    features, targets, weights = [], [], []
+    for path in sorted(Path(args.data).glob(f"{args.task}_*.npz")):
+        with np.load(path) as chunk:
+            obs, commands = chunk["obs"][:, : args.steps], chunk["commands"][:, : args.steps]
+            goal, velocity = chunk["goal"][:, : args.steps], chunk["goal_velocity"][:, : args.steps]
+        flat = obs.reshape(-1, obs.shape[-1])
+        lower, upper = context.kinematics.lower_limits, context.kinematics.upper_limits
+        state = GoalState(goal.reshape(-1, 6), velocity.reshape(-1, 6), lower, upper)
+        features.append(observation_features(flat, layout, spec, 1.0, state))
+        jacobians = context.kinematics.jacobian_batch(np.ascontiguousarray(flat[:, layout.slices["q"]]))
+        actions, _ = target_actions(flat, commands.reshape(-1, 6), layout, jacobians, spec, state,
+                                    pull_floor=args.pull_floor)  # fmt: skip
+        targets.append(actions)
+        # the cost is in the transient: weight a step by its time's share, early steps more
+        times = np.arange(obs.shape[1]) * DT
+        weights.append(np.tile(1.0 + args.early_weight * np.exp(-times / args.early_s), len(obs)))
+    x, y, w = np.concatenate(features), np.concatenate(targets), np.concatenate(weights)
+    print(f"{len(x)} steps from {args.data}")
+    hidden, output = fit_actor(
+        x, y, w, tuple(config["ppo"]["net_arch"]["pi"]), config["ppo"].get("activation", "tanh"),
+        epochs=args.epochs, learning_rate=args.lr, seed=args.seed, log=print,
+    )  # fmt: skip
+    made_by = "python docs/scripts/ppo_cloning.py fit " + " ".join(
+        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k not in ("step", "func")
+    )
+    policy = cloned_policy_file(hidden, output, config, layout, {"made_by": made_by, "cloned_steps": len(x)})
+    policy.save(args.out)
+    print(f"wrote {args.out}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    steps = parser.add_subparsers(dest="step", required=True)
+    d = steps.add_parser("data")
+    d.add_argument("--task", choices=("reach", "track"), required=True)
+    d.add_argument("--seed", type=int, required=True)
+    d.add_argument("--samples", type=int, default=100)
+    d.add_argument("--chunk", type=int, default=10)
+    d.add_argument("--out", required=True)
+    d.set_defaults(func=data)
+    f = steps.add_parser("fit")
+    f.add_argument("--task", choices=("reach", "track"), required=True)
+    f.add_argument("--data", required=True)
+    f.add_argument("--out", required=True)
+    f.add_argument("--steps", type=int, default=100000, help="steps of each episode used (from its start)")
+    f.add_argument("--epochs", type=int, default=30)
+    f.add_argument("--lr", type=float, default=1e-3)
+    f.add_argument("--early-weight", type=float, default=0.0)
+    f.add_argument("--early-s", type=float, default=1.0)
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--pull-floor", type=float, default=-1.0, help="the least a0 of a target (target_actions)")
+    f.set_defaults(func=fit)
+    args = parser.parse_args()
+    args.func(args)
+
+
+if __name__ == "__main__":
+    main()
