@@ -80,7 +80,11 @@ CONTROLLERS = {
         "this project",
         "ppo.md",
     ),
-    "ppo-workspace": ("PPO on the arm's whole reach, correcting `joint-goal`; shipped", "this project", "ppo.md"),
+    "ppo-workspace": (
+        "PPO on the arm's whole reach, correcting `joint-goal`; withdrawn (never beat `joint-goal`): no file ships",
+        "this project",
+        "ppo.md",
+    ),
     "pink": (
         "QP differential IK on Pinocchio (daqp): position and velocity limits as constraints",
         "Caron et al.",

@@ -10,7 +10,9 @@ the goal-relative action nearest it (``snac_gym.ppo.cloning.target_actions``). C
 file each; a file already there is kept (the step resumes).
 
 ``fit``: features of every stored step, the actor of the config's architecture fitted to the target actions
-(weighted MSE), written as a policy file.
+(weighted MSE), written as a policy file. Options relabel the targets: ``--pull-floor`` (the least a₀, the rest
+fitted again), ``--tail-radius``/``--tail-gain`` (within that error, a task-space law of that gain and no pull:
+the reference's own tail is too slow for the 1 mm success).
 
     python docs/scripts/ppo_cloning.py data --task reach --seed 8101 --samples 100 --out runs/ppo_clone/data
     python docs/scripts/ppo_cloning.py fit --task reach --data runs/ppo_clone/data --out runs/ppo_clone/reach.npz
@@ -30,7 +32,7 @@ from snac_gym.evaluation.samples import generate_samples
 
 from snac_gym.control.cost import CostConvention
 from snac_gym.ppo.cloning import cloned_policy_file, fit_actor, target_actions
-from snac_gym.ppo.features import EpisodeGoals, FeatureSpec, GoalState, observation_features
+from snac_gym.ppo.features import RELATIVE_ERROR_FLOOR, EpisodeGoals, FeatureSpec, GoalState, observation_features
 from snac_gym.rollout import reference_trajectories
 from snac_gym.rollout.kinematic import simulate_kinematic
 from snac_gym.sampling import SampleSpace
@@ -125,6 +127,12 @@ def fit(args: argparse.Namespace) -> None:
         jacobians = context.kinematics.jacobian_batch(np.ascontiguousarray(flat[:, layout.slices["q"]]))
         actions, _ = target_actions(flat, commands.reshape(-1, 6), layout, jacobians, spec, state,
                                     pull_floor=args.pull_floor)  # fmt: skip
+        if args.tail_radius > 0:  # the tail: a task-space law of gain tail_gain, no pull (the reference's is slower)
+            e = flat[:, layout.slices["e"]]
+            norm = np.linalg.norm(e, axis=1, keepdims=True)
+            tail = norm[:, 0] < args.tail_radius
+            actions[tail, 0] = -1.0
+            actions[tail, 1:] = -args.tail_gain * e[tail] / (spec.gain_max * (norm[tail] + RELATIVE_ERROR_FLOOR))
         targets.append(actions)
         # the cost is in the transient: weight a step by its time's share, early steps more
         times = np.arange(obs.shape[1]) * DT
@@ -164,6 +172,8 @@ def main() -> None:
     f.add_argument("--early-s", type=float, default=1.0)
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--pull-floor", type=float, default=-1.0, help="the least a0 of a target (target_actions)")
+    f.add_argument("--tail-radius", type=float, default=0.0, help="below this error (m) the target is the tail law")
+    f.add_argument("--tail-gain", type=float, default=2.0, help="the tail law's task-space gain, 1/s")
     f.set_defaults(func=fit)
     args = parser.parse_args()
     args.func(args)

@@ -8,7 +8,9 @@
 * :mod:`snac_gym.ppo.policy_file`: the frozen, NumPy-only policy file format.
 * :mod:`snac_gym.ppo.policy`: :class:`~snac_gym.ppo.policy.PPOPolicy`, registered as ``ppo``;
   it loads the policy file shipped in ``models/`` for the env's task by default;
-  :class:`~snac_gym.ppo.policy.WorkspacePPOPolicy` (``ppo-workspace``) the one in ``models/workspace/``.
+  :class:`~snac_gym.ppo.policy.WorkspacePPOPolicy` (``ppo-workspace``) is withdrawn: it ships no file and
+  runs only a goal-relative policy file it is given (docs/ppo.md).
+* :mod:`snac_gym.ppo.cloning`: behaviour cloning of the reference into a goal-relative actor.
 
 Importing this package does not import torch or stable-baselines3.
 """

@@ -17,7 +17,7 @@ import numpy as np
 
 from snac_gym.policies.base import BasePolicy, positive_float
 from snac_gym.ppo.features import EpisodeGoals
-from snac_gym.ppo.policy_file import PolicyFile, PolicyFileError
+from snac_gym.ppo.policy_file import MissingPolicyFileError, PolicyFile, PolicyFileError
 
 #: Package whose ``models/`` folder holds the shipped policy files.
 PACKAGE = "snac_gym.ppo"
@@ -25,7 +25,7 @@ PACKAGE = "snac_gym.ppo"
 
 def shipped_model_path(task: str, folder: str = "models") -> Path:
     """Path of the policy file shipped for ``task`` (``reach`` or ``track``) in ``folder`` of the package
-    (``models``: ``ppo``'s; ``models/workspace``: ``ppo-workspace``'s)."""
+    (``models``: ``ppo``'s)."""
     return Path(str(resources.files(PACKAGE).joinpath(*folder.split("/"), f"{task}.npz")))
 
 
@@ -128,16 +128,31 @@ class PPOPolicy(BasePolicy):
         return self.model.command(obs_batch, self.layout, self.velocity_limits, self.action_scale, jacobians, goal)
 
 
+#: Why ``ppo-workspace`` ships no policy (docs/ppo.md, "ppo-workspace: withdrawn").
+WITHDRAWN = (
+    "ppo-workspace is withdrawn: no learned correction beat joint-goal, the controller it corrects (the shipped "
+    "PPO cost 1.007x/1.009x joint-goal held out; cloning the reference and PPO from the clone did worse: "
+    "docs/ppo.md); use joint-goal, or pass ppo-workspace.model_path=FILE for a goal-relative policy of your own"
+)
+
+
 class WorkspacePPOPolicy(PPOPolicy):
-    """``ppo-workspace``: :class:`PPOPolicy` with the files trained on the arm's whole reach by default.
+    """``ppo-workspace``: a goal-relative :class:`PPOPolicy` on the arm's whole reach; withdrawn, so it needs a file.
 
     Goal-relative policies (:mod:`snac_gym.ppo.features`): the network corrects the ``joint-goal``
     controller (straight joint-space motion to the in-limit IK solution nearest the start), so it keeps
     the joint limits where the task-relative ``ppo`` leaves them. Trained with
-    ``snac_gym/ppo/configs/goal/<task>.json``; the files are ``snac_gym/ppo/models/workspace/<task>.npz``.
+    ``snac_gym/ppo/configs/goal/<task>.json``. No policy ships: none trained or cloned beat ``joint-goal``
+    (:data:`WITHDRAWN`), so ``model_path`` is required.
+
+    Raises:
+        MissingPolicyFileError: Without ``model_path`` (:data:`WITHDRAWN`); and as :class:`PPOPolicy` does.
     """
 
-    models_folder = "models/workspace"
+    def __init__(self, env: Any, model_path: str | Path | None = None, action_scale: float = 1.0) -> None:
+        if model_path is None:
+            raise MissingPolicyFileError(WITHDRAWN)  # no file ships (a registry test skips a missing model)
+        super().__init__(env, model_path, action_scale)
 
 
-__all__ = ["PPOPolicy", "PolicyFileError", "WorkspacePPOPolicy", "shipped_model_path"]
+__all__ = ["WITHDRAWN", "PPOPolicy", "PolicyFileError", "WorkspacePPOPolicy", "shipped_model_path"]

@@ -165,30 +165,16 @@ def test_a_goal_relative_spec_without_its_goal_state_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize("task", ["reach", "track"])
-def test_the_shipped_workspace_policies_load_by_default_and_keep_the_limits_where_dls_crosses(task):
-    """``ppo-workspace`` loads its own files (card checked), and on samples of the whole reach where DLS leaves a
-    joint's range it keeps every limit and ends on target (reach: 1 mm; track: mean error over the 2nd half 5 mm)."""
-    from snac_gym.ppo import WorkspacePPOPolicy, shipped_model_path
+def test_the_withdrawn_workspace_policy_refuses_without_a_file_and_runs_one_it_is_given(tmp_path, task):
+    """``ppo-workspace`` ships no policy (no learned correction beat joint-goal: docs/ppo.md): without
+    ``model_path`` it refuses in one line naming why and what to use; with a goal-relative file it runs it."""
+    from snac_gym.ppo import MissingPolicyFileError, WorkspacePPOPolicy, shipped_model_path
 
-    path = shipped_model_path(task, "models/workspace")
-    assert path.is_file() and path.stat().st_size < 64_000 and path.with_suffix(".json").is_file()
+    assert not shipped_model_path(task, "models/workspace").exists()
     context = policy_context("ur10", DT, task)
-    policy = make_policy("ppo-workspace", context)
-    assert isinstance(policy, WorkspacePPOPolicy) and policy.model_path == path
-    assert policy.model.features.goal_relative and policy.model.task == task
-    kin = context.kinematics
-    samples = generate_samples(kin, SampleSpace.workspace(kin), 32, task, range(30))
-    steps = 1500 if task == "reach" else 2500
-    dls = _run("dls", task, samples, steps)
-    q = np.concatenate([dls.q, dls.final_q[:, None]], axis=1)
-    crossing = np.flatnonzero(np.min(np.minimum(q - kin.lower_limits, kin.upper_limits - q), axis=(1, 2)) < 0)
-    assert len(crossing) >= 2
-    chosen = [samples[i] for i in crossing]
-    ppo = _run("ppo-workspace", task, chosen, steps)
-    q = np.concatenate([ppo.q, ppo.final_q[:, None]], axis=1)
-    assert np.all(np.min(np.minimum(q - kin.lower_limits, kin.upper_limits - q), axis=(1, 2)) > 0)
-    errors = np.linalg.norm(ppo.errors, axis=2)
-    if task == "reach":
-        assert np.all(np.linalg.norm(ppo.final_errors, axis=1) < 1e-3)
-    else:
-        assert np.all(errors[:, steps // 2 :].mean(axis=1) < 5e-3)
+    with pytest.raises(MissingPolicyFileError, match=r"^ppo-workspace is withdrawn: .*use joint-goal") as refused:
+        make_policy("ppo-workspace", context)
+    assert "\n" not in str(refused.value)
+    path = _policy_file(tmp_path, task)
+    policy = make_policy("ppo-workspace", context, model_path=str(path))
+    assert isinstance(policy, WorkspacePPOPolicy) and policy.model.features.goal_relative
