@@ -4,14 +4,18 @@ that acts as fitted, and its weights go into an SB3 model."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from snac_gym.model.kinematics import shared_kinematics
 from snac_gym.observation import ObservationLayout
 from snac_gym.ppo.cloning import action_columns, cloned_policy_file, fit_actor, load_actor, target_actions
+from snac_gym.ppo.config import load_config
 from snac_gym.ppo.features import FeatureSpec, GoalState, goal_relative_command, observation_features
 from snac_gym.ppo.policy_file import PolicyFile
+from snac_gym.ppo.train import build_model, build_vec_env
 
 LAYOUT = ObservationLayout(6, 3)
 SPEC = FeatureSpec(action="goal-relative")
@@ -87,7 +91,9 @@ def test_the_fitted_actor_is_a_policy_file_that_acts_as_fitted(tmp_path):
 
 def test_the_clone_goes_into_an_sb3_actor_that_predicts_the_same(tmp_path):
     pytest.importorskip("stable_baselines3")
+    # the rl extra, checked just above
     import gymnasium as gym
+    import torch
     from stable_baselines3 import PPO
 
     rng = np.random.default_rng(5)
@@ -100,8 +106,6 @@ def test_the_clone_goes_into_an_sb3_actor_that_predicts_the_same(tmp_path):
     class Box(gym.Env):
         observation_space = gym.spaces.Box(-np.inf, np.inf, (width,), np.float32)
         action_space = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
-
-    import torch
 
     model = PPO("MlpPolicy", Box(), policy_kwargs={"net_arch": {"pi": [8], "vf": [8]}, "activation_fn": torch.nn.Tanh},
                 n_steps=8, batch_size=8, device="cpu")  # fmt: skip
@@ -131,3 +135,31 @@ def test_a_pull_below_the_floor_is_raised_to_it_and_the_rest_fitted_again():
     assert inside.sum() >= 16
     assert np.abs(np.einsum("bmi,bm->bi", columns[inside, :, 1:], missed[inside])).max() < 1e-8
     assert (residual > 1e-3).all()  # the raised pull is not expressible exactly
+
+
+def test_a_config_with_init_from_builds_a_model_whose_actor_is_the_file(tmp_path):
+    """``init_from`` (the PPO fine-tuning from a clone): build_model loads the file's actor; a bad path is refused."""
+    pytest.importorskip("stable_baselines3")
+    import torch  # the rl extra, checked just above
+
+    config = load_config("snac_gym/ppo/configs/goal/reach.json")
+    config["vec_env"].update(n_envs=2, kind="dummy")
+    config["ppo"].update(n_steps=16, batch_size=32, n_epochs=1, net_arch={"pi": [8, 8], "vf": [8, 8]})
+    rng = np.random.default_rng(8)
+    width = 4 * 3 + 6 + 3
+    hidden = tuple(
+        (rng.normal(size=(8, w)).astype(np.float32), rng.normal(size=8).astype(np.float32)) for w in (width, 8)
+    )
+    output = (rng.normal(size=(4, 8)).astype(np.float32), rng.normal(size=4).astype(np.float32))
+    path = cloned_policy_file(hidden, output, json.loads(json.dumps(config)), LAYOUT).save(tmp_path / "clone.npz")
+    venv = build_vec_env(config)
+    try:
+        model = build_model({**config, "init_from": str(path)}, venv)
+        inputs = rng.normal(size=(3, width)).astype(np.float32)
+        with torch.no_grad():
+            mean = model.policy.get_distribution(torch.as_tensor(inputs)).distribution.mean.numpy()
+        np.testing.assert_allclose(mean, PolicyFile.load(path).network_action(inputs), atol=1e-5)
+        with pytest.raises(FileNotFoundError, match="does not exist"):
+            build_model({**config, "init_from": str(tmp_path / "none.npz")}, venv)
+    finally:
+        venv.close()
