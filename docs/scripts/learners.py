@@ -23,6 +23,7 @@ import argparse
 import json
 import os
 import pickle
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -225,6 +226,7 @@ def score(job: Job) -> pd.DataFrame:
     from snac_gym.policies import register_policy
 
     register_policy(POLICY_NAME, ZooPolicy, overwrite=True)
+    shutil.rmtree(job.folder / "evaluation", ignore_errors=True)  # an interrupted scoring's: scored anew
     kwargs = {"model_dir": str(job.folder), "learner": job.learner, "env_id": job.env_id}
     config = EvaluationConfig(
         out=job.folder / "evaluation",
