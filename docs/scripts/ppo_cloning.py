@@ -16,6 +16,7 @@ the reference's own tail is too slow for the 1 mm success).
 
     python docs/scripts/ppo_cloning.py data --task reach --seed 8101 --samples 100 --out runs/ppo_clone/data
     python docs/scripts/ppo_cloning.py fit --task reach --data runs/ppo_clone/data --out runs/ppo_clone/reach.npz
+    python docs/scripts/ppo_cloning.py summary --data runs/ppo_clone/data   # the data's figures in docs/ppo.md
 """
 
 from __future__ import annotations
@@ -151,6 +152,56 @@ def fit(args: argparse.Namespace) -> None:
     print(f"wrote {args.out}")
 
 
+def summary(args: argparse.Namespace) -> None:
+    """What the stored data says: how well the action expresses the reference, its pull and gain, its success."""
+    layout = policy_context("ur10", DT, "reach").layout
+    e_slice = layout.slices["e"]
+    for task, tolerance in (("reach", 1e-3), ("track", 5e-3)):
+        paths = sorted(Path(args.data).glob(f"{task}_*.npz"))
+        if not paths:
+            continue
+        first, every, ends, norms, gains, pulls = [], [], [], [], [], []
+        for path in paths:
+            with np.load(path) as chunk:
+                e = np.linalg.norm(chunk["obs"][..., e_slice], axis=-1)
+                first.append(chunk["residual"][:, :125].ravel())
+                every.append(chunk["residual"].ravel())
+                half = e.shape[1] // 2
+                ends.append(e[:, -1] <= tolerance if task == "reach" else e[:, half:].mean(axis=1) < tolerance)
+                # the gain along −e that the task-space part commands: v = g_max(‖e‖ + ε)a, g = −v·e/‖e‖²
+                along = np.sum(chunk["actions"][..., 1:] * chunk["obs"][..., e_slice], axis=-1)
+                gains.append((-4.0 * along * (e + RELATIVE_ERROR_FLOOR) / np.maximum(e, 1e-12) ** 2).ravel())
+                norms.append(e.ravel())
+                pulls.append(chunk["actions"][..., 0].ravel())
+        r1, ra, ok = np.concatenate(first), np.concatenate(every), np.concatenate(ends)
+        norm, gain, pull = np.concatenate(norms), np.concatenate(gains), np.concatenate(pulls)
+        print(
+            f"{task}: {len(ok)} samples; relative residual over the first second median {np.median(r1):.4f}, "
+            f"90th percentile {np.percentile(r1, 90):.4f} "
+            f"(all steps: {np.median(ra):.4f}, {np.percentile(ra, 90):.4f}); "
+            f"the reference within the success error on {100 * ok.mean():.1f} %"
+        )
+        for low, high in ((0.1, 1.0), (0.03, 0.1), (0.01, 0.03), (3e-3, 1e-2), (1e-3, 3e-3), (3e-4, 1e-3)):
+            rows = (norm >= low) & (norm < high)
+            print(
+                f"  |e| in [{low * 1000:g}, {high * 1000:g}) mm: {rows.sum()} steps, gain along -e median "
+                f"{np.median(gain[rows]):.2f} 1/s, a0 median {np.median(pull[rows]):.2f}"
+            )
+
+
+def paired(args: argparse.Namespace) -> None:
+    """Median over samples of one run's controller cost over another's (two evaluator folders of the same samples)."""
+    import pandas as pd  # only this step reads the evaluator's tables
+
+    costs = []
+    for spec in (args.numerator, args.denominator):
+        folder, controller = spec.rsplit(":", 1)
+        frame = pd.read_csv(Path(folder) / "results.csv")
+        costs.append(frame[frame.controller == controller].set_index("sample").cost_hjb)
+    ratio = costs[0] / costs[1]
+    print(f"{args.numerator} / {args.denominator}: paired median {ratio.median():.3f} over {ratio.count()} samples")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     steps = parser.add_subparsers(dest="step", required=True)
@@ -175,6 +226,13 @@ def main() -> None:
     f.add_argument("--tail-radius", type=float, default=0.0, help="below this error (m) the target is the tail law")
     f.add_argument("--tail-gain", type=float, default=2.0, help="the tail law's task-space gain, 1/s")
     f.set_defaults(func=fit)
+    m = steps.add_parser("summary")
+    m.add_argument("--data", required=True)
+    m.set_defaults(func=summary)
+    p = steps.add_parser("paired")
+    p.add_argument("numerator", help="FOLDER:CONTROLLER")
+    p.add_argument("denominator", help="FOLDER:CONTROLLER")
+    p.set_defaults(func=paired)
     args = parser.parse_args()
     args.func(args)
 

@@ -130,8 +130,8 @@ class PPOPolicy(BasePolicy):
 
 #: Why ``ppo-workspace`` ships no policy (docs/ppo.md, "ppo-workspace: withdrawn").
 WITHDRAWN = (
-    "ppo-workspace is withdrawn: no learned correction beat joint-goal, the controller it corrects (the shipped "
-    "PPO cost 1.007x/1.009x joint-goal held out; cloning the reference and PPO from the clone did worse: "
+    "ppo-workspace is withdrawn: no learned correction beat joint-goal, the controller it corrects (the PPO policy "
+    "cost 1.00-1.01x joint-goal on the whole reach; clones of the reference and PPO from them did worse: "
     "docs/ppo.md); use joint-goal, or pass ppo-workspace.model_path=FILE for a goal-relative policy of your own"
 )
 
