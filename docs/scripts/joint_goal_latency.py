@@ -1,4 +1,4 @@
-"""Time of ``act`` for ``joint-goal`` and ``ppo-workspace`` (docs/baselines.md, "joint-goal"): the first step of an
+"""Time of ``act`` for ``joint-goal`` and ``dls`` (docs/baselines.md, "joint-goal"): the first step of an
 episode (which solves the goal) and the later ones, on the PyBullet envs' observations.
 
     python docs/scripts/joint_goal_latency.py
@@ -19,7 +19,7 @@ from snac_gym.policies import make_policy
 
 for env_id in ("snac_gym/UR10Reach-v0", "snac_gym/UR10EllipseTrack-v0"):
     env = gym.make(env_id)
-    for name in ("joint-goal", "ppo-workspace", "dls"):
+    for name in ("joint-goal", "dls"):
         policy = make_policy(name, env)
         firsts, later = [], []
         for episode in range(6):
