@@ -274,7 +274,7 @@ def report(out: Path, folders: Sequence[Path], figure: Path | None = None, data:
         (data / "source.json").write_text(json.dumps(source, indent=1) + "\n")
     steps = ", ".join(f"{int(s):,}" for s in sorted(runs.steps.dropna().unique()))
     note = (
-        f"{len(runs)} runs, {steps} steps each; {int(runs.samples.max())} held-out samples per run and task. "
+        f"{len(runs)} runs, {steps} steps each; {int(runs.samples.max())} held-out samples per run and task.\n"
         "Solid: every episode at its cost; dashed: succeeded episodes only. Bands: 95 % stratified bootstrap over seeds"
     )
     success = scores.groupby(["task", "learner"]).success.mean().to_dict()
