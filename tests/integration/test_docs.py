@@ -225,3 +225,13 @@ def _missing_docs_packages() -> list[str]:
         "mkdocstrings-python": "mkdocstrings_handlers",
     }
     return [package for package, module in modules.items() if importlib.util.find_spec(module) is None]
+
+
+def test_no_page_names_a_tracker_issue():
+    """What a reader sees says what changed and why, not which tracker issue asked for it (that is the CHANGELOG's
+    history and the commits'): no "issue 62", "(issue 59)" or "#61" in the README, the docs or the CHANGELOG."""
+    pattern = re.compile(r"\bissues?\s+#?\d+|\(#\d+\)", re.IGNORECASE)
+    pages = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").glob("**/*.md"))]
+    found = [f"{page.relative_to(ROOT)}:{number}: {line.strip()[:80]}" for page in pages
+             for number, line in enumerate(page.read_text().splitlines(), 1) if pattern.search(line)]  # fmt: skip
+    assert not found, "\n".join(found)
