@@ -235,8 +235,7 @@ def branch_candidates(
 
 __all__ = [
     "BRANCH_PREFIX", "BRANCH_SEPARATION", "BRANCH_SPREAD", "LIMIT_STOP_RESIDUAL", "LOCAL_SEED", "LOCAL_SPREAD",
-    "LOCAL_STARTS",
-    "NEAR_SINGULAR", "RANDOM_PREFIX", "RANDOM_STARTS", "REACHED", "SINGULAR_STRIDE",
+    "LOCAL_STARTS", "NEAR_SINGULAR", "RANDOM_PREFIX", "RANDOM_STARTS", "REACHED", "SINGULAR_STRIDE",
     "branch_candidates", "branch_commands", "branch_goals", "needs_branches", "random_configurations", "worth_trying",
     "wrapped_towards",
 ]  # fmt: skip

@@ -277,6 +277,5 @@ class GoalArms:
 
 __all__ = [
     "GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "distinct_configurations", "goal_starts", "goals_and_limit_stops",
-    "in_limit_goals",
-    "nearest_goals",
+    "in_limit_goals", "nearest_goals",
 ]  # fmt: skip

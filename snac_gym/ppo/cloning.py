@@ -25,8 +25,9 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.model.kinematics import damped_least_squares
 from snac_gym.observation import ObservationLayout
-from snac_gym.ppo.features import RELATIVE_ERROR_FLOOR, FeatureSpec, GoalState, _resolve
+from snac_gym.ppo.features import RELATIVE_ERROR_FLOOR, FeatureSpec, GoalState
 from snac_gym.ppo.policy_file import PolicyFile
 
 #: Ridge of the target's least squares, (rad/s)²: below ~1 mrad/s of command a column does not move a off 0.
@@ -46,8 +47,9 @@ def action_columns(
     e = obs[:, s["e"]]
     pull = np.asarray(goal.goal, dtype=np.float64) - obs[:, s["q"]]
     n = layout.task_dim
-    # column j of Jᵀ(JJᵀ + λ²I)⁻¹ for each unit task velocity
-    resolved = np.stack([_resolve(jacobians, np.repeat(np.eye(n)[j][None], len(obs), 0), spec) for j in range(n)], -1)
+    # Jᵀ(JJᵀ + λ²I)⁻¹ itself: the damped least squares of the identity's columns (the unit task velocities)
+    identity = np.broadcast_to(np.eye(n), (len(obs), n, n))
+    resolved = damped_least_squares(np.asarray(jacobians, dtype=np.float64), identity, spec.damping**2 * np.eye(n))
     error_norm = np.sqrt(np.sum(e * e, axis=-1))
     task = spec.gain_max * (error_norm + RELATIVE_ERROR_FLOOR)[:, None, None] * resolved
     columns = np.concatenate((spec.joint_gain * pull[:, :, None], task), axis=-1)
