@@ -120,11 +120,12 @@ def main() -> None:
     signal while the interpreter exits is recorded instead of killing it mid-exit.
     """
     guard = SignalGuard()
-    guard.install(STOP_SIGNALS)  # not restored: a signal while the process exits must not kill it mid-exit
-    common.main_guard = guard
     common.reported.clear()
     interrupt: BaseException | None = None
     try:
+        # Inside the try: a signal that comes the instant the handlers are set raises here, not before it.
+        common.main_guard = guard
+        guard.install(STOP_SIGNALS)  # not restored: a signal while the process exits must not kill it mid-exit
         code = app(standalone_mode=False)
     except KeyboardInterrupt as exc:  # while typer built the command, before click's main
         code, interrupt = 130, exc
