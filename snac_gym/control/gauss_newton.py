@@ -122,10 +122,11 @@ def gauss_newton_direction(
         numpy.linalg.LinAlgError: If the matrix is not positive definite (it is, in exact arithmetic).
     """
     steps, m = grad.shape
+    from snac_gym.kernels.compiled import read_only_view
     from snac_gym.kernels.trajopt import add_jacobian_blocks  # numba: imported where first needed
 
     band = np.array(base, order="F")  # LAPACK's layout, so that dpbtrf factors it in place
-    add_jacobian_blocks(band, np.ascontiguousarray(jacobians, dtype=float), 2.0 * dt * q_scale)
+    add_jacobian_blocks(band, read_only_view(jacobians), 2.0 * dt * q_scale)
     factor, info = dpbtrf(band, lower=1, overwrite_ab=1)  # band is this call's own copy
     if info != 0:
         raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")

@@ -213,11 +213,12 @@ def _interior_direction(
     Returns:
         (δu = M δθ, the slacks' steps, the decrement −∂Φ/∂θᵀδθ, twice the model's decrease).
     """
+    from snac_gym.kernels.compiled import read_only_view
     from snac_gym.kernels.trajopt import add_jacobian_blocks  # numba: imported where first needed
 
     steps, m = grad.shape
     band = np.array(base, order="F")
-    add_jacobian_blocks(band, np.ascontiguousarray(jacobians, dtype=float), 2.0 * dt * q_scale)
+    add_jacobian_blocks(band, read_only_view(jacobians), 2.0 * dt * q_scale)
     state.add_to_band(band, m)
     rhs = -(_difference_transpose(grad, dt) + state.gradient())
     factor, info = dpbtrf(band, lower=1, overwrite_ab=1)

@@ -130,6 +130,7 @@ class FrozenJacobianLQR:
         in ``λ``, so that ``λ^{-1/2}`` and ``λ⁻¹`` are 0 there: at a lost rank no command moves the
         end effector along that direction, so the gain drops it instead of dividing by zero.
         """
+        from snac_gym.kernels.compiled import read_only_view
         from snac_gym.kernels.lqr import frozen_lqr_factors  # numba: imported where first needed
 
         jacobian = np.asarray(jacobian, dtype=float)
@@ -137,7 +138,7 @@ class FrozenJacobianLQR:
         n, m = shape[-2:]
         # S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2} = W diag(λ) Wᵀ, A = R⁻¹ Jᵀ Q^{1/2} W, C = Wᵀ Q^{1/2}: one compiled pass
         left, values, right, singular = frozen_lqr_factors(
-            np.ascontiguousarray(jacobian.reshape(-1, n, m)), self.Q_half, self.R_inverse, SINGULAR_TOLERANCE
+            read_only_view(jacobian.reshape(-1, n, m)), self.Q_half, self.R_inverse, SINGULAR_TOLERANCE
         )
         stack = shape[:-2]
         return (

@@ -126,6 +126,20 @@ def read_only(array: _Array) -> _Array:
     return array
 
 
+def read_only_view(array: object) -> np.ndarray:
+    """``array`` as a C-contiguous float64 array that numba types as read-only (a view, not a copy, where it
+    already is one): a kernel that reads a stack (Jacobians, matrices) is called with read-only arrays only, the
+    kinematics' cached ones and any other alike, so that it compiles one signature, not two (each is seconds of a
+    cold run's compiles)."""
+    import numpy as np  # the caller's numpy: this module imports it only here and for type checkers
+
+    out = np.ascontiguousarray(array, dtype=float)
+    if out.flags.writeable:
+        out = out.view()
+        out.setflags(write=False)
+    return out
+
+
 def warm_up(modules: tuple[str, ...] = KERNEL_MODULES) -> float:
     """Compile, or load from the cache, every kernel of ``modules`` now; the seconds it took.
 
@@ -274,5 +288,5 @@ def _with_stop_signals_held(
 
 __all__ = [
     "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Example", "Kernel",
-    "cached_on_disk", "kernel", "load_if_cached", "read_only", "warm_up", "warm_up_shared",
+    "cached_on_disk", "kernel", "load_if_cached", "read_only", "read_only_view", "warm_up", "warm_up_shared",
 ]  # fmt: skip

@@ -19,11 +19,8 @@ from snac_gym.kernels.small import jacobi_eigh
 
 
 def _examples() -> list[Example]:
-    """A writable stack, and a read-only one (the kinematics' cached Jacobians are read-only)."""
-    return [
-        (np.ones((1, 3, 6)), np.eye(3), np.eye(6), 1e-12),
-        (read_only(np.ones((1, 3, 6))), np.eye(3), np.eye(6), 1e-12),
-    ]
+    """A read-only stack: its callers pass one (:func:`~snac_gym.kernels.compiled.read_only_view`)."""
+    return [(read_only(np.ones((1, 3, 6))), np.eye(3), np.eye(6), 1e-12)]
 
 
 @njit(cache=True, nogil=True)

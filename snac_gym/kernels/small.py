@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from snac_gym.kernels.compiled import kernel, read_only
+from snac_gym.kernels.compiled import kernel, read_only, read_only_view
 
 #: Sweeps of the Jacobi methods before giving up (a 3×3 converges in 3-5).
 MAX_SWEEPS = 60
@@ -96,7 +96,7 @@ def jacobi_eigh(  # noqa: C901 - one compiled loop nest
             vectors[i, j] = v[i, order[j]]
 
 
-@kernel(lambda: (np.eye(3)[None].copy(),))
+@kernel(lambda: (read_only(np.eye(3)[None].copy()),))
 def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Eigenvalues (ascending) and eigenvectors (columns) of a stack ``(B, n, n)`` of symmetric matrices.
 
@@ -120,7 +120,7 @@ def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pr
     return values, vectors
 
 
-@kernel(lambda: [(np.ones((1, 3, 6)),), (read_only(np.ones((1, 3, 6))),)])
+@kernel(lambda: (read_only(np.ones((1, 3, 6))),))
 def thin_svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
     """``(U, σ, Vᵀ)`` of a stack ``(B, n, m)``, n ≤ m: ``np.linalg.svd(..., full_matrices=False)``'s contract.
 
@@ -177,7 +177,7 @@ def thin_svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return u, sigma, vt
 
 
-@kernel(lambda: [(np.ones((1, 3, 6)), np.ones((1, 3)), 1e-4), (read_only(np.ones((1, 3, 6))), np.ones((1, 3)), 1e-4)])
+@kernel(lambda: (read_only(np.ones((1, 3, 6))), np.ones((1, 3)), 1e-4))
 def damped_resolve(jacobians: np.ndarray, velocities: np.ndarray, damping: float) -> np.ndarray:  # noqa: C901  # pragma: no cover - compiled
     """``Jᵀ(JJᵀ + λ²I)⁻¹v`` for a stack ``(B, n, m)`` with ``(B, n)`` (``damping`` = λ²), by a Cholesky solve of
     each n×n system: the joint-goal IK's step, on thousands of candidates at once (NumPy's batched ``solve`` and
@@ -226,7 +226,7 @@ def eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.linalg.eigh`` of one symmetric matrix or a stack of any shape ``(…, n, n)``, by :func:`symmetric_eigh`."""
     matrices = np.asarray(matrices, dtype=float)
     shape = matrices.shape
-    values, vectors = symmetric_eigh(np.ascontiguousarray(matrices.reshape((-1, *shape[-2:]))))
+    values, vectors = symmetric_eigh(read_only_view(matrices.reshape((-1, *shape[-2:]))))
     return values.reshape(shape[:-1]), vectors.reshape(shape)
 
 
@@ -237,6 +237,6 @@ def svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     shape = matrices.shape
     if shape[-2] > shape[-1]:
         raise ValueError(f"svd: needs at most as many rows as columns, got shape {shape}")
-    u, sigma, vt = thin_svd(np.ascontiguousarray(matrices.reshape((-1, *shape[-2:]))))
+    u, sigma, vt = thin_svd(read_only_view(matrices.reshape((-1, *shape[-2:]))))
     rows = shape[-2]
     return u.reshape((*shape[:-2], rows, rows)), sigma.reshape(shape[:-1]), vt.reshape(shape)

@@ -13,12 +13,7 @@ import numpy as np
 from snac_gym.kernels.compiled import kernel, read_only
 
 
-@kernel(
-    lambda: [
-        (np.zeros((13, 12), order="F"), np.ones((3, 3, 6)), 1.0),
-        (np.zeros((13, 12), order="F"), read_only(np.ones((3, 3, 6))), 1.0),
-    ]
-)
+@kernel(lambda: (np.zeros((13, 12), order="F"), read_only(np.ones((3, 3, 6))), 1.0))
 def add_jacobian_blocks(band: np.ndarray, jacobians: np.ndarray, scale: float) -> None:  # pragma: no cover - compiled
     """``band[a − b, (k−1)·m + b] += scale · (JₖᵀJₖ)ₐᵦ`` for a ≥ b and k = 1..K−1, in place.
 

@@ -268,3 +268,38 @@ def test_the_fork_server_loads_every_kernel_its_workers_call_at_start_up():
     report = json.loads(done.stdout)
     assert report["before"] == [] and report["after"] == report["all"] and len(report["all"]) >= 8
     assert report["misses"] == []
+
+
+def test_a_writable_stack_reaches_the_kernels_as_a_read_only_one(monkeypatch):
+    """The wrappers hand their stacks to the kernels read-only (the kinematics' cached Jacobians are), so a writable
+    stack does not compile a second signature: each one costs a cold run a fraction of a second to seconds."""
+    import numpy as np
+
+    from snac_gym.control.cost import CostConvention
+    from snac_gym.control.gauss_newton import gauss_newton_direction, theta_system_base
+    from snac_gym.control.optimality import FrozenJacobianLQR
+    from snac_gym.kernels.compiled import Kernel, read_only_view
+    from snac_gym.kernels.small import eigh, svd
+    from snac_gym.model.joint_goal import _resolve
+
+    seen: dict[str, list[bool]] = {}
+    call = Kernel.__call__
+    stack_argument = {"add_jacobian_blocks": 1}  # its first argument is the band it writes
+
+    def recording(self, *args):
+        seen.setdefault(self.__name__, []).append(args[stack_argument.get(self.__name__, 0)].flags.writeable)
+        return call(self, *args)
+
+    monkeypatch.setattr(Kernel, "__call__", recording)
+    rng = np.random.default_rng(0)
+    jacobians = rng.normal(size=(4, 3, 6))  # writable
+    svd(jacobians)
+    eigh(np.einsum("kij,klj->kil", jacobians, jacobians))
+    FrozenJacobianLQR(np.eye(3), np.eye(6), 3, 6).factors(jacobians)
+    _resolve(jacobians, rng.normal(size=(4, 3)))
+    base = theta_system_base(4, 6, 0.008, CostConvention())
+    gauss_newton_direction(base, jacobians, rng.normal(size=(4, 6)), 0.008, 1.0)
+    kernels = ("thin_svd", "symmetric_eigh", "frozen_lqr_factors", "damped_resolve", "add_jacobian_blocks")
+    assert seen == {name: [False] for name in kernels}
+    view = read_only_view(jacobians)
+    assert np.shares_memory(view, jacobians) and not view.flags.writeable and jacobians.flags.writeable
