@@ -30,6 +30,10 @@ if TYPE_CHECKING:
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
 
+#: numba's options for a helper that only compiled code calls: no CPython or C wrapper is built for it (a tenth of a
+#: second or more of a cold run's compile each), so Python cannot call it.
+HELPER_OPTIONS: dict[str, bool] = {"cache": True, "nogil": True, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+
 #: The modules that define the kinematics' and the controllers' kernels.
 POLICY_KERNEL_MODULES = (
     "snac_gym.kernels.chain",
@@ -287,6 +291,7 @@ def _with_stop_signals_held(
 
 
 __all__ = [
-    "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Example", "Kernel",
-    "cached_on_disk", "kernel", "load_if_cached", "read_only", "read_only_view", "warm_up", "warm_up_shared",
+    "EVALUATOR_KERNEL_MODULES", "HELPER_OPTIONS", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES",
+    "Example", "Kernel", "cached_on_disk", "kernel", "load_if_cached", "read_only", "read_only_view", "warm_up",
+    "warm_up_shared",
 ]  # fmt: skip

@@ -70,8 +70,10 @@ def residual_steps(  # noqa: C901 - one compiled loop nest, kept inline for spee
                 for k in range(n):
                     total += gram_matrices[b, i, k] * P[k, j]
                 GP[i, j] = total
-        gram[:, :] = 0.0
-        gradient[:] = 0.0
+        for i in range(size):  # loops, not slice assignments: numba compiles those slowly (a cold run's seconds)
+            gradient[i] = 0.0
+            for j in range(size):
+                gram[i, j] = 0.0
         for index in range(fixed + 1):
             for i in range(n):
                 d[i] = directions[index, i] if index < fixed else current[b, i]

@@ -2,6 +2,10 @@
 primal-dual
 interior point on the relaxed problem, whose Newton systems are banded (docs/lower-bounds.md).
 
+Arrays are filled by loops, not slice assignments, and the helpers carry no Python wrapper
+(:data:`~snac_gym.kernels.compiled.HELPER_OPTIONS`): both cut numba's compile, seconds of a cold evaluation, by a
+quarter.
+
 They are plain Python functions compiled by numba on first use (:func:`relaxation_kernel`), so that importing
 :mod:`snac_gym.control.optimality` does not import numba.
 """
@@ -74,7 +78,8 @@ def _dual_value(
     """The Lagrangian dual function at z ≥ 0: g(z) = min_x F(x) + zᵀ(Gx − h) = qΔt r₀² − ½ yᵀH⁻¹y − zᵀh with
     y = Gᵀz (F = ½xᵀHx + qΔt r₀² has no linear term). A lower bound on the relaxed optimum for every z ≥ 0."""
     _apply_constraints_transposed(steps, b, z, capped, image)
-    work[:] = image
+    for i in range(image.shape[0]):
+        work[i] = image[i]
     _ldl_solve(hessian, hessian_pivots, work)
     dual: float = q * dt * r0 * r0 - 0.5 * np.dot(image, work) - np.dot(z, h)  # np.dot's stub: Any
     return dual
@@ -190,10 +195,10 @@ def _constraint_bounds(
 ) -> _Floats:  # pragma: no cover - compiled
     """h of Gx ≤ h: dₖ (less r₀ for k = 0, where r₀ is data), then v̄ for the caps."""
     h = np.empty(steps - 1 + (steps if capped else 0))
-    h[: steps - 1] = d[: steps - 1]
+    for k in range(h.shape[0]):
+        h[k] = d[k] if k < steps - 1 else vmax
     if steps > 1:
         h[0] -= r0
-    h[steps - 1 :] = vmax
     return h
 
 
@@ -224,8 +229,8 @@ def _relaxation_solve(
     n = 2 * steps - 1
     h = _constraint_bounds(r0, d, vmax, steps, capped)
     m = h.shape[0]
-    x[:n] = 0.0
-    x[1:n:2] = r0
+    for i in range(n):
+        x[i] = r0 if i % 2 == 1 else 0.0
     hessian, hessian_pivots = np.empty((3, n)), np.empty(n)
     _relaxed_hessian_band(steps, dt, q, w, rest, terminal, hessian)
     _ldl_factor(hessian, hessian_pivots)
@@ -237,7 +242,8 @@ def _relaxation_solve(
     primal_residual, ds, dz, work_m = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     _apply_constraints(steps, b, x[:n], capped, work_m)
     s = np.maximum(h - work_m, 0.0) + 0.1  # strictly interior (lengths are in units of r₀ + Σd): r_p takes the rest
-    z[:m] = 1.0
+    for i in range(m):
+        z[i] = 1.0
     band, pivots = np.empty((3, n)), np.empty(n)
     iterations = 0
     while True:
@@ -371,7 +377,8 @@ def _relaxation_bounds(
         # In units of r₀ + Σd the solve starts from the same scale for every sample; V scales with its square.
         unit = r0s[i] + np.sum(ds[i])
         if unit == 0.0:  # nothing to move: the trajectory at rest costs 0
-            out[:, i] = 0.0
+            for row in range(out.shape[0]):
+                out[row, i] = 0.0
             continue
         d, r0 = ds[i] / unit, r0s[i] / unit
         steps = (
@@ -430,10 +437,12 @@ def relaxation_kernel() -> Any:  # a numba dispatcher (numba has no type hints)
     """
     from numba import njit  # numba (~0.2 s to import) only once a bound is asked for
 
+    from snac_gym.kernels.compiled import HELPER_OPTIONS
+
     namespace = globals()
     for name in _RELAXATION_HELPERS:
         if not hasattr(namespace[name], "py_func"):
-            namespace[name] = njit(cache=True, nogil=True, fastmath={"contract"})(namespace[name])
+            namespace[name] = njit(**HELPER_OPTIONS, fastmath={"contract"})(namespace[name])
     return njit(cache=True, nogil=True)(_relaxation_bounds)
 
 

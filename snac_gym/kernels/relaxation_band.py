@@ -21,7 +21,9 @@ def _relaxed_hessian_band(
     second subdiagonal, at the row's index): 2qΔt on each r, 2Δt + (2w/Δt)·(jumps vₖ is in) on each v (and
     2·terminal on the last), −2w/Δt between consecutive v (two places apart)."""
     c = w / dt
-    band[:, :] = 0.0
+    for row in range(band.shape[0]):
+        for column in range(band.shape[1]):
+            band[row, column] = 0.0
     for k in range(steps):
         jumps = (1.0 if k > 0 else (1.0 if rest else 0.0)) + (1.0 if k < steps - 1 else 0.0)
         band[0, 2 * k] = 2.0 * dt + 2.0 * c * jumps
