@@ -278,7 +278,18 @@ def _answer(client: Client, name: str, args: tuple[Any, ...]) -> tuple[str, Any]
         return "lost", str(exc)
     except Exception as exc:  # noqa: BLE001 - reported to the parent, which decides
         text = str(exc).splitlines()[0] if str(exc) else ""
-        return "error", f"{type(exc).__name__}: {text}".rstrip(": ")
+        error = f"{type(exc).__name__}: {text}".rstrip(": ")
+        # A request that fails with the link down failed because it went (ur_rtde may raise from its own reconnect,
+        # "Timeout connecting to UR dashboard server", before it says it reconnects): a lost link, in ur_rtde's words.
+        return ("lost", f"was lost ({error})") if _link_down(client) else ("error", error)
+
+
+def _link_down(client: Client) -> bool:
+    """Whether ur_rtde says the link is down (not when it cannot say: a client in a state it cannot report)."""
+    try:
+        return client.receive is not None and not client.link_up()
+    except Exception:  # noqa: BLE001 - the question failed too: the caller reports the first error as it is
+        return False
 
 
 def serve() -> None:
