@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any, Generic, ParamSpec, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, ParamSpec, Protocol, TypeVar, cast
 
 if TYPE_CHECKING:
     import numpy as np
@@ -29,10 +29,6 @@ if TYPE_CHECKING:
 #: higher layer).
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 
-
-#: numba's options for a helper that only compiled code calls: no CPython or C wrapper is built for it (a tenth of a
-#: second or more of a cold run's compile each), so Python cannot call it.
-HELPER_OPTIONS: dict[str, bool] = {"cache": True, "nogil": True, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
 
 #: The modules that define the kinematics' and the controllers' kernels.
 POLICY_KERNEL_MODULES = (
@@ -62,6 +58,7 @@ _LAZY_HOOK = "lazy_kernels"
 Example = tuple[object, ...]
 _Array = TypeVar("_Array", bound="np.ndarray")
 _Result = TypeVar("_Result")
+_Function = TypeVar("_Function", bound=Callable[..., Any])
 _Parameters = ParamSpec("_Parameters")
 
 
@@ -121,6 +118,16 @@ def kernel(
             (a list of such tuples for several).
     """
     return lambda function: Kernel(function, example)
+
+
+def helper(function: _Function, fastmath: bool | set[str] = False) -> _Function:
+    """``function`` compiled by numba (``nopython``, cached, releasing the GIL) for compiled callers only: no CPython
+    or C wrapper is built for it (a tenth of a second or more of a cold run's compile each), so Python cannot call
+    it."""
+    from numba import njit
+
+    options: dict[str, Any] = {"cache": True, "nogil": True, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+    return cast("_Function", njit(**options, fastmath=fastmath)(function))
 
 
 def read_only(array: _Array) -> _Array:
@@ -291,7 +298,6 @@ def _with_stop_signals_held(
 
 
 __all__ = [
-    "EVALUATOR_KERNEL_MODULES", "HELPER_OPTIONS", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES",
-    "Example", "Kernel", "cached_on_disk", "kernel", "load_if_cached", "read_only", "read_only_view", "warm_up",
-    "warm_up_shared",
+    "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Example", "Kernel",
+    "cached_on_disk", "helper", "kernel", "load_if_cached", "read_only", "read_only_view", "warm_up", "warm_up_shared",
 ]  # fmt: skip

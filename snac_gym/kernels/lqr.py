@@ -12,9 +12,8 @@ eigendecomposition itself; here it is one pass over the stack, each product summ
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from snac_gym.kernels.compiled import HELPER_OPTIONS, Example, kernel, read_only
+from snac_gym.kernels.compiled import Example, helper, kernel, read_only
 from snac_gym.kernels.small import jacobi_eigh
 
 
@@ -23,7 +22,7 @@ def _examples() -> list[Example]:
     return [(read_only(np.ones((1, 3, 6))), np.eye(3), np.eye(6), 1e-12)]
 
 
-@njit(**HELPER_OPTIONS)
+@helper
 def _product(x: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
     """``out ← x y``, each entry summed in index order."""
     for i in range(x.shape[0]):

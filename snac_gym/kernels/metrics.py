@@ -13,12 +13,11 @@ included: as in NumPy, a maximum or minimum over values with a NaN is NaN, and a
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from snac_gym.kernels.compiled import HELPER_OPTIONS, Example, kernel
+from snac_gym.kernels.compiled import Example, helper, kernel
 
 
-@njit(**HELPER_OPTIONS)
+@helper
 def _above(value: float, best: float) -> bool:  # pragma: no cover - compiled
     """Whether ``value`` replaces ``best`` as a running maximum, NumPy's way: a NaN wins and then stays."""
     return value > best or (value != value and best == best)
@@ -28,7 +27,7 @@ def _examples() -> Example:
     return (np.ones((1, 2, 6)), np.ones(6), np.ones(6), 0.01)
 
 
-@njit(**HELPER_OPTIONS)
+@helper
 def _rollout_extremes(
     commands: np.ndarray, b: int, limits: np.ndarray, at_limit: np.ndarray, dt: float, nan_aware: bool
 ) -> tuple[float, int, float, int, float, int, bool]:  # pragma: no cover - compiled

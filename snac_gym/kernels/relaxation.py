@@ -3,7 +3,7 @@ primal-dual
 interior point on the relaxed problem, whose Newton systems are banded (docs/lower-bounds.md).
 
 Arrays are filled by loops, not slice assignments, and the helpers carry no Python wrapper
-(:data:`~snac_gym.kernels.compiled.HELPER_OPTIONS`): both cut numba's compile, seconds of a cold evaluation, by a
+(:func:`~snac_gym.kernels.compiled.helper`): both cut numba's compile, seconds of a cold evaluation, by a
 quarter.
 
 They are plain Python functions compiled by numba on first use (:func:`relaxation_kernel`), so that importing
@@ -437,12 +437,12 @@ def relaxation_kernel() -> Any:  # a numba dispatcher (numba has no type hints)
     """
     from numba import njit  # numba (~0.2 s to import) only once a bound is asked for
 
-    from snac_gym.kernels.compiled import HELPER_OPTIONS
+    from snac_gym.kernels.compiled import helper
 
     namespace = globals()
     for name in _RELAXATION_HELPERS:
         if not hasattr(namespace[name], "py_func"):
-            namespace[name] = njit(**HELPER_OPTIONS, fastmath={"contract"})(namespace[name])
+            namespace[name] = helper(namespace[name], fastmath={"contract"})
     return njit(cache=True, nogil=True)(_relaxation_bounds)
 
 

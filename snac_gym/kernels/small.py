@@ -14,16 +14,15 @@ Figures: ``python docs/scripts/kernel_speed.py``.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from snac_gym.kernels.compiled import HELPER_OPTIONS, kernel, read_only, read_only_view
+from snac_gym.kernels.compiled import helper, kernel, read_only, read_only_view
 
 #: Sweeps of the Jacobi methods before giving up (a 3×3 converges in 3-5).
 MAX_SWEEPS = 60
 _EPS = float(np.finfo(float).eps)
 
 
-@njit(**HELPER_OPTIONS)
+@helper
 def _rotation(alpha: float, beta: float, gamma: float) -> tuple[float, float]:  # pragma: no cover - compiled
     """``(cos, sin)`` of the Jacobi rotation that zeroes ``gamma`` between diagonal entries ``alpha``, ``beta``."""
     zeta = (beta - alpha) / (2.0 * gamma)
@@ -35,7 +34,7 @@ def _rotation(alpha: float, beta: float, gamma: float) -> tuple[float, float]:  
     return c, c * t
 
 
-@njit(**HELPER_OPTIONS)
+@helper
 def _sort_indices(keys: np.ndarray, order: np.ndarray, direction: float) -> None:  # pragma: no cover - compiled
     """``order`` ← the indices of ``keys`` ascending (``direction`` 1) or descending (−1); a stable insertion
     sort, n ≤ 6."""
@@ -50,7 +49,7 @@ def _sort_indices(keys: np.ndarray, order: np.ndarray, direction: float) -> None
         order[j + 1] = index
 
 
-@njit(**HELPER_OPTIONS)
+@helper
 def _rotate_columns(matrix: np.ndarray, p: int, q: int, c: float, s: float) -> None:  # pragma: no cover - compiled
     """Columns p and q of ``matrix`` ← (c·x_p − s·x_q, s·x_p + c·x_q), in place: ``matrix`` times the rotation."""
     for k in range(matrix.shape[0]):
@@ -59,7 +58,7 @@ def _rotate_columns(matrix: np.ndarray, p: int, q: int, c: float, s: float) -> N
         matrix[k, q] = s * first + c * second
 
 
-@njit(**HELPER_OPTIONS)
+@helper
 def jacobi_eigh(  # noqa: C901 - one compiled loop nest
     a: np.ndarray, v: np.ndarray, diagonal: np.ndarray, order: np.ndarray, values: np.ndarray, vectors: np.ndarray
 ) -> None:  # pragma: no cover - compiled
