@@ -108,6 +108,41 @@ def pytest_sessionstart(session: pytest.Session) -> None:
         raise pytest.UsageError(f"compiling the numba kernels failed:\n{done.stderr}")
 
 
+def once_per_session(tmp_path_factory: pytest.TempPathFactory, name: str, compute):
+    """``compute()``'s value (JSON-serialisable), computed once per test session: by the one process of a
+    plain run, or by the first pytest-xdist worker to ask, the others reading what it wrote.
+
+    For a module fixture whose work is costly (a docs build, a batch of subprocesses): pytest-xdist's
+    ``worksteal`` may spread one module's tests over both workers, and each worker would run the module
+    fixture anew. The workers of a session share the parent of their temporary folders (as pytest-xdist's
+    docs suggest); a lock there makes the others wait for the first. An exception (a skip, a failure) in
+    ``compute`` stores nothing: the next worker to ask computes again, and fails or skips the same way.
+    """
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: each worker computes its own
+        return compute()
+    import json
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the session's folder, above each worker's popen-gw<N>
+    stored = root / f"once-{name}.json"
+    with open(root / f"once-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if stored.is_file():
+            return json.loads(stored.read_text(encoding="utf-8"))
+        value = compute()
+        stored.write_text(json.dumps(value), encoding="utf-8")
+        return value
+
+
+@pytest.fixture(scope="session")
+def once(tmp_path_factory):
+    """:func:`once_per_session` of this session, for tests in any folder: ``once(name, compute)``."""
+    return lambda name, compute: once_per_session(tmp_path_factory, name, compute)
+
+
 @pytest.fixture(scope="session")
 def ur10() -> Kinematics:
     return Kinematics("ur10")
