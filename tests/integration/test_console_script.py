@@ -81,24 +81,31 @@ def _command_line(key: str, out: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def outcomes(tmp_path_factory) -> dict[str, subprocess.CompletedProcess]:
-    """Every command of this file, run once, two at a time (the script's start-up is ~0.4 s each)."""
+def outcomes(tmp_path_factory, once) -> dict[str, subprocess.CompletedProcess]:
+    """Every command of this file, run once per test session, two at a time (the script's start-up is ~0.4 s
+    each): once, not once per pytest-xdist worker that runs one of these tests (``once``, tests/conftest.py)."""
     if not SCRIPT.exists():
         pytest.skip(f"no installed console script at {SCRIPT} (install the package: pip install -e .)")
-    cwd = tmp_path_factory.mktemp("console")  # nothing may be written, but never into the checkout
-    out = cwd / "train"
-    env = {key: value for key, value in os.environ.items() if key != "PYTHONWARNINGS"}
-    env["COLUMNS"] = "200"
     keys = ["\0".join(args) for args, _ in USAGE_ERRORS] + [f"driver:{name}" for name in DRIVEN] + [""]
 
-    def run(key: str) -> subprocess.CompletedProcess:
-        command = _command_line(key, out) if key else [str(SCRIPT)]
-        return subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
+    def run_all() -> dict[str, list]:
+        cwd = tmp_path_factory.mktemp("console")  # nothing may be written, but never into the checkout
+        out = cwd / "train"
+        env = {key: value for key, value in os.environ.items() if key != "PYTHONWARNINGS"}
+        env["COLUMNS"] = "200"
 
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        results = dict(zip(keys, pool.map(run, keys)))
-    assert not out.exists(), "a refused command wrote its output folder"
-    return results
+        def run(key: str) -> list:
+            command = _command_line(key, out) if key else [str(SCRIPT)]
+            done = subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
+            return [done.args, done.returncode, done.stdout, done.stderr]
+
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            results = dict(zip(keys, pool.map(run, keys)))
+        assert not out.exists(), "a refused command wrote its output folder"
+        return results
+
+    results = once("console-script-outcomes", run_all)
+    return {key: subprocess.CompletedProcess(*results[key]) for key in keys}
 
 
 @pytest.mark.parametrize(("args", "option"), USAGE_ERRORS, ids=[" ".join(args) for args, _ in USAGE_ERRORS])
