@@ -130,10 +130,16 @@ def _build_site(root: Path, site: Path) -> tuple[int, str, list[str]]:
 
 
 @pytest.fixture(scope="module")
-def built_site(tmp_path_factory) -> tuple[int, str, list[str], Path]:
-    """The site built once for this module's tests, as README.md says: exit code, output, WARNING lines, folder."""
-    site = tmp_path_factory.mktemp("docs") / "site"
-    return (*_build_site(ROOT, site), site)
+def built_site(tmp_path_factory, once) -> tuple[int, str, list[str], Path]:
+    """The site built once for this module's tests, as README.md says: exit code, output, WARNING lines, folder.
+    Once per test session, not once per pytest-xdist worker that runs one of them (``once``, tests/conftest.py)."""
+
+    def build() -> tuple[int, str, list[str], str]:
+        site = tmp_path_factory.mktemp("docs") / "site"
+        return (*_build_site(ROOT, site), str(site))
+
+    code, output, warnings, site = once("docs-built-site", build)
+    return code, output, warnings, Path(site)
 
 
 @pytest.mark.slow(seconds=30)
@@ -162,13 +168,14 @@ def site_check():
 
 
 @pytest.fixture(scope="module")
-def checked(site_check, built_site):
+def checked(site_check, built_site, once):
     binary = site_check.chromium()
     if binary is None:
         pytest.skip("no Chromium on the PATH (.ci/run installs Debian's chromium)")
     code, output, _, site = built_site
     assert code == 0, output[-4000:]
-    results, errors = site_check.check(site, binary)
+    # Once per test session, as the site it reads (Chromium: ~12 s of two cores)
+    results, errors = once("docs-site-check", lambda: site_check.check(site, binary))
     return site, results, errors
 
 
