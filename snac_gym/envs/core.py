@@ -210,8 +210,9 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         no_display = sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
         self._headless_human = self.render_mode == "human" and (no_display or physics == "mujoco")
         gui = self.render_mode == "human" and not self._headless_human
-        # Without a render mode nothing draws the arm: its meshes (0.3 s of every env's construction) are not loaded.
-        meshes = self.render_mode is not None
+        # Without a render mode, or "human" with no display, nothing draws the arm: its meshes (0.3 s of every env's
+        # construction) are not loaded.
+        meshes = self.render_mode is not None and not self._headless_human
         self.arm: Arm = make_arm(physics, self.kinematics, self.dt, n_substeps, gui=gui, meshes=meshes)
         self.dt = self.arm.dt
         #: The PyBullet world (renders; ``None`` for the kinematic and MuJoCo arms).

@@ -1,5 +1,6 @@
 """Gymnasium behaviour of every registered id: API, determinism, pickling, bad input."""
 
+import os
 import pickle
 import warnings
 
@@ -96,6 +97,10 @@ def test_an_env_without_a_render_mode_loads_no_meshes_and_moves_bit_for_bit_as_a
     assert p.getVisualShapeData(base.arm.body.body, physicsClientId=base.sim.client) == ()
     drawn = gym.make(env_id, render_mode="rgb_array", render_width=32, render_height=32)
     assert len(p.getVisualShapeData(drawn.unwrapped.arm.body.body, physicsClientId=drawn.unwrapped.sim.client)) > 0
+    if not os.environ.get("DISPLAY"):  # "human" with no display draws nothing: no meshes either
+        shown_nowhere = gym.make(env_id, render_mode="human").unwrapped
+        assert p.getVisualShapeData(shown_nowhere.arm.body.body, physicsClientId=shown_nowhere.sim.client) == ()
+        shown_nowhere.close()
     # the episodes on these two fresh envs (a drawn one's construction loads its meshes: 0.2 s, once)
     plain = _run(env, 5, actions)
     shown = _run(drawn, 5, actions)
