@@ -22,6 +22,7 @@ from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from snac_gym.control.cost import CostConvention
 from snac_gym.control.shooting import angles, errors_and_jacobians, trajectory_cost_and_gradient
+from snac_gym.kernels.compiled import read_only_view
 from snac_gym.model.kinematics import Kinematics
 
 __all__ = [
@@ -122,7 +123,6 @@ def gauss_newton_direction(
         numpy.linalg.LinAlgError: If the matrix is not positive definite (it is, in exact arithmetic).
     """
     steps, m = grad.shape
-    from snac_gym.kernels.compiled import read_only_view
     from snac_gym.kernels.trajopt import add_jacobian_blocks  # numba: imported where first needed
 
     band = np.array(base, order="F")  # LAPACK's layout, so that dpbtrf factors it in place

@@ -14,6 +14,7 @@ from scipy.linalg.lapack import dpbtrf, dpbtrs
 from snac_gym.control.cost import CostConvention
 from snac_gym.control.gauss_newton import GAP_RTOL, MAX_ITERATIONS, MIN_STEP, GaussNewtonSolver
 from snac_gym.control.shooting import angles, errors_and_jacobians, next_angles, trajectory_cost_and_gradient
+from snac_gym.kernels.compiled import read_only_view
 
 __all__ = [
     "BARRIER_DECREASE",
@@ -213,7 +214,6 @@ def _interior_direction(
     Returns:
         (δu = M δθ, the slacks' steps, the decrement −∂Φ/∂θᵀδθ, twice the model's decrease).
     """
-    from snac_gym.kernels.compiled import read_only_view
     from snac_gym.kernels.trajopt import add_jacobian_blocks  # numba: imported where first needed
 
     steps, m = grad.shape

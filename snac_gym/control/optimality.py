@@ -55,6 +55,7 @@ from snac_gym.control.lower_bounds import (  # noqa: F401  (their names here bef
     trajectory_cost_lower_bound,
     trajectory_cost_lower_bounds,
 )
+from snac_gym.kernels.compiled import read_only_view
 
 #: Eigenvalues of ``S = Q^{1/2} J R⁻¹ Jᵀ Q^{1/2}`` below this fraction of the largest are taken as
 #: zero: J has lost rank there (σ_min/σ_max ≲ 1e-6 for Q = R = I) and the eigenvalue is rounding.
@@ -130,7 +131,6 @@ class FrozenJacobianLQR:
         in ``λ``, so that ``λ^{-1/2}`` and ``λ⁻¹`` are 0 there: at a lost rank no command moves the
         end effector along that direction, so the gain drops it instead of dividing by zero.
         """
-        from snac_gym.kernels.compiled import read_only_view
         from snac_gym.kernels.lqr import frozen_lqr_factors  # numba: imported where first needed
 
         jacobian = np.asarray(jacobian, dtype=float)

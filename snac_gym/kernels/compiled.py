@@ -124,7 +124,7 @@ def helper(function: _Function, fastmath: bool | set[str] = False) -> _Function:
     """``function`` compiled by numba (``nopython``, cached, releasing the GIL) for compiled callers only: no CPython
     or C wrapper is built for it (a tenth of a second or more of a cold run's compile each), so Python cannot call
     it."""
-    from numba import njit
+    from numba import njit  # numba is imported by the first module that defines a kernel
 
     options: dict[str, Any] = {"cache": True, "nogil": True, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
     return cast("_Function", njit(**options, fastmath=fastmath)(function))

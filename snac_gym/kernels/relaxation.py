@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from snac_gym.kernels.compiled import helper
 from snac_gym.kernels.relaxation_band import (  # the leaves, compiled by relaxation_kernel into this namespace
     _add_constraint_curvature,
     _apply_constraints,
@@ -436,8 +437,6 @@ def relaxation_kernel() -> Any:  # a numba dispatcher (numba has no type hints)
     where the compiled callers look them up; numba imports here, not with the module.
     """
     from numba import njit  # numba (~0.2 s to import) only once a bound is asked for
-
-    from snac_gym.kernels.compiled import helper
 
     namespace = globals()
     for name in _RELAXATION_HELPERS:

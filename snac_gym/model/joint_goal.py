@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.kernels.compiled import read_only_view
+
 #: δ, rad: the distance a goal keeps from every joint limit.
 GOAL_MARGIN = 0.05
 #: Spread starts besides θ₀ (each another IK branch or winding with some probability).
@@ -63,7 +65,6 @@ def _resolve(jac: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for stacks ``(B, n, m)``, ``(B, n)``:
     :func:`~snac_gym.model.kinematics.damped_least_squares`'s
     map, compiled (:func:`~snac_gym.kernels.small.damped_resolve`; the same to rounding)."""
-    from snac_gym.kernels.compiled import read_only_view
     from snac_gym.kernels.small import damped_resolve  # numba: imported where first needed
 
     return damped_resolve(read_only_view(jac), np.ascontiguousarray(velocity, dtype=float), _DAMPING**2)
