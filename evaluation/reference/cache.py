@@ -5,9 +5,9 @@ arm and its constraints, and on the code that computes it: never on the run's co
 computed once is therefore valid for every later run with the same inputs, whatever its seed, sample
 id, sample count or workers. Each entry is one JSON file named by the SHA-256 of all of those inputs,
 the code included (the source of every module the solve reads, found by following its imports:
-:mod:`snac_gym.evaluation.code_graph`; and the versions of NumPy, SciPy and Pinocchio), so that a changed solver,
-cost, kinematics or robot never reuses a stale row. An entry holds its key and the SHA-256 of its row, and a row
-read back is validated as a fresh one is; a damaged entry is named on stderr and solved again
+:mod:`snac_gym.evaluation.code_graph`; the package data it reads; and the versions of NumPy, SciPy and Pinocchio), so
+that a changed solver, cost, kinematics or robot never reuses a stale row. An entry holds its key and the SHA-256 of
+its row, and a row read back is validated as a fresh one is; a damaged entry is named on stderr and solved again
 (:mod:`snac_gym.evaluation.cache_entry`). A folder that cannot be written is named once, and the run goes on.
 
 The folder is ``$SNAC_GYM_CACHE_DIR/reference`` (default ``~/.cache/snac-gym/reference``, or under
@@ -23,6 +23,7 @@ import importlib.metadata
 import os
 import pickle
 from collections.abc import Callable, Sequence
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,8 @@ import numpy as np
 import pandas as pd
 from snac_gym.evaluation.cache_entry import CacheWarnings, DamagedEntry, read_entry, write_entry
 from snac_gym.evaluation.code_graph import module_closure, sources_fingerprint
+
+from snac_gym.control.jacobian_bound import SHIPPED as JACOBIAN_BOUNDS
 
 #: Environment variable naming the cache's parent folder.
 CACHE_ENV = "SNAC_GYM_CACHE_DIR"
@@ -48,6 +51,9 @@ def add_roots(modules: Sequence[str]) -> None:
 
 #: Distributions whose version is part of the key (their numerics shape the rows).
 DISTRIBUTIONS = ("numpy", "scipy", "pin", "example-robot-data", "numba")
+#: Package data the rows depend on, read by the code rather than imported: the shipped bounds on ‖J‖₂ (the lower
+#: bound's column).
+DATA_FILES = (JACOBIAN_BOUNDS,)
 
 
 def cache_root() -> Path:
@@ -72,8 +78,12 @@ def code_modules() -> tuple[str, ...]:
 
 @functools.lru_cache(maxsize=1)
 def code_fingerprint() -> str:
-    """SHA-256 of the source of :func:`code_modules` and the versions of :data:`DISTRIBUTIONS`."""
+    """SHA-256 of the source of :func:`code_modules`, the contents of :data:`DATA_FILES` and the versions of
+    :data:`DISTRIBUTIONS`."""
     digest = hashlib.sha256(sources_fingerprint(code_modules()).encode())
+    for name in DATA_FILES:
+        data = resources.files("snac_gym").joinpath(name)
+        digest.update(data.read_bytes() if data.is_file() else b"missing")
     add_versions(digest, DISTRIBUTIONS)
     return digest.hexdigest()
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.control.cost import CostConvention
+from snac_gym.control.jacobian_bound import jacobian_norm_bound, joint_variation_bounds
 from snac_gym.kernels.relaxation import relaxation_kernel
 
 
@@ -276,41 +277,17 @@ def trajectory_cost_lower_bound(
 
 # -- A smaller Lipschitz constant per sample: where can a trajectory of bounded cost take the arm? -------------------
 
-#: Joint models whose Jacobian column is zⱼ × (p − oⱼ) with a fixed unit axis (one coordinate each).
-_REVOLUTE_JOINTS = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
-
 
 def jacobian_variation_bound(kinematics: Any) -> float | None:
     """M with σ_max(J(θ')) ≤ σ_max(J(θ)) + M‖θ' − θ‖ for every θ, θ', for a chain of revolute joints (else ``None``).
 
-    Column b of J is J_b = z_b × (p − o_b). Differentiating (rotating about joint a moves everything after it):
-    ∂J_b/∂θ_a = z_a × J_b if joint a comes before joint b, z_b × J_a otherwise, so ‖∂J_b/∂θ_a‖ ≤ c_max(a,b) with
-    c_b ≥ sup ‖J_b‖: c_b = the summed lengths of the fixed offsets from joint b to the end effector (as in
-    :meth:`~snac_gym.model.kinematics.Kinematics.position_lipschitz_bound`), and for the joint carrying the end effector
-    exactly ‖axis × offset‖ (the distance of p from its axis never changes). Hence ‖∂J/∂θ_a‖_F ≤ M_a =
-    (Σ_b c_max(a,b)²)^½ and, along the segment, ‖J(θ') − J(θ)‖₂ ≤ ‖J(θ') − J(θ)‖_F ≤ Σ_a |δ_a| M_a ≤ ‖δ‖ (Σ_a M_a²)^½
-    (Weyl: σ_max moves by at most ‖ΔJ‖₂). The first joint of the chain turns the whole arm about an axis fixed in the
-    base, J(θ) = R(θ₁) J(0, θ₂, …): σ_max does not depend on θ₁, so its M₁ is left out of the sum.
+    With Mₐ ≥ sup ‖∂J/∂θₐ‖_F (:func:`~snac_gym.control.jacobian_bound.joint_variation_bounds`), along the segment
+    ‖J(θ') − J(θ)‖₂ ≤ ‖J(θ') − J(θ)‖_F ≤ Σ_a |δ_a| M_a ≤ ‖δ‖ (Σ_a M_a²)^½ (Weyl: σ_max moves by at most ‖ΔJ‖₂). The
+    first joint of the chain turns the whole arm about an axis fixed in the base, J(θ) = R(θ₁) J(0, θ₂, …): σ_max
+    does not depend on θ₁, so its M₁ is left out of the sum.
     """
-    model = kinematics.model
-    joint_name, offset = kinematics.ee_mount()
-    joint = int(model.getJointId(joint_name))
-    chain: list[float] = []  # c_b from the end effector back to the base
-    reach = float(np.linalg.norm(offset))
-    while joint > 0:
-        axis = _REVOLUTE_JOINTS.get(model.joints[joint].shortname())
-        if axis is None or model.joints[joint].nq != 1:
-            return None
-        if not chain:  # the end effector's own joint: p − oⱼ is the fixed offset, turning about the axis
-            chain.append(float(np.linalg.norm(np.delete(np.asarray(offset, dtype=float), axis))))
-        else:
-            chain.append(reach)
-        reach += float(np.linalg.norm(model.jointPlacements[joint].translation))
-        joint = int(model.parents[joint])
-    lengths = np.array(chain[::-1])  # base first
-    count = len(lengths)
-    squares = [(a + 1) * lengths[a] ** 2 + float(np.sum(lengths[a + 1 :] ** 2)) for a in range(count)]
-    return float(np.sqrt(np.sum(squares[1:])))
+    terms = joint_variation_bounds(kinematics)
+    return None if terms is None else float(np.sqrt(np.sum(terms[1:] ** 2)))
 
 
 def reachable_lipschitz_bounds(
@@ -326,7 +303,7 @@ def reachable_lipschitz_bounds(
     The cost contains Σ ‖uⱼ‖²Δt (R = I, every convention), so such a trajectory has, by Cauchy-Schwarz,
     ‖θₖ₊₁ − θ₀‖ ≤ Σ_{j≤k} ‖uⱼ‖Δt ≤ (tₖ₊₁ V̄)^½, and ≤ tₖ₊₁‖ū‖₂ within the velocity limits: the segment lies in that
     ball around θ₀, where σ_max(J) ≤ σ_max(J(θ₀)) + M·radius (:func:`jacobian_variation_bound`). Capped by the
-    global L of ``position_lipschitz_bound``; that L alone where M is not available.
+    global L of :func:`~snac_gym.control.jacobian_bound.jacobian_norm_bound`; that L alone where M is not available.
 
     Args:
         kinematics: The arm (a :class:`~snac_gym.model.kinematics.Kinematics`).
@@ -343,7 +320,7 @@ def reachable_lipschitz_bounds(
     limits = np.broadcast_to(np.asarray(cost_limits, dtype=float), (len(q0),))
     if not (np.all(np.isfinite(limits)) and np.all(limits >= 0)):
         raise ValueError(f"cost limits must be finite and non-negative, got {cost_limits}")
-    glob = kinematics.position_lipschitz_bound()
+    glob = jacobian_norm_bound(kinematics)
     variation = jacobian_variation_bound(kinematics)
     if variation is None or steps < 2:
         return np.full((len(q0), max(steps - 1, 0)), glob)
@@ -371,7 +348,8 @@ def certified_cost_lower_bounds(
     The evaluator's entry point: r₀ = ‖f(θ₀) − x_d(t₀)‖ and dₖ from the samples, then
     :func:`trajectory_cost_lower_bounds` with
 
-    * no ``cost_limits`` and no ``refinements``: the global Lipschitz bound (one relaxation per sample);
+    * no ``cost_limits`` and no ``refinements``: the global Lipschitz bound
+      (:func:`~snac_gym.control.jacobian_bound.jacobian_norm_bound`, one relaxation per sample);
     * ``cost_limits`` V̄ (e.g. each sample's numerical optimum, the cost of a real trajectory): the per-step
       bounds Lₖ(V̄) of :func:`reachable_lipschitz_bounds`, valid for every trajectory costing at most V̄. The bound
       reported is min(B(V̄), V̄), which holds for *every* trajectory: one costing more than V̄ is above it
@@ -411,7 +389,7 @@ def certified_cost_lower_bounds(
         return bound_at(reachable_lipschitz_bounds(kinematics, q0, x_d.shape[1], dt, limits, velocity_limits))
 
     if cost_limits is None:
-        low = bound_at(kinematics.position_lipschitz_bound())
+        low = bound_at(jacobian_norm_bound(kinematics))
         if refinements <= 0 or jacobian_variation_bound(kinematics) is None:
             return low
         best, high = low, reachable(low)  # B(B₀) ≥ B₀ (so min(B(B₀), B₀) = B₀), and B(B(B₀)) ≤ B(B₀)

@@ -112,3 +112,21 @@ def test_the_key_covers_every_module_the_reference_reaches():
         and {"snac_gym.model.robots", "snac_gym.model.ur_models", "snac_gym.control.trajopt"} <= reached
     )
     assert reached - set(reference_cache.code_modules()) == set()
+
+
+def test_the_key_follows_the_shipped_bounds_the_lower_bound_reads(monkeypatch):
+    """The shipped bounds on ‖J‖₂ are data, not code: their contents are in the key, so new values are not read back
+    from rows computed with the old ones."""
+    from snac_gym.control.jacobian_bound import SHIPPED
+
+    assert SHIPPED in reference_cache.DATA_FILES
+    reference_cache.code_fingerprint.cache_clear()
+    shipped = reference_cache.code_fingerprint()
+    monkeypatch.setattr(reference_cache, "DATA_FILES", ("data/calibration/default_knobs.json",))
+    reference_cache.code_fingerprint.cache_clear()
+    try:
+        assert reference_cache.code_fingerprint() != shipped
+    finally:
+        monkeypatch.undo()
+        reference_cache.code_fingerprint.cache_clear()
+    assert reference_cache.code_fingerprint() == shipped
