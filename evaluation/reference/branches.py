@@ -6,18 +6,17 @@ first long steps from rest flipped the elbow (Δθ₃ = 4.6 rad) and found an op
 the reference's own descended to, a KKT point that IPOPT started there confirms. So the reference also starts from
 each branch, drawn from the sample alone:
 
-* the goals (:func:`~snac_gym.model.joint_goal.in_limit_goals`): every distinct in-limit IK solution of the target
-(reach)
-  or of the ellipse's first point (track) found from θ₀ and from :data:`BRANCH_SPREAD` fixed configurations spread
-  over the joint box, each the one of its branch nearest θ₀, and from :data:`LOCAL_STARTS` configurations near θ₀
-  (θ₀ plus fixed offsets of up to :data:`LOCAL_SPREAD` rad per joint), each the one nearest its start: with six
-  joints and a 3-D target the solutions form 3-D sets whose distance from θ₀ has several local minima, and the
-  nearest can be one that the IK from θ₀ does not descend to (a held-out track sample: 1.91 rad from θ₀ where the
-  IK from θ₀ ended 2.53 rad away, the optimum there 17.7 % below every other start's); each goal is then turned by
-  whole turns the short way round every joint whose range allows it (:func:`wrapped_towards`): the IK ends the way
-  round its start lies, and the other way can be the cheaper basin (a held-out track sample, 0.9 % below every start
-  before; on whole-workspace tracks of that seed 3 of 100 references fell by up to 4.4 %, and the search took 30 %
-  less time, with fewer distinct goals to screen);
+* the goals (:func:`~snac_gym.model.joint_goal.goals_and_limit_stops`): every distinct in-limit IK solution of the
+  target (reach) or of the ellipse's first point (track) found from θ₀ and from :data:`BRANCH_SPREAD` fixed
+  configurations spread over the joint box, each the one of its branch nearest θ₀, and from :data:`LOCAL_STARTS`
+  configurations near θ₀ (θ₀ plus fixed offsets of up to :data:`LOCAL_SPREAD` rad per joint), each the one nearest its
+  start: with six joints and a 3-D target the solutions form 3-D sets whose distance from θ₀ has several local minima,
+  and the nearest can be one that the IK from θ₀ does not descend to (a held-out track sample: 1.91 rad from θ₀ where
+  the IK from θ₀ ended 2.53 rad away, the optimum there 17.7 % below every other start's); each goal is then turned by
+  whole turns the short way round every joint whose range allows it (:func:`wrapped_towards`): the IK ends the way round
+  its start lies, and the other way can be the cheaper basin (a held-out track sample, 0.9 % below every start before;
+  on whole-workspace tracks of that seed 3 of 100 references fell by up to 4.4 %, and the search took 30 % less time,
+  with fewer distinct goals to screen);
 * the IK ends that a joint limit stopped within :data:`LIMIT_STOP_RESIDUAL` of the target (after the goals, so their
   names do not change): a branch that reaches the target only past a limit, as near as the limit lets it come (a
   held-out reach: the optimum, 7.6 % below every other start's and IPOPT's from the goals, has the base against its

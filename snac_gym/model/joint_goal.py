@@ -143,25 +143,6 @@ def _solve(
     return q, anchor, goal, count, per
 
 
-def in_limit_goals(
-    kinematics: Any,
-    q0: np.ndarray,
-    targets: np.ndarray,
-    starts: np.ndarray,
-    margin: float = GOAL_MARGIN,
-    tol: float = GOAL_TOLERANCE,
-    separation: float = 0.5,
-) -> list[np.ndarray]:
-    """Per sample, every distinct in-limit configuration that reaches its target found from its ``q0`` and from
-    ``starts`` (S, m): one per IK branch and winding, each the one of its branch nearest ``q0`` (the null-space
-    pull), nearest first, ``(G, m)``. Two solutions closer than ``separation`` (max |Δθ|, rad) are one.
-
-    Args:
-        q0: ``(B, m)`` start configurations; targets: ``(B, 3)``.
-    """
-    return goals_and_limit_stops(kinematics, q0, targets, starts, margin, tol, separation)[0]
-
-
 def goals_and_limit_stops(
     kinematics: Any,
     q0: np.ndarray,
@@ -172,9 +153,16 @@ def goals_and_limit_stops(
     separation: float = 0.5,
     stop_residual: float = 0.0,
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """:func:`in_limit_goals`, and per sample the distinct IK ends that a joint limit stopped within ``stop_residual``
-    (m) of the target, nearest ``q0`` first, ``(S, m)``: a branch that reaches the target only past a limit, whose
-    nearest in-limit configuration presses against it (none with the default 0)."""
+    """Per sample, every distinct in-limit configuration that reaches its target found from its ``q0`` and from
+    ``starts`` (S, m): one per IK branch and winding, each the one of its branch nearest ``q0`` (the null-space
+    pull), nearest first, ``(G, m)``; and the distinct IK ends that a joint limit stopped within ``stop_residual`` (m)
+    of the target, nearest ``q0`` first: a branch that reaches the target only past a limit, whose nearest in-limit
+    configuration presses against it (none with the default 0). Two solutions closer than ``separation`` (max |Δθ|,
+    rad) are one.
+
+    Args:
+        q0: ``(B, m)`` start configurations; targets: ``(B, 3)``.
+    """
     q0 = np.atleast_2d(np.asarray(q0, dtype=float))
     targets = np.atleast_2d(np.asarray(targets, dtype=float))
     q, anchor, goal, count, per = _solve(kinematics, q0, targets, margin, starts)
@@ -279,5 +267,5 @@ class GoalArms:
 
 __all__ = [
     "GOAL_MARGIN", "TRACKING_ROOM", "GoalArms", "distinct_configurations", "goal_starts", "goals_and_limit_stops",
-    "in_limit_goals", "nearest_goals",
+    "nearest_goals",
 ]  # fmt: skip

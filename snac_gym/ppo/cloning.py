@@ -193,9 +193,9 @@ def load_actor(model: Any, policy: PolicyFile) -> None:
     import torch  # the rl extra
 
     linear = [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
-    pairs = [*zip(linear, policy.hidden, strict=False), (model.policy.action_net, policy.action_layer)]
     if len(linear) != len(policy.hidden):
         raise ValueError(f"init_from has {len(policy.hidden)} hidden layers, the model {len(linear)}")
+    pairs = [*zip(linear, policy.hidden, strict=True), (model.policy.action_net, policy.action_layer)]
     with torch.no_grad():
         for module, (weight, bias) in pairs:
             if tuple(module.weight.shape) != weight.shape:
