@@ -84,7 +84,10 @@ class Kernel(Generic[_Parameters, _Result]):
     """
 
     def __init__(
-        self, function: Callable[_Parameters, _Result], example: Callable[[], Example | list[Example]]
+        self,
+        function: Callable[_Parameters, _Result],
+        example: Callable[[], Example | list[Example]],
+        warm: bool = True,
     ) -> None:
         from numba import njit  # numba is imported by the first module that defines a kernel
 
@@ -96,7 +99,8 @@ class Kernel(Generic[_Parameters, _Result]):
         self.dispatcher._compile_for_args = lambda *args, **kwargs: _with_stop_signals_held(  # type: ignore[attr-defined]
             compile_for_args, args, kwargs
         )
-        _KERNELS.append(self)
+        if warm:
+            _KERNELS.append(self)
 
     if TYPE_CHECKING:  # the function's signature; the project calls its kernels with positional arguments only
 
@@ -109,15 +113,18 @@ class Kernel(Generic[_Parameters, _Result]):
 
 
 def kernel(
-    example: Callable[[], Example | list[Example]],
+    example: Callable[[], Example | list[Example]], warm: bool = True
 ) -> Callable[[Callable[_Parameters, _Result]], Kernel[_Parameters, _Result]]:
     """Decorator: the function compiled by numba (``nopython``, cached, releasing the GIL), see the module docstring.
 
     Args:
         example: Returns arguments of the types it is called with (small arrays), for :func:`warm_up`
             (a list of such tuples for several).
+        warm: Compiled by :func:`warm_up` with its module's kernels. ``False`` for a kernel that no controller,
+            rollout or reference calls (a public helper kept for its users): it compiles on its first call instead
+            of in every cold run's warm-up.
     """
-    return lambda function: Kernel(function, example)
+    return lambda function: Kernel(function, example, warm)
 
 
 def helper(function: _Function, fastmath: bool | set[str] = False) -> _Function:

@@ -95,7 +95,8 @@ def jacobi_eigh(  # noqa: C901 - one compiled loop nest
             vectors[i, j] = v[i, order[j]]
 
 
-@kernel(lambda: (read_only(np.eye(3)[None].copy()),))
+# Nothing in a run calls it (lqr runs jacobi_eigh inside its own kernel): not warmed up, 0.8 s of a cold run's compiles.
+@kernel(lambda: (read_only(np.eye(3)[None].copy()),), warm=False)
 def symmetric_eigh(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
     """Eigenvalues (ascending) and eigenvectors (columns) of a stack ``(B, n, n)`` of symmetric matrices.
 
