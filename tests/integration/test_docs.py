@@ -174,7 +174,7 @@ def checked(site_check, built_site, once):
         pytest.skip("no Chromium on the PATH (.ci/run installs Debian's chromium)")
     code, output, _, site = built_site
     assert code == 0, output[-4000:]
-    # Once per test session, as the site it reads (Chromium: ~12 s of two cores)
+    # Once per test session, as the site it reads (Chromium: ~5 s of two cores)
     results, errors = once("docs-site-check", lambda: site_check.check(site, binary))
     return site, results, errors
 
@@ -187,6 +187,29 @@ def test_every_page_renders_with_its_maths_typeset_and_its_images(site_check, ch
     for page in ("/mpc/", "/evaluation/", "/rl/", "/environments/"):  # the pages with maths: all of it typeset
         assert by_path[page]["maths"] > 0 and by_path[page]["typeset"] == by_path[page]["maths"], page
     assert "/irl/" in by_path and any(page["images"] for page in results)
+
+
+def test_the_search_index_is_served_whole_once_then_as_its_first_entry(site_check, tmp_path):
+    """The check builds the site's whole search index once, on the first page that asks (each page's search
+    worker builds what it gets): the server gives the file itself first, then a valid index of its first entry, and
+    tells the browser not to keep either, so that every later page asks it again."""
+    import urllib.request
+
+    index = {
+        "config": {"lang": ["en"]},
+        "docs": [{"location": f"page{i}/", "text": "x", "title": str(i)} for i in range(3)],
+    }
+    (tmp_path / "search").mkdir()
+    (tmp_path / "search" / "search_index.json").write_text(json.dumps(index), encoding="utf-8")
+    (tmp_path / "index.html").write_text("<html></html>", encoding="utf-8")
+    with site_check.served(tmp_path) as base:
+        answers = [urllib.request.urlopen(base + "search/search_index.json", timeout=10) for _ in range(3)]
+        bodies = [json.loads(answer.read()) for answer in answers]
+        page = urllib.request.urlopen(base, timeout=10).read()
+    assert bodies[0] == index
+    assert bodies[1] == bodies[2] == {**index, "docs": index["docs"][:1]}
+    assert all(answer.headers["Cache-Control"] == "no-store" for answer in answers)
+    assert page == b"<html></html>"
 
 
 def test_no_page_logs_a_console_error(checked):
