@@ -388,7 +388,10 @@ def test_the_process_writer_writes_the_same_rows_off_the_loop_and_keeps_them_if_
     journal = StepJournal(path, 6, writer="process")
     for k in range(300):
         journal.record(k, k * 0.008, 0.008, obs, 6, np.full(6, 0.1), "normal", None)
-    os.close(journal._pipe)  # what the kernel does to the host's end when it dies
+    # What the kernel does to the host's end when it dies: the pipe's write end closed (through its file object, so
+    # that nothing closes the descriptor again when the object is collected: that raised EBADF there, and could
+    # close a descriptor reused since).
+    journal._process.stdin.close()
     journal._process.wait(timeout=5.0)
     assert list(pd.read_csv(path)["step"]) == list(range(300))
     with pytest.raises(ValueError, match="writer must be one of \\['process', 'inline'\\], got 'thread'"):
