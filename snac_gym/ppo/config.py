@@ -19,7 +19,7 @@ The shipped configs live in ``snac_gym/ppo/configs/<task>.json``. Their keys:
   (``{"pi": [...], "vf": [...]}``), ``activation`` (``tanh``/``relu``), ``log_std_init``).
 * ``init_from`` (optional): a policy file whose actor the new model starts from (its hidden and output
   layers; the critic starts fresh), e.g. a behaviour clone (:mod:`snac_gym.ppo.cloning`); a path relative to
-  the working directory. Ignored on ``--resume``.
+  the working directory; ``--init-from FILE`` on the command line. A resumed run continues its own model.
 * ``evaluation``: ``every_timesteps``, ``episodes``, ``horizons_s`` (the horizons each
   episode is scored at: the evaluator's, 4 s and 8 s reach, 10 s and 20 s track), ``seed``
   (first reset seed of the evaluation episodes), ``success_error_m`` (reach: final ‖e‖ at
@@ -113,6 +113,7 @@ def resolve_config(
     seed: int | None = None,
     n_envs: int | None = None,
     vec_env: str | None = None,
+    init_from: str | Path | None = None,
 ) -> dict[str, Any]:
     """The config a run uses: the file (default: the task's shipped one) with command-line overrides.
 
@@ -131,7 +132,11 @@ def resolve_config(
         config["vec_env"]["n_envs"] = int(n_envs)
     if vec_env is not None:
         config["vec_env"]["kind"] = vec_env
+    if init_from is not None:
+        config["init_from"] = str(init_from)
     validate_config(config, str(path))  # the overrides too
+    if config.get("init_from") and not Path(config["init_from"]).is_file():  # before anything is made
+        raise ValueError(f"{path}: init_from {config['init_from']!r} is not a policy file")
     config["config_file"] = str(path)
     return config
 

@@ -193,6 +193,8 @@ def resumed_config(out: Path, task: str, overrides: dict[str, Any]) -> dict[str,
     """The saved config of the run in ``out``, with the overrides a resumed run may change."""
     if overrides["seed"] is not None:
         raise ValueError("--seed has no effect with --resume: a resumed run keeps the seed it started with")
+    if overrides.get("init_from") is not None:
+        raise ValueError("--init-from has no effect with --resume: a resumed run continues its own model")
     checkpoint = out / "checkpoint"
     if not (checkpoint / MODEL_FILE).is_file() or not (out / "config.json").is_file():
         raise ValueError(f"--resume: {out} holds no checkpoint to continue (no {checkpoint / MODEL_FILE})")

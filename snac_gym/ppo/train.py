@@ -346,6 +346,7 @@ def train_ppo(
     vec_env: str | None = None,
     log: Callable[[str], None] = print,
     progress: Callable[[str], None] | None = None,
+    init_from: str | Path | None = None,
 ) -> TrainingResult:
     """Train (or continue training) the PPO baseline for ``task``; see the module docstring.
 
@@ -358,6 +359,7 @@ def train_ppo(
         resume: Continue the run in ``out`` from its checkpoint, up to ``timesteps`` in total.
         n_envs: Number of parallel training envs (default: the config's).
         vec_env: ``"dummy"`` (one process) or ``"subproc"`` (one process per env).
+        init_from: A policy file whose actor the new model starts from (default: the config's ``init_from``).
         log: Where the lines of the run go (start, each evaluation, interruption).
         progress: Where periodic progress lines go (timesteps done, time, last success rate;
             every 10 % of the timesteps or 10 s, whichever first), or ``None`` for none.
@@ -370,7 +372,7 @@ def train_ppo(
     """
     out = Path(out)
     checkpoint = out / "checkpoint"
-    overrides = {"timesteps": timesteps, "seed": seed, "n_envs": n_envs, "vec_env": vec_env}
+    overrides = {"timesteps": timesteps, "seed": seed, "n_envs": n_envs, "vec_env": vec_env, "init_from": init_from}
     # Everything the input decides is checked before torch is imported or anything is made.
     config = resumed_config(out, task, overrides) if resume else new_config(out, task, config_path, overrides)
     usable_out_folder(out)  # a file or /dev/null is refused as evaluate refuses it

@@ -151,6 +151,37 @@ def test_training_into_an_existing_run_or_resuming_nothing_is_refused(trained_ru
     assert empty.exit_code == 2 and "no checkpoint" in empty.output
     other = runner.invoke(app, ["train-ppo", "--task", "track", "--out", str(out), "--resume"])
     assert other.exit_code == 2 and "trains task 'reach'" in other.output
+    clone = out / "checkpoint" / "policy.npz"
+    resumed = runner.invoke(
+        app, ["train-ppo", "--task", "reach", "--out", str(out), "--resume", "--init-from", str(clone)]
+    )
+    assert resumed.exit_code == 2 and "--init-from has no effect with --resume" in resumed.output
+    missing = tmp_path / "nothing.npz"
+    fresh = tmp_path / "fresh"
+    args = ["train-ppo", "--task", "reach", "--out", str(fresh), "--config", str(config), "--init-from", str(missing)]
+    absent = runner.invoke(app, args)
+    assert (
+        absent.exit_code == 2 and absent.output.strip() == f"error: --init-from {str(missing)!r} is not a policy file"
+    )
+    assert not fresh.exists()  # refused before anything is made
+
+
+@pytest.mark.rl
+def test_init_from_on_the_command_line_starts_the_actor_from_the_file(trained_run, tmp_path, monkeypatch):
+    """``--init-from FILE`` (PPO fine-tuning from a clone) overrides the config's ``init_from``: the run records it,
+    and the model it trains starts with the file's actor."""
+    import snac_gym.ppo.train as train_module
+
+    out, config, _ = trained_run
+    clone = out / "checkpoint" / "policy.npz"
+    built = []
+    build = train_module.build_model
+    monkeypatch.setattr(train_module, "build_model", lambda cfg, venv: built.append(cfg) or build(cfg, venv))
+    args = ["train-ppo", "--task", "reach", "--timesteps", "16", "--out", str(tmp_path / "ft"), "--config", str(config)]
+    result = CliRunner().invoke(app, [*args, "--init-from", str(clone)])
+    assert result.exit_code == 0, result.output
+    assert built[0]["init_from"] == str(clone)
+    assert json.loads((tmp_path / "ft" / "config.json").read_text())["init_from"] == str(clone)
 
 
 @pytest.fixture

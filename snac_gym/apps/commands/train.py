@@ -31,6 +31,12 @@ def train_ppo_command(
         None, "--config", help="Hyperparameter file (default: snac_gym/ppo/configs/TASK.json)."
     ),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
+    init_from: Optional[Path] = typer.Option(
+        None,
+        "--init-from",
+        help="A policy file whose actor the new model starts from, e.g. a behaviour clone (default: the config's "
+        "init_from).",
+    ),
     n_envs: Optional[int] = typer.Option(
         None, "--n-envs", min=1, max=1024, help="Parallel training envs (default: the config's)."
     ),
@@ -64,6 +70,7 @@ def train_ppo_command(
             vec_env=vec_env,
             log=typer.echo,
             progress=lines,
+            init_from=init_from,
         )
     except (ValueError, ImportError) as exc:  # bad config, folder or checkpoint, missing [rl] extra: a clean message
         given = {
@@ -73,6 +80,7 @@ def train_ppo_command(
                 ("vec_env.kind", "--vec-env", vec_env),
                 ("vec_env.n_envs", "--n-envs", n_envs),
                 ("timesteps", "--timesteps", timesteps),
+                ("init_from", "--init-from", init_from),
             )
             if value is not None
         }
