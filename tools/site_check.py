@@ -110,18 +110,21 @@ class _SearchIndex:
         self.file = site / self.PATH.lstrip("/")
         self.lock = threading.Lock()
         self.served = False
+        self.trimmed: bytes | None = None
 
     def next_body(self) -> bytes | None:
         """What the next request gets (None where the site has no index)."""
         if not self.file.is_file():
             return None
         with self.lock:
-            first, self.served = not self.served, True
-        if first:
-            return self.file.read_bytes()
-        index = json.loads(self.file.read_text(encoding="utf-8"))
-        index["docs"] = index.get("docs", [])[:1]
-        return json.dumps(index).encode()
+            if not self.served:
+                self.served = True
+                return self.file.read_bytes()
+            if self.trimmed is None:  # made once: the whole index is a megabyte to parse
+                index = json.loads(self.file.read_text(encoding="utf-8"))
+                index["docs"] = index.get("docs", [])[:1]
+                self.trimmed = json.dumps(index).encode()
+            return self.trimmed
 
 
 class _QuietHandler(SimpleHTTPRequestHandler):
