@@ -107,21 +107,16 @@ def _rows(out: Path) -> pd.DataFrame:
 
 
 @pytest.fixture(scope="module")
-def uninterrupted_folder(tmp_path_factory) -> Path:
-    """The folder of an uninterrupted run: made once per test session, the xdist workers sharing it."""
-    import fcntl
+def uninterrupted_folder(tmp_path_factory, once) -> Path:
+    """The folder of an uninterrupted run: made once per test session, the xdist workers sharing it (``once``)."""
 
-    shared = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        shared = shared.parent  # the session's folder, above each worker's own
-    out = shared / "interrupts-uninterrupted"
-    with open(shared / "interrupts-uninterrupted.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # one worker runs it, the other waits and reads it
-        if not (out / "results.csv").exists():
-            shutil.rmtree(out, ignore_errors=True)  # what a failed attempt left
-            code, output = _evaluate(out, "--workers", "1")
-            assert code == 0, output
-    return out
+    def run() -> str:
+        out = tmp_path_factory.mktemp("interrupts") / "uninterrupted"
+        code, output = _evaluate(out, "--workers", "1")
+        assert code == 0, output
+        return str(out)
+
+    return Path(once("interrupts-uninterrupted", run))
 
 
 @pytest.fixture(scope="module")
