@@ -183,9 +183,14 @@ def branch_commands(
     moving = bool(np.any(x_d != x_d[:, :1]))
     arms = GoalArms(kinematics, limits, dt, moving=moving)
     arms.q, arms.found = np.array(goals, dtype=float), np.ones(count, dtype=bool)
-    xdot_d = np.gradient(x_d, dt, axis=1) if moving else np.zeros_like(x_d)
     q = np.array(q0s, dtype=float)
     commands = np.empty((count, steps, q.shape[1]))
+    if not moving:  # the goals stay put and feed no velocity forward: the law alone, without the arms' step
+        for k in range(steps):
+            commands[:, k] = scale_rows_into_limits(BRANCH_GAIN * (arms.q - q), limits)
+            q = joint_step(q, commands[:, k], dt)
+        return commands
+    xdot_d = np.gradient(x_d, dt, axis=1)
     for k in range(steps):  # the joint-goal law (baselines/joint_goal.py) towards a goal given here
         goal, velocity = arms.step(x_d[:, k], xdot_d[:, k])
         commands[:, k] = scale_rows_into_limits(velocity + BRANCH_GAIN * (goal - q), limits)

@@ -9,6 +9,7 @@ sample alone. The method and its figures: docs/optimal.md.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from typing import Any
@@ -98,6 +99,38 @@ def _coarse_screen(
     return None if in_coarse_basin(coarse.commands) else coarse
 
 
+def solve_from_rest(
+    q0: np.ndarray,
+    x_d: np.ndarray,
+    kinematics: Any,
+    dt: float,
+    limits: np.ndarray,
+    convention: CostConvention,
+    position_limits: tuple[np.ndarray, np.ndarray] | None = None,
+) -> OptimalSolution:
+    """The solve from rest (U = 0), through the coarse grid of :func:`multi_start_solve`: solved there first (a tenth of
+    the variables), then on the full grid from that solution repeated over each block's steps.
+
+    From rest the full grid's Gauss-Newton spends its first steps on what the coarse grid settles for a tenth of the
+    work; from the coarse optimum it needs about three (on Table I's samples: 3.0 against 5.5, a third less time).
+    Where the full grid's unconstrained optimum breaks a limit, the interior point still starts from rest, as the
+    solve from rest always did. The optimum reached is the same local optimum to the solver's tolerance (Table I's
+    2000 samples: within 5·10⁻⁹ of the solve from rest's), not bit for bit the same.
+    """
+    steps, factor = len(x_d), COARSE_FACTOR
+    if steps < 2 * factor:  # a grid of one or two points says nothing about the path
+        return solve_sample(q0, x_d, kinematics, dt, limits, convention=convention, position_limits=position_limits)
+    coarse = solve_sample(q0, x_d[::factor], kinematics, float(dt) * factor, limits, convention=convention,
+                          position_limits=position_limits)  # fmt: skip
+    initial = np.repeat(coarse.commands, factor, axis=0)[:steps]
+    fine = solve_sample(q0, x_d, kinematics, dt, limits, initial=initial, interior_start=np.zeros_like(initial),
+                        convention=convention, position_limits=position_limits)  # fmt: skip
+    # The work of both grids in the solver's columns (optimal_iterations, optimal_evaluations, optimal_solve_time).
+    return dataclasses.replace(fine, iterations=coarse.iterations + fine.iterations,
+                               evaluations=coarse.evaluations + fine.evaluations,
+                               seconds=coarse.seconds + fine.seconds)  # fmt: skip
+
+
 def multi_start_solve(
     q0: np.ndarray,
     x_d: np.ndarray,
@@ -130,11 +163,11 @@ def multi_start_solve(
     the contestants it judges (with the IK-branch and random starts of
     :mod:`~snac_gym.evaluation.reference.branches`, which the caller adds).
 
-    ``first``: the solve from rest, when already made.
+    ``first``: the solve from rest (:func:`solve_from_rest`), when already made.
     """
     solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
                               position_limits=position_limits)  # fmt: skip
-    best = first if first is not None else solve()
+    best = first if first is not None else solve_from_rest(q0, x_d, kinematics, dt, limits, convention, position_limits)
     winner, optima, same_basin = REST_START, [best.cost], 0
     paths = [angles(best.commands, q0, dt)]
     steps, factor = len(x_d), COARSE_FACTOR
@@ -183,5 +216,5 @@ def multi_start_solve(
 __all__ = [
     "BASIN_RADIUS", "COARSE_FACTOR", "COARSE_ITERATIONS", "POLISHED", "REST_START", "SCREEN_ITERATIONS",
     "SCREEN_MARGIN",
-    "MultiStart", "coarse_commands", "multi_start_solve",
+    "MultiStart", "coarse_commands", "multi_start_solve", "solve_from_rest",
 ]  # fmt: skip

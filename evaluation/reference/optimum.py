@@ -18,7 +18,8 @@ are compared with; this is the whole trajectory's, over the evaluator's finite h
 **Method**: :func:`snac_gym.control.trajopt.solve_sample` (Gauss-Newton in θ, a primal-dual interior point where
 the unconstrained optimum breaks a joint position or velocity limit: column ``optimal_bounded``; the
 limits are those the success rule counts, ``--reference-limits velocity`` keeps the velocity limits
-only). **Starts** (:func:`multi_start_solve`): U = 0 (the robot at rest), then the reference's own
+only). **Starts** (:func:`multi_start_solve`): U = 0 (the robot at rest, solved on a coarse time grid first:
+:func:`solve_from_rest`), then the reference's own
 feedback rollouts (:data:`OWN_STARTS`, fixed settings) and IK-branch and random starts
 (:mod:`~snac_gym.evaluation.reference.branches`), each screened on a coarse time grid (Δt × :data:`COARSE_FACTOR`:
 a few Gauss-Newton steps, stopped in a known basin, else solved there to the end); the cheapest few coarse optima
@@ -60,6 +61,7 @@ from snac_gym.evaluation.reference.multistart import (
     MultiStart,
     coarse_commands,
     multi_start_solve,
+    solve_from_rest,
 )
 from snac_gym.evaluation.samples import EvaluationSample
 
@@ -282,8 +284,7 @@ def solve_samples(
     bounds = (kinematics.lower_limits, kinematics.upper_limits) if position_limits else None
     steps = x_d.shape[1]
     with single_threaded_blas():
-        rest = [solve_sample(q0, x_d[i], kinematics, dt, limits, convention=convention, position_limits=bounds)
-                for i, q0 in enumerate(q0s)]  # fmt: skip
+        rest = [solve_from_rest(q0, x_d[i], kinematics, dt, limits, convention, bounds) for i, q0 in enumerate(q0s)]
         candidates = own_start_commands(context, samples, steps, seeds, position_limits)
         branches: list[dict[str, np.ndarray]] = [{} for _ in q0s]
         if getattr(kinematics, "task_error", None) is None and context.layout.task_dim == 3:  # a 3-D target's branches

@@ -127,13 +127,18 @@ def kernel(
     return lambda function: Kernel(function, example, warm)
 
 
-def helper(function: _Function, fastmath: bool | set[str] = False) -> _Function:
+def helper(function: _Function, fastmath: bool | set[str] = False, inline: bool = False) -> _Function:
     """``function`` compiled by numba (``nopython``, cached, releasing the GIL) for compiled callers only: no CPython
     or C wrapper is built for it (a tenth of a second or more of a cold run's compile each), so Python cannot call
-    it."""
+    it.
+
+    ``inline``: inlined into its callers by numba instead (``inline="always"``), for a thin layer between two large
+    functions: compiled on its own, its library is optimised and emitted again with everything it calls."""
     from numba import njit  # numba is imported by the first module that defines a kernel
 
     options: dict[str, Any] = {"cache": True, "nogil": True, "no_cpython_wrapper": True, "no_cfunc_wrapper": True}
+    if inline:
+        options["inline"] = "always"
     return cast("_Function", njit(**options, fastmath=fastmath)(function))
 
 

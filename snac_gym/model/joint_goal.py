@@ -185,11 +185,14 @@ def distinct_configurations(configurations: np.ndarray, separation: float) -> np
     """``configurations`` ``(N, m)`` without those within ``separation`` (max |Δθ|, rad) of an earlier one kept: one
     per branch, the first of each in the given order, ``(G, m)``."""
     configurations = np.asarray(configurations, dtype=float)
-    distinct: list[np.ndarray] = []
-    for q in configurations:
-        if all(float(np.abs(q - known).max()) >= separation for known in distinct):
-            distinct.append(q)
-    return np.array(distinct).reshape(-1, configurations.shape[-1])
+    m = configurations.shape[-1]
+    configurations = configurations.reshape(-1, m)
+    # Every pair's distance at once: the branch search calls this thousands of times a run on a few dozen rows.
+    apart = np.abs(configurations[:, None] - configurations[None]).max(axis=-1, initial=0.0) >= separation
+    kept = np.zeros(len(configurations), dtype=bool)
+    for i in range(len(configurations)):
+        kept[i] = apart[i, kept].all()  # against the earlier ones kept (the later ones are not marked yet)
+    return configurations[kept]
 
 
 class GoalArms:

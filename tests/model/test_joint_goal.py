@@ -9,7 +9,7 @@ from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
 from snac_gym.evaluation.samples import generate_samples
 
-from snac_gym.model.joint_goal import GOAL_MARGIN, GoalArms, nearest_goals
+from snac_gym.model.joint_goal import GOAL_MARGIN, GoalArms, distinct_configurations, nearest_goals
 from snac_gym.model.kinematics import Kinematics, PoseKinematics
 from snac_gym.policies import make_policy
 from snac_gym.rollout import simulate_kinematic
@@ -68,6 +68,20 @@ def test_the_goal_is_a_local_minimum_of_the_distance_on_the_solution_set(ur10):
                           constraints=[{"type": "eq", "fun": lambda q, t=target: ur10.forward(q) - t,
                                         "jac": ur10.jacobian}], options={"ftol": 1e-12, "maxiter": 200})  # fmt: skip
         assert np.sum((goal - start) ** 2) <= result.fun * (1 + 1e-4) + 1e-9
+
+
+def test_distinct_configurations_keeps_the_first_of_each_cluster_in_order():
+    rng = np.random.default_rng(5)
+    centres = rng.uniform(-3.0, 3.0, size=(6, 6))
+    points = centres[rng.integers(0, 6, 40)] + rng.uniform(-0.3, 0.3, size=(40, 6))
+    expected: list[np.ndarray] = []
+    for q in points:  # the definition: kept where no earlier kept one is within the separation (max |Δθ|)
+        if all(np.abs(q - known).max() >= 0.5 for known in expected):
+            expected.append(q)
+    np.testing.assert_array_equal(distinct_configurations(points, 0.5), np.array(expected))
+    assert 6 <= len(expected) < 40  # clusters wider than the separation: more than one kept in some
+    assert distinct_configurations(np.empty((0, 6)), 0.5).shape == (0, 6)
+    np.testing.assert_array_equal(distinct_configurations(points[:1], 0.5), points[:1])
 
 
 def test_a_pose_task_or_bad_shapes_are_refused(ur10):

@@ -10,6 +10,7 @@ import pytest
 from scipy.linalg import solve_banded
 from scipy.optimize import minimize
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation.reference.multistart import BASIN_RADIUS, solve_from_rest
 from snac_gym.evaluation.reference.optimum import OPTIMAL
 from snac_gym.evaluation.samples import generate_samples
 
@@ -20,6 +21,7 @@ from snac_gym.control.trajopt import (
     GTOL,
     MAX_ITERATIONS,
     _preconditioner,
+    angles,
     solve_sample,
     trajectory_cost_and_gradient,
 )
@@ -172,6 +174,40 @@ def test_a_velocity_limit_below_the_unconstrained_optimum_is_respected(ur10, tra
     assert bounded.bounded and bounded.converged
     assert (np.abs(bounded.commands) <= limits + 1e-12).all()
     assert bounded.cost >= free.cost
+
+
+@pytest.mark.parametrize("task, region", [("reach", "cuboid"), ("track", "cuboid"), ("reach", "workspace"),
+                                          ("track", "workspace")])  # fmt: skip
+def test_the_solve_from_rest_through_the_coarse_grid_ends_at_the_direct_solves_optimum(ur10, task, region):
+    space = SampleSpace.for_robot(ur10) if region == "cuboid" else SampleSpace.workspace(ur10)
+    samples = generate_samples(ur10, space, 41, task, range(3))
+    steps = 375  # 3 s: 38 points on the coarse grid
+    x_d = reference_trajectories([s.reference for s in samples], np.arange(steps) * DT)[0]
+    bounds = (ur10.lower_limits, ur10.upper_limits)
+    for i, sample in enumerate(samples):
+        direct = solve_sample(sample.q0, x_d[i], ur10, DT, ur10.velocity_limits, position_limits=bounds)
+        through = solve_from_rest(sample.q0, x_d[i], ur10, DT, ur10.velocity_limits, CostConvention(), bounds)
+        assert through.converged and through.bounded == direct.bounded, (i, through.bounded, direct.bounded)
+        # Each stops within GAP_RTOL·V of its local optimum: the same optimum, not bit for bit the same point.
+        assert abs(through.cost - direct.cost) <= 2 * GAP_RTOL * direct.cost, (i, through.cost, direct.cost)
+        # Along the valley's flat directions (six joints, a 3-D target) the two stop up to 3·10⁻³ rad apart; distinct
+        # optima lie radians apart (BASIN_RADIUS, 0.1 rad, is the multi-start's own test of one basin).
+        gap = np.abs(angles(through.commands, sample.q0, DT) - angles(direct.commands, sample.q0, DT)).max()
+        assert gap < 0.1 * BASIN_RADIUS, (i, gap)
+
+
+def test_where_a_limit_binds_the_solve_from_rest_through_the_coarse_grid_is_the_interior_point_from_rest(
+    ur10, track_sample
+):
+    steps = 100
+    x_d = reference_trajectories([track_sample.reference], np.arange(steps) * DT)[0][0]
+    free = solve_sample(track_sample.q0, x_d, ur10, DT, ur10.velocity_limits)
+    limits = 0.5 * np.abs(free.commands).max(axis=0) + 1e-3
+    direct = solve_sample(track_sample.q0, x_d, ur10, DT, limits)
+    through = solve_from_rest(track_sample.q0, x_d, ur10, DT, limits, CostConvention())
+    assert direct.bounded and through.bounded
+    np.testing.assert_array_equal(through.commands, direct.commands)
+    assert through.iterations > direct.iterations  # the coarse grid's steps are counted too
 
 
 @pytest.fixture(scope="module")
