@@ -147,9 +147,11 @@ def _residuals(
     """r_d = Hx + Gᵀz and r_p = Gx + s − h; returns the mean complementarity sᵀz/m."""
     _apply_hessian(steps, dt, q, w, rest, terminal, x, dual_residual)
     _apply_constraints_transposed(steps, b, z, capped, work)
-    dual_residual += work
+    for i in range(dual_residual.shape[0]):
+        dual_residual[i] += work[i]
     _apply_constraints(steps, b, x, capped, primal_residual)
-    primal_residual += s - h
+    for i in range(primal_residual.shape[0]):
+        primal_residual[i] += s[i] - h[i]
     mean: float = np.dot(s, z) / s.shape[0]  # np.dot's stub: Any
     return mean
 
@@ -174,21 +176,29 @@ def _predictor_corrector_step(
     image: _Floats,
 ) -> None:  # pragma: no cover - compiled
     """One Mehrotra predictor-corrector step (the factor of the normal matrix is in ``band``/``pivots``)."""
-    complementarity = s * z
+    complementarity, trial_s, trial_z = np.empty(s.shape[0]), np.empty(s.shape[0]), np.empty(s.shape[0])
+    for i in range(s.shape[0]):
+        complementarity[i] = s[i] * z[i]
     _newton_direction(
         steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity, work_n, dx, ds, dz, image
     )
     alpha = min(_max_step(s, ds), _max_step(z, dz))
-    predicted = np.dot(s + alpha * ds, z + alpha * dz) / s.shape[0]
+    for i in range(s.shape[0]):
+        trial_s[i] = s[i] + alpha * ds[i]
+        trial_z[i] = z[i] + alpha * dz[i]
+    predicted = np.dot(trial_s, trial_z) / s.shape[0]
     centring = (predicted / mu) ** 3 * mu
-    complementarity += ds * dz - centring
+    for i in range(s.shape[0]):
+        complementarity[i] += ds[i] * dz[i] - centring
     _newton_direction(
         steps, b, capped, band, pivots, s, z, dual_residual, primal_residual, complementarity, work_n, dx, ds, dz, image
     )
     alpha = min(1.0, 0.99 * min(_max_step(s, ds), _max_step(z, dz)))
-    x += alpha * dx
-    s += alpha * ds
-    z += alpha * dz
+    for i in range(dx.shape[0]):
+        x[i] += alpha * dx[i]
+    for i in range(s.shape[0]):
+        s[i] += alpha * ds[i]
+        z[i] += alpha * dz[i]
 
 
 def _constraint_bounds(
@@ -242,7 +252,9 @@ def _relaxation_solve(
     work_n, dx, dual_residual, image_n = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     primal_residual, ds, dz, work_m = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     _apply_constraints(steps, b, x[:n], capped, work_m)
-    s = np.maximum(h - work_m, 0.0) + 0.1  # strictly interior (lengths are in units of r₀ + Σd): r_p takes the rest
+    s = np.empty(m)
+    for i in range(m):  # strictly interior (lengths are in units of r₀ + Σd): r_p takes the rest
+        s[i] = max(h[i] - work_m[i], 0.0) + 0.1
     for i in range(m):
         z[i] = 1.0
     band, pivots = np.empty((3, n)), np.empty(n)
@@ -261,7 +273,9 @@ def _relaxation_solve(
             if value - bound <= rtol * value or iterations >= max_iterations:
                 return bound, value, iterations, r_last, v_last, v_peak
         iterations += 1
-        weight = z[:m] / s
+        weight = np.empty(m)
+        for i in range(m):
+            weight[i] = z[i] / s[i]
         _relaxed_hessian_band(steps, dt, q, w, rest, terminal, band)
         _add_constraint_curvature(steps, b, weight, capped, band)
         _ldl_factor(band, pivots)
@@ -345,10 +359,16 @@ def _capped_solve(
     return bound, value, used + more, r_last, v_last
 
 
-def _first_horizon(q: float, dt: float, b: float, rtol: float, total: int) -> int:  # pragma: no cover - compiled
+def _first_horizon(q: float, dt: float, bs: _Floats, rtol: float, total: int) -> int:  # pragma: no cover - compiled
     """A horizon long enough for the relaxed regulation problem's error to fall below rtol: the steps it takes in
-    the scalar Riccati closed loop rₖ₊₁ = ρ rₖ, ρ = Δt/(Δt + b²P) (without the u̇ term; with it the error stops at
-    0 sooner), with a margin. A guess only: a horizon found short is extended, one found long is merely slower."""
+    the scalar Riccati closed loop rₖ₊₁ = ρ rₖ, ρ = Δt/(Δt + b²P) with b the largest of ``bs`` (1 on a horizon of
+    one step; without the u̇ term; with it the error stops at 0 sooner), with a margin. A guess only: a horizon found
+    short is extended, one found long is merely slower."""
+    b = 1.0
+    if total > 1:
+        b = bs[0]
+        for k in range(1, bs.shape[0]):
+            b = max(b, bs[k])
     riccati = (q * dt * b * b + np.sqrt((q * dt * b * b) ** 2 + 4.0 * b * b * q * dt * dt)) / (2.0 * b * b)
     decay = dt / (dt + b * b * riccati)
     steps = np.log(rtol * riccati / (2.0 * q * total * dt)) / (2.0 * np.log(decay)) if decay > 0.0 else 1.0
@@ -373,18 +393,21 @@ def _relaxation_bounds(
     provably within rtol, or the whole horizon. Rows of out: bound, upper bound on the relaxed optimum, iterations,
     horizon solved (steps)."""
     total = ds.shape[1] + 1
-    x, z = np.empty(2 * total - 1), np.empty(2 * total - 1)
+    x, z, d = np.empty(2 * total - 1), np.empty(2 * total - 1), np.empty(total - 1)
     for i in range(r0s.shape[0]):
         # In units of r₀ + Σd the solve starts from the same scale for every sample; V scales with its square.
-        unit = r0s[i] + np.sum(ds[i])
+        total_d = 0.0
+        for k in range(total - 1):
+            total_d += ds[i, k]
+        unit = r0s[i] + total_d
         if unit == 0.0:  # nothing to move: the trajectory at rest costs 0
             for row in range(out.shape[0]):
                 out[row, i] = 0.0
             continue
-        d, r0 = ds[i] / unit, r0s[i] / unit
-        steps = (
-            first_steps if first_steps > 0 else _first_horizon(q, dt, np.max(bs[i]) if total > 1 else 1.0, rtol, total)
-        )
+        for k in range(total - 1):
+            d[k] = ds[i, k] / unit
+        r0 = r0s[i] / unit
+        steps = first_steps if first_steps > 0 else _first_horizon(q, dt, bs[i], rtol, total)
         steps, iterations = min(steps, total), 0
         while True:
             terminal = _terminal_weight(w, dt, total - steps)
