@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -36,9 +37,13 @@ for task, label in (("reach", "regulation"), ("track", "tracking")):
         bins=bins,
         histtype="step",
         linewidth=1.5,
-        label=f"{label} (median {np.median(ratio):.1f}, largest {ratio.max():.0f})",
+        label=f"{label} (median {np.median(ratio):.1f}, largest {ratio.max():.1f})",
     )
 ax.set_xscale("log")
+# Plain numbers at 1, 1.5, 2, 3, 5, 7 (a ratio reads as "2", not "2×10⁰").
+ticks = [t for t in (1.0, 1.5, 2.0, 3.0, 5.0, 7.0, 10.0, 20.0, 50.0) if t <= bins[-1]]
+ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
 ax.set_xlabel("optimum / certified lower bound (1 = tight)")
 ax.set_ylabel("samples")
 ax.axvline(2.0, color="grey", linestyle=":", linewidth=1, label="2× (the target median)")
