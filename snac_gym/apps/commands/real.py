@@ -129,15 +129,15 @@ def real(
     6 an emergency stop; 7 the arm was stopped but nothing confirmed it at rest (its real.json says why);
     128 + n a signal n (SIGINT 130, SIGTERM 143).
     """
-    # start-up time (apps.real: pandas, numba); tests swap SafetyLimits
+    check_task(task)
+    check_controller(controller)
+    check_ur_arm(robot)
+    # start-up time (apps.real: pandas, numba; after the checks: a usage error comes at once); tests swap SafetyLimits
     from snac_gym.apps.real import run_real_episode
     from snac_gym.real import ConnectionFailure, SafetyLimits
     from snac_gym.real.loop_tuning import LoopTuning
     from snac_gym.real.recovery import RecoveryLimits
 
-    check_task(task)
-    check_controller(controller)
-    check_ur_arm(robot)
     connection = renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
         try:

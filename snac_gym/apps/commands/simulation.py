@@ -123,13 +123,13 @@ def demo(
     ),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
-    # start-up time: the demo loads numba, scipy and pandas
-    from snac_gym.apps.demo import run_demo
-
     check_task(task)
     check_controller(controller)
     if steps is not None and duration is not None:
         raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
+    # start-up time: the demo loads numba, scipy and pandas (after the checks: a usage error comes at once)
+    from snac_gym.apps.demo import run_demo
+
     try:
         result = run_demo(
             task=task,
