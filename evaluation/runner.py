@@ -111,7 +111,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
                     evaluation.samples = samples
                 # The last phase: the main process mostly waits for the workers now. Not earlier, where a
                 # run stopped before its reports (an interrupt, an error) would only have paid for them.
-                prefetch_report_modules()
+                prefetch_report_modules(config.plots)
                 results.update(_optimal_rows(evaluation))  # 5. Optimal reference
             finally:
                 progress.close()

@@ -20,20 +20,24 @@ from snac_gym.tasks import get_task
 __all__ = ["plot_cost_boxes", "prefetch_report_modules"]
 
 
-def prefetch_report_modules() -> threading.Thread:
-    """Import what the reports need (scipy.stats, matplotlib's pyplot: 1-2 s) in a daemon thread and return it.
+def prefetch_report_modules(plots: bool = True) -> threading.Thread:
+    """Import what the reports need (scipy.stats, and matplotlib's pyplot where they draw: 1-2 s) in a daemon thread
+    and return it.
 
     A run calls this when its last phase starts: its main process then mostly waits for the workers,
-    and the reports, written by it alone after the last job, do not begin with these imports.
+    and the reports, written by it alone after the last job, do not begin with these imports. A run without
+    plots (``--no-plots``) never imports matplotlib.
     """
 
     def load() -> None:
         try:
-            import matplotlib  # in this thread, off the main one: the point of it
+            import scipy.stats  # noqa: F401  (in this thread, off the main one: the point of it)
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot  # noqa: F401
-            import scipy.stats  # noqa: F401
+            if plots:
+                import matplotlib
+
+                matplotlib.use("Agg")
+                import matplotlib.pyplot  # noqa: F401
         except ImportError:  # the reports' own import says what is missing
             pass
 
