@@ -34,10 +34,10 @@ def prefetch_report_modules(plots: bool = True) -> threading.Thread:
             import scipy.stats  # noqa: F401  (in this thread, off the main one: the point of it)
 
             if plots:
-                import matplotlib
+                import matplotlib  # only for a run that draws, in this thread too
 
                 matplotlib.use("Agg")
-                import matplotlib.pyplot  # noqa: F401
+                import matplotlib.pyplot  # noqa: F401  (after the backend is chosen)
         except ImportError:  # the reports' own import says what is missing
             pass
 
