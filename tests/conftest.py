@@ -1,3 +1,4 @@
+import gc
 import importlib.util
 import os
 import subprocess
@@ -62,6 +63,24 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if "rl" in item.keywords:
             item.add_marker(skip)
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Freeze what collection built (every test module, the project and its dependencies): the garbage collector's
+    full passes skip those objects for the rest of the run, as the console script's after its imports
+    (:mod:`snac_gym.common.startup`). Runs where tests are collected: each pytest-xdist worker, or a plain run."""
+    gc.freeze()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None):
+    """After a test module's last test here, its fixtures torn down: collect its garbage, then freeze what is left
+    (what the tests imported later, torch, MuJoCo, Ray; the session's fixtures; caches). Otherwise each full pass
+    of the collector walks all of that again, and the passes took a twentieth of a worker's CPU."""
+    yield
+    if nextitem is None or nextitem.module is not item.module:
+        gc.collect()
+        gc.freeze()
 
 
 def _seconds(item: pytest.Item, name: str) -> float:

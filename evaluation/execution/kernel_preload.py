@@ -10,6 +10,8 @@ cache is up to date: a kernel still to compile is compiled by the workers, which
 
 from __future__ import annotations
 
+import gc
+
 import snac_gym.evaluation.execution.jobs  # noqa: F401  (what the workers run)
 import snac_gym.evaluation.reference.optimum  # noqa: F401
 
@@ -19,3 +21,6 @@ try:
     load_if_cached()
 except Exception:  # noqa: BLE001 - the server must start; each worker then loads, and reports, it itself
     pass
+# Everything loaded so far lives as long as the server and its workers: frozen, the workers' garbage collector skips
+# it (and so leaves the pages they share with the server uncopied), as the console script's after its imports.
+gc.freeze()

@@ -17,6 +17,7 @@ from snac_gym.apps.commands.evaluate import evaluate
 from snac_gym.apps.commands.real import emulate_ur, real
 from snac_gym.apps.commands.simulation import bench, demo
 from snac_gym.apps.commands.train import train_ppo_command
+from snac_gym.common import startup
 from snac_gym.common._signals import STOP_SIGNALS, SignalGuard, exit_code
 
 if TYPE_CHECKING:
@@ -118,7 +119,10 @@ def main() -> None:
     number. Each command says what it kept; a signal before a command started (in the option
     parsing) finds nothing written. It ends the process: the handlers stay, deferred, so that a
     signal while the interpreter exits is recorded instead of killing it mid-exit.
+
+    The cyclic garbage collector is paused until the command's imports are done (:mod:`snac_gym.common.startup`).
     """
+    startup.pause()
     guard = SignalGuard()
     common.reported.clear()
     interrupt: BaseException | None = None
@@ -139,6 +143,7 @@ def main() -> None:
         typer.echo("Aborted!", err=True)
         code = 1
     finally:
+        startup.imports_done()  # a command that ended before its imports (a usage error, --help)
         guard.defer()  # the command has ended: a later signal is only recorded
         common.main_guard = None
     if code == 130 and not common.reported:  # typer's own exit for a KeyboardInterrupt no command caught

@@ -48,6 +48,7 @@ from typing import Any, Callable
 
 import gymnasium as gym
 
+from snac_gym.common import startup
 from snac_gym.common.outputs import usable_out_folder
 from snac_gym.common.progress import ProgressLines
 from snac_gym.envs import make_task_env
@@ -382,6 +383,7 @@ def train_ppo(
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
+    startup.imports_done()
     if resume:
         check_checkpoint(checkpoint)
     else:

@@ -16,6 +16,7 @@ from snac_gym.apps.commands.common import (
     registered_tasks,
     renamed_option,
 )
+from snac_gym.common import startup
 
 __all__ = ["evaluate"]
 
@@ -214,6 +215,7 @@ def evaluate(
         from snac_gym.evaluation.runner import export_sample_set, run_evaluation
         from snac_gym.evaluation.sweep import run_sweep
 
+        startup.imports_done()
         out_dir = parse_out(out)
         tasks, names = parse_tasks(task), parse_controllers(controllers)
         check_option_combinations(

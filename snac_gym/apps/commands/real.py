@@ -19,6 +19,7 @@ from snac_gym.apps.commands.common import (
     registered_tasks,
     renamed_option,
 )
+from snac_gym.common import startup
 from snac_gym.common._signals import TerminationSignal
 from snac_gym.tasks import get_task
 
@@ -138,6 +139,7 @@ def real(
     from snac_gym.real.loop_tuning import LoopTuning
     from snac_gym.real.recovery import RecoveryLimits
 
+    startup.imports_done()
     connection = renamed_option("--connection", connection, "--backend", backend, "rtde")
     try:
         try:
@@ -317,6 +319,7 @@ def emulate_ur(
     from snac_gym.real.emulator import UREmulator
     from snac_gym.real.emulator.serve import fault_plan, parse_numbers, serve
 
+    startup.imports_done()
     try:
         offset = None if tcp_offset is None else parse_numbers(tcp_offset, "--tcp-offset", (3, 6))
         start = None if q0 is None else _numbers("--q0", q0, 6)

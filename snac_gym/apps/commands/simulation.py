@@ -14,6 +14,7 @@ from snac_gym.apps.commands.common import (
     registered_robots,
     registered_tasks,
 )
+from snac_gym.common import startup
 from snac_gym.policies import available_policies
 
 __all__ = ["bench", "demo"]
@@ -52,6 +53,7 @@ def bench(
     # start-up time: only bench needs bench.py (threadpoolctl)
     from snac_gym.apps.bench import check_bench_counts
 
+    startup.imports_done()
     try:  # both before the first measurement, which a bad --act-calls would otherwise follow by minutes
         check_bench_counts(steps, act_calls)
     except ValueError as exc:
@@ -130,6 +132,7 @@ def demo(
     # start-up time: the demo loads numba, scipy and pandas (after the checks: a usage error comes at once)
     from snac_gym.apps.demo import run_demo
 
+    startup.imports_done()
     try:
         result = run_demo(
             task=task,
