@@ -30,21 +30,24 @@ def test_paused_then_imports_done_freezes_and_restarts_the_collector(collector):
     built = [[] for _ in range(1000)]  # objects the imports would build
     frozen = gc.get_freeze_count()
     startup.imports_done()
-    assert gc.isenabled() and gc.get_freeze_count() >= frozen + len(built)
+    # the permanent generation also loses objects that other code frees meanwhile: counts are compared with a margin
+    assert gc.isenabled() and gc.get_freeze_count() >= frozen + len(built) // 2
     again = gc.get_freeze_count()
+    more = [[] for _ in range(1000)]
     startup.imports_done()  # a second call: nothing more is frozen
-    assert gc.isenabled() and gc.get_freeze_count() == again
+    assert gc.isenabled() and gc.get_freeze_count() < again + len(more) // 2
 
 
 def test_without_a_pause_imports_done_leaves_the_collector_alone(collector):
     gc.enable()
     frozen = gc.get_freeze_count()
+    extra = [[] for _ in range(1000)]
     startup.imports_done()  # a library call: train_ppo() from a script
-    assert gc.isenabled() and gc.get_freeze_count() == frozen
+    assert gc.isenabled() and gc.get_freeze_count() < frozen + len(extra) // 2
     gc.disable()  # the caller's own choice survives a pause and its end
     startup.pause()
     startup.imports_done()
-    assert not gc.isenabled() and gc.get_freeze_count() == frozen
+    assert not gc.isenabled() and gc.get_freeze_count() < frozen + len(extra) // 2
 
 
 #: Each command through ``main()``, as the console script runs it, with the function that does its work replaced by
