@@ -1,2 +1,3 @@
 """Small infrastructure every layer may use, importing nothing above it: stop signals, exceptions, optional extras,
-whole output files, progress lines, argument checks, entry points and renamed import names."""
+whole output files, progress lines, argument checks, entry points, renamed import names and a command's start-up
+(the garbage collector kept off its imports)."""
