@@ -1,6 +1,8 @@
+import atexit
 import gc
 import importlib.util
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -17,6 +19,8 @@ from snac_gym.model.kinematics import Kinematics
 # The reference's row cache (evaluation/reference/cache.py) of this test process: a fresh folder, so that no
 # test reads rows another run left in the user's cache, and the suite writes nothing there.
 os.environ["SNAC_GYM_CACHE_DIR"] = tempfile.mkdtemp(prefix="snac-gym-test-cache-")
+# Removed when this process ends (each pytest-xdist worker has its own): otherwise every run leaves one per process.
+atexit.register(shutil.rmtree, os.environ["SNAC_GYM_CACHE_DIR"], ignore_errors=True)
 # The calibration cache off: a test that compares two runs' knobs (other workers, fewer samples) must match
 # them anew, or it would compare a knob with itself. tests/evaluation/effort/test_effort_cache.py turns it on.
 os.environ["SNAC_GYM_CALIBRATION_CACHE"] = "0"
