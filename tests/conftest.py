@@ -16,10 +16,16 @@ import snac_gym  # noqa: F401  (registers the envs)
 from snac_gym.kernels.compiled import cached_on_disk
 from snac_gym.model.kinematics import Kinematics
 
-# The reference's row cache (evaluation/reference/cache.py) of this test process: a fresh folder, so that no
-# test reads rows another run left in the user's cache, and the suite writes nothing there.
+# The project's caches (snac_gym/common/cache_dir.py) in this test process: a fresh folder, so that no test reads
+# rows another run left in the user's cache, and the suite writes nothing there. A pytest-xdist worker starts with its
+# controller's folder in the environment; the visual meshes' OBJ copies (snac_gym/physics/meshes.py, named by
+# content) stay shared with it, so that each arm's are written once a run, not once a worker.
+_controller_cache = os.environ.get("SNAC_GYM_CACHE_DIR") if os.environ.get("PYTEST_XDIST_WORKER") else None
 os.environ["SNAC_GYM_CACHE_DIR"] = tempfile.mkdtemp(prefix="snac-gym-test-cache-")
-# Removed when this process ends (each pytest-xdist worker has its own): otherwise every run leaves one per process.
+if _controller_cache and os.path.isdir(_controller_cache):
+    os.makedirs(os.path.join(_controller_cache, "meshes"), exist_ok=True)
+    os.symlink(os.path.join(_controller_cache, "meshes"), os.path.join(os.environ["SNAC_GYM_CACHE_DIR"], "meshes"))
+# Removed when this process ends (the controller's last, after its workers): otherwise every run leaves one a process.
 atexit.register(shutil.rmtree, os.environ["SNAC_GYM_CACHE_DIR"], ignore_errors=True)
 # The calibration cache off: a test that compares two runs' knobs (other workers, fewer samples) must match
 # them anew, or it would compare a knob with itself. tests/evaluation/effort/test_effort_cache.py turns it on.

@@ -20,7 +20,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib.metadata
-import os
 import pickle
 from collections.abc import Callable, Sequence
 from importlib import resources
@@ -32,10 +31,9 @@ import pandas as pd
 from snac_gym.evaluation.cache_entry import CacheWarnings, DamagedEntry, read_entry, write_entry
 from snac_gym.evaluation.code_graph import module_closure, sources_fingerprint
 
+from snac_gym.common.cache_dir import CACHE_ENV, cache_root
 from snac_gym.control.jacobian_bound import SHIPPED as JACOBIAN_BOUNDS
 
-#: Environment variable naming the cache's parent folder.
-CACHE_ENV = "SNAC_GYM_CACHE_DIR"
 #: Where the reference's code starts: its module, and the modules of the feedback laws it starts from (made by their
 #: registered names, so not in its import graph), which the reference adds when it is imported (:func:`add_roots`).
 ROOTS: list[str] = ["snac_gym.evaluation.reference.optimum"]
@@ -54,15 +52,6 @@ DISTRIBUTIONS = ("numpy", "scipy", "pin", "example-robot-data", "numba")
 #: Package data the rows depend on, read by the code rather than imported: the shipped bounds on ‖J‖₂ (the lower
 #: bound's column).
 DATA_FILES = (JACOBIAN_BOUNDS,)
-
-
-def cache_root() -> Path:
-    """The parent of the project's caches: ``$SNAC_GYM_CACHE_DIR``, else ``$XDG_CACHE_HOME/snac-gym`` or
-    ``~/.cache/snac-gym``."""
-    root = os.environ.get(CACHE_ENV)
-    if root:
-        return Path(root)
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "snac-gym"
 
 
 def cache_folder() -> Path:
@@ -173,6 +162,7 @@ __all__ = [
     "WARNINGS",
     "add_roots",
     "cache_folder",
+    "cache_root",
     "code_fingerprint",
     "code_modules",
     "read_rows",
