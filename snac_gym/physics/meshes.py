@@ -91,8 +91,9 @@ def _cached_obj(path: Path) -> str | None:
     except ImportError:
         return None
     try:
-        with warnings.catch_warnings():  # pycollada's own use of np.matrix, nothing about the file
+        with warnings.catch_warnings():  # pycollada's own use of NumPy (np.matrix, setting .shape), not the file's
             warnings.simplefilter("ignore", PendingDeprecationWarning)
+            warnings.simplefilter("ignore", DeprecationWarning)
             triangles = read_dae(collada.Collada(str(path)))
     except Exception:  # noqa: BLE001 - any file pycollada reads otherwise than PyBullet keeps its .dae
         return None
