@@ -10,7 +10,6 @@ import tempfile
 import gymnasium as gym
 import numpy as np
 import pytest
-from _zygote import Zygote
 
 import snac_gym  # noqa: F401  (registers the envs)
 from snac_gym.kernels.compiled import cached_on_disk
@@ -171,35 +170,6 @@ def once_per_session(tmp_path_factory: pytest.TempPathFactory, name: str, comput
 def once(tmp_path_factory):
     """:func:`once_per_session` of this session, for tests in any folder: ``once(name, compute)``."""
     return lambda name, compute: once_per_session(tmp_path_factory, name, compute)
-
-
-#: What the :func:`zygote`'s children find imported: the commands and the evaluator's phases (every kernel
-#: loaded from numba's cache, :func:`~snac_gym.kernels.compiled.warm_up`), the demo and the real-arm rehearsal,
-#: and the trainer's torch and stable-baselines3 where installed.
-ZYGOTE_PRELOAD = [
-    "snac_gym.apps.cli",
-    "snac_gym.apps.commands.evaluate",
-    "snac_gym.evaluation.runner",
-    "snac_gym.evaluation.sweep",
-    "snac_gym.evaluation.execution.passes",
-    "snac_gym.evaluation.effort.matching",
-    "snac_gym.apps.demo",
-    "snac_gym.apps.plots",
-    "snac_gym.apps.real",
-    "snac_gym.ppo.train",
-    "snac_gym.kernels.compiled",
-    *[name for name in ("torch", "stable_baselines3") if importlib.util.find_spec(name) is not None],
-]
-
-
-@pytest.fixture(scope="session")
-def zygote():
-    """Child processes forked from a server that has imported :data:`ZYGOTE_PRELOAD` (tests/_zygote.py): for the
-    tests of what a command does once it runs (a signal mid-phase, a docs page's code), each of which would
-    otherwise pay the imports again in a fresh ``python``. One server per test process, started when first asked."""
-    server = Zygote(ZYGOTE_PRELOAD, then="from snac_gym.kernels.compiled import warm_up; warm_up()")
-    yield server
-    server.close()
 
 
 @pytest.fixture(scope="session")

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from _zygote import Zygote, ZygoteProcess
 
 if os.name != "posix":  # pragma: no cover
     pytest.skip("POSIX signals", allow_module_level=True)
@@ -77,26 +76,17 @@ def _run(
     send_when: str | None = "handlers",
     timeout: float = 120.0,
     delay: float = 0.0,
-    zygote: Zygote | None = None,
 ) -> tuple[int, str, str]:
     """Run the driver; without a hook, send ``signame`` once the handlers are in place (or once
-    ``send_when`` appears on stdout). Returns (exit code, stderr, stdout).
-
-    A fresh ``python`` each, as a user starts the command, unless ``zygote`` is given: a signal mid-phase tests
-    what the command does once running, and a child forked from the zygote has the imports done already."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    process: subprocess.Popen[str] | ZygoteProcess
-    if zygote is not None:
-        process = zygote.popen(DRIVER, [hook, signame, *args], cwd=cwd, env=env)
-    else:
-        process = subprocess.Popen(
-            [sys.executable, "-c", DRIVER, hook, signame, *args],
-            cwd=cwd,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            env=env,
-        )
+    ``send_when`` appears on stdout). Returns (exit code, stderr, stdout)."""
+    process = subprocess.Popen(
+        [sys.executable, "-c", DRIVER, hook, signame, *args],
+        cwd=cwd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     try:
         if hook == "-" and send_when == "handlers":
             deadline = time.monotonic() + 60
@@ -206,10 +196,10 @@ MID_RUN_SIGNALS = ["SIGINT", "SIGHUP"]
 
 @pytest.mark.slow(seconds=4)
 @pytest.mark.parametrize("signame", MID_RUN_SIGNALS)
-def test_demo_interrupted_mid_rollout_keeps_the_steps_run_marked_partial(tmp_path, signame, zygote):
+def test_demo_interrupted_mid_rollout_keeps_the_steps_run_marked_partial(tmp_path, signame):
     out = tmp_path / "demo"
     hook = "snac_gym.rollout.episode:_Record.command@40"  # the 40th applied command
-    code, err, _ = _run(["demo", "--task", "track", "--out", str(out)], signame, hook=hook, zygote=zygote)
+    code, err, _ = _run(["demo", "--task", "track", "--out", str(out)], signame, hook=hook)
     assert code == 128 + int(getattr(signal, signame)), err
     assert _one_line(err) == (
         f"interrupted by {signame}: the log of the 39 of 2500 steps run and a summary marked "
@@ -223,11 +213,10 @@ def test_demo_interrupted_mid_rollout_keeps_the_steps_run_marked_partial(tmp_pat
 
 
 @pytest.mark.slow(seconds=6)
-def test_demo_interrupted_while_drawing_keeps_log_summary_and_whole_figures(tmp_path, zygote):
+def test_demo_interrupted_while_drawing_keeps_log_summary_and_whole_figures(tmp_path):
     out = tmp_path / "demo"
     hook = "snac_gym.apps.plots:save_figure@3"  # as the third figure is written
-    args = ["demo", "--task", "reach", "--steps", "200", "--out", str(out)]
-    code, err, _ = _run(args, "SIGTERM", hook=hook, zygote=zygote)
+    code, err, _ = _run(["demo", "--task", "reach", "--steps", "200", "--out", str(out)], "SIGTERM", hook=hook)
     assert code == 143, err
     assert _one_line(err) == (
         f"interrupted by SIGTERM: the log and summary are complete in {out}/; 2 of 7 figures were drawn (each whole)"
@@ -243,13 +232,13 @@ def test_demo_interrupted_while_drawing_keeps_log_summary_and_whole_figures(tmp_
 @pytest.mark.rl
 @pytest.mark.slow(seconds=8)
 @pytest.mark.parametrize("signame", MID_RUN_SIGNALS)
-def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_path, signame, tiny_ppo, zygote):
+def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_path, signame, tiny_ppo):
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "run"
     hook = "snac_gym.ppo.envs:PPOTrainingWrapper.step@50"  # the 50th env step (of two envs): mid-training
     config = tiny_ppo(tmp_path, timesteps=96, normalize_obs=False)
     args = ["train-ppo", "--task", "reach", "--out", str(out), "--config", str(config), "--no-progress"]
-    code, err, _ = _run(args, signame, hook=hook, zygote=zygote)
+    code, err, _ = _run(args, signame, hook=hook)
     assert code == 128 + int(getattr(signal, signame)), err
     state = json.loads((out / "state.json").read_text())
     assert state["status"] == "interrupted" and state["interrupted_by"] == signame
@@ -329,10 +318,9 @@ def test_a_checkpoint_file_with_one_flipped_bit_is_refused_on_resume(tmp_path, n
 
 # -- bench: the tables printed are whole ----------------------------------------------------------------
 @pytest.mark.slow(seconds=4)
-def test_bench_interrupted_after_a_table_says_the_printed_tables_are_complete(tmp_path, zygote):
+def test_bench_interrupted_after_a_table_says_the_printed_tables_are_complete(tmp_path):
     hook = "snac_gym.apps.bench:run_substep_study@1"  # after the env table was printed
-    args = ["bench", "--steps", "100", "--no-panda", "--substeps"]
-    code, err, out = _run(args, "SIGQUIT", hook=hook, zygote=zygote)
+    code, err, out = _run(["bench", "--steps", "100", "--no-panda", "--substeps"], "SIGQUIT", hook=hook)
     assert code == 128 + int(signal.SIGQUIT), err
     assert _one_line(err) == "interrupted by SIGQUIT: bench writes no files; the tables printed above are complete"
     assert "steps/s" in out

@@ -19,7 +19,6 @@ import sys
 from pathlib import Path
 
 import pytest
-from _zygote import run as zygote_run
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -82,9 +81,7 @@ def _doc_param(path: Path) -> object:
 @pytest.mark.parametrize(
     "path", [_doc_param(path) for path in FILES_WITH_CODE], ids=lambda path: path.relative_to(ROOT).as_posix()
 )
-def test_python_blocks_run(path: Path, tmp_path: Path, zygote):
-    """Each page's blocks in one namespace of a process of their own, forked from one that has imported the project
-    (tests/_zygote.py): a page runs as a reader pastes it into a fresh interpreter, less the imports' seconds."""
+def test_python_blocks_run(path: Path, tmp_path: Path):
     blocks, _ = code_blocks(path)
     env = {
         **os.environ,
@@ -92,7 +89,15 @@ def test_python_blocks_run(path: Path, tmp_path: Path, zygote):
         "MPLBACKEND": "Agg",
         "OMP_NUM_THREADS": "1",
     }
-    result = zygote_run(zygote, RUNNER, input=json.dumps(blocks), cwd=tmp_path, env=env, timeout=300)
+    result = subprocess.run(
+        [sys.executable, "-c", RUNNER],
+        input=json.dumps(blocks),
+        text=True,
+        capture_output=True,
+        cwd=tmp_path,
+        env=env,
+        timeout=300,
+    )
     assert result.returncode == 0, f"a python block of {path.name} failed:\n{result.stderr[-4000:]}"
 
 

@@ -1,10 +1,10 @@
 """An interrupted evaluation ends, in every phase, and ``--resume`` then gives the uninterrupted result.
 
-Each test runs ``snac-gym evaluate`` in a child process (forked from one that has imported the evaluator,
-tests/_zygote.py) through a small driver that arms a timer at the entry of one phase; the timer sends the
-signal to the run's own process while the phase is still running (the driver records whether it was), as a
-user's Ctrl-C or a scheduler's SIGTERM would. The run must exit within a bound with its one line and 128 +
-the signal number; a ``--resume`` of the same folder must then give the rows of an uninterrupted run.
+Each test runs ``snac-gym evaluate`` in a child process through a small driver that arms a timer at
+the entry of one phase; the timer sends the signal to the run's own process while the phase is
+still running (the driver records whether it was), as a user's Ctrl-C or a scheduler's SIGTERM
+would. The run must exit within a bound with its one line and 128 + the signal number; a
+``--resume`` of the same folder must then give the rows of an uninterrupted run.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from _zygote import Zygote
 
 #: Seconds an interrupted run may take to exit (the documented bound; it exits in well under one).
 EXIT_BOUND_S = 10.0
@@ -88,14 +87,12 @@ def _evaluate(out: Path, *extra: str) -> tuple[int, str]:
     return result.exit_code, result.output
 
 
-def _interrupted(zygote: Zygote, tmp_path: Path, phase: str, signame: str, workers: int, delay: float, *extra: str):
-    """The driver in a child forked from ``zygote`` (tests/_zygote.py): what is tested is the run's phases, not
-    its start-up, and the child finds the evaluator imported and its kernels loaded."""
+def _interrupted(tmp_path: Path, phase: str, signame: str, workers: int, delay: float, *extra: str):
     module, attribute = PHASES[phase]
     marker, out = tmp_path / "fired", tmp_path / "run"
-    args = [module, attribute, signame, str(delay), str(marker)]
-    args += [*ARGS, "--out", str(out), "--workers", str(workers), *extra]
-    process = zygote.popen(DRIVER, args)
+    command = [sys.executable, "-c", DRIVER, module, attribute, signame, str(delay), str(marker)]
+    command += [*ARGS, "--out", str(out), "--workers", str(workers), *extra]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         _, err = process.communicate(timeout=120)
     finally:
@@ -141,7 +138,7 @@ def uninterrupted(uninterrupted_folder: Path) -> pd.DataFrame:
     ],
 )
 def test_an_interrupt_in_every_phase_ends_the_run_and_resume_gives_the_same_rows(
-    tmp_path, uninterrupted_folder, uninterrupted, phase, signame, workers, delay, zygote
+    tmp_path, uninterrupted_folder, uninterrupted, phase, signame, workers, delay
 ):
     extra: tuple[str, ...] = ()
     if phase == "reports":
@@ -149,7 +146,7 @@ def test_an_interrupt_in_every_phase_ends_the_run_and_resume_gives_the_same_rows
         # same files) instead of computing every job again first.
         shutil.copytree(uninterrupted_folder, tmp_path / "run")
         extra = ("--resume",)
-    process, err, out, where, fired_at = _interrupted(zygote, tmp_path, phase, signame, workers, delay, *extra)
+    process, err, out, where, fired_at = _interrupted(tmp_path, phase, signame, workers, delay, *extra)
     ended = time.time()
     assert where == "inside", f"the signal was not sent inside the {phase} phase ({where}); stderr: {err}"
     assert ended - fired_at < EXIT_BOUND_S
@@ -176,12 +173,12 @@ RAY_CANCEL_ABORT = "Tried to complete task that was not pending"
 
 
 @pytest.mark.slow(seconds=8)
-def test_an_interrupt_on_ray_ends_the_run_and_the_jobs_ray_finished_give_the_same_rows(tmp_path, uninterrupted, zygote):
+def test_an_interrupt_on_ray_ends_the_run_and_the_jobs_ray_finished_give_the_same_rows(tmp_path, uninterrupted):
     """Also the test that Ray computes what the process executor computes (one Ray start instead of two):
     interrupted in the last phase, the run has kept every controller's rows, all computed on Ray; with
     the optimum computed in this process on resume, the rows are those of the uninterrupted run, bit for bit."""
     pytest.importorskip("ray")
-    process, err, out, where, fired_at = _interrupted(zygote, tmp_path, "optimal", "SIGTERM", 2, 0.05, "--ray", "local")
+    process, err, out, where, fired_at = _interrupted(tmp_path, "optimal", "SIGTERM", 2, 0.05, "--ray", "local")
     assert where == "inside", err
     ray_aborted = process.returncode != 128 + signal.SIGTERM and RAY_CANCEL_ABORT in err
     if not ray_aborted:
