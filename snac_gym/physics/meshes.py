@@ -99,12 +99,16 @@ def _cached_obj(path: Path) -> str | None:
         return None
     if triangles is None:
         return None
+    partial = None
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.NamedTemporaryFile("w", dir=target.parent, suffix=".tmp", delete=False) as handle:
+            partial = handle.name
             write_obj(handle, *triangles)
-        os.replace(handle.name, target)  # whole or absent, whoever else writes it at the same time
+        os.replace(partial, target)  # whole or absent, whoever else writes it at the same time
     except OSError:
+        if partial is not None:  # a full disk midway: no half-written file left behind
+            Path(partial).unlink(missing_ok=True)
         return None
     return str(target)
 
