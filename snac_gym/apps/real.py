@@ -11,6 +11,7 @@ import json
 import signal
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,7 @@ from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.real.connections import (
     SERIES_FREQUENCY,
+    ArmConnection,
     ConnectionFailure,
     DryRunConnection,
     SimulatedConnection,
@@ -215,21 +217,23 @@ def run_real_episode(
     prefix = f"{task}_{controller}_"
     tuning = tuning if tuning is not None else LoopTuning()
     with stop_signals_raise() as guard, tuned_process(tuning) as notes:
-        arm = make_connection(
-            connection, host, series, dry_run, robot=robot, echo=echo, acceleration=2.0 * safety.max_joint_acceleration
-        )
-        try:
+
+        def connect() -> ArmConnection:
+            return make_connection(
+                connection, host, series, dry_run, robot=robot, echo=echo,
+                acceleration=2.0 * safety.max_joint_acceleration,
+            )  # fmt: skip
+
+        def make_env(arm: ArmConnection) -> RealUREnv:
             default_steps = round(get_task(task).real_horizon_s / arm.dt)
-            env = RealUREnv(
+            return RealUREnv(
                 task, arm, safety=safety, max_steps=steps if steps is not None else default_steps, recovery=recovery
             )
-            if out is not None:
-                env.journal = StepJournal(out / f"{prefix}{STREAM_SUFFIX}", env.kinematics.n_joints, journal_writer)
-        except BaseException:
-            arm.close()
-            raise
-        with frozen_gc(tuning.freeze_gc):
-            log = _run_and_stop(env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error)
+
+        stream = _StreamLog(out / f"{prefix}{STREAM_SUFFIX}", journal_writer) if out is not None else None
+        env, log = _run_and_stop(
+            connect, make_env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error, stream, tuning
+        )
         guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
         result = write_outputs(
             env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs, setup
@@ -243,8 +247,17 @@ def run_real_episode(
     return result
 
 
+@dataclass(frozen=True)
+class _StreamLog:
+    """Where the episode's rows stream to and how (:class:`~snac_gym.real.journal.StepJournal`)."""
+
+    path: Path
+    writer: str
+
+
 def _run_and_stop(
-    env: RealUREnv,
+    connect: Callable[[], ArmConnection],
+    make_env: Callable[[ArmConnection], RealUREnv],
     controller: str,
     policy_kwargs: dict[str, Any] | None,
     seed: int,
@@ -252,23 +265,40 @@ def _run_and_stop(
     out: Path | None,
     prefix: str,
     setup: dict[str, Any],
-    model_error: str | None = None,
-) -> pd.DataFrame:
+    model_error: str | None,
+    stream: _StreamLog | None,
+    tuning: LoopTuning,
+) -> tuple[RealUREnv, pd.DataFrame]:
     """The episode, the arm stopped on every way out; on any failure the log so far is written, then it raises.
+
+    The arm is connected, the env built and the stream log opened in here, so that no signal can come between an
+    open connection and the handler that stops the arm, or between a file written and the handler that writes the
+    rest and says where: a signal before the env exists leaves nothing written.
 
     A client the connection had to give up (killed after a missed deadline, crashed, its link lost)
     fails the run even when the episode itself ended in a safety stop: the arm was then stopped
     by the controller's watchdog, not by the host.
     """
+    arm = connect()
+    try:
+        env = make_env(arm)
+    except BaseException:
+        arm.close()
+        raise
     log = None
     try:
         try:
-            warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
-            policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
-            options = {"q0": setup["q0"], env.task.option_key: setup[env.task.option_key]}
-            log = rollout(env, policy, options=options, seed=seed, steps=env.max_steps)
-            log = add_critic_diagnostics(log, policy)
-            mark_gaps(log, env)
+            if stream is not None:
+                env.journal = StepJournal(stream.path, env.kinematics.n_joints, stream.writer)
+            with frozen_gc(tuning.freeze_gc):
+                warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
+                policy = make_policy(
+                    controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {})
+                )
+                options = {"q0": setup["q0"], env.task.option_key: setup[env.task.option_key]}
+                log = rollout(env, policy, options=options, seed=seed, steps=env.max_steps)
+                log = add_critic_diagnostics(log, policy)
+                mark_gaps(log, env)
         finally:
             env.close()
         failure = getattr(env.connection, "failure", None)
@@ -284,4 +314,4 @@ def _run_and_stop(
     finally:
         if env.journal is not None:
             env.journal.close()
-    return log
+    return env, log

@@ -10,6 +10,7 @@ import os
 import signal
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -268,6 +269,51 @@ def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path,
     )
     assert outcome.exit_code == 128 + signal.SIGTERM
     assert outcome.output.strip() == f"interrupted by SIGTERM: the arm was stopped; the log so far is in {tmp_path}/"
+    assert signalling_run[0].stopped
+
+
+#: What run_real_episode calls between connecting and the first period, as the names it holds them by; a signal
+#: sent as each is called. "subprocess" is the stream log's writer start, after its header is on disk.
+SETUP_STEPS = ["RealUREnv", "StepJournal", "subprocess", "frozen_gc", "warm_up", "make_policy"]
+
+
+@pytest.mark.parametrize("step", SETUP_STEPS)
+def test_a_signal_before_the_first_period_says_where_its_files_are_or_writes_none(
+    signalling_run, tmp_path, monkeypatch, step
+):
+    """What the command says ("the log so far is in ..." or "nothing logged") is read off ``log_dir``: it must be set
+    exactly when a file was written, wherever in the start the signal came, and the arm is stopped either way."""
+    import subprocess
+
+    import snac_gym.apps.real as real_run
+    import snac_gym.real.journal as journal_module
+    from snac_gym.apps.real import TerminationSignal, run_real_episode
+
+    def signalling(original):
+        def call(*args, **kwargs):
+            os.kill(os.getpid(), signal.SIGTERM)
+            return original(*args, **kwargs)
+
+        return call
+
+    if step == "subprocess":
+        started = signalling(subprocess.Popen)
+        monkeypatch.setattr(
+            journal_module,
+            "subprocess",
+            SimpleNamespace(Popen=started, PIPE=subprocess.PIPE, TimeoutExpired=TimeoutError),
+        )
+    else:
+        monkeypatch.setattr(real_run, step, signalling(getattr(real_run, step)))
+    out = tmp_path / "out"
+    with pytest.raises(TerminationSignal) as excinfo:
+        run_real_episode(controller="dls", out_dir=out, connection="sim", steps=20)
+    files = sorted(p.name for p in out.rglob("*") if p.is_file()) if out.exists() else []
+    log_dir = getattr(excinfo.value, "log_dir", None)
+    assert (log_dir is not None) == bool(files), (log_dir, files)
+    if files:
+        summary = json.loads((out / "reach_dls_real.json").read_text())
+        assert summary["ended"] == "interrupted" and summary["steps_logged"] == 0
     assert signalling_run[0].stopped
 
 
