@@ -232,6 +232,15 @@ def run_demo(
     )
 
 
+def _stamp(path: Path) -> tuple[int, int] | None:
+    """A file's identity and age: a whole-file write (a new file renamed into place) changes it."""
+    try:
+        stat = path.stat()
+    except FileNotFoundError:
+        return None
+    return stat.st_ino, stat.st_mtime_ns
+
+
 def write_demo_outputs(
     log: pd.DataFrame,
     task: str,
@@ -267,8 +276,7 @@ def write_demo_outputs(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     prefix = f"{task}_{controller}_"
-    result.files += write_log(log, out / f"{prefix}log.parquet", csv=csv)
-    summary_path = out / f"{prefix}summary.json"
+    log_path, summary_path = out / f"{prefix}log.parquet", out / f"{prefix}summary.json"
     finite = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(metrics).items()}
     summary = {
         "task": task,
@@ -278,7 +286,20 @@ def write_demo_outputs(
         **(status or {"complete": True}),
         **finite,
     }
-    write_text_whole(summary_path, json.dumps(summary, indent=2))
+    targets = [log_path, *([log_path.with_suffix(".csv"), log_path.with_suffix(".json")] if csv else []), summary_path]
+    before = {path: _stamp(path) for path in targets}
+    try:
+        result.files += write_log(log, log_path, csv=csv)
+        write_text_whole(summary_path, json.dumps(summary, indent=2))
+    except KeyboardInterrupt as exc:  # each file is written whole: say which of them this run wrote
+        done = [path.name for path in targets if _stamp(path) not in (None, before[path])]
+        exc.kept = (  # type: ignore[attr-defined]
+            f"the run ended, but only {', '.join(done)} of its log and summary {'was' if len(done) == 1 else 'were'} "
+            f"written, whole, in {out}/"
+            if done
+            else "the run ended, but nothing was written"
+        )
+        raise
     result.files.append(summary_path)
     if not plots:
         return result

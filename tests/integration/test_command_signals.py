@@ -228,6 +228,23 @@ def test_demo_interrupted_while_drawing_keeps_log_summary_and_whole_figures(tmp_
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.read_bytes()[-8:-4] == b"IEND"
 
 
+@pytest.mark.parametrize(
+    ("hook", "written"),
+    [("snac_gym.apps.demo:write_log@1", []), ("snac_gym.apps.demo:write_text_whole@1", ["reach_dls_log.parquet"])],
+    ids=["as the log is written", "as the summary is written"],
+)
+def test_demo_interrupted_while_writing_its_log_says_which_files_it_wrote(tmp_path, hook, written):
+    out = tmp_path / "demo"
+    args = ["demo", "--task", "reach", "--controller", "dls", "--steps", "50", "--no-plots", "--out", str(out)]
+    code, err, _ = _run(args, "SIGHUP", hook=hook)
+    assert code == 128 + signal.SIGHUP, err
+    kept = (
+        f"only {written[0]} of its log and summary was written, whole, in {out}/" if written else "nothing was written"
+    )
+    assert _one_line(err) == f"interrupted by SIGHUP: the run ended, but {kept}"
+    assert sorted(p.name for p in out.iterdir()) == written  # no partial file either
+
+
 # -- train-ppo: a checkpoint to resume, every evaluation row kept ----------------------------------------
 @pytest.mark.rl
 @pytest.mark.slow(seconds=8)
