@@ -37,6 +37,7 @@ new rollouts from fresh episodes (docs/ppo.md).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import multiprocessing
 import shutil
@@ -372,52 +373,109 @@ def train_ppo(
         ImportError: If stable-baselines3 or torch is not installed.
     """
     out = Path(out)
-    checkpoint = out / "checkpoint"
     overrides = {"timesteps": timesteps, "seed": seed, "n_envs": n_envs, "vec_env": vec_env, "init_from": init_from}
     # Everything the input decides is checked before torch is imported or anything is made.
     config = resumed_config(out, task, overrides) if resume else new_config(out, task, config_path, overrides)
+    before = _paths_under(out)
+    try:
+        return _train(out, config, resume, log, progress)
+    except _NotStarted as stopped:  # a signal before the first timestep: a new run leaves no half-made folder
+        if not resume:
+            _remove_all_but(out, before)
+        raise stopped.interrupt from None
+
+
+class _NotStarted(Exception):
+    """A stop signal came before training began (``interrupt``: the signal's ``KeyboardInterrupt``)."""
+
+    def __init__(self, interrupt: KeyboardInterrupt) -> None:
+        super().__init__()
+        self.interrupt = interrupt
+
+
+def _paths_under(folder: Path) -> set[Path] | None:
+    """What ``folder`` holds now (``None``: it does not exist)."""
+    return set(folder.rglob("*")) if folder.exists() else None
+
+
+def _remove_all_but(folder: Path, kept: set[Path] | None) -> None:
+    """Remove what was made under ``folder`` since :func:`_paths_under` gave ``kept`` (``folder`` too, if it is new)."""
+    made = sorted(set(folder.rglob("*")) - (kept or set()), key=lambda path: len(path.parts), reverse=True)
+    for path in made + ([folder] if kept is None else []):
+        if path.is_dir() and not path.is_symlink():
+            with contextlib.suppress(OSError):  # not empty: something not ours is in it
+                path.rmdir()
+        else:
+            path.unlink(missing_ok=True)
+
+
+def _open_run(out: Path, config: dict[str, Any], resume: bool) -> tuple[TrainingRun, Any]:
+    """The rl extra imported, the run's config written and its training envs made (``Any``: an SB3 VecEnv)."""
     usable_out_folder(out)  # a file or /dev/null is refused as evaluate refuses it
     _require_sb3()
     # the rl extra (checked just above, after the input)
     import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecNormalize
 
     startup.imports_done()
     if resume:
-        check_checkpoint(checkpoint)
+        check_checkpoint(out / "checkpoint")
     else:
         config["versions"] = package_versions()
     write_json(out / "config.json", config)
-
     torch.set_num_threads(1)  # small MLP: one thread is fastest and leaves the other cores to the envs
-    run = TrainingRun(out, config)
-    inner = build_vec_env(config)
+    return TrainingRun(out, config), build_vec_env(config)
+
+
+def _load_or_build_model(out: Path, config: dict[str, Any], resume: bool, inner: Any) -> tuple[Any, Any]:
+    """The normalised envs and the PPO model: the checkpoint's (``resume``) or a new one (``Any``: SB3's types)."""
+    # the rl extra, imported by _open_run
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
     if resume:
+        checkpoint = out / "checkpoint"
         venv = VecNormalize.load(str(checkpoint / NORMALIZE_FILE), inner)
         venv.training = True
-        model = PPO.load(checkpoint / MODEL_FILE, env=venv, device="cpu")
-    else:
-        venv = _normalized(inner, config)
-        model = build_model(config, venv)
-    start_timesteps = int(model.num_timesteps)
-    if resume:
-        run.state["best"] = run.best_of_rows()
-    remaining = int(config["timesteps"]) - start_timesteps
-    if remaining <= 0:
-        venv.close()
-        log(f"{out}: {start_timesteps} timesteps already trained (target {config['timesteps']}); nothing to do")
-        return _result(run, "already-done", start_timesteps)
-    model.set_logger(_configure_logger(out / "logs" / f"segment_{start_timesteps}"))
-    started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    run.state["segments"].append({"start_timesteps": start_timesteps, "started_at": started_at})
-    run.state.pop("interrupted_by", None)
-    run.write_state(start_timesteps, "running")
-    log(
-        f"training PPO on {config['task']} for {config['timesteps']} timesteps ({config['vec_env']['n_envs']} "
-        f"{config['vec_env'].get('kind', 'dummy')} envs, seed {config['seed']}) into {out}"
-    )
-    callback = _make_callback(run, venv, log, progress)
+        return venv, PPO.load(checkpoint / MODEL_FILE, env=venv, device="cpu")
+    venv = _normalized(inner, config)
+    return venv, build_model(config, venv)
+
+
+def _train(
+    out: Path,
+    config: dict[str, Any],
+    resume: bool,
+    log: Callable[[str], None],
+    progress: Callable[[str], None] | None,
+) -> TrainingResult:
+    """:func:`train_ppo` once its input is checked; a signal before the first timestep raises :class:`_NotStarted`."""
+    try:
+        inner = None
+        run, inner = _open_run(out, config, resume)
+        venv, model = _load_or_build_model(out, config, resume, inner)
+        start_timesteps = int(model.num_timesteps)
+        if resume:
+            run.state["best"] = run.best_of_rows()
+        remaining = int(config["timesteps"]) - start_timesteps
+        if remaining <= 0:
+            venv.close()
+            log(f"{out}: {start_timesteps} timesteps already trained (target {config['timesteps']}); nothing to do")
+            return _result(run, "already-done", start_timesteps)
+        model.set_logger(_configure_logger(out / "logs" / f"segment_{start_timesteps}"))
+        started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        run.state["segments"].append({"start_timesteps": start_timesteps, "started_at": started_at})
+        run.state.pop("interrupted_by", None)
+        run.write_state(start_timesteps, "running")
+        log(
+            f"training PPO on {config['task']} for {config['timesteps']} timesteps ({config['vec_env']['n_envs']} "
+            f"{config['vec_env'].get('kind', 'dummy')} envs, seed {config['seed']}) into {out}"
+        )
+        callback = _make_callback(run, venv, log, progress)
+    except KeyboardInterrupt as exc:
+        if inner is not None:
+            with contextlib.suppress(Exception):  # the envs' processes, if any were started
+                inner.close()
+        raise _NotStarted(exc) from None
     status = "finished"
     try:
         model.learn(total_timesteps=remaining, callback=callback, reset_num_timesteps=False, progress_bar=False)

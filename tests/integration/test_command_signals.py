@@ -247,6 +247,24 @@ def test_demo_interrupted_while_writing_its_log_says_which_files_it_wrote(tmp_pa
 
 # -- train-ppo: a checkpoint to resume, every evaluation row kept ----------------------------------------
 @pytest.mark.rl
+@pytest.mark.parametrize(
+    "hook",
+    ["snac_gym.ppo.train:build_vec_env@1", "snac_gym.ppo.train:_make_callback@1"],
+    ids=["after its config is written", "after its logger and state are made"],
+)
+def test_train_ppo_interrupted_before_its_first_timestep_leaves_no_half_made_run(tmp_path, tiny_ppo, hook):
+    """ "nothing was trained; run the command again" is only true if the folder holds no run-in-progress: its config,
+    a state saying "running" and the logger's files are removed (and the folder, which the run made)."""
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "run"
+    args = ["train-ppo", "--task", "reach", "--out", str(out), "--config", str(tiny_ppo(tmp_path)), "--no-progress"]
+    code, err, _ = _run(args, "SIGTERM", hook=hook)
+    assert code == 128 + signal.SIGTERM, err
+    assert _one_line(err) == "interrupted by SIGTERM: nothing was trained; run the command again"
+    assert not out.exists(), sorted(out.rglob("*"))
+
+
+@pytest.mark.rl
 @pytest.mark.slow(seconds=8)
 @pytest.mark.parametrize("signame", MID_RUN_SIGNALS)
 def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_path, signame, tiny_ppo):
