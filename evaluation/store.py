@@ -23,6 +23,7 @@ from elsewhere or read from a damaged file. Reading a part checks it again.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -124,8 +125,13 @@ class _FolderLock:
 
     def __init__(self, root: Path) -> None:
         self.path = root / ".lock"
+        self.made = False  # whether this lock made the file
         try:
-            self._fd: int | None = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                self._fd: int | None = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+                self.made = True
+            except FileExistsError:
+                self._fd = os.open(self.path, os.O_RDWR)
         except OSError as exc:
             raise RunDirectoryError(f"cannot write to the output folder {root}: {exc.strerror or exc}") from None
         if fcntl is None:  # pragma: no cover - not POSIX: no lock, as before
@@ -142,8 +148,12 @@ class _FolderLock:
         os.ftruncate(self._fd, 0)
         os.write(self._fd, str(os.getpid()).encode())
 
-    def release(self) -> None:
+    def release(self, remove: bool = False) -> None:
+        """Unlock; with ``remove``, first delete the file if this lock made it (while it is still held, so that no
+        other run locks the file being deleted)."""
         if self._fd is not None:
+            if remove and self.made:
+                self.path.unlink(missing_ok=True)
             os.close(self._fd)
             self._fd = None
 
@@ -172,6 +182,7 @@ class RunStore:
         self.trajectories = self.root / "trajectories"
         self.manifest = json.loads(_stable_json(manifest))
         self.run_id = run_id(self.manifest)
+        self._made_root = not self.root.exists()
         _usable_folder(self.root)
         self._lock = _FolderLock(self.root)
         try:
@@ -180,7 +191,7 @@ class RunStore:
             self._calibration_lock = threading.Lock()
             self.calibration: dict[str, Any] = self._read_calibration()
         except BaseException:
-            self._lock.release()
+            self.close()
             raise
 
     def _check_manifest(self, resume: bool) -> None:
@@ -231,8 +242,13 @@ class RunStore:
             self._write_text(manifest_path, json.dumps(self.manifest, indent=2, sort_keys=True))
 
     def close(self) -> None:
-        """Release the folder lock."""
-        self._lock.release()
+        """Release the folder lock. A run that ends before :meth:`begin` (refused, failed or interrupted while its
+        samples were drawn) leaves no lock file, nor the folder if it made it and it is empty: nothing was written."""
+        begun = (self.root / "run.json").exists()
+        self._lock.release(remove=not begun)
+        if not begun and self._made_root:
+            with contextlib.suppress(OSError):  # not empty: kept
+                self.root.rmdir()
 
     def __enter__(self) -> RunStore:  # noqa: PYI034 - Self needs Python 3.11
         return self

@@ -124,6 +124,33 @@ def test_a_folder_in_use_by_a_run_is_refused_until_it_ends(tmp_path):
         pass
 
 
+def test_a_run_that_ends_before_its_sample_set_leaves_no_lock_nor_a_folder_it_made(tmp_path, monkeypatch):
+    """The folder lock is a file: a run refused, failed or interrupted before run.json (nothing written) removes it,
+    and the folder too if it made it, so that "nothing was written" holds; a begun run's folder keeps its lock."""
+    import snac_gym.evaluation.runner as runner
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner, "generate_samples", interrupted)
+    config = EvaluationConfig(out=tmp_path / "new", samples=2, match_effort=False, progress=False, plots=False)
+    with pytest.raises(KeyboardInterrupt):
+        run_evaluation(config)
+    assert not config.out.exists()
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("the user's")
+    with pytest.raises(KeyboardInterrupt):
+        run_evaluation(dataclasses.replace(config, out=mine))
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    with pytest.raises(RunDirectoryError, match="holds no run to resume"):
+        RunStore(tmp_path / "refused", {"options": 1}, resume=True)
+    assert not (tmp_path / "refused").exists()
+    with RunStore(tmp_path / "begun", {"options": 1}, resume=False) as store:
+        store.begin()
+    assert sorted(p.name for p in (tmp_path / "begun").iterdir()) == [".lock", "parts", "run.json"]
+
+
 def test_a_calibration_record_of_another_run_is_refused(tmp_path):
     with RunStore(tmp_path / "other", {"seed": 1}, resume=False) as other:
         other.save_calibration("reach/dls/search1", {"value": 2.0})
