@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from snac_gym.common._quiet import quiet_output
 from snac_gym.common.extras import MissingExtraError
 from snac_gym.model.kinematics import joint_step
 from snac_gym.physics.base import SIMULATED
@@ -111,7 +112,8 @@ def run_env_bench(
             import panda_gym  # noqa: F401
         except ImportError:
             return results
-        env = gym.make("PandaReachJoints-v3")
+        with quiet_output():  # PyBullet prints the options panda-gym connects with ("argv[0]=--background_color...")
+            env = gym.make("PandaReachJoints-v3")
         base: Any = env.unwrapped  # panda-gym's env (its sim)
         control_dt = base.sim.timestep * base.sim.n_substeps
         results["PandaReachJoints-v3 (panda-gym)"] = _time_env(env, steps, control_dt)

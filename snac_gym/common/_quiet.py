@@ -10,16 +10,20 @@ from typing import Iterator
 
 @contextlib.contextmanager
 def quiet_output() -> Iterator[None]:
-    """Silence C-level stdout and stderr (PyBullet prints its build time on import,
-    ur_rtde prints socket errors before raising)."""
-    streams = [sys.stdout, sys.stderr]
+    """Silence C-level stdout and stderr (PyBullet prints its build time on import and the options of a client it
+    connects, ur_rtde prints socket errors before raising).
+
+    The process's file descriptors 1 and 2 are what C code writes to, whatever ``sys.stdout`` is now (a test's capture,
+    a notebook's stream): those are silenced, after Python's own streams are flushed into them.
+    """
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, OSError, ValueError):  # None, closed or without a flush
+            stream.flush()
     saved: list[tuple[int, int]] = []
     try:
-        for stream in streams:
-            stream.flush()
-            fd = stream.fileno()
+        for fd in (1, 2):
             saved.append((fd, os.dup(fd)))
-    except (AttributeError, OSError, ValueError):  # captured or fake streams: nothing to silence
+    except OSError:  # a descriptor closed (a daemon's): nothing to silence there
         for _, copy in saved:
             os.close(copy)
         yield
