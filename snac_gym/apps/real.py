@@ -234,7 +234,6 @@ def run_real_episode(
         env, log = _run_and_stop(
             connect, make_env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error, stream, tuning
         )
-        guard.defer()  # the arm is stopped: a signal now waits until the outputs are written
         result = write_outputs(
             env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs, setup
         )
@@ -311,7 +310,9 @@ def _run_and_stop(
             write_interrupted(env, partial_log(exc) if log is None else log, out, prefix, exc, setup)
             exc.log_dir = out  # type: ignore[attr-defined]
         raise
+    else:  # the arm is stopped: a signal now waits until the outputs are written (run_real_episode raises it then)
+        guard.defer()
     finally:
         if env.journal is not None:
-            env.journal.close()
+            env.journal.close()  # waits for the writer process: a signal meanwhile must not cost the log
     return env, log

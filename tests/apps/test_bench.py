@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from snac_gym.apps.bench import format_env_bench, run_env_bench
@@ -23,3 +25,16 @@ def test_panda_gyms_env_prints_nothing_of_its_own_on_stdout(capfd):
         "real-time",
         "factor",
     ]
+
+
+def test_quiet_output_silences_the_descriptors_c_code_writes_to_under_a_capture(capfd):
+    """C code writes to descriptors 1 and 2 whatever ``sys.stdout`` is: under pytest's capture it has no usable
+    ``fileno()``, and the old ``quiet_output`` silenced nothing there."""
+    from snac_gym.common._quiet import quiet_output
+
+    print("before", flush=True)
+    with quiet_output():
+        os.write(1, b"from C, on stdout\n")
+        os.write(2, b"from C, on stderr\n")
+    print("after", flush=True)
+    assert capfd.readouterr() == ("before\nafter\n", "")

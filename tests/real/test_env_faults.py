@@ -317,6 +317,29 @@ def test_a_signal_before_the_first_period_says_where_its_files_are_or_writes_non
     assert signalling_run[0].stopped
 
 
+def test_a_signal_as_the_finished_episodes_stream_log_closes_waits_for_the_outputs(
+    signalling_run, tmp_path, monkeypatch
+):
+    """Closing the stream log waits for its writer process; a signal then (a Ctrl-C at the episode's end) is raised
+    once the full log and summary are written, and says where they are."""
+    import snac_gym.real.journal as journal_module
+    from snac_gym.apps.real import TerminationSignal, run_real_episode
+
+    close = journal_module.StepJournal.close
+
+    def close_signalled(journal):
+        os.kill(os.getpid(), signal.SIGTERM)
+        close(journal)
+
+    monkeypatch.setattr(journal_module.StepJournal, "close", close_signalled)
+    with pytest.raises(TerminationSignal) as excinfo:
+        run_real_episode(controller="dls", out_dir=tmp_path, connection="sim", steps=20, plots=False)
+    assert getattr(excinfo.value, "log_dir", None) == tmp_path
+    assert len(pd.read_parquet(tmp_path / "reach_dls_log.parquet")) == 20
+    assert not (tmp_path / "reach_dls_stream.csv").exists()  # replaced by the full log, as in a run not interrupted
+    assert signalling_run[0].stopped
+
+
 class SignalsTwice(SendsSignal):
     """Sends SIGTERM at step ``at``; its connection then sends SIGQUIT from inside the stop that follows."""
 
