@@ -44,13 +44,14 @@ import shutil
 import signal
 from dataclasses import dataclass
 from datetime import datetime, timezone
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable
 
 import gymnasium as gym
 
 from snac_gym.common import startup
-from snac_gym.common.outputs import usable_out_folder
+from snac_gym.common.outputs import usable_out_folder, write_whole
 from snac_gym.common.progress import ProgressLines
 from snac_gym.envs import make_task_env
 from snac_gym.ppo.cloning import load_actor
@@ -377,11 +378,14 @@ def train_ppo(
     # Everything the input decides is checked before torch is imported or anything is made.
     config = resumed_config(out, task, overrides) if resume else new_config(out, task, config_path, overrides)
     before = _paths_under(out)
+    # a resumed run rewrites these two before its first timestep (its config, a state saying "running")
+    kept = {path: path.read_bytes() for path in (out / "config.json", out / "state.json") if resume and path.exists()}
     try:
         return _train(out, config, resume, log, progress)
-    except _NotStarted as stopped:  # a signal before the first timestep: a new run leaves no half-made folder
-        if not resume:
-            _remove_all_but(out, before)
+    except _NotStarted as stopped:  # a signal before the first timestep: the folder as it was, no half-made run
+        _remove_all_but(out, before)
+        for path, data in kept.items():
+            write_whole(path, partial(Path.write_bytes, data=data))
         raise stopped.interrupt from None
 
 

@@ -265,6 +265,24 @@ def test_train_ppo_interrupted_before_its_first_timestep_leaves_no_half_made_run
 
 
 @pytest.mark.rl
+def test_a_resume_interrupted_before_its_first_timestep_leaves_the_run_as_it_was(tmp_path, tiny_ppo):
+    """ "the checkpoint is unchanged": so is the rest of the run's folder, which the resume had begun to rewrite (its
+    config, a state saying "running", a new segment's logs)."""
+    pytest.importorskip("stable_baselines3")
+    from snac_gym.ppo.train import train_ppo
+
+    out = tmp_path / "run"
+    train_ppo("reach", out, timesteps=32, config_path=tiny_ppo(tmp_path), log=lambda line: None)
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    args = ["train-ppo", "--task", "reach", "--out", str(out), "--resume", "--timesteps", "96", "--no-progress"]
+    code, err, _ = _run(args, "SIGTERM", hook="snac_gym.ppo.train:_make_callback@1")
+    assert code == 128 + signal.SIGTERM, err
+    assert _one_line(err) == "interrupted by SIGTERM: the checkpoint is unchanged; run the command again"
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert sorted(after) == sorted(before) and after == before
+
+
+@pytest.mark.rl
 @pytest.mark.slow(seconds=8)
 @pytest.mark.parametrize("signame", MID_RUN_SIGNALS)
 def test_train_ppo_interrupted_mid_training_saves_a_checkpoint_that_resumes(tmp_path, signame, tiny_ppo):
