@@ -135,7 +135,14 @@ def test_no_command_prints_the_help(outcomes):
     done = outcomes[""]
     assert "Traceback" not in done.stderr, done.stderr
     assert done.returncode == 2  # click's exit for no_args_is_help, as in its standalone mode
-    assert "Usage: snac-gym" in done.stdout + done.stderr and "evaluate" in done.stdout + done.stderr
+    text = done.stdout + done.stderr
+    assert "Usage: snac-gym" in text
+    # each command on one line of its own, a whole sentence (click cuts a docstring mid-sentence with "..."), the
+    # paper's results first
+    listed = text.split("Commands:\n", 1)[1].splitlines()
+    names = [line.split()[0] for line in listed if line.strip()]
+    assert names == ["evaluate", "demo", "train-ppo", "bench", "real", "emulate-ur"], listed
+    assert all(line.rstrip().endswith(".") and "..." not in line for line in listed if line.strip()), listed
 
 
 def test_the_exception_classes_of_both_clicks_are_caught():
