@@ -1,10 +1,10 @@
 """Which controllers a run evaluates, with what arguments and effort knob: :func:`resolve_controllers`.
 
-Step 2 of :func:`snac_gym.evaluation.runner.run_evaluation`: ``controllers`` or every registered policy
-that can be built from a :class:`~snac_gym.policies.base.PolicyContext` (and, with effort
-matching, declares an ``effort_parameter``); those left out are listed in the summary with the
-reason. Each controller is described by a :class:`ControllerSpec`, which the passes, the effort
-search and the manifest (``run.json``) read.
+Step 2 of :func:`snac_gym.evaluation.runner.run_evaluation`: ``controllers``, or by default
+:data:`DEFAULT_CONTROLLERS` (``all`` in the list: every registered policy), those that can be built from a
+:class:`~snac_gym.policies.base.PolicyContext` (and, with effort matching, declare an ``effort_parameter``);
+those of the default set or of ``all`` left out are listed in the summary with the reason. Each controller is
+described by a :class:`ControllerSpec`, which the passes, the effort search and the manifest (``run.json``) read.
 """
 
 from __future__ import annotations
@@ -23,6 +23,15 @@ from snac_gym.evaluation.store import file_sha1
 
 from snac_gym.common.extras import MissingExtraError
 from snac_gym.policies.registry import available_policies, make_policy, policy_factory
+
+#: What a run compares when no controllers are named: Table I's three (the paper's RNN, SVF and SNAC), SNAC's
+#: HJB-residual variant, the classical baselines LQR and DLS, and PPO. Their matched knobs ship with the package
+#: (``snac_gym/data/calibration``), so a first run of any size matches no effort. The other registered controllers
+#: are evaluated when named, or with ``all``; their effort is matched on the 1000-sample effort set first, which
+#: takes minutes (MPC re-solves a trajectory problem every step; docs/evaluation.md has the figures).
+DEFAULT_CONTROLLERS = ("rnn", "svf", "snac", "snac-hjb", "lqr", "dls", "ppo")
+#: In ``controllers``: every registered controller (each left out, with its reason, where it cannot be evaluated).
+ALL_CONTROLLERS = "all"
 
 
 class _LeftOut(Exception):
@@ -74,6 +83,19 @@ def _takes_argument(name: str, argument: str) -> bool:
         return False
 
 
+def _requested(controllers: Sequence[str] | None, known: set[str]) -> tuple[list[str], set[str]]:
+    """The controllers to try, in order, and those named one by one (refused, not left out, where they cannot be
+    evaluated): ``None`` is :data:`DEFAULT_CONTROLLERS`, :data:`ALL_CONTROLLERS` every registered one; the
+    ``optimal`` reference row is not a policy (``EvaluationRun.run_optimal`` solves it)."""
+    if controllers is None:
+        return default_controller_order([name for name in DEFAULT_CONTROLLERS if name in known]), set()
+    names: list[str] = []
+    for name in controllers:
+        expanded = default_controller_order(sorted(known)) if name == ALL_CONTROLLERS else [name]
+        names += [each for each in expanded if each != OPTIMAL and each not in names]
+    return names, {name for name in controllers if name not in (ALL_CONTROLLERS, OPTIMAL)}
+
+
 def default_controller_order(names: Sequence[str]) -> list[str]:
     """Table I's rows first, in the paper's order (RNN, SVF, SNAC), then the other names sorted."""
     paper = [name for name in PAPER_TABLE_I if name in names]
@@ -90,7 +112,8 @@ def _check_arguments(config: EvaluationConfig, names: Sequence[str], known: set[
             raise ValueError(f"{option}: no controller is registered as {name!r}{hint}")
         if name not in names:
             raise ValueError(
-                f"{option}: {name!r} is not among the evaluated controllers ({', '.join(names) or 'none'})"
+                f"{option}: {name!r} is not among the evaluated controllers ({', '.join(names) or 'none'}); "
+                "name it in --controllers"
             )
 
 
@@ -138,12 +161,10 @@ def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec],
             effort matching) declares no scalar ``effort_parameter``; or if arguments are given
             for a controller that is not registered or not evaluated.
     """
-    explicit = config.controllers is not None
-    names = list(config.controllers) if explicit else default_controller_order(available_policies())
-    names = [name for name in names if name != OPTIMAL]  # the reference row, not a policy (run_optimal)
     known = set(available_policies())
+    names, named = _requested(config.controllers, known)
     _check_arguments(config, names, known)
-    if explicit and not names:
+    if config.controllers is not None and not names:
         return [], {}
     specs: list[ControllerSpec] = []
     skipped: dict[str, str] = {}
@@ -153,7 +174,7 @@ def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec],
         try:
             specs.append(_controller_spec(config, name))
         except _LeftOut as left_out:
-            if explicit or name in config.controller_kwargs:
+            if name in named or name in config.controller_kwargs:
                 raise ValueError(f"controller {name!r} {left_out.reason}{left_out.hint}") from left_out.__cause__
             skipped[name] = left_out.reason
     if not specs and not config.wants_optimal:
@@ -161,4 +182,7 @@ def resolve_controllers(config: EvaluationConfig) -> tuple[list[ControllerSpec],
     return specs, skipped
 
 
-__all__ = ["ControllerSpec", "controller_input_hashes", "default_controller_order", "resolve_controllers"]
+__all__ = [
+    "ALL_CONTROLLERS", "DEFAULT_CONTROLLERS", "ControllerSpec", "controller_input_hashes", "default_controller_order",
+    "resolve_controllers",
+]  # fmt: skip

@@ -43,7 +43,7 @@ def parse_tasks(text: str) -> tuple[str, ...]:
 
 
 def parse_controllers(text: str | None) -> tuple[str, ...] | None:
-    """A comma-separated list of registered names (``None``: every registered controller)."""
+    """A comma-separated list of registered names, ``all`` or ``optimal`` among them (``None``: the default set)."""
     if text is None:
         return None
     names = tuple(name.strip() for name in text.split(",") if name.strip())

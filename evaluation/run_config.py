@@ -91,7 +91,9 @@ class EvaluationConfig:
         tasks: Tasks to evaluate (registered task names; default ``("reach", "track")``). Naming a
             pose task (``pose-reach``, ``pose-track``) registers the pose tasks; a run's tasks are
             either all position tasks or all pose tasks (the controllers' Q has one size per run).
-        controllers: Registered policy names; ``None``: every registered policy that qualifies.
+        controllers: Registered policy names (``"all"``: every registered one; ``"optimal"``: the reference row);
+            ``None``: :data:`~snac_gym.evaluation.controllers.DEFAULT_CONTROLLERS`, Table I's and the baselines
+            whose matched knobs ship with the package.
         samples: Random samples per task (ignored with ``samples_file``, whose rows are all used).
         seed: Seed of the sample set and of every policy reset.
         horizons: Rollout length per task, s (missing tasks take their ``Task.horizon_s``).

@@ -32,8 +32,9 @@ def evaluate(
     controllers: Optional[str] = typer.Option(
         None,
         "--controllers",
-        help="Comma-separated policy names (default: every registered one); `optimal` adds the per-sample optimum "
-        "as a reference row (docs/optimal.md).",
+        help="Comma-separated policy names (default: rnn,svf,snac,snac-hjb,lqr,dls,ppo, whose matched knobs ship "
+        "with snac-gym; `all`: every registered one, whose effort is matched first, for minutes); `optimal` adds the "
+        "per-sample optimum as a reference row (docs/optimal.md).",
     ),
     samples: Optional[int] = typer.Option(
         None,

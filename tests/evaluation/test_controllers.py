@@ -1,0 +1,67 @@
+"""Which controllers a run compares: the default set (whose knobs ship), ``all``, and names given one by one."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from snac_gym.evaluation import EvaluationConfig
+from snac_gym.evaluation.controllers import ALL_CONTROLLERS, DEFAULT_CONTROLLERS, resolve_controllers
+from snac_gym.evaluation.effort.shipped import shipped_file
+
+from snac_gym.policies import available_policies
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def _names(config: EvaluationConfig) -> list[str]:
+    specs, _ = resolve_controllers(config)
+    return [spec.name for spec in specs]
+
+
+def test_without_names_a_run_compares_the_default_set_in_table_is_order(tmp_path):
+    assert _names(EvaluationConfig(out=tmp_path)) == ["rnn", "svf", "snac", "dls", "lqr", "ppo", "snac-hjb"]
+    assert set(DEFAULT_CONTROLLERS) < set(available_policies())  # the others are there, and not run by default
+
+
+def test_the_default_set_is_the_one_whose_knobs_ship_and_the_readmes_main_command(tmp_path):
+    """A first run without --controllers reads the shipped knobs (it would otherwise match every controller's
+    effort on 1000 samples, for minutes): the file covers exactly the default set, on both tasks."""
+    import json
+
+    entries = json.loads(shipped_file().read_text())["entries"]
+    for task in ("reach", "track"):
+        shipped = {entry["record"]["controller"] for entry in entries if entry["record"]["task"] == task}
+        assert shipped == set(DEFAULT_CONTROLLERS), task
+    command = re.search(r"snac-gym evaluate [^\n]*--controllers (\S+)", README.read_text())
+    assert command is not None
+    assert set(command.group(1).split(",")) - {"optimal"} == set(DEFAULT_CONTROLLERS)
+
+
+def test_all_is_every_registered_controller_and_one_that_cannot_be_built_is_left_out_with_its_reason(tmp_path):
+    names = _names(EvaluationConfig(out=tmp_path, controllers=(ALL_CONTROLLERS, "optimal")))
+    assert names[:3] == ["rnn", "svf", "snac"] and set(DEFAULT_CONTROLLERS) | {"mpc", "pink", "mink"} <= set(names)
+    assert "optimal" not in names  # the reference row, solved apart
+    assert EvaluationConfig(out=tmp_path, controllers=(ALL_CONTROLLERS, "optimal")).wants_optimal
+    _, left_out = resolve_controllers(EvaluationConfig(out=tmp_path, controllers=(ALL_CONTROLLERS,)))
+    assert set(names) | set(left_out) == set(available_policies())
+    assert all(reason for reason in left_out.values())
+    # a name given with all is not repeated
+    assert _names(EvaluationConfig(out=tmp_path, controllers=("mpc", ALL_CONTROLLERS)))[0] == "mpc"
+
+
+def test_a_parameter_for_a_controller_outside_the_default_set_asks_for_its_name(tmp_path):
+    config = EvaluationConfig(out=tmp_path, controller_kwargs={"mpc": {"horizon_s": 0.2}})
+    with pytest.raises(ValueError, match=r"'mpc' is not among the evaluated controllers \(rnn, .*\); name it in"):
+        resolve_controllers(config)
+    assert _names(EvaluationConfig(out=tmp_path, controllers=("mpc",))) == ["mpc"]
+
+
+def test_the_cli_help_names_the_default_set():
+    from typer.testing import CliRunner
+
+    from snac_gym.apps.cli import app
+
+    text = " ".join(CliRunner().invoke(app, ["evaluate", "--help"], env={"COLUMNS": "400"}).output.split())
+    assert f"default: {','.join(DEFAULT_CONTROLLERS)}" in text, text
