@@ -7,6 +7,7 @@ this wraps them with a tqdm bar for a terminal and the status text of the evalua
 from __future__ import annotations
 
 import sys
+import threading
 from collections.abc import Callable
 
 from snac_gym.common.progress import ProgressLines, wants_lines
@@ -21,13 +22,22 @@ class Progress:
     of the rollouts or 10 s, whichever comes first. ``enabled=False`` (``--no-progress``) writes
     neither.
 
+    A job can run for minutes without finishing a rollout (MPC's effort search on the 1000-sample effort set): the
+    bar is redrawn every second and a line is written again after :data:`QUIET_S` seconds without one, so that its
+    elapsed time shows the run is alive (:meth:`~snac_gym.common.progress.ProgressLines.heartbeat`).
+
     Args:
         total: Rollouts expected (grows with :meth:`add_total`).
         enabled: Show progress at all.
         lines: Write plain lines; ``None``: where stderr is not a terminal.
         write: Where the plain lines go (default: one line on stderr, flushed).
         label: Start of each plain line.
+        quiet_s: Seconds without a line after which the line is written again.
+        tick_s: How often the bar is redrawn and the quiet time checked.
     """
+
+    #: Seconds without a plain line after which it is written again.
+    QUIET_S = 60.0
 
     def __init__(
         self,
@@ -36,6 +46,8 @@ class Progress:
         lines: bool | None = None,
         write: Callable[[str], None] | None = None,
         label: str = "evaluate:",
+        quiet_s: float = QUIET_S,
+        tick_s: float = 1.0,
     ) -> None:
         # start-up time: every worker imports this; only the parent has a bar
         from tqdm.auto import tqdm
@@ -49,6 +61,19 @@ class Progress:
                 print(text, file=sys.stderr, flush=True)
 
         self._lines = ProgressLines(label, total, write) if enabled and lines else None
+        self._stop = threading.Event()
+        self._beat: threading.Thread | None = None
+        if enabled:
+            self._beat = threading.Thread(
+                target=self._heartbeat, args=(quiet_s, tick_s), name="progress-beat", daemon=True
+            )
+            self._beat.start()
+
+    def _heartbeat(self, quiet_s: float, tick_s: float) -> None:
+        while not self._stop.wait(tick_s):
+            self._bar.refresh()  # the bar's elapsed time, between finished rollouts
+            if self._lines is not None:
+                self._lines.heartbeat(quiet_s)
 
     def add_total(self, count: int) -> None:
         """Expect ``count`` more rollouts."""
@@ -70,7 +95,10 @@ class Progress:
             self._lines.detail = text
 
     def close(self) -> None:
-        """Close the bar."""
+        """Close the bar (and stop redrawing it)."""
+        self._stop.set()
+        if self._beat is not None:
+            self._beat.join()
         self._bar.close()
 
 

@@ -8,7 +8,8 @@ line at the end (or not at all: tqdm turns itself off where its stream is not a 
 
 at a bounded rate: when another ``every_fraction`` of the total is done or ``every_s`` seconds
 have passed since the last line, whichever comes first (checked as work is counted), and when
-the total is reached. It
+the total is reached; :meth:`ProgressLines.heartbeat` repeats the line when a long job finishes nothing for a
+while. It
 writes nothing by itself: the caller passes the function that writes (the CLI gives one that
 writes to stderr, so that the results on stdout stay clean).
 """
@@ -106,6 +107,17 @@ class ProgressLines:
                 self._write(self.line(now))
                 self._last_time, self._last_done = now, self.done
             return due
+
+    def heartbeat(self, quiet_s: float) -> bool:
+        """Write the line again if none was written for ``quiet_s`` seconds, though no unit was finished (a long job:
+        the elapsed time moves, so that a reader sees the run is alive). Returns whether a line was written."""
+        with self._lock:
+            now = self._clock()
+            if now - self._last_time < quiet_s:
+                return False
+            self._write(self.line(now))
+            self._last_time = now
+            return True
 
     def line(self, now: float | None = None) -> str:
         """The line for the current state."""

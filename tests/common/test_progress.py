@@ -63,6 +63,41 @@ def test_a_fast_run_writes_at_most_one_line_per_tenth():
     assert 10 <= len(written) <= 11 and written[-1].startswith("evaluate: 10000/10000 rollouts (100 %)")
 
 
+def test_a_long_job_that_finishes_nothing_repeats_the_line_with_its_elapsed_time():
+    clock, written = _Clock(), []
+    lines = ProgressLines("evaluate:", 100, written.append, clock=clock)
+    clock.now = 5.0
+    assert lines.update(50, detail="matching effort: mpc")
+    clock.now = 60.0  # 55 s without a line: not yet
+    assert not lines.heartbeat(60.0)
+    clock.now = 65.0
+    assert lines.heartbeat(60.0) and not lines.heartbeat(60.0)  # then quiet again for 60 s
+    assert written == ["evaluate: 50/100 rollouts (50 %), 5.0 s, matching effort: mpc",
+                       "evaluate: 50/100 rollouts (50 %), 65.0 s, matching effort: mpc"]  # fmt: skip
+    clock.now = 70.0
+    assert not lines.update(1)  # the heartbeat counts as a line for the 10 s rule
+
+
+def test_progress_repeats_its_line_while_a_job_runs_and_stops_when_closed():
+    """MPC's effort search ran minutes with no line: now the line comes again after ``quiet_s``."""
+    import time
+
+    written: list[str] = []
+    progress = Progress(8, enabled=True, lines=True, write=written.append, quiet_s=0.05, tick_s=0.01)
+    progress.status("matching effort: mpc")
+    deadline = time.monotonic() + 30.0
+    while len(written) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    progress.close()
+    count = len(written)
+    assert count >= 2 and all(line.startswith("evaluate: 0/8 rollouts (0 %)") for line in written), written
+    time.sleep(0.1)
+    assert len(written) == count  # closed: no line after
+    silent: list[str] = []
+    Progress(8, enabled=False, lines=True, write=silent.append, quiet_s=0.0, tick_s=0.01).close()
+    assert silent == []
+
+
 def test_progress_writes_lines_only_where_asked():
     written: list[str] = []
     progress = Progress(8, enabled=True, lines=True, write=written.append)
