@@ -33,8 +33,8 @@ def evaluate(
         None,
         "--controllers",
         help="Comma-separated policy names (default: rnn,svf,snac,snac-hjb,lqr,dls,ppo, whose matched knobs ship "
-        "with snac-gym; `all`: every registered one, whose effort is matched first, for minutes); `optimal` adds the "
-        "per-sample optimum as a reference row (docs/optimal.md).",
+        "with snac-gym; `all`: every registered one, whose effort is matched first, for many minutes); `optimal` "
+        "adds the per-sample optimum as a reference row (docs/optimal.md).",
     ),
     samples: Optional[int] = typer.Option(
         None,
