@@ -11,7 +11,6 @@ import json
 import signal
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -230,10 +229,11 @@ def run_real_episode(
                 task, arm, safety=safety, max_steps=steps if steps is not None else default_steps, recovery=recovery
             )
 
-        stream = _StreamLog(out / f"{prefix}{STREAM_SUFFIX}", journal_writer) if out is not None else None
+        stream = None if out is None else out / f"{prefix}{STREAM_SUFFIX}"
         env, log = _run_and_stop(
-            connect, make_env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error, stream, tuning
-        )
+            connect, make_env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error, tuning,
+            stream, journal_writer,
+        )  # fmt: skip
         result = write_outputs(
             env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs, setup
         )
@@ -244,14 +244,6 @@ def run_real_episode(
         exc.log_dir = out  # type: ignore[attr-defined]
         raise
     return result
-
-
-@dataclass(frozen=True)
-class _StreamLog:
-    """Where the episode's rows stream to and how (:class:`~snac_gym.real.journal.StepJournal`)."""
-
-    path: Path
-    writer: str
 
 
 def _run_and_stop(
@@ -265,8 +257,9 @@ def _run_and_stop(
     prefix: str,
     setup: dict[str, Any],
     model_error: str | None,
-    stream: _StreamLog | None,
     tuning: LoopTuning,
+    stream: Path | None,
+    journal_writer: str,
 ) -> tuple[RealUREnv, pd.DataFrame]:
     """The episode, the arm stopped on every way out; on any failure the log so far is written, then it raises.
 
@@ -288,7 +281,7 @@ def _run_and_stop(
     try:
         try:
             if stream is not None:
-                env.journal = StepJournal(stream.path, env.kinematics.n_joints, stream.writer)
+                env.journal = StepJournal(stream, env.kinematics.n_joints, journal_writer)
             with frozen_gc(tuning.freeze_gc):
                 warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
                 policy = make_policy(
