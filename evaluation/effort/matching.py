@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from snac_gym.evaluation.controllers import ControllerSpec
+from snac_gym.evaluation.effort.activity import MatchActivity
 from snac_gym.evaluation.effort.search import EffortMatch, match_effort, within
 from snac_gym.evaluation.execution.passes import EvaluationRun
 from snac_gym.evaluation.samples import EvaluationSample
@@ -131,6 +132,8 @@ class EffortMatcher:
         self.screening_counts: dict[tuple[str, str], int] = {}
         #: The reference's full pass of each task, which a paired statistic divides by.
         self.reference_rows: dict[str, pd.DataFrame] = {}
+        #: What the matches running now are doing, for the progress line (:meth:`match_all` sets it).
+        self.activity = MatchActivity(None, 0)
 
     def match_all(self, specs: Sequence[ControllerSpec]) -> tuple[Results, Records]:
         """Run the reference, then match every other (task, controller) to it, concurrently."""
@@ -146,10 +149,10 @@ class EffortMatcher:
             targets = {task: float(config.effort_target) for task in config.tasks}
         pending = [(task, spec) for task in config.tasks for spec in specs if spec.name != reference]
         evaluation.spread_searches = len(pending) < max(1, config.workers)
-        evaluation.progress.status(f"matching effort: {', '.join(dict.fromkeys(s.name for _, s in pending))}")
+        self.activity = MatchActivity(evaluation.progress.status, len(pending))
         started = time.perf_counter()
         outcomes = evaluation.concurrently(
-            [functools.partial(self.match_one, task, spec, targets[task]) for task, spec in pending]
+            [functools.partial(self._match_shown, task, spec, targets[task]) for task, spec in pending]
         )
         evaluation.timings["effort matching"] = time.perf_counter() - started
         evaluation.progress.status("")
@@ -182,6 +185,10 @@ class EffortMatcher:
         return results, records
 
     # -- one controller on one task -----------------------------------------------------------
+    def _match_shown(self, task: str, spec: ControllerSpec, target: float) -> tuple[pd.DataFrame, EffortRecord]:
+        with self.activity.running(task, spec.name):
+            return self.match_one(task, spec, target)
+
     def match_one(self, task: str, spec: ControllerSpec, target: float) -> tuple[pd.DataFrame, EffortRecord]:
         """Search one controller's knob for ``target`` on one task, then check it with a full pass (rounds: module
         docstring).
@@ -196,6 +203,7 @@ class EffortMatcher:
                 evaluation.progress.add_total(len(evaluation.samples[task]))
             with evaluation.searching():
                 match = self.search_knob(task, spec, plan.target, plan.start, round_number, plan.subset, plan.horizon)
+            self.activity.full_pass(task, spec.name)
             rows = evaluation.run_passes([(task, spec, {**spec.kwargs, spec.knob: match.value})])[0]
             effort = self.config.statistic.of(rows, self.reference_rows.get(task))
             # A failed search is never "matched", even when the full pass happens to land within the
@@ -400,6 +408,7 @@ class _ScreenedEffort:
     def effort_at(self, value: float) -> float:
         """The effort statistic at knob ``value`` (for a median, lengthening the rollouts while peaks come late)."""
         spec, statistic = self.spec, self.matcher.config.statistic
+        self.matcher.activity.tried(self.task, spec.name)
         while True:
             rows = self.matcher.evaluation.measure(
                 self.task, spec, {**spec.kwargs, spec.knob: value}, self.screening, self.horizon

@@ -18,9 +18,9 @@ class Progress:
 
     Where stderr is a terminal the bar is drawn there; where it is not (a log file, CI) tqdm
     stays off and :class:`~snac_gym.common.progress.ProgressLines` writes lines such as
-    ``evaluate: 500/1000 rollouts (50 %), 12.3 s, matching effort: lqr`` to stderr, every 10 %
-    of the rollouts or 10 s, whichever comes first. ``enabled=False`` (``--no-progress``) writes
-    neither.
+    ``evaluate: 600/800 rollouts (75 %), 9.5 s, matching effort (1 of 2 done): mpc on track, knob try 6``
+    to stderr, every 10 % of the rollouts or 10 s, whichever comes first. ``enabled=False`` (``--no-progress``)
+    writes neither.
 
     A job can run for minutes without finishing a rollout (MPC's effort search on the 1000-sample effort set): the
     bar is redrawn every second and a line is written again after :data:`QUIET_S` seconds without one, so that its

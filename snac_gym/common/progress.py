@@ -4,7 +4,7 @@ A tqdm bar redraws one line in place, which a terminal shows and a log file reco
 line at the end (or not at all: tqdm turns itself off where its stream is not a terminal).
 :class:`ProgressLines` writes ordinary lines instead, such as::
 
-    evaluate: 500/1000 rollouts (50 %), 12.3 s, matching effort: lqr
+    evaluate: 600/800 rollouts (75 %), 9.5 s, matching effort (1 of 2 done): mpc on track, knob try 6
 
 at a bounded rate: when another ``every_fraction`` of the total is done or ``every_s`` seconds
 have passed since the last line, whichever comes first (checked as work is counted), and when
