@@ -133,3 +133,12 @@ def test_the_model_sees_what_the_v1_env_shows(learners):
         obs1, *_ = v1.step(action)
     v0.close()
     v1.close()
+
+
+def test_docs_rl_shows_the_shipped_table_and_the_table_is_the_shipped_summarys(report):
+    """docs/data/learners holds what the report wrote; rl.md shows its table.md as written (mkdocs.yml keeps that file
+    out of the nav), and the table is the one the report makes of the shipped summary.csv."""
+    data = Path(__file__).resolve().parents[1] / "docs" / "data" / "learners"
+    table = (data / "table.md").read_text()
+    assert table in (data.parents[1] / "rl.md").read_text()
+    assert report.markdown(pd.read_csv(data / "summary.csv")) == table
