@@ -178,15 +178,18 @@ def _effort_lines(summary: pd.DataFrame, config: Any, efforts: Sequence[Any], ef
     return lines
 
 
+#: The heading of summary.md's list of the registered controllers a run left out (``snac-gym evaluate`` repeats the
+#: list on stderr).
+LEFT_OUT_HEADING = "Registered controllers left out:"
+
+
 def _closing_lines(
     skipped: dict[str, str], timings: dict[str, float] | None, executor: str, plots: bool = True
 ) -> list[str]:
     """The controllers left out, the wall time, and the box plot (when it is drawn)."""
     lines: list[str] = []
     if skipped:
-        lines += ["", "Registered controllers left out:", ""] + [
-            f"- `{name}`: {reason}" for name, reason in skipped.items()
-        ]
+        lines += ["", LEFT_OUT_HEADING, ""] + [f"- `{name}`: {reason}" for name, reason in skipped.items()]
     if timings:
         phases = ", ".join(f"{name} {seconds:.1f} s" for name, seconds in timings.items() if name != "total")
         lines += [

@@ -65,3 +65,30 @@ def test_the_cli_help_names_the_default_set():
 
     text = " ".join(CliRunner().invoke(app, ["evaluate", "--help"], env={"COLUMNS": "400"}).output.split())
     assert f"default: {','.join(DEFAULT_CONTROLLERS)}" in text, text
+
+
+def test_a_controller_the_default_set_leaves_out_is_named_on_stderr_with_its_reason(tmp_path):
+    """On the UR5e the shipped PPO (trained on the UR10) cannot run: the run goes on without it, summary.md lists it,
+    and the console says so too, on stderr, where the summary's tables on stdout would not show it missing."""
+    from typer.testing import CliRunner
+
+    from snac_gym.apps.cli import app
+
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, [
+        "evaluate", "--robot", "ur5e", "--samples", "2", "--horizon", "0.2", "--no-match-effort", "--no-plots",
+        "--no-progress", "--out", str(out),
+    ])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    notes = [line for line in result.stderr.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1 and re.fullmatch(
+        r"note: ppo left out: .*trained on robot 'ur10' but the env's robot is 'ur5e'", notes[0]
+    )
+    assert "ppo" not in result.stdout.lower()
+    assert f"- `ppo`: {notes[0].split('left out: ', 1)[1]}" in (out / "summary.md").read_text()
+    # A run that leaves nothing out has no note.
+    again = CliRunner().invoke(app, [
+        "evaluate", "--controllers", "dls,lqr", "--samples", "2", "--horizon", "0.2", "--no-match-effort",
+        "--no-plots", "--no-progress", "--out", str(tmp_path / "other"),
+    ])  # fmt: skip
+    assert again.exit_code == 0 and "note:" not in again.stderr, again.output

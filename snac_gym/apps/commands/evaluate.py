@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import time
 from pathlib import Path
 from typing import Any, Optional
@@ -302,14 +303,38 @@ def evaluate(
         raise interrupted(exc, "nothing to resume; run the command again", "while drawing the samples") from None
     summary = (out_dir / "summary.md").read_text()
     typer.echo(summary.split("\n## ")[0].rstrip())
-    for line in summary.splitlines():  # an unmatched effort makes the comparison unequal: say so on stderr too
-        if line.startswith("**Warning:**"):
-            typer.echo("warning: " + line.removeprefix("**Warning:**").strip(), err=True)
+    _echo_notes(summary)
     if sweep:
         figure = f" and {out_dir / 'tradeoff.png'}" if plots else ""
         typer.echo(f"\ntrade-off sweep: {out_dir / 'sweep.csv'}{figure}")
     written = "results, summary and plots" if plots else "results and summary"
     typer.echo(f"\nwall time {time.perf_counter() - start:.1f} s; {written} in {out_dir}/")
+
+
+def _echo_notes(summary: str) -> None:
+    """What the summary warns of, and the controllers it left out, on stderr too: an unmatched effort makes the
+    comparison unequal, and a controller of the default set or of ``all`` that could not run is not in its tables."""
+    for line in summary.splitlines():
+        if line.startswith("**Warning:**"):
+            typer.echo("warning: " + line.removeprefix("**Warning:**").strip(), err=True)
+    for name, reason in _left_out(summary):
+        typer.echo(f"note: {name} left out: {reason}", err=True)
+
+
+def _left_out(summary: str) -> list[tuple[str, str]]:
+    """The registered controllers a run left out, with the reason: summary.md's list of them."""
+    from snac_gym.evaluation.reports.writer import LEFT_OUT_HEADING  # loaded already: the run wrote the summary
+
+    lines = summary.splitlines()
+    if LEFT_OUT_HEADING not in lines:
+        return []
+    found = []
+    for line in lines[lines.index(LEFT_OUT_HEADING) + 2 :]:
+        item = re.fullmatch(r"- `([^`]+)`: (.*)", line)
+        if item is None:
+            break
+        found.append((item.group(1), item.group(2)))
+    return found
 
 
 #: The fields of :class:`~snac_gym.evaluation.run_config.EvaluationConfig` set by an ``evaluate`` option of another name
