@@ -47,6 +47,7 @@ from snac_gym.evaluation.effort.cache import (
     cache_enabled,
     calibration_folder,
     calibration_identity,
+    check_record,
     read_records,
     write_records,
 )
@@ -60,7 +61,7 @@ from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
 from snac_gym.evaluation.reports.writer import prefetch_report_modules, write_reports
 from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
-from snac_gym.evaluation.store import RunStore
+from snac_gym.evaluation.store import RunDirectoryError, RunStore
 
 from snac_gym.common.outputs import write_whole
 from snac_gym.model.kinematics import Kinematics
@@ -90,7 +91,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         with open_executor(config.workers, config.ray_address) as executor:
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
             identities = _calibration_identities(config, space, specs)
-            cached = _cached_calibration(config, identities)
+            cached = _run_knobs(config, space, specs, identities, store)
             matched_on = samples if cached is not None else _effort_set(config, space, executor, samples)
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(
                 map(len, samples.values())
@@ -247,6 +248,12 @@ def _calibration_identities(
     with the cache off, or with no controllers)."""
     if not (config.match_effort and config.calibration_cache and specs and cache_enabled()):
         return {}
+    return _identities(config, space, specs)
+
+
+def _identities(
+    config: EvaluationConfig, space: SampleSpace, specs: Sequence[ControllerSpec]
+) -> dict[tuple[str, str], dict[str, Any]]:
     names = [s.name for s in specs]
     reference = None
     if config.effort_target is None:
@@ -259,13 +266,58 @@ def _calibration_identities(
     }
 
 
+#: The key of ``calibration.json`` under which a run keeps the knobs it read instead of matching them.
+KNOBS_READ_KEY = "knobs read"
+
+
+def _run_knobs(
+    config: EvaluationConfig,
+    space: SampleSpace,
+    specs: Sequence[ControllerSpec],
+    identities: dict[tuple[str, str], dict[str, Any]],
+    store: RunStore,
+) -> tuple[Records, dict[str, Any]] | None:
+    """The knobs a run reads instead of matching them, with the stamp of the run that matched them, or ``None``.
+
+    A new run reads the calibration cache, else the shipped knobs (:func:`_cached_calibration`), and keeps what it
+    read in its ``calibration.json`` before its first pass. A resumed run reads only that: it goes on as it began,
+    at the same knobs or matching, whatever the cache holds now (its parts at cached knobs cover the reported
+    samples, a match's the effort set).
+    """
+    if not config.resume:
+        cached = _cached_calibration(config, identities)
+        if cached is not None:
+            records, stamp = cached
+            store.save_calibration(
+                KNOBS_READ_KEY, {"stamp": stamp, "records": [dataclasses.asdict(r) for r in records.values()]}
+            )
+        return cached
+    kept = store.calibration.get(KNOBS_READ_KEY)
+    if kept is None:
+        return None
+    where = store.root / "calibration.json"
+    try:
+        records = {(r["task"], r["controller"]): EffortRecord(**r) for r in kept["records"]}
+        expected = _identities(config, space, specs)
+        if set(records) != set(expected):
+            raise ValueError(f"it holds the knobs of {sorted(records)}, the run's are {sorted(expected)}")
+        for key, record in records.items():
+            check_record(record, json.loads(json.dumps(expected[key], default=str)))
+        return records, dict(kept["stamp"])
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise RunDirectoryError(
+            f"--resume: the knobs kept in {where} do not hold ({type(exc).__name__}: {exc}); "
+            "the run cannot go on as it began, start it again in another --out"
+        ) from None
+
+
 def _cached_calibration(
     config: EvaluationConfig, identities: dict[tuple[str, str], dict[str, Any]]
 ) -> tuple[Records, dict[str, Any]] | None:
     """The cached records of every (task, controller) and the stamp of the run that made them, else the shipped
     ones where the run is at the defaults they were matched for (:mod:`snac_gym.evaluation.effort.shipped`), or
     ``None``."""
-    if not identities or config.recalibrate or config.resume:
+    if not identities or config.recalibrate:
         return None
     cached = read_records(calibration_folder(), identities)
     return cached if cached is not None else read_shipped(identities)

@@ -6,7 +6,8 @@ Layout of ``--out DIR``::
     run.json              the inputs that determine the results (checked by --resume): options,
                           hashes of the samples file and of the controllers' model files
     samples.csv           the sample set, in the documented CSV format
-    calibration.json      effort matching: every knob value tried and its effort
+    calibration.json      effort matching: every knob value tried and its effort; or the knobs the run
+                          read from the calibration cache or the shipped file (what --resume reads)
     parts/                one Parquet file per completed job (written atomically)
     trajectories/TASK/CONTROLLER/sample_NNNNN.parquet   with --save-trajectories
     results.csv, results.parquet, summary.csv, summary.md, cost_boxplot.png
@@ -50,6 +51,19 @@ from snac_gym.rollout import write_log
 
 #: Parquet schema-metadata keys of a part file: the run it belongs to and the sample ids it holds.
 _PART_RUN_KEY, _PART_SAMPLES_KEY = b"snac_gym.run", b"snac_gym.samples"
+
+
+def _ids_text(ids: str) -> str:
+    """A part's sample ids (JSON) in a few words: ``samples 0-3`` or ``4 samples from 12``."""
+    try:
+        values = [int(i) for i in json.loads(ids)]
+    except (ValueError, TypeError):
+        return "unreadable sample ids"
+    if not values:
+        return "no samples"
+    if values == list(range(values[0], values[0] + len(values))):
+        return f"sample {values[0]}" if len(values) == 1 else f"samples {values[0]}-{values[-1]}"
+    return f"{len(values)} samples from {min(values)} to {max(values)}"
 
 
 def _stable_json(value: Any) -> str:
@@ -281,11 +295,15 @@ class RunStore:
             stored_run = metadata.get(_PART_RUN_KEY, b"").decode(errors="replace")
             stored_ids = metadata.get(_PART_SAMPLES_KEY, b"").decode(errors="replace")
             expected_ids = json.dumps([int(i) for i in sample_ids])
-            if stored_run != self.run_id or stored_ids != expected_ids:
-                what = "another run" if stored_run != self.run_id else "other samples"
+            if stored_run != self.run_id:
                 raise RunDirectoryError(
-                    f"--resume: the part file {path} belongs to {what} (run {stored_run or 'unknown'!r}, "
+                    f"--resume: the part file {path} belongs to another run (run {stored_run or 'unknown'!r}, "
                     f"this run {self.run_id!r}); remove it to recompute that job"
+                )
+            if stored_ids != expected_ids:
+                raise RunDirectoryError(
+                    f"--resume: the part file {path} belongs to other samples (it holds {_ids_text(stored_ids)}, "
+                    f"this job runs {_ids_text(expected_ids)}); remove it to recompute that job"
                 )
         if not part_is_intact(path):  # damaged (or stored before checksums): never read, run again
             aside = path.with_name(path.name + ".corrupt")
