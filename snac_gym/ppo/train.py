@@ -229,7 +229,7 @@ def build_model(config: dict[str, Any], venv: Any) -> Any:
 
 
 def _evaluate_checkpoint(
-    run: TrainingRun, model: Any, venv: Any, log: Callable[[str], None], lines: Any
+    run: TrainingRun, model: Any, venv: Any, log: Callable[[str], None], lines: Any, total: int
 ) -> dict[str, float]:
     """Checkpoint ``model``, evaluate it, keep it as ``best/`` if it beats the best so far, log a line
     (and put the success rate in the progress ``lines``, when there are any)."""
@@ -249,13 +249,31 @@ def _evaluate_checkpoint(
     run.write_state(timesteps, "running")
     if lines is not None:
         lines.detail = f"success {100 * scores['success_rate']:.1f} % at {timesteps} timesteps"
-    total = int(run.config["timesteps"])
     log(
         f"[{run.config['task']}] {timesteps}/{total} steps, {row['wall_time_s'] / 60:.1f} min: success "
         f"{100 * scores['success_rate']:.1f}%, mean cost {scores['mean_cost']:.4g}, median final error "
         f"{1000 * scores['median_final_error_m']:.2f} mm{'  (best)' if is_best else ''}"
     )
     return scores
+
+
+def _start_line(config: dict[str, Any], model: Any, total: int, out: Path) -> str:
+    """What a training segment says as it starts: the timesteps it reaches, and why where they are more than asked."""
+    envs = f"{config['vec_env']['n_envs']} {config['vec_env'].get('kind', 'dummy')} envs"
+    start = f"training PPO on {config['task']} for {total} timesteps"
+    if total == int(config["timesteps"]):
+        return f"{start} ({envs}, seed {config['seed']}) into {out}"
+    return (
+        f"{start}: {config['timesteps']} asked, rounded up to whole rollouts of {model.n_steps} steps of each of the "
+        f"{envs} (seed {config['seed']}), into {out}"
+    )
+
+
+def planned_timesteps(model: Any, target: int) -> int:
+    """The timesteps ``model.learn`` reaches on its way to ``target``: PPO collects whole rollouts of ``n_steps``
+    steps of each of its ``n_envs`` envs, so it stops at the first rollout's end at or past ``target``."""
+    done, rollout = int(model.num_timesteps), int(model.n_steps) * int(model.n_envs)
+    return done + math.ceil(max(0, target - done) / rollout) * rollout
 
 
 def _next_evaluation(timesteps: int, due: int, every: int) -> int:
@@ -277,12 +295,12 @@ def _first_evaluation(run: TrainingRun, timesteps: int, every: int, evaluate: Ca
 
 
 def _make_callback(
-    run: TrainingRun, venv: Any, log: Callable[[str], None], progress: Callable[[str], None] | None
+    run: TrainingRun, venv: Any, log: Callable[[str], None], progress: Callable[[str], None] | None, total: int
 ) -> Any:
+    """The callback of ``model.learn``; ``total``: the timesteps the run will reach (:func:`planned_timesteps`)."""
     from stable_baselines3.common.callbacks import BaseCallback  # the rl extra
 
     every = int(run.config["evaluation"]["every_timesteps"])
-    total = int(run.config["timesteps"])
     task = run.config["task"]
 
     class EvaluateAndCheckpoint(BaseCallback):
@@ -315,7 +333,7 @@ def _make_callback(
 
         def evaluate(self) -> None:
             timesteps = int(self.model.num_timesteps)
-            scores = _evaluate_checkpoint(run, self.model, venv, log, self.lines)
+            scores = _evaluate_checkpoint(run, self.model, venv, log, self.lines, total)
             for key, value in scores.items():
                 self.logger.record(f"eval/{key}", value)
             self.logger.dump(timesteps)
@@ -470,11 +488,9 @@ def _train(
         run.state["segments"].append({"start_timesteps": start_timesteps, "started_at": started_at})
         run.state.pop("interrupted_by", None)
         run.write_state(start_timesteps, "running")
-        log(
-            f"training PPO on {config['task']} for {config['timesteps']} timesteps ({config['vec_env']['n_envs']} "
-            f"{config['vec_env'].get('kind', 'dummy')} envs, seed {config['seed']}) into {out}"
-        )
-        callback = _make_callback(run, venv, log, progress)
+        total = planned_timesteps(model, int(config["timesteps"]))
+        log(_start_line(config, model, total, out))
+        callback = _make_callback(run, venv, log, progress, total)
     except KeyboardInterrupt as exc:
         if inner is not None:
             with contextlib.suppress(Exception):  # the envs' processes, if any were started

@@ -230,6 +230,32 @@ def test_ctrl_c_leaves_a_usable_checkpoint_and_resume_continues(
     assert train_module.train_ppo("reach", out, timesteps=96, resume=True, log=lambda s: None).status == "already-done"
 
 
+@pytest.mark.rl
+def test_timesteps_short_of_a_whole_rollout_are_rounded_up_and_the_run_says_so(tmp_path, tiny_ppo):
+    """PPO collects whole rollouts (the tiny config's: 2 envs × 16 steps): 40 timesteps asked train 64. The start line
+    says so, and the progress and evaluation lines count to 64 (they counted to 40: ``64/40 timesteps (160 %)``)."""
+    import snac_gym.ppo.train as train_module
+
+    logged: list[str] = []
+    progress: list[str] = []
+    config = tiny_ppo(tmp_path)
+    result = train_module.train_ppo(
+        "reach", tmp_path / "run", timesteps=40, config_path=config, log=logged.append, progress=progress.append
+    )
+    assert result.status == "finished" and result.timesteps == 64
+    assert logged[0].startswith(
+        "training PPO on reach for 64 timesteps: 40 asked, rounded up to whole rollouts of 16 steps of each of the "
+        "2 dummy envs (seed"
+    )
+    assert progress and progress[-1].startswith("train-ppo: reach 64/64 timesteps (100 %)")
+    assert all("/64 timesteps" in line for line in progress)
+    assert any(line.startswith("[reach] 64/64 steps") for line in logged)
+    # Resumed to a target past the end: counted from where it stands, to the next whole rollout.
+    logged.clear()
+    train_module.train_ppo("reach", tmp_path / "run", timesteps=100, resume=True, log=logged.append)
+    assert "for 128 timesteps: 100 asked" in logged[0]
+
+
 # -- load errors ------------------------------------------------------------------------------
 @pytest.fixture
 def shipped_reach_file():
