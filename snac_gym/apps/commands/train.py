@@ -21,7 +21,10 @@ __all__ = ["train_ppo_command"]
 def train_ppo_command(
     task: str = typer.Option(..., "--task", help=f"A registered task ({registered_tasks()})."),
     timesteps: Optional[int] = typer.Option(
-        None, "--timesteps", min=1, help="Total env steps (default: the config's), rounded up to whole PPO rollouts (n_envs × n_steps)."
+        None,
+        "--timesteps",
+        min=1,
+        help="Total env steps (default: the config's), rounded up to whole PPO rollouts (n_envs × n_steps).",
     ),
     seed: Optional[int] = typer.Option(
         None, "--seed", help="Seed of PPO and the training envs (default: the config's)."
