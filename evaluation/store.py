@@ -70,9 +70,13 @@ def _stable_json(value: Any) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
-def settings_key(kwargs: dict[str, Any], steps: int, engine: str) -> str:
-    """Short hash of what decides a job's output besides its samples."""
-    return hashlib.sha1(_stable_json({"kwargs": kwargs, "steps": steps, "engine": engine}).encode()).hexdigest()[:12]
+def settings_key(kwargs: dict[str, Any], steps: int, engine: str, sample_set: str = "") -> str:
+    """Short hash of what decides a job's output besides its samples, and of the pass's sample set where it is not the
+    run's own (``sample_set``, e.g. the effort set of a match, whose chunks hold other samples than the run's)."""
+    settings: dict[str, Any] = {"kwargs": kwargs, "steps": steps, "engine": engine}
+    if sample_set:  # the run's own passes keep the names they always had
+        settings["sample_set"] = sample_set
+    return hashlib.sha1(_stable_json(settings).encode()).hexdigest()[:12]
 
 
 def run_id(manifest: dict[str, Any]) -> str:

@@ -50,6 +50,9 @@ OPTIMAL_MIN_CHUNK = 50
 #: a controller's effort match waits on its search, while a full pass holds nothing up.
 SEARCH_PRIORITY, PASS_PRIORITY = 0, 1
 
+#: The sample set of a match's full passes where it is not the run's own (the effort set): their part files are named
+#: apart, so that a later pass over the run's own samples at the same settings (a sweep's point) is not taken for one.
+EFFORT_SET = "effort set"
 #: One full pass: task, controller, and the constructor arguments (the knob value included).
 Pass = tuple[str, "ControllerSpec", dict[str, Any]]
 
@@ -254,7 +257,8 @@ class EvaluationRun:
         for task, spec, kwargs in passes:
             steps = config.steps(task)
             jobs = self._jobs(task, spec.name, kwargs, self.samples[task], steps, config.save_trajectories)
-            pass_paths, pass_todo = self._parts_to_run(spec.name, settings_key(kwargs, steps, config.engine), jobs)
+            key = settings_key(kwargs, steps, config.engine, "" if self.reported is None else EFFORT_SET)
+            pass_paths, pass_todo = self._parts_to_run(spec.name, key, jobs)
             paths.append(pass_paths)
             todo += [(job, path, spec) for job, path in pass_todo]
         for index, result in self.executor.run(run_job, [job for job, _, _ in todo], priority=PASS_PRIORITY):

@@ -118,6 +118,24 @@ def test_the_equal_effort_point_is_the_main_runs_matched_knob(swept):
     assert (reference["grid_exponent"] == 0).all()
 
 
+def test_a_sweep_after_a_match_on_the_effort_set_gives_the_main_runs_rows_at_its_point(tmp_path):
+    """With an effort set larger than the run (12 samples for 4, as every default run has 1000), the match's full
+    passes hold other samples than the sweep's: the sweep was refused ("belongs to other samples") at its first point.
+    Its point at the matched knob, run on the run's own samples, gives the main run's V/N."""
+    config = _config(tmp_path / "run", effort_samples=12, chunk_size=8, plots=False)  # chunk 0: samples 0-7, or 0-3
+    sweep = run_sweep(config, points=POINTS, span=SPAN)
+    results = pd.read_parquet(config.out / "results.parquet")
+    for task in config.tasks:
+        for name in config.controllers:
+            rows = sweep[(sweep["task"] == task) & (sweep["controller"] == name)]
+            (point,) = rows[rows["main_run"]].itertuples()
+            own = results[(results["task"] == task) & (results["controller"] == name)]
+            assert len(own) == point.n == 4 and (own["effort_value"] == point.knob_value).all()
+            np.testing.assert_allclose(point.cost, own["cost"].mean(), rtol=1e-12)
+    # The effort set's passes (12 samples: 2 parts each) and the run's (4: 1 part each) have parts of their own.
+    assert len(list((config.out / "parts").glob("reach__lqr__*.parquet"))) >= 2 + POINTS + 1
+
+
 def test_the_figure_is_written(swept):
     config, _ = swept
     png = (config.out / "tradeoff.png").read_bytes()
