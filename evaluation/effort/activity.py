@@ -46,6 +46,7 @@ class MatchActivity:
         finally:
             with self._lock:
                 self._running.pop(key, None)
+                self._tries.pop(key, None)
                 self._done += 1
                 self._update()
 
