@@ -77,10 +77,7 @@ def controller_input_hashes(policies: Sequence[Any], kwargs: Mapping[str, Any]) 
 
 def _takes_argument(name: str, argument: str) -> bool:
     """Whether the controller registered as ``name`` has a constructor argument ``argument``."""
-    try:
-        return argument in inspect.signature(policy_factory(name)).parameters
-    except (TypeError, ValueError):
-        return False
+    return argument in (_arguments(name) or ())
 
 
 def _requested(controllers: Sequence[str] | None, known: set[str]) -> tuple[list[str], set[str]]:
@@ -103,7 +100,8 @@ def default_controller_order(names: Sequence[str]) -> list[str]:
 
 
 def _check_arguments(config: EvaluationConfig, names: Sequence[str], known: set[str]) -> None:
-    """Refuse ``--param`` arguments for a controller that is not registered or not evaluated."""
+    """Refuse ``--param`` arguments for a controller that is not registered or not evaluated, or that its
+    constructor does not take (one line naming the argument, not the constructor's TypeError)."""
     for name, given in config.controller_kwargs.items():
         option = "--param " + ", ".join(f"{name}.{key}" for key in given)
         if name not in known:
@@ -115,6 +113,35 @@ def _check_arguments(config: EvaluationConfig, names: Sequence[str], known: set[
                 f"{option}: {name!r} is not among the evaluated controllers ({', '.join(names) or 'none'}); "
                 "name it in --controllers"
             )
+        arguments = _arguments(name)
+        unknown = [key for key in given if arguments is not None and key not in arguments]
+        if unknown:
+            key = unknown[0]
+            close = [a for a in arguments if a.lower() == key.lower()] or difflib.get_close_matches(key, arguments, n=1)
+            hint = f"did you mean {close[0]!r}?" if close else f"its arguments: {', '.join(arguments)}"
+            raise ValueError(f"--param {name}.{key}: {name!r} has no argument {key!r}; {hint}")
+
+
+def _arguments(name: str) -> list[str] | None:
+    """The constructor arguments ``--param`` may set on the controller registered as ``name`` (all but the env), in
+    the constructor's order; ``None`` where they cannot be read (then they are checked when it is built).
+
+    A class whose ``__init__`` takes ``**kwargs`` passes them up: its bases' arguments count too, up to one
+    without ``**kwargs``.
+    """
+    factory = policy_factory(name)
+    chain = [c for c in factory.__mro__ if "__init__" in vars(c)] if isinstance(factory, type) else [factory]
+    kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    names: list[str] = []
+    for each in chain:
+        try:
+            parameters = list(inspect.signature(each).parameters.values())
+        except (TypeError, ValueError):
+            return None
+        names += [p.name for p in parameters[1:] if p.kind in kinds and p.name not in names]  # [0]: the env
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters):
+            return names
+    return None
 
 
 def _controller_spec(config: EvaluationConfig, name: str) -> ControllerSpec:

@@ -58,6 +58,32 @@ def test_a_parameter_for_a_controller_outside_the_default_set_asks_for_its_name(
     assert _names(EvaluationConfig(out=tmp_path, controllers=("mpc",))) == ["mpc"]
 
 
+def test_an_argument_the_controller_does_not_take_is_refused_by_name_before_anything_is_built(tmp_path):
+    """Not the constructor's TypeError: the argument, the controller and what it does take; a class passing
+    ``**kwargs`` to its base (snac-adaptive to snac-hjb) is checked against both."""
+    import inspect
+
+    from snac_gym.policies.registry import policy_factory
+
+    def refusal(name: str, key: str) -> str:
+        config = EvaluationConfig(out=tmp_path, controllers=(name,), controller_kwargs={name: {key: 1}})
+        with pytest.raises(ValueError) as caught:
+            resolve_controllers(config)
+        return str(caught.value)
+
+    for name in available_policies():
+        message = refusal(name, "not_an_argument")
+        own = [p for p in inspect.signature(policy_factory(name)).parameters if p not in ("env", "kwargs")]
+        assert message.startswith(f"--param {name}.not_an_argument: {name!r} has no argument 'not_an_argument'; its")
+        assert all(p in message.split("its arguments: ")[1].split(", ") for p in own), message
+    assert refusal("mpc", "horizen").endswith("did you mean 'horizon'?")
+    assert refusal("snac-adaptive", "learning_rat").endswith("did you mean 'learning_rate'?")  # snac-hjb's
+    config = EvaluationConfig(out=tmp_path, controllers=("snac-adaptive",), controller_kwargs={"snac-adaptive": {
+        "learning_rate": 0.5, "q_scale": 2.0}})  # fmt: skip
+    (spec,) = resolve_controllers(config)[0]
+    assert spec.kwargs == {"learning_rate": 0.5, "q_scale": 2.0}
+
+
 def test_the_cli_help_names_the_default_set():
     from typer.testing import CliRunner
 

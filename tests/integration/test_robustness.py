@@ -188,6 +188,8 @@ def test_missing_samples_file_and_corrupt_run_json_are_one_line_errors(tmp_path)
         (["--param", "dsl.gain=50"], "--param dsl.gain: no controller is registered as 'dsl'; did you mean 'dls'?"),
         (["--controllers", "svf", "--param", "dls.gain=2"], "'dls' is not among the evaluated controllers (svf)"),
         (["--param", "ppo.model_path=/nonexistent.npz"], "controller 'ppo' cannot be built"),
+        (["--param", "snac.gamma=0.9"], "--param snac.gamma: 'snac' has no argument 'gamma'; its arguments: Q, R, lea"),
+        (["--param", "lqr.q=2"], "--param lqr.q: 'lqr' has no argument 'q'; did you mean 'Q'?"),
         (["--effort-target", "inf"], "--effort-target must be a positive finite number, got inf"),
         (["--effort-target", "5", "--effort-statistic", "max"], "the max statistic is at most 3.2"),
         (["--effort-target", "1.5", "--effort-statistic", "median-peak"], "statistic is at most 1"),
