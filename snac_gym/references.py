@@ -8,7 +8,7 @@ target itself, or the ellipse centre. Tracking controllers that need ``φ(0) = 0
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
@@ -189,6 +189,11 @@ class Ellipse:
     def paper_circle(cls) -> "Ellipse":
         """The paper's circle: radius 0.2 m around [-0.7, 0, 0.5] m at 0.075 rad/s."""
         return cls(PAPER_CIRCLE_CENTRE, (PAPER_CIRCLE_RADIUS, PAPER_CIRCLE_RADIUS))
+
+    def scaled(self, factor: float) -> "Ellipse":
+        """The ellipse with its centre and semi-axes ``factor`` times as large (about the base), at the same
+        orientation, angular speed and phase."""
+        return replace(self, centre=self.centre * factor, semi_axes=self.semi_axes * factor)
 
     @classmethod
     def from_dict(cls, spec: Mapping[str, Any]) -> "Ellipse":

@@ -107,7 +107,7 @@ class SampleSpace:
         if robot is not None and robot.cuboid_low is not None:
             params: dict[str, object] = {"low": robot.cuboid_low, "high": robot.cuboid_high}
         else:
-            scale = float(np.linalg.norm(kinematics.forward(np.zeros(kinematics.n_joints)))) / _UR10_REACH
+            scale = reach_scale(kinematics)
             params = {
                 "low": tuple(float(v) * scale for v in UR10_CUBOID_LOW),
                 "high": tuple(float(v) * scale for v in UR10_CUBOID_HIGH),
@@ -124,6 +124,12 @@ class SampleSpace:
         point = np.asarray(point, float)
         low, high = self._corners
         return bool((point >= low - tol).all() and (point <= high + tol).all())
+
+
+def reach_scale(kinematics: Kinematics) -> float:
+    """The arm's size against the UR10's, for whose reach the paper's numbers are: its outstretched reach |f(0)|
+    over the UR10's (1 for the UR10 itself to 6 digits, 0.41 for the UR3, 0.69 for the UR5)."""
+    return float(np.linalg.norm(kinematics.forward(np.zeros(kinematics.n_joints))[:3])) / _UR10_REACH
 
 
 def _ordered_pair(name: str, value: object, smallest: float) -> np.ndarray:

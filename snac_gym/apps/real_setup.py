@@ -79,7 +79,9 @@ def run_setup(
     hint = (
         ""
         if robot == "ur10" or (q0 is not None and reference is not None)
-        else (f" (the paper's start pose and reference are the UR10's: give --q0 and the reference for {robot})")
+        else f" (the paper's start pose and reference are the UR10's: give --q0 and the reference for {robot}"
+        + ("" if reference is not None else _scaled_reference_hint(task, robot))
+        + ")"
     )
     try:
         start = validate_q0(kinematics, options["q0"])
@@ -124,6 +126,21 @@ def run_setup(
         "reach": model.reach,
         "deadline_stop": safety.deadline_stop,
     }
+
+
+def _scaled_reference_hint(task: str, robot: str) -> str:
+    """``; --target=… is the paper's scaled to the UR5, as `snac-gym demo --robot ur5` runs it``: the options of the
+    reference :meth:`~snac_gym.tasks.base.Task.demo_options` gives ``robot`` (empty for a task without them here)."""
+    value = get_task(task).demo_options(robot).get(get_task(task).option_key)
+    if task == "reach":
+        options = f"--target={','.join(f'{v:.3f}' for v in value)}"
+    elif task == "track" and isinstance(value, dict) and len(set(value["semi_axes"])) == 1:
+        centre = ",".join(f"{v:.3f}" for v in value["centre"])
+        options = f"--ellipse-centre={centre} --ellipse-radius={value['semi_axes'][0]:.3f}"
+    else:
+        return ""
+    label = get_ur_model(robot).label
+    return f"; {options} is the paper's scaled to the {label}, as `snac-gym demo --robot {robot}` runs it"
 
 
 def _fmt(values: Any) -> str:

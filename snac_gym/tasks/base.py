@@ -20,7 +20,7 @@ import numpy.typing as npt
 from snac_gym.model.kinematics import Kinematics, PoseKinematics
 from snac_gym.model.robots import get_robot
 from snac_gym.references import PAPER_Q0, Reference
-from snac_gym.sampling import SampleSpace
+from snac_gym.sampling import SampleSpace, reach_scale
 from snac_gym.tasks.registry import get_task
 
 #: The type of a task's references (a :class:`Task` subclass names its own: ``Task[FixedTarget]``).
@@ -135,19 +135,30 @@ class Task(ABC, Generic[_ReferenceT]):
         """Env ``reset`` options that pin the start pose and the reference."""
         return {"q0": [float(v) for v in q0], self.option_key: self.option_value(reference)}
 
+    def scaled(self, reference: _ReferenceT, factor: float) -> _ReferenceT:
+        """``reference`` for an arm ``factor`` times the UR10's size: its positions scaled about the base, its
+        orientations and angular speeds kept. The base class keeps ``reference`` as it is (a task whose reference
+        has no such scaling)."""
+        return reference
+
     def demo_options(self, robot: str | None = None) -> dict[str, Any]:
         """Reset options of the demonstration on ``robot``.
 
-        The paper's θ₀ of Section V and the paper's reference (the UR arms, ``robot=None``), or the
-        start pose and reference of the robot's registered ``demo_options`` (:mod:`snac_gym.model.robots`),
-        for an arm that cannot reach the paper's numbers.
+        The start pose and reference of the robot's registered ``demo_options`` (:mod:`snac_gym.model.robots`,
+        the 7-DOF arms), else the paper's θ₀ of Section V and the paper's reference (``robot=None``: the UR10's),
+        the reference :meth:`scaled` to the arm by :func:`~snac_gym.sampling.reach_scale` as the evaluator's
+        cuboid is (the UR3 and UR5 do not reach the paper's numbers; the UR5e reaches its target at the edge of
+        its reach).
 
         Raises:
             ValueError: If the robot's demo names no reference for this task.
         """
         own = None if robot is None else get_robot(robot).demo_options
         if own is None:
-            return self.reset_options(PAPER_Q0, self.paper())
+            factor = 1.0 if robot is None else reach_scale(Kinematics(robot))
+            paper = self.paper()
+            # The UR10 (its reach is given to 6 digits): the paper's numbers as printed.
+            return self.reset_options(PAPER_Q0, paper if abs(factor - 1.0) < 1e-6 else self.scaled(paper, factor))
         if self.name not in own:
             raise ValueError(f"robot {robot!r} has no {self.name} demo; it has {sorted(k for k in own if k != 'q0')}")
         return {"q0": [float(v) for v in own["q0"]], self.option_key: own[self.name]}

@@ -212,6 +212,11 @@ class PoseReachTask(Task[PoseTarget | PoseEllipse]):
     def paper(self) -> PoseTarget | PoseEllipse:
         return PoseTarget(PAPER_TARGET, _DOWN)
 
+    def scaled(self, reference: PoseTarget | PoseEllipse, factor: float) -> PoseTarget | PoseEllipse:
+        if isinstance(reference, PoseEllipse):
+            return PoseEllipse(reference.ellipse.scaled(factor), reference.rotation)
+        return PoseTarget(reference.position * factor, reference.rotation)
+
     def parse(self, value: Any, kinematics: Kinematics | PoseKinematics) -> PoseTarget | PoseEllipse:
         target = value if isinstance(value, PoseTarget) else PoseTarget(value["position"], value["rotation"])
         check_pose_reachable(_pose(kinematics), target.points(), f"options[{self.option_key!r}]")

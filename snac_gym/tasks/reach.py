@@ -37,6 +37,9 @@ class ReachTask(Task[FixedTarget]):
     def paper(self) -> FixedTarget:
         return FixedTarget(PAPER_TARGET)
 
+    def scaled(self, reference: FixedTarget, factor: float) -> FixedTarget:
+        return FixedTarget(reference.target * factor)
+
     def parse(self, value: Any, kinematics: Kinematics) -> FixedTarget:
         target = value if isinstance(value, FixedTarget) else FixedTarget(value)
         check_reachable(kinematics, target.points(), f"options[{self.option_key!r}]")

@@ -57,6 +57,9 @@ class EllipseTrackTask(Task[Ellipse]):
     def paper(self) -> Ellipse:
         return Ellipse.paper_circle()
 
+    def scaled(self, reference: Ellipse, factor: float) -> Ellipse:
+        return reference.scaled(factor)
+
     def parse(self, value: Any, kinematics: Kinematics) -> Ellipse:
         ellipse = value if isinstance(value, Ellipse) else Ellipse.from_dict(value)
         check_reachable(kinematics, ellipse.points(64), f"options[{self.option_key!r}]")

@@ -102,7 +102,8 @@ def test_each_way_a_run_ends_has_its_exit_code(monkeypatch, tmp_path, outcome, c
         (["--target", "3,3,3"], "--target: point [3.0, 3.0, 3.0] m is outside the reachable workspace of ur10"),
         (
             ["--robot", "ur5"],
-            "(the paper's start pose and reference are the UR10's: give --q0 and the reference for ur5)",
+            "(the paper's start pose and reference are the UR10's: give --q0 and the reference for ur5; "
+            "--target=-0.456,0.434,0.282 is the paper's scaled to the UR5, as `snac-gym demo --robot ur5` runs it)",
         ),
         (["--task", "track", "--target", "0,0,0"], "--target is for --task reach"),
         (["--task-box", "0,0,0,1,1"], "--task-box needs 6 finite numbers"),

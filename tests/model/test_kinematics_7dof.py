@@ -2,6 +2,7 @@
 the sample space, the envs and the demo on the same code paths as the UR arms."""
 
 import itertools
+import re
 
 import gymnasium as gym
 import numpy as np
@@ -11,6 +12,7 @@ from gymnasium.utils.env_checker import check_env
 
 from snac_gym.model.kinematics import Kinematics, robot_urdf_path
 from snac_gym.model.robots import get_robot
+from snac_gym.model.ur_models import UR_MODELS
 from snac_gym.physics.bullet import PyBulletSim, SimulatedArm, p
 from snac_gym.sampling import (
     SampleSpace,
@@ -147,6 +149,62 @@ def test_the_demo_pose_and_references_are_the_robots_and_reachable(robot):
         np.testing.assert_array_equal(options["q0"], get_robot(robot).demo_options["q0"])
         task.parse(options[task.option_key], kin)  # raises if unreachable
     assert TASKS["reach"].demo_options() == TASKS["reach"].demo_options("ur10")  # the UR arms: the paper's
+
+
+@pytest.mark.parametrize("robot", [name for name in UR_MODELS if name != "ur10"])
+def test_a_ur_arms_demo_is_the_papers_scaled_to_its_reach_and_its_real_run_is_told_so(robot):
+    """The UR3 and UR5 do not reach the paper's numbers (the UR10's), and the UR5e reaches its target at the edge
+    of its reach: each UR arm's demo is the paper's θ₀ with the paper's reference scaled about the base by the arm's
+    reach over the UR10's (as the evaluator's cuboid is), reachable, inside that cuboid, and ``real``'s refusal of
+    the UR10's reference names it as options ``real`` itself accepts."""
+    from snac_gym.apps.real_setup import run_setup
+    from snac_gym.real.safety import SafetyLimits
+    from snac_gym.references import PAPER_CIRCLE_CENTRE, PAPER_CIRCLE_RADIUS, PAPER_Q0, PAPER_TARGET
+    from snac_gym.sampling import SampleSpace, reach_scale
+
+    kin = Kinematics(robot)
+    scale = reach_scale(kin)
+    expected_scale = float(np.linalg.norm(kin.forward(np.zeros(6)))) / float(
+        np.linalg.norm(Kinematics("ur10").forward(np.zeros(6)))
+    )
+    assert scale == pytest.approx(expected_scale, rel=1e-6) and (scale < 0.75 or robot == "ur10e")
+    space = SampleSpace.for_robot(kin)
+    reach, track = TASKS["reach"].demo_options(robot), TASKS["track"].demo_options(robot)
+    assert reach["q0"] == track["q0"] == list(PAPER_Q0)
+    np.testing.assert_allclose(reach["target"], np.array(PAPER_TARGET) * scale, rtol=1e-12)
+    np.testing.assert_allclose(track["ellipse"]["centre"], np.array(PAPER_CIRCLE_CENTRE) * scale, rtol=1e-12)
+    np.testing.assert_allclose(track["ellipse"]["semi_axes"], [PAPER_CIRCLE_RADIUS * scale] * 2, rtol=1e-12)
+    assert track["ellipse"]["angular_speed"] == TASKS["track"].paper().angular_speed
+    for task, options in (("reach", reach), ("track", track)):
+        reference = TASKS[task].parse(options[TASKS[task].option_key], kin)  # raises if unreachable
+        assert space.contains(reference.points(64)), (task, reference)
+    refusals = {}
+    for task in ("reach", "track"):
+        try:
+            run_setup(task, robot, None, None, SafetyLimits())
+        except ValueError as exc:
+            refusals[task] = str(exc)
+    if robot == "ur10e":  # the UR10's size: the paper's numbers run on it as they are
+        assert not refusals
+        return
+    target = re.search(r"; --target=(\S+) is the paper's scaled to the UR", refusals["reach"])
+    circle = re.search(r"; --ellipse-centre=(\S+) --ellipse-radius=(\S+) is the paper's scaled", refusals["track"])
+    assert target and circle, refusals
+    target_value = [float(v) for v in target.group(1).split(",")]
+    circle_value = {"centre": [float(v) for v in circle.group(1).split(",")], "radius": float(circle.group(2))}
+    np.testing.assert_allclose(target_value, reach["target"], atol=5e-4)
+    np.testing.assert_allclose(circle_value["centre"], track["ellipse"]["centre"], atol=5e-4)
+    run_setup("reach", robot, None, target_value, SafetyLimits())  # accepted as given
+    run_setup("track", robot, None, circle_value, SafetyLimits())
+
+
+@pytest.mark.parametrize("robot", ["ur3", "ur5"])
+def test_the_demo_runs_on_the_arms_too_small_for_the_papers_numbers(robot):
+    from snac_gym.apps.demo import run_demo
+
+    for task in ("reach", "track"):  # refused before: the paper's target and circle are out of their reach
+        result = run_demo(task, "lqr", out_dir=None, robot=robot)
+        assert result.metrics.success(task), (task, result.metrics)
 
 
 def test_demo_runs_on_the_panda(tmp_path):
