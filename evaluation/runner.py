@@ -51,7 +51,7 @@ from snac_gym.evaluation.effort.cache import (
     read_records,
     write_records,
 )
-from snac_gym.evaluation.effort.matching import EffortRecord, Records, Results, controller_passes
+from snac_gym.evaluation.effort.matching import MODEL_ORIGIN, EffortRecord, Records, Results, controller_passes
 from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.execution.passes import EvaluationRun
@@ -90,18 +90,26 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
         with open_executor(config.workers, config.ray_address) as executor:
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
-            identities = _calibration_identities(config, space, specs)
-            cached = _run_knobs(config, space, specs, identities, store)
-            matched_on = samples if cached is not None else _effort_set(config, space, executor, samples)
+            model = _knob_config(config)  # the settings the knobs are matched at: the kinematic model's
+            identities = _calibration_identities(model, space, specs)
+            cached = _run_knobs(model, space, specs, identities, store)
+            on_model = cached is None and model is not config  # a physics engine's run matches on the model first
+            effort_set = samples if cached is not None else _effort_set(config, space, executor, samples)
+            matched_on = samples if on_model else effort_set
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(
                 map(len, samples.values())
             )
+            rollouts += len(specs) * sum(map(len, effort_set.values())) if on_model else 0
             progress = Progress(rollouts, config.progress)
             evaluation = EvaluationRun(config, store, executor, matched_on, progress)  # 3. Passes
             if matched_on is not samples:
                 evaluation.reported = {task: {s.index for s in samples[task]} for task in config.tasks}
             try:
-                if cached is not None:  # 4. Equal effort, at the knobs an earlier run matched
+                if on_model:  # 4a. Equal effort on the kinematic model, the knobs kept for 4b and a resume
+                    cached = _match_on_the_model(model, store, executor, effort_set, samples, progress, specs, timings)
+                    if identities and store_knobs:
+                        write_records(calibration_folder(), identities, cached[0], str(Path(config.out).resolve()))
+                if cached is not None:  # 4. Equal effort, at the knobs an earlier run (or 4a) matched
                     results, records = _passes_at_cached_knobs(evaluation, specs, *cached)
                 else:  # 4. Equal effort
                     results, records = controller_passes(evaluation, specs)
@@ -268,6 +276,43 @@ def _identities(
 
 #: The key of ``calibration.json`` under which a run keeps the knobs it read instead of matching them.
 KNOBS_READ_KEY = "knobs read"
+
+
+def _knob_config(config: EvaluationConfig) -> EvaluationConfig:
+    """The settings a run's knobs are matched at: its own, on the kinematic model.
+
+    A controller's effort is a property of its commands, and the engines' commands differ by 10⁻⁴ of V or less
+    (docs/physics.md), so a run in MuJoCo or PyBullet matches its knobs on the exact model, where the effort set
+    runs in seconds instead of many minutes, and reads the knobs the kinematic runs matched (and the shipped ones):
+    the engines are then compared at the same knobs.
+    """
+    return config if config.engine == "kinematic" else dataclasses.replace(config, engine="kinematic")
+
+
+def _match_on_the_model(
+    model: EvaluationConfig,
+    store: RunStore,
+    executor: Any,
+    effort_set: dict[str, list[EvaluationSample]],
+    samples: dict[str, list[EvaluationSample]],
+    progress: Progress,
+    specs: Sequence[ControllerSpec],
+    timings: dict[str, float],
+) -> tuple[Records, dict[str, Any]]:
+    """The knobs of a run in a physics engine, matched on the kinematic model over the effort set, and their stamp.
+
+    They are kept in the run's ``calibration.json`` as knobs read (:data:`KNOBS_READ_KEY`), so that a resume goes on
+    at them; the model's passes are stored with the run's parts under the kinematic engine's keys.
+    """
+    run = EvaluationRun(model, store, executor, effort_set, progress)
+    if effort_set is not samples:
+        run.reported = {task: {s.index for s in samples[task]} for task in model.tasks}
+    _, records = controller_passes(run, specs)
+    timings.update({f"{phase} on the kinematic model": seconds for phase, seconds in run.timings.items()})
+    stamp = {"origin": MODEL_ORIGIN}
+    kept = [dataclasses.asdict(record) for record in records.values()]
+    store.save_calibration(KNOBS_READ_KEY, {"stamp": stamp, "records": kept})
+    return records, stamp
 
 
 def _run_knobs(

@@ -1,8 +1,9 @@
 """Matched effort knobs, cached on disk across runs: a small question asked after one full calibration
 answers in seconds.
 
-A controller's matched knob depends on the arm, the task, its horizon and Δt, the engine, the cost, the
-effort statistic, tolerance and target, the **effort set** (the samples it is matched on: the seed, the
+A controller's matched knob depends on the arm, the task, its horizon and Δt, the engine (always the kinematic
+model, where every run matches, one in a physics engine included), the cost, the effort statistic, tolerance and
+target, the **effort set** (the samples it is matched on: the seed, the
 sample space and the set's size, or the samples file's content), the controller's settings and files,
 the effort reference's settings and files, and the code. It does not depend on how many of the effort
 set's samples a run reports: ``--samples 50`` is matched on the first 1000 samples, like ``--samples

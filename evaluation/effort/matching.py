@@ -76,6 +76,8 @@ class EffortRecord:
 
 
 Records = dict[tuple[str, str], EffortRecord]
+#: ``EffortRecord.calibrated_by`` of the knobs a run in a physics engine matched on the kinematic model.
+MODEL_ORIGIN = "this run, on the kinematic model"
 
 
 def controller_passes(evaluation: EvaluationRun, specs: Sequence[ControllerSpec]) -> tuple[Results, Records]:
@@ -425,6 +427,7 @@ __all__ = [
     "MAX_MATCH_ROUNDS",
     "MIN_SCREENING_SAMPLES",
     "PEAK_PROBE_SAMPLES",
+    "MODEL_ORIGIN",
     "EffortMatcher",
     "EffortRecord",
     "controller_passes",

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
+from snac_gym.evaluation.effort.matching import MODEL_ORIGIN
 from snac_gym.evaluation.reports.optimality_section import optimality_markdown
 from snac_gym.evaluation.reports.plots import plot_cost_boxes, prefetch_report_modules
 from snac_gym.evaluation.reports.summary import controller_label, summarise
@@ -79,9 +80,11 @@ def summary_markdown(
 
 def _effort_set_text(config: Any) -> str:
     size = getattr(config, "effort_set_size", None)
+    engine = getattr(config, "engine", "kinematic")
+    model = "" if engine == "kinematic" else f", on the kinematic model (the reported rollouts are {engine}'s)"
     if size is None:
-        return ""
-    return (
+        return model
+    return model + (
         f", on the first {size} samples of the seed (`--effort-samples`; the efforts in the effort table are "
         "theirs), so that the matched knobs do not depend on how many samples are evaluated"
     )
@@ -121,6 +124,15 @@ def _calibration_source_lines(efforts: Sequence[Any]) -> list[str]:
     sources = sorted({e.calibrated_by for e in efforts if getattr(e, "calibrated_by", "")})
     if not sources:
         return []
+    if sources == [MODEL_ORIGIN]:
+        return [
+            "**The knobs were matched on the kinematic model**: a run in a physics engine matches its effort on the "
+            "exact model θₖ₊₁ = θₖ + uₖΔt over the effort set, where the engines' commands differ by 10⁻⁴ of V or "
+            "less, then runs the reported samples in its engine at those knobs (the efforts and targets below are "
+            "the model's, on the effort set). A kinematic run at the same settings matches the same knobs and "
+            "reads them from the calibration cache.",
+            "",
+        ]
     if any(source.startswith("the knobs shipped") for source in sources):
         return [
             "**The knobs were not matched by this run**: they are the knobs shipped with snac-gym for these "
