@@ -127,10 +127,10 @@ def _calibration_source_lines(efforts: Sequence[Any]) -> list[str]:
     if sources == [MODEL_ORIGIN]:
         return [
             "**The knobs were matched on the kinematic model**: a run in a physics engine matches its effort on the "
-            "exact model θₖ₊₁ = θₖ + uₖΔt over the effort set, where the engines' commands differ by 10⁻⁴ of V or "
-            "less, then runs the reported samples in its engine at those knobs (the efforts and targets below are "
-            "the model's, on the effort set). A kinematic run at the same settings matches the same knobs and "
-            "reads them from the calibration cache.",
+            "exact model θₖ₊₁ = θₖ + uₖΔt over the effort set (Table I's V/N in the three engines agree within "
+            "0.75 % at the same knobs, docs/physics.md), then runs the reported samples in its engine at those "
+            "knobs (the efforts and targets below are the model's, on the effort set). A kinematic run at the same "
+            "settings would match the same knobs, and reads these from the calibration cache.",
             "",
         ]
     if any(source.startswith("the knobs shipped") for source in sources):
