@@ -93,7 +93,8 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             model = _knob_config(config)  # the settings the knobs are matched at: the kinematic model's
             identities = _calibration_identities(model, space, specs)
             cached = _run_knobs(model, space, specs, identities, store)
-            on_model = cached is None and model is not config  # a physics engine's run matches on the model first
+            # A physics engine's run that matches effort does so on the model first.
+            on_model = config.match_effort and cached is None and model is not config
             effort_set = samples if cached is not None else _effort_set(config, space, executor, samples)
             matched_on = samples if on_model else effort_set
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(

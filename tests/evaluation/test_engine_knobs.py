@@ -96,3 +96,12 @@ def test_the_model_match_is_timed_apart_in_either_engine(tmp_path, engine):
     timings = json.loads((out / "timings.json").read_text())
     assert {"reference passes on the kinematic model", "effort matching on the kinematic model"} <= set(timings)
     assert "passes at cached knobs" in timings
+
+
+def test_a_physics_run_without_matching_runs_nothing_on_the_model(tmp_path):
+    out = tmp_path / "run"
+    rows = run_evaluation(EvaluationConfig(out=out, engine="pybullet", match_effort=False, **SETTINGS))
+    assert set(rows["engine"]) == {"pybullet"}
+    assert not [phase for phase in json.loads((out / "timings.json").read_text()) if "kinematic model" in phase]
+    summary = (out / "summary.md").read_text()
+    assert "No effort matching" in summary and "kinematic model" not in summary
