@@ -105,3 +105,27 @@ def test_a_physics_run_without_matching_runs_nothing_on_the_model(tmp_path):
     assert not [phase for phase in json.loads((out / "timings.json").read_text()) if "kinematic model" in phase]
     summary = (out / "summary.md").read_text()
     assert "No effort matching" in summary and "kinematic model" not in summary
+
+
+def test_a_physics_run_cut_short_after_the_models_match_resumes_to_the_same_rows(tmp_path):
+    """Cut after the model's passes, before its knobs were kept and before any pass in the engine: the resume takes the
+    model's parts as they are (rerunning none) and runs the engine's again, to the same rows."""
+    out = tmp_path / "run"
+    config = {"engine": "pybullet", "calibration_cache": False, **SETTINGS}
+    rows = run_evaluation(EvaluationConfig(out=out, **config))
+    calibration = json.loads((out / "calibration.json").read_text())
+    del calibration[runner_module.KNOBS_READ_KEY]
+    (out / "calibration.json").write_text(json.dumps(calibration))
+    model_parts = {}
+    for part in (out / "parts").glob("*.parquet"):
+        if set(pd.read_parquet(part)["engine"]) == {"pybullet"}:
+            part.unlink()
+            part.with_name(part.name + ".sha256").unlink()
+        else:
+            model_parts[part] = part.stat().st_mtime_ns
+    assert model_parts
+    for name in ("results.csv", "results.parquet", "summary.csv", "summary.md"):
+        (out / name).unlink()
+    resumed = run_evaluation(EvaluationConfig(out=out, resume=True, **config))
+    pd.testing.assert_frame_equal(resumed, rows, check_exact=True)
+    assert all(part.stat().st_mtime_ns == stamp for part, stamp in model_parts.items())
