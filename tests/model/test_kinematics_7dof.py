@@ -178,6 +178,12 @@ def test_a_ur_arms_demo_is_the_papers_scaled_to_its_reach_and_its_real_run_is_to
     for task, options in (("reach", reach), ("track", track)):
         reference = TASKS[task].parse(options[TASKS[task].option_key], kin)  # raises if unreachable
         assert space.contains(reference.points(64)), (task, reference)
+    from snac_gym.model.kinematics import PoseKinematics
+    from snac_gym.tasks.pose import POSE_TASKS
+
+    for pose_task in POSE_TASKS:  # the same positions, the tool pointing down
+        options = pose_task.demo_options(robot)
+        pose_task.parse(options[pose_task.option_key], PoseKinematics(robot))  # raises if unreachable
     refusals = {}
     for task in ("reach", "track"):
         try:
