@@ -106,16 +106,15 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             if matched_on is not samples:
                 evaluation.reported = {task: {s.index for s in samples[task]} for task in config.tasks}
             try:
+                store_matched = identities if store_knobs else {}  # where this run's matched knobs are cached
                 if on_model:  # 4a. Equal effort on the kinematic model, the knobs kept for 4b and a resume
                     cached = _match_on_the_model(model, store, executor, effort_set, samples, progress, specs, timings)
-                    if identities and store_knobs:
-                        write_records(calibration_folder(), identities, cached[0], str(Path(config.out).resolve()))
+                    _store_matched(store_matched, cached[0], config)
                 if cached is not None:  # 4. Equal effort, at the knobs an earlier run (or 4a) matched
                     results, records = _passes_at_cached_knobs(evaluation, specs, *cached)
                 else:  # 4. Equal effort
                     results, records = controller_passes(evaluation, specs)
-                    if identities and store_knobs:
-                        write_records(calibration_folder(), identities, records, str(Path(config.out).resolve()))
+                    _store_matched(store_matched, records, config)
                 if matched_on is not samples:  # the rows of the evaluated samples only
                     results = {key: _reported_rows(rows, samples[key[0]]) for key, rows in results.items()}
                     evaluation.samples = samples
@@ -288,6 +287,14 @@ def _knob_config(config: EvaluationConfig) -> EvaluationConfig:
     shipped ones): the engines are then compared at the same knobs.
     """
     return config if config.engine == "kinematic" else dataclasses.replace(config, engine="kinematic")
+
+
+def _store_matched(
+    identities: dict[tuple[str, str], dict[str, Any]], records: Records, config: EvaluationConfig
+) -> None:
+    """The knobs this run matched, into the calibration cache under ``identities`` (none: the cache is not used)."""
+    if identities:
+        write_records(calibration_folder(), identities, records, str(Path(config.out).resolve()))
 
 
 def _match_on_the_model(

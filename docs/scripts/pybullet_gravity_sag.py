@@ -27,10 +27,11 @@ from snac_gym.references import PAPER_Q0
 from snac_gym.tasks import get_task
 
 COMMAND = np.array([0.00037, -0.00024, -0.00419, -0.00215, 0.00069, 0.0])  # rad/s
-SETTINGS = {
-    "as built": {},
-    "200 iterations, residual 1e-12": {"numSolverIterations": 200, "solverResidualThreshold": 1e-12},
-    "no gravity": {},
+#: Name: (PyBullet's engine parameters, gravity in m/s²).
+SETTINGS: dict[str, tuple[dict[str, float], float]] = {
+    "as built": ({}, 9.81),
+    "200 iterations, residual 1e-12": ({"numSolverIterations": 200, "solverResidualThreshold": 1e-12}, 9.81),
+    "no gravity": ({}, 0.0),
 }
 
 
@@ -38,9 +39,9 @@ def sag(robot: str, setting: str) -> tuple[float, float]:
     """The worst |θ̇ − u| at the end, and the mean wall time of a control period (µs)."""
     arm = PyBulletArm(Kinematics(robot), 1.0 / 125.0, 3, meshes=False)
     client = arm.sim.client
-    p.setPhysicsEngineParameter(physicsClientId=client, **SETTINGS[setting])
-    if setting == "no gravity":
-        p.setGravity(0.0, 0.0, 0.0, physicsClientId=client)
+    parameters, gravity = SETTINGS[setting]
+    p.setPhysicsEngineParameter(physicsClientId=client, **parameters)
+    p.setGravity(0.0, 0.0, -gravity, physicsClientId=client)
     arm.reset(np.array(PAPER_Q0))
     start = time.perf_counter()
     for _ in range(500):

@@ -131,7 +131,8 @@ def run_setup(
 def _scaled_reference_hint(task: str, robot: str) -> str:
     """``; --target=… is the paper's scaled to the UR5, as `snac-gym demo --robot ur5` runs it``: the options of the
     reference :meth:`~snac_gym.tasks.base.Task.demo_options` gives ``robot`` (empty for a task without them here)."""
-    value = get_task(task).demo_options(robot).get(get_task(task).option_key)
+    spec = get_task(task)
+    value = spec.demo_options(robot).get(spec.option_key)
     if task == "reach":
         options = f"--target={','.join(f'{v:.3f}' for v in value)}"
     elif task == "track" and isinstance(value, dict) and len(set(value["semi_axes"])) == 1:
