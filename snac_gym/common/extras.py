@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import os
+import sys
 from types import ModuleType
 
 from snac_gym.common._signals import interrupt_behind
@@ -17,6 +20,7 @@ def require(module: str, extra: str, what: str) -> ModuleType:
         KeyboardInterrupt: If a stop signal came during the import, which an extension turned into an
             ``ImportError``: an interrupted import is not a missing package.
     """
+    _name_the_glfw_library()
     try:
         return importlib.import_module(module)
     except ImportError as exc:
@@ -24,6 +28,31 @@ def require(module: str, extra: str, what: str) -> ModuleType:
         if interrupt is not None:
             raise interrupt from None
         raise MissingExtraError(f"{what} needs the '{extra}' extra: pip install -e \".[{extra}]\"") from exc
+
+
+def _name_the_glfw_library() -> None:
+    """Point pyGLFW at the library its wheel bundles, unless ``PYGLFW_LIBRARY`` names one already.
+
+    ``import mujoco`` (and so mink's) imports pyGLFW, which, told no library, starts a Python subprocess
+    per candidate file to read its version: 0.07 s quiet and far more on a busy machine, on every import
+    in every process, and a stop signal during it leaves that child to print an ``EOFError`` traceback
+    after the command has ended. Nothing here draws through GLFW (MuJoCo renders on EGL or OSMesa), and
+    the bundled library is the one that search finds where no newer GLFW is installed system-wide.
+    """
+    if os.environ.get("PYGLFW_LIBRARY") or not sys.platform.startswith("linux") or "glfw" in sys.modules:
+        return
+    try:
+        spec = importlib.util.find_spec("glfw")
+    except (ImportError, ValueError):
+        return
+    if spec is None or not spec.submodule_search_locations:
+        return
+    variant = os.environ.get("PYGLFW_LIBRARY_VARIANT", "").lower()
+    if variant not in ("wayland", "x11"):  # pyGLFW's own default
+        variant = "wayland" if os.environ.get("XDG_SESSION_TYPE") == "wayland" else "x11"
+    library = os.path.join(next(iter(spec.submodule_search_locations)), variant, "libglfw.so")
+    if os.path.isfile(library):
+        os.environ["PYGLFW_LIBRARY"] = library
 
 
 #: MissingExtraError is re-exported: the error of :func:`require`, caught where it is called.
