@@ -36,7 +36,7 @@ def main() -> int:
         from snac_gym.evaluation import EvaluationConfig, run_evaluation
         from snac_gym.evaluation.controllers import resolve_controllers
         from snac_gym.evaluation.effort.cache import calibration_folder, read_records
-        from snac_gym.evaluation.effort.shipped import shipped_file, write_shipped
+        from snac_gym.evaluation.effort.shipped import numerics, shipped_file, write_shipped
         from snac_gym.evaluation.runner import _calibration_identities, _checked_setting
 
         out = Path(scratch) / "run"
@@ -59,9 +59,7 @@ def main() -> int:
         stamp = {
             "made_by": "python tools/ship_calibration.py",
             "made_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "versions": {
-                name: version(name) for name in ("numpy", "scipy", "pin", "numba", "torch", "stable-baselines3")
-            },
+            "versions": {**numerics(), **{name: version(name) for name in ("torch", "stable-baselines3")}},
         }
         path = write_shipped(shipped_file(), identities, records, searches, stamp)
     print(f"wrote {path} ({len(records)} knobs)")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,18 @@ import snac_gym
 
 #: How a summary names the knobs' origin.
 SHIPPED_ORIGIN = "the knobs shipped with snac-gym (tools/ship_calibration.py, checked by the test suite)"
+
+
+#: The libraries whose numerics a knob's last bits depend on, besides the code.
+NUMERICS = ("numpy", "scipy", "pin", "numba")
+
+
+def numerics() -> dict[str, str]:
+    """What a knob's last bits depend on besides the code: :data:`NUMERICS`' versions, and the CPU that numba
+    compiles the kernels for (``cpu``), as its vector width and fused multiply-adds round differently."""
+    import llvmlite.binding
+
+    return {**{name: version(name) for name in NUMERICS}, "cpu": llvmlite.binding.get_host_cpu_name()}
 
 
 def shipped_file() -> Path:

@@ -15,7 +15,7 @@ from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.controllers import resolve_controllers
 from snac_gym.evaluation.effort.matching import EffortMatcher, _ScreenedEffort
 from snac_gym.evaluation.effort.search import match_effort
-from snac_gym.evaluation.effort.shipped import SHIPPED_ORIGIN, read_shipped, shipped_file, without_code
+from snac_gym.evaluation.effort.shipped import SHIPPED_ORIGIN, numerics, read_shipped, shipped_file, without_code
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.execution.passes import EvaluationRun
 from snac_gym.evaluation.execution.progress import Progress
@@ -39,17 +39,14 @@ def _identities(config):
     return _calibration_identities(config, space, specs), specs
 
 
-#: The libraries whose numerics the knobs' last bits depend on: with the versions the file was made with, the
-#: knobs must come back bit for bit; with others (another Python's wheels), to NUMERICS_RTOL.
-NUMERICS = ("numpy", "scipy", "pin", "numba")
+#: With the numerics the file was made with (the libraries' versions and numba's target CPU), the knobs must come
+#: back bit for bit; with others (another Python's wheels, another CPU), to NUMERICS_RTOL.
 NUMERICS_RTOL = 1e-6
 
 
 def _same_numerics() -> bool:
-    from importlib.metadata import version
-
     made_with = json.loads(shipped_file().read_text())["versions"]
-    return all(version(name) == made_with.get(name) for name in NUMERICS)
+    return all(made_with.get(name) == value for name, value in numerics().items())
 
 
 def _agree(found: float, shipped: float, exact: bool) -> bool:
