@@ -22,6 +22,7 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
+import llvmlite.binding
 from snac_gym.evaluation.effort.matching import EffortRecord
 
 import snac_gym
@@ -37,8 +38,6 @@ NUMERICS = ("numpy", "scipy", "pin", "numba")
 def numerics() -> dict[str, str]:
     """What a knob's last bits depend on besides the code: :data:`NUMERICS`' versions, and the CPU that numba
     compiles the kernels for (``cpu``), as its vector width and fused multiply-adds round differently."""
-    import llvmlite.binding
-
     return {**{name: version(name) for name in NUMERICS}, "cpu": llvmlite.binding.get_host_cpu_name()}
 
 
