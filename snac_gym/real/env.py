@@ -20,9 +20,11 @@ if TYPE_CHECKING:
 #: Seconds between two reads of the controller's state while waiting for a protective stop to clear.
 _CLEAR_POLL = 0.05
 #: Longest wait (s) after a refused command for the controller's state packages to show the stop that
-#: refused it: the package read first may predate the stop (RTDE streams at 125-500 Hz, so the stop
-#: is in the next one; this allows several at the slowest rate).
-STOP_REPORT_WAIT_S = 0.05
+#: refused it: the package read first may predate the stop. RTDE streams at 125-500 Hz, so on a real
+#: controller the stop is in the next package, but the host's client process (or an emulated controller on
+#: the same host) may not be scheduled for tens of milliseconds on a busy machine: 50 ms was once too short
+#: there. Only a refusal that no stop explains waits it all, and the arm is stopped by then.
+STOP_REPORT_WAIT_S = 0.25
 
 
 class RealUREnv(TaskEnvCore):
