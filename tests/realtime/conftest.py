@@ -6,14 +6,16 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
-from _loopback import emulator_host
+from _loopback import EMULATOR_PRIORITY, emulator_host
 
 from snac_gym.real.emulator.process import EmulatorProcess
 
 
 @pytest.fixture(scope="module")
 def controller() -> Iterator[EmulatorProcess]:
-    with EmulatorProcess(series="cb", host=emulator_host(), bind_timeout=90.0) as emulator:
+    with EmulatorProcess(
+        series="cb", host=emulator_host(), bind_timeout=90.0, rt_priority=EMULATOR_PRIORITY
+    ) as emulator:
         yield emulator
 
 

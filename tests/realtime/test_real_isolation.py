@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from _loopback import emulator_host
+from _loopback import EMULATOR_PRIORITY, emulator_host
 
 pytest.importorskip("rtde_control")
 pytestmark = pytest.mark.realtime
@@ -151,7 +151,7 @@ def test_a_frozen_state_stops_the_script_and_the_dashboard_confirms_the_arm_at_r
     """``emulate-ur --stale-at 2``: the stale rule stops the arm (exit 4), RTDE cannot show rest (its state is
     frozen), so the host stops the script and the dashboard server confirms rest; the record says how and when."""
     host = HOST.replace("127.0.0.", "127.0.2.")  # an emulator of this arm's own: the module's (a UR10) keeps HOST
-    with EmulatorProcess(series="cb", host=host, bind_timeout=90.0, robot=robot) as arm:
+    with EmulatorProcess(series="cb", host=host, bind_timeout=90.0, rt_priority=EMULATOR_PRIORITY, robot=robot) as arm:
         arm.schedule(2.0, "stale_data")
         command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", host, "--robot", robot,
                    "--task", "reach", "--controller", "snac", "--out", str(tmp_path), "--steps", "500", "--no-plots",

@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("rtde_control", reason="needs the real extra (ur-rtde)")
 
-from _loopback import emulator_host  # noqa: E402
+from _loopback import EMULATOR_PRIORITY, emulator_host  # noqa: E402
 from snac_gym.evaluation.samples import generate_samples  # noqa: E402
 from typer.testing import CliRunner  # noqa: E402
 
@@ -33,7 +33,9 @@ PAPER_Q0 = np.asarray(PAPER_POSE, dtype=float)
 @pytest.fixture(scope="module", params=["ur3", "ur5", "ur10", "ur5e"])
 def model(request) -> Iterator[tuple[str, EmulatorProcess]]:
     """Each arm's emulated controller, at 125 Hz (:func:`_loop`)."""
-    with EmulatorProcess(series="cb", host=HOST, bind_timeout=90.0, robot=request.param) as emulator:
+    with EmulatorProcess(
+        series="cb", host=HOST, bind_timeout=90.0, rt_priority=EMULATOR_PRIORITY, robot=request.param
+    ) as emulator:
         yield request.param, emulator
 
 
