@@ -8,6 +8,7 @@ a :class:`RayExecutor` is made.
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import os
 import signal
@@ -25,6 +26,10 @@ __all__ = ["RAY_CONNECT_TIMEOUT_S", "RayExecutor", "check_ray_reachable"]
 #: Seconds ``--ray ADDRESS`` waits for a TCP connection to the cluster before giving up (Ray's
 #: own client retries for minutes on an address that does not answer).
 RAY_CONNECT_TIMEOUT_S = 10.0
+#: Ray's notice, as it starts a local instance, that the instance uses token authentication (its default): nothing for
+#: the user to do, and two lines of log before the run's own. Its warning that authentication is *off* still shows.
+RAY_TOKEN_NOTICE = "Token authentication is enabled for this Ray cluster"
+_RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 
 
 def _ray_endpoint(address: str) -> tuple[str, int] | None:
@@ -114,7 +119,11 @@ class RayExecutor:
     def _init_ray(self, ray: Any, address: str, workers: int | None) -> None:
         if self._started_here:
             if address == "local":
-                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+                # Ray's INFO lines ("Started a local Ray instance.") off too: the run's progress says what runs.
+                with _without_token_notice():
+                    ray.init(
+                        num_cpus=workers, include_dashboard=False, log_to_driver=False, logging_level=logging.WARNING
+                    )
             else:
                 check_ray_reachable(address)
                 # Something answers (a proxy accepts any connection): bound Ray's own retries
@@ -162,3 +171,19 @@ class RayExecutor:
     def close(self) -> None:
         if self._started_here:
             self._ray.shutdown()
+
+
+class _TokenNoticeFilter(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return RAY_TOKEN_NOTICE not in record.getMessage()
+
+
+@contextlib.contextmanager
+def _without_token_notice() -> Iterator[None]:
+    """:data:`RAY_TOKEN_NOTICE` left out of Ray's log while a local instance starts."""
+    logger, notice = logging.getLogger(_RAY_TOKEN_LOGGER), _TokenNoticeFilter()
+    logger.addFilter(notice)
+    try:
+        yield
+    finally:
+        logger.removeFilter(notice)

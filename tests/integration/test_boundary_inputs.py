@@ -4,6 +4,7 @@ naming the argument: the list of a robustness pass over the landed code."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import warnings
 from pathlib import Path
@@ -306,4 +307,6 @@ def test_a_local_ray_instance_gets_the_workers_as_its_cpus(monkeypatch):
     fake = types.SimpleNamespace(is_initialized=lambda: False, init=lambda **kwargs: calls.append(kwargs))
     monkeypatch.setitem(__import__("sys").modules, "ray", fake)
     executors.RayExecutor("local", 2)
-    assert calls == [{"num_cpus": 2, "include_dashboard": False, "log_to_driver": False}]
+    assert calls == [
+        {"num_cpus": 2, "include_dashboard": False, "log_to_driver": False, "logging_level": logging.WARNING}
+    ]
