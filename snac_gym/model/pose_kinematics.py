@@ -78,10 +78,23 @@ class PoseKinematics:
         return np.concatenate([placement.translation, pin.log3(placement.rotation)]), jacobian
 
     def forward_and_jacobian_batch(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(x, J)`` of each row of ``qs`` ``(B, m)``: shapes ``(B, 6)`` and ``(B, 6, m)`` (a loop over Pinocchio)."""
+        """``(x, J)`` of each row of ``qs`` ``(B, m)``: shapes ``(B, 6)`` and ``(B, 6, m)`` (a loop over Pinocchio).
+
+        The last batch is remembered, as :meth:`Kinematics.forward_and_jacobian_batch` does: each control step
+        of the evaluator asks for ``x`` of every sample and the policies then for ``J`` of the same
+        configurations, and the loop over Pinocchio is most of a pose rollout's time. The arrays returned are
+        therefore read-only.
+        """
         qs = self.position._check_batch(qs)
+        last = self.__dict__.get("_last_batch")
+        if last is not None and last[0].shape == qs.shape and np.array_equal(last[0], qs):
+            return last[1], last[2]
         pairs = [self.forward_and_jacobian(q) for q in qs]
-        return np.array([x for x, _ in pairs]), np.array([jac for _, jac in pairs])
+        poses, jacobians = np.array([x for x, _ in pairs]), np.array([jac for _, jac in pairs])
+        poses.setflags(write=False)
+        jacobians.setflags(write=False)
+        self.__dict__["_last_batch"] = (qs.copy(), poses, jacobians)
+        return poses, jacobians
 
     def forward_batch(self, qs: np.ndarray) -> np.ndarray:
         """``x`` of each row of ``qs``."""

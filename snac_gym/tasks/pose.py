@@ -165,6 +165,7 @@ def pose_errors_and_jacobians(
         ``(errors, jacobians)`` of shapes ``(K, 6)`` and ``(K, 6, m)``.
     """
     poses, jacobians = kinematics.forward_and_jacobian_batch(qs)
+    jacobians = jacobians.copy()  # the kinematics' remembered batch is read-only
     errors = np.empty(poses.shape)
     for k, (x, desired) in enumerate(zip(poses, x_d, strict=True)):
         errors[k] = kinematics.task_error(x, desired)

@@ -172,3 +172,29 @@ def test_the_pose_env_logs_pinocchios_logarithm_and_dls_reaches(panda):
         obs, _, terminated, truncated, info = env.step(policy.act(obs))
     assert info["is_success"] and info["error_norm"] < 1e-3
     env.close()
+
+
+def test_a_pose_batch_is_computed_once_for_x_and_j_and_equals_the_single_calls(monkeypatch):
+    """The evaluator asks for x of every sample, then the policies for J of the same configurations: one loop over
+    Pinocchio serves both (it was most of a pose rollout's time, done twice)."""
+    kinematics = PoseKinematics("panda")
+    single = PoseKinematics("panda")  # another object: its answers are not the remembered batch
+    qs = np.random.default_rng(3).uniform(kinematics.lower_limits, kinematics.upper_limits, (5, kinematics.n_joints))
+    calls = []
+    original = PoseKinematics.forward_and_jacobian
+
+    def counted(self, q):
+        calls.append(self)
+        return original(self, q)
+
+    monkeypatch.setattr(PoseKinematics, "forward_and_jacobian", counted)
+    poses, jacobians = kinematics.forward_batch(qs), kinematics.jacobian_batch(qs.copy())
+    assert calls.count(kinematics) == 5  # one pass, not two
+    for row, q in enumerate(qs):
+        x, jac = single.forward_and_jacobian(q)
+        assert np.array_equal(poses[row], x) and np.array_equal(jacobians[row], jac)
+    assert not poses.flags.writeable and not jacobians.flags.writeable
+    moved = qs.copy()
+    moved[2, 0] += 1e-3
+    assert not np.array_equal(kinematics.forward_batch(moved)[2], poses[2])  # another batch is computed anew
+    assert calls.count(kinematics) == 10
