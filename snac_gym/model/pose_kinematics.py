@@ -42,6 +42,8 @@ class PoseKinematics:
         self.position = Kinematics(robot)
         self._ee_id = self.position._ee_id
         self._frame = pin.LOCAL_WORLD_ALIGNED
+        # Its own, not the position kinematics' (which __getattr__ would find): (qs, poses, jacobians).
+        self._last_batch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def __getattr__(self, name: str) -> Any:
         if name == "position":  # not set yet (unpickling): no recursion
@@ -86,7 +88,7 @@ class PoseKinematics:
         therefore read-only.
         """
         qs = self.position._check_batch(qs)
-        last = self.__dict__.get("_last_batch")
+        last = self._last_batch
         if last is not None and last[0].shape == qs.shape and np.array_equal(last[0], qs):
             return last[1], last[2]
         # forward_and_jacobian's calls, written in place: the same numbers, in 0.6 of the time.
@@ -100,7 +102,7 @@ class PoseKinematics:
             poses[row, 3:] = pin.log3(placement.rotation)
         poses.setflags(write=False)
         jacobians.setflags(write=False)
-        self.__dict__["_last_batch"] = (qs.copy(), poses, jacobians)
+        self._last_batch = (qs.copy(), poses, jacobians)
         return poses, jacobians
 
     def forward_batch(self, qs: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ from typing import Any, ClassVar, Generic, Protocol, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from snac_gym.model.kinematics import Kinematics, PoseKinematics
+from snac_gym.model.kinematics import Kinematics, PoseKinematics, shared_kinematics
 from snac_gym.model.robots import get_robot
 from snac_gym.references import PAPER_Q0, Reference
 from snac_gym.sampling import SampleSpace, reach_scale
@@ -155,7 +155,7 @@ class Task(ABC, Generic[_ReferenceT]):
         """
         own = None if robot is None else get_robot(robot).demo_options
         if own is None:
-            factor = 1.0 if robot is None else reach_scale(Kinematics(robot))
+            factor = 1.0 if robot is None else reach_scale(shared_kinematics(robot))
             paper = self.paper()
             # The UR10 (its reach is given to 6 digits): the paper's numbers as printed.
             return self.reset_options(PAPER_Q0, paper if abs(factor - 1.0) < 1e-6 else self.scaled(paper, factor))
