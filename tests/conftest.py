@@ -26,6 +26,10 @@ if _controller_cache and os.path.isdir(_controller_cache):
     os.symlink(os.path.join(_controller_cache, "meshes"), os.path.join(os.environ["SNAC_GYM_CACHE_DIR"], "meshes"))
 # Removed when this process ends (the controller's last, after its workers): otherwise every run leaves one a process.
 atexit.register(shutil.rmtree, os.environ["SNAC_GYM_CACHE_DIR"], ignore_errors=True)
+# Stable-Baselines3 makes a log folder for every learn() without a logger of its own (an empty /tmp/SB3-<time> when
+# nothing is logged): in this process's cache folder, removed with it, not in the machine's temporary folder (the
+# CLI's train-ppo gives its runs their own logger).
+os.environ["SB3_LOGDIR"] = os.path.join(os.environ["SNAC_GYM_CACHE_DIR"], "sb3-logs")
 # The calibration cache off: a test that compares two runs' knobs (other workers, fewer samples) must match
 # them anew, or it would compare a knob with itself. tests/evaluation/effort/test_effort_cache.py turns it on.
 os.environ["SNAC_GYM_CALIBRATION_CACHE"] = "0"
