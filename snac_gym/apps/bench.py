@@ -70,58 +70,93 @@ def _one_core() -> Iterator[None]:
             os.sched_setaffinity(0, previous)
 
 
-def _time_env(env: Any, steps: int, control_dt: float, seed: int = 0, repeats: int = 5) -> dict[str, float]:
-    """Best of ``repeats`` timed runs (the least-disturbed one, as ``timeit`` reports)."""
+def _start(env: Any, seed: int = 0) -> list[Any]:
+    """Reset ``env`` and seed its action space; the 256 random actions (a fifth of full scale) it is stepped with."""
     env.reset(seed=seed)
     env.action_space.seed(seed)
-    actions = [env.action_space.sample() * 0.2 for _ in range(256)]
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for k in range(steps):
-            _, _, terminated, truncated, _ = env.step(actions[k % len(actions)])
-            if terminated or truncated:
-                env.reset()
-        best = min(best, time.perf_counter() - start)
-    return {"steps_per_s": steps / best, "real_time_factor": steps * control_dt / best, "control_dt": control_dt}
+    return [env.action_space.sample() * 0.2 for _ in range(256)]
+
+
+def _timed_run(env: Any, actions: list[Any], steps: int) -> float:
+    """Seconds ``env`` takes for ``steps`` steps of ``actions`` in turn, reset where an episode ends."""
+    start = time.perf_counter()
+    for k in range(steps):
+        _, _, terminated, truncated, _ = env.step(actions[k % len(actions)])
+        if terminated or truncated:
+            env.reset()
+    return time.perf_counter() - start
+
+
+#: Timed runs of each env in :func:`run_env_bench`, one a round.
+ENV_BENCH_ROUNDS = 5
+#: The key of panda-gym's row in :func:`run_env_bench`'s results.
+PANDA_GYM = "PandaReachJoints-v3 (panda-gym)"
 
 
 @_one_core()
 def run_env_bench(
-    steps: int = 5000, include_panda: bool = True, physics: tuple[str, ...] = SIMULATED
-) -> dict[str, dict[str, float]]:
+    steps: int = 5000, include_panda: bool = True, physics: tuple[str, ...] = SIMULATED, rounds: int = ENV_BENCH_ROUNDS
+) -> dict[str, dict[str, Any]]:
     """Steps/s and real-time factor (simulated s per wall s) of the snac-gym ids, on one core.
 
     Each of the UR10's ids is timed with each ``physics`` (``"mujoco"`` only where the mujoco extra
     is installed). With ``include_panda`` and panda-gym installed, panda-gym's
     ``PandaReachJoints-v3`` is measured in the same run for comparison.
+
+    The envs are timed in ``rounds`` interleaved rounds, each env once a round, so that a machine whose speed drifts
+    during the run (a shared or throttled host) slows every env alike, not the one timed in its slow minute; each row
+    keeps its best run (``steps_per_s``, ``real_time_factor``) and every round's seconds (``round_seconds``), which
+    :func:`format_env_bench` pairs with panda-gym's of the same round.
     """
     check_bench_counts(steps, MIN_BENCH_COUNT)
-    results: dict[str, dict[str, float]] = {}
-    for engine in physics:
-        for env_id in (task.env_id for task in TASKS.values()):  # the UR10's, the paper's arm
-            try:
-                env = gym.make(env_id, physics=engine)
-            except MissingExtraError:
-                break
-            # timed unwrapped: no TimeLimit, and the env sets no length of its own
-            results[f"{env_id} ({engine})"] = _time_env(env.unwrapped, steps, cast("URTaskEnv", env.unwrapped).dt)
+    envs: dict[str, tuple[Any, float, list[Any]]] = {}  # name: (the env stepped, its control period, its actions)
+    closers: list[Any] = []
+    try:
+        for engine in physics:
+            for env_id in (task.env_id for task in TASKS.values()):  # the UR10's, the paper's arm
+                try:
+                    env = gym.make(env_id, physics=engine)
+                except MissingExtraError:
+                    break
+                closers.append(env)
+                # timed unwrapped: no TimeLimit, and the env sets no length of its own
+                unwrapped = cast("URTaskEnv", env.unwrapped)
+                envs[f"{env_id} ({engine})"] = (unwrapped, unwrapped.dt, _start(unwrapped))
+        if include_panda and importlib.util.find_spec("panda_gym") is not None:
+            import panda_gym  # noqa: F401  (registers its ids)
+
+            # PyBullet prints the options panda-gym connects with ("argv[0]=--background_color...")
+            with quiet_output():
+                env = gym.make("PandaReachJoints-v3")
+            closers.append(env)
+            base: Any = env.unwrapped  # panda-gym's env (its sim)
+            envs[PANDA_GYM] = (env, base.sim.timestep * base.sim.n_substeps, _start(env))
+        seconds: dict[str, list[float]] = {name: [] for name in envs}
+        for _ in range(rounds):
+            for name, (env, _, actions) in envs.items():
+                seconds[name].append(_timed_run(env, actions, steps))
+    finally:
+        for env in closers:
             env.close()
-    if include_panda:
-        try:
-            import panda_gym  # noqa: F401
-        except ImportError:
-            return results
-        with quiet_output():  # PyBullet prints the options panda-gym connects with ("argv[0]=--background_color...")
-            env = gym.make("PandaReachJoints-v3")
-        base: Any = env.unwrapped  # panda-gym's env (its sim)
-        control_dt = base.sim.timestep * base.sim.n_substeps
-        results["PandaReachJoints-v3 (panda-gym)"] = _time_env(env, steps, control_dt)
-        env.close()
+    results: dict[str, dict[str, Any]] = {}
+    for name, (_, control_dt, _) in envs.items():
+        best = min(seconds[name])
+        results[name] = {
+            "steps_per_s": steps / best,
+            "real_time_factor": steps * control_dt / best,
+            "control_dt": control_dt,
+            "round_seconds": tuple(seconds[name]),
+        }
     return results
 
 
-def format_env_bench(results: dict[str, dict[str, float]]) -> str:
+def paired_ratios(row: dict[str, Any], panda: dict[str, Any]) -> np.ndarray:
+    """``row``'s real-time factor over panda-gym's in each round of :func:`run_env_bench` (both timed in it)."""
+    own, theirs = np.asarray(row["round_seconds"]), np.asarray(panda["round_seconds"])
+    return (row["control_dt"] / own) / (panda["control_dt"] / theirs)
+
+
+def format_env_bench(results: dict[str, dict[str, Any]]) -> str:
     lines = [f"{'env':42s} {'steps/s':>10s} {'control dt':>11s} {'real-time factor':>17s}"]
     for name, row in results.items():
         lines.append(
@@ -130,10 +165,16 @@ def format_env_bench(results: dict[str, dict[str, float]]) -> str:
     panda = next((r for n, r in results.items() if "panda" in n), None)
     if panda:
         for name, row in results.items():
-            if row is not panda:
-                lines.append(
-                    f"{name}: {row['real_time_factor'] / panda['real_time_factor']:.2f}x panda-gym's real-time factor"
+            if row is panda:
+                continue
+            line = f"{name}: {row['real_time_factor'] / panda['real_time_factor']:.2f}x panda-gym's real-time factor"
+            if "round_seconds" in row and "round_seconds" in panda:
+                ratios = paired_ratios(row, panda)
+                line += (
+                    f" (best runs; round by round {ratios.min():.2f}-{ratios.max():.2f}x,"
+                    f" median {float(np.median(ratios)):.2f}x)"
                 )
+            lines.append(line)
     return "\n".join(lines)
 
 

@@ -38,3 +38,38 @@ def test_quiet_output_silences_the_descriptors_c_code_writes_to_under_a_capture(
         os.write(2, b"from C, on stderr\n")
     print("after", flush=True)
     assert capfd.readouterr() == ("before\nafter\n", "")
+
+
+def test_the_envs_are_timed_in_interleaved_rounds_and_each_row_keeps_its_best(monkeypatch):
+    """Each round times every env once, so a host whose speed drifts during the run slows every env alike: timed one
+    env after another, the envs of a slow minute read slow and their ratio to panda-gym with them."""
+    from snac_gym.apps import bench
+
+    order: list[int] = []
+    clock = iter([0.5, 0.4, 0.6, 0.45, 0.3, 0.35])  # seconds of each timed run, in the order they are made
+
+    def timed(env, actions, steps):
+        order.append(id(env))
+        return next(clock)
+
+    monkeypatch.setattr(bench, "_timed_run", timed)
+    results = run_env_bench(steps=100, include_panda=False, physics=("pybullet",), rounds=3)
+    assert list(results) == ["snac_gym/UR10Reach-v0 (pybullet)", "snac_gym/UR10EllipseTrack-v0 (pybullet)"]
+    assert len(set(order)) == 2 and order[:2] == order[2:4] == order[4:]  # A B A B A B
+    reach, track = results.values()
+    assert reach["round_seconds"] == (0.5, 0.6, 0.3) and track["round_seconds"] == (0.4, 0.45, 0.35)
+    assert reach["steps_per_s"] == 100 / 0.3 and track["real_time_factor"] == 100 * track["control_dt"] / 0.35
+
+
+def test_the_ratio_to_panda_gym_is_printed_round_by_round_beside_the_best_runs():
+    """Paired by round: each round's real-time factor over panda-gym's in the same round (an independent computation
+    of the three rounds below), with the ratio of the best runs first."""
+    from snac_gym.apps.bench import PANDA_GYM
+
+    ours = {"steps_per_s": 1000 / 0.5, "real_time_factor": 16.0, "control_dt": 0.008, "round_seconds": (0.5, 0.8, 0.6)}
+    panda = {"steps_per_s": 1000 / 2.0, "real_time_factor": 20.0, "control_dt": 0.04, "round_seconds": (2.0, 2.4, 3.6)}
+    text = format_env_bench({"ours (pybullet)": ours, PANDA_GYM: panda})
+    # best runs: (8/0.5)/(40/2.0) = 0.8; rounds: (8/0.5)/(40/2.0) = 0.8, (8/0.8)/(40/2.4) = 0.6, (8/0.6)/(40/3.6) = 1.2
+    assert text.splitlines()[-1] == (
+        "ours (pybullet): 0.80x panda-gym's real-time factor (best runs; round by round 0.60-1.20x, median 0.80x)"
+    )
