@@ -27,6 +27,7 @@ import pandas as pd
 from snac_gym.common.outputs import usable_out_folder, write_text_whole
 from snac_gym.envs import make_task_env
 from snac_gym.metrics import DemoMetrics, demo_metrics
+from snac_gym.physics.base import check_physics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
@@ -68,7 +69,8 @@ class DemoResult:
             return f"{value:.3f} s" if value is not None else "never"
 
         lines = [
-            f"{self.task} demo, controller {self.controller!r}, seed {self.seed}, {m.steps} steps",
+            f"{self.task} demo, controller {self.controller!r}, seed {self.seed}, {m.steps} steps"
+            + (f", {self.log.attrs['engine']} engine" if "engine" in self.log.attrs else ""),
             f"  final error                 {m.final_error * 1e3:.4f} mm",
             f"  time to first reach 1 mm    {seconds(m.time_to_1mm)}",
             f"  fraction of steps eᵀė ≤ 0   {m.descent_fraction:.4f}"
@@ -140,6 +142,7 @@ def run_demo(
     policy_kwargs: dict[str, Any] | None = None,
     robot: str = "ur10",
     model_error: str | None = None,
+    engine: str = "pybullet",
 ) -> DemoResult:
     """Run the paper's ``task`` demo with ``controller`` and write its figures and log.
 
@@ -157,6 +160,8 @@ def run_demo(
             7-DOF arms) runs its own start pose and reference (``Robot.demo_options``).
         model_error: Give the controller a wrong arm model (:mod:`snac_gym.model.model_error` text);
             the simulated arm keeps the true one.
+        engine: The arm's model (:data:`~snac_gym.physics.PHYSICS`): ``"pybullet"`` (the env's default),
+            ``"mujoco"`` (the mujoco extra) or ``"kinematic"`` (the paper's exact θₖ₊₁ = θₖ + uₖΔt).
 
     Returns:
         The :class:`DemoResult`. Files in ``out_dir``, prefixed ``<task>_<controller>_``:
@@ -167,7 +172,8 @@ def run_demo(
     spec = get_task(task)
     options = spec.demo_options(robot)
     _check_demo_arguments(seed, steps, duration, out_dir)
-    env = make_task_env(spec, robot)
+    check_physics(engine, what="the demo's engine")
+    env = make_task_env(spec, robot, physics=engine)
     dt = env.unwrapped.dt
     if duration is not None:
         steps = round(duration / dt)
@@ -179,7 +185,7 @@ def run_demo(
         raise ValueError(f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}")
     if steps > env.spec.max_episode_steps:
         env.close()
-        env = make_task_env(spec, robot, max_episode_steps=steps)
+        env = make_task_env(spec, robot, physics=engine, max_episode_steps=steps)
     kinematics = env.unwrapped.kinematics
     limits = (kinematics.lower_limits, kinematics.upper_limits)
     try:
@@ -190,6 +196,7 @@ def run_demo(
         exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
         if out_dir is not None and partial is not None and len(partial):
             partial.attrs["controller"] = controller
+            partial.attrs["engine"] = engine
             status = {
                 "complete": False,
                 "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
@@ -216,6 +223,7 @@ def run_demo(
     finally:
         env.close()
     log.attrs["controller"] = controller
+    log.attrs["engine"] = engine
     if model_error is not None:
         log.attrs["model_error"] = model_error
     return write_demo_outputs(
@@ -283,6 +291,7 @@ def write_demo_outputs(
         "controller": controller,
         "seed": seed,
         "policy_kwargs": policy_kwargs or {},
+        **({"engine": log.attrs["engine"]} if "engine" in log.attrs else {}),  # a demo's; a real run has its connection
         **(status or {"complete": True}),
         **finite,
     }

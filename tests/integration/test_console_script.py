@@ -27,6 +27,7 @@ USAGE_ERRORS = [
     (["evaluate", "--bogus-option", "1"], "--bogus-option"),
     (["demo", "--task", "orbit"], "--task"),  # _check_task: a typer.BadParameter in the command body
     (["demo", "--steps", "0"], "--steps"),
+    (["demo", "--engine", "bullet"], "--engine"),
     (["demo", "--steps", "1", "--duration", "1"], "--steps"),  # raised in the body, after the demo's imports
     (["demo", "--bogus-option", "1"], "--bogus-option"),
     (["real", "--robot", "panda"], "--robot"),  # _check_ur_arm, in the body

@@ -14,12 +14,14 @@ import typer
 from snac_gym.common._signals import SignalGuard, exit_code
 from snac_gym.model.robots import robot_names
 from snac_gym.model.ur_models import UR_MODELS
+from snac_gym.physics.base import PHYSICS
 from snac_gym.policies import available_policies
 from snac_gym.tasks import task_names
 
 __all__ = [
     "UR_ARMS",
     "check_controller",
+    "check_engine",
     "check_task",
     "check_ur_arm",
     "interrupted",
@@ -74,6 +76,12 @@ def check_task(task: str) -> None:
     """Refuse a ``--task`` that names no registered task."""
     if task not in task_names():
         raise typer.BadParameter(f"must be one of {sorted(task_names())}", param_hint="--task")
+
+
+def check_engine(engine: str) -> None:
+    """Refuse an ``--engine`` that names no arm model (:data:`~snac_gym.physics.PHYSICS`)."""
+    if engine not in PHYSICS:
+        raise typer.BadParameter(f"must be one of {list(PHYSICS)}, got {engine!r}", param_hint="--engine")
 
 
 def check_ur_arm(robot: str) -> None:

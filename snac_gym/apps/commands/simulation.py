@@ -9,6 +9,7 @@ import typer
 
 from snac_gym.apps.commands.common import (
     check_controller,
+    check_engine,
     check_task,
     interrupted,
     registered_robots,
@@ -123,10 +124,17 @@ def demo(
         "--model-error",
         help="Give the controller a wrong arm model (as for evaluate); the simulated arm keeps the true one.",
     ),
+    engine: str = typer.Option(
+        "pybullet",
+        "--engine",
+        help="The arm's model: pybullet (the env's default), mujoco (the mujoco extra) or kinematic (the paper's "
+        "exact θ += uΔt, as evaluate's default).",
+    ),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
     check_task(task)
     check_controller(controller)
+    check_engine(engine)
     if steps is not None and duration is not None:
         raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
     # start-up time: the demo loads numba, scipy and pandas (after the checks: a usage error comes at once)
@@ -145,6 +153,7 @@ def demo(
             plots=plots,
             robot=robot,
             model_error=model_error,
+            engine=engine,
         )
     except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
         typer.echo(f"error: {exc}", err=True)
