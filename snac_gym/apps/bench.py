@@ -93,6 +93,15 @@ ENV_BENCH_ROUNDS = 5
 PANDA_GYM = "PandaReachJoints-v3 (panda-gym)"
 
 
+def _panda_gym_registered() -> bool:
+    """Whether panda-gym imports (registering its ids); the bench then leaves it out where it is missing or broken."""
+    try:
+        import panda_gym  # noqa: F401  (an optional comparison: imported only when the bench asks for it)
+    except ImportError:
+        return False
+    return True
+
+
 @_one_core()
 def run_env_bench(
     steps: int = 5000, include_panda: bool = True, physics: tuple[str, ...] = SIMULATED, rounds: int = ENV_BENCH_ROUNDS
@@ -122,9 +131,7 @@ def run_env_bench(
                 # timed unwrapped: no TimeLimit, and the env sets no length of its own
                 unwrapped = cast("URTaskEnv", env.unwrapped)
                 envs[f"{env_id} ({engine})"] = (unwrapped, unwrapped.dt, _start(unwrapped))
-        if include_panda and importlib.util.find_spec("panda_gym") is not None:
-            import panda_gym  # noqa: F401  (registers its ids)
-
+        if include_panda and _panda_gym_registered():
             # PyBullet prints the options panda-gym connects with ("argv[0]=--background_color...")
             with quiet_output():
                 env = gym.make("PandaReachJoints-v3")
