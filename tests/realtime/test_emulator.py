@@ -339,7 +339,7 @@ def test_snac_gym_real_against_the_emulator_reaches_within_1mm_with_the_usual_ou
     from snac_gym.apps.real import run_real_episode
 
     # The run keeps the default 40 ms stall limit, as `snac-gym real` does (a shared host that stalls
-    # past it gets the test one rerun: see HOST_TIMING_STOPS in conftest.py). The LQR law reaches
+    # past it gets the test a rerun: see HOST_TIMING_STOPS in conftest.py). The LQR law reaches
     # within 1 mm in 2.6 s of motion (SNAC in 10 s; tests/realtime/test_real_isolation.py runs SNAC
     # through the same path): a 4 s episode.
     out = tmp_path / "run"
