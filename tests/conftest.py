@@ -46,10 +46,6 @@ RL_SKIP_REASON = (
 #: emulated controller, both processes of this host, not scheduled in time): on a shared machine that
 #: is the machine, not the code. A real-time test that fails with one of these is run again, up to
 #: HOST_TIMING_RERUNS times (pytest-rerunfailures); any other failure, or one more, stands.
-#: Reruns of a real-time test after a host-timing stop. One was not enough on a 2-core host with slow spells: a
-#: fresh clone's CI failed the UR5e track test twice in a row for missed 8 ms deadlines (3 of 25 periods late),
-#: with nothing else running, while the same code passed the run before and after.
-HOST_TIMING_RERUNS = 2
 HOST_TIMING_STOPS = [
     "control loop stalled",
     "control loop missed its",
@@ -58,6 +54,10 @@ HOST_TIMING_STOPS = [
     # ur_rtde's own 5 s wait for the emulated controller's script, on a host too busy to schedule it
     "Failed to start control script, before timeout",
 ]
+#: Reruns of a real-time test after a host-timing stop. One was not enough on a 2-core host with slow spells: a
+#: fresh clone's CI failed the UR5e track test twice in a row for missed 8 ms deadlines (3 of 25 periods late),
+#: with nothing else running, while the same code passed the run before and after.
+HOST_TIMING_RERUNS = 2
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -169,7 +169,7 @@ def format_env_bench(results: dict[str, dict[str, Any]]) -> str:
         lines.append(
             f"{name:42s} {row['steps_per_s']:10.0f} {row['control_dt'] * 1e3:9.1f}ms {row['real_time_factor']:17.1f}"
         )
-    panda = next((r for n, r in results.items() if "panda" in n), None)
+    panda = results.get(PANDA_GYM)
     if panda:
         for name, row in results.items():
             if row is panda:

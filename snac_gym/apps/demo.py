@@ -27,7 +27,6 @@ import pandas as pd
 from snac_gym.common.outputs import usable_out_folder, write_text_whole
 from snac_gym.envs import make_task_env
 from snac_gym.metrics import DemoMetrics, demo_metrics
-from snac_gym.physics.base import check_physics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.rollout import add_critic_diagnostics, partial_log, rollout, write_log
@@ -172,7 +171,6 @@ def run_demo(
     spec = get_task(task)
     options = spec.demo_options(robot)
     _check_demo_arguments(seed, steps, duration, out_dir)
-    check_physics(engine, what="the demo's engine")
     env = make_task_env(spec, robot, physics=engine)
     dt = env.unwrapped.dt
     if duration is not None:
