@@ -18,6 +18,7 @@ import time
 import numpy as np
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.ipopt import solve_with_ipopt
+from snac_gym.evaluation.reference.multistart import COARSE_FACTOR
 from snac_gym.evaluation.reference.optimum import multi_start_solve, own_start_commands
 from snac_gym.evaluation.samples import generate_samples
 
@@ -38,7 +39,7 @@ for task in ("reach", "track"):
     steps = round(get_task(task).horizon_s * 125)
     context = policy_context(robot, 1 / 125, task)
     samples = generate_samples(kinematics, space, seed, task, range(count))
-    starts = own_start_commands(context, samples, steps, list(range(count)))
+    starts = own_start_commands(context, samples, steps, list(range(count)), factor=COARSE_FACTOR)
     for sample, candidates in zip(samples, starts, strict=True):
         x_d = reference_trajectories([sample.reference], np.arange(steps) / 125)[0][0]
         q0 = np.asarray(sample.q0, dtype=float)

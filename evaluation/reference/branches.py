@@ -206,10 +206,17 @@ def branch_candidates(
     velocity_limits: np.ndarray,
     rest_ends: list[np.ndarray],
     rest_costs: list[float],
+    factor: int = 1,
 ) -> list[dict[str, np.ndarray]]:
-    """Per sample, the branch starts worth screening (:func:`worth_trying` against the solve from rest), by name."""
+    """Per sample, the branch starts worth screening (:func:`worth_trying` against the solve from rest), by name.
+
+    ``x_d``: ``(B, K, 3)`` on the grid of Δt = ``dt``; ``factor``: the starts' commands on its coarse grid (every
+    ``factor``-th point, Δt × ``factor``), where :func:`~snac_gym.evaluation.reference.optimum.multi_start_solve`
+    screens them.
+    """
+    horizon = x_d.shape[1] * dt
+    x_d, dt = x_d[:, ::factor], dt * factor
     steps = x_d.shape[1]
-    horizon = steps * dt
     goals = branch_goals(kinematics, np.array(q0s), x_d[:, 0])
     kept = [(i, j, goal) for i, found in enumerate(goals) for j, goal in enumerate(found)
             if worth_trying(goal, q0s[i], horizon, [rest_ends[i]], rest_costs[i])]  # fmt: skip

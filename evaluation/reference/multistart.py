@@ -85,18 +85,26 @@ def _coarse_screen(
     convention: CostConvention,
     coarse_solve: Any,
     in_coarse_basin: Any,
-    factor: int,
-    commands: np.ndarray,
+    start: np.ndarray,
 ) -> OptimalSolution | None:
-    """A candidate's optimum on the coarse grid of :func:`multi_start_solve`, or None where its screen reaches a
-    known optimum's basin (after :data:`SCREEN_ITERATIONS` Gauss-Newton steps, or at the end of the coarse solve)."""
-    start = coarse_commands(commands, factor)
+    """A candidate's optimum on the coarse grid of :func:`multi_start_solve` from its coarse commands ``start``, or None
+    where its screen reaches a known optimum's basin (after :data:`SCREEN_ITERATIONS` Gauss-Newton steps, or at the end
+    of the coarse solve)."""
     stepped, *_ = gauss_newton(q0, coarse_x, kinematics, coarse_dt, start, GTOL, FTOL, SCREEN_ITERATIONS, convention,
                                until=in_coarse_basin, gradient=False)  # fmt: skip
     if in_coarse_basin(stepped):
         return None
     coarse = coarse_solve(initial=stepped, interior_start=start)
     return None if in_coarse_basin(coarse.commands) else coarse
+
+
+def _check_coarse(candidates: dict[str, np.ndarray], shape: tuple[int, int]) -> None:
+    for name, commands in candidates.items():
+        if np.shape(commands) != shape:
+            raise ValueError(
+                f"start {name!r}: commands of shape {np.shape(commands)}, expected the coarse grid's {shape} "
+                "(coarse_commands of a full-grid sequence)"
+            )
 
 
 def solve_from_rest(
@@ -151,8 +159,8 @@ def multi_start_solve(
     basin (under Table I's cost a feedback law pays mostly for its first command's jump), nor do a few
     unconstrained Gauss-Newton steps where a limit binds (they leave the limits; the interior point from the
     start may end far lower). So each candidate is **screened on the coarse grid** (every
-    :data:`COARSE_FACTOR`-th step, Δt × :data:`COARSE_FACTOR`, the commands block-averaged: a tenth of the
-    variables): :data:`SCREEN_ITERATIONS` Gauss-Newton steps, stopped at once where its joint path comes within
+    :data:`COARSE_FACTOR`-th step, Δt × :data:`COARSE_FACTOR`: a tenth of the variables), where it is given:
+    :data:`SCREEN_ITERATIONS` Gauss-Newton steps, stopped at once where its joint path comes within
     :data:`BASIN_RADIUS` of a local optimum already found (it is then in that optimum's basin, counted in
     ``same_basin``), else solved there to the end (the interior point where a limit binds, at most
     :data:`COARSE_ITERATIONS` iterations). The best optimum's basin is solved on the coarse grid too (from its
@@ -163,7 +171,15 @@ def multi_start_solve(
     the contestants it judges (with the IK-branch and random starts of
     :mod:`~snac_gym.evaluation.reference.branches`, which the caller adds).
 
+    ``candidates``: each start's commands on the coarse grid, ``(⌈K/COARSE_FACTOR⌉, m)`` by name: a feedback law
+    rolled out there, or :func:`coarse_commands` of a full-grid sequence (the same angles at the grid's points).
+    A start is needed there only: rolling a law out on the full grid would cost ten times the steps for a start
+    that the screen's first Gauss-Newton step moves anyway. Where a polish's coarse solution leaves a limit, the
+    interior point starts from the candidate's own commands, held over each block.
     ``first``: the solve from rest (:func:`solve_from_rest`), when already made.
+
+    Raises:
+        ValueError: If a candidate is not on the coarse grid.
     """
     solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
                               position_limits=position_limits)  # fmt: skip
@@ -183,14 +199,15 @@ def multi_start_solve(
 
     in_coarse_basin = functools.partial(in_known_basin, grid=factor)
     screen = functools.partial(_coarse_screen, q0, coarse_x, kinematics, coarse_dt, convention, coarse_solve,
-                               in_coarse_basin, factor)  # fmt: skip
+                               in_coarse_basin)  # fmt: skip
     screened: list[tuple[float, str, np.ndarray, np.ndarray]] = []
+    _check_coarse(candidates, (len(coarse_x), best.commands.shape[1]))
     for name, commands in candidates.items():
         coarse = screen(commands)
         if coarse is None:
             same_basin += 1
-        else:
-            screened.append((coarse.cost, name, coarse.commands, commands))
+        else:  # its own commands over the full grid: inside every limit its coarse path keeps (a convex box)
+            screened.append((coarse.cost, name, coarse.commands, np.repeat(commands, factor, axis=0)[:steps]))
     if screened:
         incumbent = coarse_solve(initial=coarse_commands(best.commands, factor))
         if not in_coarse_basin(incumbent.commands):  # the coarse solve left the basin: another start of its own

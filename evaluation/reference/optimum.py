@@ -139,6 +139,13 @@ class ReplayPolicy:
 #: of another branch or winding where one is nearer: the basin the resolved-rate starts, stalled against
 #: a limit, never reach (on the arm's whole reach, the solve from them could end 0.7 m off target).
 OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (("lqr", {"q_scale": 9.0}), ("dls", {}), ("joint-goal", {}))
+#: The own starts whose path does not depend on the grid they are rolled out on, so that they are rolled out on the
+#: coarse grid of the screen (:func:`own_start_commands`), a tenth of the steps: ``joint-goal`` goes straight in joint
+#: space to its goal, the same segment at any Δt. The resolved-rate laws are rolled out on the full grid: which branch
+#: they end on can depend on Δt (workspace reach sample 4 of seed 13, HJB cost, 5 s: lqr's full-grid rollout crosses to
+#: the other elbow branch, where the optimum is 13 % below the solve from rest's, and its rollouts at Δt × 2 to × 10
+#: do not).
+GRID_FREE_STARTS = ("joint-goal",)
 # Made by name, so outside the import graph the cache's key follows: their modules are given to it.
 reference_cache.add_roots([policy_factory(name).__module__ for name, _ in OWN_STARTS])
 
@@ -167,13 +174,22 @@ class OptimalJob:
 
 
 def own_start_commands(
-    context: Any, samples: Sequence[Any], steps: int, seeds: Sequence[int], joint_limits: bool = True
+    context: Any,
+    samples: Sequence[Any],
+    steps: int,
+    seeds: Sequence[int],
+    joint_limits: bool = True,
+    factor: int = 1,
 ) -> list[dict[str, np.ndarray]]:
     """Per sample, the command sequence of each of :data:`OWN_STARTS`, rolled out on the true model.
 
     ``joint_limits``: keep them inside the position limits (Ω(θ)); ``False`` for the problem without
-    position limits, whose better basins may lie beyond them.
+    position limits, whose better basins may lie beyond them. ``factor``: the commands on the coarse grid of the
+    same horizon (Δt × ``factor``, ``⌈steps/factor⌉`` rows), where :func:`multi_start_solve` screens them: the
+    laws of :data:`GRID_FREE_STARTS` rolled out there, the others on the full grid and block-averaged
+    (:func:`coarse_commands`).
     """
+    coarse_context = dataclasses.replace(context, dt=float(context.dt) * factor)
     starts: list[dict[str, np.ndarray]] = [{} for _ in samples]
     position_task = getattr(context.kinematics, "task_error", None) is None
     for name, kwargs in OWN_STARTS:
@@ -181,10 +197,13 @@ def own_start_commands(
             continue  # its goal is a 3-D position; a pose task has the other starts
         # joint-goal keeps the limits by construction (a straight joint path between in-limit configurations).
         limit_kwargs = {} if name == "joint-goal" else {"joint_limits": joint_limits}
-        make = functools.partial(make_policy, name, context, **{**kwargs, **limit_kwargs})
-        rollouts = simulate_kinematic(context, make, samples, steps, seeds, True, name, keep_states=False)
+        on_coarse = factor > 1 and name in GRID_FREE_STARTS
+        law_context, law_steps = (coarse_context, -(-steps // factor)) if on_coarse else (context, steps)
+        make = functools.partial(make_policy, name, law_context, **{**kwargs, **limit_kwargs})
+        rollouts = simulate_kinematic(law_context, make, samples, law_steps, seeds, True, name, keep_states=False)
         for i in range(len(samples)):
-            starts[i][name] = rollouts.commands[i]
+            commands = rollouts.commands[i]
+            starts[i][name] = commands if on_coarse or factor == 1 else coarse_commands(commands, factor)
     return starts
 
 
@@ -285,7 +304,7 @@ def solve_samples(
     steps = x_d.shape[1]
     with single_threaded_blas():
         rest = [solve_from_rest(q0, x_d[i], kinematics, dt, limits, convention, bounds) for i, q0 in enumerate(q0s)]
-        candidates = own_start_commands(context, samples, steps, seeds, position_limits)
+        candidates = own_start_commands(context, samples, steps, seeds, position_limits, COARSE_FACTOR)
         branches: list[dict[str, np.ndarray]] = [{} for _ in q0s]
         if getattr(kinematics, "task_error", None) is None and context.layout.task_dim == 3:  # a 3-D target's branches
             paths = [angles(r.commands, q0, dt) for r, q0 in zip(rest, q0s, strict=True)]
@@ -293,7 +312,8 @@ def solve_samples(
             searched = [i for i, r in enumerate(rest) if needs_branches(kinematics, r, paths[i], x_d[i])]
             if searched:
                 found = branch_candidates(kinematics, [q0s[i] for i in searched], x_d[searched], dt, limits,
-                                          [ends[i] for i in searched], [rest[i].cost for i in searched])  # fmt: skip
+                                          [ends[i] for i in searched], [rest[i].cost for i in searched],
+                                          COARSE_FACTOR)  # fmt: skip
                 for i, starts in zip(searched, found, strict=True):
                     branches[i] = starts
         return [
@@ -369,6 +389,7 @@ __all__ = [
     "SCREEN_ITERATIONS",
     "SCREEN_MARGIN",
     "BASIN_RADIUS",
+    "GRID_FREE_STARTS",
     "OWN_STARTS",
     "REFERENCE_LIMITS",
     "Limits",

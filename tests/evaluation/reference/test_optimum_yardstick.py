@@ -12,7 +12,8 @@ import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.execution.jobs import policy_context
 from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, RANDOM_PREFIX
-from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_start_solve
+from snac_gym.evaluation.reference.multistart import COARSE_FACTOR, coarse_commands
+from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_start_solve, own_start_commands
 from snac_gym.evaluation.samples import generate_samples
 
 from snac_gym.control.cost import CostConvention
@@ -42,7 +43,7 @@ def test_the_multi_start_optimum_is_below_the_single_start_on_a_workspace_sample
     x_d = reference_trajectories([sample.reference], np.arange(steps) * DT, 3)[0][0]
     q0, limits = np.asarray(sample.q0), ur10.velocity_limits
     single = solve_sample(q0, x_d, ur10, DT, limits, convention=HJB)
-    multi = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"lqr": lqr})
+    multi = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"lqr": coarse_commands(lqr, COARSE_FACTOR)})
     assert single.converged  # a local optimum, not a failed solve
     assert multi.winner == "lqr" and multi.starts == 2
     assert multi.solution.cost < 0.7 * single.cost
@@ -50,8 +51,42 @@ def test_the_multi_start_optimum_is_below_the_single_start_on_a_workspace_sample
     lqr_cost = trajectory_cost_and_gradient(lqr, q0, x_d, ur10, DT, HJB)[0]
     assert multi.solution.cost <= lqr_cost  # a descent from lqr's trajectory ends at most at its cost
     # No start is solved when no controller comes near the optimum from rest.
-    far = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"idle": np.zeros_like(lqr)})
+    far = multi_start_solve(
+        q0, x_d, ur10, DT, limits, HJB, {"idle": np.zeros_like(coarse_commands(lqr, COARSE_FACTOR))}
+    )
     assert far.winner == REST_START and far.starts == 1 and far.spread == 0.0
+
+
+def test_a_start_off_the_coarse_grid_is_refused_naming_it(ur10):
+    sample = generate_samples(ur10, SampleSpace.workspace(ur10), 7, "reach", [0])[0]
+    steps = 250
+    x_d = reference_trajectories([sample.reference], np.arange(steps) * DT, 3)[0][0]
+    q0, limits = np.asarray(sample.q0), ur10.velocity_limits
+    with pytest.raises(
+        ValueError, match=r"start 'full': commands of shape \(250, 6\), expected the coarse grid's \(25, 6\)"
+    ):
+        multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"full": np.zeros((steps, 6))})
+
+
+@pytest.mark.parametrize(("seed", "index", "winner"), [(13, 4, "lqr"), (7, 0, "joint-goal"), (7, 3, "dls")])
+def test_the_starts_on_the_coarse_grid_find_the_optimum_the_full_grid_rollouts_find(ur10, seed, index, winner):
+    # Workspace reach samples, HJB cost, 5 s, where an own start beats the solve from rest. Before, every own start was
+    # rolled out on the full grid and block-averaged; now joint-goal (GRID_FREE_STARTS) is rolled out on the coarse
+    # grid. On (13, 4) lqr's full-grid rollout crosses to the other elbow branch, 13 % below rest, and its coarse
+    # rollouts do not: were lqr rolled out coarse, that optimum would be lost and this test would fail.
+    steps, context = 625, policy_context("ur10", DT, "reach")
+    sample = generate_samples(ur10, SampleSpace.workspace(ur10), seed, "reach", [index])
+    x_d = reference_trajectories([sample[0].reference], np.arange(steps) * DT, 3)[0][0]
+    q0, limits, box = np.asarray(sample[0].q0), ur10.velocity_limits, (ur10.lower_limits, ur10.upper_limits)
+    full = own_start_commands(context, sample, steps, [0])[0]
+    averaged = {name: coarse_commands(u, COARSE_FACTOR) for name, u in full.items()}
+    before = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, averaged, position_limits=box)
+    coarse = own_start_commands(context, sample, steps, [0], factor=COARSE_FACTOR)[0]
+    assert {name: u.shape for name, u in coarse.items()} == {name: (-(-steps // COARSE_FACTOR), 6) for name in full}
+    now = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, coarse, position_limits=box)
+    rest = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {}, position_limits=box)
+    assert before.winner == now.winner == winner and now.solution.cost < 0.99 * rest.solution.cost
+    assert now.solution.cost == pytest.approx(before.solution.cost, rel=1e-8)
 
 
 def _workspace_config(out, controllers, reference_limits="joints") -> EvaluationConfig:
