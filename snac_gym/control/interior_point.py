@@ -155,6 +155,7 @@ def interior_point(
     max_iterations: int = MAX_ITERATIONS,
     gap_rtol: float = GAP_RTOL,
     barrier_start: float = BARRIER_STARTS[0],
+    until: Callable[[np.ndarray], bool] | None = None,
 ) -> tuple[np.ndarray, float, int, int, bool]:
     """Primal-dual interior point in θ₁..θ_K with Gauss-Newton on V: the constrained optimum from ``start``.
 
@@ -164,6 +165,7 @@ def interior_point(
     multiplier at least 1 − τ of its value, and backtracks on the barrier function V − μ Σ log s. μ is
     divided by :data:`BARRIER_DECREASE` each time its problem is centred, until its gap μ·n_c is at
     most ``gap_rtol``·V: the sequence then keeps every limit and is within that of a local optimum.
+    ``until``: called with the commands after each step; the solve stops there (not converged) once it returns True.
 
     Returns:
         (commands, V, iterations, cost evaluations, converged).
@@ -203,6 +205,8 @@ def interior_point(
             state.safeguard()
         elif gap <= gap_rtol * abs(value) and gain <= gap_rtol * abs(value):
             return commands, value, iterations, evaluations, True
+        if until is not None and until(commands):
+            break
     return commands, value, iterations, evaluations, False
 
 

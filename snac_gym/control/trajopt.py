@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -164,6 +164,7 @@ def solve_sample(
     gap_rtol: float = GAP_RTOL,
     position_limits: tuple[np.ndarray, np.ndarray] | None = None,
     interior_start: np.ndarray | None = None,
+    until: Callable[[np.ndarray], bool] | None = None,
 ) -> OptimalSolution:
     """The optimal command sequence of one sample from one start (see the module docstring).
 
@@ -187,6 +188,9 @@ def solve_sample(
             itself does not keep is moved out to θ₀: no sequence could keep it.
         interior_start: ``(K, m)`` start of the interior point, if not ``initial`` (e.g. the
             feedback rollout that ``initial`` was refined from, which keeps the limits).
+        until: Called with the commands after each step; the solve stops there (not converged) once it returns True:
+            a multi-start's start that has reached a known basin. Of the interior point's solves, one stopped so is
+            kept only where every one was.
     """
     started = time.perf_counter()
     convention = convention if convention is not None else CostConvention()
@@ -195,17 +199,20 @@ def solve_sample(
     limits = _limits(velocity_limits, position_limits, q0)
     start = np.zeros((steps, m)) if initial is None else np.asarray(initial, dtype=float)
     commands, value, grad_z, iterations, evaluations, converged = gauss_newton(
-        q0, x_d, kinematics, float(dt), start, gtol, ftol, max_iterations, convention, gap_rtol
+        q0, x_d, kinematics, float(dt), start, gtol, ftol, max_iterations, convention, gap_rtol, until
     )
     gradient = float(np.abs(grad_z).max())
     gap_estimate = 0.5 * float(grad_z @ grad_z)
-    bounded = limits.violation(commands, q0, dt) > 0.0
+    stopped = until is not None and not converged and until(commands)
+    bounded = not stopped and limits.violation(commands, q0, dt) > 0.0
     if bounded:
         inside = _strictly_inside(start if interior_start is None else np.asarray(interior_start, dtype=float),
                                   q0, dt, limits)  # fmt: skip
         solves = [interior_point(q0, x_d, kinematics, float(dt), inside, limits, convention, max_iterations,
-                                  gap_rtol, barrier_start) for barrier_start in BARRIER_STARTS]  # fmt: skip
-        commands, value, _, _, converged = min(solves, key=lambda solve: solve[1])
+                                  gap_rtol, barrier_start, until) for barrier_start in BARRIER_STARTS]  # fmt: skip
+        # A solve that ``until`` stopped in a known basin is no answer where another went on to an optimum of its own.
+        answers = [solve for solve in solves if until is None or solve[4] or not until(solve[0])] or solves
+        commands, value, _, _, converged = min(answers, key=lambda solve: solve[1])
         iterations += sum(solve[2] for solve in solves)
         evaluations += sum(solve[3] for solve in solves)
         gradient, gap_estimate = float("nan"), float("nan")

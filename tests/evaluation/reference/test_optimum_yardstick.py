@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.execution.jobs import policy_context
+from snac_gym.evaluation.reference import multistart
 from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, RANDOM_PREFIX
 from snac_gym.evaluation.reference.multistart import COARSE_FACTOR, coarse_commands
 from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_start_solve, own_start_commands
@@ -68,9 +69,10 @@ def test_a_start_off_the_coarse_grid_is_refused_naming_it(ur10):
         multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"full": np.zeros((steps, 6))})
 
 
-@pytest.mark.parametrize(("seed", "index", "winner"), [(13, 4, "lqr"), (7, 0, "joint-goal"), (7, 3, "dls")])
-def test_the_starts_on_the_coarse_grid_find_the_optimum_the_full_grid_rollouts_find(ur10, seed, index, winner):
-    # Workspace reach samples, HJB cost, 5 s, where an own start beats the solve from rest. Before, every own start was
+@pytest.mark.parametrize(("seed", "index"), [(13, 4), (7, 0), (7, 3)])
+def test_the_starts_on_the_coarse_grid_find_the_optimum_the_full_grid_rollouts_find(ur10, seed, index):
+    # Workspace reach samples, HJB cost, 5 s, where an own start beats the solve from rest (lqr on (13, 4), joint-goal
+    # and dls on (7, 0) and (7, 3) with every start on the full grid). Before, every own start was
     # rolled out on the full grid and block-averaged; now joint-goal (GRID_FREE_STARTS) is rolled out on the coarse
     # grid. On (13, 4) lqr's full-grid rollout crosses to the other elbow branch, 13 % below rest, and its coarse
     # rollouts do not: were lqr rolled out coarse, that optimum would be lost and this test would fail.
@@ -85,8 +87,33 @@ def test_the_starts_on_the_coarse_grid_find_the_optimum_the_full_grid_rollouts_f
     assert {name: u.shape for name, u in coarse.items()} == {name: (-(-steps // COARSE_FACTOR), 6) for name in full}
     now = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, coarse, position_limits=box)
     rest = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {}, position_limits=box)
-    assert before.winner == now.winner == winner and now.solution.cost < 0.99 * rest.solution.cost
+    assert before.winner == now.winner != REST_START and now.solution.cost < 0.99 * rest.solution.cost
     assert now.solution.cost == pytest.approx(before.solution.cost, rel=1e-8)
+
+
+def test_a_start_that_reaches_a_coarse_optimum_an_earlier_start_found_is_not_solved_again(ur10, monkeypatch):
+    # Workspace reach sample 3 of seed 7 (HJB, 5 s): lqr's start leaves the solve from rest's basin for a cheaper one.
+    # A second start with lqr's very commands descends the same way; its solve on the coarse grid stops where it
+    # meets lqr's coarse optimum, and it is counted in that basin, instead of being solved to the end a second time.
+    steps, context = 625, policy_context("ur10", DT, "reach")
+    sample = generate_samples(ur10, SampleSpace.workspace(ur10), 7, "reach", [3])
+    x_d = reference_trajectories([sample[0].reference], np.arange(steps) * DT, 3)[0][0]
+    q0, limits, box = np.asarray(sample[0].q0), ur10.velocity_limits, (ur10.lower_limits, ur10.upper_limits)
+    lqr = own_start_commands(context, sample, steps, [0], factor=COARSE_FACTOR)[0]["lqr"]
+    alone = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"lqr": lqr}, position_limits=box)
+    solves = []
+
+    def counted(*args, **kwargs):
+        solves.append(solve_sample(*args, **kwargs))
+        return solves[-1]
+
+    monkeypatch.setattr(multistart, "solve_sample", counted)
+    twice = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {"lqr": lqr, "copy": lqr.copy()}, position_limits=box)
+    assert alone.winner == twice.winner == "lqr" and twice.solution.cost == alone.solution.cost
+    assert twice.same_basin == alone.same_basin + 1
+    coarse = [s for s in solves if len(s.commands) == len(x_d[::COARSE_FACTOR])]  # from rest, lqr, the copy, ...
+    original, copy = coarse[1:3]
+    assert original.converged and not copy.converged and copy.iterations < original.iterations / 2
 
 
 def _workspace_config(out, controllers, reference_limits="joints") -> EvaluationConfig:
