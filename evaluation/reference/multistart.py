@@ -109,6 +109,10 @@ class _Basins:
         self.fine = fine  # the caller's list: it adds each polished optimum
         self.coarse: list[np.ndarray] = []
 
+    def add_coarse(self, commands: np.ndarray) -> None:
+        """Know the coarse-grid optimum ``commands`` as a basin."""
+        self.coarse.append(angles(commands, self.q0, self.dt * self.factor))
+
     def near(self, commands: np.ndarray) -> bool:
         """Whether full-grid ``commands`` lead into a known basin."""
         path = angles(commands, self.q0, self.dt)
@@ -206,6 +210,7 @@ def multi_start_solve(
     Raises:
         ValueError: If a candidate is not on the coarse grid.
     """
+    _check_coarse(candidates, (len(x_d[::COARSE_FACTOR]), len(q0)))  # before any solve: a wrong call fails at once
     solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
                               position_limits=position_limits)  # fmt: skip
     best = first if first is not None else solve_from_rest(q0, x_d, kinematics, dt, limits, convention, position_limits)
@@ -223,13 +228,12 @@ def multi_start_solve(
 
     screen = functools.partial(_coarse_screen, q0, coarse_x, kinematics, coarse_dt, convention, coarse_solve,
                                in_coarse_basin)  # fmt: skip
-    _check_coarse(candidates, (len(coarse_x), best.commands.shape[1]))
     screened: list[tuple[float, str, np.ndarray, np.ndarray]] = []
     for name, commands in candidates.items():
         coarse = screen(commands)
         if coarse is not None:  # its own commands over the full grid: inside every limit its coarse path keeps
             screened.append((coarse.cost, name, coarse.commands, np.repeat(commands, factor, axis=0)[:steps]))
-            basins.coarse.append(angles(coarse.commands, q0, dt * factor))
+            basins.add_coarse(coarse.commands)
     same_basin += len(candidates) - len(screened)
     if screened:
         incumbent = coarse_solve(initial=coarse_commands(best.commands, factor))
