@@ -87,6 +87,8 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     config, store_knobs = _writable_caches(config)
     # 2. Controllers first: the run's manifest, which locks the output folder to it, names them.
     specs, skipped = resolve_controllers(config)
+    if config.progress:
+        announce_compiles(sys.stderr.write)
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
         with open_executor(config.workers, config.ray_address) as executor:
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
@@ -131,6 +133,27 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         executor_text = getattr(executor, "description", "serial")
         _write_outputs(store, config, table, efforts, skipped, timings, started, executor_text)  # 6. Reports
     return table
+
+
+#: What a run that compiles the kernels says first (:func:`announce_compiles`).
+COMPILING = (
+    "evaluate: compiling the numerical kernels for this machine first (numba's cache has none for this code yet: "
+    "the first run after an install or an update)"
+)
+
+
+def announce_compiles(write: Any) -> bool:
+    """Write :data:`COMPILING` (one line) where the evaluator's kernels are not in numba's cache, and say whether.
+
+    They compile when the workers start, before the first progress line: a first run would otherwise be silent
+    for its first seconds (about 13 s of CPU on 2 cores, docs/benchmarks.md).
+    """
+    from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, cached_on_disk  # imports numba: a run needs it
+
+    if cached_on_disk(EVALUATOR_KERNEL_MODULES):
+        return False
+    write(COMPILING + "\n")
+    return True
 
 
 def _writable_caches(config: EvaluationConfig) -> tuple[EvaluationConfig, bool]:
@@ -464,4 +487,4 @@ def _write_outputs(
     write_reports(store.root, table, efforts, config, skipped, config.statistic.description, timings, executor)
 
 
-__all__ = ["export_sample_set", "load_samples", "run_evaluation"]
+__all__ = ["COMPILING", "announce_compiles", "export_sample_set", "load_samples", "run_evaluation"]

@@ -192,3 +192,25 @@ def test_train_ppo_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, prog
         assert any("success " in line for line in lines), lines  # after the first evaluation (32 timesteps)
     else:
         assert lines == [] and "train-ppo:" not in result.stderr
+
+
+@pytest.mark.parametrize(("cached", "progress"), [(False, True), (True, True), (False, False)])
+def test_a_run_that_compiles_the_kernels_says_so_before_anything_else(tmp_path, monkeypatch, capsys, cached, progress):
+    """A first run (numba's cache empty or out of date) compiles the kernels before its first progress line: it says
+    so first, naming why; a run that finds every kernel in the cache, or runs without progress, says nothing."""
+    from snac_gym.evaluation import EvaluationConfig, run_evaluation
+    from snac_gym.evaluation.runner import COMPILING
+
+    import snac_gym.kernels.compiled as compiled
+
+    asked: list[tuple[str, ...]] = []
+    monkeypatch.setattr(compiled, "cached_on_disk", lambda modules: asked.append(modules) or cached)
+    config = EvaluationConfig(out=tmp_path / "run", samples=2, tasks=("reach",), horizons={"reach": 0.2},
+                              controllers=("dls",), match_effort=False, progress=progress, plots=False)  # fmt: skip
+    run_evaluation(config)
+    err = capsys.readouterr().err
+    assert asked == ([compiled.EVALUATOR_KERNEL_MODULES] if progress else [])
+    if progress and not cached:
+        assert err.splitlines()[0] == COMPILING, err
+    assert (COMPILING in err) == (progress and not cached), err
+    assert "numba's cache has none for this code yet" in COMPILING
