@@ -142,18 +142,16 @@ COMPILING = (
 )
 
 
-def announce_compiles(write: Any) -> bool:
-    """Write :data:`COMPILING` (one line) where the evaluator's kernels are not in numba's cache, and say whether.
+def announce_compiles(write: Any) -> None:
+    """Write :data:`COMPILING` (one line) where the evaluator's kernels are not in numba's cache.
 
     They compile when the workers start, before the first progress line: a first run would otherwise be silent
     for its first seconds (about 13 s of CPU on 2 cores, docs/benchmarks.md).
     """
     from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, cached_on_disk  # imports numba: a run needs it
 
-    if cached_on_disk(EVALUATOR_KERNEL_MODULES):
-        return False
-    write(COMPILING + "\n")
-    return True
+    if not cached_on_disk(EVALUATOR_KERNEL_MODULES):
+        write(COMPILING + "\n")
 
 
 def _writable_caches(config: EvaluationConfig) -> tuple[EvaluationConfig, bool]:
