@@ -46,6 +46,11 @@ SCREEN_MARGIN = 0.1
 #: other IK branches or windings, radians apart; starts that end in the same optimum come within 0.1 rad of it
 #: after one to three Gauss-Newton steps (measured on cuboid and workspace samples, docs/optimal.md).
 BASIN_RADIUS = 0.1
+#: Every solve of the multi-start takes Newton's step wherever the exact Hessian is positive definite, Gauss-Newton's
+#: elsewhere (``gauss_newton(newton=True)``). Gauss-Newton alone converged linearly wherever the errors stay large along
+#: the path: 44 % of its steps on Table I's reach samples were those of coarse solves whose steps shrank by 0.88 each
+#: (``python docs/scripts/screen_tails.py RUN``), and it stopped there with the cost up to a few 1e-7 above the optimum.
+NEWTON = True
 #: Name of the start at rest (U = 0) in ``optimal_winner``.
 REST_START = "rest"
 
@@ -91,7 +96,7 @@ def _coarse_screen(
     where its screen reaches a known optimum's basin (after :data:`SCREEN_ITERATIONS` Gauss-Newton steps, or at the end
     of the coarse solve)."""
     stepped, *_ = gauss_newton(q0, coarse_x, kinematics, coarse_dt, start, GTOL, FTOL, SCREEN_ITERATIONS, convention,
-                               until=in_coarse_basin, gradient=False)  # fmt: skip
+                               until=in_coarse_basin, gradient=False, newton=NEWTON)  # fmt: skip
     if in_coarse_basin(stepped):
         return None
     coarse = coarse_solve(initial=stepped, interior_start=start, until=in_coarse_basin)
@@ -155,12 +160,13 @@ def solve_from_rest(
     """
     steps, factor = len(x_d), COARSE_FACTOR
     if steps < 2 * factor:  # a grid of one or two points says nothing about the path
-        return solve_sample(q0, x_d, kinematics, dt, limits, convention=convention, position_limits=position_limits)
+        return solve_sample(q0, x_d, kinematics, dt, limits, convention=convention, position_limits=position_limits,
+                            newton=NEWTON)  # fmt: skip
     coarse = solve_sample(q0, x_d[::factor], kinematics, float(dt) * factor, limits, convention=convention,
-                          position_limits=position_limits)  # fmt: skip
+                          position_limits=position_limits, newton=NEWTON)  # fmt: skip
     initial = np.repeat(coarse.commands, factor, axis=0)[:steps]
     fine = solve_sample(q0, x_d, kinematics, dt, limits, initial=initial, interior_start=np.zeros_like(initial),
-                        convention=convention, position_limits=position_limits)  # fmt: skip
+                        convention=convention, position_limits=position_limits, newton=NEWTON)  # fmt: skip
     # The work of both grids in the solver's columns (optimal_iterations, optimal_evaluations, optimal_solve_time).
     return dataclasses.replace(fine, iterations=coarse.iterations + fine.iterations,
                                evaluations=coarse.evaluations + fine.evaluations,
@@ -212,14 +218,15 @@ def multi_start_solve(
     """
     _check_coarse(candidates, (len(x_d[::COARSE_FACTOR]), len(q0)))  # before any solve: a wrong call fails at once
     solve = functools.partial(solve_sample, q0, x_d, kinematics, dt, limits, convention=convention,
-                              position_limits=position_limits)  # fmt: skip
+                              position_limits=position_limits, newton=NEWTON)  # fmt: skip
     best = first if first is not None else solve_from_rest(q0, x_d, kinematics, dt, limits, convention, position_limits)
     winner, optima, same_basin = REST_START, [best.cost], 0
     paths = [angles(best.commands, q0, dt)]
     steps, factor = len(x_d), COARSE_FACTOR
     coarse_dt, coarse_x = float(dt) * factor, x_d[::factor]
     coarse_solve = functools.partial(solve_sample, q0, coarse_x, kinematics, coarse_dt, limits, convention=convention,
-                                     max_iterations=COARSE_ITERATIONS, position_limits=position_limits)  # fmt: skip
+                                     max_iterations=COARSE_ITERATIONS, position_limits=position_limits,
+                                     newton=NEWTON)  # fmt: skip
     box = Limits(np.asarray(limits, dtype=float)) if position_limits is None else Limits(
         np.asarray(limits, dtype=float), *position_bounds(*position_limits, q0))  # fmt: skip
 
@@ -258,7 +265,7 @@ def multi_start_solve(
 
 
 __all__ = [
-    "BASIN_RADIUS", "COARSE_FACTOR", "COARSE_ITERATIONS", "POLISHED", "REST_START", "SCREEN_ITERATIONS",
+    "BASIN_RADIUS", "COARSE_FACTOR", "COARSE_ITERATIONS", "NEWTON", "POLISHED", "REST_START", "SCREEN_ITERATIONS",
     "SCREEN_MARGIN",
     "MultiStart", "coarse_commands", "multi_start_solve", "solve_from_rest",
 ]  # fmt: skip

@@ -112,21 +112,31 @@ def theta_system_base(steps: int, m: int, dt: float, convention: CostConvention)
 
 
 def gauss_newton_direction(
-    base: np.ndarray, jacobians: np.ndarray, grad: np.ndarray, dt: float, q_scale: float
+    base: np.ndarray,
+    jacobians: np.ndarray,
+    grad: np.ndarray,
+    dt: float,
+    q_scale: float,
+    curvature: np.ndarray | None = None,
 ) -> np.ndarray:
     """The Gauss-Newton step in u: M δθ with (A ⊗ I_m + blockdiag(2Δt q JₖᵀJₖ)) δθ = −Mᵀ ∂V/∂u.
 
     The blocks JₖᵀJₖ (k = 1..K−1) are added to the band (:func:`~snac_gym.kernels.trajopt.add_jacobian_blocks`) and the
-    system is solved by LAPACK's banded Cholesky, O(K·m·b²).
+    system is solved by LAPACK's banded Cholesky, O(K·m·b²). ``curvature``: the blocks Σᵢ eₖᵢ∇²fᵢ(θₖ) ``(K, m, m)``
+    added too (:meth:`~snac_gym.model.kinematics.Kinematics.error_curvature_batch`): the exact Hessian of V in θ,
+    Newton's step; the error term depends on θₖ alone, so they keep the band.
 
     Raises:
-        numpy.linalg.LinAlgError: If the matrix is not positive definite (it is, in exact arithmetic).
+        numpy.linalg.LinAlgError: If the matrix is not positive definite (the Gauss-Newton one is, in exact
+            arithmetic; the exact Hessian need not be away from a minimum).
     """
     steps, m = grad.shape
-    from snac_gym.kernels.trajopt import add_jacobian_blocks  # numba: imported where first needed
+    from snac_gym.kernels.trajopt import add_jacobian_blocks, add_symmetric_blocks  # numba: where first needed
 
     band = np.array(base, order="F")  # LAPACK's layout, so that dpbtrf factors it in place
     add_jacobian_blocks(band, read_only_view(jacobians), 2.0 * dt * q_scale)
+    if curvature is not None:
+        add_symmetric_blocks(band, curvature, 2.0 * dt * q_scale)
     factor, info = dpbtrf(band, lower=1, overwrite_ab=1)  # band is this call's own copy
     if info != 0:
         raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")
@@ -175,10 +185,11 @@ class GaussNewtonSolver:
         grad: np.ndarray,
         terminal: np.ndarray | None = None,
         barrier: BandTerm | None = None,
+        curvature: np.ndarray | None = None,
     ) -> np.ndarray:
         """The Gauss-Newton step in u of one plan (:func:`gauss_newton_direction`) from the Jacobians at θ₀..θ_{K−1}
         and ∂V/∂u; ``terminal``: an ``(m, m)`` Hessian added in θ_K's block (a terminal cost on θ_K), ``barrier``: a
-        barrier's Σ added to the band."""
+        barrier's Σ added to the band, ``curvature``: the error term's second-order blocks (Newton's step)."""
         band = self.base
         if terminal is not None or barrier is not None:
             band = band.copy()
@@ -189,7 +200,7 @@ class GaussNewtonSolver:
             band[rows - cols, (self.steps - 1) * m + cols] += terminal[rows, cols]
         if barrier is not None:
             barrier.add_to_band(band, self.joints)
-        return gauss_newton_direction(band, jacobians, grad, self.dt, self.convention.q_scale)
+        return gauss_newton_direction(band, jacobians, grad, self.dt, self.convention.q_scale, curvature)
 
     @staticmethod
     def line_search(
@@ -250,6 +261,7 @@ def gauss_newton(
     gap_rtol: float = GAP_RTOL,
     until: Callable[[np.ndarray], bool] | None = None,
     gradient: bool = True,
+    newton: bool = False,
 ) -> tuple[np.ndarray, float, np.ndarray, int, int, bool]:
     """Unconstrained Gauss-Newton in θ₁..θ_K with a backtracking (Armijo) line search on the exact V.
 
@@ -262,6 +274,12 @@ def gauss_newton(
     ``until``: called with the commands after each accepted step; the solve stops (not converged)
     once it returns True (a multi-start's screen stops a start that has reached a known basin).
     ``gradient=False``: skip the final ∂V/∂z (returned empty) where only the commands and V are wanted.
+    ``newton``: take Newton's step, with the exact Hessian's blocks
+    (:meth:`~snac_gym.model.kinematics.Kinematics.error_curvature_batch`), wherever that Hessian is positive
+    definite, and the Gauss-Newton step elsewhere (position tasks only). Where the errors stay large along the
+    path, Gauss-Newton leaves out a second-order part that is not small and converges linearly (the steps shrinking
+    by 0.88 each on the reference's coarse solves, docs/benchmarks.md); Newton's converges quadratically near the
+    optimum, and reaches the same local optimum.
 
     Returns:
         (commands, V, ∂V/∂z flattened, iterations, cost evaluations, converged) with the stopping
@@ -278,10 +296,16 @@ def gauss_newton(
     commands = start.copy()
     value, grad = evaluate(commands)
     iterations, evaluations, converged = 0, 1, False
+    curvature = getattr(kinematics, "error_curvature_batch", None) if newton else None
+    if getattr(kinematics, "task_error", None) is not None:
+        curvature = None  # a pose task's error is a logarithm, not f(θ) − x_d
     while iterations < max_iterations:
-        _, jacobians = errors_and_jacobians(kinematics, angles(commands, q0, dt), x_d)
-        step = solver.direction(jacobians, grad)
-        predicted = -0.5 * float(np.vdot(grad, step))  # the model's V − V*: half the Gauss-Newton decrement
+        path = angles(commands, q0, dt)
+        errors, jacobians = errors_and_jacobians(kinematics, path, x_d)
+        step = _newton_direction(solver, curvature, path, errors, jacobians, grad)
+        if step is None:
+            step = solver.direction(jacobians, grad)
+        predicted = -0.5 * float(np.vdot(grad, step))  # the model's V − V*: half the (Gauss-)Newton decrement
         if predicted <= 0.0:  # no descent left in the model: rounding dominates
             converged = True
             break
@@ -302,6 +326,25 @@ def gauss_newton(
     grad_z = solve_banded((1, 0), lower, grad).ravel()
     converged = converged or float(np.abs(grad_z).max()) <= gtol
     return commands, value, grad_z, iterations, evaluations, converged
+
+
+def _newton_direction(
+    solver: GaussNewtonSolver,
+    curvature: Callable[[np.ndarray, np.ndarray], np.ndarray | None] | None,
+    path: np.ndarray,
+    errors: np.ndarray,
+    jacobians: np.ndarray,
+    grad: np.ndarray,
+) -> np.ndarray | None:
+    """Newton's step with the exact Hessian's blocks, or None where they are unavailable or the Hessian is not
+    positive definite (the caller takes the Gauss-Newton step)."""
+    blocks = curvature(path, errors) if curvature is not None else None
+    if blocks is None:
+        return None
+    try:
+        return solver.direction(jacobians, grad, curvature=blocks)
+    except np.linalg.LinAlgError:
+        return None
 
 
 def _line_search(

@@ -165,6 +165,7 @@ def solve_sample(
     position_limits: tuple[np.ndarray, np.ndarray] | None = None,
     interior_start: np.ndarray | None = None,
     until: Callable[[np.ndarray], bool] | None = None,
+    newton: bool = False,
 ) -> OptimalSolution:
     """The optimal command sequence of one sample from one start (see the module docstring).
 
@@ -191,6 +192,7 @@ def solve_sample(
         until: Called with the commands after each step; the solve stops there (not converged) once it returns True:
             a multi-start's start that has reached a known basin. Of the interior point's solves, one stopped so is
             kept only where every one was.
+        newton: Newton's steps once Gauss-Newton converges slowly (:func:`gauss_newton`).
     """
     started = time.perf_counter()
     convention = convention if convention is not None else CostConvention()
@@ -199,7 +201,7 @@ def solve_sample(
     limits = _limits(velocity_limits, position_limits, q0)
     start = np.zeros((steps, m)) if initial is None else np.asarray(initial, dtype=float)
     commands, value, grad_z, iterations, evaluations, converged = gauss_newton(
-        q0, x_d, kinematics, float(dt), start, gtol, ftol, max_iterations, convention, gap_rtol, until
+        q0, x_d, kinematics, float(dt), start, gtol, ftol, max_iterations, convention, gap_rtol, until, newton=newton
     )
     gradient = float(np.abs(grad_z).max())
     gap_estimate = 0.5 * float(grad_z @ grad_z)

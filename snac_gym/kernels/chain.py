@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from snac_gym.kernels.compiled import Example, kernel
+from snac_gym.kernels.compiled import Example, helper, kernel
 
 
 def _example() -> Example:
@@ -29,8 +29,73 @@ def _example() -> Example:
             np.array([[0.0, 0.0, 1.0]]), np.array([True]), np.array([0], dtype=np.int64), np.ones(3), 1)  # fmt: skip
 
 
+def _joint_frames(  # noqa: C901  # pragma: no cover - compiled; one loop nest, as the kernels that call it
+    qs: np.ndarray,
+    b: int,
+    parent_slot: np.ndarray,
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    axes: np.ndarray,
+    revolute: np.ndarray,
+    columns: np.ndarray,
+    ee_offset: np.ndarray,
+    R: np.ndarray,
+    p: np.ndarray,
+    z: np.ndarray,
+    F: np.ndarray,
+    x: np.ndarray,
+) -> None:
+    """Every joint's frame ``R``, origin ``p`` and world axis ``z`` at configuration ``qs[b]``, and the end effector's
+    position into ``x`` (the module docstring's arithmetic; ``F`` is scratch)."""
+    chain = rotations.shape[0]
+    for s in range(chain):
+        parent = parent_slot[s]
+        if parent < 0:
+            for i in range(3):
+                p[s, i] = translations[s, i]
+                for j in range(3):
+                    F[i, j] = rotations[s, i, j]
+        else:
+            for i in range(3):
+                p[s, i] = p[parent, i] + (
+                    R[parent, i, 0] * translations[s, 0]
+                    + R[parent, i, 1] * translations[s, 1]
+                    + R[parent, i, 2] * translations[s, 2]
+                )
+                for j in range(3):
+                    F[i, j] = (
+                        R[parent, i, 0] * rotations[s, 0, j]
+                        + R[parent, i, 1] * rotations[s, 1, j]
+                        + R[parent, i, 2] * rotations[s, 2, j]
+                    )
+        a0, a1, a2 = axes[s, 0], axes[s, 1], axes[s, 2]
+        for i in range(3):
+            z[s, i] = F[i, 0] * a0 + F[i, 1] * a1 + F[i, 2] * a2
+        angle = qs[b, columns[s]]
+        if not revolute[s]:
+            for i in range(3):
+                p[s, i] += z[s, i] * angle
+                for j in range(3):
+                    R[s, i, j] = F[i, j]
+        else:
+            c, sn = np.cos(angle), np.sin(angle)
+            v = 1.0 - c
+            for i in range(3):
+                f0, f1, f2 = F[i, 0], F[i, 1], F[i, 2]
+                along = z[s, i] * v  # (Fᵢ·a)(1 − cos θ): row i of F a aᵀ, scaled
+                R[s, i, 0] = c * f0 + sn * (f1 * a2 - f2 * a1) + along * a0
+                R[s, i, 1] = c * f1 + sn * (f2 * a0 - f0 * a2) + along * a1
+                R[s, i, 2] = c * f2 + sn * (f0 * a1 - f1 * a0) + along * a2
+    last = chain - 1
+    for i in range(3):
+        x[i] = p[last, i] + (R[last, i, 0] * ee_offset[0] + R[last, i, 1] * ee_offset[1] + R[last, i, 2] * ee_offset[2])
+
+
+_joint_frames = helper(_joint_frames, inline=True)
+
+
 @kernel(_example)
-def chain_forward_and_jacobian(  # noqa: C901 - one compiled loop nest, kept inline for speed
+def chain_forward_and_jacobian(
     qs: np.ndarray,
     parent_slot: np.ndarray,
     rotations: np.ndarray,
@@ -62,49 +127,7 @@ def chain_forward_and_jacobian(  # noqa: C901 - one compiled loop nest, kept inl
     z = np.empty((chain, 3))
     F = np.empty((3, 3))
     for b in range(count):
-        for s in range(chain):
-            parent = parent_slot[s]
-            if parent < 0:
-                for i in range(3):
-                    p[s, i] = translations[s, i]
-                    for j in range(3):
-                        F[i, j] = rotations[s, i, j]
-            else:
-                for i in range(3):
-                    p[s, i] = p[parent, i] + (
-                        R[parent, i, 0] * translations[s, 0]
-                        + R[parent, i, 1] * translations[s, 1]
-                        + R[parent, i, 2] * translations[s, 2]
-                    )
-                    for j in range(3):
-                        F[i, j] = (
-                            R[parent, i, 0] * rotations[s, 0, j]
-                            + R[parent, i, 1] * rotations[s, 1, j]
-                            + R[parent, i, 2] * rotations[s, 2, j]
-                        )
-            a0, a1, a2 = axes[s, 0], axes[s, 1], axes[s, 2]
-            for i in range(3):
-                z[s, i] = F[i, 0] * a0 + F[i, 1] * a1 + F[i, 2] * a2
-            angle = qs[b, columns[s]]
-            if not revolute[s]:
-                for i in range(3):
-                    p[s, i] += z[s, i] * angle
-                    for j in range(3):
-                        R[s, i, j] = F[i, j]
-            else:
-                c, sn = np.cos(angle), np.sin(angle)
-                v = 1.0 - c
-                for i in range(3):
-                    f0, f1, f2 = F[i, 0], F[i, 1], F[i, 2]
-                    along = z[s, i] * v  # (Fᵢ·a)(1 − cos θ): row i of F a aᵀ, scaled
-                    R[s, i, 0] = c * f0 + sn * (f1 * a2 - f2 * a1) + along * a0
-                    R[s, i, 1] = c * f1 + sn * (f2 * a0 - f0 * a2) + along * a1
-                    R[s, i, 2] = c * f2 + sn * (f0 * a1 - f1 * a0) + along * a2
-        last = chain - 1
-        for i in range(3):
-            x[b, i] = p[last, i] + (
-                R[last, i, 0] * ee_offset[0] + R[last, i, 1] * ee_offset[1] + R[last, i, 2] * ee_offset[2]
-            )
+        _joint_frames(qs, b, parent_slot, rotations, translations, axes, revolute, columns, ee_offset, R, p, z, F, x[b])
         for s in range(chain):
             column = columns[s]
             if not revolute[s]:
@@ -116,3 +139,57 @@ def chain_forward_and_jacobian(  # noqa: C901 - one compiled loop nest, kept inl
                 jacobians[b, 1, column] = z[s, 2] * l0 - z[s, 0] * l2
                 jacobians[b, 2, column] = z[s, 0] * l1 - z[s, 1] * l0
     return x, jacobians
+
+
+def _curvature_example() -> Example:
+    return (*_example()[:1], np.zeros((2, 3)), *_example()[1:])
+
+
+@kernel(_curvature_example)
+def chain_error_curvature(
+    qs: np.ndarray,
+    errors: np.ndarray,
+    parent_slot: np.ndarray,
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    axes: np.ndarray,
+    revolute: np.ndarray,
+    columns: np.ndarray,
+    ee_offset: np.ndarray,
+    n_joints: int,
+) -> np.ndarray:  # pragma: no cover - compiled; tested against finite differences of J
+    """``Σᵢ eᵢ ∂²fᵢ/∂θ∂θ`` at each configuration of ``qs`` ``(B, m)`` for the errors ``(B, 3)``: ``(B, m, m)``,
+    symmetric. With JᵀJ it is the Hessian of ½‖f(θ) − x_d‖², whose second-order part Gauss-Newton leaves out.
+
+    Joint s base-side of joint t (or s = t) moves everything beyond it: a revolute s turns z_t, x and p_t about z_s
+    and a prismatic s translates them, so ∂²x/∂θₛ∂θₜ = zₛ × (zₜ × (x − pₜ)) for both revolute, zₛ × zₜ for a
+    revolute s and a prismatic t, and 0 for a prismatic s. Arguments: :func:`chain_forward_and_jacobian`'s.
+    """
+    count, chain = qs.shape[0], rotations.shape[0]
+    curvature = np.zeros((count, n_joints, n_joints))
+    R = np.empty((chain, 3, 3))
+    p = np.empty((chain, 3))
+    z = np.empty((chain, 3))
+    F = np.empty((3, 3))
+    x = np.empty(3)
+    for b in range(count):
+        _joint_frames(qs, b, parent_slot, rotations, translations, axes, revolute, columns, ee_offset, R, p, z, F, x)
+        e0, e1, e2 = errors[b, 0], errors[b, 1], errors[b, 2]
+        for t in range(chain):
+            if revolute[t]:  # w = zₜ × (x − pₜ), the joint's Jacobian column
+                l0, l1, l2 = x[0] - p[t, 0], x[1] - p[t, 1], x[2] - p[t, 2]
+                w0, w1, w2 = z[t, 1] * l2 - z[t, 2] * l1, z[t, 2] * l0 - z[t, 0] * l2, z[t, 0] * l1 - z[t, 1] * l0
+            else:  # w = zₜ
+                w0, w1, w2 = z[t, 0], z[t, 1], z[t, 2]
+            for s in range(t + 1):
+                if not revolute[s]:
+                    continue
+                # eᵀ(zₛ × w) = w · (e × zₛ)
+                c0 = e1 * z[s, 2] - e2 * z[s, 1]
+                c1 = e2 * z[s, 0] - e0 * z[s, 2]
+                c2 = e0 * z[s, 1] - e1 * z[s, 0]
+                value = w0 * c0 + w1 * c1 + w2 * c2
+                curvature[b, columns[s], columns[t]] += value
+                if s != t:
+                    curvature[b, columns[t], columns[s]] += value
+    return curvature

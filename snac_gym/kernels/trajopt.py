@@ -31,3 +31,15 @@ def add_jacobian_blocks(band: np.ndarray, jacobians: np.ndarray, scale: float) -
                 for i in range(n):
                     total += jacobians[k, i, a] * jacobians[k, i, b]
                 band[a - b, column + b] += scale * total
+
+
+@kernel(lambda: (np.zeros((13, 12), order="F"), np.ones((3, 6, 6)), 1.0))
+def add_symmetric_blocks(band: np.ndarray, blocks: np.ndarray, scale: float) -> None:  # pragma: no cover - compiled
+    """``band[a − b, (k−1)·m + b] += scale · Sₖ[a, b]`` for a ≥ b and k = 1..K−1, in place: symmetric ``(K, m, m)``
+    blocks on the band's diagonal, as :func:`add_jacobian_blocks` adds JₖᵀJₖ (S₀ is not used: θ₀ is fixed)."""
+    steps, m = blocks.shape[0], blocks.shape[1]
+    for k in range(1, steps):
+        column = (k - 1) * m
+        for a in range(m):
+            for b in range(a + 1):
+                band[a - b, column + b] += scale * blocks[k, a, b]

@@ -301,6 +301,17 @@ class Kinematics:
         self._last_batch = (qs.copy(), positions, jacobians)
         return positions, jacobians
 
+    def error_curvature_batch(self, qs: np.ndarray, errors: np.ndarray) -> np.ndarray | None:
+        """``Σᵢ eᵢ ∂²fᵢ/∂θ²`` for configurations ``(B, m)`` and their position errors ``(B, 3)``: ``(B, m, m)``.
+
+        With ``JᵀJ`` it is the Hessian of ½‖f(θ) − x_d‖² (the exact Newton matrix of the trajectory optimiser's
+        error term, :func:`snac_gym.control.gauss_newton.gauss_newton`). ``None`` for a model that
+        :class:`BatchChain` cannot evaluate (then only the Gauss-Newton part is available).
+        """
+        if self._chain is None:
+            return None
+        return self._chain.error_curvature(self._check_batch(qs), errors)
+
     def frame_batch(self, qs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The end-effector frame and its full Jacobian for a batch, through Pinocchio per configuration.
 
