@@ -23,13 +23,13 @@ import numpy as np
 from snac_gym.kernels.compiled import Example, helper, kernel
 
 
-def _example() -> Example:
+def chain_example() -> Example:
     """A one-joint revolute chain and two configurations: the argument types of every call."""
     return (np.zeros((2, 1)), np.array([-1], dtype=np.int64), np.eye(3)[None].copy(), np.zeros((1, 3)),
             np.array([[0.0, 0.0, 1.0]]), np.array([True]), np.array([0], dtype=np.int64), np.ones(3), 1)  # fmt: skip
 
 
-def _joint_frames(  # noqa: C901  # pragma: no cover - compiled; one loop nest, as the kernels that call it
+def joint_frames(  # noqa: C901  # pragma: no cover - compiled; one loop nest, as the kernels that call it
     qs: np.ndarray,
     b: int,
     parent_slot: np.ndarray,
@@ -91,10 +91,10 @@ def _joint_frames(  # noqa: C901  # pragma: no cover - compiled; one loop nest, 
         x[i] = p[last, i] + (R[last, i, 0] * ee_offset[0] + R[last, i, 1] * ee_offset[1] + R[last, i, 2] * ee_offset[2])
 
 
-_joint_frames = helper(_joint_frames, inline=True)
+joint_frames = helper(joint_frames, inline=True)
 
 
-@kernel(_example)
+@kernel(chain_example)
 def chain_forward_and_jacobian(
     qs: np.ndarray,
     parent_slot: np.ndarray,
@@ -127,7 +127,7 @@ def chain_forward_and_jacobian(
     z = np.empty((chain, 3))
     F = np.empty((3, 3))
     for b in range(count):
-        _joint_frames(qs, b, parent_slot, rotations, translations, axes, revolute, columns, ee_offset, R, p, z, F, x[b])
+        joint_frames(qs, b, parent_slot, rotations, translations, axes, revolute, columns, ee_offset, R, p, z, F, x[b])
         for s in range(chain):
             column = columns[s]
             if not revolute[s]:
@@ -139,57 +139,3 @@ def chain_forward_and_jacobian(
                 jacobians[b, 1, column] = z[s, 2] * l0 - z[s, 0] * l2
                 jacobians[b, 2, column] = z[s, 0] * l1 - z[s, 1] * l0
     return x, jacobians
-
-
-def _curvature_example() -> Example:
-    return (*_example()[:1], np.zeros((2, 3)), *_example()[1:])
-
-
-@kernel(_curvature_example)
-def chain_error_curvature(
-    qs: np.ndarray,
-    errors: np.ndarray,
-    parent_slot: np.ndarray,
-    rotations: np.ndarray,
-    translations: np.ndarray,
-    axes: np.ndarray,
-    revolute: np.ndarray,
-    columns: np.ndarray,
-    ee_offset: np.ndarray,
-    n_joints: int,
-) -> np.ndarray:  # pragma: no cover - compiled; tested against finite differences of J
-    """``Σᵢ eᵢ ∂²fᵢ/∂θ∂θ`` at each configuration of ``qs`` ``(B, m)`` for the errors ``(B, 3)``: ``(B, m, m)``,
-    symmetric. With JᵀJ it is the Hessian of ½‖f(θ) − x_d‖², whose second-order part Gauss-Newton leaves out.
-
-    Joint s base-side of joint t (or s = t) moves everything beyond it: a revolute s turns z_t, x and p_t about z_s
-    and a prismatic s translates them, so ∂²x/∂θₛ∂θₜ = zₛ × (zₜ × (x − pₜ)) for both revolute, zₛ × zₜ for a
-    revolute s and a prismatic t, and 0 for a prismatic s. Arguments: :func:`chain_forward_and_jacobian`'s.
-    """
-    count, chain = qs.shape[0], rotations.shape[0]
-    curvature = np.zeros((count, n_joints, n_joints))
-    R = np.empty((chain, 3, 3))
-    p = np.empty((chain, 3))
-    z = np.empty((chain, 3))
-    F = np.empty((3, 3))
-    x = np.empty(3)
-    for b in range(count):
-        _joint_frames(qs, b, parent_slot, rotations, translations, axes, revolute, columns, ee_offset, R, p, z, F, x)
-        e0, e1, e2 = errors[b, 0], errors[b, 1], errors[b, 2]
-        for t in range(chain):
-            if revolute[t]:  # w = zₜ × (x − pₜ), the joint's Jacobian column
-                l0, l1, l2 = x[0] - p[t, 0], x[1] - p[t, 1], x[2] - p[t, 2]
-                w0, w1, w2 = z[t, 1] * l2 - z[t, 2] * l1, z[t, 2] * l0 - z[t, 0] * l2, z[t, 0] * l1 - z[t, 1] * l0
-            else:  # w = zₜ
-                w0, w1, w2 = z[t, 0], z[t, 1], z[t, 2]
-            for s in range(t + 1):
-                if not revolute[s]:
-                    continue
-                # eᵀ(zₛ × w) = w · (e × zₛ)
-                c0 = e1 * z[s, 2] - e2 * z[s, 1]
-                c1 = e2 * z[s, 0] - e0 * z[s, 2]
-                c2 = e0 * z[s, 1] - e1 * z[s, 0]
-                value = w0 * c0 + w1 * c1 + w2 * c2
-                curvature[b, columns[s], columns[t]] += value
-                if s != t:
-                    curvature[b, columns[t], columns[s]] += value
-    return curvature

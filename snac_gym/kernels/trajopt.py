@@ -3,14 +3,17 @@
 Each Gauss-Newton iteration adds the blocks 2Δt·q·JₖᵀJₖ (k = 1..K−1) to the fixed band A ⊗ I_m.
 As NumPy array arithmetic (a stack of products, then a scattered ``+=``) that took about a fifth
 of a 2500-step iteration; this is one pass over the Jacobians with the same sums in the same
-order, so the band is the same bit for bit (tests/evaluation/reference/test_optimum.py).
+order, so the band is the same bit for bit (tests/evaluation/reference/test_optimum.py). Newton's step adds the
+error term's second-order blocks too (:func:`chain_error_curvature`, :func:`add_symmetric_blocks`); they are compiled
+with the reference's kernels, not the kinematics' (the controllers' rollouts never need them).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from snac_gym.kernels.compiled import kernel, read_only
+from snac_gym.kernels.chain import chain_example, joint_frames
+from snac_gym.kernels.compiled import Example, kernel, read_only
 
 
 @kernel(lambda: (np.zeros((13, 12), order="F"), read_only(np.ones((3, 3, 6))), 1.0))
@@ -43,3 +46,59 @@ def add_symmetric_blocks(band: np.ndarray, blocks: np.ndarray, scale: float) -> 
         for a in range(m):
             for b in range(a + 1):
                 band[a - b, column + b] += scale * blocks[k, a, b]
+
+
+def _curvature_example() -> Example:
+    """:func:`chain_error_curvature`'s argument types: the chain kernel's example, with the errors."""
+    example = chain_example()
+    return (example[0], np.zeros((2, 3)), *example[1:])
+
+
+@kernel(_curvature_example)
+def chain_error_curvature(
+    qs: np.ndarray,
+    errors: np.ndarray,
+    parent_slot: np.ndarray,
+    rotations: np.ndarray,
+    translations: np.ndarray,
+    axes: np.ndarray,
+    revolute: np.ndarray,
+    columns: np.ndarray,
+    ee_offset: np.ndarray,
+    n_joints: int,
+) -> np.ndarray:  # pragma: no cover - compiled; tested against finite differences of J
+    """``Σᵢ eᵢ ∂²fᵢ/∂θ∂θ`` at each configuration of ``qs`` ``(B, m)`` for the errors ``(B, 3)``: ``(B, m, m)``,
+    symmetric. With JᵀJ it is the Hessian of ½‖f(θ) − x_d‖², whose second-order part Gauss-Newton leaves out.
+
+    Joint s base-side of joint t (or s = t) moves everything beyond it: a revolute s turns z_t, x and p_t about z_s
+    and a prismatic s translates them, so ∂²x/∂θₛ∂θₜ = zₛ × (zₜ × (x − pₜ)) for both revolute, zₛ × zₜ for a
+    revolute s and a prismatic t, and 0 for a prismatic s. Arguments: :func:`chain_forward_and_jacobian`'s.
+    """
+    count, chain = qs.shape[0], rotations.shape[0]
+    curvature = np.zeros((count, n_joints, n_joints))
+    R = np.empty((chain, 3, 3))
+    p = np.empty((chain, 3))
+    z = np.empty((chain, 3))
+    F = np.empty((3, 3))
+    x = np.empty(3)
+    for b in range(count):
+        joint_frames(qs, b, parent_slot, rotations, translations, axes, revolute, columns, ee_offset, R, p, z, F, x)
+        e0, e1, e2 = errors[b, 0], errors[b, 1], errors[b, 2]
+        for t in range(chain):
+            if revolute[t]:  # w = zₜ × (x − pₜ), the joint's Jacobian column
+                l0, l1, l2 = x[0] - p[t, 0], x[1] - p[t, 1], x[2] - p[t, 2]
+                w0, w1, w2 = z[t, 1] * l2 - z[t, 2] * l1, z[t, 2] * l0 - z[t, 0] * l2, z[t, 0] * l1 - z[t, 1] * l0
+            else:  # w = zₜ
+                w0, w1, w2 = z[t, 0], z[t, 1], z[t, 2]
+            for s in range(t + 1):
+                if not revolute[s]:
+                    continue
+                # eᵀ(zₛ × w) = w · (e × zₛ)
+                c0 = e1 * z[s, 2] - e2 * z[s, 1]
+                c1 = e2 * z[s, 0] - e0 * z[s, 2]
+                c2 = e0 * z[s, 1] - e1 * z[s, 0]
+                value = w0 * c0 + w1 * c1 + w2 * c2
+                curvature[b, columns[s], columns[t]] += value
+                if s != t:
+                    curvature[b, columns[t], columns[s]] += value
+    return curvature

@@ -12,7 +12,8 @@ from snac_gym.control.cost import CostConvention
 from snac_gym.control.gauss_newton import GaussNewtonSolver, gauss_newton
 from snac_gym.control.shooting import angles, errors_and_jacobians
 from snac_gym.control.trajopt import FTOL, GTOL, solve_sample
-from snac_gym.kernels.chain import chain_error_curvature, chain_forward_and_jacobian
+from snac_gym.kernels.chain import chain_forward_and_jacobian
+from snac_gym.kernels.trajopt import chain_error_curvature
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.rollout import reference_trajectories
 from snac_gym.sampling import SampleSpace

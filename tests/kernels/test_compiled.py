@@ -160,7 +160,7 @@ SHARED_DRIVER = r"""
 import json, multiprocessing, sys
 from snac_gym.kernels.compiled import _KERNELS, warm_up_shared
 
-MODULES = ("snac_gym.kernels.trajopt", "snac_gym.kernels.metrics")
+MODULES = ("snac_gym.kernels.hjb", "snac_gym.kernels.metrics")  # neither late: each process waits for the other
 
 def work(locks, barrier, queue):
     barrier.wait()  # both start together, as the evaluator's workers do
@@ -190,7 +190,7 @@ def test_processes_that_share_the_compile_locks_compile_each_kernel_module_once(
     )
     assert done.returncode == 0, done.stderr
     reports = json.loads(done.stdout)
-    modules = {"snac_gym.kernels.trajopt", "snac_gym.kernels.metrics"}
+    modules = {"snac_gym.kernels.hjb", "snac_gym.kernels.metrics"}
     compiled = [module for report in reports for module in report["compiled"]]
     assert sorted(compiled) == sorted(modules)  # each module compiled by one process only
     for report in reports:
