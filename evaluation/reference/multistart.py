@@ -49,7 +49,8 @@ BASIN_RADIUS = 0.1
 #: Every solve of the multi-start takes Newton's step wherever the exact Hessian is positive definite, Gauss-Newton's
 #: elsewhere (``gauss_newton(newton=True)``). Gauss-Newton alone converged linearly wherever the errors stay large along
 #: the path: 44 % of its steps on Table I's reach samples were those of coarse solves whose steps shrank by 0.88 each
-#: (``python docs/scripts/screen_tails.py RUN``), and it stopped there with the cost up to a few 1e-7 above the optimum.
+#: (``python docs/scripts/screen_tails.py RUN 250 --gauss-newton``), and it stopped there with the cost up to a few
+#: 1e-7 above the optimum.
 NEWTON = True
 #: Name of the start at rest (U = 0) in ``optimal_winner``.
 REST_START = "rest"
