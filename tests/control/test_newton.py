@@ -100,3 +100,18 @@ def test_where_the_hessian_is_not_positive_definite_the_gauss_newton_step_is_tak
     plain = gauss_newton(q0, x_d, ur10, dt, start, GTOL, FTOL, 400, convention)
     np.testing.assert_array_equal(refused[0], plain[0])
     assert refused[3] == plain[3]
+
+
+def test_a_pose_task_takes_the_gauss_newton_steps_it_always_took():
+    # The curvature is that of f(θ) − x_d; a pose task's error is a logarithm, so its solve ignores newton=True (its
+    # kinematics would otherwise lend it the position kinematics' curvature).
+    from snac_gym.model.pose_kinematics import PoseKinematics
+
+    pose = PoseKinematics("ur10")
+    q0 = np.array([0.3, -1.2, 1.4, -1.8, -1.5, 0.2])
+    x_d = np.tile(pose.forward(q0 + 0.3), (40, 1))
+    convention, dt = CostConvention(), DT * 10
+    newton = gauss_newton(q0, x_d, pose, dt, np.zeros((40, 6)), GTOL, FTOL, 50, convention, newton=True)
+    plain = gauss_newton(q0, x_d, pose, dt, np.zeros((40, 6)), GTOL, FTOL, 50, convention)
+    assert plain[3] > 1
+    np.testing.assert_array_equal(newton[0], plain[0])
