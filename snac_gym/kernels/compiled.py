@@ -92,6 +92,7 @@ class Kernel(Generic[_Parameters, _Result]):
         from numba import njit  # numba is imported by the first module that defines a kernel
 
         self.dispatcher = njit(cache=True, nogil=True)(function)
+        stamp_with_dependencies(self.dispatcher)
         self.__doc__, self.__name__, self.__wrapped__ = function.__doc__, function.__name__, function
         self.example = example
         # what the dispatcher calls on a miss (numba ≥ 0.50); private, so not in numba's types
@@ -215,11 +216,54 @@ def cached_on_disk(modules: tuple[str, ...] = KERNEL_MODULES) -> bool:
         stamp = _index_stamp(index)
         if stamp is None:
             stale = index.stat().st_mtime < source.stat().st_mtime
-        else:
-            stale = stamp != cache._impl.locator.get_source_stamp()
+        else:  # numba's own test, its helpers' modules' stamps included (stamp_with_dependencies)
+            try:
+                stale = stamp != _source_stamp(dispatcher)
+            except AttributeError:  # another numba's internals
+                return False
         if stale:
             return False
     return True
+
+
+def stamp_with_dependencies(dispatcher: Any) -> None:
+    """Key ``dispatcher``'s numba cache on the source of every module whose compiled helpers it calls, not its own
+    alone.
+
+    Numba stamps a cached function's index with its own source file and loads the machine code while that file is
+    unchanged: a kernel that calls (or inlines) a helper of another module, such as the reference's curvature kernel
+    calling the chain's ``joint_frames`` or the LQR's calling ``jacobi_eigh``, would keep running the old helper
+    after that module changed, an update or an edit (tests/kernels/test_compiled.py). The helpers are found through
+    the names the function reads, and theirs in turn. Where numba's cache is not laid out as known here, nothing is
+    changed.
+    """
+    try:
+        dispatcher._cache._cache_file._source_stamp = _source_stamp(dispatcher)
+    except AttributeError:  # no cache, or another numba's internals
+        return
+
+
+def _source_stamp(dispatcher: Any) -> object:
+    """The stamp of ``dispatcher``'s source as its cache index holds it: numba's own, with the stamps of the other
+    modules whose helpers it calls where there are any (:func:`stamp_with_dependencies`), as they are now.
+
+    Raises:
+        AttributeError: Where numba's cache is not laid out as known here.
+    """
+    own = dispatcher._cache._impl.locator.get_source_stamp()
+    stamps, seen, pending = {}, set(), [dispatcher.py_func]
+    while pending:
+        function = pending.pop()
+        for name in function.__code__.co_names:
+            helper_dispatcher = function.__globals__.get(name)
+            called = getattr(helper_dispatcher, "py_func", None)
+            if called is None or called in seen:
+                continue
+            seen.add(called)
+            pending.append(called)
+            if called.__module__ != dispatcher.py_func.__module__:
+                stamps[called.__module__] = helper_dispatcher._cache._impl.locator.get_source_stamp()
+    return (own, tuple(sorted(stamps.items()))) if stamps else own
 
 
 def _index_stamp(index: Path) -> object | None:

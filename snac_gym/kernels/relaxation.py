@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from snac_gym.kernels.compiled import helper
+from snac_gym.kernels.compiled import helper, stamp_with_dependencies
 from snac_gym.kernels.relaxation_band import (  # the leaves, compiled by relaxation_kernel into this namespace
     _add_constraint_curvature,
     _apply_constraints,
@@ -466,7 +466,9 @@ def relaxation_kernel() -> Any:  # a numba dispatcher (numba has no type hints)
         if not hasattr(namespace[name], "py_func"):
             # _capped_solve inlined: compiled on its own, the whole solve under it was optimised and emitted again
             namespace[name] = helper(namespace[name], fastmath={"contract"}, inline=name == "_capped_solve")
-    return njit(cache=True, nogil=True)(_relaxation_bounds)
+    dispatcher = njit(cache=True, nogil=True)(_relaxation_bounds)
+    stamp_with_dependencies(dispatcher)  # its helpers' source is relaxation_band.py's
+    return dispatcher
 
 
 def lazy_kernels() -> list[tuple[Any, list[Example]]]:  # Any: a numba dispatcher

@@ -259,6 +259,42 @@ print(json.dumps({"before": before, "after": after, "misses": sorted(set(misses)
 """
 
 
+HELPER_DRIVER = r"""
+import sys
+from snac_gym.kernels import compiled
+from {kernels} import twice_shifted
+print(twice_shifted(1.0), compiled.cached_on_disk(("{kernels}",)))
+"""
+
+
+def test_a_kernel_runs_the_helper_of_another_module_as_that_module_now_reads(tmp_path):
+    # Numba stamps a cached kernel with its own file only: without stamp_with_dependencies a kernel that inlines a
+    # helper of another module (the curvature kernel the chain's joint_frames) kept running the helper as compiled.
+    package = tmp_path / f"kernels_{os.getpid()}"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "helpers.py").write_text(
+        "from snac_gym.kernels.compiled import helper\n\n\n"
+        "def shift(x):\n    return x + 1.0\n\n\nshift = helper(shift, inline=True)\n"
+    )
+    (package / "main.py").write_text(
+        f"from snac_gym.kernels.compiled import kernel\nfrom {package.name}.helpers import shift\n\n\n"
+        "@kernel(example=lambda: (2.0,))\ndef twice_shifted(x):\n    return 2.0 * shift(x)\n"
+    )
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(tmp_path)}
+    driver = HELPER_DRIVER.format(kernels=f"{package.name}.main")
+
+    def run() -> str:
+        done = subprocess.run([sys.executable, "-c", driver], capture_output=True, text=True, timeout=120, env=env)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.split()
+
+    assert run() == ["4.0", "True"]  # compiled, then cached
+    assert run() == ["4.0", "True"]  # loaded
+    (package / "helpers.py").write_text((package / "helpers.py").read_text().replace("x + 1.0", "x + 100.0"))
+    assert run() == ["202.0", "True"]  # the helper's module changed: compiled again, not loaded stale
+
+
 def test_the_fork_server_loads_every_kernel_its_workers_call_at_start_up():
     """With the cache up to date (the session's start compiled it, conftest.py), a worker forked from
     the server starts with every kernel loaded: its warm-up loads nothing itself."""
