@@ -99,7 +99,7 @@ class BatchChain:
 
     def error_curvature(self, qs: np.ndarray, errors: np.ndarray) -> np.ndarray:
         """``Σᵢ eᵢ ∂²fᵢ/∂θ²`` at each configuration for its error ``(B, 3)``: ``(B, m, m)``, the part of the Hessian of
-        ½‖e‖² that J leaves out (:func:`~snac_gym.kernels.chain.chain_error_curvature`)."""
+        ½‖e‖² that J leaves out (:func:`~snac_gym.kernels.trajopt.chain_error_curvature`)."""
         from snac_gym.kernels.trajopt import chain_error_curvature  # numba: imported where first needed
 
         return chain_error_curvature(
