@@ -49,6 +49,10 @@ _PULL = 0.2  # the null-space step towards θ₀, a fraction of the remaining di
 _TRUST = 0.5  # largest IK step, rad: keeps an iteration on its branch
 _ITERATIONS = 300
 _POLISH = 30  # last iterations without the pull: converge onto f(θ) = x_d exactly
+#: A row of the IK that moves less than this (max |Δθ|, rad) in an iteration with the pull has converged there and
+#: is not iterated again until the polish: its goal ends within 1e-10 rad of the one all the iterations give
+#: (Table I's samples), and the IK of the reference's branch search takes a third less time.
+_SETTLED = 1e-11
 
 
 def goal_starts(
@@ -132,14 +136,26 @@ def _solve(
     goal = np.repeat(targets, per, axis=0)
     q = np.concatenate([q0[:, None, :], np.broadcast_to(spread, (count, len(spread), m))], axis=1).reshape(-1, m)
     q = np.clip(q, low, high)
+    moving = np.arange(len(q))  # the rows that still move
     for iteration in range(_ITERATIONS):
-        x, jac = kinematics.forward_and_jacobian_batch(q)
-        step = _resolve(jac, goal - x)
-        if iteration < _ITERATIONS - _POLISH:  # (I − J⁺J)·d: the part of d = θ₀ − θ that leaves f(θ) alone
-            towards = anchor - q
+        pulled = iteration < _ITERATIONS - _POLISH
+        if iteration == _ITERATIONS - _POLISH:
+            moving = np.arange(len(q))  # the polish moves every row again
+        if not len(moving):
+            continue
+        here = q[moving]
+        x, jac = kinematics.forward_and_jacobian_batch(here)
+        step = _resolve(jac, goal[moving] - x)
+        if pulled:  # (I − J⁺J)·d: the part of d = θ₀ − θ that leaves f(θ) alone
+            towards = anchor[moving] - here
             step = step + _PULL * (towards - _resolve(jac, np.einsum("bij,bj->bi", jac, towards)))
         norms = np.linalg.norm(step, axis=1, keepdims=True)
-        q = np.clip(q + step * np.minimum(1.0, _TRUST / np.maximum(norms, 1e-300)), low, high)
+        moved = np.clip(here + step * np.minimum(1.0, _TRUST / np.maximum(norms, 1e-300)), low, high)
+        q[moving] = moved
+        # A row that moves less than _SETTLED with the pull has converged there (the pull contracts its distance by
+        # 1 − _PULL an iteration) and waits for the polish; one the polish leaves where it was stays there (a row's
+        # iteration depends on that row alone).
+        moving = moving[np.abs(moved - here).max(axis=1) > (_SETTLED if pulled else 0.0)]
     return q, anchor, goal, count, per
 
 

@@ -70,6 +70,46 @@ def test_the_goal_is_a_local_minimum_of_the_distance_on_the_solution_set(ur10):
         assert np.sum((goal - start) ** 2) <= result.fun * (1 + 1e-4) + 1e-9
 
 
+def test_rows_that_settle_early_end_where_every_iteration_takes_them_and_spare_the_work(ur10, monkeypatch):
+    """The IK stops iterating a row once the pull moves it less than ``_SETTLED`` (until the polish), and a row the
+    polish leaves where it was: held-out workspace targets (seed 41, from θ₀ and the branch search's 23 spread starts)
+    end within 1e-9 rad of where all 300 iterations of every row take them, with under 70 % of the row-iterations."""
+    from snac_gym.evaluation.reference.branches import BRANCH_SPREAD
+
+    from snac_gym.model import joint_goal
+
+    space = SampleSpace(region="workspace")
+    samples = generate_samples(ur10, space, 41, "reach", range(12))
+    q0s = np.array([s.q0 for s in samples])
+    targets = np.array([s.reference.target for s in samples])
+    starts = joint_goal.goal_starts(ur10.lower_limits, ur10.upper_limits, count=BRANCH_SPREAD)
+    rows = []
+    forward = ur10.forward_and_jacobian_batch
+
+    def counted(q):
+        rows.append(len(q))
+        return forward(q)
+
+    monkeypatch.setattr(ur10, "forward_and_jacobian_batch", counted)
+    settled, *_ = joint_goal._solve(ur10, q0s, targets, GOAL_MARGIN, starts)
+    # The plain iteration, every row every time, written out here.
+    low, high = ur10.lower_limits + GOAL_MARGIN, ur10.upper_limits - GOAL_MARGIN
+    per = 1 + len(starts)
+    anchor, goal = np.repeat(q0s, per, axis=0), np.repeat(targets, per, axis=0)
+    q = np.clip(np.concatenate([q0s[:, None], np.broadcast_to(starts, (len(q0s), *starts.shape))], axis=1), low, high)
+    q = q.reshape(-1, ur10.n_joints)
+    for iteration in range(joint_goal._ITERATIONS):
+        x, jac = forward(q)
+        step = joint_goal._resolve(jac, goal - x)
+        if iteration < joint_goal._ITERATIONS - joint_goal._POLISH:
+            towards = anchor - q
+            step = step + joint_goal._PULL * (towards - joint_goal._resolve(jac, np.einsum("bij,bj->bi", jac, towards)))
+        norms = np.linalg.norm(step, axis=1, keepdims=True)
+        q = np.clip(q + step * np.minimum(1.0, joint_goal._TRUST / np.maximum(norms, 1e-300)), low, high)
+    assert np.abs(settled - q).max() <= 1e-9
+    assert sum(rows) < 0.7 * joint_goal._ITERATIONS * len(q)
+
+
 def test_distinct_configurations_keeps_the_first_of_each_cluster_in_order():
     rng = np.random.default_rng(5)
     centres = rng.uniform(-3.0, 3.0, size=(6, 6))
