@@ -25,6 +25,7 @@ reference's own starts.
 
 from __future__ import annotations
 
+import weakref
 from typing import Any
 
 import numpy as np
@@ -53,6 +54,12 @@ _POLISH = 30  # last iterations without the pull: converge onto f(θ) = x_d exac
 #: is not iterated again until the polish: its goal ends within 1e-10 rad of the one all the iterations give
 #: (Table I's samples), and the IK of the reference's branch search takes a third less time.
 _SETTLED = 1e-11
+#: The IK's solved rows of each kinematic model, by what a row's solution depends on (θ₀, its start, its target, the
+#: box): the reference's `joint-goal` start and its branch search then solve θ₀ and the first spread starts of a
+#: sample once, not twice (both draw the spread starts from one seed; a row's iteration depends on that row alone).
+#: Emptied when it holds _SOLVED_ROWS rows (a reference job asks for about 12 000).
+_SOLVED: weakref.WeakKeyDictionary[Any, dict[bytes, np.ndarray]] = weakref.WeakKeyDictionary()
+_SOLVED_ROWS = 50_000
 
 
 def goal_starts(
@@ -127,7 +134,8 @@ def _solve(
     kinematics: Any, q0: np.ndarray, targets: np.ndarray, margin: float, starts: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
     """The IK of every target from its ``q0`` and from every spread start: ``(q, anchor, goal, count, per)`` with
-    ``q``, ``anchor`` (θ₀ of each candidate) and ``goal`` stacked ``(count · per, ·)``, ``per`` = 1 + len(starts)."""
+    ``q``, ``anchor`` (θ₀ of each candidate) and ``goal`` stacked ``(count · per, ·)``, ``per`` = 1 + len(starts).
+    Rows this arm's IK has solved before are served from :data:`_SOLVED`, the others iterated (:func:`_iterate`)."""
     m = kinematics.n_joints
     low, high = kinematics.lower_limits + margin, kinematics.upper_limits - margin
     spread = goal_starts(kinematics.lower_limits, kinematics.upper_limits, margin=margin) if starts is None else starts
@@ -136,6 +144,26 @@ def _solve(
     goal = np.repeat(targets, per, axis=0)
     q = np.concatenate([q0[:, None, :], np.broadcast_to(spread, (count, len(spread), m))], axis=1).reshape(-1, m)
     q = np.clip(q, low, high)
+    solved = _SOLVED.setdefault(kinematics, {})
+    if len(solved) > _SOLVED_ROWS:
+        solved.clear()
+    keys = [row.tobytes() for row in np.concatenate([anchor, q, goal, np.broadcast_to(low, q.shape)], axis=1)]
+    todo = np.array([i for i, key in enumerate(keys) if key not in solved], dtype=np.intp)
+    if len(todo):
+        q[todo] = _iterate(kinematics, q[todo], anchor[todo], goal[todo], low, high)
+        solved.update((keys[i], q[i].copy()) for i in todo)
+    done = np.setdiff1d(np.arange(len(q)), todo, assume_unique=True)
+    if len(done):
+        q[done] = [solved[keys[i]] for i in done]
+    return q, anchor, goal, count, per
+
+
+def _iterate(
+    kinematics: Any, q: np.ndarray, anchor: np.ndarray, goal: np.ndarray, low: np.ndarray, high: np.ndarray
+) -> np.ndarray:
+    """The IK's iterations from the rows of ``q``, each towards its ``goal`` with the null-space pull to its
+    ``anchor`` (θ₀), inside [``low``, ``high``]; each row's result depends on that row alone."""
+    q = q.copy()
     moving = np.arange(len(q))  # the rows that still move
     for iteration in range(_ITERATIONS):
         pulled = iteration < _ITERATIONS - _POLISH
@@ -156,7 +184,7 @@ def _solve(
         # 1 − _PULL an iteration) and waits for the polish; one the polish leaves where it was stays there (a row's
         # iteration depends on that row alone).
         moving = moving[np.abs(moved - here).max(axis=1) > (_SETTLED if pulled else 0.0)]
-    return q, anchor, goal, count, per
+    return q
 
 
 def goals_and_limit_stops(

@@ -110,6 +110,43 @@ def test_rows_that_settle_early_end_where_every_iteration_takes_them_and_spare_t
     assert sum(rows) < 0.7 * joint_goal._ITERATIONS * len(q)
 
 
+def test_rows_solved_once_are_served_again_bit_for_bit_and_only_for_the_same_arm(monkeypatch):
+    """The `joint-goal` start and the reference's branch search ask the IK for the same rows (θ₀ and the first spread
+    starts of each sample): a row solved once is served again, bit for bit what solving it again gives, and another
+    arm's rows, or rows with another margin, are solved anew."""
+    from snac_gym.model import joint_goal
+
+    ur10, ur5 = Kinematics("ur10"), Kinematics("ur5")  # their own objects: no rows solved yet
+    samples = generate_samples(ur10, SampleSpace(region="workspace"), 43, "reach", range(6))
+    q0s = np.array([s.q0 for s in samples])
+    targets = np.array([s.reference.target for s in samples])
+    rows = []
+    for arm in (ur10, ur5):
+        forward = arm.forward_and_jacobian_batch
+
+        def counted(q, forward=forward):
+            rows.append(len(q))
+            return forward(q)
+
+        monkeypatch.setattr(arm, "forward_and_jacobian_batch", counted)
+    first, found = nearest_goals(ur10, q0s, targets)  # θ₀ and 15 spread starts a sample
+    rows.clear()
+    wider = joint_goal.goal_starts(ur10.lower_limits, ur10.upper_limits, count=23)  # the same 15 first, then 8 more
+    again, *_ = joint_goal._solve(ur10, q0s, targets, GOAL_MARGIN, wider)
+    assert max(rows) == len(q0s) * 8  # only the 8 new starts of each sample were iterated
+    monkeypatch.setattr(joint_goal, "_SOLVED", joint_goal.weakref.WeakKeyDictionary())  # nothing solved before
+    fresh, *_ = joint_goal._solve(ur10, q0s, targets, GOAL_MARGIN, wider)
+    np.testing.assert_array_equal(again, fresh)
+    np.testing.assert_array_equal(nearest_goals(ur10, q0s, targets)[0], first)
+    rows.clear()
+    other, *_ = joint_goal._solve(ur5, q0s, targets, GOAL_MARGIN, wider)  # another arm: solved, not served
+    assert max(rows) == len(q0s) * 24
+    rows.clear()
+    joint_goal._solve(ur10, q0s, targets, 2 * GOAL_MARGIN, wider)  # another box: solved anew
+    assert max(rows) == len(q0s) * 24
+    assert not np.array_equal(other, fresh)
+
+
 def test_distinct_configurations_keeps_the_first_of_each_cluster_in_order():
     rng = np.random.default_rng(5)
     centres = rng.uniform(-3.0, 3.0, size=(6, 6))
