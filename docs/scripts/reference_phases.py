@@ -14,21 +14,16 @@ has its figures.
 from __future__ import annotations
 
 import functools
-import json
 import sys
 import time
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+from _reference_runs import reference_job, run_setting
 from snac_gym.evaluation.reference import branches, multistart, optimum
-from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
-from snac_gym.evaluation.samples import read_samples_csv
+from snac_gym.evaluation.reference.optimum import run_optimal_job
 from threadpoolctl import threadpool_limits
-
-from snac_gym.control.cost import CostConvention
-from snac_gym.model.kinematics import Kinematics
-from snac_gym.sampling import SampleSpace
 
 #: (module, function, label) of each timed step.
 STEPS = (
@@ -57,24 +52,17 @@ def timed(seconds: dict[str, float], label: str, function: Any) -> Any:
 
 def main() -> None:
     run, count = Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else 250
-    config = json.loads((run / "run.json").read_text())
-    kinematics = Kinematics(config["robot"])
-    samples = read_samples_csv(run / "samples.csv", kinematics, SampleSpace(**config["space"]))
-    convention = CostConvention(config["cost"], config["udot_start"], config["q_scale"])
+    config, _, samples, convention = run_setting(run)
     seconds: dict[str, float] = defaultdict(float)
     for module, name, label in STEPS:
         setattr(module, name, timed(seconds, label, getattr(module, name)))
     with threadpool_limits(1):
         for task, task_samples in samples.items():
-            chunk = tuple(task_samples[:count])
-            job = OptimalJob(task, chunk, tuple(range(len(chunk))), config["steps"][task], config["dt"],
-                             config["robot"], convention=convention,
-                             position_limits=config["reference_limits"] == "joints")  # fmt: skip
-            run_optimal_job(OptimalJob(task, chunk[:2], (0, 1), job.steps, job.dt, job.robot, convention=convention))
+            job = reference_job(config, task, task_samples, count, convention)
             seconds.clear()
             started = time.perf_counter()
             run_optimal_job(job)
-            print(f"{task}: {len(chunk)} samples in {time.perf_counter() - started:.2f} s")
+            print(f"{task}: {len(job.samples)} samples in {time.perf_counter() - started:.2f} s")
             for _, _, label in STEPS:
                 print(f"  {label:30s} {seconds[label]:6.2f} s")
 

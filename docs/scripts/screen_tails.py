@@ -16,22 +16,18 @@ the reference took Newton's.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from _reference_runs import reference_job, run_setting
 from snac_gym.evaluation.reference import multistart
-from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
-from snac_gym.evaluation.samples import read_samples_csv
+from snac_gym.evaluation.reference.optimum import run_optimal_job
 from threadpoolctl import threadpool_limits
 
-from snac_gym.control.cost import CostConvention
 from snac_gym.control.gauss_newton import GaussNewtonSolver
-from snac_gym.model.kinematics import Kinematics
-from snac_gym.sampling import SampleSpace
 
 
 class Recorder:
@@ -79,10 +75,7 @@ def main() -> None:
     arguments = [a for a in sys.argv[1:] if a != "--gauss-newton"]
     multistart.NEWTON = "--gauss-newton" not in sys.argv
     run, count = Path(arguments[0]), int(arguments[1]) if len(arguments) > 1 else 250
-    config = json.loads((run / "run.json").read_text())
-    kinematics = Kinematics(config["robot"])
-    samples = read_samples_csv(run / "samples.csv", kinematics, SampleSpace(**config["space"]))
-    convention = CostConvention(config["cost"], config["udot_start"], config["q_scale"])
+    config, _, samples, convention = run_setting(run)
     recorder = Recorder()
     GaussNewtonSolver.direction = recorder.direction(GaussNewtonSolver.direction)  # type: ignore[method-assign]
     screens = [0]
@@ -95,18 +88,14 @@ def main() -> None:
     multistart._coarse_screen = counted
     with threadpool_limits(1):
         for task, task_samples in samples.items():
-            chunk = tuple(task_samples[:count])
-            job = OptimalJob(task, chunk, tuple(range(len(chunk))), config["steps"][task], config["dt"],
-                             config["robot"], convention=convention,
-                             position_limits=config["reference_limits"] == "joints")  # fmt: skip
-            run_optimal_job(OptimalJob(task, chunk[:2], (0, 1), job.steps, job.dt, job.robot, convention=convention))
+            job = reference_job(config, task, task_samples, count, convention)
             recorder.directions, recorder.tails[:], screens[0] = 0, [], 0
             started = time.perf_counter()
             run_optimal_job(job)
             total = time.perf_counter() - started
             tails = recorder.tails
-            print(f"{task}: {len(chunk)} samples in {total:.2f} s, {recorder.directions} Gauss-Newton directions, "
-                  f"{screens[0]} screens")  # fmt: skip
+            print(f"{task}: {len(job.samples)} samples in {total:.2f} s, {recorder.directions} Gauss-Newton "
+                  f"directions, {screens[0]} screens")  # fmt: skip
             for ended in ("basin", "elsewhere", "limit"):
                 group = [t for t in tails if t["ended"] == ended]
                 if group:
@@ -115,10 +104,10 @@ def main() -> None:
                           f"{sum(t['seconds'] for t in group):5.2f} s")  # fmt: skip
             directions = sum(t["directions"] for t in tails)
             contraction = [t["contraction"] for t in tails if np.isfinite(t["contraction"])]
+            low, median, high = np.percentile(contraction, [25, 50, 75]) if contraction else [float("nan")] * 3
             print(f"  all of them: {directions / max(recorder.directions, 1):.0%} of the directions, "
                   f"{sum(t['seconds'] for t in tails) / total:.0%} of the time; step contraction over each one's "
-                  f"last half, median {np.median(contraction) if contraction else float('nan'):.2f} "
-                  f"(quartiles {np.percentile(contraction, 25):.2f}-{np.percentile(contraction, 75):.2f})")  # fmt: skip
+                  f"last half, median {median:.2f} (quartiles {low:.2f}-{high:.2f})")  # fmt: skip
 
 
 if __name__ == "__main__":

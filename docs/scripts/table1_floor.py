@@ -28,15 +28,11 @@ import time
 from pathlib import Path
 
 import pandas as pd
+from _reference_runs import reference_job, run_setting
 from snac_gym.evaluation.execution.jobs import RolloutJob, run_job
 from snac_gym.evaluation.execution.passes import OPTIMAL_CHUNK_SIZE
 from snac_gym.evaluation.reference.optimum import OptimalJob, run_optimal_job
-from snac_gym.evaluation.samples import read_samples_csv
 from threadpoolctl import threadpool_limits
-
-from snac_gym.control.cost import CostConvention
-from snac_gym.model.kinematics import Kinematics
-from snac_gym.sampling import SampleSpace
 
 CHUNK = 250  # samples per timed job (the evaluator's chunks are 500)
 PROBE = 20
@@ -47,12 +43,8 @@ REFERENCE_SAMPLES = OPTIMAL_CHUNK_SIZE
 
 def rates(run: Path) -> dict[tuple[str, str], float]:
     """Steps per second of ``run_job`` on one core for each (task, controller) of ``run`` at its knob."""
-    config = json.loads((run / "run.json").read_text())
+    config, _, samples, convention = run_setting(run)
     results = pd.read_parquet(run / "results.parquet")
-    kinematics = Kinematics(config["robot"])
-    space = SampleSpace(**config["space"])
-    samples = read_samples_csv(run / "samples.csv", kinematics, space)
-    convention = CostConvention(config["cost"], config["udot_start"], config["q_scale"])
     out: dict[tuple[str, str], float] = {}
     for (task, controller), rows in results.groupby(["task", "controller"], sort=False):
         if controller == "optimal":
@@ -73,19 +65,13 @@ def rates(run: Path) -> dict[tuple[str, str], float]:
 
 def reference_seconds(run: Path) -> float:
     """Seconds of one core to solve every reference row of ``run``, from a timed subset of each task."""
-    config = json.loads((run / "run.json").read_text())
-    kinematics = Kinematics(config["robot"])
-    samples = read_samples_csv(run / "samples.csv", kinematics, SampleSpace(**config["space"]))
-    convention = CostConvention(config["cost"], config["udot_start"], config["q_scale"])
+    config, _, samples, convention = run_setting(run)
     total = 0.0
     for task, task_samples in samples.items():
-        chunk = tuple(task_samples[:REFERENCE_SAMPLES])
-        job = OptimalJob(task, chunk, tuple(range(len(chunk))), config["steps"][task], config["dt"], config["robot"],
-                         convention=convention, position_limits=config["reference_limits"] == "joints")  # fmt: skip
-        run_optimal_job(OptimalJob(task, chunk[:2], (0, 1), job.steps, job.dt, job.robot, convention=convention))
+        job = reference_job(config, task, task_samples, REFERENCE_SAMPLES, convention)
         seconds = _timed(job)
-        total += seconds * len(task_samples) / len(chunk)
-        print(f"  {task:5s} optimal   {seconds / len(chunk) * 1e3:6.1f} ms per sample")
+        total += seconds * len(task_samples) / len(job.samples)
+        print(f"  {task:5s} optimal   {seconds / len(job.samples) * 1e3:6.1f} ms per sample")
     return total
 
 

@@ -148,13 +148,13 @@ def _solve(
     if len(solved) > _SOLVED_ROWS:
         solved.clear()
     keys = [row.tobytes() for row in np.concatenate([anchor, q, goal, np.broadcast_to(low, q.shape)], axis=1)]
-    todo = np.array([i for i, key in enumerate(keys) if key not in solved], dtype=np.intp)
+    known = np.array([key in solved for key in keys], dtype=bool)
+    for i in np.flatnonzero(known):
+        q[i] = solved[keys[i]]
+    todo = np.flatnonzero(~known)
     if len(todo):
         q[todo] = _iterate(kinematics, q[todo], anchor[todo], goal[todo], low, high)
         solved.update((keys[i], q[i].copy()) for i in todo)
-    done = np.setdiff1d(np.arange(len(q)), todo, assume_unique=True)
-    if len(done):
-        q[done] = [solved[keys[i]] for i in done]
     return q, anchor, goal, count, per
 
 
