@@ -80,13 +80,15 @@ from typing import Any
 import numpy as np
 
 from snac_gym.control.optimality import (
+    SINGULAR_TOLERANCE,
     FrozenJacobianLQR,
     critic_error,
     hjb_residual,
     matrix_to_quadratic_weights,
     quadratic_weights_to_matrix,
 )
-from snac_gym.policies.base import BasePolicy, positive_float, scale_rows_into_limits
+from snac_gym.kernels.compiled import read_only_view
+from snac_gym.policies.base import BasePolicy, positive_float
 from snac_gym.policies.snac import CriticEpisode, QuadraticBasis
 
 
@@ -97,30 +99,9 @@ def _excitation_directions(dim: int) -> np.ndarray:
     return np.vstack([eye, *pairs]) if pairs else eye
 
 
-#: Relative margin of :func:`_certainly_above`: far above the rounding error of a Cholesky
+#: Relative margin of :func:`~snac_gym.kernels.hjb.certainly_above`: far above the rounding error of a Cholesky
 #: factorisation and of ``eigh`` (both backward stable, errors of order n·ε·‖P‖ ≈ 1e-15·‖P‖).
 CERTIFY_MARGIN = 1e-9
-
-
-def _certainly_above(matrices: np.ndarray, floor: float) -> np.ndarray:
-    """Rows of ``(B, n, n)`` symmetric ``matrices`` whose smallest eigenvalue is certainly ≥ ``floor``.
-
-    Cholesky (LDLᵀ pivots, vectorised over the rows) of ``P − t I`` with ``t = floor + margin·max|P|``:
-    all pivots positive means ``P − t I + E`` is positive definite for a backward error
-    ``‖E‖ ≲ n ε ‖P‖``, so ``λ_min(P) ≥ floor + (margin − n ε)‖P‖``, and ``eigh``'s computed
-    λ_min (equally backward stable) is ≥ ``floor`` too. A ``False`` row is merely undecided.
-    """
-    count, n, _ = matrices.shape
-    shift = floor + CERTIFY_MARGIN * np.abs(matrices).max(axis=(1, 2))
-    work = matrices - shift[:, None, None] * np.eye(n)
-    positive = np.ones(count, dtype=bool)
-    for k in range(n):
-        pivot = work[:, k, k]
-        positive &= pivot > 0
-        safe = np.where(positive, pivot, 1.0)
-        column = work[:, k + 1 :, k] / safe[:, None]
-        work[:, k + 1 :, k + 1 :] -= column[:, :, None] * work[:, k, None, k + 1 :]
-    return positive
 
 
 class SNACHJBPolicy(CriticEpisode, BasePolicy):
@@ -220,18 +201,22 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         """Ŵ₀ before its projection: uniform in :attr:`initial_weight_range`, ``(size,)``."""
         return rng.uniform(*self.initial_weight_range, size=self.basis.size)
 
-    def _project(self, weights: np.ndarray) -> np.ndarray:
+    def _project(self, weights: np.ndarray, certain: np.ndarray | None = None) -> np.ndarray:
         """Rows ``(B, size)`` projected onto {P̂ ⪰ λ_floor I} (Frobenius: eigenvalues raised to the floor).
 
-        Only the rows that :func:`_certainly_above` cannot clear go through ``eigh`` (most rows
-        are far above the floor); a row it clears is one whose eigh would leave it unchanged, so
-        the result is the same, bit for bit, as decomposing every row.
+        Only the rows that :func:`~snac_gym.kernels.hjb.certainly_above` cannot clear (``certain``: its answer,
+        where the caller has it) go through ``eigh`` (most rows are far above the floor); a row it clears is one
+        whose eigh would leave it unchanged, so the result is the same, bit for bit, as decomposing every row.
         """
-        matrices = quadratic_weights_to_matrix(weights, self.task_dim)
-        unclear = np.flatnonzero(~_certainly_above(matrices, self.min_eigenvalue))
+        if certain is None:
+            from snac_gym.kernels.hjb import certainly_above  # numba: imported where first needed
+
+            weights = np.ascontiguousarray(weights)
+            certain = certainly_above(weights, self.basis.first, self.basis.second, self.min_eigenvalue, CERTIFY_MARGIN)
+        unclear = np.flatnonzero(~certain)
         if unclear.size == 0:
             return weights
-        values, vectors = np.linalg.eigh(matrices[unclear])
+        values, vectors = np.linalg.eigh(quadratic_weights_to_matrix(weights[unclear], self.task_dim))
         low = values[:, 0] < self.min_eigenvalue
         if not low.any():
             return weights
@@ -282,31 +267,30 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
     def _step(
         self, obs: np.ndarray, weights: np.ndarray, first: bool
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Commands ``(B, m)``, the weights that gave them and the updated ones ``(B, size)``, and δ(e) ``(B,)``."""
-        errors, velocities = obs[:, self._e], obs[:, self._xdot_d]
-        jacobians = self._jacobians(obs)
-        r_inverse_jt = self.R_inverse @ np.swapaxes(jacobians, -1, -2)  # R⁻¹Jᵀ, (B, m, n)
-        gram_matrix = jacobians @ r_inverse_jt  # G = J R⁻¹ Jᵀ
-        norms = np.linalg.norm(errors, axis=1, keepdims=True)
-        current = np.divide(errors, norms, out=np.zeros_like(errors), where=norms > 0)
+        """Commands ``(B, m)``, the weights that gave them and the updated ones ``(B, size)``, and δ(e) ``(B,)``.
+
+        One compiled pass (:func:`~snac_gym.kernels.hjb.policy_steps`): eq. 15's command, the residual law's step
+        and eq. 19's stabilising term, while the feedback does not decrease J_s = ½eᵀe.
+        """
+        from snac_gym.kernels.hjb import policy_steps  # numba: imported where first needed
+
+        errors = np.ascontiguousarray(obs[:, self._e])
+        jacobians = read_only_view(self._jacobians(obs))
         if first:  # the law run to convergence at the start pose before the first command moves the arm
+            gram_matrix = jacobians @ (self.R_inverse @ np.swapaxes(jacobians, -1, -2))  # G = J R⁻¹ Jᵀ
+            norms = np.linalg.norm(errors, axis=1, keepdims=True)
+            current = np.divide(errors, norms, out=np.zeros_like(errors), where=norms > 0)
             for _ in range(self.warm_start_iterations):
                 weights = self._project(weights + self._residual_step(weights, gram_matrix, current, 1.0)[0])
-        P = quadratic_weights_to_matrix(weights, self.task_dim)  # V̂ = eᵀP̂e
-        feedback = -(r_inverse_jt @ (P @ errors[..., None]))[..., 0]  # eq. 15: −½R⁻¹Jᵀ∇V̂, ∇V̂ = 2P̂e
-        command = feedback
-        if self.tracking:  # J⁺_R ẋ_d: ė = J u_fb, the regulation problem
-            command = feedback + (self.lqr.weighted_pseudoinverse(jacobians) @ velocities[..., None])[..., 0]
-        command = scale_rows_into_limits(command, self.velocity_limits)
-
-        increment, residual = self._residual_step(weights, gram_matrix, current, self.learning_rate * self.dt)
-        # eq. 19 as a stabilising term, while the feedback does not decrease J_s = ½eᵀe.
-        error_rate = (jacobians @ feedback[..., None])[..., 0]
-        unstable = np.einsum("bi,bi->b", errors, error_rate) > 0
-        if unstable.any():
-            descent = np.einsum("bkn,bn->bk", self.basis.gradient(errors), (gram_matrix @ errors[..., None])[..., 0])
-            increment += (self.stabilising_rate * self.dt) * unstable[:, None] * descent
-        return command, weights, self._project(weights + increment), residual * norms[:, 0] ** 2
+        weights = np.ascontiguousarray(weights)
+        command, updated, certain, residual = policy_steps(
+            jacobians, errors, np.ascontiguousarray(obs[:, self._xdot_d]), weights, self.R_inverse,
+            np.ascontiguousarray(self.Q, dtype=float), self.directions, self.basis.first, self.basis.second,
+            self.learning_rate * self.dt, self.regularisation, self.stabilising_rate * self.dt,
+            read_only_view(self.velocity_limits), bool(self.tracking), self.lqr.Q_half,
+            SINGULAR_TOLERANCE, self.min_eigenvalue, CERTIFY_MARGIN,
+        )  # fmt: skip
+        return command, weights, self._project(updated, certain), residual
 
     def _jacobians(self, obs: np.ndarray) -> np.ndarray:
         """The Jacobians ``(B, n, m)`` the critic and the command use at the observed θ: the model's."""

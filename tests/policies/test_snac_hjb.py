@@ -8,8 +8,8 @@ from scipy.linalg import solve_continuous_are, solve_continuous_lyapunov
 from snac_gym.control.optimality import matrix_to_quadratic_weights, quadratic_weights_to_matrix
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies import available_policies, make_policy
-from snac_gym.policies.base import PolicyContext
-from snac_gym.policies.snac_hjb import SNACHJBPolicy
+from snac_gym.policies.base import PolicyContext, scale_rows_into_limits
+from snac_gym.policies.snac_hjb import CERTIFY_MARGIN, SNACHJBPolicy
 
 DT = 1.0 / 125.0
 
@@ -248,3 +248,89 @@ def test_the_compiled_residual_law_is_the_numpy_one(ur10, rng, task_dim):
     # solves (Cholesky here, LU in NumPy) may differ: norm-wise, per row.
     difference = np.linalg.norm(increments - expected_increments, axis=1) / np.linalg.norm(expected_increments, axis=1)
     assert difference.max() < (1e-10 if task_dim == 3 else 1e-6)
+
+
+def _numpy_certainly_above(matrices, floor):
+    """The certificate as NumPy stacks (the policy's before it was compiled): LDLᵀ pivots of ``P − t I``."""
+    count, n, _ = matrices.shape
+    shift = floor + CERTIFY_MARGIN * np.abs(matrices).max(axis=(1, 2))
+    work = matrices - shift[:, None, None] * np.eye(n)
+    positive = np.ones(count, dtype=bool)
+    for k in range(n):
+        pivot = work[:, k, k]
+        positive &= pivot > 0
+        safe = np.where(positive, pivot, 1.0)
+        column = work[:, k + 1 :, k] / safe[:, None]
+        work[:, k + 1 :, k + 1 :] -= column[:, :, None] * work[:, k, None, k + 1 :]
+    return positive
+
+
+@pytest.mark.parametrize("dim", [3, 6])
+def test_the_compiled_certificate_is_the_numpy_one_and_never_clears_a_critic_below_the_floor(rng, dim):
+    from snac_gym.kernels.hjb import certainly_above
+    from snac_gym.policies.snac import QuadraticBasis
+
+    basis, floor = QuadraticBasis(dim), 0.2
+    vectors = np.linalg.qr(rng.normal(size=(3000, dim, dim)))[0]
+    # eigenvalues around the floor: far below, a hair either side (inside the margin), far above
+    values = floor + rng.choice([-1.0, -1e-12, 0.0, 1e-12, 1e-6, 1.0], size=(3000, dim)) * rng.uniform(
+        0.5, 2, (3000, 1)
+    )
+    matrices = (vectors * values[:, None, :]) @ np.swapaxes(vectors, 1, 2)
+    weights = matrix_to_quadratic_weights(matrices)
+    expected = _numpy_certainly_above(quadratic_weights_to_matrix(weights, dim), floor)
+    found = certainly_above(np.ascontiguousarray(weights), basis.first, basis.second, floor, CERTIFY_MARGIN)
+    np.testing.assert_array_equal(found, expected)
+    assert 0 < found.sum() < len(found)  # both answers were given
+    assert np.linalg.eigvalsh(quadratic_weights_to_matrix(weights[found], dim)).min() >= floor
+
+
+def _numpy_step(policy, obs, weights):
+    """One period of the policy as NumPy stacks (before it was compiled): commands, updated weights, δ(e)·‖e‖²."""
+    errors, velocities = obs[:, policy._e], obs[:, policy._xdot_d]
+    jacobians = policy._jacobians(obs)
+    r_inverse_jt = policy.R_inverse @ np.swapaxes(jacobians, -1, -2)
+    gram_matrix = jacobians @ r_inverse_jt
+    norms = np.linalg.norm(errors, axis=1, keepdims=True)
+    current = np.divide(errors, norms, out=np.zeros_like(errors), where=norms > 0)
+    P = quadratic_weights_to_matrix(weights, policy.task_dim)
+    feedback = -(r_inverse_jt @ (P @ errors[..., None]))[..., 0]
+    command = feedback
+    if policy.tracking:
+        command = feedback + (policy.lqr.weighted_pseudoinverse(jacobians) @ velocities[..., None])[..., 0]
+    command = scale_rows_into_limits(command, policy.velocity_limits)
+    increment, residual = _numpy_residual_step(policy, weights, gram_matrix, current, policy.learning_rate * policy.dt)
+    error_rate = (jacobians @ feedback[..., None])[..., 0]
+    unstable = np.einsum("bi,bi->b", errors, error_rate) > 0
+    descent = np.einsum("bkn,bn->bk", policy.basis.gradient(errors), (gram_matrix @ errors[..., None])[..., 0])
+    increment += (policy.stabilising_rate * policy.dt) * unstable[:, None] * descent
+    return command, weights + increment, residual * norms[:, 0] ** 2, unstable
+
+
+@pytest.mark.parametrize("task", ["reach", "track"])
+def test_the_compiled_period_is_the_numpy_one(ur10, rng, task):
+    """Command, update (the stabilising term where eᵀJu_fb > 0 included) and residual of the compiled period
+    against the NumPy law, with R ≠ I, tight velocity limits (rows scaled into them), critics that destabilise
+    (negative weights: eq. 19 active) and an e = 0 row."""
+    context = _context(ur10, task)
+    context = PolicyContext(ur10, DT, np.full(6, 0.3), context.layout, task)
+    policy = SNACHJBPolicy(context, q_scale=3.0, R=np.diag(rng.uniform(0.5, 2.0, 6)), learning_rate=60.0)
+    count = 200
+    qs = rng.uniform(-2.5, 2.5, size=(count, 6))
+    obs = np.array([_obs(context, q, rng.normal(scale=0.2, size=3), rng.normal(scale=0.3, size=3)) for q in qs])
+    obs[0] = _obs(context, qs[0], np.zeros(3), np.zeros(3))
+    weights = rng.uniform(-1.0, 2.0, size=(count, policy.basis.size))
+    command, used, updated, residual = policy._step(obs, weights, first=False)
+    expected_command, expected_updated, expected_residual, unstable = _numpy_step(policy, obs, weights)
+    assert 0 < unstable.sum() < count  # both kinds of row
+    peaks = np.max(np.abs(expected_command) / 0.3, axis=1)
+    assert np.any(peaks == 1.0) and np.any((peaks > 0) & (peaks < 0.99))  # rows scaled into the limits, and not
+    np.testing.assert_array_equal(used, weights)
+    np.testing.assert_allclose(command, expected_command, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(residual, expected_residual, rtol=1e-9, atol=1e-12)
+    expected = policy._project(expected_updated)
+    # Γ's conditioning (these critics are far from converged) sets how far two backward-stable solves (Cholesky,
+    # LU) may differ: norm-wise, per row (up to 7e-9 measured); a term left out or of the wrong sign moves rows by
+    # far more (the stabilising term alone: 0.8·∇σ(e)ᵀGe)
+    difference = np.linalg.norm(updated - expected, axis=1) / np.linalg.norm(expected, axis=1)
+    assert difference.max() < 1e-7
