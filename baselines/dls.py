@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from snac_gym.baselines._common import ResolvedRatePolicy, positive_float
 
-from snac_gym.model.kinematics import damped_least_squares
+from snac_gym.model.kinematics import damped_resolve_rows
 
 
 class DLSPolicy(ResolvedRatePolicy):
@@ -44,10 +44,12 @@ class DLSPolicy(ResolvedRatePolicy):
     def __init__(self, env: Any, gain: float = 2.0, damping: float = 0.01, joint_limits: bool | None = None) -> None:
         super().__init__(env, gain, joint_limits)
         self.damping = positive_float("damping", damping)
-        self._damping_matrix = self.damping**2 * np.eye(self.kinematics.task_dim)
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
-        """``Jᵀ (J Jᵀ + λ² I)⁻¹ v`` for one ``(J, v)`` or stacks ``(B, n, m)``, ``(B, n, 1)``."""
-        return damped_least_squares(jacobian, task_velocity, self._damping_matrix)
+        """``Jᵀ (J Jᵀ + λ² I)⁻¹ v`` for one ``(J, v)``, compiled
+        (:func:`~snac_gym.model.kinematics.damped_resolve_rows`: bit for bit that row of :meth:`resolve_batch`)."""
+        return damped_resolve_rows(jacobian, task_velocity, self.damping)
 
-    resolves_stacks = True
+    def resolve_batch(self, jacobians: np.ndarray, task_velocities: np.ndarray) -> np.ndarray:
+        """:meth:`resolve` of each row: ``(B, n, m)``, ``(B, n)`` -> ``(B, m)``, in one compiled pass."""
+        return damped_resolve_rows(jacobians, task_velocities, self.damping)

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.kernels.compiled import read_only_view
+from snac_gym.model.position_kinematics import damped_resolve_rows
 
 #: δ, rad: the distance a goal keeps from every joint limit.
 GOAL_MARGIN = 0.05
@@ -73,12 +73,8 @@ def goal_starts(
 
 
 def _resolve(jac: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for stacks ``(B, n, m)``, ``(B, n)``:
-    :func:`~snac_gym.model.kinematics.damped_least_squares`'s
-    map, compiled (:func:`~snac_gym.kernels.small.damped_resolve`; the same to rounding)."""
-    from snac_gym.kernels.small import damped_resolve  # numba: imported where first needed
-
-    return damped_resolve(read_only_view(jac), np.ascontiguousarray(velocity, dtype=float), _DAMPING**2)
+    """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for stacks ``(B, n, m)``, ``(B, n)``, at the IK's λ."""
+    return damped_resolve_rows(jac, velocity, _DAMPING)
 
 
 def nearest_goals(

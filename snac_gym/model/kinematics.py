@@ -21,6 +21,7 @@ from snac_gym.model.pose_kinematics import PoseKinematics, shared_pose_kinematic
 from snac_gym.model.position_kinematics import (
     Kinematics,
     damped_least_squares,
+    damped_resolve_rows,
     joint_path,
     joint_step,
     shared_kinematics,
@@ -33,6 +34,7 @@ __all__ = [
     "PoseKinematics",
     "PositionChain",
     "damped_least_squares",
+    "damped_resolve_rows",
     "joint_path",
     "joint_step",
     "leaf_chain",

@@ -17,7 +17,7 @@ from snac_gym.model.model_error import ModelError, parse_model_error
 from snac_gym.model.robots import get_robot, robot_names
 from snac_gym.model.urdf import robot_urdf_path
 
-__all__ = ["Kinematics", "damped_least_squares", "joint_path", "joint_step", "shared_kinematics"]
+__all__ = ["Kinematics", "damped_least_squares", "damped_resolve_rows", "joint_path", "joint_step", "shared_kinematics"]
 
 
 def joint_step(q: np.ndarray, u: np.ndarray, dt: float, out: np.ndarray | None = None) -> np.ndarray:
@@ -61,6 +61,28 @@ def damped_least_squares(jacobian: np.ndarray, task_velocity: np.ndarray, dampin
     """
     jacobian_t = jacobian.T if jacobian.ndim <= 2 else np.swapaxes(jacobian, -1, -2)
     return jacobian_t @ np.linalg.solve(jacobian @ jacobian_t + damping_matrix, task_velocity)
+
+
+def damped_resolve_rows(jacobians: np.ndarray, velocities: np.ndarray, damping: float) -> np.ndarray:
+    """:func:`damped_least_squares`'s ``Jᵀ(JJᵀ + λ²I)⁻¹ v``, compiled, for one ``J`` ``(n, m)`` and ``v`` ``(n,)`` or
+    stacks ``(B, n, m)``, ``(B, n)``; ``damping`` is λ.
+
+    The same to rounding (a Cholesky solve of each n×n system: :func:`~snac_gym.kernels.small.damped_resolve`), at a
+    fraction of the cost on stacks (NumPy's batched ``solve`` spends most of its time per 3×3 matrix); one row goes
+    as a stack of one, so a row of a stack is bit for bit the row alone. The map of the ``dls`` controller's, the PPO
+    policies' and the joint-goal IK's steps.
+    """
+    from snac_gym.kernels.compiled import read_only_view
+    from snac_gym.kernels.small import damped_resolve  # numba: imported where first needed
+
+    jac = np.asarray(jacobians, dtype=float)
+    velocity = np.asarray(velocities, dtype=float)
+    n, m = jac.shape[-2:]
+    resolved = damped_resolve(
+        read_only_view(jac.reshape(-1, n, m)), np.ascontiguousarray(velocity.reshape(-1, n)), float(damping) ** 2
+    )
+    out: np.ndarray = resolved.reshape(*velocity.shape[:-1], m)
+    return out
 
 
 class Kinematics:

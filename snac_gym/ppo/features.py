@@ -101,7 +101,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.model.joint_goal import TRACKING_ROOM, GoalArms
-from snac_gym.model.kinematics import damped_least_squares
+from snac_gym.model.kinematics import damped_resolve_rows
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import scale_rows_into_limits
 
@@ -375,11 +375,7 @@ def task_velocity(
 
 def _resolve(jacobians: np.ndarray, velocity: np.ndarray, spec: FeatureSpec) -> np.ndarray:
     """``Jᵀ(JJᵀ + λ²I)⁻¹ v`` for one ``J`` ``(n, m)`` and ``v`` ``(n,)``, or stacks ``(B, n, m)``, ``(B, n)``."""
-    jac = np.asarray(jacobians, dtype=np.float64)
-    damping = spec.damping**2 * np.eye(jac.shape[-2])
-    if jac.ndim == 2:
-        return damped_least_squares(jac, velocity, damping)
-    return damped_least_squares(jac, velocity[..., None], damping)[..., 0]
+    return damped_resolve_rows(jacobians, velocity, spec.damping)
 
 
 def task_relative_command(

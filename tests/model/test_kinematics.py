@@ -189,3 +189,19 @@ def test_kinematics_pickles_by_arguments(ur10):
     q = np.array(PAPER_Q0)
     np.testing.assert_array_equal(clone.forward(q), ur10.forward(q))
     assert clone.robot == "ur10" and clone.ee_frame == "tool0"
+
+
+def test_the_compiled_damped_resolve_is_numpys_solve_and_a_row_is_the_row_alone(ur10):
+    from snac_gym.model.kinematics import damped_least_squares, damped_resolve_rows
+
+    rng = np.random.default_rng(11)
+    qs = rng.uniform(-3.0, 3.0, size=(300, 6))
+    qs[0] = 0.0  # the UR10 at zero: singular (the forearm and the wrist in line), where the damping matters
+    jacobians = np.array([ur10.jacobian(q) for q in qs])
+    velocities = rng.normal(size=(300, 3))
+    for damping in (0.01, 0.3):
+        found = damped_resolve_rows(jacobians, velocities, damping)
+        expected = damped_least_squares(jacobians, velocities[..., None], damping**2 * np.eye(3))[..., 0]
+        np.testing.assert_allclose(found, expected, rtol=1e-9, atol=1e-9)
+        for i in (0, 7, 299):
+            assert damped_resolve_rows(jacobians[i], velocities[i], damping).tobytes() == found[i].tobytes()
