@@ -1,57 +1,95 @@
-"""The residual law of SNAC-HJB, compiled: one damped Newton step of Ŵ per episode (:mod:`snac_gym.policies.snac_hjb`).
+"""SNAC-HJB's period, compiled: the command and one damped Newton step of Ŵ per episode.
 
-The law is the policy's (its docstring holds the maths); this evaluates it sample by sample in
-one compiled loop instead of as NumPy stacks of tiny products, which cost 40 % of the policy's
-step in the evaluator. Written out, for the directions d ∈ {d₁…d_N, e/‖e‖} and P̂ from Ŵ:
+The law is the policy's, :mod:`snac_gym.policies.snac_hjb` (its docstring holds the maths); this evaluates it
+sample by sample in compiled loops instead of as NumPy stacks of tiny products, which cost most of the policy's step
+in the evaluator. Written out, for the directions d ∈ {d₁…d_N, e/‖e‖} and P̂ from Ŵ:
 
 * J û(d) = −G P̂ d, ω(d) = ∇σ(d) J û(d), δ(d) = ωᵀŴ + dᵀQd + dᵀP̂GP̂d, ρ = 1 + ‖ω‖²;
 * Γ = Σ ω ωᵀ/ρ + ε·tr(Σ ω ωᵀ/ρ)·I, the step −α Γ⁻¹ Σ ω δ/ρ (Γ by Cholesky: it is positive definite).
+
+One kernel, with nothing it calls: each compiled function, and each helper linked into one, is seconds of a cold
+run's compiles; the LQR's factors (for the tracking feed-forward) come from the caller, already compiled.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from snac_gym.kernels.compiled import Example, helper, kernel, read_only
-from snac_gym.kernels.lqr import factors_row
+from snac_gym.kernels.compiled import Example, kernel, read_only
 
 
 def _example() -> Example:
-    """A 3-D critic, one episode: the argument types of every call."""
+    """A 3-D critic of a 6-joint arm, one episode, tracking: the argument types of every call (the Jacobians and
+    the limits read-only, as the kinematics and the envs hold them)."""
     first, second = np.triu_indices(3)
-    return (np.ones((1, 6)), np.eye(3)[None].copy(), np.ones((1, 3)), 0.1, np.eye(3), first, second, np.eye(3), 1e-9)
+    return (
+        read_only(np.ones((1, 3, 6))), np.ones((1, 3)), np.ones((1, 3)), np.ones((1, 6)), np.eye(6),
+        np.ones((1, 6, 3)), np.ones((1, 3)), np.ones((1, 3, 3)), read_only(np.ones(6)), True, 0.4, 0.8, np.eye(3),
+        first, second, np.eye(3), 1e-9, 0.1, 1e-9,
+    )  # fmt: skip
 
 
-@helper
-def _residual_law(  # noqa: C901 - one compiled loop nest, kept inline for speed
+@kernel(_example)
+def periods(  # noqa: C901, PLR0912, PLR0915 - one compiled pass over the episodes, kept inline for speed
+    jacobians: np.ndarray,
+    errors: np.ndarray,
+    velocities: np.ndarray,
     weights: np.ndarray,
-    gram_matrices: np.ndarray,
-    current: np.ndarray,
+    r_inverse: np.ndarray,
+    left: np.ndarray,
+    values: np.ndarray,
+    right: np.ndarray,
+    velocity_limits: np.ndarray,
+    tracking: bool,
     step: float,
+    stabilising: float,
     directions: np.ndarray,
     first: np.ndarray,
     second: np.ndarray,
     Q: np.ndarray,
     regularisation: float,
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled; tested against the NumPy law
-    """Increments ``(B, size)`` of the residual law and δ at the current direction ``(B,)``.
+    floor: float,
+    margin: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """One period of each of B episodes (``SNACHJBPolicy._step``): the command, the residual law's step with eq. 19's
+    term, and the updated Ŵ's certificate.
+
+    With G = J R⁻¹ Jᵀ and P̂ from Ŵ: the command ``sat(−R⁻¹JᵀP̂e [+ J⁺_R ẋ_d])`` (eq. 15, scaled into the limits;
+    ``J⁺_R = A diag(λ⁻¹) C`` from the LQR's factors ``left``, ``values``, ``right`` of each J, read where
+    ``tracking``); the law's step ``−step·Γ⁻¹ Σ ω δ/ρ`` at the directions and e/‖e‖; ``stabilising·∇σ(e)ᵀ G e``
+    added where ``eᵀ J u_fb > 0`` (the feedback does not decrease J_s = ½eᵀe; eq. 19).
 
     Args:
-        weights: Ŵ, ``(B, size)``.
-        gram_matrices: G = J R⁻¹ Jᵀ, ``(B, n, n)``.
-        current: e/‖e‖ (0 at e = 0), ``(B, n)``.
-        step: α·Δt.
+        jacobians: J, ``(B, n, m)``.
+        errors, velocities: e and ẋ_d, ``(B, n)``.
+        weights: Ŵ that gives the command, ``(B, size)``.
+        r_inverse, Q: R⁻¹ and the error weight.
+        step, stabilising: α·Δt and α_s·Δt.
         directions: The fixed excitation directions, ``(N, n)``.
         first, second: The index pair (i ≤ j) of each basis term σ_k = s_i s_j, ``(size,)``.
-        Q: The error weight, ``(n, n)``.
-        regularisation: ε.
+        regularisation: ε of Γ.
+        floor, margin: The projection's λ_floor and the certificate's relative margin.
+
+    Returns:
+        The commands ``(B, m)``, the increments ``(B, size)``, δ at e/‖e‖ ``(B,)``, ‖e‖ ``(B,)``, Ŵ + increment
+        ``(B, size)`` and whether each is certainly above the floor ``(B,)`` (else the caller projects it).
     """
-    count, size = weights.shape
-    n = gram_matrices.shape[1]
+    count, n, m = jacobians.shape
+    size = weights.shape[1]
     fixed = directions.shape[0]
+    commands = np.empty((count, m))
     increments = np.empty((count, size))
     residuals = np.empty(count)
-    P = np.empty((n, n))
+    norms = np.empty(count)
+    updated = np.empty((count, size))
+    certain = np.empty(count, dtype=np.bool_)
+    rjt = np.empty((m, n))
+    G = np.empty((n, n))
+    current = np.empty(n)
+    pe = np.empty(n)
+    feedback = np.empty(m)
+    y = np.empty(n)
+    P = np.zeros((n, n))
     GP = np.empty((n, n))
     d = np.empty(n)
     closed = np.empty(n)
@@ -60,16 +98,70 @@ def _residual_law(  # noqa: C901 - one compiled loop nest, kept inline for speed
     gradient = np.empty(size)
     factor = np.empty((size, size))
     for b in range(count):
-        for k in range(size):
+        for i in range(m):
+            for j in range(n):
+                total = 0.0
+                for k in range(m):
+                    total += r_inverse[i, k] * jacobians[b, j, k]
+                rjt[i, j] = total
+        for i in range(n):
+            for j in range(n):
+                total = 0.0
+                for k in range(m):
+                    total += jacobians[b, i, k] * rjt[k, j]
+                G[i, j] = total
+        squares = 0.0
+        for i in range(n):
+            squares += errors[b, i] * errors[b, i]
+        norm = np.sqrt(squares)
+        norms[b] = norm
+        for i in range(n):
+            current[i] = errors[b, i] / norm if norm > 0.0 else 0.0
+        for k in range(size):  # P̂ of Ŵ: a cross term s_i s_j is split over P_ij and P_ji
             i, j = first[k], second[k]
             value = weights[b, k] if i == j else 0.5 * weights[b, k]
             P[i, j] = value
             P[j, i] = value
         for i in range(n):
+            total = 0.0
+            for j in range(n):
+                total += P[i, j] * errors[b, j]
+            pe[i] = total
+        for i in range(m):
+            total = 0.0
+            for j in range(n):
+                total += rjt[i, j] * pe[j]
+            feedback[i] = -total
+            commands[b, i] = -total
+        if tracking:  # J⁺_R ẋ_d = A diag(λ⁻¹) C ẋ_d: ė = J u_fb, the regulation problem
+            for i in range(n):
+                total = 0.0
+                for k in range(n):
+                    total += right[b, i, k] * velocities[b, k]
+                y[i] = total / values[b, i]  # 0 along a lost direction (λ = +inf)
+            for i in range(m):
+                total = 0.0
+                for k in range(n):
+                    total += left[b, i, k] * y[k]
+                commands[b, i] += total
+        scale = 0.0  # into the limits, the direction kept (snac_gym.policies.base.scale_rows_into_limits)
+        for i in range(m):
+            scale = max(scale, abs(commands[b, i]) / velocity_limits[i])
+        scale = max(scale, 1.0)
+        for i in range(m):
+            commands[b, i] = min(max(commands[b, i] / scale, -velocity_limits[i]), velocity_limits[i])
+        rate = 0.0  # eᵀ J u_fb
+        for i in range(n):
+            total = 0.0
+            for k in range(m):
+                total += jacobians[b, i, k] * feedback[k]
+            rate += errors[b, i] * total
+        unstable = rate > 0.0
+        for i in range(n):
             for j in range(n):
                 total = 0.0
                 for k in range(n):
-                    total += gram_matrices[b, i, k] * P[k, j]
+                    total += G[i, k] * P[k, j]
                 GP[i, j] = total
         for i in range(size):  # loops, not slice assignments: numba compiles those slowly (a cold run's seconds)
             gradient[i] = 0.0
@@ -77,7 +169,7 @@ def _residual_law(  # noqa: C901 - one compiled loop nest, kept inline for speed
                 gram[i, j] = 0.0
         for index in range(fixed + 1):
             for i in range(n):
-                d[i] = directions[index, i] if index < fixed else current[b, i]
+                d[i] = directions[index, i] if index < fixed else current[i]
             for i in range(n):
                 total = 0.0
                 for k in range(n):
@@ -106,8 +198,8 @@ def _residual_law(  # noqa: C901 - one compiled loop nest, kept inline for speed
             for k in range(size):
                 scaled = omega[k] / rho
                 gradient[k] += omega[k] * (residual / rho)
-                for m in range(k + 1):  # the lower triangle: all that the trace and the Cholesky factor read
-                    gram[k, m] += omega[m] * scaled
+                for c in range(k + 1):  # the lower triangle: all that the trace and the Cholesky factor read
+                    gram[k, c] += omega[c] * scaled
             if index == fixed:
                 residuals[b] = residual
         trace = 0.0
@@ -139,222 +231,40 @@ def _residual_law(  # noqa: C901 - one compiled loop nest, kept inline for speed
             increments[b, i] = total / factor[i, i]
         for k in range(size):
             increments[b, k] = -step * increments[b, k]
-    return increments, residuals
-
-
-@kernel(_example)
-def residual_steps(
-    weights: np.ndarray,
-    gram_matrices: np.ndarray,
-    current: np.ndarray,
-    step: float,
-    directions: np.ndarray,
-    first: np.ndarray,
-    second: np.ndarray,
-    Q: np.ndarray,
-    regularisation: float,
-) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled; tested against the NumPy law
-    """Increments ``(B, size)`` of the residual law and δ at the current direction ``(B,)`` (:func:`_residual_law`)."""
-    return _residual_law(weights, gram_matrices, current, step, directions, first, second, Q, regularisation)
-
-
-@helper
-def _certainly_above(matrix: np.ndarray, floor: float, margin: float, work: np.ndarray) -> bool:  # pragma: no cover
-    """Whether the smallest eigenvalue of the symmetric ``matrix`` ``(n, n)`` is certainly ≥ ``floor``
-    (:func:`snac_gym.policies.snac_hjb._certainly_above`, row by row, the same operations); ``work`` ``(n, n)``."""
-    n = matrix.shape[0]
-    largest = 0.0
-    for i in range(n):
-        for j in range(n):
-            largest = max(largest, abs(matrix[i, j]))
-    shift = floor + margin * largest
-    for i in range(n):
-        for j in range(n):
-            work[i, j] = matrix[i, j] - shift * (1.0 if i == j else 0.0)
-    for k in range(n):
-        pivot = work[k, k]
-        if not pivot > 0.0:
-            return False
-        for i in range(k + 1, n):
-            column = work[i, k] / pivot
-            for j in range(k + 1, n):
-                work[i, j] -= column * work[k, j]
-    return True
-
-
-@helper
-def _weights_to_matrix(
-    weights: np.ndarray, first: np.ndarray, second: np.ndarray, out: np.ndarray
-) -> None:  # pragma: no cover - compiled
-    """``out`` ← P̂ of the quadratic weights ``(size,)`` (``quadratic_weights_to_matrix`` of
-    :mod:`snac_gym.control.optimality`)."""
-    for k in range(weights.shape[0]):
-        i, j = first[k], second[k]
-        value = weights[k] if i == j else 0.5 * weights[k]
-        out[i, j] = value
-        out[j, i] = value
-
-
-@kernel(lambda: (np.ones((1, 6)), *np.triu_indices(3), 0.1, 1e-9))
-def certainly_above(
-    weights: np.ndarray, first: np.ndarray, second: np.ndarray, floor: float, margin: float
-) -> np.ndarray:  # pragma: no cover - compiled; tested against the NumPy test
-    """Rows of ``weights`` ``(B, size)`` whose P̂ certainly has no eigenvalue below ``floor`` ``(B,)``."""
-    count = weights.shape[0]
-    n = max(first.max(), second.max()) + 1 if first.shape[0] else 0
-    matrix = np.zeros((n, n))
-    work = np.empty((n, n))
-    out = np.empty(count, dtype=np.bool_)
-    for b in range(count):
-        _weights_to_matrix(weights[b], first, second, matrix)
-        out[b] = _certainly_above(matrix, floor, margin, work)
-    return out
-
-
-def _step_example() -> Example:
-    """A 3-D critic of a 6-joint arm, one episode, tracking: the argument types of every call (the
-    Jacobians and the limits read-only, as the kinematics and the envs hold them)."""
-    first, second = np.triu_indices(3)
-    return (
-        read_only(np.ones((1, 3, 6))), np.ones((1, 3)), np.ones((1, 3)), np.ones((1, 6)), np.eye(6), np.eye(3),
-        np.eye(3), first, second, 0.4, 1e-9, 0.8, read_only(np.ones(6)), True, np.eye(3), 1e-12, 0.1, 1e-9,
-    )  # fmt: skip
-
-
-@kernel(_step_example)
-def policy_steps(  # noqa: C901, PLR0913 - one compiled pass over the episodes
-    jacobians: np.ndarray,
-    errors: np.ndarray,
-    velocities: np.ndarray,
-    weights: np.ndarray,
-    r_inverse: np.ndarray,
-    Q: np.ndarray,
-    directions: np.ndarray,
-    first: np.ndarray,
-    second: np.ndarray,
-    step: float,
-    regularisation: float,
-    stabilising: float,
-    velocity_limits: np.ndarray,
-    tracking: bool,
-    q_half: np.ndarray,
-    tolerance: float,
-    floor: float,
-    margin: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled; tested against NumPy
-    """One control period of SNAC-HJB for each of B episodes (:meth:`snac_gym.policies.snac_hjb.SNACHJBPolicy._step`).
-
-    With G = J R⁻¹ Jᵀ and P̂ from Ŵ: the command ``sat(−R⁻¹JᵀP̂e [+ J⁺_R ẋ_d])`` (eq. 15, scaled into the limits),
-    the residual law's step at G and e/‖e‖ (``step`` = α·Δt) plus, where ``eᵀJ u_fb > 0``, the eq. 19 term
-    ``stabilising·∇σ(e)ᵀ G e``, and whether each updated P̂ is certainly above ``floor`` (else the caller projects it).
-
-    Args:
-        jacobians: J, ``(B, n, m)``.
-        errors, velocities: e and ẋ_d, ``(B, n)``.
-        weights: Ŵ that gives the command, ``(B, size)``.
-        r_inverse, Q, q_half: R⁻¹, Q and Q^{1/2} (the weighted pseudo-inverse's factors, as the LQR's).
-        tracking: Whether to add the feed-forward J⁺_R ẋ_d.
-        tolerance: The LQR's singular tolerance (J⁺_R drops a lost direction).
-
-    Returns:
-        The commands ``(B, m)``, the updated Ŵ ``(B, size)``, whether each is certainly above the floor ``(B,)``,
-        and δ(e) at e ``(B,)``.
-    """
-    count, n, m = jacobians.shape
-    size = weights.shape[1]
-    commands = np.empty((count, m))
-    gram_matrices = np.empty((count, n, n))
-    current = np.empty((count, n))
-    norms = np.empty(count)
-    unstable = np.empty(count, dtype=np.bool_)
-    rjt = np.empty((m, n))
-    P = np.zeros((n, n))
-    pe = np.empty(n)
-    feedback = np.empty(m)
-    y = np.empty(n)
-    g, rg, a, v, w = np.empty((n, m)), np.empty((m, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
-    diagonal, order = np.empty(n), np.empty(n, dtype=np.int64)
-    left, values, right = np.empty((m, n)), np.empty(n), np.empty((n, n))
-    singular = np.empty(n, dtype=np.bool_)
-    for b in range(count):
-        jacobian = jacobians[b]
-        for i in range(m):
-            for j in range(n):
-                total = 0.0
-                for k in range(m):
-                    total += r_inverse[i, k] * jacobian[j, k]
-                rjt[i, j] = total
-        for i in range(n):
-            for j in range(n):
-                total = 0.0
-                for k in range(m):
-                    total += jacobian[i, k] * rjt[k, j]
-                gram_matrices[b, i, j] = total
-        squares = 0.0
-        for i in range(n):
-            squares += errors[b, i] * errors[b, i]
-        norm = np.sqrt(squares)
-        norms[b] = norm
-        for i in range(n):
-            current[b, i] = errors[b, i] / norm if norm > 0.0 else 0.0
-        _weights_to_matrix(weights[b], first, second, P)
-        for i in range(n):
-            total = 0.0
-            for j in range(n):
-                total += P[i, j] * errors[b, j]
-            pe[i] = total
-        for i in range(m):
-            total = 0.0
-            for j in range(n):
-                total += rjt[i, j] * pe[j]
-            feedback[i] = -total
-            commands[b, i] = -total
-        if tracking:  # J⁺_R ẋ_d = A diag(λ⁻¹) C ẋ_d: ė = J u_fb, the regulation problem
-            factors_row(
-                jacobian, q_half, r_inverse, tolerance, g, rg, a, v, w, diagonal, order, left, values, right, singular
-            )
+        if unstable:  # eq. 19 while the feedback does not decrease J_s = ½eᵀe: ∇σ(e)ᵀ G e
             for i in range(n):
                 total = 0.0
                 for k in range(n):
-                    total += right[i, k] * velocities[b, k]
-                y[i] = total / values[i]  # 0 along a lost direction (λ = +inf)
-            for i in range(m):
-                total = 0.0
-                for k in range(n):
-                    total += left[i, k] * y[k]
-                commands[b, i] += total
-        scale = 0.0  # into the limits, the direction kept (snac_gym.policies.base.scale_rows_into_limits)
-        for i in range(m):
-            scale = max(scale, abs(commands[b, i]) / velocity_limits[i])
-        scale = max(scale, 1.0)
-        for i in range(m):
-            commands[b, i] = min(max(commands[b, i] / scale, -velocity_limits[i]), velocity_limits[i])
-        rate = 0.0  # eᵀ J u_fb
-        for i in range(n):
-            total = 0.0
-            for k in range(m):
-                total += jacobian[i, k] * feedback[k]
-            rate += errors[b, i] * total
-        unstable[b] = rate > 0.0
-    increments, residuals = _residual_law(
-        weights, gram_matrices, current, step, directions, first, second, Q, regularisation
-    )
-    updated = np.empty((count, size))
-    certain = np.empty(count, dtype=np.bool_)
-    ge = np.empty(n)
-    for b in range(count):
-        if unstable[b]:  # eq. 19 while the feedback does not decrease J_s = ½eᵀe: ∇σ(e)ᵀ G e
-            for i in range(n):
-                total = 0.0
-                for k in range(n):
-                    total += gram_matrices[b, i, k] * errors[b, k]
-                ge[i] = total
+                    total += G[i, k] * errors[b, k]
+                closed[i] = total  # closed reused as G e
             for k in range(size):
                 i, j = first[k], second[k]
-                increments[b, k] += stabilising * (errors[b, j] * ge[i] + errors[b, i] * ge[j])
+                increments[b, k] += stabilising * (errors[b, j] * closed[i] + errors[b, i] * closed[j])
         for k in range(size):
             updated[b, k] = weights[b, k] + increments[b, k]
-        _weights_to_matrix(updated[b], first, second, P)
-        certain[b] = _certainly_above(P, floor, margin, a)
-        residuals[b] *= norms[b] * norms[b]
-    return commands, updated, certain, residuals
+        # The certificate of the updated P̂: Cholesky (LDLᵀ pivots) of P̂ − t I, t = floor + margin·max|P̂|. All pivots
+        # positive means P̂ − t I + E is positive definite for a backward error ‖E‖ ≲ n ε ‖P̂‖, so λ_min ≥ floor +
+        # (margin − n ε)‖P̂‖, and eigh's computed λ_min (equally backward stable) is ≥ floor too; False is undecided.
+        largest = 0.0
+        for k in range(size):
+            i, j = first[k], second[k]
+            value = updated[b, k] if i == j else 0.5 * updated[b, k]
+            P[i, j] = value
+            P[j, i] = value
+            largest = max(largest, abs(value))
+        shift = floor + margin * largest
+        for i in range(n):
+            for j in range(n):
+                GP[i, j] = P[i, j] - shift * (1.0 if i == j else 0.0)  # GP reused as the factor
+        positive = True
+        for k in range(n):
+            pivot = GP[k, k]
+            if not pivot > 0.0:
+                positive = False
+                break
+            for i in range(k + 1, n):
+                column = GP[i, k] / pivot
+                for j in range(k + 1, n):
+                    GP[i, j] -= column * GP[k, j]
+        certain[b] = positive
+    return commands, increments, residuals, norms, updated, certain

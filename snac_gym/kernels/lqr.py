@@ -33,44 +33,6 @@ def _product(x: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:  # pragma: 
             out[i, j] = total
 
 
-@helper
-def factors_row(
-    jacobian: np.ndarray,
-    q_half: np.ndarray,
-    r_inverse: np.ndarray,
-    tolerance: float,
-    g: np.ndarray,
-    rg: np.ndarray,
-    a: np.ndarray,
-    v: np.ndarray,
-    w: np.ndarray,
-    diagonal: np.ndarray,
-    order: np.ndarray,
-    left: np.ndarray,
-    values: np.ndarray,
-    right: np.ndarray,
-    singular: np.ndarray,
-) -> None:  # pragma: no cover - compiled
-    """``(A, λ, C, singular)`` of one J ``(n, m)`` into ``left``, ``values``, ``right``, ``singular``
-    (:func:`frozen_lqr_factors`); ``g`` ``(n, m)``, ``rg`` ``(m, n)``, ``a``, ``v``, ``w`` ``(n, n)``, ``diagonal``
-    ``(n,)`` and ``order`` ``(n,)`` int64 are workspaces."""
-    n = jacobian.shape[0]
-    _product(q_half, jacobian, g)  # G = Q^{1/2} J
-    _product(r_inverse, g.T, rg)  # R⁻¹ Gᵀ
-    _product(g, rg, a)
-    for i in range(n):  # symmetric exactly: the lower triangle mirrored (R ≠ I rounds the two apart)
-        for j in range(i):
-            a[j, i] = a[i, j]
-    jacobi_eigh(a, v, diagonal, order, values, w)
-    largest = values[n - 1]
-    for i in range(n):
-        singular[i] = values[i] <= tolerance * largest
-        if singular[i]:
-            values[i] = np.inf
-    _product(rg, w, left)
-    _product(w.T, q_half, right)
-
-
 @kernel(_examples)
 def frozen_lqr_factors(
     jacobians: np.ndarray, q_half: np.ndarray, r_inverse: np.ndarray, tolerance: float
@@ -87,16 +49,26 @@ def frozen_lqr_factors(
     values = np.empty((count, n))
     right = np.empty((count, n, n))
     singular = np.empty((count, n), dtype=np.bool_)
-    g = np.empty((n, m))
-    rg = np.empty((m, n))
+    g = np.empty((n, m))  # Q^{1/2} J
+    rg = np.empty((m, n))  # R⁻¹ Gᵀ
     a = np.empty((n, n))
     v = np.empty((n, n))
     w = np.empty((n, n))
     diagonal = np.empty(n)
     order = np.empty(n, dtype=np.int64)
     for b in range(count):
-        factors_row(
-            jacobians[b], q_half, r_inverse, tolerance, g, rg, a, v, w, diagonal, order, left[b], values[b], right[b],
-            singular[b],
-        )  # fmt: skip
+        _product(q_half, jacobians[b], g)
+        _product(r_inverse, g.T, rg)
+        _product(g, rg, a)
+        for i in range(n):  # symmetric exactly: the lower triangle mirrored (R ≠ I rounds the two apart)
+            for j in range(i):
+                a[j, i] = a[i, j]
+        jacobi_eigh(a, v, diagonal, order, values[b], w)
+        largest = values[b, n - 1]
+        for i in range(n):
+            singular[b, i] = values[b, i] <= tolerance * largest
+            if singular[b, i]:
+                values[b, i] = np.inf
+        _product(rg, w, left[b])
+        _product(w.T, q_half, right[b])
     return left, values, right, singular

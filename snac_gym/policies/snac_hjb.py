@@ -80,7 +80,6 @@ from typing import Any
 import numpy as np
 
 from snac_gym.control.optimality import (
-    SINGULAR_TOLERANCE,
     FrozenJacobianLQR,
     critic_error,
     hjb_residual,
@@ -99,9 +98,32 @@ def _excitation_directions(dim: int) -> np.ndarray:
     return np.vstack([eye, *pairs]) if pairs else eye
 
 
-#: Relative margin of :func:`~snac_gym.kernels.hjb.certainly_above`: far above the rounding error of a Cholesky
+#: Relative margin of :func:`_certainly_above`: far above the rounding error of a Cholesky
 #: factorisation and of ``eigh`` (both backward stable, errors of order n·ε·‖P‖ ≈ 1e-15·‖P‖).
 CERTIFY_MARGIN = 1e-9
+
+
+def _certainly_above(matrices: np.ndarray, floor: float) -> np.ndarray:
+    """Rows of ``(B, n, n)`` symmetric ``matrices`` whose smallest eigenvalue is certainly ≥ ``floor``.
+
+    Cholesky (LDLᵀ pivots, vectorised over the rows) of ``P − t I`` with ``t = floor + margin·max|P|``:
+    all pivots positive means ``P − t I + E`` is positive definite for a backward error
+    ``‖E‖ ≲ n ε ‖P‖``, so ``λ_min(P) ≥ floor + (margin − n ε)‖P‖``, and ``eigh``'s computed
+    λ_min (equally backward stable) is ≥ ``floor`` too. A ``False`` row is merely undecided. The same operations as
+    the compiled period's certificate (:func:`~snac_gym.kernels.hjb.periods`), which a draw's projection does not go
+    through.
+    """
+    count, n, _ = matrices.shape
+    shift = floor + CERTIFY_MARGIN * np.abs(matrices).max(axis=(1, 2))
+    work = matrices - shift[:, None, None] * np.eye(n)
+    positive = np.ones(count, dtype=bool)
+    for k in range(n):
+        pivot = work[:, k, k]
+        positive &= pivot > 0
+        safe = np.where(positive, pivot, 1.0)
+        column = work[:, k + 1 :, k] / safe[:, None]
+        work[:, k + 1 :, k + 1 :] -= column[:, :, None] * work[:, k, None, k + 1 :]
+    return positive
 
 
 class SNACHJBPolicy(CriticEpisode, BasePolicy):
@@ -204,15 +226,12 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
     def _project(self, weights: np.ndarray, certain: np.ndarray | None = None) -> np.ndarray:
         """Rows ``(B, size)`` projected onto {P̂ ⪰ λ_floor I} (Frobenius: eigenvalues raised to the floor).
 
-        Only the rows that :func:`~snac_gym.kernels.hjb.certainly_above` cannot clear (``certain``: its answer,
-        where the caller has it) go through ``eigh`` (most rows are far above the floor); a row it clears is one
-        whose eigh would leave it unchanged, so the result is the same, bit for bit, as decomposing every row.
+        Only the rows that :func:`_certainly_above` cannot clear (``certain``: its answer, where the caller has it)
+        go through ``eigh`` (most rows are far above the floor); a row it clears is one whose eigh would leave it
+        unchanged, so the result is the same, bit for bit, as decomposing every row.
         """
         if certain is None:
-            from snac_gym.kernels.hjb import certainly_above  # numba: imported where first needed
-
-            weights = np.ascontiguousarray(weights)
-            certain = certainly_above(weights, self.basis.first, self.basis.second, self.min_eigenvalue, CERTIFY_MARGIN)
+            certain = _certainly_above(quadratic_weights_to_matrix(weights, self.task_dim), self.min_eigenvalue)
         unclear = np.flatnonzero(~certain)
         if unclear.size == 0:
             return weights
@@ -240,57 +259,71 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
 
     # -- the laws, on stacks of B episodes ---------------------------------------------------------
     def _residual_step(
-        self, weights: np.ndarray, gram_matrix: np.ndarray, current: np.ndarray, step: float
+        self, weights: np.ndarray, jacobians: np.ndarray, errors: np.ndarray, step: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """One damped Newton step ``−step·Γ Σ ω δ/ρ`` of the residual law, and δ at the current direction.
+        """One damped Newton step ``−step·Γ Σ ω δ/ρ`` of the residual law at G = J R⁻¹ Jᵀ and e/‖e‖, without eq.
+        19's term, and δ at e/‖e‖.
 
         Args:
             weights: Ŵ, ``(B, size)``.
-            gram_matrix: G = J R⁻¹ Jᵀ, ``(B, n, n)``.
-            current: The current error direction e/‖e‖ (0 at e = 0), ``(B, n)``.
+            jacobians: J, ``(B, n, m)``.
+            errors: e, ``(B, n)``: its direction e/‖e‖ (0 at e = 0) is the law's current direction.
             step: α·Δt (1: a full Kleinman step).
         """
-        from snac_gym.kernels.hjb import residual_steps  # numba: imported where first needed
-
-        return residual_steps(
-            np.ascontiguousarray(weights),
-            np.ascontiguousarray(gram_matrix),
-            np.ascontiguousarray(current),
-            float(step),
-            self.directions,
-            self.basis.first,
-            self.basis.second,
-            np.ascontiguousarray(self.Q),
-            self.regularisation,
+        _, increments, residuals, _, _, _ = self._periods(
+            jacobians, errors, np.zeros_like(errors), weights, None, step, 0.0
         )
+        return increments, residuals
+
+    def _periods(
+        self,
+        jacobians: np.ndarray,
+        errors: np.ndarray,
+        velocities: np.ndarray,
+        weights: np.ndarray,
+        factors: tuple[np.ndarray, ...] | None,
+        step: float,
+        stabilising: float,
+    ) -> tuple[np.ndarray, ...]:
+        """:func:`~snac_gym.kernels.hjb.periods` (``factors``: the LQR's of each J, for the tracking feed-forward;
+        ``None``: no feed-forward)."""
+        from snac_gym.kernels.hjb import periods  # numba: imported where first needed
+
+        jacobians = read_only_view(jacobians)
+        _, n, m = jacobians.shape
+        left, values, right = (
+            (np.empty((0, m, n)), np.empty((0, n)), np.empty((0, n, n))) if factors is None else factors
+        )
+        return periods(
+            jacobians, np.ascontiguousarray(errors, dtype=float), np.ascontiguousarray(velocities, dtype=float),
+            np.ascontiguousarray(weights, dtype=float), self.R_inverse, left, values, right,
+            read_only_view(self.velocity_limits), factors is not None, float(step), float(stabilising),
+            self.directions, self.basis.first, self.basis.second, np.ascontiguousarray(self.Q, dtype=float),
+            self.regularisation, self.min_eigenvalue, CERTIFY_MARGIN,
+        )  # fmt: skip
 
     def _step(
         self, obs: np.ndarray, weights: np.ndarray, first: bool
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Commands ``(B, m)``, the weights that gave them and the updated ones ``(B, size)``, and δ(e) ``(B,)``.
 
-        One compiled pass (:func:`~snac_gym.kernels.hjb.policy_steps`): eq. 15's command, the residual law's step
-        and eq. 19's stabilising term, while the feedback does not decrease J_s = ½eᵀe.
+        Compiled (:func:`~snac_gym.kernels.hjb.periods`): eq. 15's command, then the residual law's step with eq.
+        19's stabilising term where the feedback does not decrease J_s = ½eᵀe.
         """
-        from snac_gym.kernels.hjb import policy_steps  # numba: imported where first needed
-
-        errors = np.ascontiguousarray(obs[:, self._e])
+        errors, velocities = obs[:, self._e], obs[:, self._xdot_d]
         jacobians = read_only_view(self._jacobians(obs))
-        if first:  # the law run to convergence at the start pose before the first command moves the arm
-            gram_matrix = jacobians @ (self.R_inverse @ np.swapaxes(jacobians, -1, -2))  # G = J R⁻¹ Jᵀ
-            norms = np.linalg.norm(errors, axis=1, keepdims=True)
-            current = np.divide(errors, norms, out=np.zeros_like(errors), where=norms > 0)
-            for _ in range(self.warm_start_iterations):
-                weights = self._project(weights + self._residual_step(weights, gram_matrix, current, 1.0)[0])
+        # J⁺_R = A diag(λ⁻¹) C from the LQR's factors: a J that lost rank drops that direction
+        factors = self.lqr.factors(jacobians)[:3] if self.tracking else None
         weights = np.ascontiguousarray(weights)
-        command, updated, certain, residual = policy_steps(
-            jacobians, errors, np.ascontiguousarray(obs[:, self._xdot_d]), weights, self.R_inverse,
-            np.ascontiguousarray(self.Q, dtype=float), self.directions, self.basis.first, self.basis.second,
-            self.learning_rate * self.dt, self.regularisation, self.stabilising_rate * self.dt,
-            read_only_view(self.velocity_limits), bool(self.tracking), self.lqr.Q_half,
-            SINGULAR_TOLERANCE, self.min_eigenvalue, CERTIFY_MARGIN,
+        if first:  # the law run to convergence at the start pose before the first command moves the arm
+            for _ in range(self.warm_start_iterations):
+                *_, updated, certain = self._periods(jacobians, errors, velocities, weights, None, 1.0, 0.0)
+                weights = self._project(updated, certain)
+        command, _, residual, norms, updated, certain = self._periods(
+            jacobians, errors, velocities, weights, factors, self.learning_rate * self.dt,
+            self.stabilising_rate * self.dt,
         )  # fmt: skip
-        return command, weights, self._project(updated, certain), residual
+        return command, weights, self._project(updated, certain), residual * norms**2
 
     def _jacobians(self, obs: np.ndarray) -> np.ndarray:
         """The Jacobians ``(B, n, m)`` the critic and the command use at the observed θ: the model's."""

@@ -9,7 +9,7 @@ from snac_gym.control.optimality import matrix_to_quadratic_weights, quadratic_w
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies import available_policies, make_policy
 from snac_gym.policies.base import PolicyContext, scale_rows_into_limits
-from snac_gym.policies.snac_hjb import CERTIFY_MARGIN, SNACHJBPolicy
+from snac_gym.policies.snac_hjb import SNACHJBPolicy, _certainly_above
 
 DT = 1.0 / 125.0
 
@@ -222,25 +222,30 @@ def _numpy_residual_step(policy, weights, gram_matrix, current, step):
     return -step * np.linalg.solve(gram, gradient[..., None])[..., 0], residual[:, -1]
 
 
-@pytest.mark.parametrize("task_dim", [3, 6])
-def test_the_compiled_residual_law_is_the_numpy_one(ur10, rng, task_dim):
-    context = _context(ur10)
-    policy = SNACHJBPolicy(context, q_scale=3.0, Q=np.diag(rng.uniform(0.5, 2.0, 3)))
-    if task_dim == 6:  # a pose-sized critic: the law does not depend on the arm, only on n
+def _policy_of_dim(kinematics, rng, task_dim):
+    """A policy with a critic of ``task_dim`` (6: pose-sized; the law does not depend on the arm, only on n)."""
+    policy = SNACHJBPolicy(_context(kinematics), q_scale=3.0, Q=np.diag(rng.uniform(0.5, 2.0, 3)))
+    if task_dim == 6:
         from snac_gym.policies.snac import QuadraticBasis
         from snac_gym.policies.snac_hjb import _excitation_directions
 
         policy.task_dim, policy.basis, policy.directions = 6, QuadraticBasis(6), _excitation_directions(6)
         policy.Q = _spd(rng, 6)
+    return policy
+
+
+@pytest.mark.parametrize("task_dim", [3, 6])
+def test_the_compiled_residual_law_is_the_numpy_one(ur10, rng, task_dim):
+    policy = _policy_of_dim(ur10, rng, task_dim)
     n, size = policy.task_dim, policy.basis.size
     count = 40
     jacobians = rng.normal(size=(count, n, 6))
-    gram_matrix = jacobians @ jacobians.transpose(0, 2, 1)
+    gram_matrix = jacobians @ jacobians.transpose(0, 2, 1)  # R = I
     weights = matrix_to_quadratic_weights(np.array([_spd(rng, n) for _ in range(count)]))
     current = rng.normal(size=(count, n))
     current /= np.linalg.norm(current, axis=1, keepdims=True)
     current[0] = 0.0  # e = 0: the current direction is the zero vector
-    increments, residual = policy._residual_step(weights, gram_matrix, current, 0.4)
+    increments, residual = policy._residual_step(weights, jacobians, current, 0.4)
     expected_increments, expected_residual = _numpy_residual_step(policy, weights, gram_matrix, current, 0.4)
     assert increments.shape == (count, size)
     np.testing.assert_allclose(residual, expected_residual, rtol=1e-11, atol=1e-11)
@@ -250,27 +255,12 @@ def test_the_compiled_residual_law_is_the_numpy_one(ur10, rng, task_dim):
     assert difference.max() < (1e-10 if task_dim == 3 else 1e-6)
 
 
-def _numpy_certainly_above(matrices, floor):
-    """The certificate as NumPy stacks (the policy's before it was compiled): LDLᵀ pivots of ``P − t I``."""
-    count, n, _ = matrices.shape
-    shift = floor + CERTIFY_MARGIN * np.abs(matrices).max(axis=(1, 2))
-    work = matrices - shift[:, None, None] * np.eye(n)
-    positive = np.ones(count, dtype=bool)
-    for k in range(n):
-        pivot = work[:, k, k]
-        positive &= pivot > 0
-        safe = np.where(positive, pivot, 1.0)
-        column = work[:, k + 1 :, k] / safe[:, None]
-        work[:, k + 1 :, k + 1 :] -= column[:, :, None] * work[:, k, None, k + 1 :]
-    return positive
-
-
 @pytest.mark.parametrize("dim", [3, 6])
-def test_the_compiled_certificate_is_the_numpy_one_and_never_clears_a_critic_below_the_floor(rng, dim):
-    from snac_gym.kernels.hjb import certainly_above
-    from snac_gym.policies.snac import QuadraticBasis
-
-    basis, floor = QuadraticBasis(dim), 0.2
+def test_the_compiled_certificate_is_the_numpy_one_and_never_clears_a_critic_below_the_floor(ur10, rng, dim):
+    """The period's certificate of Ŵ + increment, with a zero step (the increment ±0: Ŵ itself), against the NumPy
+    one a draw's projection uses, on critics a hair either side of the floor."""
+    policy = _policy_of_dim(ur10, rng, dim)
+    floor = policy.min_eigenvalue
     vectors = np.linalg.qr(rng.normal(size=(3000, dim, dim)))[0]
     # eigenvalues around the floor: far below, a hair either side (inside the margin), far above
     values = floor + rng.choice([-1.0, -1e-12, 0.0, 1e-12, 1e-6, 1.0], size=(3000, dim)) * rng.uniform(
@@ -278,8 +268,10 @@ def test_the_compiled_certificate_is_the_numpy_one_and_never_clears_a_critic_bel
     )
     matrices = (vectors * values[:, None, :]) @ np.swapaxes(vectors, 1, 2)
     weights = matrix_to_quadratic_weights(matrices)
-    expected = _numpy_certainly_above(quadratic_weights_to_matrix(weights, dim), floor)
-    found = certainly_above(np.ascontiguousarray(weights), basis.first, basis.second, floor, CERTIFY_MARGIN)
+    expected = _certainly_above(quadratic_weights_to_matrix(weights, dim), floor)
+    errors = rng.normal(size=(3000, dim))
+    *_, updated, found = policy._periods(rng.normal(size=(3000, dim, 6)), errors, errors, weights, None, 0.0, 0.0)
+    np.testing.assert_array_equal(updated, weights)
     np.testing.assert_array_equal(found, expected)
     assert 0 < found.sum() < len(found)  # both answers were given
     assert np.linalg.eigvalsh(quadratic_weights_to_matrix(weights[found], dim)).min() >= floor
