@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from snac_gym.kernels.compiled import read_only_view
 from snac_gym.model.chains import BatchChain
 from snac_gym.model.model_error import ModelError, parse_model_error
 from snac_gym.model.robots import get_robot, robot_names
@@ -72,7 +73,6 @@ def damped_resolve_rows(jacobians: np.ndarray, velocities: np.ndarray, damping: 
     as a stack of one, so a row of a stack is bit for bit the row alone. The map of the ``dls`` controller's, the PPO
     policies' and the joint-goal IK's steps.
     """
-    from snac_gym.kernels.compiled import read_only_view
     from snac_gym.kernels.small import damped_resolve  # numba: imported where first needed
 
     jac = np.asarray(jacobians, dtype=float)
