@@ -54,7 +54,7 @@ from snac_gym.evaluation.effort.cache import (
 from snac_gym.evaluation.effort.matching import MODEL_ORIGIN, EffortRecord, Records, Results, controller_passes
 from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
-from snac_gym.evaluation.execution.passes import EvaluationRun
+from snac_gym.evaluation.execution.passes import SIDE_BY_SIDE, EvaluationRun
 from snac_gym.evaluation.execution.progress import Progress
 from snac_gym.evaluation.reference.cache import CACHE_ENV, cache_folder
 from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
@@ -112,18 +112,28 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
                 if on_model:  # 4a. Equal effort on the kinematic model, the knobs kept for 4b and a resume
                     cached = _match_on_the_model(model, store, executor, effort_set, samples, progress, specs, timings)
                     _store_matched(store_matched, cached[0], config)
-                if cached is not None:  # 4. Equal effort, at the knobs an earlier run (or 4a) matched
-                    results, records = _passes_at_cached_knobs(evaluation, specs, *cached)
+                if cached is not None:  # 4. Equal effort, at the knobs an earlier run (or 4a) matched, and 5.
+                    # The last phase: the main process mostly waits for the workers now. Not earlier, where a run
+                    # stopped before its reports (an interrupt, an error) would only have paid for them.
+                    prefetch_report_modules(config.plots)
+                    # Side by side: the passes and the optimal reference share no input, and their jobs share the
+                    # workers, the reference's long ones first (lower priority number), the passes' short ones
+                    # filling the last gaps instead of one long job running alone at the end.
+                    side_by_side = time.perf_counter()
+                    (results, records), optimal = evaluation.concurrently(
+                        [lambda: _passes_at_cached_knobs(evaluation, specs, *cached), lambda: _optimal_rows(evaluation)]
+                    )
+                    results.update(optimal)
+                    if config.wants_optimal:
+                        evaluation.timings[SIDE_BY_SIDE] = time.perf_counter() - side_by_side
                 else:  # 4. Equal effort
                     results, records = controller_passes(evaluation, specs)
                     _store_matched(store_matched, records, config)
-                if matched_on is not samples:  # the rows of the evaluated samples only
-                    results = {key: _reported_rows(rows, samples[key[0]]) for key, rows in results.items()}
-                    evaluation.samples = samples
-                # The last phase: the main process mostly waits for the workers now. Not earlier, where a
-                # run stopped before its reports (an interrupt, an error) would only have paid for them.
-                prefetch_report_modules(config.plots)
-                results.update(_optimal_rows(evaluation))  # 5. Optimal reference
+                    if matched_on is not samples:  # the rows of the evaluated samples only
+                        results = {key: _reported_rows(rows, samples[key[0]]) for key, rows in results.items()}
+                        evaluation.samples = samples
+                    prefetch_report_modules(config.plots)
+                    results.update(_optimal_rows(evaluation))  # 5. Optimal reference
             finally:
                 progress.close()
                 timings.update(evaluation.timings)

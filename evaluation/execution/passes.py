@@ -49,6 +49,8 @@ OPTIMAL_MIN_CHUNK = 50
 #: Executor priority of knob-search jobs over full passes (lower runs first): every later step of
 #: a controller's effort match waits on its search, while a full pass holds nothing up.
 SEARCH_PRIORITY, PASS_PRIORITY = 0, 1
+#: The timing of a run whose passes and optimal reference ran side by side (their own timings overlap).
+SIDE_BY_SIDE = "passes and optimal side by side"
 
 #: The sample set of a match's full passes where it is not the run's own (the effort set): their part files are named
 #: apart, so that a later pass over the run's own samples at the same settings (a sweep's point) is not taken for one.
@@ -304,4 +306,6 @@ class EvaluationRun:
         return pd.concat([parts[i].metrics for i in range(len(jobs))], ignore_index=True)
 
 
-__all__ = ["OPTIMAL_CHUNK_SIZE", "PASS_PRIORITY", "SEARCH_PRIORITY", "Cancelled", "EvaluationRun", "Pass"]
+__all__ = [
+    "OPTIMAL_CHUNK_SIZE", "PASS_PRIORITY", "SEARCH_PRIORITY", "SIDE_BY_SIDE", "Cancelled", "EvaluationRun", "Pass",
+]  # fmt: skip

@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.effort import cache
+from snac_gym.evaluation.execution.passes import SIDE_BY_SIDE
 
 SMALL = {"tasks": ("reach", "track"), "horizons": {"reach": 0.4, "track": 0.5}, "controllers": ("snac", "lqr", "dls"),
          "chunk_size": 4, "progress": False, "plots": False}  # fmt: skip
@@ -27,21 +28,26 @@ def _run(tmp_path, name, **changes):
 
 
 def _knobs(results: pd.DataFrame) -> dict[tuple[str, str], float]:
-    first = results.groupby(["task", "controller"])["effort_value"].first()
+    first = results[results["controller"] != "optimal"].groupby(["task", "controller"])["effort_value"].first()
     return {key: float(value) for key, value in first.items()}
 
 
 def test_cached_knobs_are_the_recomputed_ones_bit_for_bit_and_so_are_the_rows(cache_dir, tmp_path):
-    """A full calibration (12 samples), a smaller run that reads its knobs (4 of the 12, nothing matched), and a
-    --recalibrate run that matches anew: the knobs and the rows of the 4 samples agree bit for bit."""
-    full = _run(tmp_path, "full", samples=12)
+    """A full calibration (12 samples), a smaller run that reads its knobs (4 of the 12, nothing matched; on two
+    workers, its passes and optimal reference side by side), and a --recalibrate run that matches anew: the knobs
+    and the rows of the 4 samples agree bit for bit."""
+    with_optimum = {"controllers": (*SMALL["controllers"], "optimal")}
+    full = _run(tmp_path, "full", samples=12, **with_optimum)
     assert len(list(cache_dir.glob("*.json"))) == 6  # 2 tasks × 3 controllers
-    cached = _run(tmp_path, "cached")
-    assert "The knobs were not matched by this run" in (tmp_path / "cached" / "summary.md").read_text()
-    assert f"the run in {tmp_path / 'full'}" in (tmp_path / "cached" / "summary.md").read_text()
+    cached = _run(tmp_path, "cached", workers=2, **with_optimum)
+    summary = (tmp_path / "cached" / "summary.md").read_text()
+    assert "The knobs were not matched by this run" in summary
+    assert f"the run in {tmp_path / 'full'}" in summary
     timings = json.loads((tmp_path / "cached" / "timings.json").read_text())
     assert "passes at cached knobs" in timings and "effort matching" not in timings
-    fresh = _run(tmp_path, "fresh", recalibrate=True)
+    assert {"optimal", SIDE_BY_SIDE} <= set(timings)
+    assert f"the passes and the optimal reference side by side, {timings[SIDE_BY_SIDE]:.1f} s in all" in summary
+    fresh = _run(tmp_path, "fresh", recalibrate=True, **with_optimum)
     assert "effort matching" in json.loads((tmp_path / "fresh" / "timings.json").read_text())
     assert "not matched by this run" not in (tmp_path / "fresh" / "summary.md").read_text()
     assert _knobs(cached) == _knobs(fresh) == _knobs(full)
