@@ -258,23 +258,6 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         self.internals = {}
 
     # -- the laws, on stacks of B episodes ---------------------------------------------------------
-    def _residual_step(
-        self, weights: np.ndarray, jacobians: np.ndarray, errors: np.ndarray, step: float
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """One damped Newton step ``−step·Γ Σ ω δ/ρ`` of the residual law at G = J R⁻¹ Jᵀ and e/‖e‖, without eq.
-        19's term, and δ at e/‖e‖.
-
-        Args:
-            weights: Ŵ, ``(B, size)``.
-            jacobians: J, ``(B, n, m)``.
-            errors: e, ``(B, n)``: its direction e/‖e‖ (0 at e = 0) is the law's current direction.
-            step: α·Δt (1: a full Kleinman step).
-        """
-        _, increments, residuals, _, _, _ = self._periods(
-            jacobians, errors, np.zeros_like(errors), weights, None, step, 0.0
-        )
-        return increments, residuals
-
     def _periods(
         self,
         jacobians: np.ndarray,
@@ -286,7 +269,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         stabilising: float,
     ) -> tuple[np.ndarray, ...]:
         """:func:`~snac_gym.kernels.hjb.periods` (``factors``: the LQR's of each J, for the tracking feed-forward;
-        ``None``: no feed-forward)."""
+        ``None``: no feed-forward). With ``stabilising`` 0 the increments are the residual law's alone."""
         from snac_gym.kernels.hjb import periods  # numba: imported where first needed
 
         jacobians = read_only_view(jacobians)

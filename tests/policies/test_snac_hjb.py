@@ -245,7 +245,7 @@ def test_the_compiled_residual_law_is_the_numpy_one(ur10, rng, task_dim):
     current = rng.normal(size=(count, n))
     current /= np.linalg.norm(current, axis=1, keepdims=True)
     current[0] = 0.0  # e = 0: the current direction is the zero vector
-    increments, residual = policy._residual_step(weights, jacobians, current, 0.4)
+    _, increments, residual, *_ = policy._periods(jacobians, current, np.zeros_like(current), weights, None, 0.4, 0.0)
     expected_increments, expected_residual = _numpy_residual_step(policy, weights, gram_matrix, current, 0.4)
     assert increments.shape == (count, size)
     np.testing.assert_allclose(residual, expected_residual, rtol=1e-11, atol=1e-11)
