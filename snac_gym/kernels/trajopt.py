@@ -58,7 +58,6 @@ def _curvature_example() -> Example:
 def chain_error_curvature(
     qs: np.ndarray,
     errors: np.ndarray,
-    parent_slot: np.ndarray,
     rotations: np.ndarray,
     translations: np.ndarray,
     axes: np.ndarray,
@@ -76,13 +75,11 @@ def chain_error_curvature(
     """
     count, chain = qs.shape[0], rotations.shape[0]
     curvature = np.zeros((count, n_joints, n_joints))
-    R = np.empty((chain, 3, 3))
     p = np.empty((chain, 3))
     z = np.empty((chain, 3))
-    F = np.empty((3, 3))
     x = np.empty(3)
     for b in range(count):
-        joint_frames(qs, b, parent_slot, rotations, translations, axes, revolute, columns, ee_offset, R, p, z, F, x)
+        joint_frames(qs, b, rotations, translations, axes, revolute, columns, ee_offset, p, z, x)
         e0, e1, e2 = errors[b, 0], errors[b, 1], errors[b, 2]
         for t in range(chain):
             if revolute[t]:  # w = zₜ × (x − pₜ), the joint's Jacobian column

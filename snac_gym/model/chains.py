@@ -55,11 +55,10 @@ class BatchChain:
             support.append(joint)
             joint = parents[joint - 1]
         self._support = sorted(support)
-        # The chain base first, as arrays for the compiled kernel (snac_gym/kernels/chain.py).
-        slot = {joint: index for index, joint in enumerate(self._support)}
+        # The chain base first, as arrays for the compiled kernel (snac_gym/kernels/chain.py): the path from the base
+        # to the end effector's joint, each joint the parent of the next (Pinocchio numbers a parent before its child).
         chain = [joint - 1 for joint in self._support]
         self._kernel_arrays = (
-            np.array([slot.get(parents[i], -1) for i in chain], dtype=np.int64),
             np.array([placements[i][0] for i in chain], dtype=float).reshape(-1, 3, 3),
             np.array([placements[i][1] for i in chain], dtype=float).reshape(-1, 3),
             np.array([axes[i] for i in chain], dtype=float).reshape(-1, 3),

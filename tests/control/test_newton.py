@@ -47,7 +47,7 @@ def test_the_curvature_blocks_are_the_derivative_of_the_jacobian_along_the_error
 
 def test_a_prismatic_joint_contributes_through_the_revolute_joints_before_it_only():
     # A revolute joint about z, a prismatic one along its x, a revolute one about y: the kernel's three cases.
-    chain = (np.array([-1, 0, 1], dtype=np.int64), np.stack([np.eye(3)] * 3),
+    chain = (np.stack([np.eye(3)] * 3),
              np.array([[0.0, 0.0, 0.3], [0.2, 0.0, 0.0], [0.0, 0.1, 0.0]]),
              np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), np.array([True, False, True]),
              np.array([0, 1, 2], dtype=np.int64), np.array([0.0, 0.0, 0.4]), 3)  # fmt: skip

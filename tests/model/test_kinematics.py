@@ -1,5 +1,6 @@
 """The shared kinematics against PyBullet's own link state and finite differences."""
 
+import math
 import pickle
 
 import numpy as np
@@ -164,6 +165,68 @@ def test_batch_chain_handles_unaligned_negative_and_prismatic_axes(tmp_path):
     looped_x, looped_jac = kinematics.forward_and_jacobian_batch(qs)
     np.testing.assert_allclose(looped_x, positions, rtol=0, atol=1e-12)
     np.testing.assert_allclose(looped_jac, jacobians, rtol=0, atol=1e-12)
+
+
+def _chain_in_python_floats(q, rotations, translations, axes, revolute, columns, ee_offset, n_joints):
+    """The chain kernel's arithmetic (snac_gym/kernels/chain.py's docstring) in Python floats, each sum in the
+    kernel's order and no fused multiply-add: what the compiled kernel must give bit for bit."""
+    parent_rotation, origin, jacobian, frames = None, None, [[0.0] * n_joints for _ in range(3)], []
+    for s in range(len(rotations)):
+        m, t = rotations[s].tolist(), translations[s].tolist()
+        if parent_rotation is None:
+            origin, frame = list(t), m
+        else:
+            r = parent_rotation
+            origin = [origin[i] + (r[i][0] * t[0] + r[i][1] * t[1] + r[i][2] * t[2]) for i in range(3)]
+            frame = [[r[i][0] * m[0][j] + r[i][1] * m[1][j] + r[i][2] * m[2][j] for j in range(3)] for i in range(3)]
+        a = axes[s].tolist()
+        z = [frame[i][0] * a[0] + frame[i][1] * a[1] + frame[i][2] * a[2] for i in range(3)]
+        angle = float(q[columns[s]])
+        if not revolute[s]:
+            origin = [origin[i] + z[i] * angle for i in range(3)]
+            parent_rotation = frame
+        else:
+            c, sn = math.cos(angle), math.sin(angle)
+            v = 1.0 - c
+            parent_rotation = []
+            for i in range(3):
+                f0, f1, f2 = frame[i]
+                along = z[i] * v
+                parent_rotation.append([c * f0 + sn * (f1 * a[2] - f2 * a[1]) + along * a[0],
+                                        c * f1 + sn * (f2 * a[0] - f0 * a[2]) + along * a[1],
+                                        c * f2 + sn * (f0 * a[1] - f1 * a[0]) + along * a[2]])  # fmt: skip
+        frames.append((list(origin), z, revolute[s], columns[s]))
+    r, e = parent_rotation, ee_offset.tolist()
+    x = [origin[i] + (r[i][0] * e[0] + r[i][1] * e[1] + r[i][2] * e[2]) for i in range(3)]
+    for p_s, z, is_revolute, column in frames:
+        if not is_revolute:
+            column_values = z
+        else:
+            l0, l1, l2 = x[0] - p_s[0], x[1] - p_s[1], x[2] - p_s[2]
+            column_values = [z[1] * l2 - z[2] * l1, z[2] * l0 - z[0] * l2, z[0] * l1 - z[1] * l0]
+        for i in range(3):
+            jacobian[i][column] = column_values[i]
+    return x, jacobian
+
+
+@pytest.mark.parametrize("robot", ["ur10", "panda", "general"])
+def test_the_compiled_chain_is_its_arithmetic_bit_for_bit(robot, tmp_path):
+    """The evaluator's rows do not move when the kernel is rewritten for speed: f(θ) and J(θ) are the docstring's
+    arithmetic in its order, to the last bit (a UR10, a 7-joint Panda, a chain with a prismatic joint and tilted
+    axes)."""
+    if robot == "general":
+        urdf = tmp_path / "general.urdf"
+        urdf.write_text(_GENERAL_URDF)
+        kinematics = Kinematics(urdf_path=urdf, ee_frame="tip", base_frame="base")
+    else:
+        kinematics = Kinematics(robot)
+    arrays = kinematics._chain._kernel_arrays
+    qs = np.random.default_rng(21).uniform(-3.0, 3.0, (40, kinematics.n_joints))
+    positions, jacobians = kinematics.forward_and_jacobian_batch(qs)
+    for q, x, jac in zip(qs, positions, jacobians):
+        expected_x, expected_jac = _chain_in_python_floats(q, *arrays)
+        assert x.tolist() == expected_x
+        assert jac.tolist() == expected_jac
 
 
 def test_inverse_position_reaches_a_forward_point(ur10, rng):
