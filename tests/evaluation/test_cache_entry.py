@@ -139,6 +139,32 @@ def test_the_reference_key_covers_every_module_of_its_import_graph_and_moves_wit
     assert reference_cache.sample_key(job, job.samples[0]) == before
 
 
+def test_the_statement_walk_finds_every_import_that_a_walk_of_every_node_finds():
+    """:func:`code_graph._statements` visits the blocks only; on every module of the package, and on a module with
+    imports in every kind of block, it finds the same import statements as :func:`ast.walk`."""
+    import ast
+
+    import snac_gym.baselines
+    import snac_gym.evaluation
+    from snac_gym.evaluation import code_graph
+
+    tricky = ast.parse(
+        "import a\nif x:\n    import b\nelse:\n    import c\ntry:\n    import d\nexcept E:\n    import e\n"
+        "else:\n    import f\nfinally:\n    import g\nwith w:\n    import h\nfor i in y:\n    import i\n"
+        "else:\n    import j\nwhile z:\n    import k\nclass C:\n    def m(self):\n        import l\n"
+        "async def n():\n    async with v:\n        import o\n    async for p in q:\n        import p\n"
+        "match s:\n    case 1:\n        import r\n"
+    )
+    folders = {Path(package.__file__).parent for package in (snac_gym, snac_gym.evaluation, snac_gym.baselines)}
+    sources = [tricky] + [ast.parse(path.read_text()) for folder in folders for path in sorted(folder.rglob("*.py"))]
+    assert len(sources) > 150
+    for tree in sources:
+        every = [node for node in ast.walk(tree) if isinstance(node, ast.Import | ast.ImportFrom)]
+        blocks = [node for node in code_graph._statements(tree) if isinstance(node, ast.Import | ast.ImportFrom)]
+        assert sorted(map(id, blocks)) == sorted(map(id, every))
+    assert len([n for n in code_graph._statements(tricky) if isinstance(n, ast.Import)]) == 15
+
+
 def test_the_import_graph_follows_relative_and_in_function_imports():
     closure = module_closure(["snac_gym.model.joint_goal"])
     assert "snac_gym.kernels.small" in closure  # imported inside a function
