@@ -3,8 +3,8 @@ primal-dual
 interior point on the relaxed problem, whose Newton systems are banded (docs/lower-bounds.md).
 
 Arrays are filled by loops, not slice assignments or array expressions, the helpers carry no Python wrapper
-(:func:`~snac_gym.kernels.compiled.helper`) and the thin ``_capped_solve`` is inlined: each cut numba's compile,
-seconds of a cold evaluation (7.5 → 4.6 s of one core in all).
+(:func:`~snac_gym.kernels.compiled.helper`) and those called once are inlined (:data:`_INLINED`): each cut numba's
+compile, seconds of a cold evaluation (7.5 → 4.6 s of one core in all, on an earlier day's machine).
 
 They are plain Python functions compiled by numba on first use (:func:`relaxation_kernel`), so that importing
 :mod:`snac_gym.control.optimality` does not import numba.
@@ -429,6 +429,17 @@ def _relaxation_bounds(
         )
 
 
+#: Helpers inlined into their one caller by numba rather than compiled on their own: each separate function costs its
+#: own typing, lowering and linking (a cold run's compile of this module 5.9 → 5.4 s of one core, the mean of four in
+#: fresh processes). Only those whose inlining cannot change a bit: called where the caller has the same fast-math
+#: flags, or holding no product that feeds a sum (a fused multiply-add): ``_first_horizon`` and ``_dual_value`` stay
+#: apart (inlined, ``_dual_value`` moved the last bit of some bounds). ``_capped_solve`` compiled on its own had the
+#: whole solve under it optimised and emitted again.
+_INLINED = frozenset({
+    "_capped_solve", "_terminal_weight", "_next_horizon", "_constraint_bounds", "_add_constraint_curvature",
+    "_residuals", "_predictor_corrector_step",
+})  # fmt: skip
+
 _RELAXATION_HELPERS = (
     "_relaxed_hessian_band",
     "_add_constraint_curvature",
@@ -464,8 +475,7 @@ def relaxation_kernel() -> Any:  # a numba dispatcher (numba has no type hints)
     namespace = globals()
     for name in _RELAXATION_HELPERS:
         if not hasattr(namespace[name], "py_func"):
-            # _capped_solve inlined: compiled on its own, the whole solve under it was optimised and emitted again
-            namespace[name] = helper(namespace[name], fastmath={"contract"}, inline=name == "_capped_solve")
+            namespace[name] = helper(namespace[name], fastmath={"contract"}, inline=name in _INLINED)
     dispatcher = njit(cache=True, nogil=True)(_relaxation_bounds)
     stamp_with_dependencies(dispatcher)  # its helpers' source is relaxation_band.py's
     return dispatcher
