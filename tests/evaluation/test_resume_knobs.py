@@ -4,6 +4,7 @@ it goes on at the knobs it kept in its calibration.json, finished or cut short, 
 from __future__ import annotations
 
 import json
+import shutil
 
 import pandas as pd
 import pytest
@@ -17,13 +18,26 @@ from snac_gym.evaluation.store import RunDirectoryError
 SHIPPED = {"controllers": ("snac", "dls", "lqr"), "samples": 3, "progress": False, "plots": False}
 
 
+@pytest.fixture(scope="module")
+def finished_once(tmp_path_factory):
+    """One run at the shipped knobs for the module (each test edits a copy of it)."""
+    folder = tmp_path_factory.mktemp("resume-knobs")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(cache.SWITCH_ENV, "1")  # the tests run with the calibration cache off (tests/conftest.py)
+        patch.setenv("SNAC_GYM_CACHE_DIR", str(folder / "cache"))
+        rows = run_evaluation(EvaluationConfig(out=folder / "run", **SHIPPED))
+    return folder, rows
+
+
 @pytest.fixture
-def finished(tmp_path, monkeypatch):
-    monkeypatch.setenv(cache.SWITCH_ENV, "1")  # the tests run with the calibration cache off (tests/conftest.py)
+def finished(finished_once, tmp_path, monkeypatch):
+    """The module's run and its calibration cache, copied to this test's folder, the cache on and there."""
+    folder, rows = finished_once
+    for name in ("run", "cache"):
+        shutil.copytree(folder / name, tmp_path / name)
+    monkeypatch.setenv(cache.SWITCH_ENV, "1")
     monkeypatch.setenv("SNAC_GYM_CACHE_DIR", str(tmp_path / "cache"))
-    out = tmp_path / "run"
-    rows = run_evaluation(EvaluationConfig(out=out, **SHIPPED))
-    return out, rows
+    return tmp_path / "run", rows.copy()
 
 
 def _resume(out):
