@@ -46,10 +46,10 @@ class DLSPolicy(ResolvedRatePolicy):
         self.damping = positive_float("damping", damping)
 
     def resolve(self, jacobian: np.ndarray, task_velocity: np.ndarray) -> np.ndarray:
-        """``Jᵀ (J Jᵀ + λ² I)⁻¹ v`` for one ``(J, v)``, compiled
-        (:func:`~snac_gym.model.kinematics.damped_resolve_rows`: bit for bit that row of :meth:`resolve_batch`)."""
+        """``Jᵀ (J Jᵀ + λ² I)⁻¹ v`` for one ``(J, v)`` ``(n, m)``, ``(n,)``, or for stacks ``(B, n, m)``, ``(B, n)`` in
+        one compiled pass (:func:`~snac_gym.model.kinematics.damped_resolve_rows`: a row alone is bit for bit that
+        row of a stack)."""
         return damped_resolve_rows(jacobian, task_velocity, self.damping)
 
-    def resolve_batch(self, jacobians: np.ndarray, task_velocities: np.ndarray) -> np.ndarray:
-        """:meth:`resolve` of each row: ``(B, n, m)``, ``(B, n)`` -> ``(B, m)``, in one compiled pass."""
-        return damped_resolve_rows(jacobians, task_velocities, self.damping)
+    #: :meth:`resolve` of each row: it takes the stacks as they come.
+    resolve_batch = resolve
