@@ -3,6 +3,7 @@ never outlive the run. Each test names the input it tries (docs/robustness.md li
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import shutil
@@ -373,9 +374,12 @@ def _interrupted_line(signal_name: str, out: Path) -> str:
 
 
 def _start_long_run(tmp_path: Path) -> subprocess.Popen:
-    """A two-worker evaluation far longer than the test, in its own process group."""
+    """A two-worker evaluation far longer than the test, in its own process group, with Python's fault handler on
+    in it and its workers (:func:`_communicate`)."""
     command = [
         sys.executable,
+        "-X",
+        "faulthandler",
         "-m",
         "snac_gym.apps.cli",
         "evaluate",
@@ -400,6 +404,50 @@ def _start_long_run(tmp_path: Path) -> subprocess.Popen:
     )
 
 
+def _descendants(pid: int) -> list[int]:
+    found, pending = [], [pid]
+    while pending:
+        children = sorted(_direct_children(pending.pop()))
+        found += children
+        pending += children
+    return found
+
+
+def _communicate(process: subprocess.Popen, timeout: float = 120.0) -> tuple[bytes, bytes]:
+    """``process.communicate(timeout)``; past the timeout, a failure that says what still held the run's pipes.
+
+    Every process of the run (the evaluator, its fork server and workers) still alive is listed with its state and
+    kernel wait channel and sent SIGABRT: with the fault handler on (:func:`_start_long_run`) each prints every
+    thread's Python stack to the run's stderr, which the failure shows. A hang seen once in CI left no trace.
+    """
+    try:
+        return process.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        alive = [pid for pid in [process.pid, *_descendants(process.pid)] if _alive(pid)]
+        lines = [f"{pid} {_proc_field(pid, 'stat')} wchan={_proc_field(pid, 'wchan')} {_cmdline(pid)[:120]!r}"
+                 for pid in alive]  # fmt: skip
+        for pid in reversed(alive):  # the workers first, then their fork server, the evaluator last
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGABRT)
+        try:
+            _, err = process.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            _, err = process.communicate()
+        pytest.fail(
+            f"the run's pipes were still open {timeout:.0f} s after the signal; alive then:\n" + "\n".join(lines)
+            + "\nstderr, with the stacks dumped on SIGABRT:\n" + err.decode(errors="replace")[-20000:]
+        )  # fmt: skip
+
+
+def _proc_field(pid: int, name: str) -> str:
+    try:
+        text = Path(f"/proc/{pid}/{name}").read_text()
+    except OSError:
+        return "?"
+    return text.rsplit(")", 1)[1].split()[0] if name == "stat" else text.strip()
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM])
 def test_workers_die_with_their_parent_and_release_its_pipes(tmp_path, signum):
@@ -409,7 +457,7 @@ def test_workers_die_with_their_parent_and_release_its_pipes(tmp_path, signum):
         workers = _children(process.pid)
         process.send_signal(signum)
         # A reader of the run's pipes gets end-of-file: no worker holds them open any more.
-        _, err = process.communicate(timeout=120)
+        _, err = _communicate(process)
         assert _wait_for(lambda: not any(_alive(w) for w in workers))
     finally:
         if process.poll() is None:
@@ -426,7 +474,7 @@ def test_ctrl_c_prints_one_line_and_no_worker_traceback(tmp_path):
         assert _wait_for(lambda: len(_children(process.pid)) >= 2), process.stderr.read().decode()
         workers = _children(process.pid)
         os.killpg(process.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole foreground group
-        _, err = process.communicate(timeout=120)
+        _, err = _communicate(process)
     finally:
         if process.poll() is None:
             process.kill()
