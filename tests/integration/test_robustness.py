@@ -424,11 +424,11 @@ def _communicate(process: subprocess.Popen, timeout: float = 120.0) -> tuple[byt
         return process.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         alive = [pid for pid in [process.pid, *_descendants(process.pid)] if _alive(pid)]
-        lines = [f"{pid} {_proc_field(pid, 'stat')} wchan={_proc_field(pid, 'wchan')} {_cmdline(pid)[:120]!r}"
-                 for pid in alive]  # fmt: skip
+        lines = [f"{pid} {_proc_field(pid, 'stat')} wchan={_proc_field(pid, 'wchan')} {_command(pid)}" for pid in alive]
         for pid in reversed(alive):  # the workers first, then their fork server, the evaluator last
-            with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGABRT)
+            if _cmdline(pid).startswith(sys.executable):  # still one of the run's (a pid may have been reused)
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGABRT)
         try:
             _, err = process.communicate(timeout=10)
         except subprocess.TimeoutExpired:
@@ -438,6 +438,10 @@ def _communicate(process: subprocess.Popen, timeout: float = 120.0) -> tuple[byt
             f"the run's pipes were still open {timeout:.0f} s after the signal; alive then:\n" + "\n".join(lines)
             + "\nstderr, with the stacks dumped on SIGABRT:\n" + err.decode(errors="replace")[-20000:]
         )  # fmt: skip
+
+
+def _command(pid: int) -> str:
+    return _cmdline(pid).replace("\0", " ")[:160]
 
 
 def _proc_field(pid: int, name: str) -> str:
