@@ -349,11 +349,7 @@ def _cmdline(pid: int) -> str:
 
 
 def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state not in ("Z", "X")
+    return _proc_field(pid, "stat") not in ("Z", "X", "?")  # "?": gone
 
 
 def _wait_for(condition, timeout: float = 120.0) -> bool:
@@ -445,6 +441,7 @@ def _command(pid: int) -> str:
 
 
 def _proc_field(pid: int, name: str) -> str:
+    """``/proc/PID/NAME``: the process's state letter for ``stat``, the file's text otherwise; "?" if it is gone."""
     try:
         text = Path(f"/proc/{pid}/{name}").read_text()
     except OSError:
