@@ -337,15 +337,8 @@ def _children(pid: int) -> set[int]:
     direct = _direct_children(pid)
     grandchildren = set().union(*(_direct_children(child) for child in direct)) if direct else set()
     return grandchildren or {
-        c for c in direct if "forkserver" not in _cmdline(c) and "resource_tracker" not in _cmdline(c)
+        c for c in direct if "forkserver" not in _command(c) and "resource_tracker" not in _command(c)
     }
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_text()
-    except OSError:
-        return ""
 
 
 def _alive(pid: int) -> bool:
@@ -420,9 +413,11 @@ def _communicate(process: subprocess.Popen, timeout: float = 120.0) -> tuple[byt
         return process.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         alive = [pid for pid in [process.pid, *_descendants(process.pid)] if _alive(pid)]
-        lines = [f"{pid} {_proc_field(pid, 'stat')} wchan={_proc_field(pid, 'wchan')} {_command(pid)}" for pid in alive]
+        lines = [
+            f"{pid} {_proc_field(pid, 'stat')} wchan={_proc_field(pid, 'wchan')} {_command(pid)[:160]}" for pid in alive
+        ]
         for pid in reversed(alive):  # the workers first, then their fork server, the evaluator last
-            if _cmdline(pid).startswith(sys.executable):  # still one of the run's (a pid may have been reused)
+            if _command(pid).startswith(sys.executable):  # still one of the run's (a pid may have been reused)
                 with contextlib.suppress(OSError):
                     os.kill(pid, signal.SIGABRT)
         try:
@@ -437,11 +432,13 @@ def _communicate(process: subprocess.Popen, timeout: float = 120.0) -> tuple[byt
 
 
 def _command(pid: int) -> str:
-    return _cmdline(pid).replace("\0", " ")[:160]
+    """The process's command line, its arguments joined by spaces ("?" if it is gone)."""
+    return _proc_field(pid, "cmdline").replace("\0", " ").strip()
 
 
 def _proc_field(pid: int, name: str) -> str:
-    """``/proc/PID/NAME``: the process's state letter for ``stat``, the file's text otherwise; "?" if it is gone."""
+    """``/proc/PID/NAME``: the process's state letter for ``stat``, the file's text otherwise (``cmdline``: its
+    arguments, each ended by NUL); "?" if it is gone."""
     try:
         text = Path(f"/proc/{pid}/{name}").read_text()
     except OSError:
