@@ -171,6 +171,13 @@ def _wrapped(text: str) -> str:
     return textwrap.fill(" ".join(text.split()), width=118, break_long_words=False, break_on_hyphens=False) + "\n"
 
 
+def _feedback_starts() -> str:
+    """How many feedback laws the reference starts from, in words (its ``OWN_STARTS``)."""
+    from snac_gym.evaluation.reference.optimum import OWN_STARTS
+
+    return {1: "one", 2: "two", 3: "three", 4: "four"}.get(len(OWN_STARTS), str(len(OWN_STARTS)))
+
+
 def reference(summary: pd.DataFrame) -> str:
     """What the reference is, from its own columns (its starts: reference.json) and its certificate."""
     optimal = summary.set_index("controller").loc["optimal"]
@@ -186,7 +193,7 @@ def reference(summary: pd.DataFrame) -> str:
     median = "/".join(f"{optimal[f'{task}_optimal_bound_ratio_median']:.1f}" for task in TASKS)
     p95 = "/".join(f"{optimal[f'{task}_optimal_bound_ratio_p95']:.1f}" for task in TASKS)
     return (
-        f"the best of {count} contestant-free starts per sample (rest, three feedback laws, IK branches "
+        f"the best of {count} contestant-free starts per sample (rest, {_feedback_starts()} feedback laws, IK branches "
         f"and random in-limit configurations; {basins}), within a median {median}× "
         f"(95th percentile {p95}×, regulation/tracking) of a certified lower bound"
     )

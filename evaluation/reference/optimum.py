@@ -138,7 +138,9 @@ class ReplayPolicy:
 #: whatever ``--controllers`` says. ``joint-goal`` goes straight in joint space to an in-limit IK solution
 #: of another branch or winding where one is nearer: the basin the resolved-rate starts, stalled against
 #: a limit, never reach (on the arm's whole reach, the solve from them could end 0.7 m off target).
-OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (("lqr", {"q_scale": 9.0}), ("dls", {}), ("joint-goal", {}))
+#: ``dls`` (gain 2) was a start too, until an ablation on 1000 fresh samples found it ended nowhere the other starts
+#: did not (docs/optimal.md, "Two feedback starts, not three"): a sixth of the reference's CPU on Table I's samples.
+OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (("lqr", {"q_scale": 9.0}), ("joint-goal", {}))
 #: The own starts whose path does not depend on the grid they are rolled out on, so that they are rolled out on the
 #: coarse grid of the screen (:func:`own_start_commands`), a tenth of the steps: ``joint-goal`` goes straight in joint
 #: space to its goal, the same segment at any Δt. The resolved-rate laws are rolled out on the full grid: which branch

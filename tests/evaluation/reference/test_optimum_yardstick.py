@@ -11,10 +11,16 @@ import pandas as pd
 import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.execution.jobs import policy_context
-from snac_gym.evaluation.reference import multistart
+from snac_gym.evaluation.reference import multistart, optimum
 from snac_gym.evaluation.reference.branches import BRANCH_PREFIX, RANDOM_PREFIX
 from snac_gym.evaluation.reference.multistart import COARSE_FACTOR, coarse_commands
-from snac_gym.evaluation.reference.optimum import OWN_STARTS, REST_START, multi_start_solve, own_start_commands
+from snac_gym.evaluation.reference.optimum import (
+    OWN_STARTS,
+    REST_START,
+    multi_start_solve,
+    own_start_commands,
+    solve_samples,
+)
 from snac_gym.evaluation.samples import generate_samples
 
 from snac_gym.control.cost import CostConvention
@@ -27,6 +33,7 @@ from snac_gym.sampling import SampleSpace
 
 DT = 1.0 / 125.0
 HJB = CostConvention("hjb", "rest", 4.0)
+TABLE1 = CostConvention()
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +79,7 @@ def test_a_start_off_the_coarse_grid_is_refused_naming_it(ur10):
 @pytest.mark.parametrize(("seed", "index"), [(13, 4), (7, 0), (7, 3)])
 def test_the_starts_on_the_coarse_grid_find_the_optimum_the_full_grid_rollouts_find(ur10, seed, index):
     # Workspace reach samples, HJB cost, 5 s, where an own start beats the solve from rest (lqr on (13, 4), joint-goal
-    # and dls on (7, 0) and (7, 3) with every start on the full grid). Before, every own start was
+    # and, when it was a start, dls on (7, 0) and (7, 3) with every start on the full grid). Before, every own start was
     # rolled out on the full grid and block-averaged; now joint-goal (GRID_FREE_STARTS) is rolled out on the coarse
     # grid. On (13, 4) lqr's full-grid rollout crosses to the other elbow branch, 13 % below rest, and its coarse
     # rollouts do not: were lqr rolled out coarse, that optimum would be lost and this test would fail.
@@ -89,6 +96,20 @@ def test_the_starts_on_the_coarse_grid_find_the_optimum_the_full_grid_rollouts_f
     rest = multi_start_solve(q0, x_d, ur10, DT, limits, HJB, {}, position_limits=box)
     assert before.winner == now.winner != REST_START and now.solution.cost < 0.99 * rest.solution.cost
     assert now.solution.cost == pytest.approx(before.solution.cost, rel=1e-8)
+
+
+@pytest.mark.parametrize(("seed", "index", "cost", "horizon"), [(823, 57, HJB, 5.0), (841, 12, TABLE1, 20.0)])
+def test_the_optimum_dls_won_is_reached_without_it(ur10, monkeypatch, seed, index, cost, horizon):
+    # Workspace track samples of the ablation that dropped dls from OWN_STARTS (docs/optimal.md, "Two feedback starts,
+    # not three"): the only two of 1000 fresh samples that dls won. Without it another start ends in the same optimum.
+    steps, context = round(horizon / DT), policy_context("ur10", DT, "track")
+    sample = generate_samples(ur10, SampleSpace.workspace(ur10), seed, "track", [index])
+    x_d = reference_trajectories([sample[0].reference], np.arange(steps) * DT, 3)[0]
+    now = solve_samples(context, sample, [0], x_d, DT, cost)[0]
+    monkeypatch.setattr(optimum, "OWN_STARTS", (OWN_STARTS[0], ("dls", {}), *OWN_STARTS[1:]))  # the set before
+    before = solve_samples(context, sample, [0], x_d, DT, cost)[0]
+    assert before.winner == "dls" != now.winner
+    assert now.solution.cost == pytest.approx(before.solution.cost, rel=1e-10)
 
 
 def test_a_start_that_reaches_a_coarse_optimum_an_earlier_start_found_is_not_solved_again(ur10, monkeypatch):
