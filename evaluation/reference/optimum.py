@@ -139,7 +139,7 @@ class ReplayPolicy:
 #: of another branch or winding where one is nearer: the basin the resolved-rate starts, stalled against
 #: a limit, never reach (on the arm's whole reach, the solve from them could end 0.7 m off target).
 #: ``dls`` (gain 2) was a start too, until an ablation on 1000 fresh samples found it ended nowhere the other starts
-#: did not (docs/optimal.md, "Two feedback starts, not three"): a sixth of the reference's CPU on Table I's samples.
+#: did not (docs/optimal.md, "Two feedback starts, not three"): 8 % of the reference's CPU on Table I's samples.
 OWN_STARTS: tuple[tuple[str, dict[str, Any]], ...] = (("lqr", {"q_scale": 9.0}), ("joint-goal", {}))
 #: The own starts whose path does not depend on the grid they are rolled out on, so that they are rolled out on the
 #: coarse grid of the screen (:func:`own_start_commands`), a tenth of the steps: ``joint-goal`` goes straight in joint
