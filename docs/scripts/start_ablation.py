@@ -10,7 +10,8 @@ starts, the IK branches, the random starts) once with every start of ``OWN_START
 (``OWN_STARTS`` given as they were, e.g. ``lqr:q_scale=9,dls,joint-goal``, with ``--starts``). ``COST``: ``table1``
 (q = 1) or ``hjb`` (q = 4, as the IPOPT cross-checks). Prints one line per sample (the two costs, their winners, the
 relative difference) and a summary: the samples where the reference without them is above by more than 1e-6, and the
-CPU time of each (one core).
+CPU time of each (one core; a sample at a time, so the rollouts' per-step overheads weigh far more than in the
+evaluator's jobs of 250: time those with a run's jobs instead, as ``table1_floor.py`` does).
 """
 
 from __future__ import annotations
