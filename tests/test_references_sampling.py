@@ -149,6 +149,29 @@ def test_position_and_velocity_agrees_with_separate_calls(rng):
     assert target.position_and_velocity(2.0)[0] is target.target
 
 
+def test_the_per_step_reference_is_the_array_formula_bit_for_bit(rng):
+    """The env's x_d(t), ẋ_d(t) (scalar arithmetic) are the floats of c + cos·a + sin·b and (ω cos)·b − (ω sin)·a
+    on 3-vectors, a = R ê₁ semi-axis a, b = R ê₂ semi-axis b, built here from the rotation, not from the ellipse's
+    own derived arrays: the step's rewrite for speed changed no bit of an env's observation."""
+    import math
+
+    from snac_gym.references import rotation_from_rpy
+
+    for _ in range(50):
+        centre, axes, rpy = rng.uniform(-0.9, 0.9, 3), rng.uniform(0.01, 0.3, 2), rng.uniform(-4, 4, 3)
+        w, phase = rng.choice([-1, 1]) * rng.uniform(0.001, 2.0), rng.uniform(-7, 7)
+        ellipse = Ellipse(centre, axes, rpy, angular_speed=w, phase=phase)
+        rotation = rotation_from_rpy(*rpy)
+        major, minor = rotation[:, 0] * axes[0], rotation[:, 1] * axes[1]
+        for t in np.concatenate([rng.uniform(0, 30, 20), [0.0, 1e-9, 2500 * 0.008, 1e4]]):
+            angle = w * float(t) + phase
+            cos, sin = math.cos(angle), math.sin(angle)
+            expected = (centre + cos * major + sin * minor, (w * cos) * minor - (w * sin) * major)
+            got = ellipse.position_and_velocity(float(t))
+            assert [v.dtype for v in got] == [np.float64, np.float64] and [v.shape for v in got] == [(3,), (3,)]
+            assert [v.tobytes() for v in got] == [v.tobytes() for v in expected], (t, got, expected)
+
+
 def test_trajectory_agrees_with_per_time_calls(rng):
     ellipse = Ellipse([-0.6, 0.2, 0.4], [0.15, 0.05], rng.uniform(-2, 2, 3), angular_speed=0.3, phase=0.4)
     times = np.array([0.0, 0.5, 7.25])
