@@ -56,13 +56,14 @@ from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.execution.passes import SIDE_BY_SIDE, EvaluationRun
 from snac_gym.evaluation.execution.progress import Progress
-from snac_gym.evaluation.reference.cache import CACHE_ENV, cache_folder
+from snac_gym.evaluation.reference.cache import CACHE_ENV, DISTRIBUTIONS, cache_folder
 from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
 from snac_gym.evaluation.reports.writer import prefetch_report_modules, write_reports
 from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
 from snac_gym.evaluation.store import RunDirectoryError, RunStore
 
+from snac_gym.common.machine import describe_machine, machine_info
 from snac_gym.common.outputs import write_whole
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
@@ -83,6 +84,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         snac_gym.evaluation.store.RunDirectoryError: If ``out`` holds another run (see ``resume``).
     """
     started = time.perf_counter()
+    machine = machine_info()  # the load the run meets, before it makes its own
     kinematics, space = _checked_setting(config)
     config, store_knobs = _writable_caches(config)
     # 2. Controllers first: the run's manifest, which locks the output folder to it, names them.
@@ -141,7 +143,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
         table = _results_table(config, order, results)
         efforts = [records[key] for key in order if key in records]
         executor_text = getattr(executor, "description", "serial")
-        _write_outputs(store, config, table, efforts, skipped, timings, started, executor_text)  # 6. Reports
+        _write_outputs(store, config, table, efforts, skipped, timings, started, executor_text, machine)  # 6. Reports
     return table
 
 
@@ -477,6 +479,20 @@ def _sort_key(config: EvaluationConfig, names: list[str]) -> Any:
     return key
 
 
+def library_versions() -> dict[str, str]:
+    """``snac-gym``'s version and those of the libraries whose numerics the rows depend on (the reference cache's
+    :data:`~snac_gym.evaluation.reference.cache.DISTRIBUTIONS`), ``missing`` where one is not installed."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found = {}
+    for name in ("snac-gym", *DISTRIBUTIONS):
+        try:
+            found[name] = version(name)
+        except PackageNotFoundError:
+            found[name] = "missing"
+    return found
+
+
 def _write_outputs(
     store: RunStore,
     config: EvaluationConfig,
@@ -486,13 +502,19 @@ def _write_outputs(
     timings: dict[str, float],
     started: float,
     executor: str,
+    machine: dict[str, Any],
 ) -> None:
-    """``results.csv``/``.parquet``, ``timings.json`` (the time up to the reports), then the reports."""
+    """``results.csv``/``.parquet``, ``timings.json`` (the time up to the reports) and ``machine.json`` (the machine
+    it was measured on, and the libraries whose numerics shape the rows' last bits), then the reports."""
     write_whole(store.root / "results.csv", lambda path: table.to_csv(path, index=False, float_format="%.17g"))
     write_whole(store.root / "results.parquet", lambda path: table.to_parquet(path, index=False))
     timings["total"] = time.perf_counter() - started  # up to the reports
     store.write_text("timings.json", json.dumps({k: round(v, 3) for k, v in timings.items()}, indent=2))
-    write_reports(store.root, table, efforts, config, skipped, config.statistic.description, timings, executor)
+    store.write_text("machine.json", json.dumps({**machine, "versions": library_versions()}, indent=2))
+    description = describe_machine(machine)
+    write_reports(
+        store.root, table, efforts, config, skipped, config.statistic.description, timings, executor, description
+    )
 
 
 __all__ = ["COMPILING", "announce_compiles", "export_sample_set", "load_samples", "run_evaluation"]

@@ -22,10 +22,10 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
-import llvmlite.binding
 from snac_gym.evaluation.effort.matching import EffortRecord
 
 import snac_gym
+from snac_gym.common.machine import cpu_target
 
 #: How a summary names the knobs' origin.
 SHIPPED_ORIGIN = "the knobs shipped with snac-gym (tools/ship_calibration.py, checked by the test suite)"
@@ -38,7 +38,7 @@ NUMERICS = ("numpy", "scipy", "pin", "numba")
 def numerics() -> dict[str, str]:
     """What a knob's last bits depend on besides the code: :data:`NUMERICS`' versions, and the CPU that numba
     compiles the kernels for (``cpu``), as its vector width and fused multiply-adds round differently."""
-    return {**{name: version(name) for name in NUMERICS}, "cpu": llvmlite.binding.get_host_cpu_name()}
+    return {**{name: version(name) for name in NUMERICS}, "cpu": cpu_target()}
 
 
 def shipped_file() -> Path:

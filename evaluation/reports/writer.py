@@ -59,8 +59,10 @@ def summary_markdown(
     timings: dict[str, float] | None = None,
     executor: str = "",
     results: pd.DataFrame | None = None,
+    machine: str = "",
 ) -> str:
-    """``summary.md``: Table I's layout, the details behind it, the effort matching and the plot."""
+    """``summary.md``: Table I's layout, the details behind it, the effort matching and the plot; ``machine``: the
+    machine the wall time was measured on, one line (:func:`~snac_gym.common.machine.describe_machine`)."""
     tasks = [t for t in config.tasks if f"{t}_cost" in summary]
     lines = _introduction_lines(summary, config, tasks, effort_statistic)
     lines += _calibration_source_lines(efforts)  # before the first table: the command prints up to its first "##"
@@ -75,7 +77,7 @@ def summary_markdown(
     if results is not None:
         lines += optimality_markdown(summary, results, tasks)
     lines += _effort_lines(summary, config, efforts, effort_statistic)
-    lines += _closing_lines(skipped, timings, executor, getattr(config, "plots", True))
+    lines += _closing_lines(skipped, timings, executor, getattr(config, "plots", True), machine)
     return "\n".join(lines)
 
 
@@ -197,7 +199,7 @@ LEFT_OUT_HEADING = "Registered controllers left out:"
 
 
 def _closing_lines(
-    skipped: dict[str, str], timings: dict[str, float] | None, executor: str, plots: bool = True
+    skipped: dict[str, str], timings: dict[str, float] | None, executor: str, plots: bool = True, machine: str = ""
 ) -> list[str]:
     """The controllers left out, the wall time, and the box plot (when it is drawn)."""
     lines: list[str] = []
@@ -214,6 +216,7 @@ def _closing_lines(
             (
                 f"Wall time {timings.get('total', math.nan):.1f} s on {executor} ({phases}); "
                 "a resumed run counts only its own time."
+                + (f" Machine: {machine} at the start (`machine.json`)." if machine else "")
             ),
         ]
     return lines + (["", "![Per-sample trajectory cost](cost_boxplot.png)", ""] if plots else [""])
@@ -228,6 +231,7 @@ def write_reports(
     effort_statistic: str,
     timings: dict[str, float] | None = None,
     executor: str = "",
+    machine: str = "",
 ) -> pd.DataFrame:
     """Write ``summary.csv``, ``summary.md`` and ``cost_boxplot.png`` into ``root`` (the figure only
     where ``config.plots``; else one left by an earlier run of the folder is removed, not left stale)."""
@@ -238,7 +242,7 @@ def write_reports(
     write_whole(root / "summary.csv", lambda path: summary.to_csv(path, index=False, float_format="%.10g"))
     write_text_whole(
         root / "summary.md",
-        summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results),
+        summary_markdown(summary, config, efforts, skipped, effort_statistic, timings, executor, results, machine),
     )
     if getattr(config, "plots", True):
         plot_cost_boxes(results, tasks, controllers, root / "cost_boxplot.png", threshold)

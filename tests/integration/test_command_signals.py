@@ -19,6 +19,7 @@ import sys
 import time
 from pathlib import Path
 
+import llvmlite.binding
 import pandas as pd
 import pytest
 
@@ -379,6 +380,8 @@ def test_bench_interrupted_after_a_table_says_the_printed_tables_are_complete(tm
     assert code == 128 + int(signal.SIGQUIT), err
     assert _one_line(err) == "interrupted by SIGQUIT: bench writes no files; the tables printed above are complete"
     assert "steps/s" in out
+    first = out.splitlines()[0]  # the machine and its load, before any figure
+    assert first.startswith("machine: ") and " CPU" in first and f"({llvmlite.binding.get_host_cpu_name()})" in first
 
 
 def test_the_compiled_kernels_hold_the_same_stop_signals_as_the_commands():
