@@ -37,6 +37,7 @@ import os
 import sys
 import time
 from collections.abc import Sequence
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -482,8 +483,6 @@ def _sort_key(config: EvaluationConfig, names: list[str]) -> Any:
 def library_versions() -> dict[str, str]:
     """``snac-gym``'s version and those of the libraries whose numerics the rows depend on (the reference cache's
     :data:`~snac_gym.evaluation.reference.cache.DISTRIBUTIONS`), ``missing`` where one is not installed."""
-    from importlib.metadata import PackageNotFoundError, version
-
     found = {}
     for name in ("snac-gym", *DISTRIBUTIONS):
         try:

@@ -143,6 +143,12 @@ def main() -> None:
     except _click_aborts():  # end of input at a prompt
         typer.echo("Aborted!", err=True)
         code = 1
+    except RuntimeError as exc:  # after click's Abort, a RuntimeError too
+        # Python 3.11 wraps what a class attribute's __set_name__ raises (a dataclass field's, while a module is
+        # imported) in a RuntimeError, so a stop signal that lands there came out as a traceback; 3.12 no longer wraps
+        if not isinstance(exc.__cause__, KeyboardInterrupt):
+            raise
+        code, interrupt = 130, exc.__cause__
     finally:
         startup.imports_done()  # a command that ended before its imports (a usage error, --help)
         guard.defer()  # the command has ended: a later signal is only recorded

@@ -372,6 +372,36 @@ def test_a_checkpoint_file_with_one_flipped_bit_is_refused_on_resume(tmp_path, n
         train_ppo("reach", out, timesteps=64, resume=True, log=lambda line: None)
 
 
+SET_NAME = r"""
+import os, signal, sys
+from snac_gym.apps.cli import app, main
+
+@app.command("probe")
+def probe():
+    class Field:
+        def __set_name__(self, owner, name):  # what a dataclass field runs as its class is made, in an import
+            os.kill(os.getpid(), signal.SIGTERM)
+            sum(range(200_000))  # the handler runs here
+
+    class Made:
+        field = Field()
+
+    print("made", flush=True)
+
+sys.argv = ["snac-gym", "probe"]
+main()
+"""
+
+
+def test_a_stop_signal_while_a_class_is_made_is_a_stop_signal_not_a_traceback():
+    """Python 3.11 wraps what ``__set_name__`` raises in a RuntimeError: a SIGTERM that lands while an import makes a
+    dataclass (pandas' ``IOArgs`` did, in ``snac-gym real``'s first second) came out as a traceback and exit 1."""
+    done = subprocess.run([sys.executable, "-c", SET_NAME], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 128 + int(signal.SIGTERM), done.stderr
+    assert _one_line(done.stderr) == "interrupted by SIGTERM while the command was starting: nothing was written"
+    assert "made" not in done.stdout
+
+
 # -- bench: the tables printed are whole ----------------------------------------------------------------
 @pytest.mark.slow(seconds=4)
 def test_bench_interrupted_after_a_table_says_the_printed_tables_are_complete(tmp_path):
