@@ -17,7 +17,7 @@ __all__ = ["cpu_model", "cpu_target", "describe_machine", "machine_info"]
 
 def cpu_target() -> str:
     """LLVM's name of this CPU, which numba compiles the kernels for (``znver3``, ``znver4``, ``skylake-avx512``)."""
-    import llvmlite.binding  # numba's own dependency; imported here, where it is asked for
+    import llvmlite.binding  # start-up time: loads LLVM, which a command that never asks needs not
 
     return str(llvmlite.binding.get_host_cpu_name())
 

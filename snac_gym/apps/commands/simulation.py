@@ -71,7 +71,8 @@ def _bench(steps: int, panda: bool, substeps: bool, tracking: bool, act: bool, a
     from snac_gym.apps.bench import format_env_bench, run_env_bench, run_substep_study
     from snac_gym.common.machine import describe_machine, machine_info
 
-    # a speed means little without the machine and its load: the same envs ran twice as fast on one 2-core machine
+    # a speed means little without the machine and its load: the same envs ran 1.5 times as fast on one 2-core
+    # machine as on another
     typer.echo(f"machine: {describe_machine(machine_info())}\n")
     typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
     if vector:
