@@ -37,7 +37,6 @@ import os
 import sys
 import time
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +56,7 @@ from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.execution.passes import SIDE_BY_SIDE, EvaluationRun
 from snac_gym.evaluation.execution.progress import Progress
-from snac_gym.evaluation.reference.cache import CACHE_ENV, DISTRIBUTIONS, cache_folder
+from snac_gym.evaluation.reference.cache import CACHE_ENV, DISTRIBUTIONS, cache_folder, installed_versions
 from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
 from snac_gym.evaluation.reports.writer import prefetch_report_modules, write_reports
 from snac_gym.evaluation.run_config import EvaluationConfig
@@ -480,18 +479,6 @@ def _sort_key(config: EvaluationConfig, names: list[str]) -> Any:
     return key
 
 
-def library_versions() -> dict[str, str]:
-    """``snac-gym``'s version and those of the libraries whose numerics the rows depend on (the reference cache's
-    :data:`~snac_gym.evaluation.reference.cache.DISTRIBUTIONS`), ``missing`` where one is not installed."""
-    found = {}
-    for name in ("snac-gym", *DISTRIBUTIONS):
-        try:
-            found[name] = version(name)
-        except PackageNotFoundError:
-            found[name] = "missing"
-    return found
-
-
 def _write_outputs(
     store: RunStore,
     config: EvaluationConfig,
@@ -509,7 +496,9 @@ def _write_outputs(
     write_whole(store.root / "results.parquet", lambda path: table.to_parquet(path, index=False))
     timings["total"] = time.perf_counter() - started  # up to the reports
     store.write_text("timings.json", json.dumps({k: round(v, 3) for k, v in timings.items()}, indent=2))
-    store.write_text("machine.json", json.dumps({**machine, "versions": library_versions()}, indent=2))
+    store.write_text(
+        "machine.json", json.dumps({**machine, "versions": installed_versions(("snac-gym", *DISTRIBUTIONS))}, indent=2)
+    )
     description = describe_machine(machine)
     write_reports(
         store.root, table, efforts, config, skipped, config.statistic.description, timings, executor, description

@@ -77,13 +77,20 @@ def code_fingerprint() -> str:
     return digest.hexdigest()
 
 
-def add_versions(digest: Any, distributions: Sequence[str]) -> None:
-    """Feed ``name==version`` of each installed distribution (``missing`` if not installed) to ``digest``."""
+def installed_versions(distributions: Sequence[str]) -> dict[str, str]:
+    """The version of each distribution, ``missing`` where it is not installed."""
+    found = {}
     for name in distributions:
         try:
-            version = importlib.metadata.version(name)
+            found[name] = importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:
-            version = "missing"
+            found[name] = "missing"
+    return found
+
+
+def add_versions(digest: Any, distributions: Sequence[str]) -> None:
+    """Feed ``name==version`` of each distribution (:func:`installed_versions`) to ``digest``."""
+    for name, version in installed_versions(distributions).items():
         digest.update(f"{name}=={version}".encode())
 
 
