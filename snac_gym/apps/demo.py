@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -310,9 +311,16 @@ def write_demo_outputs(
     result.files.append(summary_path)
     if not plots:
         return result
+    result.files += draw_figures(demo_figures(log, tolerance), out, prefix)
+    return result
+
+
+def demo_figures(log: pd.DataFrame, tolerance: float) -> dict[str, Callable[[], Any]]:
+    """The Figure 3 panels of one run, by name: each a function that draws its figure (the critic's weights, the
+    HJB residual and the model's correction where the log has them)."""
     from snac_gym.apps import plots as panels  # matplotlib only when plotting (--no-plots)
 
-    drawers = {
+    drawers: dict[str, Callable[[], Any]] = {
         "path": lambda: panels.plot_path(log),
         "error": lambda: panels.plot_error(log, tolerance=tolerance),
         "joint_velocities": lambda: panels.plot_joint_velocities(log),
@@ -325,14 +333,28 @@ def write_demo_outputs(
         drawers["optimality"] = lambda: panels.plot_optimality(log)
     if "model_residual" in log.columns:
         drawers["model"] = lambda: panels.plot_model_correction(log)
-    drawn = 0
+    return drawers
+
+
+def draw_figures(
+    drawers: Mapping[str, Callable[[], Any]], out: Path, prefix: str, before: Callable[[], None] | None = None
+) -> list[Path]:
+    """Draw each figure into ``out/{prefix}{name}.png``, whole or not at all; ``before`` runs first (it may raise).
+
+    An interrupt (``KeyboardInterrupt``) stops the drawing and says, in ``exc.kept``, how many were drawn: the
+    log and summary, written before, are complete."""
+    from snac_gym.apps.plots import save_figure  # matplotlib only when plotting (--no-plots)
+
+    files: list[Path] = []
     try:
+        if before is not None:
+            before()
         for name, draw in drawers.items():
-            result.files.append(panels.save_figure(draw(), out / f"{prefix}{name}.png"))
-            drawn += 1
+            files.append(save_figure(draw(), out / f"{prefix}{name}.png"))
     except KeyboardInterrupt as exc:
         exc.kept = (  # type: ignore[attr-defined]
-            f"the log and summary are complete in {out}/; {drawn} of {len(drawers)} figures were drawn (each whole)"
+            f"the log and summary are complete in {out}/; {len(files)} of {len(drawers)} figures were drawn "
+            "(each whole)"
         )
         raise
-    return result
+    return files

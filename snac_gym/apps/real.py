@@ -157,6 +157,9 @@ def run_real_episode(
     (:class:`~snac_gym.real.journal.StepJournal`), which writes every row it got even when the
     host process is killed outright (SIGKILL); it is removed once the full log is written.
 
+    Once the episode has ended, a signal waits while its log, summary, loop timing and ``*_real.json`` are written,
+    then stops the figures (each drawn whole or not at all) and raises, ``exc.kept`` saying how many were drawn.
+
     Args:
         task: ``"reach"`` or ``"track"``.
         controller: Registered policy name.
@@ -234,15 +237,16 @@ def run_real_episode(
             connect, make_env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error, tuning,
             stream, journal_writer,
         )  # fmt: skip
-        result = write_outputs(
-            env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs, setup
-        )
-        result.tuning_notes = list(notes)
-    try:
-        guard.raise_pending()
-    except TerminationSignal as exc:  # it came after the episode: the outputs are written all the same
-        exc.log_dir = out  # type: ignore[attr-defined]
-        raise
+        try:
+            result = write_outputs(
+                env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs, setup,
+                guard,
+            )  # fmt: skip
+            result.tuning_notes = list(notes)
+            guard.raise_pending()
+        except TerminationSignal as exc:  # it came after the episode: the data is written, some figures may not be
+            exc.log_dir = out  # type: ignore[attr-defined]
+            raise
     return result
 
 

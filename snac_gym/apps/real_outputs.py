@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym.apps.demo import write_demo_outputs
+from snac_gym.apps.demo import demo_figures, draw_figures, write_demo_outputs
+from snac_gym.common._signals import SignalGuard
 from snac_gym.common.outputs import write_text_whole, write_whole
 from snac_gym.real.connections import (
     ConnectionFailure,
@@ -169,7 +170,10 @@ def write_outputs(
     plots: bool,
     policy_kwargs: dict[str, Any] | None,
     setup: dict[str, Any],
+    guard: SignalGuard | None = None,
 ) -> RealRunResult:
+    """The run's log, summary, loop timing and ``*_real.json``, then its figures; ``guard`` (the run's, deferred since
+    the arm stopped) lets a signal cut the figures, the rest being whole (``exc.kept`` says so)."""
     log.attrs["controller"] = controller
     log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
@@ -178,6 +182,9 @@ def write_outputs(
     if timing:
         log.attrs["late_periods"] = late_periods(timing)
     limits = (env.kinematics.lower_limits, env.kinematics.upper_limits)
+    # The data first, figures last: a signal while the data is written waits for it (the guard defers it), one
+    # while the figures are drawn stops the drawing (``resume``), so that a Ctrl-C after the episode is obeyed in
+    # a second, not after all the figures (several seconds on a busy host), and costs no data.
     demo = write_demo_outputs(
         log,
         task,
@@ -186,7 +193,7 @@ def write_outputs(
         env.success_tolerance,
         out,
         csv=csv,
-        plots=plots,
+        plots=False,
         policy_kwargs=policy_kwargs,
         position_limits=limits,
     )
@@ -202,8 +209,19 @@ def write_outputs(
         rest=stop_record(arm),
     )
     if out is not None:
-        result.files = list(demo.files) + _write_timing(env, out, prefix, result, plots)
+        result.files = list(demo.files) + _write_timing(env, out, prefix, result)
         (out / f"{prefix}{STREAM_SUFFIX}").unlink(missing_ok=True)  # the full log is written: the stream is a subset
+        if plots:
+            drawers = demo_figures(log, env.success_tolerance)
+            if env.periods:
+                from snac_gym.apps.plots import plot_loop_timing  # matplotlib only when plotting
+
+                drawers["timing"] = lambda: plot_loop_timing(np.asarray(env.periods) * 1e3, env.dt)
+            try:
+                result.files += draw_figures(drawers, out, prefix, before=None if guard is None else guard.resume)
+            finally:  # deferred again: a signal after the figures must not cut the restoring of the process's tuning
+                if guard is not None:
+                    guard.defer()
     return result
 
 
@@ -260,7 +278,7 @@ def _attempt(write: Callable[[], object]) -> None:
         print(f"warning: could not write part of the log: {type(exc).__name__}: {exc}", file=sys.stderr)
 
 
-def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult, plots: bool) -> list[Path]:
+def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult) -> list[Path]:
     periods = pd.DataFrame({"period_ms": np.asarray(env.periods) * 1e3})
     timing_csv = out / f"{prefix}timing.csv"
     write_whole(timing_csv, lambda path: periods.to_csv(path, index_label="step"))
@@ -284,11 +302,4 @@ def _write_timing(env: RealUREnv, out: Path, prefix: str, result: RealRunResult,
             indent=2,
         ),
     )
-    files = [timing_csv, summary]
-    if plots and len(periods):
-        from snac_gym.apps.plots import plot_loop_timing, save_figure  # matplotlib only when plotting
-
-        files.append(
-            save_figure(plot_loop_timing(periods["period_ms"].to_numpy(), env.dt), out / f"{prefix}timing.png")
-        )
-    return files
+    return [timing_csv, summary]

@@ -133,6 +133,12 @@ class SignalGuard:
     def defer(self) -> None:
         self.deferred = True
 
+    def resume(self) -> None:
+        """Let signals raise again after :meth:`defer`: one held meanwhile raises now, a later first one when it
+        comes (what was deferred is written; what follows may be cut, such as a finished run's figures)."""
+        self.deferred = False
+        self.raise_pending()
+
     def unraisable(self, unraisable: sys.UnraisableHookArgs, previous: UnraisableHook) -> None:
         """``sys.unraisablehook`` while the guard holds: an interrupt raised where Python drops exceptions
         (a weakref or garbage-collector callback, code called back from C, none of which

@@ -231,6 +231,21 @@ def test_demo_interrupted_while_drawing_keeps_log_summary_and_whole_figures(tmp_
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.read_bytes()[-8:-4] == b"IEND"
 
 
+def test_real_interrupted_while_drawing_says_its_data_is_whole_and_how_many_figures_were_drawn(tmp_path):
+    out = tmp_path / "real"
+    hook = "snac_gym.apps.plots:save_figure@3"  # as the third figure is written, the episode over and its data too
+    args = ["real", "--connection", "sim", "--steps", "50", "--out", str(out)]
+    code, err, _ = _run(args, "SIGQUIT", hook=hook)
+    assert code == 128 + signal.SIGQUIT, err
+    assert _one_line(err) == (
+        f"interrupted by SIGQUIT: the arm was stopped; the log and summary are complete in {out}/; 2 of 8 figures "
+        "were drawn (each whole)"
+    )
+    assert json.loads((out / "reach_snac_real.json").read_text())["timing"]["periods"] == 50
+    assert len(pd.read_parquet(out / "reach_snac_log.parquet")) == 50
+    assert len(list(out.glob("*.png*"))) == 2  # whole (tests/real/test_env_faults.py checks which), no .partial
+
+
 @pytest.mark.parametrize(
     ("hook", "written"),
     [("snac_gym.apps.demo:write_log@1", []), ("snac_gym.apps.demo:write_text_whole@1", ["reach_dls_log.parquet"])],

@@ -340,6 +340,45 @@ def test_a_signal_as_the_finished_episodes_stream_log_closes_waits_for_the_outpu
     assert signalling_run[0].stopped
 
 
+@pytest.mark.parametrize(
+    ("signalled", "drawn"), [("close", 0), ("save_figure", 2)], ids=["as the stream log closes", "at the third figure"]
+)
+def test_a_signal_after_the_episode_cuts_only_the_figures(signalling_run, tmp_path, monkeypatch, signalled, drawn):
+    """After the episode, a signal waits while the data is written (the log, its summary, the loop timing and
+    real.json: a signal as the stream log closes, the last thing before them), then stops the figures at once
+    instead of after all of them (seconds on a busy host), each figure whole or absent."""
+    import snac_gym.apps.plots as plots_module
+    import snac_gym.real.journal as journal_module
+    from snac_gym.apps.real import TerminationSignal, run_real_episode
+
+    owner, name = (journal_module.StepJournal, "close") if signalled == "close" else (plots_module, "save_figure")
+    original, calls = getattr(owner, name), []
+
+    def signalling(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == (1 if signalled == "close" else 3):
+            os.kill(os.getpid(), signal.SIGTERM)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(owner, name, signalling)
+    with pytest.raises(TerminationSignal) as excinfo:
+        run_real_episode(controller="snac", out_dir=tmp_path, connection="sim", steps=30)
+    assert excinfo.value.signum == signal.SIGTERM and getattr(excinfo.value, "log_dir", None) == tmp_path
+    figures = ["path", "error", "joint_velocities", "cost", "figure3", "critic_weights", "optimality", "timing"]
+    assert excinfo.value.kept == (
+        f"the log and summary are complete in {tmp_path}/; {drawn} of {len(figures)} figures were drawn (each whole)"
+    )
+    assert len(pd.read_parquet(tmp_path / "reach_snac_log.parquet")) == 30
+    assert json.loads((tmp_path / "reach_snac_summary.json").read_text())["complete"] is True
+    real = json.loads((tmp_path / "reach_snac_real.json").read_text())
+    assert real["stop_reason"] is None and real["timing"]["periods"] == 30  # the finished run's record, whole
+    assert len(pd.read_csv(tmp_path / "reach_snac_timing.csv")) == 30
+    assert not (tmp_path / "reach_snac_stream.csv").exists()  # replaced by the full log
+    pngs = sorted(p.name for p in tmp_path.iterdir() if ".png" in p.name)
+    assert pngs == sorted(f"reach_snac_{figure}.png" for figure in figures[:drawn]), pngs  # no .partial either
+    assert signalling_run[0].stopped
+
+
 class SignalsTwice(SendsSignal):
     """Sends SIGTERM at step ``at``; its connection then sends SIGQUIT from inside the stop that follows."""
 

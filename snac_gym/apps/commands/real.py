@@ -185,7 +185,9 @@ def real(
         where = f"; the log so far is in {cast(Any, exc).log_dir}/" if getattr(exc, "log_dir", None) else ""
         line = str(exc).splitlines()[0] if str(exc) else ""
         if isinstance(exc, KeyboardInterrupt):  # Ctrl-C and the other stop signals: the arm was stopped
-            raise interrupted(exc, f"the arm was stopped{where or ' (before the episode: nothing logged)'}") from None
+            # After the episode a signal cuts only the figures: ``kept`` says the data is whole, how many were drawn.
+            kept = f"; {cast(Any, exc).kept}" if getattr(exc, "kept", None) else where
+            raise interrupted(exc, f"the arm was stopped{kept or ' (before the episode: nothing logged)'}") from None
         if isinstance(exc, ConnectionFailure):  # the link or the ur_rtde client was lost: exit 1
             typer.echo(f"error: {line}{where}", err=True)
             raise typer.Exit(code=1) from None
