@@ -307,7 +307,7 @@ def _run_and_stop(
             write_interrupted(env, partial_log(exc) if log is None else log, out, prefix, exc, setup)
             exc.log_dir = out  # type: ignore[attr-defined]
         raise
-    else:  # the arm is stopped: a signal now waits until the outputs are written (run_real_episode raises it then)
+    else:  # the arm is stopped: a signal now waits until the data is written (write_outputs lets it cut the figures)
         guard.defer()
     finally:
         if env.journal is not None:
