@@ -15,7 +15,7 @@ from snac_gym import __version__
 from snac_gym.apps.commands import common
 from snac_gym.apps.commands.evaluate import evaluate
 from snac_gym.apps.commands.real import emulate_ur, real
-from snac_gym.apps.commands.simulation import bench, demo
+from snac_gym.apps.commands.simulation import bench, demo, plot
 from snac_gym.apps.commands.train import train_ppo_command
 from snac_gym.common import startup
 from snac_gym.common._signals import STOP_SIGNALS, SignalGuard, exit_code
@@ -23,7 +23,7 @@ from snac_gym.common._signals import STOP_SIGNALS, SignalGuard, exit_code
 if TYPE_CHECKING:
     from click import ClickException
 
-__all__ = ["app", "bench", "demo", "emulate_ur", "evaluate", "main", "real", "root", "train_ppo_command"]
+__all__ = ["app", "bench", "demo", "emulate_ur", "evaluate", "main", "plot", "real", "root", "train_ppo_command"]
 
 app = typer.Typer(
     name="snac-gym",
@@ -55,6 +55,7 @@ def root(
 # whole sentence for that list (click cuts a docstring's first line at the column's width, mid-sentence).
 app.command(short_help="Table I: each controller's trajectory cost at equal effort.")(evaluate)
 app.command(short_help="One reach or track episode (Figure 3): figures, log, metrics.")(demo)
+app.command(short_help="A demo's or a real run's figures, drawn again from its log.")(plot)
 app.command("train-ppo", short_help="Train the PPO baseline (stable-baselines3, the rl extra).")(train_ppo_command)
 app.command(short_help="Steps per second and real-time factor of the envs.")(bench)
 app.command(short_help="One episode on a real UR arm (ur_rtde), or its rehearsal.")(real)

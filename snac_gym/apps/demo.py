@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from snac_gym.apps.figures import demo_figures, draw_figures
 from snac_gym.common.outputs import usable_out_folder, write_text_whole
 from snac_gym.envs import make_task_env
 from snac_gym.metrics import DemoMetrics, demo_metrics
@@ -311,50 +311,7 @@ def write_demo_outputs(
     result.files.append(summary_path)
     if not plots:
         return result
-    result.files += draw_figures(demo_figures(log, tolerance), out, prefix)
+    result.files += draw_figures(
+        demo_figures(log, tolerance), out, prefix, kept=f"the log and summary are complete in {out}/; "
+    )
     return result
-
-
-def demo_figures(log: pd.DataFrame, tolerance: float) -> dict[str, Callable[[], Any]]:
-    """The Figure 3 panels of one run, by name: each a function that draws its figure (the critic's weights, the
-    HJB residual and the model's correction where the log has them)."""
-    from snac_gym.apps import plots as panels  # matplotlib only when plotting (--no-plots)
-
-    drawers: dict[str, Callable[[], Any]] = {
-        "path": lambda: panels.plot_path(log),
-        "error": lambda: panels.plot_error(log, tolerance=tolerance),
-        "joint_velocities": lambda: panels.plot_joint_velocities(log),
-        "cost": lambda: panels.plot_cost(log),
-        "figure3": lambda: panels.plot_figure3(log, tolerance=tolerance),
-    }
-    if "w_0" in log.columns:
-        drawers["critic_weights"] = lambda: panels.plot_critic_weights(log)
-    if "hjb_ratio" in log.columns:
-        drawers["optimality"] = lambda: panels.plot_optimality(log)
-    if "model_residual" in log.columns:
-        drawers["model"] = lambda: panels.plot_model_correction(log)
-    return drawers
-
-
-def draw_figures(
-    drawers: Mapping[str, Callable[[], Any]], out: Path, prefix: str, before: Callable[[], None] | None = None
-) -> list[Path]:
-    """Draw each figure into ``out/{prefix}{name}.png``, whole or not at all; ``before`` runs first (it may raise).
-
-    An interrupt (``KeyboardInterrupt``) stops the drawing and says, in ``exc.kept``, how many were drawn: the
-    log and summary, written before, are complete."""
-    from snac_gym.apps.plots import save_figure  # matplotlib only when plotting (--no-plots)
-
-    files: list[Path] = []
-    try:
-        if before is not None:
-            before()
-        for name, draw in drawers.items():
-            files.append(save_figure(draw(), out / f"{prefix}{name}.png"))
-    except KeyboardInterrupt as exc:
-        exc.kept = (  # type: ignore[attr-defined]
-            f"the log and summary are complete in {out}/; {len(files)} of {len(drawers)} figures were drawn "
-            "(each whole)"
-        )
-        raise
-    return files

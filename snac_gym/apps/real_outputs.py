@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from snac_gym.apps.demo import demo_figures, draw_figures, write_demo_outputs
+from snac_gym.apps.demo import write_demo_outputs
+from snac_gym.apps.figures import demo_figures, draw_figures, timing_figure
 from snac_gym.common._signals import SignalGuard
 from snac_gym.common.outputs import write_text_whole, write_whole
 from snac_gym.real.connections import (
@@ -212,13 +213,15 @@ def write_outputs(
         result.files = list(demo.files) + _write_timing(env, out, prefix, result)
         (out / f"{prefix}{STREAM_SUFFIX}").unlink(missing_ok=True)  # the full log is written: the stream is a subset
         if plots:
-            drawers = demo_figures(log, env.success_tolerance)
-            if env.periods:
-                from snac_gym.apps.plots import plot_loop_timing  # matplotlib only when plotting
-
-                drawers["timing"] = lambda: plot_loop_timing(np.asarray(env.periods) * 1e3, env.dt)
+            drawers = {
+                **demo_figures(log, env.success_tolerance),
+                **timing_figure(np.asarray(env.periods) * 1e3, env.dt),
+            }
             try:
-                result.files += draw_figures(drawers, out, prefix, before=None if guard is None else guard.resume)
+                result.files += draw_figures(
+                    drawers, out, prefix, before=None if guard is None else guard.resume,
+                    kept=f"the log and summary are complete in {out}/; ",
+                )  # fmt: skip
             finally:  # deferred again: a signal after the figures must not cut the restoring of the process's tuning
                 if guard is not None:
                     guard.defer()

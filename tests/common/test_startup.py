@@ -85,6 +85,7 @@ def test_every_command_works_with_the_collector_running_and_its_imports_frozen(t
         ("real", ["real", "--connection", "sim", "--out", str(tmp_path / "r")],
          "snac_gym.apps.real", "run_real_episode"),
         ("bench", ["bench", "--steps", "100"], "snac_gym.apps.bench", "run_env_bench"),
+        ("plot", ["plot", str(tmp_path)], "snac_gym.apps.figures", "redraw_figures"),
         ("emulate-ur", ["emulate-ur"], "snac_gym.real.emulator.serve", "serve"),
     ]  # fmt: skip
     if importlib.util.find_spec("stable_baselines3") is not None:  # the rl extra: train-ppo's work needs it

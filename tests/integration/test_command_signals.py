@@ -222,7 +222,8 @@ def test_demo_interrupted_while_drawing_keeps_log_summary_and_whole_figures(tmp_
     code, err, _ = _run(["demo", "--task", "reach", "--steps", "200", "--out", str(out)], "SIGTERM", hook=hook)
     assert code == 143, err
     assert _one_line(err) == (
-        f"interrupted by SIGTERM: the log and summary are complete in {out}/; 2 of 7 figures were drawn (each whole)"
+        f"interrupted by SIGTERM: the log and summary are complete in {out}/; 2 of 7 figures were drawn (each whole); "
+        f"`snac-gym plot {out}/reach_snac_log.parquet` draws them all"
     )
     assert json.loads((out / "reach_snac_summary.json").read_text())["complete"] is True
     pngs = sorted(out.glob("*.png*"))
@@ -239,11 +240,25 @@ def test_real_interrupted_while_drawing_says_its_data_is_whole_and_how_many_figu
     assert code == 128 + signal.SIGQUIT, err
     assert _one_line(err) == (
         f"interrupted by SIGQUIT: the arm was stopped; the log and summary are complete in {out}/; 2 of 8 figures "
-        "were drawn (each whole)"
+        f"were drawn (each whole); `snac-gym plot {out}/reach_snac_log.parquet` draws them all"
     )
     assert json.loads((out / "reach_snac_real.json").read_text())["timing"]["periods"] == 50
     assert len(pd.read_parquet(out / "reach_snac_log.parquet")) == 50
     assert len(list(out.glob("*.png*"))) == 2  # whole (tests/real/test_env_faults.py checks which), no .partial
+
+
+def test_plot_interrupted_while_drawing_says_how_many_figures_it_drew(tmp_path):
+    from snac_gym.apps.demo import run_demo
+
+    run_demo(task="reach", controller="dls", out_dir=tmp_path / "run", steps=50, plots=False)
+    log, out = tmp_path / "run" / "reach_dls_log.parquet", tmp_path / "figures"
+    code, err, _ = _run(["plot", str(log), "--out", str(out)], "SIGINT", hook="snac_gym.apps.plots:save_figure@2")
+    assert code == 130, err
+    assert _one_line(err) == (
+        f"interrupted by SIGINT: in {out}/: 1 of 5 figures were drawn (each whole); "
+        f"`snac-gym plot {log}` draws them all"
+    )
+    assert [p.name for p in out.iterdir()] == ["reach_dls_path.png"]  # whole, no .partial
 
 
 @pytest.mark.parametrize(

@@ -30,6 +30,8 @@ USAGE_ERRORS = [
     (["demo", "--engine", "bullet"], "--engine"),
     (["demo", "--steps", "1", "--duration", "1"], "--steps"),  # raised in the body, after the demo's imports
     (["demo", "--bogus-option", "1"], "--bogus-option"),
+    (["plot", "{out}/reach_snac_log.parquet"], "'log'"),  # no such log
+    (["plot", "--bogus-option", "1"], "--bogus-option"),
     (["real", "--robot", "panda"], "--robot"),  # _check_ur_arm, in the body
     (["real", "--rt-priority", "200"], "--rt-priority"),
     (["real", "--backend", "rtde", "--connection", "sim"], "--connection"),  # the deprecated name's clash
@@ -142,7 +144,7 @@ def test_no_command_prints_the_help(outcomes):
     # paper's results first
     listed = text.split("Commands:\n", 1)[1].splitlines()
     names = [line.split()[0] for line in listed if line.strip()]
-    assert names == ["evaluate", "demo", "train-ppo", "bench", "real", "emulate-ur"], listed
+    assert names == ["evaluate", "demo", "plot", "train-ppo", "bench", "real", "emulate-ur"], listed
     assert all(line.rstrip().endswith(".") and "..." not in line for line in listed if line.strip()), listed
 
 

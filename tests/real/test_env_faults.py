@@ -366,7 +366,8 @@ def test_a_signal_after_the_episode_cuts_only_the_figures(signalling_run, tmp_pa
     assert excinfo.value.signum == signal.SIGTERM and getattr(excinfo.value, "log_dir", None) == tmp_path
     figures = ["path", "error", "joint_velocities", "cost", "figure3", "critic_weights", "optimality", "timing"]
     assert excinfo.value.kept == (
-        f"the log and summary are complete in {tmp_path}/; {drawn} of {len(figures)} figures were drawn (each whole)"
+        f"the log and summary are complete in {tmp_path}/; {drawn} of {len(figures)} figures were drawn (each whole); "
+        f"`snac-gym plot {tmp_path}/reach_snac_log.parquet` draws them all"
     )
     assert len(pd.read_parquet(tmp_path / "reach_snac_log.parquet")) == 30
     assert json.loads((tmp_path / "reach_snac_summary.json").read_text())["complete"] is True

@@ -1,4 +1,5 @@
-"""The commands that run the simulated arm on this machine: ``demo`` (the paper's Figure 3) and ``bench``."""
+"""The commands that run the simulated arm on this machine, ``demo`` (the paper's Figure 3) and ``bench``, and ``plot``,
+which draws a demo's or a real run's figures again from its log."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from snac_gym.apps.commands.common import (
 from snac_gym.common import startup
 from snac_gym.policies import available_policies
 
-__all__ = ["bench", "demo"]
+__all__ = ["bench", "demo", "plot"]
 
 
 def bench(
@@ -165,3 +166,25 @@ def demo(
     except KeyboardInterrupt as exc:  # a stop signal: run_demo says what it wrote (a partial run is marked so)
         raise interrupted(exc, getattr(exc, "kept", "nothing was written")) from None
     typer.echo(result.summary())
+
+
+def plot(
+    log: Path = typer.Argument(
+        ..., exists=True, help="A demo's or a real run's log (*_log.parquet), or the folder that holds it (its --out)."
+    ),
+    out: Optional[Path] = typer.Option(None, "--out", help="Folder for the PNG panels (default: the log's folder)."),
+) -> None:
+    """Draw a demo's or a real run's figures from its log: those --no-plots or a stop signal left out."""
+    # start-up time: the figures load matplotlib and pandas (after typer's checks: a usage error comes at once)
+    from snac_gym.apps.figures import redraw_figures
+
+    startup.imports_done()
+    try:
+        files = redraw_figures(log, out)
+    except ValueError as exc:  # no such log, or not a log: one line naming it
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+    except KeyboardInterrupt as exc:  # redraw_figures says how many it drew (each whole)
+        raise interrupted(exc, getattr(exc, "kept", "no figure was drawn")) from None
+    folder = files[0].parent if files else (out or log)
+    typer.echo(f"drew {len(files)} figures in {folder}/: {', '.join(f.name for f in files)}")
