@@ -30,7 +30,7 @@ USAGE_ERRORS = [
     (["demo", "--engine", "bullet"], "--engine"),
     (["demo", "--steps", "1", "--duration", "1"], "--steps"),  # raised in the body, after the demo's imports
     (["demo", "--bogus-option", "1"], "--bogus-option"),
-    (["plot", "{out}/reach_snac_log.parquet"], "'log'"),  # no such log
+    (["plot", "{out}/reach_snac_log.parquet"], "'LOG'"),  # no such log
     (["plot", "--bogus-option", "1"], "--bogus-option"),
     (["real", "--robot", "panda"], "--robot"),  # _check_ur_arm, in the body
     (["real", "--rt-priority", "200"], "--rt-priority"),

@@ -170,7 +170,10 @@ def demo(
 
 def plot(
     log: Path = typer.Argument(
-        ..., exists=True, help="A demo's or a real run's log (*_log.parquet), or the folder that holds it (its --out)."
+        ...,
+        exists=True,
+        metavar="LOG",
+        help="A demo's or a real run's log (*_log.parquet), or the folder that holds it (its --out).",
     ),
     out: Optional[Path] = typer.Option(None, "--out", help="Folder for the PNG panels (default: the log's folder)."),
 ) -> None:
