@@ -225,6 +225,7 @@ def write_outputs(
             finally:  # deferred again: a signal after the figures must not cut the restoring of the process's tuning
                 if guard is not None:
                     guard.defer()
+        demo.files = list(result.files)  # the summary's "wrote N files" counts them all, the timing and real.json too
     return result
 
 

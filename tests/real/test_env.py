@@ -314,6 +314,8 @@ def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
     demo_files = {p.name for p in (tmp_path / "demo").iterdir()}
     assert demo_files <= real_files
     assert {"reach_dls_timing.csv", "reach_dls_timing.png", "reach_dls_real.json"} <= real_files
+    assert {p.name for p in result.files} == real_files  # every file it wrote, and the summary says how many
+    assert f"  wrote {len(real_files)} files to {tmp_path / 'real'}" in result.summary().splitlines()
     assert result.timing["period_ms_p50"] >= 8.0 * 0.999 and result.stop_reason is None
     np.testing.assert_allclose(real_log.loc[0, [f"q_{j}" for j in range(6)]], PAPER_Q0, atol=1e-12)
 
