@@ -311,7 +311,5 @@ def write_demo_outputs(
     result.files.append(summary_path)
     if not plots:
         return result
-    result.files += draw_figures(
-        demo_figures(log, tolerance), out, prefix, kept=f"the log and summary are complete in {out}/; "
-    )
+    result.files += draw_figures(demo_figures(log, tolerance), out, prefix)
     return result

@@ -59,13 +59,14 @@ def draw_figures(
     out: Path,
     prefix: str,
     before: Callable[[], None] | None = None,
-    kept: str = "",
+    kept: str | None = None,
     log: Path | None = None,
 ) -> list[Path]:
     """Draw each figure into ``out/{prefix}{name}.png``, whole or not at all; ``before`` runs first (it may raise).
 
-    An interrupt (``KeyboardInterrupt``) stops the drawing and says in ``exc.kept`` (after ``kept``) how many were
-    drawn and the command that draws them all from the log (``log``, default ``out/{prefix}log.parquet``)."""
+    An interrupt (``KeyboardInterrupt``) stops the drawing and says in ``exc.kept`` (after ``kept``, by default that
+    the run's log and summary, written before, are complete) how many were drawn and the command that draws them all
+    from the log (``log``, default ``out/{prefix}log.parquet``)."""
     from snac_gym.apps.plots import save_figure  # matplotlib only when plotting (--no-plots)
 
     files: list[Path] = []
@@ -75,8 +76,9 @@ def draw_figures(
         for name, draw in drawers.items():
             files.append(save_figure(draw(), out / f"{prefix}{name}.png"))
     except KeyboardInterrupt as exc:
+        said = f"the log and summary are complete in {out}/; " if kept is None else kept
         exc.kept = (  # type: ignore[attr-defined]
-            f"{kept}{len(files)} of {len(drawers)} figures were drawn (each whole); "
+            f"{said}{len(files)} of {len(drawers)} figures were drawn (each whole); "
             f"`snac-gym plot {log or out / (prefix + LOG_SUFFIX)}` draws them all"
         )
         raise
@@ -123,7 +125,10 @@ def redraw_figures(path: str | Path, out: str | Path | None = None) -> list[Path
     prefix = log_path.name.removesuffix(LOG_SUFFIX)
     folder = log_path.parent
     summary = folder / f"{prefix}summary.json"
-    tolerance = json.loads(summary.read_text()).get("tolerance") if summary.exists() else None
+    try:
+        tolerance = json.loads(summary.read_text()).get("tolerance") if summary.exists() else None
+    except ValueError as exc:  # a damaged summary: named, not a bare JSON error
+        raise ValueError(f"{summary} (the run's summary, for its tolerance) is not JSON: {exc}") from None
     if tolerance is None:
         tolerance = get_task(str(log.attrs["task"])).success_tolerance
     drawers = demo_figures(log, float(tolerance))

@@ -218,10 +218,7 @@ def write_outputs(
                 **timing_figure(np.asarray(env.periods) * 1e3, env.dt),
             }
             try:
-                result.files += draw_figures(
-                    drawers, out, prefix, before=None if guard is None else guard.resume,
-                    kept=f"the log and summary are complete in {out}/; ",
-                )  # fmt: skip
+                result.files += draw_figures(drawers, out, prefix, before=None if guard is None else guard.resume)
             finally:  # deferred again: a signal after the figures must not cut the restoring of the process's tuning
                 if guard is not None:
                     guard.defer()

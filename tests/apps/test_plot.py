@@ -74,6 +74,13 @@ def test_what_is_not_one_runs_log_is_refused_in_one_line(tmp_path):
     assert re.fullmatch(
         rf"error: {re.escape(str(tmp_path))}/reach_snac_log\.parquet is not a run's log: \w+: .*\n", broken.output
     )
+    (tmp_path / "track_snac_log.parquet").unlink()
+    run_demo(task="reach", controller="dls", out_dir=tmp_path / "demo", steps=20, plots=False)
+    (tmp_path / "demo" / "reach_dls_summary.json").write_text("{")
+    with pytest.raises(
+        ValueError, match=r"reach_dls_summary\.json \(the run's summary, for its tolerance\) is not JSON"
+    ):
+        redraw_figures(tmp_path / "demo")
     other = tmp_path / "table.parquet"
     pd.DataFrame({"a": [1.0]}).to_parquet(other)
     with pytest.raises(ValueError, match=r"table\.parquet is not a run's log: its name must end in _log\.parquet"):

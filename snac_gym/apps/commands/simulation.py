@@ -189,5 +189,4 @@ def plot(
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt as exc:  # redraw_figures says how many it drew (each whole)
         raise interrupted(exc, getattr(exc, "kept", "no figure was drawn")) from None
-    folder = files[0].parent if files else (out or log)
-    typer.echo(f"drew {len(files)} figures in {folder}/: {', '.join(f.name for f in files)}")
+    typer.echo(f"drew {len(files)} figures in {files[0].parent}/: {', '.join(f.name for f in files)}")
