@@ -306,7 +306,10 @@ class Kinematics:
         """
         qs = self._check_batch(qs)
         last = self._last_batch
-        if last is not None and last[0].shape == qs.shape and np.array_equal(last[0], qs):
+        # The same bytes, not np.array_equal: 0.5-3 µs against 5-7 µs on the evaluator's batches (it is asked twice
+        # a control step), and only bit-identical input gets the remembered output (0.0 and -0.0 differ; a NaN row
+        # equals itself).
+        if last is not None and last[0].shape == qs.shape and last[0].tobytes() == qs.tobytes():
             return last[1], last[2]
         if self._chain is not None:
             positions, jacobians = self._chain.forward_and_jacobian(qs)

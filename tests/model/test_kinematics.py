@@ -128,6 +128,14 @@ def test_the_last_batch_is_reused_only_for_equal_configurations_and_is_read_only
     assert not np.array_equal(x_moved[3], x[3])
     qs[0, 0] += 0.5  # changing the caller's array in place must not return the stale result
     np.testing.assert_allclose(ur10.forward_batch(qs)[0], ur10.forward(qs[0]), atol=1e-15)
+    # Reused for the same bits only: -0.0 equals 0.0 as a number but is computed anew (its output may differ in a
+    # zero's sign); the same values through a strided view are the same bits.
+    zeros = np.zeros((2, 6))
+    at_zero = ur10.forward_batch(zeros)
+    assert ur10.forward_batch(-zeros) is not at_zero
+    wide = np.repeat(qs, 2, axis=1)[:, ::2]  # a non-contiguous view holding qs's values
+    assert not wide.flags.c_contiguous
+    assert ur10.forward_batch(qs) is ur10.forward_batch(wide)
 
 
 _GENERAL_URDF = """<robot name="general">

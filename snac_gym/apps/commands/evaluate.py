@@ -109,7 +109,11 @@ def evaluate(
     ),
     resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run in OUT."),
     chunk_size: Optional[int] = typer.Option(
-        None, "--chunk-size", min=1, help="Samples per job of a full pass (default 500; results do not depend on it)."
+        None,
+        "--chunk-size",
+        min=1,
+        help="Samples per job of a full pass (default 500; results do not depend on it; small jobs are slow: a job's "
+        "work per control step is the same whatever its size).",
     ),
     cuboid: Optional[str] = typer.Option(
         None, "--cuboid", help="Sample cuboid x0,y0,z0,x1,y1,z1 in m (default: the UR10 box, docs/evaluation.md)."
