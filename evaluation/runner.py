@@ -150,7 +150,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
 #: What a run that compiles the kernels says first (:func:`announce_compiles`).
 COMPILING = (
     "evaluate: compiling the numerical kernels for this machine first (numba's cache has none for this code yet: "
-    "the first run after an install or an update)"
+    "the first run after an install or an update; up to about 20 s on 2 cores)"
 )
 
 
@@ -158,7 +158,7 @@ def announce_compiles(write: Any) -> None:
     """Write :data:`COMPILING` (one line) where the evaluator's kernels are not in numba's cache.
 
     They compile when the workers start, before the first progress line: a first run would otherwise be silent
-    for its first seconds (about 13 s of CPU on 2 cores, docs/benchmarks.md).
+    for its first seconds (10-40 s of CPU by machine, shared by the workers: docs/benchmarks.md).
     """
     from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, cached_on_disk  # imports numba: a run needs it
 
