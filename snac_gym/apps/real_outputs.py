@@ -210,7 +210,8 @@ def write_outputs(
         rest=stop_record(arm),
     )
     if out is not None:
-        result.files = list(demo.files) + _write_timing(env, out, prefix, result)
+        result.files = demo.files  # one list: the demo's "wrote N files" counts all the run wrote, timing and figures
+        result.files += _write_timing(env, out, prefix, result)
         (out / f"{prefix}{STREAM_SUFFIX}").unlink(missing_ok=True)  # the full log is written: the stream is a subset
         if plots:
             drawers = {
@@ -222,7 +223,6 @@ def write_outputs(
             finally:  # deferred again: a signal after the figures must not cut the restoring of the process's tuning
                 if guard is not None:
                     guard.defer()
-        demo.files = list(result.files)  # the summary's "wrote N files" counts them all, the timing and real.json too
     return result
 
 
