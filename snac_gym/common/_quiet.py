@@ -7,6 +7,8 @@ import os
 import sys
 from typing import Iterator
 
+from snac_gym.common._signals import uninterruptible
+
 
 @contextlib.contextmanager
 def quiet_output() -> Iterator[None]:
@@ -14,27 +16,45 @@ def quiet_output() -> Iterator[None]:
     connects, ur_rtde prints socket errors before raising).
 
     The process's file descriptors 1 and 2 are what C code writes to, whatever ``sys.stdout`` is now (a test's capture,
-    a notebook's stream): those are silenced, after Python's own streams are flushed into them.
+    a notebook's stream): those are silenced, after Python's own streams are flushed into them. A stop signal
+    (:mod:`snac_gym.common._signals`) never lands between the swaps of the two: one that left descriptor 2 on
+    ``/dev/null`` would take with it the line in which the command says what the signal ended.
     """
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(AttributeError, OSError, ValueError):  # None, closed or without a flush
             stream.flush()
-    saved: list[tuple[int, int]] = []
+    saved: list[int] = []  # [copy of 1, copy of 2, /dev/null], as far as made
     try:
-        for fd in (1, 2):
-            saved.append((fd, os.dup(fd)))
-    except OSError:  # a descriptor closed (a daemon's): nothing to silence there
-        for _, copy in saved:
-            os.close(copy)
-        yield
-        return
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        for fd, _ in saved:
-            os.dup2(devnull, fd)
+        _silence(saved)
         yield
     finally:
-        for fd, copy in saved:
-            os.dup2(copy, fd)
+        _give_back(saved)
+
+
+@uninterruptible
+def _silence(saved: list[int]) -> None:
+    """Point descriptors 1 and 2 at ``/dev/null``, recording in ``saved`` what :func:`_give_back` undoes."""
+    try:
+        for fd in (1, 2):
+            saved.append(os.dup(fd))
+    except OSError:  # a descriptor closed (a daemon's): nothing to silence there
+        for copy in saved:
             os.close(copy)
-        os.close(devnull)
+        saved.clear()
+        return
+    saved.append(os.open(os.devnull, os.O_WRONLY))
+    for fd in (1, 2):
+        os.dup2(saved[2], fd)
+
+
+@uninterruptible
+def _give_back(saved: list[int]) -> None:
+    """Descriptors 1 and 2 as they were before :func:`_silence`; its copies closed."""
+    if len(saved) < 3:  # silenced nothing, or cut before it opened /dev/null (then it duplicated 1 and 2 only)
+        for copy in saved:
+            os.close(copy)
+        return
+    for fd, copy in zip((1, 2), saved[:2], strict=True):
+        os.dup2(copy, fd)
+    for copy in saved:
+        os.close(copy)

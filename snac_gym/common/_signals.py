@@ -19,7 +19,10 @@ some code cannot take an exception:
   ``SystemError`` with a traceback instead of the interrupt;
 * an import made by a C extension's initialisation (mujoco's pybind11 modules import each other): the
   extension turns the interrupt into ``ImportError("initialization failed")``, which a caller that
-  treats a failed import as a missing optional package would take for one, and the run would go on.
+  treats a failed import as a missing optional package would take for one, and the run would go on;
+* a few lines that change process state in steps (:func:`uninterruptible`): an exception between two steps leaves
+  it half changed (``quiet_output`` with descriptor 1 given back and 2 still on ``/dev/null``, so that the
+  command's one line about the signal went nowhere).
 
 So a handler that finds itself in such code sends the signal again, to be handled once that code
 has returned (numba's Python code runs only while a kernel is dispatched or compiled, never while
@@ -36,7 +39,7 @@ import time
 import types
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, ParamSpec, TypeVar, cast
 
 #: The signals every command ends on: Ctrl-C, a scheduler's or ``kill``'s SIGTERM, a closed
 #: terminal's SIGHUP and Ctrl-\\'s SIGQUIT (whose default would dump core). SIGKILL cannot be caught.
@@ -44,6 +47,10 @@ STOP_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGINT, signal.SIGTERM, signa
 
 #: Packages whose Python code is called back from compiled code, where an exception cannot propagate.
 _CALLED_BACK = ("numba", "llvmlite")
+#: The code of the functions :func:`uninterruptible` marks.
+_UNINTERRUPTIBLE: set[types.CodeType] = set()
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
 if TYPE_CHECKING:  # sys.UnraisableHookArgs is the stubs' name only
     #: What ``signal.signal`` returns: the handler it replaced (a function, SIG_DFL/SIG_IGN, None: set outside Python).
     Handler = Callable[[int, types.FrameType | None], object] | int | signal.Handlers | None
@@ -51,11 +58,19 @@ if TYPE_CHECKING:  # sys.UnraisableHookArgs is the stubs' name only
     UnraisableHook = Callable[[sys.UnraisableHookArgs], object]
 
 
+def uninterruptible(function: Callable[_P, _R]) -> Callable[_P, _R]:
+    """Mark ``function`` as one a stop signal's exception must not cut: a signal that comes while it (or what it
+    calls) runs is sent again, and raises once it has returned. For a few lines that change process state in steps,
+    each of which must be undone or all made (a caller's ``finally`` runs only once the function has returned)."""
+    _UNINTERRUPTIBLE.add(function.__code__)
+    return function
+
+
 def cannot_raise_here(frame: types.FrameType | None) -> bool:
-    """Whether ``frame`` (a handler's second argument) runs inside a ``__del__``, numba's own code or a C
-    extension's initialisation."""
+    """Whether ``frame`` (a handler's second argument) runs inside a ``__del__``, numba's own code, a C
+    extension's initialisation or an :func:`uninterruptible` function."""
     while frame is not None:
-        if frame.f_code.co_name == "__del__" or _in_extension_init(frame):
+        if frame.f_code.co_name == "__del__" or frame.f_code in _UNINTERRUPTIBLE or _in_extension_init(frame):
             return True
         module = frame.f_globals.get("__name__") or ""
         if module.partition(".")[0] in _CALLED_BACK:
