@@ -146,6 +146,9 @@ def simulate_kinematic(
     count, m, n = len(samples), layout.n_joints, layout.task_dim
     times = np.arange(steps + 1) * dt
     x_d, xdot_d, centres = reference_trajectories([s.reference for s in samples], times, n)
+    # Read one step of every sample at a time below: step-major, each read is one block, not B rows strided by the
+    # horizon (a third of the loop's own time on a tracking horizon). The rollouts get sample-major views of them.
+    x_d, xdot_d = _step_major(x_d), _step_major(xdot_d)
     task_error = task_error_function(kinematics)
 
     q = np.array([s.q0 for s in samples], dtype=float).reshape(count, m)
@@ -174,13 +177,13 @@ def simulate_kinematic(
         obs[:, slices["q"]] = q
         obs[:, slices["qdot"]] = qdot
         obs[:, slices["x"]] = x
-        obs[:, slices["x_d"]] = x_d[:, k]
-        obs[:, slices["xdot_d"]] = xdot_d[:, k]
-        task_error(x, x_d[:, k], e_log[k])
+        obs[:, slices["x_d"]] = x_d[k]
+        obs[:, slices["xdot_d"]] = xdot_d[k]
+        task_error(x, x_d[k], e_log[k])
         obs[:, slices["e"]] = e_log[k]
         obs[:, slices["x_c"]] = centres
         if k in diagnostic_steps:
-            diagnostic_rows.append(critic(q, e_log[k], x_d[:, k], xdot_d[:, k], centres, policies.critic_weights()))
+            diagnostic_rows.append(critic(q, e_log[k], x_d[k], xdot_d[k], centres, policies.critic_weights()))
         commands = policies.act(obs)
         _check_commands(commands, (count, m), label, samples, k)
         held = np.minimum(np.maximum(commands, -limits), limits)
@@ -201,12 +204,12 @@ def simulate_kinematic(
         q=_sample_major(cast(np.ndarray, q_log)) if keep_states else None,  # kept: logged
         commands=_sample_major(u_log),
         x=_sample_major(cast(np.ndarray, x_log)) if keep_states else None,
-        x_d=x_d[:, :steps],
-        xdot_d=xdot_d[:, :steps],
+        x_d=x_d[:steps].transpose(1, 0, 2),
+        xdot_d=xdot_d[:steps].transpose(1, 0, 2),
         errors=_sample_major(e_log),
         final_q=q,
         final_x=final_x,
-        final_errors=task_error(final_x, x_d[:, steps], np.empty((count, n))),
+        final_errors=task_error(final_x, x_d[steps], np.empty((count, n))),
         critic_diagnostics=_stack_diagnostics(diagnostic_rows),
         flags=policies.episode_flags(),
     )
@@ -256,6 +259,14 @@ def _stack_diagnostics(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarra
         np.stack([row["hjb_ratio"] for row in rows], axis=1),
         critic_error,
     )
+
+
+def _step_major(array: np.ndarray) -> np.ndarray:
+    """Contiguous ``(B, K, d)`` → contiguous ``(K, B, d)``, the same values (moved as records, as in
+    :func:`_sample_major`)."""
+    count, steps, width = array.shape
+    records = np.ascontiguousarray(array).view(np.dtype((np.void, width * array.itemsize))).reshape(count, steps)
+    return np.ascontiguousarray(records.T).view(array.dtype).reshape(steps, count, width)
 
 
 def _sample_major(log: np.ndarray) -> np.ndarray:
