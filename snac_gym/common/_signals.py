@@ -165,9 +165,15 @@ class SignalGuard:
             return
         previous(unraisable)
 
-    def install(self, signals: Sequence[int] = STOP_SIGNALS) -> tuple[dict[int, Handler], UnraisableHook]:
-        """Set the handlers of ``signals`` and the unraisable hook; return what they replaced."""
-        handlers = {signum: signal.signal(signum, self.handle) for signum in signals}
+    @uninterruptible
+    def install(
+        self, signals: Sequence[int] = STOP_SIGNALS, replaced: dict[int, Handler] | None = None
+    ) -> tuple[dict[int, Handler], UnraisableHook]:
+        """Set the handlers of ``signals`` and the unraisable hook; return what they replaced (each handler also
+        recorded in ``replaced`` as it is set). A signal that comes meanwhile raises once all are set."""
+        handlers = {} if replaced is None else replaced
+        for signum in signals:
+            handlers[signum] = signal.signal(signum, self.handle)
         hook = sys.unraisablehook
 
         def guarded_hook(unraisable: sys.UnraisableHookArgs) -> None:
@@ -206,13 +212,22 @@ def stop_signals_raise(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[Signal
     if threading.current_thread() is not threading.main_thread():
         yield guard
         return
-    handlers, hook = guard.install(signals)
+    replaced: dict[int, Handler] = {}
+    hook = sys.unraisablehook
     try:
+        guard.install(signals, replaced)
         yield guard
     finally:
-        sys.unraisablehook = hook
-        for signum, handler in handlers.items():
-            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
+        _restore(replaced, hook)
+
+
+@uninterruptible
+def _restore(handlers: dict[int, Handler], hook: UnraisableHook) -> None:
+    """Put back the handlers and the unraisable hook :meth:`SignalGuard.install` replaced; a signal that comes meanwhile
+    goes to the handler put back, once all are."""
+    sys.unraisablehook = hook
+    for signum, handler in handlers.items():
+        signal.signal(signum, handler if handler is not None else signal.SIG_DFL)  # None: set outside Python
 
 
 def exit_code(signal_name: str) -> int:

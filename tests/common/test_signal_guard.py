@@ -1,0 +1,61 @@
+"""``stop_signals_raise`` under a stop signal that comes while it sets or puts back its handlers: whenever it comes,
+every handler ends as it was before the block and the signal still raises, once (the nested form ``snac-gym real``
+uses inside the command's own guard)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+#: In a child process: the command's guard is installed, as ``main()`` installs it; then the n-th ``signal.signal``
+#: call made by ``stop_signals_raise`` (four to set, four to put back) raises SIGTERM right after it returns.
+DRIVER = r"""
+import signal, sys, time
+from snac_gym.common import _signals
+from snac_gym.common._signals import STOP_SIGNALS, SignalGuard, TerminationSignal, stop_signals_raise
+
+outer = SignalGuard()
+outer.install(STOP_SIGNALS)
+target = int(sys.argv[1])
+calls = []
+
+
+class SignalAfterSet:
+    def __getattr__(self, name):
+        return getattr(signal, name)
+
+    @staticmethod
+    def signal(signum, handler):
+        replaced = signal.signal(signum, handler)
+        calls.append(signum)
+        if len(calls) == target:
+            signal.raise_signal(signal.SIGTERM)
+        return replaced
+
+
+_signals.signal = SignalAfterSet()
+raised = []
+try:
+    with stop_signals_raise():
+        time.sleep(0.5)  # a signal sent again arrives within a millisecond or so
+    time.sleep(0.5)
+except TerminationSignal as exc:
+    raised.append(exc.signal_name)
+_signals.signal = signal
+restored = all(signal.getsignal(signum) == outer.handle for signum in STOP_SIGNALS)
+print(f"raised {raised}; calls {len(calls)}; handlers restored {restored}")
+"""
+
+
+@pytest.mark.parametrize("call", range(1, 9))
+def test_a_stop_signal_while_the_handlers_are_set_or_put_back_raises_once_and_every_handler_comes_back(call):
+    done = subprocess.run([sys.executable, "-c", DRIVER, str(call)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "raised ['SIGTERM']; calls 8; handlers restored True\n"
+
+
+def test_without_a_signal_the_block_runs_through_and_puts_every_handler_back():
+    done = subprocess.run([sys.executable, "-c", DRIVER, "0"], capture_output=True, text=True, timeout=60)
+    assert done.stdout == "raised []; calls 8; handlers restored True\n", done.stderr
