@@ -37,10 +37,7 @@ def _silence(saved: list[int]) -> None:
     try:
         for fd in (1, 2):
             saved.append(os.dup(fd))
-    except OSError:  # a descriptor closed (a daemon's): nothing to silence there
-        for copy in saved:
-            os.close(copy)
-        saved.clear()
+    except OSError:  # a descriptor closed (a daemon's): nothing to silence there (_give_back closes the copy made)
         return
     saved.append(os.open(os.devnull, os.O_WRONLY))
     for fd in (1, 2):

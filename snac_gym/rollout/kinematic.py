@@ -148,7 +148,7 @@ def simulate_kinematic(
     x_d, xdot_d, centres = reference_trajectories([s.reference for s in samples], times, n)
     # Read one step of every sample at a time below: step-major, each read is one block, not B rows strided by the
     # horizon (a third of the loop's own time on a tracking horizon). The rollouts get sample-major views of them.
-    x_d, xdot_d = _step_major(x_d), _step_major(xdot_d)
+    x_d, xdot_d = _swap_leading_axes(x_d), _swap_leading_axes(xdot_d)
     task_error = task_error_function(kinematics)
 
     q = np.array([s.q0 for s in samples], dtype=float).reshape(count, m)
@@ -201,12 +201,12 @@ def simulate_kinematic(
     return Rollouts(
         dt=dt,
         times=times[:steps],
-        q=_sample_major(cast(np.ndarray, q_log)) if keep_states else None,  # kept: logged
-        commands=_sample_major(u_log),
-        x=_sample_major(cast(np.ndarray, x_log)) if keep_states else None,
+        q=_swap_leading_axes(cast(np.ndarray, q_log)) if keep_states else None,  # kept: logged
+        commands=_swap_leading_axes(u_log),
+        x=_swap_leading_axes(cast(np.ndarray, x_log)) if keep_states else None,
         x_d=x_d[:steps].transpose(1, 0, 2),
         xdot_d=xdot_d[:steps].transpose(1, 0, 2),
-        errors=_sample_major(e_log),
+        errors=_swap_leading_axes(e_log),
         final_q=q,
         final_x=final_x,
         final_errors=task_error(final_x, x_d[steps], np.empty((count, n))),
@@ -261,20 +261,13 @@ def _stack_diagnostics(rows: list[dict[str, np.ndarray]]) -> dict[str, np.ndarra
     )
 
 
-def _step_major(array: np.ndarray) -> np.ndarray:
-    """Contiguous ``(B, K, d)`` → contiguous ``(K, B, d)``, the same values (moved as records, as in
-    :func:`_sample_major`)."""
-    count, steps, width = array.shape
-    records = np.ascontiguousarray(array).view(np.dtype((np.void, width * array.itemsize))).reshape(count, steps)
-    return np.ascontiguousarray(records.T).view(array.dtype).reshape(steps, count, width)
-
-
-def _sample_major(log: np.ndarray) -> np.ndarray:
-    """Contiguous ``(K, B, d)`` → contiguous ``(B, K, d)``, the same values.
+def _swap_leading_axes(array: np.ndarray) -> np.ndarray:
+    """Contiguous ``(A, B, d)`` → contiguous ``(B, A, d)``, the same values: the logs from step-major to sample-major,
+    the references the other way.
 
     Each d-vector is moved as one opaque record: NumPy's transposing copy of the float array
     itself loops over the short last axis element by element, 2.5 times slower on the evaluator's logs.
     """
-    steps, count, width = log.shape
-    records = np.ascontiguousarray(log).view(np.dtype((np.void, width * log.itemsize))).reshape(steps, count)
-    return np.ascontiguousarray(records.T).view(log.dtype).reshape(count, steps, width)
+    rows, columns, width = array.shape
+    records = np.ascontiguousarray(array).view(np.dtype((np.void, width * array.itemsize))).reshape(rows, columns)
+    return np.ascontiguousarray(records.T).view(array.dtype).reshape(columns, rows, width)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from snac_gym.kernels.metrics import command_extremes, reverse_sum_extremes
-from snac_gym.rollout.kinematic import _sample_major
+from snac_gym.rollout.kinematic import _swap_leading_axes
 
 
 def _numpy_extremes(commands, limits, at_limit, dt):
@@ -80,6 +80,6 @@ def test_reverse_sum_extremes_are_those_of_numpys_cumsum(seed, count, steps, m):
 
 def test_sample_major_is_the_transposed_log():
     log = np.random.default_rng(4).normal(size=(11, 5, 6))
-    moved = _sample_major(log)
+    moved = _swap_leading_axes(log)
     assert moved.flags.c_contiguous and moved.shape == (5, 11, 6)
     np.testing.assert_array_equal(moved, log.transpose(1, 0, 2))
