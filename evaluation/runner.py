@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
+from snac_gym.evaluation import sample_cache
 from snac_gym.evaluation.controllers import ControllerSpec, resolve_controllers
 from snac_gym.evaluation.effort.cache import (
     SWITCH_ENV,
@@ -241,13 +242,35 @@ def load_samples(
 def _draw(
     config: EvaluationConfig, space: SampleSpace, executor: Any, first: int, end: int
 ) -> dict[str, list[EvaluationSample]]:
-    """Samples ``first`` to ``end - 1`` of the seed's stream for every task (each drawn from its own index)."""
+    """Samples ``first`` to ``end - 1`` of the seed's stream for every task (each drawn from its own index).
+
+    The chunks start at multiples of :data:`GENERATION_CHUNK` (the first may be shorter), so that runs of other sizes
+    share the sample cache's entries (:mod:`snac_gym.evaluation.sample_cache`); only the chunks it does not hold are
+    drawn, by the workers, and stored."""
+    bounds = [first, *range(first - first % GENERATION_CHUNK + GENERATION_CHUNK, end, GENERATION_CHUNK), end]
     chunks = [
-        (config.robot, space, config.seed, task, list(range(start, min(start + GENERATION_CHUNK, end))))
+        (config.robot, space, config.seed, task, list(range(start, stop)))
         for task in config.tasks
-        for start in range(first, end, GENERATION_CHUNK)
+        for start, stop in zip(bounds, bounds[1:])
+        if start < stop
     ]
-    drawn: dict[int, list[EvaluationSample]] = dict(executor.run(_generate_chunk, chunks))
+    drawn: dict[int, list[EvaluationSample]] = {}
+    keys: dict[int, str] = {}
+    folder, kinematics = sample_cache.cache_folder(), Kinematics(config.robot)
+    if sample_cache.cache_enabled():
+        limits = (kinematics.lower_limits, kinematics.upper_limits)
+        for index, (robot, _, seed, task, indices) in enumerate(chunks):
+            if sample_cache.cacheable(task):
+                keys[index] = sample_cache.chunk_key(robot, space, seed, task, indices)
+                found = sample_cache.read_chunk(folder, keys[index], task, indices, limits)
+                if found is not None:
+                    drawn[index] = found
+    missing = [index for index in range(len(chunks)) if index not in drawn]
+    for position, chunk in executor.run(_generate_chunk, [chunks[index] for index in missing]) if missing else ():
+        index = missing[position]
+        drawn[index] = chunk
+        if index in keys:
+            sample_cache.write_chunk(folder, keys[index], chunk, kinematics.n_joints)
     samples: dict[str, list[EvaluationSample]] = {task: [] for task in config.tasks}
     for index in range(len(chunks)):
         samples[chunks[index][3]].extend(drawn[index])

@@ -157,7 +157,7 @@ def write_samples_csv(samples: Sequence[EvaluationSample], path: str | Path, n_j
     return path
 
 
-class _RowReader:
+class RowReader:
     """Typed access to one CSV row, with errors that name the file, row and column."""
 
     def __init__(self, path: Path, row_number: int, line: int, row: dict[str, str]) -> None:
@@ -192,7 +192,7 @@ class _RowReader:
                 raise self.error(column, f"must be empty on a {task!r} row (it belongs to the other task)")
 
 
-def _parse_row(reader: _RowReader, kinematics: Kinematics, space: SampleSpace, index: int) -> EvaluationSample:
+def _parse_row(reader: RowReader, kinematics: Kinematics, space: SampleSpace, index: int) -> EvaluationSample:
     name = reader.text("task")
     if name not in task_names():
         raise reader.error("task", f"{name!r} is not one of {list(task_names())}")
@@ -276,7 +276,7 @@ def _read_rows(
         line = reader.line_num
         if None in row:
             raise SampleFileError(f"{path}: row {row_number} (line {line}) has more cells than the header")
-        row_reader = _RowReader(path, row_number, line, row)
+        row_reader = RowReader(path, row_number, line, row)
         too_long = [column for column, cell in row.items() if cell is not None and len(cell) > MAX_CELL_CHARS]
         if too_long:
             raise row_reader.error(
@@ -295,7 +295,7 @@ def _read_rows(
     return samples
 
 
-def _sample_id(reader: _RowReader) -> int:
+def _sample_id(reader: RowReader) -> int:
     text = reader.text("sample")
     try:
         index = int(text)

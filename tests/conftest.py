@@ -33,6 +33,9 @@ os.environ["SB3_LOGDIR"] = os.path.join(os.environ["SNAC_GYM_CACHE_DIR"], "sb3-l
 # The calibration cache off: a test that compares two runs' knobs (other workers, fewer samples) must match
 # them anew, or it would compare a knob with itself. tests/evaluation/effort/test_effort_cache.py turns it on.
 os.environ["SNAC_GYM_CALIBRATION_CACHE"] = "0"
+# The sample cache off too: a test that compares samples drawn two ways (other workers, other chunks) must draw both.
+# tests/evaluation/test_sample_cache.py turns it on.
+os.environ["SNAC_GYM_SAMPLE_CACHE"] = "0"
 
 
 #: Why a test marked ``rl`` is skipped where torch or stable-baselines3 is missing.
