@@ -10,10 +10,10 @@ Each entry is one chunk of consecutive samples of one task, one JSON file named 
 the seed, the task, the chunk's indices, the sample space, the arm (its registry entry and its URDF's bytes) and the
 code (the source of every module of the package that drawing reads, found by following its imports:
 :mod:`snac_gym.evaluation.code_graph`, and the versions of NumPy, SciPy, Pinocchio and example-robot-data). A task
-registered by another package is drawn by code this key cannot follow, and is not cached. The payload is each sample's
-CSV cells (:func:`~snac_gym.evaluation.samples.sample_row`: floats by ``repr``, so they read back bit for bit); an
-entry holds its key and checksum (:mod:`snac_gym.evaluation.cache_entry`), and a damaged one is named on stderr and
-drawn again.
+registered by another package (or a built-in one given state of its own) is drawn by what this key cannot follow,
+and is not cached. The payload is each sample's CSV cells (:func:`~snac_gym.evaluation.samples.sample_row`: floats by
+``repr``, so they read back bit for bit); an entry holds its key and checksum (:mod:`snac_gym.evaluation.cache_entry`),
+and a damaged one is named on stderr and drawn again.
 
 The folder is ``$SNAC_GYM_CACHE_DIR/samples`` (default ``~/.cache/snac-gym/samples``, or under ``$XDG_CACHE_HOME``);
 ``SNAC_GYM_SAMPLE_CACHE=0`` turns it off.
@@ -63,8 +63,11 @@ def cache_folder() -> Path:
 
 
 def cacheable(task: str) -> bool:
-    """Whether ``task``'s samples are drawn by the package's own code (a task of another package's is not cached)."""
-    return type(get_task(task)).__module__.startswith("snac_gym.")
+    """Whether ``task``'s samples are drawn by the package's own code alone: an instance of one of its task classes
+    with no state of its own (a task of another package, or one given attributes after it was made, is not cached:
+    the key does not follow what draws it)."""
+    registered = get_task(task)
+    return type(registered).__module__.startswith("snac_gym.") and not getattr(registered, "__dict__", {})
 
 
 @functools.lru_cache(maxsize=None)

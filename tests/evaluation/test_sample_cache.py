@@ -122,6 +122,9 @@ def test_a_task_of_another_package_is_never_cached(cache_on, monkeypatch):
     outside = type("OutsideTrack", (type(task),), {"__module__": "mypackage.tasks"})
     monkeypatch.setattr(sample_cache, "get_task", lambda name: outside() if name == "track" else get_task(name))
     assert not sample_cache.cacheable("track") and sample_cache.cacheable("reach")
+    monkeypatch.setattr(get_task("reach"), "semi_axes", (0.1, 0.2), raising=False)  # a built-in task given state
+    assert not sample_cache.cacheable("reach")
+    monkeypatch.delattr(get_task("reach"), "semi_axes")
     config = _config()
     _draw(config, 0, 3)
     _, executor = _draw(config, 0, 3)
