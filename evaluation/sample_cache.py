@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import os
 import pickle
 from collections.abc import Sequence
 from pathlib import Path
@@ -36,7 +35,7 @@ from snac_gym.evaluation.code_graph import module_closure, sources_fingerprint
 from snac_gym.evaluation.reference.cache import add_versions
 from snac_gym.evaluation.samples import EvaluationSample, RowReader, sample_row
 
-from snac_gym.common.cache_dir import CACHE_ENV, cache_root
+from snac_gym.common.cache_dir import CACHE_ENV, cache_root, switched_on
 from snac_gym.model.robots import get_robot
 from snac_gym.model.urdf import robot_urdf_path
 from snac_gym.sampling import SampleSpace
@@ -54,7 +53,7 @@ WARNINGS = CacheWarnings("the sample cache", f"{SWITCH_ENV}=0, or {CACHE_ENV} at
 
 def cache_enabled() -> bool:
     """Whether :data:`SWITCH_ENV` leaves the cache on (it is, unless set to ``0``, ``off``, ``false`` or ``no``)."""
-    return os.environ.get(SWITCH_ENV, "1").strip().lower() not in ("0", "off", "false", "no")
+    return switched_on(SWITCH_ENV)
 
 
 def cache_folder() -> Path:

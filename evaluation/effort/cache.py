@@ -27,7 +27,6 @@ import functools
 import hashlib
 import json
 import math
-import os
 from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
@@ -40,6 +39,7 @@ from snac_gym.evaluation.reference.cache import add_versions, cache_root
 from snac_gym.evaluation.run_config import ControllerSpec, EvaluationConfig
 
 import snac_gym
+from snac_gym.common.cache_dir import switched_on
 
 #: Environment variable that turns the cache off (``0``, ``off``, ``false`` or ``no``) whatever the options say.
 SWITCH_ENV = "SNAC_GYM_CALIBRATION_CACHE"
@@ -51,7 +51,7 @@ DATA_PATTERNS = ("*.py", "*.npz", "*.json")
 
 def cache_enabled() -> bool:
     """Whether :data:`SWITCH_ENV` leaves the cache on (it is, unless set to ``0``, ``off``, ``false`` or ``no``)."""
-    return os.environ.get(SWITCH_ENV, "1").strip().lower() not in ("0", "off", "false", "no")
+    return switched_on(SWITCH_ENV)
 
 
 def calibration_folder() -> Path:

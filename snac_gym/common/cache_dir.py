@@ -19,4 +19,10 @@ def cache_root() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "snac-gym"
 
 
-__all__ = ["CACHE_ENV", "cache_root"]
+def switched_on(variable: str) -> bool:
+    """Whether the environment variable ``variable`` leaves a cache on: it does unless set to ``0``, ``off``, ``false``
+    or ``no`` (any case, spaces around ignored)."""
+    return os.environ.get(variable, "1").strip().lower() not in ("0", "off", "false", "no")
+
+
+__all__ = ["CACHE_ENV", "cache_root", "switched_on"]
