@@ -66,6 +66,7 @@ from snac_gym.evaluation.store import RunDirectoryError, RunStore
 
 from snac_gym.common.machine import describe_machine, machine_info
 from snac_gym.common.outputs import write_whole
+from snac_gym.kernels.compiled import evaluator_kernel_modules
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 
@@ -90,17 +91,20 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     config, store_knobs = _writable_caches(config)
     # 2. Controllers first: the run's manifest, which locks the output folder to it, names them.
     specs, skipped = resolve_controllers(config)
+    kernel_modules = evaluator_kernel_modules(reference=config.wants_optimal)  # only the kernels the run calls
     if config.progress:
-        announce_compiles(sys.stderr.write)
+        announce_compiles(sys.stderr.write, kernel_modules)
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
-        with open_executor(config.workers, config.ray_address) as executor:
+        with open_executor(config.workers, config.ray_address, kernel_modules) as executor:
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
             model = _knob_config(config)  # the settings the knobs are matched at: the kinematic model's
             identities = _calibration_identities(model, space, specs)
             cached = _run_knobs(model, space, specs, identities, store)
-            # A physics engine's run that matches effort does so on the model first.
-            on_model = config.match_effort and cached is None and model is not config
-            effort_set = samples if cached is not None else _effort_set(config, space, executor, samples)
+            # A physics engine's run that matches effort does so on the model first. A run of the reference alone
+            # matches nothing, and draws no effort set (a --samples 50 question drew 950 more samples a task for it).
+            matching = cached is None and bool(specs)
+            on_model = config.match_effort and matching and model is not config
+            effort_set = _effort_set(config, space, executor, samples) if matching else samples
             matched_on = samples if on_model else effort_set
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(
                 map(len, samples.values())
@@ -155,15 +159,16 @@ COMPILING = (
 )
 
 
-def announce_compiles(write: Any) -> None:
-    """Write :data:`COMPILING` (one line) where the evaluator's kernels are not in numba's cache.
+def announce_compiles(write: Any, modules: tuple[str, ...] | None = None) -> None:
+    """Write :data:`COMPILING` (one line) where the kernels of ``modules`` (default: every evaluator kernel's) are not
+    in numba's cache.
 
     They compile when the workers start, before the first progress line: a first run would otherwise be silent
     for its first seconds (10-40 s of CPU by machine, shared by the workers: docs/benchmarks.md).
     """
     from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, cached_on_disk  # imports numba: a run needs it
 
-    if not cached_on_disk(EVALUATOR_KERNEL_MODULES):
+    if not cached_on_disk(EVALUATOR_KERNEL_MODULES if modules is None else modules):
         write(COMPILING + "\n")
 
 

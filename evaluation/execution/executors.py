@@ -112,7 +112,7 @@ class ProcessExecutor:
 
     concurrent = True
 
-    def __init__(self, workers: int) -> None:
+    def __init__(self, workers: int, kernel_modules: tuple[str, ...] = EVALUATOR_KERNEL_MODULES) -> None:
         if workers < 1:
             raise ValueError(f"workers must be at least 1, got {workers}")
         self.workers = workers
@@ -134,14 +134,14 @@ class ProcessExecutor:
         if method == "forkserver":
             context.set_forkserver_preload(PRELOAD)
         elif method == "fork":
-            load_if_cached()  # once here, for every worker forked from here
+            load_if_cached(kernel_modules)  # once here, for every worker forked from here
         self.start_method = context.get_start_method()
-        compile_locks = tuple(context.Lock() for _ in EVALUATOR_KERNEL_MODULES)
+        compile_locks = tuple(context.Lock() for _ in kernel_modules)
         self._pool = ProcessPoolExecutor(
             max_workers=workers,
             mp_context=context,
             initializer=init_worker,
-            initargs=(os.getpid(), registrations if method == "forkserver" else None, compile_locks),
+            initargs=(os.getpid(), registrations if method == "forkserver" else None, compile_locks, kernel_modules),
         )
         # Start every worker now, from this thread (one job each, submitted together: the pool
         # starts a process per job while none is idle): the parent-death signal of a forked worker
@@ -275,22 +275,25 @@ class ProcessExecutor:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
-def make_executor(workers: int = 1, ray_address: str | None = None) -> SerialExecutor | ProcessExecutor | RayExecutor:
-    """The executor for ``--workers`` and ``--ray``."""
+def make_executor(
+    workers: int = 1, ray_address: str | None = None, kernel_modules: tuple[str, ...] = EVALUATOR_KERNEL_MODULES
+) -> SerialExecutor | ProcessExecutor | RayExecutor:
+    """The executor for ``--workers`` and ``--ray``; local worker processes compile or load ``kernel_modules``'
+    kernels when they start (:func:`~snac_gym.kernels.compiled.evaluator_kernel_modules`)."""
     if ray_address:
         return RayExecutor(ray_address, workers)
     if workers > 1:
-        return ProcessExecutor(workers)
+        return ProcessExecutor(workers, kernel_modules)
     return SerialExecutor()
 
 
 @contextlib.contextmanager
 def open_executor(
-    workers: int = 1, ray_address: str | None = None
+    workers: int = 1, ray_address: str | None = None, kernel_modules: tuple[str, ...] = EVALUATOR_KERNEL_MODULES
 ) -> Iterator[SerialExecutor | ProcessExecutor | RayExecutor]:
     """:func:`make_executor` for the length of a block: closed after it, and terminated first if the block
     raises or is interrupted (a failed or interrupted run does not wait for the jobs still running)."""
-    executor = make_executor(workers, ray_address)
+    executor = make_executor(workers, ray_address, kernel_modules)
     try:
         yield executor
     except BaseException:

@@ -22,7 +22,7 @@ from snac_gym.evaluation.execution.memory import keep_freed_memory
 from threadpoolctl import threadpool_limits
 
 from snac_gym.common._signals import STOP_SIGNALS
-from snac_gym.kernels.compiled import warm_up_shared
+from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, warm_up_shared
 from snac_gym.model.robots import ROBOTS
 from snac_gym.policies import registry
 from snac_gym.tasks import TASKS
@@ -118,9 +118,15 @@ def start_method(registrations: bytes | None) -> str | None:
     return "forkserver"
 
 
-def init_worker(parent_pid: int, registrations: bytes | None = None, compile_locks: Sequence[Any] = ()) -> None:
+def init_worker(
+    parent_pid: int,
+    registrations: bytes | None = None,
+    compile_locks: Sequence[Any] = (),
+    kernel_modules: tuple[str, ...] = EVALUATOR_KERNEL_MODULES,
+) -> None:
     """Worker initialiser: die with the parent, leave Ctrl-C to it, one BLAS thread per process, the
-    compiled kernels ready (compiled once among the workers, :func:`~snac_gym.kernels.compiled.warm_up_shared`).
+    compiled kernels of ``kernel_modules`` ready (compiled once among the workers, one lock each of ``compile_locks``:
+    :func:`~snac_gym.kernels.compiled.warm_up_shared`).
 
     SIGINT reaches every process of the terminal's foreground group; the parent stops the run
     and ends the workers, so a worker ignores it rather than printing its own traceback.
@@ -144,7 +150,7 @@ def init_worker(parent_pid: int, registrations: bytes | None = None, compile_loc
     threadpool_limits(1, user_api="blas")
     keep_freed_memory()
     if compile_locks:
-        warm_up_shared(compile_locks)
+        warm_up_shared(compile_locks, kernel_modules)
 
 
 def noop(seconds: float) -> None:

@@ -51,6 +51,18 @@ EVALUATOR_KERNEL_MODULES = tuple(m for m in KERNEL_MODULES if m != "snac_gym.ker
 #: Modules the evaluator needs only in its last phase (the reference's): a worker that finds another compiling
 #: one goes to work instead of waiting, and loads it from the cache when its first reference job calls it.
 LATE_KERNEL_MODULES = ("snac_gym.kernels.trajopt", "snac_gym.kernels.relaxation")
+
+
+def evaluator_kernel_modules(reference: bool = True) -> tuple[str, ...]:
+    """The modules an evaluator's workers compile or load when they start: :data:`EVALUATOR_KERNEL_MODULES`, less the
+    reference's (:data:`LATE_KERNEL_MODULES`) in a run without it. A run of the controllers alone then does not compile
+    the reference's kernels (the lower bound's is the dearest compile); a controller that calls one (``mpc``'s
+    Gauss-Newton steps) compiles it at its first call."""
+    if reference:
+        return EVALUATOR_KERNEL_MODULES
+    return tuple(module for module in EVALUATOR_KERNEL_MODULES if module not in LATE_KERNEL_MODULES)
+
+
 #: A module may build a kernel on first use instead of with :func:`kernel` (the lower bound's, whose helpers are
 #: compiled into it): its ``lazy_kernels()`` returns (dispatcher, [example arguments, ...]) pairs for the warm-up.
 _LAZY_HOOK = "lazy_kernels"
@@ -355,5 +367,6 @@ def _with_stop_signals_held(
 
 __all__ = [
     "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Example", "Kernel",
-    "cached_on_disk", "helper", "kernel", "load_if_cached", "read_only", "read_only_view", "warm_up", "warm_up_shared",
+    "cached_on_disk", "evaluator_kernel_modules", "helper", "kernel", "load_if_cached", "read_only", "read_only_view",
+    "warm_up", "warm_up_shared",
 ]  # fmt: skip

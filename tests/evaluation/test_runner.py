@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import snac_gym.evaluation.execution.passes as passes_module
+import snac_gym.evaluation.runner as runner_module
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.reports.summary import PAPER_TABLE_I
 from snac_gym.evaluation.store import RunDirectoryError
@@ -156,6 +157,23 @@ def test_equal_effort_matched_on_more_samples_than_are_evaluated_is_the_larger_r
     assert "on the first 6 samples of the seed" in (tmp_path / "three" / "summary.md").read_text()
     with pytest.raises(ValueError, match="effort_samples must be between 0 and"):
         _config(tmp_path / "bad", effort_samples=-1).validate()
+
+
+@pytest.mark.parametrize(("controllers", "drawn_per_task"), [(("optimal",), 3), (("optimal", "dls"), 6)])
+def test_the_effort_set_is_drawn_only_where_knobs_are_matched(tmp_path, monkeypatch, controllers, drawn_per_task):
+    """A run of the reference alone matches no knob: it draws the samples it reports, not the effort set beyond them
+    (a 50-sample question drew 950 more a task, most of its time); with a controller to match, it draws both."""
+    drawn: list[tuple[str, int]] = []
+    draw = runner_module.generate_samples
+
+    def counted(kinematics, space, seed, task, indices):
+        drawn.extend((task, index) for index in indices)
+        return draw(kinematics, space, seed, task, indices)
+
+    monkeypatch.setattr(runner_module, "generate_samples", counted)
+    rows = run_evaluation(_config(tmp_path / "run", samples=3, effort_samples=6, controllers=controllers))
+    assert sorted(drawn) == [(task, i) for task in ("reach", "track") for i in range(drawn_per_task)]
+    assert set(rows["sample"]) == {0, 1, 2} and set(rows["controller"]) == set(controllers)
 
 
 def _trajectory(config: EvaluationConfig, row: pd.Series) -> Path:

@@ -156,6 +156,41 @@ def test_after_the_warm_up_an_evaluation_compiles_nothing(tmp_path, monkeypatch)
     assert {name: types - warmed[name] for name, types in called.items() if types - warmed[name]} == {}
 
 
+def test_a_run_without_the_reference_calls_no_kernel_its_workers_leave_out(tmp_path, monkeypatch):
+    """An evaluator's workers compile the reference's kernels only for a run that has it
+    (:func:`~snac_gym.kernels.compiled.evaluator_kernel_modules`): a run of the default controllers, matching their
+    knobs, calls none of them (else each worker would compile one at its first call), and every kernel it calls is of a
+    module its workers warm up."""
+    from snac_gym.evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.runner import run_evaluation
+
+    from snac_gym.control import lower_bounds
+    from snac_gym.kernels.compiled import LATE_KERNEL_MODULES, Kernel, evaluator_kernel_modules
+
+    called: set[str] = set()
+    call, bound = Kernel.__call__, lower_bounds.relaxation_kernel
+
+    def recording(self, *args):
+        called.add(self.__wrapped__.__module__)
+        return call(self, *args)
+
+    def built():  # the lower bound's kernel is built on first use, not a Kernel
+        called.add("snac_gym.kernels.relaxation")
+        return bound()
+
+    monkeypatch.setattr(Kernel, "__call__", recording)
+    monkeypatch.setattr(lower_bounds, "relaxation_kernel", built)
+    config = EvaluationConfig(
+        out=tmp_path / "run", samples=2, effort_samples=3, workers=1, horizons={"reach": 1.0, "track": 1.0},
+        progress=False, plots=False,
+    )  # fmt: skip
+    run_evaluation(config)
+    assert {"snac_gym.kernels.chain", "snac_gym.kernels.hjb"} <= called  # what it records is what the run calls
+    assert called <= set(evaluator_kernel_modules(reference=False))
+    assert set(evaluator_kernel_modules(reference=False)).isdisjoint(LATE_KERNEL_MODULES)
+    assert set(evaluator_kernel_modules(reference=True)) >= set(LATE_KERNEL_MODULES)
+
+
 SHARED_DRIVER = r"""
 import json, multiprocessing, sys
 from snac_gym.kernels.compiled import _KERNELS, warm_up_shared
