@@ -44,6 +44,7 @@ from snac_gym.evaluation.runner import load_samples, run_evaluation
 from snac_gym.evaluation.store import RunStore
 
 from snac_gym.common.outputs import write_whole
+from snac_gym.kernels.compiled import evaluator_kernel_modules
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import get_task
@@ -207,7 +208,8 @@ def run_sweep(config: EvaluationConfig, points: int = DEFAULT_POINTS, span: floa
     # The main run's folder, reopened: same manifest, so its parts (the main run's points) are
     # found by run_passes instead of being recomputed, and the sweep's own parts resume alike.
     with RunStore(config.out, config.manifest(space, all_specs), resume=True) as store:
-        with open_executor(config.workers, config.ray_address) as executor:
+        # the controllers' passes alone: their workers load no kernel of the reference's
+        with open_executor(config.workers, config.ray_address, evaluator_kernel_modules(reference=False)) as executor:
             samples = load_samples(config, kinematics, space, executor)
             progress = Progress(len(passes) * sum(len(samples[t]) for t in config.tasks), config.progress)
             evaluation = EvaluationRun(config, store, executor, samples, progress)
