@@ -100,8 +100,8 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             model = _knob_config(config)  # the settings the knobs are matched at: the kinematic model's
             identities = _calibration_identities(model, space, specs)
             cached = _run_knobs(model, space, specs, identities, store)
-            # A physics engine's run that matches effort does so on the model first. A run of the reference alone
-            # matches nothing, and draws no effort set (a --samples 50 question drew 950 more samples a task for it).
+            # A physics engine's run that matches effort does so on the model first. The effort set is only matched
+            # on: a run at cached knobs, or of the reference alone, does not draw it.
             matching = cached is None and bool(specs)
             on_model = config.match_effort and matching and model is not config
             effort_set = _effort_set(config, space, executor, samples) if matching else samples
