@@ -66,7 +66,7 @@ from snac_gym.evaluation.store import RunDirectoryError, RunStore
 
 from snac_gym.common.machine import describe_machine, machine_info
 from snac_gym.common.outputs import write_whole
-from snac_gym.kernels.compiled import evaluator_kernel_modules
+from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, evaluator_kernel_modules
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.sampling import SampleSpace
 
@@ -104,7 +104,7 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             # on: a run at cached knobs, or of the reference alone, does not draw it.
             matching = cached is None and bool(specs)
             on_model = config.match_effort and matching and model is not config
-            effort_set = _effort_set(config, space, executor, samples) if matching else samples
+            effort_set = _effort_set(config, kinematics, space, executor, samples) if matching else samples
             matched_on = samples if on_model else effort_set
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(
                 map(len, samples.values())
@@ -159,16 +159,16 @@ COMPILING = (
 )
 
 
-def announce_compiles(write: Any, modules: tuple[str, ...] | None = None) -> None:
+def announce_compiles(write: Any, modules: tuple[str, ...] = EVALUATOR_KERNEL_MODULES) -> None:
     """Write :data:`COMPILING` (one line) where the kernels of ``modules`` (default: every evaluator kernel's) are not
     in numba's cache.
 
     They compile when the workers start, before the first progress line: a first run would otherwise be silent
     for its first seconds (10-40 s of CPU by machine, shared by the workers: docs/benchmarks.md).
     """
-    from snac_gym.kernels.compiled import EVALUATOR_KERNEL_MODULES, cached_on_disk  # imports numba: a run needs it
+    from snac_gym.kernels.compiled import cached_on_disk  # imports numba: a run needs it
 
-    if not cached_on_disk(EVALUATOR_KERNEL_MODULES if modules is None else modules):
+    if not cached_on_disk(modules):
         write(COMPILING + "\n")
 
 
@@ -241,11 +241,11 @@ def load_samples(
             if not from_file[task]:
                 raise ValueError(f"{config.samples_file} has no {task!r} rows; choose --task accordingly")
         return {task: from_file[task] for task in config.tasks}
-    return _draw(config, space, executor, 0, config.samples)
+    return _draw(config, kinematics, space, executor, 0, config.samples)
 
 
 def _draw(
-    config: EvaluationConfig, space: SampleSpace, executor: Any, first: int, end: int
+    config: EvaluationConfig, kinematics: Kinematics, space: SampleSpace, executor: Any, first: int, end: int
 ) -> dict[str, list[EvaluationSample]]:
     """Samples ``first`` to ``end - 1`` of the seed's stream for every task (each drawn from its own index).
 
@@ -261,7 +261,7 @@ def _draw(
     ]
     drawn: dict[int, list[EvaluationSample]] = {}
     keys: dict[int, str] = {}
-    folder, kinematics = sample_cache.cache_folder(), Kinematics(config.robot)
+    folder = sample_cache.cache_folder()
     if sample_cache.cache_enabled():
         limits = (kinematics.lower_limits, kinematics.upper_limits)
         for index, (robot, _, seed, task, indices) in enumerate(chunks):
@@ -298,7 +298,11 @@ def _sample_set(
 
 
 def _effort_set(
-    config: EvaluationConfig, space: SampleSpace, executor: Any, samples: dict[str, list[EvaluationSample]]
+    config: EvaluationConfig,
+    kinematics: Kinematics,
+    space: SampleSpace,
+    executor: Any,
+    samples: dict[str, list[EvaluationSample]],
 ) -> dict[str, list[EvaluationSample]]:
     """The samples equal effort is matched on: ``samples`` extended along the seed's stream to
     ``effort_samples`` (a sample depends only on its index, so the evaluated ones are its first),
@@ -306,7 +310,7 @@ def _effort_set(
     size = config.effort_set_size
     if size is None:
         return samples
-    more = _draw(config, space, executor, config.samples, size)
+    more = _draw(config, kinematics, space, executor, config.samples, size)
     return {task: samples[task] + more[task] for task in config.tasks}
 
 

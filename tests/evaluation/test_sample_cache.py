@@ -46,7 +46,7 @@ def _config(**changes) -> EvaluationConfig:
 def _draw(config: EvaluationConfig, first: int, end: int, executor=None):
     kinematics, space = runner._checked_setting(config)
     executor = executor if executor is not None else CountingExecutor()
-    return runner._draw(config, space, executor, first, end), executor
+    return runner._draw(config, kinematics, space, executor, first, end), executor
 
 
 def _same_value(a, b) -> bool:

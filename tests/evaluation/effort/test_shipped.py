@@ -65,7 +65,7 @@ def test_the_shipped_knobs_are_the_ones_the_current_code_matches(tmp_path, cache
     kinematics, space = _checked_setting(config)
     with RunStore(config.out, config.manifest(space, specs), resume=False) as store, open_executor(1) as executor:
         samples, _ = _sample_set(config, kinematics, space, executor, store)
-        effort_set = _effort_set(config, space, executor, samples)
+        effort_set = _effort_set(config, kinematics, space, executor, samples)
         assert {task: len(s) for task, s in effort_set.items()} == {"reach": 1000, "track": 1000}
         matcher = EffortMatcher(EvaluationRun(config, store, executor, effort_set, Progress(0, False)))
         reference = next(s for s in specs if s.name == config.effort_reference)
