@@ -3,9 +3,10 @@
 Part 1: each UR arm at the paper's θ₀, one small constant command (the LQR's last command of the UR3e's reach
 demo, 10⁻⁴ to 4·10⁻³ rad/s) held for 500 control periods; the worst |θ̇ − u| at the end, as the env builds the arm,
 then with 200 solver iterations and a residual threshold of 10⁻¹², then without gravity (as the MuJoCo arm's gravity
-compensation and a real arm's controller have it); and the mean wall time of a period each way. Part 2: the reach
-and track demos with lqr on each UR arm (the paper's reference scaled to the arm, ``snac-gym demo --robot R
---controller lqr``) in each engine: the final error.
+compensation and a real arm's controller have it), then with the motors solved directly (``pybullet_solver="dantzig"``,
+the -v1 ids' default); and the mean wall time of a period each way. Part 2: the reach and track demos with lqr on
+each UR arm (the paper's reference scaled to the arm, ``snac-gym demo --robot R --controller lqr``) in each engine,
+PyBullet with each solver: the final error.
 
     python docs/scripts/pybullet_gravity_sag.py
 """
@@ -27,19 +28,22 @@ from snac_gym.references import PAPER_Q0
 from snac_gym.tasks import get_task
 
 COMMAND = np.array([0.00037, -0.00024, -0.00419, -0.00215, 0.00069, 0.0])  # rad/s
-#: Name: (PyBullet's engine parameters, gravity in m/s²).
-SETTINGS: dict[str, tuple[dict[str, float], float]] = {
-    "as built": ({}, 9.81),
-    "200 iterations, residual 1e-12": ({"numSolverIterations": 200, "solverResidualThreshold": 1e-12}, 9.81),
-    "no gravity": ({}, 0.0),
+#: Name: (the arm's ``solver``, PyBullet's engine parameters, gravity in m/s²).
+SETTINGS: dict[str, tuple[str, dict[str, float], float]] = {
+    "as built (-v0)": ("pgs", {}, 9.81),
+    "200 iterations, residual 1e-12": ("pgs", {"numSolverIterations": 200, "solverResidualThreshold": 1e-12}, 9.81),
+    "no gravity": ("pgs", {}, 0.0),
+    "dantzig (-v1)": ("dantzig", {}, 9.81),
 }
+#: The demos' engines: (``physics``, ``pybullet_solver``).
+ENGINES = (("pybullet", "pgs"), ("pybullet", "dantzig"), ("mujoco", "pgs"), ("kinematic", "pgs"))
 
 
 def sag(robot: str, setting: str) -> tuple[float, float]:
     """The worst |θ̇ − u| at the end, and the mean wall time of a control period (µs)."""
-    arm = PyBulletArm(Kinematics(robot), 1.0 / 125.0, 3, meshes=False)
+    solver, parameters, gravity = SETTINGS[setting]
+    arm = PyBulletArm(Kinematics(robot), 1.0 / 125.0, 3, meshes=False, solver=solver)
     client = arm.sim.client
-    parameters, gravity = SETTINGS[setting]
     p.setPhysicsEngineParameter(physicsClientId=client, **parameters)
     p.setGravity(0.0, 0.0, -gravity, physicsClientId=client)
     arm.reset(np.array(PAPER_Q0))
@@ -52,9 +56,14 @@ def sag(robot: str, setting: str) -> tuple[float, float]:
     return float(np.abs(qdot - COMMAND).max()), period
 
 
-def demo_error(robot: str, task: str, physics: str) -> float:
+def demo_error(robot: str, task: str, physics: str, solver: str) -> float:
     spec = get_task(task)
-    env = gym.make(spec.env_id_for(robot), physics=physics, max_episode_steps=spec.horizon_steps(1.0 / 125.0))
+    env = gym.make(
+        spec.env_id_for(robot),
+        physics=physics,
+        pybullet_solver=solver,
+        max_episode_steps=spec.horizon_steps(1.0 / 125.0),
+    )
     policy = make_policy("lqr", env)
     obs, info = env.reset(seed=0, options=spec.demo_options(robot))
     policy.reset(seed=0)
@@ -73,11 +82,12 @@ def main() -> None:
         cells = [sag(robot, name) for name in SETTINGS]
         print(f"| {robot} | " + " | ".join(f"{error:.1e}; {period:.0f}" for error, period in cells) + " |")
     print()
-    engines, tasks = ("pybullet", "mujoco", "kinematic"), ("reach", "track")
-    print("| arm | " + " | ".join(f"{task} final ‖e‖ (mm): " + " / ".join(engines) for task in tasks) + " |")
+    tasks = ("reach", "track")
+    names = " / ".join(physics if physics != "pybullet" else f"PyBullet {solver}" for physics, solver in ENGINES)
+    print("| arm | " + " | ".join(f"{task} final ‖e‖ (mm): {names}" for task in tasks) + " |")
     print("|---|---|---|")
     for robot in UR_MODELS:
-        cells = [" / ".join(f"{demo_error(robot, task, engine) * 1e3:.3f}" for engine in engines) for task in tasks]
+        cells = [" / ".join(f"{demo_error(robot, task, *engine) * 1e3:.3f}" for engine in ENGINES) for task in tasks]
         print(f"| {robot} | " + " | ".join(cells) + " |")
 
 

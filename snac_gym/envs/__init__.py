@@ -40,7 +40,7 @@ ENV_IDS_V1: dict[str, str] = {}
 #: The -v1 goal-conditioned ids and their entry points.
 GOAL_ENV_IDS_V1: dict[str, str] = {}
 #: What a -v1 goal id sets (the goal env's observation is float32 already).
-GOAL_V1_DEFAULTS = {"action_type": "normalized", "finite_observation_bounds": "clip"}
+GOAL_V1_DEFAULTS = {"action_type": "normalized", "finite_observation_bounds": "clip", "pybullet_solver": "dantzig"}
 #: The versions every id is registered in: 0 (physical units, float64) and 1 (RL-ready).
 VERSIONS = (0, 1)
 
@@ -59,7 +59,8 @@ def register_envs() -> None:
     ``snac_gym/<Robot><Task>-v0`` (:mod:`snac_gym.envs.ids`) runs the task's env class with
     ``robot=<robot>``; ``snac_gym/<Robot><Task>Goal-v0`` its :class:`~snac_gym.envs.goal.GoalTaskEnv`.
     Each has a ``-v1`` beside it, the same env with the RL-ready defaults (normalized float32
-    actions, float32 observations clipped into finite bounds: :data:`~snac_gym.envs.core.V1_DEFAULTS`);
+    actions, float32 observations clipped into finite bounds, PyBullet's motors solved exactly:
+    :data:`~snac_gym.envs.core.V1_DEFAULTS`);
     any of them can still be given to ``gym.make``, which overrides it.
     Each id's episode length is its task's ``episode_steps``, registered as ``max_episode_steps``
     (the ``TimeLimit`` wrapper ``gym.make`` adds; ``gym.make(id, max_episode_steps=N)`` changes
@@ -115,8 +116,8 @@ def _register(task: Task[Any], robot: str, goal: bool, version: int = 0) -> None
 
 def _register_coarse_reach(robot: str, version: int = 0) -> None:
     """Register the coarse reach preset on ``robot`` (:data:`snac_gym.envs.goal.COARSE_REACH`) in ``version``
-    unless it exists (its actions are normalized in both; -v1 bounds θ̇, clips the observation and, as
-    panda-gym's PandaReach, ends the episode on success)."""
+    unless it exists (its actions are normalized in both; -v1 bounds θ̇, clips the observation, solves PyBullet's
+    motors exactly and, as panda-gym's PandaReach, ends the episode on success)."""
     table = GOAL_ENV_IDS if version == 0 else GOAL_ENV_IDS_V1
     for action in ("joint", "cartesian"):
         env_id = coarse_reach_id(robot, action, version)
@@ -126,7 +127,7 @@ def _register_coarse_reach(robot: str, version: int = 0) -> None:
         REGISTERED_IDS[env_id] = RegisteredId(robot, "reach", True, version)
         kwargs: dict[str, Any] = {"robot": robot} if action == "joint" else {"robot": robot, "action": action}
         if version == 1:
-            kwargs.update(finite_observation_bounds="clip", terminate_on_success=True)
+            kwargs.update(finite_observation_bounds="clip", terminate_on_success=True, pybullet_solver="dantzig")
         gym.register(
             id=env_id,
             entry_point=table[env_id],

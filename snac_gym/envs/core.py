@@ -42,7 +42,7 @@ from snac_gym.envs.task_core import TaskEnvCore
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.model.robots import get_robot
 from snac_gym.physics import Arm, make_arm, scene_of
-from snac_gym.physics.base import check_image_size, check_timing
+from snac_gym.physics.base import check_image_size, check_pybullet_solver, check_timing
 from snac_gym.physics.scene import CameraOptions, default_render_every
 from snac_gym.references import MAX_REFERENCE_SPEED, Reference
 from snac_gym.sampling import SampleSpace
@@ -121,6 +121,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         observation_dtype: Any = np.float64,
         finite_observation_bounds: bool | str = False,
         physics: str = "pybullet",
+        pybullet_solver: str = "pgs",
         render_every: int | None = None,
         task: Task[Any] | str | None = None,
         backend: str | None = None,
@@ -129,6 +130,7 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         arguments = {name: value for name, value in locals().items() if name != "self" and not name.startswith("__")}
         task = self._resolve_task(task)
         physics = physics_argument(physics, backend)
+        pybullet_solver = check_pybullet_solver(pybullet_solver)  # every engine, so that a typo is not ignored
         dt, n_substeps = check_timing(dt, n_substeps)  # every engine, the kinematic one too
         if max_steps is not None:
             max_steps = whole_number("max_steps", max_steps, 1, MAX_EPISODE_STEPS)
@@ -170,6 +172,9 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         self.observation_dtype = obs_dtype
         #: The arm's model: ``"pybullet"``, ``"kinematic"`` or ``"mujoco"`` (:data:`~snac_gym.physics.PHYSICS`).
         self.physics = physics
+        #: How the PyBullet arm's motors are solved (:data:`~snac_gym.physics.base.PYBULLET_SOLVERS`; -v0 ``"pgs"``,
+        #: -v1 ``"dantzig"``); read by the PyBullet engine only.
+        self.pybullet_solver = pybullet_solver
         self._build_arm(physics, n_substeps, render_every)
         # The action's checks, set up once: the velocity limits are a constant of the env (read-only).
         self.velocity_limits.setflags(write=False)
@@ -213,7 +218,9 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         # Without a render mode, or "human" with no display, nothing draws the arm: its meshes (0.3 s of every env's
         # construction) are not loaded.
         meshes = self.render_mode is not None and not self._headless_human
-        self.arm: Arm = make_arm(physics, self.kinematics, self.dt, n_substeps, gui=gui, meshes=meshes)
+        self.arm: Arm = make_arm(
+            physics, self.kinematics, self.dt, n_substeps, gui=gui, meshes=meshes, pybullet_solver=self.pybullet_solver
+        )
         self.dt = self.arm.dt
         #: The PyBullet world (renders; ``None`` for the kinematic and MuJoCo arms).
         self.sim = getattr(self.arm, "sim", None)

@@ -91,8 +91,9 @@ class GoalTaskEnv(IdRobotCheck, gym.Env):
         cartesian_speed: The Cartesian action's speed at ``|a| = 1``, m/s.
         finite_observation_bounds: The task env's (``True``: θ̇ unbounded, the -v0 ids; ``"clip"``: every
             field bounded, θ̇ by the velocity limits, and the observation clipped into the bounds, the -v1 ids).
-        **env_kwargs: Arguments of the task env (``robot``, ``dt``, ``physics``, ``action_type``,
-            ``max_steps``, ...), except ``reward_type``, ``terminate_on_success`` and ``observation_dtype``.
+        **env_kwargs: Arguments of the task env (``robot``, ``dt``, ``physics``, ``pybullet_solver`` (the -v1 ids:
+            ``"dantzig"``), ``action_type``, ``max_steps``, ...), except ``reward_type``, ``terminate_on_success``
+            and ``observation_dtype``.
 
     Raises:
         ValueError: On an unknown reward type or a task env argument this env sets itself.

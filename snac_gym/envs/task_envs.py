@@ -101,6 +101,7 @@ class ReachEnv(URTaskEnv):
     |------------------------|----------------|----------------------------------------------------|
     | ``robot``              | the id's       | fixed by the id; another robot raises ``ValueError`` naming its id |
     | ``physics``            | ``"pybullet"`` | ``"pybullet"`` (velocity motors), ``"mujoco"`` (the same URDF in MuJoCo, velocity servos; the ``mujoco`` extra) or ``"kinematic"`` (θₖ₊₁ = θₖ + uₖΔt exactly, θ̇ the held command; no rendering) |
+    | ``pybullet_solver``    | -v0 ``"pgs"``, -v1 ``"dantzig"`` | how PyBullet solves its motors: ``"pgs"`` (its iterated default; under gravity each joint lags its command a little, docs/physics.md) or ``"dantzig"`` (solved directly: θ̇ = u wherever the motor is within its force bound); the other engines ignore it |
     | ``dt``                 | ``1/125``      | control period, s, in (0, 1]                       |
     | ``n_substeps``         | ``3``          | physics steps per control period                   |
     | ``action_type``        | -v0 ``"velocity"``, -v1 ``"normalized"`` | ``"velocity"`` (rad/s) or ``"normalized"`` ([−1, 1]) |
@@ -126,8 +127,9 @@ class ReachEnv(URTaskEnv):
       ``gym.make(id, max_steps=N)`` is deprecated for ``max_episode_steps=N`` and no longer
       lengthens the ``TimeLimit``.
     * v1 (unreleased): RL-ready defaults, the same env otherwise: ``action_type="normalized"``,
-      ``observation_dtype="float32"``, ``finite_observation_bounds="clip"``. v0 keeps physical units
-      (rad/s, float64, ±inf bounds) and stays registered.
+      ``observation_dtype="float32"``, ``finite_observation_bounds="clip"``, ``pybullet_solver="dantzig"``
+      (PyBullet's motors follow their commands without v0's lag under gravity). v0 keeps physical units
+      (rad/s, float64, ±inf bounds) and PyBullet's iterated motor solve, and stays registered.
     """  # noqa: E501
 
     task_spec = get_task("reach")
@@ -190,7 +192,7 @@ class EllipseTrackEnv(URTaskEnv):
 
     ## Arguments
     ``gym.make("snac_gym/UR10EllipseTrack-v0", **kwargs)``: the arguments of :class:`ReachEnv`
-    (``robot`` fixed by the id, ``physics``, ``dt``, ``n_substeps``, ``action_type``,
+    (``robot`` fixed by the id, ``physics``, ``pybullet_solver``, ``dt``, ``n_substeps``, ``action_type``,
     ``observation_dtype``, ``finite_observation_bounds``, ``reward_type``, ``Q``, ``R``,
     ``sample_space``, ``render_mode``, ``render_width``, ``render_height``, ``render_every``,
     ``max_steps``), with ``success_tolerance`` 5e-3 m by default; ``terminate_on_success`` has no
@@ -203,8 +205,9 @@ class EllipseTrackEnv(URTaskEnv):
       ``gym.make(id, max_steps=N)`` is deprecated for ``max_episode_steps=N`` and no longer
       lengthens the ``TimeLimit``.
     * v1 (unreleased): RL-ready defaults, the same env otherwise: ``action_type="normalized"``,
-      ``observation_dtype="float32"``, ``finite_observation_bounds="clip"``. v0 keeps physical units
-      (rad/s, float64, ±inf bounds) and stays registered.
+      ``observation_dtype="float32"``, ``finite_observation_bounds="clip"``, ``pybullet_solver="dantzig"``
+      (PyBullet's motors follow their commands without v0's lag under gravity). v0 keeps physical units
+      (rad/s, float64, ±inf bounds) and PyBullet's iterated motor solve, and stays registered.
     """
 
     task_spec = get_task("track")

@@ -8,12 +8,23 @@ default), :mod:`~snac_gym.physics.kinematic` (the paper's exact model) and :mod:
 from __future__ import annotations
 
 from snac_gym.model.kinematics import Kinematics
-from snac_gym.physics.base import PHYSICS, SIMULATED, Arm, ArmBatch, ArmList, check_physics, scene_of
+from snac_gym.physics.base import (
+    PHYSICS,
+    PYBULLET_SOLVERS,
+    SIMULATED,
+    Arm,
+    ArmBatch,
+    ArmList,
+    check_physics,
+    check_pybullet_solver,
+    scene_of,
+)
 from snac_gym.physics.bullet import PyBulletArm, PyBulletArmBatch
 from snac_gym.physics.kinematic import KinematicArm
 
 __all__ = [
     "PHYSICS",
+    "PYBULLET_SOLVERS",
     "SIMULATED",
     "Arm",
     "ArmBatch",
@@ -22,25 +33,34 @@ __all__ = [
     "PyBulletArm",
     "PyBulletArmBatch",
     "check_physics",
+    "check_pybullet_solver",
     "make_arm",
     "scene_of",
 ]
 
 
 def make_arm(
-    physics: str, kinematics: Kinematics, dt: float, n_substeps: int, gui: bool = False, meshes: bool = True
+    physics: str,
+    kinematics: Kinematics,
+    dt: float,
+    n_substeps: int,
+    gui: bool = False,
+    meshes: bool = True,
+    pybullet_solver: str = "pgs",
 ) -> Arm:
-    """The arm of ``physics`` (one of :data:`PHYSICS`); ``meshes=False`` for a PyBullet arm that is never drawn.
+    """The arm of ``physics`` (one of :data:`PHYSICS`); ``meshes=False`` for a PyBullet arm that is never drawn,
+    ``pybullet_solver`` how a PyBullet arm's motors are solved (:data:`PYBULLET_SOLVERS`; the other engines have none).
 
     Raises:
         ValueError: On an unknown model.
         MissingExtraError: For ``"mujoco"`` without mujoco installed.
     """
     check_physics(physics)
+    check_pybullet_solver(pybullet_solver)
     if physics == "kinematic":
         return KinematicArm(kinematics, dt)
     if physics == "mujoco":
         from snac_gym.physics.mujoco import MuJoCoArm  # needs the mujoco extra
 
         return MuJoCoArm(kinematics, dt, n_substeps)
-    return PyBulletArm(kinematics, dt, n_substeps, gui=gui, meshes=meshes)
+    return PyBulletArm(kinematics, dt, n_substeps, gui=gui, meshes=meshes, solver=pybullet_solver)

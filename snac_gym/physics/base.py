@@ -13,6 +13,10 @@ from snac_gym.common.validation import real_number, whole_number
 PHYSICS = ("pybullet", "kinematic", "mujoco")
 #: Those that simulate the arm (the lockstep engine's arms, ``snac-gym bench``): all but the exact model.
 SIMULATED = ("pybullet", "mujoco")
+#: How PyBullet solves its velocity motors each physics step (``pybullet_solver=`` of the envs): ``"pgs"``, its
+#: default projected Gauss-Seidel, iterated up to a residual, which leaves a steady lag under gravity (docs/physics.md);
+#: ``"dantzig"``, its MLCP solver's direct (Dantzig) pivoting, which meets every motor below its force bound exactly.
+PYBULLET_SOLVERS = ("pgs", "dantzig")
 
 
 def check_physics(physics: Any, allowed: tuple[str, ...] = PHYSICS, what: str = "physics") -> str:
@@ -24,6 +28,16 @@ def check_physics(physics: Any, allowed: tuple[str, ...] = PHYSICS, what: str = 
     if not isinstance(physics, str) or physics not in allowed:
         raise ValueError(f"{what} must be one of {allowed}, got {physics!r}")
     return physics
+
+
+def check_pybullet_solver(solver: Any) -> str:
+    """``solver`` if it is one of :data:`PYBULLET_SOLVERS` (checked whatever the engine, so that a typo is not
+    ignored where it would not be read).
+
+    Raises:
+        ValueError: Naming ``pybullet_solver``, the value and the choices.
+    """
+    return check_physics(solver, PYBULLET_SOLVERS, "pybullet_solver")
 
 
 #: Largest rendered image side, pixels (TinyRenderer allocates width x height buffers in C++).

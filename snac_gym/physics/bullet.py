@@ -13,7 +13,7 @@ import numpy as np
 
 from snac_gym.common._quiet import quiet_output
 from snac_gym.model.kinematics import Kinematics, resolved_urdf_text
-from snac_gym.physics.base import _stacked, check_image_size, check_timing
+from snac_gym.physics.base import _stacked, check_image_size, check_pybullet_solver, check_timing
 from snac_gym.physics.meshes import visual_meshes_as_obj
 from snac_gym.physics.scene import (
     CUBOID_COLOUR,
@@ -51,10 +51,15 @@ class PyBulletSim:
         n_substeps: Physics steps per control period (physics step ``dt / n_substeps``).
         gui: Open the PyBullet GUI (needs a display) instead of the headless DIRECT client.
         gravity: Gravity along −z, m/s².
+        solver: How the motors are solved (:data:`~snac_gym.physics.base.PYBULLET_SOLVERS`): ``"pgs"``, PyBullet's
+            default, or ``"dantzig"``, its MLCP solver with Dantzig's direct pivoting.
     """
 
-    def __init__(self, dt: float, n_substeps: int, gui: bool = False, gravity: float = 9.81) -> None:
+    def __init__(
+        self, dt: float, n_substeps: int, gui: bool = False, gravity: float = 9.81, solver: str = "pgs"
+    ) -> None:
         self.dt, self.n_substeps = check_timing(dt, n_substeps)
+        self.solver = check_pybullet_solver(solver)
         if gui and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
             # PyBullet would call exit() on a failed GUI connection, killing the caller.
             raise RuntimeError(
@@ -78,6 +83,13 @@ class PyBulletSim:
             physicsClientId=self.client,
         )
         p.setGravity(0.0, 0.0, -gravity, physicsClientId=self.client)
+        if solver == "dantzig":
+            # An iterated solve stops at a residual and leaves each motor a steady lag under gravity (the arm's weight);
+            # the direct solve meets every motor below its force bound to rounding, so a joint follows θ̇ = u.
+            with quiet_output():  # PyBullet prints the switch ("switched solver")
+                p.setPhysicsEngineParameter(
+                    constraintSolverType=p.CONSTRAINT_SOLVER_LCP_DANTZIG, physicsClientId=self.client
+                )
 
     def load_urdf_text(self, urdf_text: str, flags: int = 0) -> int:
         """Load a URDF given as text (a temporary file is written and removed), base fixed."""
@@ -240,12 +252,19 @@ class PyBulletArm:
         meshes: Load the URDF's meshes; ``False`` for an arm that is never drawn: it moves the same
             (:func:`~snac_gym.physics.bullet.without_meshes`) and loads in 3 ms instead of 30-50 ms (0.2 s from
             the ``.dae`` files themselves, the first time their OBJ copies are written 0.6 s).
+        solver: How the motors are solved (:class:`PyBulletSim`).
     """
 
     def __init__(
-        self, kinematics: Kinematics, dt: float, n_substeps: int, gui: bool = False, meshes: bool = True
+        self,
+        kinematics: Kinematics,
+        dt: float,
+        n_substeps: int,
+        gui: bool = False,
+        meshes: bool = True,
+        solver: str = "pgs",
     ) -> None:
-        self.sim = PyBulletSim(dt, n_substeps, gui=gui)
+        self.sim = PyBulletSim(dt, n_substeps, gui=gui, solver=solver)
         self.dt = self.sim.dt
         self.body = SimulatedArm(self.sim, kinematics, meshes=meshes or gui)
         self.save_initial_state()
