@@ -6,7 +6,8 @@ then with 200 solver iterations and a residual threshold of 10⁻¹², then with
 compensation and a real arm's controller have it), then with the motors solved directly (``pybullet_solver="dantzig"``,
 the -v1 ids' default); and the mean wall time of a period each way. Part 2: the reach and track demos with lqr on
 each UR arm (the paper's reference scaled to the arm, ``snac-gym demo --robot R --controller lqr``) in each engine,
-PyBullet with each solver: the final error.
+PyBullet with each solver: the final error. Part 3: the UR10 reach env under the smooth random command of ``snac-gym
+bench --tracking`` (five seeds, 1000 periods each) with each solver: how far it departs from the exact model.
 
     python docs/scripts/pybullet_gravity_sag.py
 """
@@ -21,6 +22,7 @@ import pybullet as p
 
 import snac_gym  # noqa: F401  (registers the ids)
 from snac_gym import make_policy
+from snac_gym.apps.bench import tracking_errors
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.model.ur_models import UR_MODELS
 from snac_gym.physics.bullet import PyBulletArm
@@ -89,6 +91,20 @@ def main() -> None:
     for robot in UR_MODELS:
         cells = [" / ".join(f"{demo_error(robot, task, *engine) * 1e3:.3f}" for engine in ENGINES) for task in tasks]
         print(f"| {robot} | " + " | ".join(cells) + " |")
+    print()
+    print(
+        "| UR10Reach-v0, smooth command | max abs(θ̇ − u) (rad/s) | max abs(θ − θ_kin) (rad) | end-effector drift (mm) |"
+    )
+    print("|---|---|---|---|")
+    for solver in ("pgs", "dantzig"):
+        rows = [
+            tracking_errors("snac_gym/UR10Reach-v0", "pybullet", "smooth", seed, solver=solver) for seed in range(5)
+        ]
+        worst = {key: max(row[key] for row in rows) for key in rows[0]}
+        print(
+            f"| {solver} | {worst['max_velocity_error']:.2e} | {worst['max_joint_drift']:.2e} | "
+            f"{worst['ee_drift'] * 1e3:.3g} |"
+        )
 
 
 if __name__ == "__main__":

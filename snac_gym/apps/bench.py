@@ -261,8 +261,11 @@ def random_command(
     raise ValueError(f"command must be one of {TRACKING_COMMANDS}, got {kind!r}")
 
 
-def tracking_errors(env_id: str, physics: str, kind: str, seed: int, steps: int = 1000) -> dict[str, float]:
-    """How far one episode of ``physics`` departs from the exact kinematic model under a random command.
+def tracking_errors(
+    env_id: str, physics: str, kind: str, seed: int, steps: int = 1000, solver: str | None = None
+) -> dict[str, float]:
+    """How far one episode of ``physics`` departs from the exact kinematic model under a random command
+    (``solver``: the env's ``pybullet_solver``, its id's default where ``None``).
 
     The env starts from its seeded random pose; the same commands are integrated exactly
     (θₖ₊₁ = θₖ + uₖΔt, :func:`~snac_gym.model.kinematics.joint_step`) from the same pose.
@@ -274,7 +277,8 @@ def tracking_errors(env_id: str, physics: str, kind: str, seed: int, steps: int 
     """
     import snac_gym  # noqa: F401  (registers the envs)
 
-    env = cast("URTaskEnv", gym.make(env_id, physics=physics).unwrapped)
+    solver_argument = {} if solver is None else {"pybullet_solver": solver}
+    env = cast("URTaskEnv", gym.make(env_id, physics=physics, **solver_argument).unwrapped)
     try:
         obs, _ = env.reset(seed=seed)
         m = env.kinematics.n_joints
