@@ -277,7 +277,7 @@ def tracking_errors(
     """
     import snac_gym  # noqa: F401  (registers the envs)
 
-    solver_argument = {} if solver is None else {"pybullet_solver": solver}
+    solver_argument: dict[str, Any] = {} if solver is None else {"pybullet_solver": solver}
     env = cast("URTaskEnv", gym.make(env_id, physics=physics, **solver_argument).unwrapped)
     try:
         obs, _ = env.reset(seed=seed)

@@ -70,7 +70,10 @@ class DemoResult:
 
         lines = [
             f"{self.task} demo, controller {self.controller!r}, seed {self.seed}, {m.steps} steps"
-            + (f", {self.log.attrs['engine']} engine" if "engine" in self.log.attrs else ""),
+            + (f", {self.log.attrs['engine']} engine" if "engine" in self.log.attrs else "")
+            + (
+                f" (pybullet_solver={self.log.attrs['pybullet_solver']})" if "pybullet_solver" in self.log.attrs else ""
+            ),
             f"  final error                 {m.final_error * 1e3:.4f} mm",
             f"  time to first reach 1 mm    {seconds(m.time_to_1mm)}",
             f"  fraction of steps eᵀė ≤ 0   {m.descent_fraction:.4f}"
@@ -130,6 +133,14 @@ def _check_demo_arguments(seed: Any, steps: int | None, duration: float | None, 
         raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
 
 
+def _record_engine(log: pd.DataFrame, engine: str, pybullet_solver: str) -> None:
+    """The engine in ``log.attrs``, and PyBullet's motor solver where it is not the -v0 ids' (whose logs and summaries
+    stay as they were)."""
+    log.attrs["engine"] = engine
+    if engine == "pybullet" and pybullet_solver != "pgs":
+        log.attrs["pybullet_solver"] = pybullet_solver
+
+
 def run_demo(
     task: str = "reach",
     controller: str = "snac",
@@ -143,6 +154,7 @@ def run_demo(
     robot: str = "ur10",
     model_error: str | None = None,
     engine: str = "pybullet",
+    pybullet_solver: str = "pgs",
 ) -> DemoResult:
     """Run the paper's ``task`` demo with ``controller`` and write its figures and log.
 
@@ -162,6 +174,9 @@ def run_demo(
             the simulated arm keeps the true one.
         engine: The arm's model (:data:`~snac_gym.physics.PHYSICS`): ``"pybullet"`` (the env's default),
             ``"mujoco"`` (the mujoco extra) or ``"kinematic"`` (the paper's exact θₖ₊₁ = θₖ + uₖΔt).
+        pybullet_solver: How the PyBullet arm's motors are solved (the env's ``pybullet_solver``): ``"pgs"``, the
+            -v0 ids' (under gravity each joint a little behind its command), or ``"dantzig"``, the -v1 ids' (θ̇ = u
+            wherever a motor is within its force bound). Recorded in the log and the summary where not ``"pgs"``.
 
     Returns:
         The :class:`DemoResult`. Files in ``out_dir``, prefixed ``<task>_<controller>_``:
@@ -172,7 +187,7 @@ def run_demo(
     spec = get_task(task)
     options = spec.demo_options(robot)
     _check_demo_arguments(seed, steps, duration, out_dir)
-    env = make_task_env(spec, robot, physics=engine)
+    env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver)
     dt = env.unwrapped.dt
     if duration is not None:
         steps = round(duration / dt)
@@ -184,7 +199,7 @@ def run_demo(
         raise ValueError(f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}")
     if steps > env.spec.max_episode_steps:
         env.close()
-        env = make_task_env(spec, robot, physics=engine, max_episode_steps=steps)
+        env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver, max_episode_steps=steps)
     kinematics = env.unwrapped.kinematics
     limits = (kinematics.lower_limits, kinematics.upper_limits)
     try:
@@ -195,7 +210,7 @@ def run_demo(
         exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
         if out_dir is not None and partial is not None and len(partial):
             partial.attrs["controller"] = controller
-            partial.attrs["engine"] = engine
+            _record_engine(partial, engine, pybullet_solver)
             status = {
                 "complete": False,
                 "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
@@ -222,7 +237,7 @@ def run_demo(
     finally:
         env.close()
     log.attrs["controller"] = controller
-    log.attrs["engine"] = engine
+    _record_engine(log, engine, pybullet_solver)
     if model_error is not None:
         log.attrs["model_error"] = model_error
     return write_demo_outputs(
@@ -291,6 +306,7 @@ def write_demo_outputs(
         "seed": seed,
         "policy_kwargs": policy_kwargs or {},
         **({"engine": log.attrs["engine"]} if "engine" in log.attrs else {}),  # a demo's; a real run has its connection
+        **({"pybullet_solver": log.attrs["pybullet_solver"]} if "pybullet_solver" in log.attrs else {}),
         **(status or {"complete": True}),
         **finite,
     }

@@ -28,6 +28,7 @@ USAGE_ERRORS = [
     (["demo", "--task", "orbit"], "--task"),  # _check_task: a typer.BadParameter in the command body
     (["demo", "--steps", "0"], "--steps"),
     (["demo", "--engine", "bullet"], "--engine"),
+    (["demo", "--pybullet-solver", "lcp"], "--pybullet-solver"),
     (["demo", "--steps", "1", "--duration", "1"], "--steps"),  # raised in the body, after the demo's imports
     (["demo", "--bogus-option", "1"], "--bogus-option"),
     (["plot", "{out}/reach_snac_log.parquet"], "'LOG'"),  # no such log

@@ -14,7 +14,7 @@ import typer
 from snac_gym.common._signals import SignalGuard, exit_code
 from snac_gym.model.robots import robot_names
 from snac_gym.model.ur_models import UR_MODELS
-from snac_gym.physics.base import PHYSICS
+from snac_gym.physics.base import PHYSICS, PYBULLET_SOLVERS
 from snac_gym.policies import available_policies
 from snac_gym.tasks import task_names
 
@@ -22,6 +22,7 @@ __all__ = [
     "UR_ARMS",
     "check_controller",
     "check_engine",
+    "check_solver",
     "check_task",
     "check_ur_arm",
     "interrupted",
@@ -82,6 +83,14 @@ def check_engine(engine: str) -> None:
     """Refuse an ``--engine`` that names no arm model (:data:`~snac_gym.physics.PHYSICS`)."""
     if engine not in PHYSICS:
         raise typer.BadParameter(f"must be one of {list(PHYSICS)}, got {engine!r}", param_hint="--engine")
+
+
+def check_solver(solver: str) -> None:
+    """Refuse a ``--pybullet-solver`` that names no solver (:data:`~snac_gym.physics.base.PYBULLET_SOLVERS`)."""
+    if solver not in PYBULLET_SOLVERS:
+        raise typer.BadParameter(
+            f"must be one of {list(PYBULLET_SOLVERS)}, got {solver!r}", param_hint="--pybullet-solver"
+        )
 
 
 def check_ur_arm(robot: str) -> None:

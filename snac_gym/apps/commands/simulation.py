@@ -11,6 +11,7 @@ import typer
 from snac_gym.apps.commands.common import (
     check_controller,
     check_engine,
+    check_solver,
     check_task,
     interrupted,
     registered_robots,
@@ -135,11 +136,18 @@ def demo(
         help="The arm's model: pybullet (the env's default), mujoco (the mujoco extra) or kinematic (the paper's "
         "exact θ += uΔt, as evaluate's default).",
     ),
+    pybullet_solver: str = typer.Option(
+        "pgs",
+        "--pybullet-solver",
+        help="How PyBullet solves its motors: pgs (the -v0 ids' iterated solve; under gravity each joint lags its "
+        "command a little) or dantzig (the -v1 ids': θ̇ = u wherever a motor is within its force bound).",
+    ),
 ) -> None:
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
     check_task(task)
     check_controller(controller)
     check_engine(engine)
+    check_solver(pybullet_solver)
     if steps is not None and duration is not None:
         raise typer.BadParameter("give --steps or --duration, not both", param_hint="--steps")
     # start-up time: the demo loads numba, scipy and pandas (after the checks: a usage error comes at once)
@@ -159,6 +167,7 @@ def demo(
             robot=robot,
             model_error=model_error,
             engine=engine,
+            pybullet_solver=pybullet_solver,
         )
     except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
         typer.echo(f"error: {exc}", err=True)
