@@ -59,7 +59,7 @@ def register_envs() -> None:
     ``snac_gym/<Robot><Task>-v0`` (:mod:`snac_gym.envs.ids`) runs the task's env class with
     ``robot=<robot>``; ``snac_gym/<Robot><Task>Goal-v0`` its :class:`~snac_gym.envs.goal.GoalTaskEnv`.
     Each has a ``-v1`` beside it, the same env with the RL-ready defaults (normalized float32
-    actions, float32 observations clipped into finite bounds, PyBullet's motors solved exactly:
+    actions, float32 observations clipped into finite bounds, PyBullet's motors solved directly:
     :data:`~snac_gym.envs.core.V1_DEFAULTS`);
     any of them can still be given to ``gym.make``, which overrides it.
     Each id's episode length is its task's ``episode_steps``, registered as ``max_episode_steps``
@@ -117,7 +117,7 @@ def _register(task: Task[Any], robot: str, goal: bool, version: int = 0) -> None
 def _register_coarse_reach(robot: str, version: int = 0) -> None:
     """Register the coarse reach preset on ``robot`` (:data:`snac_gym.envs.goal.COARSE_REACH`) in ``version``
     unless it exists (its actions are normalized in both; -v1 bounds θ̇, clips the observation, solves PyBullet's
-    motors exactly and, as panda-gym's PandaReach, ends the episode on success)."""
+    motors directly and, as panda-gym's PandaReach, ends the episode on success)."""
     table = GOAL_ENV_IDS if version == 0 else GOAL_ENV_IDS_V1
     for action in ("joint", "cartesian"):
         env_id = coarse_reach_id(robot, action, version)

@@ -48,7 +48,7 @@ OBSERVATION_DTYPES = (np.dtype(np.float64), np.dtype(np.float32))
 #: (``True``), or every field bounded and the observation clipped into the bounds (``"clip"``, the -v1 default).
 OBSERVATION_BOUNDS = (False, True, "clip")
 #: The defaults of the -v1 ids (:func:`snac_gym.envs.register_envs`): normalized float32 actions,
-#: float32 observations with finite bounds on every field, PyBullet's motors solved exactly (docs/physics.md). The
+#: float32 observations with finite bounds on every field, PyBullet's motors solved directly (docs/physics.md). The
 #: -v0 ids keep the constructor's defaults.
 V1_DEFAULTS: Mapping[str, Any] = MappingProxyType(
     {

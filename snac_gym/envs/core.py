@@ -121,11 +121,11 @@ class URTaskEnv(IdRobotCheck, TaskEnvCore):
         observation_dtype: Any = np.float64,
         finite_observation_bounds: bool | str = False,
         physics: str = "pybullet",
-        pybullet_solver: str = "pgs",
         render_every: int | None = None,
         task: Task[Any] | str | None = None,
         backend: str | None = None,
         cost: CostConvention | None = None,
+        pybullet_solver: str = "pgs",
     ) -> None:
         arguments = {name: value for name, value in locals().items() if name != "self" and not name.startswith("__")}
         task = self._resolve_task(task)
