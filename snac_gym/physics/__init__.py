@@ -49,14 +49,14 @@ def make_arm(
     pybullet_solver: str = "pgs",
 ) -> Arm:
     """The arm of ``physics`` (one of :data:`PHYSICS`); ``meshes=False`` for a PyBullet arm that is never drawn,
-    ``pybullet_solver`` how a PyBullet arm's motors are solved (:data:`PYBULLET_SOLVERS`; the other engines have none).
+    ``pybullet_solver`` how a PyBullet arm's motors are solved (:data:`PYBULLET_SOLVERS`, checked by the arm; the env
+    checks it whatever the engine, and the other engines have none).
 
     Raises:
         ValueError: On an unknown model.
         MissingExtraError: For ``"mujoco"`` without mujoco installed.
     """
     check_physics(physics)
-    check_pybullet_solver(pybullet_solver)
     if physics == "kinematic":
         return KinematicArm(kinematics, dt)
     if physics == "mujoco":

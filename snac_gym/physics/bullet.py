@@ -59,7 +59,7 @@ class PyBulletSim:
         self, dt: float, n_substeps: int, gui: bool = False, gravity: float = 9.81, solver: str = "pgs"
     ) -> None:
         self.dt, self.n_substeps = check_timing(dt, n_substeps)
-        self.solver = check_pybullet_solver(solver)
+        check_pybullet_solver(solver)  # before the client: a bad value connects nothing
         if gui and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
             # PyBullet would call exit() on a failed GUI connection, killing the caller.
             raise RuntimeError(
