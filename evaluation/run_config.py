@@ -413,6 +413,10 @@ def _check_effort(config: EvaluationConfig) -> None:
 
 def _check_execution(config: EvaluationConfig) -> None:
     """Where and in what pieces the jobs run: workers, chunk size."""
+    if config.ray_address is not None and not config.ray_address.strip():  # else read as "no Ray" without a word
+        raise ValueError(
+            "ray_address must be 'local' or a Ray cluster's address ('auto', 'ray://host:10001'), got an empty string"
+        )
     local = config.ray_address in (None, "local")  # a cluster's size is its own
     if config.workers < 1 or (local and config.workers > max_workers()):
         raise ValueError(

@@ -31,8 +31,10 @@ USAGE_ERRORS = [
     (["demo", "--pybullet-solver", "lcp"], "--pybullet-solver"),
     (["demo", "--steps", "1", "--duration", "1"], "--steps"),  # raised in the body, after the demo's imports
     (["demo", "--bogus-option", "1"], "--bogus-option"),
+    (["demo", "--out", ""], "--out"),  # Path("") would be the current folder
     (["plot", "{out}/reach_snac_log.parquet"], "'LOG'"),  # no such log
     (["plot", "--bogus-option", "1"], "--bogus-option"),
+    (["plot", ""], "'LOG'"),
     (["real", "--robot", "panda"], "--robot"),  # _check_ur_arm, in the body
     (["real", "--rt-priority", "200"], "--rt-priority"),
     (["real", "--backend", "rtde", "--connection", "sim"], "--connection"),  # the deprecated name's clash

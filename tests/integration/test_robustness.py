@@ -196,6 +196,7 @@ def test_missing_samples_file_and_corrupt_run_json_are_one_line_errors(tmp_path)
         (["--effort-target", "1.5", "--effort-statistic", "median-peak"], "statistic is at most 1"),
         (["--workers", "100000"], "workers must be between 1 and "),  # the bound: test_workers_are_bounded_by_the_cpus
         (["--ray", "ray://"], "use 'local', 'auto', HOST:PORT"),
+        (["--ray", ""], "--ray must be 'local' or a Ray cluster's address"),  # not read as "no Ray"
     ],
 )
 def test_bad_evaluate_options_are_one_line_errors(tmp_path, arguments, message):
@@ -204,6 +205,35 @@ def test_bad_evaluate_options_are_one_line_errors(tmp_path, arguments, message):
         base += ["--out", str(tmp_path / "out")]
     _one_line_error(_cli(*base, *arguments), message)
     assert not (tmp_path / "out" / "run.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("arguments", "option"),
+    [
+        (["demo", "--out", ""], "--out"),
+        (["demo", "--out", " "], "--out"),
+        (["real", "--connection", "sim", "--out", ""], "--out"),
+        (["plot", ""], "'LOG'"),
+        (["plot", "demo_out", "--out", ""], "--out"),
+        (["train-ppo", "--task", "reach", "--out", ""], "--out"),
+        (["train-ppo", "--task", "reach", "--out", "run", "--config", ""], "--config"),
+        (["train-ppo", "--task", "reach", "--out", "run", "--init-from", ""], "--init-from"),
+        (["evaluate", "--samples-file", ""], "--samples-file"),
+        (["evaluate", "--export-samples", ""], "--export-samples"),
+    ],
+)
+def test_an_empty_path_is_refused_naming_its_option_not_taken_for_the_current_folder(
+    tmp_path, monkeypatch, arguments, option
+):
+    """``Path("")`` is ``.``: an unset shell variable (``--out "$OUT"``) would write into the current folder."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "demo_out").mkdir()  # plot's LOG, so that only the --out given is wrong
+    result = _cli(*arguments)
+    assert result.exit_code == 2, result.output
+    assert f"Invalid value for {option}: must name " in result.output
+    assert "got an empty string" in result.output
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["demo_out"]
+    assert not any((tmp_path / "demo_out").iterdir())
 
 
 def test_an_out_that_is_a_file_or_not_writable_is_a_one_line_error(tmp_path):

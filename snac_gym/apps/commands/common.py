@@ -7,7 +7,10 @@ several commands take, and the one-line report of a stop signal.
 
 from __future__ import annotations
 
+import os
 import warnings
+from collections.abc import Callable
+from pathlib import Path
 
 import typer
 
@@ -28,6 +31,7 @@ __all__ = [
     "interrupted",
     "main_guard",
     "option_message",
+    "path_parser",
     "registered_robots",
     "registered_tasks",
     "renamed_option",
@@ -71,6 +75,25 @@ def option_message(message: str, fields: dict[str, str]) -> str:
             if message.startswith(prefix):
                 return f"{option} {message[len(prefix) :]}"
     return message
+
+
+def path_parser(option: str, names: str, exists: bool = False) -> Callable[[str | Path], Path]:
+    """The ``parser`` of a path option (or argument): its text as a :class:`~pathlib.Path`, an empty or blank text
+    refused naming ``option``. ``Path("")`` is the current folder, so an unset shell variable (``--out "$OUT"``)
+    would otherwise write there without a word. ``names`` is what the path must name: ``"a folder"``, ``"a file"``;
+    ``exists``: refuse a path that does not exist.
+    """
+
+    def parse(value: str | Path) -> Path:
+        if isinstance(value, Path):  # the option's default, not typed
+            return value
+        if not value.strip():
+            raise typer.BadParameter(f"must name {names}, got an empty string", param_hint=option)
+        if exists and not os.path.lexists(value):
+            raise typer.BadParameter(f"path {value!r} does not exist", param_hint=option)
+        return Path(value)
+
+    return parse
 
 
 def check_task(task: str) -> None:

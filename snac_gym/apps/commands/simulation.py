@@ -14,6 +14,7 @@ from snac_gym.apps.commands.common import (
     check_solver,
     check_task,
     interrupted,
+    path_parser,
     registered_robots,
     registered_tasks,
 )
@@ -114,7 +115,13 @@ def demo(
         help=f"A registered task ({registered_tasks()}): reach is a fixed target, track the paper's circle.",
     ),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
-    out: Path = typer.Option(Path("demo_out"), "--out", help="Folder for the PNG panels, the log and summary.json."),
+    out: Path = typer.Option(
+        Path("demo_out"),
+        "--out",
+        parser=path_parser("--out", "a folder"),
+        metavar="<path>",
+        help="Folder for the PNG panels, the log and summary.json.",
+    ),
     seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets (a NumPy seed)."),
     steps: Optional[int] = typer.Option(
         None, "--steps", min=1, help="Control steps (default: 1500 reach = 12 s, 2500 track = 20 s)."
@@ -180,11 +187,17 @@ def demo(
 def plot(
     log: Path = typer.Argument(
         ...,
-        exists=True,
+        parser=path_parser("'LOG'", "a log or its folder", exists=True),
         metavar="LOG",
         help="A demo's or a real run's log (*_log.parquet), or the folder that holds it (its --out).",
     ),
-    out: Optional[Path] = typer.Option(None, "--out", help="Folder for the PNG panels (default: the log's folder)."),
+    out: Optional[Path] = typer.Option(
+        None,
+        "--out",
+        parser=path_parser("--out", "a folder"),
+        metavar="<path>",
+        help="Folder for the PNG panels (default: the log's folder).",
+    ),
 ) -> None:
     """Draw a demo's or a real run's figures from its log: those --no-plots or a stop signal left out."""
     # start-up time: the figures load matplotlib and pandas (after typer's checks: a usage error comes at once)
