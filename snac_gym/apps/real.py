@@ -115,6 +115,34 @@ def make_connection(
     return DryRunConnection(inner, echo=echo) if dry_run else inner
 
 
+def _check_inputs(
+    connection: str,
+    host: str | None,
+    steps: int | None,
+    seed: int,
+    model_error: str | None,
+    robot: str,
+    dry_run: bool,
+    recovery: RecoveryLimits | None,
+) -> None:
+    """Refuse what :func:`run_real_episode` cannot run, before its output folder is made or anything connects."""
+    if connection == "sim" and host is not None:
+        raise ValueError("--host is for --connection rtde (a real arm); --connection sim rehearses on PyBullet here")
+    if steps is not None:
+        whole_number("--steps", steps, 1, round(MAX_REAL_SECONDS * SERIES_FREQUENCY["e"]))
+    whole_number("--seed", seed, 0, 2**32 - 1)
+    if connection not in ("rtde", "sim"):  # here, not only in make_connection: before --out is made
+        raise ValueError(f"connection must be 'rtde' or 'sim', got {connection!r}")
+    if model_error is not None and connection != "sim":
+        raise ValueError(
+            "--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own"
+        )
+    if model_error is not None:  # built once here, so that a malformed error is refused before --out is made
+        Kinematics(robot).with_model_error(model_error)
+    if dry_run and recovery is not None and recovery.unlock_protective_stop:
+        raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
+
+
 def run_real_episode(
     task: str = "reach",
     controller: str = "snac",
@@ -197,17 +225,7 @@ def run_real_episode(
         ValueError: For ``model_error`` with another connection than ``"sim"``, a dry run that
             would unlock a protective stop, or the deadline stop turned off for a real arm.
     """
-    if connection == "sim" and host is not None:
-        raise ValueError("--host is for --connection rtde (a real arm); --connection sim rehearses on PyBullet here")
-    if steps is not None:
-        whole_number("--steps", steps, 1, round(MAX_REAL_SECONDS * SERIES_FREQUENCY["e"]))
-    whole_number("--seed", seed, 0, 2**32 - 1)
-    if model_error is not None and connection != "sim":
-        raise ValueError(
-            "--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own"
-        )
-    if dry_run and recovery is not None and recovery.unlock_protective_stop:
-        raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
+    _check_inputs(connection, host, steps, seed, model_error, robot, dry_run, recovery)
     safety = resolve_deadline_stop(safety if safety is not None else SafetyLimits(), connection, dry_run, deadline_stop)
     setup = run_setup(task, robot, q0, reference, safety, series)
     series = setup["series"]

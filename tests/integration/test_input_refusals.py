@@ -175,6 +175,7 @@ def test_an_initial_command_of_the_wrong_length_is_refused():
             ["emulate-ur", "--port-base", "0", "--duration", "0.2", "--speed-scaling", "5"],
             "error: --speed-scaling must be in (0, 1]",
         ),
+        (["emulate-ur", "--host", "", "--duration", "0.2"], "error: --host must be a loopback address (127.x.x.x)"),
     ],
     ids=[
         "recovery-timeout",
@@ -198,6 +199,7 @@ def test_an_initial_command_of_the_wrong_length_is_refused():
         "ppo-vec-env",
         "port-base",
         "speed-scaling",
+        "emulator-host",
     ],
 )
 def test_cli_refusals_name_the_option_typed(tmp_path, arguments, message):

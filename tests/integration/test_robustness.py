@@ -236,6 +236,44 @@ def test_an_empty_path_is_refused_naming_its_option_not_taken_for_the_current_fo
     assert not any((tmp_path / "demo_out").iterdir())
 
 
+def _options_taking_a_value() -> list[tuple[str, str]]:
+    import typer
+
+    command = typer.main.get_command(app)
+    return [
+        (name, max(param.opts, key=len))
+        for name, sub in command.commands.items()
+        for param in sub.params
+        if type(param).__name__ == "TyperOption" and not param.is_flag and param.name != "help"
+    ]
+
+
+#: What a command needs besides the option tried, so that the option is the only thing wrong.
+_NEEDS = {"plot": ["demo_out"], "train-ppo": ["--task", "reach", "--out", "run"], "real": ["--connection", "sim"]}
+#: Deprecated names: their refusal names the option that replaced them.
+_RENAMED = {"--backend": ("--engine", "--connection")}
+
+
+@pytest.mark.parametrize(("command", "option"), _options_taking_a_value())
+def test_every_option_of_every_command_refuses_an_empty_value_naming_it(tmp_path, monkeypatch, command, option):
+    """Generated from the commands themselves, so that an option added later is tried too: an empty value (an unset
+    shell variable) is never taken for a default, the current folder or "none", and nothing is written."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "demo_out").mkdir()
+    result = _cli(command, *_NEEDS.get(command, []), option, "")
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    assert any(name in result.output for name in (option, *_RENAMED.get(option, ()))), result.output
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["demo_out"]
+
+
+def test_demo_refuses_an_unknown_robot_naming_the_option_before_its_imports(tmp_path):
+    result = _cli("demo", "--robot", "", "--out", str(tmp_path / "out"))
+    assert result.exit_code == 2, result.output
+    assert "Invalid value for --robot: unknown robot ''; choose one of [" in result.output
+    assert not (tmp_path / "out").exists()
+
+
 def test_an_out_that_is_a_file_or_not_writable_is_a_one_line_error(tmp_path):
     a_file = tmp_path / "file"
     a_file.write_text("")

@@ -25,6 +25,7 @@ __all__ = [
     "UR_ARMS",
     "check_controller",
     "check_engine",
+    "check_robot",
     "check_solver",
     "check_task",
     "check_ur_arm",
@@ -114,6 +115,13 @@ def check_solver(solver: str) -> None:
         raise typer.BadParameter(
             f"must be one of {list(PYBULLET_SOLVERS)}, got {solver!r}", param_hint="--pybullet-solver"
         )
+
+
+def check_robot(robot: str) -> None:
+    """Refuse a ``--robot`` that names no registered robot (before the command's imports)."""
+    if robot not in robot_names():
+        choices = sorted(robot_names())
+        raise typer.BadParameter(f"unknown robot {robot!r}; choose one of {choices}", param_hint="--robot")
 
 
 def check_ur_arm(robot: str) -> None:

@@ -370,4 +370,4 @@ def emulate_ur(
 
 
 #: The options of ``emulate-ur`` whose refusals name the emulator's argument.
-_EMULATOR_OPTIONS = {"port_base": "--port-base", "speed scaling": "--speed-scaling"}
+_EMULATOR_OPTIONS = {"port_base": "--port-base", "speed scaling": "--speed-scaling", "host": "--host"}

@@ -11,6 +11,7 @@ import typer
 from snac_gym.apps.commands.common import (
     check_controller,
     check_engine,
+    check_robot,
     check_solver,
     check_task,
     interrupted,
@@ -153,6 +154,7 @@ def demo(
     """Run the paper's reach or track demonstration (Figure 3) and print its figures of merit."""
     check_task(task)
     check_controller(controller)
+    check_robot(robot)
     check_engine(engine)
     check_solver(pybullet_solver)
     if steps is not None and duration is not None:

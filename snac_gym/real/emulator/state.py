@@ -73,7 +73,7 @@ class ControllerState:
     ) -> None:
         series = series_of(robot, series)
         if not re.fullmatch(r"127\.\d{1,3}\.\d{1,3}\.\d{1,3}", host):
-            raise ValueError(f"the emulator listens on loopback addresses only (127.x.x.x), got {host!r}")
+            raise ValueError(f"host must be a loopback address (127.x.x.x), where the emulator listens, got {host!r}")
         if not (port_base == 0 or 1024 <= port_base <= 65535 - max(PORT_OFFSETS.values())):
             raise ValueError(f"port_base must be 0 (free ports) or in [1024, 65530], got {port_base!r}")
         self.kinematics = Kinematics(robot)
