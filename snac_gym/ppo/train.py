@@ -400,19 +400,21 @@ def train_ppo(
     kept = {path: path.read_bytes() for path in (out / "config.json", out / "state.json") if resume and path.exists()}
     try:
         return _train(out, config, resume, log, progress)
-    except _NotStarted as stopped:  # a signal before the first timestep: the folder as it was, no half-made run
+    except _NotStarted as stopped:  # a signal or a refusal before the first timestep: the folder as it was
         _remove_all_but(out, before)
         for path, data in kept.items():
             write_whole(path, partial(Path.write_bytes, data=data))
-        raise stopped.interrupt from None
+        raise stopped.cause from None
 
 
 class _NotStarted(Exception):
-    """A stop signal came before training began (``interrupt``: the signal's ``KeyboardInterrupt``)."""
+    """A stop signal came, or the input was refused, before training began (``cause``: the signal's
+    ``KeyboardInterrupt``, or the ``ValueError`` of what only building the model can check: a policy file of
+    ``init_from`` that is not one, or whose layers do not fit)."""
 
-    def __init__(self, interrupt: KeyboardInterrupt) -> None:
+    def __init__(self, cause: KeyboardInterrupt | ValueError) -> None:
         super().__init__()
-        self.interrupt = interrupt
+        self.cause = cause
 
 
 def _paths_under(folder: Path) -> set[Path] | None:
@@ -470,7 +472,8 @@ def _train(
     log: Callable[[str], None],
     progress: Callable[[str], None] | None,
 ) -> TrainingResult:
-    """:func:`train_ppo` once its input is checked; a signal before the first timestep raises :class:`_NotStarted`."""
+    """:func:`train_ppo` once its input is checked; a signal or a refusal before the first timestep raises
+    :class:`_NotStarted`."""
     try:
         inner = None
         run, inner = _open_run(out, config, resume)
@@ -491,7 +494,7 @@ def _train(
         total = planned_timesteps(model, int(config["timesteps"]))
         log(_start_line(config, model, total, out))
         callback = _make_callback(run, venv, log, progress, total)
-    except KeyboardInterrupt as exc:
+    except (KeyboardInterrupt, ValueError) as exc:
         if inner is not None:
             with contextlib.suppress(Exception):  # the envs' processes, if any were started
                 inner.close()

@@ -164,6 +164,11 @@ def test_training_into_an_existing_run_or_resuming_nothing_is_refused(trained_ru
         absent.exit_code == 2 and absent.output.strip() == f"error: --init-from {str(missing)!r} is not a policy file"
     )
     assert not fresh.exists()  # refused before anything is made
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_text("not a policy file")
+    refused = runner.invoke(app, [*args[:-1], str(corrupt)])
+    assert refused.exit_code == 2 and "is corrupt or not a policy file" in refused.output, refused.output
+    assert not fresh.exists()  # what only building the model can check: the run's folder is taken back
 
 
 @pytest.mark.rl
