@@ -53,6 +53,9 @@ USAGE_ERRORS = [
     (["--bogus-option"], "--bogus-option"),  # the root command's own options
 ]
 
+#: ``python -m snac_gym demo --steps 0``: the same ``main()`` through the package's ``__main__``.
+MODULE = "module:" + "\0".join(["demo", "--steps", "0"])
+
 #: ``main()`` with the app swapped for one raising ``sys.argv[1]``'s exception: as an older typer, which
 #: raises the standalone click's classes, would; and typer's own Abort (end of input at a prompt).
 DRIVER = """
@@ -83,6 +86,8 @@ DRIVEN = {"click-usage": (2, "snac-gym: error: Invalid value for '--knob': must 
 def _command_line(key: str, out: Path) -> list[str]:
     if key.startswith("driver:"):
         return [sys.executable, "-c", DRIVER, key.removeprefix("driver:")]
+    if key.startswith("module:"):  # python -m snac_gym, for an environment whose scripts are not on PATH
+        return [sys.executable, "-m", "snac_gym", *key.removeprefix("module:").split("\0")]
     return [str(SCRIPT), *(arg.format(out=out) for arg in key.split("\0"))]
 
 
@@ -92,7 +97,7 @@ def outcomes(tmp_path_factory, once) -> dict[str, subprocess.CompletedProcess]:
     each): once, not once per pytest-xdist worker that runs one of these tests (``once``, tests/conftest.py)."""
     if not SCRIPT.exists():
         pytest.skip(f"no installed console script at {SCRIPT} (install the package: pip install -e .)")
-    keys = ["\0".join(args) for args, _ in USAGE_ERRORS] + [f"driver:{name}" for name in DRIVEN] + [""]
+    keys = ["\0".join(args) for args, _ in USAGE_ERRORS] + [f"driver:{name}" for name in DRIVEN] + ["", MODULE]
 
     def run_all() -> dict[str, list]:
         cwd = tmp_path_factory.mktemp("console")  # nothing may be written, but never into the checkout
@@ -135,6 +140,13 @@ def test_main_catches_the_standalone_clicks_exceptions_and_typers_abort(outcomes
     code, line = DRIVEN[name]
     assert "Traceback" not in done.stderr, done.stderr
     assert (done.returncode, done.stderr.splitlines()) == (code, [line])
+
+
+def test_python_m_snac_gym_is_the_command_with_its_own_name_in_the_line(outcomes):
+    done = outcomes[MODULE]
+    assert (done.returncode, done.stdout) == (2, ""), done.stderr
+    assert done.stderr.startswith("python -m snac_gym demo: error: Invalid value for '--steps'"), done.stderr
+    assert len(done.stderr.splitlines()) == 1, done.stderr
 
 
 def test_no_command_prints_the_help(outcomes):
