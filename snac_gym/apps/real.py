@@ -33,7 +33,7 @@ from snac_gym.common._signals import stop_signals_raise as _stop_signals_raise
 from snac_gym.common.outputs import usable_out_folder
 from snac_gym.common.validation import whole_number
 from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
-from snac_gym.model.kinematics import Kinematics
+from snac_gym.model.kinematics import Kinematics, shared_kinematics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
 from snac_gym.real.connections import (
@@ -101,18 +101,23 @@ def make_connection(
         ValueError: On an unknown connection or a missing host.
         ConnectionFailure: If the arm cannot be reached.
     """
+    _check_connection(connection)
     if series not in SERIES_FREQUENCY:
         raise ValueError(f"series must be one of {sorted(SERIES_FREQUENCY)}, got {series!r}")
     kinematics = Kinematics(robot)
     if connection == "sim":
         inner: Any = SimulatedConnection(kinematics, frequency=SERIES_FREQUENCY[series], realtime=True)
-    elif connection == "rtde":
+    else:
         if not host:
             raise ValueError("the rtde connection needs --host IP (or use --connection sim to rehearse)")
         inner = URRTDEConnection(host, kinematics, series=series, control=not dry_run, acceleration=acceleration)
-    else:
-        raise ValueError(f"connection must be 'rtde' or 'sim', got {connection!r}")
     return DryRunConnection(inner, echo=echo) if dry_run else inner
+
+
+def _check_connection(connection: str) -> None:
+    """Refuse a connection other than ``"rtde"`` and ``"sim"``."""
+    if connection not in ("rtde", "sim"):
+        raise ValueError(f"connection must be 'rtde' or 'sim', got {connection!r}")
 
 
 def _check_inputs(
@@ -131,14 +136,13 @@ def _check_inputs(
     if steps is not None:
         whole_number("--steps", steps, 1, round(MAX_REAL_SECONDS * SERIES_FREQUENCY["e"]))
     whole_number("--seed", seed, 0, 2**32 - 1)
-    if connection not in ("rtde", "sim"):  # here, not only in make_connection: before --out is made
-        raise ValueError(f"connection must be 'rtde' or 'sim', got {connection!r}")
+    _check_connection(connection)  # here too, not only where it connects: before --out is made
     if model_error is not None and connection != "sim":
         raise ValueError(
             "--model-error rehearses a wrong arm model on --connection sim only; a real arm's model error is its own"
         )
     if model_error is not None:  # built once here, so that a malformed error is refused before --out is made
-        Kinematics(robot).with_model_error(model_error)
+        shared_kinematics(robot).with_model_error(model_error)
     if dry_run and recovery is not None and recovery.unlock_protective_stop:
         raise ValueError("--unlock-protective-stop sends a command to the controller's dashboard: not in a dry run")
 

@@ -11,6 +11,7 @@ import os
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -32,6 +33,7 @@ __all__ = [
     "interrupted",
     "main_guard",
     "option_message",
+    "path_option",
     "path_parser",
     "registered_robots",
     "registered_tasks",
@@ -95,6 +97,11 @@ def path_parser(option: str, names: str, exists: bool = False) -> Callable[[str 
         return Path(value)
 
     return parse
+
+
+def path_option(default: Any, option: str, names: str, help: str) -> Any:  # noqa: A002 - typer's own name
+    """A path option whose empty value is refused (:func:`path_parser`), shown as ``<path>`` as typer shows a path."""
+    return typer.Option(default, option, parser=path_parser(option, names), metavar="<path>", help=help)
 
 
 def check_task(task: str) -> None:

@@ -13,7 +13,7 @@ import typer
 from snac_gym.apps.commands.common import (
     interrupted,
     option_message,
-    path_parser,
+    path_option,
     registered_robots,
     registered_tasks,
     renamed_option,
@@ -92,19 +92,11 @@ def evaluate(
         min=1,
         help="Samples the knob search runs on (default: all, fewer for controllers whose effort peaks late).",
     ),
-    samples_file: Optional[Path] = typer.Option(
-        None,
-        "--samples-file",
-        parser=path_parser("--samples-file", "a file"),
-        metavar="<path>",
-        help="Read the samples from this CSV (docs/evaluation.md).",
+    samples_file: Optional[Path] = path_option(
+        None, "--samples-file", "a file", "Read the samples from this CSV (docs/evaluation.md)."
     ),
-    export_samples: Optional[Path] = typer.Option(
-        None,
-        "--export-samples",
-        parser=path_parser("--export-samples", "a file"),
-        metavar="<path>",
-        help="Also write the sample set to this CSV.",
+    export_samples: Optional[Path] = path_option(
+        None, "--export-samples", "a file", "Also write the sample set to this CSV."
     ),
     export_only: bool = typer.Option(False, "--export-only", help="Only write --export-samples, run nothing."),
     save_trajectories: bool = typer.Option(

@@ -16,7 +16,7 @@ from snac_gym.apps.commands.common import (
     check_ur_arm,
     interrupted,
     option_message,
-    path_parser,
+    path_option,
     registered_tasks,
     renamed_option,
 )
@@ -33,12 +33,8 @@ def real(
         "reach", "--task", help=f"A registered task ({registered_tasks()}): the demo's start pose and reference."
     ),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
-    out: Path = typer.Option(
-        Path("real_out"),
-        "--out",
-        parser=path_parser("--out", "a folder"),
-        metavar="<path>",
-        help="Folder for the log, the panels and the loop timing.",
+    out: Path = path_option(
+        Path("real_out"), "--out", "a folder", "Folder for the log, the panels and the loop timing."
     ),
     connection: str = typer.Option(
         "rtde", "--connection", help="rtde (a real arm at --host) or sim (rehearse on PyBullet in real time)."

@@ -15,6 +15,7 @@ from snac_gym.apps.commands.common import (
     check_solver,
     check_task,
     interrupted,
+    path_option,
     path_parser,
     registered_robots,
     registered_tasks,
@@ -116,12 +117,8 @@ def demo(
         help=f"A registered task ({registered_tasks()}): reach is a fixed target, track the paper's circle.",
     ),
     controller: str = typer.Option("snac", "--controller", help="Any registered policy name."),
-    out: Path = typer.Option(
-        Path("demo_out"),
-        "--out",
-        parser=path_parser("--out", "a folder"),
-        metavar="<path>",
-        help="Folder for the PNG panels, the log and summary.json.",
+    out: Path = path_option(
+        Path("demo_out"), "--out", "a folder", "Folder for the PNG panels, the log and summary.json."
     ),
     seed: int = typer.Option(0, "--seed", help="Seed of the env and policy resets (a NumPy seed)."),
     steps: Optional[int] = typer.Option(
@@ -193,12 +190,8 @@ def plot(
         metavar="LOG",
         help="A demo's or a real run's log (*_log.parquet), or the folder that holds it (its --out).",
     ),
-    out: Optional[Path] = typer.Option(
-        None,
-        "--out",
-        parser=path_parser("--out", "a folder"),
-        metavar="<path>",
-        help="Folder for the PNG panels (default: the log's folder).",
+    out: Optional[Path] = path_option(
+        None, "--out", "a folder", "Folder for the PNG panels (default: the log's folder)."
     ),
 ) -> None:
     """Draw a demo's or a real run's figures from its log: those --no-plots or a stop signal left out."""

@@ -11,7 +11,7 @@ from snac_gym.apps.commands.common import (
     check_task,
     interrupted,
     option_message,
-    path_parser,
+    path_option,
     registered_tasks,
 )
 from snac_gym.common.progress import wants_lines
@@ -30,27 +30,18 @@ def train_ppo_command(
     seed: Optional[int] = typer.Option(
         None, "--seed", help="Seed of PPO and the training envs (default: the config's)."
     ),
-    out: Path = typer.Option(
-        ...,
-        "--out",
-        parser=path_parser("--out", "a folder"),
-        metavar="<path>",
-        help="Output folder: checkpoint/, best/, logs, evaluations.csv, curves.",
+    out: Path = path_option(
+        ..., "--out", "a folder", "Output folder: checkpoint/, best/, logs, evaluations.csv, curves."
     ),
-    config: Optional[Path] = typer.Option(
-        None,
-        "--config",
-        parser=path_parser("--config", "a file"),
-        metavar="<path>",
-        help="Hyperparameter file (default: snac_gym/ppo/configs/TASK.json).",
+    config: Optional[Path] = path_option(
+        None, "--config", "a file", "Hyperparameter file (default: snac_gym/ppo/configs/TASK.json)."
     ),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
-    init_from: Optional[Path] = typer.Option(
+    init_from: Optional[Path] = path_option(
         None,
         "--init-from",
-        parser=path_parser("--init-from", "a policy file"),
-        metavar="<path>",
-        help="A policy file whose actor the new model starts from, e.g. a behaviour clone (default: the config's "
+        "a policy file",
+        "A policy file whose actor the new model starts from, e.g. a behaviour clone (default: the config's "
         "init_from).",
     ),
     n_envs: Optional[int] = typer.Option(
