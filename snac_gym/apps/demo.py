@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,7 +28,9 @@ import pandas as pd
 
 from snac_gym.apps.figures import demo_figures, draw_figures
 from snac_gym.common.outputs import usable_out_folder, write_text_whole
+from snac_gym.common.progress import ProgressLines, compiling_line
 from snac_gym.envs import make_task_env
+from snac_gym.kernels.compiled import on_first_compile
 from snac_gym.metrics import DemoMetrics, demo_metrics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
@@ -36,6 +40,11 @@ from snac_gym.tasks import get_task
 #: Longest demo accepted, s (50x the tracking demo): the log is held in memory, so an unbounded
 #: horizon fails late (or exhausts memory) instead of being refused.
 MAX_DEMO_DURATION_S = 1000.0
+#: What a demo says (:func:`run_demo`'s ``progress``) as its first kernel compiles instead of loading from numba's
+#: cache: the first run after an install or an update is otherwise silent for seconds (docs/benchmarks.md).
+COMPILING = compiling_line("demo", "as the controller first calls them")
+#: Seconds between the demo's progress lines while it steps (and one at the end).
+PROGRESS_EVERY_S = 5.0
 
 
 def demo_options(task: str) -> dict[str, Any]:
@@ -155,6 +164,7 @@ def run_demo(
     model_error: str | None = None,
     engine: str = "pybullet",
     pybullet_solver: str = "pgs",
+    progress: Callable[[str], object] | None = None,
 ) -> DemoResult:
     """Run the paper's ``task`` demo with ``controller`` and write its figures and log.
 
@@ -177,6 +187,8 @@ def run_demo(
         pybullet_solver: How the PyBullet arm's motors are solved (the env's ``pybullet_solver``): ``"pgs"``, the
             -v0 ids' (under gravity each joint a little behind its command), or ``"dantzig"``, the -v1 ids' (θ̇ = u
             wherever a motor is within its force bound). Recorded in the log and the summary where not ``"pgs"``.
+        progress: Hears a line (no newline) as the demo goes, for a command's stderr: :data:`COMPILING` as a first
+            kernel compiles, the steps run every :data:`PROGRESS_EVERY_S` s and at the end, the figures drawn.
 
     Returns:
         The :class:`DemoResult`. Files in ``out_dir``, prefixed ``<task>_<controller>_``:
@@ -187,6 +199,46 @@ def run_demo(
     spec = get_task(task)
     options = spec.demo_options(robot)
     _check_demo_arguments(seed, steps, duration, out_dir)
+    with ExitStack() as compiles:
+        if progress is not None:
+            compiles.enter_context(on_first_compile(lambda: progress(COMPILING)))
+        log, limits = _demo_log(spec, controller, options, seed, steps, duration, robot, model_error, engine,
+                        pybullet_solver, policy_kwargs, out_dir, csv, progress)  # fmt: skip
+    if model_error is not None:
+        log.attrs["model_error"] = model_error
+    return write_demo_outputs(
+        log,
+        spec.name,
+        controller,
+        seed,
+        spec.success_tolerance,
+        out_dir,
+        csv=csv,
+        plots=plots,
+        policy_kwargs=policy_kwargs,
+        position_limits=limits,
+        say=None if progress is None else (lambda text: progress(f"demo: {text}")),
+    )
+
+
+def _demo_log(
+    spec: Any,
+    controller: str,
+    options: dict[str, Any],
+    seed: int,
+    steps: int | None,
+    duration: float | None,
+    robot: str,
+    model_error: str | None,
+    engine: str,
+    pybullet_solver: str,
+    policy_kwargs: dict[str, Any] | None,
+    out_dir: str | Path | None,
+    csv: bool,
+    progress: Callable[[str], object] | None,
+) -> tuple[pd.DataFrame, tuple[Any, Any]]:
+    """The demo's rollout (:func:`run_demo`) and the arm's joint limits; an interrupt writes the steps run, marked
+    as a partial run, and says so in ``exc.kept``."""
     env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver)
     dt = env.unwrapped.dt
     if duration is not None:
@@ -204,7 +256,13 @@ def run_demo(
     limits = (kinematics.lower_limits, kinematics.upper_limits)
     try:
         policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
-        log = add_critic_diagnostics(rollout(env, policy, options=options, seed=seed, steps=steps), policy)
+        on_step = None
+        if progress is not None:
+            lines = ProgressLines("demo:", steps, progress, unit="steps", every_fraction=2.0, every_s=PROGRESS_EVERY_S)
+            on_step = lambda count: lines.update(done=count)  # noqa: E731 - the counter of rollout's steps
+        log = add_critic_diagnostics(
+            rollout(env, policy, options=options, seed=seed, steps=steps, on_step=on_step), policy
+        )
     except KeyboardInterrupt as exc:  # Ctrl-C or a stop signal: keep the steps run, marked as a partial run
         partial = partial_log(exc)
         exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
@@ -238,20 +296,7 @@ def run_demo(
         env.close()
     log.attrs["controller"] = controller
     _record_engine(log, engine, pybullet_solver)
-    if model_error is not None:
-        log.attrs["model_error"] = model_error
-    return write_demo_outputs(
-        log,
-        spec.name,
-        controller,
-        seed,
-        spec.success_tolerance,
-        out_dir,
-        csv=csv,
-        plots=plots,
-        policy_kwargs=policy_kwargs,
-        position_limits=limits,
-    )
+    return log, limits
 
 
 def _stamp(path: Path) -> tuple[int, int] | None:
@@ -275,6 +320,7 @@ def write_demo_outputs(
     policy_kwargs: dict[str, Any] | None = None,
     position_limits: tuple[Any, Any] | None = None,
     status: dict[str, Any] | None = None,
+    say: Callable[[str], object] | None = None,
 ) -> DemoResult:
     """Metrics, log, ``summary.json`` and Figure 3 panels of one run (demo or real robot), in that order.
 
@@ -289,6 +335,7 @@ def write_demo_outputs(
         csv, plots, policy_kwargs: As for :func:`run_demo`.
         position_limits: The arm's joint limits ``(θ⁻, θ⁺)``: the success line then counts them, as the evaluator.
         status: Written into the summary (default ``{"complete": True}``; an interrupted run says what it ran).
+        say: Hears how many figures are drawn where, before the first (:func:`~snac_gym.apps.figures.draw_figures`).
     """
     metrics = demo_metrics(log, tolerance, position_limits)
     result = DemoResult(task=task, controller=controller, seed=seed, metrics=metrics, log=log)
@@ -327,5 +374,5 @@ def write_demo_outputs(
     result.files.append(summary_path)
     if not plots:
         return result
-    result.files += draw_figures(demo_figures(log, tolerance), out, prefix)
+    result.files += draw_figures(demo_figures(log, tolerance), out, prefix, say=say)
     return result

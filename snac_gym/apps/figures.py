@@ -61,8 +61,10 @@ def draw_figures(
     before: Callable[[], None] | None = None,
     kept: str | None = None,
     log: Path | None = None,
+    say: Callable[[str], object] | None = None,
 ) -> list[Path]:
     """Draw each figure into ``out/{prefix}{name}.png``, whole or not at all; ``before`` runs first (it may raise).
+    ``say`` hears first how many are drawn where (a second or more each, with matplotlib's import).
 
     An interrupt (``KeyboardInterrupt``) stops the drawing and says in ``exc.kept`` (after ``kept``, by default that
     the run's log and summary, written before, are complete) how many were drawn and the command that draws them all
@@ -70,6 +72,8 @@ def draw_figures(
     from snac_gym.apps.plots import save_figure  # matplotlib only when plotting (--no-plots)
 
     files: list[Path] = []
+    if say is not None:
+        say(f"drawing {len(drawers)} figures into {out}/")
     try:
         if before is not None:
             before()
@@ -105,12 +109,15 @@ def run_log(path: str | Path) -> Path:
     return path
 
 
-def redraw_figures(path: str | Path, out: str | Path | None = None) -> list[Path]:
+def redraw_figures(
+    path: str | Path, out: str | Path | None = None, say: Callable[[str], object] | None = None
+) -> list[Path]:
     """Draw a demo's or a real run's figures from its log (``path``: the log or its folder, :func:`run_log`), into
     ``out`` (default: the log's folder), as the run would have drawn them.
 
     The success tolerance the figures mark is the run's summary's (``*_summary.json`` beside the log), else the
-    task's; a real run's loop timing is drawn from its ``*_timing.csv`` where it is beside the log.
+    task's; a real run's loop timing is drawn from its ``*_timing.csv`` where it is beside the log. ``say`` hears
+    how many figures are drawn where, before the first (:func:`draw_figures`).
 
     Raises:
         ValueError: For a path that is no log (:func:`run_log`) or a file that is not one.
@@ -138,4 +145,4 @@ def redraw_figures(path: str | Path, out: str | Path | None = None) -> list[Path
         drawers.update(timing_figure(periods, float(log.attrs["dt"])))
     target = folder if out is None else Path(out)
     target.mkdir(parents=True, exist_ok=True)
-    return draw_figures(drawers, target, prefix, kept=f"in {target}/: ", log=log_path)
+    return draw_figures(drawers, target, prefix, kept=f"in {target}/: ", log=log_path, say=say)

@@ -31,8 +31,9 @@ from snac_gym.common._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
 from snac_gym.common._signals import SignalGuard, TerminationSignal
 from snac_gym.common._signals import stop_signals_raise as _stop_signals_raise
 from snac_gym.common.outputs import usable_out_folder
+from snac_gym.common.progress import compiling_line
 from snac_gym.common.validation import whole_number
-from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, warm_up
+from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, on_first_compile, warm_up
 from snac_gym.model.kinematics import Kinematics, shared_kinematics
 from snac_gym.policies import make_policy
 from snac_gym.policies.base import PolicyContext
@@ -70,6 +71,9 @@ __all__ = [
     "stop_signals_raise",
 ]
 
+#: What a run says (``progress``) as its first kernel compiles: the first run after an install waits seconds before
+#: its control loop starts, with nothing else to say.
+COMPILING = compiling_line("real", "before the control loop starts")
 #: Signals that end a real run through the same stop path as Ctrl-C: every catchable one whose
 #: default action ends the process (SIGPIPE aside: Python ignores it). SIGKILL cannot be caught:
 #: then the client process dies with the run and the controller's watchdog
@@ -170,6 +174,7 @@ def run_real_episode(
     q0: Sequence[float] | None = None,
     reference: Any = None,
     deadline_stop: bool | None = None,
+    progress: Callable[[str], object] | None = None,
 ) -> RealRunResult:
     """Run the paper's ``task`` (same start pose and reference as ``snac-gym demo``) on an arm.
 
@@ -224,6 +229,8 @@ def run_real_episode(
         deadline_stop: Whether missed deadlines stop the arm (:func:`resolve_deadline_stop`; ``None``: on for
             ``rtde``, off for ``sim`` and a dry run, where late periods are counted and reported:
             :meth:`RealRunResult.summary`, ``*_real.json``'s ``late_periods`` and ``setup``, the log's attrs).
+        progress: Hears a line (no newline) for a command's stderr: :data:`COMPILING` where a kernel compiles before
+            the loop, when the loop starts, and the figures drawn.
 
     Raises:
         ValueError: For ``model_error`` with another connection than ``"sim"``, a dry run that
@@ -257,12 +264,12 @@ def run_real_episode(
         stream = None if out is None else out / f"{prefix}{STREAM_SUFFIX}"
         env, log = _run_and_stop(
             connect, make_env, controller, policy_kwargs, seed, guard, out, prefix, setup, model_error, tuning,
-            stream, journal_writer,
+            stream, journal_writer, progress,
         )  # fmt: skip
         try:
             result = write_outputs(
                 env, log, task, controller, connection, dry_run, seed, out, prefix, csv, plots, policy_kwargs, setup,
-                guard,
+                guard, say=None if progress is None else (lambda text: progress(f"real: {text}")),
             )  # fmt: skip
             result.tuning_notes = list(notes)
             guard.raise_pending()
@@ -286,6 +293,7 @@ def _run_and_stop(
     tuning: LoopTuning,
     stream: Path | None,
     journal_writer: str,
+    progress: Callable[[str], object] | None = None,
 ) -> tuple[RealUREnv, pd.DataFrame]:
     """The episode, the arm stopped on every way out; on any failure the log so far is written, then it raises.
 
@@ -309,11 +317,15 @@ def _run_and_stop(
             if stream is not None:
                 env.journal = StepJournal(stream, env.kinematics.n_joints, journal_writer)
             with frozen_gc(tuning.freeze_gc):
-                warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
+                with on_first_compile(lambda: progress(COMPILING) if progress is not None else None):
+                    warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
                 policy = make_policy(
                     controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {})
                 )
                 options = {"q0": setup["q0"], env.task.option_key: setup[env.task.option_key]}
+                if progress is not None:  # the arm moves from here on: a reader should know when
+                    progress(f"real: the control loop starts: {env.max_steps} periods of {env.dt * 1e3:g} ms "
+                             f"({env.max_steps * env.dt:g} s)")  # fmt: skip
                 log = rollout(env, policy, options=options, seed=seed, steps=env.max_steps)
                 log = add_critic_diagnostics(log, policy)
                 mark_gaps(log, env)

@@ -172,9 +172,11 @@ def write_outputs(
     policy_kwargs: dict[str, Any] | None,
     setup: dict[str, Any],
     guard: SignalGuard | None = None,
+    say: Callable[[str], object] | None = None,
 ) -> RealRunResult:
     """The run's log, summary, loop timing and ``*_real.json``, then its figures; ``guard`` (the run's, deferred since
-    the arm stopped) lets a signal cut the figures, the rest being whole (``exc.kept`` says so)."""
+    the arm stopped) lets a signal cut the figures, the rest being whole (``exc.kept`` says so); ``say`` hears how
+    many figures are drawn where, before the first."""
     log.attrs["controller"] = controller
     log.attrs["connection"] = connection + (" (dry run)" if dry_run else "")
     log.attrs["stop_reason"] = env.stop_reason
@@ -219,7 +221,9 @@ def write_outputs(
                 **timing_figure(np.asarray(env.periods) * 1e3, env.dt),
             }
             try:
-                result.files += draw_figures(drawers, out, prefix, before=None if guard is None else guard.resume)
+                result.files += draw_figures(
+                    drawers, out, prefix, before=None if guard is None else guard.resume, say=say
+                )
             finally:  # deferred again: a signal after the figures must not cut the restoring of the process's tuning
                 if guard is not None:
                     guard.defer()

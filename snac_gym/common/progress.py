@@ -43,6 +43,15 @@ def format_elapsed(seconds: float) -> str:
     return f"{seconds:.1f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
 
 
+def compiling_line(command: str, when: str) -> str:
+    """What ``command`` says as its first numba kernel compiles (a load from numba's cache says nothing,
+    :func:`snac_gym.kernels.compiled.on_first_compile`): ``when`` says where in the run it is."""
+    return (
+        f"{command}: compiling the numerical kernels for this machine {when} (numba's cache has none for this code "
+        "yet: the first run after an install or an update; seconds to tens of seconds)"
+    )
+
+
 class ProgressLines:
     """Rate-limited progress lines ``<label> <done>/<total> <unit> (<pct> %), <elapsed>[, <detail>]``.
 
@@ -60,7 +69,7 @@ class ProgressLines:
         self,
         label: str,
         total: int,
-        write: Callable[[str], None],
+        write: Callable[[str], object],
         unit: str = "rollouts",
         every_fraction: float = 0.1,
         every_s: float = 10.0,

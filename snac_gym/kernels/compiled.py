@@ -17,7 +17,8 @@ import pickle
 import signal
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any, Generic, ParamSpec, Protocol, TypeVar, cast
@@ -342,6 +343,33 @@ def warm_up_shared(locks: Sequence[Lock], modules: tuple[str, ...] = EVALUATOR_K
     return taken
 
 
+@contextmanager
+def on_first_compile(callback: Callable[[], object]) -> Iterator[None]:
+    """Within the block, ``callback()`` once, as the first compile of a kernel in this process starts: numba's own
+    compile event, which a load from its cache does not send, so a run whose kernels are all cached says nothing.
+
+    A command that compiles as it goes (``snac-gym demo``) says why its first seconds are silent. Where numba has
+    no event API (another version), nothing is called.
+    """
+    try:
+        from numba.core import event  # numba is imported by the first module that defines a kernel
+    except ImportError:  # another numba: no announcement, the run is the same
+        yield
+        return
+    pending = [callback]
+
+    class _First(event.Listener):
+        def on_start(self, event: object) -> None:  # noqa: ARG002 - numba's signature
+            if pending:
+                pending.pop()()
+
+        def on_end(self, event: object) -> None:  # noqa: ARG002 - numba's signature
+            pass
+
+    with event.install_listener("numba:compile", _First()):
+        yield
+
+
 def _with_stop_signals_held(
     function: Callable[..., _Result], args: tuple[object, ...], kwargs: dict[str, object] | None = None
 ) -> _Result:
@@ -367,6 +395,6 @@ def _with_stop_signals_held(
 
 __all__ = [
     "EVALUATOR_KERNEL_MODULES", "KERNEL_MODULES", "LATE_KERNEL_MODULES", "POLICY_KERNEL_MODULES", "Example", "Kernel",
-    "cached_on_disk", "evaluator_kernel_modules", "helper", "kernel", "load_if_cached", "read_only", "read_only_view",
-    "warm_up", "warm_up_shared",
+    "cached_on_disk", "evaluator_kernel_modules", "helper", "kernel", "load_if_cached", "on_first_compile", "read_only",
+    "read_only_view", "warm_up", "warm_up_shared",
 ]  # fmt: skip

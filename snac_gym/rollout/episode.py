@@ -36,6 +36,7 @@ def rollout(
     options: Mapping[str, Any] | None = None,
     seed: int | None = None,
     steps: int | None = None,
+    on_step: Callable[[int], object] | None = None,
 ) -> pd.DataFrame:
     """Run ``policy`` in closed loop on ``env`` for one episode and log every control step.
 
@@ -51,6 +52,7 @@ def rollout(
         options: The env's ``reset`` options (``q0``, ``target`` or ``ellipse``).
         seed: Seed of both resets; the same seed (and options) gives a bit-identical log.
         steps: Most control steps to run (default: the episode length, :func:`episode_length`).
+        on_step: Called with the count of steps run after each one (a progress line's counter).
 
     Returns:
         The trajectory log (see the module docstring for columns and ``attrs``).
@@ -86,6 +88,8 @@ def rollout(
             obs, _, terminated, truncated, info = env.step(action)
             applied = info.get("command") if isinstance(info, Mapping) else None
             record.command(applied if applied is not None else np.clip(action, -limits, limits))
+            if on_step is not None:
+                on_step(record.count)
             if terminated or truncated:
                 break
     except BaseException as exc:

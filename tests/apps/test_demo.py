@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from snac_gym.apps.bench import format_act_bench, run_act_bench
 from snac_gym.apps.cli import app
-from snac_gym.apps.demo import demo_options, run_demo
+from snac_gym.apps.demo import COMPILING, demo_options, run_demo
 from snac_gym.apps.studies import discretisation_study, random_episode_study, summarise_random_study, summarise_study
 from snac_gym.metrics import demo_metrics
 from snac_gym.policies import register_policy, registry
@@ -135,9 +135,36 @@ def isolated_registry(monkeypatch):
     monkeypatch.setattr(registry, "_FACTORIES", dict(registry._FACTORIES))
 
 
+_ZEROS: list = []  # the policy's compiled function, made on its first act: compiled once in this process
+
+
+def _zeros(count):
+    return np.zeros(count)
+
+
+class _HoldStillCompiled(_HoldStill):
+    """:class:`_HoldStill` through a function numba compiles at its first act in this process (no cache)."""
+
+    def _act(self, obs):
+        if not _ZEROS:
+            from numba import njit
+
+            _ZEROS.append(njit(_zeros))
+        return _ZEROS[0](self.kinematics.n_joints)
+
+
 def test_any_registered_policy_runs_the_demo(tmp_path, isolated_registry):
-    register_policy("hold-still-demo-test", _HoldStill, overwrite=True)
-    result = run_demo("track", "hold-still-demo-test", tmp_path, steps=30, csv=True)
+    register_policy("hold-still-demo-test", _HoldStillCompiled, overwrite=True)
+    _ZEROS.clear()
+    said: list[str] = []
+    result = run_demo("track", "hold-still-demo-test", tmp_path, steps=30, csv=True, progress=said.append)
+    # What a first demo after an install says on stderr: that kernels compile (once, as the first one starts), the
+    # steps run, then the figures; each line whole.
+    assert said[0] == COMPILING and said[1].startswith("demo: 30/30 steps (100 %), "), said
+    assert said[2:] == [f"demo: drawing 5 figures into {tmp_path}/"], said
+    again: list[str] = []
+    run_demo("track", "hold-still-demo-test", tmp_path / "again", steps=30, plots=False, progress=again.append)
+    assert len(again) == 1 and again[0].startswith("demo: 30/30 steps"), again  # compiled already: nothing said
     log = result.log
     assert list(log.columns) == _expected_columns(6, 3, 0)  # no critic, no w columns
     assert not (tmp_path / "track_hold-still-demo-test_critic_weights.png").exists()
@@ -251,7 +278,9 @@ def test_cli_demo_prints_the_figures(tmp_path):
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     for phrase in ("final error", "time to first reach 1 mm", "eᵀė ≤ 0"):
-        assert phrase in result.output
+        assert phrase in result.stdout
+    assert result.stderr.startswith("demo: 200/200 steps (100 %), ")  # the progress on stderr, the figures on stdout
+    assert "steps (" not in result.stdout
     assert (tmp_path / "reach_snac_log.parquet").exists()
     bad = CliRunner().invoke(app, ["demo", "--task", "orbit", "--out", str(tmp_path)])
     assert bad.exit_code != 0

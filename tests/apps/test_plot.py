@@ -25,7 +25,8 @@ def test_the_figures_drawn_from_a_demos_log_are_the_demos_own_byte_for_byte(tmp_
         app, ["plot", str(tmp_path / "demo" / "track_snac_log.parquet"), "--out", str(tmp_path / "again")]
     )
     assert result.exit_code == 0, result.output
-    assert result.output.startswith(f"drew 7 figures in {tmp_path / 'again'}/: track_snac_path.png, ")
+    assert result.stdout.startswith(f"drew 7 figures in {tmp_path / 'again'}/: track_snac_path.png, ")
+    assert result.stderr == f"plot: drawing 7 figures into {tmp_path / 'again'}/\n"  # said before the first is drawn
     again = sorted((tmp_path / "again").glob("*.png"))
     assert [p.name for p in again] == [p.name for p in pngs]
     for ours, theirs in zip(pngs, again):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -111,10 +112,19 @@ def _run(
     return process.returncode, err, out
 
 
+#: The progress lines a demo or a plot writes on stderr as it goes (steps run, figures to draw, kernels compiling),
+#: before the line that says how it ended.
+PROGRESS_LINE = re.compile(
+    r"^(demo|plot|real): (\d+/\d+ steps \(|drawing \d+ figures into |compiling the numerical kernels |the control loop)"
+)
+
+
 def _one_line(err: str) -> str:
+    """The one line that says how the command ended: the last on stderr, after its progress lines only."""
     lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1, err
-    return lines[0]
+    ending = [line for line in lines if not PROGRESS_LINE.match(line)]
+    assert len(ending) == 1 and lines[-1] == ending[0], err
+    return ending[0]
 
 
 # -- the first second: nothing written, one line ------------------------------------------------------

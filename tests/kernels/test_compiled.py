@@ -375,3 +375,36 @@ def test_a_writable_stack_reaches_the_kernels_as_a_read_only_one(monkeypatch):
     assert seen == {name: [False] for name in kernels}
     view = read_only_view(jacobians)
     assert np.shares_memory(view, jacobians) and not view.flags.writeable and jacobians.flags.writeable
+
+
+ANNOUNCE_DRIVER = r"""
+from snac_gym.kernels.compiled import on_first_compile
+from {module} import doubled, tripled
+heard = []
+doubled(1.0)  # before the block: compiled or loaded, unheard either way
+with on_first_compile(lambda: heard.append("compiling")):
+    tripled(1.0)
+    tripled(1)  # a second signature: a second compile, not a second announcement
+print(len(heard))
+tripled(1.5j)  # after the block: unheard
+"""
+
+
+def test_the_first_compile_is_announced_once_and_a_load_from_the_cache_is_not(tmp_path):
+    # What makes `snac-gym demo` say that it compiles: numba's compile event, sent for a compile and not for a load.
+    module = f"announced_{os.getpid()}"
+    (tmp_path / f"{module}.py").write_text(
+        "from snac_gym.kernels.compiled import kernel\n\n\n"
+        "@kernel(example=lambda: (2.0,))\ndef doubled(x):\n    return 2.0 * x\n\n\n"
+        "@kernel(example=lambda: (2.0,))\ndef tripled(x):\n    return 3.0 * x\n"
+    )
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(tmp_path)}
+
+    def heard() -> str:
+        done = subprocess.run([sys.executable, "-c", ANNOUNCE_DRIVER.format(module=module)], capture_output=True,
+                              text=True, timeout=120, env=env)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        return done.stdout.strip()
+
+    assert heard() == "1"  # an empty cache: compiled, announced once
+    assert heard() == "0"  # every signature in the cache: loaded, nothing said

@@ -299,6 +299,7 @@ def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
     from snac_gym.apps.real import run_real_episode
 
     # a loaded CI machine may be late now and then: the deadline rule has its own tests above
+    said: list[str] = []
     result = run_real_episode(
         task="reach",
         controller="dls",
@@ -306,7 +307,12 @@ def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
         connection="sim",
         steps=60,
         safety=SafetyLimits(max_missed_deadlines=10**5, deadline_window=10**5, max_period=10.0),
+        progress=said.append,
     )
+    assert said == [  # every kernel cached: no compile to announce
+        "real: the control loop starts: 60 periods of 8 ms (0.48 s)",
+        f"real: drawing 6 figures into {tmp_path / 'real'}/",
+    ]
     demo = run_demo(task="reach", controller="dls", out_dir=tmp_path / "demo", steps=60)
     real_log, demo_log = result.demo.log, demo.log
     assert list(real_log.columns) == list(demo_log.columns) and len(real_log) == 60
@@ -384,9 +390,10 @@ def test_connection_dropped_mid_episode_is_one_line_and_the_arm_is_stopped(monke
     monkeypatch.setattr(real_run, "make_connection", lambda *args, **kwargs: connection)
     outcome = CliRunner().invoke(app, ["real", "--host", "10.0.0.2", "--controller", "dls", "--out", str(tmp_path)])
     assert outcome.exit_code == 1
-    assert (
-        outcome.output.strip() == f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/"
-    )
+    assert outcome.output.strip().splitlines() == [  # when the arm started to move, then how it ended
+        "real: the control loop starts: 1875 periods of 8 ms (15 s)",
+        f"error: connection to the arm at 10.0.0.2 was lost; the log so far is in {tmp_path}/",
+    ]
     assert connection.stopped and connection.stop_calls >= 1
     # the log so far is written: a lost link is a way out like any other
     summary = json.loads((tmp_path / "reach_dls_real.json").read_text())

@@ -268,7 +268,10 @@ def test_the_real_command_reports_a_signal_in_one_line(signalling_run, tmp_path,
         app, ["real", "--connection", "sim", "--controller", "sends-signal", "--out", str(tmp_path)]
     )
     assert outcome.exit_code == 128 + signal.SIGTERM
-    assert outcome.output.strip() == f"interrupted by SIGTERM: the arm was stopped; the log so far is in {tmp_path}/"
+    assert outcome.output.strip().splitlines() == [  # when the arm started to move, then how it ended
+        "real: the control loop starts: 1875 periods of 8 ms (15 s)",
+        f"interrupted by SIGTERM: the arm was stopped; the log so far is in {tmp_path}/",
+    ]
     assert signalling_run[0].stopped
 
 
@@ -438,10 +441,11 @@ def test_an_unexpected_exception_is_one_line_with_the_log_and_its_traceback_kept
         app, ["real", "--connection", "sim", "--controller", "crashes", "--out", str(tmp_path)]
     )
     assert outcome.exit_code == 3, outcome.output
-    assert outcome.output.strip() == (
+    assert outcome.output.strip().splitlines() == [  # when the arm started to move, then how it ended
+        "real: the control loop starts: 1875 periods of 8 ms (15 s)",
         f"error: unexpected ZeroDivisionError: integer division or modulo by zero; the log so far is in {tmp_path}/ "
-        "(traceback in its real.json)"
-    )
+        "(traceback in its real.json)",
+    ]
     assert signalling_run[0].stopped
     summary = json.loads((tmp_path / "reach_crashes_real.json").read_text())
     assert summary["ended"] == "error" and "1 // 0" in "".join(summary["traceback"])

@@ -50,6 +50,10 @@ SWEEP = np.array([0.4, 0.0, 0.0, 0.0, 0.0, 0.0])
 WATCHDOG = "the controller's watchdog: no command for 40 ms (5 periods) stops the program and the arm"
 
 
+#: What ``snac-gym real`` says on stderr as the arm starts to move (at :func:`_start_real`'s default steps).
+STARTED = "real: the control loop starts: 625 periods of 8 ms (5 s)"
+
+
 def _start_real(out: Path, steps: int = 625) -> subprocess.Popen[str]:
     command = [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", HOST, "--task", "reach",
                "--controller", "snac", "--out", str(out), "--steps", str(steps)]  # fmt: skip
@@ -119,7 +123,8 @@ def test_a_stalled_or_lost_controller_ends_the_run_by_itself_with_its_log(emu, t
     t_fault = _first_command(emu, run) + faults[0][0]
     code, output, t_exit = _ended(run)
     assert code == 1, output  # the run's own code, not a signal's (a segfault was -11, 139 in a shell)
-    assert output.count("\n") == 1 and re.match(rf"error: {LOST}.*; the log so far is in {tmp_path}/$", output)
+    started, ending = output.splitlines() if output.count("\n") == 2 else ("", output)  # the loop's start, its end
+    assert started == STARTED and re.match(rf"error: {LOST}.*; the log so far is in {tmp_path}/$", ending), output
     assert t_exit - t_fault < 10.0
     summary = _assert_log_written(tmp_path, 100, "link lost")
     assert summary["client_failure"] and summary["client_output"]  # what ur_rtde printed is kept
@@ -234,7 +239,7 @@ def test_stop_signals_stop_the_arm_and_write_the_log_through_ur_rtde(emu, tmp_pa
         # cut its figures (tests/real/test_env_faults.py): say why, so that a host-timing stop gets its rerun
         # (HOST_TIMING_STOPS in conftest.py) and any other ending is seen.
         raise AssertionError(f"the run ended before the signal: {ended['stop_reason']}; {output}")
-    assert output == f"interrupted by {name}: the arm was stopped; the log so far is in {tmp_path}/\n"
+    assert output == f"{STARTED}\ninterrupted by {name}: the arm was stopped; the log so far is in {tmp_path}/\n"
     assert t_exit - t_signal < 5.0
     summary = _assert_log_written(tmp_path, 40, "interrupted")
     assert summary["signal"] == name and summary["last_stop"] == "at rest"  # speedStop, not the watchdog

@@ -183,6 +183,7 @@ def real(
             q0=None if q0 is None else _numbers("--q0", q0, 6),
             reference=_real_reference(task, target, ellipse_centre, ellipse_radius),
             deadline_stop=deadline_stop,
+            progress=lambda line: typer.echo(line, err=True),
         )
     except BaseException as exc:  # every way out: one line and a code of its own, never a traceback or a signal
         where = f"; the log so far is in {cast(Any, exc).log_dir}/" if getattr(exc, "log_dir", None) else ""

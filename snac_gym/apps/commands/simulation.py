@@ -174,6 +174,7 @@ def demo(
             model_error=model_error,
             engine=engine,
             pybullet_solver=pybullet_solver,
+            progress=_stderr_line,
         )
     except ValueError as exc:  # unknown controller, --seed, --out and other bad input: a clean message, not a traceback
         typer.echo(f"error: {exc}", err=True)
@@ -181,6 +182,11 @@ def demo(
     except KeyboardInterrupt as exc:  # a stop signal: run_demo says what it wrote (a partial run is marked so)
         raise interrupted(exc, getattr(exc, "kept", "nothing was written")) from None
     typer.echo(result.summary())
+
+
+def _stderr_line(line: str) -> None:
+    """A progress line on stderr, so that the figures of merit on stdout stay clean."""
+    typer.echo(line, err=True)
 
 
 def plot(
@@ -200,7 +206,7 @@ def plot(
 
     startup.imports_done()
     try:
-        files = redraw_figures(log, out)
+        files = redraw_figures(log, out, say=lambda text: _stderr_line(f"plot: {text}"))
     except ValueError as exc:  # no such log, or not a log: one line naming it
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
