@@ -51,7 +51,7 @@ hjb_residual_median    –       critic-based controllers: median over the sampl
 hjb_ratio_median       –       critic-based controllers: median over the sampled steps of the
                                critic's HJB residual r/eᵀQe (:mod:`snac_gym.control.optimality`; 0 for
                                the optimal critic); NaN for the others
-critic_error_final     –       regulation critics: ‖P̂ − P*(J)‖_F/‖P*‖_F at the last step; NaN
+critic_error_final     –       regulation critics: ``‖P̂ − P*(J)‖_F/‖P*‖_F`` at the last step; NaN
                                otherwise
 diverged               –       controllers that watch themselves (``snac-adaptive``): the
                                episode crossed one of its divergence bounds (and fell back to a
@@ -315,7 +315,7 @@ class DemoMetrics:
         steps: Control steps run.
         hjb_ratio_median: Median of the critic's HJB residual r / eᵀQe over the run (critic
             policies only, else ``None``; 0 for the optimal value function).
-        critic_error_final: ‖P̂ − P*(J)‖_F / ‖P*‖_F at the last step (regulation critics only).
+        critic_error_final: ``‖P̂ − P*(J)‖_F / ‖P*‖_F`` at the last step (regulation critics only).
     """
 
     final_error: float

@@ -181,7 +181,7 @@ class SNACPolicy(SNACCore):
 
         Returns:
             ``hjb_residual`` and ``hjb_ratio`` ``(K,)``, plus ``critic_error`` ``(K,)``
-            (‖P̂ − P*(J)‖_F / ‖P*‖_F) for regulation.
+            (``‖P̂ − P*(J)‖_F / ‖P*‖_F``) for regulation.
         """
         n = self.task_dim
         e, xdot_d = np.asarray(e, dtype=float), np.asarray(xdot_d, dtype=float)

@@ -359,7 +359,7 @@ class SNACHJBPolicy(CriticEpisode, BasePolicy):
         self, q: np.ndarray, e: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, x_c: np.ndarray, weights: np.ndarray
     ) -> dict[str, np.ndarray]:
         """HJB residual δ(e) (eq. 9, :func:`~snac_gym.control.optimality.hjb_residual` with û = −R⁻¹JᵀP̂e, the
-        feedback the critic commands), δ/eᵀQe and ‖P̂ − P*(J)‖/‖P*‖ at K logged rows.
+        feedback the critic commands), δ/eᵀQe and ``‖P̂ − P*(J)‖/‖P*‖`` at K logged rows.
 
         The critic is of the feedback problem ė = J u_fb for both tasks, so the same three hold
         for tracking (``x_d``, ``xdot_d`` and ``x_c`` are not needed; they keep the signature of

@@ -90,7 +90,7 @@ def add_critic_diagnostics(log: pd.DataFrame, policy: Any) -> pd.DataFrame:
 
     For a policy with ``critic_diagnostics`` (SNAC and its variants) and a log with critic
     weights, adds ``hjb_residual`` (r = ∇V̂ᵀξ̇ + eᵀQe + ûᵀRû), ``hjb_ratio`` (r / eᵀQe) and, for
-    regulation, ``critic_error`` (‖P̂ − P*(J)‖_F / ‖P*‖_F), each from the weights that gave the
+    regulation, ``critic_error`` (``‖P̂ − P*(J)‖_F / ‖P*‖_F``), each from the weights that gave the
     row's command. Other logs are returned unchanged.
     """
     diagnose = getattr(policy, "critic_diagnostics", None)

@@ -152,6 +152,22 @@ def test_the_site_builds_in_strict_mode(built_site):
     assert (site / "api" / "envs" / "index.html").is_file()
 
 
+#: Emphasis that begins inside a word: Markdown took a formula's asterisks (P*, K*, c*) for italics, and the page shows
+#: ``‖P̂ − P(J)‖/‖P‖`` with the stars gone and the middle slanted.
+EMPHASIS_INSIDE_A_WORD = re.compile(r"[\w)\]]<em>([^<]{0,40})")
+
+
+def test_no_formula_loses_its_asterisks_to_italics(built_site):
+    code, output, _, site = built_site
+    assert code == 0, output[-4000:]
+    found = [
+        f"{page.relative_to(site)}: …{match.group(0)}"
+        for page in sorted(site.rglob("*.html"))
+        for match in EMPHASIS_INSIDE_A_WORD.finditer(page.read_text(encoding="utf-8"))
+    ]
+    assert not found, "write P\\* in Markdown, or the formula in backticks in a docstring:\n" + "\n".join(found)
+
+
 # The built site opened in headless Chromium (tools/site_check.py): the maths typeset by the site's own KaTeX, no
 # maths source left as text, every image loaded, no error in the console. Skipped where Chromium is missing
 # (.ci/run installs Debian's ``chromium``). ``python tools/site_check.py SITE --screenshots DIR`` saves a PNG of
