@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from contextlib import ExitStack
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -199,11 +199,68 @@ def run_demo(
     spec = get_task(task)
     options = spec.demo_options(robot)
     _check_demo_arguments(seed, steps, duration, out_dir)
-    with ExitStack() as compiles:
-        if progress is not None:
-            compiles.enter_context(on_first_compile(lambda: progress(COMPILING)))
-        log, limits = _demo_log(spec, controller, options, seed, steps, duration, robot, model_error, engine,
-                        pybullet_solver, policy_kwargs, out_dir, csv, progress)  # fmt: skip
+    # The env's and the controller's first calls compile what numba's cache lacks: said as it starts, not after.
+    announce = on_first_compile(lambda: progress(COMPILING)) if progress is not None else nullcontext()
+    with announce:
+        env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver)
+        dt = env.unwrapped.dt
+        if duration is not None:
+            steps = round(duration / dt)
+        if steps is None:
+            steps = spec.horizon_steps(dt)
+        max_steps = round(MAX_DEMO_DURATION_S / dt)
+        if not 1 <= steps <= max_steps:
+            env.close()
+            raise ValueError(f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}")
+        if steps > env.spec.max_episode_steps:
+            env.close()
+            env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver, max_episode_steps=steps)
+        kinematics = env.unwrapped.kinematics
+        limits = (kinematics.lower_limits, kinematics.upper_limits)
+        try:
+            policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
+            on_step = None
+            if progress is not None:
+                lines = ProgressLines(
+                    "demo:", steps, progress, unit="steps", every_fraction=2.0, every_s=PROGRESS_EVERY_S
+                )
+                on_step = lambda count: lines.update(done=count)  # noqa: E731 - the counter of rollout's steps
+            log = add_critic_diagnostics(
+                rollout(env, policy, options=options, seed=seed, steps=steps, on_step=on_step), policy
+            )
+        except KeyboardInterrupt as exc:  # Ctrl-C or a stop signal: keep the steps run, marked as a partial run
+            partial = partial_log(exc)
+            exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
+            if out_dir is not None and partial is not None and len(partial):
+                partial.attrs["controller"] = controller
+                _record_engine(partial, engine, pybullet_solver)
+                status = {
+                    "complete": False,
+                    "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
+                    "steps_planned": steps,
+                }
+                write_demo_outputs(
+                    partial,
+                    spec.name,
+                    controller,
+                    seed,
+                    spec.success_tolerance,
+                    out_dir,
+                    csv=csv,
+                    plots=False,
+                    policy_kwargs=policy_kwargs,
+                    position_limits=limits,
+                    status=status,
+                )
+                exc.kept = (  # type: ignore[attr-defined]
+                    f"the log of the {len(partial)} of {steps} steps run and a summary marked "
+                    f'"complete": false are in {out_dir}/ (no figures)'
+                )
+            raise
+        finally:
+            env.close()
+    log.attrs["controller"] = controller
+    _record_engine(log, engine, pybullet_solver)
     if model_error is not None:
         log.attrs["model_error"] = model_error
     return write_demo_outputs(
@@ -219,84 +276,6 @@ def run_demo(
         position_limits=limits,
         say=None if progress is None else (lambda text: progress(f"demo: {text}")),
     )
-
-
-def _demo_log(
-    spec: Any,
-    controller: str,
-    options: dict[str, Any],
-    seed: int,
-    steps: int | None,
-    duration: float | None,
-    robot: str,
-    model_error: str | None,
-    engine: str,
-    pybullet_solver: str,
-    policy_kwargs: dict[str, Any] | None,
-    out_dir: str | Path | None,
-    csv: bool,
-    progress: Callable[[str], object] | None,
-) -> tuple[pd.DataFrame, tuple[Any, Any]]:
-    """The demo's rollout (:func:`run_demo`) and the arm's joint limits; an interrupt writes the steps run, marked
-    as a partial run, and says so in ``exc.kept``."""
-    env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver)
-    dt = env.unwrapped.dt
-    if duration is not None:
-        steps = round(duration / dt)
-    if steps is None:
-        steps = spec.horizon_steps(dt)
-    max_steps = round(MAX_DEMO_DURATION_S / dt)
-    if not 1 <= steps <= max_steps:
-        env.close()
-        raise ValueError(f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}")
-    if steps > env.spec.max_episode_steps:
-        env.close()
-        env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver, max_episode_steps=steps)
-    kinematics = env.unwrapped.kinematics
-    limits = (kinematics.lower_limits, kinematics.upper_limits)
-    try:
-        policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
-        on_step = None
-        if progress is not None:
-            lines = ProgressLines("demo:", steps, progress, unit="steps", every_fraction=2.0, every_s=PROGRESS_EVERY_S)
-            on_step = lambda count: lines.update(done=count)  # noqa: E731 - the counter of rollout's steps
-        log = add_critic_diagnostics(
-            rollout(env, policy, options=options, seed=seed, steps=steps, on_step=on_step), policy
-        )
-    except KeyboardInterrupt as exc:  # Ctrl-C or a stop signal: keep the steps run, marked as a partial run
-        partial = partial_log(exc)
-        exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
-        if out_dir is not None and partial is not None and len(partial):
-            partial.attrs["controller"] = controller
-            _record_engine(partial, engine, pybullet_solver)
-            status = {
-                "complete": False,
-                "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
-                "steps_planned": steps,
-            }
-            write_demo_outputs(
-                partial,
-                spec.name,
-                controller,
-                seed,
-                spec.success_tolerance,
-                out_dir,
-                csv=csv,
-                plots=False,
-                policy_kwargs=policy_kwargs,
-                position_limits=limits,
-                status=status,
-            )
-            exc.kept = (  # type: ignore[attr-defined]
-                f"the log of the {len(partial)} of {steps} steps run and a summary marked "
-                f'"complete": false are in {out_dir}/ (no figures)'
-            )
-        raise
-    finally:
-        env.close()
-    log.attrs["controller"] = controller
-    _record_engine(log, engine, pybullet_solver)
-    return log, limits
 
 
 def _stamp(path: Path) -> tuple[int, int] | None:
