@@ -222,7 +222,7 @@ def run_demo(
             on_step = None
             if progress is not None:
                 lines = ProgressLines(
-                    "demo:", steps, progress, unit="steps", every_fraction=2.0, every_s=PROGRESS_EVERY_S
+                    "demo:", steps, progress, unit="steps", every_fraction=math.inf, every_s=PROGRESS_EVERY_S
                 )
                 on_step = lambda count: lines.update(done=count)  # noqa: E731 - the counter of rollout's steps
             log = add_critic_diagnostics(

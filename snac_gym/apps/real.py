@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import signal
 from collections.abc import Callable, Sequence
-from contextlib import AbstractContextManager
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -317,7 +317,7 @@ def _run_and_stop(
             if stream is not None:
                 env.journal = StepJournal(stream, env.kinematics.n_joints, journal_writer)
             with frozen_gc(tuning.freeze_gc):
-                with on_first_compile(lambda: progress(COMPILING) if progress is not None else None):
+                with on_first_compile(lambda: progress(COMPILING)) if progress is not None else nullcontext():
                     warm_up(POLICY_KERNEL_MODULES)  # compiled or loaded now, not in the first control period
                 policy = make_policy(
                     controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {})
