@@ -16,7 +16,9 @@ import ast
 import functools
 import hashlib
 import importlib.util
+import sys
 from collections.abc import Iterable
+from importlib.machinery import ModuleSpec
 from pathlib import Path
 
 #: The package whose modules are followed (imports of other packages are left out: their versions are keyed apart).
@@ -24,11 +26,36 @@ PACKAGE = "snac_gym"
 
 
 @functools.lru_cache(maxsize=None)
+def _spec(name: str) -> ModuleSpec | None:
+    """The spec of module ``name``, found without running a module that is not a package.
+
+    ``importlib.util.find_spec("a.b.C")`` imports ``a.b`` to look for ``C`` in it, and an import names attributes as
+    often as modules (``from snac_gym.physics.mujoco import MujocoArms``): the key of a cache then imported MuJoCo, in
+    every evaluator worker (0.5 s of a process). Here a dotted name is looked up by the import system's own finders in
+    the folders of its parent's spec; a parent that is a plain module has no submodules, and nothing is imported."""
+    module = sys.modules.get(name)
+    if module is not None:
+        return module.__spec__
+    parent, _, _ = name.rpartition(".")
+    if not parent:
+        try:
+            return importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            return None
+    parent_spec = _spec(parent)
+    if parent_spec is None or parent_spec.submodule_search_locations is None:
+        return None  # a module's attribute, or under no package
+    for finder in sys.meta_path:  # the finders an import of ``name`` asks, in their order, with the parent's path
+        find = getattr(finder, "find_spec", None)
+        spec = find(name, parent_spec.submodule_search_locations) if find is not None else None
+        if spec is not None:
+            return spec
+    return None
+
+
+@functools.lru_cache(maxsize=None)
 def _origin(name: str) -> Path | None:
-    try:
-        spec = importlib.util.find_spec(name)
-    except (ImportError, ValueError):
-        return None
+    spec = _spec(name)
     if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
         return None
     return Path(spec.origin)

@@ -7,11 +7,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from snac_gym.evaluation import EvaluationConfig, run_evaluation
+from snac_gym.evaluation import EvaluationConfig, code_graph, run_evaluation
 from snac_gym.evaluation.cache_entry import DamagedEntry, entry_text, read_entry, write_entry
 from snac_gym.evaluation.code_graph import module_closure
 from snac_gym.evaluation.effort import cache as calibration_cache
@@ -170,6 +172,30 @@ def test_the_import_graph_follows_relative_and_in_function_imports():
     assert "snac_gym.kernels.small" in closure  # imported inside a function
     assert "snac_gym.kernels.compiled" in closure  # ... and what that module imports
     assert closure == tuple(sorted(closure)) and "snac_gym.evaluation.runner" not in closure
+
+
+def test_reading_the_graph_runs_no_module_it_reaches(tmp_path, monkeypatch):
+    """An import names a module's attribute as often as a module (``from a.b import C``): looking for a module ``C``
+    must not run ``a.b``. The reference's key imported MuJoCo in every worker so."""
+    package = tmp_path / "snac_gym_probe"
+    (package / "sub").mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "sub" / "__init__.py").write_text("")
+    (package / "sub" / "leaf.py").write_text("import sys\nsys.modules['snac_gym_probe_ran'] = None\nThing = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert code_graph._origin("snac_gym_probe.sub.leaf.Thing") is None  # an attribute of a plain module
+    assert code_graph._origin("snac_gym_probe.sub.leaf") == package / "sub" / "leaf.py"
+    assert code_graph._origin("snac_gym_probe.sub") == package / "sub" / "__init__.py"
+    assert "snac_gym_probe_ran" not in sys.modules and "snac_gym_probe.sub.leaf" not in sys.modules
+    # the reference's key, in a process that has imported what a worker has: nothing more is imported
+    script = (
+        "import sys\nimport snac_gym.evaluation.reference.optimum\nfrom snac_gym.evaluation.reference import cache\n"
+        "before = set(sys.modules)\ncache.code_fingerprint()\n"
+        "print(sorted(m for m in set(sys.modules) - before if m.startswith(('snac_gym', 'mujoco'))))\n"
+        "print('snac_gym.physics.mujoco' in cache.code_modules())"
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, timeout=120)
+    assert result.stdout.split("\n")[:2] == ["[]", "True"], result.stdout + result.stderr
 
 
 # -- the calibration cache ----------------------------------------------------------------------------
