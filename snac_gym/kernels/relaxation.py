@@ -4,7 +4,10 @@ interior point on the relaxed problem, whose Newton systems are banded (docs/low
 
 Arrays are filled by loops, not slice assignments or array expressions, the helpers carry no Python wrapper
 (:func:`~snac_gym.kernels.compiled.helper`) and those called once are inlined (:data:`_INLINED`): each cut numba's
-compile, seconds of a cold evaluation (7.5 → 4.6 s of one core in all, on an earlier day's machine).
+compile, seconds of a cold evaluation (7.5 → 4.6 s of one core in all, on an earlier day's machine). The loop over
+samples and horizons, a few calls a sample, is Python (:func:`_relaxation_bounds`): compiled, it had the whole solve
+built a second time with it (10.4-11.1 → 7.4-7.7 s of one core for this module, ``python
+docs/scripts/compile_times.py``).
 
 They are plain Python functions compiled by numba on first use (:func:`relaxation_kernel`), so that importing
 :mod:`snac_gym.control.optimality` does not import numba.
@@ -13,7 +16,9 @@ They are plain Python functions compiled by numba on first use (:func:`relaxatio
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, Any
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -314,21 +319,21 @@ def _terminal_weight(w: float, dt: float, remaining: int) -> float:  # pragma: n
     return value
 
 
-def _next_horizon(
-    x: _Floats, steps: int, total: int, q: float, dt: float, tail: float, target: float
-) -> int:  # pragma: no cover - compiled
+def _next_horizon(x: _Floats, steps: int, total: int, q: float, dt: float, tail: float, target: float) -> int:
     """The horizon to try after ``steps`` left a tail above ``target``: where the tail, decaying at the rate it
     did over the second half of this solve, would be below it (with a margin), at least double, at most K."""
     half = steps // 2
-    r_half = max(x[2 * half - 1], 0.0) if half > 0 else 0.0
+    r_half = max(float(x[2 * half - 1]), 0.0) if half > 0 else 0.0
     earlier = q * r_half * r_half * (total - half) * dt
     more = 2 * steps
     if 0.0 < tail < earlier and target > 0.0:
-        more = max(more, steps + int(1.25 * (steps - half) * np.log(tail / target) / np.log(earlier / tail)) + 1)
+        # math.log, the C library's, as the compiled code calls it (NumPy's own may differ in the last bit)
+        more = max(more, steps + int(1.25 * (steps - half) * math.log(tail / target) / math.log(earlier / tail)) + 1)
     return min(more, total)
 
 
 def _capped_solve(
+    solve: Any,  # the compiled _relaxation_solve
     r0: float,
     d: _Floats,
     b: _Floats,
@@ -343,17 +348,17 @@ def _capped_solve(
     max_iterations: int,
     x: _Floats,
     z: _Floats,
-) -> tuple[float, float, int, float, float]:  # pragma: no cover - compiled
+) -> tuple[float, float, int, float, float]:
     """:func:`_relaxation_solve` without the velocity caps first (half the constraints), and with them only where
     its solution breaks one. Dropping constraints only lowers the dual values, so the bound stays certified; and a
     solution within the caps is feasible with them, so its value still bounds the capped optimum from above.
     Returns (bound, value, iterations, r_last, v_last)."""
-    bound, value, used, r_last, v_last, v_peak = _relaxation_solve(
-        r0, d, b, dt, q, w, rest, terminal, np.inf, steps, rtol, max_iterations, x, z
+    bound, value, used, r_last, v_last, v_peak = solve(
+        r0, d, b, dt, q, w, rest, terminal, math.inf, steps, rtol, max_iterations, x, z
     )
     if v_peak <= vmax:
         return bound, value, used, r_last, v_last
-    bound, value, more, r_last, v_last, v_peak = _relaxation_solve(
+    bound, value, more, r_last, v_last, v_peak = solve(
         r0, d, b, dt, q, w, rest, terminal, vmax, steps, rtol, max_iterations, x, z
     )
     return bound, value, used + more, r_last, v_last
@@ -375,7 +380,16 @@ def _first_horizon(q: float, dt: float, bs: _Floats, rtol: float, total: int) ->
     return min(total, max(int(1.25 * steps), 0) + 16)
 
 
+class _Kernels(NamedTuple):
+    """The compiled parts of the bound (numba dispatchers)."""
+
+    solve: Any
+    first_horizon: Any
+    terminal_weight: Any
+
+
 def _relaxation_bounds(
+    kernels: _Kernels,
     r0s: _Floats,
     ds: _Floats,
     bs: _Floats,
@@ -388,31 +402,36 @@ def _relaxation_bounds(
     max_iterations: int,
     first_steps: int,
     out: _Floats,
-) -> None:  # pragma: no cover - compiled
+) -> None:
     """Per sample: the relaxed problem over a horizon that grows from ``first_steps`` until the part left out is
     provably within rtol, or the whole horizon. Rows of out: bound, upper bound on the relaxed optimum, iterations,
-    horizon solved (steps)."""
+    horizon solved (steps).
+
+    A few compiled calls a sample, so this loop is Python: compiled, it was a function that calls the solve, and
+    numba has LLVM optimise and emit a caller's code together with all it calls, so the solve's code was built twice
+    (2-3 s of a cold run's compile on 2-core machines, ``python docs/scripts/compile_times.py``). Its arithmetic is
+    the compiled loop's, operation for operation, in float64 without fused multiply-adds, as that loop was compiled:
+    on 1000 random problems (horizons of 2 to 2500 steps, with and without caps, u̇ term and rest start) every output
+    was the compiled loop's, bit for bit."""
     total = ds.shape[1] + 1
     x, z, d = np.empty(2 * total - 1), np.empty(2 * total - 1), np.empty(total - 1)
+    sums = np.empty(total - 1)
     for i in range(r0s.shape[0]):
-        # In units of r₀ + Σd the solve starts from the same scale for every sample; V scales with its square.
-        total_d = 0.0
-        for k in range(total - 1):
-            total_d += ds[i, k]
-        unit = r0s[i] + total_d
+        # In units of r₀ + Σd the solve starts from the same scale for every sample; V scales with its square. Σd in
+        # order, one addition at a time (a running sum, not NumPy's pairwise one), as the compiled loop summed.
+        total_d = float(np.cumsum(ds[i], out=sums)[-1]) if total > 1 else 0.0
+        unit = float(r0s[i]) + total_d
         if unit == 0.0:  # nothing to move: the trajectory at rest costs 0
-            for row in range(out.shape[0]):
-                out[row, i] = 0.0
+            out[:, i] = 0.0
             continue
-        for k in range(total - 1):
-            d[k] = ds[i, k] / unit
-        r0 = r0s[i] / unit
-        steps = first_steps if first_steps > 0 else _first_horizon(q, dt, bs[i], rtol, total)
+        np.divide(ds[i], unit, out=d)
+        r0 = float(r0s[i]) / unit
+        steps = first_steps if first_steps > 0 else kernels.first_horizon(q, dt, bs[i], rtol, total)
         steps, iterations = min(steps, total), 0
         while True:
-            terminal = _terminal_weight(w, dt, total - steps)
+            terminal = kernels.terminal_weight(w, dt, total - steps)
             bound, value, used, r_last, v_last = _capped_solve(
-                r0, d, bs[i], dt, q, w, rest, terminal, vmax / unit, steps, rtol, max_iterations, x, z
+                kernels.solve, r0, d, bs[i], dt, q, w, rest, terminal, vmax / unit, steps, rtol, max_iterations, x, z
             )
             iterations += used
             # Continued by the commands that cost terminal·v²_last (already in value), along which r never rises,
@@ -432,14 +451,11 @@ def _relaxation_bounds(
 #: Helpers inlined into their one caller by numba rather than compiled on their own: each separate function costs its
 #: own typing, lowering and linking (a cold run's compile of this module 5.9 → 5.4 s of one core, the mean of four in
 #: fresh processes). Only those whose inlining cannot change a bit: called where the caller has the same fast-math
-#: flags, or holding no product that feeds a sum (a fused multiply-add): ``_first_horizon`` and ``_dual_value`` stay
-#: apart (inlined, ``_dual_value`` moved the last bit of some bounds). ``_capped_solve`` compiled on its own had the
-#: whole solve under it optimised and emitted again.
-_INLINED = frozenset({
-    "_capped_solve", "_terminal_weight", "_next_horizon", "_constraint_bounds", "_add_constraint_curvature",
-    "_residuals", "_predictor_corrector_step",
-})  # fmt: skip
+#: flags, or holding no product that feeds a sum (a fused multiply-add): ``_dual_value`` stays apart (inlined, it
+#: moved the last bit of some bounds).
+_INLINED = frozenset({"_constraint_bounds", "_add_constraint_curvature", "_residuals", "_predictor_corrector_step"})
 
+#: The helpers the solve calls, compiled into this module's namespace (without Python wrappers).
 _RELAXATION_HELPERS = (
     "_relaxed_hessian_band",
     "_add_constraint_curvature",
@@ -455,36 +471,46 @@ _RELAXATION_HELPERS = (
     "_residuals",
     "_predictor_corrector_step",
     "_constraint_bounds",
-    "_relaxation_solve",
-    "_terminal_weight",
-    "_next_horizon",
-    "_first_horizon",
-    "_capped_solve",
 )
 
 
 @functools.lru_cache(maxsize=1)
-def relaxation_kernel() -> Any:  # a numba dispatcher (numba has no type hints)
-    """:func:`_relaxation_bounds` compiled (numba, cached on disk: a few seconds once, then a fraction of one).
-
-    The helpers are compiled first and bound in place of their Python versions in this module's namespace,
-    where the compiled callers look them up; numba imports here, not with the module.
-    """
+def _kernels() -> _Kernels:
+    """The solve, the first horizon and the terminal weight compiled (numba, cached on disk), the solve's helpers
+    compiled first and bound in place of their Python versions in this module's namespace, where the compiled
+    callers look them up; numba imports here, not with the module."""
     from numba import njit  # numba (~0.2 s to import) only once a bound is asked for
 
     namespace = globals()
     for name in _RELAXATION_HELPERS:
         if not hasattr(namespace[name], "py_func"):
             namespace[name] = helper(namespace[name], fastmath={"contract"}, inline=name in _INLINED)
-    dispatcher = njit(cache=True, nogil=True)(_relaxation_bounds)
-    stamp_with_dependencies(dispatcher)  # its helpers' source is relaxation_band.py's
-    return dispatcher
+    kernels = _Kernels(
+        solve=njit(cache=True, nogil=True, fastmath={"contract"})(_relaxation_solve),
+        first_horizon=njit(cache=True, nogil=True, fastmath={"contract"})(_first_horizon),
+        # without fast-math, as it was compiled inlined into the loop above (it holds no product that feeds a sum)
+        terminal_weight=njit(cache=True, nogil=True)(_terminal_weight),
+    )
+    for dispatcher in kernels:
+        stamp_with_dependencies(dispatcher)  # the solve's helpers' source is relaxation_band.py's
+    return kernels
+
+
+def relaxation_kernel() -> Callable[..., None]:
+    """The bound over a batch of samples: ``kernel(r0s, ds, bs, dt, q, w, rest, vmax, rtol, max_iterations,
+    first_steps, out)``, its compiled parts built on first use (a few seconds once, then a fraction of one)."""
+    return functools.partial(_relaxation_bounds, _kernels())
 
 
 def lazy_kernels() -> list[tuple[Any, list[Example]]]:  # Any: a numba dispatcher
-    """The kernel built on first use, with arguments of the types the bound calls it with
-    (:func:`snac_gym.kernels.compiled.warm_up` compiles or loads it with the other modules' kernels, so that an
-    evaluator's workers share its compile instead of each making it at its first reference job)."""
-    out = np.empty((4, 1))
-    example = (np.ones(1), np.zeros((1, 2)), np.ones((1, 2)), 0.008, 1.0, 1.0, True, np.inf, 1e-3, 10, 16, out)
-    return [(relaxation_kernel(), [example])]
+    """The kernels built on first use, with arguments of the types the bound calls them with
+    (:func:`snac_gym.kernels.compiled.warm_up` compiles or loads them with the other modules' kernels, so that an
+    evaluator's workers share their compile instead of each making it at its first reference job)."""
+    kernels = _kernels()
+    work = np.empty(3)
+    solve = (1.0, np.zeros(1), np.ones(1), 0.008, 1.0, 1.0, True, 0.0, math.inf, 2, 1e-3, 10, work, work.copy())
+    return [
+        (kernels.solve, [solve]),
+        (kernels.first_horizon, [(1.0, 0.008, np.ones(2), 1e-3, 3)]),
+        (kernels.terminal_weight, [(1.0, 0.008, 3)]),
+    ]
