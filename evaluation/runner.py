@@ -105,6 +105,8 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             matching = cached is None and bool(specs)
             on_model = config.match_effort and matching and model is not config
             effort_set = _effort_set(config, kinematics, space, executor, samples) if matching else samples
+            if matching and config.match_effort and config.progress and not config.resume:
+                announce_matching(sys.stderr.write, config, samples, effort_set, bool(identities))
             matched_on = samples if on_model else effort_set
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(
                 map(len, samples.values())
@@ -170,6 +172,38 @@ def announce_compiles(write: Any, modules: tuple[str, ...] = EVALUATOR_KERNEL_MO
 
     if not cached_on_disk(modules):
         write(COMPILING + "\n")
+
+
+def announce_matching(
+    write: Any,
+    config: EvaluationConfig,
+    samples: dict[str, list[EvaluationSample]],
+    effort_set: dict[str, list[EvaluationSample]],
+    cache_on: bool,
+) -> None:
+    """Say (one line) that the run matches equal effort before its evaluated samples, on how many samples, why no
+    knobs were read, and the options that make it shorter or skip it.
+
+    A run at the default settings reads the shipped knobs and matches nothing; any other run (another arm, cost or
+    controller) searches every controller's knob on the effort set first, 1000 samples a task whatever ``--samples``:
+    minutes, and many for a controller as slow as ``mpc``, for what may be a 10-sample question.
+    """
+    if config.recalibrate:
+        why = "--recalibrate"
+    elif not cache_on:
+        why = "the calibration cache is off"
+    else:
+        why = "no knobs cached or shipped for these controllers at these settings"
+    size = max(map(len, effort_set.values()), default=0)
+    shorter = (
+        ", --effort-samples 0 matches on the evaluated samples"
+        if size > max(map(len, samples.values()), default=0)
+        else ""
+    )
+    write(
+        f"evaluate: matching equal effort first, on {size} samples a task ({why}); "
+        f"--no-match-effort skips it{shorter}\n"
+    )
 
 
 def _writable_caches(config: EvaluationConfig) -> tuple[EvaluationConfig, bool]:
@@ -537,4 +571,4 @@ def _write_outputs(
     )
 
 
-__all__ = ["COMPILING", "announce_compiles", "export_sample_set", "load_samples", "run_evaluation"]
+__all__ = ["COMPILING", "announce_compiles", "announce_matching", "export_sample_set", "load_samples", "run_evaluation"]

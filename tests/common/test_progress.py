@@ -161,6 +161,10 @@ def test_evaluate_writes_progress_lines_to_stderr_off_a_terminal(tmp_path, progr
     if progress:
         assert lines and lines[-1].startswith("evaluate: 16/16 rollouts (100 %)"), result.stderr
         assert len(lines) <= 11  # at most one per tenth (the run is far shorter than 10 s a line)
+        # It matches effort on its own samples (no knobs read: the suite turns the calibration cache off), and says so
+        # first.
+        assert MATCHING.findall(result.stderr) == [("4", "the calibration cache is off", "--no-match-effort skips it")]
+        assert result.stderr.index("matching equal effort first") < result.stderr.index(lines[0])
     else:
         assert lines == [] and "evaluate:" not in result.stderr
 
@@ -217,3 +221,52 @@ def test_a_run_that_compiles_the_kernels_says_so_before_anything_else(tmp_path, 
         first = err.splitlines()[0]
         assert first == COMPILING and "numba's cache has none for this code yet" in first, err
     assert (COMPILING in err) == (progress and not cached), err
+
+
+MATCHING = re.compile(r"^evaluate: matching equal effort first, on (\d+) samples a task \((.+)\); (.+)$", re.M)
+
+
+def test_a_run_that_matches_effort_first_says_so_why_and_how_to_shorten_it(tmp_path):
+    """A run whose knobs are neither cached nor shipped searches them on the effort set before its own samples (1000
+    a task by default, whatever --samples): one line says so, on how many samples, why, and which options cut it.
+    In process, beside the console script's run in the test above."""
+    arguments = ["evaluate", "--samples", "4", "--horizon", "0.3", "--controllers", "dls,lqr", "--effort-reference",
+                 "dls", "--effort-samples", "6"]  # fmt: skip
+    result = _cli([*arguments, "--out", str(tmp_path / "larger")], tmp_path, in_process=True)
+    assert result.returncode == 0, result.stderr
+    shorter = "--no-match-effort skips it, --effort-samples 0 matches on the evaluated samples"
+    assert MATCHING.findall(result.stderr) == [("6", "the calibration cache is off", shorter)], result.stderr
+    for quiet in ("--no-progress", "--no-match-effort"):
+        kept = arguments[:7] + (arguments[7:] if quiet == "--no-progress" else [])  # no effort options without a match
+        other = _cli([*kept, quiet, "--out", str(tmp_path / quiet.strip("-"))], tmp_path, in_process=True)
+        assert other.returncode == 0, other.stderr
+        assert "matching equal effort" not in other.stderr, quiet
+
+
+@pytest.mark.parametrize(
+    ("recalibrate", "cache_on", "why"),
+    [
+        (True, True, "--recalibrate"),
+        (False, False, "the calibration cache is off"),
+        (False, True, "no knobs cached or shipped for these controllers at these settings"),
+    ],
+)
+def test_the_matching_notice_names_why_no_knobs_were_read(recalibrate, cache_on, why):
+    from snac_gym.evaluation.run_config import EvaluationConfig
+    from snac_gym.evaluation.runner import announce_matching
+
+    written: list[str] = []
+    config = EvaluationConfig(out=Path("unused"), recalibrate=recalibrate)
+    announce_matching(written.append, config, {"reach": [0] * 3}, {"reach": [0] * 3}, cache_on)  # type: ignore[list-item]
+    line = f"evaluate: matching equal effort first, on 3 samples a task ({why}); --no-match-effort skips it\n"
+    assert written == [line]
+
+
+def test_a_run_at_the_shipped_knobs_matches_nothing_and_says_nothing_of_it(tmp_path, monkeypatch):
+    """The default controllers at the default settings read the shipped knobs: no notice, and no match."""
+    monkeypatch.setenv("SNAC_GYM_CALIBRATION_CACHE", "1")
+    monkeypatch.setenv("SNAC_GYM_CACHE_DIR", str(tmp_path / "cache"))  # empty: the shipped knobs, not a cached match
+    arguments = ["evaluate", "--samples", "2", "--controllers", "snac,dls", "--out", str(tmp_path / "run")]
+    result = _cli(arguments, tmp_path, in_process=True)
+    assert result.returncode == 0, result.stderr
+    assert "matching equal effort" not in result.stderr and "matching effort" not in result.stderr, result.stderr
