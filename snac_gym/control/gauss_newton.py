@@ -18,7 +18,6 @@ from typing import Protocol
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import cholesky_banded, solve_banded
-from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from snac_gym.control.cost import CostConvention
 from snac_gym.control.shooting import angles, errors_and_jacobians, trajectory_cost_and_gradient
@@ -122,7 +121,8 @@ def gauss_newton_direction(
     """The Gauss-Newton step in u: M δθ with (A ⊗ I_m + blockdiag(2Δt q JₖᵀJₖ)) δθ = −Mᵀ ∂V/∂u.
 
     The blocks JₖᵀJₖ (k = 1..K−1) are added to the band (:func:`~snac_gym.kernels.trajopt.add_jacobian_blocks`) and the
-    system is solved by LAPACK's banded Cholesky, O(K·m·b²). ``curvature``: the blocks Σᵢ eₖᵢ∇²fᵢ(θₖ) ``(K, m, m)``
+    system is solved by a banded Cholesky, O(K·m·b²) (:func:`~snac_gym.kernels.trajopt.banded_cholesky_solve`:
+    LAPACK's ``dpbtrf`` and ``dpbtrs``, compiled). ``curvature``: the blocks Σᵢ eₖᵢ∇²fᵢ(θₖ) ``(K, m, m)``
     added too (:meth:`~snac_gym.model.kinematics.Kinematics.error_curvature_batch`): the exact Hessian of V in θ,
     Newton's step; the error term depends on θₖ alone, so they keep the band.
 
@@ -131,19 +131,23 @@ def gauss_newton_direction(
             arithmetic; the exact Hessian need not be away from a minimum).
     """
     steps, m = grad.shape
-    from snac_gym.kernels.trajopt import add_jacobian_blocks, add_symmetric_blocks  # numba: where first needed
+    from snac_gym.kernels.trajopt import (  # numba: where first needed
+        add_jacobian_blocks,
+        add_symmetric_blocks,
+        banded_cholesky_solve,
+    )
 
-    band = np.array(base, order="F")  # LAPACK's layout, so that dpbtrf factors it in place
+    band = np.array(base, order="F")  # LAPACK's layout: each column's band contiguous
     add_jacobian_blocks(band, read_only_view(jacobians), 2.0 * dt * q_scale)
     if curvature is not None:
         add_symmetric_blocks(band, curvature, 2.0 * dt * q_scale)
-    factor, info = dpbtrf(band, lower=1, overwrite_ab=1)  # band is this call's own copy
-    if info != 0:
-        raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")
     grad_theta = np.empty_like(grad)  # Mᵀ ∂V/∂u
     grad_theta[:-1] = (grad[:-1] - grad[1:]) / dt
     grad_theta[-1] = grad[-1] / dt
-    step_theta = dpbtrs(factor, -grad_theta.reshape(-1), lower=1)[0].reshape(steps, m)
+    info, solution = banded_cholesky_solve(band, -grad_theta.reshape(-1))  # band is this call's own copy
+    if info != 0:
+        raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")
+    step_theta = solution.reshape(steps, m)
     return np.diff(step_theta, axis=0, prepend=np.zeros((1, m))) / dt  # M δθ
 
 

@@ -9,7 +9,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from snac_gym.control.cost import CostConvention
 from snac_gym.control.gauss_newton import GAP_RTOL, MAX_ITERATIONS, MIN_STEP, GaussNewtonSolver
@@ -218,17 +217,17 @@ def _interior_direction(
     Returns:
         (δu = M δθ, the slacks' steps, the decrement −∂Φ/∂θᵀδθ, twice the model's decrease).
     """
-    from snac_gym.kernels.trajopt import add_jacobian_blocks  # numba: imported where first needed
+    from snac_gym.kernels.trajopt import add_jacobian_blocks, banded_cholesky_solve  # numba: where first needed
 
     steps, m = grad.shape
     band = np.array(base, order="F")
     add_jacobian_blocks(band, read_only_view(jacobians), 2.0 * dt * q_scale)
     state.add_to_band(band, m)
     rhs = -(_difference_transpose(grad, dt) + state.gradient())
-    factor, info = dpbtrf(band, lower=1, overwrite_ab=1)
+    info, solution = banded_cholesky_solve(band, rhs.reshape(-1))
     if info != 0:
         raise np.linalg.LinAlgError(f"interior-point matrix not positive definite (dpbtrf info {info})")
-    step_theta = dpbtrs(factor, rhs.reshape(-1), lower=1)[0].reshape(steps, m)
+    step_theta = solution.reshape(steps, m)
     step_u = np.diff(step_theta, axis=0, prepend=np.zeros((1, m))) / dt
     slack_steps = [step_u, -step_u] + ([step_theta, -step_theta] if state.limits.has_positions else [])
     return step_u, slack_steps, float(np.vdot(rhs, step_theta))

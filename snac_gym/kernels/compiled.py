@@ -101,10 +101,11 @@ class Kernel(Generic[_Parameters, _Result]):
         function: Callable[_Parameters, _Result],
         example: Callable[[], Example | list[Example]],
         warm: bool = True,
+        fastmath: bool | set[str] = False,
     ) -> None:
         from numba import njit  # numba is imported by the first module that defines a kernel
 
-        self.dispatcher = njit(cache=True, nogil=True)(function)
+        self.dispatcher = njit(cache=True, nogil=True, fastmath=fastmath)(function)
         stamp_with_dependencies(self.dispatcher)
         self.__doc__, self.__name__, self.__wrapped__ = function.__doc__, function.__name__, function
         self.example = example
@@ -127,7 +128,7 @@ class Kernel(Generic[_Parameters, _Result]):
 
 
 def kernel(
-    example: Callable[[], Example | list[Example]], warm: bool = True
+    example: Callable[[], Example | list[Example]], warm: bool = True, fastmath: bool | set[str] = False
 ) -> Callable[[Callable[_Parameters, _Result]], Kernel[_Parameters, _Result]]:
     """Decorator: the function compiled by numba (``nopython``, cached, releasing the GIL), see the module docstring.
 
@@ -137,8 +138,9 @@ def kernel(
         warm: Compiled by :func:`warm_up` with its module's kernels. ``False`` for a kernel that no controller,
             rollout or reference calls (a public helper kept for its users): it compiles on its first call instead
             of in every cold run's warm-up.
+        fastmath: numba's ``fastmath`` flags (``{"contract"}``: ``a + b*c`` may be one fused multiply-add).
     """
-    return lambda function: Kernel(function, example, warm)
+    return lambda function: Kernel(function, example, warm, fastmath)
 
 
 def helper(function: _Function, fastmath: bool | set[str] = False, inline: bool = False) -> _Function:

@@ -99,3 +99,51 @@ def chain_error_curvature(
                 if s != t:
                     curvature[b, columns[t], columns[s]] += value
     return curvature
+
+
+@kernel(lambda: (np.eye(13, 12, order="F") * 4.0, np.ones(12)), fastmath={"contract"})
+def banded_cholesky_solve(band: np.ndarray, rhs: np.ndarray) -> tuple[int, np.ndarray]:  # noqa: C901  # pragma: no cover - compiled
+    """Factor the lower band (LAPACK's lower form, Fortran order) in place, L Lᵀ, and solve L Lᵀ x = ``rhs``.
+
+    LAPACK's ``dpbtrf`` (its unblocked ``dpbtf2``, which it runs below bandwidth 32) then ``dpbtrs``, the same
+    operations in the same order: a column scaled by the pivot's reciprocal, a rank-1 update of the trailing block
+    column by column, two triangular solves. At the θ-system's bandwidth of 12 each of those is a BLAS call of a dozen
+    numbers, whose call costs more than its arithmetic: as library calls they took about a tenth of the reference's time
+    more (docs/benchmarks.md). ``contract`` lets LLVM fuse ``a + b·c`` as OpenBLAS's daxpy and ddot kernels do, so the
+    factor and the solution are LAPACK's bit for bit where those fuse (checked on 120 of the reference's bands,
+    ``python docs/scripts/banded_cholesky.py``). Returns (info, x): info > 0 is the 1-based column at which the matrix
+    is not positive definite (x is then unset), as ``dpbtrf``'s; a NaN pivot is not refused there either."""
+    rows, n = band.shape
+    kd = rows - 1
+    x = np.empty(n)
+    for j in range(n):
+        ajj = band[0, j]
+        if ajj <= 0.0:  # a NaN pivot goes on, as in the dpbtf2 SciPy's OpenBLAS ships (no DISNAN test)
+            return j + 1, x
+        ajj = np.sqrt(ajj)
+        band[0, j] = ajj
+        kn = min(kd, n - 1 - j)
+        if kn > 0:
+            scale = 1.0 / ajj
+            for i in range(1, kn + 1):
+                band[i, j] = scale * band[i, j]
+            for ii in range(kn):  # dsyr: the trailing block −= x xᵀ, column by column
+                xi = band[1 + ii, j]
+                if xi != 0.0:
+                    step = -xi
+                    column = j + 1 + ii
+                    for offset in range(kn - ii):
+                        band[offset, column] = band[offset, column] + step * band[1 + ii + offset, j]
+    for i in range(n):
+        x[i] = rhs[i]
+    for i in range(n):  # L y = rhs (dtbsv, lower, no transpose)
+        x[i] = x[i] / band[0, i]
+        step = -x[i]
+        for offset in range(min(n - 1 - i, kd)):
+            x[i + 1 + offset] = x[i + 1 + offset] + step * band[1 + offset, i]
+    for i in range(n - 1, -1, -1):  # Lᵀ x = y (dtbsv, lower, transposed)
+        total = 0.0
+        for offset in range(min(n - 1 - i, kd)):
+            total = total + x[i + 1 + offset] * band[1 + offset, i]
+        x[i] = (x[i] - total) / band[0, i]
+    return 0, x

@@ -357,9 +357,11 @@ def test_a_writable_stack_reaches_the_kernels_as_a_read_only_one(monkeypatch):
     seen: dict[str, list[bool]] = {}
     call = Kernel.__call__
     stack_argument = {"add_jacobian_blocks": 1}  # its first argument is the band it writes
+    no_stack = {"banded_cholesky_solve"}  # the call's own band, which it factors in place, and right-hand side
 
     def recording(self, *args):
-        seen.setdefault(self.__name__, []).append(args[stack_argument.get(self.__name__, 0)].flags.writeable)
+        if self.__name__ not in no_stack:
+            seen.setdefault(self.__name__, []).append(args[stack_argument.get(self.__name__, 0)].flags.writeable)
         return call(self, *args)
 
     monkeypatch.setattr(Kernel, "__call__", recording)
