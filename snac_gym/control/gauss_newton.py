@@ -146,7 +146,7 @@ def gauss_newton_direction(
     grad_theta[-1] = grad[-1] / dt
     info, solution = banded_cholesky_solve(band, -grad_theta.reshape(-1))  # band is this call's own copy
     if info != 0:
-        raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (dpbtrf info {info})")
+        raise np.linalg.LinAlgError(f"Gauss-Newton matrix not positive definite (Cholesky pivot {info})")
     step_theta = solution.reshape(steps, m)
     return np.diff(step_theta, axis=0, prepend=np.zeros((1, m))) / dt  # M δθ
 

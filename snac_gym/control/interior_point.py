@@ -226,7 +226,7 @@ def _interior_direction(
     rhs = -(_difference_transpose(grad, dt) + state.gradient())
     info, solution = banded_cholesky_solve(band, rhs.reshape(-1))
     if info != 0:
-        raise np.linalg.LinAlgError(f"interior-point matrix not positive definite (dpbtrf info {info})")
+        raise np.linalg.LinAlgError(f"interior-point matrix not positive definite (Cholesky pivot {info})")
     step_theta = solution.reshape(steps, m)
     step_u = np.diff(step_theta, axis=0, prepend=np.zeros((1, m))) / dt
     slack_steps = [step_u, -step_u] + ([step_theta, -step_theta] if state.limits.has_positions else [])

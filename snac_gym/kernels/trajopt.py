@@ -1,4 +1,5 @@
-"""Compiled assembly of the optimum's Gauss-Newton matrix (:func:`snac_gym.control.trajopt.gauss_newton_direction`).
+"""Compiled assembly of the optimum's Gauss-Newton matrix (:func:`snac_gym.control.trajopt.gauss_newton_direction`),
+and its banded Cholesky factor and solve (:func:`banded_cholesky_solve`).
 
 Each Gauss-Newton iteration adds the blocks 2Δt·q·JₖᵀJₖ (k = 1..K−1) to the fixed band A ⊗ I_m.
 As NumPy array arithmetic (a stack of products, then a scattered ``+=``) that took about a fifth
