@@ -39,8 +39,8 @@ def test_the_factor_and_the_solution_are_lapacks_and_solve_the_system(cost, step
     ours = np.array(band, order="F")
     our_info, our_solution = banded_cholesky_solve(ours, rhs)
     assert info == our_info == 0
-    # The same operations in the same order: bit for bit where OpenBLAS's daxpy and ddot fuse their multiply-adds, as
-    # on every machine measured (docs/scripts/banded_cholesky.py); to rounding wherever they might not.
+    # The same operations in the same order: bit for bit where OpenBLAS's daxpy and ddot fuse their multiply-adds (its
+    # SkylakeX kernels, the one machine measured: docs/scripts/banded_cholesky.py); to rounding wherever they might not.
     np.testing.assert_allclose(ours, factor, rtol=1e-13, atol=1e-13 * np.abs(factor).max())
     np.testing.assert_allclose(our_solution, solution, rtol=1e-11, atol=1e-11 * np.abs(solution).max())
     if steps <= 150:  # against a dense solve, which shares nothing with either
