@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -250,16 +250,48 @@ class Ellipse:
 
     def trajectory(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``x_d`` and ``ẋ_d`` at every time of ``times`` ``(K,)``, each of shape ``(K, 3)`` (the evaluator's form)."""
-        angles = self.angular_speed * np.asarray(times, dtype=float) + self.phase
-        cos, sin = np.cos(angles)[:, None], np.sin(angles)[:, None]
-        w = self.angular_speed
-        return self.centre + cos * self._major + sin * self._minor, (w * cos) * self._minor - (w * sin) * self._major
+        positions, velocities = Ellipse.trajectories([self], times)
+        return positions[:, 0], velocities[:, 0]
+
+    @staticmethod
+    def trajectories(ellipses: Sequence[Ellipse], times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`trajectory` of B ellipses at once, step-major: ``x_d`` and ``ẋ_d`` of shape ``(K, B, 3)``.
+
+        Element by element the arithmetic of ``c + cos·major + sin·minor`` and ``(ω cos)·minor − (ω sin)·major``, in
+        that order, a coordinate of every ellipse at a time, :data:`_STEP_BLOCK` steps at a time (their temporaries
+        stay in the cache): a lockstep rollout reads one step of every sample, and 250 ellipses over 2501 steps took
+        31 ms so, against 59 ms one ellipse at a time transposed afterwards.
+        """
+        times = np.asarray(times, dtype=float)
+        w = np.array([e.angular_speed for e in ellipses], dtype=float)
+        phase = np.array([e.phase for e in ellipses], dtype=float)
+        packed = np.array([e._packed for e in ellipses], dtype=float).reshape(len(ellipses), -1)
+        centre, major, minor = (_packed_columns(packed, name) for name in ("centre", "_major", "_minor"))
+        positions = np.empty((len(times), len(ellipses), 3))
+        velocities = np.empty((len(times), len(ellipses), 3))
+        for start in range(0, len(times), _STEP_BLOCK):
+            block = slice(start, start + _STEP_BLOCK)
+            angles = w * times[block, None] + phase
+            cos, sin = np.cos(angles), np.sin(angles)
+            w_cos, w_sin = w * cos, w * sin
+            for j in range(3):
+                x = cos * major[:, j]
+                x += centre[:, j]
+                x += sin * minor[:, j]
+                positions[block, :, j] = x
+                v = w_cos * minor[:, j]
+                v -= w_sin * major[:, j]
+                velocities[block, :, j] = v
+        return positions, velocities
 
     def points(self, count: int = 32) -> np.ndarray:
         """``count`` points evenly spaced in angle around the whole ellipse, shape ``(count, 3)``."""
         angles = self.phase + np.linspace(0.0, 2 * np.pi, count, endpoint=False)
         return self.centre + np.stack([np.cos(angles), np.sin(angles)], axis=1) @ self._axes_matrix.T
 
+
+#: Steps of :meth:`Ellipse.trajectories` computed at a time.
+_STEP_BLOCK = 128
 
 #: The arrays of an :class:`Ellipse` and their shapes, in the order of its one packed array.
 _ELLIPSE_ARRAYS = (
@@ -270,6 +302,17 @@ _ELLIPSE_ARRAYS = (
     ("_major", (3,)),
     ("_minor", (3,)),
 )
+
+
+def _packed_columns(packed: np.ndarray, name: str) -> np.ndarray:
+    """The array ``name`` of :data:`_ELLIPSE_ARRAYS` of every row of ``packed`` ``(B, ·)``, ``(B, size)``."""
+    start = 0
+    for array_name, shape in _ELLIPSE_ARRAYS:
+        size = math.prod(shape)
+        if array_name == name:
+            return packed[:, start : start + size]
+        start += size
+    raise KeyError(name)
 
 
 def _bind_arrays(ellipse: Ellipse, packed: np.ndarray) -> None:

@@ -30,7 +30,7 @@ import numpy as np
 
 from snac_gym.model.kinematics import joint_step
 from snac_gym.policies.base import LockstepPolicies, PolicyContext
-from snac_gym.references import Reference
+from snac_gym.references import Ellipse, Reference
 from snac_gym.rollout.batch import RolloutError, Rollouts, summarise_critic_diagnostics
 
 #: Steps between two samples of the critic diagnostics in :func:`simulate_kinematic` (0.2 s at 125 Hz).
@@ -63,6 +63,31 @@ def reference_trajectories(
             raise TypeError(f"reference {i} is a {type(reference).__name__}, not a reference with a trajectory(times)")
         centres[i] = reference.centre
         positions[i], velocities[i] = reference.trajectory(times)
+    return positions, velocities, centres
+
+
+def step_major_trajectories(
+    references: Sequence[Reference], times: np.ndarray, dim: int = 3
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`reference_trajectories` step-major, ``(K, B, n)``, as a lockstep loop reads them (one step of every
+    sample at a time): the ellipses all at once (:meth:`~snac_gym.references.Ellipse.trajectories`), any other
+    reference by its own ``trajectory(times)``. The same values bit for bit."""
+    times = np.asarray(times, dtype=float)
+    count, steps = len(references), len(times)
+    positions = np.empty((steps, count, dim))
+    velocities = np.empty((steps, count, dim))
+    centres = np.empty((count, dim))
+    ellipses = {i: r for i, r in enumerate(references) if type(r) is Ellipse and dim == 3}
+    if ellipses:
+        rows = slice(None) if len(ellipses) == count else list(ellipses)
+        positions[:, rows], velocities[:, rows] = Ellipse.trajectories(list(ellipses.values()), times)
+    done = set(ellipses)
+    for i, reference in enumerate(references):
+        if not callable(getattr(reference, "trajectory", None)):
+            raise TypeError(f"reference {i} is a {type(reference).__name__}, not a reference with a trajectory(times)")
+        centres[i] = reference.centre
+        if i not in done:
+            positions[:, i], velocities[:, i] = reference.trajectory(times)
     return positions, velocities, centres
 
 
@@ -145,10 +170,9 @@ def simulate_kinematic(
     limits = np.asarray(context.velocity_limits, dtype=float)
     count, m, n = len(samples), layout.n_joints, layout.task_dim
     times = np.arange(steps + 1) * dt
-    x_d, xdot_d, centres = reference_trajectories([s.reference for s in samples], times, n)
     # Read one step of every sample at a time below: step-major, each read is one block, not B rows strided by the
     # horizon (a third of the loop's own time on a tracking horizon). The rollouts get sample-major views of them.
-    x_d, xdot_d = _swap_leading_axes(x_d), _swap_leading_axes(xdot_d)
+    x_d, xdot_d, centres = step_major_trajectories([s.reference for s in samples], times, n)
     task_error = task_error_function(kinematics)
 
     q = np.array([s.q0 for s in samples], dtype=float).reshape(count, m)

@@ -221,6 +221,39 @@ def test_batched_references_equal_the_reference_methods(track_samples):
             np.testing.assert_allclose(velocities[i, k], xdot_d, rtol=0, atol=1e-15)
 
 
+@pytest.mark.parametrize("steps", [1, 127, 128, 129, 2501])
+def test_the_step_major_trajectories_are_the_per_sample_ones_bit_for_bit(ur10, steps):
+    """The lockstep loop's step-major x_d and ẋ_d (every ellipse at once, in blocks of steps) are each reference's
+    own ``trajectory(times)`` exactly, for ellipses, fixed targets, a mix and a reference of another type, and those
+    are the 3-vector formula of :class:`Ellipse` evaluated one ellipse at a time."""
+    from snac_gym.rollout.kinematic import step_major_trajectories
+
+    track = generate_samples(ur10, SampleSpace.workspace(ur10), 21, "track", range(60))
+    reach = generate_samples(ur10, SampleSpace.workspace(ur10), 21, "reach", range(5))
+
+    class Shifted:  # any object with a trajectory(times) and a centre
+        centre = np.array([0.1, 0.2, 0.3])
+
+        def trajectory(self, times):
+            return np.tile(self.centre, (len(times), 1)) + times[:, None], np.ones((len(times), 3))
+
+    times = np.arange(steps) / 125.0
+    ellipses, targets = [s.reference for s in track], [s.reference for s in reach]
+    for references in (ellipses, targets, [*ellipses[:7], *targets, Shifted()]):
+        x_d, xdot_d, centres = step_major_trajectories(references, times)
+        for i, reference in enumerate(references):
+            position, velocity = reference.trajectory(times)
+            np.testing.assert_array_equal(x_d[:, i], position)
+            np.testing.assert_array_equal(xdot_d[:, i], velocity)
+            np.testing.assert_array_equal(centres[i], reference.centre)
+    for e in ellipses:
+        angles = e.angular_speed * times + e.phase
+        cos, sin = np.cos(angles)[:, None], np.sin(angles)[:, None]
+        position, velocity = e.trajectory(times)
+        np.testing.assert_array_equal(position, e.centre + cos * e._major + sin * e._minor)
+        np.testing.assert_array_equal(velocity, (e.angular_speed * cos) * e._minor - (e.angular_speed * sin) * e._major)
+
+
 def test_kinematic_engine_integrates_exactly_and_observes_like_the_env(ur10, context_of, track_samples):
     context = context_of("track")
     policies = []
