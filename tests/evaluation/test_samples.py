@@ -221,7 +221,7 @@ def test_batched_references_equal_the_reference_methods(track_samples):
             np.testing.assert_allclose(velocities[i, k], xdot_d, rtol=0, atol=1e-15)
 
 
-@pytest.mark.parametrize("steps", [1, 127, 128, 129, 2501])
+@pytest.mark.parametrize("steps", [1, 128, 533, 534, 2501])  # 60 ellipses: blocks of 533 steps
 def test_the_step_major_trajectories_are_the_per_sample_ones_bit_for_bit(ur10, steps):
     """The lockstep loop's step-major x_d and ẋ_d (every ellipse at once, in blocks of steps) are each reference's
     own ``trajectory(times)`` exactly, for ellipses, fixed targets, a mix and a reference of another type, and those
