@@ -266,10 +266,11 @@ def _vector_norms(vectors: np.ndarray) -> np.ndarray:
 
     NumPy adds a last axis shorter than 8 in index order, element by element, which for the logs' d = 3, 6 or 7 took 2
     to 3 times as long as adding the d columns of the whole log in the same order, as here. From 8 on its pairwise sum
-    adds in another order, so its own norm is taken there.
+    adds in another order, so its own norm is taken there, as for integers and complex numbers.
     """
+    vectors = np.asarray(vectors)
     width = vectors.shape[-1]
-    if width == 0 or width >= 8:
+    if width == 0 or width >= 8 or not np.issubdtype(vectors.dtype, np.floating):
         return np.asarray(np.linalg.norm(vectors, axis=-1))
     squares = vectors[..., 0] * vectors[..., 0]
     for j in range(1, width):

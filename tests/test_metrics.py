@@ -135,3 +135,8 @@ def test_the_logs_norms_are_numpys_bit_for_bit(width):
     with np.errstate(over="ignore"):
         np.testing.assert_array_equal(_vector_norms(logs), np.linalg.norm(logs, axis=-1))
         np.testing.assert_array_equal(_vector_norms(logs[0, 0]), np.linalg.norm(logs[0, 0]))
+        np.testing.assert_array_equal(_vector_norms(logs[:, ::-2]), np.linalg.norm(logs[:, ::-2], axis=-1))  # a view
+    finite = np.clip(logs[1:3, :3], -1e9, 1e9)  # integers and complex numbers go to NumPy's own norm
+    for other in (logs.astype(np.float32), np.rint(finite).astype(np.int64), finite * (1 + 2j)):
+        with np.errstate(over="ignore", invalid="ignore"):
+            np.testing.assert_array_equal(_vector_norms(other), np.linalg.norm(other, axis=-1))
