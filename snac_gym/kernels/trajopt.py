@@ -1,5 +1,6 @@
 """Compiled assembly of the optimum's Gauss-Newton matrix (:func:`snac_gym.control.trajopt.gauss_newton_direction`),
-and its banded Cholesky factor and solve (:func:`banded_cholesky_solve`).
+its banded Cholesky factor and solve (:func:`banded_cholesky_solve`), and the joint path of a plan
+(:func:`joint_path`).
 
 Each Gauss-Newton iteration adds the blocks 2Δt·q·JₖᵀJₖ (k = 1..K−1) to the fixed band A ⊗ I_m.
 As NumPy array arithmetic (a stack of products, then a scattered ``+=``) that took about a fifth
@@ -15,6 +16,31 @@ import numpy as np
 
 from snac_gym.kernels.chain import chain_example, joint_frames
 from snac_gym.kernels.compiled import Example, kernel, read_only
+
+
+@kernel(lambda: (read_only(np.zeros(6)), read_only(np.ones((3, 6))), 0.008))
+def joint_path(q0: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:  # pragma: no cover - compiled
+    """θ₁..θ_K = θ₀ + Δt Σᵢ≤ₖ uᵢ of :func:`snac_gym.model.kinematics.joint_path`: NumPy's ``q0 + cumsum(commands,
+    axis=0) * dt`` bit for bit (its cumulative sum adds each column in order; then the product, then the sum), at a
+    quarter of the three array operations' time on a 2500-step plan, which each cost evaluation of the optimum's
+    solves makes.
+
+    Args:
+        q0: ``(m,)`` θ₀.
+        commands: ``(K, m)`` commands u₀..u_{K−1}.
+        dt: Δt.
+    """
+    steps, m = commands.shape
+    path = np.empty((steps, m))
+    total = np.empty(m)
+    for j in range(m):
+        total[j] = commands[0, j] if steps else 0.0
+    for k in range(steps):
+        for j in range(m):
+            if k:
+                total[j] = total[j] + commands[k, j]
+            path[k, j] = q0[j] + total[j] * dt
+    return path
 
 
 @kernel(lambda: (np.zeros((13, 12), order="F"), read_only(np.ones((3, 3, 6))), 1.0))

@@ -47,9 +47,12 @@ def joint_path(q0: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:
     """θ₁..θ_K of the same model over a command sequence ``(K, m)`` at once: θₖ₊₁ = θ₀ + Δt Σᵢ≤ₖ uᵢ (eq. 3).
 
     The trajectory optimiser's form (:mod:`snac_gym.control.trajopt`): a cumulative sum, which rounds differently
-    from K calls of :func:`joint_step` (about 1e-13 rad over 2500 steps; hence its limit clearance).
+    from K calls of :func:`joint_step` (about 1e-13 rad over 2500 steps; hence its limit clearance). Compiled
+    (:func:`snac_gym.kernels.trajopt.joint_path`): ``q0 + cumsum(commands, axis=0) * dt`` bit for bit.
     """
-    path: np.ndarray = np.add(q0, np.cumsum(commands, axis=0) * dt)
+    from snac_gym.kernels.trajopt import joint_path as compiled_path  # numba: imported where first needed
+
+    path: np.ndarray = compiled_path(read_only_view(q0), read_only_view(commands), float(dt))
     return path
 
 

@@ -276,3 +276,18 @@ def test_the_compiled_damped_resolve_is_numpys_solve_and_a_row_is_the_row_alone(
         np.testing.assert_allclose(found, expected, rtol=1e-9, atol=1e-9)
         for i in (0, 7, 299):
             assert damped_resolve_rows(jacobians[i], velocities[i], damping).tobytes() == found[i].tobytes()
+
+
+@pytest.mark.parametrize("steps", [0, 1, 2, 150, 2501])
+def test_the_joint_path_is_numpys_cumulative_sum_bit_for_bit(steps):
+    """θ₁..θ_K of a plan (the optimum's every cost evaluation), compiled: ``q0 + cumsum(commands, axis=0) * dt``
+    exactly, for 6 and 7 joints, commands of every magnitude, and views that are not contiguous."""
+    from snac_gym.model.kinematics import joint_path
+
+    rng = np.random.default_rng(steps)
+    for joints in (6, 7):
+        commands = rng.standard_normal((steps, joints)) * 10.0 ** rng.integers(-6, 3, (steps, joints))
+        q0, dt = rng.uniform(-3.0, 3.0, joints), 1.0 / 125.0
+        np.testing.assert_array_equal(joint_path(q0, commands, dt), q0 + np.cumsum(commands, axis=0) * dt)
+        wide = np.repeat(commands, 2, axis=1)[:, ::2]  # the same values, strided
+        np.testing.assert_array_equal(joint_path(q0, wide, dt), q0 + np.cumsum(wide, axis=0) * dt)
