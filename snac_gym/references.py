@@ -267,8 +267,8 @@ class Ellipse:
             return np.empty((len(times), 0, 3)), np.empty((len(times), 0, 3))
         w = np.array([e.angular_speed for e in ellipses], dtype=float)
         phase = np.array([e.phase for e in ellipses], dtype=float)
-        packed = np.array([e._packed for e in ellipses], dtype=float).reshape(len(ellipses), -1)
-        centre, major, minor = (_packed_columns(packed, name) for name in ("centre", "_major", "_minor"))
+        centre = np.array([e.centre for e in ellipses])
+        major, minor = np.array([e._major for e in ellipses]), np.array([e._minor for e in ellipses])
         positions = np.empty((len(times), len(ellipses), 3))
         velocities = np.empty((len(times), len(ellipses), 3))
         steps = max(1, _BLOCK_VALUES // len(ellipses))
@@ -305,17 +305,6 @@ _ELLIPSE_ARRAYS = (
     ("_major", (3,)),
     ("_minor", (3,)),
 )
-
-
-def _packed_columns(packed: np.ndarray, name: str) -> np.ndarray:
-    """The array ``name`` of :data:`_ELLIPSE_ARRAYS` of every row of ``packed`` ``(B, ·)``, ``(B, size)``."""
-    start = 0
-    for array_name, shape in _ELLIPSE_ARRAYS:
-        size = math.prod(shape)
-        if array_name == name:
-            return packed[:, start : start + size]
-        start += size
-    raise KeyError(name)
 
 
 def _bind_arrays(ellipse: Ellipse, packed: np.ndarray) -> None:

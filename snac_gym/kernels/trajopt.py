@@ -32,13 +32,11 @@ def joint_path(q0: np.ndarray, commands: np.ndarray, dt: float) -> np.ndarray:  
     """
     steps, m = commands.shape
     path = np.empty((steps, m))
-    total = np.empty(m)
-    for j in range(m):
-        total[j] = commands[0, j] if steps else 0.0
+    total = np.zeros(m)
     for k in range(steps):
         for j in range(m):
-            if k:
-                total[j] = total[j] + commands[k, j]
+            # the first row itself, as NumPy's cumsum starts, not 0.0 + it (which would turn a −0.0 into +0.0)
+            total[j] = total[j] + commands[k, j] if k else commands[k, j]
             path[k, j] = q0[j] + total[j] * dt
     return path
 
