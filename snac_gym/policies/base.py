@@ -42,6 +42,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from snac_gym.kernels.compiled import read_only_view
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.model.model_error import refuse_pose_tasks
 from snac_gym.observation import ObservationLayout
@@ -77,6 +78,19 @@ def scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarr
     maps share: the direction of u, and of ė = J u, is kept (:func:`snac_gym.baselines._common.scale_into_box` is
     the one-row form that also returns the factor).
     """
+    rows, bounds = np.asarray(commands), np.asarray(limits)
+    if (
+        rows.ndim in (1, 2)
+        and rows.shape[-1] > 0
+        and bounds.shape == rows.shape[-1:]
+        and rows.dtype.kind in "fiu"
+        and bounds.dtype.kind in "fiu"
+        and np.result_type(rows, bounds) == np.float64
+    ):  # the controllers' case, compiled: the same bits at a seventh of the time (a NumPy call per step costs more)
+        from snac_gym.kernels.small import scale_rows  # numba: imported where first needed
+
+        scaled_rows: np.ndarray = scale_rows(read_only_view(rows.reshape(-1, rows.shape[-1])), read_only_view(bounds))
+        return scaled_rows.reshape(rows.shape)
     scales = np.max(np.abs(commands) / limits, axis=-1, keepdims=True)
     scaled = commands / np.maximum(scales, 1.0)
     # u/scale can land one rounding step outside the limit it was scaled onto.
