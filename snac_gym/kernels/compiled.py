@@ -42,6 +42,7 @@ POLICY_KERNEL_MODULES = (
 #: Every module that defines a kernel (the evaluator's metrics and optimum too).
 KERNEL_MODULES = (
     *POLICY_KERNEL_MODULES,
+    "snac_gym.kernels.lockstep",
     "snac_gym.kernels.metrics",
     "snac_gym.kernels.trajopt",
     "snac_gym.kernels.relaxation",

@@ -28,6 +28,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from snac_gym.kernels.compiled import read_only_view
 from snac_gym.model.kinematics import joint_step
 from snac_gym.policies.base import LockstepPolicies, PolicyContext
 from snac_gym.references import Ellipse, Reference
@@ -115,6 +116,42 @@ def task_error_function(kinematics: Any) -> ErrorFunction:
     return error
 
 
+def _measured(arms: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The arms' measured θ and θ̇ as the engine's own arrays (C-ordered float64, writeable), as the compiled
+    observation takes them."""
+    q, qdot = arms.joint_state()
+    return np.array(q, dtype=float, order="C"), np.array(qdot, dtype=float, order="C")
+
+
+Observer = Callable[..., np.ndarray]
+
+
+def _observer(layout: Any, m: int, n: int) -> Observer:
+    """``observe(q, qdot, x, x_d, xdot_d, e, x_c)``: a new ``(B, d)`` observation array of the fields.
+
+    The compiled one (:func:`snac_gym.kernels.lockstep.observations`) for the layout of
+    :class:`~snac_gym.observation.ObservationLayout`; for any other, the fields copied where its slices say."""
+    fields = ("q", "qdot", "x", "x_d", "xdot_d", "e", "x_c")
+    widths = (m, m, n, n, n, n, n)
+    starts = np.cumsum((0, *widths))
+    standard = layout.size == starts[-1] and all(
+        layout.slices.get(name) == slice(int(start), int(start + width))
+        for name, start, width in zip(fields, starts, widths, strict=False)
+    )
+    if standard:
+        from snac_gym.kernels.lockstep import observations  # numba: imported where first needed
+
+        return observations
+
+    def observe(*values: np.ndarray) -> np.ndarray:
+        obs = np.empty((len(values[0]), layout.size))
+        for name, value in zip(fields, values, strict=True):
+            obs[:, layout.slices[name]] = value
+        return obs
+
+    return observe
+
+
 def _check_commands(
     commands: np.ndarray, expected: tuple[int, int], label: str, samples: Sequence[Any], k: int
 ) -> None:
@@ -182,36 +219,33 @@ def simulate_kinematic(
         if len(arms) != count:
             raise ValueError(f"need one arm per sample, got {len(arms)} arms for {count} samples")
         arms.reset(q)
-        q, qdot = arms.joint_state()
+        q, qdot = _measured(arms)
     # Logged step-major, so that each step writes one contiguous block; transposed once at the end.
     u_log = np.empty((steps, count, m))
     e_log = np.empty((steps, count, n))
     q_log = np.empty((steps, count, m)) if keep_states else None
     x_log = np.empty((steps, count, n)) if keep_states else None
-    slices = layout.slices
+    observe = _observer(layout, m, n)
+    limits_view = read_only_view(limits)
     policies = LockstepPolicies(make_policy, seeds, use_batch=use_batch)
     critic = policies.critic
     # Critic diagnostics every DIAGNOSTIC_STRIDE steps and at the last one: the per-rollout median
     # and final value need no more, and a full pass stays within a few % of its time.
     diagnostic_steps = set(range(0, steps, DIAGNOSTIC_STRIDE)) | {steps - 1} if critic is not None else set()
     diagnostic_rows: list[dict[str, np.ndarray]] = []
+    from snac_gym.kernels.lockstep import hold_commands  # numba: imported where first needed
+
     for k in range(steps):
-        x = kinematics.forward_batch(q)
-        obs = np.empty((count, layout.size))  # fresh each step: a policy may keep a view of its input
-        obs[:, slices["q"]] = q
-        obs[:, slices["qdot"]] = qdot
-        obs[:, slices["x"]] = x
-        obs[:, slices["x_d"]] = x_d[k]
-        obs[:, slices["xdot_d"]] = xdot_d[k]
+        x = read_only_view(kinematics.forward_batch(q))
         task_error(x, x_d[k], e_log[k])
-        obs[:, slices["e"]] = e_log[k]
-        obs[:, slices["x_c"]] = centres
+        obs = observe(q, qdot, x, x_d[k], xdot_d[k], e_log[k], centres)  # fresh each step: a policy may keep a view
         if k in diagnostic_steps:
             diagnostic_rows.append(critic(q, e_log[k], x_d[k], xdot_d[k], centres, policies.critic_weights()))
         commands = policies.act(obs)
-        _check_commands(commands, (count, m), label, samples, k)
-        held = np.minimum(np.maximum(commands, -limits), limits)
-        u_log[k] = held
+        # The shape first: the compiled clip reads (B, m) as it is told.
+        if np.shape(commands) != (count, m) or not hold_commands(read_only_view(commands), limits_view, u_log[k]):
+            _check_commands(commands, (count, m), label, samples, k)
+        held = u_log[k]  # np.minimum(np.maximum(commands, -limits), limits), written into the log
         if keep_states:
             q_log[k] = q  # type: ignore[index]
             x_log[k] = x  # type: ignore[index]
@@ -220,7 +254,7 @@ def simulate_kinematic(
             qdot = held
         else:
             arms.apply(held)
-            q, qdot = arms.joint_state()
+            q, qdot = _measured(arms)
     final_x = kinematics.forward_batch(q)
     return Rollouts(
         dt=dt,
