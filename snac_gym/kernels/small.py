@@ -231,7 +231,7 @@ def scale_rows(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:  # pragm
     """Each row of ``commands`` ``(B, m)`` divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1, then clipped
     to ``±limits`` ``(m,)``: :func:`~snac_gym.policies.base.scale_rows_into_limits`, bit for bit NumPy's
     ``np.max(np.abs(u) / limits, axis=-1)``, ``np.maximum``, ``/`` and the clip (a NaN in a row makes the row NaN, as
-    there), with no temporary arrays: five NumPy calls on a 250 × 6 stack cost 20 µs a control step, this 3 µs."""
+    there), with no temporary arrays: five NumPy calls on a 250 × 6 stack cost 22 µs a control step, this 4 µs."""
     count, m = commands.shape[0], commands.shape[1]
     out = np.empty((count, m))
     for b in range(count):

@@ -136,7 +136,7 @@ def _observer(layout: Any, m: int, n: int) -> Observer:
     starts = np.cumsum((0, *widths))
     standard = layout.size == starts[-1] and all(
         layout.slices.get(name) == slice(int(start), int(start + width))
-        for name, start, width in zip(fields, starts, widths, strict=False)
+        for name, start, width in zip(fields, starts[:-1], widths, strict=True)
     )
     if standard:
         from snac_gym.kernels.lockstep import observations  # numba: imported where first needed
