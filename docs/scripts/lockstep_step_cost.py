@@ -16,27 +16,14 @@ Each pair is checked equal bit for bit first; each figure is the best of 5 repea
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
-
 import numpy as np
+from kernel_speed import best_of
 from threadpoolctl import threadpool_limits
 
 from snac_gym.kernels.compiled import read_only_view
 from snac_gym.kernels.lockstep import hold_commands, observations
 from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import scale_rows_into_limits
-
-
-def best_of(function: Callable[[], object], repeats: int = 5, calls: int = 2000) -> float:
-    function()
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        for _ in range(calls):
-            function()
-        times.append((time.perf_counter() - started) / calls)
-    return min(times)
 
 
 def numpy_scaling(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:
@@ -84,7 +71,8 @@ def main() -> None:
             ("observation", lambda: observations(*fields), by_slices),
             ("clip, finiteness test and log", compiled_clip, numpy_clip),
         ):  # fmt: skip
-            print(f"{name:42s} {count:5d} {best_of(compiled) * 1e6:12.2f} {best_of(peer) * 1e6:9.2f}")
+            compiled_us, peer_us = best_of(compiled, calls=2000) * 1e6, best_of(peer, calls=2000) * 1e6
+            print(f"{name:42s} {count:5d} {compiled_us:12.2f} {peer_us:9.2f}")
 
 
 if __name__ == "__main__":

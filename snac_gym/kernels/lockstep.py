@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from snac_gym.kernels.compiled import kernel, read_only
+from snac_gym.kernels.small import clip_into
 
 
 def _observation_example() -> tuple[np.ndarray, ...]:
@@ -55,10 +56,7 @@ def hold_commands(commands: np.ndarray, limits: np.ndarray, held: np.ndarray) ->
     finite = True
     for b in range(commands.shape[0]):
         for j in range(commands.shape[1]):
-            value = commands[b, j]
-            if not np.isfinite(value):
+            if not np.isfinite(commands[b, j]):
                 finite = False
-            low, high = -limits[j], limits[j]
-            value = value if (value >= low or value != value) else low
-            held[b, j] = value if (value <= high or value != value) else high
+            held[b, j] = clip_into(commands[b, j], limits[j])
     return finite

@@ -226,6 +226,13 @@ def damped_resolve(jacobians: np.ndarray, velocities: np.ndarray, damping: float
     return out
 
 
+@functools.partial(helper, inline=True)
+def clip_into(value: float, limit: float) -> float:  # pragma: no cover - compiled
+    """``np.minimum(np.maximum(value, −limit), limit)`` of one number: a NaN stays NaN, as there."""
+    value = value if (value >= -limit or value != value) else -limit
+    return value if (value <= limit or value != value) else limit
+
+
 @kernel(lambda: (read_only(np.ones((1, 6))), read_only(np.ones(6))))
 def scale_rows(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """Each row of ``commands`` ``(B, m)`` divided by its largest ``|uⱼ|/limitⱼ`` where that exceeds 1, then clipped
@@ -244,10 +251,7 @@ def scale_rows(commands: np.ndarray, limits: np.ndarray) -> np.ndarray:  # pragm
                 scale = ratio
         divisor = scale if not scale <= 1.0 else 1.0  # np.maximum(scale, 1.0), NaN kept
         for j in range(m):
-            value = commands[b, j] / divisor
-            low, high = -limits[j], limits[j]
-            value = value if (value >= low or value != value) else low  # np.maximum(value, -limit)
-            out[b, j] = value if (value <= high or value != value) else high  # np.minimum(value, limit)
+            out[b, j] = clip_into(commands[b, j] / divisor, limits[j])
     return out
 
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from snac_gym.kernels.compiled import read_only_view
 from snac_gym.model.kinematics import joint_step
+from snac_gym.observation import ObservationLayout
 from snac_gym.policies.base import LockstepPolicies, PolicyContext
 from snac_gym.references import Ellipse, Reference
 from snac_gym.rollout.batch import RolloutError, Rollouts, summarise_critic_diagnostics
@@ -129,23 +130,17 @@ Observer = Callable[..., np.ndarray]
 def _observer(layout: Any, m: int, n: int) -> Observer:
     """``observe(q, qdot, x, x_d, xdot_d, e, x_c)``: a new ``(B, d)`` observation array of the fields.
 
-    The compiled one (:func:`snac_gym.kernels.lockstep.observations`) for the layout of
-    :class:`~snac_gym.observation.ObservationLayout`; for any other, the fields copied where its slices say."""
-    fields = ("q", "qdot", "x", "x_d", "xdot_d", "e", "x_c")
-    widths = (m, m, n, n, n, n, n)
-    starts = np.cumsum((0, *widths))
-    standard = layout.size == starts[-1] and all(
-        layout.slices.get(name) == slice(int(start), int(start + width))
-        for name, start, width in zip(fields, starts[:-1], widths, strict=True)
-    )
-    if standard:
+    The compiled one (:func:`snac_gym.kernels.lockstep.observations`) where ``layout`` places them as
+    :class:`~snac_gym.observation.ObservationLayout` does; for any other, the fields copied where its slices say."""
+    standard = ObservationLayout(m, n)
+    if layout.size == standard.size and layout.slices == standard.slices:
         from snac_gym.kernels.lockstep import observations  # numba: imported where first needed
 
         return observations
 
     def observe(*values: np.ndarray) -> np.ndarray:
         obs = np.empty((len(values[0]), layout.size))
-        for name, value in zip(fields, values, strict=True):
+        for name, value in zip(ObservationLayout.FIELDS, values, strict=True):
             obs[:, layout.slices[name]] = value
         return obs
 
