@@ -20,13 +20,18 @@ some code cannot take an exception:
 * an import made by a C extension's initialisation (mujoco's pybind11 modules import each other): the
   extension turns the interrupt into ``ImportError("initialization failed")``, which a caller that
   treats a failed import as a missing optional package would take for one, and the run would go on;
+* the code of a module being imported: a C++ extension's functions that module code calls at import (torch's
+  ``torch._C._c10d_init()`` when ``torch.distributed`` is imported) may run the handler from C++ that cannot pass an
+  exception on, and the process aborts with ``terminate called after throwing an instance of
+  'pybind11::error_already_set'`` instead of exiting on the signal; and an interrupt raised in an import leaves a
+  half-imported package behind for the clean-up to meet;
 * a few lines that change process state in steps (:func:`uninterruptible`): an exception between two steps leaves
   it half changed (``quiet_output`` with descriptor 1 given back and 2 still on ``/dev/null``, so that the
   command's one line about the signal went nowhere).
 
 So a handler that finds itself in such code sends the signal again, to be handled once that code
 has returned (numba's Python code runs only while a kernel is dispatched or compiled, never while
-one computes).
+one computes; an import, however deep, ends in a second or two).
 """
 
 from __future__ import annotations
@@ -68,15 +73,24 @@ def uninterruptible(function: Callable[_P, _R]) -> Callable[_P, _R]:
 
 def cannot_raise_here(frame: types.FrameType | None) -> bool:
     """Whether ``frame`` (a handler's second argument) runs inside a ``__del__``, numba's own code, a C
-    extension's initialisation or an :func:`uninterruptible` function."""
+    extension's initialisation, a module's import or an :func:`uninterruptible` function."""
     while frame is not None:
         if frame.f_code.co_name == "__del__" or frame.f_code in _UNINTERRUPTIBLE or _in_extension_init(frame):
+            return True
+        if _in_module_import(frame):
             return True
         module = frame.f_globals.get("__name__") or ""
         if module.partition(".")[0] in _CALLED_BACK:
             return True
         frame = frame.f_back
     return False
+
+
+def _in_module_import(frame: types.FrameType) -> bool:
+    # importlib marks a module's spec while its code runs (_load_unlocked); a script's __main__ has no such mark
+    if frame.f_code.co_name != "<module>":
+        return False
+    return bool(getattr(frame.f_globals.get("__spec__"), "_initializing", False))
 
 
 def _in_extension_init(frame: types.FrameType) -> bool:

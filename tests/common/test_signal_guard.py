@@ -59,3 +59,38 @@ def test_a_stop_signal_while_the_handlers_are_set_or_put_back_raises_once_and_ev
 def test_without_a_signal_the_block_runs_through_and_puts_every_handler_back():
     done = subprocess.run([sys.executable, "-c", DRIVER, "0"], capture_output=True, text=True, timeout=60)
     assert done.stdout == "raised []; calls 8; handlers restored True\n", done.stderr
+
+
+#: In a child process: a module whose own code sends SIGTERM, then calls on while the handler runs (at the call's
+#: return), as ``torch.distributed``'s does when its C++ initialisation takes the signal.
+IMPORTED = r"""
+import os, signal, sys, time
+os.kill(os.getpid(), signal.SIGTERM)
+sum(range(200_000))
+time.sleep(0.05)
+DONE = True
+"""
+IMPORTER = r"""
+import sys
+from snac_gym.common._signals import TerminationSignal, stop_signals_raise
+sys.path.insert(0, sys.argv[1])
+try:
+    with stop_signals_raise():
+        import signalled_at_import
+        print("imported whole:", signalled_at_import.DONE)
+        import time
+        time.sleep(2)
+    print("not raised")
+except TerminationSignal as exc:
+    print("raised", exc.signal_name, "after the import:", "signalled_at_import" in sys.modules)
+"""
+
+
+def test_a_stop_signal_during_an_import_raises_once_the_import_has_run_whole(tmp_path):
+    """Raised inside a module's import, the interrupt can come out of C++ that cannot pass it on (the process
+    aborts: ``terminate called after throwing an instance of 'pybind11::error_already_set'``, seen when
+    ``train-ppo`` was stopped while torch imported); it is sent again and raised after the import."""
+    (tmp_path / "signalled_at_import.py").write_text(IMPORTED)
+    done = subprocess.run([sys.executable, "-c", IMPORTER, str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "imported whole: True\nraised SIGTERM after the import: True\n", done.stderr
