@@ -31,7 +31,7 @@ some code cannot take an exception:
 
 So a handler that finds itself in such code sends the signal again, to be handled once that code
 has returned (numba's Python code runs only while a kernel is dispatched or compiled, never while
-one computes; an import, however deep, ends in a second or two).
+one computes; an import ends when its modules' code has run, about a second for torch, the largest here).
 """
 
 from __future__ import annotations
