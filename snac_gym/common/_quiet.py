@@ -5,30 +5,37 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-from typing import Iterator
 
 from snac_gym.common._signals import uninterruptible
 
 
-@contextlib.contextmanager
-def quiet_output() -> Iterator[None]:
+class quiet_output:  # noqa: N801 - a context manager used as a function: ``with quiet_output():``
     """Silence C-level stdout and stderr (PyBullet prints its build time on import and the options of a client it
     connects, ur_rtde prints socket errors before raising).
 
     The process's file descriptors 1 and 2 are what C code writes to, whatever ``sys.stdout`` is now (a test's capture,
     a notebook's stream): those are silenced, after Python's own streams are flushed into them. A stop signal
-    (:mod:`snac_gym.common._signals`) never lands between the swaps of the two: one that left descriptor 2 on
-    ``/dev/null`` would take with it the line in which the command says what the signal ended.
+    (:mod:`snac_gym.common._signals`) never lands between the swaps of the two, nor in ``__enter__`` after them or in
+    ``__exit__`` before them: one that left descriptor 2 on ``/dev/null`` would take with it the line in which the
+    command says what the signal ended. (A generator-based context manager cannot promise that: a signal handled at
+    the first instruction of contextlib's ``__exit__``, as one pending after a slow C call in the block is, skips the
+    generator's ``finally`` until the generator is collected.)
     """
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(AttributeError, OSError, ValueError):  # None, closed or without a flush
-            stream.flush()
-    saved: list[int] = []  # [copy of 1, copy of 2, /dev/null], as far as made
-    try:
-        _silence(saved)
-        yield
-    finally:
-        _give_back(saved)
+
+    def __init__(self) -> None:
+        self._saved: list[int] = []  # [copy of 1, copy of 2, /dev/null], as far as made
+
+    @uninterruptible
+    def __enter__(self) -> None:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(AttributeError, OSError, ValueError):  # None, closed or without a flush
+                stream.flush()
+        _silence(self._saved)
+
+    @uninterruptible
+    def __exit__(self, *exc_info: object) -> None:
+        _give_back(self._saved)
+        self._saved = []
 
 
 @uninterruptible
