@@ -415,6 +415,45 @@ def test_a_second_signal_does_not_cut_the_stop_path_or_the_log(signalling_run, t
     assert json.loads((tmp_path / "reach_signals-twice_real.json").read_text())["signal"] == "SIGTERM"
 
 
+class Holds(SendsSignal):
+    """Holds a small velocity and sends nothing: the episode runs to its end (:attr:`acted` counts its commands)."""
+
+    acted = 0
+
+    def _act(self, obs):
+        Holds.acted += 1
+        return np.full(6, 0.05)
+
+
+def test_a_signal_in_the_last_periods_stop_still_leaves_the_arm_at_rest(signalling_run, tmp_path, monkeypatch):
+    """The env stops the arm as the episode's last period ends; a first signal raised inside that stop cuts it, and
+    the stop path that follows (the run's close) must still bring the arm to rest, with the log of every period
+    before."""
+    from snac_gym.apps.real import TerminationSignal, run_real_episode
+
+    connection, speeds_after_stop = signalling_run
+    stop = connection.stop
+    sent: list[int] = []
+
+    def stop_signalled_first():
+        if not sent and Holds.acted == 40:  # the stop that ends the last period, not the one before the first
+            sent.append(signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGTERM)
+            sum(range(100_000))  # the handler runs in here, before the stop has begun
+        stop()
+
+    monkeypatch.setattr(connection, "stop", stop_signalled_first)
+    monkeypatch.setattr(Holds, "acted", 0)
+    register_policy("holds", Holds, overwrite=True)
+    with pytest.raises(TerminationSignal) as excinfo:
+        run_real_episode(controller="holds", out_dir=tmp_path, connection="sim", steps=40,
+                         safety=SafetyLimits(max_period=10.0, deadline_slack=10.0))  # fmt: skip
+    assert sent and excinfo.value.signum == signal.SIGTERM
+    assert connection.stopped and speeds_after_stop and max(speeds_after_stop) < 1e-3  # the stop ran to rest
+    assert len(pd.read_parquet(tmp_path / "reach_holds_log.parquet")) == 39  # the last period's step was cut
+    assert json.loads((tmp_path / "reach_holds_real.json").read_text())["signal"] == "SIGTERM"
+
+
 class Crashes(BasePolicy):
     """A policy with a bug: raises a ``ZeroDivisionError`` at step ``at``."""
 
