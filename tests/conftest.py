@@ -56,6 +56,10 @@ HOST_TIMING_STOPS = [
     "stale joint state: the controller's timestamp stayed",
     # ur_rtde's own 5 s wait for the emulated controller's script, on a host too busy to schedule it
     "Failed to start control script, before timeout",
+    # the controller's 40 ms watchdog ended the script, so that every later speedJ was refused: for 5 periods no
+    # command of the host reached it (a fresh clone's CI, the UR5e track test: its loop's longest period 35.5 ms,
+    # the emulated controller and the ur_rtde client on the same two cores; the suite passed twice right after)
+    "rejected speedJ",
 ]
 #: Reruns of a real-time test after a host-timing stop. One was not enough on a 2-core host with slow spells: a
 #: fresh clone's CI failed the UR5e track test twice in a row for missed 8 ms deadlines (3 of 25 periods late),
