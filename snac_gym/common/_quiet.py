@@ -38,9 +38,9 @@ class quiet_output:  # noqa: N801 - a context manager used as a function: ``with
         self._saved = []
 
 
-@uninterruptible
 def _silence(saved: list[int]) -> None:
-    """Point descriptors 1 and 2 at ``/dev/null``, recording in ``saved`` what :func:`_give_back` undoes."""
+    """Point descriptors 1 and 2 at ``/dev/null``, recording in ``saved`` what :func:`_give_back` undoes (called from
+    ``quiet_output.__enter__``, which no stop signal cuts)."""
     try:
         for fd in (1, 2):
             saved.append(os.dup(fd))
@@ -51,9 +51,9 @@ def _silence(saved: list[int]) -> None:
         os.dup2(saved[2], fd)
 
 
-@uninterruptible
 def _give_back(saved: list[int]) -> None:
-    """Descriptors 1 and 2 as they were before :func:`_silence`; its copies closed."""
+    """Descriptors 1 and 2 as they were before :func:`_silence`; its copies closed (called from
+    ``quiet_output.__exit__``, which no stop signal cuts)."""
     if len(saved) < 3:  # silenced nothing, or cut before it opened /dev/null (then it duplicated 1 and 2 only)
         for copy in saved:
             os.close(copy)

@@ -5,29 +5,29 @@ docs' (0-39, 1000-1099)."""
 
 from __future__ import annotations
 
-import gymnasium as gym
+import functools
+import importlib.util
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-import snac_gym  # noqa: F401 - registers the ids
-from snac_gym import make_policy
-
+#: The script that makes docs/controllers.md's table: the test runs the same episodes on other seeds.
+SCRIPT = Path(__file__).resolve().parents[2] / "docs" / "scripts" / "env_defaults_success.py"
 SEEDS = range(2000, 2006)
 
 
+@functools.cache
+def _load_script():
+    spec = importlib.util.spec_from_file_location("env_defaults_success", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _final_errors(name: str, **kwargs: float) -> np.ndarray:
-    env = gym.make("snac_gym/UR10Reach-v1")
-    policy = make_policy(name, env, **kwargs)
-    errors = []
-    for seed in SEEDS:
-        obs, info = env.reset(seed=seed)
-        policy.reset(seed=seed)
-        terminated = truncated = False
-        while not (terminated or truncated):
-            obs, _, terminated, truncated, info = env.step(policy.act(obs))
-        errors.append(info["error_norm"])
-    env.close()
-    return np.asarray(errors)
+    _, errors = _load_script().episode_outcomes("snac_gym/UR10Reach-v1", name, SEEDS, **kwargs)
+    return errors
 
 
 @pytest.fixture(scope="module")
