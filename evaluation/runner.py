@@ -166,7 +166,7 @@ def announce_compiles(write: Any, modules: tuple[str, ...] = EVALUATOR_KERNEL_MO
     in numba's cache.
 
     They compile when the workers start, before the first progress line: a first run would otherwise be silent
-    for its first seconds (10-40 s of CPU by machine, shared by the workers: docs/benchmarks.md).
+    for its first seconds (10-40 s of CPU by machine, shared by the workers: docs/benchmarks-log.md).
     """
     from snac_gym.kernels.compiled import cached_on_disk  # imports numba: a run needs it
 

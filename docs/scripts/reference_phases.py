@@ -7,7 +7,7 @@ evaluator's reference job size) of each task are solved as one ``run_optimal_job
 warm-up, with the steps of the multi-start wrapped by timers: the solves from rest, the own feedback starts, the
 IK-branch and random starts (their IK apart), the screens and coarse solves of the starts (the screens' first
 Gauss-Newton steps apart), the replay's metrics and the lower bound. A step's time includes the steps it calls; what
-the steps leave of the total is the job's own bookkeeping. docs/benchmarks.md ("Two cuts in the reference's search")
+the steps leave of the total is the job's own bookkeeping. docs/benchmarks-log.md ("Two cuts in the reference's search")
 has its figures.
 """
 

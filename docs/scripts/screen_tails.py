@@ -9,7 +9,7 @@ warm-up. For each task it prints the screens, the coarse solves that follow a sc
 basin, elsewhere, or against a limit), their Gauss-Newton iterations and their share of the job's directions and time,
 and the contraction of their steps: the median over those solves of ‖δₖ₊₁‖/‖δₖ‖ (max norm) over each solve's last
 half. A ratio near 1 with full steps taken is Gauss-Newton's linear convergence where the residuals are large (the
-neglected Σ eᵢ∇²fᵢ of the exact Hessian is not small); docs/benchmarks.md ("The main command: where its time goes")
+neglected Σ eᵢ∇²fᵢ of the exact Hessian is not small); docs/benchmarks-log.md ("The main command")
 has the figures. ``--gauss-newton``: the solves take Gauss-Newton's steps only (``multistart.NEWTON`` off), as before
 the reference took Newton's.
 """

@@ -5,7 +5,7 @@ of each. glibc's malloc serves blocks above its mmap threshold (at most 32 MB by
 fresh pages from the system and returns them on ``free``, so every such array was faulted in page by
 page again: in the README's main command that cost 8–10 s of system time and made the copies 2.5 times
 slower than into memory already mapped. Raising the threshold keeps those blocks in the heap, where
-the next rollout reuses them (``docs/benchmarks.md``).
+the next rollout reuses them (``docs/benchmarks-log.md``).
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 
 #: Most samples per job of the optimal reference. Samples are solved one by one, but a job's
 #: solutions are replayed in one lockstep rollout, whose per-step overhead 50 samples do not
-#: amortise: 11.4 ms of replay per 1500-step sample at 50, 3.5 ms at 250 (docs/benchmarks.md).
+#: amortise: 11.4 ms of replay per 1500-step sample at 50, 3.5 ms at 250 (docs/benchmarks-log.md).
 OPTIMAL_CHUNK_SIZE = 250
 #: Fewest samples per optimal job when the set is split so that every worker gets one.
 OPTIMAL_MIN_CHUNK = 50

@@ -1,7 +1,7 @@
 """The machine a measurement ran on: its CPU, the one numba compiles for, the cores it may use and how busy it was.
 
 A timing means little without them: the same code and command ran at about half the speed on one day's 2-core
-machine as on another's (docs/benchmarks.md), and the CPU numba compiles for, like the libraries' versions, shapes
+machine as on another's (docs/benchmarks-log.md), and the CPU numba compiles for, like the libraries' versions, shapes
 a result's last bits. ``snac-gym evaluate`` writes :func:`machine_info` to ``machine.json`` and one line of it
 (:func:`describe_machine`) under its wall time; ``snac-gym bench`` prints that line first.
 """

@@ -282,7 +282,7 @@ def gauss_newton(
     (:meth:`~snac_gym.model.kinematics.Kinematics.error_curvature_batch`), wherever that Hessian is positive
     definite, and the Gauss-Newton step elsewhere (position tasks only). Where the errors stay large along the
     path, Gauss-Newton leaves out a second-order part that is not small and converges linearly (the steps shrinking
-    by 0.88 each on the reference's coarse solves, docs/benchmarks.md); Newton's converges quadratically near the
+    by 0.88 each on the reference's coarse solves, docs/benchmarks-log.md); Newton's converges quadratically near the
     optimum, and reaches the same local optimum.
 
     Returns:

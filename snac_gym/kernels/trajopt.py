@@ -134,8 +134,8 @@ def banded_cholesky_solve(band: np.ndarray, rhs: np.ndarray) -> tuple[int, np.nd
     operations in the same order: a column scaled by the pivot's reciprocal, a rank-1 update of the trailing block
     column by column, two triangular solves. At the θ-system's bandwidth of 12 each of those is a BLAS call of a dozen
     numbers, whose call costs more than its arithmetic: as library calls they took about a tenth of the reference's time
-    more (docs/benchmarks.md). ``contract`` lets LLVM fuse ``a + b·c`` as OpenBLAS's daxpy and ddot kernels do, so the
-    factor and the solution are LAPACK's bit for bit where those fuse (checked on 120 of the reference's bands on an
+    more (docs/benchmarks-log.md). ``contract`` lets LLVM fuse ``a + b·c`` as OpenBLAS's daxpy and ddot kernels do, so
+    the factor and the solution are LAPACK's bit for bit where those fuse (checked on 120 of the reference's bands on an
     AVX-512 Intel machine, ``python docs/scripts/banded_cholesky.py``; elsewhere they agree to rounding).
 
     Returns (info, x): info > 0 is the 1-based column at which the matrix is not positive definite (x is then unset),

@@ -86,7 +86,7 @@ def scale_rows_into_limits(commands: np.ndarray, limits: np.ndarray) -> np.ndarr
         and rows.dtype.kind in "fiu"
         and bounds.dtype.kind in "fiu"
         and np.result_type(rows, bounds) == np.float64
-    ):  # the controllers' case, compiled: the same bits in under a third of the time (docs/benchmarks.md)
+    ):  # the controllers' case, compiled: the same bits in under a third of the time (docs/benchmarks-log.md)
         from snac_gym.kernels.small import scale_rows  # numba: imported where first needed
 
         scaled_rows: np.ndarray = scale_rows(read_only_view(rows.reshape(-1, rows.shape[-1])), read_only_view(bounds))
