@@ -7,6 +7,7 @@ counts import cycles; here it is shown to pass on the package and to fail on a p
 from __future__ import annotations
 
 import ast
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -15,6 +16,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
+#: Each installed package with a folder of its own, as pyproject.toml's package-dir maps them.
+FOLDERS = {
+    "snac_gym": ROOT / "snac_gym",
+    "snac_gym.baselines": ROOT / "baselines",
+    "snac_gym.evaluation": ROOT / "evaluation",
+}
 TOOL = ROOT / "tools" / "lint_imports.py"
 sys.path.insert(0, str(TOOL.parent))
 from lint_imports import lay_out  # noqa: E402
@@ -84,17 +91,12 @@ def _contract_modules() -> list[str]:
 
 def _modules() -> list[str]:
     """Every module of the installed package, read from the folders as pyproject.toml maps them."""
-    folders = {
-        "snac_gym": ROOT / "snac_gym",
-        "snac_gym.baselines": ROOT / "baselines",
-        "snac_gym.evaluation": ROOT / "evaluation",
-    }
     found = []
-    for package, folder in folders.items():
+    for package, folder in FOLDERS.items():
         for path in folder.rglob("*.py"):
             parts = path.relative_to(folder).with_suffix("").parts
             name = ".".join((package, *parts))
-            if name.removesuffix(".__init__") not in folders or package == "snac_gym":
+            if name.removesuffix(".__init__") not in FOLDERS or package == "snac_gym":
                 found.append(name.removesuffix(".__init__"))
     return sorted(set(found))
 
@@ -113,17 +115,62 @@ def test_every_module_belongs_to_a_layer():
 def test_pyproject_lists_every_package():
     """pyproject.toml lists the packages by hand (package-dir maps two folders): none may be left out."""
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
-    folders = {
-        "snac_gym": ROOT / "snac_gym",
-        "snac_gym.baselines": ROOT / "baselines",
-        "snac_gym.evaluation": ROOT / "evaluation",
-    }
     packages = {
         ".".join((package, *init.parent.relative_to(folder).parts))
-        for package, folder in folders.items()
+        for package, folder in FOLDERS.items()
         for init in folder.rglob("__init__.py")
     }
     assert packages == listed
+
+
+def _package_folder(package: str) -> Path:
+    """Where ``package`` lives in the repository, as pyproject.toml's package-dir maps it."""
+    top = max((p for p in FOLDERS if package == p or package.startswith(p + ".")), key=len)
+    rest = package.removeprefix(top).lstrip(".")
+    return FOLDERS[top].joinpath(*rest.split(".")) if rest else FOLDERS[top]
+
+
+def _data_files(root: Path) -> set[Path]:
+    """Every file of the package folders under ``root`` that is not Python source or a cache."""
+    found = set()
+    for folder in FOLDERS.values():
+        for path in (root / folder.relative_to(ROOT)).rglob("*"):
+            if path.is_file() and path.suffix not in (".py", ".pyc") and "__pycache__" not in path.parts:
+                found.add(path.relative_to(root))
+    return found
+
+
+def _shipped(root: Path) -> set[Path]:
+    """The files pyproject.toml's package-data globs pick, each relative to its package's folder, as setuptools
+    globs them for a wheel."""
+    data = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    return {
+        path.relative_to(root)
+        for package, patterns in data.items()
+        for pattern in patterns
+        for path in (root / _package_folder(package).relative_to(ROOT)).glob(pattern)
+        if path.is_file()
+    }
+
+
+def test_every_data_file_of_the_package_ships_in_the_wheel():
+    """An editable install reads a data file from the repository whatever pyproject.toml says, so the suite would pass
+    while ``pip install .`` left the file out (shipped knobs, PPO weights, URDFs, the zoo's files): every non-Python
+    file in the package folders must match a package-data glob."""
+    files = _data_files(ROOT)
+    assert any(p.suffix == ".npz" for p in files) and any(p.suffix == ".urdf" for p in files)  # the walk finds them
+    assert sorted(map(str, files - _shipped(ROOT))) == []
+
+
+def test_a_data_file_no_glob_picks_is_named(tmp_path):
+    """The check fails where it should: a knobs file one folder deeper than ``data/calibration/*.json`` picks."""
+    (tmp_path / "snac_gym/data").mkdir(parents=True)
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    shutil.copytree(ROOT / "snac_gym/data/zoo", tmp_path / "snac_gym/data/zoo")  # shipped: not named
+    (tmp_path / "snac_gym/data/calibration/extra").mkdir(parents=True)
+    (tmp_path / "snac_gym/data/calibration/extra/knobs.json").write_text("{}")
+    unshipped = _data_files(tmp_path) - _shipped(tmp_path)
+    assert unshipped == {Path("snac_gym/data/calibration/extra/knobs.json")}
 
 
 @pytest.mark.parametrize("name", ["baselines", "evaluation"])
