@@ -62,7 +62,7 @@ from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
 from snac_gym.evaluation.reports.writer import prefetch_report_modules, write_reports
 from snac_gym.evaluation.run_config import EvaluationConfig
 from snac_gym.evaluation.samples import EvaluationSample, generate_samples, read_samples_csv, write_samples_csv
-from snac_gym.evaluation.store import RunDirectoryError, RunStore
+from snac_gym.evaluation.store import RESULTS_FILE, RunDirectoryError, RunStore
 
 from snac_gym.common.machine import describe_machine, machine_info
 from snac_gym.common.outputs import write_whole
@@ -92,9 +92,9 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
     # 2. Controllers first: the run's manifest, which locks the output folder to it, names them.
     specs, skipped = resolve_controllers(config)
     kernel_modules = evaluator_kernel_modules(reference=config.wants_optimal)  # only the kernels the run calls
-    if config.progress:
-        announce_compiles(sys.stderr.write, kernel_modules)
     with RunStore(config.out, config.manifest(space, specs), resume=config.resume) as store:
+        if config.progress:  # once the folder is taken: a run refused there compiles nothing
+            announce_compiles(sys.stderr.write, kernel_modules)
         with open_executor(config.workers, config.ray_address, kernel_modules) as executor:
             samples, timings = _sample_set(config, kinematics, space, executor, store)  # 1. Samples
             model = _knob_config(config)  # the settings the knobs are matched at: the kinematic model's
@@ -559,7 +559,7 @@ def _write_outputs(
     """``results.csv``/``.parquet``, ``timings.json`` (the time up to the reports) and ``machine.json`` (the machine
     it was measured on, and the libraries whose numerics shape the rows' last bits), then the reports."""
     write_whole(store.root / "results.csv", lambda path: table.to_csv(path, index=False, float_format="%.17g"))
-    write_whole(store.root / "results.parquet", lambda path: table.to_parquet(path, index=False))
+    write_whole(store.root / RESULTS_FILE, lambda path: table.to_parquet(path, index=False))
     timings["total"] = time.perf_counter() - started  # up to the reports
     store.write_text("timings.json", json.dumps({k: round(v, 3) for k, v in timings.items()}, indent=2))
     store.write_text(

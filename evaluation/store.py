@@ -49,6 +49,9 @@ from snac_gym.common.errors import RunDirectoryError
 from snac_gym.common.outputs import OutputFolderError, usable_out_folder, write_text_whole, written_whole
 from snac_gym.rollout import write_log
 
+#: The table of every row, written once all of a run's rows are in: a run whose folder holds it is finished.
+RESULTS_FILE = "results.parquet"
+
 #: Parquet schema-metadata keys of a part file: the run it belongs to and the sample ids it holds.
 _PART_RUN_KEY, _PART_SAMPLES_KEY = b"snac_gym.run", b"snac_gym.samples"
 
@@ -214,28 +217,45 @@ class RunStore:
 
     def _check_manifest(self, resume: bool) -> None:
         manifest_path = self.root / "run.json"
-        if manifest_path.exists():
+        if not manifest_path.exists():
+            if resume:
+                raise RunDirectoryError(f"--resume: {self.root} holds no run to resume (no run.json)")
+            return
+        try:
+            stored = json.loads(manifest_path.read_text())
+        except (ValueError, OSError) as exc:
+            stored = f"{type(exc).__name__}: {exc}"
+        if not isinstance(stored, dict):
+            problem = stored if isinstance(stored, str) else "not a JSON object"
             if not resume:
                 raise RunDirectoryError(
-                    f"{self.root} already holds a run; pass --resume to continue it or choose another --out"
+                    f"{self.root} already holds a run (its run.json unreadable); choose another --out"
                 )
-            try:
-                stored = json.loads(manifest_path.read_text())
-            except (ValueError, OSError) as exc:
-                stored = f"{type(exc).__name__}: {exc}"
-            if not isinstance(stored, dict):
-                problem = stored if isinstance(stored, str) else "not a JSON object"
-                raise RunDirectoryError(
-                    f"--resume: {manifest_path} is unreadable ({problem}); "
-                    "it cannot be resumed, start it again in another --out"
-                )
-            normalised = self.manifest
-            differing = sorted(k for k in set(stored) | set(normalised) if stored.get(k) != normalised.get(k))
+            raise RunDirectoryError(
+                f"--resume: {manifest_path} is unreadable ({problem}); "
+                "it cannot be resumed, start it again in another --out"
+            )
+        normalised = self.manifest
+        differing = sorted(k for k in set(stored) | set(normalised) if stored.get(k) != normalised.get(k))
+        if not resume:
+            # Running the same command again is the usual way here (to see it cached, or after a stop): say which of
+            # the three cases it is, so that --resume is suggested only where it would be taken.
             if differing:
-                details = "; ".join(f"{k}: stored {stored.get(k)!r}, now {normalised.get(k)!r}" for k in differing)
-                raise RunDirectoryError(f"--resume: the inputs differ from the run in {self.root}: {details}")
-        elif resume:
-            raise RunDirectoryError(f"--resume: {self.root} holds no run to resume (no run.json)")
+                raise RunDirectoryError(
+                    f"{self.root} already holds another run (its inputs differ: {', '.join(differing)}); "
+                    "choose another --out"
+                )
+            if (self.root / RESULTS_FILE).exists():
+                raise RunDirectoryError(
+                    f"{self.root} already holds this run, finished; pass --resume to write its reports again from "
+                    "its rows, or choose another --out to run it again"
+                )
+            raise RunDirectoryError(
+                f"{self.root} already holds this run, unfinished; pass --resume to continue it or choose another --out"
+            )
+        if differing:
+            details = "; ".join(f"{k}: stored {stored.get(k)!r}, now {normalised.get(k)!r}" for k in differing)
+            raise RunDirectoryError(f"--resume: the inputs differ from the run in {self.root}: {details}")
 
     def _read_calibration(self) -> dict[str, Any]:
         if not self._calibration_path.exists():

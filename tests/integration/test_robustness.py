@@ -19,7 +19,7 @@ import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 from snac_gym.evaluation.effort import matching as effort_matching
 from snac_gym.evaluation.execution.executors import ProcessExecutor, check_ray_reachable, max_workers
-from snac_gym.evaluation.store import RunDirectoryError, RunStore
+from snac_gym.evaluation.store import RESULTS_FILE, RunDirectoryError, RunStore
 from typer.testing import CliRunner
 
 from snac_gym.apps.cli import app
@@ -122,6 +122,25 @@ def test_a_folder_in_use_by_a_run_is_refused_until_it_ends(tmp_path):
         with pytest.raises(RunDirectoryError, match=f"in use by another run \\(pid {os.getpid()}\\)"):
             RunStore(tmp_path, manifest, resume=True)
     with RunStore(tmp_path, manifest, resume=True):  # the lock went with the first run
+        pass
+
+
+def test_the_same_command_again_says_whether_the_run_there_is_finished_unfinished_or_another(tmp_path):
+    """Running a command again into its --out is the usual second step (to see it cached, or after a stop): the
+    refusal says which case it met, and suggests --resume only where --resume would be taken."""
+    manifest = {"seed": 0, "controllers": ["dls"]}
+    with RunStore(tmp_path, manifest, resume=False) as store:
+        store.begin()
+    with pytest.raises(RunDirectoryError, match="already holds this run, unfinished; pass --resume to continue it"):
+        RunStore(tmp_path, manifest, resume=False)
+    with pytest.raises(
+        RunDirectoryError, match=r"holds another run \(its inputs differ: controllers, seed\); choose another"
+    ):
+        RunStore(tmp_path, {"seed": 1, "controllers": ["lqr"]}, resume=False)
+    (tmp_path / RESULTS_FILE).write_bytes(b"")
+    with pytest.raises(RunDirectoryError, match="holds this run, finished; pass --resume to write its reports again"):
+        RunStore(tmp_path, manifest, resume=False)
+    with RunStore(tmp_path, manifest, resume=True):  # as it says
         pass
 
 

@@ -108,7 +108,9 @@ def evaluate(
         "--ray",
         help="Run on Ray: 'local' (a new instance here) or a cluster address ('auto', 'ray://host:10001').",
     ),
-    resume: bool = typer.Option(False, "--resume", help="Continue an interrupted run in OUT."),
+    resume: bool = typer.Option(
+        False, "--resume", help="Continue an interrupted run in OUT; of a finished one, write its reports again."
+    ),
     chunk_size: Optional[int] = typer.Option(
         None,
         "--chunk-size",
