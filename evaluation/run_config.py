@@ -25,11 +25,12 @@ from snac_gym.evaluation.reference.optimum import OPTIMAL, REFERENCE_LIMITS
 from snac_gym.evaluation.samples import check_samples_file
 from snac_gym.evaluation.store import file_sha1
 
+from snac_gym.common.extras import require_installed
 from snac_gym.common.validation import boolean
 from snac_gym.control.cost import CostConvention
 from snac_gym.model.kinematics import Kinematics, shared_kinematics
 from snac_gym.model.model_error import ModelError, refuse_pose_tasks
-from snac_gym.physics.base import check_physics
+from snac_gym.physics.base import check_physics, require_engine
 from snac_gym.policies import available_policies
 from snac_gym.sampling import SampleSpace
 from snac_gym.tasks import PAPER_TASKS, get_task, task_names
@@ -382,6 +383,7 @@ def _check_timing(config: EvaluationConfig) -> None:
 def _check_engine(config: EvaluationConfig) -> None:
     """The engine, and the optimal reference's need of the kinematic one."""
     check_physics(config.engine, what="engine")
+    require_engine(config.engine)  # here, not in a worker after the samples and the effort match
     if config.wants_optimal and config.engine != "kinematic":
         raise ValueError(f"the {OPTIMAL!r} reference is the optimum of the kinematic model; use --engine kinematic")
 
@@ -417,6 +419,8 @@ def _check_execution(config: EvaluationConfig) -> None:
         raise ValueError(
             "ray_address must be 'local' or a Ray cluster's address ('auto', 'ray://host:10001'), got an empty string"
         )
+    if config.ray_address is not None:  # the main process imports Ray later, once the kernels are readied
+        require_installed("ray", "ray", "--ray")
     local = config.ray_address in (None, "local")  # a cluster's size is its own
     if config.workers < 1 or (local and config.workers > max_workers()):
         raise ValueError(

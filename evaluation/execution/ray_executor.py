@@ -20,6 +20,7 @@ from typing import Any
 from snac_gym.evaluation.execution.worker_setup import RUN_STOP_SIGNALS
 
 from snac_gym.common.errors import ExecutorStopped
+from snac_gym.common.extras import require
 
 __all__ = ["RAY_CONNECT_TIMEOUT_S", "RayExecutor", "check_ray_reachable"]
 
@@ -96,17 +97,14 @@ class RayExecutor:
         workers: CPUs of a ``"local"`` instance (ignored when joining a cluster).
 
     Raises:
-        RuntimeError: If Ray is not installed, or the cluster does not answer within
-            :data:`RAY_CONNECT_TIMEOUT_S`.
+        MissingExtraError: If Ray (the ``ray`` extra) is not installed.
+        RuntimeError: If the cluster does not answer within :data:`RAY_CONNECT_TIMEOUT_S`.
     """
 
     concurrent = True
 
     def __init__(self, address: str, workers: int | None = None) -> None:
-        try:
-            import ray  # the ray extra
-        except ImportError as exc:
-            raise RuntimeError("--ray needs Ray: pip install 'snac-gym[ray]'") from exc
+        ray = require("ray", "ray", "--ray")
         self._ray = ray
         self._started_here = not ray.is_initialized()
         with _handlers_kept():

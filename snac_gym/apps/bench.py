@@ -17,7 +17,7 @@ from threadpoolctl import threadpool_limits
 from snac_gym.common._quiet import quiet_output
 from snac_gym.common.extras import MissingExtraError
 from snac_gym.model.kinematics import joint_step
-from snac_gym.physics.base import SIMULATED
+from snac_gym.physics.base import ENGINE_EXTRAS, SIMULATED
 from snac_gym.policies import make_policy
 from snac_gym.references import PAPER_Q0
 from snac_gym.tasks import TASKS, get_task
@@ -183,6 +183,24 @@ def format_env_bench(results: dict[str, dict[str, Any]]) -> str:
                 )
             lines.append(line)
     return "\n".join(lines)
+
+
+def left_out(
+    results: dict[str, dict[str, Any]], include_panda: bool = True, physics: tuple[str, ...] = SIMULATED
+) -> list[str]:
+    """One line for each comparison :func:`run_env_bench` was asked for and left out of ``results``, naming the extra
+    that adds it: without one, a shorter table would read as the whole bench."""
+    lines = [
+        f'left out: physics={engine!r} (the {extra!r} extra is not installed: pip install -e ".[{extra}]")'
+        for engine, extra in ENGINE_EXTRAS.items()
+        if engine in physics and not any(name.endswith(f"({engine})") for name in results)
+    ]
+    if include_panda and PANDA_GYM not in results:
+        lines.append(
+            "left out: panda-gym's PandaReachJoints-v3, and so the ratio to it (panda-gym does not import: "
+            "the 'bench' extra, pip install -e \".[bench]\")"
+        )
+    return lines
 
 
 @_one_core()

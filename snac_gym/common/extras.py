@@ -30,6 +30,20 @@ def require(module: str, extra: str, what: str) -> ModuleType:
         raise MissingExtraError(f"{what} needs the '{extra}' extra: pip install -e \".[{extra}]\"") from exc
 
 
+def require_installed(module: str, extra: str, what: str) -> None:
+    """As :func:`require`, for a module another process imports (ur_rtde, in its client process): found, not imported.
+
+    Raises:
+        MissingExtraError: If ``module`` is not installed.
+    """
+    try:
+        found = importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        found = False
+    if not found:
+        raise MissingExtraError(f"{what} needs the '{extra}' extra: pip install -e \".[{extra}]\"")
+
+
 def _name_the_glfw_library() -> None:
     """Point pyGLFW at the library its wheel bundles, unless ``PYGLFW_LIBRARY`` names one already.
 
@@ -56,4 +70,4 @@ def _name_the_glfw_library() -> None:
 
 
 #: MissingExtraError is re-exported: the error of :func:`require`, caught where it is called.
-__all__ = ["MissingExtraError", "require"]
+__all__ = ["MissingExtraError", "require", "require_installed"]

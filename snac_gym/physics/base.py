@@ -7,12 +7,15 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from snac_gym.common.extras import require_installed
 from snac_gym.common.validation import real_number, whole_number
 
 #: The arm models: ``physics=`` of ``gym.make``, ``--engine`` of ``snac-gym evaluate`` (the one vocabulary).
 PHYSICS = ("pybullet", "kinematic", "mujoco")
 #: Those that simulate the arm (the lockstep engine's arms, ``snac-gym bench``): all but the exact model.
 SIMULATED = ("pybullet", "mujoco")
+#: The extra that installs each optional engine (PyBullet and the exact model come with the package).
+ENGINE_EXTRAS = {"mujoco": "mujoco"}
 #: How PyBullet solves its velocity motors each physics step (``pybullet_solver=`` of the envs): ``"pgs"``, its
 #: default projected Gauss-Seidel, iterated up to a residual, which leaves a steady lag under gravity (docs/physics.md);
 #: ``"dantzig"``, its MLCP solver's direct (Dantzig) pivoting, which meets every motor below its force bound exactly.
@@ -28,6 +31,18 @@ def check_physics(physics: Any, allowed: tuple[str, ...] = PHYSICS, what: str = 
     if not isinstance(physics, str) or physics not in allowed:
         raise ValueError(f"{what} must be one of {allowed}, got {physics!r}")
     return physics
+
+
+def require_engine(physics: str) -> None:
+    """Where ``physics`` is an optional engine, that its extra is installed (found, not imported: a process that only
+    hands the engine's work to others, as the evaluator's main process, need not load it).
+
+    Raises:
+        MissingExtraError: As the engine's own import would, before any work that the engine would end.
+    """
+    extra = ENGINE_EXTRAS.get(physics)
+    if extra is not None:
+        require_installed(physics, extra, f"physics={physics!r}")
 
 
 def check_pybullet_solver(solver: Any) -> str:

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from snac_gym.common.errors import ConnectionFailure
+from snac_gym.common.extras import require_installed
 from snac_gym.model.kinematics import Kinematics
 from snac_gym.model.ur_models import SERIES_FREQUENCY  # the controller generations' rates, re-exported here
 from snac_gym.real.client_process import ClientProcess
@@ -125,6 +126,7 @@ class URRTDEConnection:
 
     Raises:
         ConnectionFailure: If the controller cannot be reached (within ``connect_timeout``).
+        MissingExtraError: If ur_rtde (the ``real`` extra) is not installed.
     """
 
     RTDE_PORT = 30004
@@ -179,6 +181,9 @@ class URRTDEConnection:
         self._streaming = False
         self._snapshot: tuple[np.ndarray, np.ndarray, np.ndarray, float, float, str] | None = None
         self._fresh = False
+        # ur_rtde is imported by the client process alone: checked here, so that a missing extra is not reported as a
+        # controller that cannot be reached, or as a client that died on its import.
+        require_installed("rtde_receive", "real", "--connection rtde (ur_rtde)")
         probe_port(host, self.RTDE_PORT, connect_timeout)
         self._client = ClientProcess()
         try:

@@ -73,3 +73,23 @@ def test_the_ratio_to_panda_gym_is_printed_round_by_round_beside_the_best_runs()
     assert text.splitlines()[-1] == (
         "ours (pybullet): 0.80x panda-gym's real-time factor (best runs; round by round 0.60-1.20x, median 0.80x)"
     )
+
+
+def test_a_comparison_left_out_for_a_missing_extra_is_said_with_the_extra(monkeypatch):
+    """Without panda-gym or MuJoCo the bench's table is shorter: a line names each comparison left out and its extra,
+    and none is printed for what was measured."""
+    from snac_gym.apps import bench
+
+    monkeypatch.setattr(bench, "_timed_run", lambda env, actions, steps: 0.5)
+    monkeypatch.setattr(bench, "_panda_gym_registered", lambda: False)
+    results = run_env_bench(steps=100, include_panda=True, physics=("pybullet",), rounds=1)
+    assert bench.left_out(results, include_panda=True, physics=("pybullet",)) == [
+        "left out: panda-gym's PandaReachJoints-v3, and so the ratio to it (panda-gym does not import: "
+        "the 'bench' extra, pip install -e \".[bench]\")"
+    ]
+    assert bench.left_out(results, include_panda=False, physics=("pybullet",)) == []  # --no-panda: not asked for
+    assert bench.left_out(results, include_panda=False, physics=("pybullet", "mujoco")) == [
+        "left out: physics='mujoco' (the 'mujoco' extra is not installed: pip install -e \".[mujoco]\")"
+    ]
+    with_mujoco = {**results, "snac_gym/UR10Reach-v0 (mujoco)": results["snac_gym/UR10Reach-v0 (pybullet)"]}
+    assert bench.left_out(with_mujoco, include_panda=False, physics=("pybullet", "mujoco")) == []

@@ -214,6 +214,43 @@ def test_cli_refusals_name_the_option_typed(tmp_path, arguments, message):
     assert len(lines) == 1 and lines[0].startswith(message), result.output
 
 
+@pytest.mark.parametrize(
+    ("module", "arguments", "message"),
+    [
+        (
+            "mujoco",
+            ["--engine", "mujoco"],
+            "error: physics='mujoco' needs the 'mujoco' extra: pip install -e \".[mujoco]\"",
+        ),
+        ("ray", ["--ray", "local"], "error: --ray needs the 'ray' extra: pip install -e \".[ray]\""),
+    ],
+    ids=["engine", "ray"],
+)
+def test_an_extra_the_workers_need_is_asked_for_before_any_work(tmp_path, monkeypatch, module, arguments, message):
+    """MuJoCo is imported by the evaluator's workers alone, Ray once the kernels are readied: without the check up
+    front a MuJoCo run drew its samples and matched effort on the kinematic model (2000 rollouts of a 3-sample run)
+    before a worker said the extra was missing, and a Ray run first said that the kernels compile."""
+    import importlib.util
+
+    import snac_gym.evaluation.runner as runner
+    from typer.testing import CliRunner
+
+    from snac_gym.apps.cli import app
+
+    found = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == module else found(name, *a))
+    monkeypatch.setattr(runner, "open_executor", lambda *a, **k: pytest.fail("a worker pool was started"))
+    monkeypatch.setattr(runner, "announce_compiles", lambda *a, **k: pytest.fail("the kernels were announced"))
+    result = CliRunner().invoke(
+        app,
+        ["evaluate", "--samples", "3", "--controllers", "dls", *arguments, "--out", str(tmp_path)],
+        terminal_width=200,
+    )
+    assert result.exit_code == 2, result.output
+    assert result.output == message + "\n"
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
 def test_export_samples_under_a_file_names_the_folder(tmp_path):
     from typer.testing import CliRunner
 

@@ -119,6 +119,7 @@ class FakeClient:
 def arm(monkeypatch):
     """A URRTDEConnection over :class:`FakeClient`, a stream sent; the dashboard is ``arm.dashboard``
     (answers, or an exception to raise)."""
+    monkeypatch.setattr(connections, "require_installed", lambda *args: None)  # the fake client needs no ur_rtde
     monkeypatch.setattr(connections, "probe_port", lambda *args: None)
     monkeypatch.setattr(connections, "ClientProcess", FakeClient)
     FakeClient.replies = {"command": True, "stop_script": "control script stopped"}

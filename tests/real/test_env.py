@@ -1,5 +1,6 @@
 """The real-robot env on the simulated connection: the whole loop and every safety rule."""
 
+import importlib.util
 import json
 import time
 
@@ -7,6 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+import snac_gym.real.connections as connections
+from snac_gym.common.errors import MissingExtraError
 from snac_gym.policies.base import BasePolicy
 from snac_gym.real import (
     EMERGENCY_STOP,
@@ -277,8 +280,9 @@ def test_loop_period_and_jitter_are_measured_at_125_hz():
     assert set(timing) >= {"period_ms_mean", "period_ms_std", "period_ms_p99", "jitter_ms_max", "late_periods"}
 
 
-def test_rtde_connection_fails_fast_on_a_closed_loopback_port():
+def test_rtde_connection_fails_fast_on_a_closed_loopback_port(monkeypatch):
     # 127.0.0.2: the emulator tests may be listening on 127.0.0.1:30004 at the same time
+    monkeypatch.setattr(connections, "require_installed", lambda *args: None)  # the port is probed without ur_rtde
     start = time.monotonic()
     with pytest.raises(ConnectionFailure, match="127.0.0.2:30004 refused") as excinfo:
         URRTDEConnection("127.0.0.2", connect_timeout=2.0)
@@ -338,9 +342,25 @@ def test_real_command_with_nothing_listening_fails_in_one_line():
         timeout=30,
     )
     assert time.monotonic() - start < 10.0
-    assert done.returncode == 1
     assert done.stdout == "" and done.stderr.strip().count("\n") == 0
-    assert "127.0.0.2:30004 refused" in done.stderr
+    if importlib.util.find_spec("rtde_receive") is None:  # the Python 3.13 variant: no ur_rtde wheel
+        assert done.returncode == 2
+        assert done.stderr == "error: --connection rtde (ur_rtde) needs the 'real' extra: pip install -e \".[real]\"\n"
+    else:
+        assert done.returncode == 1
+        assert "127.0.0.2:30004 refused" in done.stderr
+
+
+def test_a_missing_ur_rtde_is_named_before_the_controller_is_sought(monkeypatch):
+    """ur_rtde runs in the client process only; without it, the connection says which extra to install, not that
+    the controller cannot be reached (as it did, probing first) or that the client died on its import."""
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "rtde_receive" else real_find_spec(name, *a)
+    )
+    monkeypatch.setattr(connections, "probe_port", lambda *args: pytest.fail("probed a port without ur_rtde"))
+    with pytest.raises(MissingExtraError, match=r"^--connection rtde \(ur_rtde\) needs the 'real' extra: pip install"):
+        URRTDEConnection("127.0.0.2", connect_timeout=2.0)
 
 
 def test_dry_run_command_on_the_simulated_connection_prints_what_it_would_send(tmp_path):

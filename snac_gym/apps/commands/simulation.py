@@ -73,13 +73,16 @@ def bench(
 
 def _bench(steps: int, panda: bool, substeps: bool, tracking: bool, act: bool, act_calls: int, vector: bool) -> None:
     # start-up time: only bench needs bench.py (threadpoolctl)
-    from snac_gym.apps.bench import format_env_bench, run_env_bench, run_substep_study
+    from snac_gym.apps.bench import format_env_bench, left_out, run_env_bench, run_substep_study
     from snac_gym.common.machine import describe_machine, machine_info
 
     # a speed means little without the machine and its load: the same envs ran 1.5 times as fast on one 2-core
     # machine as on another
     typer.echo(f"machine: {describe_machine(machine_info())}\n")
-    typer.echo(format_env_bench(run_env_bench(steps=steps, include_panda=panda)))
+    results = run_env_bench(steps=steps, include_panda=panda)
+    typer.echo(format_env_bench(results))
+    for line in left_out(results, include_panda=panda):
+        typer.echo(line)
     if vector:
         # start-up time: only bench needs bench.py
         from snac_gym.apps.bench import format_vector_bench, run_vector_bench
