@@ -24,7 +24,7 @@ The forward kinematics is written in CasADi from the Pinocchio model of the
 :class:`~snac_gym.model.kinematics.Kinematics` (:func:`casadi_forward_kinematics`): one function of one
 configuration, mapped over the horizon, so the expression graph stays small.
 
-CasADi is an optional dependency (``pip install "snac-gym[check]"``), imported only when called.
+CasADi is an optional dependency (the ``check`` extra), imported only when called.
 """
 
 from __future__ import annotations
@@ -35,12 +35,13 @@ from typing import Any
 
 import numpy as np
 
+from snac_gym.common.extras import require
 from snac_gym.control.cost import CostConvention
 from snac_gym.control.trajopt import next_angles, trajectory_cost_and_gradient
 from snac_gym.model.kinematics import Kinematics, leaf_chain
 
-#: What a missing CasADi says.
-MISSING_CASADI = 'the IPOPT cross-check needs CasADi: pip install "snac-gym[check]"'
+#: What a missing CasADi says (:func:`~snac_gym.common.extras.require`'s line).
+MISSING_CASADI = "the IPOPT cross-check (CasADi) needs the 'check' extra: pip install -e \".[check]\""
 
 
 @dataclass
@@ -68,11 +69,7 @@ class IpoptSolution:
 
 
 def _casadi() -> Any:
-    try:
-        import casadi  # the check extra
-    except ImportError:
-        raise ImportError(MISSING_CASADI) from None
-    return casadi
+    return require("casadi", "check", "the IPOPT cross-check (CasADi)")
 
 
 def casadi_forward_kinematics(kinematics: Kinematics) -> Any:

@@ -4,7 +4,7 @@
   and what its action means (a fraction of the velocity limits).
 * :mod:`snac_gym.ppo.envs`: the training wrapper (features, normalised actions, shaped reward).
 * :mod:`snac_gym.ppo.config`: the versioned JSON hyperparameter files in ``configs/``.
-* :mod:`snac_gym.ppo.train`: :func:`~snac_gym.ppo.train.train_ppo` (needs ``snac-gym[rl]``).
+* :mod:`snac_gym.ppo.train`: :func:`~snac_gym.ppo.train.train_ppo` (needs the ``rl`` extra).
 * :mod:`snac_gym.ppo.policy_file`: the frozen, NumPy-only policy file format.
 * :mod:`snac_gym.ppo.policy`: :class:`~snac_gym.ppo.policy.PPOPolicy`, registered as ``ppo``;
   it loads the policy file shipped in ``models/`` for the env's task by default;

@@ -51,6 +51,7 @@ from typing import Any, Callable
 import gymnasium as gym
 
 from snac_gym.common import startup
+from snac_gym.common.extras import require
 from snac_gym.common.outputs import usable_out_folder, write_whole
 from snac_gym.common.progress import ProgressLines
 from snac_gym.envs import make_task_env
@@ -121,11 +122,8 @@ class TrainingResult:
 
 
 def _require_sb3() -> None:
-    try:
-        import stable_baselines3  # noqa: F401
-        import torch  # noqa: F401
-    except ImportError as exc:  # pragma: no cover - depends on the install
-        raise ImportError("train-ppo needs stable-baselines3 and torch: pip install 'snac-gym[rl]'") from exc
+    for module in ("torch", "stable_baselines3"):
+        require(module, "rl", "train-ppo (stable-baselines3 and torch)")
 
 
 class LinearSchedule:

@@ -52,3 +52,31 @@ def test_no_public_exception_class_is_defined_outside_errors_py():
                 if bases & {"Exception", "ValueError", "RuntimeError", "OSError", "ConnectionError", "ImportError"}:
                     found.append(f"{path.relative_to(ROOT)}: {node.name}")
     assert found == [], found
+
+
+def test_every_install_hint_names_an_extra_the_package_declares():
+    """A missing optional dependency is named in one form (:func:`snac_gym.common.extras.require`'s), and the extra
+    it names exists: the forms had drifted apart (``pip install 'snac-gym[rl]'``, ``"snac-gym[check]"``), none of
+    them checked against pyproject.toml."""
+    import re
+    import tomllib
+
+    extras = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"])
+    dependencies = {"example-robot-data"}  # a hard dependency of the package, named where its URDFs are missing
+    hints, required = [], []
+    for folder in ("snac_gym", "baselines", "evaluation"):
+        for path in (ROOT / folder).rglob("*.py"):
+            text, where = path.read_text(), path.relative_to(ROOT).as_posix()
+            hints += [(where, hint) for hint in re.findall(r"pip install [^\n)]*", text)]
+            required += [
+                (where, extra) for extra in re.findall(r'require(?:_installed)?\(\s*"[\w.]+",\s*"(\w+)"', text)
+            ]
+    assert len(hints) >= 5 and len(required) >= 10  # the searches find them
+    for where, extra in required:
+        assert extra in extras, f"{where}: require(..., {extra!r}, ...) names no extra of pyproject.toml"
+    for where, hint in hints:
+        named = re.match(r'pip install -e \\?"\.\[([^\]]+)\]', hint)
+        if named is None:
+            assert any(name in hint for name in dependencies), f'{where}: {hint!r} is not `pip install -e ".[EXTRA]"`'
+        elif named.group(1) not in ("{extra}", "<extra>"):  # but the generic line itself (extras.require)
+            assert named.group(1) in extras, f"{where}: {hint!r} names no extra of pyproject.toml"

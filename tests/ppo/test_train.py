@@ -87,6 +87,17 @@ def trained_run(tmp_path_factory, tiny_ppo):
     return out, config, result.output
 
 
+@pytest.mark.parametrize("missing", ["torch", "stable_baselines3"])
+def test_train_ppo_without_the_rl_extra_names_it_in_one_line(tmp_path, monkeypatch, missing):
+    monkeypatch.setitem(sys.modules, missing, None)  # `import missing` raises ImportError, as where it is not installed
+    result = CliRunner().invoke(app, ["train-ppo", "--task", "reach", "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2, result.output
+    assert result.output == (
+        "error: train-ppo (stable-baselines3 and torch) needs the 'rl' extra: pip install -e \".[rl]\"\n"
+    )
+    assert not (tmp_path / "run").exists()
+
+
 # -- training: save, reload, act identically ------------------------------------------------------
 @pytest.mark.rl
 def test_tiny_training_saves_everything_needed_to_reload(trained_run):

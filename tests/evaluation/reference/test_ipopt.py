@@ -128,7 +128,7 @@ def test_only_position_tasks(ur10):
 def test_without_casadi_it_says_what_to_install(ur10, monkeypatch):
     monkeypatch.setitem(sys.modules, "casadi", None)  # `import casadi` raises ImportError
     q0, x_d = _sample(ur10, "reach", 10)
-    with pytest.raises(ImportError, match=r'pip install "snac-gym\[check\]"') as error:
+    with pytest.raises(ImportError, match=r'pip install -e "\.\[check\]"') as error:
         solve_with_ipopt(q0, x_d, ur10, DT, ur10.velocity_limits)
     assert str(error.value) == MISSING_CASADI
 
