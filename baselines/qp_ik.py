@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 from snac_gym.baselines._common import ObservationReader, clip_to_box
 
-from snac_gym.common.extras import MissingExtraError, require
+from snac_gym.common.extras import MissingExtraError, install_line, require
 from snac_gym.policies.base import BasePolicy, non_negative_float, positive_float
 
 #: The QP solver: daqp, installed by the ``ik`` extra (``qpsolvers[daqp]``).
@@ -93,7 +93,7 @@ def require_library(module: str, name: str) -> Any:
     library = require(module, "ik", name)
     qpsolvers = require("qpsolvers", "ik", name)
     if SOLVER not in qpsolvers.available_solvers:
-        raise MissingExtraError(f"{name} needs the 'ik' extra (qpsolvers with daqp): pip install -e \".[ik]\"")
+        raise MissingExtraError(f"{name} needs the 'ik' extra (qpsolvers with daqp): {install_line('ik')}")
     return library
 
 

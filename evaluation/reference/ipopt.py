@@ -35,13 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.common.extras import require
+from snac_gym.common.extras import install_line, require
 from snac_gym.control.cost import CostConvention
 from snac_gym.control.trajopt import next_angles, trajectory_cost_and_gradient
 from snac_gym.model.kinematics import Kinematics, leaf_chain
 
 #: What a missing CasADi says (:func:`~snac_gym.common.extras.require`'s line).
-MISSING_CASADI = "the IPOPT cross-check (CasADi) needs the 'check' extra: pip install -e \".[check]\""
+_NEEDS_CASADI = "the IPOPT cross-check (CasADi)"
+MISSING_CASADI = f"{_NEEDS_CASADI} needs the 'check' extra: {install_line('check')}"
 
 
 @dataclass
@@ -69,7 +70,7 @@ class IpoptSolution:
 
 
 def _casadi() -> Any:
-    return require("casadi", "check", "the IPOPT cross-check (CasADi)")
+    return require("casadi", "check", _NEEDS_CASADI)
 
 
 def casadi_forward_kinematics(kinematics: Kinematics) -> Any:

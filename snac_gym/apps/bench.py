@@ -15,7 +15,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from snac_gym.common._quiet import quiet_output
-from snac_gym.common.extras import MissingExtraError
+from snac_gym.common.extras import MissingExtraError, install_line
 from snac_gym.model.kinematics import joint_step
 from snac_gym.physics.base import ENGINE_EXTRAS, SIMULATED
 from snac_gym.policies import make_policy
@@ -191,14 +191,14 @@ def left_out(
     """One line for each comparison :func:`run_env_bench` was asked for and left out of ``results``, naming the extra
     that adds it: without one, a shorter table would read as the whole bench."""
     lines = [
-        f'left out: physics={engine!r} (the {extra!r} extra is not installed: pip install -e ".[{extra}]")'
+        f"left out: physics={engine!r} (the {extra!r} extra is not installed: {install_line(extra)})"
         for engine, extra in ENGINE_EXTRAS.items()
         if engine in physics and not any(name.endswith(f"({engine})") for name in results)
     ]
     if include_panda and PANDA_GYM not in results:
         lines.append(
             "left out: panda-gym's PandaReachJoints-v3, and so the ratio to it (panda-gym does not import: "
-            "the 'bench' extra, pip install -e \".[bench]\")"
+            f"the 'bench' extra, {install_line('bench')})"
         )
     return lines
 

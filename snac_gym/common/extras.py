@@ -12,6 +12,11 @@ from snac_gym.common._signals import interrupt_behind
 from snac_gym.common.errors import MissingExtraError
 
 
+def install_line(extra: str) -> str:
+    """The command that installs ``extra`` into the README's editable install: every missing extra is named so."""
+    return f'pip install -e ".[{extra}]"'
+
+
 def require(module: str, extra: str, what: str) -> ModuleType:
     """Import ``module``, or raise one line: ``"<what> needs the '<extra>' extra: pip install -e ".[<extra>]"``.
 
@@ -27,7 +32,7 @@ def require(module: str, extra: str, what: str) -> ModuleType:
         interrupt = interrupt_behind(exc)
         if interrupt is not None:
             raise interrupt from None
-        raise MissingExtraError(f"{what} needs the '{extra}' extra: pip install -e \".[{extra}]\"") from exc
+        raise MissingExtraError(f"{what} needs the '{extra}' extra: {install_line(extra)}") from exc
 
 
 def require_installed(module: str, extra: str, what: str) -> None:
@@ -41,7 +46,7 @@ def require_installed(module: str, extra: str, what: str) -> None:
     except (ImportError, ValueError):
         found = False
     if not found:
-        raise MissingExtraError(f"{what} needs the '{extra}' extra: pip install -e \".[{extra}]\"")
+        raise MissingExtraError(f"{what} needs the '{extra}' extra: {install_line(extra)}")
 
 
 def _name_the_glfw_library() -> None:
@@ -70,4 +75,4 @@ def _name_the_glfw_library() -> None:
 
 
 #: MissingExtraError is re-exported: the error of :func:`require`, caught where it is called.
-__all__ = ["MissingExtraError", "require", "require_installed"]
+__all__ = ["MissingExtraError", "install_line", "require", "require_installed"]

@@ -55,28 +55,25 @@ def test_no_public_exception_class_is_defined_outside_errors_py():
 
 
 def test_every_install_hint_names_an_extra_the_package_declares():
-    """A missing optional dependency is named in one form (:func:`snac_gym.common.extras.require`'s), and the extra
-    it names exists: the forms had drifted apart (``pip install 'snac-gym[rl]'``, ``"snac-gym[check]"``), none of
-    them checked against pyproject.toml."""
+    """A missing optional dependency is named in one form (:func:`snac_gym.common.extras.install_line`'s), and the
+    extra it names exists: the forms had drifted apart (``pip install 'snac-gym[rl]'``, ``"snac-gym[check]"``), none
+    of them checked against pyproject.toml."""
     import re
     import tomllib
 
+    from snac_gym.common.extras import install_line
+
     extras = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"])
-    dependencies = {"example-robot-data"}  # a hard dependency of the package, named where its URDFs are missing
-    hints, required = [], []
+    named, literal = [], []
     for folder in ("snac_gym", "baselines", "evaluation"):
         for path in (ROOT / folder).rglob("*.py"):
             text, where = path.read_text(), path.relative_to(ROOT).as_posix()
-            hints += [(where, hint) for hint in re.findall(r"pip install [^\n)]*", text)]
-            required += [
-                (where, extra) for extra in re.findall(r'require(?:_installed)?\(\s*"[\w.]+",\s*"(\w+)"', text)
-            ]
-    assert len(hints) >= 5 and len(required) >= 10  # the searches find them
-    for where, extra in required:
-        assert extra in extras, f"{where}: require(..., {extra!r}, ...) names no extra of pyproject.toml"
-    for where, hint in hints:
-        named = re.match(r'pip install -e \\?"\.\[([^\]]+)\]', hint)
-        if named is None:
-            assert any(name in hint for name in dependencies), f'{where}: {hint!r} is not `pip install -e ".[EXTRA]"`'
-        elif named.group(1) not in ("{extra}", "<extra>"):  # but the generic line itself (extras.require)
-            assert named.group(1) in extras, f"{where}: {hint!r} names no extra of pyproject.toml"
+            named += [(where, e) for e in re.findall(r'require(?:_installed)?\(\s*"[\w.]+",\s*"(\w+)"', text)]
+            named += [(where, e) for e in re.findall(r"install_line\(\s*[\"'](\w+)[\"']\s*\)", text)]
+            literal += [(where, hint) for hint in re.findall(r"pip install [^\n`]*", text)]
+    assert len(named) >= 10  # the search finds them
+    for where, extra in named:
+        assert extra in extras, f"{where}: names the extra {extra!r}, which pyproject.toml does not declare"
+    # Written out: the form itself, and the one hard dependency named where its URDFs are missing.
+    assert sorted({where for where, _ in literal}) == ["snac_gym/common/extras.py", "snac_gym/model/urdf.py"], literal
+    assert install_line("rl") == 'pip install -e ".[rl]"'
