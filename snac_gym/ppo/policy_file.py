@@ -161,7 +161,8 @@ class PolicyFile:
         if trained_task != task:
             raise PolicyFileError(
                 f"{source} was trained for task {trained_task!r} but the env's task is {task!r}; "
-                f"use the {task} policy (the default model_path) or train one with `snac-gym train-ppo --task {task}`"
+                f"use the {task} policy (the default model_path) or train one with "
+                f"`snac-gym train-ppo --task {task} --out DIR`"
             )
         trained_layout = self.metadata.get("layout", {})
         expected = {"n_joints": layout.n_joints, "task_dim": layout.task_dim, "size": layout.size}
