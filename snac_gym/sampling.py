@@ -21,7 +21,7 @@ from snac_gym.references import MAX_REFERENCE_SPEED, MIN_ANGULAR_SPEED, MIN_SEMI
 REGIONS = ("cuboid", "workspace")
 #: Default sample cuboid for the UR10, base frame, metres: a box in front of the arm
 #: (negative x, as in the paper's numbers) that holds the paper's start point, target
-#: and circle, with every corner reachable with margin (see tests/test_sampling.py).
+#: and circle, with every corner reachable with margin (tests/test_references_sampling.py).
 UR10_CUBOID_LOW = (-0.95, -0.40, 0.20)
 UR10_CUBOID_HIGH = (-0.40, 0.70, 0.65)
 #: Fewest ``ellipse_points``: four points a quarter turn apart are the fewest that test both axes of an ellipse.

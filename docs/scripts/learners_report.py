@@ -46,7 +46,7 @@ ERRORS = {"reach": "final_error", "track": "mean_error_2nd_half"}
 
 def with_errors(scores: pd.DataFrame, folder: Path) -> pd.DataFrame:
     """A job's scores with ``error_m``, the error its task's success rule reads, from the evaluator's results of the
-    job (``evaluation/results.csv``), where they are."""
+    job (``FOLDER/evaluation/results.csv``), where they are."""
     path = folder / "evaluation" / "results.csv"
     if not path.exists():
         return scores

@@ -1,7 +1,7 @@
 """The emulated controller's RTDE and dashboard servers, spoken to byte by byte (no ur_rtde).
 
 The emulator runs in this process on free ports (``port_base=0``), so these tests can run beside
-``tests/test_emulator.py`` and each other.
+``tests/realtime/test_emulator.py`` and each other.
 """
 
 from __future__ import annotations

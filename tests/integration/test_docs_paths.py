@@ -1,0 +1,77 @@
+"""Every file of the repository the pages and the code point a reader to exists, and every ``path::test`` names a
+test that is there.
+
+mkdocs' strict build checks the pages' links; a path written as code (``snac_gym/rollout.py``, a script, a test) is
+checked by nothing, and the layout moves (``rollout.py`` became ``rollout/``): a reader sent to a file that is gone,
+or to a test that no longer exists as evidence, is misled. Left out: the CHANGELOG and the measurement log (records of
+their day, naming the files of their day), a placeholder (``configs/TASK.json``), and a file at an old commit
+(``git show d0c7f43:snac_gym/...``).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+#: The repository's folders a pointer starts from.
+TOP = ("snac_gym", "tests", "docs", "tools", "evaluation", "baselines", "examples", ".ci")
+POINTER = re.compile(
+    rf"(?<![\w./:-])((?:{'|'.join(re.escape(t) for t in TOP)})/[\w./-]*\w\.(?:py|md|json|yml|toml|csv|npz|sh|urdf))"
+    r"(?:::(\w+))?"
+)
+PLACEHOLDER = re.compile(r"(^|/)[A-Z][A-Z_]*(\.|/|$)")
+#: Records of their day: they name the files of that day.
+RECORDS = {"CHANGELOG.md", "docs/benchmarks-log.md"}
+
+
+def pointers(text: str) -> list[tuple[str, str]]:
+    """``(path, test name or "")`` of each repository file ``text`` names, placeholders left out."""
+    return [(path, test) for path, test in POINTER.findall(text) if not PLACEHOLDER.search(path)]
+
+
+def missing(path: str, test: str) -> str | None:
+    """What is wrong with the pointer (``None``: the file, and the test if named, exist)."""
+    target = ROOT / path
+    if not target.exists():
+        return f"{path} does not exist"
+    if test and not re.search(rf"^(async )?def {re.escape(test)}\(", target.read_text(), re.M):
+        return f"{path} has no test {test}"
+    return None
+
+
+def _sources() -> list[Path]:
+    pages = [ROOT / "README.md", ROOT / "CONTRIBUTING.md", *sorted((ROOT / "docs").glob("*.md"))]
+    code = [p for folder in ("snac_gym", "evaluation", "baselines", "tools", "docs/scripts", "examples")
+            for p in sorted((ROOT / folder).rglob("*.py"))]  # fmt: skip
+    return [p for p in pages + code if p.relative_to(ROOT).as_posix() not in RECORDS]
+
+
+def test_every_file_and_test_the_pages_and_the_code_point_to_exists():
+    found = [(p.relative_to(ROOT).as_posix(), path, test) for p in _sources() for path, test in pointers(p.read_text())]
+    assert len(found) > 400 and sum(1 for *_, test in found if test) > 20  # the search finds them
+    wrong = [f"{where}: {why}" for where, path, test in found if (why := missing(path, test)) is not None]
+    assert wrong == []
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ("See `snac_gym/rollout.py` for details.", "snac_gym/rollout.py does not exist"),
+        ("(`tests/evaluation/test_runner.py::test_no_such_thing`)", "has no test test_no_such_thing"),
+        ("(`tests/evaluation/test_runner.py::test_results_have_one_row_per_task_controller_and_sample`)", None),
+        ("from `snac_gym/ppo/configs/TASK.json`", "no pointer"),
+        ("`git show d0c7f43:snac_gym/ppo/models/workspace/reach.npz`", "no pointer"),
+        ("docs/benchmarks-log.md#the-test-suite", None),
+    ],
+)
+def test_a_pointer_to_nothing_is_named(text, why):
+    found = pointers(text)
+    if why == "no pointer":
+        assert found == []
+        return
+    (pointer,) = found
+    result = missing(*pointer)
+    assert (result is None) if why is None else (why in result), result
