@@ -1,5 +1,5 @@
-"""Every file of the repository the pages and the code point a reader to exists, and every ``path::test`` names a
-test that is there.
+"""Every file of the repository the pages and the code point a reader to exists, every ``path::test`` names a
+test that is there, and every ``snac_gym.…`` name the pages give is one the package has.
 
 mkdocs' strict build checks the pages' links; a path written as code (``snac_gym/rollout.py``, a script, a test) is
 checked by nothing, and the layout moves (``rollout.py`` became ``rollout/``): a reader sent to a file that is gone,
@@ -10,10 +10,16 @@ their day, naming the files of their day), a placeholder (``configs/TASK.json``)
 
 from __future__ import annotations
 
+import importlib
 import re
 from pathlib import Path
 
 import pytest
+
+from snac_gym import policies
+from snac_gym.common._renamed import MOVED
+from snac_gym.model import robots
+from snac_gym.tasks import registry as tasks_registry
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The repository's folders a pointer starts from.
@@ -75,3 +81,62 @@ def test_a_pointer_to_nothing_is_named(text, why):
     (pointer,) = found
     result = missing(*pointer)
     assert (result is None) if why is None else (why in result), result
+
+
+#: The names of the entry-point groups other packages add to, which a page gives as they are published.
+ENTRY_POINT_GROUPS = {robots.ENTRY_POINT_GROUP, tasks_registry.ENTRY_POINT_GROUP, policies.ENTRY_POINT_GROUP}
+#: A dotted name of the package in a page: ``snac_gym.apps.studies.random_episode_study``.
+NAME = re.compile(r"(?<![\w/.])(snac_gym(?:\.\w+)+)")
+
+
+def unresolved(name: str) -> str | None:
+    """Why ``name`` is not a module of the package or an attribute of one (``None``: it is, or the module needs an
+    extra that is not installed here, as on the Python 3.13 variant)."""
+    if name in ENTRY_POINT_GROUPS:
+        return None
+    parts = name.split(".")
+    for split in range(1, len(parts) + 1):  # a page must give the current name, not the one kept for 0.2
+        if (old := ".".join(parts[:split])) in MOVED:
+            return f"{old} is {MOVED[old]} since snac-gym 0.2.0"
+    for split in range(len(parts), 0, -1):
+        module_name = ".".join(parts[:split])
+        try:
+            found = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name is not None and not exc.name.startswith("snac_gym"):
+                return None  # a third-party module: an extra not installed here
+            continue
+        except ImportError:
+            return None  # a missing extra, said as snac_gym.common.extras does
+        for attribute in parts[split:]:
+            if not hasattr(found, attribute):
+                return f"{module_name} has no {'.'.join(parts[split:])}"
+            found = getattr(found, attribute)
+        return None
+    return f"no module {name}"
+
+
+def test_every_name_of_the_package_the_pages_give_is_there():
+    pages = [p for p in _sources() if p.suffix == ".md"]
+    found = sorted(
+        {(p.relative_to(ROOT).as_posix(), n.rstrip(".")) for p in pages for n in NAME.findall(p.read_text())}
+    )
+    assert len(found) > 60
+    wrong = [f"{where}: {why}" for where, name in found if (why := unresolved(name)) is not None]
+    assert wrong == []
+
+
+@pytest.mark.parametrize(
+    ("name", "why"),
+    [
+        ("snac_gym.apps.studies.random_episode_study", None),
+        ("snac_gym.apps.demo.random_episode_study", "snac_gym.apps.demo has no random_episode_study"),
+        ("snac_gym.evaluation.reference.branches", None),
+        ("snac_gym.nothing_here", "snac_gym has no nothing_here"),
+        ("snac_gym.robots", None),  # the entry-point group
+        ("snac_gym.robots.register_robot", "snac_gym.robots is snac_gym.model.robots since snac-gym 0.2.0"),
+    ],
+)
+def test_a_name_the_package_does_not_have_is_named(name, why):
+    found = unresolved(name)
+    assert (found is None) if why is None else (found is not None and found.startswith(why)), found
