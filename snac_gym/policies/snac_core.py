@@ -118,6 +118,23 @@ class SNACCore(CriticEpisode, BasePolicy):
         if not low <= high:
             raise ValueError(f"initial_weight_range must be (low, high) with low <= high, got {initial_weight_range}")
         self.initial_weight_range = (low, high)
+        kind = (
+            "uniform"
+            if initial_weights is None
+            else initial_weights
+            if isinstance(initial_weights, str)
+            else "an array"
+        )
+        if initial_weight_scale is not None and kind != "identity":  # else it would be ignored without a word
+            raise ValueError(
+                f"initial_weight_scale is c of initial_weights='identity' and does nothing with initial_weights="
+                f"{kind if kind == 'an array' else repr(kind)}; pass initial_weights='identity' with it"
+            )
+        if (low, high) != (0.0, 1.0) and kind != "uniform":
+            raise ValueError(
+                f"initial_weight_range is the range of initial_weights='uniform' and does nothing with "
+                f"initial_weights={kind if kind == 'an array' else repr(kind)}; pass initial_weights='uniform' with it"
+            )
         scale = INITIAL_WEIGHT_SCALES[self.paper_task] if initial_weight_scale is None else float(initial_weight_scale)
         if not math.isfinite(scale):
             raise ValueError(f"initial_weight_scale must be finite, got {initial_weight_scale}")

@@ -4,6 +4,7 @@ against an independent hand-expanded computation on random states, and the polic
 import copy
 import math
 import pickle
+import re
 
 import numpy as np
 import pytest
@@ -418,6 +419,27 @@ def test_bad_arguments_and_act_before_reset(ur10):
     ):
         with pytest.raises(ValueError):
             SNACPolicy(ctx, **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"initial_weight_scale": 3.0}, "initial_weight_scale is c of initial_weights='identity' and does nothing "
+         "with initial_weights='uniform'; pass initial_weights='identity' with it"),
+        ({"initial_weights": np.zeros(6), "initial_weight_scale": 3.0}, "does nothing with initial_weights=an array"),
+        ({"initial_weights": "identity", "initial_weight_range": (0.0, 2.0)},
+         "initial_weight_range is the range of initial_weights='uniform' and does nothing with initial_weights="
+         "'identity'"),
+    ],
+)  # fmt: skip
+def test_a_knob_of_another_initialisation_is_refused_not_ignored(ur10, kwargs, message):
+    """A study that passed initial_weight_scale alone (docs/snac.md's, once the default became the paper's uniform
+    draw) ran the uniform draw under the name of each scale, every row the same, without a word."""
+    ctx = _context(ur10, "reach")
+    with pytest.raises(ValueError, match=re.escape(message)):
+        SNACPolicy(ctx, **kwargs)
+    SNACPolicy(ctx, initial_weights="identity", initial_weight_scale=3.0)  # with its own kind: taken
+    SNACPolicy(ctx, initial_weights="uniform", initial_weight_range=(0.0, 2.0))
 
 
 @pytest.mark.parametrize("copier", [lambda p: pickle.loads(pickle.dumps(p)), copy.deepcopy])
