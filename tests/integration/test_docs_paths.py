@@ -10,6 +10,7 @@ their day, naming the files of their day), a placeholder (``configs/TASK.json``)
 
 from __future__ import annotations
 
+import ast
 import importlib
 import re
 from pathlib import Path
@@ -140,3 +141,34 @@ def test_every_name_of_the_package_the_pages_give_is_there():
 def test_a_name_the_package_does_not_have_is_named(name, why):
     found = unresolved(name)
     assert (found is None) if why is None else (found is not None and found.startswith(why)), found
+
+
+def imported_names(code: str) -> list[str]:
+    """The package's names ``code`` imports: ``snac_gym.apps.studies.random_episode_study`` for ``from
+    snac_gym.apps.studies import random_episode_study``."""
+    names = []
+    for node in ast.walk(ast.parse(code)):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "snac_gym":
+            names += [f"{node.module}.{alias.name}" for alias in node.names if alias.name != "*"]
+        elif isinstance(node, ast.Import):
+            names += [alias.name for alias in node.names if alias.name.split(".")[0] == "snac_gym"]
+    return names
+
+
+def test_every_import_of_the_scripts_and_the_pages_shell_blocks_resolves():
+    """The docs' scripts, tools and examples (most too long to run here) and the pages' ``python - <<'PY'`` blocks
+    (which tests/integration/test_docs.py does not run): the names they import are the package's today."""
+    scripts = [p for folder in ("docs/scripts", "tools", "examples") for p in sorted((ROOT / folder).glob("*.py"))]
+    found = [(p.relative_to(ROOT).as_posix(), n) for p in scripts for n in imported_names(p.read_text())]
+    heredoc = re.compile(r"python3? - <<'?(\w+)'?\n(.*?)\n\1\n", re.S)
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for _, code in heredoc.findall(page.read_text()):
+            found += [(page.relative_to(ROOT).as_posix(), n) for n in imported_names(code)]
+    assert len(found) > 250 and any(where.endswith(".md") for where, _ in found)
+    wrong = [f"{where}: {why}" for where, name in found if (why := unresolved(name)) is not None]
+    assert wrong == []
+
+
+def test_an_import_of_a_name_that_moved_is_named():
+    (name,) = imported_names("from snac_gym.apps.demo import random_episode_study\n")
+    assert unresolved(name) == "snac_gym.apps.demo has no random_episode_study"
