@@ -8,9 +8,11 @@ option names, their types and choices), not run. Lines with a placeholder for th
 
 from __future__ import annotations
 
+import functools
 import re
 import shlex
 from pathlib import Path
+from typing import Any
 
 import pytest
 import typer
@@ -54,10 +56,16 @@ def commands(text: str) -> list[str]:
     return [shlex.join(words(line)) for line in found]
 
 
+@functools.cache
+def _group() -> Any:
+    """The command-line app as click sees it (built once: typer builds it anew on each call)."""
+    return typer.main.get_command(app)
+
+
 def refusal(command: str) -> str | None:
     """Why the command's own parser refuses ``command`` (``None``: it parses, or it holds a placeholder)."""
     words = shlex.split(command)[1:]  # commands() joined them quoted
-    group = typer.main.get_command(app)
+    group = _group()
     context = group.context_class(group, info_name="snac-gym")
     if not words or words[0].startswith("-") or any(PLACEHOLDER.search(word) or word == "--help" for word in words):
         return None  # the program named, a line to fill in, or a command's help
