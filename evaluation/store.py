@@ -46,7 +46,13 @@ except ImportError:  # pragma: no cover - not POSIX
 from snac_gym.evaluation.samples import SampleFileError
 
 from snac_gym.common.errors import RunDirectoryError
-from snac_gym.common.outputs import OutputFolderError, usable_out_folder, write_text_whole, written_whole
+from snac_gym.common.outputs import (
+    OutputFolderError,
+    read_json_object,
+    usable_out_folder,
+    write_text_whole,
+    written_whole,
+)
 from snac_gym.rollout import write_log
 
 #: The table of every row, written once all of a run's rows are in: a run whose folder holds it is finished.
@@ -221,18 +227,14 @@ class RunStore:
             if resume:
                 raise RunDirectoryError(f"--resume: {self.root} holds no run to resume (no run.json)")
             return
-        try:
-            stored = json.loads(manifest_path.read_text())
-        except (ValueError, OSError) as exc:
-            stored = f"{type(exc).__name__}: {exc}"
-        if not isinstance(stored, dict):
-            problem = stored if isinstance(stored, str) else "not a JSON object"
+        stored = read_json_object(manifest_path)
+        if isinstance(stored, str):
             if not resume:
                 raise RunDirectoryError(
                     f"{self.root} already holds a run (its run.json unreadable); choose another --out"
                 )
             raise RunDirectoryError(
-                f"--resume: {manifest_path} is unreadable ({problem}); "
+                f"--resume: {manifest_path} is unreadable ({stored}); "
                 "it cannot be resumed, start it again in another --out"
             )
         normalised = self.manifest

@@ -35,14 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from snac_gym.common.extras import install_line, require
+from snac_gym.common.extras import missing_extra, require
 from snac_gym.control.cost import CostConvention
 from snac_gym.control.trajopt import next_angles, trajectory_cost_and_gradient
 from snac_gym.model.kinematics import Kinematics, leaf_chain
 
 #: What a missing CasADi says (:func:`~snac_gym.common.extras.require`'s line).
 _NEEDS_CASADI = "the IPOPT cross-check (CasADi)"
-MISSING_CASADI = f"{_NEEDS_CASADI} needs the 'check' extra: {install_line('check')}"
+MISSING_CASADI = missing_extra(_NEEDS_CASADI, "check")
 
 
 @dataclass

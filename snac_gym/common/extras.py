@@ -17,6 +17,11 @@ def install_line(extra: str) -> str:
     return f'pip install -e ".[{extra}]"'
 
 
+def missing_extra(what: str, extra: str) -> str:
+    """The one line that says ``what`` needs ``extra`` and how to install it."""
+    return f"{what} needs the '{extra}' extra: {install_line(extra)}"
+
+
 def require(module: str, extra: str, what: str) -> ModuleType:
     """Import ``module``, or raise one line: ``"<what> needs the '<extra>' extra: pip install -e ".[<extra>]"``.
 
@@ -32,7 +37,7 @@ def require(module: str, extra: str, what: str) -> ModuleType:
         interrupt = interrupt_behind(exc)
         if interrupt is not None:
             raise interrupt from None
-        raise MissingExtraError(f"{what} needs the '{extra}' extra: {install_line(extra)}") from exc
+        raise MissingExtraError(missing_extra(what, extra)) from exc
 
 
 def require_installed(module: str, extra: str, what: str) -> None:
@@ -46,7 +51,7 @@ def require_installed(module: str, extra: str, what: str) -> None:
     except (ImportError, ValueError):
         found = False
     if not found:
-        raise MissingExtraError(f"{what} needs the '{extra}' extra: {install_line(extra)}")
+        raise MissingExtraError(missing_extra(what, extra))
 
 
 def _name_the_glfw_library() -> None:
@@ -75,4 +80,4 @@ def _name_the_glfw_library() -> None:
 
 
 #: MissingExtraError is re-exported: the error of :func:`require`, caught where it is called.
-__all__ = ["MissingExtraError", "install_line", "require", "require_installed"]
+__all__ = ["MissingExtraError", "install_line", "missing_extra", "require", "require_installed"]

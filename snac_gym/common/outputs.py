@@ -9,12 +9,14 @@ one); a failure names the file and the space left on its disk.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import stat
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from snac_gym.common.errors import OutputFolderError, OutputWriteError
 
@@ -106,7 +108,17 @@ def write_text_whole(path: str | Path, text: str) -> Path:
     return write_whole(path, lambda temporary: temporary.write_text(text))
 
 
+def read_json_object(path: Path) -> dict[str, Any] | str:
+    """The JSON object a command wrote to ``path``, or why it cannot be read, in a few words for an error line
+    (the exception's, or ``"not a JSON object"``)."""
+    try:
+        found = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        return f"{type(exc).__name__}: {exc}"
+    return found if isinstance(found, dict) else "not a JSON object"
+
+
 __all__ = [
-    "OutputFolderError", "OutputWriteError", "usable_out_folder", "write_error", "write_text_whole", "write_whole",
-    "written_whole",
+    "OutputFolderError", "OutputWriteError", "read_json_object", "usable_out_folder", "write_error", "write_text_whole",
+    "write_whole", "written_whole",
 ]  # fmt: skip

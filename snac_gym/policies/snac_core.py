@@ -118,22 +118,20 @@ class SNACCore(CriticEpisode, BasePolicy):
         if not low <= high:
             raise ValueError(f"initial_weight_range must be (low, high) with low <= high, got {initial_weight_range}")
         self.initial_weight_range = (low, high)
+        # Each knob belongs to one initialisation; given with another it would be ignored without a word.
         kind = (
-            "uniform"
-            if initial_weights is None
-            else initial_weights
-            if isinstance(initial_weights, str)
-            else "an array"
+            initial_weights if isinstance(initial_weights, str) else "uniform" if initial_weights is None else "array"
         )
-        if initial_weight_scale is not None and kind != "identity":  # else it would be ignored without a word
+        given = "an array" if kind == "array" else repr(kind)
+        if initial_weight_scale is not None and kind != "identity":
             raise ValueError(
                 f"initial_weight_scale is c of initial_weights='identity' and does nothing with initial_weights="
-                f"{kind if kind == 'an array' else repr(kind)}; pass initial_weights='identity' with it"
+                f"{given}; pass initial_weights='identity' with it"
             )
         if (low, high) != (0.0, 1.0) and kind != "uniform":
             raise ValueError(
                 f"initial_weight_range is the range of initial_weights='uniform' and does nothing with "
-                f"initial_weights={kind if kind == 'an array' else repr(kind)}; pass initial_weights='uniform' with it"
+                f"initial_weights={given}; pass initial_weights='uniform' with it"
             )
         scale = INITIAL_WEIGHT_SCALES[self.paper_task] if initial_weight_scale is None else float(initial_weight_scale)
         if not math.isfinite(scale):

@@ -34,7 +34,7 @@ from typing import Any, cast
 import numpy as np
 
 from snac_gym.common.errors import MissingPolicyFileError, PolicyFileError
-from snac_gym.common.outputs import write_whole
+from snac_gym.common.outputs import read_json_object, write_whole
 from snac_gym.observation import ObservationLayout
 from snac_gym.ppo.features import FeatureSpec, GoalState, action_size, command, feature_size, observation_features
 
@@ -286,13 +286,9 @@ class PolicyFile:
         card_path = path.with_suffix(".json")
         if not card_path.is_file():
             return
-        try:
-            card = json.loads(card_path.read_text())
-        except (OSError, ValueError) as exc:
-            card = f"{type(exc).__name__}: {exc}"
-        if not isinstance(card, dict):
-            problem = card if isinstance(card, str) else "not a JSON object"
-            raise PolicyFileError(f"PPO model card {card_path} is unreadable ({problem}); fix or remove it")
+        card = read_json_object(card_path)
+        if isinstance(card, str):
+            raise PolicyFileError(f"PPO model card {card_path} is unreadable ({card}); fix or remove it")
         data = path.read_bytes()
         actual = {
             "file": path.name,
