@@ -55,7 +55,7 @@ from snac_gym.evaluation.effort.cache import (
 from snac_gym.evaluation.effort.matching import MODEL_ORIGIN, EffortRecord, Records, Results, controller_passes
 from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
-from snac_gym.evaluation.execution.passes import SIDE_BY_SIDE, EvaluationRun
+from snac_gym.evaluation.execution.passes import SIDE_BY_SIDE, EvaluationRun, step_costs
 from snac_gym.evaluation.execution.progress import Progress
 from snac_gym.evaluation.reference.cache import CACHE_ENV, DISTRIBUTIONS, cache_folder, installed_versions
 from snac_gym.evaluation.reference.optimum import OPTIMAL, add_optimality
@@ -106,7 +106,9 @@ def run_evaluation(config: EvaluationConfig) -> pd.DataFrame:
             on_model = config.match_effort and matching and model is not config
             effort_set = _effort_set(config, kinematics, space, executor, samples) if matching else samples
             if matching and config.match_effort and config.progress and not config.resume:
-                announce_matching(sys.stderr.write, config, samples, effort_set, bool(identities))
+                costs = step_costs(config, executor, specs, effort_set)
+                workers = getattr(executor, "workers", config.workers)  # Ray's: the run's --workers
+                announce_matching(sys.stderr.write, config, samples, effort_set, bool(identities), costs, workers)
             matched_on = samples if on_model else effort_set
             rollouts = len(specs) * sum(map(len, matched_on.values())) + config.wants_optimal * sum(
                 map(len, samples.values())
@@ -174,19 +176,30 @@ def announce_compiles(write: Any, modules: tuple[str, ...] = EVALUATOR_KERNEL_MO
         write(COMPILING + "\n")
 
 
+#: A match whose one pass over the effort set is estimated to take this long or longer (s) says how long, and how long
+#: a pass of the evaluated samples alone would take instead.
+LONG_MATCH_S = 60.0
+
+
 def announce_matching(
     write: Any,
     config: EvaluationConfig,
     samples: dict[str, list[EvaluationSample]],
     effort_set: dict[str, list[EvaluationSample]],
     cache_on: bool,
+    costs: dict[tuple[str, str], float] | None = None,
+    workers: int = 1,
 ) -> None:
     """Say (one line) that the run matches equal effort before its evaluated samples, on how many samples, why no
     knobs were read, and the options that make it shorter or skip it.
 
     A run at the default settings reads the shipped knobs and matches nothing; any other run (another arm, cost or
     controller) searches every controller's knob on the effort set first, 1000 samples a task whatever ``--samples``:
-    minutes, and many for a controller as slow as ``mpc``, for what may be a 10-sample question.
+    seconds for most controllers, but most of an hour for one as slow as ``mpc``, for what may be a 10-sample
+    question. So where ``costs`` (each (task, controller)'s seconds per sample and step on one worker:
+    :func:`~snac_gym.evaluation.execution.passes.step_costs`) put one pass of the controllers over the effort set at
+    :data:`LONG_MATCH_S` or more on ``workers``, the line says how long that pass takes, which controller's steps
+    cost most, and how long a pass of the evaluated samples alone would take.
     """
     if config.recalibrate:
         why = "--recalibrate"
@@ -195,15 +208,51 @@ def announce_matching(
     else:
         why = "no knobs cached or shipped for these controllers at these settings"
     size = max(map(len, effort_set.values()), default=0)
-    shorter = (
-        ", --effort-samples 0 matches on the evaluated samples"
-        if size > max(map(len, samples.values()), default=0)
-        else ""
-    )
+    larger = size > max(map(len, samples.values()), default=0)
+    shorter = ", --effort-samples 0 matches on the evaluated samples" if larger else ""
+    duration = ""
+    if costs:
+        pass_s = _pass_seconds(config, effort_set, costs, workers)
+        if pass_s >= LONG_MATCH_S:
+            (_, slowest), cost = max(costs.items(), key=lambda item: item[1])
+            duration = (
+                f"; one pass of these controllers over them takes {_about(pass_s)} here ({workers} "
+                f"worker{'s' * (workers != 1)}; {slowest}: {_step_text(cost)} a step), and the match several (its knob "
+                "searches, then one to three passes)"
+            )
+            if larger:
+                shorter += f" (a pass of them: {_about(_pass_seconds(config, samples, costs, workers))})"
     write(
-        f"evaluate: matching equal effort first, on {size} samples a task ({why}); "
+        f"evaluate: matching equal effort first, on {size} samples a task ({why}){duration}; "
         f"--no-match-effort skips it{shorter}\n"
     )
+
+
+def _pass_seconds(
+    config: EvaluationConfig,
+    sample_set: dict[str, list[EvaluationSample]],
+    costs: dict[tuple[str, str], float],
+    workers: int,
+) -> float:
+    """Seconds of one pass of every controller of ``costs`` over ``sample_set`` on ``workers`` workers."""
+    steps = sum(len(sample_set.get(task, ())) * config.steps(task) * cost for (task, _), cost in costs.items())
+    return steps / max(workers, 1)
+
+
+def _step_text(seconds: float) -> str:
+    """A step's cost in ms, or µs below one."""
+    return f"{seconds * 1e3:.1f} ms" if seconds >= 1e-3 else f"{seconds * 1e6:.0f} µs"
+
+
+def _about(seconds: float) -> str:
+    """``seconds`` as "about …" in the unit a reader thinks of them in."""
+    if seconds < 0.5:
+        return "under a second"
+    if seconds < 90:
+        return f"about {seconds:.0f} s"
+    if seconds < 90 * 60:
+        return f"about {seconds / 60:.0f} min"
+    return f"about {seconds / 3600:.1f} h"
 
 
 def _writable_caches(config: EvaluationConfig) -> tuple[EvaluationConfig, bool]:

@@ -65,6 +65,8 @@ class SerialExecutor:
     """Run jobs one after the other in this process."""
 
     description = "serial"
+    #: Jobs that run at once.
+    workers = 1
     #: Whether several threads may feed it jobs at once (and gain from it).
     concurrent = False
 

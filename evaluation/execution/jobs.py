@@ -7,7 +7,9 @@ when asked. It is the only code that runs in the workers.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -171,3 +173,14 @@ def run_job(job: RolloutJob) -> JobResult:
     )
     metrics.insert(0, "sample", [s.index for s in job.samples])
     return JobResult(metrics, logs)
+
+
+def time_job(job: RolloutJob) -> float:
+    """Seconds per sample and control step of ``job``'s rollouts on this process (its metrics included), timed after
+    a warm-up of one sample and two steps (the kernels loaded, or compiled where a worker had left them to their
+    first call, and the controller's first call made): the rate at which a pass of the same controller goes on one
+    worker, for a run's estimate of its effort matching (:func:`snac_gym.evaluation.runner.announce_matching`)."""
+    run_job(dataclasses.replace(job, samples=job.samples[:1], seeds=job.seeds[:1], steps=min(job.steps, 2)))
+    started = time.perf_counter()
+    run_job(job)
+    return (time.perf_counter() - started) / (len(job.samples) * job.steps)

@@ -16,6 +16,7 @@ when they run, never what they return.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import threading
 import time
@@ -27,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 from snac_gym.evaluation.execution.executors import ExecutorStopped
-from snac_gym.evaluation.execution.jobs import JobResult, RolloutJob, run_job
+from snac_gym.evaluation.execution.jobs import JobResult, RolloutJob, run_job, time_job
 from snac_gym.evaluation.reference.cache import cache_folder
 from snac_gym.evaluation.reference.optimum import OPTIMAL, OptimalJob, run_optimal_job
 from snac_gym.evaluation.samples import EvaluationSample, policy_seed
@@ -57,6 +58,73 @@ SIDE_BY_SIDE = "passes and optimal side by side"
 EFFORT_SET = "effort set"
 #: One full pass: task, controller, and the constructor arguments (the knob value included).
 Pass = tuple[str, "ControllerSpec", dict[str, Any]]
+
+
+def rollout_jobs(
+    config: EvaluationConfig,
+    task: str,
+    controller: str,
+    kwargs: dict[str, Any],
+    samples: Sequence[EvaluationSample],
+    steps: int,
+    keep_logs: bool = False,
+    size: int | None = None,
+) -> list[RolloutJob]:
+    """The jobs of ``controller`` (constructor arguments ``kwargs``) on ``samples`` of ``task`` under ``config``, of at
+    most ``size`` samples each (default: ``config.chunk_size``)."""
+    size = size or config.chunk_size
+    return [
+        RolloutJob(
+            task=task,
+            controller=controller,
+            kwargs=dict(kwargs),
+            samples=tuple(samples[i : i + size]),
+            seeds=tuple(policy_seed(config.seed, task, s.index) for s in samples[i : i + size]),
+            steps=steps,
+            dt=config.dt,
+            robot=config.robot,
+            engine=config.engine,
+            keep_logs=keep_logs,
+            use_batch=config.use_batch,
+            convention=config.convention,
+            model_error=config.model_error,
+        )
+        for i in range(0, len(samples), size)
+    ]
+
+
+#: The probe of :func:`step_costs`: this many samples of a task, stepped together for this many steps (a tenth of a
+#: second of ``mpc``'s; a few milliseconds of the others'), after a warm-up.
+STEP_COST_SAMPLES, STEP_COST_STEPS = 64, 10
+
+
+def step_costs(
+    config: EvaluationConfig,
+    executor: Any,
+    specs: Sequence[ControllerSpec],
+    samples: dict[str, list[EvaluationSample]],
+) -> dict[tuple[str, str], float]:
+    """Seconds per sample and control step of each controller of ``specs`` (at its own settings) on each task of
+    ``config``, on the kinematic model (where effort is matched), measured on the workers, every probe at once
+    (:func:`~snac_gym.evaluation.execution.jobs.time_job`: :data:`STEP_COST_STEPS` steps of the first
+    :data:`STEP_COST_SAMPLES` samples of ``samples``, in lockstep as a pass steps them)."""
+    probes = [
+        dataclasses.replace(job, engine="kinematic")
+        for task in config.tasks
+        for spec in specs
+        for job in rollout_jobs(
+            config,
+            task,
+            spec.name,
+            spec.kwargs,
+            samples[task][:STEP_COST_SAMPLES],
+            min(STEP_COST_STEPS, config.steps(task)),
+        )[:1]
+    ]
+    return {
+        (probes[position].task, probes[position].controller): seconds
+        for position, seconds in executor.run(time_job, probes, SEARCH_PRIORITY)
+    }
 
 
 class EvaluationRun:
@@ -167,24 +235,7 @@ class EvaluationRun:
         if spread and self.spread_searches and samples:
             jobs = max(math.ceil(len(samples) / size), min(self.config.workers, len(samples)))
             size = math.ceil(len(samples) / jobs)
-        return [
-            RolloutJob(
-                task=task,
-                controller=controller,
-                kwargs=dict(kwargs),
-                samples=tuple(samples[i : i + size]),
-                seeds=tuple(policy_seed(self.config.seed, task, s.index) for s in samples[i : i + size]),
-                steps=steps,
-                dt=self.config.dt,
-                robot=self.config.robot,
-                engine=self.config.engine,
-                keep_logs=keep_logs,
-                use_batch=self.config.use_batch,
-                convention=self.config.convention,
-                model_error=self.config.model_error,
-            )
-            for i in range(0, len(samples), size)
-        ]
+        return rollout_jobs(self.config, task, controller, kwargs, samples, steps, keep_logs, size)
 
     def _optimal_jobs(self, task: str) -> list[OptimalJob]:
         """The optimal reference's jobs of ``task``: at most :data:`OPTIMAL_CHUNK_SIZE` samples each."""
@@ -307,5 +358,6 @@ class EvaluationRun:
 
 
 __all__ = [
-    "OPTIMAL_CHUNK_SIZE", "PASS_PRIORITY", "SEARCH_PRIORITY", "SIDE_BY_SIDE", "Cancelled", "EvaluationRun", "Pass",
+    "OPTIMAL_CHUNK_SIZE", "PASS_PRIORITY", "SEARCH_PRIORITY", "SIDE_BY_SIDE", "STEP_COST_SAMPLES", "STEP_COST_STEPS",
+    "Cancelled", "EvaluationRun", "Pass", "rollout_jobs", "step_costs",
 ]  # fmt: skip
