@@ -217,8 +217,8 @@ def announce_matching(
             (_, slowest), cost = max(costs.items(), key=lambda item: item[1])
             duration = (
                 f"; one pass of these controllers over them takes {_about(pass_s)} here ({workers} "
-                f"worker{'s' * (workers != 1)}; {slowest}: {_step_text(cost)} a step), and the match several (its knob "
-                "searches, then one to three passes)"
+                f"worker{'s' * (workers != 1)}; {slowest}: {_step_text(cost)} a step), and the match takes several "
+                "(its knob searches, then one to three passes)"
             )
             if larger:
                 shorter += f" (a pass of them: {_about(_pass_seconds(config, samples, costs, workers))})"
@@ -235,8 +235,8 @@ def _pass_seconds(
     workers: int,
 ) -> float:
     """Seconds of one pass of every controller of ``costs`` over ``sample_set`` on ``workers`` workers."""
-    steps = sum(len(sample_set.get(task, ())) * config.steps(task) * cost for (task, _), cost in costs.items())
-    return steps / max(workers, 1)
+    total = sum(len(sample_set.get(task, ())) * config.steps(task) * cost for (task, _), cost in costs.items())
+    return total / max(workers, 1)
 
 
 def _step_text(seconds: float) -> str:

@@ -92,7 +92,7 @@ def test_a_long_match_says_how_long_one_pass_takes_and_a_pass_of_the_evaluated_s
     announce_matching(written.append, _config(), EVALUATED, EFFORT_SET, True, costs, workers=2)
     assert written == [
         f"evaluate: matching equal effort first, on 1000 samples a task ({WHY}); one pass of these controllers over "
-        "them takes about 40 min here (2 workers; mpc: 1.2 ms a step), and the match several (its knob searches, "
+        "them takes about 40 min here (2 workers; mpc: 1.2 ms a step), and the match takes several (its knob searches, "
         "then one to three passes); --no-match-effort skips it, --effort-samples 0 matches on the evaluated samples "
         "(a pass of them: about 2 min)\n"
     ]
