@@ -52,7 +52,15 @@ from snac_gym.evaluation.effort.cache import (
     read_records,
     write_records,
 )
-from snac_gym.evaluation.effort.matching import MODEL_ORIGIN, EffortRecord, Records, Results, controller_passes
+from snac_gym.evaluation.effort.matching import (
+    MAX_MATCH_ROUNDS,
+    MODEL_ORIGIN,
+    EffortRecord,
+    Records,
+    Results,
+    controller_passes,
+)
+from snac_gym.evaluation.effort.search import MAX_EVALUATIONS
 from snac_gym.evaluation.effort.shipped import read_shipped
 from snac_gym.evaluation.execution.executors import open_executor
 from snac_gym.evaluation.execution.passes import SIDE_BY_SIDE, EvaluationRun, step_costs
@@ -217,8 +225,9 @@ def announce_matching(
             (_, slowest), cost = max(costs.items(), key=lambda item: item[1])
             duration = (
                 f"; one pass of these controllers over them takes {_about(pass_s)} here ({workers} "
-                f"worker{'s' * (workers != 1)}; {slowest}: {_step_text(cost)} a step), and the match takes several "
-                "(its knob searches, then one to three passes)"
+                f"worker{'s' * (workers != 1)}; {slowest}: {_step_text(cost)} a step), and matching takes several "
+                f"times that (a knob search of up to {MAX_EVALUATIONS} tries on them, then one to {MAX_MATCH_ROUNDS} "
+                "passes)"
             )
             if larger:
                 shorter += f" (a pass of them: {_about(_pass_seconds(config, samples, costs, workers))})"

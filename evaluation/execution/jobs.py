@@ -175,12 +175,33 @@ def run_job(job: RolloutJob) -> JobResult:
     return JobResult(metrics, logs)
 
 
+#: :func:`time_job` times this long (s) of a job's steps, where its horizon allows: long enough that the timer's and the
+#: scheduler's jitter do not count. It tries :data:`TIMED_STEPS` steps first, then four times as many until then.
+TIMED_S, TIMED_STEPS = 0.02, 10
+
+
 def time_job(job: RolloutJob) -> float:
-    """Seconds per sample and control step of ``job``'s rollouts on this process (its metrics included), timed after
-    a warm-up of one sample and two steps (the kernels loaded, or compiled where a worker had left them to their
-    first call, and the controller's first call made): the rate at which a pass of the same controller goes on one
-    worker, for a run's estimate of its effort matching (:func:`snac_gym.evaluation.runner.announce_matching`)."""
-    run_job(dataclasses.replace(job, samples=job.samples[:1], seeds=job.seeds[:1], steps=min(job.steps, 2)))
-    started = time.perf_counter()
-    run_job(job)
-    return (time.perf_counter() - started) / (len(job.samples) * job.steps)
+    """Seconds per sample and control step of ``job``'s rollouts on this process (its metrics included), without what a
+    job costs whatever its length (the controller built, the rollout set up, the rows measured): the rate at which a
+    pass of the same controller goes on one worker, for a run's estimate of its effort matching
+    (:func:`snac_gym.evaluation.runner.announce_matching`).
+
+    After a warm-up of one sample and two steps (the kernels loaded, or compiled where a worker had left them to their
+    first call, and the controller's first call made), the job is run for two steps, then for more (at most
+    ``job.steps``) until the steps beyond the first two last :data:`TIMED_S`; the rate is the difference's."""
+    short = min(job.steps, 2)
+    run_job(dataclasses.replace(job, samples=job.samples[:1], seeds=job.seeds[:1], steps=short))
+
+    def timed(steps: int) -> float:
+        started = time.perf_counter()
+        run_job(dataclasses.replace(job, steps=steps))
+        return time.perf_counter() - started
+
+    base = timed(short)
+    steps, elapsed = short, base
+    while steps < job.steps and elapsed - base < TIMED_S:
+        steps = min(job.steps, max(TIMED_STEPS, 4 * steps))
+        elapsed = timed(steps)
+    if steps == short:  # a horizon of one or two steps: no difference to take
+        return base / (len(job.samples) * short)
+    return max(elapsed - base, 0.0) / (len(job.samples) * (steps - short))

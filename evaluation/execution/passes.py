@@ -93,9 +93,10 @@ def rollout_jobs(
     ]
 
 
-#: The probe of :func:`step_costs`: this many samples of a task, stepped together for this many steps (a tenth of a
-#: second of ``mpc``'s; a few milliseconds of the others'), after a warm-up.
-STEP_COST_SAMPLES, STEP_COST_STEPS = 64, 10
+#: The probe of :func:`step_costs`: this many samples of a task, stepped together (as a pass steps its chunks) for
+#: as long as :func:`~snac_gym.evaluation.execution.jobs.time_job` needs (a tenth of a second of ``mpc``'s, tens of
+#: milliseconds of the others').
+STEP_COST_SAMPLES = 64
 
 
 def step_costs(
@@ -106,8 +107,8 @@ def step_costs(
 ) -> dict[tuple[str, str], float]:
     """Seconds per sample and control step of each controller of ``specs`` (at its own settings) on each task of
     ``config``, on the kinematic model (where effort is matched), measured on the workers, every probe at once
-    (:func:`~snac_gym.evaluation.execution.jobs.time_job`: :data:`STEP_COST_STEPS` steps of the first
-    :data:`STEP_COST_SAMPLES` samples of ``samples``, in lockstep as a pass steps them)."""
+    (:func:`~snac_gym.evaluation.execution.jobs.time_job` on the first :data:`STEP_COST_SAMPLES` samples of
+    ``samples``)."""
     probes = [
         dataclasses.replace(job, engine="kinematic")
         for task in config.tasks
@@ -118,7 +119,7 @@ def step_costs(
             spec.name,
             spec.kwargs,
             samples[task][:STEP_COST_SAMPLES],
-            min(STEP_COST_STEPS, config.steps(task)),
+            config.steps(task),
         )[:1]
     ]
     return {
@@ -358,6 +359,6 @@ class EvaluationRun:
 
 
 __all__ = [
-    "OPTIMAL_CHUNK_SIZE", "PASS_PRIORITY", "SEARCH_PRIORITY", "SIDE_BY_SIDE", "STEP_COST_SAMPLES", "STEP_COST_STEPS",
+    "OPTIMAL_CHUNK_SIZE", "PASS_PRIORITY", "SEARCH_PRIORITY", "SIDE_BY_SIDE", "STEP_COST_SAMPLES",
     "Cancelled", "EvaluationRun", "Pass", "rollout_jobs", "step_costs",
 ]  # fmt: skip
