@@ -94,7 +94,7 @@ def rollout_jobs(
 
 
 #: The probe of :func:`step_costs`: this many samples of a task, stepped together (as a pass steps its chunks) for
-#: as long as :func:`~snac_gym.evaluation.execution.jobs.time_job` needs (a tenth of a second of ``mpc``'s, tens of
+#: as long as :func:`~snac_gym.evaluation.execution.jobs.time_job` needs (0.7 s of ``mpc``'s, tens of
 #: milliseconds of the others').
 STEP_COST_SAMPLES = 64
 
