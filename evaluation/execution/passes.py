@@ -109,18 +109,12 @@ def step_costs(
     ``config``, on the kinematic model (where effort is matched), measured on the workers, every probe at once
     (:func:`~snac_gym.evaluation.execution.jobs.time_job` on the first :data:`STEP_COST_SAMPLES` samples of
     ``samples``)."""
+    n = STEP_COST_SAMPLES  # one job a (task, controller), whatever the run's --chunk-size
     probes = [
         dataclasses.replace(job, engine="kinematic")
         for task in config.tasks
         for spec in specs
-        for job in rollout_jobs(
-            config,
-            task,
-            spec.name,
-            spec.kwargs,
-            samples[task][:STEP_COST_SAMPLES],
-            config.steps(task),
-        )[:1]
+        for job in rollout_jobs(config, task, spec.name, spec.kwargs, samples[task][:n], config.steps(task), size=n)
     ]
     return {
         (probes[position].task, probes[position].controller): seconds
