@@ -1,7 +1,6 @@
 """The UR model table: the written URDFs against independent ones, the datasheet limits the real arm is held to."""
 
 import math
-import tempfile
 
 import numpy as np
 import pinocchio as pin
@@ -28,12 +27,12 @@ def _tool_pose(kinematics: Kinematics, q: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("robot", ["ur3", "ur5", "ur10"])
-def test_the_urdf_writer_reproduces_example_robot_data_on_the_cb3_arms(robot):
+def test_the_urdf_writer_reproduces_example_robot_data_on_the_cb3_arms(robot, tmp_path):
     """The writer's frames checked against URDFs it did not write: example-robot-data's CB3 arms, written
     from the same kind of DH rows, give tool0's pose in the base frame to 1e-12 at random angles."""
-    with tempfile.NamedTemporaryFile("w", suffix=".urdf", delete=False) as file:
-        file.write(urdf_text(robot))
-    written, shipped = Kinematics("written", urdf_path=file.name), Kinematics(robot)
+    path = tmp_path / f"{robot}.urdf"
+    path.write_text(urdf_text(robot))
+    written, shipped = Kinematics("written", urdf_path=str(path)), Kinematics(robot)
     assert written.joint_names == shipped.joint_names
     np.testing.assert_allclose(written.lower_limits, shipped.lower_limits, atol=1e-9)  # elbow ±π, the rest ±2π
     for q in np.random.default_rng(11).uniform(-2 * math.pi, 2 * math.pi, (40, 6)):

@@ -88,7 +88,7 @@ def test_an_unreadable_entry_is_solved_again(job, _counting, monkeypatch):
     assert solved == [1]
 
 
-def test_the_key_covers_every_module_the_reference_reaches():
+def test_the_key_covers_every_module_the_reference_reaches(tmp_path):
     """The cache key hashes the source of ``code_modules()``, read off the import graph by the project's own
     parser: every module grimp (import-linter's graph, an independent reading) finds upstream of the reference
     must be among them, the solver, the kernels, the robots' tables and the starts' policies included."""
@@ -98,13 +98,15 @@ def test_the_key_covers_every_module_the_reference_reaches():
 
     root = Path(__file__).resolve().parents[3]
     script = (
-        "import sys, tempfile; from pathlib import Path; sys.path.insert(0, sys.argv[1] + '/tools');"
-        "from lint_imports import lay_out, ROOT; tree = lay_out(ROOT, Path(tempfile.mkdtemp()) / 't');"
+        "import sys; from pathlib import Path; sys.path.insert(0, sys.argv[1] + '/tools');"
+        "from lint_imports import lay_out, ROOT; tree = lay_out(ROOT, Path(sys.argv[2]) / 't');"
         "sys.path.insert(0, str(tree)); import grimp;"
         "g = grimp.build_graph('snac_gym', include_external_packages=False, cache_dir=None);"
         "print('\\n'.join(sorted(g.find_upstream_modules('snac_gym.evaluation.reference.optimum'))))"
     )
-    result = subprocess.run([sys.executable, "-c", script, str(root)], capture_output=True, text=True, cwd=root)
+    result = subprocess.run(
+        [sys.executable, "-c", script, str(root), str(tmp_path)], capture_output=True, text=True, cwd=root
+    )
     assert result.returncode == 0, result.stderr
     reached = set(result.stdout.split())
     assert (
