@@ -9,14 +9,17 @@ first module also carries numba's first compile in a process (its typing and tar
     python docs/scripts/compile_times.py            # the evaluator's modules (a cold evaluation compiles these)
     python docs/scripts/compile_times.py --all      # the identifier's too (snac-adaptive)
 
-It sets ``NUMBA_CACHE_DIR`` to a new temporary folder before numba is imported, so nothing is loaded from a cache.
+It sets ``NUMBA_CACHE_DIR`` to a new temporary folder before numba is imported, so nothing is loaded from a cache, and
+removes it at the end.
 """
 
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib
 import os
+import shutil
 import tempfile
 import time
 
@@ -26,6 +29,7 @@ def main() -> None:
     parser.add_argument("--all", action="store_true", help="every kernel module, the identifier's included")
     args = parser.parse_args()
     os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="compile-times-")
+    atexit.register(shutil.rmtree, os.environ["NUMBA_CACHE_DIR"], ignore_errors=True)  # its compiles serve no one else
     from numba.core.registry import CPUDispatcher  # after NUMBA_CACHE_DIR: numba reads it at import
 
     from snac_gym.kernels import compiled
