@@ -141,8 +141,11 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     (:func:`~snac_gym.kernels.compiled.warm_up_shared`), in a process of its own, before pytest-xdist starts
     its workers (its ``sessionstart`` runs last).
     """
-    if hasattr(session.config, "workerinput") or cached_on_disk():
-        return  # a pytest-xdist worker (the controller did it), or nothing to compile
+    if hasattr(session.config, "workerinput"):
+        return  # a pytest-xdist worker: the controller did it
+    _ROOT_BEFORE.update(os.listdir(_ROOT))
+    if cached_on_disk():
+        return  # nothing to compile
     code = (
         "from snac_gym.evaluation.execution.executors import ProcessExecutor; ProcessExecutor(2).close(); "
         "from snac_gym.kernels.compiled import warm_up; warm_up()"  # the modules the workers leave to their callers
@@ -150,6 +153,44 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if done.returncode != 0:  # every test that calls a kernel would fail the same way
         raise pytest.UsageError(f"compiling the numba kernels failed:\n{done.stderr}")
+
+
+#: The checkout's top folder, and what it held as the session began: a test that leaves something there (a command run
+#: with a relative ``--out`` from the repository) fails the session, which names it.
+_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+_ROOT_BEFORE: set[str] = set()
+
+
+def left_in_the_checkout(before: set[str], root: str = _ROOT) -> list[str]:
+    """What is in ``root`` that was not in ``before``, unless git ignores all of it (a docs build's ``build/``, pytest's
+    and Hypothesis' caches); an empty folder counts. [] outside a git checkout (an unpacked sdist), where nothing
+    says what belongs."""
+    new = sorted(set(os.listdir(root)) - before)
+    if not new or not os.path.isdir(os.path.join(root, ".git")):
+        return []
+    status = subprocess.run(
+        ["git", "status", "--porcelain", "--ignored", "--untracked-files=all", "--", *new],
+        cwd=root,
+        capture_output=True,
+        text=True,
+    ).stdout.splitlines()
+    ignored = {line[3:].split("/")[0] for line in status if line.startswith("!! ")}
+    untracked = {line[3:].split("/")[0] for line in status if not line.startswith("!! ")}
+    return [name for name in new if name in untracked or name not in ignored]
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Fail the session if its tests left a file or folder in the checkout's top folder, naming it."""
+    if hasattr(session.config, "workerinput") or not _ROOT_BEFORE:
+        return
+    left = left_in_the_checkout(_ROOT_BEFORE)
+    if left:
+        reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+        if reporter is not None:
+            where = f"{', '.join(left)} in {_ROOT}"
+            reporter.write_line("")  # after the progress line, which has no newline yet
+            reporter.write_sep("=", f"the tests left {where}: a test wrote outside its tmp_path", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 def once_per_session(tmp_path_factory: pytest.TempPathFactory, name: str, compute):

@@ -30,7 +30,7 @@ from snac_gym.apps.real_setup import MAX_REAL_SECONDS, UR_ROBOTS, is_rehearsal, 
 from snac_gym.common._signals import STOP_SIGNALS as COMMAND_STOP_SIGNALS
 from snac_gym.common._signals import SignalGuard, TerminationSignal
 from snac_gym.common._signals import stop_signals_raise as _stop_signals_raise
-from snac_gym.common.outputs import usable_out_folder
+from snac_gym.common.outputs import removed_if_left_empty
 from snac_gym.common.progress import compiling_line
 from snac_gym.common.validation import whole_number
 from snac_gym.kernels.compiled import POLICY_KERNEL_MODULES, on_first_compile, warm_up
@@ -243,11 +243,11 @@ def run_real_episode(
     if echo is not None:
         echo("setup: " + json.dumps(setup))
     out = Path(out_dir) if out_dir is not None else None
-    if out is not None:  # before the arm is connected: a file, a pipe or an unwritable --out is refused here
-        usable_out_folder(out)
     prefix = f"{task}_{controller}_"
     tuning = tuning if tuning is not None else LoopTuning()
-    with stop_signals_raise() as guard, tuned_process(tuning) as notes:
+    # The folder made before the arm is connected (a file, a pipe or an unwritable --out is refused here), and removed
+    # again if the run ends before it wrote anything there (a controller that does not answer).
+    with removed_if_left_empty(out), stop_signals_raise() as guard, tuned_process(tuning) as notes:
 
         def connect() -> ArmConnection:
             return make_connection(

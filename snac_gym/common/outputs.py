@@ -51,6 +51,32 @@ def usable_out_folder(root: Path) -> None:
         raise OutputFolderError(f"the output folder {root} is not writable; choose another --out")
 
 
+@contextlib.contextmanager
+def removed_if_left_empty(root: Path | None) -> Iterator[None]:
+    """Create the output folder ``root`` as :func:`usable_out_folder` does; if what runs inside fails before anything
+    was written in it, remove it again, where this call made it.
+
+    A run refused before its work (a controller that does not answer, a bad option found late) then leaves no empty
+    folder behind to be mistaken for a run's. Anything written in it stays, as does a folder that was there before.
+    """
+    made: list[Path] = []  # the folders this call makes, innermost first
+    if root is not None:
+        folder = Path(root).absolute()
+        while not folder.exists() and folder != folder.parent:
+            made.append(folder)
+            folder = folder.parent
+        usable_out_folder(root)
+    try:
+        yield
+    except BaseException:
+        for folder in made:
+            try:
+                folder.rmdir()
+            except OSError:  # not empty (or gone): what is there stays, and so do the folders above it
+                break
+        raise
+
+
 def _free_space(folder: Path) -> str:
     try:
         free: float = shutil.disk_usage(folder).free
@@ -119,6 +145,6 @@ def read_json_object(path: Path) -> dict[str, Any] | str:
 
 
 __all__ = [
-    "OutputFolderError", "OutputWriteError", "read_json_object", "usable_out_folder", "write_error", "write_text_whole",
-    "write_whole", "written_whole",
+    "OutputFolderError", "OutputWriteError", "read_json_object", "removed_if_left_empty", "usable_out_folder",
+    "write_error", "write_text_whole", "write_whole", "written_whole",
 ]  # fmt: skip

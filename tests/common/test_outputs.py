@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 from snac_gym.evaluation import EvaluationConfig, run_evaluation
 
-from snac_gym.common.outputs import OutputWriteError, write_text_whole, written_whole
+from snac_gym.common.outputs import OutputWriteError, removed_if_left_empty, write_text_whole, written_whole
 
 
 def test_a_failed_write_leaves_the_old_file_and_names_the_file_and_the_free_space(tmp_path):
@@ -73,3 +73,27 @@ def test_the_command_on_a_full_disk_says_which_file_in_one_line(tmp_path):
     assert len(lines) == 1 and "could not write" in lines[0] and str(out) in lines[0] and "free" in lines[0], lines
     for path in out.rglob("*"):  # whatever is under its final name is whole: nothing past the limit is there
         assert not path.is_file() or path.stat().st_size < 64 or path.name == ".lock", path
+
+
+def test_a_run_that_fails_before_writing_removes_the_folders_it_made_and_nothing_else(tmp_path):
+    (tmp_path / "there").mkdir()
+    for out in (tmp_path / "a" / "b" / "run", tmp_path / "there" / "run", tmp_path / "there"):
+        with pytest.raises(ConnectionError):
+            with removed_if_left_empty(out):
+                assert out.is_dir()  # made before the work, as usable_out_folder makes it
+                raise ConnectionError("nothing answers")
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["there"]  # the folder that was there stays
+
+
+def test_a_run_that_wrote_something_or_succeeded_keeps_its_folder(tmp_path):
+    with pytest.raises(KeyboardInterrupt):
+        with removed_if_left_empty(tmp_path / "a" / "run"):
+            (tmp_path / "a" / "run" / "log.parquet").write_bytes(b"rows")
+            raise KeyboardInterrupt
+    assert (tmp_path / "a" / "run" / "log.parquet").read_bytes() == b"rows"
+    with removed_if_left_empty(tmp_path / "b" / "run"):
+        pass
+    assert (tmp_path / "b" / "run").is_dir()
+    with removed_if_left_empty(None):  # no folder asked for: nothing made
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b"]

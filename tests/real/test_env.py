@@ -330,19 +330,23 @@ def test_real_run_writes_the_demo_outputs_plus_loop_timing(tmp_path):
     np.testing.assert_allclose(real_log.loc[0, [f"q_{j}" for j in range(6)]], PAPER_Q0, atol=1e-12)
 
 
-def test_real_command_with_nothing_listening_fails_in_one_line():
+def test_real_command_with_nothing_listening_fails_in_one_line_and_leaves_no_folder(tmp_path):
     import subprocess
     import sys
 
-    start = time.monotonic()
-    done = subprocess.run(
-        [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", "127.0.0.2", "--out", "unused"],
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
-    assert time.monotonic() - start < 10.0
-    assert done.stdout == "" and done.stderr.strip().count("\n") == 0
+    (tmp_path / "kept").mkdir()
+    for out in ("new/run", "kept"):  # the folders the run made are removed again; one that was there stays
+        start = time.monotonic()
+        done = subprocess.run(
+            [sys.executable, "-m", "snac_gym.apps.cli", "real", "--host", "127.0.0.2", "--out", out],
+            capture_output=True,
+            text=True,
+            timeout=30,
+            cwd=tmp_path,
+        )
+        assert time.monotonic() - start < 10.0
+        assert done.stdout == "" and done.stderr.strip().count("\n") == 0
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == ["kept"]
     if importlib.util.find_spec("rtde_receive") is None:  # the Python 3.13 variant: no ur_rtde wheel
         assert done.returncode == 2
         assert done.stderr == "error: --connection rtde (ur_rtde) needs the 'real' extra: pip install -e \".[real]\"\n"
