@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from snac_gym.apps.figures import demo_figures, draw_figures
-from snac_gym.common.outputs import usable_out_folder, write_text_whole
+from snac_gym.common.outputs import removed_if_left_empty, write_text_whole
 from snac_gym.common.progress import ProgressLines, compiling_line
 from snac_gym.envs import make_task_env
 from snac_gym.kernels.compiled import on_first_compile
@@ -131,13 +131,11 @@ class DemoResult:
         return "\n".join(lines)
 
 
-def _check_demo_arguments(seed: Any, steps: int | None, duration: float | None, out_dir: str | Path | None) -> None:
+def _check_demo_arguments(seed: Any, steps: int | None, duration: float | None) -> None:
     if steps is not None and duration is not None:
         raise ValueError("give steps or duration, not both")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:  # NumPy's seeding refuses the rest
         raise ValueError(f"--seed must be an integer ≥ 0 (a NumPy seed), got {seed!r}")
-    if out_dir is not None:  # before the rollout, which the outputs would otherwise be lost after
-        usable_out_folder(Path(out_dir))
     if duration is not None and not (math.isfinite(duration) and 0 < duration <= MAX_DEMO_DURATION_S):
         raise ValueError(f"the demo duration must be in (0, {MAX_DEMO_DURATION_S:g}] s, got {duration}")
 
@@ -198,84 +196,92 @@ def run_demo(
     """
     spec = get_task(task)
     options = spec.demo_options(robot)
-    _check_demo_arguments(seed, steps, duration, out_dir)
+    _check_demo_arguments(seed, steps, duration)
+    # The folder made before the rollout, whose outputs would otherwise be lost after it, and removed again if the demo
+    # ends before it wrote anything there (an engine whose extra is missing, a stop signal before the first step).
     # The env's and the controller's first calls compile what numba's cache lacks: said as it starts, not after.
-    announce = on_first_compile(lambda: progress(COMPILING)) if progress is not None else nullcontext()
-    with announce:
-        env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver)
-        dt = env.unwrapped.dt
-        if duration is not None:
-            steps = round(duration / dt)
-        if steps is None:
-            steps = spec.horizon_steps(dt)
-        max_steps = round(MAX_DEMO_DURATION_S / dt)
-        if not 1 <= steps <= max_steps:
-            env.close()
-            raise ValueError(f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}")
-        if steps > env.spec.max_episode_steps:
-            env.close()
-            env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver, max_episode_steps=steps)
-        kinematics = env.unwrapped.kinematics
-        limits = (kinematics.lower_limits, kinematics.upper_limits)
-        try:
-            policy = make_policy(controller, PolicyContext.for_controller(env, model_error), **(policy_kwargs or {}))
-            on_step = None
-            if progress is not None:
-                lines = ProgressLines(
-                    "demo:", steps, progress, unit="steps", every_fraction=math.inf, every_s=PROGRESS_EVERY_S
+    with removed_if_left_empty(None if out_dir is None else Path(out_dir)):
+        announce = on_first_compile(lambda: progress(COMPILING)) if progress is not None else nullcontext()
+        with announce:
+            env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver)
+            dt = env.unwrapped.dt
+            if duration is not None:
+                steps = round(duration / dt)
+            if steps is None:
+                steps = spec.horizon_steps(dt)
+            max_steps = round(MAX_DEMO_DURATION_S / dt)
+            if not 1 <= steps <= max_steps:
+                env.close()
+                raise ValueError(
+                    f"the demo needs between 1 and {max_steps} steps ({MAX_DEMO_DURATION_S:g} s), got {steps}"
                 )
-                on_step = lambda count: lines.update(done=count)  # noqa: E731 - the counter of rollout's steps
-            log = add_critic_diagnostics(
-                rollout(env, policy, options=options, seed=seed, steps=steps, on_step=on_step), policy
-            )
-        except KeyboardInterrupt as exc:  # Ctrl-C or a stop signal: keep the steps run, marked as a partial run
-            partial = partial_log(exc)
-            exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
-            if out_dir is not None and partial is not None and len(partial):
-                partial.attrs["controller"] = controller
-                _record_engine(partial, engine, pybullet_solver)
-                status = {
-                    "complete": False,
-                    "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
-                    "steps_planned": steps,
-                }
-                write_demo_outputs(
-                    partial,
-                    spec.name,
-                    controller,
-                    seed,
-                    spec.success_tolerance,
-                    out_dir,
-                    csv=csv,
-                    plots=False,
-                    policy_kwargs=policy_kwargs,
-                    position_limits=limits,
-                    status=status,
+            if steps > env.spec.max_episode_steps:
+                env.close()
+                env = make_task_env(
+                    spec, robot, physics=engine, pybullet_solver=pybullet_solver, max_episode_steps=steps
                 )
-                exc.kept = (  # type: ignore[attr-defined]
-                    f"the log of the {len(partial)} of {steps} steps run and a summary marked "
-                    f'"complete": false are in {out_dir}/ (no figures)'
+            kinematics = env.unwrapped.kinematics
+            limits = (kinematics.lower_limits, kinematics.upper_limits)
+            try:
+                context = PolicyContext.for_controller(env, model_error)
+                policy = make_policy(controller, context, **(policy_kwargs or {}))
+                on_step = None
+                if progress is not None:
+                    lines = ProgressLines(
+                        "demo:", steps, progress, unit="steps", every_fraction=math.inf, every_s=PROGRESS_EVERY_S
+                    )
+                    on_step = lambda count: lines.update(done=count)  # noqa: E731 - the counter of rollout's steps
+                log = add_critic_diagnostics(
+                    rollout(env, policy, options=options, seed=seed, steps=steps, on_step=on_step), policy
                 )
-            raise
-        finally:
-            env.close()
-    log.attrs["controller"] = controller
-    _record_engine(log, engine, pybullet_solver)
-    if model_error is not None:
-        log.attrs["model_error"] = model_error
-    return write_demo_outputs(
-        log,
-        spec.name,
-        controller,
-        seed,
-        spec.success_tolerance,
-        out_dir,
-        csv=csv,
-        plots=plots,
-        policy_kwargs=policy_kwargs,
-        position_limits=limits,
-        say=None if progress is None else (lambda text: progress(f"demo: {text}")),
-    )
+            except KeyboardInterrupt as exc:  # Ctrl-C or a stop signal: keep the steps run, marked as a partial run
+                partial = partial_log(exc)
+                exc.kept = "nothing was written (before the first step)"  # type: ignore[attr-defined]
+                if out_dir is not None and partial is not None and len(partial):
+                    partial.attrs["controller"] = controller
+                    _record_engine(partial, engine, pybullet_solver)
+                    status = {
+                        "complete": False,
+                        "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
+                        "steps_planned": steps,
+                    }
+                    write_demo_outputs(
+                        partial,
+                        spec.name,
+                        controller,
+                        seed,
+                        spec.success_tolerance,
+                        out_dir,
+                        csv=csv,
+                        plots=False,
+                        policy_kwargs=policy_kwargs,
+                        position_limits=limits,
+                        status=status,
+                    )
+                    exc.kept = (  # type: ignore[attr-defined]
+                        f"the log of the {len(partial)} of {steps} steps run and a summary marked "
+                        f'"complete": false are in {out_dir}/ (no figures)'
+                    )
+                raise
+            finally:
+                env.close()
+        log.attrs["controller"] = controller
+        _record_engine(log, engine, pybullet_solver)
+        if model_error is not None:
+            log.attrs["model_error"] = model_error
+        return write_demo_outputs(
+            log,
+            spec.name,
+            controller,
+            seed,
+            spec.success_tolerance,
+            out_dir,
+            csv=csv,
+            plots=plots,
+            policy_kwargs=policy_kwargs,
+            position_limits=limits,
+            say=None if progress is None else (lambda text: progress(f"demo: {text}")),
+        )
 
 
 def _stamp(path: Path) -> tuple[int, int] | None:

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
+import json
 import os
 import sys
+from pathlib import Path
 from types import ModuleType
 
 from snac_gym.common._signals import interrupt_behind
@@ -13,8 +16,43 @@ from snac_gym.common.errors import MissingExtraError
 
 
 def install_line(extra: str) -> str:
-    """The command that installs ``extra`` into the README's editable install: every missing extra is named so."""
-    return f'pip install -e ".[{extra}]"'
+    """The command that installs ``extra`` where this snac-gym came from: every missing extra is named so.
+
+    From a checkout (the README's editable install, run from its folder): ``pip install -e ".[extra]"``. From a wheel,
+    an archive or a repository URL, that source again (pip records it in the install's ``direct_url.json``), as a
+    PEP 508 requirement; from a package index, the name on that index.
+    """
+    source = _install_source(Path(__file__).resolve().parents[2])
+    if source is None:
+        return f'pip install -e ".[{extra}]"'
+    return f'pip install "snac-gym[{extra}]{source}"'
+
+
+@functools.cache
+def _install_source(root: Path) -> str | None:
+    """``None`` for a checkout, else what follows ``snac-gym[extra]`` in a requirement: ``" @ <url>"`` or ``""``.
+
+    ``root`` is the folder that holds ``snac_gym/``: a checkout's, with the project's pyproject.toml, or site-packages.
+    """
+    try:
+        if 'name = "snac-gym"' in (root / "pyproject.toml").read_text(encoding="utf-8"):
+            return None
+    except OSError:
+        pass
+    # Only for an install, and only when an extra is missing: importlib.metadata costs 20 ms to import.
+    import importlib.metadata
+
+    try:
+        record = json.loads(importlib.metadata.distribution("snac-gym").read_text("direct_url.json") or "{}")
+    except (importlib.metadata.PackageNotFoundError, ValueError):
+        return ""
+    url = record.get("url") if isinstance(record, dict) else None
+    if not isinstance(url, str) or not url:
+        return ""  # from an index
+    vcs = record.get("vcs_info")
+    if isinstance(vcs, dict) and vcs.get("vcs") and vcs.get("commit_id"):
+        return f" @ {vcs['vcs']}+{url}@{vcs['commit_id']}"
+    return f" @ {url}"
 
 
 def missing_extra(what: str, extra: str) -> str:

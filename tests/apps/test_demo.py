@@ -14,6 +14,7 @@ from snac_gym.apps.bench import format_act_bench, run_act_bench
 from snac_gym.apps.cli import app
 from snac_gym.apps.demo import COMPILING, demo_options, run_demo
 from snac_gym.apps.studies import discretisation_study, random_episode_study, summarise_random_study, summarise_study
+from snac_gym.common.errors import MissingExtraError
 from snac_gym.metrics import demo_metrics
 from snac_gym.policies import register_policy, registry
 from snac_gym.policies.base import BasePolicy
@@ -411,3 +412,19 @@ def test_the_figure3_panels_name_what_they_draw(tmp_path):
         assert "±limit (the joint's colour)" in [t.get_text() for t in velocities.get_legend().get_texts()]
     finally:
         plt.close(fig)
+
+
+def test_a_demo_that_fails_before_writing_leaves_no_folder_and_keeps_one_that_was_there(tmp_path, monkeypatch):
+    """The folder is made before the rollout (so that an unusable --out is refused first) and removed again if the demo
+    ends before writing there: a controller's knob it does not take, an engine whose extra is missing."""
+    with pytest.raises(TypeError, match="no_such_knob"):
+        run_demo(controller="dls", out_dir=tmp_path / "new" / "run", steps=5, policy_kwargs={"no_such_knob": 1})
+
+    def missing_extra(*args, **kwargs):
+        raise MissingExtraError("physics='mujoco' needs the 'mujoco' extra")
+
+    monkeypatch.setattr("snac_gym.apps.demo.make_task_env", missing_extra)
+    (tmp_path / "there").mkdir()
+    with pytest.raises(MissingExtraError):
+        run_demo(out_dir=tmp_path / "there", engine="mujoco")
+    assert [p.name for p in tmp_path.iterdir()] == ["there"]

@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import ast
 import importlib
+import importlib.metadata
+import json
 from pathlib import Path
 
 import pytest
+from packaging.requirements import Requirement
 
-from snac_gym.common import errors
+from snac_gym.common import errors, extras
 
 ROOT = Path(__file__).resolve().parents[2]
 OLD_HOMES = {
@@ -63,7 +66,7 @@ def test_every_install_hint_names_an_extra_the_package_declares():
 
     from snac_gym.common.extras import install_line
 
-    extras = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"])
+    declared = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"])
     named, literal = [], []
     for folder in ("snac_gym", "baselines", "evaluation"):
         for path in (ROOT / folder).rglob("*.py"):
@@ -73,7 +76,42 @@ def test_every_install_hint_names_an_extra_the_package_declares():
             literal += [(where, hint) for hint in re.findall(r"pip install [^\n`]*", text)]
     assert len(named) >= 10  # the search finds them
     for where, extra in named:
-        assert extra in extras, f"{where}: names the extra {extra!r}, which pyproject.toml does not declare"
+        assert extra in declared, f"{where}: names the extra {extra!r}, which pyproject.toml does not declare"
     # Written out: the form itself, and the one hard dependency named where its URDFs are missing.
     assert sorted({where for where, _ in literal}) == ["snac_gym/common/extras.py", "snac_gym/model/urdf.py"], literal
     assert install_line("rl") == 'pip install -e ".[rl]"'
+
+
+@pytest.mark.parametrize(
+    ("record", "requirement"),
+    [
+        (None, "snac-gym[rl]"),  # from a package index: pip writes no direct_url.json
+        (
+            {"url": "file:///w/snac_gym-0.2.0-py3-none-any.whl", "archive_info": {"hash": "sha256=00"}},
+            "snac-gym[rl] @ file:///w/snac_gym-0.2.0-py3-none-any.whl",
+        ),
+        (
+            {"url": "https://github.com/o/snac-gym.git", "vcs_info": {"vcs": "git", "commit_id": "9b1bcfb0"}},
+            "snac-gym[rl] @ git+https://github.com/o/snac-gym.git@9b1bcfb0",
+        ),
+    ],
+    ids=["index", "wheel", "git"],
+)
+def test_an_installed_package_names_the_source_it_came_from_in_its_install_hint(
+    tmp_path, monkeypatch, record, requirement
+):
+    """``pip install -e ".[rl]"`` only works in a checkout: a wheel installed elsewhere names its own source, as pip
+    recorded it (``direct_url.json``, PEP 610), in a requirement pip parses."""
+
+    class Distribution:
+        def read_text(self, name):
+            assert name == "direct_url.json"
+            return None if record is None else json.dumps(record)
+
+    monkeypatch.setattr(importlib.metadata, "distribution", lambda name: Distribution())
+    source = extras._install_source.__wrapped__(tmp_path)  # site-packages: no pyproject.toml beside snac_gym/
+    assert f"snac-gym[rl]{source}" == requirement
+    parsed = Requirement(requirement)
+    assert parsed.name == "snac-gym" and parsed.extras == {"rl"}
+    assert extras._install_source.__wrapped__(ROOT) is None  # the checkout: the README's editable form
+    assert extras.install_line("rl") == 'pip install -e ".[rl]"'
