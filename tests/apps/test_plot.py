@@ -90,3 +90,28 @@ def test_what_is_not_one_runs_log_is_refused_in_one_line(tmp_path):
     pd.DataFrame({"a": [1.0]}).to_parquet(plain)
     with pytest.raises(ValueError, match=r"x_log\.parquet is not a run's log: it has no task or dt"):
         redraw_figures(plain)
+
+
+def test_an_evaluations_folder_or_a_csv_log_is_refused_with_what_to_draw_instead(tmp_path):
+    """Two things a user hands plot by mistake: an evaluation's folder (rows, not a log; evaluate drew its box plots)
+    and the CSV log --csv writes beside the Parquet one, which is the one plot reads."""
+    evaluation = tmp_path / "eval"
+    evaluation.mkdir()
+    for name in ("run.json", "results.parquet"):
+        (evaluation / name).write_bytes(b"{}")
+    with pytest.raises(ValueError, match=r"found none \(an evaluation's folder: evaluate drew its box plots; plot "):
+        run_log(evaluation)
+    (evaluation / "run.json").unlink()  # not an evaluation's: the plain refusal
+    with pytest.raises(ValueError, match=r"to draw; found none$"):
+        run_log(evaluation)
+    run_demo(task="reach", controller="dls", out_dir=tmp_path / "demo", steps=20, plots=False, csv=True)
+    csv, parquet = tmp_path / "demo" / "reach_dls_log.csv", tmp_path / "demo" / "reach_dls_log.parquet"
+    with pytest.raises(ValueError) as refused:
+        run_log(csv)
+    assert str(refused.value) == (
+        f"{csv} is not a run's log: its name must end in _log.parquet; draw the Parquet log beside it: "
+        f"`snac-gym plot {parquet}`"
+    )
+    parquet.unlink()  # nothing beside it to name
+    with pytest.raises(ValueError, match=r"must end in _log\.parquet$"):
+        run_log(csv)
