@@ -199,8 +199,8 @@ def run_demo(
     _check_demo_arguments(seed, steps, duration)
     # The folder made before the rollout, whose outputs would otherwise be lost after it, and removed again if the demo
     # ends before it wrote anything there (an engine whose extra is missing, a stop signal before the first step).
-    # The env's and the controller's first calls compile what numba's cache lacks: said as it starts, not after.
     with removed_if_left_empty(None if out_dir is None else Path(out_dir)):
+        # The env's and the controller's first calls compile what numba's cache lacks: said as it starts, not after.
         announce = on_first_compile(lambda: progress(COMPILING)) if progress is not None else nullcontext()
         with announce:
             env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver)
