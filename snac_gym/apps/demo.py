@@ -15,6 +15,7 @@ log to a folder, and returns a :class:`DemoResult` with the figures the command 
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from collections.abc import Callable
@@ -221,7 +222,12 @@ def run_demo(
                     spec, robot, physics=engine, pybullet_solver=pybullet_solver, max_episode_steps=steps
                 )
             kinematics = env.unwrapped.kinematics
-            limits = (kinematics.lower_limits, kinematics.upper_limits)
+            # What the partial and the whole run's outputs share.
+            write = functools.partial(
+                write_demo_outputs, task=spec.name, controller=controller, seed=seed,
+                tolerance=spec.success_tolerance, out_dir=out_dir, csv=csv, policy_kwargs=policy_kwargs,
+                position_limits=(kinematics.lower_limits, kinematics.upper_limits),
+            )  # fmt: skip
             try:
                 context = PolicyContext.for_controller(env, model_error)
                 policy = make_policy(controller, context, **(policy_kwargs or {}))
@@ -245,19 +251,7 @@ def run_demo(
                         "interrupted_by": getattr(exc, "signal_name", "SIGINT"),
                         "steps_planned": steps,
                     }
-                    write_demo_outputs(
-                        partial,
-                        spec.name,
-                        controller,
-                        seed,
-                        spec.success_tolerance,
-                        out_dir,
-                        csv=csv,
-                        plots=False,
-                        policy_kwargs=policy_kwargs,
-                        position_limits=limits,
-                        status=status,
-                    )
+                    write(partial, plots=False, status=status)
                     exc.kept = (  # type: ignore[attr-defined]
                         f"the log of the {len(partial)} of {steps} steps run and a summary marked "
                         f'"complete": false are in {out_dir}/ (no figures)'
@@ -269,19 +263,7 @@ def run_demo(
         _record_engine(log, engine, pybullet_solver)
         if model_error is not None:
             log.attrs["model_error"] = model_error
-        return write_demo_outputs(
-            log,
-            spec.name,
-            controller,
-            seed,
-            spec.success_tolerance,
-            out_dir,
-            csv=csv,
-            plots=plots,
-            policy_kwargs=policy_kwargs,
-            position_limits=limits,
-            say=None if progress is None else (lambda text: progress(f"demo: {text}")),
-        )
+        return write(log, plots=plots, say=None if progress is None else (lambda text: progress(f"demo: {text}")))
 
 
 def _stamp(path: Path) -> tuple[int, int] | None:

@@ -101,8 +101,8 @@ def run_log(path: str | Path) -> Path:
         if len(logs) != 1:
             found = ", ".join(p.name for p in logs) if logs else "none"
             # An evaluation's folder holds rows, not a log: evaluate draws its box plots itself, with its reports.
-            hint = " (an evaluation's folder: evaluate drew its box plots; plot draws a demo's or a real run's log)"
             evaluation = not logs and (path / "run.json").is_file() and (path / "results.parquet").is_file()
+            hint = " (an evaluation's folder: evaluate drew its box plots; plot draws a demo's or a real run's log)"
             raise ValueError(
                 f"{path}/ must hold one run's log (*_{LOG_SUFFIX}) to draw; found {found}{hint if evaluation else ''}"
             )
@@ -111,10 +111,9 @@ def run_log(path: str | Path) -> Path:
         raise ValueError(f"{path}: no such file")
     if not path.name.endswith(f"_{LOG_SUFFIX}"):
         beside = path.with_suffix(".parquet")  # --csv writes the CSV log beside the Parquet one, which plot reads
-        hint = f"; draw the Parquet log beside it: `snac-gym plot {beside}`" if path.suffix == ".csv" else ""
-        if hint and not (beside.name.endswith(f"_{LOG_SUFFIX}") and beside.is_file()):
-            hint = ""
-        raise ValueError(f"{path} is not a run's log: its name must end in _{LOG_SUFFIX}{hint}")
+        csv_log = path.suffix == ".csv" and beside.name.endswith(f"_{LOG_SUFFIX}") and beside.is_file()
+        hint = f"; draw the Parquet log beside it: `snac-gym plot {beside}`"
+        raise ValueError(f"{path} is not a run's log: its name must end in _{LOG_SUFFIX}{hint if csv_log else ''}")
     return path
 
 

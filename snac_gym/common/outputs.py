@@ -65,8 +65,9 @@ def removed_if_left_empty(root: Path | None) -> Iterator[None]:
         while not folder.exists() and folder != folder.parent:
             made.append(folder)
             folder = folder.parent
-        usable_out_folder(root)
     try:
+        if root is not None:  # a refusal here (a file, not writable) removes what mkdir made on the way too
+            usable_out_folder(root)
         yield
     except BaseException:
         for folder in made:
