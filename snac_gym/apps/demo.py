@@ -43,7 +43,7 @@ from snac_gym.tasks import get_task
 MAX_DEMO_DURATION_S = 1000.0
 #: What a demo says (:func:`run_demo`'s ``progress``) as its first kernel compiles instead of loading from numba's
 #: cache: the first run after an install or an update is otherwise silent for seconds (docs/benchmarks.md).
-COMPILING = compiling_line("demo", "as the controller first calls them")
+COMPILING = compiling_line("demo", "as the demo first calls them")
 #: Seconds between the demo's progress lines while it steps (and one at the end).
 PROGRESS_EVERY_S = 5.0
 
@@ -201,7 +201,8 @@ def run_demo(
     # The folder made before the rollout, whose outputs would otherwise be lost after it, and removed again if the demo
     # ends before it wrote anything there (an engine whose extra is missing, a stop signal before the first step).
     with removed_if_left_empty(None if out_dir is None else Path(out_dir)):
-        # The env's and the controller's first calls compile what numba's cache lacks: said as it starts, not after.
+        # The first calls of the env, the controller and its critic's diagnostics compile what numba's cache lacks:
+        # said as the first compile starts, not after.
         announce = on_first_compile(lambda: progress(COMPILING)) if progress is not None else nullcontext()
         with announce:
             env = make_task_env(spec, robot, physics=engine, pybullet_solver=pybullet_solver)
