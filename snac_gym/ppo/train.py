@@ -52,7 +52,7 @@ import gymnasium as gym
 
 from snac_gym.common import startup
 from snac_gym.common.extras import require
-from snac_gym.common.outputs import usable_out_folder, write_whole
+from snac_gym.common.outputs import removed_if_left_empty, write_whole
 from snac_gym.common.progress import ProgressLines
 from snac_gym.envs import make_task_env
 from snac_gym.ppo.cloning import load_actor
@@ -396,13 +396,16 @@ def train_ppo(
     before = _paths_under(out)
     # a resumed run rewrites these two before its first timestep (its config, a state saying "running")
     kept = {path: path.read_bytes() for path in (out / "config.json", out / "state.json") if resume and path.exists()}
-    try:
-        return _train(out, config, resume, log, progress)
-    except _NotStarted as stopped:  # a signal or a refusal before the first timestep: the folder as it was
-        _remove_all_but(out, before)
-        for path, data in kept.items():
-            write_whole(path, partial(Path.write_bytes, data=data))
-        raise stopped.cause from None
+    # The folders made for a new run (a file or /dev/null refused here, as evaluate refuses it) are removed again if
+    # it ends with nothing in them: refused, or stopped before its first timestep once what it wrote is removed.
+    with removed_if_left_empty(out):
+        try:
+            return _train(out, config, resume, log, progress)
+        except _NotStarted as stopped:  # a signal or a refusal before the first timestep: the folder as it was
+            _remove_all_but(out, before)
+            for path, data in kept.items():
+                write_whole(path, partial(Path.write_bytes, data=data))
+            raise stopped.cause from None
 
 
 class _NotStarted(Exception):
@@ -421,9 +424,10 @@ def _paths_under(folder: Path) -> set[Path] | None:
 
 
 def _remove_all_but(folder: Path, kept: set[Path] | None) -> None:
-    """Remove what was made under ``folder`` since :func:`_paths_under` gave ``kept`` (``folder`` too, if it is new)."""
+    """Remove what was made under ``folder`` since :func:`_paths_under` gave ``kept`` (a new ``folder`` itself, and the
+    folders made above it, are :func:`~snac_gym.common.outputs.removed_if_left_empty`'s)."""
     made = sorted(set(folder.rglob("*")) - (kept or set()), key=lambda path: len(path.parts), reverse=True)
-    for path in made + ([folder] if kept is None else []):
+    for path in made:
         if path.is_dir() and not path.is_symlink():
             with contextlib.suppress(OSError):  # not empty: something not ours is in it
                 path.rmdir()
@@ -433,7 +437,6 @@ def _remove_all_but(folder: Path, kept: set[Path] | None) -> None:
 
 def _open_run(out: Path, config: dict[str, Any], resume: bool) -> tuple[TrainingRun, Any]:
     """The rl extra imported, the run's config written and its training envs made (``Any``: an SB3 VecEnv)."""
-    usable_out_folder(out)  # a file or /dev/null is refused as evaluate refuses it
     _require_sb3()
     # the rl extra (checked just above, after the input)
     import torch

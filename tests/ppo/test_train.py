@@ -180,6 +180,12 @@ def test_training_into_an_existing_run_or_resuming_nothing_is_refused(trained_ru
     refused = runner.invoke(app, [*args[:-1], str(corrupt)])
     assert refused.exit_code == 2 and "is corrupt or not a policy file" in refused.output, refused.output
     assert not fresh.exists()  # what only building the model can check: the run's folder is taken back
+    # and so are the folders made above it; one that was there stays
+    (tmp_path / "there").mkdir()
+    for nested in (tmp_path / "new" / "run", tmp_path / "there" / "run"):
+        refused = runner.invoke(app, [*args[:4], str(nested), *args[5:-1], str(corrupt)])
+        assert refused.exit_code == 2 and "is corrupt or not a policy file" in refused.output, refused.output
+    assert not (tmp_path / "new").exists() and list((tmp_path / "there").iterdir()) == []
 
 
 @pytest.mark.rl
