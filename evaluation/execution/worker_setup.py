@@ -100,16 +100,17 @@ def _install_registrations(data: bytes) -> None:
 
 
 def start_method(registrations: bytes | None) -> str | None:
-    """How workers are started: forked from this process only while it runs a single thread.
+    """How workers are started: forked from this process only while it runs a single Python thread.
 
-    A worker forked from a process with other threads copies every lock they hold at that instant
-    (pytest-xdist's I/O thread, a progress bar's monitor, a thread pool), and one copied while held
-    never opens in the worker: a test run hung that way. Forking a single-threaded process copies
-    no held lock, and is the fastest start (nothing to import again). Otherwise the workers come
-    from a fork server: a clean single-threaded process started once, with :data:`PRELOAD`
-    imported, to which the run's registrations are sent pickled (:func:`run_registrations`); when
-    those cannot be pickled (a lambda, a class defined in a function), forking stays the only way
-    to give them to the workers.
+    A worker forked from a process with other Python threads copies every lock they hold at that
+    instant (pytest-xdist's I/O thread, a progress bar's monitor, a thread pool), and one copied
+    while held never opens in the worker: a test run hung that way. The native threads always there
+    (OpenBLAS's pools, pyarrow's jemalloc) register fork handlers that settle their locks, so Python
+    3.12's warning about them is no hazard here. Forking then copies no held lock, and is the
+    fastest start (nothing to import again). Otherwise the workers come from a fork server: a clean
+    single-threaded process started once, with :data:`PRELOAD` imported, to which the run's
+    registrations are sent pickled (:func:`run_registrations`); when those cannot be pickled (a
+    lambda, a class defined in a function), forking stays the only way to give them to the workers.
     """
     if not sys.platform.startswith("linux"):
         return None  # the platform's default (spawn)
