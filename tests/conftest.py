@@ -40,8 +40,8 @@ os.environ["SNAC_GYM_SAMPLE_CACHE"] = "0"
 
 #: Why a test marked ``rl`` is skipped where torch or stable-baselines3 is missing.
 RL_SKIP_REASON = (
-    "needs the rl extra (torch, stable-baselines3), not installed: the Python 3.13 variant of the README's "
-    "test command leaves it out (PyPI has only multi-GB CUDA builds of torch there)"
+    "needs the rl extra (torch, stable-baselines3), not installed: the Python 3.12 and 3.13 variants of the "
+    "README's test command leave it out (PyPI has only multi-GB CUDA builds of torch there)"
 )
 
 
