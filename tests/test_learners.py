@@ -31,7 +31,7 @@ def learners():
 
 @pytest.fixture(scope="module")
 def report():
-    pytest.importorskip("rliable", reason="needs the zoo extra (rliable), which the Python 3.13 install leaves out")
+    pytest.importorskip("rliable", reason="needs the zoo extra (rliable), left out on Python 3.12 and 3.13")
     return _load("learners_report")
 
 
