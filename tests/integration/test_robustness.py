@@ -279,7 +279,14 @@ def test_every_option_of_every_command_refuses_an_empty_value_naming_it(tmp_path
     shell variable) is never taken for a default, the current folder or "none", and nothing is written."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "demo_out").mkdir()
-    result = _cli(command, *_NEEDS.get(command, []), option, "")
+    # A deprecated name still says so before its value is refused.
+    warned = (
+        pytest.warns(DeprecationWarning, match=f"{option} is deprecated")
+        if option in _RENAMED
+        else contextlib.nullcontext()
+    )
+    with warned:
+        result = _cli(command, *_NEEDS.get(command, []), option, "")
     assert result.exit_code == 2, result.output
     assert "Traceback" not in result.output
     assert any(name in result.output for name in (option, *_RENAMED.get(option, ()))), result.output
