@@ -53,6 +53,8 @@ def test_evaluate_backend_is_a_hidden_deprecated_name_of_engine(tmp_path, captur
     with pytest.warns(DeprecationWarning, match="--backend is deprecated; use --engine"):
         outcome = _evaluate(tmp_path, "--backend", "pybullet")
     assert outcome.exit_code == 0, outcome.output
+    # At the shell, where Python hides a DeprecationWarning, the command says it on stderr.
+    assert "snac-gym: warning: --backend is deprecated; use --engine" in outcome.stderr
     assert captured_config["config"].engine == "pybullet"
     with pytest.warns(DeprecationWarning):
         clash = _evaluate(tmp_path, "--engine", "pybullet", "--backend", "kinematic")
@@ -74,7 +76,9 @@ def test_real_names_its_connection(monkeypatch, tmp_path):
     monkeypatch.setattr(real_run, "run_real_episode", run)
     assert CliRunner().invoke(app, ["real", "--connection", "sim", "--out", str(tmp_path)]).exit_code == 2
     with pytest.warns(DeprecationWarning, match="--backend is deprecated; use --connection"):
-        assert CliRunner().invoke(app, ["real", "--backend", "sim", "--out", str(tmp_path)]).exit_code == 2
+        renamed = CliRunner().invoke(app, ["real", "--backend", "sim", "--out", str(tmp_path)])
+    assert renamed.exit_code == 2
+    assert "snac-gym: warning: --backend is deprecated; use --connection" in renamed.stderr
     assert calls == ["sim", "sim"]
     help_text = CliRunner().invoke(app, ["real", "--help"]).output
     assert "--connection" in help_text and "--backend" not in help_text

@@ -57,7 +57,8 @@ def registered_tasks() -> str:
 
 
 def renamed_option(new: str, value: str, old: str, old_value: str | None, default: str) -> str:
-    """The value of option ``new``, or of its hidden deprecated name ``old`` (a ``DeprecationWarning``).
+    """The value of option ``new``, or of its hidden deprecated name ``old``: a ``DeprecationWarning`` for a caller
+    in Python and a line on stderr for one at the shell, where Python hides that warning.
 
     Raises:
         typer.BadParameter: If both are given with different values.
@@ -65,8 +66,9 @@ def renamed_option(new: str, value: str, old: str, old_value: str | None, defaul
     if old_value is None:
         return value
     warnings.warn(f"{old} is deprecated; use {new}", DeprecationWarning, stacklevel=2)
-    if value not in (default, old_value):
+    if value not in (default, old_value):  # the error names the old name already: one line, as every usage error
         raise typer.BadParameter(f"give {new} only ({old} is its deprecated name)", param_hint=new)
+    typer.echo(f"snac-gym: warning: {old} is deprecated; use {new}", err=True)
     return old_value
 
 
