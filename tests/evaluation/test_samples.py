@@ -515,6 +515,13 @@ def _timed_job(item: tuple[str, float]) -> tuple[str, float, float]:
     return label, started, time.time()
 
 
+#: Python 3.12's warning on a fork beside native threads (OpenBLAS's pools): no hazard here, worker_setup.start_method.
+FORK_BESIDE_NATIVE_THREADS = pytest.mark.filterwarnings(
+    r"ignore:This process \(pid=\d+\) is multi-threaded, use of fork\(\):DeprecationWarning"
+)
+
+
+@FORK_BESIDE_NATIVE_THREADS
 def test_process_executor_runs_urgent_jobs_first_and_keeps_a_reserved_worker_free():
     import threading
 
@@ -547,6 +554,7 @@ def test_process_executor_runs_urgent_jobs_first_and_keeps_a_reserved_worker_fre
     assert max(a0, b0) < min(a1, b1)
 
 
+@FORK_BESIDE_NATIVE_THREADS
 def test_process_executor_passes_job_errors_through():
     from snac_gym.evaluation.execution.executors import ProcessExecutor
 
