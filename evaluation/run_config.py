@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 from snac_gym.evaluation.effort.statistics import DEFAULT_EFFORT_STATISTIC, EffortStatistic, effort_statistic_named
-from snac_gym.evaluation.execution.executors import MAX_WORKERS_PER_CPU, max_workers
+from snac_gym.evaluation.execution.executors import MAX_WORKERS_PER_CPU, max_workers, ray_endpoint
 from snac_gym.evaluation.reference.optimum import OPTIMAL, REFERENCE_LIMITS
 from snac_gym.evaluation.samples import check_samples_file
 from snac_gym.evaluation.store import file_sha1
@@ -419,9 +419,9 @@ def _check_execution(config: EvaluationConfig) -> None:
         raise ValueError(
             "ray_address must be 'local' or a Ray cluster's address ('auto', 'ray://host:10001'), got an empty string"
         )
-    if config.ray_address is not None:  # the main process imports Ray later, once the kernels are readied
-        require_installed("ray", "ray", "--ray")
     local = config.ray_address in (None, "local")  # a cluster's size is its own
+    if config.ray_address is not None and not local:
+        ray_endpoint(config.ray_address)  # a malformed address is named before a missing extra
     if config.workers < 1 or (local and config.workers > max_workers()):
         raise ValueError(
             f"workers must be between 1 and {max_workers()} ({MAX_WORKERS_PER_CPU} per available CPU), "
@@ -432,6 +432,8 @@ def _check_execution(config: EvaluationConfig) -> None:
             f"--workers {config.workers} has no effect on a Ray cluster ({config.ray_address}): its CPUs run "
             "the jobs; leave --workers out (with --ray local it sets the CPUs of the new instance)"
         )
+    if config.ray_address is not None:  # the main process imports Ray later, once the kernels are readied
+        require_installed("ray", "ray", "--ray")
     if config.chunk_size < 1:
         raise ValueError(f"chunk_size must be at least 1, got {config.chunk_size}")
 

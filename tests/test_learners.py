@@ -26,6 +26,8 @@ def _load(name: str):
 
 @pytest.fixture(scope="module")
 def learners():
+    # the script reads the shipped rl-zoo3 hyperparameter files with PyYAML, which comes with the zoo extra
+    pytest.importorskip("yaml", reason="needs PyYAML, installed with the 'zoo' extra: pip install -e '.[zoo]'")
     return _load("learners")
 
 

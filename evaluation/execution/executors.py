@@ -32,7 +32,12 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, InvalidStateError, ProcessPoolExecutor, wait
 from typing import Any
 
-from snac_gym.evaluation.execution.ray_executor import RAY_CONNECT_TIMEOUT_S, RayExecutor, check_ray_reachable
+from snac_gym.evaluation.execution.ray_executor import (
+    RAY_CONNECT_TIMEOUT_S,
+    RayExecutor,
+    check_ray_reachable,
+    ray_endpoint,
+)
 from snac_gym.evaluation.execution.worker_setup import (
     PRELOAD,
     RUN_STOP_SIGNALS,
@@ -57,6 +62,7 @@ __all__ = [
     "make_executor",
     "max_workers",
     "open_executor",
+    "ray_endpoint",
     "start_method",
 ]
 

@@ -22,7 +22,7 @@ from snac_gym.evaluation.execution.worker_setup import RUN_STOP_SIGNALS
 from snac_gym.common.errors import ExecutorStopped
 from snac_gym.common.extras import require
 
-__all__ = ["RAY_CONNECT_TIMEOUT_S", "RayExecutor", "check_ray_reachable"]
+__all__ = ["RAY_CONNECT_TIMEOUT_S", "RayExecutor", "check_ray_reachable", "ray_endpoint"]
 
 #: Seconds ``--ray ADDRESS`` waits for a TCP connection to the cluster before giving up (Ray's
 #: own client retries for minutes on an address that does not answer).
@@ -33,8 +33,12 @@ RAY_TOKEN_NOTICE = "Token authentication is enabled for this Ray cluster"
 _RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 
 
-def _ray_endpoint(address: str) -> tuple[str, int] | None:
-    """``(host, port)`` of a cluster address, ``None`` for ``auto`` (found by Ray on this machine)."""
+def ray_endpoint(address: str) -> tuple[str, int] | None:
+    """``(host, port)`` of a cluster address, ``None`` for ``auto`` (found by Ray on this machine).
+
+    Raises:
+        ValueError: If ``address`` is malformed (read without Ray: a wrong address is named before a missing extra).
+    """
     if address == "auto":
         return None
     default_port = 10001 if address.startswith("ray://") else 6379
@@ -55,7 +59,7 @@ def check_ray_reachable(address: str, timeout: float | None = None) -> None:
         RuntimeError: If no TCP connection to it can be made in time.
         ValueError: If ``address`` is malformed.
     """
-    endpoint = _ray_endpoint(address)
+    endpoint = ray_endpoint(address)
     if endpoint is None:
         return
     timeout = RAY_CONNECT_TIMEOUT_S if timeout is None else timeout

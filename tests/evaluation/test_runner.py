@@ -444,3 +444,24 @@ def test_hjb_cost_runs_give_the_same_numbers_with_one_or_two_workers(tmp_path):
     assert critics["hjb_ratio_median"].notna().all() and critics["hjb_residual_median"].notna().all()
     assert serial.loc[serial["controller"] == "lqr", "hjb_ratio_median"].isna().all()
     assert critics.loc[critics["task"] == "reach", "critic_error_final"].notna().all()
+
+
+def test_the_summarys_times_are_the_ones_timings_json_holds(tmp_path, monkeypatch):
+    """summary.md's 0.1 s figures are timings.json's, rounded once. A clock that ticks 0.15004 s a reading puts a
+    phase within a millisecond of a rounding boundary: 0.15004 s reads 0.2 s, timings.json's 0.150 reads 0.1 s."""
+    import itertools
+    import time
+    import types
+
+    ticks = itertools.count()
+    clock = types.SimpleNamespace(**{name: getattr(time, name) for name in dir(time) if not name.startswith("_")})
+    clock.perf_counter = lambda: next(ticks) * 0.15004
+    monkeypatch.setattr(runner_module, "time", clock)
+    config = _config(tmp_path / "run", samples=1, controllers=("dls",))
+    run_evaluation(config)
+    timings = json.loads((config.out / "timings.json").read_text())
+    summary = " ".join((config.out / "summary.md").read_text().split())
+    assert timings["samples"] == 0.15  # one tick: the boundary case
+    assert f"Wall time {timings.pop('total'):.1f} s" in summary
+    for name, seconds in timings.items():
+        assert f"{name} {seconds:.1f} s" in summary, (name, seconds, summary[-600:])

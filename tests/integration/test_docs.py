@@ -70,11 +70,28 @@ def test_the_documentation_has_code_to_run_and_few_opt_outs():
 
 #: A block that imports stable-baselines3 or torch needs the rl extra.
 NEEDS_RL = re.compile(r"^\s*(from|import) (stable_baselines3|torch)\b", re.MULTILINE)
+#: The other extras a block may need, by what it says: the extra, the modules it installs, the words that need it.
+NEEDS_EXTRA = [
+    ("mujoco", ("mujoco",), re.compile(r"""physics=["']mujoco["']|^\s*(from|import) mujoco\b""", re.MULTILINE)),
+    (
+        "ik",
+        ("pink", "mink", "qpsolvers"),
+        re.compile(r"""["'](pink|mink)["']|^\s*(from|import) (pink|mink|qpsolvers)\b""", re.MULTILINE),
+    ),
+]
 
 
 def _doc_param(path: Path) -> object:
-    needs_rl = any(NEEDS_RL.search(block["code"]) for block in code_blocks(path)[0])
-    return pytest.param(path, marks=pytest.mark.rl) if needs_rl else path
+    """``path``, marked ``rl`` where a block needs torch, and skipped, saying why, where a block needs another extra
+    that is not installed (the README's test command installs them all: nothing is skipped there)."""
+    code = "\n".join(block["code"] for block in code_blocks(path)[0])
+    marks = [pytest.mark.rl] if NEEDS_RL.search(code) else []
+    for extra, modules, words in NEEDS_EXTRA:
+        missing = [name for name in modules if importlib.util.find_spec(name) is None]
+        if words.search(code) and missing:
+            reason = f"a block needs the {extra!r} extra (missing: {', '.join(missing)}): pip install -e '.[{extra}]'"
+            marks.append(pytest.mark.skip(reason=reason))
+    return pytest.param(path, marks=marks)
 
 
 @pytest.mark.slow(seconds=1.5)

@@ -251,6 +251,32 @@ def test_an_extra_the_workers_need_is_asked_for_before_any_work(tmp_path, monkey
     assert not any(tmp_path.iterdir())  # nothing written
 
 
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--ray", "ray://"], "error: --ray 'ray://': use 'local', 'auto', HOST:PORT or ray://HOST:PORT"),
+        (["--ray", "auto", "--workers", "2"], "error: --workers 2 has no effect on a Ray cluster (auto)"),
+    ],
+    ids=["address", "workers"],
+)
+def test_a_wrong_ray_option_is_named_before_the_missing_extra(tmp_path, monkeypatch, arguments, message):
+    """Without Ray installed, what is wrong with the option itself is said first: installing the extra would not
+    have made the command run."""
+    import importlib.util
+
+    from typer.testing import CliRunner
+
+    from snac_gym.apps.cli import app
+
+    found = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ray" else found(name, *a))
+    arguments = ["evaluate", "--samples", "3", "--controllers", "dls", *arguments, "--out", str(tmp_path)]
+    result = CliRunner().invoke(app, arguments, terminal_width=200)
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(message), result.output
+    assert not any(tmp_path.iterdir())
+
+
 def test_export_samples_under_a_file_names_the_folder(tmp_path):
     from typer.testing import CliRunner
 
