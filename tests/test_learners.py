@@ -13,6 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from snac_gym.common.extras import install_line
+
 SCRIPTS = Path(__file__).resolve().parents[1] / "docs" / "scripts"
 
 
@@ -27,7 +29,7 @@ def _load(name: str):
 @pytest.fixture(scope="module")
 def learners():
     # the script reads the shipped rl-zoo3 hyperparameter files with PyYAML, which comes with the zoo extra
-    pytest.importorskip("yaml", reason="needs PyYAML, installed with the 'zoo' extra: pip install -e '.[zoo]'")
+    pytest.importorskip("yaml", reason=f"needs PyYAML, installed with the 'zoo' extra: {install_line('zoo')}")
     return _load("learners")
 
 

@@ -22,11 +22,12 @@ import numpy as np
 import pytest
 
 import snac_gym  # noqa: F401  (registers the ids)
+from snac_gym.common.extras import install_line
 from snac_gym.envs import REGISTERED_IDS
 from snac_gym.zoo import ALGOS, hyperparams_file
 
 # PyYAML reads the hyperparameter files as rl-zoo3 does; it comes with the zoo extra (and the docs and ray extras).
-yaml = pytest.importorskip("yaml", reason="needs PyYAML, installed with the 'zoo' extra: pip install -e '.[zoo]'")
+yaml = pytest.importorskip("yaml", reason=f"needs PyYAML, installed with the 'zoo' extra: {install_line('zoo')}")
 ROOT = Path(__file__).resolve().parents[1]
 V1_IDS = sorted(env_id for env_id in REGISTERED_IDS if env_id.endswith("-v1"))
 #: Keys rl-zoo3 reads itself rather than passing to the learner (rl_zoo3.exp_manager).

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pytest
 
+from snac_gym.common.extras import install_line
+
 ROOT = Path(__file__).resolve().parents[2]
 DOC_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 FENCE = re.compile(r"^```python\s*$")
@@ -89,7 +91,7 @@ def _doc_param(path: Path) -> object:
     for extra, modules, words in NEEDS_EXTRA:
         missing = [name for name in modules if importlib.util.find_spec(name) is None]
         if words.search(code) and missing:
-            reason = f"a block needs the {extra!r} extra (missing: {', '.join(missing)}): pip install -e '.[{extra}]'"
+            reason = f"a block needs the {extra!r} extra (missing: {', '.join(missing)}): {install_line(extra)}"
             marks.append(pytest.mark.skip(reason=reason))
     return pytest.param(path, marks=marks)
 
