@@ -81,21 +81,19 @@ def _timed(job: object) -> float:
     return time.perf_counter() - started
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("run", type=Path)
-    parser.add_argument("warm", type=Path, nargs="?")
-    parser.add_argument("--workers", type=int, default=2)
-    args = parser.parse_args()
+def floor(run: Path, warm: Path | None = None, workers: int = 2) -> dict[str, float]:
+    """The floor of ``run`` (and of ``warm``) in seconds beside their own ``timings.json`` totals: ``passes``,
+    ``searches`` and ``reference`` (each shared by ``workers``), ``cold_floor``, ``cold_total``, and with ``warm``
+    ``warm_floor`` (the passes: its knobs and reference rows are read, not made) and ``warm_total``."""
     with threadpool_limits(1):
-        per_second = rates(args.run)
-        reference = reference_seconds(args.run)
-    manifest = json.loads((args.run / "run.json").read_text())
-    results = pd.read_parquet(args.run / "results.parquet")
+        per_second = rates(run)
+        reference = reference_seconds(run)
+    manifest = json.loads((run / "run.json").read_text())
+    results = pd.read_parquet(run / "results.parquet")
     counts = results.groupby(["task", "controller"]).size()
     pass_seconds = sum(counts[key] * manifest["steps"][key[0]] / rate for key, rate in per_second.items())
     # A run at the shipped or cached knobs searched nothing (no calibration.json): its floor has no searches.
-    searched = args.run / "calibration.json"
+    searched = run / "calibration.json"
     calibration = json.loads(searched.read_text()) if searched.is_file() else {}
     search_seconds = 0.0
     for key, record in calibration.items():
@@ -105,21 +103,35 @@ def main() -> None:
         steps = len(record["evaluations"]) * record["screening_samples"] * record["search_steps"]
         steps += PROBE * manifest["steps"][task]
         search_seconds += steps / per_second[(task, controller)]
-    timings = json.loads((args.run / "timings.json").read_text())
-    cold_floor = (pass_seconds + search_seconds + reference) / args.workers
+    out = {
+        "passes": pass_seconds / workers,
+        "searches": search_seconds / workers,
+        "reference": reference / workers,
+        "cold_floor": (pass_seconds + search_seconds + reference) / workers,
+        "cold_total": json.loads((run / "timings.json").read_text())["total"],
+    }
+    if warm is not None:
+        out["warm_floor"] = pass_seconds / workers
+        out["warm_total"] = json.loads((warm / "timings.json").read_text())["total"]
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run", type=Path)
+    parser.add_argument("warm", type=Path, nargs="?")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    found = floor(args.run, args.warm, args.workers)
     print(
-        f"passes {pass_seconds / args.workers:.1f} s, searches {search_seconds / args.workers:.1f} s, "
-        f"reference {reference / args.workers:.1f} s on {args.workers} workers"
+        f"passes {found['passes']:.1f} s, searches {found['searches']:.1f} s, "
+        f"reference {found['reference']:.1f} s on {args.workers} workers"
     )
-    print(
-        f"cold: floor {cold_floor:.1f} s, measured {timings['total']:.1f} s (ratio {timings['total'] / cold_floor:.2f})"
-    )
+    cold, total = found["cold_floor"], found["cold_total"]
+    print(f"cold: floor {cold:.1f} s, measured {total:.1f} s (ratio {total / cold:.2f})")
     if args.warm is not None:
-        warm = json.loads((args.warm / "timings.json").read_text())
-        warm_floor = pass_seconds / args.workers  # the knobs and the reference rows are read, not made
-        print(
-            f"warm: floor {warm_floor:.1f} s, measured {warm['total']:.1f} s (ratio {warm['total'] / warm_floor:.2f})"
-        )
+        warm, total = found["warm_floor"], found["warm_total"]
+        print(f"warm: floor {warm:.1f} s, measured {total:.1f} s (ratio {total / warm:.2f})")
 
 
 if __name__ == "__main__":
