@@ -201,8 +201,12 @@ def rows(found: dict[str, Any]) -> list[tuple[str, str, str, str]]:
     if tests:
         seconds = sum(test["own_clock"] for test in tests)
         parts = " + ".join(f"{test['own_clock']:.1f}" for test in tests)
+        # The main suite keeps every core busy, so its CPU over the cores bounds its test time from below; the
+        # real-time suite is paced by the arm's periods, not by its CPU, and has no such floor.
+        cores = found["machine"]["cpus"]
+        beside = f"main suite's CPU / {cores} cores: {tests[0]['cpu'] / cores:.1f} s"
         table.append(
-            ("the README's test runs (test time)", f"{seconds:.1f} s ({parts})", "–", goal(seconds, GOALS["tests"]))
+            ("the README's test runs (test time)", f"{seconds:.1f} s ({parts})", beside, goal(seconds, GOALS["tests"]))
         )
         peak = max(test["peak_gb"] for test in tests)
         table.append(("their largest process", f"{peak:.2f} GB", "–", goal(peak, GOALS["tests_peak_gb"])))

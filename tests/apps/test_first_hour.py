@@ -100,3 +100,42 @@ def test_the_late_periods_are_read_from_what_snac_gym_real_prints(first_hour):
     stalled = late_periods({**timing, "stalled_periods": 2, "period_ms_max": 61.0})
     assert first_hour.late_periods(f"  late periods                {stalled}\n") == (4, 1875, 61.0)
     assert first_hour.late_periods("  no safety stop\n") is None
+
+
+def test_the_table_puts_each_figure_beside_its_floor_and_its_goal(first_hour):
+    def ran(own_clock, cpu=0.0, returncode=0, notes=None):
+        return {"own_clock": own_clock, "wall": (own_clock or 20.0) + 1.0, "cpu": cpu, "peak_gb": 1.33,
+                "returncode": returncode, "notes": notes or {}}  # fmt: skip
+
+    found = {
+        "machine": {"cpus": 2},
+        "floor": {"cold_floor": 39.8, "warm_floor": 16.7},
+        "runs": {
+            "cold": ran(49.2),
+            "warm": ran(31.0),
+            "small": ran(10.9),
+            "tests1": ran(191.1, cpu=339.1),
+            "tests2": ran(46.1, cpu=55.2),
+            "rehearsal_sim": ran(None, notes={"late_periods": (3, 1875, 13.3)}),
+            "rehearsal_dry_run": ran(None, returncode=4),
+        },  # fmt: skip
+        "bench": {"snac_gym/UR10Reach-v0 (pybullet)": {"best": 2.96}, "snac_gym/UR10Reach-v0 (mujoco)": {"best": 8.0}},
+    }
+    table = {row[0]: row[1:] for row in first_hour.rows(found)}
+    assert table["main command, cold (own clock)"] == ("49.2 s", "39.8 s (ratio 1.24)", "≤ 60: met")
+    assert table["main command, warm (own clock)"][2] == "≤ 30: missed"
+    assert table["50 samples, cold (wall)"] == ("11.9 s", "–", "≤ 20: met")  # the wall, not the own clock
+    assert table["snac_gym/UR10Reach-v0 (pybullet) / panda-gym"] == ("2.96×", "–", "≥ 3: missed")
+    assert not any("mujoco" in measure for measure in table)  # the goal is PyBullet's
+    assert table["the README's test runs (test time)"] == (
+        "237.2 s (191.1 + 46.1)",
+        "main suite's CPU / 2 cores: 169.6 s",
+        "≤ 150: missed",
+    )
+    assert table["their largest process"][2] == "≤ 1.5: met"
+    assert table["`real --connection sim`, 2 busy"][2] == "exit 0, late periods reported: met"
+    assert table["`real --dry-run`, 2 busy"] == (
+        "exit 4, no late-periods line",
+        "–",
+        "exit 0, late periods reported: missed",
+    )
