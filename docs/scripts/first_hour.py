@@ -5,6 +5,7 @@ beside their floors and goals; on request `snac-gym bench`'s ratio to panda-gym,
     python docs/scripts/first_hour.py --out runs/first-hour                   # cold, warm, floor, a cold 50-sample run
     python docs/scripts/first_hour.py --out runs/first-hour --bench --tests   # and the bench and the test suites
     python docs/scripts/first_hour.py --out runs/rehearsal --no-main --rehearsal  # the rehearsals alone
+    python docs/scripts/first_hour.py --out runs/clone --no-main --fresh-clone --tests  # the README's blocks, verbatim
 
 ``--rehearsal`` runs ``snac-gym real --connection sim`` and ``snac-gym real --dry-run`` (against the emulated UR
 controller, started here on the standard ports) beside two ``yes`` processes that keep both cores busy: each must
@@ -16,6 +17,11 @@ Python's ``-m pytest`` with the README's arguments), in a subprocess, in the rep
 reference's, the calibration's and numba's caches); the warm run reuses the cold run's, right after it. Each figure
 is the command's own clock (its ``wall time`` line) where it prints one, else the wall time measured here, with its
 CPU (user + system, the process and the descendants it waited for) and its largest process's peak memory.
+
+``--fresh-clone`` runs the README's main command, and with ``--tests`` its test command, exactly as written (each
+block in ``bash``, the install included) in a new clone of this repository's HEAD (what is committed: uncommitted
+changes are not in it), with every cache at a new folder: a newcomer's first hour whole. Its figures are the command's
+own clock (or pytest's test time) and its wall time with the install.
 
 The floor is ``table1_floor.py``'s (the work the cold and the warm run cannot skip, at this machine's rate in this
 hour). What is printed at the end, and written to ``OUT/first_hour.json`` with the machine (its CPU, the one numba
@@ -80,10 +86,20 @@ def own_clock(output: str) -> float | None:
     return float(found[-1]) if found else None
 
 
+#: pytest's summary line, ``==== 12 passed, 1 skipped in 34.56s (0:00:34) ====``: its seconds.
+_PYTEST_SUMMARY = re.compile(r"^=+ .*\b(?:passed|failed|error|errors)\b.* in ([0-9.]+)s\b", flags=re.M)
+
+
 def pytest_seconds(output: str) -> float | None:
-    """The seconds of pytest's last summary line (``== 12 passed, 1 skipped in 34.56s (0:00:34) ==``), or ``None``."""
-    found = re.findall(r"^=+ .*\b(?:passed|failed|error|errors)\b.* in ([0-9.]+)s\b", output, flags=re.M)
-    return float(found[-1]) if found else None
+    """The seconds of pytest's last summary line, or ``None``."""
+    found = pytest_runs_seconds(output)
+    return found[-1] if found else None
+
+
+def pytest_runs_seconds(output: str) -> list[float]:
+    """The seconds of every pytest summary line in ``output``, in order: a command that runs pytest twice (the
+    README's test command) prints two."""
+    return [float(seconds) for seconds in _PYTEST_SUMMARY.findall(output)]
 
 
 #: ``snac_gym/UR10Reach-v0 (pybullet): 2.67x panda-gym's real-time factor (best runs; round by round 2.44-2.69x,
@@ -139,21 +155,27 @@ def changed_cells(run: Path, kept: Path) -> tuple[int, int]:
     return int((~same).sum()), int(same.size)
 
 
-def run(name: str, command: list[str], out: Path, env: dict[str, str] | None = None, check: bool = True) -> Run:
-    """``command`` run in the repository's root, its output (stdout and stderr together) into ``out/name.log``; with
-    ``check``, a failure ends the measurement."""
+def run(
+    name: str, command: list[str], out: Path, env: dict[str, str] | None = None, check: bool = True, cwd: Path = ROOT
+) -> Run:
+    """``command`` run in ``cwd`` (the repository's root), its output (stdout and stderr together) into
+    ``out/name.log``; with ``check``, a failure ends the measurement."""
     log = out / f"{name}.log"
     load = os.getloadavg()[0]
     print(f"{time.strftime('%H:%M:%S')} {name}: {shlex.join(command)} (load {load:.2f})", flush=True)
     with log.open("w", encoding="utf-8") as sink:
         started = time.perf_counter()
-        process = subprocess.Popen(command, cwd=ROOT, env=env, stdout=sink, stderr=subprocess.STDOUT)
+        process = subprocess.Popen(command, cwd=cwd, env=env, stdout=sink, stderr=subprocess.STDOUT)
         # wait4: this command's CPU and peak memory (Linux: its largest process's, its waited-for descendants' too)
         _, status, usage = os.wait4(process.pid, 0)
         wall = time.perf_counter() - started
     process.returncode = os.waitstatus_to_exitcode(status)
     output = log.read_text(encoding="utf-8", errors="replace")
-    clock = own_clock(output) if "evaluate" in command else pytest_seconds(output) if "pytest" in command else None
+    words = shlex.split(command[-1]) if command[:2] == ["bash", "-c"] else command  # a README block: its words
+    if "pytest" in words:  # the test time: pytest's own, summed over the runs of a command that runs it twice
+        clock: float | None = sum(pytest_runs_seconds(output)) or None
+    else:
+        clock = own_clock(output) if "evaluate" in words else None
     result = Run(name, command, wall, clock, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 2**20,
                  process.returncode, load)  # fmt: skip
     print(f"  exit {result.returncode}, {result.seconds:.1f} s, {result.wall:.1f} s wall, {result.cpu:.1f} CPU s")
@@ -170,46 +192,77 @@ def cold_caches() -> dict[str, str]:
     return {**os.environ, "SNAC_GYM_CACHE_DIR": str(folder / "cache"), "NUMBA_CACHE_DIR": str(folder / "numba")}
 
 
-def rows(found: dict[str, Any]) -> list[tuple[str, str, str, str]]:
-    """The table: each measure, its figure, its floor (and the figure's ratio to it) and its goal, met or not."""
+Row = tuple[str, str, str, str]
 
-    def goal(value: float, bound: float, at_least: bool = False) -> str:
-        met = value >= bound if at_least else value <= bound
-        return f"{'≥' if at_least else '≤'} {bound:g}: {'met' if met else 'missed'}"
 
-    runs, floor = found["runs"], found.get("floor", {})
+def _goal(value: float, bound: float, at_least: bool = False) -> str:
+    met = value >= bound if at_least else value <= bound
+    return f"{'≥' if at_least else '≤'} {bound:g}: {'met' if met else 'missed'}"
+
+
+def _main_rows(runs: dict[str, Any], floor: dict[str, float]) -> list[Row]:
     table = []
     for name, label in (("cold", "main command, cold (own clock)"), ("warm", "main command, warm (own clock)")):
         if name in runs:
             seconds, bound = runs[name]["own_clock"], floor.get(f"{name}_floor")
             beside = f"{bound:.1f} s (ratio {seconds / bound:.2f})" if bound else "–"
-            table.append((label, f"{seconds:.1f} s", beside, goal(seconds, GOALS[name])))
+            table.append((label, f"{seconds:.1f} s", beside, _goal(seconds, GOALS[name])))
     if "small" in runs:
         wall = runs["small"]["wall"]
-        table.append(("50 samples, cold (wall)", f"{wall:.1f} s", "–", goal(wall, GOALS["small"])))
-    for env, ratio in found.get("bench", {}).items():
-        if env.endswith("(pybullet)"):
+        table.append(("50 samples, cold (wall)", f"{wall:.1f} s", "–", _goal(wall, GOALS["small"])))
+    return table
+
+
+def _clone_rows(runs: dict[str, Any]) -> list[Row]:
+    table = []
+    labels = (("clone_main", "the README's main command, fresh clone (own clock)", "cold"),
+              ("clone_tests", "the README's test command, fresh clone (test time)", "tests"))  # fmt: skip
+    for name, label, goal_name in labels:
+        if name in runs:
+            ran = runs[name]
+            minutes, seconds = divmod(round(ran["wall"]), 60)
+            figure = f"{ran['own_clock']:.1f} s" if ran["own_clock"] else "no clock printed"
+            figure += f", exit {ran['returncode']}, {minutes} min {seconds} s with the install"
+            if ran["own_clock"] and ran["returncode"] == 0:
+                met = _goal(ran["own_clock"], GOALS[goal_name])
+            else:
+                met = f"exit 0 and ≤ {GOALS[goal_name]:g}: missed"
+            table.append((label, figure, "–", met))
+    return table
+
+
+def _bench_rows(bench: dict[str, dict[str, float]]) -> list[Row]:
+    table = []
+    for env, ratio in bench.items():
+        if env.endswith("(pybullet)"):  # the goal is PyBullet's; MuJoCo's ratio is in the log
             spread = (
                 f" (rounds {ratio['low']:.2f}–{ratio['high']:.2f}×, median {ratio['median']:.2f}×)"
                 if "low" in ratio
                 else ""
             )
-            table.append(
-                (f"{env} / panda-gym", f"{ratio['best']:.2f}×{spread}", "–", goal(ratio["best"], GOALS["bench"], True))
-            )
+            figure = f"{ratio['best']:.2f}×{spread}"
+            table.append((f"{env} / panda-gym", figure, "–", _goal(ratio["best"], GOALS["bench"], True)))
+    return table
+
+
+def _test_rows(runs: dict[str, Any], cores: int) -> list[Row]:
     tests = [runs[name] for name in sorted(runs) if name.startswith("tests")]
-    if tests:
-        seconds = sum(test["own_clock"] for test in tests)
-        parts = " + ".join(f"{test['own_clock']:.1f}" for test in tests)
-        # The main suite keeps every core busy, so its CPU over the cores bounds its test time from below; the
-        # real-time suite is paced by the arm's periods, not by its CPU, and has no such floor.
-        cores = found["machine"]["cpus"]
-        beside = f"main suite's CPU / {cores} cores: {tests[0]['cpu'] / cores:.1f} s"
-        table.append(
-            ("the README's test runs (test time)", f"{seconds:.1f} s ({parts})", beside, goal(seconds, GOALS["tests"]))
-        )
-        peak = max(test["peak_gb"] for test in tests)
-        table.append(("their largest process", f"{peak:.2f} GB", "–", goal(peak, GOALS["tests_peak_gb"])))
+    if not tests:
+        return []
+    seconds = sum(test["own_clock"] for test in tests)
+    parts = " + ".join(f"{test['own_clock']:.1f}" for test in tests)
+    # The main suite keeps every core busy, so its CPU over the cores bounds its test time from below; the
+    # real-time suite is paced by the arm's periods, not by its CPU, and has no such floor.
+    beside = f"main suite's CPU / {cores} cores: {tests[0]['cpu'] / cores:.1f} s"
+    peak = max(test["peak_gb"] for test in tests)
+    return [
+        ("the README's test runs (test time)", f"{seconds:.1f} s ({parts})", beside, _goal(seconds, GOALS["tests"])),
+        ("their largest process", f"{peak:.2f} GB", "–", _goal(peak, GOALS["tests_peak_gb"])),
+    ]
+
+
+def _rehearsal_rows(runs: dict[str, Any]) -> list[Row]:
+    table = []
     rehearsal = {"rehearsal_sim": "`real --connection sim`, 2 busy", "rehearsal_dry_run": "`real --dry-run`, 2 busy"}
     for name, label in rehearsal.items():
         if name in runs:
@@ -218,6 +271,18 @@ def rows(found: dict[str, Any]) -> list[tuple[str, str, str, str]]:
             met = "met" if code == 0 and late is not None else "missed"
             table.append((label, f"exit {code}, {said}", "–", f"exit 0, late periods reported: {met}"))
     return table
+
+
+def rows(found: dict[str, Any]) -> list[Row]:
+    """The table: each measure, its figure, its floor (and the figure's ratio to it) and its goal, met or not."""
+    runs = found["runs"]
+    return [
+        *_main_rows(runs, found.get("floor", {})),
+        *_clone_rows(runs),
+        *_bench_rows(found.get("bench", {})),
+        *_test_rows(runs, found["machine"]["cpus"]),
+        *_rehearsal_rows(runs),
+    ]
 
 
 #: ``late periods 4 of 1875 (worst 14.8 ms)``, as `snac-gym real` reports a run's missed deadlines.
@@ -253,6 +318,33 @@ def rehearsals(script: Path, out: Path, busy: int = 2) -> dict[str, Run]:
     return runs
 
 
+def fresh_clone(out: Path, tests: bool) -> dict[str, Run]:
+    """The README's main command (and with ``tests`` its test command) exactly as written, each block in ``bash`` in
+    a new clone of HEAD with every cache at a new folder; the clone is removed at exit."""
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True,
+                           text=True, check=True).stdout  # fmt: skip
+    if dirty.strip():
+        print("note: the working tree has uncommitted changes; the clone holds HEAD without them")
+    folder = Path(tempfile.mkdtemp(prefix="first-hour-clone-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    clone = folder / "snac-gym"
+    subprocess.run(["git", "clone", "--quiet", str(ROOT), str(clone)], check=True)
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=clone, capture_output=True, text=True,
+                          check=True).stdout.strip()  # fmt: skip
+    readme = (clone / "README.md").read_text(encoding="utf-8")
+    runs = {}
+    blocks = {"clone_main": "main-command", **({"clone_tests": "test-command"} if tests else {})}
+    for name, marker in blocks.items():
+        caches = cold_caches()
+        runs[name] = run(name, ["bash", "-c", readme_command(readme, marker)], out, caches, check=False, cwd=clone)
+        runs[name].notes["commit"] = head
+    if runs["clone_main"].returncode == 0:
+        kept = ROOT / "docs" / "data" / "table1" / "summary.csv"
+        changed, compared = changed_cells(clone / "runs" / "table1", kept)
+        runs["clone_main"].notes["summary_cells_changed"] = f"{changed} of {compared} against {kept.relative_to(ROOT)}"
+    return runs
+
+
 def compare_summaries(out: Path, runs: dict[str, Run]) -> None:
     """Note in the cold and the warm run how many of their ``summary.csv`` cells differ from the kept Table I's, and
     in the warm run how many from the cold run's: Table I's rows must not move with a cache or a machine."""
@@ -264,7 +356,7 @@ def compare_summaries(out: Path, runs: dict[str, Run]) -> None:
     runs["warm"].notes["summary_cells_changed_from_cold"] = f"{changed} of {compared}"
 
 
-def report(table: list[tuple[str, str, str, str]], runs: dict[str, Run]) -> None:
+def report(table: list[Row], runs: dict[str, Run]) -> None:
     print("| measure | figure | floor | goal |\n|---|---|---|---|")
     for row in table:
         print("| " + " | ".join(row) + " |")
@@ -279,6 +371,10 @@ def main() -> None:
     parser.add_argument("--bench", action="store_true", help="also `snac-gym bench` (about 3 min on 2 cores)")
     parser.add_argument("--tests", action="store_true", help="also the README's two test runs (5-10 min)")
     parser.add_argument("--rehearsal", action="store_true", help="also `snac-gym real`'s rehearsals beside busy cores")
+    parser.add_argument(
+        "--fresh-clone", action="store_true", help="also the README's main command (with --tests its test command) "
+        "exactly as written, install included, in a new clone of HEAD"
+    )  # fmt: skip
     parser.add_argument("--no-floor", action="store_true", help="skip the floor (1-3 min of one core)")
     parser.add_argument("--no-main", action="store_true", help="skip the main command's runs (and so their floor)")
     args = parser.parse_args()
@@ -310,6 +406,8 @@ def main() -> None:
             runs[f"tests{index}"] = run(f"tests{index}", [sys.executable, *words], args.out)
     if args.rehearsal:
         runs.update(rehearsals(script, args.out))
+    if args.fresh_clone:
+        runs.update(fresh_clone(args.out, args.tests))
     if not (args.no_floor or args.no_main):
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         from table1_floor import floor

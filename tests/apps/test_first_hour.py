@@ -58,6 +58,8 @@ def test_the_own_clock_and_the_test_time_are_the_last_such_lines(first_hour):
     assert first_hour.pytest_seconds("== 51 passed, 2 skipped, 2 rerun in 62.20s (0:01:02) ==\n") == 62.2
     assert first_hour.pytest_seconds("== 3 failed, 5 passed in 1.50s ==\n") == 1.5
     assert first_hour.pytest_seconds("12.5s call tests/a.py::test_b\n") is None
+    both = pytest_output + "...\n== 51 passed, 2 skipped in 62.20s (0:01:02) ==\n"
+    assert first_hour.pytest_runs_seconds(both) == [396.8, 62.2]  # the README's test command runs pytest twice
 
 
 def test_the_main_command_is_the_readmes(first_hour):
@@ -139,3 +141,40 @@ def test_the_table_puts_each_figure_beside_its_floor_and_its_goal(first_hour):
         "–",
         "exit 0, late periods reported: missed",
     )
+
+
+def test_a_fresh_clones_runs_are_shown_with_their_install_and_a_failure_misses_its_goal(first_hour):
+    def ran(own_clock, wall, returncode=0):
+        return {"own_clock": own_clock, "wall": wall, "cpu": 1.0, "peak_gb": 1.0, "returncode": returncode, "notes": {}}
+
+    found = {"machine": {"cpus": 2}, "runs": {"clone_main": ran(50.7, 120.4), "clone_tests": ran(228.8, 362.0)}}
+    table = {row[0]: row[1:] for row in first_hour.rows(found)}
+    assert table["the README's main command, fresh clone (own clock)"] == (
+        "50.7 s, exit 0, 2 min 0 s with the install",
+        "–",
+        "≤ 60: met",
+    )
+    assert table["the README's test command, fresh clone (test time)"][2] == "≤ 150: missed"
+    assert "the README's test runs (test time)" not in table  # the tree's runs only
+    found["runs"]["clone_main"] = ran(None, 80.0, returncode=1)  # failed before its evaluate printed a clock
+    table = {row[0]: row[1:] for row in first_hour.rows(found)}
+    assert table["the README's main command, fresh clone (own clock)"] == (
+        "no clock printed, exit 1, 1 min 20 s with the install",
+        "–",
+        "exit 0 and ≤ 60: missed",
+    )
+
+
+def test_a_readme_block_run_in_bash_is_timed_by_what_its_commands_print(first_hour, tmp_path):
+    """The README's blocks run whole in bash: the figure is the evaluate's own clock, or the sum of its pytest runs."""
+    printed = "printf 'wall time 12.5 s; results in x/\\n'"
+    evaluate = ["bash", "-c", f"{printed} && echo .venv/bin/snac-gym evaluate --out runs/table1"]
+    assert first_hour.run("e", evaluate, tmp_path, cwd=tmp_path).own_clock == 12.5
+    named = ["bash", "-c", f"{printed} && echo --out runs/evaluate-later"]  # a word of the block, not part of one
+    assert first_hour.run("e", named, tmp_path, cwd=tmp_path).own_clock is None
+    tests = ["bash", "-c", "printf '== 3 passed in 1.50s ==\\n== 2 passed in 0.25s ==\\n' && echo python -m pytest"]
+    assert first_hour.run("t", tests, tmp_path, cwd=tmp_path).own_clock == 1.75
+    failing = first_hour.run("f", ["bash", "-c", "exit 3"], tmp_path, check=False, cwd=tmp_path)
+    assert failing.returncode == 3 and failing.own_clock is None
+    with pytest.raises(SystemExit, match="f failed \\(exit 3\\)"):
+        first_hour.run("f", ["bash", "-c", "exit 3"], tmp_path, cwd=tmp_path)
