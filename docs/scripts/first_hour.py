@@ -58,6 +58,8 @@ SMALL = [MAIN[0], "--samples", "50", *MAIN[1:]]
 GOALS = {"cold": 60.0, "warm": 30.0, "small": 20.0, "bench": 3.0, "tests": 150.0, "tests_peak_gb": 1.5}
 #: Summary columns that are times of the run itself, not results: they differ between any two runs.
 TIMED_COLUMNS = re.compile(r"_solve_time_")
+#: The kept Table I every run's summary is compared with.
+KEPT_TABLE = ROOT / "docs" / "data" / "table1" / "summary.csv"
 
 
 @dataclass
@@ -88,12 +90,6 @@ def own_clock(output: str) -> float | None:
 
 #: pytest's summary line, ``==== 12 passed, 1 skipped in 34.56s (0:00:34) ====``: its seconds.
 _PYTEST_SUMMARY = re.compile(r"^=+ .*\b(?:passed|failed|error|errors)\b.* in ([0-9.]+)s\b", flags=re.M)
-
-
-def pytest_seconds(output: str) -> float | None:
-    """The seconds of pytest's last summary line, or ``None``."""
-    found = pytest_runs_seconds(output)
-    return found[-1] if found else None
 
 
 def pytest_runs_seconds(output: str) -> list[float]:
@@ -344,19 +340,21 @@ def fresh_clone(out: Path, tests: bool) -> dict[str, Run]:
         runs[name] = run(name, ["bash", "-c", readme_command(readme, marker)], out, caches, check=False, cwd=clone)
         runs[name].notes["commit"] = head
     if runs["clone_main"].returncode == 0:
-        kept = ROOT / "docs" / "data" / "table1" / "summary.csv"
-        changed, compared = changed_cells(clone / "runs" / "table1", kept)
-        runs["clone_main"].notes["summary_cells_changed"] = f"{changed} of {compared} against {kept.relative_to(ROOT)}"
+        note_changed_cells(runs["clone_main"], clone / "runs" / "table1")
     return runs
+
+
+def note_changed_cells(result: Run, folder: Path) -> None:
+    """Note in ``result`` how many cells of ``folder``'s ``summary.csv`` differ from the kept Table I's."""
+    changed, compared = changed_cells(folder, KEPT_TABLE)
+    result.notes["summary_cells_changed"] = f"{changed} of {compared} against {KEPT_TABLE.relative_to(ROOT)}"
 
 
 def compare_summaries(out: Path, runs: dict[str, Run]) -> None:
     """Note in the cold and the warm run how many of their ``summary.csv`` cells differ from the kept Table I's, and
     in the warm run how many from the cold run's: Table I's rows must not move with a cache or a machine."""
-    kept = ROOT / "docs" / "data" / "table1" / "summary.csv"
     for name in ("cold", "warm"):
-        changed, compared = changed_cells(out / name, kept)
-        runs[name].notes["summary_cells_changed"] = f"{changed} of {compared} against docs/data/table1/summary.csv"
+        note_changed_cells(runs[name], out / name)
     changed, compared = changed_cells(out / "warm", out / "cold" / "summary.csv")
     runs["warm"].notes["summary_cells_changed_from_cold"] = f"{changed} of {compared}"
 

@@ -54,10 +54,10 @@ def test_the_own_clock_and_the_test_time_are_the_last_such_lines(first_hour):
         "=== slowest 15 durations ===\n12.5s call tests/a.py::test_b\n"
         "==== 2312 passed, 1 skipped, 1 xfailed in 396.80s (0:06:36) ====\n"
     )
-    assert first_hour.pytest_seconds(pytest_output) == 396.8
-    assert first_hour.pytest_seconds("== 51 passed, 2 skipped, 2 rerun in 62.20s (0:01:02) ==\n") == 62.2
-    assert first_hour.pytest_seconds("== 3 failed, 5 passed in 1.50s ==\n") == 1.5
-    assert first_hour.pytest_seconds("12.5s call tests/a.py::test_b\n") is None
+    assert first_hour.pytest_runs_seconds(pytest_output) == [396.8]
+    assert first_hour.pytest_runs_seconds("== 51 passed, 2 skipped, 2 rerun in 62.20s (0:01:02) ==\n") == [62.2]
+    assert first_hour.pytest_runs_seconds("== 3 failed, 5 passed in 1.50s ==\n") == [1.5]
+    assert first_hour.pytest_runs_seconds("12.5s call tests/a.py::test_b\n") == []
     both = pytest_output + "...\n== 51 passed, 2 skipped in 62.20s (0:01:02) ==\n"
     assert first_hour.pytest_runs_seconds(both) == [396.8, 62.2]  # the README's test command runs pytest twice
 
