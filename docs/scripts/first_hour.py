@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import atexit
 import json
-import math
 import os
 import re
 import shlex
@@ -222,7 +221,7 @@ def _clone_rows(runs: dict[str, Any]) -> list[Row]:
             minutes, seconds = divmod(round(ran["wall"]), 60)
             figure = f"{ran['own_clock']:.1f} s" if ran["own_clock"] else "no clock printed"
             if "pytest_runs" in ran["notes"]:
-                figure += " (" + " + ".join(f"{seconds:.1f}" for seconds in ran["notes"]["pytest_runs"]) + ")"
+                figure += " (" + " + ".join(f"{part:.1f}" for part in ran["notes"]["pytest_runs"]) + ")"
             figure += f", exit {ran['returncode']}, {minutes} min {seconds} s with the install"
             if ran["own_clock"] and ran["returncode"] == 0:
                 met = _goal(ran["own_clock"], GOALS[goal_name])
@@ -422,15 +421,9 @@ def main() -> None:
     found["runs"] = {name: asdict(result) for name, result in runs.items()}
     table = rows(found)
     found["table"] = table
-    (args.out / "first_hour.json").write_text(json.dumps(found, indent=2, default=_jsonable) + "\n", encoding="utf-8")
+    (args.out / "first_hour.json").write_text(json.dumps(found, indent=2) + "\n", encoding="utf-8")
     print(f"\n{describe_machine(machine)}\n")
     report(table, runs)
-
-
-def _jsonable(value: object) -> object:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    raise TypeError(f"{type(value).__name__} is not JSON")
 
 
 if __name__ == "__main__":
